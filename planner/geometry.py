@@ -1,0 +1,172 @@
+"""Shared geometry: distances, radio connectivity, geodetic <-> local NED.
+
+The emulator's radio model and the planner's connectivity metric both call :func:`active_mask`, so
+"who is networked" means the same thing everywhere by construction (ARCHITECTURE §4.2).
+
+Inequalities follow the paper (PAPER_NOTES §4): drone-drone and drone-base links use ``<=``; a task
+is served only by a drone strictly closer than r (``<``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pymap3d
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "NORTH", "EAST", "DOWN",
+    "pairwise_distance_m",
+    "neighbour_pairs",
+    "active_mask",
+    "active_mask_reference",
+    "tasks_connected",
+    "geodetic_to_ned_m",
+    "ned_to_geodetic",
+]
+
+NORTH, EAST, DOWN = 0, 1, 2
+
+# Relative slack on range comparisons done through a KD-tree, whose ball query is exact but uses a
+# different rounding path from the brute-force distance; pairs are re-checked exactly afterwards.
+_KD_SLACK = 1e-9
+
+
+def pairwise_distance_m(a_m: np.ndarray, b_m: np.ndarray | None = None) -> np.ndarray:
+    """Euclidean distances between rows.
+
+    Parameters
+    ----------
+    a_m : (N, D) float64, metres
+    b_m : (M, D) float64, metres, optional (defaults to ``a_m``)
+
+    Returns
+    -------
+    (N, M) float64, metres
+    """
+    a_m = np.asarray(a_m, dtype=float)
+    b_m = a_m if b_m is None else np.asarray(b_m, dtype=float)
+    diff = a_m[:, None, :] - b_m[None, :, :]  # (N,1,D) - (1,M,D) -> (N,M,D)
+    return np.sqrt(np.einsum("nmd,nmd->nm", diff, diff))
+
+
+def neighbour_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
+    """All unordered pairs (i < j) with ``|x_i - x_j| <= range_m``, as a (P, 2) int array.
+
+    Uses a KD-tree (O(N log N + P)); the inclusive inequality is re-checked exactly.
+    """
+    pos_m = np.asarray(pos_m, dtype=float)
+    if len(pos_m) < 2:
+        return np.empty((0, 2), dtype=np.intp)
+    pairs = cKDTree(pos_m).query_pairs(range_m * (1 + _KD_SLACK) + _KD_SLACK, output_type="ndarray")
+    if len(pairs) == 0:
+        return np.empty((0, 2), dtype=np.intp)
+    d = np.linalg.norm(pos_m[pairs[:, 0]] - pos_m[pairs[:, 1]], axis=1)
+    return pairs[d <= range_m].astype(np.intp)
+
+
+def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
+                base_range_m: float, base_m: np.ndarray | None = None) -> np.ndarray:
+    """Drones connected to the base through a chain of alive drones (the paper's a_i).
+
+    a_i = alive_i and (|x_i - b| <= min(R, r) or exists active j with |x_i - x_j| <= r).
+    Computed exactly as the connected component of the base in the graph of alive drones.
+
+    Parameters
+    ----------
+    pos_m : (N, D) float64, metres
+    alive : (N,) bool
+    radio_range_m : float, r
+    base_range_m : float, R
+    base_m : (D,) float64, optional; the base position (origin by default)
+
+    Returns
+    -------
+    (N,) bool
+    """
+    pos_m = np.asarray(pos_m, dtype=float)
+    alive = np.asarray(alive, dtype=bool)
+    n = len(pos_m)
+    out = np.zeros(n, dtype=bool)
+    idx = np.flatnonzero(alive)
+    if len(idx) == 0:
+        return out
+    p = pos_m[idx]
+    base = np.zeros(p.shape[1]) if base_m is None else np.asarray(base_m, dtype=float)
+    at_base = np.linalg.norm(p - base, axis=1) <= min(base_range_m, radio_range_m)
+    if not at_base.any():
+        return out
+    pairs = neighbour_pairs(p, radio_range_m)
+    k = len(idx)
+    # Node k is the base; connect it to every drone within reach of it.
+    base_edges = np.flatnonzero(at_base)
+    rows = np.concatenate([pairs[:, 0], np.full(len(base_edges), k)])
+    cols = np.concatenate([pairs[:, 1], base_edges])
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(k + 1, k + 1))
+    _, labels = connected_components(graph, directed=False)
+    out[idx] = labels[:k] == labels[k]
+    return out
+
+
+def active_mask_reference(pos_m, alive, radio_range_m, base_range_m, base_m=None) -> np.ndarray:
+    """Slow, obviously-correct fixed point of the paper's recursive definition (for tests)."""
+    pos_m = np.asarray(pos_m, dtype=float)
+    n = len(pos_m)
+    base = np.zeros(pos_m.shape[1]) if base_m is None else np.asarray(base_m, dtype=float)
+    active = [bool(alive[i]) and float(np.linalg.norm(pos_m[i] - base)) <= min(base_range_m, radio_range_m)
+              for i in range(n)]
+    changed = True
+    while changed:
+        changed = False
+        for i in range(n):
+            if active[i] or not alive[i]:
+                continue
+            for j in range(n):
+                if active[j] and float(np.linalg.norm(pos_m[i] - pos_m[j])) <= radio_range_m:
+                    active[i] = changed = True
+                    break
+    return np.array(active, dtype=bool)
+
+
+def tasks_connected(task_pos_m: np.ndarray, drone_pos_m: np.ndarray, active: np.ndarray,
+                    radio_range_m: float) -> np.ndarray:
+    """A_i(t): task i has an active drone strictly within r.
+
+    Parameters
+    ----------
+    task_pos_m : (M, D) float64, metres
+    drone_pos_m : (N, D) float64, metres
+    active : (N,) bool
+    radio_range_m : float
+
+    Returns
+    -------
+    (M,) bool
+    """
+    task_pos_m = np.asarray(task_pos_m, dtype=float)
+    act = np.asarray(drone_pos_m, dtype=float)[np.asarray(active, dtype=bool)]
+    if len(act) == 0 or len(task_pos_m) == 0:
+        return np.zeros(len(task_pos_m), dtype=bool)
+    d, _ = cKDTree(act).query(task_pos_m, k=1)
+    return d < radio_range_m
+
+
+def geodetic_to_ned_m(lat_deg, lon_deg, alt_amsl_m, origin_lat_deg: float, origin_lon_deg: float,
+                      origin_alt_amsl_m: float) -> np.ndarray:
+    """WGS-84 geodetic to local NED metres around an origin (pymap3d, exact ellipsoid).
+
+    Returns an (..., 3) array (north, east, down).
+    """
+    n, e, d = pymap3d.geodetic2ned(lat_deg, lon_deg, alt_amsl_m, origin_lat_deg, origin_lon_deg,
+                                   origin_alt_amsl_m)
+    return np.stack(np.broadcast_arrays(n, e, d), axis=-1).astype(float)
+
+
+def ned_to_geodetic(ned_m, origin_lat_deg: float, origin_lon_deg: float,
+                    origin_alt_amsl_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Local NED metres around an origin to (lat_deg, lon_deg, alt_amsl_m)."""
+    ned_m = np.asarray(ned_m, dtype=float)
+    lat, lon, alt = pymap3d.ned2geodetic(ned_m[..., NORTH], ned_m[..., EAST], ned_m[..., DOWN],
+                                         origin_lat_deg, origin_lon_deg, origin_alt_amsl_m)
+    return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float), np.asarray(alt, dtype=float)
