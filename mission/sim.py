@@ -1,0 +1,168 @@
+"""In-process RTNUA simulation: the paper's world model driven by a registered planner.
+
+One episode = ``problem.n_steps`` steps of (PAPER_NOTES §7 #2, #16):
+
+1. measure: active drones D'(t) and connected tasks A(t) (the metrics' left Riemann sum),
+2. plan: the planner sees the networked drones and all tasks,
+3. attrition: one uniform per drone from the attrition stream,
+4. execute: active drones follow the plan, disconnected ones fly home, lost ones stop,
+5. tasks walk (pre-drawn from the scenario stream).
+
+Runs are independent given their seed, so results do not depend on how many worker processes run
+them (``run_many``).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import Callable, Iterable
+
+import numpy as np
+
+from planner.methods import TickInput, make_planner
+from planner.metrics import UptimeSeries, uptime_series
+from planner.problem import ProblemConfig
+from vehicle_emu.world import World, draw_scenario, spawn_streams
+
+__all__ = ["EpisodeRecord", "EpisodeResult", "run_episode", "run_many", "mean_ci95"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class EpisodeRecord:
+    """Full trajectories of one episode (for plots and replay)."""
+
+    pos_m: np.ndarray        # (tau+1, N, 2)
+    alive: np.ndarray        # (tau+1, N) bool
+    active: np.ndarray       # (tau+1, N) bool
+    task_pos_m: np.ndarray   # (tau+1, M, 2)
+    connected: np.ndarray    # (tau+1, M) bool
+    trees: dict = field(default_factory=dict)  # step -> TaskTree (metres), at recorded frames
+
+
+@dataclass
+class EpisodeResult:
+    seed: int
+    method: str
+    tu1: float
+    tu2: float
+    series: UptimeSeries
+    alive_count: np.ndarray      # (tau,) alive drones at each measured step
+    active_count: np.ndarray     # (tau,) alive and active drones
+    wall_s: float
+    record: EpisodeRecord | None = None
+
+    def row(self) -> dict:
+        return {"seed": self.seed, "method": self.method, "tu1": self.tu1, "tu2": self.tu2,
+                "wall_s": self.wall_s, "final_alive": int(self.alive_count[-1]),
+                "final_active": int(self.active_count[-1])}
+
+
+def run_episode(problem: ProblemConfig, method: str, params: dict | None, seed: int,
+                record: bool = False, frames: Iterable[int] = (),
+                loss_prob_fn: Callable[[int, np.ndarray], np.ndarray] | None = None) -> EpisodeResult:
+    """Simulate one episode and score it.
+
+    Parameters
+    ----------
+    problem : the scenario family
+    method : planner name (planner.methods.METHODS)
+    params : planner parameters (unknown keys raise ValueError)
+    seed : run seed; scenario, attrition and algorithm streams are derived from it
+    record : keep full trajectories in ``result.record``
+    frames : steps at which to keep the task tree (with ``record``)
+    loss_prob_fn : optional ``(t_step, pos_m) -> (N,) loss probability`` replacing the uniform
+        per-step attrition (hazard zones, scripted losses)
+    """
+    t0 = time.perf_counter()
+    streams = spawn_streams(seed)
+    scenario = draw_scenario(problem, streams)
+    world = World.from_scenario(problem, scenario)
+    planner = make_planner(method, problem, params, streams.algorithm)
+    tau = problem.n_steps
+    n, m = problem.n_drones, problem.n_tasks
+    connected = np.zeros((tau + 1, m), dtype=bool)
+    alive_count = np.zeros(tau, dtype=np.int64)
+    active_count = np.zeros(tau, dtype=np.int64)
+    frames = set(frames)
+    if record:
+        rec = EpisodeRecord(np.zeros((tau + 1, n, 2)), np.zeros((tau + 1, n), bool),
+                            np.zeros((tau + 1, n), bool), scenario.task_track_m.copy(),
+                            np.zeros((tau + 1, m), bool))
+    for t in range(tau + 1):
+        active = world.active()
+        connected[t] = world.tasks_connected(active)
+        if record:
+            rec.pos_m[t], rec.alive[t], rec.active[t] = world.pos_m, world.alive, active
+        if t == tau:
+            break
+        alive_count[t], active_count[t] = world.alive.sum(), active.sum()
+        out = planner.plan(TickInput(t, world.pos_m, world.alive, active, world.task_pos_m, world.base_m))
+        if record and t in frames:
+            rec.trees[t] = out.tree
+        p_loss = problem.attrition_per_step if loss_prob_fn is None else loss_prob_fn(t, world.pos_m)
+        world.step(out.disp_m, active, p_loss, scenario.attrition_u[t])
+    if record:
+        rec.connected = connected
+    series = uptime_series(connected[:tau])
+    return EpisodeResult(seed, method, series.tu1, series.tu2, series, alive_count, active_count,
+                         time.perf_counter() - t0, rec if record else None)
+
+
+def _run_chunk(args) -> list[dict]:
+    problem, method, params, seeds = args
+    out = []
+    for s in seeds:
+        r = run_episode(problem, method, params, s)
+        d = r.row()
+        d["tu1_step"] = r.series.tu1_step
+        d["alive_count"] = r.alive_count
+        d["active_count"] = r.active_count
+        d["n_connected"] = r.series.n_connected
+        out.append(d)
+    return out
+
+
+def run_many(problem: ProblemConfig, method: str, params: dict | None, seeds: list[int],
+             workers: int | None = None, progress: Callable[[int], None] | None = None) -> list[dict]:
+    """Run many seeds, in worker processes when ``workers`` > 1; results sorted by seed.
+
+    Each chunk of seeds is independent; the result does not depend on ``workers``.
+    """
+    workers = workers or 1
+    if workers <= 1 or len(seeds) <= 1:
+        rows = []
+        for s in seeds:
+            rows.extend(_run_chunk((problem, method, params, [s])))
+            if progress:
+                progress(1)
+        return rows
+    chunk = max(1, min(10, len(seeds) // (workers * 4) or 1))
+    chunks = [seeds[i:i + chunk] for i in range(0, len(seeds), chunk)]
+    rows = []
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for part in pool.map(_run_chunk, [(problem, method, params, c) for c in chunks]):
+            rows.extend(part)
+            if progress:
+                progress(len(part))
+    return sorted(rows, key=lambda r: r["seed"])
+
+
+def mean_ci95(values) -> tuple[float, float]:
+    """Mean and the half-width of its 95 % Student-t confidence interval."""
+    from scipy import stats
+
+    x = np.asarray(values, dtype=float)
+    if len(x) < 2:
+        return (float(x.mean()) if len(x) else float("nan"), float("nan"))
+    half = stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x))
+    return float(x.mean()), float(half)
+
+
+def default_workers() -> int:
+    return max(1, min(os.cpu_count() or 1, 8))

@@ -1,0 +1,441 @@
+"""PhiIREMAN: potential-field gradient descent around a semi-Steiner task tree.
+
+Energy of drone i (paper, Sec. "Swarm Dynamics"; PAPER_NOTES §5.1):
+
+    E_i = Þ h_T(x_i) - ℳ sum_{j != i} 1 / max(|x_i - x_j|, d_min) + P/2 sum_{|x_i - x_j| < q_i + q_j} (q_i + q_j - |x_i - x_j|)^2
+
+Each control tick the controller takes several gradient steps on the motion instructions and stops
+at equilibrium, after ``max_descent_steps``, or when an instruction would exceed the speed limit
+(PAPER_NOTES §5.2, §9.3). All maths runs in *paper length units* (positions divided by
+``problem.length_unit_m``), so the coefficients Þ, ℳ, P are scale-free; instructions are returned in
+metres.
+
+Two information models (``info``):
+
+* ``central``: one planner sees every networked drone and descends the total energy jointly (the
+  ground station's view).
+* ``async``: the paper's message passing (planner.knowledge): drone i plans from its own table of
+  neighbour reports and its own copy of the base-computed tree, descending its energy with respect
+  to its own instruction while the believed neighbours stay put; a drone whose tree copy is older
+  than ``tree_stale_steps`` heads for the base.
+
+Modelling choices that are inferences, not statements of the paper, are named parameters with the
+defaults of :class:`PhiremanParams` (the only place they are defined).
+
+References
+----------
+J. S. Kent, E. Stefani, B. Plancher, "Robust Geospatial Coordination of Multi-Agent Communications
+Networks Under Attrition", IEEE RA-L 2026, arXiv:2512.02079.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.knowledge import Knowledge
+from planner.methods import PlanOutput, TickInput
+from planner.problem import ProblemConfig
+from planner.steiner import TaskTree, distance_to_tree, maintain_task_tree
+
+__all__ = [
+    "PhiremanParams", "PhiremanPlanner", "DescentResult",
+    "task_gradient", "pair_gradient", "pair_gradient_reference", "descend", "descend_reference",
+    "energy", "parse_params",
+    "make_phireman", "make_phireman_central", "make_phireman_no_task", "make_phireman_nodes_only",
+]
+
+SPEED_RULES = ("uniform", "per_drone", "clip")
+INFO_MODELS = ("async", "central")
+
+
+@dataclass(frozen=True)
+class PhiremanParams:
+    """Every PhiIREMAN parameter and its default (lengths in paper units, 1 unit = r / 2)."""
+
+    thorn: float = 0.05
+    """Þ, weight of the task-tree potential (paper default 0.05)."""
+    attraction: float = 0.05
+    """ℳ, weight of the gravity-like attraction between drones (paper default 0.05)."""
+    repulsion: float = 0.3
+    """P, stiffness of the elastic repulsion (paper default 0.3)."""
+    repulsion_radius_ratio: float = 0.5
+    """q_i = ratio * r_i ("nominally r_i / 2", paper)."""
+    attraction_floor: float = 0.5
+    """d_min, paper units: attraction evaluated as -ℳ / max(d, d_min) (PAPER_NOTES §9.2)."""
+    pair_factor: float = 2.0
+    """c: 2 = gradient of the total energy (each pair counted in E_i and E_j), 1 = own energy."""
+    step_size: float = 0.2
+    """η, gradient step (paper units per unit force); grid-searched (tune)."""
+    max_descent_steps: int = 10
+    """K_max, gradient steps per tick; grid-searched (tune)."""
+    tolerance: float = 1e-3
+    """Equilibrium: stop when every drone's step is below this, paper units."""
+    speed_rule: str = "uniform"
+    """At the speed limit: 'uniform' scales the last step so the fastest drone moves exactly v and
+    stops (central); 'per_drone' does that per drone and lets the others continue; 'clip' clips
+    each drone to v and keeps iterating."""
+    base_weight: float = 1.0
+    """c_b, weight of the task-to-base path lengths in the tree cost (paper default 1.0)."""
+    accept_ratio: float = 0.99
+    """ν, a periodic rebuild is accepted only if cost_new < ν cost_current (paper 0.99)."""
+    rebuild_period: int = 10
+    """Ticks between full tree rebuilds (Steiner points are refined every tick)."""
+    nodes_only: bool = False
+    """Ablation: h_T is the distance to the nearest tree node instead of the nearest segment."""
+    info: str = "async"
+    """'async' (paper's message passing) or 'central' (one planner sees D'(t))."""
+    age_max_steps: int = 10
+    """Async: forget neighbour reports older than this many steps."""
+    dist_max: float = 6.0
+    """Async: forget neighbour reports farther than this, paper units (3 r)."""
+    tree_stale_steps: int = 15
+    """Async: a drone whose tree copy is older than this assumes disconnection and heads home."""
+
+    def __post_init__(self) -> None:
+        if self.speed_rule not in SPEED_RULES:
+            raise ValueError(f"speed_rule must be one of {SPEED_RULES}, got {self.speed_rule!r}")
+        if self.info not in INFO_MODELS:
+            raise ValueError(f"info must be one of {INFO_MODELS}, got {self.info!r}")
+        for name in ("step_size", "tolerance", "repulsion_radius_ratio", "accept_ratio", "dist_max"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        for name in ("max_descent_steps", "rebuild_period", "age_max_steps", "tree_stale_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+
+def parse_params(params: dict, cls=PhiremanParams, **forced):
+    """Build a params dataclass from a mapping, rejecting unknown keys with the list of valid ones."""
+    valid = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(params) - set(valid))
+    if unknown:
+        raise ValueError(f"unknown parameter(s) {', '.join(unknown)}; valid: {', '.join(valid)}")
+    kwargs = {}
+    for key, value in {**params, **forced}.items():
+        default = valid[key].default
+        kwargs[key] = type(default)(value) if isinstance(default, (bool, int, float)) and not isinstance(value, str) else value
+        if isinstance(default, bool) and isinstance(value, str):
+            kwargs[key] = value.lower() in ("1", "true", "yes", "on")
+        elif isinstance(default, (int, float)) and isinstance(value, str):
+            kwargs[key] = type(default)(float(value)) if isinstance(default, int) else float(value)
+    return cls(**kwargs)
+
+
+# --------------------------------------------------------------------------------------------
+# Gradient terms (paper units). Each returns (n, 2).
+# --------------------------------------------------------------------------------------------
+
+def task_gradient(pos_u: np.ndarray, tree: TaskTree, thorn: float, nodes_only: bool = False) -> np.ndarray:
+    """∇ of Þ h_T(x): Þ times the unit vector from the nearest tree point to x (0 on the tree)."""
+    if thorn == 0.0 or len(pos_u) == 0:
+        return np.zeros_like(pos_u)
+    dist, nearest = distance_to_tree(pos_u, tree, nodes_only=nodes_only)
+    away = pos_u - nearest
+    return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
+
+
+def pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, attraction: float,
+                  floor: float, repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
+    """∇ of the attraction and repulsion terms of each drone w.r.t. its own position.
+
+    Parameters
+    ----------
+    pos_u : (n, 2) positions of the drones being planned, paper units
+    others_u : (n, K, 2) or (K, 2) positions of the drones each one interacts with
+    mask : (n, K) bool, which pairs interact (False for self and unknown drones)
+    attraction, floor : ℳ and d_min
+    repulsion, reach : P and q_i + q_j
+    pair_factor : c (2 for the total energy)
+
+    Returns
+    -------
+    (n, 2): c ℳ Σ (x_i - x_j)/d^3 [d > d_min] - c P Σ (reach - d)(x_i - x_j)/d [d < reach]
+    """
+    diff = pos_u[:, None, :] - others_u  # (n,1,2) - (n|1,K,2) -> (n,K,2)
+    d2 = np.einsum("nkc,nkc->nk", diff, diff)
+    d = np.sqrt(d2)
+    safe = np.where(d > 0, d, np.inf)
+    coef = np.where(mask & (d > floor), attraction / (safe * d2 + (d2 == 0)), 0.0)
+    coef -= np.where(mask & (d < reach), repulsion * (reach - d) / safe, 0.0)
+    return pair_factor * np.einsum("nk,nkc->nc", coef, diff)
+
+
+def pair_gradient_reference(pos_u, others_u, mask, attraction, floor, repulsion, reach, pair_factor):
+    """Loop-by-loop transcription of :func:`pair_gradient` (for tests)."""
+    pos_u = np.asarray(pos_u, float)
+    others_u = np.asarray(others_u, float)
+    n = len(pos_u)
+    if others_u.ndim == 2:
+        others_u = np.broadcast_to(others_u, (n,) + others_u.shape)
+    out = np.zeros((n, 2))
+    for i in range(n):
+        for k in range(others_u.shape[1]):
+            if not mask[i, k]:
+                continue
+            dx = pos_u[i] - others_u[i, k]
+            d = float(np.hypot(dx[0], dx[1]))
+            if d == 0:
+                continue
+            if d > floor:
+                out[i] += pair_factor * attraction * dx / d ** 3
+            if d < reach:
+                out[i] -= pair_factor * repulsion * (reach - d) * dx / d
+    return out
+
+
+def energy(pos_u: np.ndarray, tree: TaskTree | None, p: PhiremanParams, reach: float) -> float:
+    """Total energy Σ_i E_i of drones at ``pos_u`` (central view), paper units (for tests/plots)."""
+    n = len(pos_u)
+    e = 0.0
+    if tree is not None and p.thorn:
+        e += p.thorn * distance_to_tree(pos_u, tree, nodes_only=p.nodes_only)[0].sum()
+    if n > 1:
+        d = np.sqrt(((pos_u[:, None] - pos_u[None]) ** 2).sum(-1))
+        off = ~np.eye(n, dtype=bool)
+        e += -p.attraction * (1.0 / np.maximum(d[off], p.attraction_floor)).sum()
+        e += p.repulsion / 2 * (np.clip(reach - d[off], 0, None) ** 2).sum()
+    return float(e)
+
+
+# --------------------------------------------------------------------------------------------
+# Descent
+# --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class DescentResult:
+    """Outcome of one tick's descent."""
+
+    disp_u: np.ndarray
+    """(n, 2) instructions, paper units."""
+    iterations: int
+    """Gradient evaluations performed."""
+    converged: bool
+    """True only if the equilibrium test held."""
+    hit_speed_limit: bool
+    """True if the descent stopped (or clipped) at the speed limit."""
+
+
+def _scale_to_limit(delta: np.ndarray, step: np.ndarray, vmax: float) -> np.ndarray:
+    """Per row, the α in [0, 1] with |delta + α step| = vmax (|delta| <= vmax assumed)."""
+    a = np.einsum("nc,nc->n", step, step)
+    b = np.einsum("nc,nc->n", delta, step)
+    c = np.einsum("nc,nc->n", delta, delta) - vmax ** 2
+    disc = np.sqrt(np.maximum(b * b - a * c, 0.0))
+    alpha = np.where(a > 0, (-b + disc) / np.where(a > 0, a, 1.0), 1.0)
+    return np.clip(alpha, 0.0, 1.0)
+
+
+def descend(pos_u: np.ndarray, gradient, vmax: float, p: PhiremanParams) -> DescentResult:
+    """Multi-step gradient descent on the instructions with the paper's stopping rules.
+
+    Parameters
+    ----------
+    pos_u : (n, 2) start positions, paper units
+    gradient : callable (n, 2) -> (n, 2), the energy gradient at ``pos_u + delta``
+    vmax : speed limit per tick, paper units
+    p : parameters (step_size, max_descent_steps, tolerance, speed_rule)
+    """
+    n = len(pos_u)
+    delta = np.zeros((n, 2))
+    moving = np.ones(n, dtype=bool)
+    hit = False
+    for k in range(1, p.max_descent_steps + 1):
+        step = -p.step_size * gradient(pos_u + delta)
+        step[~moving] = 0.0
+        if not n or np.max(np.abs(step)) < p.tolerance:
+            return DescentResult(delta, k, True, hit)
+        new = delta + step
+        over = np.einsum("nc,nc->n", new, new) > vmax * vmax
+        if not over.any():
+            delta = new
+            continue
+        hit = True
+        if p.speed_rule == "clip":
+            norm = np.sqrt(np.einsum("nc,nc->n", new, new))
+            delta = new * np.minimum(1.0, vmax / np.where(norm > 0, norm, 1.0))[:, None]
+            continue
+        alpha = _scale_to_limit(delta, step, vmax)
+        if p.speed_rule == "uniform":
+            delta = delta + alpha[over].min() * step
+            return DescentResult(delta, k, False, hit)
+        # per_drone: drones at the limit stop, the others keep descending
+        delta = np.where(over[:, None], delta + alpha[:, None] * step, new)
+        moving &= ~over
+        if not moving.any():
+            return DescentResult(delta, k, False, hit)
+    return DescentResult(delta, p.max_descent_steps, False, hit)
+
+
+def descend_reference(pos_u, gradient, vmax, p: PhiremanParams) -> np.ndarray:
+    """Per-drone loop version of :func:`descend` (instructions only; for tests)."""
+    pos_u = np.asarray(pos_u, float)
+    n = len(pos_u)
+    delta = [np.zeros(2) for _ in range(n)]
+    moving = [True] * n
+    for _ in range(p.max_descent_steps):
+        g = gradient(pos_u + np.array(delta).reshape(n, 2))
+        steps = [(-p.step_size * g[i]) if moving[i] else np.zeros(2) for i in range(n)]
+        if n == 0 or max(float(np.max(np.abs(s))) for s in steps) < p.tolerance:
+            break
+        new = [delta[i] + steps[i] for i in range(n)]
+        over = [float(np.linalg.norm(new[i])) > vmax for i in range(n)]
+        if not any(over):
+            delta = new
+            continue
+        if p.speed_rule == "clip":
+            delta = [x * min(1.0, vmax / float(np.linalg.norm(x))) if np.linalg.norm(x) > 0 else x for x in new]
+            continue
+
+        def alpha(i):  # bisection: obviously correct, slow
+            lo, hi = 0.0, 1.0
+            for _ in range(60):
+                mid = (lo + hi) / 2
+                if np.linalg.norm(delta[i] + mid * steps[i]) > vmax:
+                    hi = mid
+                else:
+                    lo = mid
+            return lo
+
+        if p.speed_rule == "uniform":
+            a = min(alpha(i) for i in range(n) if over[i])
+            delta = [delta[i] + a * steps[i] for i in range(n)]
+            break
+        delta = [delta[i] + alpha(i) * steps[i] if over[i] else new[i] for i in range(n)]
+        moving = [moving[i] and not over[i] for i in range(n)]
+        if not any(moving):
+            break
+    return np.array(delta).reshape(n, 2)
+
+
+# --------------------------------------------------------------------------------------------
+# The planner
+# --------------------------------------------------------------------------------------------
+
+class PhiremanPlanner:
+    """PhiIREMAN behind the registry interface (see planner.methods)."""
+
+    def __init__(self, problem: ProblemConfig, params: PhiremanParams, rng: np.random.Generator):
+        self.problem = problem
+        self.params = params
+        self.rng = rng  # unused: PhiIREMAN is deterministic given its inputs
+        unit = problem.length_unit_m
+        self.unit_m = unit
+        self.r_u = problem.radio_range_m / unit
+        self.base_reach_u = min(problem.base_range_m, problem.radio_range_m) / unit
+        self.vmax_u = problem.max_speed_m_s * problem.dt_s / unit
+        self.reach_u = 2 * params.repulsion_radius_ratio * self.r_u
+        self.tree: TaskTree | None = None
+        self.tree_history: dict[int, TaskTree] = {}
+        self.knowledge: Knowledge | None = None
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+
+    # -- helpers --------------------------------------------------------------------------
+    def _pair_grad(self, pos_u, others_u, mask):
+        p = self.params
+        return pair_gradient(pos_u, others_u, mask, p.attraction, p.attraction_floor, p.repulsion,
+                             self.reach_u, p.pair_factor)
+
+    def _tree_to_m(self, tree: TaskTree | None) -> TaskTree | None:
+        if tree is None:
+            return None
+        return dataclasses.replace(tree, nodes_m=tree.nodes_m * self.unit_m)
+
+    # -- main entry -----------------------------------------------------------------------
+    def plan(self, tick: TickInput) -> PlanOutput:
+        p = self.params
+        pos_u = np.asarray(tick.pos_m, float) / self.unit_m
+        tasks_u = np.asarray(tick.task_pos_m, float) / self.unit_m
+        base_u = np.asarray(tick.base_m, float) / self.unit_m
+        self.tree = maintain_task_tree(self.tree, base_u, tasks_u, tick.t_step, base_weight=p.base_weight,
+                                       accept_ratio=p.accept_ratio, rebuild_period=p.rebuild_period)
+        disp_u = np.zeros_like(pos_u)
+        planning = np.asarray(tick.networked, bool) & np.asarray(tick.alive, bool)
+        info: dict = {}
+        if p.info == "central":
+            idx = np.flatnonzero(planning)
+            if len(idx):
+                tree = self.tree
+                mask = ~np.eye(len(idx), dtype=bool)
+
+                def grad(x):
+                    return (task_gradient(x, tree, p.thorn, p.nodes_only)
+                            + self._pair_grad(x, x[None, :, :], mask))
+
+                res = descend(pos_u[idx], grad, self.vmax_u, p)
+                disp_u[idx] = res.disp_u
+                info = {"iterations": res.iterations, "converged": res.converged}
+        else:
+            disp_u, info = self._plan_async(tick, pos_u, base_u, planning)
+        return PlanOutput(disp_u * self.unit_m, tree=self._tree_to_m(self.tree), info=info)
+
+    def _plan_async(self, tick: TickInput, pos_u, base_u, planning):
+        p = self.params
+        n = len(pos_u)
+        alive = np.asarray(tick.alive, bool)
+        if self.knowledge is None:
+            self.knowledge = Knowledge.empty(n, self.problem.n_steps + 1)
+        kn = self.knowledge
+        t = tick.t_step
+        if t >= len(kn.pos_hist_m):  # runs longer than the problem's horizon (live use)
+            kn.pos_hist_m = np.concatenate([kn.pos_hist_m, np.zeros_like(kn.pos_hist_m)])
+        prev_pos, prev_alive = self._prev if self._prev is not None else (None, None)
+        kn.update(t, prev_pos, prev_alive, pos_u, alive, self.r_u, self.base_reach_u, p.age_max_steps,
+                  p.dist_max, base_u)
+        self._prev = (pos_u, alive)
+        self.tree_history[t] = self.tree
+        for old in [s for s in self.tree_history if s < t - p.tree_stale_steps - 1]:
+            del self.tree_history[old]
+
+        disp_u = np.zeros_like(pos_u)
+        stale = planning & ((kn.tree_stamp < 0) | (t - kn.tree_stamp > p.tree_stale_steps))
+        # Stale tree: assume disconnection and fly to the known base location at full speed.
+        to_base = base_u - pos_u[stale]
+        dist = np.linalg.norm(to_base, axis=1)
+        disp_u[stale] = to_base * (np.minimum(self.vmax_u, dist) / np.where(dist > 0, dist, 1.0))[:, None]
+
+        idx = np.flatnonzero(planning & ~stale)
+        if len(idx) == 0:
+            return disp_u, {"stale_tree": int(stale.sum())}
+        believed = kn.believed_positions_m()[idx]      # (n_i, N, 2), paper units
+        mask = kn.known()[idx]                           # (n_i, N)
+        stamps = kn.tree_stamp[idx]
+        task_grad_static = np.zeros((len(idx), 2))
+
+        def grad(x):
+            g = self._pair_grad(x, believed, mask)
+            for s in np.unique(stamps):  # one tree per stamp: loop over tree versions, not drones
+                sel = stamps == s
+                g[sel] += task_gradient(x[sel], self.tree_history[int(s)], p.thorn, p.nodes_only)
+            return g + task_grad_static
+
+        res = descend(pos_u[idx], grad, self.vmax_u, p)
+        disp_u[idx] = res.disp_u
+        return disp_u, {"iterations": res.iterations, "converged": res.converged,
+                        "stale_tree": int(stale.sum())}
+
+
+def _make(problem, params, rng, **forced):
+    return PhiremanPlanner(problem, parse_params(params, PhiremanParams, **forced), rng)
+
+
+def make_phireman(problem: ProblemConfig, params: dict, rng: np.random.Generator) -> PhiremanPlanner:
+    """PhiIREMAN with the parameters given (``info`` defaults to the paper's 'async')."""
+    return _make(problem, params, rng)
+
+
+def make_phireman_central(problem, params, rng):
+    """PhiIREMAN planned centrally from D'(t) (the ground station's information model)."""
+    return _make(problem, params, rng, info="central")
+
+
+def make_phireman_no_task(problem, params, rng):
+    """Ablation Þ = 0: no task-tree potential."""
+    return _make(problem, params, rng, thorn=0.0)
+
+
+def make_phireman_nodes_only(problem, params, rng):
+    """Ablation: the task potential is the distance to the nearest tree node."""
+    return _make(problem, params, rng, nodes_only=True)

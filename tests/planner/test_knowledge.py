@@ -1,0 +1,65 @@
+"""The asynchronous message layer: the vectorised hop against loops, and its semantics."""
+import numpy as np
+
+import planner.knowledge as kn
+from planner.knowledge import Knowledge, propagate_stamps, propagate_stamps_reference
+
+
+def test_propagation_matches_reference_including_chunking(rng, monkeypatch):
+    for chunk in (1, 7, 50, 4_000_000):
+        monkeypatch.setattr(kn, "_CHUNK_ELEMENTS", chunk)
+        for _ in range(20):
+            n = int(rng.integers(2, 30))
+            stamp = rng.integers(-1, 20, (n, n + 1))
+            pairs = rng.integers(0, n, (int(rng.integers(0, 80)), 2))
+            pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+            assert (propagate_stamps(stamp, pairs) == propagate_stamps_reference(stamp, pairs)).all()
+
+
+def _chain(n, spacing):
+    return np.stack([np.arange(n) * spacing + 0.5, np.zeros(n)], axis=1)
+
+
+def test_reports_travel_one_hop_per_step_and_tree_floods_from_base():
+    n = 5
+    pos = _chain(n, 1.6)  # base at 0, drone 0 at 0.5 (only it reaches the base), links 1.6 <= r
+    alive = np.ones(n, bool)
+    k = Knowledge.empty(n, 20)
+    prev = None
+    for t in range(6):
+        k.update(t, prev, alive if prev is not None else None, pos, alive, 2.0, 2.0, 10, 100.0, np.zeros(2))
+        prev = pos
+        if t == 0:
+            assert (k.stamp == np.where(np.eye(n, dtype=bool), 0, -1)).all()
+        # drone 0 hears about drone j after j steps, stamped j steps ago
+        for j in range(1, n):
+            expected = t - j if t >= j else -1
+            assert k.stamp[0, j] == expected
+        # the tree computed at step s reaches drone i (i hops from the base link) at s + 1 + i
+        for i in range(n):
+            assert k.tree_stamp[i] == (t - 1 - i if t - 1 - i >= 0 else -1)
+
+
+def test_age_and_distance_cutoffs_and_dead_drones():
+    n = 3
+    pos = _chain(n, 1.5)
+    alive = np.ones(n, bool)
+    k = Knowledge.empty(n, 30)
+    prev = None
+    for t in range(4):
+        k.update(t, prev, alive if prev is not None else None, pos, alive, 2.0, 2.0, age_max_steps=1,
+                 dist_max_m=100.0, base_m=np.zeros(2))
+        prev = pos
+    # with an age limit of 1 step, drone 0 can know drone 1 (1 hop) but never drone 2 (2 hops)
+    assert k.stamp[0, 1] == 2 and k.stamp[0, 2] == -1
+    k2 = Knowledge.empty(n, 30)
+    prev = None
+    for t in range(4):
+        k2.update(t, prev, alive if prev is not None else None, pos, alive, 2.0, 2.0, 10, dist_max_m=2.0,
+                  base_m=np.zeros(2))
+        prev = pos
+    assert k2.stamp[0, 1] >= 0 and k2.stamp[0, 2] == -1  # drone 2 is 3.0 away > 2.0
+    dead = alive.copy()
+    dead[1] = False
+    k2.update(4, pos, alive, pos, dead, 2.0, 2.0, 10, 2.0, np.zeros(2))
+    assert (k2.stamp[1] == -1).all() and k2.tree_stamp[1] == -1
