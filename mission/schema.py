@@ -1,0 +1,827 @@
+"""The mission: one typed definition of a deployment, in SI units, with every default.
+
+A mission file (YAML, loaded by :mod:`mission.load`) describes where the base station is, which
+vehicles fly, where the tasks (fire crews, rovers) are and how they move, what the radio reaches,
+what kills drones, which planner runs, and for how long. The same file is played by the in-process
+simulator, by the emulator + ground station, and on real links.
+
+Rules (ARCHITECTURE §4.6)
+-------------------------
+* This module is the **only** place where defaults live. The loader reads them from the dataclass
+  fields; runners read them from the loaded :class:`Mission`.
+* Every key carries its unit (``radio_range_m``, ``rate_per_s``, ``t_s``); angles are degrees
+  (``lat_deg``) because humans write degrees (``Origin.lat_rad`` converts).
+* Coordinates are named, never positional lists: ``{north_m: .., east_m: ..}`` in the local
+  north-east frame centred on the base station (``origin``), or ``{lat_deg: .., lon_deg: ..}``.
+* Sections that are "exactly one of" several forms (``vehicles``, ``spawn``, each task, each hazard
+  zone's shape) are dataclasses whose alternatives are optional fields; :meth:`validate` (run by
+  the loader) insists on exactly one. ``ONE_OF`` names the alternatives.
+* Numeric limits are declared next to the field (``metadata``: ``ge``, ``gt``, ``le``, ``lt``,
+  ``min_len``, ``max_len``); the loader enforces them and cross-field rules come from the
+  ``validate()`` methods, so the schema is the single description of a valid mission.
+
+Mapping the paper to the real world
+-----------------------------------
+The paper (RTNUA / PhiIREMAN) is written in dimensionless length units and discrete steps. A
+mission states one choice of both:
+
+* **length**: one paper length unit = ``L`` metres. The defaults use ``L = 50 m``, so the paper's
+  r = 2 becomes ``radio.range_m = 100``, the ring of radius 1 (noise 0.2) becomes 50 m (10 m), and
+  the S field [-5, 5]^2 becomes +-250 m. A planner working in paper units recovers
+  ``L = radio.range_m / 2`` (:func:`paper_length_unit_m`).
+* **time**: one paper step = ``run.control_period_s`` seconds (default 1 s), so the paper's speed
+  v = 0.15 per step becomes ``0.15 * L / control_period_s`` = 7.5 m/s, the 200-step horizon becomes
+  ``run.duration_s = 200``, and the per-step task random walk sigma becomes
+  ``sigma_m_per_sqrt_s = sigma * L / sqrt(control_period_s)`` (5 m/sqrt(s)).
+* **attrition**: a per-step loss probability ``p`` becomes a Poisson rate
+  ``rate_per_s = -ln(1 - p) / control_period_s`` (:func:`rate_from_per_step`), so that the
+  probability of surviving one control period is exactly ``1 - p``. 1 % per step at 1 s is
+  0.01005 per second.
+
+With these defaults, an empty mission file is the paper's S configuration (50 drones, 10 tasks)
+without attrition, at the ArduPilot SITL home location. :func:`paper_mission` builds any of the
+paper's configurations (used by ``phireman mission new``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+__all__ = [
+    "Mission", "Origin", "Position", "LocalPoint", "TrackPoint",
+    "Vehicles", "FlightLimits", "EmulatedVehicles", "RealVehicles", "Spawn", "SpawnRing",
+    "Task", "RandomWalk", "MavlinkSource", "RandomTasks",
+    "Radio", "Attrition", "ScriptedLoss", "HazardZone", "Circle",
+    "PlannerSpec", "RunSpec", "OutputSpec",
+    "PERSONALITIES", "BORDERS", "INFO_MODES", "MAX_DISTANCE_FROM_ORIGIN_M",
+    "rate_from_per_step", "per_step_from_rate", "paper_length_unit_m", "paper_mission",
+]
+
+Personality = Literal["ardupilot", "px4", "mixed"]
+Border = Literal["none", "clip", "reflect"]
+InfoMode = Literal["central", "async"]
+
+PERSONALITIES: tuple[str, ...] = ("ardupilot", "px4", "mixed")
+BORDERS: tuple[str, ...] = ("none", "clip", "reflect")
+INFO_MODES: tuple[str, ...] = ("central", "async")
+
+#: Any position farther than this from the origin is refused (catches swapped lat/lon, typos), m.
+MAX_DISTANCE_FROM_ORIGIN_M = 100_000.0
+
+#: Mean Earth radius used for the small-area lat/lon <-> metres checks, m.
+_EARTH_RADIUS_M = 6_371_008.8
+
+
+def _f(default: Any = dataclasses.MISSING, *, factory: Any = dataclasses.MISSING, **limits: Any):
+    """A dataclass field with its validation limits in ``metadata``."""
+    if factory is not dataclasses.MISSING:
+        return field(default_factory=factory, metadata=limits)
+    return field(default=default, metadata=limits)
+
+
+def _fmt(x: Any) -> str:
+    if isinstance(x, float) and x.is_integer() and abs(x) < 1e15:
+        return str(int(x))
+    return repr(x) if isinstance(x, str) else str(x)
+
+
+class _Section:
+    """Mixin: ``validate()`` returns cross-field problems as ``(relative path, message)``."""
+
+    ONE_OF: tuple[str, ...] = ()
+    """Names of fields of which exactly one must be set (empty: no such rule)."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        if not self.ONE_OF:
+            return []
+        given = [name for name in self.ONE_OF if getattr(self, name) is not None]
+        if len(given) == 1:
+            return []
+        what = f"got {', '.join(given)}" if given else "got none"
+        return [("", f"must have exactly one of {', '.join(self.ONE_OF)}; {what}")]
+
+    def set_alternative(self) -> str:
+        """Name of the alternative that is set (for ``ONE_OF`` sections)."""
+        for name in self.ONE_OF:
+            if getattr(self, name) is not None:
+                return name
+        raise ValueError(f"{type(self).__name__}: none of {self.ONE_OF} is set")
+
+
+# --------------------------------------------------------------------------------------------
+# Conversions
+
+
+def rate_from_per_step(p: float, control_period_s: float) -> float:
+    """Poisson loss rate (1/s) equivalent to a per-step loss probability ``p``.
+
+    ``rate = -ln(1 - p) / control_period_s``: the probability of surviving one period is ``1 - p``.
+    """
+    if not 0.0 <= p < 1.0:
+        raise ValueError(f"p must be in [0, 1), got {p}")
+    if not control_period_s > 0:
+        raise ValueError(f"control_period_s must be > 0, got {control_period_s}")
+    return -math.log1p(-p) / control_period_s
+
+
+def per_step_from_rate(rate_per_s: float, control_period_s: float) -> float:
+    """Per-step loss probability equivalent to a Poisson rate: ``1 - exp(-rate * period)``."""
+    if not rate_per_s >= 0:
+        raise ValueError(f"rate_per_s must be >= 0, got {rate_per_s}")
+    if not control_period_s > 0:
+        raise ValueError(f"control_period_s must be > 0, got {control_period_s}")
+    return -math.expm1(-rate_per_s * control_period_s)
+
+
+def paper_length_unit_m(radio_range_m: float) -> float:
+    """Metres per paper length unit, given the drones' radio range (the paper's r = 2 units)."""
+    return radio_range_m / 2.0
+
+
+def _approx_local_m(origin: "Origin", lat_deg: float, lon_deg: float) -> tuple[float, float]:
+    """(north_m, east_m) of a lat/lon relative to the origin, equirectangular (validation only)."""
+    north = math.radians(lat_deg - origin.lat_deg) * _EARTH_RADIUS_M
+    dlon = (lon_deg - origin.lon_deg + 180.0) % 360.0 - 180.0
+    east = math.radians(dlon) * _EARTH_RADIUS_M * math.cos(math.radians(origin.lat_deg))
+    return north, east
+
+
+# --------------------------------------------------------------------------------------------
+# Coordinates
+
+
+@dataclass(frozen=True, kw_only=True)
+class Origin(_Section):
+    """The base station: the origin of the local north-east frame."""
+
+    lat_deg: float = _f(-35.363261, ge=-90.0, le=90.0)
+    """Latitude, degrees (WGS84). Default: the ArduPilot SITL home (CMAC, Canberra)."""
+    lon_deg: float = _f(149.165230, ge=-180.0, le=180.0)
+    """Longitude, degrees (WGS84)."""
+    alt_amsl_m: float = _f(584.0, ge=-500.0, le=9000.0)
+    """Ground altitude of the base station above mean sea level, metres."""
+
+    @property
+    def lat_rad(self) -> float:
+        """Latitude, radians."""
+        return math.radians(self.lat_deg)
+
+    @property
+    def lon_rad(self) -> float:
+        """Longitude, radians."""
+        return math.radians(self.lon_deg)
+
+    def to_local_m(self, lat_deg: float, lon_deg: float, alt_m: float | None = None
+                   ) -> tuple[float, float]:
+        """(north_m, east_m) of a WGS84 point in this origin's local frame, metres."""
+        import pymap3d  # lazy: only runners converting geographic tasks pay for it
+
+        n, e, _d = pymap3d.geodetic2ned(lat_deg, lon_deg, self.alt_amsl_m if alt_m is None else alt_m,
+                                        self.lat_deg, self.lon_deg, self.alt_amsl_m)
+        return float(n), float(e)
+
+    def to_geo_deg(self, north_m: float, east_m: float) -> tuple[float, float]:
+        """(lat_deg, lon_deg) of a local point at the origin's altitude."""
+        import pymap3d
+
+        lat, lon, _h = pymap3d.ned2geodetic(north_m, east_m, 0.0, self.lat_deg, self.lon_deg,
+                                            self.alt_amsl_m)
+        return float(lat), float(lon)
+
+
+@dataclass(frozen=True, kw_only=True)
+class LocalPoint(_Section):
+    """A point in the local frame centred on the base station."""
+
+    north_m: float = _f()
+    """Metres north of the base station."""
+    east_m: float = _f()
+    """Metres east of the base station."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Position(_Section):
+    """A point given either locally (``north_m`` + ``east_m``) or geographically (``lat_deg`` +
+    ``lon_deg`` [+ ``alt_m``])."""
+
+    north_m: float | None = None
+    """Metres north of the base station (local form)."""
+    east_m: float | None = None
+    """Metres east of the base station (local form)."""
+    lat_deg: float | None = _f(None, ge=-90.0, le=90.0)
+    """Latitude, degrees (geographic form)."""
+    lon_deg: float | None = _f(None, ge=-180.0, le=180.0)
+    """Longitude, degrees (geographic form)."""
+    alt_m: float | None = None
+    """Altitude above mean sea level, metres (geographic form, optional; informational)."""
+
+    @property
+    def is_geo(self) -> bool:
+        return self.lat_deg is not None or self.lon_deg is not None
+
+    def validate(self) -> list[tuple[str, str]]:
+        local = (self.north_m is not None, self.east_m is not None)
+        geo = (self.lat_deg is not None, self.lon_deg is not None)
+        if any(local) and (any(geo) or self.alt_m is not None):
+            return [("", "give either north_m/east_m or lat_deg/lon_deg, not both")]
+        if any(local) and not all(local):
+            return [("", f"missing {'east_m' if local[0] else 'north_m'}")]
+        if any(geo) and not all(geo):
+            return [("", f"missing {'lon_deg' if geo[0] else 'lat_deg'}")]
+        if not any(local) and not any(geo):
+            return [("", "a position needs north_m and east_m, or lat_deg and lon_deg")]
+        return []
+
+    def local_m(self, origin: Origin) -> tuple[float, float]:
+        """(north_m, east_m) in the mission frame."""
+        if self.is_geo:
+            return origin.to_local_m(self.lat_deg, self.lon_deg, self.alt_m)
+        return float(self.north_m), float(self.east_m)
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrackPoint(Position):
+    """One vertex of a timed track: a :class:`Position` plus its time."""
+
+    t_s: float = _f(ge=0.0)
+    """Time since the start of the run at which the task is at this position, seconds."""
+
+
+# --------------------------------------------------------------------------------------------
+# Vehicles
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpawnRing(_Section):
+    """Drones start evenly spaced on a ring around the base, plus Gaussian noise (paper §5.5)."""
+
+    radius_m: float = _f(50.0, ge=0.0)
+    """Ring radius, metres (paper: 1 unit)."""
+    noise_m: float = _f(10.0, ge=0.0)
+    """Standard deviation of the per-axis Gaussian noise on each start position, metres (0.2)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Spawn(_Section):
+    """Where emulated drones start: exactly one of ``ring`` or ``positions``."""
+
+    ONE_OF = ("ring", "positions")
+
+    ring: SpawnRing | None = None
+    """Evenly spaced ring around the base station."""
+    positions: tuple[LocalPoint, ...] | None = _f(None, min_len=1)
+    """Explicit start positions, one per drone, in vehicle order."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class FlightLimits(_Section):
+    """Flight parameters shared by emulated and real vehicles."""
+
+    max_speed_m_s: float = _f(7.5, gt=0.0, le=100.0)
+    """Horizontal speed limit the planner respects, m/s (paper: 0.15 unit per step)."""
+    climb_rate_m_s: float = _f(2.5, gt=0.0, le=50.0)
+    """Vertical speed for take-off and layer changes, m/s (ArduPilot WPNAV_SPEED_UP default)."""
+    cruise_alt_m: float = _f(30.0, gt=0.0, le=10_000.0)
+    """Altitude of the lowest flight layer above the base station, metres."""
+    layer_spacing_m: float = _f(5.0, ge=0.0, le=1000.0)
+    """Vertical spacing between flight layers (collision separation), metres."""
+    n_layers: int = _f(3, ge=1, le=100)
+    """Number of flight layers; drone ``i`` flies at ``cruise_alt_m + (i % n_layers) * spacing``."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        if self.n_layers > 1 and self.layer_spacing_m <= 0:
+            return [("layer_spacing_m", f"must be > 0 when n_layers > 1, got {_fmt(self.layer_spacing_m)}")]
+        return []
+
+    def layer_alt_m(self, index: int) -> float:
+        """Cruise altitude of vehicle ``index`` above the base station, metres."""
+        return self.cruise_alt_m + (index % self.n_layers) * self.layer_spacing_m
+
+
+@dataclass(frozen=True, kw_only=True)
+class EmulatedVehicles(FlightLimits):
+    """Drones played by the MAVLink emulator (or by the in-process simulator)."""
+
+    count: int = _f(50, ge=1, le=10_000)
+    """Number of drones (paper S: 50). MAVLink system ids are 1..count."""
+    personality: Personality = "ardupilot"
+    """Autopilot the emulator imitates: 'ardupilot', 'px4', or 'mixed' (alternating)."""
+    spawn: Spawn = _f(factory=lambda: Spawn(ring=SpawnRing()))
+    """Start positions (default: the paper's ring)."""
+    radio_range_m: float | None = _f(None, gt=0.0)
+    """Range of the emulated radios, metres; unset means ``radio.range_m`` (filled by the loader)."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        problems = super().validate()
+        if self.spawn.positions is not None and len(self.spawn.positions) != self.count:
+            problems.append(("spawn.positions",
+                             f"{len(self.spawn.positions)} positions for count {self.count}; "
+                             "give one per drone"))
+        return problems
+
+
+def _connection_problem(text: str) -> str | None:
+    import re
+
+    if re.fullmatch(r"(udpin|udpout|udp|udpbcast|tcp|tcpin):[A-Za-z0-9_.\-\[\]:]+:\d{1,5}", text):
+        port = int(text.rsplit(":", 1)[1])
+        return None if 0 < port < 65536 else f"port out of range in {text!r}"
+    if re.fullmatch(r"(/dev/[A-Za-z0-9_./\-]+|COM\d+)(,\d+)?", text):
+        return None
+    return (f"not a MAVLink connection string: {text!r} (expected e.g. 'udpin:0.0.0.0:14550', "
+            "'tcp:127.0.0.1:5760' or '/dev/ttyUSB0,57600')")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RealVehicles(FlightLimits):
+    """Real vehicles (ArduPilot or PX4) reached over MAVLink links."""
+
+    connections: tuple[str, ...] = _f(min_len=1, max_len=1000)
+    """pymavlink connection strings, e.g. 'udpin:0.0.0.0:14550', 'tcp:10.0.0.2:5760',
+    '/dev/ttyUSB0,57600'. Vehicles are numbered in the order their heartbeats are first heard."""
+    signing_key_hex: str | None = None
+    """MAVLink 2 signing key: 64 hex digits (32 bytes). Unset: unsigned links."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        problems = super().validate()
+        for i, conn in enumerate(self.connections):
+            msg = _connection_problem(conn)
+            if msg:
+                problems.append((f"connections[{i}]", msg))
+        if len(set(self.connections)) != len(self.connections):
+            problems.append(("connections", "duplicate connection strings"))
+        key = self.signing_key_hex
+        if key is not None:
+            if len(key) != 64:
+                problems.append(("signing_key_hex",
+                                 f"must be 64 hex digits (32 bytes), got {len(key)} characters"))
+            elif any(c not in "0123456789abcdefABCDEF" for c in key):
+                problems.append(("signing_key_hex", "must contain only hex digits 0-9 a-f"))
+        return problems
+
+
+@dataclass(frozen=True, kw_only=True)
+class Vehicles(_Section):
+    """The swarm: exactly one of ``emulated`` or ``real``."""
+
+    ONE_OF = ("emulated", "real")
+
+    emulated: EmulatedVehicles | None = None
+    """Emulated (or simulated) drones."""
+    real: RealVehicles | None = None
+    """Real vehicles over MAVLink."""
+
+    @property
+    def limits(self) -> FlightLimits:
+        """The flight limits of whichever kind is set."""
+        return self.emulated if self.emulated is not None else self.real
+
+    @property
+    def count(self) -> int:
+        """Number of vehicles (for real links: the number of connections)."""
+        if self.emulated is not None:
+            return self.emulated.count
+        return len(self.real.connections) if self.real is not None else 0
+
+
+# --------------------------------------------------------------------------------------------
+# Tasks
+
+
+@dataclass(frozen=True, kw_only=True)
+class RandomWalk(_Section):
+    """A task doing a seeded Gaussian random walk (Brownian motion sampled every control period)."""
+
+    start: Position = _f()
+    """Start position."""
+    sigma_m_per_sqrt_s: float = _f(5.0, ge=0.0, le=1000.0)
+    """Per-axis standard deviation after one second, m/sqrt(s); over a period dt the per-axis step
+    has std ``sigma * sqrt(dt)`` (paper: 0.1 unit per step)."""
+    border: Border = "none"
+    """At the edge of the square field: 'none' (unbounded), 'clip' or 'reflect'."""
+    field_half_width_m: float | None = _f(None, gt=0.0)
+    """Half-width of the square field centred on the base, metres; required unless border is 'none'."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        if self.border != "none" and self.field_half_width_m is None:
+            return [("field_half_width_m", f"required when border is {self.border!r}")]
+        return []
+
+
+@dataclass(frozen=True, kw_only=True)
+class MavlinkSource(_Section):
+    """A task whose position comes live from a MAVLink system (a tracker carried by a crew)."""
+
+    sysid: int = _f(ge=1, le=255)
+    """MAVLink system id whose GLOBAL_POSITION_INT gives the task position."""
+    connection: str | None = None
+    """Connection string to listen on; unset: the link the vehicles use."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        if self.connection is not None:
+            msg = _connection_problem(self.connection)
+            if msg:
+                return [("connection", msg)]
+        return []
+
+
+@dataclass(frozen=True, kw_only=True)
+class RandomTasks(_Section):
+    """A generator of ``count`` tasks, uniform in the square field, each doing a random walk
+    (the paper's tasks, §5.5). Placement and walks are drawn from the run's seed."""
+
+    count: int = _f(10, ge=1, le=10_000)
+    """Number of tasks (paper S: 10)."""
+    field_half_width_m: float = _f(250.0, gt=0.0)
+    """Tasks start uniform in [-w, w]^2 around the base, metres (paper S: 5 units)."""
+    sigma_m_per_sqrt_s: float = _f(5.0, ge=0.0, le=1000.0)
+    """Random-walk per-axis standard deviation after one second, m/sqrt(s) (paper: 0.1 per step)."""
+    border: Border = "clip"
+    """At the field edge: 'none', 'clip' (paper reproduction default) or 'reflect'."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Task(_Section):
+    """One entry of ``tasks``: exactly one of ``track``, ``random_walk``, ``mavlink`` or the
+    generator ``random``; ``name`` is an optional label."""
+
+    ONE_OF = ("track", "random_walk", "mavlink", "random")
+
+    name: str | None = None
+    """Label for plots and logs (for ``random``: a prefix)."""
+    track: tuple[TrackPoint, ...] | None = _f(None, min_len=1, max_len=100_000)
+    """Piecewise-linear timed track; before the first / after the last time the task holds still."""
+    random_walk: RandomWalk | None = None
+    """Seeded random walk."""
+    mavlink: MavlinkSource | None = None
+    """Live position from a MAVLink system."""
+    random: RandomTasks | None = None
+    """Generator of N random-walking tasks."""
+
+    @property
+    def kind(self) -> str:
+        """'track', 'random_walk', 'mavlink' or 'random'."""
+        return self.set_alternative()
+
+    @property
+    def count(self) -> int:
+        """Number of tasks this entry stands for."""
+        return self.random.count if self.random is not None else 1
+
+    def validate(self) -> list[tuple[str, str]]:
+        problems = super().validate()
+        if self.track is not None:
+            for i in range(1, len(self.track)):
+                a, b = self.track[i - 1].t_s, self.track[i].t_s
+                if not b > a:
+                    problems.append((f"track[{i}].t_s",
+                                     f"times must increase (got {_fmt(b)} after {_fmt(a)})"))
+        return problems
+
+    def track_position_m(self, t_s: float, origin: Origin) -> tuple[float, float]:
+        """Position of a ``track`` task at time ``t_s`` (linear between vertices), metres."""
+        if self.track is None:
+            raise ValueError("not a track task")
+        pts = [(p.t_s, *p.local_m(origin)) for p in self.track]
+        if t_s <= pts[0][0]:
+            return pts[0][1], pts[0][2]
+        for (t0, n0, e0), (t1, n1, e1) in zip(pts, pts[1:]):
+            if t_s <= t1:
+                a = (t_s - t0) / (t1 - t0)
+                return n0 + a * (n1 - n0), e0 + a * (e1 - e0)
+        return pts[-1][1], pts[-1][2]
+
+
+# --------------------------------------------------------------------------------------------
+# Radio, attrition
+
+
+@dataclass(frozen=True, kw_only=True)
+class Radio(_Section):
+    """The radio model the planner plans for and the simulator applies."""
+
+    range_m: float = _f(100.0, gt=0.0)
+    """Drone-to-drone (and drone-to-task) communication radius r, metres (paper: 2 units)."""
+    base_range_m: float = _f(100.0, gt=0.0)
+    """Base-station radius R, metres; a drone reaches the base within min(R, r) (paper: R = r)."""
+    latency_s: float = _f(0.0, ge=0.0, le=60.0)
+    """Delay per radio hop, seconds."""
+    loss_prob: float = _f(0.0, ge=0.0, le=1.0)
+    """Independent probability that one message on one hop is lost."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScriptedLoss(_Section):
+    """A drone lost at a given time, whatever happens."""
+
+    vehicle: int = _f(ge=0)
+    """Index of the vehicle (0-based, in vehicle order; emulated sysid = index + 1)."""
+    t_s: float = _f(ge=0.0)
+    """Time of the loss since the start of the run, seconds."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Circle(_Section):
+    """A disc in the local frame."""
+
+    center: LocalPoint = _f()
+    """Centre of the disc."""
+    radius_m: float = _f(gt=0.0)
+    """Radius, metres."""
+
+
+def _polygon_area_m2(points: tuple[LocalPoint, ...]) -> float:
+    s = 0.0
+    for a, b in zip(points, points[1:] + points[:1]):
+        s += a.east_m * b.north_m - b.east_m * a.north_m
+    return abs(s) / 2.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class HazardZone(_Section):
+    """A region where drones are lost at an extra rate during a time window (the paper's
+    "geographically localized attrition"). Shape: exactly one of ``circle`` or ``polygon``."""
+
+    ONE_OF = ("circle", "polygon")
+
+    circle: Circle | None = None
+    """A disc."""
+    polygon: tuple[LocalPoint, ...] | None = _f(None, min_len=3, max_len=10_000)
+    """A simple polygon, vertices in order (closing edge implied)."""
+    rate_per_s: float = _f(0.05, ge=0.0, le=1000.0)
+    """Extra loss rate of a drone inside the zone, 1/s (added to ``attrition.rate_per_s``)."""
+    start_s: float = _f(0.0, ge=0.0)
+    """Zone becomes active at this time since the start of the run, seconds."""
+    end_s: float | None = _f(None, gt=0.0)
+    """Zone stops at this time, seconds; unset: active until the end of the run."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        problems = super().validate()
+        if self.end_s is not None and not self.end_s > self.start_s:
+            problems.append(("", f"end_s must be after start_s (got end_s {_fmt(self.end_s)}, "
+                                 f"start_s {_fmt(self.start_s)})"))
+        if self.polygon is not None and len(self.polygon) >= 3 and _polygon_area_m2(self.polygon) <= 0:
+            problems.append(("polygon", "has zero area (vertices are collinear)"))
+        return problems
+
+    def contains(self, north_m: float, east_m: float) -> bool:
+        """Whether a local point is inside the zone (ignores the time window)."""
+        if self.circle is not None:
+            c = self.circle.center
+            return math.hypot(north_m - c.north_m, east_m - c.east_m) <= self.circle.radius_m
+        inside = False
+        pts = self.polygon
+        for a, b in zip(pts, pts[1:] + pts[:1]):
+            if (a.north_m > north_m) != (b.north_m > north_m):
+                x = a.east_m + (north_m - a.north_m) * (b.east_m - a.east_m) / (b.north_m - a.north_m)
+                if east_m < x:
+                    inside = not inside
+        return inside
+
+    def active(self, t_s: float) -> bool:
+        """Whether the zone is active at time ``t_s``."""
+        return t_s >= self.start_s and (self.end_s is None or t_s < self.end_s)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Attrition(_Section):
+    """What destroys drones: a background rate, scripted losses and hazard zones."""
+
+    rate_per_s: float = _f(0.0, ge=0.0, le=1000.0)
+    """Background loss rate of every live drone, 1/s. A paper per-step probability p maps to
+    ``-ln(1 - p) / run.control_period_s`` (:func:`rate_from_per_step`)."""
+    scripted: tuple[ScriptedLoss, ...] = ()
+    """Losses at given times."""
+    hazard_zones: tuple[HazardZone, ...] = ()
+    """Regions with an extra loss rate."""
+
+    def per_step(self, control_period_s: float) -> float:
+        """Background per-step loss probability at this control period."""
+        return per_step_from_rate(self.rate_per_s, control_period_s)
+
+
+# --------------------------------------------------------------------------------------------
+# Planner, run, output
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlannerSpec(_Section):
+    """Which planner runs, by name (``planner.methods.METHODS``), with its parameters."""
+
+    method: str = "phireman"
+    """Registered planner name, e.g. 'phireman', 'dccrs', 'mccst'."""
+    info: InfoMode = "central"
+    """'central': one planner sees every networked drone (ground station); 'async': each drone
+    plans from what reached it by message passing (paper §5.4)."""
+    params: dict[str, float | int | bool | str] = _f(factory=dict)
+    """Method parameters, name -> scalar, in the method's own (paper) units."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        from planner.methods import METHODS
+
+        if self.method not in METHODS:
+            import difflib
+
+            close = difflib.get_close_matches(self.method, list(METHODS), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            return [("method", f"unknown planner method {self.method!r}{hint}; valid methods: "
+                               f"{', '.join(METHODS)}")]
+        return []
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunSpec(_Section):
+    """How long and how fast the mission runs."""
+
+    duration_s: float = _f(200.0, gt=0.0, le=7 * 24 * 3600.0)
+    """Mission length, seconds (paper: 200 steps)."""
+    control_period_s: float = _f(1.0, gt=0.0, le=3600.0)
+    """Time between planner ticks, seconds; one paper step."""
+    seed: int = _f(0, ge=0, le=2**63 - 1)
+    """Seed of every random generator of the run (``np.random.default_rng(seed)`` then spawn)."""
+    speedup: float = _f(1.0, gt=0.0, le=10_000.0)
+    """Emulated time / wall-clock time for the emulator backend (1 = real time; ignored by the
+    in-process simulator, which runs as fast as it can, and by real links)."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        if self.duration_s < self.control_period_s:
+            return [("duration_s", f"must be at least control_period_s ({_fmt(self.control_period_s)}), "
+                                   f"got {_fmt(self.duration_s)}")]
+        return []
+
+    @property
+    def n_steps(self) -> int:
+        """Number of control ticks: ``round(duration_s / control_period_s)``."""
+        return max(1, round(self.duration_s / self.control_period_s))
+
+
+@dataclass(frozen=True, kw_only=True)
+class OutputSpec(_Section):
+    """Where runs are recorded."""
+
+    dir: str = "runs"
+    """Directory under which each run gets its own sub-directory (relative to the working dir)."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        if not self.dir.strip():
+            return [("dir", "must not be empty")]
+        if "\x00" in self.dir:
+            return [("dir", "must not contain NUL characters")]
+        return []
+
+
+# --------------------------------------------------------------------------------------------
+# The mission
+
+
+def _default_vehicles() -> Vehicles:
+    return Vehicles(emulated=EmulatedVehicles())
+
+
+def _default_tasks() -> tuple[Task, ...]:
+    return (Task(random=RandomTasks()),)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Mission(_Section):
+    """A whole deployment. Every section is optional in YAML; see each class for defaults."""
+
+    name: str = "mission"
+    """Short name, used in run directory names."""
+    description: str = ""
+    """Free text for people."""
+    origin: Origin = _f(factory=Origin)
+    """Base station location."""
+    vehicles: Vehicles = _f(factory=_default_vehicles)
+    """The swarm."""
+    tasks: tuple[Task, ...] = _f(factory=_default_tasks, min_len=1, max_len=10_000)
+    """What must stay networked to the base."""
+    radio: Radio = _f(factory=Radio)
+    """Radio model."""
+    attrition: Attrition = _f(factory=Attrition)
+    """Losses."""
+    planner: PlannerSpec = _f(factory=PlannerSpec)
+    """Planner choice."""
+    run: RunSpec = _f(factory=RunSpec)
+    """Duration, control period, seed, speed-up."""
+    output: OutputSpec = _f(factory=OutputSpec)
+    """Run directory."""
+
+    @property
+    def n_tasks(self) -> int:
+        """Total number of tasks (generators expanded)."""
+        return sum(t.count for t in self.tasks)
+
+    def validate(self) -> list[tuple[str, str]]:
+        problems: list[tuple[str, str]] = []
+        n = self.vehicles.count
+        for i, loss in enumerate(self.attrition.scripted):
+            if n and loss.vehicle >= n:
+                problems.append((f"attrition.scripted[{i}].vehicle",
+                                 f"no vehicle {loss.vehicle}: there are {n} (indices 0..{n - 1})"))
+        for i, task in enumerate(self.tasks):
+            pts: list[tuple[str, Position]] = []
+            if task.track is not None:
+                pts = [(f"tasks[{i}].track[{j}]", p) for j, p in enumerate(task.track)]
+            elif task.random_walk is not None:
+                pts = [(f"tasks[{i}].random_walk.start", task.random_walk.start)]
+            for where, p in pts:
+                n_m, e_m = (_approx_local_m(self.origin, p.lat_deg, p.lon_deg) if p.is_geo
+                            else (p.north_m, p.east_m))
+                d = math.hypot(n_m, e_m)
+                if d > MAX_DISTANCE_FROM_ORIGIN_M:
+                    problems.append((where, f"is {d / 1000:.0f} km from the origin (limit "
+                                            f"{MAX_DISTANCE_FROM_ORIGIN_M / 1000:.0f} km); "
+                                            "swapped lat/lon or wrong origin?"))
+        if self.n_tasks > 10_000:
+            problems.append(("tasks", f"{self.n_tasks} tasks in total; at most 10000"))
+        return problems
+
+    def summary(self) -> str:
+        """One line for people: what this mission flies."""
+        v = self.vehicles
+        if v.emulated is not None:
+            fleet = f"{v.emulated.count} emulated {v.emulated.personality} drones"
+        else:
+            fleet = f"{len(v.real.connections)} real link(s)"
+        kinds: dict[str, int] = {}
+        for t in self.tasks:
+            kinds[t.kind] = kinds.get(t.kind, 0) + t.count
+        tasks = ", ".join(f"{k} {name}" for name, k in kinds.items())
+        att = self.attrition
+        extra = []
+        if att.scripted:
+            extra.append(f"{len(att.scripted)} scripted losses")
+        if att.hazard_zones:
+            extra.append(f"{len(att.hazard_zones)} hazard zones")
+        return (f"{self.name}: {fleet}, {self.n_tasks} tasks ({tasks}), radio {_fmt(self.radio.range_m)} m, "
+                f"attrition {att.rate_per_s:.4g}/s"
+                + (f" + {', '.join(extra)}" if extra else "")
+                + f", planner {self.planner.method} ({self.planner.info}), "
+                f"{_fmt(self.run.duration_s)} s at {_fmt(self.run.control_period_s)} s/step, "
+                f"seed {self.run.seed}, origin {self.origin.lat_deg:.5f}, {self.origin.lon_deg:.5f}")
+
+
+# --------------------------------------------------------------------------------------------
+# The paper's configurations
+
+
+def paper_mission(size: str = "S", attrition_per_step: float = 0.01, unit_m: float = 50.0,
+                  reading: str = "scaled", step_s: float = 1.0, seed: int = 0,
+                  origin: Origin | None = None) -> Mission:
+    """The paper's configuration (Table III, §5.5) as a mission in SI units.
+
+    Parameters
+    ----------
+    size : {'XS', 'S', 'M', 'L', 'XL'}
+    attrition_per_step : float
+        Per-drone, per-step loss probability p in [0, 1); becomes ``-ln(1-p)/step_s`` per second.
+    unit_m : float
+        Metres per paper length unit (> 0).
+    reading : {'scaled', 'literal'}
+        'scaled' multiplies every length by half-width / 5 (PAPER_NOTES §6.4).
+    step_s : float
+        Seconds per paper step (the control period).
+    seed : int
+        The run seed.
+
+    Raises
+    ------
+    ValueError
+        Unknown size or reading, or out-of-range numbers.
+    """
+    from planner.problem import problem_preset
+
+    if not unit_m > 0:
+        raise ValueError(f"unit_m must be > 0, got {unit_m}")
+    if not step_s > 0:
+        raise ValueError(f"step_s must be > 0, got {step_s}")
+    cfg = problem_preset(size, attrition_per_step, reading)
+    L = unit_m
+    return Mission(
+        name=f"paper-{cfg.size}-{reading}-p{attrition_per_step * 100:g}pct",
+        description=(f"RTNUA paper configuration {cfg.size} ({reading} reading), attrition "
+                     f"{attrition_per_step * 100:g} % per step; 1 paper unit = {_fmt(float(unit_m))} m, "
+                     f"1 step = {_fmt(float(step_s))} s."),
+        origin=origin or Origin(),
+        vehicles=Vehicles(emulated=EmulatedVehicles(
+            count=cfg.n_drones,
+            personality="ardupilot",
+            spawn=Spawn(ring=SpawnRing(radius_m=cfg.ring_radius_m * L, noise_m=cfg.ring_noise_m * L)),
+            max_speed_m_s=cfg.max_speed_m_s * L / step_s,
+            radio_range_m=cfg.radio_range_m * L,
+        )),
+        tasks=(Task(random=RandomTasks(
+            count=cfg.n_tasks,
+            field_half_width_m=cfg.field_half_width_m * L,
+            sigma_m_per_sqrt_s=cfg.task_walk_sigma_m * L / math.sqrt(step_s),
+            border=cfg.task_border,
+        )),),
+        radio=Radio(range_m=cfg.radio_range_m * L, base_range_m=cfg.base_range_m * L),
+        attrition=Attrition(rate_per_s=rate_from_per_step(attrition_per_step, step_s)),
+        planner=PlannerSpec(method="phireman", info="async"),
+        run=RunSpec(duration_s=cfg.n_steps * step_s, control_period_s=step_s, seed=seed),
+    )
