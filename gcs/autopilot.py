@@ -1,0 +1,234 @@
+"""Autopilot adapters: what differs between ArduPilot Copter and PX4, chosen from HEARTBEAT.autopilot.
+
+An adapter is pure policy: mode tables, which command (with which params) does what, how often a
+position target must be re-sent, and whether setpoints must stream before a mode change. The link
+core (:mod:`gcs.link`) asks the adapter and does the sending. Sources: MAVLINK_NOTES §1.4, §1.5.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from gcs.wire import mavlink
+
+__all__ = [
+    "CommandSpec", "Adapter", "ArduCopterAdapter", "PX4Adapter", "GenericAdapter",
+    "adapter_for", "mode_name", "is_failsafe_mode", "UnsupportedCommand",
+    "ARDUCOPTER_MODES", "PX4_MODES", "px4_custom_mode", "px4_main_sub",
+    "ARDUPILOT", "PX4",
+]
+
+ARDUPILOT = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA  # 3
+PX4 = mavlink.MAV_AUTOPILOT_PX4                  # 12
+
+_CMD_DO_SET_MODE = mavlink.MAV_CMD_DO_SET_MODE                  # 176
+_CMD_ARM_DISARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM          # 400
+_CMD_NAV_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF                  # 22
+_CUSTOM_MODE_ENABLED = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED  # 1
+
+
+class UnsupportedCommand(ValueError):
+    """Local error: the adapter cannot do this (unknown mode name, unknown autopilot)."""
+
+
+@dataclass(frozen=True)
+class CommandSpec:
+    """One COMMAND_LONG to send (params 1..7), with sequencing hints for the link core."""
+
+    command: int
+    params: tuple[float, float, float, float, float, float, float]
+    after_prestream: bool = False
+    """PX4: hold this command until position setpoints have streamed long enough (OFFBOARD rule)."""
+
+    def __post_init__(self) -> None:
+        if len(self.params) != 7:
+            raise ValueError(f"COMMAND_LONG has 7 params, got {len(self.params)}")
+
+
+def _cmd(command: int, *params: float, after_prestream: bool = False) -> CommandSpec:
+    p = tuple(float(v) for v in params) + (0.0,) * (7 - len(params))
+    return CommandSpec(command, p, after_prestream)  # type: ignore[arg-type]
+
+
+# ArduCopter HEARTBEAT.custom_mode (mavlink ardupilotmega COPTER_MODE).
+ARDUCOPTER_MODES: dict[str, int] = {
+    "STABILIZE": 0, "ACRO": 1, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6,
+    "CIRCLE": 7, "LAND": 9, "DRIFT": 11, "SPORT": 13, "FLIP": 14, "AUTOTUNE": 15, "POSHOLD": 16,
+    "BRAKE": 17, "THROW": 18, "AVOID_ADSB": 19, "GUIDED_NOGPS": 20, "SMART_RTL": 21,
+    "FLOWHOLD": 22, "FOLLOW": 23, "ZIGZAG": 24, "SYSTEMID": 25, "AUTOROTATE": 26, "AUTO_RTL": 27,
+    "TURTLE": 28,
+}
+_ARDUCOPTER_NAMES = {v: k for k, v in ARDUCOPTER_MODES.items()}
+
+# PX4 (main, sub) (px4_custom_mode.h): main in bits 16-23, sub in bits 24-31 of custom_mode.
+PX4_MODES: dict[str, tuple[int, int]] = {
+    "MANUAL": (1, 0), "ALTCTL": (2, 0), "POSCTL": (3, 0),
+    "AUTO.READY": (4, 1), "AUTO.TAKEOFF": (4, 2), "AUTO.LOITER": (4, 3), "AUTO.MISSION": (4, 4),
+    "AUTO.RTL": (4, 5), "AUTO.LAND": (4, 6), "AUTO.RTGS": (4, 7), "AUTO.FOLLOW_TARGET": (4, 8),
+    "AUTO.PRECLAND": (4, 9),
+    "ACRO": (5, 0), "OFFBOARD": (6, 0), "STABILIZED": (7, 0), "RATTITUDE": (8, 0),
+}
+_PX4_NAMES = {v: k for k, v in PX4_MODES.items()}
+
+
+def px4_custom_mode(main: int, sub: int = 0) -> int:
+    """Pack PX4 (main, sub) into HEARTBEAT.custom_mode. OFFBOARD (6, 0) -> 393216."""
+    return ((main & 0xFF) << 16) | ((sub & 0xFF) << 24)
+
+
+def px4_main_sub(custom_mode: int) -> tuple[int, int]:
+    """Unpack HEARTBEAT.custom_mode into PX4 (main, sub)."""
+    return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+
+
+class Adapter:
+    """Base adapter; subclasses fill the tables. All methods are pure."""
+
+    name = "generic"
+    autopilot = mavlink.MAV_AUTOPILOT_GENERIC
+    guided_mode = ""
+    rtl_mode = ""
+    land_mode = ""
+    failsafe_modes: frozenset[str] = frozenset()
+    setpoint_frame = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    setpoint_period_s = 1.0
+    """Re-send the current position target at least this often, even if unchanged."""
+    prestream_s = 0.0
+    """Setpoints must have streamed this long before ``after_prestream`` commands go out."""
+    param_bytewise = False
+    """PARAM_VALUE integers are byte-wise encoded (PX4) rather than C-cast (ArduPilot)."""
+    takeoff_by_offboard_climb = False
+    """Take off by climbing to a position target in the guided mode rather than NAV_TAKEOFF."""
+
+    def mode_name(self, custom_mode: int) -> str:
+        return f"MODE({custom_mode})"
+
+    def mode_number(self, name: str) -> int:
+        raise UnsupportedCommand(f"{self.name}: no mode table")
+
+    def set_mode(self, name: str) -> CommandSpec:
+        raise UnsupportedCommand(f"{self.name}: cannot set mode {name!r}")
+
+    def is_failsafe_mode(self, custom_mode: int) -> bool:
+        return self.mode_name(custom_mode) in self.failsafe_modes
+
+    def is_guided(self, custom_mode: int) -> bool:
+        return bool(self.guided_mode) and self.mode_name(custom_mode) == self.guided_mode
+
+    def arm(self) -> CommandSpec:
+        # param2 = 0: never the 21196 force-arm magic in the product path (MAVLINK_NOTES §1.3).
+        return _cmd(_CMD_ARM_DISARM, 1, 0)
+
+    def disarm(self) -> CommandSpec:
+        return _cmd(_CMD_ARM_DISARM, 0, 0)
+
+    def takeoff(self, alt_above_home_m: float) -> CommandSpec | None:
+        raise UnsupportedCommand(f"{self.name}: takeoff not supported")
+
+
+class ArduCopterAdapter(Adapter):
+    """ArduPilot Copter in GUIDED (ardupilot.org/dev/docs/copter-commands-in-guided-mode)."""
+
+    name = "ardupilot"
+    autopilot = ARDUPILOT
+    guided_mode = "GUIDED"
+    rtl_mode = "RTL"
+    land_mode = "LAND"
+    # What FS_GCS_ENABLE can leave the vehicle in; it stays there after the link recovers.
+    failsafe_modes = frozenset({"RTL", "SMART_RTL", "LAND", "AUTO_RTL"})
+    setpoint_period_s = 1.0  # position targets persist, but the wiki says re-send every second
+    prestream_s = 0.0
+    param_bytewise = False
+
+    def mode_name(self, custom_mode: int) -> str:
+        return _ARDUCOPTER_NAMES.get(custom_mode, f"MODE({custom_mode})")
+
+    def mode_number(self, name: str) -> int:
+        try:
+            return ARDUCOPTER_MODES[name.upper()]
+        except KeyError:
+            raise UnsupportedCommand(f"unknown ArduCopter mode {name!r}; known: "
+                                     f"{', '.join(ARDUCOPTER_MODES)}") from None
+
+    def set_mode(self, name: str) -> CommandSpec:
+        # MAV_CMD_DO_SET_MODE param1 = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, param2 = custom mode.
+        return _cmd(_CMD_DO_SET_MODE, _CUSTOM_MODE_ENABLED, self.mode_number(name))
+
+    def takeoff(self, alt_above_home_m: float) -> CommandSpec:
+        # NAV_TAKEOFF param7 = altitude above home; needs GUIDED + armed (ArduCopter takeoff.cpp).
+        if not alt_above_home_m > 0:
+            raise ValueError(f"takeoff altitude must be > 0 m above home, got {alt_above_home_m}")
+        return _cmd(_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, alt_above_home_m)
+
+
+class PX4Adapter(Adapter):
+    """PX4 multicopter in OFFBOARD (docs.px4.io flight_modes/offboard)."""
+
+    name = "px4"
+    autopilot = PX4
+    guided_mode = "OFFBOARD"
+    rtl_mode = "AUTO.RTL"
+    land_mode = "AUTO.LAND"
+    # COM_OBL_RC_ACT / NAV_DLL_ACT outcomes: position hold, hold, RTL, land.
+    failsafe_modes = frozenset({"POSCTL", "AUTO.LOITER", "AUTO.RTL", "AUTO.LAND"})
+    setpoint_period_s = 0.1  # >= 10 Hz (PX4 needs > 2 Hz; MAVSDK streams at 20 Hz)
+    prestream_s = 1.2        # "more than a second" of setpoints before OFFBOARD / arming
+    param_bytewise = True
+    takeoff_by_offboard_climb = True
+
+    def mode_name(self, custom_mode: int) -> str:
+        main, sub = px4_main_sub(custom_mode)
+        if (main, sub) in _PX4_NAMES:
+            return _PX4_NAMES[(main, sub)]
+        if (main, 0) in _PX4_NAMES and main != 4:
+            return _PX4_NAMES[(main, 0)]
+        return f"MODE({main}.{sub})"
+
+    def mode_number(self, name: str) -> int:
+        try:
+            return px4_custom_mode(*PX4_MODES[name.upper()])
+        except KeyError:
+            raise UnsupportedCommand(f"unknown PX4 mode {name!r}; known: "
+                                     f"{', '.join(PX4_MODES)}") from None
+
+    def set_mode(self, name: str) -> CommandSpec:
+        # DO_SET_MODE param2 = main mode, param3 = sub mode, UNPACKED: the packed HEARTBEAT word
+        # truncates to 0 in Commander.cpp and can be ACKed while nothing changes.
+        try:
+            main, sub = PX4_MODES[name.upper()]
+        except KeyError:
+            raise UnsupportedCommand(f"unknown PX4 mode {name!r}; known: "
+                                     f"{', '.join(PX4_MODES)}") from None
+        return _cmd(_CMD_DO_SET_MODE, _CUSTOM_MODE_ENABLED, main, sub,
+                    after_prestream=name.upper() == "OFFBOARD")
+
+    def arm(self) -> CommandSpec:
+        # Arming for OFFBOARD needs the setpoint stream first, like the mode switch.
+        return _cmd(_CMD_ARM_DISARM, 1, 0, after_prestream=True)
+
+    def takeoff(self, alt_above_home_m: float) -> CommandSpec | None:
+        # Climb in OFFBOARD to a position target (the link core does it): NAV_TAKEOFF's altitude
+        # reference differs across PX4 versions (PX4-user_guide#3649).
+        return None
+
+
+class GenericAdapter(Adapter):
+    """Unknown autopilot: modes are shown as numbers; commands are refused."""
+
+
+_ADAPTERS: dict[int, Adapter] = {ARDUPILOT: ArduCopterAdapter(), PX4: PX4Adapter()}
+_GENERIC = GenericAdapter()
+
+
+def adapter_for(autopilot: int) -> Adapter:
+    """The adapter for a HEARTBEAT.autopilot value (GenericAdapter when unknown)."""
+    return _ADAPTERS.get(autopilot, _GENERIC)
+
+
+def mode_name(autopilot: int, custom_mode: int) -> str:
+    """Human mode name, e.g. ``mode_name(3, 4) == 'GUIDED'``, ``mode_name(12, 393216) == 'OFFBOARD'``."""
+    return adapter_for(autopilot).mode_name(custom_mode)
+
+
+def is_failsafe_mode(autopilot: int, custom_mode: int) -> bool:
+    return adapter_for(autopilot).is_failsafe_mode(custom_mode)

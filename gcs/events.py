@@ -1,0 +1,165 @@
+"""Events the station core emits: frozen, validated, named as past-tense facts (ARCHITECTURE §4.3).
+
+Every event carries the vehicle identity ``(link_id, sysid)`` and the core time ``t_s`` at which the
+core learned the fact. The constructors validate, so a NaN or an out-of-range sysid can never
+become an event.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = [
+    "Event", "VehicleDiscovered", "VehicleLost", "VehicleRecovered", "ModeChanged",
+    "ArmedChanged", "TelemetryReceived", "CommandAcked", "CommandInProgress", "CommandFailed",
+    "CommandTimedOut", "ParamReceived", "ParamTimedOut", "StatusText",
+]
+
+
+def _finite(name: str, value: float) -> None:
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Event:
+    link_id: int
+    """Which link (station core) the vehicle was heard on."""
+    sysid: int
+    """MAVLink system id of the vehicle, 1..255."""
+    t_s: float
+    """Core time of the fact, seconds."""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.sysid, int) or not 1 <= self.sysid <= 255:
+            raise ValueError(f"sysid must be an int in 1..255, got {self.sysid!r}")
+        if not isinstance(self.link_id, int) or self.link_id < 0:
+            raise ValueError(f"link_id must be a non-negative int, got {self.link_id!r}")
+        _finite("t_s", self.t_s)
+
+
+@dataclass(frozen=True)
+class VehicleDiscovered(Event):
+    autopilot: int = 0
+    """HEARTBEAT.autopilot (MAV_AUTOPILOT: 3 ArduPilot, 12 PX4)."""
+    vehicle_type: int = 0
+    """HEARTBEAT.type (MAV_TYPE)."""
+    custom_mode: int = 0
+    mode: str = ""
+    armed: bool = False
+
+
+@dataclass(frozen=True)
+class VehicleLost(Event):
+    last_heartbeat_s: float = 0.0
+    """Core time of the last heartbeat heard."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _finite("last_heartbeat_s", self.last_heartbeat_s)
+
+
+@dataclass(frozen=True)
+class VehicleRecovered(Event):
+    silent_s: float = 0.0
+    """How long the vehicle was silent, seconds."""
+    custom_mode: int = 0
+    mode: str = ""
+
+
+@dataclass(frozen=True)
+class ModeChanged(Event):
+    custom_mode: int = 0
+    mode: str = ""
+    previous_mode: str = ""
+
+
+@dataclass(frozen=True)
+class ArmedChanged(Event):
+    armed: bool = False
+
+
+@dataclass(frozen=True)
+class TelemetryReceived(Event):
+    """A GLOBAL_POSITION_INT, converted to SI."""
+
+    lat_deg: float = 0.0
+    lon_deg: float = 0.0
+    alt_amsl_m: float = 0.0
+    rel_alt_m: float = 0.0
+    """Altitude above home, metres (so home AMSL = alt_amsl_m - rel_alt_m)."""
+    vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    yaw_rad: float | None = None
+    """Heading, rad in (-pi, pi], 0 = north; None if the vehicle does not know it."""
+    time_boot_s: float = 0.0
+    """The vehicle's own clock (GLOBAL_POSITION_INT.time_boot_ms), seconds."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("lat_deg", "lon_deg", "alt_amsl_m", "rel_alt_m", "time_boot_s"):
+            _finite(name, getattr(self, name))
+        if not -90.0 <= self.lat_deg <= 90.0 or not -180.0 <= self.lon_deg <= 180.0:
+            raise ValueError(f"lat/lon out of range: {self.lat_deg}, {self.lon_deg}")
+        if len(self.vel_ned_m_s) != 3:
+            raise ValueError("vel_ned_m_s must have 3 components")
+        for v in self.vel_ned_m_s:
+            _finite("vel_ned_m_s", v)
+        if self.yaw_rad is not None:
+            _finite("yaw_rad", self.yaw_rad)
+
+
+@dataclass(frozen=True)
+class _CommandEvent(Event):
+    command: int = 0
+    """MAV_CMD id."""
+    request_id: int = 0
+    """The id returned by the core's send call, to correlate."""
+
+
+@dataclass(frozen=True)
+class CommandAcked(_CommandEvent):
+    attempts: int = 1
+
+
+@dataclass(frozen=True)
+class CommandInProgress(_CommandEvent):
+    progress: int = 0
+    """Percent, 0..100 (255 = unknown)."""
+
+
+@dataclass(frozen=True)
+class CommandFailed(_CommandEvent):
+    result: int | None = None
+    """MAV_RESULT from COMMAND_ACK, or None if the core gave up for a local reason."""
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class CommandTimedOut(_CommandEvent):
+    attempts: int = 0
+
+
+@dataclass(frozen=True)
+class ParamReceived(Event):
+    name: str = ""
+    value: float = 0.0
+    param_type: int = 0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.name:
+            raise ValueError("param name must not be empty")
+
+
+@dataclass(frozen=True)
+class ParamTimedOut(Event):
+    name: str = ""
+    attempts: int = 0
+
+
+@dataclass(frozen=True)
+class StatusText(Event):
+    severity: int = 6
+    """MAV_SEVERITY (0 emergency .. 7 debug)."""
+    text: str = ""

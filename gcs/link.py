@@ -1,0 +1,792 @@
+"""The station-side MAVLink core for one link: bytes and ``now_s`` in, bytes and events out.
+
+No sockets, no clock, no threads (ARCHITECTURE §4.3; aioquic's surface):
+
+* inputs: :meth:`StationLink.receive_datagram`, :meth:`StationLink.handle_timer` and local calls
+  (:meth:`~StationLink.set_mode`, :meth:`~StationLink.arm`, :meth:`~StationLink.takeoff`,
+  :meth:`~StationLink.set_position_target`, :meth:`~StationLink.request_param`, ...), each with
+  an explicit ``now_s``;
+* outputs: :meth:`~StationLink.datagrams_to_send`, :meth:`~StationLink.next_timer_s`,
+  :meth:`~StationLink.next_event`.
+
+``addr`` is opaque: a UDP ``(host, port)``, a TCP peer, a serial port name, or anything hashable
+an in-memory ether uses. The core keeps its own sysid -> address table: a message *to* a vehicle
+goes only to the address that vehicle was last heard from; only broadcasts (our HEARTBEAT) go to
+every peer. This is deliberately not mavutil's ``udpin`` behaviour of sending everything to
+everyone (MAVLINK_NOTES §5), which at 250 vehicles per network multiplies traffic by 250.
+
+Errors: a misuse of this API (unknown sysid, unknown mode name) raises; anything a remote sends
+is counted in :attr:`StationLink.stats` and dropped, never raised (ARCHITECTURE §4.8).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable, Hashable
+
+from gcs import wire
+from gcs.autopilot import Adapter, CommandSpec, adapter_for
+from gcs.events import (
+    ArmedChanged, CommandAcked, CommandFailed, CommandInProgress, CommandTimedOut, Event,
+    ModeChanged, ParamReceived, ParamTimedOut, StatusText, TelemetryReceived, VehicleDiscovered,
+    VehicleLost, VehicleRecovered,
+)
+from gcs.wire import mavlink
+
+__all__ = ["StationConfig", "StationLink", "VehicleInfo", "LinkStats", "UnknownVehicle",
+           "LinkUsageError", "NON_VEHICLE_TYPES", "DEFAULT_STREAM_RATES_HZ"]
+
+log = logging.getLogger(__name__)
+
+Addr = Hashable
+
+#: HEARTBEAT.type values that never create a vehicle (MAVLINK_NOTES §1.1): another GCS, a
+#: companion computer, a gimbal, an ADS-B receiver.
+NON_VEHICLE_TYPES = frozenset({
+    mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_TYPE_GIMBAL,
+    mavlink.MAV_TYPE_ADSB,
+})
+
+_MSG = mavlink  # message-id constants live on the dialect module
+#: Telemetry we ask for (Skybrush's fleet-scale rates, MAVLINK_NOTES §2): message id -> Hz.
+DEFAULT_STREAM_RATES_HZ: tuple[tuple[int, float], ...] = (
+    (_MSG.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 4.0),
+    (_MSG.MAVLINK_MSG_ID_SYS_STATUS, 1.0),
+    (_MSG.MAVLINK_MSG_ID_GPS_RAW_INT, 1.0),
+    (_MSG.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 1.0),
+)
+
+#: REQUEST_DATA_STREAM fallback: which legacy stream group carries each message (ArduPilot
+#: GCS_Common.cpp STREAM_* tables).
+_DATA_STREAM_OF_MSG = {
+    _MSG.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: mavlink.MAV_DATA_STREAM_POSITION,
+    _MSG.MAVLINK_MSG_ID_LOCAL_POSITION_NED: mavlink.MAV_DATA_STREAM_POSITION,
+    _MSG.MAVLINK_MSG_ID_SYS_STATUS: mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,
+    _MSG.MAVLINK_MSG_ID_GPS_RAW_INT: mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,
+    _MSG.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,
+    _MSG.MAVLINK_MSG_ID_ATTITUDE: mavlink.MAV_DATA_STREAM_EXTRA1,
+    _MSG.MAVLINK_MSG_ID_VFR_HUD: mavlink.MAV_DATA_STREAM_EXTRA2,
+}
+
+_CMD_SET_MESSAGE_INTERVAL = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL  # 511
+_AUTOPILOT_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1                 # 1
+
+
+class UnknownVehicle(KeyError):
+    """Local error: a call named a sysid this link has never discovered."""
+
+
+class LinkUsageError(RuntimeError):
+    """Local error: a call that cannot be honoured in the current state (e.g. no position yet)."""
+
+
+@dataclass(frozen=True)
+class StationConfig:
+    """Station identity and protocol timing. Units are in the field names."""
+
+    sysid: int = 255
+    """Our MAVLink system id. 255 is ArduPilot's default SYSID_MYGCS / MAV_GCS_SYSID, the only
+    sender whose heartbeats count for the GCS failsafe (MAVLINK_NOTES §1.1)."""
+    compid: int = mavlink.MAV_COMP_ID_MISSIONPLANNER
+    """Our component id: 190 (MAV_COMP_ID_MISSIONPLANNER), what QGroundControl and Mission Planner
+    send (QGC ``MAVLinkProtocol::getComponentId``). Not 0: component 0 is the broadcast *target*
+    address (mavlink.io routing), ambiguous as a source."""
+    heartbeat_period_s: float = 1.0
+    vehicle_timeout_s: float = 5.0
+    """No HEARTBEAT for this long -> VehicleLost (mavlink.io: 4-5 missed; Skybrush: 5 s)."""
+    command_timeout_s: float = 0.5
+    """COMMAND_ACK wait per attempt (MAVSDK / pymavswarm default)."""
+    command_retries: int = 3
+    """Re-sends after the first attempt (confirmation 1..retries) before CommandTimedOut."""
+    command_in_progress_timeout_s: float = 5.0
+    """After MAV_RESULT_IN_PROGRESS, wait this long for the final ACK (no re-sends)."""
+    param_timeout_s: float = 1.0
+    param_retries: int = 3
+    stream_rates_hz: tuple[tuple[int, float], ...] = DEFAULT_STREAM_RATES_HZ
+    """(message id, Hz) pairs requested from every vehicle on discovery and recovery."""
+    stale_msgids: tuple[int, ...] = (_MSG.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,)
+    """Messages whose silence (while heartbeats still arrive) triggers a re-request."""
+    telemetry_stale_s: float = 3.0
+    static_peers: tuple[Addr, ...] = ()
+    """Addresses to heartbeat even before hearing them (udpout, tcp)."""
+    datagram: bool = True
+    """True for UDP (drop incomplete trailing frames), False for byte streams (TCP, serial)."""
+    signing_key: bytes | None = None
+    """32-byte MAVLink 2 signing key; outgoing frames are signed when set."""
+    accept_unsigned: bool = True
+    """With a key: still accept unsigned incoming frames (pymavlink allow_unsigned_callback)."""
+    unix_time_offset_s: float = 0.0
+    """``unix time = now_s + offset``; only for signing timestamps and frame records."""
+    record_frames: bool = False
+    """Keep every frame in and out for :meth:`StationLink.take_frames` (the .tlog)."""
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.sysid <= 255:
+            raise ValueError(f"sysid must be in 1..255, got {self.sysid}")
+        if not 1 <= self.compid <= 255:
+            raise ValueError(f"compid must be in 1..255 (0 is broadcast), got {self.compid}")
+        for name in ("heartbeat_period_s", "vehicle_timeout_s", "command_timeout_s",
+                     "param_timeout_s", "telemetry_stale_s", "command_in_progress_timeout_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be > 0, got {v}")
+        if self.command_retries < 0 or self.param_retries < 0:
+            raise ValueError("retries must be >= 0")
+
+
+@dataclass
+class LinkStats:
+    """Counters for everything the core dropped or did (the decoder counts live in ``decode``)."""
+
+    decode: wire.DecodeStats = field(default_factory=wire.DecodeStats)
+    frames_out: int = 0
+    from_unknown_sysid: int = 0
+    """Non-heartbeat messages from a sysid we have not discovered."""
+    non_vehicle_heartbeats: int = 0
+    own_sysid: int = 0
+    """Messages claiming our own sysid (another station configured like us?)."""
+    ignored_messages: int = 0
+    handler_errors: int = 0
+    invalid_telemetry: int = 0
+    unexpected_acks: int = 0
+    data_stream_fallbacks: int = 0
+    stream_rerequests: int = 0
+
+
+@dataclass(frozen=True)
+class VehicleInfo:
+    """A read-only view of one vehicle as this link knows it."""
+
+    link_id: int
+    sysid: int
+    autopilot: int
+    vehicle_type: int
+    adapter: str
+    custom_mode: int
+    mode: str
+    armed: bool
+    lost: bool
+    last_heartbeat_s: float
+    streaming_setpoints: bool
+
+
+@dataclass
+class _Vehicle:
+    sysid: int
+    addr: Addr
+    autopilot: int
+    vehicle_type: int
+    adapter: Adapter
+    custom_mode: int
+    base_mode: int
+    last_heartbeat_s: float
+    lost: bool = False
+    last_msg_s: dict[int, float] = field(default_factory=dict)
+    use_data_stream: bool = False
+    last_stream_request_s: float = -math.inf
+    position: TelemetryReceived | None = None
+    setpoint: tuple[float, float, float, int] | None = None   # lat, lon, alt, frame
+    setpoint_since_s: float = math.nan
+    setpoint_next_s: float = math.inf
+    deferred: list[Any] = field(default_factory=list)         # _Command waiting for prestream
+
+    @property
+    def armed(self) -> bool:
+        return bool(self.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+
+
+@dataclass
+class _Command:
+    request_id: int
+    sysid: int
+    command: int
+    params: tuple[float, ...]          # 7 for COMMAND_LONG; (frame, p1..p4, x, y, z) for INT
+    use_int: bool
+    internal: Callable[[int | None, float], None] | None = None  # stream bookkeeping (result, now)
+    attempts: int = 0
+    deadline_s: float = math.inf
+    in_progress: bool = False
+    component: int = _AUTOPILOT_COMPID
+
+
+@dataclass
+class _ParamRequest:
+    sysid: int
+    name: str
+    attempts: int = 0
+    deadline_s: float = math.inf
+
+
+class StationLink:
+    """One link's station core (see the module docstring)."""
+
+    def __init__(self, config: StationConfig | None = None, *, link_id: int = 0,
+                 now_s: float = 0.0) -> None:
+        self.config = config or StationConfig()
+        self.link_id = link_id
+        self._codec = wire.Codec(self.config.sysid, self.config.compid,
+                                 signing_key=self.config.signing_key,
+                                 signing_link_id=link_id & 0xFF,
+                                 accept_unsigned=self.config.accept_unsigned)
+        self.stats = LinkStats(decode=self._codec.stats)
+        self._t0_s = now_s
+        self._decoders: dict[Addr, wire.Decoder] = {}
+        self._peers: dict[Addr, None] = dict.fromkeys(self.config.static_peers)
+        self._vehicles: dict[int, _Vehicle] = {}
+        self._events: deque[Event] = deque()
+        self._out: list[tuple[bytes, Addr]] = []
+        self._frames: list[tuple[float, bool, bytes]] = []
+        self._next_heartbeat_s = now_s
+        self._commands: dict[tuple[int, int], _Command] = {}
+        self._queued: dict[tuple[int, int], deque[_Command]] = {}
+        self._params: dict[tuple[int, str], _ParamRequest] = {}
+        self._next_request_id = 1
+        self._warned_types: set[str] = set()
+
+    # ------------------------------------------------------------------ outputs
+
+    def datagrams_to_send(self, now_s: float) -> list[tuple[bytes, Addr]]:
+        """Everything queued for the wire, one MAVLink frame per datagram, in order."""
+        out, self._out = self._out, []
+        return out
+
+    def next_event(self) -> Event | None:
+        return self._events.popleft() if self._events else None
+
+    def take_frames(self) -> list[tuple[float, bool, bytes]]:
+        """Recorded frames ``(unix_time_s, outgoing, frame)`` since the last call (record_frames)."""
+        out, self._frames = self._frames, []
+        return out
+
+    def next_timer_s(self) -> float | None:
+        """The earliest core time at which :meth:`handle_timer` has work to do."""
+        cfg = self.config
+        t = self._next_heartbeat_s
+        for cmd in self._commands.values():
+            t = min(t, cmd.deadline_s)
+        for req in self._params.values():
+            t = min(t, req.deadline_s)
+        for v in self._vehicles.values():
+            if not v.lost:
+                t = min(t, v.last_heartbeat_s + cfg.vehicle_timeout_s, self._stale_due_s(v))
+            t = min(t, v.setpoint_next_s)
+            if v.deferred:
+                t = min(t, v.setpoint_since_s + v.adapter.prestream_s)
+        return t if math.isfinite(t) else None
+
+    # ------------------------------------------------------------------ queries
+
+    def vehicles(self) -> list[VehicleInfo]:
+        return [self._info(v) for v in self._vehicles.values()]
+
+    def vehicle(self, sysid: int) -> VehicleInfo:
+        return self._info(self._get(sysid))
+
+    def networked_sysids(self) -> list[int]:
+        return [s for s, v in self._vehicles.items() if not v.lost]
+
+    def address_of(self, sysid: int) -> Addr:
+        return self._get(sysid).addr
+
+    def _info(self, v: _Vehicle) -> VehicleInfo:
+        return VehicleInfo(self.link_id, v.sysid, v.autopilot, v.vehicle_type, v.adapter.name,
+                           v.custom_mode, v.adapter.mode_name(v.custom_mode), v.armed, v.lost,
+                           v.last_heartbeat_s, v.setpoint is not None)
+
+    def _get(self, sysid: int) -> _Vehicle:
+        try:
+            return self._vehicles[sysid]
+        except KeyError:
+            raise UnknownVehicle(f"link {self.link_id}: no vehicle with sysid {sysid}") from None
+
+    # ------------------------------------------------------------------ sending
+
+    def _emit(self, event: Event) -> None:
+        self._events.append(event)
+
+    def _send(self, msg, addr: Addr, now_s: float) -> None:
+        if self._codec.signing:
+            self._codec.set_signing_time(now_s + self.config.unix_time_offset_s)
+        frame = self._codec.encode(msg)
+        self._out.append((frame, addr))
+        self.stats.frames_out += 1
+        if self.config.record_frames:
+            self._frames.append((now_s + self.config.unix_time_offset_s, True, frame))
+
+    def _broadcast(self, msg, now_s: float) -> None:
+        # Each peer gets its own frame (same seq is fine for a broadcast: encode once).
+        if not self._peers:
+            return
+        if self._codec.signing:
+            self._codec.set_signing_time(now_s + self.config.unix_time_offset_s)
+        frame = self._codec.encode(msg)
+        if self.config.record_frames:
+            self._frames.append((now_s + self.config.unix_time_offset_s, True, frame))
+        for addr in self._peers:
+            self._out.append((frame, addr))
+            self.stats.frames_out += 1
+
+    def _heartbeat_msg(self):
+        # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, base_mode 0, state ACTIVE (mavlink.io heartbeat).
+        return mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+            mavlink.MAV_STATE_ACTIVE, 3)
+
+    # ------------------------------------------------------------------ receiving
+
+    def receive_datagram(self, data: bytes, addr: Addr, now_s: float) -> None:
+        """Feed bytes heard from ``addr``. Never raises for remote garbage (it is counted)."""
+        dec = self._decoders.get(addr)
+        if dec is None:
+            dec = self._decoders[addr] = self._codec.new_decoder()
+        for msg in dec.feed(bytes(data), datagram=self.config.datagram):
+            self._peers.setdefault(addr, None)
+            if self.config.record_frames:
+                self._frames.append((now_s + self.config.unix_time_offset_s, False,
+                                     bytes(msg.get_msgbuf())))
+            try:
+                self._dispatch(msg, addr, now_s)
+            except Exception:  # a handler bug must not take the link down
+                self.stats.handler_errors += 1
+                log.exception("link %d: handler error on %s from sysid %d", self.link_id,
+                              msg.get_type(), msg.get_srcSystem())
+
+    def _dispatch(self, msg, addr: Addr, now_s: float) -> None:
+        kind = msg.get_type()
+        sysid = msg.get_srcSystem()
+        if sysid == self.config.sysid:
+            self.stats.own_sysid += 1
+            return
+        if kind == "HEARTBEAT":
+            self._on_heartbeat(msg, addr, now_s)
+            return
+        v = self._vehicles.get(sysid)
+        if v is None:
+            self.stats.from_unknown_sysid += 1
+            return
+        if msg.get_srcComponent() != _AUTOPILOT_COMPID:
+            self.stats.ignored_messages += 1  # gimbal, camera, companion: not the autopilot
+            return
+        v.last_msg_s[msg.get_msgId()] = now_s
+        handler = _HANDLERS.get(kind)
+        if handler is not None:
+            handler(self, v, msg, now_s)
+        else:
+            self.stats.ignored_messages += 1
+            if kind not in _IGNORED and kind not in self._warned_types:
+                self._warned_types.add(kind)
+                log.info("link %d: ignoring %s (first seen from sysid %d)", self.link_id, kind,
+                         sysid)
+
+    def _on_heartbeat(self, msg, addr: Addr, now_s: float) -> None:
+        sysid, compid = msg.get_srcSystem(), msg.get_srcComponent()
+        if compid != _AUTOPILOT_COMPID or msg.type in NON_VEHICLE_TYPES or sysid == 0:
+            self.stats.non_vehicle_heartbeats += 1
+            return
+        v = self._vehicles.get(sysid)
+        adapter = adapter_for(msg.autopilot)
+        if v is None:
+            v = _Vehicle(sysid, addr, msg.autopilot, msg.type, adapter, msg.custom_mode,
+                         msg.base_mode, now_s)
+            v.last_msg_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now_s
+            self._vehicles[sysid] = v
+            self._emit(VehicleDiscovered(self.link_id, sysid, now_s, msg.autopilot, msg.type,
+                                         msg.custom_mode, adapter.mode_name(msg.custom_mode),
+                                         v.armed))
+            # QGC sends a heartbeat at once so the vehicle knows its GCS (and arms its failsafe).
+            self._send(self._heartbeat_msg(), addr, now_s)
+            self._request_streams(v, now_s)
+            return
+        v.addr = addr  # follow the vehicle if its address changes (reboot, NAT)
+        v.last_msg_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now_s
+        if v.autopilot != msg.autopilot:
+            log.warning("link %d sysid %d: autopilot changed %d -> %d", self.link_id, sysid,
+                        v.autopilot, msg.autopilot)
+            v.autopilot, v.adapter = msg.autopilot, adapter
+        was_lost, silent_s = v.lost, now_s - v.last_heartbeat_s
+        v.last_heartbeat_s = now_s
+        was_armed, old_mode = v.armed, v.custom_mode
+        v.custom_mode, v.base_mode, v.vehicle_type = msg.custom_mode, msg.base_mode, msg.type
+        if was_lost:
+            v.lost = False
+            self._emit(VehicleRecovered(self.link_id, sysid, now_s, silent_s, v.custom_mode,
+                                        v.adapter.mode_name(v.custom_mode)))
+            self._send(self._heartbeat_msg(), addr, now_s)
+            self._request_streams(v, now_s)  # it may have rebooted and forgotten our rates
+        if old_mode != v.custom_mode:
+            self._emit(ModeChanged(self.link_id, sysid, now_s, v.custom_mode,
+                                   v.adapter.mode_name(v.custom_mode),
+                                   v.adapter.mode_name(old_mode)))
+        if was_armed != v.armed:
+            self._emit(ArmedChanged(self.link_id, sysid, now_s, v.armed))
+
+    def _on_global_position(self, v: _Vehicle, msg, now_s: float) -> None:
+        if msg.lat == 0 and msg.lon == 0:  # ArduPilot before a GPS fix
+            self.stats.invalid_telemetry += 1
+            return
+        try:
+            ev = TelemetryReceived(
+                self.link_id, v.sysid, now_s,
+                lat_deg=wire.e7_to_deg(msg.lat), lon_deg=wire.e7_to_deg(msg.lon),
+                alt_amsl_m=wire.mm_to_m(msg.alt), rel_alt_m=wire.mm_to_m(msg.relative_alt),
+                vel_ned_m_s=(wire.cm_s_to_m_s(msg.vx), wire.cm_s_to_m_s(msg.vy),
+                             wire.cm_s_to_m_s(msg.vz)),
+                yaw_rad=wire.hdg_cdeg_to_yaw_rad(msg.hdg), time_boot_s=msg.time_boot_ms / 1000.0)
+        except ValueError:
+            self.stats.invalid_telemetry += 1
+            return
+        v.position = ev
+        self._emit(ev)
+
+    def _on_command_ack(self, v: _Vehicle, msg, now_s: float) -> None:
+        target = getattr(msg, "target_system", 0)
+        if target not in (0, self.config.sysid):
+            return  # an ACK for another station
+        cmd = self._commands.get((v.sysid, msg.command))
+        if cmd is None:
+            self.stats.unexpected_acks += 1
+            return
+        if msg.result == mavlink.MAV_RESULT_IN_PROGRESS:
+            # Keep waiting, never re-send: a re-send would restart the action (mavlink.io command).
+            cmd.in_progress = True
+            cmd.deadline_s = now_s + self.config.command_in_progress_timeout_s
+            if cmd.internal is None:
+                self._emit(CommandInProgress(self.link_id, v.sysid, now_s, cmd.command,
+                                             cmd.request_id, int(msg.progress)))
+            return
+        self._finish_command(cmd, now_s, msg.result)
+
+    def _on_param_value(self, v: _Vehicle, msg, now_s: float) -> None:
+        name = wire.param_id_to_str(msg.param_id)
+        if not name:
+            self.stats.invalid_telemetry += 1
+            return
+        value = wire.decode_param_value(msg.param_value, msg.param_type,
+                                        bytewise=v.adapter.param_bytewise)
+        if not math.isfinite(value):
+            self.stats.invalid_telemetry += 1
+            return
+        self._params.pop((v.sysid, name), None)
+        self._emit(ParamReceived(self.link_id, v.sysid, now_s, name, value, msg.param_type))
+
+    def _on_statustext(self, v: _Vehicle, msg, now_s: float) -> None:
+        text = msg.text
+        if isinstance(text, bytes):
+            text = text.decode("utf-8", errors="replace")
+        self._emit(StatusText(self.link_id, v.sysid, now_s, int(msg.severity),
+                              text.rstrip("\x00")))
+
+    # ------------------------------------------------------------------ timers
+
+    def handle_timer(self, now_s: float) -> None:
+        """Do everything due at or before ``now_s``: heartbeat, retries, losses, resends."""
+        cfg = self.config
+        if now_s >= self._next_heartbeat_s:
+            self._broadcast(self._heartbeat_msg(), now_s)
+            self._next_heartbeat_s += cfg.heartbeat_period_s
+            if self._next_heartbeat_s <= now_s:  # we were late: do not burst to catch up
+                self._next_heartbeat_s = now_s + cfg.heartbeat_period_s
+        for cmd in [c for c in self._commands.values() if c.deadline_s <= now_s]:
+            if not cmd.in_progress and cmd.attempts <= cfg.command_retries:
+                self._transmit_command(cmd, now_s)  # confirmation = attempts so far
+            else:
+                self._finish_command(cmd, now_s, None)
+        for req in [r for r in self._params.values() if r.deadline_s <= now_s]:
+            if req.attempts <= cfg.param_retries:
+                self._transmit_param_request(req, now_s)
+            else:
+                del self._params[(req.sysid, req.name)]
+                self._emit(ParamTimedOut(self.link_id, req.sysid, now_s, req.name, req.attempts))
+        for v in self._vehicles.values():
+            if not v.lost and now_s >= v.last_heartbeat_s + cfg.vehicle_timeout_s:
+                v.lost = True
+                self._emit(VehicleLost(self.link_id, v.sysid, now_s, v.last_heartbeat_s))
+            if not v.lost and now_s >= self._stale_due_s(v):
+                self.stats.stream_rerequests += 1
+                log.info("link %d sysid %d: telemetry stale, re-requesting streams",
+                         self.link_id, v.sysid)
+                self._request_streams(v, now_s)
+            if v.setpoint is not None and now_s >= v.setpoint_next_s:
+                self._send_setpoint(v, now_s)
+            if v.deferred and now_s >= v.setpoint_since_s + v.adapter.prestream_s:
+                deferred, v.deferred = v.deferred, []
+                for cmd in deferred:
+                    self._submit(cmd, now_s)
+
+    # ------------------------------------------------------------------ streams
+
+    def _stale_due_s(self, v: _Vehicle) -> float:
+        if not self.config.stale_msgids:
+            return math.inf
+        last = min(v.last_msg_s.get(m, -math.inf) for m in self.config.stale_msgids)
+        return max(last, v.last_stream_request_s) + self.config.telemetry_stale_s
+
+    def request_streams(self, sysid: int, now_s: float) -> None:
+        """(Re-)request the configured telemetry rates from one vehicle."""
+        self._request_streams(self._get(sysid), now_s)
+
+    def _request_streams(self, v: _Vehicle, now_s: float) -> None:
+        v.last_stream_request_s = now_s
+        if v.use_data_stream:
+            self._send_data_streams(v, now_s)
+            return
+        for msgid, rate_hz in self.config.stream_rates_hz:
+            key = (v.sysid, _CMD_SET_MESSAGE_INTERVAL)
+            pending = [self._commands.get(key), *self._queued.get(key, ())]
+            if any(c is not None and c.internal is not None and c.params[0] == msgid
+                   for c in pending):
+                continue  # already asked and waiting
+            params = (float(msgid), wire.hz_to_interval_us(rate_hz), 0.0, 0.0, 0.0, 0.0, 0.0)
+            cmd = self._new_command(v.sysid, _CMD_SET_MESSAGE_INTERVAL, params, use_int=False)
+            cmd.internal = lambda result, t_s, v=v: self._on_interval_result(v, result, t_s)
+            self._submit(cmd, now_s)
+
+    def _on_interval_result(self, v: _Vehicle, result: int | None, now_s: float) -> None:
+        if result == mavlink.MAV_RESULT_ACCEPTED or v.use_data_stream:
+            return
+        # No ACK, or UNSUPPORTED/DENIED/FAILED: older ArduPilot and some routers. Fall back to
+        # REQUEST_DATA_STREAM for this vehicle from now on (Skybrush pattern, MAVLINK_NOTES §1.2).
+        log.info("link %d sysid %d: SET_MESSAGE_INTERVAL result %s, falling back to "
+                 "REQUEST_DATA_STREAM", self.link_id, v.sysid, result)
+        v.use_data_stream = True
+        self.stats.data_stream_fallbacks += 1
+        key = (v.sysid, _CMD_SET_MESSAGE_INTERVAL)
+        self._queued.pop(key, None)
+        self._send_data_streams(v, now_s)
+
+    def _send_data_streams(self, v: _Vehicle, now_s: float) -> None:
+        rates: dict[int, float] = {}
+        for msgid, rate_hz in self.config.stream_rates_hz:
+            stream = _DATA_STREAM_OF_MSG.get(msgid)
+            if stream is not None:
+                rates[stream] = max(rates.get(stream, 0.0), rate_hz)
+        for stream, rate_hz in rates.items():
+            msg = mavlink.MAVLink_request_data_stream_message(
+                v.sysid, _AUTOPILOT_COMPID, stream, max(1, int(round(rate_hz))), 1)
+            self._send(msg, v.addr, now_s)
+
+    # ------------------------------------------------------------------ commands
+
+    def _new_command(self, sysid: int, command: int, params: tuple, *, use_int: bool) -> _Command:
+        cmd = _Command(self._next_request_id, sysid, command, tuple(params), use_int)
+        self._next_request_id += 1
+        return cmd
+
+    def _submit(self, cmd: _Command, now_s: float) -> None:
+        key = (cmd.sysid, cmd.command)
+        if key in self._commands:
+            # One in-flight command per (target, command id): an ACK names only the command id.
+            self._queued.setdefault(key, deque()).append(cmd)
+        else:
+            self._commands[key] = cmd
+            self._transmit_command(cmd, now_s)
+
+    def _transmit_command(self, cmd: _Command, now_s: float) -> None:
+        v = self._vehicles[cmd.sysid]
+        if cmd.use_int:
+            frame, p1, p2, p3, p4, x, y, z = cmd.params
+            msg = mavlink.MAVLink_command_int_message(
+                cmd.sysid, cmd.component, int(frame), cmd.command, 0, 0, p1, p2, p3, p4,
+                int(x), int(y), z)
+        else:
+            # confirmation: 0 on the first send, incremented on every re-send (mavlink.io).
+            msg = mavlink.MAVLink_command_long_message(
+                cmd.sysid, cmd.component, cmd.command, min(cmd.attempts, 255), *cmd.params)
+        cmd.attempts += 1
+        cmd.deadline_s = now_s + self.config.command_timeout_s
+        self._send(msg, v.addr, now_s)
+
+    def _finish_command(self, cmd: _Command, now_s: float, result: int | None) -> None:
+        key = (cmd.sysid, cmd.command)
+        del self._commands[key]
+        if cmd.internal is not None:
+            cmd.internal(result, now_s)
+        elif result is None:
+            self._emit(CommandTimedOut(self.link_id, cmd.sysid, now_s, cmd.command,
+                                       cmd.request_id, cmd.attempts))
+        elif result == mavlink.MAV_RESULT_ACCEPTED:
+            self._emit(CommandAcked(self.link_id, cmd.sysid, now_s, cmd.command, cmd.request_id,
+                                    cmd.attempts))
+        else:
+            self._emit(CommandFailed(self.link_id, cmd.sysid, now_s, cmd.command, cmd.request_id,
+                                     int(result), _result_name(result)))
+        queue = self._queued.get(key)
+        if queue:
+            nxt = queue.popleft()
+            if not queue:
+                del self._queued[key]
+            if cmd.sysid in self._vehicles:
+                self._commands[key] = nxt
+                self._transmit_command(nxt, now_s)
+
+    def send_command_long(self, sysid: int, command: int, params=(0.0,) * 7, now_s: float = 0.0,
+                          *, component: int = _AUTOPILOT_COMPID) -> int:
+        """Send a COMMAND_LONG with ACK matching and retries; returns the request id.
+
+        Outcome events: CommandAcked, CommandInProgress, CommandFailed, CommandTimedOut.
+        """
+        self._get(sysid)
+        params = tuple(float(p) for p in params)
+        if len(params) != 7:
+            raise ValueError(f"COMMAND_LONG takes 7 params, got {len(params)}")
+        cmd = self._new_command(sysid, command, params, use_int=False)
+        cmd.component = component
+        self._submit(cmd, now_s)
+        return cmd.request_id
+
+    def send_command_int(self, sysid: int, command: int, *, frame: int,
+                         params=(0.0, 0.0, 0.0, 0.0), lat_deg: float = 0.0, lon_deg: float = 0.0,
+                         alt_m: float = 0.0, now_s: float = 0.0) -> int:
+        """Send a COMMAND_INT (positional commands: x/y as degE7); returns the request id."""
+        self._get(sysid)
+        p = tuple(float(v) for v in params)
+        if len(p) != 4:
+            raise ValueError(f"COMMAND_INT takes 4 params, got {len(p)}")
+        cmd = self._new_command(sysid, command, (frame, *p, wire.deg_to_e7(lat_deg),
+                                                 wire.deg_to_e7(lon_deg), float(alt_m)),
+                                use_int=True)
+        self._submit(cmd, now_s)
+        return cmd.request_id
+
+    def _send_spec(self, sysid: int, spec: CommandSpec, now_s: float) -> int:
+        v = self._get(sysid)
+        cmd = self._new_command(sysid, spec.command, spec.params, use_int=False)
+        if spec.after_prestream and v.adapter.prestream_s > 0:
+            if v.setpoint is None:
+                raise LinkUsageError(
+                    f"sysid {sysid} ({v.adapter.name}): stream position targets "
+                    "(set_position_target) before switching to offboard or arming")
+            if now_s < v.setpoint_since_s + v.adapter.prestream_s:
+                v.deferred.append(cmd)  # sent by handle_timer once the stream is old enough
+                return cmd.request_id
+        self._submit(cmd, now_s)
+        return cmd.request_id
+
+    # ------------------------------------------------------------------ vehicle actions
+
+    def set_mode(self, sysid: int, mode: str, now_s: float) -> int:
+        """Request a flight mode by name (adapter table); confirmed later by ModeChanged."""
+        return self._send_spec(sysid, self._get(sysid).adapter.set_mode(mode), now_s)
+
+    def engage_guided(self, sysid: int, now_s: float) -> int:
+        """GUIDED (ArduPilot) or OFFBOARD (PX4, held until setpoints have pre-streamed)."""
+        return self.set_mode(sysid, self._get(sysid).adapter.guided_mode, now_s)
+
+    def arm(self, sysid: int, now_s: float) -> int:
+        """Arm (MAV_CMD_COMPONENT_ARM_DISARM param1 = 1; never forced)."""
+        return self._send_spec(sysid, self._get(sysid).adapter.arm(), now_s)
+
+    def disarm(self, sysid: int, now_s: float) -> int:
+        return self._send_spec(sysid, self._get(sysid).adapter.disarm(), now_s)
+
+    def rtl(self, sysid: int, now_s: float) -> int:
+        return self.set_mode(sysid, self._get(sysid).adapter.rtl_mode, now_s)
+
+    def land(self, sysid: int, now_s: float) -> int:
+        return self.set_mode(sysid, self._get(sysid).adapter.land_mode, now_s)
+
+    def takeoff(self, sysid: int, alt_above_home_m: float, now_s: float) -> int | None:
+        """Take off to ``alt_above_home_m``.
+
+        ArduPilot: NAV_TAKEOFF (the vehicle must already be GUIDED and armed); returns its
+        request id. PX4: a position target above the current position (needs telemetry), then
+        OFFBOARD and arm, both held until the setpoints have pre-streamed; returns the arm
+        request id.
+        """
+        v = self._get(sysid)
+        if not alt_above_home_m > 0:
+            raise ValueError(f"takeoff altitude must be > 0 m, got {alt_above_home_m}")
+        if v.adapter.takeoff_by_offboard_climb:
+            if v.position is None:
+                raise LinkUsageError(f"sysid {sysid}: no position yet, cannot climb in offboard")
+            self.set_position_target(sysid, v.position.lat_deg, v.position.lon_deg,
+                                     alt_above_home_m, now_s)
+            self.engage_guided(sysid, now_s)
+            return self.arm(sysid, now_s)
+        spec = v.adapter.takeoff(alt_above_home_m)
+        assert spec is not None
+        return self._send_spec(sysid, spec, now_s)
+
+    def set_position_target(self, sysid: int, lat_deg: float, lon_deg: float, alt_m: float,
+                            now_s: float, *, frame: int | None = None) -> None:
+        """Set (and keep re-sending) a SET_POSITION_TARGET_GLOBAL_INT position target.
+
+        ``alt_m`` is above home in the default frame (GLOBAL_RELATIVE_ALT_INT, 6). Sent at once,
+        then re-sent every ``adapter.setpoint_period_s`` (1 s ArduPilot, 0.1 s PX4) until
+        :meth:`clear_position_target`, so a lost datagram or a GUID_TIMEOUT never leaves the
+        vehicle without a target and PX4 keeps its OFFBOARD stream.
+        """
+        v = self._get(sysid)
+        fr = v.adapter.setpoint_frame if frame is None else frame
+        # Validate now (a local error) rather than at the next resend.
+        wire.position_target_global_int(target_system=sysid, lat_deg=lat_deg, lon_deg=lon_deg,
+                                        alt_m=alt_m, frame=fr)
+        if v.setpoint is None:
+            v.setpoint_since_s = now_s
+        v.setpoint = (float(lat_deg), float(lon_deg), float(alt_m), fr)
+        self._send_setpoint(v, now_s)
+
+    def clear_position_target(self, sysid: int, now_s: float) -> None:
+        """Stop re-sending the position target (commands waiting for the pre-stream fail)."""
+        v = self._get(sysid)
+        v.setpoint, v.setpoint_next_s, v.setpoint_since_s = None, math.inf, math.nan
+        for cmd in v.deferred:
+            self._emit(CommandFailed(self.link_id, sysid, now_s, cmd.command, cmd.request_id,
+                                     None, "setpoint stream stopped before it was long enough"))
+        v.deferred = []
+
+    def _send_setpoint(self, v: _Vehicle, now_s: float) -> None:
+        assert v.setpoint is not None
+        lat, lon, alt, frame = v.setpoint
+        msg = wire.position_target_global_int(
+            target_system=v.sysid, lat_deg=lat, lon_deg=lon, alt_m=alt, frame=frame,
+            time_boot_s=now_s - self._t0_s)
+        self._send(msg, v.addr, now_s)
+        v.setpoint_next_s = now_s + v.adapter.setpoint_period_s
+
+    # ------------------------------------------------------------------ parameters
+
+    def request_param(self, sysid: int, name: str, now_s: float) -> None:
+        """PARAM_REQUEST_READ by name, re-sent until PARAM_VALUE (ParamReceived) or ParamTimedOut."""
+        self._get(sysid)
+        if not name or len(name) > 16:
+            raise ValueError(f"param name must be 1..16 characters, got {name!r}")
+        key = (sysid, name)
+        if key not in self._params:
+            self._params[key] = req = _ParamRequest(sysid, name)
+            self._transmit_param_request(req, now_s)
+
+    def _transmit_param_request(self, req: _ParamRequest, now_s: float) -> None:
+        v = self._vehicles[req.sysid]
+        msg = mavlink.MAVLink_param_request_read_message(
+            req.sysid, _AUTOPILOT_COMPID, req.name.encode("ascii"), -1)
+        req.attempts += 1
+        req.deadline_s = now_s + self.config.param_timeout_s
+        self._send(msg, v.addr, now_s)
+
+
+def _result_name(result: int) -> str:
+    entry = mavlink.enums["MAV_RESULT"].get(result)
+    return entry.name if entry is not None else f"MAV_RESULT({result})"
+
+
+_HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
+    "GLOBAL_POSITION_INT": StationLink._on_global_position,
+    "COMMAND_ACK": StationLink._on_command_ack,
+    "PARAM_VALUE": StationLink._on_param_value,
+    "STATUSTEXT": StationLink._on_statustext,
+}
+
+#: Known and deliberately ignored here (requested for display or future use; counted only).
+_IGNORED = frozenset({
+    "SYS_STATUS", "GPS_RAW_INT", "EXTENDED_SYS_STATE", "LOCAL_POSITION_NED", "ATTITUDE",
+    "VFR_HUD", "HOME_POSITION", "GPS_GLOBAL_ORIGIN", "POSITION_TARGET_GLOBAL_INT",
+    "POSITION_TARGET_LOCAL_NED", "RADIO_STATUS", "TIMESYNC", "SYSTEM_TIME", "BATTERY_STATUS",
+    "PARAM_REQUEST_READ", "MISSION_CURRENT", "NAV_CONTROLLER_OUTPUT", "AUTOPILOT_VERSION",
+    "PING", "ALTITUDE", "ESTIMATOR_STATUS", "VIBRATION", "HIGHRES_IMU", "SCALED_IMU",
+    "RAW_IMU", "SCALED_PRESSURE", "SERVO_OUTPUT_RAW", "RC_CHANNELS", "AHRS", "AHRS2",
+    "EKF_STATUS_REPORT", "POWER_STATUS", "MEMINFO", "TERRAIN_REPORT", "SIMSTATE",
+})
