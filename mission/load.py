@@ -455,7 +455,7 @@ def dump_mission(mission: Mission, header: str | None = None) -> str:
     ``header`` (optional) is written first as ``#`` comment lines.
     """
     text = yaml.dump(resolved_dict(mission), Dumper=_Dumper, sort_keys=False, allow_unicode=True,
-                     default_flow_style=False, width=100)
+                     default_flow_style=False, width=4096)
     if header:
         lines = ["#" + (" " + line if line else "") for line in header.rstrip("\n").split("\n")]
         text = "\n".join(lines) + "\n" + text
