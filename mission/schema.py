@@ -324,15 +324,14 @@ class EmulatedVehicles(FlightLimits):
 
 
 def _connection_problem(text: str) -> str | None:
-    import re
+    """None if ``text`` is a connection string the ground station accepts, else why not."""
+    from gcs.connection import parse_connection  # the one parser of connection strings
 
-    if re.fullmatch(r"(udpin|udpout|udp|udpbcast|tcp|tcpin):[A-Za-z0-9_.\-\[\]:]+:\d{1,5}", text):
-        port = int(text.rsplit(":", 1)[1])
-        return None if 0 < port < 65536 else f"port out of range in {text!r}"
-    if re.fullmatch(r"(/dev/[A-Za-z0-9_./\-]+|COM\d+)(,\d+)?", text):
-        return None
-    return (f"not a MAVLink connection string: {text!r} (expected e.g. 'udpin:0.0.0.0:14550', "
-            "'tcp:127.0.0.1:5760' or '/dev/ttyUSB0,57600')")
+    try:
+        parse_connection(text)
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 @dataclass(frozen=True, kw_only=True)
