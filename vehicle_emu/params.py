@@ -1,0 +1,143 @@
+"""A small, real parameter table per personality (PARAM_REQUEST_LIST / READ / SET).
+
+Values are kept in the autopilot's native units (ArduPilot speeds in cm/s, PX4 in m/s) so a
+ground station reads exactly what it would read from the firmware; the vehicle core converts to
+SI when it uses them.
+
+Deviations from firmware defaults, chosen so the emulator reproduces the paper's behaviour
+("a disconnected drone flies home") out of the box, are marked ``# emulator default``:
+
+* ArduPilot ``FS_GCS_ENABLE`` defaults to 0 in the firmware; here 1 (RTL).
+* PX4 ``NAV_DLL_ACT`` defaults to 0 (disabled) in the firmware; here 2 (Return), and
+  ``COM_DL_LOSS_T`` keeps its firmware default of 10 s (configurable).
+
+Every default can be overridden per vehicle (``Swarm(params=...)`` or PARAM_SET on the wire).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .wire import dialect
+
+__all__ = ["ParamSpec", "ParamTable", "ARDUPILOT_PARAMS", "PX4_PARAMS", "defaults_for"]
+
+_F = dialect.MAV_PARAM_TYPE_REAL32
+_I8 = dialect.MAV_PARAM_TYPE_INT8
+_I16 = dialect.MAV_PARAM_TYPE_INT16
+_I32 = dialect.MAV_PARAM_TYPE_INT32
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter definition."""
+
+    name: str
+    """Parameter id (at most 16 characters)."""
+    default: float
+    """Default value, native units."""
+    param_type: int
+    """MAV_PARAM_TYPE_*."""
+    min_value: float = float("-inf")
+    max_value: float = float("inf")
+
+
+# ArduCopter (4.x) names and defaults: ArduCopter/Parameters.cpp, libraries/AC_WPNav/AC_WPNav.cpp,
+# ArduCopter/mode_rtl.cpp. Units are the firmware's.
+ARDUPILOT_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("SYSID_THISMAV", 1, _I16, 1, 255),
+    ParamSpec("SYSID_MYGCS", 255, _I16, 1, 255),
+    ParamSpec("FS_GCS_ENABLE", 1, _I8, 0, 7),      # emulator default (firmware: 0)
+    ParamSpec("FS_GCS_TIMEOUT", 5.0, _F, 2, 120),  # s
+    ParamSpec("FS_OPTIONS", 0, _I32, 0, 2**31 - 1),
+    ParamSpec("GUID_TIMEOUT", 3.0, _F, 0.1, 5),    # s
+    ParamSpec("WPNAV_SPEED", 1000.0, _F, 10, 2000),  # cm/s
+    ParamSpec("WPNAV_SPEED_UP", 250.0, _F, 10, 1000),  # cm/s
+    ParamSpec("WPNAV_SPEED_DN", 150.0, _F, 10, 500),  # cm/s
+    ParamSpec("LAND_SPEED", 50.0, _F, 30, 200),    # cm/s
+    ParamSpec("RTL_ALT", 1500.0, _F, 200, 300000),  # cm above home
+    ParamSpec("RTL_ALT_FINAL", 0.0, _F, 0, 1000),  # cm; 0 = land at home
+    ParamSpec("RTL_SPEED", 0.0, _F, 0, 2000),      # cm/s; 0 = WPNAV_SPEED
+    ParamSpec("DISARM_DELAY", 10, _I8, 0, 127),    # s
+)
+
+# PX4 (v1.14+) names and defaults: src/modules/commander/commander_params.yaml,
+# src/modules/mc_pos_control/multicopter_*_params.c, src/modules/navigator/rtl_params.c.
+PX4_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("MAV_SYS_ID", 1, _I32, 1, 250),
+    ParamSpec("COM_OF_LOSS_T", 1.0, _F, 0, 60),    # s
+    ParamSpec("COM_OBL_RC_ACT", 0, _I32, 0, 7),    # 0 Position, 1 Altitude, 2 Manual, 3 RTL, 4 Land, 5 Hold
+    ParamSpec("NAV_DLL_ACT", 2, _I32, 0, 6),       # emulator default (firmware: 0 disabled)
+    ParamSpec("COM_DL_LOSS_T", 10, _I32, 5, 300),  # s
+    ParamSpec("COM_DISARM_PRFLT", 10.0, _F, -1, 20),  # s
+    ParamSpec("MPC_XY_CRUISE", 5.0, _F, 3, 20),    # m/s (auto modes)
+    ParamSpec("MPC_XY_VEL_MAX", 12.0, _F, 0, 20),  # m/s (offboard / position limit)
+    ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, _F, 0.5, 8),  # m/s
+    ParamSpec("MPC_Z_VEL_MAX_DN", 1.5, _F, 0.5, 4),  # m/s
+    ParamSpec("MPC_LAND_SPEED", 0.7, _F, 0.6, 4),  # m/s
+    ParamSpec("MIS_TAKEOFF_ALT", 2.5, _F, 0, 80),  # m above home
+    ParamSpec("RTL_RETURN_ALT", 60.0, _F, 0, 150),  # m above home
+    ParamSpec("RTL_DESCEND_ALT", 30.0, _F, 2, 100),  # m (used as hover height if RTL_LAND_DELAY<0)
+    ParamSpec("RTL_LAND_DELAY", 0.0, _F, -1, 300),  # s; -1 = hover at RTL_DESCEND_ALT
+)
+
+
+def defaults_for(personality: str) -> tuple[ParamSpec, ...]:
+    if personality == "ardupilot":
+        return ARDUPILOT_PARAMS
+    if personality == "px4":
+        return PX4_PARAMS
+    raise ValueError(f"personality must be 'ardupilot' or 'px4', got {personality!r}")
+
+
+class ParamTable:
+    """Ordered parameter table with typed, range-checked values.
+
+    Parameters
+    ----------
+    specs : sequence of ParamSpec
+    overrides : mapping name -> value, optional
+        Applied after the defaults; unknown names raise ``KeyError`` (a local programming error).
+    """
+
+    def __init__(self, specs, overrides=None) -> None:
+        self._specs = {s.name: s for s in specs}
+        self._names = [s.name for s in specs]
+        self._values = {s.name: float(s.default) for s in specs}
+        for name, value in (overrides or {}).items():
+            if name not in self._specs:
+                raise KeyError(f"unknown parameter {name!r}; valid: {', '.join(self._names)}")
+            self._values[name] = self._coerce(self._specs[name], float(value))
+
+    @staticmethod
+    def _coerce(spec: ParamSpec, value: float) -> float:
+        if spec.param_type != _F:
+            value = float(int(round(value)))
+        return min(max(value, spec.min_value), spec.max_value)
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._specs
+
+    def __getitem__(self, name: str) -> float:
+        return self._values[name]
+
+    def names(self) -> list[str]:
+        return list(self._names)
+
+    def index_of(self, name: str) -> int:
+        return self._names.index(name)
+
+    def name_at(self, index: int) -> str | None:
+        return self._names[index] if 0 <= index < len(self._names) else None
+
+    def param_type(self, name: str) -> int:
+        return self._specs[name].param_type
+
+    def set(self, name: str, value: float) -> float:
+        """Set (clamped to range, rounded for integer types); return the stored value."""
+        stored = self._coerce(self._specs[name], float(value))
+        self._values[name] = stored
+        return stored
