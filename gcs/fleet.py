@@ -1,0 +1,235 @@
+"""What the station believes about its fleet, folded from link events into arrays.
+
+Positions are in the **mission's** local NED frame (one named geodetic origin), converted from
+GLOBAL_POSITION_INT. LOCAL_POSITION_NED is never used here: each autopilot's local frame is
+relative to its own EKF origin, which differs per vehicle (MAVLINK_NOTES §1.6).
+
+Rows are stable: a vehicle keeps its row index for the whole run, lost or not
+(ARCHITECTURE §4.4); ``index`` (the row) and ``sysid`` (MAVLink id) are distinct, and
+``(link_id, sysid)`` is the vehicle identity (sysids repeat across MAVLink networks).
+
+State per vehicle at ``snapshot(now_s)``:
+
+* **networked** - heard within ``timeout_s`` and not returning: the paper's D'(t), planned for;
+* **lost** - silent for longer than ``timeout_s`` (or the link declared it lost);
+* **returning** - heard again after being lost while in a failsafe mode (ArduPilot RTL/LAND,
+  PX4 AUTO.RTL/POSCTL...): it must be reclaimed (switched back to GUIDED/OFFBOARD) before it
+  rejoins the plan.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from gcs.autopilot import adapter_for
+from gcs.events import (
+    ArmedChanged, Event, ModeChanged, TelemetryReceived, VehicleDiscovered, VehicleLost,
+    VehicleRecovered,
+)
+from planner.geometry import geodetic_to_ned_m, ned_to_geodetic
+
+__all__ = ["MissionOrigin", "FleetSnapshot", "FleetView"]
+
+
+@dataclass(frozen=True)
+class MissionOrigin:
+    """The mission frame's origin (NED, metres, around this point)."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+
+    def __post_init__(self) -> None:
+        if not (-90 <= self.lat_deg <= 90 and -180 <= self.lon_deg <= 180
+                and math.isfinite(self.alt_amsl_m)):
+            raise ValueError(f"invalid mission origin {self}")
+
+
+@dataclass(frozen=True)
+class FleetSnapshot:
+    """The fleet at one instant, struct of arrays; row i is the same vehicle in every array."""
+
+    t_s: float
+    link_id: np.ndarray
+    """(N,) int: link of each row."""
+    sysid_of_index: np.ndarray
+    """(N,) int: MAVLink sysid of each row."""
+    pos_ned_m: np.ndarray
+    """(N, 3) float64: position in the mission NED frame, metres (NaN until the first fix)."""
+    vel_ned_m_s: np.ndarray
+    """(N, 3) float64: velocity NED, m/s (NaN until the first fix)."""
+    has_position: np.ndarray
+    """(N,) bool."""
+    home_amsl_m: np.ndarray
+    """(N,) float64: each vehicle's home altitude AMSL (alt - relative_alt), metres."""
+    last_heard_s: np.ndarray
+    """(N,) float64: core time of the last event from the vehicle, seconds."""
+    networked: np.ndarray
+    """(N,) bool: heard within the timeout and not returning (D'(t))."""
+    lost: np.ndarray
+    """(N,) bool: silent."""
+    returning: np.ndarray
+    """(N,) bool: heard again after a loss, in a failsafe mode: to be reclaimed."""
+    armed: np.ndarray
+    """(N,) bool."""
+    custom_mode: np.ndarray
+    """(N,) int: HEARTBEAT.custom_mode."""
+    autopilot: np.ndarray
+    """(N,) int: HEARTBEAT.autopilot (3 ArduPilot, 12 PX4)."""
+    mode: tuple[str, ...]
+    """Mode names, per row."""
+
+    @property
+    def n_vehicles(self) -> int:
+        return len(self.sysid_of_index)
+
+
+class FleetView:
+    """Folds link events (:meth:`apply`) into per-vehicle rows; :meth:`snapshot` reads them."""
+
+    def __init__(self, origin: MissionOrigin, *, timeout_s: float = 5.0) -> None:
+        if not timeout_s > 0:
+            raise ValueError(f"timeout_s must be > 0, got {timeout_s}")
+        self.origin = origin
+        self.timeout_s = timeout_s
+        self._index: dict[tuple[int, int], int] = {}
+        self._link: list[int] = []
+        self._sysid: list[int] = []
+        self._geo: list[tuple[float, float, float]] = []        # lat, lon, alt_amsl (NaN = none)
+        self._vel: list[tuple[float, float, float]] = []
+        self._home_amsl: list[float] = []
+        self._last_heard: list[float] = []
+        self._link_lost: list[bool] = []
+        self._was_lost: list[bool] = []
+        self._armed: list[bool] = []
+        self._custom_mode: list[int] = []
+        self._autopilot: list[int] = []
+
+    # ------------------------------------------------------------------ rows
+
+    def __len__(self) -> int:
+        return len(self._sysid)
+
+    def register(self, link_id: int, sysid: int) -> int:
+        """The row of vehicle ``(link_id, sysid)``, creating it if needed (rows never move)."""
+        key = (link_id, sysid)
+        idx = self._index.get(key)
+        if idx is not None:
+            return idx
+        idx = self._index[key] = len(self._sysid)
+        nan3 = (math.nan, math.nan, math.nan)
+        self._link.append(link_id)
+        self._sysid.append(sysid)
+        self._geo.append(nan3)
+        self._vel.append(nan3)
+        self._home_amsl.append(math.nan)
+        self._last_heard.append(-math.inf)
+        self._link_lost.append(False)
+        self._was_lost.append(False)
+        self._armed.append(False)
+        self._custom_mode.append(0)
+        self._autopilot.append(0)
+        return idx
+
+    def index_of(self, link_id: int, sysid: int) -> int:
+        try:
+            return self._index[(link_id, sysid)]
+        except KeyError:
+            raise KeyError(f"no vehicle (link {link_id}, sysid {sysid}) in the fleet") from None
+
+    @property
+    def sysid_of_index(self) -> np.ndarray:
+        return np.array(self._sysid, dtype=int)
+
+    @property
+    def link_of_index(self) -> np.ndarray:
+        return np.array(self._link, dtype=int)
+
+    # ------------------------------------------------------------------ events
+
+    def apply(self, event: Event) -> None:
+        """Fold one link event into the rows (events of other kinds are ignored)."""
+        i = self.register(event.link_id, event.sysid)
+        if event.t_s - self._last_heard[i] > self.timeout_s and math.isfinite(self._last_heard[i]):
+            self._was_lost[i] = True  # silent past the timeout, whatever the link said
+        if isinstance(event, VehicleLost):
+            self._link_lost[i] = True
+            self._was_lost[i] = True
+            return  # a loss is not hearing from it
+        self._last_heard[i] = max(self._last_heard[i], event.t_s)
+        if isinstance(event, TelemetryReceived):
+            self._geo[i] = (event.lat_deg, event.lon_deg, event.alt_amsl_m)
+            self._vel[i] = event.vel_ned_m_s
+            self._home_amsl[i] = event.alt_amsl_m - event.rel_alt_m
+        elif isinstance(event, VehicleDiscovered):
+            self._autopilot[i] = event.autopilot
+            self._custom_mode[i] = event.custom_mode
+            self._armed[i] = event.armed
+            self._link_lost[i] = False
+        elif isinstance(event, VehicleRecovered):
+            self._link_lost[i] = False
+            self._was_lost[i] = True
+            self._custom_mode[i] = event.custom_mode
+            self._settle(i)
+        elif isinstance(event, ModeChanged):
+            self._custom_mode[i] = event.custom_mode
+            self._settle(i)
+        elif isinstance(event, ArmedChanged):
+            self._armed[i] = event.armed
+
+    def _settle(self, i: int) -> None:
+        # Heard and not in a failsafe mode: reclaimed (or never left); a normal member again.
+        if not adapter_for(self._autopilot[i]).is_failsafe_mode(self._custom_mode[i]):
+            self._was_lost[i] = False
+
+    # ------------------------------------------------------------------ reading
+
+    def snapshot(self, now_s: float) -> FleetSnapshot:
+        """The fleet as believed at ``now_s`` (vectorised geodetic -> mission NED)."""
+        n = len(self._sysid)
+        geo = np.array(self._geo, dtype=float).reshape(n, 3)
+        has_pos = np.isfinite(geo).all(axis=1)
+        pos = np.full((n, 3), np.nan)
+        if has_pos.any():
+            o = self.origin
+            pos[has_pos] = geodetic_to_ned_m(geo[has_pos, 0], geo[has_pos, 1], geo[has_pos, 2],
+                                             o.lat_deg, o.lon_deg, o.alt_amsl_m)
+        last = np.array(self._last_heard, dtype=float)
+        heard = (now_s - last <= self.timeout_s) & ~np.array(self._link_lost, dtype=bool)
+        failsafe = np.array([adapter_for(a).is_failsafe_mode(m)
+                             for a, m in zip(self._autopilot, self._custom_mode)], dtype=bool)
+        returning = heard & np.array(self._was_lost, dtype=bool) & failsafe
+        autopilot = np.array(self._autopilot, dtype=int)
+        custom = np.array(self._custom_mode, dtype=np.int64)
+        return FleetSnapshot(
+            t_s=now_s, link_id=self.link_of_index, sysid_of_index=self.sysid_of_index,
+            pos_ned_m=pos, vel_ned_m_s=np.array(self._vel, dtype=float).reshape(n, 3),
+            has_position=has_pos, home_amsl_m=np.array(self._home_amsl, dtype=float),
+            last_heard_s=last, networked=heard & ~returning, lost=~heard, returning=returning,
+            armed=np.array(self._armed, dtype=bool), custom_mode=custom, autopilot=autopilot,
+            mode=tuple(adapter_for(a).mode_name(m) for a, m in zip(self._autopilot,
+                                                                    self._custom_mode)))
+
+    def targets_to_global(self, indices, target_ned_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Mission-NED targets to what SET_POSITION_TARGET_GLOBAL_INT (frame 6) wants.
+
+        Parameters
+        ----------
+        indices : (K,) int - fleet rows the targets are for
+        target_ned_m : (K, 3) float64 - targets in the mission NED frame, metres
+
+        Returns
+        -------
+        lat_deg, lon_deg, alt_above_home_m : (K,) float64 each. The altitude is relative to
+        *each vehicle's* home (AMSL target minus that vehicle's home AMSL); NaN where the
+        vehicle's home is not known yet.
+        """
+        idx = np.asarray(indices, dtype=int)
+        tgt = np.asarray(target_ned_m, dtype=float).reshape(len(idx), 3)
+        o = self.origin
+        lat, lon, alt_amsl = ned_to_geodetic(tgt, o.lat_deg, o.lon_deg, o.alt_amsl_m)
+        home = np.array(self._home_amsl, dtype=float)[idx] if len(idx) else np.empty(0)
+        return (np.atleast_1d(lat), np.atleast_1d(lon), np.atleast_1d(alt_amsl - home))
