@@ -67,13 +67,15 @@ class _Refused(yaml.YAMLError):
     pass
 
 
-class _BoundedSafeLoader(yaml.SafeLoader):
-    """SafeLoader that refuses alias bombs, deep nesting and duplicate keys."""
+class _Guards:
+    """Mixin for a safe loader: refuses alias bombs, deep nesting and duplicate keys.
 
-    def __init__(self, stream: str):
-        super().__init__(stream)
-        self._aliases = 0
-        self._depth = 0
+    Composition is PyYAML's Python ``Composer`` (so these hooks run); scanning and parsing use
+    libyaml when available (about 2.5x faster on large documents), else pure Python.
+    """
+
+    _aliases = 0
+    _depth = 0
 
     def compose_node(self, parent, index):  # noqa: D401 - PyYAML hook
         if self.check_event(yaml.AliasEvent):
@@ -112,6 +114,28 @@ class _BoundedSafeLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+class _BoundedSafeLoader(_Guards, yaml.SafeLoader):
+    """Pure-Python safe loader with the guards."""
+
+
+try:
+    from yaml._yaml import CParser as _CParser
+except ImportError:  # pragma: no cover - PyYAML built without libyaml
+    _BoundedLoader: type = _BoundedSafeLoader
+else:
+    class _BoundedCLoader(_Guards, yaml.composer.Composer, _CParser, yaml.constructor.SafeConstructor,
+                          yaml.resolver.Resolver):
+        """libyaml events, Python composition (with the guards), safe construction."""
+
+        def __init__(self, stream):
+            _CParser.__init__(self, stream)
+            yaml.composer.Composer.__init__(self)
+            yaml.constructor.SafeConstructor.__init__(self)
+            yaml.resolver.Resolver.__init__(self)
+
+    _BoundedLoader = _BoundedCLoader
+
+
 def _check_expanded_size(root: yaml.Node) -> None:
     """Refuse documents whose alias-expanded size exceeds MAX_EXPANDED_NODES (memoised, linear)."""
     sizes: dict[int, int] = {}
@@ -146,7 +170,7 @@ def _parse_yaml(text: str | bytes) -> Any:
     elif len(text.encode("utf-8", "surrogatepass")) > MAX_BYTES:
         raise MissionError([f"document is larger than the limit of {MAX_BYTES} bytes"])
     try:
-        return yaml.load(text, Loader=_BoundedSafeLoader)  # noqa: S506 - a SafeLoader subclass
+        return yaml.load(text, Loader=_BoundedLoader)  # noqa: S506 - safe constructor only
     except _Refused as exc:
         raise MissionError([f"refused: {exc}"]) from None
     except yaml.constructor.ConstructorError as exc:

@@ -233,3 +233,20 @@ def test_valid_mission_prints_ok_summary(tmp_path, capsys):
     rc, out, err, _ = _check(tmp_path, "name: tiny\nvehicles:\n  emulated: {count: 4}\n", capsys)
     assert rc == 0 and err == ""
     assert out.startswith("OK: tiny: 4 emulated ardupilot drones, 10 tasks")
+
+
+@pytest.mark.parametrize("text, expected", [
+    (BILLION_LAUGHS, "alias"),
+    ("name: " + "[" * 5000 + "]" * 5000, "nested deeper"),
+    ("origin: !!python/object/apply:os.getcwd []", "unsupported YAML tag"),
+    ("radio: {}\nradio: {}", "duplicate key 'radio'"),
+])
+def test_pure_python_loader_has_the_same_guards(monkeypatch, text, expected):
+    """The libyaml-accelerated loader is optional; the fallback must be just as strict."""
+    import mission.load as load
+
+    monkeypatch.setattr(load, "_BoundedLoader", load._BoundedSafeLoader)
+    start = time.perf_counter()
+    with pytest.raises(load.MissionError, match=expected):
+        load.loads_mission(text)
+    assert time.perf_counter() - start < 0.5
