@@ -739,6 +739,44 @@ class Mission(_Section):
             problems.append(("tasks", f"{self.n_tasks} tasks in total; at most 10000"))
         return problems
 
+    def problem_config(self):
+        """The :class:`planner.problem.ProblemConfig` this mission implies (for the simulator and
+        planners): counts, radii, speed, per-step task sigma and attrition at this control period.
+
+        Spawn positions, tracks, scripted losses and hazard zones are not part of ProblemConfig;
+        runners read them from the mission. The paper length unit is ``radio.range_m / 2``.
+        """
+        from planner.problem import ProblemConfig
+
+        dt = self.run.control_period_s
+        fields = [t.random.field_half_width_m for t in self.tasks if t.random is not None]
+        fields += [t.random_walk.field_half_width_m for t in self.tasks
+                   if t.random_walk is not None and t.random_walk.field_half_width_m is not None]
+        unit = paper_length_unit_m(self.radio.range_m)
+        sigmas = [t.random.sigma_m_per_sqrt_s for t in self.tasks if t.random is not None]
+        sigmas += [t.random_walk.sigma_m_per_sqrt_s for t in self.tasks if t.random_walk is not None]
+        borders = [t.random.border for t in self.tasks if t.random is not None]
+        emu = self.vehicles.emulated
+        ring = emu.spawn.ring if emu is not None else None
+        return ProblemConfig(
+            n_drones=self.vehicles.count,
+            n_tasks=self.n_tasks,
+            field_half_width_m=max(fields) if fields else 5.0 * unit,
+            radio_range_m=self.radio.range_m,
+            base_range_m=self.radio.base_range_m,
+            max_speed_m_s=self.vehicles.limits.max_speed_m_s,
+            ring_radius_m=ring.radius_m if ring is not None else 0.0,
+            ring_noise_m=ring.noise_m if ring is not None else 0.0,
+            task_walk_sigma_m=(sigmas[0] if sigmas else 0.0) * math.sqrt(dt),
+            task_border=borders[0] if borders else "clip",
+            attrition_per_step=self.attrition.per_step(dt),
+            n_steps=self.run.n_steps,
+            dt_s=dt,
+            length_unit_m=unit,
+            size=self.name,
+            reading="mission",
+        )
+
     def summary(self) -> str:
         """One line for people: what this mission flies."""
         v = self.vehicles

@@ -259,3 +259,21 @@ def test_numeric_keys_carry_units():
             if "float" in hint and "str" not in hint and f.name not in allowed_unitless:
                 assert f.name.endswith(("_m", "_s", "_deg", "_per_s", "_m_s", "_per_sqrt_s")), \
                     f"{cls.__name__}.{f.name} has no unit suffix"
+
+
+@pytest.mark.parametrize("size", SIZES)
+def test_problem_config_of_a_paper_mission_matches_the_preset(size):
+    from planner.problem import problem_preset
+
+    for step_s in (1.0, 0.5):
+        cfg = paper_mission(size, 0.02, unit_m=1.0, step_s=step_s).problem_config()
+        ref = problem_preset(size, 0.02)
+        assert (cfg.n_drones, cfg.n_tasks, cfg.n_steps) == (ref.n_drones, ref.n_tasks, ref.n_steps)
+        assert cfg.attrition_per_step == pytest.approx(0.02)
+        assert cfg.dt_s == step_s
+        assert cfg.length_unit_m == pytest.approx(ref.length_unit_m)
+        for name in ("field_half_width_m", "radio_range_m", "base_range_m", "ring_radius_m",
+                     "ring_noise_m", "task_walk_sigma_m"):
+            assert getattr(cfg, name) == pytest.approx(getattr(ref, name)), name
+        assert cfg.max_speed_m_s * step_s == pytest.approx(ref.max_speed_m_s)  # metres per step
+        assert cfg.task_border == "clip"
