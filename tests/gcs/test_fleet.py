@@ -1,0 +1,91 @@
+"""Fleet view: GLOBAL_POSITION_INT -> mission NED, stable rows, networked / lost / returning."""
+
+import numpy as np
+import pytest
+from gcs_fakes import FakeAutopilot, drain
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from gcs.events import ModeChanged, TelemetryReceived, VehicleDiscovered, VehicleLost
+from gcs.fleet import FleetView, MissionOrigin
+from gcs.link import StationConfig, StationLink
+from planner.geometry import ned_to_geodetic
+
+ORIGIN = MissionOrigin(47.3977, 8.5456, 488.0)
+A1, A2 = ("10.0.0.1", 1), ("10.0.0.2", 2)
+
+
+def fly(link, fleet, data, addr, t):
+    link.receive_datagram(data, addr, t)
+    for ev in drain(link):
+        fleet.apply(ev)
+
+
+def test_two_vehicles_with_different_origins_land_in_one_mission_frame():
+    """Vehicle 1 took off 200 m north-east of the mission origin, vehicle 2 300 m south-west and
+    20 m higher; their local frames differ, the mission frame must not."""
+    link = StationLink(StationConfig(stream_rates_hz=()))
+    fleet = FleetView(ORIGIN)
+    truth = np.array([[150.0, 130.0, -30.0], [-210.0, -220.0, -45.0]])  # mission NED, metres
+    homes_amsl = [488.0, 508.0]
+    lat, lon, alt = ned_to_geodetic(truth, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_amsl_m)
+    aps = [FakeAutopilot(sysid=5), FakeAutopilot(sysid=9, autopilot=mav.MAV_AUTOPILOT_PX4)]
+    for i, (ap, addr) in enumerate(zip(aps, (A1, A2))):
+        fly(link, fleet, ap.heartbeat(4 if i == 0 else 393216), addr, 0.0)
+        fly(link, fleet, ap.global_position(lat[i], lon[i], alt[i], alt[i] - homes_amsl[i],
+                                            (1.0, -0.5, 0.2)), addr, 0.5)
+    snap = fleet.snapshot(1.0)
+    assert list(snap.sysid_of_index) == [5, 9] and list(snap.link_id) == [0, 0]
+    # Within the wire quantisation (1e-7 deg ~ 1.1 cm, 1 mm).
+    np.testing.assert_allclose(snap.pos_ned_m, truth, atol=0.02)
+    np.testing.assert_allclose(snap.vel_ned_m_s, [[1.0, -0.5, 0.2]] * 2)
+    np.testing.assert_allclose(snap.home_amsl_m, homes_amsl, atol=2e-3)
+    assert snap.networked.all() and not snap.lost.any() and snap.mode == ("GUIDED", "OFFBOARD")
+
+    # Targets back to the wire: same target for both -> same lat/lon, different rel. altitude.
+    tgt = np.array([[100.0, 50.0, -40.0], [100.0, 50.0, -40.0]])
+    t_lat, t_lon, rel = fleet.targets_to_global([0, 1], tgt)
+    assert t_lat[0] == t_lat[1] and t_lon[0] == t_lon[1]
+    np.testing.assert_allclose(rel, [40.0, 20.0], atol=2e-3)
+
+
+def test_rows_are_stable_and_states_classified():
+    fleet = FleetView(ORIGIN, timeout_s=5.0)
+    assert fleet.register(1, 7) == 0 and fleet.register(0, 7) == 1  # same sysid, other link
+    assert fleet.index_of(1, 7) == 0
+    with pytest.raises(KeyError):
+        fleet.index_of(2, 7)
+    tel = dict(lat_deg=47.3977, lon_deg=8.5456, alt_amsl_m=520.0, rel_alt_m=32.0)
+    fleet.apply(VehicleDiscovered(1, 7, 0.0, autopilot=3, custom_mode=4, mode="GUIDED"))
+    fleet.apply(TelemetryReceived(1, 7, 0.5, **tel))
+    fleet.apply(VehicleDiscovered(0, 7, 0.0, autopilot=3, custom_mode=4, mode="GUIDED"))
+    fleet.apply(TelemetryReceived(0, 7, 0.5, **tel))
+
+    snap = fleet.snapshot(3.0)
+    assert snap.networked.tolist() == [True, True]
+    snap = fleet.snapshot(5.6)  # row 0 silent for 5.1 s
+    assert snap.lost.tolist() == [True, True] and not snap.networked.any()
+
+    # Row 0 heard again in RTL (its GCS failsafe fired): returning, not networked.
+    fleet.apply(VehicleLost(1, 7, 5.5, 0.5))
+    fleet.apply(ModeChanged(1, 7, 20.0, custom_mode=6, mode="RTL", previous_mode="GUIDED"))
+    fleet.apply(TelemetryReceived(1, 7, 20.0, **tel))
+    snap = fleet.snapshot(20.5)
+    assert snap.returning.tolist() == [False, False]  # link still says lost: no recovery yet
+    from gcs.events import VehicleRecovered
+    fleet.apply(VehicleRecovered(1, 7, 20.0, silent_s=19.5, custom_mode=6, mode="RTL"))
+    snap = fleet.snapshot(20.5)
+    assert snap.returning.tolist() == [True, False] and snap.networked.tolist() == [False, False]
+    assert snap.lost.tolist() == [False, True]
+    # Reclaimed to GUIDED: networked again.
+    fleet.apply(ModeChanged(1, 7, 21.0, custom_mode=4, mode="GUIDED", previous_mode="RTL"))
+    snap = fleet.snapshot(21.0)
+    assert snap.networked.tolist() == [True, False] and not snap.returning.any()
+    assert snap.pos_ned_m.shape == (2, 3)
+
+
+def test_vehicle_without_position_has_nan_rows():
+    fleet = FleetView(ORIGIN)
+    fleet.apply(VehicleDiscovered(0, 1, 0.0, autopilot=12, custom_mode=0))
+    snap = fleet.snapshot(0.1)
+    assert not snap.has_position[0] and np.isnan(snap.pos_ned_m).all()
+    assert snap.n_vehicles == 1
