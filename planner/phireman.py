@@ -157,9 +157,10 @@ def pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, att
     diff = pos_u[:, None, :] - others_u  # (n,1,2) - (n|1,K,2) -> (n,K,2)
     d2 = np.einsum("nkc,nkc->nk", diff, diff)
     d = np.sqrt(d2)
-    safe = np.where(d > 0, d, np.inf)
-    coef = np.where(mask & (d > floor), attraction / (safe * d2 + (d2 == 0)), 0.0)
-    coef -= np.where(mask & (d < reach), repulsion * (reach - d) / safe, 0.0)
+    pull = mask & (d > floor)          # d > floor >= 0, so d^3 > 0 wherever it is used
+    push = mask & (d < reach) & (d > 0)
+    coef = np.divide(attraction, d * d2, out=np.zeros_like(d), where=pull)
+    coef -= np.divide(repulsion * (reach - d), d, out=np.zeros_like(d), where=push)
     return pair_factor * np.einsum("nk,nkc->nc", coef, diff)
 
 
