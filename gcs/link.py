@@ -186,6 +186,7 @@ class _Vehicle:
     lost: bool = False
     last_msg_s: dict[int, float] = field(default_factory=dict)
     use_data_stream: bool = False
+    interval_accepted: bool = False
     last_stream_request_s: float = -math.inf
     position: TelemetryReceived | None = None
     setpoint: tuple[float, float, float, int] | None = None   # lat, lon, alt, frame
@@ -245,6 +246,7 @@ class StationLink:
         self._params: dict[tuple[int, str], _ParamRequest] = {}
         self._next_request_id = 1
         self._warned_types: set[str] = set()
+        self._timer_hint_s = now_s
 
     # ------------------------------------------------------------------ outputs
 
@@ -262,7 +264,19 @@ class StationLink:
         return out
 
     def next_timer_s(self) -> float | None:
-        """The earliest core time at which :meth:`handle_timer` has work to do."""
+        """The earliest core time at which :meth:`handle_timer` may have work to do.
+
+        O(1): a lower bound kept up to date as deadlines are set (a receive can only push
+        deadlines later), recomputed exactly by :meth:`handle_timer`. An early wake-up is
+        harmless; a late one never happens.
+        """
+        return self._timer_hint_s if math.isfinite(self._timer_hint_s) else None
+
+    def _wake(self, t_s: float) -> None:
+        if t_s < self._timer_hint_s:
+            self._timer_hint_s = t_s
+
+    def _compute_next_timer_s(self) -> float:
         cfg = self.config
         t = self._next_heartbeat_s
         for cmd in self._commands.values():
@@ -275,7 +289,7 @@ class StationLink:
             t = min(t, v.setpoint_next_s)
             if v.deferred:
                 t = min(t, v.setpoint_since_s + v.adapter.prestream_s)
-        return t if math.isfinite(t) else None
+        return t
 
     # ------------------------------------------------------------------ queries
 
@@ -393,6 +407,7 @@ class StationLink:
                          msg.base_mode, now_s)
             v.last_msg_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now_s
             self._vehicles[sysid] = v
+            self._wake(now_s + self.config.vehicle_timeout_s)
             self._emit(VehicleDiscovered(self.link_id, sysid, now_s, msg.autopilot, msg.type,
                                          msg.custom_mode, adapter.mode_name(msg.custom_mode),
                                          v.armed))
@@ -412,6 +427,7 @@ class StationLink:
         v.custom_mode, v.base_mode, v.vehicle_type = msg.custom_mode, msg.base_mode, msg.type
         if was_lost:
             v.lost = False
+            self._wake(now_s + self.config.vehicle_timeout_s)
             self._emit(VehicleRecovered(self.link_id, sysid, now_s, silent_s, v.custom_mode,
                                         v.adapter.mode_name(v.custom_mode)))
             self._send(self._heartbeat_msg(), addr, now_s)
@@ -453,6 +469,7 @@ class StationLink:
             # Keep waiting, never re-send: a re-send would restart the action (mavlink.io command).
             cmd.in_progress = True
             cmd.deadline_s = now_s + self.config.command_in_progress_timeout_s
+            self._wake(cmd.deadline_s)
             if cmd.internal is None:
                 self._emit(CommandInProgress(self.link_id, v.sysid, now_s, cmd.command,
                                              cmd.request_id, int(msg.progress)))
@@ -515,6 +532,7 @@ class StationLink:
                 deferred, v.deferred = v.deferred, []
                 for cmd in deferred:
                     self._submit(cmd, now_s)
+        self._timer_hint_s = self._compute_next_timer_s()
 
     # ------------------------------------------------------------------ streams
 
@@ -541,14 +559,25 @@ class StationLink:
                 continue  # already asked and waiting
             params = (float(msgid), wire.hz_to_interval_us(rate_hz), 0.0, 0.0, 0.0, 0.0, 0.0)
             cmd = self._new_command(v.sysid, _CMD_SET_MESSAGE_INTERVAL, params, use_int=False)
-            cmd.internal = lambda result, t_s, v=v: self._on_interval_result(v, result, t_s)
+            cmd.internal = (lambda result, t_s, v=v, m=msgid:
+                            self._on_interval_result(v, result, t_s, m))
             self._submit(cmd, now_s)
 
-    def _on_interval_result(self, v: _Vehicle, result: int | None, now_s: float) -> None:
-        if result == mavlink.MAV_RESULT_ACCEPTED or v.use_data_stream:
+    def _on_interval_result(self, v: _Vehicle, result: int | None, now_s: float,
+                            msgid: int = 0) -> None:
+        if result == mavlink.MAV_RESULT_ACCEPTED:
+            v.interval_accepted = True
             return
-        # No ACK, or UNSUPPORTED/DENIED/FAILED: older ArduPilot and some routers. Fall back to
-        # REQUEST_DATA_STREAM for this vehicle from now on (Skybrush pattern, MAVLINK_NOTES §1.2).
+        if v.use_data_stream:
+            return
+        if result not in (None, mavlink.MAV_RESULT_UNSUPPORTED) and v.interval_accepted:
+            # The command works on this vehicle; it just cannot stream this one message.
+            log.info("link %d sysid %d: message %d interval refused (%s)", self.link_id,
+                     v.sysid, msgid, _result_name(result))
+            return
+        # No ACK, UNSUPPORTED, or refused before anything was accepted: older ArduPilot and
+        # some routers. Fall back to REQUEST_DATA_STREAM for this vehicle from now on (Skybrush
+        # pattern, MAVLINK_NOTES §1.2).
         log.info("link %d sysid %d: SET_MESSAGE_INTERVAL result %s, falling back to "
                  "REQUEST_DATA_STREAM", self.link_id, v.sysid, result)
         v.use_data_stream = True
@@ -597,6 +626,7 @@ class StationLink:
                 cmd.sysid, cmd.component, cmd.command, min(cmd.attempts, 255), *cmd.params)
         cmd.attempts += 1
         cmd.deadline_s = now_s + self.config.command_timeout_s
+        self._wake(cmd.deadline_s)
         self._send(msg, v.addr, now_s)
 
     def _finish_command(self, cmd: _Command, now_s: float, result: int | None) -> None:
@@ -661,6 +691,7 @@ class StationLink:
                     "(set_position_target) before switching to offboard or arming")
             if now_s < v.setpoint_since_s + v.adapter.prestream_s:
                 v.deferred.append(cmd)  # sent by handle_timer once the stream is old enough
+                self._wake(v.setpoint_since_s + v.adapter.prestream_s)
                 return cmd.request_id
         self._submit(cmd, now_s)
         return cmd.request_id
@@ -746,6 +777,7 @@ class StationLink:
             time_boot_s=now_s - self._t0_s)
         self._send(msg, v.addr, now_s)
         v.setpoint_next_s = now_s + v.adapter.setpoint_period_s
+        self._wake(v.setpoint_next_s)
 
     # ------------------------------------------------------------------ parameters
 
@@ -765,6 +797,7 @@ class StationLink:
             req.sysid, _AUTOPILOT_COMPID, req.name.encode("ascii"), -1)
         req.attempts += 1
         req.deadline_s = now_s + self.config.param_timeout_s
+        self._wake(req.deadline_s)
         self._send(msg, v.addr, now_s)
 
 

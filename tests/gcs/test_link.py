@@ -413,3 +413,13 @@ def test_signing_signs_outgoing_frames(station):
     assert m.get_type() == "HEARTBEAT" and m._signed
     with pytest.raises(ValueError):
         StationConfig(sysid=0)
+
+
+def test_one_refused_message_interval_does_not_force_the_fallback(station):
+    ap = FakeAutopilot(sysid=1)
+    link = discovered(station, ap)
+    for result in (mav.MAV_RESULT_ACCEPTED, mav.MAV_RESULT_FAILED, mav.MAV_RESULT_ACCEPTED,
+                   mav.MAV_RESULT_ACCEPTED):
+        (m, _), = sent(link, 0.0, "COMMAND_LONG")
+        link.receive_datagram(ap.ack(511, result), A1, 0.0)
+    assert link.stats.data_stream_fallbacks == 0 and sent(link, 0.0) == []
