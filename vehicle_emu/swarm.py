@@ -1,0 +1,432 @@
+"""The multi-vehicle emulator: one world of N vehicles, N vehicle cores, a router and the radio.
+
+Sans-I/O like the cores: bytes and ``now_s`` in, ``(endpoint, bytes, addr)`` out, timers.
+:mod:`vehicle_emu.udp` binds it to sockets; tests drive it with an explicit clock.
+
+Identity: vehicle ``index`` (array row, 0..N-1) is distinct from its MAVLink identity
+``(network, sysid)``: ``network = index // 254``, ``sysid = index % 254 + 1``. Sysids are 8-bit
+and 255 is the GCS, so more than 254 vehicles are split over several MAVLink networks
+(MAVLINK_NOTES §5), each served by its own endpoint(s).
+
+Endpoints (how a GCS reaches vehicles):
+
+* ``mux=False`` (SITL style): one endpoint per vehicle; endpoint ``e`` is vehicle ``e``; the
+  UDP adapter binds ``base_port + e``.
+* ``mux=True``: one endpoint per network; frames are routed by their ``target_system`` (0 or
+  no target field = every vehicle of that network).
+
+Each endpoint sends to its *peers*: addresses it has heard from plus configured GCS addresses
+(``udpout`` style). The radio decides what gets through (:mod:`vehicle_emu.radio`).
+
+One tick (:meth:`Swarm.handle_timer`): attrition -> autopilot rules of every core ->
+vectorised physics step -> geodetic update -> radio update -> ground-truth record -> telemetry.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.geometry import tasks_connected
+from planner.metrics import task_uptime, uptime_series
+
+from . import events as ev
+from . import wire
+from .attrition import Attrition
+from .link import TICK_S, VehicleCore
+from .physics import Physics
+from .radio import Radio, RadioConfig
+
+__all__ = ["Swarm", "TruthLog", "VEHICLES_PER_NETWORK", "identity_of_index"]
+
+log = logging.getLogger(__name__)
+
+VEHICLES_PER_NETWORK = 254
+_MAX_EVENTS = 100_000
+
+
+def identity_of_index(index: int, per_network: int = VEHICLES_PER_NETWORK) -> tuple[int, int]:
+    """Array row -> (network, sysid)."""
+    return index // per_network, index % per_network + 1
+
+
+def grid_spawn_ned_m(n: int, spacing_m: float) -> np.ndarray:
+    """(N, 3) spawn positions on a square grid centred on the origin, on the ground."""
+    side = max(1, math.ceil(math.sqrt(n)))
+    k = np.arange(n)
+    north = (k // side - (side - 1) / 2) * spacing_m
+    east = (k % side - (side - 1) / 2) * spacing_m
+    return np.column_stack([north, east, np.zeros(n)])
+
+
+@dataclass
+class TruthLog:
+    """Ground truth sampled every ``period_s`` of vehicle time (row t = one sample)."""
+
+    t_s: list
+    pos_ned_m: list
+    """Per sample: (N, 3) float64 world NED positions."""
+    alive: list
+    """Per sample: (N,) bool."""
+    active: list
+    """Per sample: (N,) bool — connected to the base (hears the GCS)."""
+    task_connected: list
+    """Per sample: (M,) bool — A_i(t), only if a ``task_pos_fn`` was given."""
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = {"t_s": np.asarray(self.t_s), "pos_ned_m": np.asarray(self.pos_ned_m),
+               "alive": np.asarray(self.alive), "active": np.asarray(self.active)}
+        if self.task_connected:
+            out["task_connected"] = np.asarray(self.task_connected)
+        return out
+
+
+class Swarm:
+    """N emulated vehicles sharing one world.
+
+    Parameters
+    ----------
+    n_vehicles : int
+    personality : str or sequence of str
+        'ardupilot' / 'px4', one for all or one per vehicle.
+    home_lla : (lat_deg, lon_deg, alt_amsl_m)
+        World origin = base station position (the radio node of the GCS).
+    spawn_ned_m : (N, 3) array, optional
+        Spawn (home / EKF origin) of each vehicle, world NED metres; default a ground grid with
+        ``spawn_spacing_m`` spacing around the base.
+    radio : RadioConfig
+    hazard_per_s : float or (N,) array
+        Attrition rate (per second of vehicle time).
+    kills : iterable of (t_s, index)
+        Scripted kills.
+    task_pos_fn : callable t_s -> (M, 2) array, optional
+        Task positions (north, east metres) for ground-truth TU1/TU2.
+    mux : bool
+        One endpoint per network instead of one per vehicle.
+    gcs_addrs : iterable
+        Addresses every endpoint sends to from the start (``udpout``).
+    signing_key : bytes, optional
+        32-byte key installed in every vehicle.
+    trusted_addrs : iterable
+        Source addresses allowed to send SETUP_SIGNING (see :class:`VehicleCore`).
+    params : mapping, optional
+        Parameter overrides for every vehicle; ``per_vehicle_params`` maps index -> overrides.
+    stream_rates_hz : mapping msg_id -> Hz, optional
+        Streams switched on at boot in every vehicle (as a GCS would request them).
+    rng : numpy.random.Generator
+        Root generator; radio and attrition get spawned children.
+    now_s : float
+        Vehicle clock at boot.
+    tick_s : float
+        Autopilot / physics / telemetry tick (vehicle seconds).
+    truth_period_s : float
+        Ground-truth sampling period (vehicle seconds); TU1/TU2 use these samples.
+    radio_period_s : float
+        How often connectivity is recomputed (vehicle seconds; also on every kill). At 10 m/s
+        the default 0.1 s is 1 m of motion; 0 recomputes every tick.
+    """
+
+    def __init__(self, n_vehicles: int, *, personality="ardupilot",
+                 home_lla=(47.397742, 8.545594, 488.0), spawn_ned_m=None,
+                 spawn_spacing_m: float = 3.0, radio: RadioConfig | None = None,
+                 hazard_per_s=0.0, kills=(), airborne_only_attrition: bool = False,
+                 task_pos_fn=None, mux: bool = False, gcs_addrs=(),
+                 signing_key: bytes | None = None, trusted_addrs=(), params=None,
+                 per_vehicle_params=None, stream_rates_hz=None,
+                 rng: np.random.Generator | None = None, now_s: float = 0.0,
+                 tick_s: float = TICK_S, truth_period_s: float = 1.0,
+                 ekf_ready_after_s: float = 0.0, unix_time_at_zero_s: float = 1.7e9,
+                 max_speed_h_m_s: float = 10.0, tau_pos_s: float = 1.0,
+                 radio_period_s: float = 0.1) -> None:
+        if n_vehicles < 1:
+            raise ValueError(f"n_vehicles must be >= 1, got {n_vehicles}")
+        n = int(n_vehicles)
+        self.n = n
+        personalities = ([personality] * n if isinstance(personality, str)
+                         else list(personality))
+        if len(personalities) != n:
+            raise ValueError("personality sequence must have one entry per vehicle")
+        rng = rng if rng is not None else np.random.default_rng(0)
+        radio_rng, attrition_rng = rng.spawn(2)
+        self.home_lla = tuple(float(v) for v in home_lla)
+        spawn = (grid_spawn_ned_m(n, spawn_spacing_m) if spawn_ned_m is None
+                 else np.asarray(spawn_ned_m, dtype=float).reshape(n, 3))
+        self.physics = Physics(spawn, origin_lla=self.home_lla, max_speed_h_m_s=max_speed_h_m_s,
+                               tau_pos_s=tau_pos_s)
+        self.radio = Radio(radio or RadioConfig(), np.zeros(3), radio_rng)
+        self.attrition = Attrition(n, hazard_per_s, kills, attrition_rng,
+                                   airborne_only=airborne_only_attrition)
+        self.task_pos_fn = task_pos_fn
+        self.tick_s = float(tick_s)
+        self.truth_period_s = float(truth_period_s)
+        self.radio_period_s = float(radio_period_s)
+        self._last_radio_s = -math.inf
+
+        self.network_of_index = np.arange(n) // VEHICLES_PER_NETWORK
+        self.sysid_of_index = np.arange(n) % VEHICLES_PER_NETWORK + 1
+        self.n_networks = int(self.network_of_index[-1]) + 1
+        self._index_of = {(int(self.network_of_index[i]), int(self.sysid_of_index[i])): i
+                          for i in range(n)}
+        per_vehicle_params = per_vehicle_params or {}
+        self.cores: list[VehicleCore] = []
+        for i in range(n):
+            p = dict(params or {})
+            p.update(per_vehicle_params.get(i, {}))
+            core = VehicleCore(int(self.sysid_of_index[i]), personalities[i], now_s=now_s,
+                               physics=self.physics, index=i, params=p,
+                               signing_key=signing_key, trusted_addrs=trusted_addrs,
+                               ekf_ready_after_s=ekf_ready_after_s,
+                               unix_time_at_zero_s=unix_time_at_zero_s,
+                               network=int(self.network_of_index[i]))
+            for msg_id, hz in (stream_rates_hz or {}).items():
+                core.set_stream_rate(int(msg_id), float(hz), now_s)
+            self.cores.append(core)
+
+        self.mux = bool(mux)
+        self.n_endpoints = self.n_networks if self.mux else n
+        self._gcs_addrs = list(gcs_addrs)
+        self.peers: list[list] = [list(self._gcs_addrs) for _ in range(self.n_endpoints)]
+        self._routers = [wire.dialect.MAVLink(None, 255, 0) for _ in range(self.n_networks)]
+        for r in self._routers:
+            r.robust_parsing = True
+        self._members = [np.flatnonzero(self.network_of_index == k).tolist()
+                         for k in range(self.n_networks)]
+
+        self._t_s = float(now_s)
+        self._last_truth_s = -math.inf
+        self._delayed: list = []
+        self._delay_seq = 0
+        self._events: deque = deque(maxlen=_MAX_EVENTS)
+        self.truth = TruthLog([], [], [], [], [])
+        self.stats = {"datagrams_in": 0, "datagrams_out": 0, "messages_out": 0,
+                      "dropped_radio_in": 0, "dropped_radio_out": 0, "dropped_dead": 0,
+                      "unroutable": 0, "ticks": 0}
+        self._radio_dirty = False
+        self.radio.update(self.physics.pos_ned_m, self.physics.alive)
+
+    # ------------------------------------------------------------------ identity / endpoints
+
+    def identity(self, index: int) -> tuple[int, int]:
+        """Array row -> (network, sysid)."""
+        return int(self.network_of_index[index]), int(self.sysid_of_index[index])
+
+    def index_of(self, network: int, sysid: int) -> int:
+        """(network, sysid) -> array row (``KeyError`` if unknown)."""
+        return self._index_of[(network, sysid)]
+
+    def endpoint_of_index(self, index: int) -> int:
+        return int(self.network_of_index[index]) if self.mux else int(index)
+
+    def add_peer(self, endpoint: int, addr) -> None:
+        """Add a destination for everything ``endpoint`` sends (``udpout``)."""
+        if addr not in self.peers[endpoint]:
+            self.peers[endpoint].append(addr)
+
+    # ------------------------------------------------------------------ sans-I/O surface
+
+    @property
+    def now_s(self) -> float:
+        return self._t_s
+
+    def receive_datagram(self, endpoint: int, data: bytes, addr, now_s: float) -> None:
+        """A datagram from a GCS arrived at ``endpoint`` from ``addr``."""
+        self.stats["datagrams_in"] += 1
+        peers = self.peers[endpoint]
+        if addr is not None and addr not in peers:
+            peers.append(addr)  # learn the GCS address, as SITL's udpin does
+        if not self.mux:
+            self._radio_to_vehicle(endpoint, data, addr, now_s)
+            return
+        router = self._routers[endpoint]
+        for frame in wire.split_frames(data):
+            try:
+                msgs = router.parse_buffer(frame) or []
+            except Exception:  # noqa: BLE001 - remote bytes never raise
+                msgs = []
+            router.buf, router.buf_index = bytearray(), 0
+            target = None
+            for m in msgs:
+                target = getattr(m, "target_system", 0)
+            if not msgs:
+                self.stats["unroutable"] += 1
+                continue
+            if target:
+                i = self._index_of.get((endpoint, int(target)))
+                if i is None:
+                    self.stats["unroutable"] += 1
+                    continue
+                self._radio_to_vehicle(i, frame, addr, now_s)
+            else:
+                for i in self._members[endpoint]:
+                    self._radio_to_vehicle(i, frame, addr, now_s)
+
+    def _radio_to_vehicle(self, i: int, data: bytes, addr, now_s: float) -> None:
+        core = self.cores[i]
+        if not core.alive:
+            self.stats["dropped_dead"] += 1
+            return
+        delay = self.radio.transit(i)
+        if delay is None:
+            self.stats["dropped_radio_in"] += 1
+            return
+        if delay > 0:
+            self._push_delayed(now_s + delay, ("in", i, data, addr))
+        else:
+            core.receive_datagram(data, addr, now_s)
+
+    def _push_delayed(self, t_s: float, item) -> None:
+        self._delay_seq += 1
+        heapq.heappush(self._delayed, (t_s, self._delay_seq, item))
+
+    def handle_timer(self, now_s: float) -> None:
+        """One tick at vehicle time ``now_s`` (see module docstring)."""
+        t0 = self._t_s
+        dt = now_s - t0
+        ph = self.physics
+        # Deliver delayed inbound packets that are due.
+        self._deliver_delayed(now_s, inbound=True)
+        if dt > 0:
+            for i, cause in self.attrition.step(t0, now_s, ph.alive, ~ph.landed & ph.armed):
+                self.kill(i, now_s, cause)
+        cores = self.cores
+        for core in cores:
+            if core.alive:
+                core.update_autopilot(now_s)
+        if dt > 0:
+            ph.step(dt)
+            ph.update_geodetic()
+        self._t_s = max(t0, now_s)
+        if now_s - self._last_radio_s >= self.radio_period_s - 1e-9 or self._radio_dirty:
+            self.radio.update(ph.pos_ned_m, ph.alive)
+            self._last_radio_s = now_s
+            self._radio_dirty = False
+        if now_s - self._last_truth_s >= self.truth_period_s - 1e-9:
+            self._record_truth(now_s)
+        for core in cores:
+            if core.alive:
+                core.emit_telemetry(now_s)
+                ev_ = core.next_event()
+                while ev_ is not None:
+                    self._events.append(ev_)
+                    ev_ = core.next_event()
+        self.stats["ticks"] += 1
+
+    step = handle_timer
+
+    def next_timer_s(self) -> float:
+        t = self._t_s + self.tick_s
+        if self._delayed:
+            t = min(t, self._delayed[0][0])
+        return t
+
+    def datagrams_to_send(self, now_s: float) -> list[tuple[int, bytes, object]]:
+        """Everything the vehicles send that the radio lets through: (endpoint, bytes, addr)."""
+        out = []
+        radio = self.radio
+        mux = self.mux
+        net = self.network_of_index
+        for i, core in enumerate(self.cores):
+            if not core._out:
+                continue
+            dgrams = core.datagrams_to_send(now_s)
+            if not core.alive:
+                continue
+            endpoint = int(net[i]) if mux else i
+            for data, _ in dgrams:
+                delay = radio.transit(i)
+                if delay is None:
+                    self.stats["dropped_radio_out"] += 1
+                    continue
+                if delay > 0:
+                    self._push_delayed(now_s + delay, ("out", endpoint, data, None))
+                    continue
+                for addr in self.peers[endpoint]:
+                    out.append((endpoint, data, addr))
+        self._deliver_delayed(now_s, inbound=False, out=out)
+        self.stats["datagrams_out"] += len(out)
+        return out
+
+    def _deliver_delayed(self, now_s: float, inbound: bool, out=None) -> None:
+        if not self._delayed:
+            return
+        keep = []
+        while self._delayed and self._delayed[0][0] <= now_s + 1e-12:
+            item = heapq.heappop(self._delayed)
+            kind, a, data, addr = item[2]
+            if kind == "in" and inbound:
+                if self.cores[a].alive:
+                    self.cores[a].receive_datagram(data, addr, now_s)
+            elif kind == "out" and not inbound:
+                for peer in self.peers[a]:
+                    out.append((a, data, peer))
+            else:
+                keep.append(item)
+        for item in keep:
+            heapq.heappush(self._delayed, item)
+
+    def next_event(self):
+        return self._events.popleft() if self._events else None
+
+    # ------------------------------------------------------------------ attrition / truth
+
+    def kill(self, index: int, now_s: float, cause: str = "scripted") -> None:
+        """Lose vehicle ``index`` now: it freezes and goes silent forever."""
+        core = self.cores[index]
+        if not core.alive:
+            return
+        core.kill()
+        self.physics.alive[index] = False
+        self.physics.vel_ned_m_s[index] = 0.0
+        self.radio.active[index] = False  # silent at once; relays recomputed next tick
+        self._radio_dirty = True
+        net, sysid = self.identity(index)
+        log.info("vehicle %d (network %d, sysid %d) lost at t=%.2f s (%s)", index, net, sysid,
+                 now_s, cause)
+        self._events.append(ev.VehicleKilled(sysid, now_s, net, index, cause))
+
+    def _record_truth(self, now_s: float) -> None:
+        ph = self.physics
+        self._last_truth_s = now_s
+        tr = self.truth
+        tr.t_s.append(now_s)
+        tr.pos_ned_m.append(ph.pos_ned_m.copy())
+        tr.alive.append(ph.alive.copy())
+        tr.active.append(self.radio.active.copy())
+        if self.task_pos_fn is not None:
+            task_pos = np.asarray(self.task_pos_fn(now_s), dtype=float).reshape(-1, 2)
+            r = self.radio.config.radio_range_m
+            tr.task_connected.append(
+                tasks_connected(task_pos, ph.pos_ned_m[:, :2], self.radio.active, r))
+
+    def task_uptime(self, zero_over_zero: str = "zero") -> tuple[float, float]:
+        """Ground-truth (TU1, TU2) over the recorded samples (fractions)."""
+        if not self.truth.task_connected:
+            raise ValueError("no task connectivity recorded: construct Swarm with task_pos_fn")
+        return task_uptime(np.asarray(self.truth.task_connected), zero_over_zero)
+
+    def uptime_series(self):
+        """Per-sample TU1/TU2 integrands (:class:`planner.metrics.UptimeSeries`)."""
+        if not self.truth.task_connected:
+            raise ValueError("no task connectivity recorded: construct Swarm with task_pos_fn")
+        return uptime_series(np.asarray(self.truth.task_connected))
+
+    @property
+    def alive(self) -> np.ndarray:
+        return self.physics.alive.copy()
+
+    @property
+    def active(self) -> np.ndarray:
+        return self.radio.active.copy()
+
+    def core_stats(self) -> dict[str, int]:
+        """Sum of every core's counters."""
+        total: dict[str, int] = {}
+        for core in self.cores:
+            for k, v in core.stats.as_dict().items():
+                total[k] = total.get(k, 0) + v
+        return total
