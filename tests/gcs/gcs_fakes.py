@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from gcs.link import StationConfig, StationLink
+from gcs.link import StationLink
 
 
 class _Null:
