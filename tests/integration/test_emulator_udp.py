@@ -141,7 +141,7 @@ def test_mavsdk_offboard_px4():
                 telemetry = TelemetryAsync(system)
                 action = ActionAsync(system)
                 offboard = OffboardAsync(system)
-                async for pos in telemetry.position():
+                async for pos in telemetry.subscribe_position():
                     assert abs(pos.latitude_deg - swarm.home_lla[0]) < 1e-3
                     break
                 await action.arm()
@@ -156,7 +156,7 @@ def test_mavsdk_offboard_px4():
                 else:
                     raise AssertionError("offboard never started")
                 await offboard.set_position_ned(PositionNedYaw(20.0, -10.0, -5.0, 0.0))
-                async for pv in telemetry.position_velocity_ned():
+                async for pv in telemetry.subscribe_position_velocity_ned():
                     p = pv.position
                     if math.dist((p.north_m, p.east_m, p.down_m), (20, -10, -5)) < 0.7:
                         break
