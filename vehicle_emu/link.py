@@ -282,6 +282,7 @@ class VehicleCore:
             self._mode_key = 0
             self.mode_name, self._behaviour = ARDUPILOT_MODES[0]
         self._rtl_phase = ""
+        self._rtl_cruise_down_m: float | None = None
         self._takeoff_target_down_m: float | None = None
         self._vel_target_s: float | None = None
         self._target_mask = 0b110111111000  # what POSITION_TARGET_* reports
@@ -589,12 +590,12 @@ class VehicleCore:
         home = self.home_ned_m
         phase = self._rtl_phase
         if phase == "climb":
-            want_down = min(pos[DOWN], home[DOWN] - self._rtl_alt_m)
-            if pos[DOWN] - want_down > 0.5:
-                ph.command_position(i, (pos[NORTH], pos[EAST], want_down))
+            if self._rtl_cruise_down_m is None:  # return altitude fixed at RTL entry
+                self._rtl_cruise_down_m = float(min(pos[DOWN], home[DOWN] - self._rtl_alt_m))
+                ph.command_position(i, (pos[NORTH], pos[EAST], self._rtl_cruise_down_m))
+            if pos[DOWN] - self._rtl_cruise_down_m > 0.5:
                 return
             self._rtl_phase = phase = "return"
-            self._rtl_cruise_down_m = float(pos[DOWN])
         if phase == "return":
             dist_h = math.hypot(pos[NORTH] - home[NORTH], pos[EAST] - home[EAST])
             ph.max_speed_h_m_s[i] = self._auto_speed_m_s
@@ -1011,6 +1012,7 @@ class VehicleCore:
         ph.max_speed_h_m_s[i] = self._guided_speed_m_s if beh == "guided" else self._auto_speed_m_s
         if beh == "rtl":
             self._rtl_phase = "climb"
+            self._rtl_cruise_down_m = None
         elif beh == "land":
             ph.command_land(i)
         elif beh == "guided" and self.is_px4 and self._offboard_target is not None:
