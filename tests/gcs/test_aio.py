@@ -86,8 +86,10 @@ def test_tcp_client_stream_reassembles_split_frames():
     async def main():
         ap = FakeAutopilot(sysid=2, autopilot=12)
         got: asyncio.Queue = asyncio.Queue()
+        writers = []
 
         async def vehicle(reader, writer):
+            writers.append(writer)
             data = ap.heartbeat(393216) + ap.global_position(47.0, 8.0, 400.0, 5.0)
             writer.write(data[:7])  # a frame split across TCP segments
             await writer.drain()
@@ -108,5 +110,8 @@ def test_tcp_client_stream_reassembles_split_frames():
         finally:
             station.close()
             server.close()
+            for w in writers:
+                w.close()
+                await asyncio.wait_for(w.wait_closed(), 5.0)
 
     asyncio.run(main())
