@@ -198,7 +198,7 @@ class Swarm:
                          for k in range(self.n_networks)]
 
         self._t_s = float(now_s)
-        self._last_truth_s = -math.inf
+        self._next_truth_s = float(now_s) + self.truth_period_s
         self._delayed: list = []
         self._delay_seq = 0
         self._events: deque = deque(maxlen=_MAX_EVENTS)
@@ -208,6 +208,7 @@ class Swarm:
                       "unroutable": 0, "ticks": 0}
         self._radio_dirty = False
         self.radio.update(self.physics.pos_ned_m, self.physics.alive)
+        self._record_truth(self._t_s)  # sample 0: the state before any motion
 
     # ------------------------------------------------------------------ identity / endpoints
 
@@ -305,8 +306,10 @@ class Swarm:
             self.radio.update(ph.pos_ned_m, ph.alive)
             self._last_radio_s = now_s
             self._radio_dirty = False
-        if now_s - self._last_truth_s >= self.truth_period_s - 1e-9:
+        if now_s >= self._next_truth_s - 1e-9:
             self._record_truth(now_s)
+            while self._next_truth_s <= now_s + 1e-9:
+                self._next_truth_s += self.truth_period_s
         for core in cores:
             if core.alive:
                 core.emit_telemetry(now_s)
@@ -391,7 +394,6 @@ class Swarm:
 
     def _record_truth(self, now_s: float) -> None:
         ph = self.physics
-        self._last_truth_s = now_s
         tr = self.truth
         tr.t_s.append(now_s)
         tr.pos_ned_m.append(ph.pos_ned_m.copy())

@@ -1,0 +1,127 @@
+"""PX4 personality: packed custom_mode, unpacked DO_SET_MODE, offboard engage/loss, data link."""
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from vehicle_emu import events as ev
+from vehicle_emu.link import VehicleCore, px4_custom_mode
+
+from emu_helpers import GCS_ADDR, acks, of_type
+
+ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
+REJECTED = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+OFFBOARD = 393216
+
+
+class Rig:
+    def __init__(self, gcs, **kw):
+        self.gcs = gcs
+        self.t = 0.0
+        self.core = VehicleCore(1, "px4", origin_lla=(47.5, 8.5, 400.0), **kw)
+
+    def send(self, data):
+        self.core.receive_datagram(data, GCS_ADDR, self.t)
+        return self.gcs.decode(self.core.datagrams_to_send(self.t))
+
+    def run(self, until_s, sp=None, sp_period_s=0.05, hb=True):
+        """Advance to until_s; optionally stream setpoint ``sp`` every ``sp_period_s``."""
+        out = []
+        next_sp = next_hb = self.t
+        while self.t < until_s - 1e-9:
+            self.t = round(self.t + 0.05, 6)
+            if hb and self.t >= next_hb:
+                self.core.receive_datagram(self.gcs.heartbeat(), GCS_ADDR, self.t)
+                next_hb = self.t + 1.0
+            if sp is not None and self.t >= next_sp - 1e-9:
+                self.core.receive_datagram(self.gcs.local_target(*sp), GCS_ADDR, self.t)
+                next_sp = self.t + sp_period_s
+            self.core.handle_timer(self.t)
+            out += self.gcs.decode(self.core.datagrams_to_send(self.t))
+        return out
+
+
+def test_px4_heartbeat_and_default_streams(gcs):
+    rig = Rig(gcs)
+    msgs = rig.run(2.0)
+    hb = of_type(msgs, "HEARTBEAT")[0]
+    assert hb.autopilot == mavlink.MAV_AUTOPILOT_PX4
+    assert hb.custom_mode == px4_custom_mode(4, 3) == 50593792   # AUTO.LOITER
+    types = {m.get_type() for m in msgs}
+    # PX4's mavlink module streams without being asked
+    assert {"GLOBAL_POSITION_INT", "SYS_STATUS", "EXTENDED_SYS_STATE"} <= types
+    assert of_type(msgs, "EXTENDED_SYS_STATE")[0].landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND
+
+
+def test_do_set_mode_uses_unpacked_main_sub(gcs):
+    rig = Rig(gcs)
+    assert acks(rig.send(gcs.command(176, 1, 3, 0)), 176) == [ACCEPTED]       # POSCTL
+    assert rig.core.custom_mode == 196608
+    assert acks(rig.send(gcs.command(176, 1, 4, 5)), 176) == [ACCEPTED]       # AUTO.RTL
+    assert rig.core.custom_mode == 84148224
+    # the packed word in param2 is not a main mode: nothing changes
+    assert acks(rig.send(gcs.command(176, 1, 196608, 0)), 176) == [REJECTED]
+    assert rig.core.custom_mode == 84148224
+    # SET_MODE with packed custom_mode is unpacked by the vehicle
+    out = rig.send(gcs.frame(mavlink.MAVLink_set_mode_message(1, 1, 196608)))
+    assert acks(out, 176) == [ACCEPTED] and rig.core.mode_name == "POSCTL"
+
+
+def test_offboard_refused_without_prestream_then_accepted(gcs):
+    rig = Rig(gcs)
+    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [REJECTED]          # no stream
+    rig.run(0.8, sp=(0, 0, -5))                                                # < 1 s
+    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [REJECTED]
+    rig2 = Rig(gcs)
+    rig2.run(3.0, sp=(0, 0, -5), sp_period_s=0.6)                             # < 2 Hz
+    assert acks(rig2.send(gcs.command(176, 1, 6)), 176) == [REJECTED]
+    rig.run(1.3, sp=(0, 0, -5))                                                # > 1 s at 20 Hz
+    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [ACCEPTED]
+    assert rig.core.custom_mode == OFFBOARD
+    # arm in offboard while streaming: climbs to the setpoint
+    assert acks(rig.send(gcs.command(400, 1)), 400) == [ACCEPTED]
+    rig.run(rig.t + 6, sp=(10, 5, -5))
+    assert np.allclose(rig.core.local_pos_ned_m, (10, 5, -5), atol=0.2)
+
+
+def test_offboard_loss_falls_back_after_com_of_loss_t(gcs):
+    rig = Rig(gcs)
+    rig.run(1.5, sp=(0, 0, -5))
+    rig.send(gcs.command(176, 1, 6))
+    rig.send(gcs.command(400, 1))
+    rig.run(5.0, sp=(0, 0, -5))
+    t_stop = rig.t
+    rig.run(t_stop + 0.9)
+    assert rig.core.mode_name == "OFFBOARD"
+    rig.run(t_stop + 1.2)
+    assert rig.core.mode_name == "POSCTL"                    # COM_OBL_RC_ACT = 0
+    fs = [e for e in iter(rig.core.next_event, None) if isinstance(e, ev.FailsafeTriggered)]
+    assert fs[0].kind == "offboard"
+
+
+def test_datalink_loss_returns_home_with_emulator_default(gcs):
+    rig = Rig(gcs, params={"COM_DL_LOSS_T": 5})
+    rig.run(1.5, sp=(0, 0, -10))
+    rig.send(gcs.command(176, 1, 6))
+    rig.send(gcs.command(400, 1))
+    rig.run(8.0, sp=(40, 0, -10))
+    rig.send(gcs.command(176, 1, 4, 3))                          # Hold, no more offboard
+    t0 = rig.t
+    rig.run(t0 + 4.0, hb=False)
+    assert rig.core.mode_name == "AUTO.LOITER"
+    rig.run(t0 + 6.0, hb=False)
+    assert rig.core.mode_name == "AUTO.RTL"                    # NAV_DLL_ACT = 2
+
+
+def test_px4_takeoff_and_param_bytewise(gcs):
+    rig = Rig(gcs)
+    assert acks(rig.send(gcs.command(22, 0, 0, 0, 0, 0, 0, float("nan"))), 22) == [REJECTED]
+    rig.send(gcs.command(400, 1))
+    assert acks(rig.send(gcs.command(22, 0, 0, 0, 0, 0, 0, float("nan"))), 22) == [ACCEPTED]
+    assert rig.core.mode_name == "AUTO.TAKEOFF"
+    rig.run(5.0)
+    assert rig.core.local_pos_ned_m[2] == pytest.approx(-2.5, abs=0.3)   # MIS_TAKEOFF_ALT
+    assert rig.core.mode_name == "AUTO.LOITER"
+    out = rig.send(gcs.frame(mavlink.MAVLink_param_request_read_message(1, 1, b"NAV_DLL_ACT", -1)))
+    pv = of_type(out, "PARAM_VALUE")[0]
+    import struct
+    assert struct.unpack("<i", struct.pack("<f", pv.param_value))[0] == 2

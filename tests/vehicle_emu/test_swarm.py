@@ -1,0 +1,154 @@
+"""Swarm: radio reachability, attrition, identities/networks, multiplexing, ground truth."""
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from vehicle_emu import events as ev
+from vehicle_emu.attrition import Attrition
+from vehicle_emu.radio import RadioConfig
+from vehicle_emu.swarm import Swarm, identity_of_index
+
+from emu_helpers import GCS_ADDR, FakeGcs, acks, of_type
+
+
+def _run(swarm, gcs, t0, t1, hb=True):
+    """Tick from t0 to t1 (20 Hz); GCS heartbeats at 1 Hz to every endpoint; decode per sysid."""
+    got = {}
+    t = t0
+    next_hb = t0
+    while t < t1 - 1e-9:
+        t = round(t + 0.05, 6)
+        if hb and t >= next_hb:
+            for e in range(swarm.n_endpoints):
+                swarm.receive_datagram(e, gcs.heartbeat(), GCS_ADDR, t)
+            next_hb = t + 1.0
+        swarm.handle_timer(t)
+        for endpoint, data, addr in swarm.datagrams_to_send(t):
+            for m in gcs.decode([(data, addr)]):
+                got.setdefault(m.get_srcSystem() + 1000 * endpoint * swarm.mux, []).append(m)
+    return got, t
+
+
+def chain_swarm(**kw):
+    spawn = np.array([[80.0, 0, 0], [160.0, 0, 0], [240.0, 0, 0]])
+    return Swarm(3, spawn_ned_m=spawn, radio=RadioConfig(radio_range_m=100.0),
+                 rng=np.random.default_rng(3), **kw)
+
+
+def test_chain_relay_loss_cuts_both_directions():
+    swarm = chain_swarm()
+    gcs = FakeGcs()
+    got, t = _run(swarm, gcs, 0.0, 3.0)
+    assert swarm.active.tolist() == [True, True, True]
+    assert all(len(of_type(got.get(s, []), "HEARTBEAT")) >= 2 for s in (1, 2, 3))
+    # commands reach v3 through v1 and v2
+    swarm.receive_datagram(2, gcs.command(176, 1, 4, target=3), GCS_ADDR, t)
+    acked = gcs.decode([(d, a) for e, d, a in swarm.datagrams_to_send(t) if e == 2])
+    assert acks(acked, 176) == [mavlink.MAV_RESULT_ACCEPTED]
+
+    swarm.kill(0, t)                                   # the first relay dies
+    got, t = _run(swarm, gcs, t, t + 5.0)
+    assert swarm.active.tolist() == [False, False, False]
+    assert got == {}                                   # no telemetry from anyone
+    before = [c.stats.datagrams_in for c in swarm.cores]
+    for e, sysid in ((1, 2), (2, 3)):
+        swarm.receive_datagram(e, gcs.command(400, 1, target=sysid), GCS_ADDR, t)
+    assert [c.stats.datagrams_in for c in swarm.cores] == before   # never delivered
+    assert swarm.datagrams_to_send(t) == []
+    assert not swarm.cores[1].armed and not swarm.cores[2].armed
+    assert swarm.stats["dropped_radio_in"] >= 2 and swarm.stats["dropped_radio_out"] > 0
+    assert any(isinstance(e, ev.VehicleKilled) and e.index == 0
+               for e in iter(swarm.next_event, None))
+
+
+def test_killed_vehicle_heartbeat_stops_and_stays_stopped():
+    swarm = Swarm(2, rng=np.random.default_rng(4), kills=[(2.0, 1)])
+    gcs = FakeGcs()
+    got, t = _run(swarm, gcs, 0.0, 2.0)
+    assert len(of_type(got[2], "HEARTBEAT")) == 2
+    got, t = _run(swarm, gcs, t, 10.0)
+    assert 2 not in got and len(of_type(got[1], "HEARTBEAT")) == 8
+    assert not swarm.alive[1] and swarm.cores[1].stats.dropped_dead == 0
+    dropped = swarm.stats["dropped_dead"]
+    swarm.receive_datagram(1, gcs.command(400, 1, target=2), GCS_ADDR, t)
+    assert swarm.stats["dropped_dead"] == dropped + 1
+    assert swarm.datagrams_to_send(t) == [] and not swarm.cores[1].armed
+
+
+def test_vehicle_dead_in_flight_freezes():
+    swarm = Swarm(1, rng=np.random.default_rng(5))
+    gcs = FakeGcs()
+    for data in (gcs.command(176, 1, 4), gcs.command(400, 1), gcs.command(22, 0, 0, 0, 0, 0, 0, 10)):
+        swarm.receive_datagram(0, data, GCS_ADDR, 0.0)
+    _, t = _run(swarm, gcs, 0.0, 3.0)
+    swarm.kill(0, t)
+    pos = swarm.physics.pos_ned_m[0].copy()
+    _run(swarm, gcs, t, t + 3.0)
+    assert np.array_equal(swarm.physics.pos_ned_m[0], pos)
+
+
+def test_more_than_254_vehicles_use_several_networks():
+    swarm = Swarm(600, rng=np.random.default_rng(6), mux=True)
+    assert swarm.n_networks == 3 and swarm.n_endpoints == 3
+    assert identity_of_index(253) == (0, 254) and identity_of_index(254) == (1, 1)
+    assert swarm.identity(599) == (2, 600 - 508)
+    ids = {swarm.identity(i) for i in range(600)}
+    assert len(ids) == 600 and all(1 <= s <= 254 for _, s in ids)
+    assert swarm.index_of(1, 1) == 254
+    # a command to (network 1, sysid 1) reaches exactly vehicle 254
+    gcs = FakeGcs()
+    swarm.receive_datagram(1, gcs.command(400, 1, target=1), GCS_ADDR, 0.0)
+    assert [i for i, c in enumerate(swarm.cores) if c.armed] == [254]
+    out = [(d, e) for e, d, _ in swarm.datagrams_to_send(0.0)]
+    assert {e for _, e in out} == {1}
+    assert acks(gcs.decode(out), 400) == [mavlink.MAV_RESULT_ACCEPTED]
+
+
+def test_mux_broadcast_heartbeat_reaches_all_members():
+    swarm = Swarm(5, rng=np.random.default_rng(7), mux=True)
+    swarm.receive_datagram(0, FakeGcs().heartbeat(), GCS_ADDR, 0.0)
+    assert [c.stats.gcs_heartbeats for c in swarm.cores] == [1] * 5
+
+
+def test_truth_log_and_task_uptime():
+    # one vehicle flies out of range of a task and back; TU from the truth log
+    spawn = np.array([[80.0, 0, 0], [160.0, 0, 0]])   # base - v0 - v1 chain
+    tasks = np.array([[200.0, 0.0], [500.0, 0.0]])
+    swarm = Swarm(2, spawn_ned_m=spawn, radio=RadioConfig(radio_range_m=100.0),
+                  task_pos_fn=lambda t: tasks, rng=np.random.default_rng(8), kills=[(5.0, 0)])
+    gcs = FakeGcs()
+    _run(swarm, gcs, 0.0, 10.0)
+    arr = swarm.truth.arrays()
+    assert arr["t_s"].tolist() == pytest.approx(list(range(11)))     # 1 Hz, t = 0 .. 10 s
+    assert arr["task_connected"].shape == (11, 2)
+    # task 0 connected until vehicle 0 (the only link to the base) dies at t=5
+    assert arr["task_connected"][:, 0].tolist() == [True] * 5 + [False] * 6
+    assert not arr["task_connected"][:, 1].any()
+    assert arr["active"][-1].tolist() == [False, False]
+    tu1, tu2 = swarm.task_uptime()
+    assert tu1 == pytest.approx(5 / 11 / 2) and tu2 == pytest.approx(5 / 11)
+
+
+def test_attrition_hazard_rate_statistics():
+    rng = np.random.default_rng(9)
+    att = Attrition(20_000, hazard_per_s=0.01, rng=rng)
+    alive = np.ones(20_000, dtype=bool)
+    for k in range(100):       # 10 s in 0.1 s steps
+        for i, _ in att.step(k * 0.1, (k + 1) * 0.1, alive):
+            alive[i] = False
+    expected = 1 - np.exp(-0.1)
+    assert abs((~alive).mean() - expected) < 4 * np.sqrt(expected / 20_000)
+
+
+def test_radio_latency_and_loss_are_seeded():
+    def run(seed):
+        swarm = Swarm(3, spawn_ned_m=[[50.0, 0, 0], [100.0, 0, 0], [150.0, 0, 0]],
+                      radio=RadioConfig(radio_range_m=60.0, latency_per_hop_s=0.1,
+                                        loss_per_hop=0.2),
+                      rng=np.random.default_rng(seed), stream_rates_hz={33: 10})
+        got, _ = _run(swarm, FakeGcs(), 0.0, 5.0)
+        return {k: len(v) for k, v in got.items()}, swarm.radio.hops.tolist()
+    a, hops = run(1)
+    assert hops == [1, 2, 3]
+    assert a == run(1)[0] and a != run(2)[0]
+    assert a[1] > a[2] > a[3]              # more hops, more loss
