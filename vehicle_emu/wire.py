@@ -17,6 +17,7 @@ interleave their sequence numbers, which a GCS uses for per-vehicle loss statist
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import struct
@@ -170,6 +171,39 @@ def split_frames(data: bytes) -> list[bytes]:
     return out
 
 
+class _MAVLink(dialect.MAVLink):
+    """pymavlink's MAVLink with a safer signature check.
+
+    pymavlink 2.4.x ``check_signature`` stores the frame's timestamp as the stream's latest
+    *before* verifying the signature, so one forged frame with a high timestamp makes every
+    later genuine frame of that (link, sysid, compid) stream look replayed: a denial of service
+    by anyone on the radio. The C library (``mavlink_helpers.h``
+    ``mavlink_signature_check``) updates the stream only after the signature matched; we do the
+    same.
+    """
+
+    def check_signature(self, msgbuf, srcSystem, srcComponent) -> bool:
+        signing = self.signing
+        link_id = msgbuf[-13]
+        tlow, thigh = self.mav_sign_unpacker.unpack(msgbuf[-12:-6])
+        timestamp = tlow + (thigh << 32)
+        stream_key = (link_id, srcSystem, srcComponent)
+        last = signing.stream_timestamps.get(stream_key)
+        if last is not None:
+            if timestamp <= last:
+                return False
+        elif timestamp + 6000 * 1000 < signing.timestamp:
+            return False  # a new stream more than a minute behind us
+        h = hashlib.new("sha256")
+        h.update(signing.secret_key)
+        h.update(msgbuf[:-6])
+        if h.digest()[:6] != msgbuf[-6:]:
+            return False
+        signing.stream_timestamps[stream_key] = timestamp
+        signing.timestamp = max(signing.timestamp, timestamp)
+        return True
+
+
 @dataclass
 class DecodeResult:
     """What one datagram decoded to."""
@@ -208,7 +242,7 @@ class Codec:
                  allow_unsigned_ids: frozenset = frozenset(), link_id: int = 0) -> None:
         if not 1 <= sysid <= 255:
             raise ValueError(f"sysid must be 1..255, got {sysid}")
-        self._mav = dialect.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self._mav = _MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self._mav.robust_parsing = True
         self._allow_unsigned_ids = frozenset(allow_unsigned_ids)
         self._mav.signing.link_id = link_id
