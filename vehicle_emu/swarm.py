@@ -203,7 +203,7 @@ class Swarm:
         self._delay_seq = 0
         self._events: deque = deque(maxlen=_MAX_EVENTS)
         self.truth = TruthLog([], [], [], [], [])
-        self.stats = {"datagrams_in": 0, "datagrams_out": 0, "messages_out": 0,
+        self.stats = {"datagrams_in": 0, "datagrams_out": 0,
                       "dropped_radio_in": 0, "dropped_radio_out": 0, "dropped_dead": 0,
                       "unroutable": 0, "ticks": 0}
         self._radio_dirty = False

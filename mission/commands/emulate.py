@@ -1,0 +1,4 @@
+"""``phireman emulate``: see :mod:`vehicle_emu.cli`."""
+from vehicle_emu.cli import DESCRIPTION, HELP, add_arguments, run
+
+__all__ = ["HELP", "DESCRIPTION", "add_arguments", "run"]
