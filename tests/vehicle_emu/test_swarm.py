@@ -152,3 +152,23 @@ def test_radio_latency_and_loss_are_seeded():
     assert hops == [1, 2, 3]
     assert a == run(1)[0] and a != run(2)[0]
     assert a[1] > a[2] > a[3]              # more hops, more loss
+
+
+def test_out_of_range_vehicle_failsafes_home_and_is_heard_again():
+    """The paper's default: a disconnected drone flies home, and the GCS can take it back."""
+    swarm = Swarm(1, radio=RadioConfig(radio_range_m=100.0), rng=np.random.default_rng(10))
+    gcs = FakeGcs()
+    for data in (gcs.command(176, 1, 4), gcs.command(400, 1),
+                 gcs.command(22, 0, 0, 0, 0, 0, 0, 10), gcs.local_target(150, 0, -10)):
+        swarm.receive_datagram(0, data, GCS_ADDR, 0.0)
+    got, t = _run(swarm, gcs, 0.0, 12.0)
+    assert not swarm.active[0]                   # beyond 100 m: the GCS cannot hear it
+    t_lost = next(tt for tt, a in zip(swarm.truth.t_s, swarm.truth.active) if not a[0])
+    got, t = _run(swarm, gcs, t, t + 30.0)
+    core = swarm.cores[0]
+    assert core.mode_name == "RTL"
+    fs = [e for e in iter(swarm.next_event, None) if isinstance(e, ev.FailsafeTriggered)]
+    assert fs and t_lost <= fs[0].t_s <= t_lost + 5.0 + 1.5
+    assert swarm.active[0] and of_type(got[1], "HEARTBEAT")   # home again and heard
+    swarm.receive_datagram(0, gcs.command(176, 1, 4), GCS_ADDR, t)
+    assert core.mode_name == "GUIDED"             # the ground station takes it back
