@@ -22,17 +22,18 @@ from planner.geometry import neighbour_pairs
 __all__ = ["Knowledge", "propagate_stamps", "propagate_stamps_reference", "UNKNOWN"]
 
 UNKNOWN = -1
-# Bound on the (edges x drones) scratch array of one propagation chunk (elements).
-_CHUNK_ELEMENTS = 4_000_000
 
 
-def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = None,
+                     age_max_steps: int | None = None) -> np.ndarray:
     """One hop of the recency rule: new[i, k] = max(stamp[i, k], max_{j ~ i} stamp[j, k]).
 
     Parameters
     ----------
-    stamp : (n, K) int, tables before receiving (row = holder)
+    stamp : (n, K) int, tables before receiving (row = holder, -1 = unknown)
     pairs : (P, 2) int, undirected links (i, j) among the n holders
+    t_sent : step at which the tables were sent (default: the largest stamp)
+    age_max_steps : entries older than this at ``t_sent`` are never forwarded (default: all ages)
 
     Returns
     -------
@@ -40,30 +41,36 @@ def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray) -> np.ndarray:
 
     Notes
     -----
-    Vectorised with ``np.maximum.reduceat`` over the directed edge list sorted by receiver,
-    processed in chunks so that scratch memory stays below ~32 MB even on complete graphs.
+    Max-plus products are not BLAS operations, but thresholded ones are: an entry of age <= L
+    exists among i's neighbours iff ``(A @ [age <= L])[i, k] > 0`` with A the adjacency matrix.
+    Ages take at most ``age_max_steps + 1`` values, so the freshest neighbour entry is found level
+    by level (age 0, 1, ...) with one float32 matrix product per level, stopping as soon as every
+    entry some neighbour knows has been resolved. In a dense swarm that is after 2-3 levels, which
+    costs O(n^2 K / BLAS) instead of the O(E K) gather of an edge list (E ~ n^2 when everybody
+    hears everybody). Exact: integer counts in float32 are exact below 2^24 neighbours.
     """
+    stamp = np.asarray(stamp)
     out = stamp.copy()
-    if len(pairs) == 0:
+    n = len(stamp)
+    if len(pairs) == 0 or n == 0:
         return out
-    recv = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    send = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    order = np.argsort(recv, kind="stable")
-    recv, send = recv[order], send[order]
-    n_cols = stamp.shape[1]
-    per_chunk = max(1, _CHUNK_ELEMENTS // max(n_cols, 1))
-    heads = np.flatnonzero(np.r_[True, recv[1:] != recv[:-1]])  # first edge of each receiver
-    bounds = np.r_[heads, len(recv)]
-    g = 0
-    while g < len(heads):
-        # as many whole receivers as fit in one chunk (at least one)
-        g_end = max(g + 1, int(np.searchsorted(bounds, bounds[g] + per_chunk, side="right")) - 1)
-        g_end = min(g_end, len(heads))
-        lo, hi = bounds[g], bounds[g_end]
-        best = np.maximum.reduceat(stamp[send[lo:hi]], heads[g:g_end] - lo, axis=0)
-        rows = recv[heads[g:g_end]]
-        out[rows] = np.maximum(out[rows], best)
-        g = g_end
+    adj = np.zeros((n, n), dtype=np.float32)
+    adj[pairs[:, 0], pairs[:, 1]] = 1.0
+    adj[pairs[:, 1], pairs[:, 0]] = 1.0
+    valid = stamp >= 0
+    if not valid.any():
+        return out
+    t_sent = int(stamp[valid].max()) if t_sent is None else int(t_sent)
+    age = np.where(valid, t_sent - stamp, np.iinfo(np.int64).max)
+    max_level = int(age[valid].max()) if age_max_steps is None else int(age_max_steps)
+    unresolved = (adj @ (valid & (age <= max_level)).astype(np.float32)) > 0
+    unresolved &= ~valid | (age > 0)  # an entry of age 0 cannot be improved
+    for level in range(max_level + 1):
+        if not unresolved.any():
+            break
+        hit = unresolved & ((adj @ (age == level).astype(np.float32)) > 0)
+        out[hit] = np.maximum(out[hit], t_sent - level)
+        unresolved &= ~hit
     return out
 
 
@@ -87,11 +94,18 @@ class Knowledge:
     stamp : (N, N) int64, step of the freshest report drone i holds about drone k (-1 unknown)
     tree_stamp : (N,) int64, step at which the base computed drone i's copy of the task tree (-1 none)
     pos_hist_m : (T, N, 2) float64, true positions by step (the content of every report)
+    rows, cols : index arrays of the current *view*: alive holders and drones anybody knows about
+    believed_m : (len(rows), len(cols), 2) believed positions of the view (valid where ``known``)
+    known_view : (len(rows), len(cols)) bool, holder knows the drone (never itself)
     """
 
     stamp: np.ndarray
     tree_stamp: np.ndarray
     pos_hist_m: np.ndarray
+    rows: np.ndarray = None
+    cols: np.ndarray = None
+    believed_m: np.ndarray = None
+    known_view: np.ndarray = None
 
     @classmethod
     def empty(cls, n_drones: int, n_steps: int) -> "Knowledge":
@@ -105,31 +119,41 @@ class Knowledge:
         """Deliver the messages sent at step t-1, then each drone records its own state at t.
 
         Links at t-1 join alive drones within r (connected to the base or not); the base sends the
-        tree it computed at t-1 to drones within ``base_reach_m`` = min(R, r).
+        tree it computed at t-1 to drones within ``base_reach_m`` = min(R, r). Afterwards the view
+        (``rows``, ``cols``, ``believed_m``, ``known_view``) describes every alive holder.
         """
         n = len(pos_m)
         self.pos_hist_m[t_step] = pos_m
         if pos_prev_m is not None:
             idx = np.flatnonzero(alive_prev)
-            pairs = idx[neighbour_pairs(pos_prev_m[idx], radio_range_m)] if len(idx) > 1 else np.empty((0, 2), int)
-            # Tree stamps ride in the same messages: treat them as one extra column.
-            table = np.concatenate([self.stamp, self.tree_stamp[:, None]], axis=1)
-            sub = table[idx]
-            local = np.searchsorted(idx, pairs) if len(pairs) else pairs
-            sub = propagate_stamps(sub, local)
-            table[idx] = sub
-            at_base = alive_prev & (np.linalg.norm(pos_prev_m - base_m, axis=1) <= base_reach_m)
-            table[at_base, n] = t_step - 1
-            self.stamp, self.tree_stamp = table[:, :n], table[:, n].copy()
+            pairs = neighbour_pairs(pos_prev_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
+            self.stamp[idx] = propagate_stamps(self.stamp[idx], pairs, t_step - 1, age_max_steps)
+            # The tree stamp rides in the same messages but has its own staleness rule.
+            ts = self.tree_stamp[idx]
+            best = ts.copy()
+            if len(pairs):
+                np.maximum.at(best, pairs[:, 0], ts[pairs[:, 1]])
+                np.maximum.at(best, pairs[:, 1], ts[pairs[:, 0]])
+            at_base = np.linalg.norm(pos_prev_m[idx] - base_m, axis=1) <= base_reach_m
+            best[at_base] = t_step - 1
+            self.tree_stamp[idx] = best
         # Own state is always fresh; dead drones hold nothing.
-        self.stamp[np.arange(n), np.arange(n)] = np.where(alive, t_step, UNKNOWN)
         self.stamp[~alive] = UNKNOWN
         self.tree_stamp[~alive] = UNKNOWN
-        # Forget stale or distant entries.
-        too_old = (self.stamp != UNKNOWN) & (t_step - self.stamp > age_max_steps)
-        believed = self.believed_positions_m()
-        far = np.linalg.norm(believed - pos_m[:, None, :], axis=2) > dist_max_m
-        self.stamp[too_old | (far & (self.stamp != UNKNOWN))] = UNKNOWN
+        rows = np.flatnonzero(alive)
+        self.stamp[rows, rows] = t_step
+        # Forget stale entries, then distant ones (measured from the holder's own position).
+        self.stamp[(self.stamp != UNKNOWN) & (t_step - self.stamp > age_max_steps)] = UNKNOWN
+        cols = np.flatnonzero((self.stamp[rows] != UNKNOWN).any(axis=0))
+        sub = self.stamp[np.ix_(rows, cols)]
+        believed = self.pos_hist_m[np.maximum(sub, 0), cols[None, :]]  # (rows, cols, 2)
+        diff = believed - pos_m[rows][:, None, :]
+        far = np.einsum("rcx,rcx->rc", diff, diff) > dist_max_m * dist_max_m
+        sub = np.where(far, UNKNOWN, sub)
+        self.stamp[np.ix_(rows, cols)] = sub
+        known = sub != UNKNOWN
+        known &= rows[:, None] != cols[None, :]
+        self.rows, self.cols, self.believed_m, self.known_view = rows, cols, believed, known
 
     def believed_positions_m(self) -> np.ndarray:
         """(N, N, 2): where drone i believes drone k is (garbage where stamp is unknown)."""

@@ -47,7 +47,7 @@ __all__ = [
     "make_phireman", "make_phireman_central", "make_phireman_no_task", "make_phireman_nodes_only",
 ]
 
-SPEED_RULES = ("uniform", "per_drone", "clip")
+SPEED_RULES = ("auto", "uniform", "per_drone", "clip")
 INFO_MODELS = ("async", "central")
 
 
@@ -73,10 +73,11 @@ class PhiremanParams:
     """K_max, gradient steps per tick; grid-searched (tune)."""
     tolerance: float = 1e-3
     """Equilibrium: stop when every drone's step is below this, paper units."""
-    speed_rule: str = "uniform"
+    speed_rule: str = "auto"
     """At the speed limit: 'uniform' scales the last step so the fastest drone moves exactly v and
-    stops (central); 'per_drone' does that per drone and lets the others continue; 'clip' clips
-    each drone to v and keeps iterating."""
+    stops the descent (PAPER_NOTES §9.3; needs one planner for all drones); 'per_drone' does that
+    per drone and lets the others continue (what independent drones can do); 'clip' clips each
+    drone to v and keeps iterating. 'auto' = 'uniform' for central, 'per_drone' for async."""
     base_weight: float = 1.0
     """c_b, weight of the task-to-base path lengths in the tree cost (paper default 1.0)."""
     accept_ratio: float = 0.99
@@ -328,6 +329,9 @@ class PhiremanPlanner:
         self.base_reach_u = min(problem.base_range_m, problem.radio_range_m) / unit
         self.vmax_u = problem.max_speed_m_s * problem.dt_s / unit
         self.reach_u = 2 * params.repulsion_radius_ratio * self.r_u
+        if params.speed_rule == "auto":
+            params = dataclasses.replace(params, speed_rule="uniform" if params.info == "central" else "per_drone")
+            self.params = params
         self.tree: TaskTree | None = None
         self.tree_history: dict[int, TaskTree] = {}
         self.knowledge: Knowledge | None = None
@@ -400,17 +404,18 @@ class PhiremanPlanner:
         idx = np.flatnonzero(planning & ~stale)
         if len(idx) == 0:
             return disp_u, {"stale_tree": int(stale.sum())}
-        believed = kn.believed_positions_m()[idx]      # (n_i, N, 2), paper units
-        mask = kn.known()[idx]                           # (n_i, N)
+        view_rows = np.searchsorted(kn.rows, idx)       # planners are alive, hence rows of the view
+        believed = kn.believed_m[view_rows]             # (n_i, K, 2), paper units
+        mask = kn.known_view[view_rows]                 # (n_i, K)
         stamps = kn.tree_stamp[idx]
-        task_grad_static = np.zeros((len(idx), 2))
+        versions = np.unique(stamps)
 
         def grad(x):
             g = self._pair_grad(x, believed, mask)
-            for s in np.unique(stamps):  # one tree per stamp: loop over tree versions, not drones
+            for s in versions:  # one tree per stamp: a loop over tree versions, not drones
                 sel = stamps == s
                 g[sel] += task_gradient(x[sel], self.tree_history[int(s)], p.thorn, p.nodes_only)
-            return g + task_grad_static
+            return g
 
         res = descend(pos_u[idx], grad, self.vmax_u, p)
         disp_u[idx] = res.disp_u
