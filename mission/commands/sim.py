@@ -26,6 +26,8 @@ examples:
   phireman sim --size M --info central --seeds 20
   phireman sim --method mccst --attrition 0.02
   phireman sim --set step_size=0.3 --set max_speed_m_s=0.2 --out runs/s1
+  phireman sim --mission wildfire --out runs/wf    # play a mission file in-process, then:
+  phireman replay runs/wf                          # plots and an animation of that run
 """
 
 
@@ -49,6 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="write runs.csv, summary.json, fig2_timeseries.png and frames.png here")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--mission", default=None, metavar="MISSION",
+                   help="play a mission file (or shipped example name) in-process instead of a paper preset; "
+                        "--seeds counts from the mission's seed (default 1 run); --out writes a run directory")
 
 
 def _split_overrides(pairs: list[str]):
@@ -86,6 +91,8 @@ def run(args) -> int:
     if args.list_methods:
         print("\n".join(method_names()))
         return 0
+    if args.mission is not None:
+        return _run_mission(args)
     if args.seeds < 1:
         raise UserError("--seeds must be >= 1")
     problem_over, params = _split_overrides(args.set)
@@ -141,4 +148,43 @@ def run(args) -> int:
         plot_frame_strip(ep.record, frames, problem, f"{label.split(' | ')[0]}, seed {seeds[0]}",
                          out / "frames.png")
         print(f"wrote {out}/runs.csv, summary.json, fig2_timeseries.png, frames.png")
+    return 0
+
+
+def _run_mission(args) -> int:
+    from mission.cli import UserError
+    from mission.examples import example_path
+    from mission.load import MissionError, load_mission
+    from mission.playback import run_inprocess, write_run_dir
+    from mission.sim import mean_ci95
+
+    path = pathlib.Path(args.mission)
+    if not path.exists():
+        try:
+            path = example_path(args.mission)
+        except (KeyError, ValueError, FileNotFoundError):
+            raise UserError(f"{args.mission}: no such file or shipped example") from None
+    try:
+        mission = load_mission(path)
+    except MissionError as exc:
+        raise UserError("invalid mission:\n  " + "\n  ".join(exc.errors)) from None
+    n = args.seeds if "--seeds" in sys.argv else 1
+    seeds = [mission.run.seed + k for k in range(n)]
+    print(mission.summary(), file=sys.stderr)
+    results = []
+    for seed in seeds:
+        try:
+            r = run_inprocess(mission, seed)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+        results.append(r)
+        print(f"seed {seed}: TU1 = {100 * r.tu1:.2f} %, TU2 = {100 * r.tu2:.2f} %, {len(r.losses)} losses, "
+              f"{r.wall_s:.2f} s")
+    if len(results) > 1:
+        tu1, c1 = mean_ci95([100 * r.tu1 for r in results])
+        tu2, c2 = mean_ci95([100 * r.tu2 for r in results])
+        print(f"TU1 = {tu1:.2f} ± {c1:.2f} %\nTU2 = {tu2:.2f} ± {c2:.2f} %")
+    if args.out is not None:
+        write_run_dir(mission, results[0], args.out)
+        print(f"wrote run directory {args.out} (seed {results[0].seed}); see it with: phireman replay {args.out}")
     return 0
