@@ -42,7 +42,7 @@ from planner.steiner import TaskTree, distance_to_tree, maintain_task_tree
 
 __all__ = [
     "PhiremanParams", "PhiremanPlanner", "DescentResult",
-    "task_gradient", "pair_gradient", "pair_gradient_reference", "descend", "descend_reference",
+    "task_gradient", "task_gradient_batched", "padded_segments", "pair_gradient", "pair_gradient_reference", "descend", "descend_reference",
     "energy", "parse_params",
     "make_phireman", "make_phireman_central", "make_phireman_no_task", "make_phireman_nodes_only",
 ]
@@ -138,6 +138,54 @@ def task_gradient(pos_u: np.ndarray, tree: TaskTree, thorn: float, nodes_only: b
     return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
 
 
+def padded_segments(trees: list[TaskTree], nodes_only: bool = False):
+    """Stack the segments of several trees, padded: (V, E, 2) ends a and b and a (V, E) validity mask.
+
+    With ``nodes_only`` (or a single-node tree) each node becomes a zero-length segment, so the
+    nearest "segment" is the nearest node.
+    """
+    parts = []
+    for tree in trees:
+        if nodes_only or tree.n_nodes == 1:
+            parts.append((tree.nodes_m, tree.nodes_m))
+        else:
+            parts.append(tree.segments())
+    e_max = max(len(a) for a, _ in parts)
+    seg_a = np.zeros((len(parts), e_max, 2))
+    seg_b = np.zeros((len(parts), e_max, 2))
+    valid = np.zeros((len(parts), e_max), dtype=bool)
+    for v, (a, b) in enumerate(parts):  # loop over tree versions (a handful), not drones
+        seg_a[v, :len(a)], seg_b[v, :len(b)], valid[v, :len(a)] = a, b, True
+    return seg_a, seg_b, valid
+
+
+def task_gradient_batched(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, valid: np.ndarray,
+                          version: np.ndarray, thorn: float) -> np.ndarray:
+    """:func:`task_gradient` for drones that hold different tree versions, in one pass.
+
+    Parameters
+    ----------
+    pos_u : (n, 2) positions
+    seg_a, seg_b, valid : from :func:`padded_segments`, (V, E, 2), (V, E, 2), (V, E)
+    version : (n,) int, which tree each drone holds (row of ``seg_a``)
+    thorn : Þ
+    """
+    if thorn == 0.0 or len(pos_u) == 0:
+        return np.zeros_like(pos_u)
+    a, b, ok = seg_a[version], seg_b[version], valid[version]    # (n,E,2), (n,E,2), (n,E)
+    ab = b - a
+    ab2 = np.einsum("nec,nec->ne", ab, ab)
+    ap = pos_u[:, None, :] - a                                    # (n,1,2) - (n,E,2) -> (n,E,2)
+    t = np.clip(np.divide(np.einsum("nec,nec->ne", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
+    foot = a + t[:, :, None] * ab
+    off = pos_u[:, None, :] - foot
+    d2 = np.where(ok, np.einsum("nec,nec->ne", off, off), np.inf)
+    best = np.argmin(d2, axis=1)
+    away = off[np.arange(len(pos_u)), best]
+    dist = np.sqrt(d2[np.arange(len(pos_u)), best])
+    return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
+
+
 def pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, attraction: float,
                   floor: float, repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
     """∇ of the attraction and repulsion terms of each drone w.r.t. its own position.
@@ -230,22 +278,30 @@ def _scale_to_limit(delta: np.ndarray, step: np.ndarray, vmax: float) -> np.ndar
     return np.clip(alpha, 0.0, 1.0)
 
 
-def descend(pos_u: np.ndarray, gradient, vmax: float, p: PhiremanParams) -> DescentResult:
+def descend(pos_u: np.ndarray, gradient, vmax: float, p: PhiremanParams,
+            separable: bool = False) -> DescentResult:
     """Multi-step gradient descent on the instructions with the paper's stopping rules.
 
     Parameters
     ----------
     pos_u : (n, 2) start positions, paper units
-    gradient : callable (n, 2) -> (n, 2), the energy gradient at ``pos_u + delta``
+    gradient : callable ``(x, rows) -> (len(rows), 2)``, the energy gradient of drones ``rows`` at
+        positions ``x = pos_u + delta`` (``x`` holds every drone)
     vmax : speed limit per tick, paper units
     p : parameters (step_size, max_descent_steps, tolerance, speed_rule)
+    separable : each drone's gradient depends only on its own instruction (the async model, where
+        neighbours are believed positions that stay put); then drones that stopped are no longer
+        evaluated, which is exact and much cheaper.
     """
     n = len(pos_u)
     delta = np.zeros((n, 2))
     moving = np.ones(n, dtype=bool)
     hit = False
+    every = np.arange(n)
     for k in range(1, p.max_descent_steps + 1):
-        step = -p.step_size * gradient(pos_u + delta)
+        step = np.zeros((n, 2))
+        rows = np.flatnonzero(moving) if separable else every
+        step[rows] = -p.step_size * gradient(pos_u + delta, rows)
         step[~moving] = 0.0
         if not n or np.max(np.abs(step)) < p.tolerance:
             return DescentResult(delta, k, True, hit)
@@ -278,7 +334,7 @@ def descend_reference(pos_u, gradient, vmax, p: PhiremanParams) -> np.ndarray:
     delta = [np.zeros(2) for _ in range(n)]
     moving = [True] * n
     for _ in range(p.max_descent_steps):
-        g = gradient(pos_u + np.array(delta).reshape(n, 2))
+        g = gradient(pos_u + np.array(delta).reshape(n, 2), np.arange(n))
         steps = [(-p.step_size * g[i]) if moving[i] else np.zeros(2) for i in range(n)]
         if n == 0 or max(float(np.max(np.abs(s))) for s in steps) < p.tolerance:
             break
@@ -365,7 +421,7 @@ class PhiremanPlanner:
                 tree = self.tree
                 mask = ~np.eye(len(idx), dtype=bool)
 
-                def grad(x):
+                def grad(x, rows):
                     return (task_gradient(x, tree, p.thorn, p.nodes_only)
                             + self._pair_grad(x, x[None, :, :], mask))
 
@@ -407,17 +463,14 @@ class PhiremanPlanner:
         view_rows = np.searchsorted(kn.rows, idx)       # planners are alive, hence rows of the view
         believed = kn.believed_m[view_rows]             # (n_i, K, 2), paper units
         mask = kn.known_view[view_rows]                 # (n_i, K)
-        stamps = kn.tree_stamp[idx]
-        versions = np.unique(stamps)
+        versions, version_of = np.unique(kn.tree_stamp[idx], return_inverse=True)
+        seg_a, seg_b, valid = padded_segments([self.tree_history[int(s)] for s in versions], p.nodes_only)
 
-        def grad(x):
-            g = self._pair_grad(x, believed, mask)
-            for s in versions:  # one tree per stamp: a loop over tree versions, not drones
-                sel = stamps == s
-                g[sel] += task_gradient(x[sel], self.tree_history[int(s)], p.thorn, p.nodes_only)
-            return g
+        def grad(x, rows):
+            return (self._pair_grad(x[rows], believed[rows], mask[rows])
+                    + task_gradient_batched(x[rows], seg_a, seg_b, valid, version_of[rows], p.thorn))
 
-        res = descend(pos_u[idx], grad, self.vmax_u, p)
+        res = descend(pos_u[idx], grad, self.vmax_u, p, separable=True)
         disp_u[idx] = res.disp_u
         return disp_u, {"iterations": res.iterations, "converged": res.converged,
                         "stale_tree": int(stale.sum())}

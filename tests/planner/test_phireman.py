@@ -55,7 +55,7 @@ def test_descend_matches_reference_and_respects_the_speed_limit(rng, rule):
         x = rng.uniform(-3, 3, (int(rng.integers(2, 15)), 2))
         mask = ~np.eye(len(x), dtype=bool)
 
-        def grad(y):
+        def grad(y, rows):
             return task_gradient(y, tree, p.thorn) + pair_gradient(y, y[None], mask, p.attraction,
                                                                    p.attraction_floor, p.repulsion, 2.0, 2.0)
 
@@ -66,16 +66,16 @@ def test_descend_matches_reference_and_respects_the_speed_limit(rng, rule):
 
 def test_converged_only_when_equilibrium_holds():
     p = PhiremanParams(tolerance=1e-3)
-    res = descend(np.zeros((3, 2)), lambda y: np.zeros_like(y), 0.15, p)
+    res = descend(np.zeros((3, 2)), lambda y, rows: np.zeros_like(y), 0.15, p)
     assert res.converged and res.iterations == 1 and np.allclose(res.disp_u, 0)
-    res = descend(np.zeros((3, 2)), lambda y: np.ones_like(y), 0.15, p)
+    res = descend(np.zeros((3, 2)), lambda y, rows: np.ones_like(y), 0.15, p)
     assert not res.converged and res.hit_speed_limit
 
 
 def test_uniform_rule_moves_the_fastest_drone_exactly_v():
     p = PhiremanParams(speed_rule="uniform", step_size=1.0)
     g = np.array([[-1.0, 0.0], [-0.1, 0.0]])
-    res = descend(np.zeros((2, 2)), lambda y: g, 0.15, p)
+    res = descend(np.zeros((2, 2)), lambda y, rows: g, 0.15, p)
     assert np.linalg.norm(res.disp_u[0]) == pytest.approx(0.15)
     assert res.disp_u[1, 0] == pytest.approx(0.015)  # same scale for every drone
 
@@ -86,7 +86,7 @@ def test_descent_does_not_increase_energy_for_small_steps(rng):
     tree = build_task_tree(np.zeros(2), np.array([[4.0, 1.0], [-3.0, 2.0]]))
     mask = ~np.eye(10, dtype=bool)
 
-    def grad(y):
+    def grad(y, rows):
         return task_gradient(y, tree, p.thorn) + pair_gradient(y, y[None], mask, p.attraction,
                                                                p.attraction_floor, p.repulsion, 2.0, 2.0)
 
@@ -128,3 +128,31 @@ def test_unknown_method_and_parameter_are_reported_with_the_valid_names():
         make_planner("phiremann", prob)
     with pytest.raises(ValueError, match="valid: .*step_size"):
         make_planner("phireman", prob, {"stepsize": 1})
+
+
+def test_batched_task_gradient_matches_one_tree_at_a_time(rng):
+    from planner.phireman import padded_segments, task_gradient_batched
+
+    trees = [build_task_tree(np.zeros(2), rng.uniform(-5, 5, (int(rng.integers(1, 8)), 2))) for _ in range(4)]
+    x = rng.uniform(-6, 6, (40, 2))
+    version = rng.integers(0, 4, 40)
+    for nodes_only in (False, True):
+        seg = padded_segments(trees, nodes_only)
+        got = task_gradient_batched(x, *seg, version, 0.05)
+        for v, tree in enumerate(trees):
+            sel = version == v
+            assert np.allclose(got[sel], task_gradient(x[sel], tree, 0.05, nodes_only), atol=1e-12)
+
+
+def test_separable_descent_equals_full_evaluation(rng):
+    """Skipping stopped drones is exact when each drone's gradient depends on itself only."""
+    p = PhiremanParams(speed_rule="per_drone", step_size=0.5)
+    anchors = rng.uniform(-3, 3, (12, 2))
+    x = rng.uniform(-3, 3, (12, 2))
+
+    def grad(y, rows):
+        return 0.3 * (y[rows] - anchors[rows]) * (1 + np.arange(12)[rows, None] / 4)
+
+    a = descend(x, grad, 0.15, p, separable=True).disp_u
+    b = descend(x, lambda y, rows: grad(y, np.arange(12)), 0.15, p).disp_u
+    assert np.allclose(a, b)
