@@ -1,0 +1,649 @@
+"""MCCST baseline: minimum connectivity-constraint spanning tree + CBF-QP (Luo, Yi, Sycara 2020).
+
+Each tick, with perfect and instantaneous knowledge (the RTNUA paper's "cheating" MCCST), the
+planner (PAPER_NOTES §2.4):
+
+1. takes the networked drones A = D'(t) and the base station b (a fixed node, u_b = 0);
+2. assigns A to tasks (``'balanced'``: capacity ceil(|A| / m) per task, an exact assignment on
+   drone-task distances with every task replicated ``capacity`` times; or ``'nearest'``); a
+   drone's subgroup is its task, the base is a subgroup of its own;
+3. computes nominal controls u_hat_i = sat_v(k_p (y_task(i) - x_i));
+4. weighs every candidate edge of the communication graph of A + {b} (drone-drone |x_i - x_j| <= r,
+   drone-base |x_i - b| <= min(R, r), the paper's inclusive inequality) by w_ij = -delta_ij with
+
+       delta_ij = -2 (x_i - x_j)^T (u_hat_i - u_hat_j) + gamma (r_c^2 - d_ij^2)^3,
+
+   divided by ``subgroup_factor`` when i and j are in different subgroups, and takes the minimum
+   spanning tree (the MCCST: the N - 1 pairwise constraints with the most slack under the nominal
+   controls);
+5. filters the nominal controls through a CBF-QP over all u_i, i in A::
+
+       min  sum_i |u_i - u_hat_i|^2 + slack_penalty * sum_e s_e^2
+                                    + collision_slack_penalty * sum_c s_c^2
+       s.t. 2 (x_i - x_j)^T (u_i - u_j) <= gamma (r_c^2 - d_ij^2)^3 + s_e    every tree edge
+            -2 (x_i - x_j)^T (u_i - u_j) <= gamma (d_ij^2 - D_s^2)^3 + s_c   near pairs
+            |u_ik| <= v / sqrt(2) per axis,   s >= 0
+
+   (base edges constrain u_i only). Near pairs are those with d < D_s + 2v (farther pairs cannot
+   reach D_s within a tick), limited to each drone's ``collision_neighbours`` nearest: without the
+   cap the scaled-XL start (500 drones on a ring of radius 1 paper unit) gives 30,000 rows and
+   OSQP needs ~20 s; with it, ~2,400 rows. Slacks exist only on rows whose barrier is already
+   violated (right side < 0: a tree edge longer than r_c, e.g. right after a relay is lost, or a
+   pair closer than D_s); every other row holds at u = 0, so the QP is always feasible
+   (:func:`solve_cbf_qp`). With ``discrete_time=True`` both class-K functions gamma h^3 become the
+   linear alpha h, i.e. (grad h . u) dt >= -alpha h.
+
+Units. The planner works in *paper units*: positions are divided by ``problem.length_unit_m`` and
+time is counted in ticks (one tick = ``problem.dt_s``), so u is a displacement per tick and
+v = max_speed_m_s * dt_s / length_unit_m (0.15 in every preset). gamma is then in
+1 / (paper length^4 * tick) and the defaults of :class:`MccstParams` hold for every size of the
+scaled reading (PAPER_NOTES §2.3: the authors' gamma = 1e4 in Robotarium metres and seconds maps
+to gamma ~ 1 here). Outputs are converted back to metres.
+
+Radius margin. Links exist up to r (inclusive) but the barrier uses r_c = kappa * r (base:
+kappa * min(R, r)). The CBF bounds only the first-order change of d^2 (by gamma h^3); the
+second-order term |u_i - u_j|^2 <= (2v)^2 comes on top: d'^2 <= d^2 + gamma h^3 + 4 v^2. With
+kappa = 0.9, r = 2, v = 0.15 and gamma <= 1 (so that gamma h^3 <= h wherever the speed bound does
+not already keep d + 2v <= r_c) this gives d' <= 1.83 for d <= r_c, and d' <= 1.93 < r for a tree
+edge that enters the tick anywhere in (r_c, r]. So every tree edge whose row needed no slack is
+still a link after the move, and the tree keeps D' connected. Larger gamma trades that guarantee
+for faster motion near r_c.
+
+Why OSQP, called directly. The QP has 2|A| control variables plus one slack per violated row and
+|A| + (#collision pairs) barrier rows: about 1000 variables and 2,500 barrier rows for 500 drones,
+with a very sparse constraint matrix (each row touches at most two drones). OSQP (ADMM with a sparse LDL^T factorisation) solves it in milliseconds, is
+robust on the always-feasible slack formulation, reports a status instead of raising, and is well
+maintained (osqp >= 1.0). scipy's SLSQP and trust-constr work with dense Jacobians and Hessians
+(O(n^2) memory, O(n^3) factorisations per iteration), which at this size costs seconds per tick.
+cvxpy would add a canonicalisation pass per tick for no gain, because the matrices change every
+tick anyway. The matrices are assembled with numpy index arrays (no Python loop over drones or
+edges); each tick is set up from scratch and warm-started at the clipped nominal controls, so the
+output is a pure function of the tick (deterministic).
+
+If OSQP does not return ``solved`` (or ``solved inaccurate``, which is accepted and reported),
+the planner falls back to the nominal controls clipped to the speed bound and says so in
+``PlanOutput.info``. The final displacement is always clipped to |disp_i| <= v * dt in metres.
+
+References
+----------
+W. Luo, S. Yi, K. Sycara, "Behavior Mixing with Minimum Global and Subgroup Connectivity
+Maintenance for Large-Scale Multi-Robot Systems", ICRA 2020, pp. 9845-9851. Authors' MATLAB code:
+ChendiDotLin/Online_Connectivity-aware_MultiRobot_Deployment (GetGraphWeight.m,
+create_con_barrier_certificate.m). PAPER_NOTES §2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import osqp
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix, csc_matrix, diags
+from scipy.sparse.csgraph import minimum_spanning_tree
+from scipy.spatial import cKDTree
+
+from planner.geometry import neighbour_pairs
+from planner.methods import PlanOutput, TickInput
+from planner.problem import ProblemConfig
+
+__all__ = [
+    "MccstParams",
+    "MccstPlanner",
+    "make_mccst",
+    "assign_tasks",
+    "nominal_controls",
+    "candidate_edges",
+    "edge_slack",
+    "collision_candidates",
+    "spanning_tree_edges",
+    "solve_cbf_qp",
+    "QpResult",
+]
+
+ASSIGNMENT_RULES = ("balanced", "nearest")
+SPEED_BOUNDS = ("box", "clip")
+
+#: OSQP statuses whose primal solution is used; anything else triggers the nominal fallback.
+_ACCEPTED_STATUSES = ("solved", "solved inaccurate")
+
+
+@dataclass(frozen=True)
+class MccstParams:
+    """Every MCCST hyper-parameter and its default (lengths in paper units, time in ticks)."""
+
+    gamma: float = 1.0
+    """CBF gain of the cubic class-K function gamma * h^3, 1 / (paper length^4 * tick). ~1 is the
+    authors' 1e4 (metres, seconds, Robotarium) rescaled (PAPER_NOTES §2.3); <= 1 also keeps the
+    one-tick overshoot inside r (module docstring)."""
+    kappa: float = 0.9
+    """Barrier radius as a fraction of the link radius: r_c = kappa * r (base: kappa * min(R, r))."""
+    safety_radius: float = 0.5
+    """Collision barrier radius D_s, paper units (RTNUA has no collisions; grid {0.1, 0.5, 1})."""
+    k_p: float = 1.0
+    """Nominal go-to-task gain, 1 / tick; u_hat = sat_v(k_p (y - x)). 1 saturates until the drone is
+    within v of its task."""
+    hold_distance: float = 0.0
+    """Nominal controls stop this far from the task, paper units (PAPER_NOTES §2.4 step 3 allows a
+    hold zone). 0 = drive onto the task point."""
+    assignment: str = "balanced"
+    """Subgroup rule: 'balanced' (exact, capacity ceil(|A| / m) per task) or 'nearest' task."""
+    subgroup_factor: float = 1e4
+    """delta of edges between different subgroups is divided by this (authors: 1e4); 1 disables."""
+    slack_penalty: float = 1e4
+    """Weight of sum s^2 in the QP objective (dimensionless, relative to sum |u - u_hat|^2)."""
+    collision_slack_penalty: float = 1e2
+    """Weight of sum s^2 for the collision rows. Lower than ``slack_penalty`` because RTNUA has no
+    collisions (the barrier only spreads the swarm) and because the dense start (all drones inside
+    D_s of each other) makes these rows conflict; 1e2 cuts OSQP iterations there ~5x."""
+    collision_neighbours: int = 8
+    """Each drone gets collision rows with at most this many nearest drones closer than D_s + 2v
+    (the union over drones is used), which bounds the rows by n * k even when the whole swarm starts
+    inside D_s. 0 means no cap (every pair closer than D_s + 2v, as in the authors' code)."""
+    speed_bound: str = "box"
+    """'box': |u_ik| <= v / sqrt(2) per axis (authors' code; implies |u_i| <= v). 'clip': |u_ik| <= v
+    in the QP, then the norm is clipped to v."""
+    discrete_time: bool = False
+    """Use the linear class-K function alpha * h (discrete-time CBF) instead of gamma * h^3."""
+    alpha: float = 0.5
+    """Gain of the discrete-time variant, per tick, in (0, 1]: a barrier may close at most this
+    fraction of its remaining margin h per tick."""
+    solver_eps: float = 1e-4
+    """OSQP absolute and relative tolerance (constraint rows are in paper length^2 per tick)."""
+    solver_max_iter: int = 10000
+    """OSQP iteration cap; hitting it is reported (and falls back to nominal controls)."""
+
+    def __post_init__(self) -> None:
+        problems = []
+        for name in ("gamma", "k_p", "slack_penalty", "collision_slack_penalty", "alpha",
+                     "solver_eps"):
+            if not getattr(self, name) > 0:
+                problems.append(f"{name} must be > 0, got {getattr(self, name)!r}")
+        if not self.alpha <= 1:
+            problems.append(f"alpha must be in (0, 1], got {self.alpha!r}")
+        if not 0 < self.kappa <= 1:
+            problems.append(f"kappa must be in (0, 1], got {self.kappa!r}")
+        if not self.hold_distance >= 0:
+            problems.append(f"hold_distance must be >= 0, got {self.hold_distance!r}")
+        if not self.safety_radius >= 0:
+            problems.append(f"safety_radius must be >= 0, got {self.safety_radius!r}")
+        if not self.subgroup_factor >= 1:
+            problems.append(f"subgroup_factor must be >= 1, got {self.subgroup_factor!r}")
+        if self.assignment not in ASSIGNMENT_RULES:
+            problems.append(f"assignment must be one of {ASSIGNMENT_RULES}, got {self.assignment!r}")
+        if self.speed_bound not in SPEED_BOUNDS:
+            problems.append(f"speed_bound must be one of {SPEED_BOUNDS}, got {self.speed_bound!r}")
+        if not (isinstance(self.solver_max_iter, (int, np.integer)) and self.solver_max_iter >= 1):
+            problems.append(f"solver_max_iter must be an int >= 1, got {self.solver_max_iter!r}")
+        if not (isinstance(self.collision_neighbours, (int, np.integer))
+                and self.collision_neighbours >= 0):
+            problems.append("collision_neighbours must be an int >= 0, "
+                            f"got {self.collision_neighbours!r}")
+        if problems:
+            raise ValueError("MccstParams: " + "; ".join(problems))
+
+    @classmethod
+    def from_dict(cls, params: dict) -> "MccstParams":
+        """Build from a ``params`` dict; unknown keys raise ValueError listing the valid ones."""
+        valid = [f.name for f in dataclasses.fields(cls)]
+        unknown = sorted(set(params) - set(valid))
+        if unknown:
+            raise ValueError(f"unknown mccst params {unknown}; valid params: {', '.join(valid)}")
+        return cls(**params)
+
+
+# --------------------------------------------------------------------------------------------
+# One step of the method per function (each testable on its own).
+# --------------------------------------------------------------------------------------------
+
+def assign_tasks(pos: np.ndarray, task_pos: np.ndarray, rule: str = "balanced") -> np.ndarray:
+    """Subgroups: the task index of every drone.
+
+    Parameters
+    ----------
+    pos : (n, 2) float64
+        Drone positions (any length unit).
+    task_pos : (m, 2) float64, m >= 1
+        Task positions (same unit).
+    rule : {'balanced', 'nearest'}
+        'balanced' minimises the total drone-task distance subject to at most ceil(n / m) drones per
+        task (exact: ``linear_sum_assignment`` with every task replicated ceil(n / m) times);
+        'nearest' picks each drone's closest task.
+
+    Returns
+    -------
+    (n,) int
+        Task index per drone.
+    """
+    pos = np.asarray(pos, dtype=float)
+    task_pos = np.asarray(task_pos, dtype=float)
+    n, m = len(pos), len(task_pos)
+    if n == 0:
+        return np.zeros(0, dtype=np.intp)
+    dist = np.linalg.norm(pos[:, None, :] - task_pos[None, :, :], axis=2)  # (n,1,2)-(1,m,2) -> (n,m)
+    if rule == "nearest":
+        return np.argmin(dist, axis=1).astype(np.intp)
+    if rule != "balanced":
+        raise ValueError(f"rule must be one of {ASSIGNMENT_RULES}, got {rule!r}")
+    capacity = -(-n // m)
+    cost = np.repeat(dist, capacity, axis=1)  # column k * capacity + c is copy c of task k
+    if n == m * capacity:
+        # Square: every column is used once, so subtracting column minima keeps the optimum; it makes
+        # scipy's shortest-augmenting-path solver 2-3x faster on clustered starts (500 drones on the
+        # ring: ~50 ms -> ~20 ms). Rectangular problems leave columns unused, so no shift there.
+        cost -= cost.min(axis=0)
+    rows, cols = linear_sum_assignment(cost)
+    out = np.empty(n, dtype=np.intp)
+    out[rows] = cols // capacity
+    return out
+
+
+def nominal_controls(pos: np.ndarray, goal: np.ndarray, k_p: float, speed: float,
+                     hold: float = 0.0) -> np.ndarray:
+    """u_hat_i = sat_speed(k_p (1 - hold / d_i)_+ (goal_i - x_i)), d_i = |goal_i - x_i|.
+
+    A proportional go-to-goal law, norm-saturated, that stops on the circle of radius ``hold``
+    around the goal (zero inside it); ``hold = 0`` is the plain law.
+
+    Parameters
+    ----------
+    pos, goal : (n, 2) float64, paper units
+    k_p : float, 1 / tick
+    speed : float, paper units per tick
+    hold : float, paper units
+
+    Returns
+    -------
+    (n, 2) float64, paper units per tick, every row of norm <= speed.
+    """
+    offset = np.asarray(goal, dtype=float) - np.asarray(pos, dtype=float)
+    if hold > 0:
+        dist = np.linalg.norm(offset, axis=1)
+        offset = offset * (np.maximum(dist - hold, 0.0) / np.maximum(dist, 1e-300))[:, None]
+    return _clip_norm(k_p * offset, speed)
+
+
+def candidate_edges(pos_m: np.ndarray, base_m: np.ndarray, radio_range_m: float,
+                    base_range_m: float) -> np.ndarray:
+    """Edges of the communication graph of the drones and the base.
+
+    Parameters
+    ----------
+    pos_m : (n, 2) float64, metres
+    base_m : (2,) float64, metres
+    radio_range_m, base_range_m : float, metres (r and R)
+
+    Returns
+    -------
+    (E, 2) int
+        Pairs (i, j), i < j; j == n denotes the base. Drone links use |x_i - x_j| <= r, base links
+        |x_i - b| <= min(R, r), in metres exactly as :func:`planner.geometry.active_mask` does.
+    """
+    n = len(pos_m)
+    pairs = neighbour_pairs(pos_m, radio_range_m)
+    base_reach_m = min(base_range_m, radio_range_m)
+    at_base = np.flatnonzero(np.linalg.norm(pos_m - base_m, axis=1) <= base_reach_m)
+    base_pairs = np.column_stack([at_base, np.full(len(at_base), n)])
+    return np.concatenate([pairs.reshape(-1, 2), base_pairs]).astype(np.intp)
+
+
+def collision_candidates(x: np.ndarray, reach: float, max_neighbours: int = 0) -> np.ndarray:
+    """Drone pairs that get a collision barrier.
+
+    Parameters
+    ----------
+    x : (n, 2) float64, paper units
+    reach : float
+        Pairs strictly closer than this (D_s + 2v: farther pairs cannot come within D_s this tick).
+    max_neighbours : int
+        If > 0, only each drone's ``max_neighbours`` nearest drones within ``reach`` (ties by index),
+        taking the union over drones: at most n * max_neighbours pairs.
+
+    Returns
+    -------
+    (C, 2) int, unique pairs i < j, sorted.
+    """
+    n = len(x)
+    if n < 2:
+        return np.zeros((0, 2), dtype=np.intp)
+    tree = cKDTree(x)
+    if max_neighbours <= 0:
+        pairs = tree.query_pairs(reach, output_type="ndarray").reshape(-1, 2)
+    else:
+        k = min(max_neighbours + 1, n)                 # +1: each drone is its own nearest point
+        _, nbr = tree.query(x, k=k, distance_upper_bound=reach)
+        nbr = np.asarray(nbr).reshape(n, k)
+        owner = np.repeat(np.arange(n, dtype=np.int64), k)
+        other = nbr.ravel().astype(np.int64)
+        keep = (other < n) & (other != owner)           # missing neighbours are reported as n
+        lo, hi = np.minimum(owner[keep], other[keep]), np.maximum(owner[keep], other[keep])
+        key = np.unique(lo * n + hi)                    # dedupe (i, j) / (j, i), sorted by (i, j)
+        pairs = np.column_stack([key // n, key % n])
+    pairs = pairs.astype(np.intp)
+    if len(pairs) == 0:
+        return np.zeros((0, 2), dtype=np.intp)
+    d = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1)
+    pairs = pairs[d < reach]
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))] if max_neighbours <= 0 else pairs
+
+
+def _class_k(h: np.ndarray, params: MccstParams) -> np.ndarray:
+    """The barrier's class-K function: gamma h^3 (continuous time) or alpha h (discrete time)."""
+    return params.alpha * h if params.discrete_time else params.gamma * h ** 3
+
+
+def edge_slack(x: np.ndarray, u_hat: np.ndarray, edges: np.ndarray, r_c: np.ndarray,
+               subgroup: np.ndarray, params: MccstParams) -> np.ndarray:
+    """delta_ij: the connectivity barrier's slack under the nominal controls (larger = safer).
+
+    Parameters
+    ----------
+    x : (n + 1, 2) float64
+        Node positions, paper units; row n is the base.
+    u_hat : (n + 1, 2) float64
+        Nominal controls, paper units per tick; row n (the base) is zero.
+    edges : (E, 2) int
+        Node pairs.
+    r_c : (E,) float64
+        Barrier radius of each edge, paper units.
+    subgroup : (n + 1,) int
+        Subgroup label per node (the base has its own).
+    params : MccstParams
+
+    Returns
+    -------
+    (E,) float64
+        delta = -2 (x_i - x_j)^T (u_hat_i - u_hat_j) + K(r_c^2 - d^2), divided by
+        ``subgroup_factor`` across subgroups. The MCCST edge weight is -delta.
+    """
+    i, j = edges[:, 0], edges[:, 1]
+    diff = x[i] - x[j]
+    h = r_c ** 2 - np.einsum("ek,ek->e", diff, diff)
+    delta = -2.0 * np.einsum("ek,ek->e", diff, u_hat[i] - u_hat[j]) + _class_k(h, params)
+    return np.where(subgroup[i] != subgroup[j], delta / params.subgroup_factor, delta)
+
+
+def spanning_tree_edges(n_nodes: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Indices of the edges of a minimum spanning tree (forest, if disconnected).
+
+    The MST depends only on the order of the weights, so they are replaced by their ranks 1..E:
+    strictly positive (scipy's sparse graphs treat 0 as "no edge" and the MCCST weights are often
+    negative), exact, and tie-broken by edge index. The rank stored on each tree entry identifies
+    the edge without any lookup of its orientation.
+
+    Parameters
+    ----------
+    n_nodes : int
+    edges : (E, 2) int, unique unordered pairs
+    weights : (E,) float64
+
+    Returns
+    -------
+    (T,) int, sorted indices into ``edges``; T = n_nodes - #components.
+    """
+    if len(edges) == 0:
+        return np.zeros(0, dtype=np.intp)
+    order = np.argsort(weights, kind="stable")
+    rank = np.empty(len(edges), dtype=float)
+    rank[order] = np.arange(1, len(edges) + 1)
+    graph = coo_matrix((rank, (edges[:, 0], edges[:, 1])), shape=(n_nodes, n_nodes)).tocsr()
+    tree = minimum_spanning_tree(graph)
+    return np.sort(order[tree.data.astype(np.intp) - 1])
+
+
+def _mst_reference(n_nodes: int, edges: np.ndarray, weights: np.ndarray) -> set[frozenset]:
+    """networkx's Kruskal MST on the same weights, as a set of node pairs (slow; for tests)."""
+    import networkx as nx
+
+    graph = nx.Graph()
+    graph.add_nodes_from(range(n_nodes))
+    for (i, j), w in zip(edges.tolist(), weights.tolist()):
+        graph.add_edge(i, j, weight=w)
+    return {frozenset(e) for e in nx.minimum_spanning_tree(graph, algorithm="kruskal").edges()}
+
+
+@dataclass(frozen=True)
+class QpResult:
+    """Outcome of one CBF-QP solve."""
+
+    u: np.ndarray
+    """(n, 2) float64: filtered controls, paper units per tick (within the box bound)."""
+    status: str
+    """OSQP status string ('solved', 'solved inaccurate', 'maximum iterations reached', ...)."""
+    used_solution: bool
+    """False when the status was not accepted and ``u`` is the clipped nominal control."""
+    iterations: int
+    """OSQP iterations."""
+    max_tree_slack: float
+    """Largest connectivity-row slack (0 when every tree barrier holds), paper length^2 / tick;
+    NaN after a fallback."""
+    max_collision_slack: float
+    """Largest collision-row slack, paper length^2 / tick; NaN after a fallback."""
+
+
+def solve_cbf_qp(x: np.ndarray, u_hat: np.ndarray, tree: np.ndarray, r_c: np.ndarray,
+                 collision_pairs: np.ndarray, box: float, params: MccstParams) -> QpResult:
+    """Minimally modify the nominal controls so that the tree and collision barriers hold.
+
+    Parameters
+    ----------
+    x : (n + 1, 2) float64
+        Node positions, paper units; row n is the base (fixed, u_b = 0).
+    u_hat : (n, 2) float64
+        Nominal controls of the drones, paper units per tick.
+    tree : (T, 2) int
+        Connectivity edges to enforce (node n = base).
+    r_c : (T,) float64
+        Barrier radius of each tree edge.
+    collision_pairs : (C, 2) int
+        Drone pairs (both < n) that get a collision barrier.
+    box : float
+        Per-axis bound |u_ik| <= box.
+    params : MccstParams
+
+    Returns
+    -------
+    QpResult
+
+    Notes
+    -----
+    Only rows whose barrier is already violated (right-hand side < 0: a tree edge longer than
+    r_c, a pair closer than D_s) get a slack. Every other row is satisfied by u = 0, so u = 0 plus
+    slacks equal to the violations is always feasible: the QP can never be infeasible, and it has
+    2n + (#violated rows) variables instead of 2n + (#rows), which roughly halves OSQP's KKT system
+    in dense swarms. A slack on a row that holds at u = 0 is never needed for feasibility.
+    """
+    n = len(u_hat)
+    n_u = 2 * n
+    n_tree, n_col = len(tree), len(collision_pairs)
+    n_rows = n_tree + n_col
+    xyz = np.arange(2)
+
+    # Barrier rows: coef_i . u_i + coef_j . u_j (- s_row) <= rhs. Tree: coef_i = 2 (x_i - x_j);
+    # collision: coef_i = -2 (x_i - x_j); coef_j = -coef_i. Base ends (j == n) get no u_j entries.
+    i = np.concatenate([tree[:, 0], collision_pairs[:, 0]]).astype(np.intp)
+    j = np.concatenate([tree[:, 1], collision_pairs[:, 1]]).astype(np.intp)
+    diff = x[i] - x[j]                                          # (rows, 2)
+    d2 = np.einsum("ek,ek->e", diff, diff)
+    sign = np.concatenate([np.ones(n_tree), -np.ones(n_col)])
+    coef = 2.0 * sign[:, None] * diff                           # (rows, 2)
+    rhs = np.concatenate([_class_k(r_c ** 2 - d2[:n_tree], params),
+                          _class_k(d2[n_tree:] - params.safety_radius ** 2, params)])
+    # Under the box |u_ik| <= box a row's left side never exceeds sum |coef| * box, so capping the
+    # right side there leaves the feasible set unchanged; it keeps inactive rows (gamma h^3 of a
+    # short edge reaches ~30) from inflating OSQP's relative tolerance, which scales with |Ax|.
+    reach = box * np.abs(coef).sum(axis=1) * np.where(j < n, 2.0, 1.0)
+    rhs = np.minimum(rhs, reach + 1e-3)
+    slack_rows = np.flatnonzero(rhs < 0)                        # violated barriers only
+    n_slack = len(slack_rows)
+    n_var = n_u + n_slack
+
+    row_ids = np.arange(n_rows)
+    j_is_drone = j < n
+    a_rows = np.concatenate([
+        np.repeat(row_ids, 2),                                  # u_i entries
+        np.repeat(row_ids[j_is_drone], 2),                      # u_j entries (drones only)
+        slack_rows,                                             # -s on violated rows
+        n_rows + np.arange(n_var),                              # bound rows: identity on all vars
+    ])
+    a_cols = np.concatenate([
+        (2 * i[:, None] + xyz).ravel(),
+        (2 * j[j_is_drone][:, None] + xyz).ravel(),
+        n_u + np.arange(n_slack),
+        np.arange(n_var),
+    ])
+    a_vals = np.concatenate([coef.ravel(), -coef[j_is_drone].ravel(), -np.ones(n_slack),
+                             np.ones(n_var)])
+    a_mat = csc_matrix((a_vals, (a_rows, a_cols)), shape=(n_rows + n_var, n_var))
+    lower = np.concatenate([np.full(n_rows, -np.inf), np.full(n_u, -box), np.zeros(n_slack)])
+    upper = np.concatenate([rhs, np.full(n_u, box), np.full(n_slack, np.inf)])
+
+    # Objective sum |u - u_hat|^2 + penalty sum s^2 = 1/2 z^T P z + q^T z + const.
+    slack_is_tree = slack_rows < n_tree
+    penalty = np.where(slack_is_tree, params.slack_penalty, params.collision_slack_penalty)
+    p_mat = diags(np.concatenate([np.full(n_u, 2.0), 2.0 * penalty]), format="csc")
+    q_vec = np.concatenate([-2.0 * u_hat.ravel(), np.zeros(n_slack)])
+
+    solver = osqp.OSQP()
+    # scaling=0: OSQP's Ruiz equilibration rescales the slack columns (P entry 2 * penalty) against
+    # the control columns and then ADMM stalls whenever slacks are active: the three-link chain of
+    # the tests hits 10,000 iterations with it and converges in ~200 without; the 500-drone dense
+    # start needs ~250 instead of ~800. The rows are already well scaled (|coef| <= 2 r, |u| <= v).
+    solver.setup(p_mat, q_vec, a_mat, lower, upper, verbose=False, eps_abs=params.solver_eps,
+                 eps_rel=params.solver_eps, max_iter=params.solver_max_iter, polishing=False,
+                 scaling=0)
+    u_start = np.clip(u_hat, -box, box)
+    solver.warm_start(x=np.concatenate([u_start.ravel(), -rhs[slack_rows]]))
+    res = solver.solve(raise_error=False)
+    status = str(res.info.status)
+    if status in _ACCEPTED_STATUSES and res.x is not None and np.all(np.isfinite(res.x)):
+        u = np.clip(res.x[:n_u].reshape(n, 2), -box, box)       # absorb solver tolerance
+        slack = np.maximum(res.x[n_u:], 0.0)
+        return QpResult(u, status, True, int(res.info.iter),
+                        float(slack[slack_is_tree].max(initial=0.0)),
+                        float(slack[~slack_is_tree].max(initial=0.0)))
+    return QpResult(u_start, status, False, int(res.info.iter), float("nan"), float("nan"))
+
+
+def _clip_norm(vec: np.ndarray, limit: float) -> np.ndarray:
+    """Rows scaled down so that |row| <= limit holds exactly in floating point (new array)."""
+    norm = np.linalg.norm(vec, axis=1)
+    over = norm > limit
+    out = np.array(vec, dtype=float, copy=True)
+    if over.any():
+        out[over] *= (limit / norm[over])[:, None]
+        # Rounding can leave |row| a few ulps above limit; shrink those rows a hair more.
+        still = np.linalg.norm(out, axis=1) > limit
+        out[still] *= 1.0 - 1e-12
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# The planner.
+# --------------------------------------------------------------------------------------------
+
+class MccstPlanner:
+    """Centralised MCCST controller with perfect knowledge (see the module docstring).
+
+    ``plan`` is a pure function of its tick (no state carried between ticks).
+    """
+
+    def __init__(self, problem: ProblemConfig, params: MccstParams) -> None:
+        self.problem = problem
+        self.params = params
+        unit = problem.length_unit_m
+        self._unit_m = unit
+        self._radius = problem.radio_range_m / unit                       # r, paper units
+        self._base_radius = min(problem.base_range_m, problem.radio_range_m) / unit
+        self._speed = problem.max_speed_m_s * problem.dt_s / unit         # v, paper units / tick
+        self._max_disp_m = problem.max_speed_m_s * problem.dt_s
+        per_axis = self._speed / np.sqrt(2.0) if params.speed_bound == "box" else self._speed
+        self._box = float(per_axis)
+
+    def plan(self, tick: TickInput) -> PlanOutput:
+        """One MCCST tick: assignment, nominal controls, spanning tree, CBF-QP.
+
+        Returns
+        -------
+        PlanOutput
+            ``disp_m`` (N, 2) metres, zero rows for drones outside ``tick.networked``; ``info`` has
+            'status' (OSQP status or 'empty'), 'fallback' (nominal controls used), 'iterations',
+            'n_networked', 'n_tree_edges', 'n_collision_rows', 'n_components' (of the candidate
+            graph; 1 when D' is consistent), 'max_tree_slack' and 'max_collision_slack' (paper
+            length^2 / tick, NaN after a fallback), 'tree_edges'
+            ((T, 2) drone indices, -1 = base) and 'task_of' ((N,) task index, -1 if not networked).
+        """
+        pos_m = np.asarray(tick.pos_m, dtype=float)
+        if pos_m.ndim != 2 or pos_m.shape[1] != 2:
+            raise ValueError(f"tick.pos_m must be (N, 2) metres, got shape {pos_m.shape}")
+        n_all = len(pos_m)
+        task_m = np.asarray(tick.task_pos_m, dtype=float).reshape(-1, 2)
+        base_m = np.asarray(tick.base_m, dtype=float).reshape(2)
+        networked = np.asarray(tick.networked, dtype=bool) & np.asarray(tick.alive, dtype=bool)
+        members = np.flatnonzero(networked)
+        disp_m = np.zeros((n_all, 2))
+        task_of = np.full(n_all, -1, dtype=np.intp)
+        n = len(members)
+        info = {"status": "empty", "fallback": False, "iterations": 0, "n_networked": n,
+                "n_tree_edges": 0, "n_collision_rows": 0, "n_components": 0,
+                "max_tree_slack": 0.0, "max_collision_slack": 0.0,
+                "tree_edges": np.zeros((0, 2), dtype=np.intp), "task_of": task_of}
+        if n == 0:
+            return PlanOutput(disp_m=disp_m, info=info)
+        prm = self.params
+        unit = self._unit_m
+        x = np.vstack([pos_m[members], base_m]) / unit              # (n+1, 2); row n is the base
+
+        # 1-2. Subgroups and nominal controls.
+        if len(task_m):
+            task_local = assign_tasks(x[:n], task_m / unit, prm.assignment)
+            goal = task_m[task_local] / unit
+        else:
+            task_local = np.zeros(n, dtype=np.intp)
+            goal = x[:n]
+        task_of[members] = task_local
+        u_hat = nominal_controls(x[:n], goal, prm.k_p, self._speed, prm.hold_distance)
+
+        # 3. Candidate graph and MCCST.
+        edges = candidate_edges(pos_m[members], base_m, self.problem.radio_range_m,
+                                self.problem.base_range_m)
+        is_base_edge = edges[:, 1] == n
+        r_c = prm.kappa * np.where(is_base_edge, self._base_radius, self._radius)
+        subgroup = np.append(task_local, -1)                        # the base is its own subgroup
+        delta = edge_slack(x, np.vstack([u_hat, np.zeros(2)]), edges, r_c, subgroup, prm)
+        in_tree = spanning_tree_edges(n + 1, edges, -delta)
+        tree = edges[in_tree]
+
+        # 4. Collision pairs (drones only) and the CBF-QP.
+        collision_pairs = collision_candidates(x[:n], prm.safety_radius + 2.0 * self._speed,
+                                               prm.collision_neighbours)
+        qp = solve_cbf_qp(x, u_hat, tree, r_c[in_tree], collision_pairs, self._box, prm)
+
+        disp_m[members] = _clip_norm(qp.u * unit, self._max_disp_m)
+        tree_global = np.where(tree == n, -1, members[np.minimum(tree, n - 1)])
+        info.update(status=qp.status, fallback=not qp.used_solution, iterations=qp.iterations,
+                    n_tree_edges=len(tree), n_collision_rows=len(collision_pairs),
+                    n_components=n + 1 - len(tree), max_tree_slack=qp.max_tree_slack,
+                    max_collision_slack=qp.max_collision_slack, tree_edges=tree_global)
+        return PlanOutput(disp_m=disp_m, tree=None, info=info)
+
+
+def make_mccst(problem: ProblemConfig, params: dict, rng: np.random.Generator) -> MccstPlanner:
+    """Registry factory (``METHODS['mccst']``).
+
+    Parameters
+    ----------
+    problem : ProblemConfig
+    params : dict
+        Overrides of :class:`MccstParams` fields (paper units, ticks).
+    rng : numpy.random.Generator
+        Unused: MCCST is deterministic. Accepted for the common factory signature.
+
+    Raises
+    ------
+    ValueError
+        An unknown key in ``params`` (the message lists the valid ones) or an invalid value.
+    """
+    del rng
+    return MccstPlanner(problem, MccstParams.from_dict(dict(params)))
