@@ -66,11 +66,17 @@ def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = 
     unresolved = (adj @ (valid & (age <= max_level)).astype(np.float32)) > 0
     unresolved &= ~valid | (age > 0)  # an entry of age 0 cannot be improved
     for level in range(max_level + 1):
-        if not unresolved.any():
+        # Only rows and columns with something left to resolve enter the product: in a dense swarm
+        # most entries resolve at the first levels, so later products are small.
+        rows = np.flatnonzero(unresolved.any(axis=1))
+        if len(rows) == 0:
             break
-        hit = unresolved & ((adj @ (age == level).astype(np.float32)) > 0)
-        out[hit] = np.maximum(out[hit], t_sent - level)
-        unresolved &= ~hit
+        cols = np.flatnonzero(unresolved[rows].any(axis=0))
+        sub_unres = unresolved[np.ix_(rows, cols)]
+        hit = sub_unres & ((adj[rows] @ (age[:, cols] == level).astype(np.float32)) > 0)
+        r_hit, c_hit = np.nonzero(hit)
+        out[rows[r_hit], cols[c_hit]] = np.maximum(out[rows[r_hit], cols[c_hit]], t_sent - level)
+        unresolved[rows[r_hit], cols[c_hit]] = False
     return out
 
 

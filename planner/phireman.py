@@ -187,30 +187,51 @@ def task_gradient_batched(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarra
 
 
 def pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, attraction: float,
-                  floor: float, repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
+                  floor: float, repulsion: float, reach: float, pair_factor: float,
+                  others_sq: np.ndarray | None = None) -> np.ndarray:
     """∇ of the attraction and repulsion terms of each drone w.r.t. its own position.
 
     Parameters
     ----------
     pos_u : (n, 2) positions of the drones being planned, paper units
-    others_u : (n, K, 2) or (K, 2) positions of the drones each one interacts with
+    others_u : (K, 2) positions shared by every drone (central view), or (n, K, 2) per-drone
+        beliefs (async view)
     mask : (n, K) bool, which pairs interact (False for self and unknown drones)
     attraction, floor : ℳ and d_min
     repulsion, reach : P and q_i + q_j
     pair_factor : c (2 for the total energy)
+    others_sq : optional |others|^2, (K,) or (n, K), when the caller reuses it across iterations
 
     Returns
     -------
     (n, 2): c ℳ Σ (x_i - x_j)/d^3 [d > d_min] - c P Σ (reach - d)(x_i - x_j)/d [d < reach]
+
+    Notes
+    -----
+    Never materialises the (n, K, 2) difference array: with d^2 = |x|^2 + |y|^2 - 2 x.y and
+    Σ_j w_ij (x_i - y_j) = x_i Σ_j w_ij - Σ_j w_ij y_j, the shared view costs two small matrix
+    products and the per-drone view two passes over the beliefs. The expansion loses about
+    |x|^2 eps in d^2, far below any distance that matters (cf. the reference test).
     """
-    diff = pos_u[:, None, :] - others_u  # (n,1,2) - (n|1,K,2) -> (n,K,2)
-    d2 = np.einsum("nkc,nkc->nk", diff, diff)
-    d = np.sqrt(d2)
-    pull = mask & (d > floor)          # d > floor >= 0, so d^3 > 0 wherever it is used
-    push = mask & (d < reach) & (d > 0)
-    coef = np.divide(attraction, d * d2, out=np.zeros_like(d), where=pull)
-    coef -= np.divide(repulsion * (reach - d), d, out=np.zeros_like(d), where=push)
-    return pair_factor * np.einsum("nk,nkc->nc", coef, diff)
+    pos_u = np.asarray(pos_u, float)
+    xx = np.einsum("nc,nc->n", pos_u, pos_u)
+    if others_u.ndim == 2:
+        yy = np.einsum("kc,kc->k", others_u, others_u) if others_sq is None else others_sq
+        d2 = xx[:, None] + yy[None, :] - 2.0 * (pos_u @ others_u.T)
+    else:
+        yy = np.einsum("nkc,nkc->nk", others_u, others_u) if others_sq is None else others_sq
+        d2 = xx[:, None] + yy - 2.0 * np.einsum("nkc,nc->nk", others_u, pos_u)
+    np.maximum(d2, 0.0, out=d2)
+    inv = np.zeros_like(d2)
+    np.divide(1.0, np.sqrt(d2, out=np.empty_like(d2)), out=inv, where=mask & (d2 > 0))
+    d = d2 * inv                                   # distance where the pair interacts, else 0
+    coef = np.where(d > floor, attraction * inv * inv * inv, 0.0)
+    coef -= np.where((d < reach) & (inv > 0), repulsion * (reach * inv - 1.0), 0.0)
+    if others_u.ndim == 2:
+        weighted = coef @ others_u
+    else:
+        weighted = np.einsum("nk,nkc->nc", coef, others_u)
+    return pair_factor * (pos_u * coef.sum(axis=1)[:, None] - weighted)
 
 
 def pair_gradient_reference(pos_u, others_u, mask, attraction, floor, repulsion, reach, pair_factor):
@@ -394,10 +415,10 @@ class PhiremanPlanner:
         self._prev: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- helpers --------------------------------------------------------------------------
-    def _pair_grad(self, pos_u, others_u, mask):
+    def _pair_grad(self, pos_u, others_u, mask, others_sq=None):
         p = self.params
         return pair_gradient(pos_u, others_u, mask, p.attraction, p.attraction_floor, p.repulsion,
-                             self.reach_u, p.pair_factor)
+                             self.reach_u, p.pair_factor, others_sq)
 
     def _tree_to_m(self, tree: TaskTree | None) -> TaskTree | None:
         if tree is None:
@@ -423,7 +444,7 @@ class PhiremanPlanner:
 
                 def grad(x, rows):
                     return (task_gradient(x, tree, p.thorn, p.nodes_only)
-                            + self._pair_grad(x, x[None, :, :], mask))
+                            + self._pair_grad(x, x, mask))
 
                 res = descend(pos_u[idx], grad, self.vmax_u, p)
                 disp_u[idx] = res.disp_u
@@ -466,8 +487,10 @@ class PhiremanPlanner:
         versions, version_of = np.unique(kn.tree_stamp[idx], return_inverse=True)
         seg_a, seg_b, valid = padded_segments([self.tree_history[int(s)] for s in versions], p.nodes_only)
 
+        believed_sq = np.einsum("nkc,nkc->nk", believed, believed)
+
         def grad(x, rows):
-            return (self._pair_grad(x[rows], believed[rows], mask[rows])
+            return (self._pair_grad(x[rows], believed[rows], mask[rows], believed_sq[rows])
                     + task_gradient_batched(x[rows], seg_a, seg_b, valid, version_of[rows], p.thorn))
 
         res = descend(pos_u[idx], grad, self.vmax_u, p, separable=True)
