@@ -1,0 +1,207 @@
+"""Report: significance logic, paired vs unpaired, Δ against the paper, ablations, heatmaps, CLI."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from mission import paper
+from mission.cli import main
+from mission.report import Sample, best_of, build_report, p_greater, p_greater_paired
+from mission.store import ResultStore, utc_now
+from mission.sweep import ConfigSpec, canonical_json, paper_ablations_grid, paper_table_grid
+
+N_SEEDS = 30
+
+
+def _sample(method: str, tu1, tu2=None) -> Sample:
+    s = Sample(ConfigSpec("S", 0.01, method))
+    tu2 = tu1 if tu2 is None else tu2
+    for seed, (a, b) in enumerate(zip(tu1, tu2)):
+        s.by_seed["tu1"][seed] = float(a)
+        s.by_seed["tu2"][seed] = float(b)
+    return s
+
+
+def _rows(spec: ConfigSpec, tu1_pct, tu2_pct, grid: str = "paper-table", errors: int = 0) -> list[dict]:
+    """Store rows for a spec as a sweep would write them (config key faked: one per spec)."""
+    rows = []
+    base = {"config_key": "cfg-" + spec.spec_key, "spec_key": spec.spec_key, "grid": grid, "label": spec.label,
+            "size": spec.size, "attrition": spec.attrition, "reading": spec.reading, "method": spec.method,
+            "spec_json": canonical_json(spec.spec_dict()), "config_json": "{}", "wall_s": 0.1,
+            "final_alive": 5, "final_active": 4, "code_version": "phireman test src 0", "host": "h",
+            "created_utc": utc_now()}
+    for seed, (a, b) in enumerate(zip(tu1_pct, tu2_pct)):
+        rows.append({**base, "run_key": f"{spec.spec_key}-{seed}", "seed": seed, "status": "ok", "error": None,
+                     "tu1": a / 100, "tu2": b / 100})
+    for k in range(errors):
+        rows.append({**base, "run_key": f"{spec.spec_key}-e{k}", "seed": 1000 + k, "status": "error",
+                     "error": "ValueError: boom", "tu1": None, "tu2": None, "final_alive": None,
+                     "final_active": None})
+    return rows
+
+
+# ----------------------------------------------------------------------------------------------
+# Statistics
+# ----------------------------------------------------------------------------------------------
+
+def test_bold_needs_the_best_to_beat_both_others(rng):
+    a = _sample("phireman", 80 + rng.normal(0, 3, N_SEEDS))
+    b = _sample("dccrs", 70 + rng.normal(0, 3, N_SEEDS))
+    c = _sample("mccst", 60 + rng.normal(0, 3, N_SEEDS))
+    v = best_of({"phireman": a, "dccrs": b, "mccst": c}, "tu1")
+    assert v.best == "phireman" and v.significant and v.p < 1e-6
+
+    close = _sample("dccrs", 79.8 + rng.normal(0, 3, N_SEEDS))  # beats MCCST, not ΦIREMAN
+    v = best_of({"phireman": a, "dccrs": close, "mccst": c}, "tu1")
+    assert v.best in ("phireman", "dccrs") and not v.significant
+
+    # one method only: nothing to compare, never bold
+    assert best_of({"phireman": a, "dccrs": None, "mccst": None}, "tu1").best is None
+
+
+def test_paired_test_sees_what_the_unpaired_test_cannot(rng):
+    # Large scenario-to-scenario variance shared by both methods (common random numbers), and a
+    # small consistent gain: the paired test detects it, the paper's unpaired test does not.
+    scenario = 60 + rng.normal(0, 15, N_SEEDS)
+    a = _sample("phireman", scenario + 1.0 + rng.normal(0, 0.3, N_SEEDS))
+    b = _sample("dccrs", scenario + rng.normal(0, 0.3, N_SEEDS))
+    assert p_greater(a, b, "tu1") > 0.05
+    assert p_greater_paired(a, b, "tu1") < 1e-6
+    # one-tailed: the other direction is not significant
+    assert p_greater_paired(b, a, "tu1") > 0.5
+    # identical samples: no evidence, no crash
+    assert p_greater(a, a, "tu1") > 0.4 and p_greater_paired(a, a, "tu1") == 1.0
+
+
+def test_paper_data_matches_the_papers_caption():
+    assert len(paper.TABLE_II) == 25
+    bold = paper.TABLE_II_BOLD
+    assert sum(1 for b in bold if b[2] == "tu1" and b[3] == "phireman") == 13
+    assert sum(1 for b in bold if b[2] == "tu2" and b[3] == "phireman") == 10
+    assert {b for b in bold if b[3] != "phireman"} == {("M", 0.05, "tu2", "mccst")}
+    assert paper.paper_value("S", 0.01, "phireman", "tu1") == (80.83, 1.63)
+    assert paper.paper_value("XL", 0.05, "mccst", "tu2") == (42.96, 0.57)
+    assert paper.paper_bold("M", 0.05, "tu2") == "mccst" and paper.paper_bold("S", 0.0, "tu1") is None
+    assert [r.label for r in paper.ABLATIONS] == [v.label for v in paper_ablations_grid(seeds=[]).configs]
+
+
+# ----------------------------------------------------------------------------------------------
+# The rendered report on a synthetic store
+# ----------------------------------------------------------------------------------------------
+
+@pytest.fixture
+def synthetic_store(tmp_path, rng):
+    """S / 1 %, S / 0.5 %, XS / 0 % for the three methods, and the ablations, with known answers."""
+    path = tmp_path / "synthetic.sqlite"
+    table = {(c.size, c.attrition, c.method): c for c in paper_table_grid(seeds=[]).configs}
+    rows = []
+    # S / 1 %: ΦIREMAN exactly the paper + 1.00 (✓), DCCRS paper − 6 (✗), MCCST far below; ΦIREMAN
+    # clearly best -> bold (the paper bolds it too).
+    for method, shift in (("phireman", 1.0), ("dccrs", -6.0), ("mccst", 0.0)):
+        (t1, _), (t2, _) = (paper.paper_value("S", 0.01, method, m) for m in paper.METRICS)
+        noise = rng.normal(0, 2, N_SEEDS)
+        noise -= noise.mean()
+        rows += _rows(table[("S", 0.01, method)], t1 + shift + noise, t2 + shift + noise)
+    # S / 0.5 %: a small consistent gain hidden in shared variance: paired-only significance.
+    scenario = 93 + rng.normal(0, 4, N_SEEDS)
+    rows += _rows(table[("S", 0.005, "phireman")], scenario + 0.8, scenario + 0.8)
+    rows += _rows(table[("S", 0.005, "dccrs")], scenario + rng.normal(0, 0.2, N_SEEDS),
+                  scenario + rng.normal(0, 0.2, N_SEEDS))
+    rows += _rows(table[("S", 0.005, "mccst")], scenario - 15, scenario - 10)
+    # XS / 0 %: ΦIREMAN 10 pp below the paper (a miss), baselines on the paper; two failed runs.
+    for method, shift in (("phireman", -10.0), ("dccrs", 0.0), ("mccst", 0.0)):
+        (t1, _), (t2, _) = (paper.paper_value("XS", 0.0, method, m) for m in paper.METRICS)
+        rows += _rows(table[("XS", 0.0, method)], t1 + shift + rng.normal(0, 1, N_SEEDS),
+                      t2 + shift + rng.normal(0, 0.5, N_SEEDS), errors=2 if method == "mccst" else 0)
+    # Ablations: Þ = 0 clearly below the default, v = 0.2 the same as the default.
+    abl = {c.label: c for c in paper_ablations_grid(seeds=[]).configs}
+    default = [r for r in rows if r["spec_key"] == abl["default"].spec_key]
+    assert len(default) == N_SEEDS  # the table's ΦIREMAN S / 1 % is the ablations' default
+    d1 = np.array([r["tu1"] * 100 for r in default])
+    d2 = np.array([r["tu2"] * 100 for r in default])
+    rows += _rows(abl["Þ = 0"], d1 - 6, d2 - 6, grid="paper-ablations")
+    rows += _rows(abl["v = 0.2"], d1 + rng.normal(0, 0.1, N_SEEDS), d2 + rng.normal(0, 0.1, N_SEEDS),
+                  grid="paper-ablations")
+    # Something from a tuning run.
+    tuned = ConfigSpec("S", 0.01, "phireman", params={"step_size": 0.3}, label="step_size=0.3")
+    rows += _rows(tuned, 70 + rng.normal(0, 1, 5), 75 + rng.normal(0, 1, 5), grid="tune")
+    with ResultStore(path) as store:
+        assert store.insert_runs(rows) == len(rows)
+    return path
+
+
+def test_report_on_a_synthetic_store(synthetic_store, tmp_path):
+    out = tmp_path / "report"
+    result = build_report(synthetic_store, out)
+    md = result.markdown.read_text()
+
+    # Table II: ΦIREMAN bold at S / 1 % on both metrics, the others not.
+    s1 = next(line for line in md.splitlines() if line.startswith("| S | 1 |"))
+    cells = [c.strip() for c in s1.strip("|").split("|")]
+    assert cells[2].startswith("**81.83 ±") and cells[3].startswith("**86.34 ±")
+    assert not cells[4].startswith("**") and not cells[6].startswith("**")
+    assert cells[8].startswith("**ΦIREMAN** p=")
+    # S / 0.5 %: not bold by the paper's unpaired test, significant by the paired one.
+    s05 = next(line for line in md.splitlines() if line.startswith("| S | 0.5 |"))
+    cells = [c.strip() for c in s05.strip("|").split("|")]
+    assert not any(c.startswith("**") for c in cells[2:8])
+    assert cells[8].startswith("**ΦIREMAN**")
+
+    # Δ against the paper, with the tolerance marks.
+    assert "81.83 vs 80.83 (+1.00 ✓)" in md
+    assert "72.21 vs 78.21 (-6.00 ✗)" in md
+    # Summary and misses: XS / 0 % misses for ΦIREMAN and is listed with a diagnosis.
+    assert "within 3 pp of the paper at 0–2 % attrition: **1 of 20**" in md
+    misses = md.split("## Configurations that miss")[1].split("## The 5 % column")[0]
+    xs = next(line for line in misses.splitlines() if line.startswith("- XS / 0 %: TU1 Δ -"))
+    assert "exceeds the combined 95 % CIs" in xs and "specific to this planner" in xs
+    assert "- S / 1 %" in misses.split("**DCCRS**")[1]  # DCCRS −6 misses its 5 pp
+    # The 5 % column comes with its explanation.
+    assert "PAPER_NOTES §9.5" in md
+    # Bold agreement: the paper bolds ΦIREMAN at S / 0.5 %, our unpaired test does not.
+    agreement = md.split("## Significance against the paper's bolding")[1]
+    assert "LaTeX" in agreement
+    assert "S / 0.5 % TU1: paper bolds ΦIREMAN, we bold none" in agreement
+    # Ablations: Þ = 0 below on both (the paper agrees), v = 0.2 not below (agrees).
+    abl = md.split("## Ablations")[1]
+    thorn = next(line for line in abl.splitlines() if line.startswith("| Þ = 0 |"))
+    assert thorn.count("**below**") == 2 and thorn.rstrip(" |").endswith("✓ ✓")
+    v02 = next(line for line in abl.splitlines() if line.startswith("| v = 0.2 |"))
+    assert "n.s." in v02 and v02.rstrip(" |").endswith("✓ ✓")
+    assert "| σ = 0 | – |" in abl  # no data
+    # Header: reading and code version; other configurations and failures are listed.
+    assert "reading: **scaled**" in md and "`phireman test src 0`" in md
+    assert "step_size=0.3" in md.split("## Other configurations in the store")[1]
+    assert "ValueError: boom" in md.split("## Failed runs")[1]
+
+    # Heatmaps exist and are PNGs; the CSV holds every configuration.
+    assert {p.name for p in result.figures} == {
+        "fig3_phireman_minus_dccrs.png", "fig3_phireman_minus_mccst.png",
+        "fig3_phireman_minus_best_baseline.png", "delta_vs_paper.png"}
+    for p in result.figures:
+        data = p.read_bytes()
+        assert len(data) > 10_000 and data[:8] == b"\x89PNG\r\n\x1a\n"
+    with open(result.csv) as fh:
+        rows = list(csv.DictReader(fh))
+    s1_phi = next(r for r in rows if (r["size"], r["attrition"], r["method"], r["label"]) == ("S", "0.01", "phireman", ""))
+    assert float(s1_phi["delta_tu1_pp"]) == pytest.approx(1.0, abs=1e-6) and s1_phi["within_tolerance"] == "True"
+    xs_m = next(r for r in rows if (r["size"], r["attrition"], r["method"]) == ("XS", "0.0", "mccst"))
+    assert xs_m["n_ok"] == str(N_SEEDS) and xs_m["n_error"] == "2"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["agreement"]["phireman"]["within_both"] == 1
+
+
+def test_report_command(synthetic_store, tmp_path, capsys):
+    out = tmp_path / "cli"
+    notes = tmp_path / "notes.md"
+    notes.write_text("XS / 0 % misses because of a synthetic shift.")
+    assert main(["report", str(synthetic_store), "--out", str(out), "--notes", str(notes), "--no-figures"]) == 0
+    assert "within 3 pp at 0-2 %: 1 of 20" in capsys.readouterr().out
+    md = (out / "report.md").read_text()
+    assert md.rstrip().endswith("XS / 0 % misses because of a synthetic shift.")
+    assert not list(out.glob("*.png"))
+    assert main(["report", str(tmp_path / "missing.sqlite"), "--out", str(out)]) == 2
