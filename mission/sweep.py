@@ -338,8 +338,12 @@ class Chunk:
 
 
 def estimate_run_s(problem) -> float:
-    """A rough per-run cost, seconds on one core (measured: XS ≈ 0.9, S ≈ 1.3, M ≈ 2.2 for ΦIREMAN)."""
-    return problem.n_steps / 200.0 * (0.6 + 0.02 * problem.n_drones)
+    """A rough per-run cost, seconds on one core: dominated by the O(n²) pair terms.
+
+    Measured at 1 %/step for ΦIREMAN / DCCRS (async): XS ≈ 0.9, S ≈ 1.2, M ≈ 3, L ≈ 12–20,
+    XL ≈ 50–60 s; MCCST is cheaper at L / XL. Used to order chunks and for the cost-weighted ETA.
+    """
+    return problem.n_steps / 200.0 * (0.6 + 2.3e-4 * problem.n_drones ** 2)
 
 
 def plan_chunks(todo: list[tuple[ResolvedConfig, list[int]]], chunk: int | None = None,
