@@ -3,7 +3,9 @@
 The cycle, after aioquic's ``transmit()`` (ARCHITECTURE §4.3): receive -> ``core.receive_datagram(
 data, addr, now)`` -> drain events -> send everything from ``datagrams_to_send`` -> re-arm one
 timer at ``next_timer_s()``. Local calls follow the same path: call the core, then
-:meth:`StationAdapter.transmit`. The clock is injectable (default: the loop's monotonic clock).
+:meth:`StationAdapter.transmit`. The clock is injectable (default: the loop's monotonic clock);
+with a simulation speed-up, pass the simulated clock and ``time_scale`` = the speed-up so timers
+are re-armed in wall seconds.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import logging
+import socket
 import time
 from typing import Callable
 
@@ -22,6 +25,8 @@ from gcs.records import TlogWriter
 __all__ = ["StationAdapter", "open_links"]
 
 log = logging.getLogger(__name__)
+
+_UDP_RCVBUF_BYTES = 4 << 20
 
 
 class _Udp(asyncio.DatagramProtocol):
@@ -41,11 +46,15 @@ class StationAdapter:
     def __init__(self, connection: str | ConnectionSpec, config: StationConfig | None = None, *,
                  link_id: int = 0, clock: Callable[[], float] | None = None,
                  wall_clock: Callable[[], float] = time.time, tlog: TlogWriter | None = None,
-                 on_event: Callable[[Event], None] | None = None) -> None:
+                 on_event: Callable[[Event], None] | None = None,
+                 time_scale: float = 1.0) -> None:
         self.spec = parse_connection(connection) if isinstance(connection, str) else connection
         self.link_id = link_id
         self._config = config or StationConfig()
+        if not time_scale > 0:
+            raise ValueError(f"time_scale must be > 0, got {time_scale}")
         self._clock = clock
+        self.time_scale = float(time_scale)
         self._wall_clock = wall_clock
         self._tlog = tlog
         self._on_event = on_event
@@ -71,6 +80,12 @@ class StationAdapter:
             transport, _ = await loop.create_datagram_endpoint(
                 lambda: _Udp(self), local_addr=local, remote_addr=remote)
             self.local_address = transport.get_extra_info("sockname")
+            sock = transport.get_extra_info("socket")
+            if sock is not None:  # bursts from hundreds of vehicles: a deeper receive queue
+                try:
+                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _UDP_RCVBUF_BYTES)
+                except OSError:
+                    pass
             if remote is not None:  # connected socket: one peer, whatever addr the core names
                 static = (remote,)
                 self._send = lambda data, addr: transport.sendto(data)
@@ -161,8 +176,10 @@ class StationAdapter:
             self._timer.cancel()
         t = core.next_timer_s()
         if t is not None:
-            self._timer = asyncio.get_running_loop().call_later(max(0.0, t - self.now()),
-                                                                self._on_timer)
+            # Core seconds -> wall seconds: under a speed-up every station timer (the 1 Hz GCS
+            # heartbeat included) must follow the vehicles' clock (MAVLINK_NOTES §5).
+            delay = max(0.0, t - self.now()) / self.time_scale
+            self._timer = asyncio.get_running_loop().call_later(delay, self._on_timer)
 
     def close(self) -> None:
         if self._timer is not None:

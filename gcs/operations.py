@@ -1,0 +1,479 @@
+"""Flight operations: launch, run, end and reclaim, on top of the station core and the fleet view.
+
+Sans-I/O like everything under ``gcs``: the :class:`Operator` is fed link events
+(:meth:`Operator.handle_event`) and polled with an explicit ``now_s`` (:meth:`Operator.poll`);
+it calls the :class:`~gcs.station.Station`'s local API (which only queues frames). A driver (the
+asyncio adapters, or an in-memory ether in tests) moves the bytes and calls :meth:`poll` at
+:meth:`next_poll_s`. It never reads a clock and never sees ground truth.
+
+Phases (``Operator.phase``)::
+
+    discover -> audit -> launch -> run -> end -> done
+                   \\-> refused (a blocking audit finding and no override)
+
+* **discover**: wait for ``expected_vehicles`` HEARTBEATs (or ``discover_timeout_s``, or
+  ``discover_settle_s`` without a new vehicle when no count is expected).
+* **audit**: read the lost-link parameters of every vehicle (:mod:`gcs.audit`); refuse unless
+  every vehicle is safe or ``override_audit``.
+* **launch**: in waves of ``wave_size``: GUIDED (ArduPilot) / pre-streamed OFFBOARD (PX4), arm,
+  take off to the vehicle's layer; the next wave starts when most of this one has climbed.
+* **run**: every ``control_period_s``, :func:`gcs.control.tick` plans for every vehicle the
+  station hears that is armed and airborne; one SET_POSITION_TARGET_GLOBAL_INT each.
+* **end**: RTL or LAND every vehicle heard; done when all are on the ground / in the end mode.
+
+**Reclaim** runs in every phase after discovery: a vehicle heard again that is not in the guided
+mode (back from a failsafe RTL, or found in RTL by a restarted station) is switched back to
+GUIDED/OFFBOARD (PX4: after streaming setpoints at its current position) and rejoins the plan;
+one that already landed and disarmed is armed and launched again. Vehicles are identified by
+``(link_id, sysid)``, which :class:`~gcs.fleet.FleetView` maps to a stable row.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from gcs import audit as audit_mod
+from gcs.autopilot import adapter_for
+from gcs.control import ControlConfig, layer_alt_m, tick
+from gcs.events import (
+    CommandFailed, CommandTimedOut, Event, ParamReceived, ParamTimedOut, VehicleDiscovered,
+    VehicleLost, VehicleRecovered,
+)
+from gcs.fleet import FleetSnapshot, FleetView
+from gcs.link import LinkUsageError, UnknownVehicle
+from gcs.station import Station
+from planner.geometry import tasks_connected
+from planner.methods import Planner
+from planner.metrics import uptime_series
+
+__all__ = ["OperationsConfig", "Operator", "PHASES", "TickRecord"]
+
+log = logging.getLogger(__name__)
+
+PHASES = ("discover", "audit", "launch", "run", "end", "done", "refused")
+
+
+@dataclass(frozen=True)
+class OperationsConfig:
+    """Sequencing and timing. Times are station-core seconds (the vehicles' clock under
+    speed-up); units in the names."""
+
+    expected_vehicles: int | None = None
+    """Start as soon as this many vehicles are discovered (None: wait ``discover_settle_s``)."""
+    discover_timeout_s: float = 30.0
+    discover_settle_s: float = 3.0
+    audit: bool = True
+    override_audit: bool = False
+    audit_timeout_s: float = 30.0
+    wave_size: int = 10
+    wave_timeout_s: float = 40.0
+    wave_climbed_frac: float = 0.8
+    """The next wave starts when this fraction of the wave is above ``climbed_alt_frac`` of its
+    target altitude."""
+    climbed_alt_frac: float = 0.7
+    control_period_s: float = 1.0
+    duration_s: float = 200.0
+    """Length of the run phase (the mission), seconds."""
+    end: str = "rtl"
+    """'rtl' or 'land'."""
+    end_timeout_s: float = 180.0
+    action_retry_s: float = 3.0
+    """Minimum time between two mode/arm/takeoff attempts on one vehicle."""
+    airborne_alt_m: float = 2.0
+    """Above home by more than this = airborne."""
+    radio_range_m: float = math.inf
+    """For "tasks covered as the station sees them" (a task within range of a networked vehicle)."""
+    poll_period_s: float = 0.25
+
+    def __post_init__(self) -> None:
+        if self.end not in ("rtl", "land"):
+            raise ValueError(f"end must be 'rtl' or 'land', got {self.end!r}")
+        if self.wave_size < 1:
+            raise ValueError("wave_size must be >= 1")
+        for name in ("control_period_s", "duration_s", "poll_period_s", "action_retry_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0")
+
+
+@dataclass(frozen=True)
+class TickRecord:
+    """Per-tick metrics as the station saw them."""
+
+    t_s: float
+    t_mission_s: float
+    t_step: int
+    fleet: int
+    networked: int
+    planned: int
+    lost: int
+    returning: int
+    guided: int
+    tasks_covered: int
+    n_tasks: int
+    tu1_so_far: float
+    tu2_so_far: float
+    plan_iterations: int | None = None
+
+    def row(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class _Row:
+    next_action_s: float = -math.inf
+    launched: bool = False
+    reclaims: int = 0
+
+
+class Operator:
+    """Launch, run, end and reclaim (see the module docstring).
+
+    Parameters
+    ----------
+    station : Station - the links (sans-I/O cores)
+    fleet : FleetView - in the mission frame
+    planner : a central planner (``make_planner('phireman-central', ...)``)
+    task_pos_fn : callable ``t_mission_s -> (M, 2)`` task positions, metres
+    control : altitudes and geofence
+    config : sequencing
+    now_s : core time at construction
+    """
+
+    def __init__(self, station: Station, fleet: FleetView, planner: Planner,
+                 task_pos_fn: Callable[[float], np.ndarray], control: ControlConfig,
+                 config: OperationsConfig = OperationsConfig(), *, now_s: float = 0.0,
+                 gcs_sysid: int = 255) -> None:
+        self.station = station
+        self.fleet = fleet
+        self.planner = planner
+        self.task_pos_fn = task_pos_fn
+        self.control = control
+        self.config = config
+        self.gcs_sysid = gcs_sysid
+        self.phase = "discover"
+        self.t_start_s = now_s
+        self._phase_since_s = now_s
+        self._last_discovery_s = now_s
+        self._rows: dict[int, _Row] = {}
+        self._params: dict[tuple[int, int], dict[str, float]] = {}
+        self._params_pending: set[tuple[int, int, str]] = set()
+        self.audit_report: audit_mod.AuditReport | None = None
+        self._waves: list[list[int]] = []
+        self._wave = 0
+        self._wave_since_s = now_s
+        self.mission_t0_s: float | None = None
+        self._next_tick_s = math.inf
+        self._t_step = 0
+        self._connected: list[np.ndarray] = []
+        self.records: list[TickRecord] = []
+        self.end_t0_s: float | None = None
+        self.reclaimed: list[tuple[float, int, int]] = []
+        """(t_s, link_id, sysid) of every vehicle switched back to the guided mode from another
+        mode after launch."""
+        self.counters = {"reclaim_attempts": 0, "relaunches": 0, "command_failures": 0,
+                         "lost": 0, "recovered": 0}
+
+    # ------------------------------------------------------------------ inputs
+
+    def handle_event(self, event: Event) -> None:
+        """Fold one link event into the fleet and the operator's bookkeeping."""
+        self.fleet.apply(event)
+        key = (event.link_id, event.sysid)
+        if isinstance(event, VehicleDiscovered):
+            self._last_discovery_s = event.t_s
+            self._rows.setdefault(self.fleet.index_of(*key), _Row())
+        elif isinstance(event, ParamReceived):
+            self._params.setdefault(key, {})[event.name] = event.value
+            self._params_pending.discard((*key, event.name))
+        elif isinstance(event, ParamTimedOut):
+            self._params_pending.discard((*key, event.name))
+        elif isinstance(event, (CommandFailed, CommandTimedOut)):
+            self.counters["command_failures"] += 1
+            log.info("link %d sysid %d: command %d %s", event.link_id, event.sysid,
+                     event.command, type(event).__name__)
+        elif isinstance(event, VehicleLost):
+            self.counters["lost"] += 1
+        elif isinstance(event, VehicleRecovered):
+            self.counters["recovered"] += 1
+            row = self._rows.get(self.fleet.index_of(*key))
+            if row is not None:
+                row.next_action_s = -math.inf  # act on it at the next poll
+
+    # ------------------------------------------------------------------ timing
+
+    def next_poll_s(self, now_s: float) -> float:
+        return min(now_s + self.config.poll_period_s, self._next_tick_s)
+
+    def t_mission_s(self, now_s: float) -> float:
+        return 0.0 if self.mission_t0_s is None else max(0.0, now_s - self.mission_t0_s)
+
+    @property
+    def finished(self) -> bool:
+        return self.phase in ("done", "refused")
+
+    def _enter(self, phase: str, now_s: float) -> None:
+        log.info("phase %s -> %s at t=%.1f s", self.phase, phase, now_s)
+        self.phase = phase
+        self._phase_since_s = now_s
+
+    # ------------------------------------------------------------------ the machine
+
+    def poll(self, now_s: float) -> TickRecord | None:
+        """Advance the phases; returns the metrics of a control tick if one ran."""
+        cfg = self.config
+        snap = self.fleet.snapshot(now_s)
+        for i in range(snap.n_vehicles):
+            self._rows.setdefault(i, _Row())
+        if self.phase == "discover":
+            n = snap.n_vehicles
+            waited = now_s - self._phase_since_s
+            if n and ((cfg.expected_vehicles is not None and n >= cfg.expected_vehicles)
+                      or (cfg.expected_vehicles is None
+                          and now_s - self._last_discovery_s >= cfg.discover_settle_s)
+                      or waited >= cfg.discover_timeout_s):
+                self._start_audit(snap, now_s)
+        if self.phase == "audit":
+            self._poll_audit(snap, now_s)
+        if self.phase == "launch":
+            self._poll_launch(snap, now_s)
+        record = None
+        if self.phase == "run":
+            if now_s >= self._next_tick_s:
+                record = self._control_tick(snap, now_s)
+                self._next_tick_s += cfg.control_period_s
+                if self._next_tick_s <= now_s:
+                    self._next_tick_s = now_s + cfg.control_period_s
+            self._reclaim(snap, now_s)
+            if now_s - self.mission_t0_s >= cfg.duration_s - 1e-9 and self._t_step >= 1:
+                self.begin_end(now_s)
+        if self.phase == "end":
+            self._poll_end(snap, now_s)
+        return record
+
+    # ------------------------------------------------------------------ audit
+
+    def _vid(self, snap: FleetSnapshot, i: int) -> tuple[int, int]:
+        return int(snap.link_id[i]), int(snap.sysid_of_index[i])
+
+    def _start_audit(self, snap: FleetSnapshot, now_s: float) -> None:
+        log.info("discovered %d vehicle(s)", snap.n_vehicles)
+        if not self.config.audit:
+            self._start_launch(snap, now_s)
+            return
+        self._enter("audit", now_s)
+        for i in range(snap.n_vehicles):
+            vid = self._vid(snap, i)
+            for name in audit_mod.params_to_read(int(snap.autopilot[i])):
+                self._params_pending.add((*vid, name))
+                self.station.request_param(vid, name, now_s)
+
+    def _poll_audit(self, snap: FleetSnapshot, now_s: float) -> None:
+        if self._params_pending and now_s - self._phase_since_s < self.config.audit_timeout_s:
+            return
+        vehicles = {self._vid(snap, i): (int(snap.autopilot[i]),
+                                         self._params.get(self._vid(snap, i), {}))
+                    for i in range(snap.n_vehicles)}
+        report = audit_mod.audit_fleet(vehicles, self.gcs_sysid,
+                                       override=self.config.override_audit)
+        self.audit_report = report
+        if not report.cleared_to_fly:
+            log.warning("pre-flight audit refused the flight:\n%s", report.summary())
+            self._enter("refused", now_s)
+            return
+        if report.overridden:
+            log.warning("pre-flight audit OVERRIDDEN:\n%s", report.summary())
+        self._start_launch(snap, now_s)
+
+    # ------------------------------------------------------------------ launch
+
+    def _start_launch(self, snap: FleetSnapshot, now_s: float) -> None:
+        self._enter("launch", now_s)
+        rows = list(range(snap.n_vehicles))
+        k = self.config.wave_size
+        self._waves = [rows[j:j + k] for j in range(0, len(rows), k)]
+        self._wave = 0
+        self._wave_since_s = now_s
+
+    def _alt_above_home_m(self, snap: FleetSnapshot) -> np.ndarray:
+        # Mission NED down is relative to the mission origin's altitude; home AMSL per vehicle.
+        alt_amsl = self.fleet.origin.alt_amsl_m - snap.pos_ned_m[:, 2]
+        return alt_amsl - snap.home_amsl_m
+
+    def _poll_launch(self, snap: FleetSnapshot, now_s: float) -> None:
+        cfg = self.config
+        alt = self._alt_above_home_m(snap)
+        heard = ~snap.lost
+        if self._wave < len(self._waves):
+            wave = [i for i in self._waves[self._wave] if i < snap.n_vehicles]
+            for i in wave:
+                if heard[i]:
+                    self._drive(snap, i, alt, now_s)
+            target = layer_alt_m(wave, self.control)
+            climbed = np.asarray([alt[i] >= cfg.climbed_alt_frac * t if np.isfinite(alt[i])
+                                  else False for i, t in zip(wave, target)], dtype=bool)
+            live = heard[wave] if wave else np.zeros(0, bool)
+            enough = climbed.sum() >= cfg.wave_climbed_frac * max(1, live.sum())
+            if enough or now_s - self._wave_since_s >= cfg.wave_timeout_s:
+                log.info("wave %d/%d: %d/%d climbed", self._wave + 1, len(self._waves),
+                         int(climbed.sum()), len(wave))
+                self._wave += 1
+                self._wave_since_s = now_s
+        # Earlier waves (and late discoveries): keep them flying.
+        for w in self._waves[:self._wave]:
+            for i in w:
+                if i < snap.n_vehicles and heard[i]:
+                    self._drive(snap, i, alt, now_s)
+        if self._wave >= len(self._waves):
+            self._start_run(now_s)
+
+    def _start_run(self, now_s: float) -> None:
+        self._enter("run", now_s)
+        self.mission_t0_s = now_s
+        self._next_tick_s = now_s
+        self._t_step = 0
+
+    def _drive(self, snap: FleetSnapshot, i: int, alt: np.ndarray, now_s: float,
+               hold_position: bool = False) -> bool:
+        """Bring vehicle ``i`` to "armed, airborne, guided"; returns True if it already is."""
+        row = self._rows.setdefault(i, _Row())
+        adapter = adapter_for(int(snap.autopilot[i]))
+        guided = adapter.is_guided(int(snap.custom_mode[i]))
+        armed = bool(snap.armed[i])
+        airborne = bool(np.isfinite(alt[i]) and alt[i] > self.config.airborne_alt_m and armed)
+        if guided and airborne:
+            return True
+        if now_s < row.next_action_s:
+            return False
+        vid = self._vid(snap, i)
+        target_alt = float(layer_alt_m([i], self.control)[0])
+        row.next_action_s = now_s + self.config.action_retry_s
+        try:
+            if airborne:
+                # Reclaim in flight: hold where it is (at its layer), then the guided mode.
+                if snap.has_position[i]:
+                    self._hold(snap, [i], now_s)
+                self.station.engage_guided(vid, now_s)
+                self.counters["reclaim_attempts"] += 1
+                if row.launched:
+                    self.reclaimed.append((now_s, *vid))
+                    row.reclaims += 1
+                    log.info("reclaiming link %d sysid %d from %s", *vid, snap.mode[i])
+                return False
+            if row.launched:
+                self.counters["relaunches"] += 1
+            row.launched = True
+            if adapter.takeoff_by_offboard_climb:
+                if not snap.has_position[i]:
+                    return False
+                self.station.takeoff(vid, target_alt, now_s)  # stream, OFFBOARD, arm (PX4)
+            else:
+                if not guided:
+                    self.station.engage_guided(vid, now_s)
+                if not armed:
+                    self.station.arm(vid, now_s)
+                self.station.takeoff(vid, target_alt, now_s)
+        except (LinkUsageError, UnknownVehicle) as exc:
+            log.info("link %d sysid %d: %s", *vid, exc)
+        except ValueError as exc:  # e.g. unknown autopilot: nothing we can command
+            log.warning("link %d sysid %d: %s", *vid, exc)
+        return False
+
+    def _hold(self, snap: FleetSnapshot, rows, now_s: float) -> None:
+        rows = np.asarray(rows, dtype=int)
+        target = np.column_stack([snap.pos_ned_m[rows, :2], -layer_alt_m(rows, self.control)])
+        self._send_targets(snap, rows, target, now_s)
+
+    def _send_targets(self, snap: FleetSnapshot, rows: np.ndarray, target_ned_m: np.ndarray,
+                      now_s: float) -> int:
+        if len(rows) == 0:
+            return 0
+        lat, lon, alt_rel = self.fleet.targets_to_global(rows, target_ned_m)
+        sent = 0
+        for k, i in enumerate(rows.tolist()):  # the codec edge: one frame per vehicle
+            if not math.isfinite(alt_rel[k]):
+                continue
+            self.station.set_position_target(self._vid(snap, i), float(lat[k]), float(lon[k]),
+                                             float(alt_rel[k]), now_s)
+            sent += 1
+        return sent
+
+    # ------------------------------------------------------------------ run
+
+    def _control_tick(self, snap: FleetSnapshot, now_s: float) -> TickRecord:
+        alt = self._alt_above_home_m(snap)
+        heard = ~snap.lost
+        airborne = heard & snap.armed & np.isfinite(alt) & (alt > self.config.airborne_alt_m)
+        t_m = self.t_mission_s(now_s)
+        task_pos = np.asarray(self.task_pos_fn(t_m), dtype=float).reshape(-1, 2)
+        result = tick(snap.pos_ned_m, airborne, heard, task_pos, self.planner, self._t_step,
+                      self.control)
+        self._send_targets(snap, result.rows, result.target_ned_m, now_s)
+        ne = np.where(snap.has_position[:, None], snap.pos_ned_m[:, :2], np.inf)
+        covered = tasks_connected(task_pos, ne, heard & snap.has_position,
+                                  self.config.radio_range_m)
+        self._connected.append(covered)
+        series = uptime_series(np.asarray(self._connected))
+        adapters = [adapter_for(int(a)) for a in snap.autopilot]
+        guided = sum(ad.is_guided(int(m)) for ad, m in zip(adapters, snap.custom_mode))
+        rec = TickRecord(
+            t_s=now_s, t_mission_s=t_m, t_step=self._t_step, fleet=snap.n_vehicles,
+            networked=int(snap.networked.sum()), planned=len(result.rows),
+            lost=int(snap.lost.sum()), returning=int(snap.returning.sum()), guided=int(guided),
+            tasks_covered=int(covered.sum()), n_tasks=len(task_pos), tu1_so_far=series.tu1,
+            tu2_so_far=series.tu2, plan_iterations=result.info.get("iterations"))
+        self.records.append(rec)
+        self._t_step += 1
+        return rec
+
+    def _reclaim(self, snap: FleetSnapshot, now_s: float) -> None:
+        alt = self._alt_above_home_m(snap)
+        for i in np.flatnonzero(~snap.lost).tolist():
+            self._drive(snap, i, alt, now_s)
+
+    def station_tu(self) -> tuple[float, float]:
+        """(TU1, TU2) over the run's ticks, from what the station saw."""
+        if not self._connected:
+            return 0.0, 0.0
+        s = uptime_series(np.asarray(self._connected))
+        return s.tu1, s.tu2
+
+    # ------------------------------------------------------------------ end
+
+    def begin_end(self, now_s: float) -> None:
+        """Stop planning and send every vehicle home (RTL) or down (LAND)."""
+        if self.phase in ("end", "done", "refused"):
+            return
+        self._enter("end", now_s)
+        self.end_t0_s = now_s
+        for row in self._rows.values():
+            row.next_action_s = -math.inf
+
+    def _poll_end(self, snap: FleetSnapshot, now_s: float) -> None:
+        pending = 0
+        for i in np.flatnonzero(~snap.lost).tolist():
+            adapter = adapter_for(int(snap.autopilot[i]))
+            mode = snap.mode[i]
+            want = adapter.rtl_mode if self.config.end == "rtl" else adapter.land_mode
+            if not snap.armed[i] or mode == want:
+                continue  # down, or obeying: the vehicle finishes on its own
+            pending += 1
+            row = self._rows.setdefault(i, _Row())
+            if now_s < row.next_action_s:
+                continue
+            row.next_action_s = now_s + self.config.action_retry_s
+            vid = self._vid(snap, i)
+            try:
+                self.station.clear_position_target(vid, now_s)
+                if self.config.end == "rtl":
+                    self.station.rtl(vid, now_s)
+                else:
+                    self.station.land(vid, now_s)
+            except (LinkUsageError, UnknownVehicle, ValueError) as exc:
+                log.info("link %d sysid %d: %s", *vid, exc)
+        if pending == 0 or now_s - self._phase_since_s >= self.config.end_timeout_s:
+            self._enter("done", now_s)

@@ -1,0 +1,908 @@
+"""Drivers that fly a mission with the ground station (``gcs``), against the emulator or real links.
+
+The composition root (ARCHITECTURE §4.1, §4.4): this module is the only place where the station
+(:mod:`gcs`) and the emulator (:mod:`vehicle_emu`) meet, and they meet only through bytes.
+
+* :func:`fly_emulated` - builds a :class:`vehicle_emu.swarm.Swarm` from the mission, serves it on
+  loopback UDP (ephemeral ports) and flies it with the station over real sockets, both on one
+  event loop and one simulated clock (``run.speedup``: every timer of both sides follows it,
+  MAVLINK_NOTES §5). Ground truth (TU1/TU2, arrays) comes from the emulator.
+* :func:`fly_real` - the same station code over ``--connect`` links (no emulator).
+* :class:`LockstepEther` - the in-memory MAVLink driver (station cores <-> swarm, virtual clock,
+  seeded loss): the same :class:`gcs.operations.Operator` with no sockets (tests, quick runs).
+
+A run directory holds: ``mission.yaml`` (resolved), ``run.json`` (seed, code version, options),
+``flight.tlog`` (every frame both ways), ``events.jsonl``, ``metrics.csv`` (one row per control
+tick), ``summary.json`` and, when emulated, ``truth.npz``. Every record is flushed as written.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+import logging
+import math
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from gcs.aio import StationAdapter
+from gcs.control import ControlConfig, Geofence
+from gcs.events import TelemetryReceived
+from gcs.fleet import FleetView, MissionOrigin
+from gcs.link import StationConfig, StationLink
+from gcs.operations import OperationsConfig, Operator, TickRecord
+from gcs.records import EventLog, MetricsWriter, TlogWriter, write_summary
+from gcs.station import Station
+from gcs.wire import mavlink
+from mission.schema import Mission
+from planner.methods import make_planner
+from planner.metrics import task_uptime
+from vehicle_emu.radio import RadioConfig
+from vehicle_emu.swarm import Swarm
+from vehicle_emu.udp import EmulatorServer
+from vehicle_emu.world import spawn_streams, walk_tasks
+
+__all__ = ["FlyOptions", "FlyResult", "MissionScenario", "mission_scenario", "control_config",
+           "build_swarm", "fly_emulated", "fly_real", "fly", "LockstepEther", "FENCE_MARGIN_M",
+           "RunnerError"]
+
+log = logging.getLogger(__name__)
+
+#: The mission schema has no geofence yet: the fence is the task field plus this margin, metres.
+FENCE_MARGIN_M = 100.0
+
+
+class RunnerError(ValueError):
+    """A mission or option this runner cannot fly (reported to the user as a UserError)."""
+
+
+# ------------------------------------------------------------------------------------------------
+# What the mission implies: spawn, task tracks, fence
+
+
+@dataclass(frozen=True)
+class MissionScenario:
+    """The deterministic part of one run of a mission, drawn from the seed."""
+
+    spawn_ne_m: np.ndarray
+    """(N, 2) start positions, mission frame, metres."""
+    task_track_m: np.ndarray
+    """(tau + 1, M, 2) task positions at t = k * control_period_s, metres."""
+    dt_s: float
+
+    def task_pos_m(self, t_s: float) -> np.ndarray:
+        """(M, 2) task positions at mission time ``t_s`` (linear between steps, held at the ends)."""
+        k = max(0.0, t_s) / self.dt_s
+        last = len(self.task_track_m) - 1
+        k0 = min(int(math.floor(k)), last)
+        k1 = min(k0 + 1, last)
+        a = min(max(k - k0, 0.0), 1.0) if k1 > k0 else 0.0
+        return self.task_track_m[k0] * (1 - a) + self.task_track_m[k1] * a
+
+
+def mission_scenario(mission: Mission, seed: int | None = None) -> MissionScenario:
+    """Spawn positions and task tracks of ``mission`` for ``seed`` (default ``run.seed``).
+
+    Random draws come from the run's *scenario* stream (:func:`vehicle_emu.world.spawn_streams`),
+    in the in-process simulator's order: ring noise, then each task entry in file order (random
+    starts, then walk increments).
+    """
+    seed = mission.run.seed if seed is None else seed
+    rng = spawn_streams(seed).scenario
+    dt = mission.run.control_period_s
+    tau = mission.run.n_steps
+    n = mission.vehicles.count
+    emu = mission.vehicles.emulated
+    if emu is not None and emu.spawn.positions is not None:
+        spawn = np.array([[p.north_m, p.east_m] for p in emu.spawn.positions], dtype=float)
+    else:
+        ring = emu.spawn.ring if emu is not None else None
+        radius = ring.radius_m if ring is not None else 0.0
+        noise = ring.noise_m if ring is not None else 0.0
+        angles = 2 * np.pi * np.arange(n) / max(n, 1)
+        spawn = radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        spawn = spawn + rng.normal(0.0, noise, size=(n, 2))
+    times = np.arange(tau + 1) * dt
+    tracks: list[np.ndarray] = []
+    origin = mission.origin
+    for i, task in enumerate(mission.tasks):
+        if task.track is not None:
+            pts = np.array([task.track_position_m(t, origin) for t in times], dtype=float)
+            tracks.append(pts[:, None, :])
+        elif task.random_walk is not None:
+            rw = task.random_walk
+            start = np.array([rw.start.local_m(origin)], dtype=float)
+            inc = rng.normal(0.0, rw.sigma_m_per_sqrt_s * math.sqrt(dt), size=(tau, 1, 2))
+            w = rw.field_half_width_m if rw.field_half_width_m is not None else math.inf
+            tracks.append(walk_tasks(start, inc, w, rw.border))
+        elif task.random is not None:
+            rt = task.random
+            start = rng.uniform(-rt.field_half_width_m, rt.field_half_width_m, size=(rt.count, 2))
+            inc = rng.normal(0.0, rt.sigma_m_per_sqrt_s * math.sqrt(dt), size=(tau, rt.count, 2))
+            tracks.append(walk_tasks(start, inc, rt.field_half_width_m, rt.border))
+        else:
+            raise RunnerError(f"tasks[{i}]: live MAVLink tasks are not supported by this runner "
+                              "yet; give a track, random_walk or random task")
+    return MissionScenario(spawn, np.concatenate(tracks, axis=1), dt)
+
+
+def control_config(mission: Mission, scenario: MissionScenario | None = None) -> ControlConfig:
+    """Altitude layers from the mission's flight limits; the geofence is the task field plus
+    :data:`FENCE_MARGIN_M` (the schema has no geofence section yet)."""
+    lim = mission.vehicles.limits
+    half = mission.problem_config().field_half_width_m
+    if scenario is not None:
+        half = max(half, float(np.abs(scenario.task_track_m).max(initial=0.0)),
+                   float(np.abs(scenario.spawn_ne_m).max(initial=0.0)))
+    return ControlConfig(cruise_alt_m=lim.cruise_alt_m, layer_spacing_m=lim.layer_spacing_m,
+                         n_layers=lim.n_layers, geofence=Geofence.square(half + FENCE_MARGIN_M))
+
+
+def _personalities(mission: Mission, override: str | None) -> list[str]:
+    n = mission.vehicles.count
+    p = override or (mission.vehicles.emulated.personality if mission.vehicles.emulated else
+                     "ardupilot")
+    if p == "mixed":
+        return ["ardupilot" if i % 2 == 0 else "px4" for i in range(n)]
+    if p not in ("ardupilot", "px4"):
+        raise RunnerError(f"unknown personality {p!r}; valid: ardupilot, px4, mixed")
+    return [p] * n
+
+
+class _MissionSwarm(Swarm):
+    """A swarm whose full autopilot/physics tick runs at ``tick_s`` cadence only.
+
+    ``Swarm.next_timer_s`` also wakes for every radio-delayed packet; the base class then runs a
+    whole tick (every core, physics, radio) per delivery, which at 50 vehicles, per-hop latency
+    and a 20x speed-up multiplies the emulator's CPU several times and starves its sockets.
+    Between ticks only the delayed packets are delivered here.
+    """
+
+    def handle_timer(self, now_s: float) -> None:
+        if self.stats["ticks"] and now_s < self.now_s + self.tick_s - 1e-9:
+            self._deliver_delayed(now_s, inbound=True)
+            return
+        super().handle_timer(now_s)
+
+    step = handle_timer
+
+
+def build_swarm(mission: Mission, scenario: MissionScenario, *, seed: int,
+                personality: str | None = None, unix_time_at_zero_s: float = 1.7e9,
+                mux: bool = True, params: dict | None = None, tick_s: float = 0.05) -> Swarm:
+    """The emulator for ``mission``: count, personality, spawn, radio, flight limits.
+
+    Attrition is *not* armed here: :class:`_MissionWorld` switches it on when the station starts
+    the mission (take-off is not part of the paper's horizon), then applies the background rate,
+    the scripted losses and the hazard zones on the mission clock.
+    """
+    if mission.vehicles.emulated is None:
+        raise RunnerError("the mission flies real vehicles (vehicles.real); use --connect or an "
+                          "emulated mission")
+    emu = mission.vehicles.emulated
+    radio = RadioConfig(radio_range_m=emu.radio_range_m or mission.radio.range_m,
+                        base_range_m=mission.radio.base_range_m,
+                        latency_per_hop_s=mission.radio.latency_s,
+                        loss_per_hop=min(mission.radio.loss_prob, 0.999))
+    spawn = np.column_stack([scenario.spawn_ne_m, np.zeros(len(scenario.spawn_ne_m))])
+    o = mission.origin
+    swarm = _MissionSwarm(emu.count, personality=_personalities(mission, personality),
+                  home_lla=(o.lat_deg, o.lon_deg, o.alt_amsl_m), spawn_ned_m=spawn, radio=radio,
+                  hazard_per_s=0.0, task_pos_fn=None, mux=mux, params=params,
+                  rng=np.random.default_rng(np.random.SeedSequence([int(seed), 0xE1])),
+                  truth_period_s=mission.run.control_period_s,
+                  unix_time_at_zero_s=unix_time_at_zero_s, max_speed_h_m_s=emu.max_speed_m_s,
+                  tick_s=tick_s, radio_period_s=0.2)
+    swarm.physics.climb_rate_m_s[:] = emu.climb_rate_m_s
+    return swarm
+
+
+class _MissionWorld:
+    """The mission's world rules applied to the emulator on the mission clock (runner side):
+    attrition switched on at mission start, scripted losses, hazard zones, task motion for the
+    ground truth. Never visible to the station."""
+
+    def __init__(self, mission: Mission, scenario: MissionScenario, swarm: Swarm) -> None:
+        self.mission = mission
+        self.scenario = scenario
+        self.swarm = swarm
+        self.t0_s: float | None = None
+        self._next_zone_s = math.inf
+        swarm.task_pos_fn = self._task_pos
+        # Sample 0 was recorded without tasks; restart the truth log with tasks from here on.
+        tr = swarm.truth
+        tr.t_s.clear(), tr.pos_ned_m.clear(), tr.alive.clear(), tr.active.clear()
+        tr.task_connected.clear()
+
+    def _task_pos(self, t_s: float) -> np.ndarray:
+        return self.scenario.task_pos_m(0.0 if self.t0_s is None else t_s - self.t0_s)
+
+    def start(self, t0_s: float) -> None:
+        """The station began the mission at emulator time ``t0_s``."""
+        self.t0_s = t0_s
+        att = self.mission.attrition
+        for loss in att.scripted:
+            self.swarm.attrition.add_kill(t0_s + loss.t_s, loss.vehicle)
+        self._apply_hazard(t0_s)
+        log.info("mission world started at t=%.2f s", t0_s)
+
+    def _apply_hazard(self, now_s: float) -> None:
+        att = self.mission.attrition
+        rate = np.full(self.swarm.n, att.rate_per_s)
+        if att.hazard_zones:
+            t = now_s - self.t0_s
+            pos = self.swarm.physics.pos_ned_m
+            for z in att.hazard_zones:
+                if z.active(t):
+                    inside = np.array([z.contains(float(p[0]), float(p[1])) for p in pos])
+                    rate = rate + z.rate_per_s * inside
+        self.swarm.attrition.hazard_per_s = rate
+        self._next_zone_s = now_s + self.mission.run.control_period_s
+
+    def poll(self, now_s: float) -> None:
+        if self.t0_s is not None and self.mission.attrition.hazard_zones \
+                and now_s >= self._next_zone_s:
+            self._apply_hazard(now_s)
+
+    def stop_attrition(self) -> None:
+        """The mission is over: no more random losses (the end is not part of the horizon)."""
+        self.swarm.attrition.hazard_per_s = np.zeros(self.swarm.n)
+        self._next_zone_s = math.inf
+        self.t_end_s = self.swarm.now_s
+
+    def report(self, duration_s: float) -> dict:
+        """Ground truth for the summary and ``truth.npz`` (plain, picklable)."""
+        truth = self.truth_tu(duration_s)
+        truth["alive_end"] = int(self.swarm.alive.sum())
+        arrays = self.swarm.truth.arrays()
+        arrays.update(mission_t0_s=np.float64(np.nan if self.t0_s is None else self.t0_s),
+                      sysid_of_index=self.swarm.sysid_of_index,
+                      network_of_index=self.swarm.network_of_index)
+        stats = dict(self.swarm.stats)
+        stats["cpu_s"] = time.process_time()
+        return {"truth": truth, "stats": stats, "arrays": arrays}
+
+    def truth_tu(self, duration_s: float) -> dict:
+        """Ground-truth TU1/TU2 over the truth samples in [t0, t0 + duration)."""
+        tr = self.swarm.truth
+        if self.t0_s is None or not tr.task_connected:
+            return {"tu1": None, "tu2": None, "samples": 0}
+        t = np.asarray(tr.t_s)
+        sel = (t >= self.t0_s - 1e-9) & (t < self.t0_s + duration_s - 1e-9)
+        conn = np.asarray(tr.task_connected)[sel]
+        if len(conn) == 0:
+            return {"tu1": None, "tu2": None, "samples": 0}
+        tu1, tu2 = task_uptime(conn)
+        return {"tu1": tu1, "tu2": tu2, "samples": int(len(conn))}
+
+
+# ------------------------------------------------------------------------------------------------
+# Options, results, run directory
+
+
+@dataclass
+class FlyOptions:
+    """What ``phireman fly`` passes to the runners."""
+
+    seed: int | None = None
+    personality: str | None = None
+    speedup: float | None = None
+    """None: the mission's ``run.speedup``."""
+    duration_s: float | None = None
+    out_dir: str | None = None
+    end: str = "rtl"
+    override_audit: bool = False
+    connections: tuple[str, ...] = ()
+    wave_size: int = 25
+    status: Callable[[dict], None] | None = None
+    """Called about twice a second (wall) with a status dict."""
+    emulator_params: dict | None = None
+    """Parameter overrides for every emulated vehicle (tests)."""
+    discover_timeout_s: float = 30.0
+    expected_vehicles: int | None = None
+    end_wait: bool = True
+    """After the mission, wait until the vehicles are down (or the end timeout)."""
+    emulator_in_process: bool = False
+    """Run the emulator on the station's event loop (tests: failure injection through
+    ``world.swarm``) instead of its own process."""
+    on_operator: Callable[["Operator", "object"], None] | None = None
+    """Hook called on every poll with (operator, world or None) - tests inject failures here."""
+
+
+@dataclass
+class FlyResult:
+    run_dir: Path
+    summary: dict
+    operator: Operator
+    swarm: Swarm | None = None
+
+
+def _code_version() -> str:
+    root = Path(__file__).resolve().parent.parent
+    try:
+        out = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty"],
+                             capture_output=True, text=True, timeout=5)
+        if out.returncode == 0 and out.stdout.strip():
+            return out.stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        pass
+    try:
+        from importlib.metadata import version
+        return version("phireman")
+    except Exception:  # noqa: BLE001
+        return "unknown"
+
+
+def _new_run_dir(mission: Mission, opts: FlyOptions, seed: int, kind: str) -> Path:
+    base = Path(opts.out_dir) if opts.out_dir else Path(mission.output.dir)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    name = f"{stamp}-fly-{mission.name}-{kind}-s{seed}"
+    path = base / name
+    k = 1
+    while path.exists():
+        k += 1
+        path = base / f"{name}-{k}"
+    path.mkdir(parents=True)
+    return path
+
+
+class _Records:
+    """The run directory's writers (each flushes per record)."""
+
+    def __init__(self, run_dir: Path, mission: Mission, meta: dict) -> None:
+        from mission.load import dump_mission
+
+        self.dir = run_dir
+        (run_dir / "mission.yaml").write_text(dump_mission(mission, "resolved mission of this run"),
+                                              encoding="utf-8")
+        (run_dir / "run.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n",
+                                          encoding="utf-8")
+        self.tlog = TlogWriter(run_dir / "flight.tlog")
+        self.events = EventLog(run_dir / "events.jsonl")
+        self.metrics = MetricsWriter(run_dir / "metrics.csv")
+
+    def event(self, ev) -> None:
+        if not isinstance(ev, TelemetryReceived):
+            self.events.write(ev)
+
+    def close(self) -> None:
+        for w in (self.tlog, self.events, self.metrics):
+            w.close()
+
+
+# ------------------------------------------------------------------------------------------------
+# The station loop (same code for emulated and real links)
+
+
+def _station_config(mission: Mission) -> StationConfig:
+    key = None
+    real = mission.vehicles.real
+    if real is not None and real.signing_key_hex:
+        key = bytes.fromhex(real.signing_key_hex)
+    # Fleet-scale telemetry (MAVLINK_NOTES §2, Skybrush): position at 2 Hz is all the plan uses;
+    # every other stream costs decode time at 50+ vehicles x speed-up.
+    return StationConfig(signing_key=key, command_timeout_s=1.0, param_timeout_s=2.0,
+                         param_retries=4,
+                         stream_rates_hz=((mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 2.0),
+                                          (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 0.2)))
+
+
+def _operations_config(mission: Mission, opts: FlyOptions, expected: int | None) -> OperationsConfig:
+    return OperationsConfig(
+        expected_vehicles=expected, discover_timeout_s=opts.discover_timeout_s,
+        override_audit=opts.override_audit, wave_size=opts.wave_size,
+        control_period_s=mission.run.control_period_s,
+        duration_s=opts.duration_s or mission.run.duration_s, end=opts.end,
+        radio_range_m=mission.radio.range_m, poll_period_s=0.5)
+
+
+def _make_operator(mission: Mission, scenario: MissionScenario, station: Station,
+                   opts: FlyOptions, expected: int | None, now_s: float, seed: int) -> Operator:
+    o = mission.origin
+    fleet = FleetView(MissionOrigin(o.lat_deg, o.lon_deg, o.alt_amsl_m),
+                      timeout_s=station.links[0].config.vehicle_timeout_s)
+    problem = mission.problem_config()
+    method = mission.planner.method
+    params = dict(mission.planner.params)
+    if method == "phireman":
+        params["info"] = "central"  # the station plans centrally from D'(t)
+    planner = make_planner(method, problem, params, spawn_streams(seed).algorithm)
+    return Operator(station, fleet, planner, scenario.task_pos_m, control_config(mission, scenario),
+                    _operations_config(mission, opts, expected), now_s=now_s)
+
+
+def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> dict:
+    snap = op.fleet.snapshot(now_s)
+    modes: dict[str, int] = {}
+    for m, lost in zip(snap.mode, snap.lost):
+        key = "LOST" if lost else m
+        modes[key] = modes.get(key, 0) + 1
+    last = op.records[-1] if op.records else None
+    d = {"phase": op.phase, "t_s": now_s, "t_mission_s": op.t_mission_s(now_s),
+         "duration_s": op.config.duration_s, "fleet": snap.n_vehicles,
+         "networked": int(snap.networked.sum()), "returning": int(snap.returning.sum()),
+         "lost": int(snap.lost.sum()), "modes": modes,
+         "tasks_covered": last.tasks_covered if last else 0,
+         "n_tasks": last.n_tasks if last else 0,
+         "tu1": last.tu1_so_far if last else None, "tu2": last.tu2_so_far if last else None}
+    if world is not None and getattr(world, "swarm", None) is not None:
+        d["truth_alive"] = int(world.swarm.alive.sum())
+    return d
+
+
+async def _run_station(mission: Mission, scenario: MissionScenario, connections: list[str],
+                       opts: FlyOptions, records: _Records, *, clock: Callable[[], float],
+                       speedup: float, expected: int | None, seed: int,
+                       world: _MissionWorld | None = None) -> Operator:
+    cfg = _station_config(mission)
+    holder: dict = {}
+
+    def on_event(ev) -> None:
+        records.event(ev)
+        op = holder.get("op")
+        if op is not None:
+            op.handle_event(ev)
+        else:
+            holder.setdefault("early", []).append(ev)
+
+    adapters = []
+    try:
+        for i, conn in enumerate(connections):
+            adapters.append(await StationAdapter(conn, cfg, link_id=i, clock=clock,
+                                                 tlog=records.tlog, on_event=on_event,
+                                                 time_scale=speedup).start())
+    except (OSError, ValueError) as exc:
+        for a in adapters:
+            a.close()
+        raise RunnerError(f"cannot open link {conn!r}: {exc}") from exc
+    station = Station([a.core for a in adapters])
+    op = _make_operator(mission, scenario, station, opts, expected, clock(), seed)
+    holder["op"] = op
+    for ev in holder.pop("early", []):
+        op.handle_event(ev)
+    last_status = -math.inf
+    started = ended = False
+    try:
+        while not op.finished:
+            now = clock()
+            rec = op.poll(now)
+            if world is not None:
+                if not started and op.mission_t0_s is not None:
+                    started = True
+                    world.start_mission(op.mission_t0_s)
+                if started and not ended and op.phase not in ("launch", "run"):
+                    ended = True
+                    world.end_mission()
+                world.poll(now)
+            if opts.on_operator is not None:
+                opts.on_operator(op, world)
+            if rec is not None:
+                records.metrics.write(rec.row())
+            if op.phase == "done" and not opts.end_wait:
+                break
+            if op.phase == "end" and not opts.end_wait:
+                op.phase = "done"
+            for a in adapters:
+                a.transmit()
+            wall = time.monotonic()
+            if opts.status is not None and (wall - last_status >= 0.5 or op.finished):
+                last_status = wall
+                opts.status(_status_dict(op, now, rec, world))
+            delay = max(0.0, (op.next_poll_s(now) - clock()) / speedup)
+            await asyncio.sleep(delay)
+    finally:
+        for a in adapters:
+            a.close()
+    return op
+
+
+def _summary(mission: Mission, op: Operator, seed: int, kind: str, wall_s: float,
+             speedup: float, report: dict | None, run_dir: Path, now_s: float) -> dict:
+    tu1, tu2 = op.station_tu()
+    recs = op.records
+    sim_s = (recs[-1].t_mission_s + mission.run.control_period_s) if recs else 0.0
+    s = {
+        "mission": mission.name, "backend": kind, "seed": seed, "phase": op.phase,
+        "station": {"tu1": tu1, "tu2": tu2, "ticks": len(recs)},
+        "duration_s": op.config.duration_s, "mission_s_flown": sim_s,
+        "wall_s": wall_s, "speedup_requested": speedup, "station_cpu_s": time.process_time(),
+        "speedup_achieved": (now_s - op.t_start_s) / wall_s if wall_s > 0 else None,
+        "mission_t0_s": op.mission_t0_s,
+        "vehicles_discovered": len(op.fleet),
+        "reclaimed": len(op.reclaimed), "counters": op.counters,
+        "links": [{"link_id": l.link_id, "frames_out": l.stats.frames_out,
+                   "frames_in": l.stats.decode.frames, "bad_data": l.stats.decode.bad_data,
+                   "stream_fallbacks": l.stats.data_stream_fallbacks}
+                  for l in op.station.links],
+        "audit": None if op.audit_report is None else {
+            "cleared_to_fly": op.audit_report.cleared_to_fly,
+            "overridden": op.audit_report.overridden,
+            "unsafe": [[a.link_id, a.sysid] for a in op.audit_report.unsafe]},
+        "run_dir": str(run_dir),
+    }
+    if recs:
+        s["final"] = recs[-1].row()
+    if report is not None:
+        s["truth"] = report["truth"]
+        s["emulator"] = report["stats"]
+    return s
+
+
+def _meta(mission: Mission, opts: FlyOptions, seed: int, kind: str, speedup: float,
+          connections) -> dict:
+    return {"seed": seed, "code_version": _code_version(), "backend": kind, "speedup": speedup,
+            "connections": list(connections), "python": sys.version.split()[0],
+            "options": {k: v for k, v in dataclasses.asdict(opts).items()
+                        if k not in ("status", "on_operator")},
+            "started_unix_s": time.time()}
+
+
+def _resolve(mission: Mission, opts: FlyOptions) -> tuple[int, float]:
+    seed = mission.run.seed if opts.seed is None else int(opts.seed)
+    speedup = mission.run.speedup if opts.speedup is None else float(opts.speedup)
+    if not speedup > 0:
+        raise RunnerError(f"speedup must be > 0, got {speedup}")
+    if opts.duration_s is not None and not opts.duration_s > 0:
+        raise RunnerError(f"duration must be > 0, got {opts.duration_s}")
+    return seed, speedup
+
+
+class SimClock:
+    """Simulated time = (monotonic wall time - ``wall0``) x speed-up, shared across processes
+    (CLOCK_MONOTONIC is system-wide), so the emulator and the station follow one clock."""
+
+    def __init__(self, speedup: float, wall0: float | None = None) -> None:
+        self.speedup = float(speedup)
+        self.wall0 = time.monotonic() if wall0 is None else float(wall0)
+        self.unix_time_at_zero_s = time.time() - (time.monotonic() - self.wall0)
+
+    def now(self) -> float:
+        return (time.monotonic() - self.wall0) * self.speedup
+
+    def wall_delay_s(self, dt_s: float) -> float:
+        return max(0.0, dt_s / self.speedup)
+
+
+def _emulator_tick_s(speedup: float) -> float:
+    # Above 10x, a 10 Hz autopilot tick keeps the emulator within one core for S-sized missions;
+    # telemetry (4 Hz) and the 1 s control period are unaffected; physics sub-steps anyway.
+    return 0.05 if speedup < 10 else 0.1
+
+
+def _build_world(mission: Mission, seed: int, personality: str | None, clock: SimClock,
+                 params: dict | None) -> "_MissionWorld":
+    scenario = mission_scenario(mission, seed)
+    swarm = build_swarm(mission, scenario, seed=seed, personality=personality,
+                        unix_time_at_zero_s=clock.unix_time_at_zero_s, params=params,
+                        tick_s=_emulator_tick_s(clock.speedup))
+    return _MissionWorld(mission, scenario, swarm)
+
+
+def _deepen_receive_queues(server: EmulatorServer, nbytes: int = 4 << 20) -> None:
+    """A station's bursts (hundreds of parameter reads or setpoints at once) overflow the
+    default ~200 kB socket queue; give each emulator socket a deeper one (capped by rmem_max)."""
+    import socket
+
+    for transport in server.transports:
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, nbytes)
+            except OSError:
+                pass
+
+
+class _InProcessEmulator:
+    """The emulator on the station's own event loop (small fleets, tests: the swarm is
+    reachable for failure injection through :attr:`swarm`)."""
+
+    def __init__(self, world: "_MissionWorld", clock: SimClock) -> None:
+        self.world = world
+        self.swarm = world.swarm
+        self.server = EmulatorServer(world.swarm, clock)
+
+    async def start(self) -> list[tuple[str, int]]:
+        await self.server.start()
+        _deepen_receive_queues(self.server)
+        return list(self.server.addresses)
+
+    def start_mission(self, t0_s: float) -> None:
+        self.world.start(t0_s)
+
+    def end_mission(self) -> None:
+        self.world.stop_attrition()
+
+    def poll(self, now_s: float) -> None:
+        self.world.poll(now_s)
+
+    def kill(self, index: int) -> None:
+        self.swarm.kill(index, self.server.clock.now(), "injected")
+
+    def finish(self, duration_s: float) -> dict:
+        return self.world.report(duration_s)
+
+    def close(self) -> None:
+        self.server.close()
+
+
+def _emulator_process_main(conn, mission: Mission, seed: int, personality, speedup: float,
+                           wall0: float, params) -> None:
+    """Entry point of the emulator process: serve, obey (start/end/kill/finish), report."""
+    logging.getLogger().setLevel(logging.WARNING)
+
+    async def main() -> None:
+        clock = SimClock(speedup, wall0)
+        world = _build_world(mission, seed, personality, clock, params)
+        server = EmulatorServer(world.swarm, clock)
+        await server.start()
+        _deepen_receive_queues(server)
+        conn.send(("ready", list(server.addresses)))
+        loop = asyncio.get_running_loop()
+        done = loop.create_future()
+        duration = {"s": mission.run.duration_s}
+
+        def on_message() -> None:
+            try:
+                while conn.poll():
+                    msg = conn.recv()
+                    kind = msg[0]
+                    if kind == "start":
+                        world.start(msg[1])
+                    elif kind == "end":
+                        world.stop_attrition()
+                    elif kind == "kill":
+                        world.swarm.kill(int(msg[1]), clock.now(), "injected")
+                    elif kind == "finish":
+                        duration["s"] = msg[1]
+                        if not done.done():
+                            done.set_result(None)
+            except (EOFError, OSError):
+                if not done.done():
+                    done.set_result(None)
+
+        loop.add_reader(conn.fileno(), on_message)
+
+        async def zones() -> None:
+            while not done.done():
+                world.poll(clock.now())
+                await asyncio.sleep(clock.wall_delay_s(mission.run.control_period_s / 2))
+
+        task = loop.create_task(zones())
+        await done
+        task.cancel()
+        loop.remove_reader(conn.fileno())
+        server.close()
+        try:
+            conn.send(("report", world.report(duration["s"])))
+        except (OSError, EOFError):
+            pass
+
+    asyncio.run(main())
+
+
+class _EmulatorProcess:
+    """The emulator in its own process (the default: the station and the emulator each get a
+    core), talking to the station only over loopback UDP; control messages over a pipe."""
+
+    def __init__(self, mission: Mission, seed: int, personality, clock: SimClock,
+                 params: dict | None) -> None:
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")  # a clean interpreter: no inherited loop or sockets
+        self._conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_emulator_process_main, name="phireman-emulator",
+                                args=(child, mission, seed, personality, clock.speedup,
+                                      clock.wall0, params), daemon=True)
+        self.swarm = None
+
+    async def start(self) -> list[tuple[str, int]]:
+        self.proc.start()
+        loop = asyncio.get_running_loop()
+        ok = await loop.run_in_executor(None, self._conn.poll, 60.0)
+        if not ok:
+            raise RunnerError("the emulator process did not start within 60 s")
+        kind, addresses = self._conn.recv()
+        return [tuple(a) for a in addresses]
+
+    def start_mission(self, t0_s: float) -> None:
+        self._conn.send(("start", t0_s))
+
+    def end_mission(self) -> None:
+        self._conn.send(("end",))
+
+    def poll(self, now_s: float) -> None:
+        pass
+
+    def kill(self, index: int) -> None:
+        self._conn.send(("kill", index))
+
+    def finish(self, duration_s: float) -> dict:
+        self._conn.send(("finish", duration_s))
+        if not self._conn.poll(60.0):
+            raise RunnerError("the emulator process did not report")
+        kind, report = self._conn.recv()
+        return report
+
+    def close(self) -> None:
+        try:
+            self._conn.send(("finish", 0.0))
+        except (OSError, ValueError):
+            pass
+        self.proc.join(5.0)
+        if self.proc.is_alive():
+            self.proc.terminate()
+            self.proc.join(5.0)
+
+
+async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
+    seed, speedup = _resolve(mission, opts)
+    if opts.duration_s:
+        mission = dataclasses.replace(mission, run=dataclasses.replace(
+            mission.run, duration_s=max(opts.duration_s, mission.run.control_period_s)))
+    if mission.vehicles.emulated is None:
+        raise RunnerError("the mission flies real vehicles (vehicles.real); use --connect or an "
+                          "emulated mission")
+    scenario = mission_scenario(mission, seed)
+    clock = SimClock(speedup)
+    if opts.emulator_in_process:
+        emu = _InProcessEmulator(_build_world(mission, seed, opts.personality, clock,
+                                              opts.emulator_params), clock)
+    else:
+        emu = _EmulatorProcess(mission, seed, opts.personality, clock, opts.emulator_params)
+    addresses = await emu.start()
+    connections = [f"udpout:{h}:{p}" for h, p in addresses]
+    run_dir = _new_run_dir(mission, opts, seed, "emulated")
+    records = _Records(run_dir, mission, _meta(mission, opts, seed, "emulated", speedup,
+                                               connections))
+    wall0 = time.monotonic()
+    try:
+        op = await _run_station(mission, scenario, connections, opts, records, clock=clock.now,
+                                speedup=speedup, expected=mission.vehicles.count, seed=seed,
+                                world=emu)
+        report = emu.finish(op.config.duration_s)
+        summary = _summary(mission, op, seed, "emulated", time.monotonic() - wall0, speedup,
+                           report, run_dir, clock.now())
+        arrays = report.pop("arrays")
+        np.savez_compressed(run_dir / "truth.npz", **arrays)
+        write_summary(run_dir / "summary.json", summary)
+    finally:
+        emu.close()
+        records.close()
+    return FlyResult(run_dir, summary, op, emu.swarm)
+
+
+async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
+    seed, speedup = _resolve(mission, opts)
+    if opts.duration_s:
+        mission = dataclasses.replace(mission, run=dataclasses.replace(
+            mission.run, duration_s=max(opts.duration_s, mission.run.control_period_s)))
+    connections = list(opts.connections) or (
+        list(mission.vehicles.real.connections) if mission.vehicles.real else [])
+    if not connections:
+        raise RunnerError("no links: give --connect URL or a mission with vehicles.real")
+    scenario = mission_scenario(mission, seed)
+    # Real links run on the wall clock; --speedup > 1 only for vehicles whose clock runs faster
+    # (SITL SIM_SPEEDUP, the emulator): the station's timers must follow theirs.
+    clock = SimClock(speedup)
+    run_dir = _new_run_dir(mission, opts, seed, "real")
+    records = _Records(run_dir, mission, _meta(mission, opts, seed, "real", speedup, connections))
+    wall0 = time.monotonic()
+    try:
+        op = await _run_station(mission, scenario, connections, opts, records, clock=clock.now,
+                                speedup=speedup, expected=opts.expected_vehicles, seed=seed)
+        summary = _summary(mission, op, seed, "real", time.monotonic() - wall0, speedup, None,
+                           run_dir, clock.now())
+        write_summary(run_dir / "summary.json", summary)
+    finally:
+        records.close()
+    return FlyResult(run_dir, summary, op, None)
+
+
+def fly_emulated(mission: Mission, opts: FlyOptions | None = None) -> FlyResult:
+    """Fly ``mission`` against the emulator over loopback UDP (see the module docstring)."""
+    return asyncio.run(fly_emulated_async(mission, opts or FlyOptions()))
+
+
+def fly_real(mission: Mission, opts: FlyOptions) -> FlyResult:
+    """Fly ``mission`` over real links (``opts.connections`` or ``vehicles.real``)."""
+    return asyncio.run(fly_real_async(mission, opts))
+
+
+def fly(mission: Mission, opts: FlyOptions | None = None) -> FlyResult:
+    """Real links if any are given (options or mission), else the emulator."""
+    opts = opts or FlyOptions()
+    if opts.connections or mission.vehicles.real is not None:
+        return fly_real(mission, opts)
+    return fly_emulated(mission, opts)
+
+
+# ------------------------------------------------------------------------------------------------
+# In-memory lockstep driver (tests): station cores <-> swarm through a seeded lossy ether
+
+
+class LockstepEther:
+    """The station's links and a swarm exchanging datagrams in memory on a virtual clock.
+
+    Station link ``k`` talks to the swarm's endpoint ``k`` (the swarm must be ``mux=True``).
+    ``loss`` drops each datagram (either direction) with that probability, from ``rng``;
+    ``cut(link)`` / ``restore(link)`` sever a whole link (a dead station, a cable pulled).
+    """
+
+    def __init__(self, swarm: Swarm, station: Station, rng: np.random.Generator,
+                 loss: float = 0.0, now_s: float = 0.0) -> None:
+        if not swarm.mux:
+            raise ValueError("LockstepEther needs Swarm(mux=True): one endpoint per network")
+        self.swarm = swarm
+        self.station = station
+        self.rng = rng
+        self.loss = float(loss)
+        self.now_s = float(now_s)
+        self.cut_links: set[int] = set()
+        self.on_event: Callable | None = None
+        self.frames_to_vehicles = 0
+        self.frames_to_station = 0
+
+    def _drop(self) -> bool:
+        return self.loss > 0 and self.rng.random() < self.loss
+
+    def pump(self) -> None:
+        """Move everything queued on both sides (repeat until quiet)."""
+        for _ in range(4):
+            moved = 0
+            for lid, data, addr in self.station.datagrams_to_send(self.now_s):
+                if lid in self.cut_links or self._drop():
+                    continue
+                self.swarm.receive_datagram(lid, data, ("gcs", lid), self.now_s)
+                self.frames_to_vehicles += 1
+                moved += 1
+            for endpoint, data, addr in self.swarm.datagrams_to_send(self.now_s):
+                if addr != ("gcs", endpoint) or endpoint in self.cut_links or self._drop():
+                    continue
+                self.station.link(endpoint).receive_datagram(data, ("emu", endpoint), self.now_s)
+                self.frames_to_station += 1
+                moved += 1
+            for ev in self.station.events():
+                if self.on_event is not None:
+                    self.on_event(ev)
+            if not moved:
+                break
+
+    def advance_to(self, t_s: float, *, poll: Callable[[float], None] | None = None,
+                   poll_period_s: float | None = None) -> None:
+        """Run both sides up to ``t_s``: swarm ticks, station timers, optional poll callback."""
+        next_poll = self.now_s if poll is not None else math.inf
+        while True:
+            t_swarm = self.swarm.next_timer_s()
+            t_station = self.station.next_timer_s()
+            t_next = min(t_swarm, t_station if t_station is not None else math.inf, next_poll)
+            if t_next > t_s:
+                break
+            self.now_s = max(self.now_s, t_next)
+            if self.now_s >= t_swarm - 1e-12:
+                self.swarm.handle_timer(self.now_s)
+            if t_station is not None and self.now_s >= t_station:
+                self.station.handle_timer(self.now_s)
+            if poll is not None and self.now_s >= next_poll:
+                poll(self.now_s)
+                next_poll = self.now_s + (poll_period_s or 0.25)
+            self.pump()
+        self.now_s = t_s
+
+
+def station_for_swarm(swarm: Swarm, now_s: float = 0.0, **config) -> Station:
+    """A station with one in-memory link per MAVLink network of ``swarm`` (for the ether)."""
+    cfg = StationConfig(static_peers=(), **config)
+    links = [StationLink(dataclasses.replace(cfg, static_peers=(("emu", k),)), link_id=k,
+                         now_s=now_s) for k in range(swarm.n_networks)]
+    return Station(links)
+
+
+__all__ += ["station_for_swarm", "fly_emulated_async", "fly_real_async"]
