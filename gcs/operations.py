@@ -69,7 +69,9 @@ class OperationsConfig:
     discover_settle_s: float = 3.0
     audit: bool = True
     override_audit: bool = False
-    audit_timeout_s: float = 30.0
+    audit_timeout_s: float = 60.0
+    audit_rounds: int = 3
+    """Parameter reads that timed out are requested again, up to this many rounds in all."""
     wave_size: int = 10
     wave_timeout_s: float = 40.0
     wave_climbed_frac: float = 0.8
@@ -163,6 +165,7 @@ class Operator:
         self._params: dict[tuple[int, int], dict[str, float]] = {}
         self._params_pending: set[tuple[int, int, str]] = set()
         self.audit_report: audit_mod.AuditReport | None = None
+        self._audit_round = 1
         self._waves: list[list[int]] = []
         self._wave = 0
         self._wave_since_s = now_s
@@ -273,8 +276,22 @@ class Operator:
                 self.station.request_param(vid, name, now_s)
 
     def _poll_audit(self, snap: FleetSnapshot, now_s: float) -> None:
-        if self._params_pending and now_s - self._phase_since_s < self.config.audit_timeout_s:
+        in_time = now_s - self._phase_since_s < self.config.audit_timeout_s
+        if self._params_pending and in_time:
             return
+        if in_time and self._audit_round < self.config.audit_rounds:
+            # Another round for whatever timed out (a loaded link, a vehicle still booting);
+            # names a firmware does not have (the other GCS-sysid spelling) just time out again.
+            self._audit_round += 1
+            for i in range(snap.n_vehicles):
+                vid = self._vid(snap, i)
+                got = self._params.get(vid, {})
+                for name in audit_mod.params_to_read(int(snap.autopilot[i])):
+                    if name not in got and not snap.lost[i]:
+                        self._params_pending.add((*vid, name))
+                        self.station.request_param(vid, name, now_s)
+            if self._params_pending:
+                return
         vehicles = {self._vid(snap, i): (int(snap.autopilot[i]),
                                          self._params.get(self._vid(snap, i), {}))
                     for i in range(snap.n_vehicles)}

@@ -540,8 +540,8 @@ def _meta(mission: Mission, opts: FlyOptions, seed: int, kind: str, speedup: flo
           connections) -> dict:
     return {"seed": seed, "code_version": _code_version(), "backend": kind, "speedup": speedup,
             "connections": list(connections), "python": sys.version.split()[0],
-            "options": {k: v for k, v in dataclasses.asdict(opts).items()
-                        if k not in ("status", "on_operator")},
+            "options": {f.name: getattr(opts, f.name) for f in dataclasses.fields(opts)
+                        if f.name not in ("status", "on_operator")},
             "started_unix_s": time.time()}
 
 
