@@ -1,0 +1,225 @@
+"""Station core <-> emulated vehicles in memory: virtual clock, seeded lossy ether, no sockets.
+
+The ether (:class:`mission.runners.LockstepEther`) moves datagrams between the station's links
+and a :class:`vehicle_emu.swarm.Swarm` (its vehicle cores); time moves only when told to.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from gcs.events import CommandTimedOut, VehicleDiscovered, VehicleLost
+from mission.runners import (
+    FlyOptions, LockstepEther, _MissionWorld, _make_operator, build_swarm, mission_scenario,
+    station_for_swarm,
+)
+from mission.schema import (
+    Attrition, EmulatedVehicles, LocalPoint, Mission, Radio, RunSpec, ScriptedLoss, Spawn,
+    SpawnRing, Task, TrackPoint, Vehicles,
+)
+from vehicle_emu.swarm import Swarm
+
+
+def _pair(n=3, personality="ardupilot", loss=0.0, seed=0, **station_cfg):
+    swarm = Swarm(n, personality=personality, mux=True, rng=np.random.default_rng(seed))
+    station = station_for_swarm(swarm, **station_cfg)
+    ether = LockstepEther(swarm, station, np.random.default_rng(seed + 1), loss=loss)
+    events = []
+    ether.on_event = events.append
+    return swarm, station, ether, events
+
+
+def test_discovery_over_a_lossy_ether():
+    swarm, station, ether, events = _pair(n=5, loss=0.2)
+    ether.advance_to(3.0)
+    found = {e.sysid for e in events if isinstance(e, VehicleDiscovered)}
+    assert found == {1, 2, 3, 4, 5}
+    assert all(e.t_s <= 3.0 for e in events if isinstance(e, VehicleDiscovered))
+
+
+def test_heartbeat_loss_is_lost_within_the_timeout():
+    swarm, station, ether, events = _pair(n=2)
+    ether.advance_to(2.0)
+    ether.cut_links.add(0)
+    t_cut = ether.now_s
+    ether.advance_to(10.0)
+    lost = [e for e in events if isinstance(e, VehicleLost)]
+    assert {e.sysid for e in lost} == {1, 2}
+    timeout = station.links[0].config.vehicle_timeout_s
+    for e in lost:
+        # Last heartbeat at most 1 s before the cut; lost within the timeout plus one tick.
+        assert e.t_s - e.last_heartbeat_s <= timeout + 0.1
+        assert e.t_s <= t_cut + timeout + 0.1
+
+
+def test_command_retries_then_times_out():
+    swarm, station, ether, events = _pair(n=1)
+    ether.advance_to(1.5)
+    ether.cut_links.add(0)
+    rid = station.arm((0, 1), ether.now_s)
+    ether.advance_to(ether.now_s + 5.0)
+    cfg = station.links[0].config
+    out = [e for e in events if isinstance(e, CommandTimedOut) and e.request_id == rid]
+    assert len(out) == 1 and out[0].attempts == cfg.command_retries + 1
+    assert out[0].command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+
+
+def _frames_out(station, kinds):
+    out = []
+    for t, outgoing, frame in station.links[0].take_frames():
+        if not outgoing:
+            continue
+        m = mavlink.MAVLink(None)
+        m.robust_parsing = True
+        for msg in m.parse_buffer(frame) or []:
+            if msg.get_type() in kinds:
+                out.append((t, msg))
+    return out
+
+
+def test_px4_offboard_engaged_only_after_prestreaming():
+    swarm, station, ether, events = _pair(n=1, personality="px4", record_frames=True)
+    ether.advance_to(2.0)
+    station.links[0].take_frames()
+    station.takeoff((0, 1), 10.0, ether.now_s)
+    ether.pump()
+    ether.advance_to(ether.now_s + 6.0)
+    frames = _frames_out(station, {"SET_POSITION_TARGET_GLOBAL_INT", "COMMAND_LONG"})
+    first_sp = min(t for t, m in frames if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT")
+    mode_cmds = [(t, m) for t, m in frames if m.get_type() == "COMMAND_LONG"
+                 and m.command in (mavlink.MAV_CMD_DO_SET_MODE,
+                                   mavlink.MAV_CMD_COMPONENT_ARM_DISARM)]
+    assert mode_cmds, "OFFBOARD / arm never sent"
+    assert min(t for t, _ in mode_cmds) >= first_sp + 1.0  # PX4: > 1 s of setpoints first
+    sp_times = sorted(t for t, m in frames if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT")
+    assert np.max(np.diff(sp_times)) < 0.5                   # streamed at > 2 Hz
+    info = station.links[0].vehicle(1)
+    assert info.mode == "OFFBOARD" and info.armed
+
+
+# ------------------------------------------------------------------ the operator, in memory
+
+
+def _mission(n=6, personality="ardupilot", duration_s=60.0, kills=(), tasks=None, radio=100.0):
+    tasks = tasks or (Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
+                      Task(track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),)))
+    return Mission(
+        name="pair",
+        vehicles=Vehicles(emulated=EmulatedVehicles(
+            count=n, personality=personality, radio_range_m=radio, cruise_alt_m=20.0,
+            climb_rate_m_s=5.0, max_speed_m_s=10.0,
+            spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)))),
+        tasks=tasks, radio=Radio(range_m=radio, base_range_m=radio),
+        attrition=Attrition(scripted=tuple(ScriptedLoss(vehicle=i, t_s=t) for t, i in kills)),
+        run=RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3))
+
+
+class _InMemoryFlight:
+    """Operator + station + swarm over the ether, on a virtual clock."""
+
+    def __init__(self, mission, loss=0.0, params=None, seed=3):
+        scenario = mission_scenario(mission, seed)
+        self.swarm = build_swarm(mission, scenario, seed=seed, params=params)
+        self.world = _MissionWorld(mission, scenario, self.swarm)
+        self.station = station_for_swarm(self.swarm)
+        self.op = _make_operator(mission, scenario, self.station,
+                                 FlyOptions(wave_size=10), mission.vehicles.count, 0.0, seed)
+        self.ether = LockstepEther(self.swarm, self.station, np.random.default_rng(seed),
+                                   loss=loss)
+        self.events = []
+        self.ether.on_event = self._on_event
+        self.started = False
+
+    def _on_event(self, ev):
+        self.events.append(ev)
+        self.op.handle_event(ev)
+
+    def _poll(self, now):
+        self.op.poll(now)
+        if not self.started and self.op.mission_t0_s is not None:
+            self.started = True
+            self.world.start(self.op.mission_t0_s)
+
+    def run_until(self, t_s):
+        self.ether.advance_to(t_s, poll=self._poll, poll_period_s=0.5)
+
+    def run_until_phase(self, phase, limit_s=400.0):
+        while self.op.phase != phase and self.ether.now_s < limit_s:
+            self.run_until(self.ether.now_s + 1.0)
+        assert self.op.phase == phase, (self.op.phase, self.ether.now_s)
+
+
+def test_launch_run_end_in_memory():
+    f = _InMemoryFlight(_mission(duration_s=30.0))
+    f.run_until_phase("run")
+    assert f.op.audit_report.cleared_to_fly and not f.op.audit_report.overridden
+    f.run_until_phase("done")
+    recs = f.op.records
+    assert len(recs) >= 29 and recs[-1].planned == 6
+    tu1, _ = f.op.station_tu()
+    truth = f.world.truth_tu(30.0)
+    assert tu1 > 0.9 and truth["tu1"] > 0.9
+
+
+def test_audit_refuses_unsafe_vehicles_unless_overridden():
+    f = _InMemoryFlight(_mission(n=2), params={"FS_GCS_ENABLE": 0})
+    f.run_until_phase("refused", limit_s=80.0)
+    assert {(a.link_id, a.sysid) for a in f.op.audit_report.unsafe} == {(0, 1), (0, 2)}
+
+
+def test_reclaim_after_gcs_failsafe():
+    f = _InMemoryFlight(_mission(n=3, duration_s=120.0))
+    f.run_until_phase("run")
+    f.run_until(f.ether.now_s + 5.0)
+    f.ether.cut_links.add(0)                 # the station goes deaf and mute
+    f.run_until(f.ether.now_s + 8.0)         # FS_GCS_TIMEOUT 5 s: every vehicle in RTL
+    assert all(c.custom_mode == 6 for c in f.swarm.cores)  # ArduCopter RTL
+    f.ether.cut_links.clear()
+    t_back = f.ether.now_s
+    f.run_until(t_back + 10.0)
+    assert {s for _, _, s in f.op.reclaimed} == {1, 2, 3}
+    assert all(c.custom_mode == 4 for c in f.swarm.cores)  # GUIDED again
+    assert f.op.records[-1].planned == 3
+
+
+def test_killed_vehicle_is_detected_and_the_plan_closes_the_gap():
+    mission = _mission(n=8, duration_s=90.0, kills=[(30.0, 0)])
+    f = _InMemoryFlight(mission)
+    f.run_until_phase("run")
+    t0 = f.op.mission_t0_s
+    f.run_until(t0 + 29.0)
+    before = f.op.records[-1]
+    f.run_until(t0 + 90.0)
+    lost = [e for e in f.events if isinstance(e, VehicleLost) and e.sysid == 1]
+    assert lost and lost[0].t_s <= t0 + 30.0 + 5.0 + 0.5
+    after = f.op.records[-1]
+    assert after.planned == before.planned - 1
+    assert after.tasks_covered == after.n_tasks  # the others closed the gap
+    assert f.world.truth_tu(90.0)["tu1"] > 0.9
+
+
+def test_relay_loss_cuts_a_branch_whose_vehicles_return_and_are_reclaimed():
+    # One far task (180 m, radio 100 m): a chain base -> relay -> far drone(s). Kill the relays
+    # next to the base: the far branch loses the station, fails safe (RTL), flies home, comes
+    # back into range and is reclaimed.
+    tasks = (Task(track=(TrackPoint(t_s=0.0, north_m=180.0, east_m=0.0),)),)
+    f = _InMemoryFlight(_mission(n=4, duration_s=200.0, tasks=tasks))
+    f.run_until_phase("run")
+    t0 = f.op.mission_t0_s
+    f.run_until(t0 + 60.0)
+    pos = f.swarm.physics.pos_ned_m[:, :2]
+    dist = np.linalg.norm(pos, axis=1)
+    far = np.flatnonzero(dist > 100.0)
+    assert len(far), "no drone beyond direct base range"
+    relays = [i for i in np.argsort(dist) if dist[i] <= 100.0]
+    for i in relays:
+        f.swarm.kill(int(i), f.ether.now_s, "test")
+    f.run_until(t0 + 150.0)
+    far_sysids = {int(f.swarm.sysid_of_index[i]) for i in far}
+    lost = {e.sysid for e in f.events if isinstance(e, VehicleLost)}
+    assert far_sysids <= lost
+    assert far_sysids <= {s for _, _, s in f.op.reclaimed}
