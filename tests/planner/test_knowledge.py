@@ -18,6 +18,15 @@ def test_propagation_matches_reference(rng):
         assert (propagate_stamps(stamp, pairs, t_sent, age_max) == expected).all()
 
 
+def test_level_by_level_fallback_for_very_old_ages(rng):
+    """Ages beyond the float64 exponent encoding take the one-product-per-level path."""
+    n = 40
+    stamp = rng.integers(-1, 300, (n, n))
+    pairs = rng.integers(0, n, (200, 2))
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    assert (propagate_stamps(stamp, pairs, 300, 299) == propagate_stamps_reference(stamp, pairs)).all()
+
+
 def _chain(n, spacing):
     return np.stack([np.arange(n) * spacing + 0.5, np.zeros(n)], axis=1)
 
