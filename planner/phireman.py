@@ -76,8 +76,9 @@ class PhiremanParams:
     speed_rule: str = "auto"
     """At the speed limit: 'uniform' scales the last step so the fastest drone moves exactly v and
     stops the descent (PAPER_NOTES §9.3; needs one planner for all drones); 'per_drone' does that
-    per drone and lets the others continue (what independent drones can do); 'clip' clips each
-    drone to v and keeps iterating. 'auto' = 'uniform' for central, 'per_drone' for async."""
+    per drone and lets the others continue, each drone also stopping at its own equilibrium (what
+    independent drones can do); 'clip' clips each drone to v and keeps iterating.
+    'auto' = 'uniform' for central, 'per_drone' for async."""
     base_weight: float = 1.0
     """c_b, weight of the task-to-base path lengths in the tree cost (paper default 1.0)."""
     accept_ratio: float = 0.99
@@ -324,7 +325,14 @@ def descend(pos_u: np.ndarray, gradient, vmax: float, p: PhiremanParams,
         rows = np.flatnonzero(moving) if separable else every
         step[rows] = -p.step_size * gradient(pos_u + delta, rows)
         step[~moving] = 0.0
-        if not n or np.max(np.abs(step)) < p.tolerance:
+        if p.speed_rule == "per_drone":
+            # Independent drones: each one's descent also ends at its own equilibrium.
+            settled = moving & (np.abs(step).max(axis=1, initial=0.0) < p.tolerance)
+            step[settled] = 0.0
+            moving &= ~settled
+            if not moving.any():
+                return DescentResult(delta, k, True, hit)
+        elif not n or np.max(np.abs(step)) < p.tolerance:
             return DescentResult(delta, k, True, hit)
         new = delta + step
         over = np.einsum("nc,nc->n", new, new) > vmax * vmax
@@ -357,7 +365,14 @@ def descend_reference(pos_u, gradient, vmax, p: PhiremanParams) -> np.ndarray:
     for _ in range(p.max_descent_steps):
         g = gradient(pos_u + np.array(delta).reshape(n, 2), np.arange(n))
         steps = [(-p.step_size * g[i]) if moving[i] else np.zeros(2) for i in range(n)]
-        if n == 0 or max(float(np.max(np.abs(s))) for s in steps) < p.tolerance:
+        if p.speed_rule == "per_drone":
+            for i in range(n):
+                if moving[i] and float(np.max(np.abs(steps[i]))) < p.tolerance:
+                    moving[i] = False
+                    steps[i] = np.zeros(2)
+            if not any(moving):
+                break
+        elif n == 0 or max(float(np.max(np.abs(s))) for s in steps) < p.tolerance:
             break
         new = [delta[i] + steps[i] for i in range(n)]
         over = [float(np.linalg.norm(new[i])) > vmax for i in range(n)]
