@@ -29,6 +29,7 @@ from typing import Mapping
 from gcs.autopilot import ARDUPILOT, PX4
 
 __all__ = ["Finding", "VehicleAudit", "AuditReport", "AUDIT_PARAMS", "params_to_read",
+           "ALTERNATIVE_NAMES", "FOLLOW_UP_PARAMS", "OPTIONAL_PARAMS", "params_still_needed",
            "audit_ardupilot", "audit_px4", "audit_vehicle", "audit_fleet"]
 
 #: What to read per autopilot. ArduPilot alternatives: old or new GCS-sysid names.
@@ -48,9 +49,36 @@ _COM_OBL_RC_ACT = {0: "position", 1: "altitude", 2: "manual", 3: "return", 4: "l
                    6: "terminate", 7: "disarm"}
 
 
+#: Spellings of one parameter across firmware versions: once one is read, the others are not
+#: asked for again (a firmware has only one of them; re-reading the other just times out).
+ALTERNATIVE_NAMES: dict[str, tuple[str, ...]] = {
+    "SYSID_MYGCS": ("MAV_GCS_SYSID",), "MAV_GCS_SYSID": ("SYSID_MYGCS",)}
+#: Read only once the key was read (the GCS-sysid range exists only with the new name).
+FOLLOW_UP_PARAMS: dict[str, tuple[str, ...]] = {"MAV_GCS_SYSID": ("MAV_GCS_SYSID_HI",)}
+#: Absent on many firmwares and not needed for a verdict: never re-requested.
+OPTIONAL_PARAMS = frozenset({"MAV_GCS_SYSID_HI"})
+
+
 def params_to_read(autopilot: int) -> tuple[str, ...]:
-    """Parameter names to request from a vehicle with this HEARTBEAT.autopilot."""
+    """Parameter names to request from a vehicle with this HEARTBEAT.autopilot (all of them;
+    :func:`params_still_needed` says which are still worth asking for)."""
     return AUDIT_PARAMS.get(autopilot, ())
+
+
+def params_still_needed(autopilot: int, got: Mapping[str, float]) -> list[str]:
+    """Names still to request, given the values ``got`` so far: a name is skipped once read, once
+    another spelling of it was read, while its follow-up key is unread, or (optional) at all
+    unless its key was read."""
+    follow = {f: k for k, fs in FOLLOW_UP_PARAMS.items() for f in fs}
+    out = []
+    for name in params_to_read(autopilot):
+        if name in got or any(a in got for a in ALTERNATIVE_NAMES.get(name, ())):
+            continue
+        key = follow.get(name)
+        if key is not None and key not in got:
+            continue
+        out.append(name)
+    return out
 
 
 @dataclass(frozen=True)

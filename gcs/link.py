@@ -105,6 +105,9 @@ class StationConfig:
     """After MAV_RESULT_IN_PROGRESS, wait this long for the final ACK (no re-sends)."""
     param_timeout_s: float = 1.0
     param_retries: int = 3
+    params_in_flight: int = 16
+    """At most this many PARAM_REQUEST_READs outstanding per link; the rest wait their turn (a
+    fleet audit is hundreds of reads: sent at once they overflow receive queues and radios)."""
     stream_rates_hz: tuple[tuple[int, float], ...] = DEFAULT_STREAM_RATES_HZ
     """(message id, Hz) pairs requested from every vehicle on discovery and recovery."""
     stale_msgids: tuple[int, ...] = (_MSG.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,)
@@ -133,6 +136,8 @@ class StationConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be > 0, got {v}")
+        if self.params_in_flight < 1:
+            raise ValueError("params_in_flight must be >= 1")
         if self.command_retries < 0 or self.param_retries < 0:
             raise ValueError("retries must be >= 0")
 
@@ -244,6 +249,8 @@ class StationLink:
         self._commands: dict[tuple[int, int], _Command] = {}
         self._queued: dict[tuple[int, int], deque[_Command]] = {}
         self._params: dict[tuple[int, str], _ParamRequest] = {}
+        self._param_queue: dict[tuple[int, str], _ParamRequest] = {}
+        """Requests waiting for a free slot (``params_in_flight``), in request order."""
         self._next_request_id = 1
         self._warned_types: set[str] = set()
         self._timer_hint_s = now_s
@@ -487,7 +494,9 @@ class StationLink:
             self.stats.invalid_telemetry += 1
             return
         self._params.pop((v.sysid, name), None)
+        self._param_queue.pop((v.sysid, name), None)
         self._emit(ParamReceived(self.link_id, v.sysid, now_s, name, value, msg.param_type))
+        self._pump_params(now_s)
 
     def _on_statustext(self, v: _Vehicle, msg, now_s: float) -> None:
         text = msg.text
@@ -517,6 +526,7 @@ class StationLink:
             else:
                 del self._params[(req.sysid, req.name)]
                 self._emit(ParamTimedOut(self.link_id, req.sysid, now_s, req.name, req.attempts))
+        self._pump_params(now_s)
         for v in self._vehicles.values():
             if not v.lost and now_s >= v.last_heartbeat_s + cfg.vehicle_timeout_s:
                 v.lost = True
@@ -787,8 +797,26 @@ class StationLink:
         if not name or len(name) > 16:
             raise ValueError(f"param name must be 1..16 characters, got {name!r}")
         key = (sysid, name)
-        if key not in self._params:
-            self._params[key] = req = _ParamRequest(sysid, name)
+        if key not in self._params and key not in self._param_queue:
+            self._param_queue[key] = _ParamRequest(sysid, name)
+            self._pump_params(now_s)
+
+    def cancel_param(self, sysid: int, name: str, now_s: float) -> bool:
+        """Forget a pending read (no ParamTimedOut): e.g. the other spelling of a renamed
+        parameter was read. Returns True if one was pending."""
+        key = (sysid, name)
+        found = (self._params.pop(key, None) or self._param_queue.pop(key, None)) is not None
+        self._pump_params(now_s)
+        return found
+
+    def _pump_params(self, now_s: float) -> None:
+        limit = self.config.params_in_flight
+        while self._param_queue and len(self._params) < limit:
+            key = next(iter(self._param_queue))
+            req = self._param_queue.pop(key)
+            if req.sysid not in self._vehicles:
+                continue
+            self._params[key] = req
             self._transmit_param_request(req, now_s)
 
     def _transmit_param_request(self, req: _ParamRequest, now_s: float) -> None:

@@ -16,7 +16,11 @@ Phases (``Operator.phase``)::
 * **audit**: read the lost-link parameters of every vehicle (:mod:`gcs.audit`); refuse unless
   every vehicle is safe or ``override_audit``.
 * **launch**: in waves of ``wave_size``: GUIDED (ArduPilot) / pre-streamed OFFBOARD (PX4), arm,
-  take off to the vehicle's layer; the next wave starts when most of this one has climbed.
+  take off to the vehicle's layer; the next wave starts as soon as most of this one is off the
+  ground (waves spread the command burst and the take-off, they do not wait for the climb);
+  the run starts when most of the fleet has climbed. A vehicle that is armed and taking off is
+  left alone (never re-armed or sent a second take-off), and a vehicle whose commands fail is
+  retried with an exponential back-off, never in a tight loop.
 * **run**: every ``control_period_s``, :func:`gcs.control.tick` plans for every vehicle the
   station hears that is armed and airborne; one SET_POSITION_TARGET_GLOBAL_INT each.
 * **end**: RTL or LAND every vehicle heard; done when all are on the ground / in the end mode.
@@ -74,10 +78,18 @@ class OperationsConfig:
     """Parameter reads that timed out are requested again, up to this many rounds in all."""
     wave_size: int = 10
     wave_timeout_s: float = 40.0
+    """A wave (and the final climb) waits at most this long for its vehicles."""
+    wave_airborne_frac: float = 0.8
+    """The next wave starts when this fraction of the wave's live vehicles is airborne."""
     wave_climbed_frac: float = 0.8
-    """The next wave starts when this fraction of the wave is above ``climbed_alt_frac`` of its
-    target altitude."""
+    """The run starts when this fraction of the fleet's live vehicles is above
+    ``climbed_alt_frac`` of its target altitude."""
     climbed_alt_frac: float = 0.7
+    takeoff_grace_s: float = 6.0
+    """After a take-off command, an armed vehicle still on the ground is given this long to leave
+    it before the take-off is sent again (below ArduCopter's DISARM_DELAY, 10 s)."""
+    max_backoff_s: float = 24.0
+    """Back-off cap after repeated command failures on one vehicle."""
     control_period_s: float = 1.0
     duration_s: float = 200.0
     """Length of the run phase (the mission), seconds."""
@@ -129,6 +141,12 @@ class TickRecord:
 class _Row:
     next_action_s: float = -math.inf
     launched: bool = False
+    flew: bool = False
+    """Seen airborne at least once (a later take-off is a relaunch)."""
+    takeoff_s: float = -math.inf
+    """When the last take-off was commanded."""
+    failures: int = 0
+    """Consecutive failed or timed-out commands (exponential back-off)."""
     reclaims: int = 0
 
 
@@ -164,6 +182,7 @@ class Operator:
         self._rows: dict[int, _Row] = {}
         self._params: dict[tuple[int, int], dict[str, float]] = {}
         self._params_pending: set[tuple[int, int, str]] = set()
+        self._known: set[tuple[int, int]] = set()
         self.audit_report: audit_mod.AuditReport | None = None
         self._audit_round = 1
         self._waves: list[list[int]] = []
@@ -188,15 +207,36 @@ class Operator:
         self.fleet.apply(event)
         key = (event.link_id, event.sysid)
         if isinstance(event, VehicleDiscovered):
+            self._known.add(key)
             self._last_discovery_s = event.t_s
             self._rows.setdefault(self.fleet.index_of(*key), _Row())
         elif isinstance(event, ParamReceived):
             self._params.setdefault(key, {})[event.name] = event.value
             self._params_pending.discard((*key, event.name))
+            # Renamed parameters: the firmware has one spelling; stop asking for the other.
+            for alt in audit_mod.ALTERNATIVE_NAMES.get(event.name, ()):
+                if (*key, alt) in self._params_pending:
+                    self._params_pending.discard((*key, alt))
+                    try:
+                        self.station.link(key[0]).cancel_param(key[1], alt, event.t_s)
+                    except (KeyError, IndexError):
+                        pass
+            for extra in audit_mod.FOLLOW_UP_PARAMS.get(event.name, ()):
+                if self.phase == "audit" and extra not in self._params.get(key, {}):
+                    self._params_pending.add((*key, extra))
+                    self.station.request_param(key, extra, event.t_s)
         elif isinstance(event, ParamTimedOut):
             self._params_pending.discard((*key, event.name))
         elif isinstance(event, (CommandFailed, CommandTimedOut)):
             self.counters["command_failures"] += 1
+            row = self._rows.get(self.fleet.index_of(*key)) if key in self._known else None
+            if row is not None:
+                row.failures += 1
+                # Back off: the next attempt waits action_retry_s x 2^(failures-1), capped.
+                backoff = min(self.config.action_retry_s * 2 ** (row.failures - 1),
+                              self.config.max_backoff_s)
+                row.next_action_s = max(row.next_action_s, event.t_s + backoff)
+                row.takeoff_s = -math.inf  # the take-off is not under way: the back-off rules
             log.info("link %d sysid %d: command %d %s", event.link_id, event.sysid,
                      event.command, type(event).__name__)
         elif isinstance(event, VehicleLost):
@@ -271,7 +311,7 @@ class Operator:
         self._enter("audit", now_s)
         for i in range(snap.n_vehicles):
             vid = self._vid(snap, i)
-            for name in audit_mod.params_to_read(int(snap.autopilot[i])):
+            for name in audit_mod.params_still_needed(int(snap.autopilot[i]), {}):
                 self._params_pending.add((*vid, name))
                 self.station.request_param(vid, name, now_s)
 
@@ -286,8 +326,8 @@ class Operator:
             for i in range(snap.n_vehicles):
                 vid = self._vid(snap, i)
                 got = self._params.get(vid, {})
-                for name in audit_mod.params_to_read(int(snap.autopilot[i])):
-                    if name not in got and not snap.lost[i]:
+                for name in audit_mod.params_still_needed(int(snap.autopilot[i]), got):
+                    if name not in audit_mod.OPTIONAL_PARAMS and not snap.lost[i]:
                         self._params_pending.add((*vid, name))
                         self.station.request_param(vid, name, now_s)
             if self._params_pending:
@@ -325,28 +365,33 @@ class Operator:
         cfg = self.config
         alt = self._alt_above_home_m(snap)
         heard = ~snap.lost
+        fin = np.isfinite(alt)
+        airborne = heard & snap.armed & fin & (alt > cfg.airborne_alt_m)
         if self._wave < len(self._waves):
             wave = [i for i in self._waves[self._wave] if i < snap.n_vehicles]
-            for i in wave:
-                if heard[i]:
-                    self._drive(snap, i, alt, now_s)
-            target = layer_alt_m(wave, self.control)
-            climbed = np.asarray([alt[i] >= cfg.climbed_alt_frac * t if np.isfinite(alt[i])
-                                  else False for i, t in zip(wave, target)], dtype=bool)
-            live = heard[wave] if wave else np.zeros(0, bool)
-            enough = climbed.sum() >= cfg.wave_climbed_frac * max(1, live.sum())
-            if enough or now_s - self._wave_since_s >= cfg.wave_timeout_s:
-                log.info("wave %d/%d: %d/%d climbed", self._wave + 1, len(self._waves),
-                         int(climbed.sum()), len(wave))
+            live = int(heard[wave].sum()) if wave else 0
+            up = int(airborne[wave].sum()) if wave else 0
+            if up >= cfg.wave_airborne_frac * max(1, live) \
+                    or now_s - self._wave_since_s >= cfg.wave_timeout_s:
+                log.info("wave %d/%d: %d/%d airborne at t=%.1f s", self._wave + 1,
+                         len(self._waves), up, len(wave), now_s)
                 self._wave += 1
                 self._wave_since_s = now_s
-        # Earlier waves (and late discoveries): keep them flying.
-        for w in self._waves[:self._wave]:
+        # Every started wave (and late discoveries): launch / keep flying.
+        for w in self._waves[:self._wave + 1]:
             for i in w:
                 if i < snap.n_vehicles and heard[i]:
                     self._drive(snap, i, alt, now_s)
         if self._wave >= len(self._waves):
-            self._start_run(now_s)
+            rows = np.flatnonzero(heard)
+            target = layer_alt_m(rows, self.control)
+            climbed = fin[rows] & (np.where(fin[rows], alt[rows], 0.0)
+                                   >= cfg.climbed_alt_frac * target)
+            if climbed.sum() >= cfg.wave_climbed_frac * max(1, len(rows)) \
+                    or now_s - self._wave_since_s >= cfg.wave_timeout_s:
+                log.info("launch complete at t=%.1f s: %d/%d climbed", now_s,
+                         int(climbed.sum()), len(rows))
+                self._start_run(now_s)
 
     def _start_run(self, now_s: float) -> None:
         self._enter("run", now_s)
@@ -362,10 +407,15 @@ class Operator:
         guided = adapter.is_guided(int(snap.custom_mode[i]))
         armed = bool(snap.armed[i])
         airborne = bool(np.isfinite(alt[i]) and alt[i] > self.config.airborne_alt_m and armed)
+        if airborne:
+            row.flew = True
         if guided and airborne:
+            row.failures = 0
             return True
         if now_s < row.next_action_s:
             return False
+        if not airborne and now_s - row.takeoff_s < self.config.takeoff_grace_s:
+            return False  # taking off: leave it alone (no second arm / take-off)
         vid = self._vid(snap, i)
         target_alt = float(layer_alt_m([i], self.control)[0])
         row.next_action_s = now_s + self.config.action_retry_s
@@ -381,9 +431,11 @@ class Operator:
                     row.reclaims += 1
                     log.info("reclaiming link %d sysid %d from %s", *vid, snap.mode[i])
                 return False
-            if row.launched:
-                self.counters["relaunches"] += 1
+            if row.flew:
+                self.counters["relaunches"] += 1  # it flew, landed (e.g. RTL) and goes again
+                row.flew = False
             row.launched = True
+            row.takeoff_s = now_s
             if adapter.takeoff_by_offboard_climb:
                 if not snap.has_position[i]:
                     return False

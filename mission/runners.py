@@ -4,9 +4,12 @@ The composition root (ARCHITECTURE §4.1, §4.4): this module is the only place 
 (:mod:`gcs`) and the emulator (:mod:`vehicle_emu`) meet, and they meet only through bytes.
 
 * :func:`fly_emulated` - builds a :class:`vehicle_emu.swarm.Swarm` from the mission, serves it on
-  loopback UDP (ephemeral ports) and flies it with the station over real sockets, both on one
-  event loop and one simulated clock (``run.speedup``: every timer of both sides follows it,
-  MAVLINK_NOTES §5). Ground truth (TU1/TU2, arrays) comes from the emulator.
+  loopback UDP (ephemeral ports, the emulator in its own process) and flies it with the station
+  over real sockets, both on one *paced* simulated clock (``run.speedup``: every timer of both
+  sides follows it, MAVLINK_NOTES §5; lock-step pacing so that a stalled process slows the
+  simulation down instead of tripping every vehicle's link failsafe, see
+  :func:`fly_emulated_async`). Ground truth (TU1/TU2, arrays) comes from the emulator.
+* Real links (:func:`fly_real`) stay on the wall clock: nobody can pause real vehicles.
 * :func:`fly_real` - the same station code over ``--connect`` links (no emulator).
 * :class:`LockstepEther` - the in-memory MAVLink driver (station cores <-> swarm, virtual clock,
   seeded loss): the same :class:`gcs.operations.Operator` with no sockets (tests, quick runs).
@@ -45,6 +48,7 @@ from gcs.wire import mavlink
 from mission.schema import Mission
 from planner.methods import make_planner
 from planner.metrics import task_uptime
+from vehicle_emu.clock import PacedClock, PacedReader
 from vehicle_emu.radio import RadioConfig
 from vehicle_emu.swarm import Swarm
 from vehicle_emu.udp import EmulatorServer
@@ -208,14 +212,34 @@ def build_swarm(mission: Mission, scenario: MissionScenario, *, seed: int,
 class _MissionWorld:
     """The mission's world rules applied to the emulator on the mission clock (runner side):
     attrition switched on at mission start, scripted losses, hazard zones, task motion for the
-    ground truth. Never visible to the station."""
+    ground truth. Never visible to the station.
 
-    def __init__(self, mission: Mission, scenario: MissionScenario, swarm: Swarm) -> None:
+    Losses follow the in-process world's draws (common random numbers, PAPER_NOTES §6.1): at
+    mission step ``t`` vehicle ``i`` is lost iff ``u[t, i] < p_i(t)``, with the uniforms of
+    :func:`mission.playback.build_scenario` (the run's attrition stream) and the per-step
+    probability of :func:`mission.playback.loss_probability` (background rate plus the active
+    hazard zones containing the vehicle, from its true position at the step). The loss takes
+    effect half a step later (the in-process world measures connectivity, then attrits, then
+    moves), through the emulator's kill hook. Scripted losses happen at their exact times.
+    The truth is sampled on the mission's step grid ``t0 + k * dt``, so both backends integrate
+    TU1/TU2 over the same ``duration / dt`` instants of ``[0, duration)``.
+    """
+
+    def __init__(self, mission: Mission, scenario: MissionScenario, swarm: Swarm,
+                 seed: int | None = None) -> None:
+        from mission.playback import build_scenario
+
         self.mission = mission
         self.scenario = scenario
         self.swarm = swarm
         self.t0_s: float | None = None
-        self._next_zone_s = math.inf
+        seed = mission.run.seed if seed is None else seed
+        scn = build_scenario(mission, seed)
+        self._attrition_u = scn.attrition_u
+        self._step = 0
+        self._stopped = False
+        self._doomed = np.zeros(swarm.n, dtype=bool)
+        self.losses: list[tuple[float, int, str]] = []
         swarm.task_pos_fn = self._task_pos
         # Sample 0 was recorded without tasks; restart the truth log with tasks from here on.
         tr = swarm.truth
@@ -228,34 +252,38 @@ class _MissionWorld:
     def start(self, t0_s: float) -> None:
         """The station began the mission at emulator time ``t0_s``."""
         self.t0_s = t0_s
-        att = self.mission.attrition
-        for loss in att.scripted:
-            self.swarm.attrition.add_kill(t0_s + loss.t_s, loss.vehicle)
-        self._apply_hazard(t0_s)
+        self.swarm.attrition.hazard_per_s = np.zeros(self.swarm.n)
+        for loss in self.mission.attrition.scripted:
+            if loss.vehicle < self.swarm.n:
+                self.swarm.attrition.add_kill(t0_s + loss.t_s, loss.vehicle)
+                self._doomed[loss.vehicle] = True
+                self.losses.append((loss.t_s, loss.vehicle, "scripted"))
+        self.swarm.sample_truth_from(t0_s)
+        self.poll(self.swarm.now_s)
         log.info("mission world started at t=%.2f s", t0_s)
 
-    def _apply_hazard(self, now_s: float) -> None:
-        att = self.mission.attrition
-        rate = np.full(self.swarm.n, att.rate_per_s)
-        if att.hazard_zones:
-            t = now_s - self.t0_s
-            pos = self.swarm.physics.pos_ned_m
-            for z in att.hazard_zones:
-                if z.active(t):
-                    inside = np.array([z.contains(float(p[0]), float(p[1])) for p in pos])
-                    rate = rate + z.rate_per_s * inside
-        self.swarm.attrition.hazard_per_s = rate
-        self._next_zone_s = now_s + self.mission.run.control_period_s
-
     def poll(self, now_s: float) -> None:
-        if self.t0_s is not None and self.mission.attrition.hazard_zones \
-                and now_s >= self._next_zone_s:
-            self._apply_hazard(now_s)
+        """Draw the losses of every mission step that has begun (call at least every dt/2)."""
+        if self.t0_s is None or self._stopped:
+            return
+        from mission.playback import loss_probability
+
+        dt = self.mission.run.control_period_s
+        u = self._attrition_u
+        while self._step < len(u) and now_s >= self.t0_s + self._step * dt - 1e-9:
+            t = self._step
+            pos = self.swarm.physics.pos_ned_m[:, :2]
+            p = loss_probability(self.mission, t * dt, pos)
+            hit = self.swarm.physics.alive & ~self._doomed & (u[t] < p)
+            for i in np.flatnonzero(hit).tolist():
+                self._doomed[i] = True
+                self.swarm.attrition.add_kill(self.t0_s + (t + 0.5) * dt, i)
+                self.losses.append(((t + 0.5) * dt, i, "attrition"))
+            self._step += 1
 
     def stop_attrition(self) -> None:
         """The mission is over: no more random losses (the end is not part of the horizon)."""
-        self.swarm.attrition.hazard_per_s = np.zeros(self.swarm.n)
-        self._next_zone_s = math.inf
+        self._stopped = True
         self.t_end_s = self.swarm.now_s
 
     def report(self, duration_s: float) -> dict:
@@ -441,7 +469,10 @@ def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> d
 async def _run_station(mission: Mission, scenario: MissionScenario, connections: list[str],
                        opts: FlyOptions, records: _Records, *, clock: Callable[[], float],
                        speedup: float, expected: int | None, seed: int,
-                       world: _MissionWorld | None = None) -> Operator:
+                       world: _MissionWorld | None = None,
+                       max_sleep_s: float = math.inf) -> Operator:
+    """The station's loop. ``max_sleep_s`` (simulated seconds): wake at least this often even
+    when idle, so a paced emulator is never starved of clock acknowledgements."""
     cfg = _station_config(mission)
     holder: dict = {}
 
@@ -496,7 +527,7 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
             if opts.status is not None and (wall - last_status >= 0.5 or op.finished):
                 last_status = wall
                 opts.status(_status_dict(op, now, rec, world))
-            delay = max(0.0, (op.next_poll_s(now) - clock()) / speedup)
+            delay = max(0.0, min(op.next_poll_s(now) - clock(), max_sleep_s) / speedup)
             await asyncio.sleep(delay)
     finally:
         for a in adapters:
@@ -571,19 +602,39 @@ class SimClock:
         return max(0.0, dt_s / self.speedup)
 
 
+#: Lock-step pacing of the emulated backend (see :func:`fly_emulated_async`): the emulator never
+#: runs more than this far (simulated seconds) ahead of the station's last clock read. Below
+#: PX4's COM_OF_LOSS_T (1 s) and ArduPilot's FS_GCS_TIMEOUT (5 s) minus a heartbeat period.
+PACE_SLACK_S = 0.5
+
+
+def _paced_values(in_process: bool):
+    """The shared simulated time and the station's acknowledgement (doubles, no lock: one
+    writer each; an aligned 8-byte store is atomic)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    return ctx.RawValue("d", 0.0), ctx.RawValue("d", 0.0)
+
+
+def _emulator_clock(speedup: float, sim, ack) -> PacedClock:
+    return PacedClock(speedup, sim, ack, max_step_s=2 * _emulator_tick_s(speedup),
+                      slack_s=PACE_SLACK_S)
+
+
 def _emulator_tick_s(speedup: float) -> float:
     # Above 10x, a 10 Hz autopilot tick keeps the emulator within one core for S-sized missions;
     # telemetry (4 Hz) and the 1 s control period are unaffected; physics sub-steps anyway.
     return 0.05 if speedup < 10 else 0.1
 
 
-def _build_world(mission: Mission, seed: int, personality: str | None, clock: SimClock,
+def _build_world(mission: Mission, seed: int, personality: str | None, clock,
                  params: dict | None) -> "_MissionWorld":
     scenario = mission_scenario(mission, seed)
     swarm = build_swarm(mission, scenario, seed=seed, personality=personality,
                         unix_time_at_zero_s=clock.unix_time_at_zero_s, params=params,
                         tick_s=_emulator_tick_s(clock.speedup))
-    return _MissionWorld(mission, scenario, swarm)
+    return _MissionWorld(mission, scenario, swarm, seed=seed)
 
 
 def _deepen_receive_queues(server: EmulatorServer, nbytes: int = 4 << 20) -> None:
@@ -604,7 +655,7 @@ class _InProcessEmulator:
     """The emulator on the station's own event loop (small fleets, tests: the swarm is
     reachable for failure injection through :attr:`swarm`)."""
 
-    def __init__(self, world: "_MissionWorld", clock: SimClock) -> None:
+    def __init__(self, world: "_MissionWorld", clock: PacedClock) -> None:
         self.world = world
         self.swarm = world.swarm
         self.server = EmulatorServer(world.swarm, clock)
@@ -634,12 +685,12 @@ class _InProcessEmulator:
 
 
 def _emulator_process_main(conn, mission: Mission, seed: int, personality, speedup: float,
-                           wall0: float, params) -> None:
+                           sim, ack, params) -> None:
     """Entry point of the emulator process: serve, obey (start/end/kill/finish), report."""
     logging.getLogger().setLevel(logging.WARNING)
 
     async def main() -> None:
-        clock = SimClock(speedup, wall0)
+        clock = _emulator_clock(speedup, sim, ack)
         world = _build_world(mission, seed, personality, clock, params)
         server = EmulatorServer(world.swarm, clock)
         await server.start()
@@ -673,7 +724,7 @@ def _emulator_process_main(conn, mission: Mission, seed: int, personality, speed
         async def zones() -> None:
             while not done.done():
                 world.poll(clock.now())
-                await asyncio.sleep(clock.wall_delay_s(mission.run.control_period_s / 2))
+                await asyncio.sleep(clock.wall_delay_s(mission.run.control_period_s / 4))
 
         task = loop.create_task(zones())
         await done
@@ -681,7 +732,9 @@ def _emulator_process_main(conn, mission: Mission, seed: int, personality, speed
         loop.remove_reader(conn.fileno())
         server.close()
         try:
-            conn.send(("report", world.report(duration["s"])))
+            report = world.report(duration["s"])
+            report["stats"]["pacing"] = dict(clock.stats)
+            conn.send(("report", report))
         except (OSError, EOFError):
             pass
 
@@ -692,15 +745,15 @@ class _EmulatorProcess:
     """The emulator in its own process (the default: the station and the emulator each get a
     core), talking to the station only over loopback UDP; control messages over a pipe."""
 
-    def __init__(self, mission: Mission, seed: int, personality, clock: SimClock,
+    def __init__(self, mission: Mission, seed: int, personality, speedup: float, sim, ack,
                  params: dict | None) -> None:
         import multiprocessing as mp
 
         ctx = mp.get_context("spawn")  # a clean interpreter: no inherited loop or sockets
         self._conn, child = ctx.Pipe()
         self.proc = ctx.Process(target=_emulator_process_main, name="phireman-emulator",
-                                args=(child, mission, seed, personality, clock.speedup,
-                                      clock.wall0, params), daemon=True)
+                                args=(child, mission, seed, personality, speedup, sim, ack,
+                                      params), daemon=True)
         self.swarm = None
 
     async def start(self) -> list[tuple[str, int]]:
@@ -751,12 +804,27 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
         raise RunnerError("the mission flies real vehicles (vehicles.real); use --connect or an "
                           "emulated mission")
     scenario = mission_scenario(mission, seed)
-    clock = SimClock(speedup)
+    # Lock-step pacing (ArduPilot SITL's lock-step idea: "changing SIM_SPEEDUP must not change
+    # the flight"). Emulator and station run in two processes on a loaded machine; with a clock
+    # derived from wall time alone, a 0.25 s hiccup of the station at 20x is 5 s of simulated
+    # time: every vehicle's GCS failsafe (FS_GCS_TIMEOUT 5 s; PX4 COM_OF_LOSS_T 1 s) fires at
+    # once, although the station did nothing wrong in its own time. SITL driven by MAVProxy at
+    # high SIM_SPEEDUP fails the same way (MAVLINK_NOTES §4.1). So the emulator owns simulated
+    # time (a shared double it advances from wall time x speed-up, by at most two ticks per
+    # iteration, never more than PACE_SLACK_S beyond the station's last clock read) and the
+    # station's clock acknowledges every read: a lagging process slows the simulation instead
+    # of making it jump. Packets still cross real loopback UDP sockets; only time is shared.
+    # Sim time also stays at 0 while the emulator process starts, so its start-up is not
+    # charged to the vehicles' clocks.
+    sim, ack = _paced_values(opts.emulator_in_process)
+    clock = PacedReader(speedup, sim, ack)
     if opts.emulator_in_process:
-        emu = _InProcessEmulator(_build_world(mission, seed, opts.personality, clock,
-                                              opts.emulator_params), clock)
+        emu_clock = _emulator_clock(speedup, sim, ack)
+        emu = _InProcessEmulator(_build_world(mission, seed, opts.personality, emu_clock,
+                                              opts.emulator_params), emu_clock)
     else:
-        emu = _EmulatorProcess(mission, seed, opts.personality, clock, opts.emulator_params)
+        emu = _EmulatorProcess(mission, seed, opts.personality, speedup, sim, ack,
+                               opts.emulator_params)
     addresses = await emu.start()
     connections = [f"udpout:{h}:{p}" for h, p in addresses]
     run_dir = _new_run_dir(mission, opts, seed, "emulated")
@@ -766,7 +834,7 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     try:
         op = await _run_station(mission, scenario, connections, opts, records, clock=clock.now,
                                 speedup=speedup, expected=mission.vehicles.count, seed=seed,
-                                world=emu)
+                                world=emu, max_sleep_s=PACE_SLACK_S / 2)
         report = emu.finish(op.config.duration_s)
         summary = _summary(mission, op, seed, "emulated", time.monotonic() - wall0, speedup,
                            report, run_dir, clock.now())

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 
-__all__ = ["VirtualClock", "RealClock"]
+__all__ = ["VirtualClock", "RealClock", "PacedClock", "PacedReader"]
 
 
 class VirtualClock:
@@ -57,4 +57,82 @@ class RealClock:
 
     def wall_delay_s(self, vehicle_dt_s: float) -> float:
         """Wall seconds until ``vehicle_dt_s`` of vehicle time has passed."""
+        return max(0.0, vehicle_dt_s / self.speedup)
+
+
+class PacedClock:
+    """Lock-step pacing for an emulator and a station in separate processes (SITL's lock-step
+    idea: when a process lags, simulated time slows down instead of jumping).
+
+    The emulator owns simulated time in ``sim`` (e.g. a ``multiprocessing.RawValue('d')`` its
+    parent created) and moves it forward in :meth:`advance`, once per emulator iteration:
+
+    * by wall time x ``speedup`` since the previous call, but by at most ``max_step_s``, so a
+      stalled emulator (descheduled, swapping) slows the simulation instead of jumping it;
+    * never beyond ``ack.value + slack_s``, where ``ack`` is the simulated time the station last
+      read (its clock writes it on every read), so a stalled station cannot miss its own heartbeat
+      or setpoint deadlines in *simulated* time: the vehicles wait for it.
+
+    ``slack_s`` must stay below the shortest vehicle-side link timeout (PX4 COM_OF_LOSS_T, 1 s)
+    and the station must read its clock at least every ``slack_s / 2`` of simulated time while
+    idle, or it throttles the emulator. ``time_fn`` is injectable (tests).
+    """
+
+    def __init__(self, speedup: float, sim, ack, *, max_step_s: float = 0.2,
+                 slack_s: float = 0.5, time_fn=time.monotonic) -> None:
+        if not speedup > 0:
+            raise ValueError(f"speedup must be > 0, got {speedup}")
+        if not (max_step_s > 0 and slack_s > 0):
+            raise ValueError("max_step_s and slack_s must be > 0")
+        self.speedup = float(speedup)
+        self.sim = sim
+        self.ack = ack
+        self.max_step_s = float(max_step_s)
+        self.slack_s = float(slack_s)
+        self._time_fn = time_fn
+        self._last_wall = time_fn()
+        self.unix_time_at_zero_s = time.time() - float(sim.value) / self.speedup
+        self.stats = {"advances": 0, "capped_by_step": 0, "capped_by_ack": 0}
+
+    def now(self) -> float:
+        return self.sim.value
+
+    def advance(self) -> float:
+        """Move simulated time forward (see the class docstring); returns the new time."""
+        wall = self._time_fn()
+        dt = max(0.0, wall - self._last_wall) * self.speedup
+        self._last_wall = wall
+        t0 = self.sim.value
+        t = t0 + min(dt, self.max_step_s)
+        if dt > self.max_step_s:
+            self.stats["capped_by_step"] += 1
+        limit = self.ack.value + self.slack_s
+        if t > limit:
+            t = limit
+            self.stats["capped_by_ack"] += 1
+        if t > t0:
+            self.sim.value = t
+            self.stats["advances"] += 1
+        return self.sim.value
+
+    def wall_delay_s(self, vehicle_dt_s: float) -> float:
+        return max(0.0, vehicle_dt_s / self.speedup)
+
+
+class PacedReader:
+    """The station's side of a :class:`PacedClock`: reading the time acknowledges it."""
+
+    def __init__(self, speedup: float, sim, ack) -> None:
+        self.speedup = float(speedup)
+        self.sim = sim
+        self.ack = ack
+        self.unix_time_at_zero_s = time.time() - float(sim.value) / self.speedup
+
+    def now(self) -> float:
+        t = self.sim.value
+        if t > self.ack.value:
+            self.ack.value = t
+        return t
+
+    def wall_delay_s(self, vehicle_dt_s: float) -> float:
         return max(0.0, vehicle_dt_s / self.speedup)

@@ -392,6 +392,16 @@ class Swarm:
                  now_s, cause)
         self._events.append(ev.VehicleKilled(sysid, now_s, net, index, cause))
 
+    def sample_truth_from(self, t_s: float) -> None:
+        """Put the truth sampling grid at ``t_s + k * truth_period_s`` (e.g. a mission's step
+        grid); the first sample is taken at the first tick at or after ``t_s``."""
+        self._next_truth_s = float(t_s)
+        if self._t_s >= t_s - 1e-9:
+            self._record_truth(self._t_s)
+            self._next_truth_s = float(t_s) + self.truth_period_s
+            while self._next_truth_s <= self._t_s + 1e-9:
+                self._next_truth_s += self.truth_period_s
+
     def _record_truth(self, now_s: float) -> None:
         ph = self.physics
         tr = self.truth

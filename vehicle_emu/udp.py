@@ -44,7 +44,8 @@ class EmulatorServer:
     ----------
     swarm : Swarm
     clock : RealClock
-        Vehicle clock (with speed-up).
+        Vehicle clock (with speed-up); a :class:`~vehicle_emu.clock.PacedClock` is advanced
+        once per timer iteration (lock-step with a station in another process).
     host : str
         Bind address (loopback by default).
     base_port : int
@@ -103,13 +104,17 @@ class EmulatorServer:
     def _on_timer(self) -> None:
         if self._closed:
             return
-        now = self.clock.now()
+        advance = getattr(self.clock, "advance", None)
+        now = advance() if advance is not None else self.clock.now()  # PacedClock: lock-step
         try:
             self.swarm.handle_timer(now)
         except Exception:  # noqa: BLE001
             log.exception("swarm tick failed at t=%.3f", now)
         self._flush(now)
         delay = self.clock.wall_delay_s(self.swarm.next_timer_s() - self.clock.now())
+        if advance is not None:
+            # A paced clock may be held back by the station: look again within one tick.
+            delay = min(delay, self.clock.wall_delay_s(self.swarm.tick_s))
         self._timer = self._loop.call_later(delay, self._on_timer)
 
     def close(self) -> None:
