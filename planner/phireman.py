@@ -68,7 +68,8 @@ class PhiremanParams:
     pair_factor: float = 2.0
     """c: 2 = gradient of the total energy (each pair counted in E_i and E_j), 1 = own energy."""
     step_size: float = 0.2
-    """η, gradient step (paper units per unit force); grid-searched (tune)."""
+    """η, gradient step (paper units per unit force); grid-searched over 0.1 / 0.2 / 0.3 at S / 1 %
+    (docs/tuning/phireman_S_1pct.md)."""
     max_descent_steps: int = 10
     """K_max, gradient steps per tick; grid-searched (tune)."""
     tolerance: float = 1e-3
@@ -89,8 +90,9 @@ class PhiremanParams:
     """Ablation: h_T is the distance to the nearest tree node instead of the nearest segment."""
     info: str = "async"
     """'async' (paper's message passing) or 'central' (one planner sees D'(t))."""
-    age_max_steps: int = 10
-    """Async: forget neighbour reports older than this many steps."""
+    age_max_steps: int = 3
+    """Async: forget neighbour reports older than this many steps (grid-searched at S / 1 %,
+    docs/tuning/phireman_S_1pct.md: 3 beats 5 and 10 — stale reports of lost drones attract)."""
     dist_max: float = 6.0
     """Async: forget neighbour reports farther than this, paper units (3 r)."""
     tree_stale_steps: int = 15
