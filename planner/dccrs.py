@@ -1,0 +1,456 @@
+"""DCCRS baseline — a RECONSTRUCTION (the original DCCRS paper is not identified).
+
+Kent et al. (RA-L 2026) compare PhiIREMAN with a flocking algorithm they call DCCRS "in the absence of
+a name given in the manuscript". They describe it only as potential fields from attraction,
+repulsion and velocity matching of neighbours, plus modifications for density and distance to the
+leader, with tasks acting as leader drones; and they say PhiIREMAN differs from it by using a
+Steiner-tree approximation instead of velocity matching and leader following. This module is the
+parametric reconstruction of PAPER_NOTES §3.3, i.e.
+
+    DCCRS ≈ PhiIREMAN − task-tree potential + leader following + velocity matching
+            (+ density weighting of the attraction, distance-to-leader weighting of the pull)
+
+It is NOT the original algorithm; every report that uses it must say so (``PlanOutput.info["label"]``
+carries :data:`LABEL`).
+
+Per networked drone i at tick t (paper units, 1 unit = r / 2 at the paper's r = 2):
+
+* N_i: drones known to i (believed positions) within r of x_i; ρ_i = |N_i| (fixed for the tick).
+* Density weight w_i = clip((ρ* / max(ρ_i, 1))^β, w_min, w_max) scales i's attraction term.
+* Leader potential E^L_i = k_L (d_i / r)^γ_L d_i, d_i = distance to the nearest leader (tasks, and the
+  base if ``base_as_leader``), with d_i floored at ``leader_floor`` in the weight (linear continuation
+  below the floor, so the pull stays finite). Its gradient is k_L (1+γ_L) (max(d,f)/r)^γ_L unit(x - y).
+  γ_L = -1 makes E^L constant, i.e. no leader pull at all.
+* Optional density gate ``leader_cap`` > 0: a drone that is not itself within r of its leader feels
+  no leader pull when at least ``leader_cap`` other drones it knows of are already within r of it.
+* Potential step: PhiIREMAN's multi-step descent (:func:`planner.phireman.descend`, same η, K_max,
+  tolerance and speed rule) on w_i E^ℳ + E^P + E^L, giving δx_i^pot. The pair gradient uses
+  PhiIREMAN's convention c (``pair_factor``) with drone i's own weight: c w_i ℳ Σ … − c P Σ ….
+* Velocity matching: δx_i = (1 − α_v) δx_i^pot + α_v mean_{j ∈ N_i} v_j, where v_j is j's last
+  executed displacement as known to i (pos(s) − pos(s−1) for i's stamp s of j; 0 if s = 0); a drone
+  with no neighbours keeps δx_i^pot. Finally |δx_i| ≤ v.
+
+Information (``info``):
+
+* ``async`` (default, as in the paper's comparison): PhiIREMAN's message layer
+  (:class:`planner.knowledge.Knowledge`, used exactly as ``PhiremanPlanner._plan_async`` does). The
+  base floods the task positions instead of a tree: drone i knows the tasks where they were at its
+  flood stamp (``tasks_hist[tree_stamp[i]]``); a drone whose flood is older than
+  ``tree_stale_steps`` assumes disconnection and heads for the base, as in PhiIREMAN.
+* ``central``: one planner sees D'(t) with true positions, true task positions and the true
+  previous displacements (for comparison).
+
+With ``velocity_matching = 0``, ``leader_gain = 0`` and ``density_exponent = 0`` the planner reduces to
+PhiIREMAN with Þ = 0 (plans equal to rounding, ~1e-12; tested tick by tick).
+
+Defaults of the DCCRS-only parameters (γ_L = 1, α_v = 0.1, ρ* = 4, β = 0.5, base not a leader, no
+cap) come from the grid search at S / 1 % recorded in docs/tuning/dccrs_S_1pct.md.
+
+References
+----------
+J. S. Kent, E. Stefani, B. Plancher, "Robust Geospatial Coordination of Multi-Agent Communications
+Networks Under Attrition", IEEE RA-L 2026, arXiv:2512.02079 (the only source on DCCRS).
+C. W. Reynolds, "Flocks, herds and schools", SIGGRAPH 1987; R. Olfati-Saber, "Flocking for
+multi-agent dynamic systems", IEEE TAC 51(3), 2006 (building blocks, not DCCRS itself).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.knowledge import Knowledge
+from planner.methods import PlanOutput, TickInput
+from planner.phireman import INFO_MODELS, SPEED_RULES, PhiremanParams, descend, parse_params
+from planner.problem import ProblemConfig
+
+__all__ = [
+    "LABEL", "DccrsParams", "DccrsPlanner", "make_dccrs",
+    "density_weight", "weighted_pair_gradient", "leader_gradient", "leader_gradient_reference",
+    "leader_energy", "believed_velocities", "velocity_match", "velocity_match_reference",
+]
+
+LABEL = "DCCRS (reconstruction, PAPER_NOTES §3.3; original paper not identified)"
+
+_PH = PhiremanParams()  # the hyper-parameters with PhiIREMAN equivalents take its defaults
+
+
+@dataclass(frozen=True)
+class DccrsParams:
+    """Every parameter of the DCCRS reconstruction and its default (lengths in paper units).
+
+    Shared hyper-parameters default to :class:`planner.phireman.PhiremanParams` (the paper set them
+    identical to PhiIREMAN's); the DCCRS-only ones were grid-searched at S / 1 % (async), see
+    docs/tuning/dccrs_S_1pct.md. This is a reconstruction, not the original DCCRS.
+    """
+
+    # --- shared with PhiIREMAN -----------------------------------------------------------
+    attraction: float = _PH.attraction
+    """ℳ, gravity-like attraction between drones (PhiIREMAN's)."""
+    repulsion: float = _PH.repulsion
+    """P, elastic repulsion stiffness (PhiIREMAN's)."""
+    repulsion_radius_ratio: float = _PH.repulsion_radius_ratio
+    """q_i = ratio * r_i."""
+    attraction_floor: float = _PH.attraction_floor
+    """d_min: attraction evaluated as -ℳ / max(d, d_min), paper units."""
+    pair_factor: float = _PH.pair_factor
+    """c on the pair terms (2 = PhiIREMAN's total-energy convention)."""
+    step_size: float = _PH.step_size
+    """η, gradient step."""
+    max_descent_steps: int = _PH.max_descent_steps
+    """K_max, gradient steps per tick."""
+    tolerance: float = _PH.tolerance
+    """Equilibrium threshold on every drone's step, paper units."""
+    speed_rule: str = _PH.speed_rule
+    """Speed-limit stopping rule of the descent (see planner.phireman.descend); 'auto' resolves as in
+    PhiIREMAN ('uniform' for central, 'per_drone' for async)."""
+    info: str = _PH.info
+    """'async' (message passing) or 'central' (D'(t), true positions)."""
+    age_max_steps: int = _PH.age_max_steps
+    """Async: forget neighbour reports older than this many steps."""
+    dist_max: float = _PH.dist_max
+    """Async: forget neighbour reports farther than this, paper units."""
+    tree_stale_steps: int = _PH.tree_stale_steps
+    """Async: a drone whose base flood (task positions) is older than this heads home."""
+    # --- DCCRS only (reconstruction; grid-searched) ---------------------------------------
+    leader_gain: float = _PH.thorn
+    """k_L, leader-following weight (PhiIREMAN's equivalent: Þ)."""
+    leader_exponent: float = 1.0
+    """γ_L in E^L = k_L (d/r)^γ_L d; grid {-1, -0.5, 0, 1} (-1 disables the pull); tuned 1."""
+    leader_floor: float = _PH.attraction_floor
+    """Distance floor (paper units) in the (d/r)^γ_L weight, keeps the pull finite for γ_L < 0."""
+    density_target: float = 4.0
+    """ρ*, neighbour count at which the attraction weight is 1; grid {3, 4, 6}; tuned 4."""
+    density_exponent: float = 0.5
+    """β in w = (ρ*/max(ρ,1))^β; grid {0.5, 1, 2}; tuned 0.5; 0 switches density weighting off."""
+    density_weight_min: float = 0.25
+    """Lower clip of the density weight."""
+    density_weight_max: float = 4.0
+    """Upper clip of the density weight."""
+    velocity_matching: float = 0.1
+    """α_v, share of the neighbours' mean last displacement in the instruction; grid {0.1, 0.3, 0.5};
+    tuned 0.1."""
+    base_as_leader: bool = False
+    """Treat the base as an extra static leader (PAPER_NOTES §3.3 item 7; faithful default: no; the
+    search found +0.4 pp TU1 for True, well inside the noise)."""
+    leader_cap: int = 0
+    """Density gate: > 0 = no leader pull for a drone outside r of its leader once this many known
+    drones are within r of that leader; 0 = off."""
+
+    def __post_init__(self) -> None:
+        if self.speed_rule not in SPEED_RULES:
+            raise ValueError(f"speed_rule must be one of {SPEED_RULES}, got {self.speed_rule!r}")
+        if self.info not in INFO_MODELS:
+            raise ValueError(f"info must be one of {INFO_MODELS}, got {self.info!r}")
+        for name in ("step_size", "tolerance", "repulsion_radius_ratio", "dist_max", "leader_floor",
+                     "density_weight_min"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        for name in ("max_descent_steps", "age_max_steps", "tree_stale_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not self.density_weight_min <= self.density_weight_max:
+            raise ValueError("density_weight_min must be <= density_weight_max, got "
+                             f"{self.density_weight_min} > {self.density_weight_max}")
+        if not 0.0 <= self.velocity_matching <= 1.0:
+            raise ValueError(f"velocity_matching must be in [0, 1], got {self.velocity_matching}")
+        if self.leader_exponent < -1.0:
+            raise ValueError(f"leader_exponent must be >= -1 (E^L must not decrease with distance), "
+                             f"got {self.leader_exponent}")
+        if self.density_target < 0 or self.density_exponent < 0 or self.leader_gain < 0 or self.leader_cap < 0:
+            raise ValueError("density_target, density_exponent, leader_gain and leader_cap must be >= 0")
+
+
+# --------------------------------------------------------------------------------------------
+# Kernels (paper units). All vectorised over drones; references loop, for tests.
+# --------------------------------------------------------------------------------------------
+
+def density_weight(rho: np.ndarray, target: float, exponent: float, w_min: float, w_max: float) -> np.ndarray:
+    """w = clip((ρ* / max(ρ, 1))^β, w_min, w_max), per drone."""
+    rho = np.maximum(np.asarray(rho, float), 1.0)
+    return np.clip((target / rho) ** exponent, w_min, w_max)
+
+
+def weighted_pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, weight: np.ndarray,
+                           attraction: float, floor: float, repulsion: float, reach: float,
+                           pair_factor: float) -> np.ndarray:
+    """:func:`planner.phireman.pair_gradient` with drone i's attraction scaled by ``weight[i]``.
+
+    Returns (n, 2): c w_i ℳ Σ (x_i - x_j)/d^3 [d > d_min] - c P Σ (reach - d)(x_i - x_j)/d [d < reach].
+    Identical to ``pair_gradient`` (same operations) when ``weight`` is all ones.
+    """
+    diff = pos_u[:, None, :] - others_u
+    d2 = np.einsum("nkc,nkc->nk", diff, diff)
+    d = np.sqrt(d2)
+    pull = mask & (d > floor)
+    push = mask & (d < reach) & (d > 0)
+    att = np.broadcast_to((attraction * np.asarray(weight, float))[:, None], d.shape)
+    coef = np.divide(att, d * d2, out=np.zeros_like(d), where=pull)
+    coef -= np.divide(repulsion * (reach - d), d, out=np.zeros_like(d), where=push)
+    return pair_factor * np.einsum("nk,nkc->nc", coef, diff)
+
+
+def _leader_distances(pos_u, leaders_u):
+    diff = pos_u[:, None, :] - leaders_u            # (n, L, 2)
+    d = np.sqrt(np.einsum("nlc,nlc->nl", diff, diff))
+    k = np.argmin(d, axis=1)
+    rows = np.arange(len(pos_u))
+    return d[rows, k], diff[rows, k]
+
+
+def leader_gradient(pos_u: np.ndarray, leaders_u: np.ndarray, gain, exponent: float, r: float,
+                    floor: float) -> np.ndarray:
+    """∇ of E^L = k_L (d/r)^γ d toward the nearest leader, d floored at ``floor`` in the weight.
+
+    Parameters
+    ----------
+    pos_u : (n, 2) drone positions
+    leaders_u : (n, L, 2) each drone's leader positions, or (L, 2) shared; L >= 1
+    gain : k_L, scalar or (n,) (0 switches a drone's pull off)
+    exponent, r, floor : γ_L, the radio range and the distance floor (paper units)
+
+    Returns
+    -------
+    (n, 2): k_L (1+γ) (max(d, f)/r)^γ (x - y)/d, 0 where d = 0.
+    """
+    n = len(pos_u)
+    if n == 0 or np.all(np.asarray(gain) == 0) or exponent == -1.0:
+        return np.zeros((n, 2))
+    leaders_u = np.broadcast_to(leaders_u, (n,) + np.shape(leaders_u)[-2:])
+    d, away = _leader_distances(pos_u, leaders_u)
+    mag = np.asarray(gain, float) * (1.0 + exponent) * (np.maximum(d, floor) / r) ** exponent
+    return away * np.divide(mag, d, out=np.zeros_like(d), where=d > 0)[:, None]
+
+
+def leader_gradient_reference(pos_u, leaders_u, gain, exponent, r, floor) -> np.ndarray:
+    """Loop version of :func:`leader_gradient` (for tests)."""
+    pos_u = np.asarray(pos_u, float)
+    n = len(pos_u)
+    leaders_u = np.broadcast_to(np.asarray(leaders_u, float), (n,) + np.shape(leaders_u)[-2:])
+    gain = np.broadcast_to(np.asarray(gain, float), (n,))
+    out = np.zeros((n, 2))
+    for i in range(n):
+        best, y = np.inf, None
+        for k in range(leaders_u.shape[1]):
+            dk = float(np.hypot(*(pos_u[i] - leaders_u[i, k])))
+            if dk < best:
+                best, y = dk, leaders_u[i, k]
+        if best == 0:
+            continue
+        mag = gain[i] * (1 + exponent) * (max(best, floor) / r) ** exponent
+        out[i] = mag * (pos_u[i] - y) / best
+    return out
+
+
+def leader_energy(pos_u, leaders_u, gain, exponent, r, floor) -> np.ndarray:
+    """(n,) E^L_i: k_L (d/r)^γ d for d >= f, continued linearly with the slope at f below it."""
+    pos_u = np.asarray(pos_u, float)
+    n = len(pos_u)
+    leaders_u = np.broadcast_to(np.asarray(leaders_u, float), (n,) + np.shape(leaders_u)[-2:])
+    d, _ = _leader_distances(pos_u, leaders_u)
+    gain = np.asarray(gain, float)
+    above = gain * (np.maximum(d, floor) / r) ** exponent * np.maximum(d, floor)
+    below = gain * (1 + exponent) * (floor / r) ** exponent * (d - floor)
+    return np.where(d >= floor, above, above + below)
+
+
+def believed_velocities(stamp: np.ndarray, pos_hist: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
+    """(n, K, 2): v_k as known to i, pos_hist[s, c_k] - pos_hist[s-1, c_k] with s = stamp[i, k].
+
+    ``cols`` (K,) maps the columns of ``stamp`` to drone ids (default: column k is drone k). 0 where
+    the stamp is unknown (< 0) or s = 0 (no displacement executed yet).
+    """
+    k = (np.arange(stamp.shape[1]) if cols is None else np.asarray(cols))[None, :]
+    s = np.where(stamp >= 1, stamp, 1)
+    vel = pos_hist[s, k] - pos_hist[s - 1, k]
+    return np.where((stamp >= 1)[..., None], vel, 0.0)
+
+
+def velocity_match(disp_pot_u: np.ndarray, neighbours: np.ndarray, vel_u: np.ndarray, alpha: float,
+                   vmax: float) -> np.ndarray:
+    """δx_i = (1-α) δx_i^pot + α mean_{j ∈ N_i} v_j (δx_i^pot if N_i is empty), clipped to |δx_i| <= v.
+
+    Parameters
+    ----------
+    disp_pot_u : (n, 2) potential-field instructions
+    neighbours : (n, K) bool, N_i (known and within r)
+    vel_u : (n, K, 2) velocities of the K drones as known to each i
+    """
+    count = neighbours.sum(axis=1)
+    total = np.einsum("nk,nkc->nc", neighbours.astype(float), vel_u)
+    mean = total / np.maximum(count, 1)[:, None]
+    out = np.where((count > 0)[:, None], (1.0 - alpha) * disp_pot_u + alpha * mean, disp_pot_u)
+    norm = np.sqrt(np.einsum("nc,nc->n", out, out))
+    return out * np.minimum(1.0, vmax / np.where(norm > 0, norm, 1.0))[:, None]
+
+
+def velocity_match_reference(disp_pot_u, neighbours, vel_u, alpha, vmax) -> np.ndarray:
+    """Loop version of :func:`velocity_match` (for tests)."""
+    n = len(disp_pot_u)
+    out = np.zeros((n, 2))
+    for i in range(n):
+        js = [j for j in range(neighbours.shape[1]) if neighbours[i, j]]
+        x = np.array(disp_pot_u[i], float)
+        if js:
+            x = (1 - alpha) * x + alpha * sum(vel_u[i, j] for j in js) / len(js)
+        norm = float(np.hypot(*x))
+        out[i] = x * vmax / norm if norm > vmax else x
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# The planner
+# --------------------------------------------------------------------------------------------
+
+class DccrsPlanner:
+    """DCCRS baseline — reconstruction of PAPER_NOTES §3.3 (original paper not identified).
+
+    Flocking (attraction with density weighting, repulsion, velocity matching) plus leader following
+    toward the nearest task; no task tree. Same message layer and descent as PhiIREMAN.
+    """
+
+    def __init__(self, problem: ProblemConfig, params: DccrsParams, rng: np.random.Generator):
+        self.problem = problem
+        self.params = params
+        self.rng = rng  # unused: deterministic given its inputs
+        unit = problem.length_unit_m
+        self.unit_m = unit
+        self.r_u = problem.radio_range_m / unit
+        self.base_reach_u = min(problem.base_range_m, problem.radio_range_m) / unit
+        self.vmax_u = problem.max_speed_m_s * problem.dt_s / unit
+        self.reach_u = 2 * params.repulsion_radius_ratio * self.r_u
+        if params.speed_rule == "auto":  # as PhiIREMAN: one joint stop (central), per drone (async)
+            self.params = dataclasses.replace(
+                params, speed_rule="uniform" if params.info == "central" else "per_drone")
+        self.knowledge: Knowledge | None = None
+        self.tasks_history: dict[int, np.ndarray] = {}
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+
+    # -- shared pieces ----------------------------------------------------------------------
+    def _leaders(self, tasks_u: np.ndarray, base_u: np.ndarray) -> np.ndarray:
+        """(…, L, 2): tasks, plus the base if ``base_as_leader``."""
+        if not self.params.base_as_leader:
+            return tasks_u
+        base = np.broadcast_to(base_u, tasks_u.shape[:-2] + (1, 2))
+        return np.concatenate([tasks_u, base], axis=-2)
+
+    def _descend(self, pos_u, others_u, mask, leaders_u, joint: bool):
+        """Density weights, leader gate and the potential descent; returns (result, N_i, weights).
+
+        ``joint``: the others are the planned drones themselves and move with the iterate (central,
+        total energy); otherwise they are fixed beliefs (async, as in PhiIREMAN).
+        """
+        p = self.params
+        n = len(pos_u)
+        diff = pos_u[:, None, :] - others_u
+        near = mask & (np.einsum("nkc,nkc->nk", diff, diff) <= self.r_u ** 2)   # N_i
+        rho = near.sum(axis=1)
+        weight = density_weight(rho, p.density_target, p.density_exponent, p.density_weight_min,
+                                p.density_weight_max)
+        gain = np.full(n, p.leader_gain)
+        if p.leader_cap > 0 and p.leader_gain > 0 and n:
+            lead = np.broadcast_to(leaders_u, (n,) + leaders_u.shape[-2:])
+            d, away = _leader_distances(pos_u, lead)
+            y = pos_u - away                                              # each drone's leader
+            dy = others_u - y[:, None, :]
+            claim = (mask & (np.einsum("nkc,nkc->nk", dy, dy) <= self.r_u ** 2)).sum(axis=1)
+            gain[(d > self.r_u) & (claim >= p.leader_cap)] = 0.0
+
+        def grad(x, rows):
+            if joint:  # central: every drone, the others move with the iterate
+                return (weighted_pair_gradient(x, x[None, :, :], mask, weight, p.attraction, p.attraction_floor,
+                                               p.repulsion, self.reach_u, p.pair_factor)
+                        + leader_gradient(x, leaders_u, gain, p.leader_exponent, self.r_u, p.leader_floor))
+            lead = leaders_u if leaders_u.ndim == 2 else leaders_u[rows]
+            return (weighted_pair_gradient(x[rows], others_u[rows], mask[rows], weight[rows], p.attraction,
+                                           p.attraction_floor, p.repulsion, self.reach_u, p.pair_factor)
+                    + leader_gradient(x[rows], lead, gain[rows], p.leader_exponent, self.r_u, p.leader_floor))
+
+        res = descend(pos_u, grad, self.vmax_u, p, separable=not joint)
+        return res, near, weight
+
+    # -- main entry -----------------------------------------------------------------------
+    def plan(self, tick: TickInput) -> PlanOutput:
+        p = self.params
+        pos_u = np.asarray(tick.pos_m, float) / self.unit_m
+        tasks_u = np.asarray(tick.task_pos_m, float) / self.unit_m
+        base_u = np.asarray(tick.base_m, float) / self.unit_m
+        planning = np.asarray(tick.networked, bool) & np.asarray(tick.alive, bool)
+        if p.info == "central":
+            disp_u, info = self._plan_central(tick, pos_u, tasks_u, base_u, planning)
+        else:
+            disp_u, info = self._plan_async(tick, pos_u, tasks_u, base_u, planning)
+        info["label"] = LABEL
+        return PlanOutput(disp_u * self.unit_m, tree=None, info=info)
+
+    def _plan_central(self, tick, pos_u, tasks_u, base_u, planning):
+        p = self.params
+        alive = np.asarray(tick.alive, bool)
+        prev = self._prev
+        self._prev = (pos_u, alive)
+        disp_u = np.zeros_like(pos_u)
+        idx = np.flatnonzero(planning)
+        if len(idx) == 0:
+            return disp_u, {}
+        x = pos_u[idx]
+        mask = ~np.eye(len(idx), dtype=bool)
+        leaders = self._leaders(tasks_u, base_u)
+        res, near, weight = self._descend(x, x[None, :, :], mask, leaders, joint=True)
+        if prev is not None and len(prev[0]) == len(pos_u):
+            vel = (pos_u - prev[0])[idx]               # true executed displacements t-1 -> t
+        else:
+            vel = np.zeros_like(x)
+        disp_u[idx] = velocity_match(res.disp_u, near, np.broadcast_to(vel, (len(idx),) + vel.shape),
+                                     p.velocity_matching, self.vmax_u)
+        return disp_u, {"iterations": res.iterations, "converged": res.converged,
+                        "mean_density_weight": float(weight.mean())}
+
+    def _plan_async(self, tick, pos_u, tasks_u, base_u, planning):
+        p = self.params
+        n = len(pos_u)
+        alive = np.asarray(tick.alive, bool)
+        if self.knowledge is None:
+            self.knowledge = Knowledge.empty(n, self.problem.n_steps + 1)
+        kn = self.knowledge
+        t = tick.t_step
+        if t >= len(kn.pos_hist_m):  # runs longer than the problem's horizon (live use)
+            kn.pos_hist_m = np.concatenate([kn.pos_hist_m, np.zeros_like(kn.pos_hist_m)])
+        prev_pos, prev_alive = self._prev if self._prev is not None else (None, None)
+        kn.update(t, prev_pos, prev_alive, pos_u, alive, self.r_u, self.base_reach_u, p.age_max_steps,
+                  p.dist_max, base_u)
+        self._prev = (pos_u, alive)
+        # The base floods the task positions it sees (in place of PhiIREMAN's tree).
+        self.tasks_history[t] = tasks_u
+        for old in [s for s in self.tasks_history if s < t - p.tree_stale_steps - 1]:
+            del self.tasks_history[old]
+
+        disp_u = np.zeros_like(pos_u)
+        stale = planning & ((kn.tree_stamp < 0) | (t - kn.tree_stamp > p.tree_stale_steps))
+        # Stale flood: assume disconnection and fly to the known base location at full speed.
+        to_base = base_u - pos_u[stale]
+        dist = np.linalg.norm(to_base, axis=1)
+        disp_u[stale] = to_base * (np.minimum(self.vmax_u, dist) / np.where(dist > 0, dist, 1.0))[:, None]
+
+        idx = np.flatnonzero(planning & ~stale)
+        if len(idx) == 0:
+            return disp_u, {"stale_tree": int(stale.sum())}
+        view_rows = np.searchsorted(kn.rows, idx)       # planners are alive, hence rows of the view
+        believed = kn.believed_m[view_rows]             # (n_i, K, 2), paper units, columns kn.cols
+        mask = kn.known_view[view_rows]                 # (n_i, K)
+        uniq, inv = np.unique(kn.tree_stamp[idx], return_inverse=True)
+        leaders = self._leaders(np.stack([self.tasks_history[int(s)] for s in uniq])[inv], base_u)
+        res, near, weight = self._descend(pos_u[idx], believed, mask, leaders, joint=False)
+        if p.velocity_matching > 0:
+            vel = believed_velocities(kn.stamp[np.ix_(idx, kn.cols)], kn.pos_hist_m, kn.cols)
+            disp_u[idx] = velocity_match(res.disp_u, near, vel, p.velocity_matching, self.vmax_u)
+        else:
+            disp_u[idx] = velocity_match(res.disp_u, near, np.zeros(near.shape + (2,)), 0.0, self.vmax_u)
+        return disp_u, {"iterations": res.iterations, "converged": res.converged,
+                        "stale_tree": int(stale.sum()), "mean_density_weight": float(weight.mean())}
+
+
+def make_dccrs(problem: ProblemConfig, params: dict, rng: np.random.Generator) -> DccrsPlanner:
+    """The DCCRS reconstruction (PAPER_NOTES §3.3) with the parameters given (``info`` default 'async')."""
+    return DccrsPlanner(problem, parse_params(params, DccrsParams), rng)
