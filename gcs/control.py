@@ -68,10 +68,18 @@ class ControlConfig:
     layer_spacing_m: float = 5.0
     n_layers: int = 3
     geofence: Geofence = Geofence()
+    lead: float = 1.0
+    """Target = position + ``lead`` x the planner's displacement. An autopilot's position loop
+    covers only part of the way to a target within one control period (a first-order loop with
+    time constant tau reaches 1 - exp(-dt / tau) of it); a lead of 1 + tau / dt puts the target
+    ahead ("carrot") so the vehicle moves the planned distance per tick, at most at its speed
+    limit. 1 = target exactly at the planned point."""
 
     def __post_init__(self) -> None:
         if not self.cruise_alt_m > 0:
             raise ValueError(f"cruise_alt_m must be > 0, got {self.cruise_alt_m}")
+        if not self.lead >= 1.0:
+            raise ValueError(f"lead must be >= 1, got {self.lead}")
         if self.n_layers < 1 or self.layer_spacing_m < 0:
             raise ValueError("n_layers must be >= 1 and layer_spacing_m >= 0")
 
@@ -124,6 +132,6 @@ def tick(pos_ned_m: np.ndarray, networked: np.ndarray, alive: np.ndarray,
                                  np.asarray(task_pos_m, dtype=float).reshape(-1, 2)))
     rows = np.flatnonzero(planned)
     disp = np.asarray(out.disp_m, dtype=float)[rows]
-    target_ne = config.geofence.clip_ne(ne[rows] + disp)
+    target_ne = config.geofence.clip_ne(ne[rows] + config.lead * disp)
     target = np.column_stack([target_ne, -layer_alt_m(rows, config)])
     return TickResult(rows, target, disp, dict(out.info or {}))

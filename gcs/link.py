@@ -293,7 +293,8 @@ class StationLink:
         for v in self._vehicles.values():
             if not v.lost:
                 t = min(t, v.last_heartbeat_s + cfg.vehicle_timeout_s, self._stale_due_s(v))
-            t = min(t, v.setpoint_next_s)
+            if not v.lost:
+                t = min(t, v.setpoint_next_s)
             if v.deferred:
                 t = min(t, v.setpoint_since_s + v.adapter.prestream_s)
         return t
@@ -536,7 +537,9 @@ class StationLink:
                 log.info("link %d sysid %d: telemetry stale, re-requesting streams",
                          self.link_id, v.sysid)
                 self._request_streams(v, now_s)
-            if v.setpoint is not None and now_s >= v.setpoint_next_s:
+            if v.setpoint is not None and now_s >= v.setpoint_next_s and not v.lost:
+                # A silent vehicle is not streamed to (dead ones are most of a fleet's silence
+                # late in a mission); on recovery it is reclaimed with a fresh target.
                 self._send_setpoint(v, now_s)
             if v.deferred and now_s >= v.setpoint_since_s + v.adapter.prestream_s:
                 deferred, v.deferred = v.deferred, []

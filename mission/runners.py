@@ -64,6 +64,24 @@ log = logging.getLogger(__name__)
 FENCE_MARGIN_M = 100.0
 
 
+#: Time constant of a multicopter's position loop (ArduPilot/PX4 position controllers, and the
+#: emulator's ``Physics.tau_pos_s``): the station leads its targets by this much (ControlConfig).
+POSITION_LOOP_TAU_S = 1.0
+
+
+def _speed_params(personalities: list[str], max_speed_m_s: float, user: dict | None) -> dict:
+    """Per-vehicle parameters that make the autopilots fly the mission's speed, as an operator
+    would set them: ArduPilot WPNAV_SPEED (cm/s; RTL_SPEED 0 follows it), PX4 MPC_XY_VEL_MAX
+    (offboard limit) and MPC_XY_CRUISE (RTL). Explicit overrides (``params``) win."""
+    user = user or {}
+    out = {}
+    for i, p in enumerate(personalities):
+        want = ({"WPNAV_SPEED": 100.0 * max_speed_m_s} if p == "ardupilot" else
+                {"MPC_XY_VEL_MAX": max_speed_m_s, "MPC_XY_CRUISE": max_speed_m_s})
+        out[i] = {k: v for k, v in want.items() if k not in user}
+    return out
+
+
 class RunnerError(ValueError):
     """A mission or option this runner cannot fly (reported to the user as a UserError)."""
 
@@ -147,7 +165,8 @@ def control_config(mission: Mission, scenario: MissionScenario | None = None) ->
         half = max(half, float(np.abs(scenario.task_track_m).max(initial=0.0)),
                    float(np.abs(scenario.spawn_ne_m).max(initial=0.0)))
     return ControlConfig(cruise_alt_m=lim.cruise_alt_m, layer_spacing_m=lim.layer_spacing_m,
-                         n_layers=lim.n_layers, geofence=Geofence.square(half + FENCE_MARGIN_M))
+                         n_layers=lim.n_layers, geofence=Geofence.square(half + FENCE_MARGIN_M),
+                         lead=1.0 + POSITION_LOOP_TAU_S / mission.run.control_period_s)
 
 
 def _personalities(mission: Mission, override: str | None) -> list[str]:
@@ -198,7 +217,9 @@ def build_swarm(mission: Mission, scenario: MissionScenario, *, seed: int,
                         loss_per_hop=min(mission.radio.loss_prob, 0.999))
     spawn = np.column_stack([scenario.spawn_ne_m, np.zeros(len(scenario.spawn_ne_m))])
     o = mission.origin
-    swarm = _MissionSwarm(emu.count, personality=_personalities(mission, personality),
+    pers = _personalities(mission, personality)
+    swarm = _MissionSwarm(emu.count, personality=pers,
+                  per_vehicle_params=_speed_params(pers, emu.max_speed_m_s, params),
                   home_lla=(o.lat_deg, o.lon_deg, o.alt_amsl_m), spawn_ned_m=spawn, radio=radio,
                   hazard_per_s=0.0, task_pos_fn=None, mux=mux, params=params,
                   rng=np.random.default_rng(np.random.SeedSequence([int(seed), 0xE1])),
@@ -470,7 +491,8 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
                        opts: FlyOptions, records: _Records, *, clock: Callable[[], float],
                        speedup: float, expected: int | None, seed: int,
                        world: _MissionWorld | None = None,
-                       max_sleep_s: float = math.inf) -> Operator:
+                       max_sleep_s: float = math.inf,
+                       ack: Callable[[float], None] | None = None) -> Operator:
     """The station's loop. ``max_sleep_s`` (simulated seconds): wake at least this often even
     when idle, so a paced emulator is never starved of clock acknowledgements."""
     cfg = _station_config(mission)
@@ -505,6 +527,8 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
         while not op.finished:
             now = clock()
             rec = op.poll(now)
+            if ack is not None:
+                ack(now)  # lock-step: everything due up to `now` is done (see PacedReader)
             if world is not None:
                 if not started and op.mission_t0_s is not None:
                     started = True
@@ -834,7 +858,8 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     try:
         op = await _run_station(mission, scenario, connections, opts, records, clock=clock.now,
                                 speedup=speedup, expected=mission.vehicles.count, seed=seed,
-                                world=emu, max_sleep_s=PACE_SLACK_S / 2)
+                                world=emu, max_sleep_s=PACE_SLACK_S / 4,
+                                ack=clock.acknowledge)
         report = emu.finish(op.config.duration_s)
         summary = _summary(mission, op, seed, "emulated", time.monotonic() - wall0, speedup,
                            report, run_dir, clock.now())

@@ -120,7 +120,10 @@ class PacedClock:
 
 
 class PacedReader:
-    """The station's side of a :class:`PacedClock`: reading the time acknowledges it."""
+    """The station's side of a :class:`PacedClock`. :meth:`acknowledge` says "everything due up
+    to ``t`` is done" (the station's loop calls it once per iteration with the time it read at
+    the start); a station that falls behind (CPU-bound, stalled) thereby holds the emulator back
+    instead of missing its heartbeat and setpoint deadlines in simulated time."""
 
     def __init__(self, speedup: float, sim, ack) -> None:
         self.speedup = float(speedup)
@@ -129,10 +132,11 @@ class PacedReader:
         self.unix_time_at_zero_s = time.time() - float(sim.value) / self.speedup
 
     def now(self) -> float:
-        t = self.sim.value
-        if t > self.ack.value:
-            self.ack.value = t
-        return t
+        return self.sim.value
+
+    def acknowledge(self, t_s: float) -> None:
+        if t_s > self.ack.value:
+            self.ack.value = t_s
 
     def wall_delay_s(self, vehicle_dt_s: float) -> float:
         return max(0.0, vehicle_dt_s / self.speedup)
