@@ -537,7 +537,10 @@ class StationLink:
                 log.info("link %d sysid %d: telemetry stale, re-requesting streams",
                          self.link_id, v.sysid)
                 self._request_streams(v, now_s)
-            if v.setpoint is not None and now_s >= v.setpoint_next_s and not v.lost:
+            # Batch resends: whatever is due within half a period goes now, so a fleet's
+            # staggered streams coalesce into few wake-ups (each wake-up scans every vehicle).
+            if v.setpoint is not None and not v.lost \
+                    and now_s >= v.setpoint_next_s - 0.5 * v.adapter.setpoint_period_s:
                 # A silent vehicle is not streamed to (dead ones are most of a fleet's silence
                 # late in a mission); on recovery it is reclaimed with a fresh target.
                 self._send_setpoint(v, now_s)
