@@ -627,9 +627,12 @@ class SimClock:
 
 
 #: Lock-step pacing of the emulated backend (see :func:`fly_emulated_async`): the emulator never
-#: runs more than this far (simulated seconds) ahead of the station's last clock read. Below
-#: PX4's COM_OF_LOSS_T (1 s) and ArduPilot's FS_GCS_TIMEOUT (5 s) minus a heartbeat period.
-PACE_SLACK_S = 0.5
+#: runs more than this far (simulated seconds) ahead of the station's last acknowledged time.
+#: Below every vehicle-side link deadline: ArduPilot FS_GCS_TIMEOUT (5 s) minus a heartbeat
+#: period, PX4 COM_OF_LOSS_T (1 s) and, tightest, PX4's offboard signal rule (setpoints at
+#: > 2 Hz: a gap over 0.5 s restarts the "more than a second of streaming" wait; with 0.5 s of
+#: slack at 20x, PX4 vehicles were refused OFFBOARD). 0.25 s leaves room for a 0.1 s stream.
+PACE_SLACK_S = 0.25
 
 
 def _paced_values(in_process: bool):

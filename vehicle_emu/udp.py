@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 import threading
 import time
 
@@ -65,6 +66,7 @@ class EmulatorServer:
         self._timer: asyncio.TimerHandle | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._closed = False
+        self._readers: list | None = None
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
@@ -87,6 +89,40 @@ class EmulatorServer:
             log.exception("endpoint %d: error handling a datagram from %s", endpoint, addr)
         self._flush(now)
 
+    def _drain(self, now: float, limit: int = 4096) -> None:
+        """Read every datagram already queued on the sockets before time moves on.
+
+        asyncio's datagram transport reads one datagram per socket per loop iteration; when a
+        station streams to a fleet (PX4: 10 Hz setpoints per vehicle) faster than that, the
+        backlog would grow while simulated time advances, and the vehicles would see their
+        streams stall (PX4 refuses OFFBOARD on a gap > 0.5 s). Under lock-step pacing, simulated
+        time must not move on until what the station has already sent is delivered."""
+        if self._readers is None:
+            self._readers = []
+            for transport in self.transports:
+                ts = transport.get_extra_info("socket")  # asyncio's wrapper: no recvfrom
+                sock = socket.fromfd(ts.fileno(), ts.family, ts.type) if ts is not None else None
+                if sock is not None:
+                    sock.setblocking(False)
+                self._readers.append(sock)
+        for endpoint, sock in enumerate(self._readers):
+            if sock is None:
+                continue
+            for _ in range(limit):
+                try:
+                    data, addr = sock.recvfrom(65536)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError:
+                    self.n_socket_errors += 1
+                    break
+                try:
+                    self.swarm.receive_datagram(endpoint, data, addr, now)
+                except Exception:  # noqa: BLE001
+                    log.exception("endpoint %d: error handling a datagram from %s", endpoint,
+                                  addr)
+        self._flush(now)
+
     def _flush(self, now: float) -> None:
         transports = self.transports
         for endpoint, data, addr in self.swarm.datagrams_to_send(now):
@@ -105,6 +141,8 @@ class EmulatorServer:
         if self._closed:
             return
         advance = getattr(self.clock, "advance", None)
+        if advance is not None:
+            self._drain(self.clock.now())
         now = advance() if advance is not None else self.clock.now()  # PacedClock: lock-step
         try:
             self.swarm.handle_timer(now)
@@ -121,6 +159,10 @@ class EmulatorServer:
         self._closed = True
         if self._timer is not None:
             self._timer.cancel()
+        for sock in self._readers or ():
+            if sock is not None:
+                sock.close()
+        self._readers = None
         for t in self.transports:
             t.close()
         self.transports = []
