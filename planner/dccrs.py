@@ -33,7 +33,7 @@ Per networked drone i at tick t (paper units, 1 unit = r / 2 at the paper's r = 
 Information (``info``):
 
 * ``async`` (default, as in the paper's comparison): PhiIREMAN's message layer
-  (:class:`planner.knowledge.Knowledge`, used exactly as ``PhiremanPlanner._plan_async`` does). The
+  (:class:`planner.knowledge.MessageLayer`, shared with ``PhiremanPlanner._plan_async``). The
   base floods the task positions instead of a tree: drone i knows the tasks where they were at its
   flood stamp (``tasks_hist[tree_stamp[i]]``); a drone whose flood is older than
   ``tree_stale_steps`` assumes disconnection and heads for the base, as in PhiIREMAN.
@@ -61,7 +61,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.knowledge import Knowledge
+from planner.geometry import step_toward
+from planner.knowledge import MessageLayer
 from planner.methods import PlanOutput, TickInput
 from planner.phireman import INFO_MODELS, SPEED_RULES, PhiremanParams, descend, parse_params
 from planner.problem import ProblemConfig
@@ -324,9 +325,8 @@ class DccrsPlanner:
         if params.speed_rule == "auto":  # as PhiIREMAN: one joint stop (central), per drone (async)
             self.params = dataclasses.replace(
                 params, speed_rule="uniform" if params.info == "central" else "per_drone")
-        self.knowledge: Knowledge | None = None
-        self.tasks_history: dict[int, np.ndarray] = {}
-        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+        self.messages: MessageLayer | None = None  # async information model, built on first use
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None  # central: last tick, for velocities
 
     # -- shared pieces ----------------------------------------------------------------------
     def _leaders(self, tasks_u: np.ndarray, base_u: np.ndarray) -> np.ndarray:
@@ -409,38 +409,22 @@ class DccrsPlanner:
 
     def _plan_async(self, tick, pos_u, tasks_u, base_u, planning):
         p = self.params
-        n = len(pos_u)
-        alive = np.asarray(tick.alive, bool)
-        if self.knowledge is None:
-            self.knowledge = Knowledge.empty(n, self.problem.n_steps + 1)
-        kn = self.knowledge
-        t = tick.t_step
-        if t >= len(kn.pos_hist_m):  # runs longer than the problem's horizon (live use)
-            kn.pos_hist_m = np.concatenate([kn.pos_hist_m, np.zeros_like(kn.pos_hist_m)])
-        prev_pos, prev_alive = self._prev if self._prev is not None else (None, None)
-        kn.update(t, prev_pos, prev_alive, pos_u, alive, self.r_u, self.base_reach_u, p.age_max_steps,
-                  p.dist_max, base_u)
-        self._prev = (pos_u, alive)
+        if self.messages is None:
+            self.messages = MessageLayer(len(pos_u), self.problem.n_steps, self.r_u, self.base_reach_u,
+                                         p.age_max_steps, p.dist_max, p.tree_stale_steps)
         # The base floods the task positions it sees (in place of PhiIREMAN's tree).
-        self.tasks_history[t] = tasks_u
-        for old in [s for s in self.tasks_history if s < t - p.tree_stale_steps - 1]:
-            del self.tasks_history[old]
-
-        disp_u = np.zeros_like(pos_u)
-        stale = planning & ((kn.tree_stamp < 0) | (t - kn.tree_stamp > p.tree_stale_steps))
+        stale = planning & self.messages.step(tick.t_step, pos_u, np.asarray(tick.alive, bool), base_u,
+                                              tasks_u)
         # Stale flood: assume disconnection and fly to the known base location at full speed.
-        to_base = base_u - pos_u[stale]
-        dist = np.linalg.norm(to_base, axis=1)
-        disp_u[stale] = to_base * (np.minimum(self.vmax_u, dist) / np.where(dist > 0, dist, 1.0))[:, None]
-
+        disp_u = np.zeros_like(pos_u)
+        disp_u[stale] = step_toward(pos_u[stale], base_u, self.vmax_u)
         idx = np.flatnonzero(planning & ~stale)
         if len(idx) == 0:
             return disp_u, {"stale_tree": int(stale.sum())}
-        view_rows = np.searchsorted(kn.rows, idx)       # planners are alive, hence rows of the view
-        believed = kn.believed_m[view_rows]             # (n_i, K, 2), paper units, columns kn.cols
-        mask = kn.known_view[view_rows]                 # (n_i, K)
-        uniq, inv = np.unique(kn.tree_stamp[idx], return_inverse=True)
-        leaders = self._leaders(np.stack([self.tasks_history[int(s)] for s in uniq])[inv], base_u)
+        believed, mask, stamps = self.messages.view(idx)  # (n_i, K, 2) paper units, columns kn.cols
+        kn = self.messages.knowledge
+        uniq, inv = np.unique(stamps, return_inverse=True)
+        leaders = self._leaders(np.stack([self.messages.broadcast(s) for s in uniq])[inv], base_u)
         res, near, weight = self._descend(pos_u[idx], believed, mask, leaders, joint=False)
         if p.velocity_matching > 0:
             vel = believed_velocities(kn.stamp[np.ix_(idx, kn.cols)], kn.pos_hist_m, kn.cols)

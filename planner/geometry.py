@@ -22,6 +22,7 @@ __all__ = [
     "active_mask",
     "active_mask_reference",
     "tasks_connected",
+    "step_toward",
     "geodetic_to_ned_m",
     "ned_to_geodetic",
 ]
@@ -150,6 +151,21 @@ def tasks_connected(task_pos_m: np.ndarray, drone_pos_m: np.ndarray, active: np.
         return np.zeros(len(task_pos_m), dtype=bool)
     d, _ = cKDTree(act).query(task_pos_m, k=1)
     return d < radio_range_m
+
+
+def step_toward(pos_m: np.ndarray, target_m: np.ndarray, max_step_m: float) -> np.ndarray:
+    """Displacements that move each row straight toward ``target_m`` by at most ``max_step_m``,
+    never overshooting it (the RTNUA "fly home at constant speed" rule).
+
+    Parameters
+    ----------
+    pos_m : (N, D) positions
+    target_m : (D,) or (N, D) targets
+    max_step_m : float, the largest displacement
+    """
+    to_target = np.asarray(target_m, dtype=float) - np.asarray(pos_m, dtype=float)
+    dist = np.linalg.norm(to_target, axis=-1)
+    return to_target * (np.minimum(max_step_m, dist) / np.where(dist > 0, dist, 1.0))[..., None]
 
 
 def geodetic_to_ned_m(lat_deg, lon_deg, alt_amsl_m, origin_lat_deg: float, origin_lon_deg: float,

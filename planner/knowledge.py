@@ -19,7 +19,7 @@ import numpy as np
 
 from planner.geometry import neighbour_pairs
 
-__all__ = ["Knowledge", "propagate_stamps", "propagate_stamps_reference", "UNKNOWN"]
+__all__ = ["Knowledge", "MessageLayer", "propagate_stamps", "propagate_stamps_reference", "UNKNOWN"]
 
 UNKNOWN = -1
 
@@ -181,3 +181,57 @@ class Knowledge:
         k = self.stamp != UNKNOWN
         np.fill_diagonal(k, False)
         return k
+
+
+class MessageLayer:
+    """The asynchronous information model of one planner over a run (PAPER_NOTES §5.4).
+
+    Owns the :class:`Knowledge` tables, the previous tick needed to deliver messages, and a short
+    history of what the base broadcast (PhiIREMAN: its task tree; DCCRS: the task positions), so
+    that a drone holding broadcast stamp s acts on ``broadcast(s)``. Positions are in paper units.
+
+    Parameters
+    ----------
+    n_drones, n_steps : table sizes (the history grows if a run outlasts ``n_steps``)
+    radio_range_u, base_reach_u : link range r and the base's reach min(R, r)
+    age_max_steps, dist_max_u : the recency rule's age and distance cut-offs
+    stale_steps : a drone whose broadcast copy is older than this is stale (assumes disconnection)
+    """
+
+    def __init__(self, n_drones: int, n_steps: int, radio_range_u: float, base_reach_u: float,
+                 age_max_steps: int, dist_max_u: float, stale_steps: int) -> None:
+        self.knowledge = Knowledge.empty(n_drones, n_steps + 1)
+        self.radio_range_u = radio_range_u
+        self.base_reach_u = base_reach_u
+        self.age_max_steps = age_max_steps
+        self.dist_max_u = dist_max_u
+        self.stale_steps = stale_steps
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+        self._broadcasts: dict[int, object] = {}
+
+    def step(self, t_step: int, pos_u: np.ndarray, alive: np.ndarray, base_u: np.ndarray,
+             broadcast: object) -> np.ndarray:
+        """Deliver last tick's messages, record this tick's base broadcast; return the (N,) mask
+        of drones whose broadcast copy is stale (never received or older than ``stale_steps``)."""
+        kn = self.knowledge
+        if t_step >= len(kn.pos_hist_m):  # runs longer than the problem's horizon (live use)
+            kn.pos_hist_m = np.concatenate([kn.pos_hist_m, np.zeros_like(kn.pos_hist_m)])
+        prev_pos, prev_alive = self._prev if self._prev is not None else (None, None)
+        kn.update(t_step, prev_pos, prev_alive, pos_u, alive, self.radio_range_u, self.base_reach_u,
+                  self.age_max_steps, self.dist_max_u, base_u)
+        self._prev = (pos_u, alive)
+        self._broadcasts[t_step] = broadcast
+        for old in [s for s in self._broadcasts if s < t_step - self.stale_steps - 1]:
+            del self._broadcasts[old]
+        return (kn.tree_stamp < 0) | (t_step - kn.tree_stamp > self.stale_steps)
+
+    def broadcast(self, stamp: int) -> object:
+        """What the base broadcast at step ``stamp`` (still held by some drone)."""
+        return self._broadcasts[int(stamp)]
+
+    def view(self, holders: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Believed positions (n, K, 2), known mask (n, K) and broadcast stamps (n,) of alive
+        ``holders`` (columns are ``knowledge.cols``)."""
+        kn = self.knowledge
+        rows = np.searchsorted(kn.rows, holders)  # holders are alive, hence rows of the view
+        return kn.believed_m[rows], kn.known_view[rows], kn.tree_stamp[holders]

@@ -35,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.knowledge import Knowledge
+from planner.geometry import step_toward
+from planner.knowledge import MessageLayer
 from planner.methods import PlanOutput, TickInput
 from planner.problem import ProblemConfig
 from planner.steiner import TaskTree, distance_to_tree, maintain_task_tree
@@ -427,9 +428,7 @@ class PhiremanPlanner:
             params = dataclasses.replace(params, speed_rule="uniform" if params.info == "central" else "per_drone")
             self.params = params
         self.tree: TaskTree | None = None
-        self.tree_history: dict[int, TaskTree] = {}
-        self.knowledge: Knowledge | None = None
-        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+        self.messages: MessageLayer | None = None  # async information model, built on first use
 
     # -- helpers --------------------------------------------------------------------------
     def _pair_grad(self, pos_u, others_u, mask, others_sq=None):
@@ -472,37 +471,20 @@ class PhiremanPlanner:
 
     def _plan_async(self, tick: TickInput, pos_u, base_u, planning):
         p = self.params
-        n = len(pos_u)
-        alive = np.asarray(tick.alive, bool)
-        if self.knowledge is None:
-            self.knowledge = Knowledge.empty(n, self.problem.n_steps + 1)
-        kn = self.knowledge
-        t = tick.t_step
-        if t >= len(kn.pos_hist_m):  # runs longer than the problem's horizon (live use)
-            kn.pos_hist_m = np.concatenate([kn.pos_hist_m, np.zeros_like(kn.pos_hist_m)])
-        prev_pos, prev_alive = self._prev if self._prev is not None else (None, None)
-        kn.update(t, prev_pos, prev_alive, pos_u, alive, self.r_u, self.base_reach_u, p.age_max_steps,
-                  p.dist_max, base_u)
-        self._prev = (pos_u, alive)
-        self.tree_history[t] = self.tree
-        for old in [s for s in self.tree_history if s < t - p.tree_stale_steps - 1]:
-            del self.tree_history[old]
-
-        disp_u = np.zeros_like(pos_u)
-        stale = planning & ((kn.tree_stamp < 0) | (t - kn.tree_stamp > p.tree_stale_steps))
+        if self.messages is None:
+            self.messages = MessageLayer(len(pos_u), self.problem.n_steps, self.r_u, self.base_reach_u,
+                                         p.age_max_steps, p.dist_max, p.tree_stale_steps)
+        stale = planning & self.messages.step(tick.t_step, pos_u, np.asarray(tick.alive, bool), base_u,
+                                              self.tree)
         # Stale tree: assume disconnection and fly to the known base location at full speed.
-        to_base = base_u - pos_u[stale]
-        dist = np.linalg.norm(to_base, axis=1)
-        disp_u[stale] = to_base * (np.minimum(self.vmax_u, dist) / np.where(dist > 0, dist, 1.0))[:, None]
-
+        disp_u = np.zeros_like(pos_u)
+        disp_u[stale] = step_toward(pos_u[stale], base_u, self.vmax_u)
         idx = np.flatnonzero(planning & ~stale)
         if len(idx) == 0:
             return disp_u, {"stale_tree": int(stale.sum())}
-        view_rows = np.searchsorted(kn.rows, idx)       # planners are alive, hence rows of the view
-        believed = kn.believed_m[view_rows]             # (n_i, K, 2), paper units
-        mask = kn.known_view[view_rows]                 # (n_i, K)
-        versions, version_of = np.unique(kn.tree_stamp[idx], return_inverse=True)
-        seg_a, seg_b, valid = padded_segments([self.tree_history[int(s)] for s in versions], p.nodes_only)
+        believed, mask, stamps = self.messages.view(idx)   # (n_i, K, 2) paper units, (n_i, K), (n_i,)
+        versions, version_of = np.unique(stamps, return_inverse=True)
+        seg_a, seg_b, valid = padded_segments([self.messages.broadcast(s) for s in versions], p.nodes_only)
 
         believed_sq = np.einsum("nkc,nkc->nk", believed, believed)
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.geometry import active_mask, tasks_connected
+from planner.geometry import active_mask, step_toward, tasks_connected
 from planner.problem import ProblemConfig
 
 __all__ = ["Scenario", "RunStreams", "spawn_streams", "draw_scenario", "walk_tasks", "World"]
@@ -153,10 +153,7 @@ class World:
         p = self.problem
         vmax = p.max_speed_m_s * p.dt_s
         # Disconnected but alive: straight home at full speed (never overshooting the base).
-        to_base = self.base_m - self.pos_m
-        dist = np.linalg.norm(to_base, axis=1)
-        home = to_base * (np.minimum(vmax, dist) / np.where(dist > 0, dist, 1.0))[:, None]
-        disp = np.where(active[:, None], disp_m, home)
+        disp = np.where(active[:, None], disp_m, step_toward(self.pos_m, self.base_m, vmax))
         # The world enforces the speed limit whatever the planner says.
         norm = np.linalg.norm(disp, axis=1)
         disp = disp * (np.minimum(1.0, vmax / np.where(norm > 0, norm, 1.0)))[:, None]
