@@ -64,6 +64,9 @@ log = logging.getLogger(__name__)
 FENCE_MARGIN_M = 100.0
 
 
+#: A vehicle silent this long (simulated seconds) is out of the planned network D'(t).
+PLAN_SILENCE_S = 2.0
+
 #: Time constant of a multicopter's position loop (ArduPilot/PX4 position controllers, and the
 #: emulator's ``Physics.tau_pos_s``): the station leads its targets by this much (ControlConfig).
 POSITION_LOOP_TAU_S = 1.0
@@ -456,8 +459,12 @@ def _operations_config(mission: Mission, opts: FlyOptions, expected: int | None)
 def _make_operator(mission: Mission, scenario: MissionScenario, station: Station,
                    opts: FlyOptions, expected: int | None, now_s: float, seed: int) -> Operator:
     o = mission.origin
+    # D'(t) for planning: a vehicle streaming position at 2 Hz (plus 1 Hz heartbeats) that has
+    # been silent for 2 s has missed four reports: plan without it (the link still declares it
+    # lost only after its own vehicle_timeout_s). With the 5 s link timeout, a drone that died
+    # stayed a planned relay for 5 s (about 2.5 drones at any time at 1 %/s attrition).
     fleet = FleetView(MissionOrigin(o.lat_deg, o.lon_deg, o.alt_amsl_m),
-                      timeout_s=station.links[0].config.vehicle_timeout_s)
+                      timeout_s=min(PLAN_SILENCE_S, station.links[0].config.vehicle_timeout_s))
     problem = mission.problem_config()
     method = mission.planner.method
     params = dict(mission.planner.params)
