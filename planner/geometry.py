@@ -32,6 +32,8 @@ NORTH, EAST, DOWN = 0, 1, 2
 # Relative slack on range comparisons done through a KD-tree, whose ball query is exact but uses a
 # different rounding path from the brute-force distance; pairs are re-checked exactly afterwards.
 _KD_SLACK = 1e-9
+# Above this many alive drones, connectivity uses scipy's connected components instead of a BFS.
+_BFS_MAX_DRONES = 150
 
 
 def pairwise_distance_m(a_m: np.ndarray, b_m: np.ndarray | None = None) -> np.ndarray:
@@ -85,6 +87,12 @@ def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
     Returns
     -------
     (N,) bool
+
+    Notes
+    -----
+    Small swarms: breadth-first search from the base over the KD-tree's neighbour pairs, one
+    vectorised frontier expansion per hop (scipy.sparse's per-call validation dominated there).
+    Large swarms: scipy's connected components in C (faster once there are thousands of links).
     """
     pos_m = np.asarray(pos_m, dtype=float)
     alive = np.asarray(alive, dtype=bool)
@@ -95,18 +103,38 @@ def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
         return out
     p = pos_m[idx]
     base = np.zeros(p.shape[1]) if base_m is None else np.asarray(base_m, dtype=float)
-    at_base = np.linalg.norm(p - base, axis=1) <= min(base_range_m, radio_range_m)
-    if not at_base.any():
+    reached = np.linalg.norm(p - base, axis=1) <= min(base_range_m, radio_range_m)
+    if not reached.any():
         return out
     pairs = neighbour_pairs(p, radio_range_m)
-    k = len(idx)
-    # Node k is the base; connect it to every drone within reach of it.
-    base_edges = np.flatnonzero(at_base)
-    rows = np.concatenate([pairs[:, 0], np.full(len(base_edges), k)])
-    cols = np.concatenate([pairs[:, 1], base_edges])
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(k + 1, k + 1))
-    _, labels = connected_components(graph, directed=False)
-    out[idx] = labels[:k] == labels[k]
+    if len(p) > _BFS_MAX_DRONES:
+        k = len(p)  # node k is the base, linked to every drone within its reach
+        at_base = np.flatnonzero(reached)
+        rows = np.concatenate([pairs[:, 0], np.full(len(at_base), k)])
+        cols = np.concatenate([pairs[:, 1], at_base])
+        graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(k + 1, k + 1))
+        _, labels = connected_components(graph, directed=False)
+        out[idx] = labels[:k] == labels[k]
+        return out
+    if len(pairs):
+        src = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        dst = np.concatenate([pairs[:, 1], pairs[:, 0]])
+        order = np.argsort(src, kind="stable")
+        src, dst = src[order], dst[order]
+        start = np.searchsorted(src, np.arange(len(p)))
+        stop = np.searchsorted(src, np.arange(len(p)), side="right")
+        frontier = np.flatnonzero(reached)
+        while len(frontier):
+            # all neighbours of the frontier, by CSR slices gathered at once
+            counts = stop[frontier] - start[frontier]
+            if not counts.sum():
+                break
+            offsets = np.repeat(start[frontier] - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
+            nbrs = dst[offsets]
+            new = np.unique(nbrs[~reached[nbrs]])
+            reached[new] = True
+            frontier = new
+    out[idx] = reached
     return out
 
 
