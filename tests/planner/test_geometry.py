@@ -33,4 +33,4 @@ def test_geodetic_round_trip():
     lat, lon, alt = ned_to_geodetic(ned, 39.7596, -121.6219, 540.0)
     back = geodetic_to_ned_m(lat, lon, alt, 39.7596, -121.6219, 540.0)
     assert np.allclose(back, ned, atol=1e-6)
-    assert alt[0] == pytest.approx(570.0, abs=1e-3)
+    assert alt[0] == pytest.approx(570.0, abs=0.01)  # 30 m up, plus ~1 mm of earth curvature at 128 m
