@@ -10,6 +10,8 @@ import pytest
 
 from planner.geometry import active_mask, neighbour_pairs, tasks_connected
 from planner.mccst import (
+    BALANCED_PARAMS,
+    STRONG_PARAMS,
     MccstParams,
     MccstPlanner,
     _mst_reference,
@@ -49,6 +51,16 @@ def _random_connected_tick(rng, n=20, m=5, spread=3.0, problem=PROBLEM):
     return _tick(pos, tasks, problem=problem)
 
 
+def _expected_nominal(tick, task_of, params):
+    """u_hat of the networked drones from the planner's reported tasks (-1: hold position)."""
+    members = np.flatnonzero(tick.networked)
+    task_local = task_of[members]
+    goal = np.where(task_local[:, None] >= 0, tick.task_pos_m[np.maximum(task_local, 0)],
+                    tick.pos_m[members])
+    speed = V if params.saturate_nominal else np.inf
+    return nominal_controls(tick.pos_m[members], goal, params.k_p, speed, params.hold_distance)
+
+
 # ----------------------------------------------------------------------------------------------
 # Parameters and factory
 # ----------------------------------------------------------------------------------------------
@@ -64,7 +76,8 @@ def test_unknown_param_raises_and_lists_valid_params():
 
 @pytest.mark.parametrize("bad", [{"assignment": "greedy"}, {"speed_bound": "cone"},
                                  {"kappa": 1.5}, {"gamma": 0.0}, {"alpha": 2.0},
-                                 {"collision_neighbours": -1}])
+                                 {"collision_neighbours": -1}, {"task_capacity": -1},
+                                 {"reassign_period": -1}, {"reassign_period": 0.5}])
 def test_invalid_param_values_raise(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         make_mccst(PROBLEM, bad, np.random.default_rng(0))
@@ -81,7 +94,9 @@ def test_registry_builds_mccst_with_overrides():
 # ----------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("params", [{}, {"speed_bound": "clip"}, {"discrete_time": True},
-                                    {"gamma": 50.0, "safety_radius": 1.0}])
+                                    {"gamma": 50.0, "safety_radius": 1.0}, BALANCED_PARAMS,
+                                    STRONG_PARAMS,
+                                    {"speed_bound": "none", "saturate_nominal": False}])
 @pytest.mark.parametrize("unit", [1.0, 10.0])
 def test_speed_limit_always_respected(rng, params, unit):
     problem = PROBLEM.replace(radio_range_m=R * unit, base_range_m=R * unit,
@@ -106,9 +121,8 @@ def test_solver_failure_falls_back_to_clipped_nominal(rng):
     assert out.info["fallback"] is True
     assert out.info["status"] not in ("solved", "solved inaccurate")
     members = np.flatnonzero(tick.networked)
-    goal = tick.task_pos_m[out.info["task_of"][members]]
-    nominal = np.clip(nominal_controls(tick.pos_m[members], goal, 1.0, V), -V / np.sqrt(2),
-                      V / np.sqrt(2))
+    nominal = np.clip(_expected_nominal(tick, out.info["task_of"], planner.params),
+                      -V / np.sqrt(2), V / np.sqrt(2))
     np.testing.assert_allclose(out.disp_m[members], nominal, atol=1e-12)
 
 
@@ -201,18 +215,20 @@ def test_spanning_tree_matches_networkx(rng):
         assert {frozenset(e) for e in edges[got].tolist()} == _mst_reference(n_nodes, edges, weights)
 
 
-def test_planner_tree_is_mccst_of_candidate_graph(rng):
+@pytest.mark.parametrize("overrides", [{}, BALANCED_PARAMS, STRONG_PARAMS])
+def test_planner_tree_is_mccst_of_candidate_graph(rng, overrides):
     tick = _random_connected_tick(rng)
-    params = MccstParams()
-    out = make_mccst(PROBLEM, {}, rng).plan(tick)
+    params = MccstParams(**overrides)
+    out = make_mccst(PROBLEM, overrides, rng).plan(tick)
     members = np.flatnonzero(tick.networked)
     n = len(members)
     x = np.vstack([tick.pos_m[members], np.zeros(2)])
     edges = candidate_edges(tick.pos_m[members], np.zeros(2), R, R)
     r_c = params.kappa * np.full(len(edges), R)
     task_local = out.info["task_of"][members]
-    u_hat = np.vstack([nominal_controls(x[:n], tick.task_pos_m[task_local], 1.0, V), np.zeros(2)])
-    delta = edge_slack(x, u_hat, edges, r_c, np.append(task_local, -1), params)
+    u_hat = np.vstack([_expected_nominal(tick, out.info["task_of"], params), np.zeros(2)])
+    subgroup = np.append(np.where(task_local >= 0, task_local, -2), -1)
+    delta = edge_slack(x, u_hat, edges, r_c, subgroup, params)
     expected = {frozenset(e) for e in _mst_reference(n + 1, edges, -delta)}
     to_local = {g: k for k, g in enumerate(members)} | {-1: n}
     got = {frozenset((to_local[a], to_local[b])) for a, b in out.info["tree_edges"].tolist()}
@@ -229,12 +245,15 @@ def _tree_lengths(pos, tree_edges):
     return np.linalg.norm(ends[:, 0] - ends[:, 1], axis=1)
 
 
-@pytest.mark.parametrize("params", [{}, {"discrete_time": True}, {"speed_bound": "clip"}])
+@pytest.mark.parametrize("params", [{}, {"discrete_time": True}, {"speed_bound": "clip"},
+                                    {"reassign_period": 0}])
 def test_chain_kept_connected_when_nominal_pulls_away(params):
-    # base -- d1 -- d2; d1's task is where d1 stands, d2's task is far to the east.
+    # base -- d1 -- d2; d1's task is where d1 stands, d2's task is far to the east. The tree
+    # guarantee of the module docstring needs gamma <= 1 and kappa = 0.9 (BALANCED_PARAMS); the
+    # calibrated default (gamma = 1e4, kappa = 0.95) trades it away on purpose.
     pos = np.array([[1.5, 0.0], [3.2, 0.0]])
     tasks = np.array([[1.5, 0.0], [10.0, 0.0]])
-    planner = make_mccst(PROBLEM, params, np.random.default_rng(0))
+    planner = make_mccst(PROBLEM, {**BALANCED_PARAMS, **params}, np.random.default_rng(0))
     start_d2 = pos[1].copy()
     for t_step in range(100):
         tick = _tick(pos, tasks, t_step=t_step)
@@ -260,7 +279,7 @@ def test_qp_feasible_right_after_relay_loss():
     relays = np.array([[1.0, 0.3], [3.0, 0.3], [5.0, 0.3]])
     pos = np.vstack([chain, relays])
     tasks = np.array([[8.0, 0.0]])
-    planner = make_mccst(PROBLEM, {}, np.random.default_rng(0))
+    planner = make_mccst(PROBLEM, BALANCED_PARAMS, np.random.default_rng(0))
     before = planner.plan(_tick(pos, tasks))
     assert not before.info["fallback"] and before.info["max_tree_slack"] < 1e-3
     alive = np.array([True, True, True, False, False, False])
@@ -293,7 +312,8 @@ def test_collision_candidates_cap(rng):
 # Closed loop without attrition
 # ----------------------------------------------------------------------------------------------
 
-def test_closed_loop_keeps_network_and_reaches_a_task():
+@pytest.mark.parametrize("params", [BALANCED_PARAMS, STRONG_PARAMS])
+def test_closed_loop_keeps_network_and_reaches_a_task(params):
     rng = np.random.default_rng(7)
     n, m = PROBLEM.n_drones, PROBLEM.n_tasks
     angles = 2 * np.pi * np.arange(n) / n
@@ -301,7 +321,7 @@ def test_closed_loop_keeps_network_and_reaches_a_task():
     task_angles = rng.uniform(0, 2 * np.pi, m)
     tasks = 6.0 * np.column_stack([np.cos(task_angles), np.sin(task_angles)])
     alive = np.ones(n, dtype=bool)
-    planner = make_mccst(PROBLEM, {}, rng)
+    planner = make_mccst(PROBLEM, params, rng)
     networked = active_mask(pos, alive, R, R)
     assert networked.all()
     for t_step in range(200):
@@ -317,3 +337,113 @@ def test_closed_loop_keeps_network_and_reaches_a_task():
         assert np.all(now[networked]), f"step {t_step}: lost {np.flatnonzero(networked & ~now)}"
         networked = now
     assert tasks_connected(tasks, pos, networked, R).sum() >= 1
+
+
+# ----------------------------------------------------------------------------------------------
+# Pre-tasking: capacity, static assignment, tasks lost on disconnection (calibration knobs)
+# ----------------------------------------------------------------------------------------------
+
+def _capacity_brute_force(pos, tasks, k):
+    n, m = len(pos), len(tasks)
+    dist = np.linalg.norm(pos[:, None] - tasks[None], axis=2)
+    best = np.inf
+    for combo in itertools.product(range(-1, m), repeat=n):
+        combo = np.array(combo)
+        counts = np.bincount(combo[combo >= 0], minlength=m)
+        if counts.max() <= k and counts.sum() == min(n, k * m):
+            best = min(best, dist[np.flatnonzero(combo >= 0), combo[combo >= 0]].sum())
+    return best
+
+
+@pytest.mark.parametrize("n, m, k", [(5, 2, 1), (5, 2, 2), (6, 3, 1), (4, 3, 2)])
+def test_capacity_assignment_matches_brute_force(rng, n, m, k):
+    for _ in range(3):
+        pos, tasks = rng.normal(size=(n, 2)), rng.normal(size=(m, 2)) * 2
+        task_of = assign_tasks(pos, tasks, "balanced", k)
+        tasked = task_of >= 0
+        assert tasked.sum() == min(n, k * m)
+        assert np.bincount(task_of[tasked], minlength=m).max() <= k
+        cost = np.linalg.norm(pos[tasked] - tasks[task_of[tasked]], axis=1).sum()
+        assert cost == pytest.approx(_capacity_brute_force(pos, tasks, k), rel=1e-12)
+
+
+def test_untasked_drones_hold_position():
+    # One task, capacity 1: the drone nearest to it goes, the other two hold (no barrier binds).
+    pos = np.array([[0.5, 0.0], [0.0, 0.5], [-0.5, 0.0]])
+    tasks = np.array([[5.0, 0.0]])
+    for period in (0, 1):
+        planner = make_mccst(PROBLEM, {"task_capacity": 1, "reassign_period": period},
+                             np.random.default_rng(0))
+        out = planner.plan(_tick(pos, tasks))
+        np.testing.assert_array_equal(out.info["task_of"], [0, -1, -1])
+        assert out.disp_m[0, 0] > 0.5 * V / np.sqrt(2)
+        assert np.abs(out.disp_m[1:]).max() < 1e-3
+
+
+def _reversed_tasks(tick, t_step):
+    return dataclasses.replace(tick, t_step=t_step, task_pos_m=tick.task_pos_m[::-1].copy())
+
+
+def test_static_assignment_is_kept_until_a_new_run(rng):
+    tick = _random_connected_tick(rng)
+    members = np.flatnonzero(tick.networked)
+    planner = make_mccst(PROBLEM, {"reassign_period": 0, "task_capacity": 0}, rng)
+    first = planner.plan(tick).info["task_of"]
+    per_tick = make_mccst(PROBLEM, {"reassign_period": 1, "task_capacity": 0}, rng)
+    moved = _reversed_tasks(tick, 1)
+    resolved = per_tick.plan(moved).info["task_of"]
+    assert np.any(resolved[members] != first[members])      # a per-tick solve would change it
+    for t_step in (1, 2, 5):
+        np.testing.assert_array_equal(planner.plan(_reversed_tasks(tick, t_step)).info["task_of"],
+                                      first)
+    # A lost drone gives up its task; the others keep theirs.
+    alive = tick.alive.copy()
+    alive[members[0]] = False
+    lost = dataclasses.replace(_reversed_tasks(tick, 6), alive=alive,
+                               networked=active_mask(tick.pos_m, alive, R, R))
+    task_of = planner.plan(lost).info["task_of"]
+    keep = np.flatnonzero(lost.networked)
+    assert task_of[members[0]] == -1
+    np.testing.assert_array_equal(task_of[keep], first[keep])
+    # t_step 0 starts a new run: solved again over every alive drone, on the reversed tasks.
+    again = planner.plan(_reversed_tasks(tick, 0)).info["task_of"]
+    expected = assign_tasks(tick.pos_m, tick.task_pos_m[::-1], "balanced")
+    np.testing.assert_array_equal(again[members], expected[members])
+
+
+def test_reassign_period_resolves_every_k_ticks(rng):
+    tick = _random_connected_tick(rng)
+    planner = make_mccst(PROBLEM, {"reassign_period": 3, "task_capacity": 0}, rng)
+    per_tick = make_mccst(PROBLEM, {"reassign_period": 1, "task_capacity": 0}, rng)
+    first = planner.plan(tick).info["task_of"]
+    for t_step in (1, 2):
+        np.testing.assert_array_equal(planner.plan(_reversed_tasks(tick, t_step)).info["task_of"],
+                                      first)
+    np.testing.assert_array_equal(planner.plan(_reversed_tasks(tick, 3)).info["task_of"],
+                                  per_tick.plan(_reversed_tasks(tick, 3)).info["task_of"])
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_task_after_leaving_and_rejoining_the_network(keep):
+    tasks = np.array([[6.0, 0.0], [0.0, 6.0]])
+    pos = np.array([[1.0, 0.0], [2.5, 0.0], [0.0, 1.0]])
+    planner = make_mccst(PROBLEM, {"reassign_period": 0, "task_capacity": 0,
+                                   "keep_task_when_disconnected": keep}, np.random.default_rng(0))
+    task = planner.plan(_tick(pos, tasks, t_step=0)).info["task_of"][1]
+    assert task >= 0
+    away = pos.copy()
+    away[1] = [9.0, 9.0]
+    gone = planner.plan(_tick(away, tasks, t_step=1))
+    assert gone.info["task_of"][1] == -1 and np.all(gone.disp_m[1] == 0.0)
+    back = planner.plan(_tick(pos, tasks, t_step=2))
+    assert back.info["task_of"][1] == (task if keep else -1)
+    if not keep:
+        assert np.abs(back.disp_m[1]).max() < 1e-3           # an untasked relay holds position
+
+
+def test_named_variants_are_valid_and_differ_from_the_default():
+    default = MccstParams()
+    for overrides in (BALANCED_PARAMS, STRONG_PARAMS):
+        variant = MccstParams.from_dict(overrides)
+        assert variant != default
+        assert variant.reassign_period == 1 and variant.gamma == 1.0 and variant.kappa == 0.9
