@@ -60,6 +60,10 @@ def load_run(run_dir: pathlib.Path) -> RunData:
     else:
         raise ValueError(f"{truth_path}: no drone positions (pos_ne_m or pos_ned_m)")
     t_s = truth["t_s"]
+    if "mission_t0_s" in truth:  # emulator truth also covers the launch: keep the mission interval
+        keep = t_s >= float(truth["mission_t0_s"]) - 1e-9
+        t_s = t_s[keep] - float(truth["mission_t0_s"])
+        truth = {k: (truth[k][keep] if truth[k].ndim and len(truth[k]) == len(keep) else truth[k]) for k in truth}
     if "task_pos_ne_m" in truth:
         tasks = truth["task_pos_ne_m"]
     elif mission is not None:
@@ -138,8 +142,10 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
     tu2 = np.divide(run.connected.sum(1), ever, out=np.zeros(len(ever)), where=ever > 0)
     ax.plot(run.t_s, 100 * tu2, color="tab:red", ls="--", lw=0.8, label="connected / ever connected")
     tu = ""
-    if "truth_tu1" in run.summary and run.summary["truth_tu1"] is not None:
-        tu = f" — TU1 {100 * run.summary['truth_tu1']:.1f} %, TU2 {100 * run.summary['truth_tu2']:.1f} %"
+    truth = run.summary.get("truth") if isinstance(run.summary.get("truth"), dict) else {
+        "tu1": run.summary.get("truth_tu1"), "tu2": run.summary.get("truth_tu2")}  # fly / in-process
+    if truth.get("tu1") is not None:
+        tu = f" — TU1 {100 * truth['tu1']:.1f} %, TU2 {100 * truth['tu2']:.1f} % (ground truth)"
     ax.set(xlabel="time (s)", ylabel="%", ylim=(0, 102), title=f"{title}{tu}")
     ax.legend(loc="lower left", fontsize=8)
     ax.grid(alpha=0.3)
