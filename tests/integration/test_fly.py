@@ -65,6 +65,12 @@ def test_fly_cli_emulated_and_tlog_reads_back(tmp_path):
     while conn.recv_msg() is not None:
         n += 1
     assert n == n_frames and n > 1000
+    # The run directory replays: emulator truth (mission interval only) drawn as PNGs.
+    from mission.replay import load_run, replay
+    data = load_run(run)
+    assert 0.0 <= data.t_s[0] < 1.0 and data.pos_m.shape[2] == 2
+    files = replay(run, tmp_path / "plots", animation="none")
+    assert [f.name for f in files] == ["fig2_timeseries.png", "frames.png"]
 
 
 def test_bad_input_is_a_user_error(tmp_path):
