@@ -56,32 +56,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "--seeds counts from the mission's seed (default 1 run); --out writes a run directory")
 
 
-def _split_overrides(pairs: list[str]):
-    from mission.cli import UserError
-    from planner.problem import ProblemConfig
-
-    problem_fields = {f.name: f for f in dataclasses.fields(ProblemConfig)}
-    problem_over, params = {}, {}
-    for item in pairs:
-        if "=" not in item:
-            raise UserError(f"--set expects KEY=VALUE, got {item!r}")
-        key, value = item.split("=", 1)
-        key = key.strip()
-        if key in problem_fields:
-            default = problem_fields[key].default
-            try:
-                problem_over[key] = type(default)(float(value)) if isinstance(default, int) else (
-                    float(value) if isinstance(default, float) else value)
-            except ValueError:
-                raise UserError(f"--set {key}: expected a number, got {value!r}") from None
-        else:
-            try:
-                params[key] = json.loads(value)
-            except json.JSONDecodeError:
-                params[key] = value
-    return problem_over, params
-
-
 def run(args) -> int:
     from mission.cli import UserError
     from mission.sim import default_workers, mean_ci95, run_episode, run_many
@@ -95,7 +69,9 @@ def run(args) -> int:
         return _run_mission(args)
     if args.seeds < 1:
         raise UserError("--seeds must be >= 1")
-    problem_over, params = _split_overrides(args.set)
+    from mission.commands.sweep import split_overrides
+
+    problem_over, params = split_overrides(args.set)
     if args.info is not None:
         params["info"] = args.info
     try:
