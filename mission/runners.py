@@ -60,7 +60,7 @@ __all__ = ["FlyOptions", "FlyResult", "MissionScenario", "mission_scenario", "co
 
 log = logging.getLogger(__name__)
 
-#: The mission schema has no geofence yet: the fence is the task field plus this margin, metres.
+#: Without a mission geofence, the fence is the task field plus this margin, metres.
 FENCE_MARGIN_M = 100.0
 
 
@@ -160,15 +160,18 @@ def mission_scenario(mission: Mission, seed: int | None = None) -> MissionScenar
 
 
 def control_config(mission: Mission, scenario: MissionScenario | None = None) -> ControlConfig:
-    """Altitude layers from the mission's flight limits; the geofence is the task field plus
-    :data:`FENCE_MARGIN_M` (the schema has no geofence section yet)."""
+    """Altitude layers from the mission's flight limits; the mission's geofence, or by default the
+    task field plus :data:`FENCE_MARGIN_M`."""
     lim = mission.vehicles.limits
     half = mission.problem_config().field_half_width_m
     if scenario is not None:
         half = max(half, float(np.abs(scenario.task_track_m).max(initial=0.0)),
                    float(np.abs(scenario.spawn_ne_m).max(initial=0.0)))
+    fence = mission.geofence
+    geofence = Geofence.square(fence.half_width_m if fence.half_width_m is not None else half + FENCE_MARGIN_M,
+                               fence.max_alt_m if fence.max_alt_m is not None else math.inf)
     return ControlConfig(cruise_alt_m=lim.cruise_alt_m, layer_spacing_m=lim.layer_spacing_m,
-                         n_layers=lim.n_layers, geofence=Geofence.square(half + FENCE_MARGIN_M),
+                         n_layers=lim.n_layers, geofence=geofence,
                          lead=1.0 + POSITION_LOOP_TAU_S / mission.run.control_period_s)
 
 

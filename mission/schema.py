@@ -658,6 +658,18 @@ class RunSpec(_Section):
 
 
 @dataclass(frozen=True, kw_only=True)
+class GeofenceSpec(_Section):
+    """Where drones may fly: a square keep-in box centred on the base station and a ceiling. The
+    ground station clips every position target into it."""
+
+    half_width_m: float | None = _f(None, gt=0.0)
+    """Half-width of the keep-in square around the base (north and east), metres; unset: the task
+    field plus a margin (the runner's default)."""
+    max_alt_m: float | None = _f(None, gt=0.0)
+    """Ceiling above the base station, metres; unset: no ceiling."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class OutputSpec(_Section):
     """Where runs are recorded."""
 
@@ -706,6 +718,8 @@ class Mission(_Section):
     """Planner choice."""
     run: RunSpec = _f(factory=RunSpec)
     """Duration, control period, seed, speed-up."""
+    geofence: GeofenceSpec = _f(factory=GeofenceSpec)
+    """Where the ground station lets drones fly."""
     output: OutputSpec = _f(factory=OutputSpec)
     """Run directory."""
 
@@ -737,6 +751,11 @@ class Mission(_Section):
                                             "swapped lat/lon or wrong origin?"))
         if self.n_tasks > 10_000:
             problems.append(("tasks", f"{self.n_tasks} tasks in total; at most 10000"))
+        lim, fence = self.vehicles.limits, self.geofence
+        top_m = lim.cruise_alt_m + (lim.n_layers - 1) * lim.layer_spacing_m
+        if fence.max_alt_m is not None and fence.max_alt_m < top_m:
+            problems.append(("geofence.max_alt_m", f"{_fmt(fence.max_alt_m)} m is below the highest "
+                                                   f"cruise layer ({_fmt(top_m)} m)"))
         return problems
 
     def problem_config(self):

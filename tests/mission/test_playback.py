@@ -109,3 +109,15 @@ def test_run_directory_and_replay(tmp_path):
     files = replay(tmp_path, animation="gif", max_frames=4)
     assert [f.name for f in files] == ["fig2_timeseries.png", "frames.png", "animation.gif"]
     assert all(f.stat().st_size > 1000 for f in files)
+
+
+def test_geofence_section_is_validated_and_reaches_the_station_config():
+    from mission.load import MissionError
+    from mission.runners import control_config
+
+    m = loads_mission(BASE + "geofence: {half_width_m: 300, max_alt_m: 120}\n")
+    fence = control_config(m).geofence
+    assert (fence.north_max_m, fence.east_min_m, fence.max_alt_m) == (300.0, -300.0, 120.0)
+    with pytest.raises(MissionError) as exc:
+        loads_mission(BASE + "geofence: {half_width_m: 300, max_alt_m: 20}\n")
+    assert any(e.startswith("geofence.max_alt_m:") and "cruise layer" in e for e in exc.value.errors)
