@@ -32,7 +32,7 @@ from planner.methods import TickInput, make_planner
 from planner.metrics import UptimeSeries, uptime_series
 from vehicle_emu.world import RunStreams, World, spawn_streams, walk_tasks
 
-__all__ = ["MissionScenario", "build_scenario", "task_track_m", "task_position_fn", "zone_mask",
+__all__ = ["MissionScenario", "build_scenario", "spawn_positions", "task_track_m", "task_position_fn", "zone_mask",
            "loss_probability", "PlaybackResult", "run_inprocess", "write_run_dir"]
 
 log = logging.getLogger(__name__)
@@ -50,7 +50,8 @@ class MissionScenario:
     scripted_step: np.ndarray  # (N,) step at which each drone is scripted to die (-1 never)
 
 
-def _spawn_positions(mission: Mission, rng: np.random.Generator) -> np.ndarray:
+def spawn_positions(mission: Mission, rng: np.random.Generator) -> np.ndarray:
+    """(N, 2) start positions: the spawn ring with seeded noise, or the explicit positions."""
     emu = mission.vehicles.emulated
     n = mission.vehicles.count
     if emu is None or emu.spawn.ring is not None:
@@ -126,7 +127,7 @@ def build_scenario(mission: Mission, seed: int | None = None) -> MissionScenario
     streams: RunStreams = spawn_streams(seed)
     n_steps = mission.run.n_steps
     dt = mission.run.control_period_s
-    pos0 = _spawn_positions(mission, streams.scenario)
+    pos0 = spawn_positions(mission, streams.scenario)
     track, names = task_track_m(mission, streams.scenario, n_steps)
     n = len(pos0)
     scripted = np.full(n, -1, dtype=np.int64)

@@ -52,7 +52,7 @@ from vehicle_emu.clock import PacedClock, PacedReader
 from vehicle_emu.radio import RadioConfig
 from vehicle_emu.swarm import Swarm
 from vehicle_emu.udp import EmulatorServer
-from vehicle_emu.world import spawn_streams, walk_tasks
+from vehicle_emu.world import spawn_streams
 
 __all__ = ["FlyOptions", "FlyResult", "MissionScenario", "mission_scenario", "control_config",
            "build_swarm", "fly_emulated", "fly_real", "fly", "LockstepEther", "FENCE_MARGIN_M",
@@ -120,43 +120,16 @@ def mission_scenario(mission: Mission, seed: int | None = None) -> MissionScenar
     in the in-process simulator's order: ring noise, then each task entry in file order (random
     starts, then walk increments).
     """
+    from mission.playback import spawn_positions, task_track_m  # one drawing order for every backend
+
     seed = mission.run.seed if seed is None else seed
     rng = spawn_streams(seed).scenario
-    dt = mission.run.control_period_s
-    tau = mission.run.n_steps
-    n = mission.vehicles.count
-    emu = mission.vehicles.emulated
-    if emu is not None and emu.spawn.positions is not None:
-        spawn = np.array([[p.north_m, p.east_m] for p in emu.spawn.positions], dtype=float)
-    else:
-        ring = emu.spawn.ring if emu is not None else None
-        radius = ring.radius_m if ring is not None else 0.0
-        noise = ring.noise_m if ring is not None else 0.0
-        angles = 2 * np.pi * np.arange(n) / max(n, 1)
-        spawn = radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
-        spawn = spawn + rng.normal(0.0, noise, size=(n, 2))
-    times = np.arange(tau + 1) * dt
-    tracks: list[np.ndarray] = []
-    origin = mission.origin
-    for i, task in enumerate(mission.tasks):
-        if task.track is not None:
-            pts = np.array([task.track_position_m(t, origin) for t in times], dtype=float)
-            tracks.append(pts[:, None, :])
-        elif task.random_walk is not None:
-            rw = task.random_walk
-            start = np.array([rw.start.local_m(origin)], dtype=float)
-            inc = rng.normal(0.0, rw.sigma_m_per_sqrt_s * math.sqrt(dt), size=(tau, 1, 2))
-            w = rw.field_half_width_m if rw.field_half_width_m is not None else math.inf
-            tracks.append(walk_tasks(start, inc, w, rw.border))
-        elif task.random is not None:
-            rt = task.random
-            start = rng.uniform(-rt.field_half_width_m, rt.field_half_width_m, size=(rt.count, 2))
-            inc = rng.normal(0.0, rt.sigma_m_per_sqrt_s * math.sqrt(dt), size=(tau, rt.count, 2))
-            tracks.append(walk_tasks(start, inc, rt.field_half_width_m, rt.border))
-        else:
-            raise RunnerError(f"tasks[{i}]: live MAVLink tasks are not supported by this runner "
-                              "yet; give a track, random_walk or random task")
-    return MissionScenario(spawn, np.concatenate(tracks, axis=1), dt)
+    spawn = spawn_positions(mission, rng)
+    try:
+        track, _ = task_track_m(mission, rng, mission.run.n_steps)
+    except ValueError as exc:  # live MAVLink tasks
+        raise RunnerError(str(exc)) from None
+    return MissionScenario(spawn, track, mission.run.control_period_s)
 
 
 def control_config(mission: Mission, scenario: MissionScenario | None = None) -> ControlConfig:
