@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import errno
 import logging
+import os
 import socket
 import time
 from typing import Callable
@@ -22,7 +24,7 @@ from gcs.events import Event
 from gcs.link import StationConfig, StationLink
 from gcs.records import TlogWriter
 
-__all__ = ["StationAdapter", "open_links"]
+__all__ = ["StationAdapter", "SerialLinkError", "open_links"]
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +40,157 @@ class _Udp(asyncio.DatagramProtocol):
 
     def error_received(self, exc: Exception) -> None:  # ICMP unreachable etc.: keep going
         log.debug("link %d: %s", self.owner.link_id, exc)
+
+
+class SerialLinkError(OSError, RuntimeError):
+    """A serial link that cannot be opened (also a RuntimeError, as before pyserial was a
+    dependency); the message names the device and the reason in one line."""
+
+
+class _SerialPort:
+    """A serial port on the event loop (POSIX): pyserial opens and configures it (baud, raw mode),
+    then the file descriptor is read with ``loop.add_reader`` and written without blocking.
+
+    Writes come one whole MAVLink frame at a time. What the kernel does not take at once is kept
+    in order and flushed by ``loop.add_writer``; when about a second of backlog at the port's baud
+    rate is already waiting, further frames are dropped whole (never cut), as a radio link drops
+    them -- the station retries commands, and a stale setpoint queued for seconds helps no-one.
+    A hang-up (USB unplugged, the other end of a pty closed) is logged once and closes the port;
+    the station then sees its vehicles time out.
+    """
+
+    READ_CHUNK_BYTES = 65536
+
+    def __init__(self, port, loop: asyncio.AbstractEventLoop, on_data: Callable[[bytes], None], *,
+                 name: str, baud: int, link_id: int = 0,
+                 on_lost: Callable[[str], None] | None = None) -> None:
+        self._port = port
+        self._fd: int | None = port.fileno()
+        self._loop = loop
+        self._on_data = on_data
+        self._on_lost = on_lost
+        self.name = name
+        self.link_id = link_id
+        self.tx_limit_bytes = max(4096, baud // 10)  # ~1 s at 8N1 (10 bits a byte)
+        self._tx = bytearray()
+        self.frames_dropped = 0
+        os.set_blocking(self._fd, False)
+        loop.add_reader(self._fd, self._readable)
+
+    @classmethod
+    def open(cls, spec: ConnectionSpec, loop: asyncio.AbstractEventLoop,
+             on_data: Callable[[bytes], None], *, link_id: int = 0,
+             on_lost: Callable[[str], None] | None = None) -> "_SerialPort":
+        if os.name != "posix":
+            raise SerialLinkError(f"{spec.text!r}: serial links are supported on Linux and macOS "
+                                  "only (they need the event loop's add_reader)")
+        try:
+            import serial
+        except ImportError:
+            raise SerialLinkError(f"{spec.text!r}: serial links need pyserial "
+                                  "(pip install 'pyserial>=3.5')") from None
+        try:
+            port = serial.Serial(spec.device, spec.baud, timeout=0)
+        except (OSError, ValueError) as exc:  # SerialException is an OSError
+            raise SerialLinkError(_serial_open_reason(spec, exc)) from exc
+        try:
+            return cls(port, loop, on_data, name=spec.device, baud=spec.baud, link_id=link_id,
+                       on_lost=on_lost)
+        except BaseException:
+            port.close()
+            raise
+
+    @property
+    def closed(self) -> bool:
+        return self._fd is None
+
+    @property
+    def tx_pending_bytes(self) -> int:
+        return len(self._tx)
+
+    def _readable(self) -> None:
+        if self._fd is None:
+            return
+        try:
+            data = os.read(self._fd, self.READ_CHUNK_BYTES)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:  # EIO: hang-up
+            self._lost(exc.strerror or str(exc))
+            return
+        if not data:
+            self._lost("end of file")
+            return
+        self._on_data(data)
+
+    def write(self, data: bytes) -> None:
+        if self._fd is None:
+            self.frames_dropped += 1
+            return
+        if self._tx:  # keep order behind what is already waiting
+            if len(self._tx) + len(data) > self.tx_limit_bytes:
+                self.frames_dropped += 1
+                log.debug("link %d: %s backlog full (%d bytes): frame dropped", self.link_id,
+                          self.name, len(self._tx))
+            else:
+                self._tx += data
+            return
+        try:
+            n = os.write(self._fd, data)
+        except (BlockingIOError, InterruptedError):
+            n = 0
+        except OSError as exc:
+            self._lost(exc.strerror or str(exc))
+            return
+        if n < len(data):
+            self._tx += data[n:]
+            self._loop.add_writer(self._fd, self._writable)
+
+    def _writable(self) -> None:
+        if self._fd is None:
+            return
+        try:
+            n = os.write(self._fd, self._tx)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:
+            self._lost(exc.strerror or str(exc))
+            return
+        del self._tx[:n]
+        if not self._tx:
+            self._loop.remove_writer(self._fd)
+
+    def _lost(self, why: str) -> None:
+        log.warning("link %d: serial port %s lost (%s); closing it", self.link_id, self.name, why)
+        self.close()
+        if self._on_lost is not None:
+            self._on_lost(why)
+
+    def close(self) -> None:
+        fd, self._fd = self._fd, None
+        if fd is None:
+            return
+        self._loop.remove_reader(fd)
+        self._loop.remove_writer(fd)
+        self._tx.clear()
+        try:
+            self._port.close()
+        except OSError as exc:
+            log.debug("link %d: closing %s: %s", self.link_id, self.name, exc)
+
+
+def _serial_open_reason(spec: ConnectionSpec, exc: BaseException) -> str:
+    """One line: which device, why (without pyserial's doubled ``[Errno N] ... [Errno N]``)."""
+    code = getattr(exc, "errno", None)
+    if isinstance(code, int) and code > 0:
+        reason = os.strerror(code)
+        if code in (errno.EACCES, errno.EPERM):
+            reason += " (on Linux: is the user in the 'dialout' group?)"
+        elif code == errno.EBUSY:
+            reason += " (another program has the port open?)"
+    else:
+        reason = str(exc) or type(exc).__name__
+    return f"serial device {spec.device!r} at {spec.baud} baud: {reason}"
 
 
 class StationAdapter:
@@ -118,20 +271,10 @@ class StationAdapter:
         return self
 
     def _open_serial(self, spec: ConnectionSpec, loop: asyncio.AbstractEventLoop) -> None:
-        try:
-            import serial  # pyserial: optional, not a project dependency
-        except ImportError:
-            raise RuntimeError(f"{spec.text!r}: serial links need pyserial "
-                               "(pip install pyserial)") from None
-        port = serial.Serial(spec.device, spec.baud, timeout=0)
-
-        def readable() -> None:
-            data = port.read(port.in_waiting or 1)
-            if data:
-                self.receive(data, spec.device)
-        loop.add_reader(port.fileno(), readable)
+        port = _SerialPort.open(spec, loop, lambda data: self.receive(data, spec.device),
+                                link_id=self.link_id)
         self._send = lambda data, addr: port.write(data)
-        self._closers += [lambda: loop.remove_reader(port.fileno()), port.close]
+        self._closers.append(port.close)
 
     def _start_reader(self, reader: asyncio.StreamReader, peer) -> None:
         task = asyncio.get_running_loop().create_task(self._read_stream(reader, peer))

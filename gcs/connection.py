@@ -9,7 +9,7 @@ Accepted forms (MAVLINK_NOTES §1.8; pymavlink ``mavutil.mavlink_connection``):
 ``tcp:HOST:PORT``           connect to a TCP server (SITL ``tcp:127.0.0.1:5760``)
 ``tcpin:HOST:PORT``         listen for one TCP client
 ``DEVICE,BAUD``             serial, e.g. ``/dev/ttyUSB0,57600`` or ``COM3,57600``
-``DEVICE:BAUD``             serial, the same with a colon
+``DEVICE:BAUD``             serial, the same with a colon (BAUD digits; else all is DEVICE)
 ``DEVICE``                  serial at the default baud (115200, as mavutil)
 ``HOST:PORT``               no scheme: ``udpin`` (as mavutil)
 ``udpin://H:P`` etc.        MAVSDK style; ``serial://DEV:BAUD``
@@ -93,13 +93,17 @@ def _host_port(text: str, rest: str, kind: str) -> ConnectionSpec:
 
 
 def _serial(text: str, rest: str) -> ConnectionSpec:
-    for sep in (",", ":"):
-        if sep in rest:
-            device, _, baud = rest.rpartition(sep)
-            if not device:
-                raise ValueError(f"bad connection string {text!r}: missing serial device")
-            return ConnectionSpec(kind="serial", device=device, baud=_baud(text, baud), text=text)
-    return ConnectionSpec(kind="serial", device=rest, baud=DEFAULT_BAUD, text=text)
+    device, sep, baud = rest.rpartition(",")
+    if not sep:
+        # DEVICE:BAUD only when the tail is a number: udev's /dev/serial/by-path names contain
+        # colons (pci-0000:00:14.0-usb-0:2:1.0-port0) and are whole device paths.
+        device, sep, baud = rest.rpartition(":")
+        if not (sep and baud.isdigit()):
+            device, baud = rest, ""
+    if not device:
+        raise ValueError(f"bad connection string {text!r}: missing serial device")
+    return ConnectionSpec(kind="serial", device=device,
+                          baud=_baud(text, baud) if baud else DEFAULT_BAUD, text=text)
 
 
 def parse_connection(text: str) -> ConnectionSpec:

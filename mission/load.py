@@ -184,6 +184,8 @@ def _parse_yaml(text: str | bytes) -> Any:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
         problem = getattr(exc, "problem", None) or str(exc)
+        if "maximum nesting depth" in problem:  # libyaml >= 0.2.5's own limit (1000), hit first
+            raise MissionError([f"refused: nested deeper than {MAX_DEPTH} levels{where}"]) from None
         raise MissionError([f"not valid YAML: {problem}{where}"]) from None
     except RecursionError:
         raise MissionError([f"refused: nested too deeply"]) from None
