@@ -14,7 +14,9 @@ PX4
   * ``NAV_DLL_ACT`` = 0 (data-link loss action disabled, the default) -> **blocking**;
     5/6 (terminate / disarm: falls out of the sky) -> **blocking**.
   * ``COM_OBL_RC_ACT`` (offboard loss action) 6/7 (terminate / disarm) -> **blocking**;
-    1/2 (altitude / manual: needs a pilot) -> warning.
+    1/2 (altitude / manual: needs a pilot) -> warning. Without a manual control signal (no RC,
+    the usual swarm set-up) PX4 falls back from 0-2 to Return (``Failsafe::checkModeFallback``,
+    src/modules/commander/failsafe/failsafe.cpp); the finding says so.
   * ``COM_OF_LOSS_T``, ``COM_DL_LOSS_T`` reported.
 Unknown autopilot or a parameter that could not be read -> **blocking**.
 
@@ -193,7 +195,8 @@ def audit_px4(params: Mapping[str, float], gcs_sysid: int = 255) -> tuple[Findin
     else:
         what = _COM_OBL_RC_ACT.get(int(obl), f"unknown value {obl:g}")
         sev = BLOCKING if int(obl) in (6, 7) else WARNING if int(obl) in (1, 2) else INFO
-        out.append(Finding(sev, "COM_OBL_RC_ACT", f"{int(obl)}: {what} on offboard loss"))
+        note = " (without RC: return)" if int(obl) in (0, 1, 2) else ""
+        out.append(Finding(sev, "COM_OBL_RC_ACT", f"{int(obl)}: {what}{note} on offboard loss"))
     for name, meaning in (("COM_OF_LOSS_T", "offboard loss timeout"),
                           ("COM_DL_LOSS_T", "data-link loss timeout")):
         if name in params:

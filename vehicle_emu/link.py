@@ -85,9 +85,16 @@ PX4_MODES: dict[tuple[int, int], tuple[str, str]] = {
 PX4_POSCTL, PX4_OFFBOARD = (3, 0), (6, 0)
 PX4_TAKEOFF, PX4_LOITER, PX4_RTL, PX4_LAND = (4, 2), (4, 3), (4, 5), (4, 6)
 _PX4_NOT_ARMABLE = frozenset({PX4_RTL, PX4_LAND})
-#: COM_OBL_RC_ACT values -> fallback mode (commander_params.yaml). Without RC the manual modes
-#: just hold position in the emulator.
-_PX4_OBL_ACT = {0: PX4_POSCTL, 1: (2, 0), 2: (1, 0), 3: PX4_RTL, 4: PX4_LAND, 5: PX4_LOITER}
+#: COM_OBL_RC_ACT values -> fallback mode (commander_params.yaml: 0 Position, 1 Altitude,
+#: 2 Stabilized, 3 Return, 4 Land, 5 Hold, 6 Terminate, 7 Disarm). The manual fallbacks need a
+#: manual control signal, and an emulated vehicle never has one (no RC, no joystick): PX4's
+#: ``Failsafe::checkModeFallback`` (src/modules/commander/failsafe/failsafe.cpp, v1.14 and later)
+#: then steps POSCTL -> ALTCTL -> STAB, none of which ``modeCanRun`` without manual control, and
+#: ends in "Last, check can_run for intended mode ... action = Action::RTL". So on an emulated
+#: PX4, as on a real one flown without RC, 0-2 mean Return after COM_OF_LOSS_T.
+_PX4_OBL_ACT = {0: PX4_RTL, 1: PX4_RTL, 2: PX4_RTL, 3: PX4_RTL, 4: PX4_LAND, 5: PX4_LOITER}
+#: COM_OBL_RC_ACT values that stop the motors (Terminate, Disarm).
+_PX4_OBL_DISARM = frozenset({6, 7})
 #: NAV_DLL_ACT values (commander_params.yaml): 0 disabled, 1 Hold, 2 Return, 3 Land,
 #: 5 Terminate, 6 Disarm.
 _PX4_DLL_ACT = {1: PX4_LOITER, 2: PX4_RTL, 3: PX4_LAND}
@@ -500,11 +507,15 @@ class VehicleCore:
         if self.is_px4 and beh == "guided":
             if self._sp_last_s is None or now_s - self._sp_last_s > self.params["COM_OF_LOSS_T"]:
                 act = int(self.params["COM_OBL_RC_ACT"])
-                target = _PX4_OBL_ACT.get(act, PX4_POSCTL)
                 self.offboard_failsafe = True
-                self._set_mode(px4_custom_mode(*target), now_s, "failsafe")
-                self._events.append(ev.FailsafeTriggered(self.sysid, now_s, "offboard",
-                                                         PX4_MODES[target][0]))
+                if act in _PX4_OBL_DISARM:
+                    self._disarm(now_s, "failsafe", force=True)
+                    action = "DISARM"
+                else:
+                    target = _PX4_OBL_ACT.get(act, PX4_RTL)
+                    self._set_mode(px4_custom_mode(*target), now_s, "failsafe")
+                    action = PX4_MODES[target][0]
+                self._events.append(ev.FailsafeTriggered(self.sysid, now_s, "offboard", action))
                 self._statustext(now_s, mavlink.MAV_SEVERITY_WARNING,
                                  "Failsafe activated: No offboard signal")
 

@@ -93,9 +93,33 @@ def test_offboard_loss_falls_back_after_com_of_loss_t(gcs):
     rig.run(t_stop + 0.9)
     assert rig.core.mode_name == "OFFBOARD"
     rig.run(t_stop + 1.2)
-    assert rig.core.mode_name == "POSCTL"                    # COM_OBL_RC_ACT = 0
+    # COM_OBL_RC_ACT = 0 (Position) needs a manual control signal; with none PX4 returns.
+    assert rig.core.mode_name == "AUTO.RTL"
     fs = [e for e in iter(rig.core.next_event, None) if isinstance(e, ev.FailsafeTriggered)]
-    assert fs[0].kind == "offboard"
+    assert (fs[0].kind, fs[0].action) == ("offboard", "AUTO.RTL")
+
+
+@pytest.mark.parametrize("act, mode", [(1, "AUTO.RTL"), (2, "AUTO.RTL"), (3, "AUTO.RTL"),
+                                       (4, "AUTO.LAND"), (5, "AUTO.LOITER")])
+def test_offboard_loss_action_without_rc(gcs, act, mode):
+    rig = Rig(gcs, params={"COM_OBL_RC_ACT": act})
+    rig.run(1.5, sp=(0, 0, -5))
+    rig.send(gcs.command(176, 1, 6))
+    rig.send(gcs.command(400, 1))
+    rig.run(5.0, sp=(0, 0, -5))
+    rig.run(rig.t + 1.2)
+    assert rig.core.mode_name == mode
+
+
+def test_offboard_loss_disarm_action_stops_the_motors(gcs):
+    rig = Rig(gcs, params={"COM_OBL_RC_ACT": 7})
+    rig.run(1.5, sp=(0, 0, -5))
+    rig.send(gcs.command(176, 1, 6))
+    rig.send(gcs.command(400, 1))
+    rig.run(5.0, sp=(0, 0, -5))
+    assert rig.core.armed
+    rig.run(rig.t + 1.2)
+    assert not rig.core.armed
 
 
 def test_datalink_loss_returns_home_with_emulator_default(gcs):
