@@ -37,6 +37,7 @@ from planner.geometry import DOWN, EAST, NORTH, geodetic_to_ned_m
 
 from . import events as ev
 from . import wire
+from .missions import MissionServer
 from .params import ParamTable, defaults_for
 from .physics import CTRL_POS, CTRL_VEL, Physics
 from .wire import dialect as mavlink
@@ -65,7 +66,7 @@ ARDUPILOT_MODES: dict[int, tuple[str, str]] = {
 #: ArduCopter ``Mode::allows_arming`` is false for AUTO (without AUTO_OPTIONS), RTL, LAND,
 #: SMART_RTL, BRAKE, CIRCLE (ArduCopter/mode_*.h).
 _AP_ARMABLE = frozenset({0, 1, 2, 4, 5, 16})
-AP_GUIDED, AP_LOITER, AP_RTL, AP_LAND = 4, 5, 6, 9
+AP_AUTO, AP_GUIDED, AP_LOITER, AP_RTL, AP_LAND = 3, 4, 5, 6, 9
 
 
 def px4_custom_mode(main: int, sub: int = 0) -> int:
@@ -83,7 +84,7 @@ PX4_MODES: dict[tuple[int, int], tuple[str, str]] = {
     (5, 0): ("ACRO", "hold"), (6, 0): ("OFFBOARD", "guided"), (7, 0): ("STABILIZED", "hold"),
 }
 PX4_POSCTL, PX4_OFFBOARD = (3, 0), (6, 0)
-PX4_TAKEOFF, PX4_LOITER, PX4_RTL, PX4_LAND = (4, 2), (4, 3), (4, 5), (4, 6)
+PX4_TAKEOFF, PX4_LOITER, PX4_MISSION, PX4_RTL, PX4_LAND = (4, 2), (4, 3), (4, 4), (4, 5), (4, 6)
 _PX4_NOT_ARMABLE = frozenset({PX4_RTL, PX4_LAND})
 #: COM_OBL_RC_ACT values -> fallback mode (commander_params.yaml: 0 Position, 1 Altitude,
 #: 2 Stabilized, 3 Return, 4 Land, 5 Hold, 6 Terminate, 7 Disarm). The manual fallbacks need a
@@ -114,6 +115,7 @@ M_POSITION_TARGET_GLOBAL_INT = mavlink.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT
 M_AUTOPILOT_VERSION = mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
 M_HOME_POSITION = mavlink.MAVLINK_MSG_ID_HOME_POSITION
 M_EXTENDED_SYS_STATE = mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE
+M_MISSION_CURRENT = mavlink.MAVLINK_MSG_ID_MISSION_CURRENT
 
 #: PX4's mavlink module streams without being asked (``src/modules/mavlink/mavlink_main.cpp``,
 #: ``configure_streams_to_default``, MAVLINK_MODE_NORMAL/ONBOARD; rates approximate, Hz).
@@ -129,7 +131,7 @@ ARDUPILOT_DEFAULT_RATES_HZ = {M_HEARTBEAT: 1.0}
 #: restricted to messages this emulator produces. EXTENDED_SYS_STATE and
 #: POSITION_TARGET_LOCAL_NED are placed in EXTENDED_STATUS (approximation).
 _AP_STREAM_GROUPS = {
-    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: (M_SYS_STATUS, M_GPS_RAW_INT,
+    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: (M_SYS_STATUS, M_GPS_RAW_INT, M_MISSION_CURRENT,
                                               M_POSITION_TARGET_GLOBAL_INT, M_EXTENDED_SYS_STATE,
                                               M_POSITION_TARGET_LOCAL_NED),
     mavlink.MAV_DATA_STREAM_POSITION: (M_GLOBAL_POSITION_INT, M_LOCAL_POSITION_NED),
@@ -315,7 +317,9 @@ class VehicleCore:
             M_AUTOPILOT_VERSION: self._msg_autopilot_version,
             M_HOME_POSITION: self._msg_home_position,
             M_EXTENDED_SYS_STATE: self._msg_extended_sys_state,
+            M_MISSION_CURRENT: self._msg_mission_current,
         }
+        self._missions = MissionServer(self._send, self.is_px4, lambda: self.home_lla)
         nop = self._nop
         self._handlers = {
             "HEARTBEAT": self._on_heartbeat,
@@ -331,6 +335,14 @@ class VehicleCore:
             "TIMESYNC": self._on_timesync,
             "PING": self._on_ping,
             "SETUP_SIGNING": self._on_setup_signing,
+            "MISSION_REQUEST_LIST": self._on_mission_request_list,
+            "MISSION_REQUEST_INT": self._on_mission_request_int,
+            "MISSION_REQUEST": self._on_mission_request,
+            "MISSION_COUNT": self._on_mission_count,
+            "MISSION_ITEM_INT": self._on_mission_item,
+            "MISSION_ITEM": self._on_mission_item,
+            "MISSION_CLEAR_ALL": self._on_mission_clear_all,
+            "MISSION_ACK": nop,  # end of a download: nothing to do (no state kept)
             # Explicit ignores (skybrush-style nop handlers): traffic a GCS legitimately sends
             # that this emulator has no use for.
             "RADIO_STATUS": nop, "COMMAND_ACK": nop, "SYSTEM_TIME": nop, "PARAM_VALUE": nop,
@@ -519,6 +531,7 @@ class VehicleCore:
                 self._statustext(now_s, mavlink.MAV_SEVERITY_WARNING,
                                  "Failsafe activated: No offboard signal")
 
+        self._missions.update(now_s)
         self._check_gcs_link(now_s)
 
     def _check_gcs_link(self, now_s: float) -> None:
@@ -690,8 +703,14 @@ class VehicleCore:
                    | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
                    | mavlink.MAV_SYS_STATUS_SENSOR_GPS)
         batt = float(self.physics.battery_frac[self.index])
+        health = sensors
+        if not self.is_px4:
+            # ArduPilot GCS_Common.cpp update_sensor_status_flags: GEOFENCE is "healthy"
+            # unless the fence has failed, even when no fence is present (MAVProxy's fence
+            # module reports "fence breach" otherwise).
+            health |= mavlink.MAV_SYS_STATUS_GEOFENCE
         return mavlink.MAVLink_sys_status_message(
-            sensors, sensors, sensors, 100, int(10500 + 2100 * batt), -1, int(round(batt * 100)),
+            sensors, sensors, health, 100, int(10500 + 2100 * batt), -1, int(round(batt * 100)),
             0, 0, 0, 0, 0, 0)
 
     def _msg_global_position(self, now_s: float):
@@ -736,6 +755,14 @@ class VehicleCore:
             wire.lat_e7_from_deg(lat), wire.lat_e7_from_deg(lon), wire.alt_mm_from_m(alt),
             wire.time_usec_from_s(now_s - self._boot_s))
 
+    def _msg_mission_current(self, now_s: float):
+        """MISSION_CURRENT: no item is ever active (AUTO is not flown). ``total`` excludes
+        ArduPilot's home item (common.xml MISSION_CURRENT.total)."""
+        total = self._missions.count(mavlink.MAV_MISSION_TYPE_MISSION) - (0 if self.is_px4 else 1)
+        state = (mavlink.MISSION_STATE_NOT_STARTED if total > 0
+                 else mavlink.MISSION_STATE_NO_MISSION)
+        return mavlink.MAVLink_mission_current_message(0, total, state, 0)
+
     def _msg_extended_sys_state(self, now_s: float):
         ph, i = self.physics, self.index
         if ph.landed[i]:
@@ -771,14 +798,22 @@ class VehicleCore:
             v[0], v[1], v[2], 0.0, 0.0, 0.0, 0.0, 0.0)
 
     def _msg_autopilot_version(self, now_s: float):
+        # ArduCopter GCS_Mavlink.cpp GCS_MAVLINK_Copter::capabilities (+ GCS_Common: C_CAST,
+        # MAVLINK2, MISSION_FENCE, MISSION_RALLY); PX4 mavlink_main.cpp
+        # send_autopilot_capabilities. Left out on purpose, because the emulator does not
+        # implement them and a GCS would try them: FTP (QGC would fetch params / metadata over
+        # MAVLink FTP), SET_ATTITUDE_TARGET, FLIGHT_TERMINATION, SET_ACTUATOR_TARGET, TERRAIN.
         caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
                 | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
                 | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-                | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT)
+                | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+                | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
         if self.is_px4:
-            caps |= mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+            caps |= (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+                     | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT)
             sw = (1 << 24) | (15 << 16) | (0 << 8) | 0xFF  # 1.15.0 release
         else:
             caps |= mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
@@ -873,7 +908,10 @@ class VehicleCore:
             msg_id = int(p[0]) if math.isfinite(p[0]) else -1
             builder = self._builders.get(msg_id)
             if builder is None:
-                return C.MAV_RESULT_UNSUPPORTED, None
+                # ArduPilot GCS_Common.cpp handle_command_request_message: no ap_message for
+                # the id -> MAV_RESULT_FAILED; PX4 mavlink_receiver.cpp
+                # handle_request_message_command: no stream sent -> DENIED.
+                return (C.MAV_RESULT_DENIED if self.is_px4 else C.MAV_RESULT_FAILED), None
             return C.MAV_RESULT_ACCEPTED, lambda: self._send(builder(now_s))
         if cmd == C.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             return C.MAV_RESULT_ACCEPTED, lambda: self._send(self._msg_autopilot_version(now_s))
@@ -976,13 +1014,35 @@ class VehicleCore:
                 return C.MAV_RESULT_TEMPORARILY_REJECTED
             if (main, sub) == PX4_TAKEOFF:
                 return self._cmd_takeoff((0, 0, 0, 0, 0, 0, float("nan")), now_s)
+            if (main, sub) == PX4_MISSION:
+                return self._refuse_auto(now_s, C.MAV_RESULT_TEMPORARILY_REJECTED)
             self._set_mode(px4_custom_mode(main, sub), now_s, "command")
             return C.MAV_RESULT_ACCEPTED
         custom = int(p[1])
         if custom not in ARDUPILOT_MODES:
             return C.MAV_RESULT_FAILED
+        if custom == AP_AUTO:
+            return self._refuse_auto(now_s, C.MAV_RESULT_FAILED)
         self._set_mode(custom, now_s, "command")
         return C.MAV_RESULT_ACCEPTED
+
+    def _refuse_auto(self, now_s: float, result: int) -> int:
+        """AUTO / AUTO.MISSION is not flown by this emulator: refuse it loudly.
+
+        With no mission stored both firmwares refuse too: ArduCopter ModeAuto::init needs
+        ``mission.num_commands() > 1`` ("Flight mode change failed"); PX4 Commander denies
+        Mission mode without a valid mission. With a stored mission the firmware would fly it;
+        the emulator stores uploads but says it does not fly them (a GCS must not believe the
+        vehicle is flying a plan)."""
+        if self._missions.has_mission():
+            self._statustext(now_s, mavlink.MAV_SEVERITY_WARNING,
+                             "Emulator: AUTO missions are not flown")
+        elif self.is_px4:
+            self._statustext(now_s, mavlink.MAV_SEVERITY_CRITICAL,
+                             "Switching to Mission is currently not possible")
+        else:
+            self._statustext(now_s, mavlink.MAV_SEVERITY_WARNING, "Flight mode change failed")
+        return result
 
     def _on_set_mode(self, m, addr, now_s: float) -> None:
         if m.target_system != self.sysid:
@@ -1199,6 +1259,70 @@ class VehicleCore:
             ph.hold(i)
         self._target_mask = mask
 
+    # -- mission protocol (vehicle_emu.missions) ---------------------------------------------
+
+    def _on_mission_request_list(self, m, addr, now_s: float) -> None:
+        if self._for_me(m.target_system, m.target_component):
+            self._missions.on_request_list(m, now_s)
+
+    def _on_mission_request_int(self, m, addr, now_s: float) -> None:
+        if self._for_me(m.target_system, m.target_component):
+            self._missions.on_request(m, now_s, as_int=True)
+
+    def _on_mission_request(self, m, addr, now_s: float) -> None:
+        if self._for_me(m.target_system, m.target_component):
+            self._missions.on_request(m, now_s, as_int=False)
+
+    def _on_mission_count(self, m, addr, now_s: float) -> None:
+        if self._for_me(m.target_system, m.target_component):
+            self._missions.on_count(m, now_s)
+
+    def _on_mission_clear_all(self, m, addr, now_s: float) -> None:
+        if self._for_me(m.target_system, m.target_component):
+            self._missions.on_clear_all(m, now_s)
+
+    def _on_mission_item(self, m, addr, now_s: float) -> None:
+        if not self._for_me(m.target_system, m.target_component):
+            return
+        if not self.is_px4 and m.current in (2, 3) and (
+                getattr(m, "mission_type", 0) == mavlink.MAV_MISSION_TYPE_MISSION):
+            # ArduPilot GCS_Common.cpp handle_mission_item: current = 2 is a "guided mode"
+            # waypoint (MAVProxy ``guided``, Mission Planner "Fly To Here"), current = 3 an
+            # altitude change; answered with MISSION_ACK, ACCEPTED or ERROR.
+            ok = self._guided_mission_item(m, now_s)
+            self._send(mavlink.MAVLink_mission_ack_message(
+                m.get_srcSystem(), m.get_srcComponent(),
+                mavlink.MAV_MISSION_ACCEPTED if ok else mavlink.MAV_MISSION_ERROR,
+                mavlink.MAV_MISSION_TYPE_MISSION))
+            return
+        self._missions.on_item(m, now_s)
+
+    def _guided_mission_item(self, m, now_s: float) -> bool:
+        """ArduCopter ModeAuto::do_guided: "only process guided waypoint if we are in guided
+        mode"; NAV_WAYPOINT -> ModeGuided::set_destination. current = 3:
+        handle_change_alt_request (keep the horizontal target, change the altitude)."""
+        ph, i = self.physics, self.index
+        if self._behaviour != "guided" or not self.armed or (
+                ph.landed[i] and self._takeoff_target_down_m is None):
+            return False
+        if m.get_type() == "MISSION_ITEM":
+            lat_e7, lon_e7 = wire.lat_e7_from_deg(m.x), wire.lat_e7_from_deg(m.y)
+        else:
+            lat_e7, lon_e7 = m.x, m.y
+        if m.current == 2 and m.command != mavlink.MAV_CMD_NAV_WAYPOINT:
+            return False
+        if m.current == 3:  # altitude only: x, y are unused (often 0)
+            lat_e7, lon_e7 = (wire.lat_e7_from_deg(v) for v in self.home_lla[:2])
+        if not (math.isfinite(m.z) and math.isfinite(lat_e7) and math.isfinite(lon_e7)):
+            return False
+        pos = self._global_to_world(int(lat_e7), int(lon_e7), float(m.z), m.frame)
+        if pos is None:
+            return False
+        if m.current == 3:
+            pos = np.array((ph.target_pos_ned_m[i, NORTH], ph.target_pos_ned_m[i, EAST], pos[DOWN]))
+        self._apply_target((np.asarray(pos, dtype=float), None, 0b110111111000), now_s)
+        return True
+
     # -- streams ------------------------------------------------------------------------------
 
     def _on_request_data_stream(self, m, addr, now_s: float) -> None:
@@ -1282,9 +1406,11 @@ class VehicleCore:
 
     def _on_timesync(self, m, addr, now_s: float) -> None:
         # TIMESYNC: a request has tc1 == 0; reply with tc1 = our time, ts1 mirrored.
+        # tc1 is never 0 in a reply (ArduPilot uses micros64() * 1000, PX4 the hrt clock in
+        # ns; a reply with tc1 == 0 would read as a new request): at least 1 ns.
         if m.tc1 == 0:
             self._send(mavlink.MAVLink_timesync_message(
-                wire.time_ns_from_s(now_s - self._boot_s), m.ts1))
+                max(1, wire.time_ns_from_s(now_s - self._boot_s)), m.ts1))
 
     def _on_ping(self, m, addr, now_s: float) -> None:
         # PING request: target_system == 0; reply targets the requester (common.xml PING).

@@ -86,7 +86,8 @@ def test_set_message_interval_and_request_data_stream(gcs):
     out = rig.send(gcs.command(520, 1))
     av = of_type(out, "AUTOPILOT_VERSION")[0]
     assert av.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-    assert acks(rig.send(gcs.command(512, 9999)), 512) == [mavlink.MAV_RESULT_UNSUPPORTED]
+    # ArduPilot handle_command_request_message: unknown message id -> MAV_RESULT_FAILED
+    assert acks(rig.send(gcs.command(512, 9999)), 512) == [mavlink.MAV_RESULT_FAILED]
 
 
 def test_mode_arm_takeoff_rules(gcs):
