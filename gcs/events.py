@@ -110,6 +110,23 @@ class TelemetryReceived(Event):
 
 
 @dataclass(frozen=True)
+class TaskPositionReceived(Event):
+    """A GLOBAL_POSITION_INT from a *task* system (a crew's tracker, a rover), not a vehicle the
+    station flies: ``sysid`` is one of ``StationConfig.task_sysids``."""
+
+    lat_deg: float = 0.0
+    lon_deg: float = 0.0
+    alt_amsl_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("lat_deg", "lon_deg", "alt_amsl_m"):
+            _finite(name, getattr(self, name))
+        if not -90.0 <= self.lat_deg <= 90.0 or not -180.0 <= self.lon_deg <= 180.0:
+            raise ValueError(f"lat/lon out of range: {self.lat_deg}, {self.lon_deg}")
+
+
+@dataclass(frozen=True)
 class _CommandEvent(Event):
     command: int = 0
     """MAV_CMD id."""

@@ -31,8 +31,8 @@ from gcs import wire
 from gcs.autopilot import Adapter, CommandSpec, adapter_for
 from gcs.events import (
     ArmedChanged, CommandAcked, CommandFailed, CommandInProgress, CommandTimedOut, Event,
-    ModeChanged, ParamReceived, ParamTimedOut, StatusText, TelemetryReceived, VehicleDiscovered,
-    VehicleLost, VehicleRecovered,
+    ModeChanged, ParamReceived, ParamTimedOut, StatusText, TaskPositionReceived,
+    TelemetryReceived, VehicleDiscovered, VehicleLost, VehicleRecovered,
 )
 from gcs.wire import mavlink
 
@@ -125,14 +125,24 @@ class StationConfig:
     """``unix time = now_s + offset``; only for signing timestamps and frame records."""
     record_frames: bool = False
     """Keep every frame in and out for :meth:`StationLink.take_frames` (the .tlog)."""
+    task_sysids: tuple[int, ...] = ()
+    """MAVLink systems that are *tasks* (crew trackers, rovers): never discovered as vehicles,
+    never commanded; their GLOBAL_POSITION_INT (any component) becomes TaskPositionReceived, and
+    the station asks them for it (SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM) until it arrives."""
+    task_position_rate_hz: float = 1.0
 
     def __post_init__(self) -> None:
         if not 1 <= self.sysid <= 255:
             raise ValueError(f"sysid must be in 1..255, got {self.sysid}")
         if not 1 <= self.compid <= 255:
             raise ValueError(f"compid must be in 1..255 (0 is broadcast), got {self.compid}")
+        if self.sysid in self.task_sysids:
+            raise ValueError(f"task_sysids must not contain our own sysid {self.sysid}")
+        if any(not 1 <= t <= 255 for t in self.task_sysids):
+            raise ValueError(f"task_sysids must be in 1..255, got {self.task_sysids}")
         for name in ("heartbeat_period_s", "vehicle_timeout_s", "command_timeout_s",
-                     "param_timeout_s", "telemetry_stale_s", "command_in_progress_timeout_s"):
+                     "param_timeout_s", "telemetry_stale_s", "command_in_progress_timeout_s",
+                     "task_position_rate_hz"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be > 0, got {v}")
@@ -159,6 +169,8 @@ class LinkStats:
     unexpected_acks: int = 0
     data_stream_fallbacks: int = 0
     stream_rerequests: int = 0
+    task_heartbeats: int = 0
+    """Heartbeats from task systems (``StationConfig.task_sysids``), never vehicles."""
 
 
 @dataclass(frozen=True)
@@ -253,6 +265,10 @@ class StationLink:
         """Requests waiting for a free slot (``params_in_flight``), in request order."""
         self._next_request_id = 1
         self._warned_types: set[str] = set()
+        self._task_sysids = frozenset(self.config.task_sysids)
+        self._task_addr: dict[int, Addr] = {}
+        self._task_fix_s: dict[int, float] = {}
+        self._task_request_s: dict[int, float] = {}
         self._timer_hint_s = now_s
 
     # ------------------------------------------------------------------ outputs
@@ -382,6 +398,9 @@ class StationLink:
         if sysid == self.config.sysid:
             self.stats.own_sysid += 1
             return
+        if sysid in self._task_sysids:
+            self._on_task_message(msg, addr, now_s)
+            return
         if kind == "HEARTBEAT":
             self._on_heartbeat(msg, addr, now_s)
             return
@@ -446,6 +465,48 @@ class StationLink:
                                    v.adapter.mode_name(old_mode)))
         if was_armed != v.armed:
             self._emit(ArmedChanged(self.link_id, sysid, now_s, v.armed))
+
+    def _on_task_message(self, msg, addr: Addr, now_s: float) -> None:
+        """A task system: its position, and a position stream request while none arrives."""
+        sysid = msg.get_srcSystem()
+        kind = msg.get_type()
+        self._task_addr[sysid] = addr
+        if kind == "GLOBAL_POSITION_INT":
+            if msg.lat == 0 and msg.lon == 0:  # no fix yet
+                self.stats.invalid_telemetry += 1
+                return
+            try:
+                ev = TaskPositionReceived(self.link_id, sysid, now_s,
+                                          lat_deg=wire.e7_to_deg(msg.lat),
+                                          lon_deg=wire.e7_to_deg(msg.lon),
+                                          alt_amsl_m=wire.mm_to_m(msg.alt))
+            except ValueError:
+                self.stats.invalid_telemetry += 1
+                return
+            self._task_fix_s[sysid] = now_s
+            self._emit(ev)
+        elif kind == "HEARTBEAT":
+            self.stats.task_heartbeats += 1
+            last_fix = self._task_fix_s.get(sysid, -math.inf)
+            last_req = self._task_request_s.get(sysid, -math.inf)
+            if (now_s - last_fix > self.config.telemetry_stale_s
+                    and now_s - last_req >= self.config.telemetry_stale_s):
+                self._task_request_s[sysid] = now_s
+                self._request_task_position(sysid, msg.get_srcComponent(), addr, now_s)
+        else:
+            self.stats.ignored_messages += 1
+
+    def _request_task_position(self, sysid: int, compid: int, addr: Addr, now_s: float) -> None:
+        """Fire-and-forget: trackers differ (an ArduPilot Rover streams only when asked; a plain
+        tracker streams anyway and ignores both). No ACK is awaited: a task is never commanded."""
+        hz = self.config.task_position_rate_hz
+        self._send(mavlink.MAVLink_command_long_message(
+            sysid, compid, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+            mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, wire.hz_to_interval_us(hz),
+            0, 0, 0, 0, 0), addr, now_s)
+        self._send(mavlink.MAVLink_request_data_stream_message(
+            sysid, compid, mavlink.MAV_DATA_STREAM_POSITION, max(1, int(round(hz))), 1),
+            addr, now_s)
 
     def _on_global_position(self, v: _Vehicle, msg, now_s: float) -> None:
         if msg.lat == 0 and msg.lon == 0:  # ArduPilot before a GPS fix

@@ -9,10 +9,12 @@ asyncio adapters, or an in-memory ether in tests) moves the bytes and calls :met
 Phases (``Operator.phase``)::
 
     discover -> audit -> launch -> run -> end -> done
-                   \\-> refused (a blocking audit finding and no override)
+    discover / audit -> refused (a live task never heard; a blocking audit finding and no
+                                 override)
 
 * **discover**: wait for ``expected_vehicles`` HEARTBEATs (or ``discover_timeout_s``, or
-  ``discover_settle_s`` without a new vehicle when no count is expected).
+  ``discover_settle_s`` without a new vehicle when no count is expected), and for the first
+  position of every live task tracker (:mod:`gcs.tasks`; refused after ``task_wait_timeout_s``).
 * **audit**: read the lost-link parameters of every vehicle (:mod:`gcs.audit`); refuse unless
   every vehicle is safe or ``override_audit``.
 * **launch**: in waves of ``wave_size``: GUIDED (ArduPilot) / pre-streamed OFFBOARD (PX4), arm,
@@ -45,12 +47,13 @@ from gcs import audit as audit_mod
 from gcs.autopilot import adapter_for
 from gcs.control import ControlConfig, layer_alt_m, tick
 from gcs.events import (
-    CommandFailed, CommandTimedOut, Event, ParamReceived, ParamTimedOut, VehicleDiscovered,
-    VehicleLost, VehicleRecovered,
+    CommandFailed, CommandTimedOut, Event, ParamReceived, ParamTimedOut, TaskPositionReceived,
+    VehicleDiscovered, VehicleLost, VehicleRecovered,
 )
 from gcs.fleet import FleetSnapshot, FleetView
 from gcs.link import LinkUsageError, UnknownVehicle
 from gcs.station import Station
+from gcs.tasks import LiveTasks
 from planner.geometry import tasks_connected
 from planner.methods import Planner
 from planner.metrics import uptime_series
@@ -103,6 +106,9 @@ class OperationsConfig:
     radio_range_m: float = math.inf
     """For "tasks covered as the station sees them" (a task within range of a networked vehicle)."""
     poll_period_s: float = 0.25
+    task_wait_timeout_s: float = 120.0
+    """Live tasks (crew trackers): after discovery, wait at most this long for every tracker's
+    first position before refusing to launch (a task the station cannot see cannot be served)."""
 
     def __post_init__(self) -> None:
         if self.end not in ("rtl", "land"):
@@ -167,11 +173,15 @@ class Operator:
     def __init__(self, station: Station, fleet: FleetView, planner: Planner,
                  task_pos_fn: Callable[[float], np.ndarray], control: ControlConfig,
                  config: OperationsConfig = OperationsConfig(), *, now_s: float = 0.0,
-                 gcs_sysid: int = 255) -> None:
+                 gcs_sysid: int = 255, live_tasks: LiveTasks | None = None) -> None:
         self.station = station
         self.fleet = fleet
         self.planner = planner
-        self.task_pos_fn = task_pos_fn
+        self.live_tasks = live_tasks
+        self.task_pos_fn = task_pos_fn if live_tasks is None else (
+            lambda t_s: live_tasks.fill(task_pos_fn(t_s)))
+        self.refusal: str | None = None
+        """Why the flight was refused (phase 'refused'), for people."""
         self.control = control
         self.config = config
         self.gcs_sysid = gcs_sysid
@@ -204,6 +214,10 @@ class Operator:
 
     def handle_event(self, event: Event) -> None:
         """Fold one link event into the fleet and the operator's bookkeeping."""
+        if isinstance(event, TaskPositionReceived):  # a crew's tracker: never a fleet row
+            if self.live_tasks is not None:
+                self.live_tasks.apply(event)
+            return
         self.fleet.apply(event)
         key = (event.link_id, event.sysid)
         if isinstance(event, VehicleDiscovered):
@@ -279,7 +293,14 @@ class Operator:
                       or (cfg.expected_vehicles is None
                           and now_s - self._last_discovery_s >= cfg.discover_settle_s)
                       or waited >= cfg.discover_timeout_s):
-                self._start_audit(snap, now_s)
+                waiting = self.live_tasks.waiting_for() if self.live_tasks is not None else ()
+                if not waiting:
+                    self._start_audit(snap, now_s)
+                elif waited >= cfg.discover_timeout_s + cfg.task_wait_timeout_s:
+                    self.refusal = ("no position from live task tracker(s) sysid "
+                                    f"{', '.join(map(str, waiting))} after {waited:.0f} s")
+                    log.warning("refusing to launch: %s", self.refusal)
+                    self._enter("refused", now_s)
         if self.phase == "audit":
             self._poll_audit(snap, now_s)
         if self.phase == "launch":
@@ -340,6 +361,7 @@ class Operator:
         self.audit_report = report
         if not report.cleared_to_fly:
             log.warning("pre-flight audit refused the flight:\n%s", report.summary())
+            self.refusal = "the pre-flight audit found unsafe lost-link settings"
             self._enter("refused", now_s)
             return
         if report.overridden:

@@ -66,10 +66,14 @@ def spawn_positions(mission: Mission, rng: np.random.Generator) -> np.ndarray:
     return pts[:n]
 
 
-def task_track_m(mission: Mission, rng: np.random.Generator, n_steps: int) -> tuple[np.ndarray, list[str]]:
+def task_track_m(mission: Mission, rng: np.random.Generator, n_steps: int, *,
+                 live: str = "refuse") -> tuple[np.ndarray, list[str]]:
     """(n_steps + 1, M, 2) task positions at every control step, and the task names.
 
-    Tasks are drawn in file order from ``rng`` (the scenario stream).
+    Tasks are drawn in file order from ``rng`` (the scenario stream). A live MAVLink task has no
+    track to draw: ``live='refuse'`` raises ValueError (in-process and emulated runs need every
+    task's truth), ``live='nan'`` gives it a NaN column that the ground station fills from the
+    tracker (:class:`gcs.tasks.LiveTasks`).
     """
     dt = mission.run.control_period_s
     times = np.arange(n_steps + 1) * dt
@@ -100,9 +104,12 @@ def task_track_m(mission: Mission, rng: np.random.Generator, n_steps: int) -> tu
             inc = rng.normal(0, gen.sigma_m_per_sqrt_s * math.sqrt(dt), (n_steps, gen.count, 2))
             columns.append(walk_tasks(start, inc, w, gen.border))
             names += [f"{label} {k}" for k in range(gen.count)]
+        elif live == "nan":
+            columns.append(np.full((n_steps + 1, 1, 2), np.nan))
+            names.append(label)
         else:
-            raise ValueError(f"tasks[{i}]: a live MAVLink task (sysid {task.mavlink.sysid}) cannot be "
-                             "played in-process; fly it against real links instead")
+            raise ValueError(f"tasks[{i}]: a live MAVLink task (sysid {task.mavlink.sysid}) has no "
+                             "track to simulate; fly it against real links (--connect) instead")
     return np.concatenate(columns, axis=1), names
 
 

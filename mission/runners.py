@@ -44,6 +44,7 @@ from gcs.link import StationConfig, StationLink
 from gcs.operations import OperationsConfig, Operator, TickRecord
 from gcs.records import EventLog, MetricsWriter, TlogWriter, write_summary
 from gcs.station import Station
+from gcs.tasks import LiveTasks
 from gcs.wire import mavlink
 from mission.schema import Mission
 from planner.methods import make_planner
@@ -113,7 +114,8 @@ class MissionScenario:
         return self.task_track_m[k0] * (1 - a) + self.task_track_m[k1] * a
 
 
-def mission_scenario(mission: Mission, seed: int | None = None) -> MissionScenario:
+def mission_scenario(mission: Mission, seed: int | None = None, *,
+                     live_tasks: bool = False) -> MissionScenario:
     """Spawn positions and task tracks of ``mission`` for ``seed`` (default ``run.seed``).
 
     Random draws come from the run's *scenario* stream (:func:`vehicle_emu.world.spawn_streams`),
@@ -126,7 +128,8 @@ def mission_scenario(mission: Mission, seed: int | None = None) -> MissionScenar
     rng = spawn_streams(seed).scenario
     spawn = spawn_positions(mission, rng)
     try:
-        track, _ = task_track_m(mission, rng, mission.run.n_steps)
+        track, _ = task_track_m(mission, rng, mission.run.n_steps,
+                                live="nan" if live_tasks else "refuse")
     except ValueError as exc:  # live MAVLink tasks
         raise RunnerError(str(exc)) from None
     return MissionScenario(spawn, track, mission.run.control_period_s)
@@ -410,6 +413,26 @@ class _Records:
 # The station loop (same code for emulated and real links)
 
 
+def live_task_columns(mission: Mission) -> dict[int, int]:
+    """Task column -> tracker sysid of every live MAVLink task (columns as in task_track_m)."""
+    out, col = {}, 0
+    for task in mission.tasks:
+        if task.kind == "mavlink":
+            out[col] = task.mavlink.sysid
+        col += task.count
+    return out
+
+
+def live_task_connections(mission: Mission, connections: list[str]) -> list[str]:
+    """Links to open for live task trackers that do not share one of ``connections``."""
+    extra = []
+    for task in mission.tasks:
+        conn = task.mavlink.connection if task.kind == "mavlink" else None
+        if conn and conn not in connections and conn not in extra:
+            extra.append(conn)
+    return extra
+
+
 def _station_config(mission: Mission) -> StationConfig:
     key = None
     real = mission.vehicles.real
@@ -418,7 +441,7 @@ def _station_config(mission: Mission) -> StationConfig:
     # Fleet-scale telemetry (MAVLINK_NOTES §2, Skybrush): position at 2 Hz is all the plan uses;
     # every other stream costs decode time at 50+ vehicles x speed-up.
     return StationConfig(signing_key=key, command_timeout_s=1.0, param_timeout_s=2.0,
-                         param_retries=4,
+                         param_retries=4, task_sysids=tuple(live_task_columns(mission).values()),
                          stream_rates_hz=((mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 2.0),
                                           (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 0.2)))
 
@@ -447,8 +470,10 @@ def _make_operator(mission: Mission, scenario: MissionScenario, station: Station
     if method == "phireman":
         params["info"] = "central"  # the station plans centrally from D'(t)
     planner = make_planner(method, problem, params, spawn_streams(seed).algorithm)
+    live = live_task_columns(mission)
     return Operator(station, fleet, planner, scenario.task_pos_m, control_config(mission, scenario),
-                    _operations_config(mission, opts, expected), now_s=now_s)
+                    _operations_config(mission, opts, expected), now_s=now_s,
+                    live_tasks=LiveTasks(fleet.origin, live) if live else None)
 
 
 def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> dict:
@@ -555,6 +580,9 @@ def _summary(mission: Mission, op: Operator, seed: int, kind: str, wall_s: float
         "speedup_achieved": (now_s - op.t_start_s) / wall_s if wall_s > 0 else None,
         "mission_t0_s": op.mission_t0_s,
         "vehicles_discovered": len(op.fleet),
+        "refusal": op.refusal,
+        "live_tasks": None if op.live_tasks is None else {
+            "sysids": list(op.live_tasks.sysids), "never_heard": list(op.live_tasks.waiting_for())},
         "reclaimed": len(op.reclaimed), "counters": op.counters,
         "links": [{"link_id": l.link_id, "frames_out": l.stats.frames_out,
                    "frames_in": l.stats.decode.frames, "bad_data": l.stats.decode.bad_data,
@@ -867,7 +895,8 @@ async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
         list(mission.vehicles.real.connections) if mission.vehicles.real else [])
     if not connections:
         raise RunnerError("no links: give --connect URL or a mission with vehicles.real")
-    scenario = mission_scenario(mission, seed)
+    connections += live_task_connections(mission, connections)
+    scenario = mission_scenario(mission, seed, live_tasks=True)
     # Real links run on the wall clock; --speedup > 1 only for vehicles whose clock runs faster
     # (SITL SIM_SPEEDUP, the emulator): the station's timers must follow theirs.
     clock = SimClock(speedup)

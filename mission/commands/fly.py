@@ -155,10 +155,14 @@ def run(args) -> int:
     s = result.summary
     op = result.operator
     if s["phase"] == "refused":
-        print(op.audit_report.summary() if op.audit_report else "refused", file=sys.stderr)
-        print(f"phireman fly: the pre-flight audit refused the flight (see above); fix the "
-              f"parameters or pass --override-audit. Run directory: {result.run_dir}",
-              file=sys.stderr)
+        if op.audit_report is not None and not op.audit_report.cleared_to_fly:
+            print(op.audit_report.summary(), file=sys.stderr)
+            print(f"phireman fly: the pre-flight audit refused the flight (see above); fix the "
+                  f"parameters or pass --override-audit. Run directory: {result.run_dir}",
+                  file=sys.stderr)
+        else:
+            print(f"phireman fly: refused to launch: {op.refusal or 'unknown reason'}. "
+                  f"Run directory: {result.run_dir}", file=sys.stderr)
         return 1
     st = s["station"]
     print(f"run directory: {result.run_dir}")
