@@ -99,25 +99,27 @@ def test_offboard_loss_falls_back_after_com_of_loss_t(gcs):
     assert (fs[0].kind, fs[0].action) == ("offboard", "AUTO.RTL")
 
 
-@pytest.mark.parametrize("act, mode", [(1, "AUTO.RTL"), (2, "AUTO.RTL"), (3, "AUTO.RTL"),
-                                       (4, "AUTO.LAND"), (5, "AUTO.LOITER")])
-def test_offboard_loss_action_without_rc(gcs, act, mode):
-    rig = Rig(gcs, params={"COM_OBL_RC_ACT": act})
+def _flying_offboard(gcs, **params) -> Rig:
+    """A PX4 rig armed in OFFBOARD at 5 m, its setpoint stream just stopped."""
+    rig = Rig(gcs, params=params)
     rig.run(1.5, sp=(0, 0, -5))
     rig.send(gcs.command(176, 1, 6))
     rig.send(gcs.command(400, 1))
     rig.run(5.0, sp=(0, 0, -5))
+    assert rig.core.armed and rig.core.mode_name == "OFFBOARD"
+    return rig
+
+
+@pytest.mark.parametrize("act, mode", [(1, "AUTO.RTL"), (2, "AUTO.RTL"), (3, "AUTO.RTL"),
+                                       (4, "AUTO.LAND"), (5, "AUTO.LOITER")])
+def test_offboard_loss_action_without_rc(gcs, act, mode):
+    rig = _flying_offboard(gcs, COM_OBL_RC_ACT=act)
     rig.run(rig.t + 1.2)
     assert rig.core.mode_name == mode
 
 
 def test_offboard_loss_disarm_action_stops_the_motors(gcs):
-    rig = Rig(gcs, params={"COM_OBL_RC_ACT": 7})
-    rig.run(1.5, sp=(0, 0, -5))
-    rig.send(gcs.command(176, 1, 6))
-    rig.send(gcs.command(400, 1))
-    rig.run(5.0, sp=(0, 0, -5))
-    assert rig.core.armed
+    rig = _flying_offboard(gcs, COM_OBL_RC_ACT=7)
     rig.run(rig.t + 1.2)
     assert not rig.core.armed
 
