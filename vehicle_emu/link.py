@@ -116,6 +116,8 @@ M_AUTOPILOT_VERSION = mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
 M_HOME_POSITION = mavlink.MAVLINK_MSG_ID_HOME_POSITION
 M_EXTENDED_SYS_STATE = mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE
 M_MISSION_CURRENT = mavlink.MAVLINK_MSG_ID_MISSION_CURRENT
+M_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
+M_VFR_HUD = mavlink.MAVLINK_MSG_ID_VFR_HUD
 
 #: PX4's mavlink module streams without being asked (``src/modules/mavlink/mavlink_main.cpp``,
 #: ``configure_streams_to_default``, MAVLINK_MODE_NORMAL/ONBOARD; rates approximate, Hz).
@@ -135,6 +137,8 @@ _AP_STREAM_GROUPS = {
                                               M_POSITION_TARGET_GLOBAL_INT, M_EXTENDED_SYS_STATE,
                                               M_POSITION_TARGET_LOCAL_NED),
     mavlink.MAV_DATA_STREAM_POSITION: (M_GLOBAL_POSITION_INT, M_LOCAL_POSITION_NED),
+    mavlink.MAV_DATA_STREAM_EXTRA1: (M_ATTITUDE,),
+    mavlink.MAV_DATA_STREAM_EXTRA2: (M_VFR_HUD,),
 }
 
 _GCS_HEARTBEAT_TYPE = mavlink.MAV_TYPE_GCS
@@ -318,6 +322,8 @@ class VehicleCore:
             M_HOME_POSITION: self._msg_home_position,
             M_EXTENDED_SYS_STATE: self._msg_extended_sys_state,
             M_MISSION_CURRENT: self._msg_mission_current,
+            M_ATTITUDE: self._msg_attitude,
+            M_VFR_HUD: self._msg_vfr_hud,
         }
         self._missions = MissionServer(self._send, self.is_px4, lambda: self.home_lla)
         nop = self._nop
@@ -754,6 +760,24 @@ class VehicleCore:
         return mavlink.MAVLink_gps_global_origin_message(
             wire.lat_e7_from_deg(lat), wire.lat_e7_from_deg(lon), wire.alt_mm_from_m(alt),
             wire.time_usec_from_s(now_s - self._boot_s))
+
+    def _msg_attitude(self, now_s: float):
+        """ATTITUDE: level flight, yaw along the velocity (the physics has no attitude)."""
+        yaw = float(self.physics.yaw_rad[self.index])
+        yaw = math.atan2(math.sin(yaw), math.cos(yaw))  # -pi..pi (common.xml ATTITUDE.yaw)
+        return mavlink.MAVLink_attitude_message(self._boot_ms(now_s), 0.0, 0.0, yaw,
+                                                0.0, 0.0, 0.0)
+
+    def _msg_vfr_hud(self, now_s: float):
+        """VFR_HUD (GCS_Common.cpp send_vfr_hud): alt is AMSL (vfr_hud_alt), climb up-positive,
+        heading 0..360 deg; throttle is a hover guess when flying."""
+        ph, i = self.physics, self.index
+        v = ph.vel_ned_m_s[i]
+        speed = math.hypot(v[NORTH], v[EAST])
+        heading = wire.hdg_cdeg_from_rad(ph.yaw_rad[i]) // 100
+        throttle = 0 if ph.landed[i] or not self.armed else 50
+        return mavlink.MAVLink_vfr_hud_message(speed, speed, heading, throttle,
+                                               float(ph.alt_amsl_m[i]), float(-v[DOWN]))
 
     def _msg_mission_current(self, now_s: float):
         """MISSION_CURRENT: no item is ever active (AUTO is not flown). ``total`` excludes

@@ -335,3 +335,18 @@ def test_ardupilot_guided_mission_item_current2(gcs):
     assert [a.type for a in of_type(rig.msg(alt), "MISSION_ACK")] == [M_ACCEPTED]
     rig.run(35.0)
     assert rig.core.local_pos_ned_m == pytest.approx([50.0, 0.0, -12.0], abs=1.0)
+
+
+def test_ardupilot_request_data_stream_all_includes_attitude_and_vfr_hud(gcs):
+    # MAVProxy and Mission Planner ask for MAV_DATA_STREAM_ALL; ArduCopter GCS_Mavlink.cpp
+    # puts ATTITUDE in EXTRA1 and VFR_HUD in EXTRA2.
+    rig = Rig(gcs, "ardupilot")
+    rig.msg(mavlink.MAVLink_request_data_stream_message(1, 1, mavlink.MAV_DATA_STREAM_ALL, 4, 1))
+    assert acks(rig.send(gcs.command(176, 1, 4)), 176) == [ACCEPTED]
+    assert acks(rig.send(gcs.command(400, 1)), 400) == [ACCEPTED]
+    assert acks(rig.send(gcs.command(22, 0, 0, 0, 0, 0, 0, 10)), 22) == [ACCEPTED]
+    out = rig.run(2.0)
+    att, hud = of_type(out, "ATTITUDE"), of_type(out, "VFR_HUD")
+    assert 6 <= len(att) <= 10 and 6 <= len(hud) <= 10
+    assert hud[-1].climb > 0.5 and hud[-1].alt > HOME[2] + 1.0  # climbing, AMSL altitude
+    assert all(-3.1416 <= a.yaw <= 3.1416 for a in att)
