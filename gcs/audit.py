@@ -21,6 +21,12 @@ PX4
 Unknown autopilot or a parameter that could not be read -> **blocking**.
 
 A blocking finding refuses the flight unless ``override=True`` (the verdict then says so).
+
+:func:`failsafe_fixes` lists the parameter writes that clear the *fixable* blocking findings
+(``phireman fly --apply-failsafes``): ArduPilot ``FS_GCS_ENABLE`` 0 -> 1 (RTL), the GCS sysid
+(whichever of ``SYSID_MYGCS`` / ``MAV_GCS_SYSID`` the vehicle has) -> ours; PX4 ``NAV_DLL_ACT``
+0 / 5 / 6 -> 2 (Return). A parameter that could not be read, an unknown autopilot or a
+dangerous offboard-loss action is not fixed here and still blocks.
 """
 
 from __future__ import annotations
@@ -32,7 +38,8 @@ from gcs.autopilot import ARDUPILOT, PX4
 
 __all__ = ["Finding", "VehicleAudit", "AuditReport", "AUDIT_PARAMS", "params_to_read",
            "ALTERNATIVE_NAMES", "FOLLOW_UP_PARAMS", "OPTIONAL_PARAMS", "params_still_needed",
-           "audit_ardupilot", "audit_px4", "audit_vehicle", "audit_fleet"]
+           "audit_ardupilot", "audit_px4", "audit_vehicle", "audit_fleet", "failsafe_fixes",
+           "FS_GCS_ENABLE_FIX", "NAV_DLL_ACT_FIX"]
 
 #: What to read per autopilot. ArduPilot alternatives: old or new GCS-sysid names.
 AUDIT_PARAMS: dict[int, tuple[str, ...]] = {
@@ -224,3 +231,38 @@ def audit_fleet(vehicles: Mapping[tuple[int, int], tuple[int, Mapping[str, float
     all_safe = all(a.safe for a in audits)
     return AuditReport(audits, overridden=override and not all_safe,
                        cleared_to_fly=all_safe or override)
+
+
+#: ArduPilot FS_GCS_ENABLE value written by --apply-failsafes: 1 = RTL (ArduCopter
+#: Parameters.cpp; the failsafe's action in GUIDED, events.cpp failsafe_gcs_on_event).
+FS_GCS_ENABLE_FIX = 1
+#: PX4 NAV_DLL_ACT value written by --apply-failsafes: 2 = Return mode
+#: (src/modules/commander/commander_params.yaml).
+NAV_DLL_ACT_FIX = 2
+
+
+def failsafe_fixes(autopilot: int, params: Mapping[str, float],
+                   gcs_sysid: int = 255) -> tuple[tuple[str, float], ...]:
+    """``(name, value)`` writes that clear this vehicle's fixable blocking findings.
+
+    Only parameters that were read are written (the vehicle has them, under that spelling), and
+    only when the audit blocks on them; nothing for a safe vehicle.
+    """
+    out: list[tuple[str, float]] = []
+    if autopilot == ARDUPILOT:
+        fs = params.get("FS_GCS_ENABLE")
+        if fs is not None and int(fs) == 0:
+            out.append(("FS_GCS_ENABLE", float(FS_GCS_ENABLE_FIX)))
+        # The spelling the firmware has (SYSID_MYGCS was renamed MAV_GCS_SYSID, PR #30627).
+        name = "MAV_GCS_SYSID" if "MAV_GCS_SYSID" in params else "SYSID_MYGCS"
+        if name in params:
+            lo = int(params[name])
+            hi = int(params.get("MAV_GCS_SYSID_HI", 0) or 0)
+            if not (lo == gcs_sysid or (hi > lo and lo <= gcs_sysid <= hi)):
+                # With a range, lo = ours keeps [ours, hi] (or a single id once hi <= ours).
+                out.append((name, float(gcs_sysid)))
+    elif autopilot == PX4:
+        dll = params.get("NAV_DLL_ACT")
+        if dll is not None and int(dll) in (0, 5, 6):
+            out.append(("NAV_DLL_ACT", float(NAV_DLL_ACT_FIX)))
+    return tuple(out)

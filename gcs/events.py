@@ -13,7 +13,7 @@ from dataclasses import dataclass
 __all__ = [
     "Event", "VehicleDiscovered", "VehicleLost", "VehicleRecovered", "ModeChanged",
     "ArmedChanged", "TelemetryReceived", "CommandAcked", "CommandInProgress", "CommandFailed",
-    "CommandTimedOut", "ParamReceived", "ParamTimedOut", "StatusText",
+    "CommandTimedOut", "ParamReceived", "ParamTimedOut", "ParamSetConfirmed", "ParamSetFailed", "StatusText",
 ]
 
 
@@ -172,6 +172,31 @@ class ParamReceived(Event):
 @dataclass(frozen=True)
 class ParamTimedOut(Event):
     name: str = ""
+    attempts: int = 0
+
+
+@dataclass(frozen=True)
+class ParamSetConfirmed(Event):
+    """A PARAM_SET echoed back by the vehicle's PARAM_VALUE with the value asked for."""
+
+    name: str = ""
+    value: float = 0.0
+    previous: float | None = None
+    """The value read before the set, if the caller said (for the record)."""
+    param_type: int = 0
+    attempts: int = 1
+
+
+@dataclass(frozen=True)
+class ParamSetFailed(Event):
+    """A PARAM_SET that did not take: no echo after every retry, or the vehicle echoed another
+    value (ArduPilot echoes the old value of a write-protected parameter, GCS_Param.cpp)."""
+
+    name: str = ""
+    requested: float = 0.0
+    value: float | None = None
+    """What the vehicle echoed (None: nothing)."""
+    reason: str = ""
     attempts: int = 0
 
 

@@ -31,7 +31,8 @@ from gcs import wire
 from gcs.autopilot import Adapter, CommandSpec, adapter_for
 from gcs.events import (
     ArmedChanged, CommandAcked, CommandFailed, CommandInProgress, CommandTimedOut, Event,
-    ModeChanged, ParamReceived, ParamTimedOut, StatusText, TaskPositionReceived,
+    ModeChanged, ParamReceived, ParamSetConfirmed, ParamSetFailed, ParamTimedOut, StatusText,
+    TaskPositionReceived,
     TelemetryReceived, VehicleDiscovered, VehicleLost, VehicleRecovered,
 )
 from gcs.wire import mavlink
@@ -238,6 +239,17 @@ class _ParamRequest:
     deadline_s: float = math.inf
 
 
+@dataclass
+class _ParamSet:
+    sysid: int
+    name: str
+    value: float
+    param_type: int
+    previous: float | None = None
+    attempts: int = 0
+    deadline_s: float = math.inf
+
+
 class StationLink:
     """One link's station core (see the module docstring)."""
 
@@ -263,6 +275,7 @@ class StationLink:
         self._params: dict[tuple[int, str], _ParamRequest] = {}
         self._param_queue: dict[tuple[int, str], _ParamRequest] = {}
         """Requests waiting for a free slot (``params_in_flight``), in request order."""
+        self._param_sets: dict[tuple[int, str], _ParamSet] = {}
         self._next_request_id = 1
         self._warned_types: set[str] = set()
         self._task_sysids = frozenset(self.config.task_sysids)
@@ -306,6 +319,8 @@ class StationLink:
             t = min(t, cmd.deadline_s)
         for req in self._params.values():
             t = min(t, req.deadline_s)
+        for ps in self._param_sets.values():
+            t = min(t, ps.deadline_s)
         for v in self._vehicles.values():
             if not v.lost:
                 t = min(t, v.last_heartbeat_s + cfg.vehicle_timeout_s, self._stale_due_s(v))
@@ -559,6 +574,39 @@ class StationLink:
         self._param_queue.pop((v.sysid, name), None)
         self._emit(ParamReceived(self.link_id, v.sysid, now_s, name, value, msg.param_type))
         self._pump_params(now_s)
+        ps = self._param_sets.get((v.sysid, name))
+        if ps is not None:
+            self._on_param_set_echo(ps, value, now_s)
+
+    def _on_param_set_echo(self, ps: _ParamSet, value: float, now_s: float) -> None:
+        # Both firmwares confirm a set only by a PARAM_VALUE with the stored value: PX4 sends it
+        # from the PARAM_SET handler (send_param, src/modules/mavlink/mavlink_parameters.cpp);
+        # ArduPilot's save() notifies every channel, and a refused write echoes the *old* value
+        # with "Param write denied" (libraries/GCS_MAVLink/GCS_Param.cpp handle_param_set).
+        key = (ps.sysid, ps.name)
+        if wire.param_values_equal(ps.value, value, ps.param_type):
+            del self._param_sets[key]
+            self._emit(ParamSetConfirmed(self.link_id, ps.sysid, now_s, ps.name, value,
+                                         ps.previous, ps.param_type, ps.attempts))
+        elif ps.attempts <= self.config.param_retries:
+            # Maybe the answer to an earlier read, crossing our set on the wire: ask again.
+            self._transmit_param_set(ps, now_s)
+        else:
+            del self._param_sets[key]
+            self._emit(ParamSetFailed(self.link_id, ps.sysid, now_s, ps.name, ps.value, value,
+                                      f"the vehicle kept {value:g}", ps.attempts))
+
+    def _on_param_error(self, v: _Vehicle, msg, now_s: float) -> None:
+        # PARAM_ERROR (newer ArduPilot GCS_Param.cpp send_param_error): a precise refusal.
+        name = wire.param_id_to_str(msg.param_id)
+        ps = self._param_sets.pop((v.sysid, name), None)
+        if ps is None:
+            self.stats.ignored_messages += 1
+            return
+        entry = mavlink.enums["MAV_PARAM_ERROR"].get(msg.error)
+        reason = entry.name if entry is not None else f"MAV_PARAM_ERROR({msg.error})"
+        self._emit(ParamSetFailed(self.link_id, v.sysid, now_s, name, ps.value, None, reason,
+                                  ps.attempts))
 
     def _on_statustext(self, v: _Vehicle, msg, now_s: float) -> None:
         text = msg.text
@@ -589,6 +637,13 @@ class StationLink:
                 del self._params[(req.sysid, req.name)]
                 self._emit(ParamTimedOut(self.link_id, req.sysid, now_s, req.name, req.attempts))
         self._pump_params(now_s)
+        for ps in [p for p in self._param_sets.values() if p.deadline_s <= now_s]:
+            if ps.attempts <= cfg.param_retries:
+                self._transmit_param_set(ps, now_s)
+            else:
+                del self._param_sets[(ps.sysid, ps.name)]
+                self._emit(ParamSetFailed(self.link_id, ps.sysid, now_s, ps.name, ps.value, None,
+                                          "no PARAM_VALUE echo", ps.attempts))
         for v in self._vehicles.values():
             if not v.lost and now_s >= v.last_heartbeat_s + cfg.vehicle_timeout_s:
                 v.lost = True
@@ -886,6 +941,36 @@ class StationLink:
             self._params[key] = req
             self._transmit_param_request(req, now_s)
 
+    def set_param(self, sysid: int, name: str, value: float, param_type: int, now_s: float,
+                  *, previous: float | None = None) -> None:
+        """PARAM_SET, re-sent until the PARAM_VALUE echo carries ``value``.
+
+        ``param_type`` is the MAV_PARAM_TYPE the vehicle reported for ``name`` (PX4 refuses a
+        set whose type differs). Integers are encoded as the autopilot expects (byte-wise for
+        PX4, :func:`gcs.wire.encode_param_value`). Outcome: ParamSetConfirmed, or ParamSetFailed
+        after ``param_retries`` re-sends every ``param_timeout_s`` (the retry policy of reads);
+        the echo also arrives as ParamReceived. A new set of the same name replaces a pending one.
+        """
+        v = self._get(sysid)
+        if not name or len(name) > 16:
+            raise ValueError(f"param name must be 1..16 characters, got {name!r}")
+        wire.encode_param_value(value, param_type, bytewise=v.adapter.param_bytewise)  # validate
+        ps = _ParamSet(sysid, name, float(value), int(param_type), previous)
+        self._param_sets[(sysid, name)] = ps
+        self._transmit_param_set(ps, now_s)
+
+    def _transmit_param_set(self, ps: _ParamSet, now_s: float) -> None:
+        v = self._vehicles[ps.sysid]
+        wire_value = wire.encode_param_value(ps.value, ps.param_type,
+                                             bytewise=v.adapter.param_bytewise)
+        msg = mavlink.MAVLink_param_set_message(ps.sysid, _AUTOPILOT_COMPID,
+                                                ps.name.encode("ascii"), wire_value,
+                                                ps.param_type)
+        ps.attempts += 1
+        ps.deadline_s = now_s + self.config.param_timeout_s
+        self._wake(ps.deadline_s)
+        self._send(msg, v.addr, now_s)
+
     def _transmit_param_request(self, req: _ParamRequest, now_s: float) -> None:
         v = self._vehicles[req.sysid]
         msg = mavlink.MAVLink_param_request_read_message(
@@ -905,6 +990,7 @@ _HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
     "GLOBAL_POSITION_INT": StationLink._on_global_position,
     "COMMAND_ACK": StationLink._on_command_ack,
     "PARAM_VALUE": StationLink._on_param_value,
+    "PARAM_ERROR": StationLink._on_param_error,
     "STATUSTEXT": StationLink._on_statustext,
 }
 

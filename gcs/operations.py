@@ -16,7 +16,10 @@ Phases (``Operator.phase``)::
   ``discover_settle_s`` without a new vehicle when no count is expected), and for the first
   position of every live task tracker (:mod:`gcs.tasks`; refused after ``task_wait_timeout_s``).
 * **audit**: read the lost-link parameters of every vehicle (:mod:`gcs.audit`); refuse unless
-  every vehicle is safe or ``override_audit``.
+  every vehicle is safe or ``override_audit``. With ``apply_failsafes`` (and only then: no
+  parameter is ever written otherwise), every fixable blocking finding is first fixed by a
+  PARAM_SET confirmed by the vehicle's PARAM_VALUE echo (:func:`gcs.audit.failsafe_fixes`), and
+  the fleet re-audited with the echoed values; ``param_changes`` records every write.
 * **launch**: in waves of ``wave_size``: GUIDED (ArduPilot) / pre-streamed OFFBOARD (PX4), arm,
   take off to the vehicle's layer; the next wave starts as soon as most of this one is off the
   ground (waves spread the command burst and the take-off, they do not wait for the climb);
@@ -47,7 +50,8 @@ from gcs import audit as audit_mod
 from gcs.autopilot import adapter_for
 from gcs.control import ControlConfig, layer_alt_m, tick
 from gcs.events import (
-    CommandFailed, CommandTimedOut, Event, ParamReceived, ParamTimedOut, TaskPositionReceived,
+    CommandFailed, CommandTimedOut, Event, ParamReceived, ParamSetConfirmed, ParamSetFailed,
+    ParamTimedOut, StatusText, TaskPositionReceived,
     VehicleDiscovered, VehicleLost, VehicleRecovered,
 )
 from gcs.fleet import FleetSnapshot, FleetView
@@ -79,6 +83,9 @@ class OperationsConfig:
     audit_timeout_s: float = 60.0
     audit_rounds: int = 3
     """Parameter reads that timed out are requested again, up to this many rounds in all."""
+    apply_failsafes: bool = False
+    """Fix fixable blocking audit findings by PARAM_SET (FS_GCS_ENABLE, the GCS sysid,
+    NAV_DLL_ACT) before re-auditing. Never any parameter write without it."""
     wave_size: int = 10
     wave_timeout_s: float = 40.0
     """A wave (and the final climb) waits at most this long for its vehicles."""
@@ -194,6 +201,15 @@ class Operator:
         self._params_pending: set[tuple[int, int, str]] = set()
         self._known: set[tuple[int, int]] = set()
         self.audit_report: audit_mod.AuditReport | None = None
+        self.initial_audit_report: audit_mod.AuditReport | None = None
+        """The audit before ``apply_failsafes`` changed anything (None if nothing was set)."""
+        self.param_changes: list[dict] = []
+        """One dict per parameter write: link_id, sysid, name, previous, value, ok, reason."""
+        self._param_types: dict[tuple[int, int], dict[str, int]] = {}
+        self._sets_pending: set[tuple[int, int, str]] = set()
+        self._fixes_sent_s: float | None = None
+        self.prearm: dict[tuple[int, int], tuple[float, str]] = {}
+        """Latest arming refusal text per vehicle ("PreArm: ..." STATUSTEXT) while launching."""
         self._audit_round = 1
         self._waves: list[list[int]] = []
         self._wave = 0
@@ -226,6 +242,7 @@ class Operator:
             self._rows.setdefault(self.fleet.index_of(*key), _Row())
         elif isinstance(event, ParamReceived):
             self._params.setdefault(key, {})[event.name] = event.value
+            self._param_types.setdefault(key, {})[event.name] = event.param_type
             self._params_pending.discard((*key, event.name))
             # Renamed parameters: the firmware has one spelling; stop asking for the other.
             for alt in audit_mod.ALTERNATIVE_NAMES.get(event.name, ()):
@@ -241,6 +258,24 @@ class Operator:
                     self.station.request_param(key, extra, event.t_s)
         elif isinstance(event, ParamTimedOut):
             self._params_pending.discard((*key, event.name))
+        elif isinstance(event, (ParamSetConfirmed, ParamSetFailed)):
+            if (*key, event.name) in self._sets_pending:
+                self._sets_pending.discard((*key, event.name))
+                ok = isinstance(event, ParamSetConfirmed)
+                change = {"link_id": key[0], "sysid": key[1], "name": event.name,
+                          "previous": event.previous if ok else None,
+                          "value": event.value, "ok": ok,
+                          "reason": "" if ok else event.reason}
+                if not ok:
+                    change["requested"] = event.requested
+                for c in self.param_changes:
+                    if (c["link_id"], c["sysid"], c["name"]) == (*key, event.name):
+                        change["previous"] = c["previous"]
+                        c.update(change)
+                        break
+                (log.info if ok else log.warning)(
+                    "link %d sysid %d: %s %s", *key, event.name,
+                    f"set to {event.value:g}" if ok else f"NOT set: {event.reason}")
         elif isinstance(event, (CommandFailed, CommandTimedOut)):
             self.counters["command_failures"] += 1
             row = self._rows.get(self.fleet.index_of(*key)) if key in self._known else None
@@ -356,6 +391,13 @@ class Operator:
         vehicles = {self._vid(snap, i): (int(snap.autopilot[i]),
                                          self._params.get(self._vid(snap, i), {}))
                     for i in range(snap.n_vehicles)}
+        if self.config.apply_failsafes:
+            if self._fixes_sent_s is None:
+                if self._send_fixes(vehicles, now_s):
+                    return
+            elif self._sets_pending \
+                    and now_s - self._fixes_sent_s < self.config.audit_timeout_s:
+                return  # the link ends every set with Confirmed or Failed; this is a backstop
         report = audit_mod.audit_fleet(vehicles, self.gcs_sysid,
                                        override=self.config.override_audit)
         self.audit_report = report
@@ -367,6 +409,34 @@ class Operator:
         if report.overridden:
             log.warning("pre-flight audit OVERRIDDEN:\n%s", report.summary())
         self._start_launch(snap, now_s)
+
+    def _send_fixes(self, vehicles, now_s: float) -> bool:
+        """PARAM_SET every fixable blocking finding; True if any write was sent."""
+        before = audit_mod.audit_fleet(vehicles, self.gcs_sysid)
+        self._fixes_sent_s = now_s
+        for va in before.unsafe:
+            vid = (va.link_id, va.sysid)
+            autopilot, params = vehicles[vid]
+            for name, value in audit_mod.failsafe_fixes(autopilot, params, self.gcs_sysid):
+                ptype = self._param_types.get(vid, {}).get(name)
+                if ptype is None:
+                    continue
+                try:
+                    self.station.set_param(vid, name, value, ptype, now_s,
+                                           previous=params.get(name))
+                except (UnknownVehicle, ValueError) as exc:
+                    log.warning("link %d sysid %d: cannot set %s: %s", *vid, name, exc)
+                    continue
+                self._sets_pending.add((*vid, name))
+                self.param_changes.append({"link_id": vid[0], "sysid": vid[1], "name": name,
+                                           "previous": params.get(name), "value": value,
+                                           "ok": None, "reason": "pending"})
+                log.info("link %d sysid %d: setting %s %g -> %g", *vid, name,
+                         params.get(name, math.nan), value)
+        if self._sets_pending:
+            self.initial_audit_report = before
+            return True
+        return False
 
     # ------------------------------------------------------------------ launch
 

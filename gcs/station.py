@@ -100,3 +100,7 @@ class Station:
 
     def request_param(self, vid: VehicleId, name: str, now_s: float) -> None:
         self.link(vid[0]).request_param(vid[1], name, now_s)
+
+    def set_param(self, vid: VehicleId, name: str, value: float, param_type: int, now_s: float,
+                  *, previous: float | None = None) -> None:
+        self.link(vid[0]).set_param(vid[1], name, value, param_type, now_s, previous=previous)

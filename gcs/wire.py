@@ -28,7 +28,8 @@ __all__ = [
     "TYPE_MASK_POSITION_VELOCITY_ACCELERATION", "TYPE_MASK_YAW", "TYPE_MASK_YAW_RATE",
     "TYPE_MASK_POSITION_YAW",
     "position_target_global_int", "position_target_local_ned",
-    "param_id_to_str", "decode_param_value",
+    "param_id_to_str", "decode_param_value", "encode_param_value", "param_values_equal",
+    "is_int_param_type",
 ]
 
 log = logging.getLogger(__name__)
@@ -194,6 +195,54 @@ def decode_param_value(value: float, param_type: int, *, bytewise: bool) -> floa
     raw = struct.pack("<f", value)
     size = struct.calcsize(fmt)
     return float(struct.unpack(fmt, raw[:size])[0])
+
+
+def encode_param_value(value: float, param_type: int, *, bytewise: bool) -> float:
+    """The PARAM_SET.param_value float that makes the autopilot store ``value``.
+
+    Inverse of :func:`decode_param_value`. ArduPilot casts the float to the parameter's own type
+    (``AP_Param::set_float`` in libraries/GCS_MAVLink/GCS_Param.cpp ``handle_param_set``);
+    PX4 copies the float's four bytes into the parameter (``param_set(param,
+    &set.param_value)`` in src/modules/mavlink/mavlink_parameters.cpp), so an INT32 must travel
+    as its bit pattern (``bytewise=True``). PX4 also refuses the set unless ``param_type``
+    matches the parameter's own (INT32 with INT32, REAL32 with FLOAT): send the type the
+    vehicle reported in PARAM_VALUE.
+    """
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"parameter value must be finite, got {value}")
+    fmt = _INT_PARAM_TYPES.get(param_type)
+    if fmt is None:
+        return value
+    iv = int(round(value))
+    lo, hi = _INT_RANGES[param_type]
+    if not lo <= iv <= hi:
+        raise ValueError(f"{iv} does not fit MAV_PARAM_TYPE {param_type}")
+    if not bytewise:
+        return float(iv)
+    # The value in the low bytes (little-endian), the rest zero (MAVLink parameter protocol,
+    # MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE; PX4 has INT32 and FLOAT only).
+    return struct.unpack("<f", struct.pack(fmt, iv).ljust(4, b"\x00"))[0]
+
+
+_INT_RANGES = {
+    mavlink.MAV_PARAM_TYPE_UINT8: (0, 0xFF), mavlink.MAV_PARAM_TYPE_INT8: (-128, 127),
+    mavlink.MAV_PARAM_TYPE_UINT16: (0, 0xFFFF), mavlink.MAV_PARAM_TYPE_INT16: (-32768, 32767),
+    mavlink.MAV_PARAM_TYPE_UINT32: (0, 0xFFFFFFFF), mavlink.MAV_PARAM_TYPE_INT32: (_INT32_MIN,
+                                                                                 _INT32_MAX),
+}
+
+
+def is_int_param_type(param_type: int) -> bool:
+    return param_type in _INT_PARAM_TYPES
+
+
+def param_values_equal(a: float, b: float, param_type: int) -> bool:
+    """Whether a PARAM_VALUE echo ``b`` confirms a set to ``a`` (integers exactly; REAL32 to
+    float32 precision, as ArduPilot and PX4 store it)."""
+    if param_type in _INT_PARAM_TYPES:
+        return int(round(a)) == int(round(b))
+    return abs(a - b) <= max(1e-6, 1e-5 * abs(a))
 
 
 # --------------------------------------------------------------------------------------------

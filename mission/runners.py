@@ -331,6 +331,8 @@ class FlyOptions:
     out_dir: str | None = None
     end: str = "rtl"
     override_audit: bool = False
+    apply_failsafes: bool = False
+    """Write the safe lost-link parameters the audit asks for (PARAM_SET, echo-confirmed)."""
     connections: tuple[str, ...] = ()
     wave_size: int = 25
     status: Callable[[dict], None] | None = None
@@ -449,7 +451,8 @@ def _station_config(mission: Mission) -> StationConfig:
 def _operations_config(mission: Mission, opts: FlyOptions, expected: int | None) -> OperationsConfig:
     return OperationsConfig(
         expected_vehicles=expected, discover_timeout_s=opts.discover_timeout_s,
-        override_audit=opts.override_audit, wave_size=opts.wave_size,
+        override_audit=opts.override_audit, apply_failsafes=opts.apply_failsafes,
+        wave_size=opts.wave_size,
         control_period_s=mission.run.control_period_s,
         duration_s=opts.duration_s or mission.run.duration_s, end=opts.end,
         radio_range_m=mission.radio.range_m, poll_period_s=0.5)

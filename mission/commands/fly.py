@@ -6,7 +6,8 @@ import argparse
 import math
 import sys
 
-__all__ = ["HELP", "DESCRIPTION", "add_arguments", "run", "format_status"]
+__all__ = ["HELP", "DESCRIPTION", "add_arguments", "run", "format_status",
+           "format_param_changes"]
 
 HELP = "fly a mission with the ground station (built-in emulator by default, or --connect)"
 DESCRIPTION = """\
@@ -15,7 +16,7 @@ mission's vehicles on loopback UDP (its own process, same simulated clock as the
 mission's run.speedup); with --connect the same station flies real links instead.
 
 Sequence: discover vehicles -> pre-flight audit of lost-link parameters (refuses unsafe settings
-unless --override-audit) -> GUIDED/OFFBOARD, arm, take off in waves -> PhiIREMAN at the control
+unless fixed with --apply-failsafes or overridden with --override-audit) -> GUIDED/OFFBOARD, arm, take off in waves -> PhiIREMAN at the control
 period -> RTL or LAND. Vehicles that come back from a failsafe are reclaimed.
 
 Writes a run directory (mission, seed, code version, flight.tlog, events.jsonl, metrics.csv,
@@ -47,6 +48,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="what the vehicles do at the end (default rtl)")
     p.add_argument("--override-audit", action="store_true",
                    help="fly even if the pre-flight audit finds unsafe lost-link settings")
+    p.add_argument("--apply-failsafes", action="store_true",
+                   help="during the audit, write the safe lost-link parameters it asks for "
+                        "(ArduPilot FS_GCS_ENABLE=1 RTL and SYSID_MYGCS/MAV_GCS_SYSID = our "
+                        "sysid; PX4 NAV_DLL_ACT=2 Return), each confirmed by the vehicle's "
+                        "echo; without this flag no parameter is ever written")
     p.add_argument("--duration-s", type=float, default=None,
                    help="mission length in seconds (default: the mission's run.duration_s)")
     p.add_argument("--vehicles", type=int, default=None, metavar="N",
@@ -90,6 +96,21 @@ def format_status(d: dict) -> str:
             f"lost {d['lost']}, ret {d['returning']}) {modes} | tasks {d['tasks_covered']}/"
             f"{d['n_tasks']} | TU1 {_pct(d['tu1'])} TU2 {_pct(d['tu2'])}")
     return line
+
+
+def format_param_changes(changes) -> list[str]:
+    """Lines for people: what --apply-failsafes wrote, per vehicle."""
+    out = []
+    for c in changes:
+        who = f"link {c['link_id']} sysid {c['sysid']}"
+        prev = "?" if c.get("previous") is None else f"{c['previous']:g}"
+        if c.get("ok"):
+            out.append(f"set {who}: {c['name']} {prev} -> {c['value']:g} (confirmed)")
+        else:
+            want = c.get("requested", c.get("value"))
+            out.append(f"FAILED to set {who}: {c['name']} {prev} -> {want:g}: "
+                       f"{c.get('reason') or 'no answer'}")
+    return out
 
 
 class _Status:
@@ -142,7 +163,8 @@ def run(args) -> int:
     status = _Status()
     opts = FlyOptions(seed=args.seed, personality=args.personality, speedup=args.speedup,
                       duration_s=args.duration_s, out_dir=args.out, end=args.end,
-                      override_audit=args.override_audit, connections=tuple(args.connect),
+                      override_audit=args.override_audit,
+                      apply_failsafes=args.apply_failsafes, connections=tuple(args.connect),
                       wave_size=args.wave_size, status=status,
                       expected_vehicles=args.vehicles, end_wait=not args.no_wait)
     print(mission.summary(), file=sys.stderr)
@@ -154,11 +176,15 @@ def run(args) -> int:
         status.close()
     s = result.summary
     op = result.operator
+    for line in format_param_changes(op.param_changes):
+        print(line, file=sys.stderr)
     if s["phase"] == "refused":
         if op.audit_report is not None and not op.audit_report.cleared_to_fly:
             print(op.audit_report.summary(), file=sys.stderr)
+            hint = ("" if args.apply_failsafes else
+                    " (--apply-failsafes writes the fixable ones)")
             print(f"phireman fly: the pre-flight audit refused the flight (see above); fix the "
-                  f"parameters or pass --override-audit. Run directory: {result.run_dir}",
+                  f"parameters{hint} or pass --override-audit. Run directory: {result.run_dir}",
                   file=sys.stderr)
         else:
             print(f"phireman fly: refused to launch: {op.refusal or 'unknown reason'}. "

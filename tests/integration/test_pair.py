@@ -7,12 +7,13 @@ and a :class:`vehicle_emu.swarm.Swarm` (its vehicle cores); time moves only when
 from __future__ import annotations
 
 import dataclasses
+import struct
 
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from gcs.events import CommandTimedOut, VehicleDiscovered, VehicleLost
+from gcs.events import CommandTimedOut, ParamSetConfirmed, VehicleDiscovered, VehicleLost
 from mission.runners import (
     FlyOptions, LockstepEther, _MissionWorld, _make_operator, build_swarm, mission_scenario,
     station_for_swarm,
@@ -121,13 +122,14 @@ def _mission(n=6, personality="ardupilot", duration_s=60.0, kills=(), tasks=None
 class _InMemoryFlight:
     """Operator + station + swarm over the ether, on a virtual clock."""
 
-    def __init__(self, mission, loss=0.0, params=None, seed=3):
+    def __init__(self, mission, loss=0.0, params=None, seed=3, record=False, **opts):
         scenario = mission_scenario(mission, seed)
         self.swarm = build_swarm(mission, scenario, seed=seed, params=params)
         self.world = _MissionWorld(mission, scenario, self.swarm)
-        self.station = station_for_swarm(self.swarm)
+        self.station = station_for_swarm(self.swarm, record_frames=record)
         self.op = _make_operator(mission, scenario, self.station,
-                                 FlyOptions(wave_size=10), mission.vehicles.count, 0.0, seed)
+                                 FlyOptions(wave_size=10, **opts), mission.vehicles.count, 0.0,
+                                 seed)
         self.ether = LockstepEther(self.swarm, self.station, np.random.default_rng(seed),
                                    loss=loss)
         self.events = []
@@ -169,6 +171,70 @@ def test_audit_refuses_unsafe_vehicles_unless_overridden():
     f = _InMemoryFlight(_mission(n=2), params={"FS_GCS_ENABLE": 0})
     f.run_until_phase("refused", limit_s=80.0)
     assert {(a.link_id, a.sysid) for a in f.op.audit_report.unsafe} == {(0, 1), (0, 2)}
+
+
+def test_audit_refusal_writes_no_parameter_without_the_flag():
+    f = _InMemoryFlight(_mission(n=2), params={"FS_GCS_ENABLE": 0}, record=True)
+    f.run_until_phase("refused", limit_s=80.0)
+    assert [c.params["FS_GCS_ENABLE"] for c in f.swarm.cores] == [0, 0]
+    assert f.op.param_changes == []
+    assert not any(m.get_type() == "PARAM_SET" for m in _sent_messages(f))
+
+
+def _sent_messages(f):
+    out = []
+    for t, outgoing, frame in f.station.links[0].take_frames():
+        if outgoing:
+            m = mavlink.MAVLink(None)
+            m.robust_parsing = True
+            out += m.parse_buffer(frame) or []
+    return out
+
+
+def test_apply_failsafes_fixes_ardupilot_and_launches():
+    f = _InMemoryFlight(_mission(n=2, duration_s=10.0), params={"FS_GCS_ENABLE": 0},
+                        apply_failsafes=True)
+    f.run_until_phase("run", limit_s=150.0)
+    assert [c.params["FS_GCS_ENABLE"] for c in f.swarm.cores] == [1, 1]
+    assert f.op.initial_audit_report is not None and not f.op.initial_audit_report.cleared_to_fly
+    assert f.op.audit_report.cleared_to_fly and not f.op.audit_report.overridden
+    ok = sorted((c["sysid"], c["name"], c["previous"], c["value"], c["ok"])
+                for c in f.op.param_changes)
+    assert ok == [(1, "FS_GCS_ENABLE", 0, 1, True), (2, "FS_GCS_ENABLE", 0, 1, True)]
+    assert {e.sysid for e in f.events if isinstance(e, ParamSetConfirmed)} == {1, 2}
+
+
+def test_apply_failsafes_sets_the_gcs_sysid_the_vehicle_has():
+    f = _InMemoryFlight(_mission(n=1, duration_s=10.0),
+                        params={"FS_GCS_ENABLE": 0, "SYSID_MYGCS": 200}, apply_failsafes=True)
+    f.run_until_phase("run", limit_s=150.0)
+    core = f.swarm.cores[0]
+    assert (core.params["FS_GCS_ENABLE"], core.params["SYSID_MYGCS"]) == (1, 255)
+    assert {c["name"] for c in f.op.param_changes if c["ok"]} == {"FS_GCS_ENABLE", "SYSID_MYGCS"}
+
+
+def test_apply_failsafes_fixes_px4_nav_dll_act_bytewise():
+    f = _InMemoryFlight(_mission(n=2, personality="px4", duration_s=10.0),
+                        params={"NAV_DLL_ACT": 0}, apply_failsafes=True, record=True)
+    f.run_until_phase("run", limit_s=150.0)
+    assert [c.params["NAV_DLL_ACT"] for c in f.swarm.cores] == [2, 2]
+    sets = [m for m in _sent_messages(f) if m.get_type() == "PARAM_SET"]
+    assert sets and all(m.param_type == mavlink.MAV_PARAM_TYPE_INT32 for m in sets)
+    # PX4 copies the float's bytes into the INT32 (mavlink_parameters.cpp): 2 as a bit pattern.
+    assert {struct.pack("<f", m.param_value) for m in sets} == {struct.pack("<i", 2)}
+    assert all(c["ok"] for c in f.op.param_changes) and len(f.op.param_changes) == 2
+    assert f.op.audit_report.cleared_to_fly and not f.op.audit_report.overridden
+
+
+def test_apply_failsafes_leaves_unfixable_findings_blocking():
+    # COM_OBL_RC_ACT 6 (terminate on offboard loss) is not one we write: still refused.
+    f = _InMemoryFlight(_mission(n=1, personality="px4"),
+                        params={"NAV_DLL_ACT": 0, "COM_OBL_RC_ACT": 6}, apply_failsafes=True)
+    f.run_until_phase("refused", limit_s=120.0)
+    core = f.swarm.cores[0]
+    assert core.params["NAV_DLL_ACT"] == 2 and core.params["COM_OBL_RC_ACT"] == 6
+    (unsafe,) = f.op.audit_report.unsafe
+    assert [b.param for b in unsafe.blocking] == ["COM_OBL_RC_ACT"]
 
 
 def test_reclaim_after_gcs_failsafe():
