@@ -71,6 +71,7 @@ __all__ = [
     "LABEL", "DccrsParams", "DccrsPlanner", "make_dccrs",
     "density_weight", "weighted_pair_gradient", "leader_gradient", "leader_gradient_reference",
     "leader_energy", "believed_velocities", "velocity_match", "velocity_match_reference",
+    "weighted_pair_gradient_entries", "velocity_match_entries",
 ]
 
 LABEL = "DCCRS (reconstruction, PAPER_NOTES §3.3; original paper not identified)"
@@ -193,6 +194,38 @@ def weighted_pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.nda
     return pair_factor * np.einsum("nk,nkc->nc", coef, diff)
 
 
+def weighted_pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e: np.ndarray,
+                                   weight: np.ndarray, attraction: float, floor: float, repulsion: float,
+                                   reach: float, pair_factor: float) -> np.ndarray:
+    """:func:`weighted_pair_gradient` from the interacting entries of the per-drone view only.
+
+    Parameters
+    ----------
+    pos_u : (n, 2) positions of the drones being planned
+    rows : (E,) int, the holder of each True entry of the mask, entries in row-major order
+    others_e : (E, 2) the believed position of each entry
+    weight : (n,) density weights
+
+    Notes
+    -----
+    Bit-identical to the dense kernel: the same element-wise operations, and Σ_k coef_ik (x_i - y_k)
+    accumulated in k order by ``np.bincount`` as einsum does (a masked entry only adds an exact 0).
+    """
+    n = len(pos_u)
+    diff = pos_u[rows] - others_e
+    d2 = np.einsum("ec,ec->e", diff, diff)
+    d = np.sqrt(d2)
+    pull = d > floor
+    push = (d < reach) & (d > 0)
+    att = (attraction * np.asarray(weight, float))[rows]
+    coef = np.divide(att, d * d2, out=np.zeros_like(d), where=pull)
+    coef -= np.divide(repulsion * (reach - d), d, out=np.zeros_like(d), where=push)
+    out = np.empty((n, 2))
+    out[:, 0] = np.bincount(rows, coef * diff[:, 0], minlength=n)
+    out[:, 1] = np.bincount(rows, coef * diff[:, 1], minlength=n)
+    return pair_factor * out
+
+
 def _leader_distances(pos_u, leaders_u):
     diff = pos_u[:, None, :] - leaders_u            # (n, L, 2)
     d = np.sqrt(np.einsum("nlc,nlc->nl", diff, diff))
@@ -287,6 +320,22 @@ def velocity_match(disp_pot_u: np.ndarray, neighbours: np.ndarray, vel_u: np.nda
     return out * np.minimum(1.0, vmax / np.where(norm > 0, norm, 1.0))[:, None]
 
 
+def velocity_match_entries(disp_pot_u: np.ndarray, rows: np.ndarray, vel_e: np.ndarray, alpha: float,
+                           vmax: float) -> np.ndarray:
+    """:func:`velocity_match` with N_i given as entries: ``rows`` (E,) the holder of each neighbour
+    entry (row-major order) and ``vel_e`` (E, 2) its velocity. Bit-identical to the dense kernel
+    (the neighbour sum is accumulated in column order, as einsum does)."""
+    n = len(disp_pot_u)
+    count = np.bincount(rows, minlength=n)
+    total = np.empty((n, 2))
+    total[:, 0] = np.bincount(rows, vel_e[:, 0], minlength=n)
+    total[:, 1] = np.bincount(rows, vel_e[:, 1], minlength=n)
+    mean = total / np.maximum(count, 1)[:, None]
+    out = np.where((count > 0)[:, None], (1.0 - alpha) * disp_pot_u + alpha * mean, disp_pot_u)
+    norm = np.sqrt(np.einsum("nc,nc->n", out, out))
+    return out * np.minimum(1.0, vmax / np.where(norm > 0, norm, 1.0))[:, None]
+
+
 def velocity_match_reference(disp_pot_u, neighbours, vel_u, alpha, vmax) -> np.ndarray:
     """Loop version of :func:`velocity_match` (for tests)."""
     n = len(disp_pot_u)
@@ -371,6 +420,42 @@ class DccrsPlanner:
         res = descend(pos_u, grad, self.vmax_u, p, separable=not joint)
         return res, near, weight
 
+    def _descend_entries(self, pos_u, er, y_e, leaders_u):
+        """:meth:`_descend` (async, fixed beliefs) from the known entries of the view: ``er`` (E,)
+        holder rows in row-major order, ``y_e`` (E, 2) believed positions; leaders (n, L, 2).
+        Returns (result, boolean over entries marking N_i, weights). Bit-identical to the dense one."""
+        p = self.params
+        n = len(pos_u)
+        diff = pos_u[er] - y_e
+        near_e = np.einsum("ec,ec->e", diff, diff) <= self.r_u ** 2        # N_i, as entries
+        rho = np.bincount(er[near_e], minlength=n)
+        weight = density_weight(rho, p.density_target, p.density_exponent, p.density_weight_min,
+                                p.density_weight_max)
+        gain = np.full(n, p.leader_gain)
+        if p.leader_cap > 0 and p.leader_gain > 0 and n:
+            lead = np.broadcast_to(leaders_u, (n,) + leaders_u.shape[-2:])
+            d, away = _leader_distances(pos_u, lead)
+            y = pos_u - away                                              # each drone's leader
+            dy = y_e - y[er]
+            claim = np.bincount(er[np.einsum("ec,ec->e", dy, dy) <= self.r_u ** 2], minlength=n)
+            gain[(d > self.r_u) & (claim >= p.leader_cap)] = 0.0
+
+        def grad(x, rows):
+            lead = leaders_u if leaders_u.ndim == 2 else leaders_u[rows]
+            if len(rows) == n:
+                r_e, ys = er, y_e
+            else:
+                chosen = np.zeros(n, dtype=bool)
+                chosen[rows] = True
+                take = chosen[er]
+                r_e, ys = (np.cumsum(chosen) - 1)[er[take]], y_e[take]
+            return (weighted_pair_gradient_entries(x[rows], r_e, ys, weight[rows], p.attraction,
+                                                   p.attraction_floor, p.repulsion, self.reach_u, p.pair_factor)
+                    + leader_gradient(x[rows], lead, gain[rows], p.leader_exponent, self.r_u, p.leader_floor))
+
+        res = descend(pos_u, grad, self.vmax_u, p, separable=True)
+        return res, near_e, weight
+
     # -- main entry -----------------------------------------------------------------------
     def plan(self, tick: TickInput) -> PlanOutput:
         p = self.params
@@ -421,16 +506,21 @@ class DccrsPlanner:
         idx = np.flatnonzero(planning & ~stale)
         if len(idx) == 0:
             return disp_u, {"stale_tree": int(stale.sum())}
-        believed, mask, stamps = self.messages.view(idx)  # (n_i, K, 2) paper units, columns kn.cols
+        # Known entries of the view only (rows into idx, columns into kn.cols, row-major).
+        er, ek, believed, stamps = self.messages.view_entries(idx)
         kn = self.messages.knowledge
         uniq, inv = np.unique(stamps, return_inverse=True)
         leaders = self._leaders(np.stack([self.messages.broadcast(s) for s in uniq])[inv], base_u)
-        res, near, weight = self._descend(pos_u[idx], believed, mask, leaders, joint=False)
+        res, near_e, weight = self._descend_entries(pos_u[idx], er, believed, leaders)
+        nr = er[near_e]
         if p.velocity_matching > 0:
-            vel = believed_velocities(kn.stamp[np.ix_(idx, kn.cols)], kn.pos_hist_m, kn.cols)
-            disp_u[idx] = velocity_match(res.disp_u, near, vel, p.velocity_matching, self.vmax_u)
+            col_e = kn.cols[ek[near_e]]
+            stamp_e = kn.stamp[idx[nr], col_e]
+            s = np.where(stamp_e >= 1, stamp_e, 1)       # as believed_velocities, per entry
+            vel = np.where((stamp_e >= 1)[:, None], kn.pos_hist_m[s, col_e] - kn.pos_hist_m[s - 1, col_e], 0.0)
+            disp_u[idx] = velocity_match_entries(res.disp_u, nr, vel, p.velocity_matching, self.vmax_u)
         else:
-            disp_u[idx] = velocity_match(res.disp_u, near, np.zeros(near.shape + (2,)), 0.0, self.vmax_u)
+            disp_u[idx] = velocity_match_entries(res.disp_u, nr, np.zeros((len(nr), 2)), 0.0, self.vmax_u)
         return disp_u, {"iterations": res.iterations, "converged": res.converged,
                         "stale_tree": int(stale.sum()), "mean_density_weight": float(weight.mean())}
 

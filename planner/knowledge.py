@@ -16,12 +16,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from planner.geometry import neighbour_pairs
 
 __all__ = ["Knowledge", "MessageLayer", "propagate_stamps", "propagate_stamps_reference", "UNKNOWN"]
 
 UNKNOWN = -1
+
+#: Above this many holders the one-hop product uses a sparse adjacency matrix (below it the dense
+#: product is cheaper than scipy's per-call overhead).
+_SPARSE_MIN_HOLDERS = 256
 
 
 def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = None,
@@ -64,11 +69,22 @@ def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = 
     send = valid & (age <= max_level)
     bits = int(np.ceil(np.log2(n + 1))) + 1  # 2^bits > n - 1 >= any degree
     if bits * (max_level + 1) < 1000:
-        adj = np.zeros((n, n))
-        adj[pairs[:, 0], pairs[:, 1]] = 1.0
-        adj[pairs[:, 1], pairs[:, 0]] = 1.0
-        code = np.where(send, np.ldexp(1.0, bits * (max_level - np.minimum(age, max_level))), 0.0)
-        total = adj @ code
+        code = np.zeros(stamp.shape)
+        code[send] = np.ldexp(1.0, bits * (max_level - age[send]))
+        if n > _SPARSE_MIN_HOLDERS:
+            # Radio links are sparse once the swarm spreads (a few dozen neighbours out of 500): a
+            # sparse product costs O(links K) instead of O(n^2 K). The decoded level does not
+            # depend on the summation order (the sum stays in its power-of-two bracket), so the
+            # result is the same integer table as the dense product's.
+            adj = csr_matrix((np.ones(2 * len(pairs)), (np.concatenate([pairs[:, 0], pairs[:, 1]]),
+                                                         np.concatenate([pairs[:, 1], pairs[:, 0]]))),
+                             shape=(n, n))
+            total = adj @ code
+        else:
+            adj = np.zeros((n, n))
+            adj[pairs[:, 0], pairs[:, 1]] = 1.0
+            adj[pairs[:, 1], pairs[:, 0]] = 1.0
+            total = adj @ code
         heard = total > 0
         level = max_level - (np.frexp(total[heard])[1] - 1) // bits
         out[heard] = np.maximum(out[heard], t_sent - level)
@@ -110,8 +126,9 @@ class Knowledge:
     tree_stamp : (N,) int64, step at which the base computed drone i's copy of the task tree (-1 none)
     pos_hist_m : (T, N, 2) float64, true positions by step (the content of every report)
     rows, cols : index arrays of the current *view*: alive holders and drones anybody knows about
-    believed_m : (len(rows), len(cols), 2) believed positions of the view (valid where ``known``)
     known_view : (len(rows), len(cols)) bool, holder knows the drone (never itself)
+    entry_rows, entry_cols : (E,) int, the True entries of ``known_view`` in row-major order
+    entry_believed_m : (E, 2) believed position of each entry
     """
 
     stamp: np.ndarray
@@ -119,8 +136,10 @@ class Knowledge:
     pos_hist_m: np.ndarray
     rows: np.ndarray = None
     cols: np.ndarray = None
-    believed_m: np.ndarray = None
     known_view: np.ndarray = None
+    entry_rows: np.ndarray = None
+    entry_cols: np.ndarray = None
+    entry_believed_m: np.ndarray = None
 
     @classmethod
     def empty(cls, n_drones: int, n_steps: int) -> "Knowledge":
@@ -135,7 +154,7 @@ class Knowledge:
 
         Links at t-1 join alive drones within r (connected to the base or not); the base sends the
         tree it computed at t-1 to drones within ``base_reach_m`` = min(R, r). Afterwards the view
-        (``rows``, ``cols``, ``believed_m``, ``known_view``) describes every alive holder.
+        (``rows``, ``cols``, ``known_view`` and its entries) describes every alive holder.
         """
         n = len(pos_m)
         self.pos_hist_m[t_step] = pos_m
@@ -161,14 +180,18 @@ class Knowledge:
         self.stamp[(self.stamp != UNKNOWN) & (t_step - self.stamp > age_max_steps)] = UNKNOWN
         cols = np.flatnonzero((self.stamp[rows] != UNKNOWN).any(axis=0))
         sub = self.stamp[np.ix_(rows, cols)]
-        believed = self.pos_hist_m[np.maximum(sub, 0), cols[None, :]]  # (rows, cols, 2)
-        diff = believed - pos_m[rows][:, None, :]
-        far = np.einsum("rcx,rcx->rc", diff, diff) > dist_max_m * dist_max_m
-        sub = np.where(far, UNKNOWN, sub)
+        # Only the known entries (a few dozen per holder once the swarm spreads) are gathered.
+        er, ek = np.nonzero(sub != UNKNOWN)                             # row-major
+        believed = self.pos_hist_m[sub[er, ek], cols[ek]]                # (E, 2)
+        diff = believed - pos_m[rows][er]
+        far = np.einsum("ec,ec->e", diff, diff) > dist_max_m * dist_max_m
+        sub[er[far], ek[far]] = UNKNOWN
         self.stamp[np.ix_(rows, cols)] = sub
+        keep = ~far & (rows[er] != cols[ek])
         known = sub != UNKNOWN
         known &= rows[:, None] != cols[None, :]
-        self.rows, self.cols, self.believed_m, self.known_view = rows, cols, believed, known
+        self.rows, self.cols, self.known_view = rows, cols, known
+        self.entry_rows, self.entry_cols, self.entry_believed_m = er[keep], ek[keep], believed[keep]
 
     def believed_positions_m(self) -> np.ndarray:
         """(N, N, 2): where drone i believes drone k is (garbage where stamp is unknown)."""
@@ -230,8 +253,24 @@ class MessageLayer:
         return self._broadcasts[int(stamp)]
 
     def view(self, holders: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Believed positions (n, K, 2), known mask (n, K) and broadcast stamps (n,) of alive
-        ``holders`` (columns are ``knowledge.cols``)."""
+        """Believed positions (n, K, 2, zero where unknown), known mask (n, K) and broadcast
+        stamps (n,) of alive ``holders`` (columns are ``knowledge.cols``). Dense; the planners use
+        :meth:`view_entries`."""
         kn = self.knowledge
-        rows = np.searchsorted(kn.rows, holders)  # holders are alive, hence rows of the view
-        return kn.believed_m[rows], kn.known_view[rows], kn.tree_stamp[holders]
+        er, ek, believed, stamps = self.view_entries(holders)
+        dense = np.zeros((len(holders), len(kn.cols), 2))
+        dense[er, ek] = believed
+        known = np.zeros((len(holders), len(kn.cols)), dtype=bool)
+        known[er, ek] = True
+        return dense, known, stamps
+
+    def view_entries(self, holders: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The known entries of alive ``holders`` (sorted): rows (E,) into ``holders``, columns (E,)
+        into ``knowledge.cols``, in row-major order; believed positions (E, 2); broadcast stamps (n,)."""
+        kn = self.knowledge
+        holders = np.asarray(holders)
+        local = np.full(len(kn.rows), -1, dtype=np.intp)
+        local[np.searchsorted(kn.rows, holders)] = np.arange(len(holders))  # holders are alive
+        er = local[kn.entry_rows]
+        take = er >= 0
+        return er[take], kn.entry_cols[take], kn.entry_believed_m[take], kn.tree_stamp[holders]

@@ -43,7 +43,8 @@ from planner.steiner import TaskTree, distance_to_tree, maintain_task_tree
 
 __all__ = [
     "PhiremanParams", "PhiremanPlanner", "DescentResult",
-    "task_gradient", "task_gradient_batched", "padded_segments", "pair_gradient", "pair_gradient_reference", "descend", "descend_reference",
+    "task_gradient", "task_gradient_batched", "padded_segments", "TreeSegments", "pair_gradient",
+    "pair_gradient_reference", "pair_gradient_entries", "descend", "descend_reference",
     "energy", "parse_params",
     "make_phireman", "make_phireman_central", "make_phireman_no_task", "make_phireman_nodes_only",
 ]
@@ -190,6 +191,48 @@ def task_gradient_batched(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarra
     return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
 
 
+class TreeSegments:
+    """Each drone's tree segments, gathered once per tick for :func:`task_gradient_batched`.
+
+    :meth:`gradient` equals ``task_gradient_batched(pos_u, *padded_segments(trees), version, Þ)``
+    bit for bit (the same element-wise operations on the same values, the same first-minimum rule)
+    but gathers the (n, E, 2) per-drone segments and computes ab and |ab|^2 once per tick instead
+    of at every descent step; the first step (all drones) needs no gather at all.
+
+    Parameters
+    ----------
+    trees : the tree versions held by drones
+    version : (n,) int, which tree each drone holds
+    nodes_only : as :func:`padded_segments`
+    """
+
+    def __init__(self, trees: list[TaskTree], version: np.ndarray, nodes_only: bool = False) -> None:
+        seg_a, seg_b, valid = padded_segments(trees, nodes_only)
+        self.a = seg_a[version]                                     # (n, E, 2)
+        self.ab = seg_b[version] - self.a
+        self.ab2 = np.einsum("nec,nec->ne", self.ab, self.ab)
+        self.valid = valid[version]
+
+    def gradient(self, pos_u: np.ndarray, rows: np.ndarray, thorn: float) -> np.ndarray:
+        """(len(rows), 2) ∇ Þ h_T of drones ``rows`` at ``pos_u`` (len(rows), 2)."""
+        if thorn == 0.0 or len(pos_u) == 0:
+            return np.zeros_like(pos_u)
+        if len(rows) == len(self.a):
+            a, ab, ab2, ok = self.a, self.ab, self.ab2, self.valid
+        else:
+            a, ab, ab2, ok = self.a[rows], self.ab[rows], self.ab2[rows], self.valid[rows]
+        ap = pos_u[:, None, :] - a
+        t = np.clip(np.divide(np.einsum("nec,nec->ne", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
+        foot = a + t[:, :, None] * ab
+        off = pos_u[:, None, :] - foot
+        d2 = np.where(ok, np.einsum("nec,nec->ne", off, off), np.inf)
+        best = np.argmin(d2, axis=1)
+        r = np.arange(len(pos_u))
+        away = off[r, best]
+        dist = np.sqrt(d2[r, best])
+        return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
+
+
 def pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, attraction: float,
                   floor: float, repulsion: float, reach: float, pair_factor: float,
                   others_sq: np.ndarray | None = None) -> np.ndarray:
@@ -236,6 +279,46 @@ def pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, att
     else:
         weighted = np.einsum("nk,nkc->nc", coef, others_u)
     return pair_factor * (pos_u * coef.sum(axis=1)[:, None] - weighted)
+
+
+def pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, cols: np.ndarray, others_e: np.ndarray,
+                          others_sq_e: np.ndarray, n_cols: int, attraction: float, floor: float,
+                          repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
+    """:func:`pair_gradient` of the per-drone view from its interacting entries only.
+
+    Parameters
+    ----------
+    pos_u : (n, 2) positions of the drones being planned, paper units
+    rows, cols : (E,) int, the entries (i, k) where the mask is True, in row-major order
+        (as ``np.nonzero(mask)`` returns them)
+    others_e : (E, 2) the believed position of entry e (``others_u[rows, cols]``)
+    others_sq_e : (E,) its squared norm
+    n_cols : K, the number of columns of the dense view
+    attraction, floor, repulsion, reach, pair_factor : as :func:`pair_gradient`
+
+    Notes
+    -----
+    Bit-identical to ``pair_gradient(pos_u, others_u, mask, ..., others_sq)``: every element-wise
+    operation is the same; the per-drone weighted sum Σ_k coef_ik y_k is accumulated in k order by
+    ``np.bincount`` (as einsum does; a masked entry only adds an exact zero), and Σ_k coef_ik, which
+    numpy sums pairwise, is summed over the same dense zero-padded row. The async view is ~85 %
+    masked once the swarm has spread (each drone hears a few dozen of the 500 at XL).
+    """
+    n = len(pos_u)
+    xx = np.einsum("nc,nc->n", pos_u, pos_u)
+    d2 = xx[rows] + others_sq_e - 2.0 * np.einsum("ec,ec->e", others_e, pos_u[rows])
+    np.maximum(d2, 0.0, out=d2)
+    inv = np.zeros_like(d2)
+    np.divide(1.0, np.sqrt(d2), out=inv, where=d2 > 0)
+    d = d2 * inv
+    coef = np.where(d > floor, attraction * inv * inv * inv, 0.0)
+    coef -= np.where((d < reach) & (inv > 0), repulsion * (reach * inv - 1.0), 0.0)
+    dense = np.zeros((n, n_cols))
+    dense[rows, cols] = coef
+    weighted = np.empty((n, 2))
+    weighted[:, 0] = np.bincount(rows, coef * others_e[:, 0], minlength=n)
+    weighted[:, 1] = np.bincount(rows, coef * others_e[:, 1], minlength=n)
+    return pair_factor * (pos_u * dense.sum(axis=1)[:, None] - weighted)
 
 
 def pair_gradient_reference(pos_u, others_u, mask, attraction, floor, repulsion, reach, pair_factor):
@@ -482,15 +565,25 @@ class PhiremanPlanner:
         idx = np.flatnonzero(planning & ~stale)
         if len(idx) == 0:
             return disp_u, {"stale_tree": int(stale.sum())}
-        believed, mask, stamps = self.messages.view(idx)   # (n_i, K, 2) paper units, (n_i, K), (n_i,)
+        # Only the known entries interact (pair_gradient_entries; bit-identical to the dense view).
+        ent_r, ent_k, ent_y, stamps = self.messages.view_entries(idx)  # (E,), (E,), (E, 2) paper units, (n_i,)
         versions, version_of = np.unique(stamps, return_inverse=True)
-        seg_a, seg_b, valid = padded_segments([self.messages.broadcast(s) for s in versions], p.nodes_only)
-
-        believed_sq = np.einsum("nkc,nkc->nk", believed, believed)
+        segments = TreeSegments([self.messages.broadcast(s) for s in versions], version_of, p.nodes_only)
+        ent_sq = np.einsum("ec,ec->e", ent_y, ent_y)
+        n_view, n_cols = len(idx), len(self.messages.knowledge.cols)
 
         def grad(x, rows):
-            return (self._pair_grad(x[rows], believed[rows], mask[rows], believed_sq[rows])
-                    + task_gradient_batched(x[rows], seg_a, seg_b, valid, version_of[rows], p.thorn))
+            if len(rows) == n_view:
+                er, ek, ey, esq = ent_r, ent_k, ent_y, ent_sq
+            else:
+                chosen = np.zeros(n_view, dtype=bool)
+                chosen[rows] = True
+                take = chosen[ent_r]
+                er = (np.cumsum(chosen) - 1)[ent_r[take]]
+                ek, ey, esq = ent_k[take], ent_y[take], ent_sq[take]
+            return (pair_gradient_entries(x[rows], er, ek, ey, esq, n_cols, p.attraction, p.attraction_floor,
+                                          p.repulsion, self.reach_u, p.pair_factor)
+                    + segments.gradient(x[rows], rows, p.thorn))
 
         res = descend(pos_u[idx], grad, self.vmax_u, p, separable=True)
         disp_u[idx] = res.disp_u

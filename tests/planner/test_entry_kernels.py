@@ -1,0 +1,121 @@
+"""The entry-list (sparse) kernels of the async model against their dense versions and the loops.
+
+The dense kernels are the reference here: the entry versions must give the *same bits* (runs are
+chaotic, so a last-digit difference would change per-seed results), and the loops must agree to
+rounding.
+"""
+import numpy as np
+import pytest
+
+from planner.dccrs import (velocity_match, velocity_match_entries, velocity_match_reference,
+                           weighted_pair_gradient, weighted_pair_gradient_entries)
+from planner.knowledge import MessageLayer, propagate_stamps, propagate_stamps_reference
+from planner.phireman import (TreeSegments, padded_segments, pair_gradient, pair_gradient_entries,
+                              pair_gradient_reference, task_gradient_batched)
+from planner.steiner import build_task_tree
+
+KW = dict(attraction=0.05, floor=0.5, repulsion=0.3, reach=2.0, pair_factor=2.0)
+
+
+def _view(rng, n, k, density, spread=8.0):
+    x = rng.uniform(-spread, spread, (n, 2))
+    beliefs = rng.uniform(-spread, spread, (n, k, 2))
+    mask = rng.random((n, k)) < density
+    if k >= n:  # some beliefs coincide with the holder (d = 0 must be skipped)
+        beliefs[np.arange(n), np.arange(n)] = x
+    return x, beliefs, mask
+
+
+@pytest.mark.parametrize("n,k,density", [(1, 1, 1.0), (3, 5, 0.5), (40, 60, 0.3), (200, 500, 0.12),
+                                         (500, 500, 0.85), (7, 300, 0.02), (20, 20, 0.0)])
+def test_pair_gradient_entries_bit_identical_to_dense(rng, n, k, density):
+    x, beliefs, mask = _view(rng, n, k, density)
+    sq = np.einsum("nkc,nkc->nk", beliefs, beliefs)
+    dense = pair_gradient(x, beliefs, mask, others_sq=sq, **KW)
+    r, c = np.nonzero(mask)
+    y = beliefs[r, c]
+    got = pair_gradient_entries(x, r, c, y, np.einsum("ec,ec->e", y, y), k, KW["attraction"], KW["floor"],
+                                KW["repulsion"], KW["reach"], KW["pair_factor"])
+    assert np.array_equal(got, dense)
+    if n * k <= 3000:
+        assert np.allclose(got, pair_gradient_reference(x, beliefs, mask, **KW), atol=1e-9)
+
+
+@pytest.mark.parametrize("n,k,density", [(1, 1, 1.0), (40, 60, 0.3), (200, 500, 0.12), (500, 500, 0.85)])
+def test_weighted_pair_gradient_entries_bit_identical_to_dense(rng, n, k, density):
+    x, beliefs, mask = _view(rng, n, k, density)
+    w = rng.uniform(0.5, 2.0, n)
+    dense = weighted_pair_gradient(x, beliefs, mask, w, KW["attraction"], KW["floor"], KW["repulsion"],
+                                   KW["reach"], KW["pair_factor"])
+    r, c = np.nonzero(mask)
+    got = weighted_pair_gradient_entries(x, r, beliefs[r, c], w, KW["attraction"], KW["floor"],
+                                         KW["repulsion"], KW["reach"], KW["pair_factor"])
+    assert np.array_equal(got, dense)
+
+
+@pytest.mark.parametrize("n,k,density", [(1, 1, 1.0), (40, 60, 0.3), (300, 500, 0.12)])
+def test_velocity_match_entries_bit_identical_to_dense(rng, n, k, density):
+    disp = rng.normal(0, 0.2, (n, 2))
+    vel = rng.normal(0, 0.1, (n, k, 2))
+    near = rng.random((n, k)) < density
+    dense = velocity_match(disp, near, vel, 0.3, 0.15)
+    r, c = np.nonzero(near)
+    got = velocity_match_entries(disp, r, vel[r, c], 0.3, 0.15)
+    assert np.array_equal(got, dense)
+    if n * k <= 3000:
+        assert np.allclose(got, velocity_match_reference(disp, near, vel, 0.3, 0.15), atol=1e-12)
+
+
+def test_tree_segments_bit_identical_to_batched(rng):
+    trees = [build_task_tree(np.zeros(2), rng.uniform(-5, 5, (int(rng.integers(1, 12)), 2))) for _ in range(5)]
+    x = rng.uniform(-6, 6, (300, 2))
+    version = rng.integers(0, 5, 300)
+    for nodes_only in (False, True):
+        seg = TreeSegments(trees, version, nodes_only)
+        full = task_gradient_batched(x, *padded_segments(trees, nodes_only), version, 0.05)
+        assert np.array_equal(seg.gradient(x, np.arange(300), 0.05), full)
+        rows = np.flatnonzero(rng.random(300) < 0.3)
+        assert np.array_equal(seg.gradient(x[rows], rows, 0.05),
+                              task_gradient_batched(x[rows], *padded_segments(trees, nodes_only),
+                                                    version[rows], 0.05))
+
+
+def test_sparse_propagation_matches_reference(rng):
+    """Above the sparse threshold the one-hop product uses a sparse adjacency matrix."""
+    for n in (300, 520):
+        stamp = rng.integers(-1, 12, (n, n))
+        pos = rng.uniform(0, 40, (n, 2))
+        d = np.linalg.norm(pos[:, None] - pos[None], axis=2)
+        i, j = np.nonzero(np.triu(d <= 3.0, 1))
+        pairs = np.column_stack([i, j])
+        assert (propagate_stamps(stamp, pairs) == propagate_stamps_reference(stamp, pairs)).all()
+        t_sent, age_max = 11, 3
+        fresh = np.where(t_sent - stamp <= age_max, stamp, -1)
+        expected = np.maximum(propagate_stamps_reference(fresh, pairs), stamp)
+        assert (propagate_stamps(stamp, pairs, t_sent, age_max) == expected).all()
+
+
+def test_view_entries_are_the_known_entries_of_the_dense_view(rng):
+    n = 60
+    layer = MessageLayer(n, 20, 2.0, 2.0, 3, 6.0, 15)
+    pos = rng.uniform(-4, 4, (n, 2))
+    alive = np.ones(n, bool)
+    for t in range(6):
+        alive &= rng.random(n) > 0.05
+        pos = pos + rng.normal(0, 0.3, pos.shape)
+        layer.step(t, pos, alive, np.zeros(2), t)
+    kn = layer.knowledge
+    holders = kn.rows[rng.random(len(kn.rows)) < 0.7]
+    er, ek, believed, stamps = layer.view_entries(holders)
+    dense, known, stamps2 = layer.view(holders)
+    r, c = np.nonzero(known)
+    assert np.array_equal(er, r) and np.array_equal(ek, c)
+    assert np.array_equal(believed, dense[r, c]) and np.array_equal(stamps, stamps2)
+    # each entry is the true position of drone cols[k] at its stamp, and never the holder itself
+    s = kn.stamp[holders[er], kn.cols[ek]]
+    assert (s >= 0).all() and (holders[er] != kn.cols[ek]).all()
+    assert np.array_equal(believed, kn.pos_hist_m[s, kn.cols[ek]])
+    # the known mask is exactly: valid stamp, not self, within dist_max of the holder
+    sub = kn.stamp[np.ix_(holders, kn.cols)]
+    expect = (sub >= 0) & (holders[:, None] != kn.cols[None, :])
+    assert np.array_equal(known, expect)
