@@ -171,6 +171,13 @@ class PX4Adapter(Adapter):
     land_mode = "AUTO.LAND"
     # COM_OBL_RC_ACT / NAV_DLL_ACT outcomes: position hold, hold, RTL, land.
     failsafe_modes = frozenset({"POSCTL", "AUTO.LOITER", "AUTO.RTL", "AUTO.LAND"})
+    # Position targets in GLOBAL_INT (AMSL): PX4 mavlink_receiver.cpp
+    # handle_message_set_position_target_global_int accepts frames 5, 6 and 11 only (others:
+    # "invalid coordinate frame"), and for 6 computes z = home.alt - alt - ref_alt, which puts
+    # the target 2 (home.alt - ref_alt) off whenever home is not at the EKF origin's altitude.
+    # Frame 5 is z = ref_alt - alt: exact. The link converts "above home" with the home AMSL
+    # from GLOBAL_POSITION_INT (alt - relative_alt = home.alt on PX4).
+    setpoint_frame = mavlink.MAV_FRAME_GLOBAL_INT
     setpoint_period_s = 0.1  # >= 10 Hz (PX4 needs > 2 Hz; MAVSDK streams at 20 Hz)
     prestream_s = 1.2        # "more than a second" of setpoints before OFFBOARD / arming
     param_bytewise = True

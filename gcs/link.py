@@ -877,13 +877,24 @@ class StationLink:
                             now_s: float, *, frame: int | None = None) -> None:
         """Set (and keep re-sending) a SET_POSITION_TARGET_GLOBAL_INT position target.
 
-        ``alt_m`` is above home in the default frame (GLOBAL_RELATIVE_ALT_INT, 6). Sent at once,
-        then re-sent every ``adapter.setpoint_period_s`` (1 s ArduPilot, 0.1 s PX4) until
+        ``alt_m`` is above the vehicle's home unless ``frame`` is given (then it is in that
+        frame). On the wire it goes in the adapter's frame: ArduPilot GLOBAL_RELATIVE_ALT_INT (6,
+        a Location ABOVE_HOME, ArduCopter GCS_Mavlink.cpp); PX4 GLOBAL_INT (5) with the AMSL
+        altitude home + ``alt_m``, home AMSL being GLOBAL_POSITION_INT ``alt - relative_alt``
+        (PX4's frame-6 conversion in mavlink_receiver.cpp computes ``home.alt - alt - ref_alt``,
+        right only when home is at the EKF origin's altitude). Sent at once, then re-sent every
+        ``adapter.setpoint_period_s`` (1 s ArduPilot, 0.1 s PX4) until
         :meth:`clear_position_target`, so a lost datagram or a GUID_TIMEOUT never leaves the
         vehicle without a target and PX4 keeps its OFFBOARD stream.
+
+        Raises LinkUsageError if the frame needs the home altitude and no position came yet.
         """
         v = self._get(sysid)
         fr = v.adapter.setpoint_frame if frame is None else frame
+        if frame is None and fr == mavlink.MAV_FRAME_GLOBAL_INT:
+            if v.position is None:
+                raise LinkUsageError(f"sysid {sysid}: no position yet, home altitude unknown")
+            alt_m = float(alt_m) + v.position.alt_amsl_m - v.position.rel_alt_m
         # Validate now (a local error) rather than at the next resend.
         wire.position_target_global_int(target_system=sysid, lat_deg=lat_deg, lon_deg=lon_deg,
                                         alt_m=alt_m, frame=fr)

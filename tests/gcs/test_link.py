@@ -329,7 +329,8 @@ def test_px4_offboard_and_arm_only_after_prestreaming_setpoints(station):
     assert drain(link)[0].mode == "POSCTL"
     with pytest.raises(LinkUsageError):
         link.set_mode(1, "OFFBOARD", 0.0)  # no setpoint stream yet
-    link.receive_datagram(ap.global_position(47.0, 8.0, 500.0, 0.0), A1, 0.0)
+    # Home 3 m below the vehicle (alt - relative_alt = 497 m AMSL).
+    link.receive_datagram(ap.global_position(47.0, 8.0, 500.0, 3.0), A1, 0.0)
     link.takeoff(1, 15.0, 0.0)  # PX4: climb in offboard
     frames = [(0.0, m, a) for m, a in sent(link, 0.0)] + run_until(link, 2.0)
     sp_times = [t for t, m, _ in frames if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
@@ -342,7 +343,8 @@ def test_px4_offboard_and_arm_only_after_prestreaming_setpoints(station):
     before = [t for t in sp_times if t < t_mode]
     assert len(before) >= 10 and max(b - a for a, b in zip(before, before[1:])) <= 0.1 + 1e-9
     sp = [m for _, m, _ in frames if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"][0]
-    assert (sp.coordinate_frame, sp.type_mask, sp.alt) == (6, 3576, 15.0)
+    # PX4: GLOBAL_INT (AMSL) = home + 15 m (its frame-6 conversion is off when home != origin).
+    assert (sp.coordinate_frame, sp.type_mask, sp.alt) == (5, 3576, 497.0 + 15.0)
     assert (sp.lat_int, sp.lon_int) == (470000000, 80000000)
 
 
