@@ -199,6 +199,10 @@ def run_inprocess(mission: Mission, seed: int | None = None, frames: tuple[int, 
                         scn.task_track_m, np.zeros((tau + 1, m), bool))
     frames = set(frames)
     losses = []
+    # The station clips every target into the mission's geofence (gcs.control); so does this
+    # backend, with the same fence (runners.control_config, one place for its default).
+    from mission.runners import MissionScenario as _FlyScenario, control_config
+    fence = control_config(mission, _FlyScenario(scn.drone_pos0_m, scn.task_track_m, scn.dt_s)).geofence
     for t in range(tau + 1):
         active = world.active()
         rec.connected[t] = world.tasks_connected(active)
@@ -210,7 +214,8 @@ def run_inprocess(mission: Mission, seed: int | None = None, frames: tuple[int, 
             rec.trees[t] = out.tree
         p_loss = loss_probability(mission, t * scn.dt_s, world.pos_m)
         p_loss = np.where(scn.scripted_step == t, 1.0, p_loss)
-        lost = world.step(out.disp_m, active, p_loss, scn.attrition_u[t])
+        disp_m = fence.clip_ne(world.pos_m + out.disp_m) - world.pos_m
+        lost = world.step(disp_m, active, p_loss, scn.attrition_u[t])
         for i in np.flatnonzero(lost):
             losses.append({"t_s": (t + 1) * scn.dt_s, "event": "vehicle_lost", "index": int(i),
                            "scripted": bool(scn.scripted_step[i] == t),
