@@ -278,6 +278,7 @@ class StationLink:
         self._param_sets: dict[tuple[int, str], _ParamSet] = {}
         self._next_request_id = 1
         self._warned_types: set[str] = set()
+        self._warned_own_sysid = False
         self._task_sysids = frozenset(self.config.task_sysids)
         self._task_addr: dict[int, Addr] = {}
         self._task_fix_s: dict[int, float] = {}
@@ -412,6 +413,16 @@ class StationLink:
         sysid = msg.get_srcSystem()
         if sysid == self.config.sysid:
             self.stats.own_sysid += 1
+            if kind == "HEARTBEAT" and not self._warned_own_sysid:
+                # E.g. MAVProxy (sim_vehicle.py's default, sysid 255): ArduPilot counts every
+                # heartbeat from SYSID_MYGCS / MAV_GCS_SYSID for its GCS failsafe
+                # (GCS_Common.cpp handle_heartbeat), so that GCS keeps the failsafe from
+                # triggering when we are gone. Never a vehicle, never us.
+                self._warned_own_sysid = True
+                log.warning("link %d: another system sends heartbeats with our sysid %d "
+                            "(compid %d, MAVProxy?): its heartbeats also feed the vehicles' GCS "
+                            "failsafe; run SITL with --no-mavproxy or give one of us another "
+                            "sysid", self.link_id, sysid, msg.get_srcComponent())
             return
         if sysid in self._task_sysids:
             self._on_task_message(msg, addr, now_s)

@@ -56,6 +56,7 @@ from gcs.events import (
 )
 from gcs.fleet import FleetSnapshot, FleetView
 from gcs.link import LinkUsageError, UnknownVehicle
+from gcs.wire import mavlink
 from gcs.station import Station
 from gcs.tasks import LiveTasks
 from planner.geometry import tasks_connected
@@ -100,6 +101,13 @@ class OperationsConfig:
     it before the take-off is sent again (below ArduCopter's DISARM_DELAY, 10 s)."""
     max_backoff_s: float = 24.0
     """Back-off cap after repeated command failures on one vehicle."""
+    prearm_retry_s: float = 5.0
+    """A vehicle that refused to arm (not ready: ArduPilot MAV_RESULT_FAILED with a "PreArm:"
+    STATUSTEXT while the EKF/GPS converge, ~40 s in SITL; PX4 TEMPORARILY_REJECTED) is asked
+    again this often, without exponential back-off; the launch waits for it."""
+    launch_timeout_s: float = 300.0
+    """The launch gives up waiting for vehicles that keep refusing to arm after this long
+    (from the start of the launch) and starts the run with those that flew."""
     control_period_s: float = 1.0
     duration_s: float = 200.0
     """Length of the run phase (the mission), seconds."""
@@ -159,7 +167,13 @@ class _Row:
     takeoff_s: float = -math.inf
     """When the last take-off was commanded."""
     failures: int = 0
-    """Consecutive failed or timed-out commands (exponential back-off)."""
+    """Consecutive failed attempts (exponential back-off); an attempt's commands (GUIDED, arm,
+    take-off) failing together count once."""
+    attempt: int = 0
+    failed_attempt: int = -1
+    refused_attempt: int = -1
+    not_ready_s: float = -math.inf
+    """When the vehicle last refused to arm (not ready yet)."""
     reclaims: int = 0
 
 
@@ -212,6 +226,8 @@ class Operator:
         """Latest arming refusal text per vehicle ("PreArm: ..." STATUSTEXT) while launching."""
         self._audit_round = 1
         self._waves: list[list[int]] = []
+        self._launch_since_s = now_s
+        self._launch_gave_up = False
         self._wave = 0
         self._wave_since_s = now_s
         self.mission_t0_s: float | None = None
@@ -276,15 +292,41 @@ class Operator:
                 (log.info if ok else log.warning)(
                     "link %d sysid %d: %s %s", *key, event.name,
                     f"set to {event.value:g}" if ok else f"NOT set: {event.reason}")
+        elif isinstance(event, StatusText):
+            text = event.text.strip()
+            # ArduPilot AP_Arming::check_failed: "PreArm: ..." / "Arm: ..."; PX4 commander:
+            # "Arming denied: ...", "Preflight Fail: ...".
+            if text.startswith(("PreArm", "Arm:", "Arming denied", "Preflight Fail")):
+                old = self.prearm.get(key)
+                self.prearm[key] = (event.t_s, text)
+                if (old is None or old[1] != text) and self.phase in ("launch", "run"):
+                    log.warning("link %d sysid %d not ready to arm: %s", *key, text)
         elif isinstance(event, (CommandFailed, CommandTimedOut)):
             self.counters["command_failures"] += 1
             row = self._rows.get(self.fleet.index_of(*key)) if key in self._known else None
+            refused_arm = (isinstance(event, CommandFailed)
+                           and event.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+                           and event.result in (mavlink.MAV_RESULT_FAILED,
+                                                mavlink.MAV_RESULT_TEMPORARILY_REJECTED,
+                                                mavlink.MAV_RESULT_DENIED))
             if row is not None:
-                row.failures += 1
-                # Back off: the next attempt waits action_retry_s x 2^(failures-1), capped.
-                backoff = min(self.config.action_retry_s * 2 ** (row.failures - 1),
-                              self.config.max_backoff_s)
-                row.next_action_s = max(row.next_action_s, event.t_s + backoff)
+                if refused_arm:
+                    # Not ready (EKF/GPS converging): ask again at a steady pace, no back-off
+                    # (ArduPilot GCS_Common.cpp handle_command_component_arm_disarm answers
+                    # MAV_RESULT_FAILED; PX4 Commander.cpp TEMPORARILY_REJECTED).
+                    row.not_ready_s = event.t_s
+                    row.refused_attempt = row.attempt
+                    if row.failed_attempt == row.attempt:  # its take-off failed first: uncount
+                        row.failures = max(0, row.failures - 1)
+                        row.failed_attempt = -1
+                    row.next_action_s = event.t_s + self.config.prearm_retry_s
+                elif row.failed_attempt != row.attempt and row.refused_attempt != row.attempt:
+                    row.failed_attempt = row.attempt
+                    row.failures += 1
+                    # Back off: the next attempt waits action_retry_s x 2^(failures-1), capped.
+                    backoff = min(self.config.action_retry_s * 2 ** (row.failures - 1),
+                                  self.config.max_backoff_s)
+                    row.next_action_s = max(row.next_action_s, event.t_s + backoff)
                 row.takeoff_s = -math.inf  # the take-off is not under way: the back-off rules
             log.info("link %d sysid %d: command %d %s", event.link_id, event.sysid,
                      event.command, type(event).__name__)
@@ -440,8 +482,20 @@ class Operator:
 
     # ------------------------------------------------------------------ launch
 
+    def not_ready(self, snap: FleetSnapshot, now_s: float) -> list[tuple[int, int]]:
+        """Heard, unarmed vehicles that refused to arm recently (still converging)."""
+        out = []
+        for i in range(snap.n_vehicles):
+            row = self._rows.get(i)
+            if row is None or snap.lost[i] or snap.armed[i]:
+                continue
+            if now_s - row.not_ready_s <= 2 * self.config.prearm_retry_s + 2.0:
+                out.append(self._vid(snap, i))
+        return out
+
     def _start_launch(self, snap: FleetSnapshot, now_s: float) -> None:
         self._enter("launch", now_s)
+        self._launch_since_s = now_s
         rows = list(range(snap.n_vehicles))
         k = self.config.wave_size
         self._waves = [rows[j:j + k] for j in range(0, len(rows), k)]
@@ -479,6 +533,18 @@ class Operator:
             target = layer_alt_m(rows, self.control)
             climbed = fin[rows] & (np.where(fin[rows], alt[rows], 0.0)
                                    >= cfg.climbed_alt_frac * target)
+            waiting = self.not_ready(snap, now_s)
+            in_time = now_s - self._launch_since_s < cfg.launch_timeout_s
+            if waiting and in_time:
+                # Vehicles still refusing to arm (SITL: EKF/GPS ~40 s after boot): the climb
+                # timeout counts from when the last of them was still not ready.
+                self._wave_since_s = now_s
+            elif waiting and not self._launch_gave_up:
+                self._launch_gave_up = True
+                log.warning("launch: %d vehicle(s) still not ready to arm after %.0f s: %s",
+                            len(waiting), cfg.launch_timeout_s,
+                            "; ".join(f"link {l} sysid {s}: {self.prearm.get((l, s), (0, '?'))[1]}"
+                                      for l, s in waiting))
             if climbed.sum() >= cfg.wave_climbed_frac * max(1, len(rows)) \
                     or now_s - self._wave_since_s >= cfg.wave_timeout_s:
                 log.info("launch complete at t=%.1f s: %d/%d climbed", now_s,
@@ -503,6 +569,7 @@ class Operator:
             row.flew = True
         if guided and airborne:
             row.failures = 0
+            row.not_ready_s = -math.inf
             return True
         if now_s < row.next_action_s:
             return False
@@ -511,6 +578,7 @@ class Operator:
         vid = self._vid(snap, i)
         target_alt = float(layer_alt_m([i], self.control)[0])
         row.next_action_s = now_s + self.config.action_retry_s
+        row.attempt += 1
         try:
             if airborne:
                 # Reclaim in flight: hold where it is (at its layer), then the guided mode.

@@ -178,6 +178,11 @@ def run(args) -> int:
     op = result.operator
     for line in format_param_changes(op.param_changes):
         print(line, file=sys.stderr)
+    if op.prearm:
+        print(f"{len(op.prearm)} vehicle(s) refused to arm at first (not ready); last reason:",
+              file=sys.stderr)
+        for (link_id, sysid), (t_s, text) in sorted(op.prearm.items()):
+            print(f"  link {link_id} sysid {sysid} at t={t_s:.0f} s: {text}", file=sys.stderr)
     if s["phase"] == "refused":
         if op.audit_report is not None and not op.audit_report.cleared_to_fly:
             print(op.audit_report.summary(), file=sys.stderr)

@@ -157,3 +157,16 @@ def test_fixed_params_pass_the_audit():
         assert not audit.audit_vehicle(0, 1, ap, params).safe
         fixed = dict(params, **dict(audit.failsafe_fixes(ap, params)))
         assert audit.audit_vehicle(0, 1, ap, fixed).safe
+
+
+def test_heartbeat_with_our_sysid_is_never_a_vehicle_and_warns_once(station, caplog):
+    # MAVProxy's own heartbeat (sysid 255, compid 230, MAV_TYPE_GCS), as sim_vehicle.py runs it.
+    link = station()
+    mavproxy = FakeAutopilot(sysid=255, compid=230, vehicle_type=mav.MAV_TYPE_GCS,
+                             autopilot=mav.MAV_AUTOPILOT_INVALID)
+    with caplog.at_level("WARNING", logger="gcs.link"):
+        for t in (0.0, 1.0, 2.0):
+            link.receive_datagram(mavproxy.heartbeat(), A1, t)
+    assert link.vehicles() == [] and drain(link) == []
+    assert link.stats.own_sysid == 3
+    assert sum("our sysid 255" in r.getMessage() for r in caplog.records) == 1

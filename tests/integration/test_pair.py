@@ -13,7 +13,10 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from gcs.events import CommandTimedOut, ParamSetConfirmed, VehicleDiscovered, VehicleLost
+from gcs.events import (
+    ArmedChanged, CommandTimedOut, ParamSetConfirmed, VehicleDiscovered, VehicleLost,
+)
+from gcs.control import layer_alt_m
 from mission.runners import (
     FlyOptions, LockstepEther, _MissionWorld, _make_operator, build_swarm, mission_scenario,
     station_for_swarm,
@@ -122,9 +125,15 @@ def _mission(n=6, personality="ardupilot", duration_s=60.0, kills=(), tasks=None
 class _InMemoryFlight:
     """Operator + station + swarm over the ether, on a virtual clock."""
 
-    def __init__(self, mission, loss=0.0, params=None, seed=3, record=False, **opts):
+    def __init__(self, mission, loss=0.0, params=None, seed=3, record=False, ekf_ready_s=None,
+                 **opts):
         scenario = mission_scenario(mission, seed)
         self.swarm = build_swarm(mission, scenario, seed=seed, params=params)
+        if ekf_ready_s is not None:
+            # What Swarm(ekf_ready_after_s=...) sets: arming refused ("PreArm: EKF not ready")
+            # until then, like SITL for its first ~40 s.
+            for core in self.swarm.cores:
+                core._ekf_ready_s = float(ekf_ready_s)
         self.world = _MissionWorld(mission, scenario, self.swarm)
         self.station = station_for_swarm(self.swarm, record_frames=record)
         self.op = _make_operator(mission, scenario, self.station,
@@ -235,6 +244,33 @@ def test_apply_failsafes_leaves_unfixable_findings_blocking():
     assert core.params["NAV_DLL_ACT"] == 2 and core.params["COM_OBL_RC_ACT"] == 6
     (unsafe,) = f.op.audit_report.unsafe
     assert [b.param for b in unsafe.blocking] == ["COM_OBL_RC_ACT"]
+
+
+@pytest.mark.parametrize("personality,ready_s", [("ardupilot", 40.0), ("ardupilot", 70.0),
+                                                  ("px4", 70.0)])
+def test_launch_waits_for_vehicles_that_are_not_ready_to_arm(personality, ready_s):
+    # Every vehicle refuses to arm until its EKF is ready (SITL: ~40 s after boot). The launch
+    # keeps asking at a steady pace (no runaway back-off), reports the PreArm text, and starts
+    # the run only once the fleet has climbed.
+    f = _InMemoryFlight(_mission(n=4, personality=personality, duration_s=10.0),
+                        ekf_ready_s=ready_s)
+    f.run_until_phase("run", limit_s=ready_s + 120.0)
+    armed = {}
+    for e in f.events:
+        if isinstance(e, ArmedChanged) and e.armed:
+            armed.setdefault(e.sysid, e.t_s)
+    assert set(armed) == {1, 2, 3, 4}
+    cfg = f.op.config
+    assert min(armed.values()) >= ready_s
+    assert max(armed.values()) <= ready_s + cfg.prearm_retry_s + 2.0
+    assert set(f.op.prearm) == {(0, 1), (0, 2), (0, 3), (0, 4)}
+    assert all("not ready" in text or "denied" in text for _, text in f.op.prearm.values())
+    # The run started with the fleet up, not on a timeout with vehicles on the ground.
+    snap = f.op.fleet.snapshot(f.ether.now_s)
+    alt = f.op._alt_above_home_m(snap)
+    target = layer_alt_m(np.arange(snap.n_vehicles), f.op.control)
+    assert (alt >= cfg.climbed_alt_frac * target).mean() >= cfg.wave_climbed_frac
+    assert f.op.mission_t0_s > max(armed.values())
 
 
 def test_reclaim_after_gcs_failsafe():
