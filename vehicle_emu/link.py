@@ -152,6 +152,8 @@ _POS_BITS, _VEL_BITS, _ACC_BITS = 0b111, 0b111 << 3, 0b111 << 6
 _LOCAL_FRAMES = (mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_OFFSET_NED,
                  mavlink.MAV_FRAME_BODY_NED, mavlink.MAV_FRAME_BODY_OFFSET_NED)
 _GLOBAL_AMSL = (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT)
+_PX4_GLOBAL_INT_FRAMES = (mavlink.MAV_FRAME_GLOBAL_INT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                          mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT)
 _GLOBAL_REL = (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
                mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT)
 
@@ -1170,6 +1172,11 @@ class VehicleCore:
     # -- setpoints ----------------------------------------------------------------------------
 
     def _global_to_world(self, lat_e7: int, lon_e7: int, alt_m: float, frame: int):
+        if self.is_px4 and frame not in _PX4_GLOBAL_INT_FRAMES:
+            # PX4 mavlink_receiver.cpp handle_message_set_position_target_global_int accepts
+            # only the _INT frames 5, 6, 11 ("invalid coordinate frame" otherwise);
+            # ArduCopter also takes 0, 3, 10 (mavlink_coordinate_frame_to_location_alt_frame).
+            return None
         if frame in _GLOBAL_AMSL:
             alt_amsl = alt_m
         elif frame in _GLOBAL_REL:
@@ -1227,8 +1234,6 @@ class VehicleCore:
         if not self._for_me(m.target_system, m.target_component):
             return
         self.stats.setpoints += 1
-        if self.is_px4:
-            self._note_setpoint(now_s)
         mask = m.type_mask
         pos = vel = None
         if not mask & _POS_BITS:
@@ -1236,9 +1241,13 @@ class VehicleCore:
             if pos is None:
                 self.stats.setpoints_ignored += 1
                 return
-        elif m.coordinate_frame not in _GLOBAL_AMSL + _GLOBAL_REL:
+        elif m.coordinate_frame not in (_PX4_GLOBAL_INT_FRAMES if self.is_px4
+                                        else _GLOBAL_AMSL + _GLOBAL_REL):
             self.stats.setpoints_ignored += 1
             return
+        if self.is_px4:
+            # A dropped setpoint publishes no offboard_control_mode: it is no offboard signal.
+            self._note_setpoint(now_s)
         if not mask & _VEL_BITS:
             vel = np.array((m.vx, m.vy, m.vz))
         self._accept_target(pos, vel, mask, now_s)

@@ -151,3 +151,25 @@ def test_px4_takeoff_and_param_bytewise(gcs):
     pv = of_type(out, "PARAM_VALUE")[0]
     import struct
     assert struct.unpack("<i", struct.pack("<f", pv.param_value))[0] == 2
+
+
+@pytest.mark.parametrize("frame, flown", [(5, True), (6, True), (0, False), (3, False),
+                                          (10, False)])
+def test_px4_global_targets_only_in_int_frames(gcs, frame, flown):
+    """PX4 mavlink_receiver.cpp takes SET_POSITION_TARGET_GLOBAL_INT in frames 5, 6, 11 only."""
+    rig = _flying_offboard(gcs)
+    alt = 410.0 if frame in (0, 5) else 10.0  # AMSL (origin at 400 m) or above home
+    lat, lon = 47.5 + 20 / 111_200, 8.5
+    msg = mavlink.MAVLink_set_position_target_global_int_message(
+        0, 1, 1, frame, 3576, round(lat * 1e7), round(lon * 1e7), alt, 0, 0, 0, 0, 0, 0, 0, 0)
+    ignored = rig.core.stats.setpoints_ignored
+    for k in range(60):  # 3 s of a 20 Hz stream of that one target
+        rig.t = round(rig.t + 0.05, 6)
+        rig.core.receive_datagram(gcs.frame(msg), GCS_ADDR, rig.t)
+        rig.core.handle_timer(rig.t)
+    if flown:
+        assert rig.core.stats.setpoints_ignored == ignored
+        assert rig.core.local_pos_ned_m[0] > 10.0  # on its way 20 m north
+    else:
+        assert rig.core.stats.setpoints_ignored == ignored + 60
+        assert abs(rig.core.local_pos_ned_m[0]) < 1.0  # holding; the stream then counts as lost
