@@ -200,7 +200,8 @@ class StationAdapter:
                  link_id: int = 0, clock: Callable[[], float] | None = None,
                  wall_clock: Callable[[], float] = time.time, tlog: TlogWriter | None = None,
                  on_event: Callable[[Event], None] | None = None,
-                 time_scale: float = 1.0) -> None:
+                 time_scale: float = 1.0,
+                 reconnect_s: tuple[float, float] = (1.0, 8.0)) -> None:
         self.spec = parse_connection(connection) if isinstance(connection, str) else connection
         self.link_id = link_id
         self._config = config or StationConfig()
@@ -217,6 +218,10 @@ class StationAdapter:
         self._timer: asyncio.TimerHandle | None = None
         self._closers: list[Callable[[], None]] = []
         self.local_address = None
+        self.reconnect_s = reconnect_s
+        """TCP client: first and longest wait (wall seconds) between reconnection attempts."""
+        self.reconnects = 0
+        self._writer: asyncio.StreamWriter | None = None
 
     def now(self) -> float:
         return self._clock() if self._clock else asyncio.get_running_loop().time()
@@ -246,11 +251,11 @@ class StationAdapter:
                 self._send = transport.sendto
             self._closers.append(transport.close)
         elif spec.kind == "tcp":
-            reader, writer = await asyncio.open_connection(*spec.address)
+            reader, self._writer = await asyncio.open_connection(*spec.address)
             static = (spec.address,)
-            self._send = lambda data, addr: writer.write(data)
-            self._start_reader(reader, spec.address)
-            self._closers.append(writer.close)
+            self._send = lambda data, addr: self._tcp_write(data)
+            task = loop.create_task(self._tcp_client(reader, spec.address))
+            self._closers += [task.cancel, self._close_writer]
         elif spec.kind == "tcpin":
             async def on_client(reader, writer):
                 peer = writer.get_extra_info("peername")
@@ -281,9 +286,51 @@ class StationAdapter:
         self._closers.append(task.cancel)
 
     async def _read_stream(self, reader: asyncio.StreamReader, peer) -> None:
-        while data := await reader.read(65536):
-            self.receive(data, peer)
+        try:
+            while data := await reader.read(65536):
+                self.receive(data, peer)
+        except (ConnectionError, OSError) as exc:  # reset by peer, ...
+            log.info("link %d: %s: %s", self.link_id, peer, exc)
+            return
         log.info("link %d: %s closed the connection", self.link_id, peer)
+
+    def _tcp_write(self, data: bytes) -> None:
+        w = self._writer
+        if w is None or w.is_closing():
+            return  # reconnecting: the frame is lost, as on a radio link
+        w.write(data)
+
+    def _close_writer(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+    async def _tcp_client(self, reader: asyncio.StreamReader, peer) -> None:
+        """Read the TCP stream; when the server goes away (SITL restarted, a companion computer
+        rebooted), reconnect with a doubling wait, as MAVProxy's ``autoreconnect`` does, and start
+        a fresh decoder. Vehicles time out meanwhile and are recovered when heard again."""
+        first, longest = self.reconnect_s
+        while True:
+            await self._read_stream(reader, peer)
+            self._close_writer()
+            if self.core is not None:
+                self.core.reset_stream(peer)
+            log.warning("link %d: TCP connection to %s:%s lost; reconnecting", self.link_id, *peer)
+            delay = first
+            while True:
+                await asyncio.sleep(delay)
+                try:
+                    reader, self._writer = await asyncio.open_connection(*peer)
+                except OSError as exc:
+                    log.debug("link %d: reconnect to %s:%s: %s", self.link_id, *peer, exc)
+                    delay = min(2 * delay, longest)
+                    continue
+                break
+            self.reconnects += 1
+            log.warning("link %d: reconnected to %s:%s", self.link_id, *peer)
+            if self.core is not None:
+                self.core.handle_timer(self.now())  # whatever fell due while reconnecting
+                self.transmit()
 
     def receive(self, data: bytes, addr) -> None:
         if self.core is not None:

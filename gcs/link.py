@@ -391,6 +391,11 @@ class StationLink:
 
     # ------------------------------------------------------------------ receiving
 
+    def reset_stream(self, addr: Addr) -> None:
+        """A byte stream from ``addr`` was re-opened (TCP reconnect, serial re-plug): forget any
+        partial frame of the old one, so it cannot be glued to the new stream's bytes."""
+        self._decoders.pop(addr, None)
+
     def receive_datagram(self, data: bytes, addr: Addr, now_s: float) -> None:
         """Feed bytes heard from ``addr``. Never raises for remote garbage (it is counted)."""
         dec = self._decoders.get(addr)

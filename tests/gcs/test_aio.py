@@ -69,19 +69,6 @@ def test_udpout_station_discovers_commands_and_records(tmp_path):
     asyncio.run(main())
 
 
-def test_serial_without_pyserial_is_a_clear_error():
-    try:
-        import serial  # noqa: F401
-        pytest.skip("pyserial installed")
-    except ImportError:
-        pass
-
-    async def main():
-        with pytest.raises(RuntimeError, match="pyserial"):
-            await StationAdapter("/dev/ttyUSB0,57600").start()
-    asyncio.run(main())
-
-
 def test_tcp_client_stream_reassembles_split_frames():
     async def main():
         ap = FakeAutopilot(sysid=2, autopilot=12)
@@ -113,5 +100,48 @@ def test_tcp_client_stream_reassembles_split_frames():
             for w in writers:
                 w.close()
                 await asyncio.wait_for(w.wait_closed(), 5.0)
+
+    asyncio.run(main())
+
+
+def test_tcp_client_reconnects_when_the_server_restarts():
+    """SITL restarted on its TCP port: the station reconnects, drops the old stream's partial
+    frame and hears the vehicle again (events, no fixed sleeps: every wait has a deadline)."""
+    async def main():
+        ap = FakeAutopilot(sysid=3)
+        sessions: asyncio.Queue = asyncio.Queue()
+
+        async def vehicle(reader, writer):
+            n = sessions.qsize()
+            if n == 0:  # first life: a heartbeat, then half a frame, then the process dies
+                writer.write(ap.heartbeat(4) + ap.global_position(47.0, 8.0, 400.0, 5.0)[:9])
+            else:       # after the restart: a whole new stream
+                writer.write(ap.heartbeat(6) + ap.global_position(47.0, 8.0, 400.0, 5.0))
+            await writer.drain()
+            sessions.put_nowait(writer)
+            if n == 0:
+                writer.close()
+                return
+            while await reader.read(4096):
+                pass
+
+        server = await asyncio.start_server(vehicle, "127.0.0.1", 0)
+        host, port = server.sockets[0].getsockname()[:2]
+        station = await StationAdapter(f"tcp:{host}:{port}", StationConfig(stream_rates_hz=()),
+                                       reconnect_s=(0.05, 0.2)).start()
+        try:
+            ev = await _next(station.events, "VehicleDiscovered")
+            assert (ev.sysid, ev.mode) == (3, "GUIDED")
+            tel = await _next(station.events, "TelemetryReceived")  # only after the reconnect
+            assert station.reconnects == 1 and sessions.qsize() == 2
+            assert tel.rel_alt_m == pytest.approx(5.0)
+            assert station.core.vehicle(3).mode == "RTL"  # the new stream's heartbeat
+            assert station.core.stats.decode.bad_data == 0  # the cut frame was never glued on
+        finally:
+            station.close()
+            server.close()
+            while not sessions.empty():
+                w = sessions.get_nowait()
+                w.close()
 
     asyncio.run(main())
