@@ -447,3 +447,23 @@ def test_named_variants_are_valid_and_differ_from_the_default():
         variant = MccstParams.from_dict(overrides)
         assert variant != default
         assert variant.reassign_period == 1 and variant.gamma == 1.0 and variant.kappa == 0.9
+
+
+def test_carried_rho_starts_cold_at_a_run_start_and_solves(rng):
+    """carry_rho starts tick t's ADMM at tick t-1's adapted rho. A run's first tick (and a repeated
+    t_step, i.e. a new run) starts at OSQP's default exactly like ``carry_rho=False``; later ticks
+    are solved to the same tolerance from another starting step size (so they may return another
+    point of the tolerance set: eps = 1e-4 residuals leave this QP's controls ~0.05 from the exact
+    optimum whichever rho is used)."""
+    tick0 = _random_connected_tick(rng)
+    carry = make_mccst(PROBLEM, {}, rng)
+    cold = make_mccst(PROBLEM, {"carry_rho": False}, rng)
+    first_c, first_k = carry.plan(tick0), cold.plan(tick0)
+    np.testing.assert_array_equal(first_c.disp_m, first_k.disp_m)   # t_step 0: no carried rho
+    assert carry._rho is not None and carry._rho != 0.1
+    tick1 = _tick(tick0.pos_m + first_c.disp_m, tick0.task_pos_m, t_step=1)
+    out_c, out_k = carry.plan(tick1), cold.plan(tick1)
+    assert out_c.info["status"] == out_k.info["status"] == "solved"
+    assert np.all(np.abs(out_c.disp_m) <= V / np.sqrt(2) + 1e-12)
+    again = carry.plan(tick1)                                        # same t_step: a new run
+    np.testing.assert_array_equal(again.disp_m, out_k.disp_m)
