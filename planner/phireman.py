@@ -192,44 +192,89 @@ def task_gradient_batched(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarra
 
 
 class TreeSegments:
-    """Each drone's tree segments, gathered once per tick for :func:`task_gradient_batched`.
+    """Each drone's tree segments, prepared once per tick for :func:`task_gradient_batched`.
 
     :meth:`gradient` equals ``task_gradient_batched(pos_u, *padded_segments(trees), version, Þ)``
     bit for bit (the same element-wise operations on the same values, the same first-minimum rule)
-    but gathers the (n, E, 2) per-drone segments and computes ab and |ab|^2 once per tick instead
-    of at every descent step; the first step (all drones) needs no gather at all.
+    but gathers the per-drone segments and computes ab and |ab|^2 once per tick instead of at every
+    descent step.
+
+    With ``pos0`` and ``radius`` (every later query of drone i lies within ``radius`` of
+    ``pos0[i]``: a tick's descent never moves a drone farther than v), only the segments that can
+    be nearest are kept: with D_s the distance to segment s and m0 = min_s D_s(pos0),
+    |D_s(x) - D_s(pos0)| <= radius, so a segment with D_s(pos0) > m0 + 2 radius is never the
+    nearest (nor tied with it). The kept ones stay in segment order, so the first minimum is the
+    same. A few segments per drone instead of the whole tree (~200 at XL).
 
     Parameters
     ----------
     trees : the tree versions held by drones
     version : (n,) int, which tree each drone holds
     nodes_only : as :func:`padded_segments`
+    pos0 : (n, 2), optional, the drones' positions at the start of the tick
+    radius : how far from ``pos0`` the queries may lie
     """
 
-    def __init__(self, trees: list[TaskTree], version: np.ndarray, nodes_only: bool = False) -> None:
+    def __init__(self, trees: list[TaskTree], version: np.ndarray, nodes_only: bool = False,
+                 pos0: np.ndarray | None = None, radius: float = 0.0) -> None:
         seg_a, seg_b, valid = padded_segments(trees, nodes_only)
+        self.n = len(version)
         self.a = seg_a[version]                                     # (n, E, 2)
         self.ab = seg_b[version] - self.a
         self.ab2 = np.einsum("nec,nec->ne", self.ab, self.ab)
         self.valid = valid[version]
+        self.entries = None
+        if pos0 is not None and self.n:
+            d2 = self._d2(pos0, self.a, self.ab, self.ab2, self.valid)[1]
+            dist = np.sqrt(d2)
+            # generous rounding margin: distances are computed to ~1e-15 relative
+            bound = dist.min(axis=1) + 2.0 * radius * (1 + 1e-9) + 1e-9 * (1.0 + dist.min(axis=1))
+            r, s = np.nonzero(self.valid & (dist <= bound[:, None]))    # row-major: by drone, then segment
+            self.entries = (r, self.a[r, s], self.ab[r, s], self.ab2[r, s])
+
+    @staticmethod
+    def _d2(pos_u, a, ab, ab2, ok):
+        ap = pos_u[:, None, :] - a
+        t = np.clip(np.divide(np.einsum("nec,nec->ne", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
+        foot = a + t[:, :, None] * ab
+        off = pos_u[:, None, :] - foot
+        return off, np.where(ok, np.einsum("nec,nec->ne", off, off), np.inf)
 
     def gradient(self, pos_u: np.ndarray, rows: np.ndarray, thorn: float) -> np.ndarray:
         """(len(rows), 2) ∇ Þ h_T of drones ``rows`` at ``pos_u`` (len(rows), 2)."""
         if thorn == 0.0 or len(pos_u) == 0:
             return np.zeros_like(pos_u)
-        if len(rows) == len(self.a):
+        if self.entries is not None:
+            return self._gradient_entries(pos_u, rows, thorn)
+        if len(rows) == self.n:
             a, ab, ab2, ok = self.a, self.ab, self.ab2, self.valid
         else:
             a, ab, ab2, ok = self.a[rows], self.ab[rows], self.ab2[rows], self.valid[rows]
-        ap = pos_u[:, None, :] - a
-        t = np.clip(np.divide(np.einsum("nec,nec->ne", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
-        foot = a + t[:, :, None] * ab
-        off = pos_u[:, None, :] - foot
-        d2 = np.where(ok, np.einsum("nec,nec->ne", off, off), np.inf)
+        off, d2 = self._d2(pos_u, a, ab, ab2, ok)
         best = np.argmin(d2, axis=1)
         r = np.arange(len(pos_u))
         away = off[r, best]
         dist = np.sqrt(d2[r, best])
+        return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
+
+    def _gradient_entries(self, pos_u, rows, thorn):
+        er, a, ab, ab2 = self.entries
+        if len(rows) != self.n:
+            chosen = np.zeros(self.n, dtype=bool)
+            chosen[rows] = True
+            take = chosen[er]
+            er, a, ab, ab2 = (np.cumsum(chosen) - 1)[er[take]], a[take], ab[take], ab2[take]
+        x = pos_u[er]
+        ap = x - a
+        t = np.clip(np.divide(np.einsum("ec,ec->e", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
+        foot = a + t[:, None] * ab
+        off = x - foot
+        d2 = np.einsum("ec,ec->e", off, off)
+        starts = np.flatnonzero(np.r_[True, er[1:] != er[:-1]])      # every drone has >= 1 entry
+        low = np.minimum.reduceat(d2, starts)
+        first = np.minimum.reduceat(np.where(d2 == low[er], np.arange(len(d2)), len(d2)), starts)
+        away = off[first]
+        dist = np.sqrt(d2[first])
         return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
 
 
@@ -568,7 +613,8 @@ class PhiremanPlanner:
         # Only the known entries interact (pair_gradient_entries; bit-identical to the dense view).
         ent_r, ent_k, ent_y, stamps = self.messages.view_entries(idx)  # (E,), (E,), (E, 2) paper units, (n_i,)
         versions, version_of = np.unique(stamps, return_inverse=True)
-        segments = TreeSegments([self.messages.broadcast(s) for s in versions], version_of, p.nodes_only)
+        segments = TreeSegments([self.messages.broadcast(s) for s in versions], version_of, p.nodes_only,
+                                pos_u[idx], self.vmax_u)
         ent_sq = np.einsum("ec,ec->e", ent_y, ent_y)
         n_view, n_cols = len(idx), len(self.messages.knowledge.cols)
 

@@ -119,3 +119,24 @@ def test_view_entries_are_the_known_entries_of_the_dense_view(rng):
     sub = kn.stamp[np.ix_(holders, kn.cols)]
     expect = (sub >= 0) & (holders[:, None] != kn.cols[None, :])
     assert np.array_equal(known, expect)
+
+
+def test_tree_segments_pruned_to_candidates_bit_identical(rng):
+    """Keeping only the segments that can be nearest within ``radius`` of the tick's start."""
+    trees = [build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(1, 30)), 2))) for _ in range(4)]
+    n = 400
+    x0 = rng.uniform(-9, 9, (n, 2))
+    version = rng.integers(0, 4, n)
+    for nodes_only in (False, True):
+        seg = TreeSegments(trees, version, nodes_only, x0, 0.15)
+        padded = padded_segments(trees, nodes_only)
+        assert len(seg.entries[0]) < n * padded[0].shape[1] / 3          # the pruning does prune
+        for _ in range(5):
+            step = rng.normal(size=(n, 2))
+            step *= (0.15 * rng.random(n) / np.linalg.norm(step, axis=1))[:, None]
+            x = x0 + step
+            assert np.array_equal(seg.gradient(x, np.arange(n), 0.05),
+                                  task_gradient_batched(x, *padded, version, 0.05))
+            rows = np.flatnonzero(rng.random(n) < 0.4)
+            assert np.array_equal(seg.gradient(x[rows], rows, 0.05),
+                                  task_gradient_batched(x[rows], *padded, version[rows], 0.05))
