@@ -64,13 +64,16 @@ def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = 
     if not valid.any():
         return out
     t_sent = int(stamp[valid].max()) if t_sent is None else int(t_sent)
-    age = np.where(valid, t_sent - stamp, np.iinfo(np.int64).max)
-    max_level = int(age[valid].max()) if age_max_steps is None else int(age_max_steps)
-    send = valid & (age <= max_level)
+    if age_max_steps is None:
+        max_level = t_sent - int(stamp[valid].min())            # the oldest valid age
+        send = valid
+    else:
+        max_level = int(age_max_steps)
+        send = stamp >= max(t_sent - max_level, 0)               # valid, age <= max_level
     bits = int(np.ceil(np.log2(n + 1))) + 1  # 2^bits > n - 1 >= any degree
     if bits * (max_level + 1) < 1000:
         code = np.zeros(stamp.shape)
-        code[send] = np.ldexp(1.0, bits * (max_level - age[send]))
+        code[send] = np.ldexp(1.0, bits * (max_level - np.minimum(t_sent - stamp[send], max_level)))
         if n > _SPARSE_MIN_HOLDERS:
             # Radio links are sparse once the swarm spreads (a few dozen neighbours out of 500): a
             # sparse product costs O(links K) instead of O(n^2 K). The decoded level does not
@@ -89,6 +92,7 @@ def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = 
         level = max_level - (np.frexp(total[heard])[1] - 1) // bits
         out[heard] = np.maximum(out[heard], t_sent - level)
         return out
+    age = np.where(valid, t_sent - stamp, np.iinfo(np.int64).max)
     adj = np.zeros((n, n), dtype=np.float32)
     adj[pairs[:, 0], pairs[:, 1]] = 1.0
     adj[pairs[:, 1], pairs[:, 0]] = 1.0
@@ -177,7 +181,7 @@ class Knowledge:
         rows = np.flatnonzero(alive)
         self.stamp[rows, rows] = t_step
         # Forget stale entries, then distant ones (measured from the holder's own position).
-        self.stamp[(self.stamp != UNKNOWN) & (t_step - self.stamp > age_max_steps)] = UNKNOWN
+        self.stamp[self.stamp < t_step - age_max_steps] = UNKNOWN   # (UNKNOWN stays UNKNOWN)
         cols = np.flatnonzero((self.stamp[rows] != UNKNOWN).any(axis=0))
         sub = self.stamp[np.ix_(rows, cols)]
         # Only the known entries (a few dozen per holder once the swarm spreads) are gathered.
