@@ -1,9 +1,9 @@
-"""Benchmark: time per run and peak memory of the in-process simulation, every size at 1 %.
+"""Benchmark: time per run and peak memory of the in-process simulation, every size (default 1 %).
 
 Each (size, information model) runs in a fresh subprocess with one BLAS thread, so that peak RSS is
 its own; CPU time (process_time) is reported beside wall time because it is robust to other load.
 
-    .venv/bin/python bench/bench_sim.py [--seeds 3] [--sizes XS S M L XL] [--method phireman]
+    .venv/bin/python bench/bench_sim.py [--seeds 3] [--sizes XS S M L XL] [--method phireman] [--attrition 0.01]
 """
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ CHILD = r"""
 import json, resource, sys, time
 from mission.sim import run_episode
 from planner.problem import problem_preset
-size, info, seeds, method = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
-p = problem_preset(size, 0.01)
+size, info, seeds, method, attrition = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4], float(sys.argv[5])
+p = problem_preset(size, attrition)
 params = {"info": info} if method.startswith("phireman") or method == "dccrs" else {}
 run_episode(p, method, params, 10_000)  # warm-up (imports, caches)
 times, cpu = [], []
@@ -37,12 +37,14 @@ def main() -> None:
     ap.add_argument("--sizes", nargs="+", default=["XS", "S", "M", "L", "XL"])
     ap.add_argument("--infos", nargs="+", default=["central", "async"])
     ap.add_argument("--method", default="phireman")
+    ap.add_argument("--attrition", type=float, default=0.01, help="per-step loss probability (0.01 = 1 %%)")
     args = ap.parse_args()
     # CPU time is the figure to quote on a shared machine; wall time is printed beside it.
     print(f"{'size':>4} {'info':>8} {'cpu s/run':>10} {'min cpu s':>10} {'wall s/run':>10} {'peak MB':>8}")
     for size in args.sizes:
         for info in args.infos:
-            out = subprocess.run([sys.executable, "-c", CHILD, size, info, str(args.seeds), args.method],
+            out = subprocess.run([sys.executable, "-c", CHILD, size, info, str(args.seeds), args.method,
+                                  str(args.attrition)],
                                  capture_output=True, text=True, env={"OMP_NUM_THREADS": "1",
                                                                        "OPENBLAS_NUM_THREADS": "1",
                                                                        "PATH": "/usr/bin:/bin"})
