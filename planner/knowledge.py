@@ -165,7 +165,14 @@ class Knowledge:
         if pos_prev_m is not None:
             idx = np.flatnonzero(alive_prev)
             pairs = neighbour_pairs(pos_prev_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
-            self.stamp[idx] = propagate_stamps(self.stamp[idx], pairs, t_step - 1, age_max_steps)
+            held = self.stamp[idx]
+            # Columns nobody holds (lost drones, once forgotten) cannot change: hop the others only.
+            ck = np.flatnonzero((held >= 0).any(axis=0))
+            if len(ck) < 0.8 * held.shape[1]:
+                held[:, ck] = propagate_stamps(held[:, ck], pairs, t_step - 1, age_max_steps)
+                self.stamp[idx] = held
+            else:
+                self.stamp[idx] = propagate_stamps(held, pairs, t_step - 1, age_max_steps)
             # The tree stamp rides in the same messages but has its own staleness rule.
             ts = self.tree_stamp[idx]
             best = ts.copy()
