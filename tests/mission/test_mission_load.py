@@ -20,7 +20,8 @@ from mission.load import (MissionError, dump_mission, load_mission, loads_missio
 from mission.schema import (Attrition, Circle, HazardZone, LocalPoint, Mission, Origin, Position,
                             Task, TrackPoint, paper_mission, per_step_from_rate, rate_from_per_step)
 
-EXAMPLES = ["hazard_zone", "paper_S", "real_links_template", "scripted_losses", "wildfire"]
+EXAMPLES = ["hazard_zone", "paper_S", "real_links_template", "scripted_losses", "sitl_ardupilot",
+            "sitl_px4", "wildfire"]
 SIZES = ["XS", "S", "M", "L", "XL"]
 
 
