@@ -398,14 +398,10 @@ class DccrsPlanner:
         rho = near.sum(axis=1)
         weight = density_weight(rho, p.density_target, p.density_exponent, p.density_weight_min,
                                 p.density_weight_max)
-        gain = np.full(n, p.leader_gain)
-        if p.leader_cap > 0 and p.leader_gain > 0 and n:
-            lead = np.broadcast_to(leaders_u, (n,) + leaders_u.shape[-2:])
-            d, away = _leader_distances(pos_u, lead)
-            y = pos_u - away                                              # each drone's leader
+        def claims(y):  # known neighbours within r of each drone's leader point y
             dy = others_u - y[:, None, :]
-            claim = (mask & (np.einsum("nkc,nkc->nk", dy, dy) <= self.r_u ** 2)).sum(axis=1)
-            gain[(d > self.r_u) & (claim >= p.leader_cap)] = 0.0
+            return (mask & (np.einsum("nkc,nkc->nk", dy, dy) <= self.r_u ** 2)).sum(axis=1)
+        gain = self._leader_gain(pos_u, leaders_u, claims)
 
         def grad(x, rows):
             if joint:  # central: every drone, the others move with the iterate
@@ -420,6 +416,19 @@ class DccrsPlanner:
         res = descend(pos_u, grad, self.vmax_u, p, separable=not joint)
         return res, near, weight
 
+    def _leader_gain(self, pos_u, leaders_u, claims):
+        """(n,) leader-following gain: 0 for a drone farther than r from its leader whose leader
+        point already has ``leader_cap`` known neighbours (``claims(y)`` counts them)."""
+        p = self.params
+        n = len(pos_u)
+        gain = np.full(n, p.leader_gain)
+        if p.leader_cap > 0 and p.leader_gain > 0 and n:
+            lead = np.broadcast_to(leaders_u, (n,) + leaders_u.shape[-2:])
+            d, away = _leader_distances(pos_u, lead)
+            claim = claims(pos_u - away)                                  # each drone's leader
+            gain[(d > self.r_u) & (claim >= p.leader_cap)] = 0.0
+        return gain
+
     def _descend_entries(self, pos_u, er, y_e, leaders_u):
         """:meth:`_descend` (async, fixed beliefs) from the known entries of the view: ``er`` (E,)
         holder rows in row-major order, ``y_e`` (E, 2) believed positions; leaders (n, L, 2).
@@ -431,14 +440,10 @@ class DccrsPlanner:
         rho = np.bincount(er[near_e], minlength=n)
         weight = density_weight(rho, p.density_target, p.density_exponent, p.density_weight_min,
                                 p.density_weight_max)
-        gain = np.full(n, p.leader_gain)
-        if p.leader_cap > 0 and p.leader_gain > 0 and n:
-            lead = np.broadcast_to(leaders_u, (n,) + leaders_u.shape[-2:])
-            d, away = _leader_distances(pos_u, lead)
-            y = pos_u - away                                              # each drone's leader
+        def claims(y):  # the same count over the entries
             dy = y_e - y[er]
-            claim = np.bincount(er[np.einsum("ec,ec->e", dy, dy) <= self.r_u ** 2], minlength=n)
-            gain[(d > self.r_u) & (claim >= p.leader_cap)] = 0.0
+            return np.bincount(er[np.einsum("ec,ec->e", dy, dy) <= self.r_u ** 2], minlength=n)
+        gain = self._leader_gain(pos_u, leaders_u, claims)
 
         def grad(x, rows):
             lead = leaders_u if leaders_u.ndim == 2 else leaders_u[rows]
