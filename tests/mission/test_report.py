@@ -205,3 +205,28 @@ def test_report_command(synthetic_store, tmp_path, capsys):
     assert md.rstrip().endswith("XS / 0 % misses because of a synthetic shift.")
     assert not list(out.glob("*.png"))
     assert main(["report", str(tmp_path / "missing.sqlite"), "--out", str(out)]) == 2
+
+
+def test_central_information_section(tmp_path, rng):
+    """With phireman-central runs on a paper-table configuration, the report compares both
+    information models with the paper; without them the section is absent."""
+    path = tmp_path / "central.sqlite"
+    table = {(c.size, c.attrition, c.method): c for c in paper_table_grid(seeds=[]).configs}
+    central = {(c.size, c.attrition): c for c in paper_table_grid(seeds=[], methods=("phireman-central",)).configs}
+    (t1, _), (t2, _) = (paper.paper_value("M", 0.02, "phireman", m) for m in paper.METRICS)
+    noise = rng.normal(0, 1, N_SEEDS)
+    noise -= noise.mean()
+    rows = _rows(table[("M", 0.02, "phireman")], t1 - 4.0 + noise, t2 - 4.0 + noise)   # a miss
+    with ResultStore(path) as store:
+        store.insert_runs(rows)
+    md = build_report(path, tmp_path / "a", figures=False).markdown.read_text()
+    assert "asynchronous and central" not in md
+    rows = _rows(central[("M", 0.02)], t1 - 0.5 + noise, t2 + 0.5 + noise)           # within 3
+    with ResultStore(path) as store:
+        store.insert_runs(rows)
+    result = build_report(path, tmp_path / "b", figures=False)
+    md = result.markdown.read_text()
+    section = md.split("asynchronous and central information against the paper")[1]
+    line = next(ln for ln in section.splitlines() if ln.startswith("| M | 2 |"))
+    assert "(-4.00)" in line and "(-0.50 ✓)" in line and "(+0.50 ✓)" in line
+    assert result.summary["central_vs_async"] == {"async": 0, "central": 1, "configs": 20}
