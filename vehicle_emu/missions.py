@@ -146,23 +146,28 @@ class MissionServer:
         self._ack(m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_UNSUPPORTED, t)
         return False
 
-    def on_request_list(self, m, now_s: float) -> None:
+    def _download_from(self, m) -> tuple[int, int, int] | None:
+        """(sysid, compid, mission type) of a download request we can serve, else None (acked)."""
         if not self._type_ok(m):
-            return
+            return None
         src, comp, t = m.get_srcSystem(), m.get_srcComponent(), m.mission_type
         if self._upload is not None:
             # "someone is uploading a mission; reject fetching of points until done or timeout"
             self._ack(src, comp, mavlink.MAV_MISSION_DENIED, t)
-            return
-        self._send(mavlink.MAVLink_mission_count_message(src, comp, self.count(t), t))
+            return None
+        return src, comp, t
+
+    def on_request_list(self, m, now_s: float) -> None:
+        who = self._download_from(m)
+        if who is not None:
+            src, comp, t = who
+            self._send(mavlink.MAVLink_mission_count_message(src, comp, self.count(t), t))
 
     def on_request(self, m, now_s: float, as_int: bool) -> None:
-        if not self._type_ok(m):
+        who = self._download_from(m)
+        if who is None:
             return
-        src, comp, t = m.get_srcSystem(), m.get_srcComponent(), m.mission_type
-        if self._upload is not None:
-            self._ack(src, comp, mavlink.MAV_MISSION_DENIED, t)
-            return
+        src, comp, t = who
         if self.px4:
             self._int_mode = as_int
         it = self.item(t, m.seq)
