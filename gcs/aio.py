@@ -135,26 +135,26 @@ class _SerialPort:
             else:
                 self._tx += data
             return
-        try:
-            n = os.write(self._fd, data)
-        except (BlockingIOError, InterruptedError):
-            n = 0
-        except OSError as exc:
-            self._lost(exc.strerror or str(exc))
-            return
-        if n < len(data):
+        n = self._write_now(data)
+        if n is not None and n < len(data):
             self._tx += data[n:]
             self._loop.add_writer(self._fd, self._writable)
+
+    def _write_now(self, data) -> int | None:
+        """Bytes the kernel took at once (0 if it would block); None if the port was lost."""
+        try:
+            return os.write(self._fd, data)
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError as exc:
+            self._lost(exc.strerror or str(exc))
+            return None
 
     def _writable(self) -> None:
         if self._fd is None:
             return
-        try:
-            n = os.write(self._fd, self._tx)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError as exc:
-            self._lost(exc.strerror or str(exc))
+        n = self._write_now(self._tx)
+        if n is None:
             return
         del self._tx[:n]
         if not self._tx:

@@ -280,7 +280,6 @@ class StationLink:
         self._warned_types: set[str] = set()
         self._warned_own_sysid = False
         self._task_sysids = frozenset(self.config.task_sysids)
-        self._task_addr: dict[int, Addr] = {}
         self._task_fix_s: dict[int, float] = {}
         self._task_request_s: dict[int, float] = {}
         self._timer_hint_s = now_s
@@ -501,7 +500,6 @@ class StationLink:
         """A task system: its position, and a position stream request while none arrives."""
         sysid = msg.get_srcSystem()
         kind = msg.get_type()
-        self._task_addr[sysid] = addr
         if kind == "GLOBAL_POSITION_INT":
             if msg.lat == 0 and msg.lon == 0:  # no fix yet
                 self.stats.invalid_telemetry += 1

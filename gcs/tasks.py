@@ -42,24 +42,25 @@ class LiveTasks:
         if len(set(sysids)) != len(sysids):
             raise ValueError(f"two live tasks share a tracker sysid: {sorted(columns.items())}")
         self.origin = origin
-        self._column_of = {int(s): int(c) for c, s in columns.items()}
-        self._cols = np.array(sorted(self._column_of.values()), dtype=int)
+        # Row k of the arrays: task column _cols[k], tracker _sysid[k].
+        self._cols = np.array(sorted(columns), dtype=int)
+        self._sysid = np.array([columns[c] for c in self._cols], dtype=int)
+        self._row_of = {int(sysid): k for k, sysid in enumerate(self._sysid)}
         self._ne_m = np.full((len(self._cols), 2), np.nan)
-        self._row_of_col = {int(c): k for k, c in enumerate(self._cols)}
         self._last_fix_s = np.full(len(self._cols), -math.inf)
 
     @property
     def sysids(self) -> tuple[int, ...]:
-        return tuple(sorted(self._column_of))
+        return tuple(sorted(self._row_of))
 
     def __len__(self) -> int:
         return len(self._cols)
 
     def apply(self, event) -> bool:
         """Fold one event; True if it was a position of one of our trackers."""
-        if not isinstance(event, TaskPositionReceived) or event.sysid not in self._column_of:
+        if not isinstance(event, TaskPositionReceived) or event.sysid not in self._row_of:
             return False
-        k = self._row_of_col[self._column_of[event.sysid]]
+        k = self._row_of[event.sysid]
         o = self.origin
         ned = geodetic_to_ned_m(event.lat_deg, event.lon_deg, event.alt_amsl_m,
                                 o.lat_deg, o.lon_deg, o.alt_amsl_m)
@@ -81,12 +82,11 @@ class LiveTasks:
 
     def waiting_for(self) -> tuple[int, ...]:
         """Sysids of trackers not heard yet."""
-        inv = {c: s for s, c in self._column_of.items()}
-        return tuple(sorted(inv[int(c)] for k, c in enumerate(self._cols)
-                            if not math.isfinite(self._last_fix_s[k])))
+        return self._sysids_where(~np.isfinite(self._last_fix_s))
 
     def silent(self, now_s: float, timeout_s: float) -> tuple[int, ...]:
         """Sysids of trackers whose last fix is older than ``timeout_s`` (or never came)."""
-        inv = {c: s for s, c in self._column_of.items()}
-        return tuple(sorted(inv[int(c)] for k, c in enumerate(self._cols)
-                            if now_s - self._last_fix_s[k] > timeout_s))
+        return self._sysids_where(now_s - self._last_fix_s > timeout_s)
+
+    def _sysids_where(self, rows: np.ndarray) -> tuple[int, ...]:
+        return tuple(sorted(int(x) for x in self._sysid[rows]))

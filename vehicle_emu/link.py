@@ -1171,19 +1171,19 @@ class VehicleCore:
 
     # -- setpoints ----------------------------------------------------------------------------
 
+    def _global_frame_ok(self, frame: int) -> bool:
+        # PX4 mavlink_receiver.cpp handle_message_set_position_target_global_int accepts only the
+        # _INT frames 5, 6, 11 ("invalid coordinate frame" otherwise); ArduCopter also takes
+        # 0, 3, 10 (mavlink_coordinate_frame_to_location_alt_frame).
+        return frame in (_PX4_GLOBAL_INT_FRAMES if self.is_px4 else _GLOBAL_AMSL + _GLOBAL_REL)
+
     def _global_to_world(self, lat_e7: int, lon_e7: int, alt_m: float, frame: int):
-        if self.is_px4 and frame not in _PX4_GLOBAL_INT_FRAMES:
-            # PX4 mavlink_receiver.cpp handle_message_set_position_target_global_int accepts
-            # only the _INT frames 5, 6, 11 ("invalid coordinate frame" otherwise);
-            # ArduCopter also takes 0, 3, 10 (mavlink_coordinate_frame_to_location_alt_frame).
+        if not self._global_frame_ok(frame):
             return None
         if frame in _GLOBAL_AMSL:
             alt_amsl = alt_m
-        elif frame in _GLOBAL_REL:
-            # Flat terrain at home altitude: terrain-relative == home-relative here.
+        else:  # _GLOBAL_REL: flat terrain at home altitude, terrain-relative == home-relative
             alt_amsl = alt_m + self.home_lla[2]
-        else:
-            return None
         ned = geodetic_to_ned_m(wire.deg_from_lat_e7(lat_e7), wire.deg_from_lat_e7(lon_e7),
                                 alt_amsl, *self.physics.origin_lla)
         return ned
@@ -1241,8 +1241,7 @@ class VehicleCore:
             if pos is None:
                 self.stats.setpoints_ignored += 1
                 return
-        elif m.coordinate_frame not in (_PX4_GLOBAL_INT_FRAMES if self.is_px4
-                                        else _GLOBAL_AMSL + _GLOBAL_REL):
+        elif not self._global_frame_ok(m.coordinate_frame):
             self.stats.setpoints_ignored += 1
             return
         if self.is_px4:

@@ -63,18 +63,14 @@ def test_mavproxy_params_plans_and_takeoff(tmp_path):
         try:
             # MAVProxy's heartbeats make the emulator learn its address; the vehicle answers.
             assert out.wait_for("Received 14 parameters", deadline), out.lines
-            cmd("wp list")
-            assert out.wait_for("Requesting 1 waypoints", deadline), out.lines
-            cmd("fence list")
-            assert out.wait_for("Requesting 0 fence items", deadline), out.lines
-            cmd("rally list")
-            assert out.wait_for("Requesting 0 rally items", deadline), out.lines
-            cmd("mode GUIDED")
-            assert out.wait_for("DO_SET_MODE: ACCEPTED", deadline), out.lines
-            cmd("arm throttle")
-            assert out.wait_for("COMPONENT_ARM_DISARM: ACCEPTED", deadline), out.lines
-            cmd("takeoff 10")
-            assert out.wait_for("NAV_TAKEOFF: ACCEPTED", deadline), out.lines
+            for command, reply in (("wp list", "Requesting 1 waypoints"),
+                                   ("fence list", "Requesting 0 fence items"),
+                                   ("rally list", "Requesting 0 rally items"),
+                                   ("mode GUIDED", "DO_SET_MODE: ACCEPTED"),
+                                   ("arm throttle", "COMPONENT_ARM_DISARM: ACCEPTED"),
+                                   ("takeoff 10", "NAV_TAKEOFF: ACCEPTED")):
+                cmd(command)
+                assert out.wait_for(reply, deadline), (command, out.lines)
             assert not any("fence breach" in ln for ln in out.lines)
         finally:
             proc.kill()
