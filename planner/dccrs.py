@@ -116,6 +116,10 @@ class DccrsParams:
     """Async: forget neighbour reports farther than this, paper units."""
     tree_stale_steps: int = _PH.tree_stale_steps
     """Async: a drone whose base flood (task positions) is older than this heads home."""
+    broadcast_after_move: bool = _PH.broadcast_after_move
+    """Async: broadcast at the end of the step, after moving (the same message layer as PhiIREMAN)."""
+    forget_unheard: bool = _PH.forget_unheard
+    """Async: drop neighbours believed within range but not heard in the last delivery."""
     # --- DCCRS only (reconstruction; grid-searched) ---------------------------------------
     leader_gain: float = _PH.thorn
     """k_L, leader-following weight (PhiIREMAN's equivalent: Þ)."""
@@ -501,7 +505,8 @@ class DccrsPlanner:
         p = self.params
         if self.messages is None:
             self.messages = MessageLayer(len(pos_u), self.problem.n_steps, self.r_u, self.base_reach_u,
-                                         p.age_max_steps, p.dist_max, p.tree_stale_steps)
+                                         p.age_max_steps, p.dist_max, p.tree_stale_steps,
+                                         after_move=p.broadcast_after_move, forget_unheard=p.forget_unheard)
         # The base floods the task positions it sees (in place of PhiIREMAN's tree).
         stale = planning & self.messages.step(tick.t_step, pos_u, np.asarray(tick.alive, bool), base_u,
                                               tasks_u)

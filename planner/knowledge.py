@@ -153,33 +153,53 @@ class Knowledge:
 
     def update(self, t_step: int, pos_prev_m: np.ndarray | None, alive_prev: np.ndarray | None,
                pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float, base_reach_m: float,
-               age_max_steps: int, dist_max_m: float, base_m: np.ndarray) -> None:
-        """Deliver the messages sent at step t-1, then each drone records its own state at t.
+               age_max_steps: int, dist_max_m: float, base_m: np.ndarray, *,
+               after_move: bool = False, forget_unheard: bool = False) -> None:
+        """Deliver the messages broadcast during step t-1, then each drone records its own state at t.
 
-        Links at t-1 join alive drones within r (connected to the base or not); the base sends the
-        tree it computed at t-1 to drones within ``base_reach_m`` = min(R, r). Afterwards the view
-        (``rows``, ``cols``, ``known_view`` and its entries) describes every alive holder.
+        When a drone broadcasts within a step decides what a message carries:
+
+        * ``after_move=False``: at the start of step t-1, before moving. Links at t-1 join the drones
+          alive at t-1 within r, and a neighbour is seen where it was before its last move.
+        * ``after_move=True``: at the end of step t-1, after moving. Links join the drones alive at t
+          within r at their positions at t, so direct neighbours are seen where they are now, two-hop
+          ones one step late, and so on (still one hop per step). A drone lost during t-1 sends nothing.
+
+        Either way, the base sends the tree it computed at t-1 to drones within ``base_reach_m`` =
+        min(R, r) of it over the same links, and nothing is delivered at the first step.
+        ``forget_unheard``: a drone drops an entry about a drone it believes within radio range but
+        did not hear in this delivery (what a mesh radio's neighbour table does on a missed beacon).
+        Afterwards the view (``rows``, ``cols``, ``known_view`` and its entries) describes every alive
+        holder.
         """
         n = len(pos_m)
         self.pos_hist_m[t_step] = pos_m
+        if after_move:
+            link_pos_m, link_alive, t_sent = pos_m, alive, t_step
+            self.stamp[~alive] = UNKNOWN
+            self.tree_stamp[~alive] = UNKNOWN
+            own = np.flatnonzero(alive)
+            self.stamp[own, own] = t_step
+        else:
+            link_pos_m, link_alive, t_sent = pos_prev_m, alive_prev, t_step - 1
         if pos_prev_m is not None:
-            idx = np.flatnonzero(alive_prev)
-            pairs = neighbour_pairs(pos_prev_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
+            idx = np.flatnonzero(link_alive)
+            pairs = neighbour_pairs(link_pos_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
             held = self.stamp[idx]
             # Columns nobody holds (lost drones, once forgotten) cannot change: hop the others only.
             ck = np.flatnonzero((held >= 0).any(axis=0))
             if len(ck) < 0.8 * held.shape[1]:
-                held[:, ck] = propagate_stamps(held[:, ck], pairs, t_step - 1, age_max_steps)
+                held[:, ck] = propagate_stamps(held[:, ck], pairs, t_sent, age_max_steps)
                 self.stamp[idx] = held
             else:
-                self.stamp[idx] = propagate_stamps(held, pairs, t_step - 1, age_max_steps)
+                self.stamp[idx] = propagate_stamps(held, pairs, t_sent, age_max_steps)
             # The tree stamp rides in the same messages but has its own staleness rule.
             ts = self.tree_stamp[idx]
             best = ts.copy()
             if len(pairs):
                 np.maximum.at(best, pairs[:, 0], ts[pairs[:, 1]])
                 np.maximum.at(best, pairs[:, 1], ts[pairs[:, 0]])
-            at_base = np.linalg.norm(pos_prev_m[idx] - base_m, axis=1) <= base_reach_m
+            at_base = np.linalg.norm(link_pos_m[idx] - base_m, axis=1) <= base_reach_m
             best[at_base] = t_step - 1
             self.tree_stamp[idx] = best
         # Own state is always fresh; dead drones hold nothing.
@@ -195,7 +215,12 @@ class Knowledge:
         er, ek = np.nonzero(sub != UNKNOWN)                             # row-major
         believed = self.pos_hist_m[sub[er, ek], cols[ek]]                # (E, 2)
         diff = believed - pos_m[rows][er]
-        far = np.einsum("ec,ec->e", diff, diff) > dist_max_m * dist_max_m
+        d2 = np.einsum("ec,ec->e", diff, diff)
+        far = d2 > dist_max_m * dist_max_m
+        if forget_unheard and pos_prev_m is not None:
+            # Believed within range, yet not heard in this delivery (a direct neighbour's entry
+            # carries the sending step): lost, or moved away since that report.
+            far |= (d2 <= radio_range_m * radio_range_m) & (sub[er, ek] < t_sent)
         sub[er[far], ek[far]] = UNKNOWN
         self.stamp[np.ix_(rows, cols)] = sub
         keep = ~far & (rows[er] != cols[ek])
@@ -230,16 +255,21 @@ class MessageLayer:
     radio_range_u, base_reach_u : link range r and the base's reach min(R, r)
     age_max_steps, dist_max_u : the recency rule's age and distance cut-offs
     stale_steps : a drone whose broadcast copy is older than this is stale (assumes disconnection)
+    after_move, forget_unheard : when in a step a drone broadcasts, and whether it forgets neighbours
+        it did not hear (:meth:`Knowledge.update`); the planners' parameters hold the defaults
     """
 
     def __init__(self, n_drones: int, n_steps: int, radio_range_u: float, base_reach_u: float,
-                 age_max_steps: int, dist_max_u: float, stale_steps: int) -> None:
+                 age_max_steps: int, dist_max_u: float, stale_steps: int, *, after_move: bool,
+                 forget_unheard: bool) -> None:
         self.knowledge = Knowledge.empty(n_drones, n_steps + 1)
         self.radio_range_u = radio_range_u
         self.base_reach_u = base_reach_u
         self.age_max_steps = age_max_steps
         self.dist_max_u = dist_max_u
         self.stale_steps = stale_steps
+        self.after_move = after_move
+        self.forget_unheard = forget_unheard
         self._prev: tuple[np.ndarray, np.ndarray] | None = None
         self._broadcasts: dict[int, object] = {}
 
@@ -252,7 +282,8 @@ class MessageLayer:
             kn.pos_hist_m = np.concatenate([kn.pos_hist_m, np.zeros_like(kn.pos_hist_m)])
         prev_pos, prev_alive = self._prev if self._prev is not None else (None, None)
         kn.update(t_step, prev_pos, prev_alive, pos_u, alive, self.radio_range_u, self.base_reach_u,
-                  self.age_max_steps, self.dist_max_u, base_u)
+                  self.age_max_steps, self.dist_max_u, base_u, after_move=self.after_move,
+                  forget_unheard=self.forget_unheard)
         self._prev = (pos_u, alive)
         self._broadcasts[t_step] = broadcast
         for old in [s for s in self._broadcasts if s < t_step - self.stale_steps - 1]:

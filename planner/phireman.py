@@ -99,6 +99,14 @@ class PhiremanParams:
     """Async: forget neighbour reports farther than this, paper units (3 r)."""
     tree_stale_steps: int = 15
     """Async: a drone whose tree copy is older than this assumes disconnection and heads home."""
+    broadcast_after_move: bool = True
+    """Async: a drone broadcasts at the end of its step, after moving, so its neighbours receive
+    where it is at the next step (False: at the start, so they see it one move late). The paper's
+    "broadcasts ... received in the subsequent timestep" admits both; chosen at S / 1 %
+    (docs/tuning/phireman_messages_S_1pct.md)."""
+    forget_unheard: bool = True
+    """Async: drop a neighbour believed within radio range but not heard in the last delivery
+    (a mesh radio's neighbour timeout); chosen at S / 1 % with ``broadcast_after_move``."""
 
     def __post_init__(self) -> None:
         if self.speed_rule not in SPEED_RULES:
@@ -601,7 +609,8 @@ class PhiremanPlanner:
         p = self.params
         if self.messages is None:
             self.messages = MessageLayer(len(pos_u), self.problem.n_steps, self.r_u, self.base_reach_u,
-                                         p.age_max_steps, p.dist_max, p.tree_stale_steps)
+                                         p.age_max_steps, p.dist_max, p.tree_stale_steps,
+                                         after_move=p.broadcast_after_move, forget_unheard=p.forget_unheard)
         stale = planning & self.messages.step(tick.t_step, pos_u, np.asarray(tick.alive, bool), base_u,
                                               self.tree)
         # Stale tree: assume disconnection and fly to the known base location at full speed.

@@ -97,7 +97,7 @@ def test_sparse_propagation_matches_reference(rng):
 
 def test_view_entries_are_the_known_entries_of_the_dense_view(rng):
     n = 60
-    layer = MessageLayer(n, 20, 2.0, 2.0, 3, 6.0, 15)
+    layer = MessageLayer(n, 20, 2.0, 2.0, 3, 6.0, 15, after_move=True, forget_unheard=True)
     pos = rng.uniform(-4, 4, (n, 2))
     alive = np.ones(n, bool)
     for t in range(6):

@@ -74,3 +74,62 @@ def test_age_and_distance_cutoffs_and_dead_drones():
     dead[1] = False
     k2.update(4, pos, alive, pos, dead, 2.0, 2.0, 10, 2.0, np.zeros(2))
     assert (k2.stamp[1] == -1).all() and k2.tree_stamp[1] == -1
+
+
+def test_broadcast_after_move_shows_direct_neighbours_where_they_are_now():
+    """Broadcasting after the move: a j-hop report is j - 1 steps old, still one hop per step."""
+    n = 5
+    pos = _chain(n, 1.6)
+    alive = np.ones(n, bool)
+    k = Knowledge.empty(n, 20)
+    prev = None
+    for t in range(6):
+        k.update(t, prev, alive if prev is not None else None, pos, alive, 2.0, 2.0, 10, 100.0, np.zeros(2),
+                 after_move=True)
+        prev = pos
+        if t == 0:  # nothing has been broadcast before the first step
+            assert (k.stamp == np.where(np.eye(n, dtype=bool), 0, -1)).all()
+            continue
+        for j in range(1, n):
+            expected = t - j + 1 if t >= j else -1
+            assert k.stamp[0, j] == expected
+        for i in range(n):
+            assert k.tree_stamp[i] == (t - 1 - i if t - 1 - i >= 0 else -1)
+
+
+def test_after_move_links_use_the_positions_at_the_current_step():
+    """A drone that moved into range during the last step is heard now; one lost is not."""
+    pos0 = np.array([[0.5, 0.0], [5.0, 0.0], [2.0, 0.0]])
+    pos1 = np.array([[0.5, 0.0], [2.3, 0.0], [2.0, 0.0]])
+    alive0 = np.ones(3, bool)
+    alive1 = np.array([True, True, False])   # drone 2 lost during step 0
+    k = Knowledge.empty(3, 5)
+    k.update(0, None, None, pos0, alive0, 2.0, 2.0, 10, 100.0, np.zeros(2), after_move=True)
+    k.update(1, pos0, alive0, pos1, alive1, 2.0, 2.0, 10, 100.0, np.zeros(2), after_move=True)
+    assert k.stamp[0, 1] == 1          # 1.8 apart at step 1: heard, where it is now
+    assert k.stamp[0, 2] == -1         # it was 1.5 away at step 0, but the lost send nothing
+    before = Knowledge.empty(3, 5)
+    before.update(0, None, None, pos0, alive0, 2.0, 2.0, 10, 100.0, np.zeros(2))
+    before.update(1, pos0, alive0, pos1, alive1, 2.0, 2.0, 10, 100.0, np.zeros(2))
+    assert before.stamp[0, 1] == -1 and before.stamp[0, 2] == 0   # links at step 0: the opposite
+
+
+def test_forget_unheard_drops_lost_neighbours_at_once():
+    n = 3
+    pos = _chain(n, 1.5)
+    alive = np.ones(n, bool)
+    kept, dropped = Knowledge.empty(n, 10), Knowledge.empty(n, 10)
+    prev = None
+    for t in range(4):
+        a = alive.copy()
+        if t >= 3:
+            a[1] = False
+        for k, forget in ((kept, False), (dropped, True)):
+            k.update(t, prev, alive if prev is not None else None, pos, a, 2.0, 2.0, 10, 100.0, np.zeros(2),
+                     after_move=True, forget_unheard=forget)
+        prev = pos
+    # drone 1 (1.5 from drone 0, within r = 2) was lost during step 2: heard last at step 2
+    assert kept.stamp[0, 1] == 2
+    assert dropped.stamp[0, 1] == -1
+    # drone 2 is 3.0 from drone 0: out of radio range, so its relayed report is kept either way
+    assert kept.stamp[0, 2] == 1 and dropped.stamp[0, 2] == 1   # relayed by 1 at step 2
