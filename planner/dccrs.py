@@ -212,8 +212,9 @@ def weighted_pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e
 
     Notes
     -----
-    Bit-identical to the dense kernel: the same element-wise operations, and Σ_k coef_ik (x_i - y_k)
-    accumulated in k order by ``np.bincount`` as einsum does (a masked entry only adds an exact 0).
+    Work proportional to the entries; Σ_k coef_ik (x_i - y_k) is summed per drone by ``np.bincount``.
+    Agrees with the dense kernel to rounding (same element-wise operations; with the entries in
+    row-major order the sums are even accumulated in the same order).
     """
     n = len(pos_u)
     diff = pos_u[rows] - others_e
@@ -231,11 +232,13 @@ def weighted_pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e
 
 
 def _leader_distances(pos_u, leaders_u):
+    """(n,) distance to the nearest leader (the first on ties) and (n, 2) the offset x - y to it;
+    ``leaders_u`` (n, L, 2). The square root is taken of the nearest only."""
     diff = pos_u[:, None, :] - leaders_u            # (n, L, 2)
-    d = np.sqrt(np.einsum("nlc,nlc->nl", diff, diff))
-    k = np.argmin(d, axis=1)
+    d2 = np.einsum("nlc,nlc->nl", diff, diff)
+    k = np.argmin(d2, axis=1)
     rows = np.arange(len(pos_u))
-    return d[rows, k], diff[rows, k]
+    return np.sqrt(d2[rows, k]), diff[rows, k]
 
 
 def leader_gradient(pos_u: np.ndarray, leaders_u: np.ndarray, gain, exponent: float, r: float,
@@ -436,7 +439,7 @@ class DccrsPlanner:
     def _descend_entries(self, pos_u, er, y_e, leaders_u):
         """:meth:`_descend` (async, fixed beliefs) from the known entries of the view: ``er`` (E,)
         holder rows in row-major order, ``y_e`` (E, 2) believed positions; leaders (n, L, 2).
-        Returns (result, boolean over entries marking N_i, weights). Bit-identical to the dense one."""
+        Returns (result, boolean over entries marking N_i, weights). Agrees with the dense one to rounding."""
         p = self.params
         n = len(pos_u)
         diff = pos_u[er] - y_e
@@ -449,15 +452,18 @@ class DccrsPlanner:
             return np.bincount(er[np.einsum("ec,ec->e", dy, dy) <= self.r_u ** 2], minlength=n)
         gain = self._leader_gain(pos_u, leaders_u, claims)
 
+        ent_start = np.searchsorted(er, np.arange(n + 1))   # row-major: drone i's entries are
+        ent_count = np.diff(ent_start)                      # ent_start[i]:ent_start[i + 1]
+
         def grad(x, rows):
             lead = leaders_u if leaders_u.ndim == 2 else leaders_u[rows]
             if len(rows) == n:
                 r_e, ys = er, y_e
-            else:
-                chosen = np.zeros(n, dtype=bool)
-                chosen[rows] = True
-                take = chosen[er]
-                r_e, ys = (np.cumsum(chosen) - 1)[er[take]], y_e[take]
+            else:  # the entries of the drones still moving, gathered by segment
+                count = ent_count[rows]
+                r_e = np.repeat(np.arange(len(rows)), count)
+                take = np.arange(len(r_e)) + np.repeat(ent_start[rows] - (np.cumsum(count) - count), count)
+                ys = y_e[take]
             return (weighted_pair_gradient_entries(x[rows], r_e, ys, weight[rows], p.attraction,
                                                    p.attraction_floor, p.repulsion, self.reach_u, p.pair_factor)
                     + leader_gradient(x[rows], lead, gain[rows], p.leader_exponent, self.r_u, p.leader_floor))

@@ -13,25 +13,147 @@ stamps (-1 = unknown), and believed positions are gathered from the history of t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import csr_matrix
 
 from planner.geometry import neighbour_pairs
 
-__all__ = ["Knowledge", "MessageLayer", "propagate_stamps", "propagate_stamps_reference", "UNKNOWN"]
+__all__ = ["Knowledge", "KnowledgeDense", "MessageLayer", "propagate_entries", "propagate_stamps",
+           "propagate_stamps_dense", "propagate_stamps_reference", "UNKNOWN"]
 
 UNKNOWN = -1
+
+#: Below this fraction of known entries (among holders x held columns) the one-hop product is
+#: sparse x sparse (cost ~ links x entries per holder); above it, sparse x dense (the dense phase
+#: right after take-off, when everybody hears everybody, is cheaper that way).
+_SPARSE_ENTRY_FRACTION = 0.25
 
 #: Above this many holders the one-hop product uses a sparse adjacency matrix (below it the dense
 #: product is cheaper than scipy's per-call overhead).
 _SPARSE_MIN_HOLDERS = 256
 
 
+def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holders: int, n_cols: int,
+                      pairs: np.ndarray, t_sent: int, age_max_steps: int
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One hop of the recency rule on an entry list: what every holder holds after hearing its
+    neighbours, from the entries that are still forwarded.
+
+    Parameters
+    ----------
+    rows, cols, stamps : (E,) int, the valid entries (holder, drone, stamp), at most one per (row, col)
+    n_holders, n_cols : shape of the table the entries live in
+    pairs : (P, 2) int, undirected links (i, j) among the holders (row ids)
+    t_sent : step at which the tables were sent (every stamp is <= t_sent)
+    age_max_steps : A; only entries with stamp >= max(t_sent - A, 0) are forwarded (or kept)
+
+    Returns
+    -------
+    rows, cols, stamps : (E',) the entries new[i, k] = max_{j in {i} U N(i)} sent[j, k] over the
+    forwarded entries ``sent``, in row-major order. Entries that are not forwarded are dropped from
+    their own holder too (the caller's age cut-off removes them anyway).
+
+    Notes
+    -----
+    The max-plus product of :func:`propagate_stamps_dense` (exponent encoding: an entry of age a is
+    sent as 2^(b (A - a)) with 2^b > n_holders >= degree + 1), with the adjacency given self-loops
+    (the holder's own entries). Once the swarm has spread it is a sparse x sparse product (the
+    entry matrix): the work is the number of (link, entry) pairs, not links x columns; while the
+    tables are mostly full (below ``_SPARSE_ENTRY_FRACTION`` empty) the entry matrix is expanded
+    to a dense table of the held columns instead. The decoded level does not depend on the
+    summation order, so the stamps are exactly those of the dense product either way. When b (A + 1) would overflow the float64
+    exponent, the maximum per (row, col) is taken by sorting the candidates instead.
+    """
+    rows, cols, stamps = (np.asarray(a, dtype=np.int64) for a in (rows, cols, stamps))
+    send = stamps >= max(int(t_sent) - int(age_max_steps), 0)
+    rows, cols, stamps = rows[send], cols[send], stamps[send]
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if len(rows) == 0 or len(pairs) == 0:
+        return rows, cols, stamps
+    max_level = int(age_max_steps)
+    loops = np.arange(n_holders, dtype=np.int64)
+    src = np.concatenate([pairs[:, 1], pairs[:, 0], loops])       # j -> i, i -> j, i -> i
+    dst = np.concatenate([pairs[:, 0], pairs[:, 1], loops])
+    bits = int(np.ceil(np.log2(n_holders + 1))) + 1                 # 2^bits > n_holders >= deg + 1
+    if bits * (max_level + 1) < 1000:
+        level = max_level - np.minimum(t_sent - stamps, max_level)
+        adj = csr_matrix((np.ones(len(src)), (dst, src)), shape=(n_holders, n_holders))
+        adj.data[:] = 1.0                                            # a repeated link counts once
+        held = np.bincount(cols, minlength=n_cols) > 0
+        col_ids = np.flatnonzero(held)
+        if len(rows) < _SPARSE_ENTRY_FRACTION * n_holders * len(col_ids):
+            indptr = np.zeros(n_holders + 1, dtype=np.int64)
+            np.cumsum(np.bincount(rows, minlength=n_holders), out=indptr[1:])
+            code = csr_matrix((np.ldexp(1.0, bits * level), cols, indptr), shape=(n_holders, n_cols))
+            total = adj @ code
+            total.sort_indices()
+            out_rows = np.repeat(np.arange(n_holders, dtype=np.int64), np.diff(total.indptr))
+            out_level = max_level - (np.frexp(total.data)[1] - 1) // bits
+            return out_rows, total.indices.astype(np.int64), t_sent - out_level
+        # Sparse adjacency times the dense code table of the columns somebody holds.
+        code = np.zeros((n_holders, len(col_ids)))
+        code[rows, (np.cumsum(held) - 1)[cols]] = np.ldexp(1.0, bits * level)
+        total = adj @ code
+        out_rows, out_k = np.nonzero(total)
+        out_level = max_level - (np.frexp(total[out_rows, out_k])[1] - 1) // bits
+        return out_rows, col_ids[out_k], t_sent - out_level
+    # Candidates (every entry of every neighbour and of the holder itself), then the freshest per key.
+    order = np.argsort(src, kind="stable")
+    src, dst = src[order], dst[order]
+    count = np.bincount(rows, minlength=n_holders)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    per_link = count[src]
+    link_of = np.repeat(np.arange(len(src)), per_link)
+    offset = np.arange(len(link_of)) - np.repeat(np.cumsum(per_link) - per_link, per_link)
+    take = start[src][link_of] + offset
+    key = dst[link_of] * n_cols + cols[take]
+    val = stamps[take]
+    order = np.lexsort((val, key))
+    key, val = key[order], val[order]
+    last = np.r_[key[1:] != key[:-1], True]
+    return key[last] // n_cols, key[last] % n_cols, val[last]
+
+
 def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = None,
                      age_max_steps: int | None = None) -> np.ndarray:
     """One hop of the recency rule: new[i, k] = max(stamp[i, k], max_{j ~ i} stamp[j, k]).
+
+    Parameters
+    ----------
+    stamp : (n, K) int, tables before receiving (row = holder, -1 = unknown)
+    pairs : (P, 2) int, undirected links (i, j) among the n holders
+    t_sent : step at which the tables were sent (default: the largest stamp)
+    age_max_steps : entries older than this at ``t_sent`` are never forwarded (default: all ages)
+
+    Returns
+    -------
+    (n, K) int, tables after receiving one message from every neighbour.
+
+    Dense-table front end of :func:`propagate_entries` (the message layer itself works on entries);
+    identical tables to :func:`propagate_stamps_dense` and :func:`propagate_stamps_reference`.
+    """
+    stamp = np.asarray(stamp)
+    out = stamp.copy()
+    n = len(stamp)
+    if len(pairs) == 0 or n == 0:
+        return out
+    valid = stamp >= 0
+    if not valid.any():
+        return out
+    t_sent = int(stamp[valid].max()) if t_sent is None else int(t_sent)
+    max_level = t_sent - int(stamp[valid].min()) if age_max_steps is None else int(age_max_steps)
+    r, c = np.nonzero(valid)
+    nr, nc, ns = propagate_entries(r, c, stamp[r, c], n, stamp.shape[1], pairs, t_sent, max_level)
+    out[nr, nc] = np.maximum(out[nr, nc], ns)
+    return out
+
+
+def propagate_stamps_dense(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = None,
+                           age_max_steps: int | None = None) -> np.ndarray:
+    """The previous (dense-table) implementation of :func:`propagate_stamps`, kept as a reference
+    for tests and for :class:`KnowledgeDense`. One hop of the recency rule: new[i, k] = max(stamp[i, k], max_{j ~ i} stamp[j, k]).
 
     Parameters
     ----------
@@ -124,6 +246,160 @@ def propagate_stamps_reference(stamp, pairs) -> np.ndarray:
 class Knowledge:
     """Per-drone beliefs of an episode under the asynchronous information model.
 
+    The beliefs are held as a list of entries (holder, drone, stamp) in row-major order; once the
+    swarm spreads each drone holds a few dozen of the N possible entries (the others are beyond
+    ``dist_max`` or more than ``age_max_steps`` hops away), and every step of :meth:`update` costs
+    time proportional to the entries and links, not N^2. ``stamp`` mirrors the list as a table.
+
+    Attributes
+    ----------
+    stamp : (N, N) int64, step of the freshest report drone i holds about drone k (-1 unknown);
+        kept in sync with the entry list by :meth:`update` (read it, do not write it)
+    tree_stamp : (N,) int64, step at which the base computed drone i's copy of the task tree (-1 none)
+    pos_hist_m : (T, N, 2) float64, true positions by step (the content of every report)
+    held_rows, held_cols, held_stamps : (H,) int64, every valid entry (self entries included), row-major
+    rows, cols : index arrays of the current *view*: alive holders and drones anybody knows about
+    entry_rows, entry_cols : (E,) int, the known entries of the view (never the holder itself), as
+        indices into ``rows`` and ``cols``, in row-major order
+    entry_believed_m : (E, 2) believed position of each entry
+    known_view : (len(rows), len(cols)) bool, the same entries as a mask (built on request)
+    """
+
+    stamp: np.ndarray
+    tree_stamp: np.ndarray
+    pos_hist_m: np.ndarray
+    held_rows: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+    held_cols: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+    held_stamps: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+    rows: np.ndarray = None
+    cols: np.ndarray = None
+    entry_rows: np.ndarray = None
+    entry_cols: np.ndarray = None
+    entry_believed_m: np.ndarray = None
+
+    @classmethod
+    def empty(cls, n_drones: int, n_steps: int) -> "Knowledge":
+        return cls(np.full((n_drones, n_drones), UNKNOWN, dtype=np.int64),
+                   np.full(n_drones, UNKNOWN, dtype=np.int64),
+                   np.zeros((n_steps + 1, n_drones, 2)))
+
+    @property
+    def known_view(self) -> np.ndarray:
+        """(len(rows), len(cols)) bool: the holder knows the drone (never itself)."""
+        known = np.zeros((len(self.rows), len(self.cols)), dtype=bool)
+        known[self.entry_rows, self.entry_cols] = True
+        return known
+
+    @staticmethod
+    def _own(r, c, s, alive, t_step):
+        """Drop the entries of dead holders; every alive holder's own entry is stamped ``t_step``."""
+        live = alive[r]
+        r, c, s = r[live], c[live], s[live]
+        own = r == c
+        if np.count_nonzero(own) == np.count_nonzero(alive):   # the usual case: all present
+            s = s.copy()
+            s[own] = t_step
+            return r, c, s
+        a = np.flatnonzero(alive).astype(np.int64)
+        r = np.concatenate([r[~own], a])
+        c = np.concatenate([c[~own], a])
+        s = np.concatenate([s[~own], np.full(len(a), t_step, dtype=np.int64)])
+        order = np.argsort(r * len(alive) + c, kind="stable")
+        return r[order], c[order], s[order]
+
+    def update(self, t_step: int, pos_prev_m: np.ndarray | None, alive_prev: np.ndarray | None,
+               pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float, base_reach_m: float,
+               age_max_steps: int, dist_max_m: float, base_m: np.ndarray, *,
+               after_move: bool = False, forget_unheard: bool = False) -> None:
+        """Deliver the messages broadcast during step t-1, then each drone records its own state at t.
+
+        When a drone broadcasts within a step decides what a message carries:
+
+        * ``after_move=False``: at the start of step t-1, before moving. Links at t-1 join the drones
+          alive at t-1 within r, and a neighbour is seen where it was before its last move.
+        * ``after_move=True``: at the end of step t-1, after moving. Links join the drones alive at t
+          within r at their positions at t, so direct neighbours are seen where they are now, two-hop
+          ones one step late, and so on (still one hop per step). A drone lost during t-1 sends nothing.
+
+        Either way, the base sends the tree it computed at t-1 to drones within ``base_reach_m`` =
+        min(R, r) of it over the same links, and nothing is delivered at the first step.
+        ``forget_unheard``: a drone drops an entry about a drone it believes within radio range but
+        did not hear in this delivery (what a mesh radio's neighbour table does on a missed beacon).
+        Afterwards the view (``rows``, ``cols`` and the entries) describes every alive holder.
+        """
+        n = len(pos_m)
+        alive = np.asarray(alive, dtype=bool)
+        self.pos_hist_m[t_step] = pos_m
+        r, c, s = self.held_rows, self.held_cols, self.held_stamps
+        if after_move:
+            link_pos_m, link_alive, t_sent = pos_m, alive, t_step
+            self.tree_stamp[~alive] = UNKNOWN
+            r, c, s = self._own(r, c, s, alive, t_step)
+        else:
+            link_pos_m, link_alive, t_sent = pos_prev_m, alive_prev, t_step - 1
+        if pos_prev_m is not None:
+            idx = np.flatnonzero(link_alive)
+            pairs = neighbour_pairs(link_pos_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
+            # Holders outside ``idx`` have no links: they keep their forwarded entries (the others
+            # are past the age cut-off below either way).
+            r, c, s = propagate_entries(r, c, s, n, n, idx[pairs], t_sent, age_max_steps)
+            # The tree stamp rides in the same messages but has its own staleness rule.
+            ts = self.tree_stamp[idx]
+            best = ts.copy()
+            if len(pairs):
+                np.maximum.at(best, pairs[:, 0], ts[pairs[:, 1]])
+                np.maximum.at(best, pairs[:, 1], ts[pairs[:, 0]])
+            at_base = np.linalg.norm(link_pos_m[idx] - base_m, axis=1) <= base_reach_m
+            best[at_base] = t_step - 1
+            self.tree_stamp[idx] = best
+        # Own state is always fresh; dead drones hold nothing.
+        self.tree_stamp[~alive] = UNKNOWN
+        r, c, s = self._own(r, c, s, alive, t_step)
+        # Forget stale entries, then distant ones (measured from the holder's own position).
+        fresh = s >= t_step - age_max_steps
+        r, c, s = r[fresh], c[fresh], s[fresh]
+        rows = np.flatnonzero(alive)
+        col_held = np.bincount(c, minlength=n) > 0          # known to somebody before the distance cut
+        cols = np.flatnonzero(col_held)
+        believed = self.pos_hist_m[s, c]                                 # (H, 2)
+        diff = believed - pos_m[r]
+        d2 = np.einsum("ec,ec->e", diff, diff)
+        far = d2 > dist_max_m * dist_max_m
+        if forget_unheard and pos_prev_m is not None:
+            # Believed within range, yet not heard in this delivery (a direct neighbour's entry
+            # carries the sending step): lost, or moved away since that report.
+            far |= (d2 <= radio_range_m * radio_range_m) & (s < t_sent)
+        kept = ~far
+        r, c, s, believed = r[kept], c[kept], s[kept], believed[kept]
+        # The table mirrors the entries: clear the old ones, write the new ones.
+        self.stamp[self.held_rows, self.held_cols] = UNKNOWN
+        self.stamp[r, c] = s
+        self.held_rows, self.held_cols, self.held_stamps = r, c, s
+        other = r != c
+        row_of = np.cumsum(alive) - 1
+        col_of = np.cumsum(col_held) - 1
+        self.rows, self.cols = rows, cols
+        self.entry_rows, self.entry_cols = row_of[r[other]], col_of[c[other]]
+        self.entry_believed_m = believed[other]
+
+    def believed_positions_m(self) -> np.ndarray:
+        """(N, N, 2): where drone i believes drone k is (garbage where stamp is unknown)."""
+        n = self.stamp.shape[0]
+        s = np.where(self.stamp >= 0, self.stamp, 0)
+        return self.pos_hist_m[s, np.arange(n)[None, :]]
+
+    def known(self) -> np.ndarray:
+        """(N, N) bool: i holds a valid entry about k (k != i)."""
+        k = self.stamp != UNKNOWN
+        np.fill_diagonal(k, False)
+        return k
+
+
+@dataclass
+class KnowledgeDense:
+    """The previous dense-table implementation of :class:`Knowledge` (for tests: every (N, N)
+    operation in the open, the same semantics; :class:`Knowledge` must give identical tables).
+
     Attributes
     ----------
     stamp : (N, N) int64, step of the freshest report drone i holds about drone k (-1 unknown)
@@ -146,7 +422,7 @@ class Knowledge:
     entry_believed_m: np.ndarray = None
 
     @classmethod
-    def empty(cls, n_drones: int, n_steps: int) -> "Knowledge":
+    def empty(cls, n_drones: int, n_steps: int) -> "KnowledgeDense":
         return cls(np.full((n_drones, n_drones), UNKNOWN, dtype=np.int64),
                    np.full(n_drones, UNKNOWN, dtype=np.int64),
                    np.zeros((n_steps + 1, n_drones, 2)))
@@ -189,10 +465,10 @@ class Knowledge:
             # Columns nobody holds (lost drones, once forgotten) cannot change: hop the others only.
             ck = np.flatnonzero((held >= 0).any(axis=0))
             if len(ck) < 0.8 * held.shape[1]:
-                held[:, ck] = propagate_stamps(held[:, ck], pairs, t_sent, age_max_steps)
+                held[:, ck] = propagate_stamps_dense(held[:, ck], pairs, t_sent, age_max_steps)
                 self.stamp[idx] = held
             else:
-                self.stamp[idx] = propagate_stamps(held, pairs, t_sent, age_max_steps)
+                self.stamp[idx] = propagate_stamps_dense(held, pairs, t_sent, age_max_steps)
             # The tree stamp rides in the same messages but has its own staleness rule.
             ts = self.tree_stamp[idx]
             best = ts.copy()

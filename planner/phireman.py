@@ -334,44 +334,37 @@ def pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, att
     return pair_factor * (pos_u * coef.sum(axis=1)[:, None] - weighted)
 
 
-def pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, cols: np.ndarray, others_e: np.ndarray,
-                          others_sq_e: np.ndarray, n_cols: int, attraction: float, floor: float,
-                          repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
+def pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e: np.ndarray, attraction: float,
+                          floor: float, repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
     """:func:`pair_gradient` of the per-drone view from its interacting entries only.
 
     Parameters
     ----------
     pos_u : (n, 2) positions of the drones being planned, paper units
-    rows, cols : (E,) int, the entries (i, k) where the mask is True, in row-major order
-        (as ``np.nonzero(mask)`` returns them)
-    others_e : (E, 2) the believed position of entry e (``others_u[rows, cols]``)
-    others_sq_e : (E,) its squared norm
-    n_cols : K, the number of columns of the dense view
+    rows : (E,) int, the holder of each entry (i, k) where the mask is True (any order)
+    others_e : (E, 2) the believed position of entry e (``others_u[i, k]``)
     attraction, floor, repulsion, reach, pair_factor : as :func:`pair_gradient`
 
     Notes
     -----
-    Bit-identical to ``pair_gradient(pos_u, others_u, mask, ..., others_sq)``: every element-wise
-    operation is the same; the per-drone weighted sum Σ_k coef_ik y_k is accumulated in k order by
-    ``np.bincount`` (as einsum does; a masked entry only adds an exact zero), and Σ_k coef_ik, which
-    numpy sums pairwise, is summed over the same dense zero-padded row. The async view is ~85 %
-    masked once the swarm has spread (each drone hears a few dozen of the 500 at XL).
+    Work proportional to the entries (the async view is ~85 % masked once the swarm has spread:
+    each drone hears a few dozen of the 500 at XL): the differences x_i - y_k are formed per entry
+    and Σ_k coef_ik (x_i - y_k) is summed per drone by ``np.bincount``. Agrees with
+    :func:`pair_gradient_reference` to rounding (the summation order differs from the dense kernel's,
+    so the last bits may too).
     """
     n = len(pos_u)
-    xx = np.einsum("nc,nc->n", pos_u, pos_u)
-    d2 = xx[rows] + others_sq_e - 2.0 * np.einsum("ec,ec->e", others_e, pos_u[rows])
-    np.maximum(d2, 0.0, out=d2)
+    diff = pos_u[rows] - others_e
+    d2 = np.einsum("ec,ec->e", diff, diff)
     inv = np.zeros_like(d2)
     np.divide(1.0, np.sqrt(d2), out=inv, where=d2 > 0)
     d = d2 * inv
     coef = np.where(d > floor, attraction * inv * inv * inv, 0.0)
     coef -= np.where((d < reach) & (inv > 0), repulsion * (reach * inv - 1.0), 0.0)
-    dense = np.zeros((n, n_cols))
-    dense[rows, cols] = coef
-    weighted = np.empty((n, 2))
-    weighted[:, 0] = np.bincount(rows, coef * others_e[:, 0], minlength=n)
-    weighted[:, 1] = np.bincount(rows, coef * others_e[:, 1], minlength=n)
-    return pair_factor * (pos_u * dense.sum(axis=1)[:, None] - weighted)
+    out = np.empty((n, 2))
+    out[:, 0] = np.bincount(rows, coef * diff[:, 0], minlength=n)
+    out[:, 1] = np.bincount(rows, coef * diff[:, 1], minlength=n)
+    return pair_factor * out
 
 
 def pair_gradient_reference(pos_u, others_u, mask, attraction, floor, repulsion, reach, pair_factor):
@@ -619,24 +612,24 @@ class PhiremanPlanner:
         idx = np.flatnonzero(planning & ~stale)
         if len(idx) == 0:
             return disp_u, {"stale_tree": int(stale.sum())}
-        # Only the known entries interact (pair_gradient_entries; bit-identical to the dense view).
-        ent_r, ent_k, ent_y, stamps = self.messages.view_entries(idx)  # (E,), (E,), (E, 2) paper units, (n_i,)
+        # Only the known entries interact (pair_gradient_entries), work proportional to them.
+        ent_r, _, ent_y, stamps = self.messages.view_entries(idx)  # (E,), (E,), (E, 2) paper units, (n_i,)
         versions, version_of = np.unique(stamps, return_inverse=True)
         segments = TreeSegments([self.messages.broadcast(s) for s in versions], version_of, p.nodes_only,
                                 pos_u[idx], self.vmax_u)
-        ent_sq = np.einsum("ec,ec->e", ent_y, ent_y)
-        n_view, n_cols = len(idx), len(self.messages.knowledge.cols)
+        n_view = len(idx)
+        ent_start = np.searchsorted(ent_r, np.arange(n_view + 1))   # entries are row-major: drone i's
+        ent_count = np.diff(ent_start)                              # are ent_start[i]:ent_start[i+1]
 
         def grad(x, rows):
             if len(rows) == n_view:
-                er, ek, ey, esq = ent_r, ent_k, ent_y, ent_sq
-            else:
-                chosen = np.zeros(n_view, dtype=bool)
-                chosen[rows] = True
-                take = chosen[ent_r]
-                er = (np.cumsum(chosen) - 1)[ent_r[take]]
-                ek, ey, esq = ent_k[take], ent_y[take], ent_sq[take]
-            return (pair_gradient_entries(x[rows], er, ek, ey, esq, n_cols, p.attraction, p.attraction_floor,
+                er, ey = ent_r, ent_y
+            else:  # the entries of the drones still moving, gathered by segment
+                count = ent_count[rows]
+                er = np.repeat(np.arange(len(rows)), count)
+                take = np.arange(len(er)) + np.repeat(ent_start[rows] - (np.cumsum(count) - count), count)
+                ey = ent_y[take]
+            return (pair_gradient_entries(x[rows], er, ey, p.attraction, p.attraction_floor,
                                           p.repulsion, self.reach_u, p.pair_factor)
                     + segments.gradient(x[rows], rows, p.thorn))
 

@@ -1,8 +1,8 @@
 """The entry-list (sparse) kernels of the async model against their dense versions and the loops.
 
-The dense kernels are the reference here: the entry versions must give the *same bits* (runs are
-chaotic, so a last-digit difference would change per-seed results), and the loops must agree to
-rounding.
+The gradient kernels must agree with the dense kernels and the loops to rounding (~1e-12 relative;
+the summation order may differ, so the last bits may too). The message layer works on integer
+stamps: there the entry version must give *identical* tables to the dense one.
 """
 import numpy as np
 import pytest
@@ -26,23 +26,48 @@ def _view(rng, n, k, density, spread=8.0):
     return x, beliefs, mask
 
 
+def _close(got, want, tol=1e-12):
+    """Agreement to ``tol`` relative to the largest component (sums of many terms may cancel)."""
+    scale = max(np.abs(want).max(initial=0.0), 1e-300)
+    return np.allclose(got, want, rtol=tol, atol=tol * scale)
+
+
 @pytest.mark.parametrize("n,k,density", [(1, 1, 1.0), (3, 5, 0.5), (40, 60, 0.3), (200, 500, 0.12),
                                          (500, 500, 0.85), (7, 300, 0.02), (20, 20, 0.0)])
-def test_pair_gradient_entries_bit_identical_to_dense(rng, n, k, density):
+def test_pair_gradient_entries_match_dense_and_reference(rng, n, k, density):
     x, beliefs, mask = _view(rng, n, k, density)
     sq = np.einsum("nkc,nkc->nk", beliefs, beliefs)
     dense = pair_gradient(x, beliefs, mask, others_sq=sq, **KW)
     r, c = np.nonzero(mask)
-    y = beliefs[r, c]
-    got = pair_gradient_entries(x, r, c, y, np.einsum("ec,ec->e", y, y), k, KW["attraction"], KW["floor"],
-                                KW["repulsion"], KW["reach"], KW["pair_factor"])
-    assert np.array_equal(got, dense)
-    if n * k <= 3000:
-        assert np.allclose(got, pair_gradient_reference(x, beliefs, mask, **KW), atol=1e-9)
+    got = pair_gradient_entries(x, r, beliefs[r, c], KW["attraction"], KW["floor"], KW["repulsion"],
+                                KW["reach"], KW["pair_factor"])
+    # the dense kernel expands d^2 = |x|^2 + |y|^2 - 2 x.y (about |x|^2 eps lost): close, not exact
+    assert _close(got, dense, 1e-10)
+    if n * k <= 100_000:
+        assert _close(got, pair_gradient_reference(x, beliefs, mask, **KW))
+    # the entries may come in any order (the sum per drone is the same to rounding)
+    perm = rng.permutation(len(r))
+    assert _close(pair_gradient_entries(x, r[perm], beliefs[r[perm], c[perm]], KW["attraction"], KW["floor"],
+                                        KW["repulsion"], KW["reach"], KW["pair_factor"]), got)
+
+
+def _weighted_reference(x, beliefs, mask, w):
+    out = np.zeros((len(x), 2))
+    for i in range(len(x)):
+        for k in range(beliefs.shape[1]):
+            if not mask[i, k]:
+                continue
+            dx = x[i] - beliefs[i, k]
+            d = float(np.hypot(*dx))
+            if d > KW["floor"]:
+                out[i] += KW["pair_factor"] * w[i] * KW["attraction"] * dx / d ** 3
+            if 0 < d < KW["reach"]:
+                out[i] -= KW["pair_factor"] * KW["repulsion"] * (KW["reach"] - d) * dx / d
+    return out
 
 
 @pytest.mark.parametrize("n,k,density", [(1, 1, 1.0), (40, 60, 0.3), (200, 500, 0.12), (500, 500, 0.85)])
-def test_weighted_pair_gradient_entries_bit_identical_to_dense(rng, n, k, density):
+def test_weighted_pair_gradient_entries_match_dense_and_reference(rng, n, k, density):
     x, beliefs, mask = _view(rng, n, k, density)
     w = rng.uniform(0.5, 2.0, n)
     dense = weighted_pair_gradient(x, beliefs, mask, w, KW["attraction"], KW["floor"], KW["repulsion"],
@@ -50,7 +75,9 @@ def test_weighted_pair_gradient_entries_bit_identical_to_dense(rng, n, k, densit
     r, c = np.nonzero(mask)
     got = weighted_pair_gradient_entries(x, r, beliefs[r, c], w, KW["attraction"], KW["floor"],
                                          KW["repulsion"], KW["reach"], KW["pair_factor"])
-    assert np.array_equal(got, dense)
+    assert _close(got, dense)
+    if n * k <= 100_000:
+        assert _close(got, _weighted_reference(x, beliefs, mask, w))
 
 
 @pytest.mark.parametrize("n,k,density", [(1, 1, 1.0), (40, 60, 0.3), (300, 500, 0.12)])

@@ -1,7 +1,11 @@
 """The asynchronous message layer: the vectorised hop against loops, and its semantics."""
 import numpy as np
 
-from planner.knowledge import Knowledge, propagate_stamps, propagate_stamps_reference
+import pytest
+
+from planner import knowledge
+from planner.knowledge import (Knowledge, KnowledgeDense, MessageLayer, propagate_entries, propagate_stamps,
+                               propagate_stamps_dense, propagate_stamps_reference)
 
 
 def test_propagation_matches_reference(rng):
@@ -133,3 +137,94 @@ def test_forget_unheard_drops_lost_neighbours_at_once():
     assert dropped.stamp[0, 1] == -1
     # drone 2 is 3.0 from drone 0: out of radio range, so its relayed report is kept either way
     assert kept.stamp[0, 2] == 1 and dropped.stamp[0, 2] == 1   # relayed by 1 at step 2
+
+
+@pytest.mark.parametrize("sparse_below", [0.0, 0.25, 2.0])   # never / as shipped / always sparse x sparse
+def test_entry_propagation_gives_the_dense_tables(rng, monkeypatch, sparse_below):
+    """The entry-list hop against the previous dense kernel: identical integer tables."""
+    monkeypatch.setattr(knowledge, "_SPARSE_ENTRY_FRACTION", sparse_below)
+    for _ in range(200):
+        n, k = int(rng.integers(1, 40)), int(rng.integers(1, 50))
+        stamp = rng.integers(-1, 20, (n, k))
+        stamp[rng.random((n, k)) < rng.random()] = -1       # from nearly full to nearly empty
+        pairs = rng.integers(0, n, (int(rng.integers(0, 120)), 2))
+        pairs = pairs[pairs[:, 0] != pairs[:, 1]]          # repeated links included
+        assert (propagate_stamps(stamp, pairs) == propagate_stamps_dense(stamp, pairs)).all()
+        t_sent, age_max = int(stamp.max()), int(rng.integers(0, 25))
+        assert (propagate_stamps(stamp, pairs, t_sent, age_max)
+                == propagate_stamps_dense(stamp, pairs, t_sent, age_max)).all()
+        # the entry kernel itself: forwarded entries only, row-major, one per (row, col)
+        r, c = np.nonzero(stamp >= 0)
+        nr, nc, ns = propagate_entries(r, c, stamp[r, c], n, k, pairs, t_sent, age_max)
+        key = nr * k + nc
+        assert (np.diff(key) > 0).all()
+        fresh = np.where(stamp >= max(t_sent - age_max, 0), stamp, -1)
+        table = np.full((n, k), -1)
+        table[nr, nc] = ns
+        expected = propagate_stamps_reference(fresh, pairs) if len(pairs) else fresh
+        assert (table == expected).all()
+
+
+def test_entry_propagation_sorting_fallback_for_very_old_ages(rng):
+    n, k = 30, 45
+    stamp = rng.integers(-1, 400, (n, k))
+    pairs = rng.integers(0, n, (150, 2))
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    r, c = np.nonzero(stamp >= 0)
+    nr, nc, ns = propagate_entries(r, c, stamp[r, c], n, k, pairs, 400, 399)
+    table = np.full((n, k), -1)
+    table[nr, nc] = ns
+    assert (np.diff(nr * k + nc) > 0).all()
+    assert (table == propagate_stamps_reference(stamp, pairs)).all()
+
+
+@pytest.mark.parametrize("after_move", [False, True])
+@pytest.mark.parametrize("forget_unheard", [False, True])
+@pytest.mark.parametrize("sparse_below", [0.25, 2.0])
+def test_entry_knowledge_gives_the_dense_tables(rng, monkeypatch, after_move, forget_unheard, sparse_below):
+    """Whole episodes (moving swarm, losses, both broadcast timings, all cut-offs): the entry-list
+    Knowledge and the previous dense one hold identical stamps, tree stamps and views."""
+    monkeypatch.setattr(knowledge, "_SPARSE_ENTRY_FRACTION", sparse_below)
+    for _ in range(6):
+        n, n_steps = int(rng.integers(2, 90)), 30
+        age_max, dist_max = int(rng.integers(0, 6)), float(rng.uniform(1.0, 8.0))
+        new, old = Knowledge.empty(n, n_steps), KnowledgeDense.empty(n, n_steps)
+        pos = rng.uniform(-6, 6, (n, 2))
+        alive = np.ones(n, bool)
+        prev = (None, None)
+        for t in range(n_steps):
+            pos_t = pos + rng.normal(0, 0.4, pos.shape)
+            alive_t = alive & (rng.random(n) > 0.04)
+            for k in (new, old):
+                k.update(t, prev[0], prev[1], pos_t, alive_t, 2.0, 2.5, age_max, dist_max, np.zeros(2),
+                         after_move=after_move, forget_unheard=forget_unheard)
+            assert np.array_equal(new.stamp, old.stamp)
+            assert np.array_equal(new.tree_stamp, old.tree_stamp)
+            assert np.array_equal(new.rows, old.rows) and np.array_equal(new.cols, old.cols)
+            assert np.array_equal(new.entry_rows, old.entry_rows)
+            assert np.array_equal(new.entry_cols, old.entry_cols)
+            assert np.array_equal(new.entry_believed_m, old.entry_believed_m)
+            assert np.array_equal(new.known_view, old.known_view)
+            # the entry list is the table
+            r, c = np.nonzero(new.stamp >= 0)
+            assert np.array_equal(new.held_rows, r) and np.array_equal(new.held_cols, c)
+            assert np.array_equal(new.held_stamps, new.stamp[r, c])
+            prev, pos, alive = (pos_t, alive_t), pos_t, alive_t
+
+
+def test_message_layer_same_with_a_drone_coming_back(rng):
+    """A drone absent from one tick and back at the next (live use) gets its own entry again."""
+    n = 12
+    layer = MessageLayer(n, 10, 2.0, 2.0, 3, 6.0, 15, after_move=True, forget_unheard=True)
+    ref = KnowledgeDense.empty(n, 11)
+    pos = rng.uniform(-2, 2, (n, 2))
+    prev = (None, None)
+    for t in range(8):
+        alive = np.ones(n, bool)
+        if t in (3, 4):
+            alive[5] = False
+        layer.step(t, pos, alive, np.zeros(2), t)
+        ref.update(t, prev[0], prev[1], pos, alive, 2.0, 2.0, 3, 6.0, np.zeros(2), after_move=True,
+                   forget_unheard=True)
+        assert np.array_equal(layer.knowledge.stamp, ref.stamp)
+        prev = (pos, alive)
