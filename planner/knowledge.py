@@ -35,6 +35,14 @@ _SPARSE_ENTRY_FRACTION = 0.25
 _SPARSE_MIN_HOLDERS = 256
 
 
+def _select(mask: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``a[mask]`` for each array (the arrays themselves when the mask keeps everything)."""
+    if mask.all():
+        return arrays
+    take = np.flatnonzero(mask)
+    return tuple(a[take] for a in arrays)
+
+
 def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holders: int, n_cols: int,
                       pairs: np.ndarray, t_sent: int, age_max_steps: int
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -67,8 +75,7 @@ def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_
     exponent, the maximum per (row, col) is taken by sorting the candidates instead.
     """
     rows, cols, stamps = (np.asarray(a, dtype=np.int64) for a in (rows, cols, stamps))
-    send = stamps >= max(int(t_sent) - int(age_max_steps), 0)
-    rows, cols, stamps = rows[send], cols[send], stamps[send]
+    rows, cols, stamps = _select(stamps >= max(int(t_sent) - int(age_max_steps), 0), rows, cols, stamps)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if len(rows) == 0 or len(pairs) == 0:
         return rows, cols, stamps
@@ -293,8 +300,7 @@ class Knowledge:
     @staticmethod
     def _own(r, c, s, alive, t_step):
         """Drop the entries of dead holders; every alive holder's own entry is stamped ``t_step``."""
-        live = alive[r]
-        r, c, s = r[live], c[live], s[live]
+        r, c, s = _select(alive[r], r, c, s)
         own = r == c
         if np.count_nonzero(own) == np.count_nonzero(alive):   # the usual case: all present
             s = s.copy()
@@ -356,31 +362,32 @@ class Knowledge:
         self.tree_stamp[~alive] = UNKNOWN
         r, c, s = self._own(r, c, s, alive, t_step)
         # Forget stale entries, then distant ones (measured from the holder's own position).
-        fresh = s >= t_step - age_max_steps
-        r, c, s = r[fresh], c[fresh], s[fresh]
+        r, c, s = _select(s >= t_step - age_max_steps, r, c, s)
         rows = np.flatnonzero(alive)
         col_held = np.bincount(c, minlength=n) > 0          # known to somebody before the distance cut
         cols = np.flatnonzero(col_held)
-        believed = self.pos_hist_m[s, c]                                 # (H, 2)
-        diff = believed - pos_m[r]
-        d2 = np.einsum("ec,ec->e", diff, diff)
+        hist = self.pos_hist_m.reshape(-1, 2)
+        at = s * n + c                                      # pos_hist_m[s, c], one coordinate at a time
+        bx, by = hist[:, 0][at], hist[:, 1][at]
+        dx, dy = bx - pos_m[:, 0][r], by - pos_m[:, 1][r]
+        d2 = dx * dx
+        d2 += dy * dy
         far = d2 > dist_max_m * dist_max_m
         if forget_unheard and pos_prev_m is not None:
             # Believed within range, yet not heard in this delivery (a direct neighbour's entry
             # carries the sending step): lost, or moved away since that report.
             far |= (d2 <= radio_range_m * radio_range_m) & (s < t_sent)
-        kept = ~far
-        r, c, s, believed = r[kept], c[kept], s[kept], believed[kept]
+        r, c, s, bx, by = _select(~far, r, c, s, bx, by)
         # The table mirrors the entries: clear the old ones, write the new ones.
         self.stamp[self.held_rows, self.held_cols] = UNKNOWN
         self.stamp[r, c] = s
         self.held_rows, self.held_cols, self.held_stamps = r, c, s
-        other = r != c
+        er, ec, bx, by = _select(r != c, r, c, bx, by)
         row_of = np.cumsum(alive) - 1
         col_of = np.cumsum(col_held) - 1
         self.rows, self.cols = rows, cols
-        self.entry_rows, self.entry_cols = row_of[r[other]], col_of[c[other]]
-        self.entry_believed_m = believed[other]
+        self.entry_rows, self.entry_cols = row_of[er], col_of[ec]
+        self.entry_believed_m = np.column_stack([bx, by])
 
     def believed_positions_m(self) -> np.ndarray:
         """(N, N, 2): where drone i believes drone k is (garbage where stamp is unknown)."""

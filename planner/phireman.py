@@ -354,17 +354,26 @@ def pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e: np.ndar
     so the last bits may too).
     """
     n = len(pos_u)
-    diff = pos_u[rows] - others_e
-    d2 = np.einsum("ec,ec->e", diff, diff)
-    inv = np.zeros_like(d2)
-    np.divide(1.0, np.sqrt(d2), out=inv, where=d2 > 0)
-    d = d2 * inv
-    coef = np.where(d > floor, attraction * inv * inv * inv, 0.0)
-    coef -= np.where((d < reach) & (inv > 0), repulsion * (reach * inv - 1.0), 0.0)
+    dx = pos_u[:, 0][rows] - others_e[:, 0]
+    dy = pos_u[:, 1][rows] - others_e[:, 1]
+    d2 = dx * dx
+    d2 += dy * dy
+    d = np.sqrt(d2)
+    inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)
+    coef = inv * inv
+    coef *= inv
+    coef *= attraction                                    # ℳ / d^3 where d > d_min ...
+    coef[d <= floor] = 0.0
+    push = np.flatnonzero(d < reach)                      # ... - P (reach - d) / d where 0 < d < reach
+    push = push[d[push] > 0]
+    coef[push] -= repulsion * (reach * inv[push] - 1.0)
+    dx *= coef
+    dy *= coef
     out = np.empty((n, 2))
-    out[:, 0] = np.bincount(rows, coef * diff[:, 0], minlength=n)
-    out[:, 1] = np.bincount(rows, coef * diff[:, 1], minlength=n)
-    return pair_factor * out
+    out[:, 0] = np.bincount(rows, dx, minlength=n)
+    out[:, 1] = np.bincount(rows, dy, minlength=n)
+    out *= pair_factor
+    return out
 
 
 def pair_gradient_reference(pos_u, others_u, mask, attraction, floor, repulsion, reach, pair_factor):
