@@ -6,9 +6,12 @@ every drone id a table keeps the most recent report (recency rule), and drops en
 flooded with the same rule.
 
 Representation: a report about drone k made at step s always carries k's true position at s, so a
-table entry is fully described by its *stamp* s. Beliefs are therefore one ``(N, N)`` int array of
-stamps (-1 = unknown), and believed positions are gathered from the history of true positions:
-``pos_hist[stamp[i, k], k]``. This is exact and keeps the state small.
+table entry is fully described by its *stamp* s. Beliefs are therefore a list of entries (holder i,
+drone k, stamp s), mirrored in one ``(N, N)`` int array of stamps (-1 = unknown), and believed
+positions are gathered from the history of true positions: ``pos_hist[stamp[i, k], k]``. This is
+exact and keeps the state small; each step costs time in proportion to the entries and links (each
+drone holds a few dozen entries once the swarm spreads), not N^2. :class:`KnowledgeDense` and
+:func:`propagate_stamps_dense` are the previous dense-table implementation, kept for tests.
 """
 
 from __future__ import annotations
@@ -24,6 +27,10 @@ __all__ = ["Knowledge", "KnowledgeDense", "MessageLayer", "propagate_entries", "
            "propagate_stamps_dense", "propagate_stamps_reference", "UNKNOWN"]
 
 UNKNOWN = -1
+
+#: Up to this many age levels (age_max_steps + 1) the one-hop maximum is taken on bit sets, one
+#: OR-reduction over the links per level.
+_BITSET_MAX_LEVELS = 16
 
 #: Below this fraction of known entries (among holders x held columns) the one-hop product is
 #: sparse x sparse (cost ~ links x entries per holder); above it, sparse x dense (the dense phase
@@ -65,7 +72,9 @@ def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_
 
     Notes
     -----
-    The max-plus product of :func:`propagate_stamps_dense` (exponent encoding: an entry of age a is
+    With few age levels (the planners' ``age_max_steps`` is 3) the maximum is taken on bit sets
+    (:func:`_propagate_bitsets`). Otherwise, the max-plus product of
+    :func:`propagate_stamps_dense` (exponent encoding: an entry of age a is
     sent as 2^(b (A - a)) with 2^b > n_holders >= degree + 1), with the adjacency given self-loops
     (the holder's own entries). Once the swarm has spread it is a sparse x sparse product (the
     entry matrix): the work is the number of (link, entry) pairs, not links x columns; while the
@@ -83,6 +92,8 @@ def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_
     loops = np.arange(n_holders, dtype=np.int64)
     src = np.concatenate([pairs[:, 1], pairs[:, 0], loops])       # j -> i, i -> j, i -> i
     dst = np.concatenate([pairs[:, 0], pairs[:, 1], loops])
+    if max_level + 1 <= _BITSET_MAX_LEVELS and stamps.max() <= t_sent:
+        return _propagate_bitsets(rows, cols, stamps, n_holders, n_cols, src, dst, int(t_sent), max_level)
     bits = int(np.ceil(np.log2(n_holders + 1))) + 1                 # 2^bits > n_holders >= deg + 1
     if bits * (max_level + 1) < 1000:
         level = max_level - np.minimum(t_sent - stamps, max_level)
@@ -121,6 +132,33 @@ def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_
     key, val = key[order], val[order]
     last = np.r_[key[1:] != key[:-1], True]
     return key[last] // n_cols, key[last] % n_cols, val[last]
+
+
+def _propagate_bitsets(rows, cols, stamps, n_holders, n_cols, src, dst, t_sent, max_level):
+    """:func:`propagate_entries` for few age levels: for each level L, the set of drones a holder
+    knows with age <= L is a bit row; a holder's new set is the OR of its neighbours' (and its own),
+    so a level costs one gather of (links, columns / 64) words. The new age of an entry is the first
+    level whose set holds it. Links ``src -> dst`` include a self-loop for every holder."""
+    held = np.bincount(cols, minlength=n_cols) > 0
+    col_ids = np.flatnonzero(held)
+    n_k = len(col_ids)
+    width = 64 * ((n_k + 63) // 64)
+    age = np.full(n_holders * width, 127, dtype=np.int8)           # 127: not held (max_level < 16)
+    age[rows * width + (np.cumsum(held) - 1)[cols]] = t_sent - stamps
+    age = age.reshape(n_holders, width)
+    key = dst.astype(np.int16) if n_holders < 2 ** 15 else dst    # small keys: radix sort
+    order = np.argsort(key, kind="stable")
+    link_src = src[order]
+    starts = np.searchsorted(dst[order], np.arange(n_holders))      # every holder has its self-loop
+    count = np.zeros((n_holders, n_k), dtype=np.uint8)              # levels whose set holds (i, k)
+    for level in range(max_level + 1):
+        sets = np.packbits(age <= level, axis=1, bitorder="little").view(np.uint64)   # (n, words)
+        heard = np.bitwise_or.reduceat(sets[link_src], starts, axis=0).view(np.uint8)
+        count += np.unpackbits(heard, axis=1, count=n_k, bitorder="little")
+    flat = np.flatnonzero(count)                                    # row-major
+    # held at age a: the sets of levels a..max_level hold it, count = max_level + 1 - a
+    new_stamp = t_sent - (max_level + 1 - count.ravel()[flat].astype(np.int64))
+    return flat // n_k, col_ids[flat % n_k], new_stamp
 
 
 def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = None,
@@ -591,11 +629,13 @@ class MessageLayer:
 
     def view_entries(self, holders: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The known entries of alive ``holders`` (sorted): rows (E,) into ``holders``, columns (E,)
-        into ``knowledge.cols``, in row-major order; believed positions (E, 2); broadcast stamps (n,)."""
+        into ``knowledge.cols``, in row-major order; believed positions (E, 2); broadcast stamps (n,).
+        When every alive drone is asked for, the columns and positions are the layer's own arrays
+        (read them, do not write them)."""
         kn = self.knowledge
         holders = np.asarray(holders)
         local = np.full(len(kn.rows), -1, dtype=np.intp)
         local[np.searchsorted(kn.rows, holders)] = np.arange(len(holders))  # holders are alive
         er = local[kn.entry_rows]
-        take = er >= 0
-        return er[take], kn.entry_cols[take], kn.entry_believed_m[take], kn.tree_stamp[holders]
+        er, ek, believed = _select(er >= 0, er, kn.entry_cols, kn.entry_believed_m)
+        return er, ek, believed, kn.tree_stamp[holders]

@@ -139,9 +139,14 @@ def test_forget_unheard_drops_lost_neighbours_at_once():
     assert kept.stamp[0, 2] == 1 and dropped.stamp[0, 2] == 1   # relayed by 1 at step 2
 
 
-@pytest.mark.parametrize("sparse_below", [0.0, 0.25, 2.0])   # never / as shipped / always sparse x sparse
-def test_entry_propagation_gives_the_dense_tables(rng, monkeypatch, sparse_below):
+# bit sets (as shipped), or the exponent encoding with a dense / mixed / sparse x sparse product
+KERNELS = [(16, 0.25), (0, 0.0), (0, 0.25), (0, 2.0)]
+
+
+@pytest.mark.parametrize("bit_levels,sparse_below", KERNELS)
+def test_entry_propagation_gives_the_dense_tables(rng, monkeypatch, bit_levels, sparse_below):
     """The entry-list hop against the previous dense kernel: identical integer tables."""
+    monkeypatch.setattr(knowledge, "_BITSET_MAX_LEVELS", bit_levels)
     monkeypatch.setattr(knowledge, "_SPARSE_ENTRY_FRACTION", sparse_below)
     for _ in range(200):
         n, k = int(rng.integers(1, 40)), int(rng.integers(1, 50))
@@ -180,10 +185,12 @@ def test_entry_propagation_sorting_fallback_for_very_old_ages(rng):
 
 @pytest.mark.parametrize("after_move", [False, True])
 @pytest.mark.parametrize("forget_unheard", [False, True])
-@pytest.mark.parametrize("sparse_below", [0.25, 2.0])
-def test_entry_knowledge_gives_the_dense_tables(rng, monkeypatch, after_move, forget_unheard, sparse_below):
+@pytest.mark.parametrize("bit_levels,sparse_below", KERNELS)
+def test_entry_knowledge_gives_the_dense_tables(rng, monkeypatch, after_move, forget_unheard, bit_levels,
+                                                sparse_below):
     """Whole episodes (moving swarm, losses, both broadcast timings, all cut-offs): the entry-list
     Knowledge and the previous dense one hold identical stamps, tree stamps and views."""
+    monkeypatch.setattr(knowledge, "_BITSET_MAX_LEVELS", bit_levels)
     monkeypatch.setattr(knowledge, "_SPARSE_ENTRY_FRACTION", sparse_below)
     for _ in range(6):
         n, n_steps = int(rng.integers(2, 90)), 30
