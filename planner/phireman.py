@@ -353,9 +353,15 @@ def pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e: np.ndar
     :func:`pair_gradient_reference` to rounding (the summation order differs from the dense kernel's,
     so the last bits may too).
     """
+    return _pair_gradient_xy(pos_u, rows, others_e[:, 0], others_e[:, 1], attraction, floor, repulsion, reach,
+                             pair_factor)
+
+
+def _pair_gradient_xy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach, pair_factor):
+    """:func:`pair_gradient_entries` with the believed positions as two (E,) coordinate arrays."""
     n = len(pos_u)
-    dx = pos_u[:, 0][rows] - others_e[:, 0]
-    dy = pos_u[:, 1][rows] - others_e[:, 1]
+    dx = pos_u[:, 0][rows] - others_x
+    dy = pos_u[:, 1][rows] - others_y
     d2 = dx * dx
     d2 += dy * dy
     d = np.sqrt(d2)
@@ -630,16 +636,18 @@ class PhiremanPlanner:
         ent_start = np.searchsorted(ent_r, np.arange(n_view + 1))   # entries are row-major: drone i's
         ent_count = np.diff(ent_start)                              # are ent_start[i]:ent_start[i+1]
 
+        ent_x, ent_yc = ent_y[:, 0].copy(), ent_y[:, 1].copy()     # one contiguous array per coordinate
+
         def grad(x, rows):
             if len(rows) == n_view:
-                er, ey = ent_r, ent_y
+                er, ox, oy = ent_r, ent_x, ent_yc
             else:  # the entries of the drones still moving, gathered by segment
                 count = ent_count[rows]
                 er = np.repeat(np.arange(len(rows)), count)
                 take = np.arange(len(er)) + np.repeat(ent_start[rows] - (np.cumsum(count) - count), count)
-                ey = ent_y[take]
-            return (pair_gradient_entries(x[rows], er, ey, p.attraction, p.attraction_floor,
-                                          p.repulsion, self.reach_u, p.pair_factor)
+                ox, oy = ent_x[take], ent_yc[take]
+            return (_pair_gradient_xy(x[rows], er, ox, oy, p.attraction, p.attraction_floor,
+                                      p.repulsion, self.reach_u, p.pair_factor)
                     + segments.gradient(x[rows], rows, p.thorn))
 
         res = descend(pos_u[idx], grad, self.vmax_u, p, separable=True)
