@@ -114,7 +114,7 @@ from dataclasses import dataclass
 import numpy as np
 import osqp
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse import coo_matrix, csc_matrix, diags
+from scipy.sparse import coo_matrix, csc_matrix
 from scipy.sparse.csgraph import minimum_spanning_tree
 from scipy.spatial import cKDTree
 
@@ -552,7 +552,6 @@ def solve_cbf_qp(x: np.ndarray, u_hat: np.ndarray, tree: np.ndarray, r_c: np.nda
     n_u = 2 * n
     n_tree, n_col = len(tree), len(collision_pairs)
     n_rows = n_tree + n_col
-    xyz = np.arange(2)
 
     # Barrier rows: coef_i . u_i + coef_j . u_j (- s_row) <= rhs. Tree: coef_i = 2 (x_i - x_j);
     # collision: coef_i = -2 (x_i - x_j); coef_j = -coef_i. Base ends (j == n) get no u_j entries.
@@ -573,30 +572,16 @@ def solve_cbf_qp(x: np.ndarray, u_hat: np.ndarray, tree: np.ndarray, r_c: np.nda
     n_slack = len(slack_rows)
     n_var = n_u + n_slack
 
-    row_ids = np.arange(n_rows)
-    j_is_drone = j < n
-    a_rows = np.concatenate([
-        np.repeat(row_ids, 2),                                  # u_i entries
-        np.repeat(row_ids[j_is_drone], 2),                      # u_j entries (drones only)
-        slack_rows,                                             # -s on violated rows
-        n_rows + np.arange(n_var),                              # bound rows: identity on all vars
-    ])
-    a_cols = np.concatenate([
-        (2 * i[:, None] + xyz).ravel(),
-        (2 * j[j_is_drone][:, None] + xyz).ravel(),
-        n_u + np.arange(n_slack),
-        np.arange(n_var),
-    ])
-    a_vals = np.concatenate([coef.ravel(), -coef[j_is_drone].ravel(), -np.ones(n_slack),
-                             np.ones(n_var)])
-    a_mat = csc_matrix((a_vals, (a_rows, a_cols)), shape=(n_rows + n_var, n_var))
+    a_mat = _constraint_matrix(i, j, coef, slack_rows, n)
     lower = np.concatenate([np.full(n_rows, -np.inf), np.full(n_u, -box), np.zeros(n_slack)])
     upper = np.concatenate([rhs, np.full(n_u, box), np.full(n_slack, np.inf)])
 
     # Objective sum |u - u_hat|^2 + penalty sum s^2 = 1/2 z^T P z + q^T z + const.
     slack_is_tree = slack_rows < n_tree
     penalty = np.where(slack_is_tree, params.slack_penalty, params.collision_slack_penalty)
-    p_mat = diags(np.concatenate([np.full(n_u, 2.0), 2.0 * penalty]), format="csc")
+    p_diag = np.concatenate([np.full(n_u, 2.0), 2.0 * penalty])
+    diag_idx = np.arange(n_var + 1, dtype=np.int32)
+    p_mat = csc_matrix((p_diag, diag_idx[:-1], diag_idx), shape=(n_var, n_var))  # diagonal, CSC
     q_vec = np.concatenate([-2.0 * u_hat.ravel(), np.zeros(n_slack)])
 
     solver = osqp.OSQP()
@@ -618,6 +603,70 @@ def solve_cbf_qp(x: np.ndarray, u_hat: np.ndarray, tree: np.ndarray, r_c: np.nda
                         float(slack[slack_is_tree].max(initial=0.0)),
                         float(slack[~slack_is_tree].max(initial=0.0)), float(res.info.rho_estimate))
     return QpResult(u_start, status, False, int(res.info.iter), float("nan"), float("nan"))
+
+
+def _constraint_matrix(i: np.ndarray, j: np.ndarray, coef: np.ndarray, slack_rows: np.ndarray,
+                       n: int) -> csc_matrix:
+    """The CBF-QP constraint matrix, assembled directly in CSC form (sorted rows, no duplicates).
+
+    Rows 0..R-1 are the barriers (row r: ``coef[r] . u_i - coef[r] . u_j``, the u_j part only when
+    j < n, minus s on violated rows), then one identity row per variable (the bounds). Variables:
+    u_0x, u_0y, ..., u_(n-1)y, then one slack per entry of ``slack_rows`` (sorted). Equal, entry
+    for entry, to the COO-built :func:`_constraint_matrix_reference`, without scipy's COO-to-CSC
+    conversion and index sort (~0.25 ms of ~1 ms per tick at M).
+    """
+    n_rows, n_slack = len(i), len(slack_rows)
+    n_u = 2 * n
+    n_var = n_u + n_slack
+    j_is_drone = j < n
+    rows = np.arange(n_rows)
+    # Barrier entries of the drone columns, sorted by (drone, row): a node is never both ends of
+    # a row, so within a drone the rows are distinct.
+    node = np.concatenate([i, j[j_is_drone]])
+    row = np.concatenate([rows, rows[j_is_drone]])
+    val = np.concatenate([coef, -coef[j_is_drone]])             # (entries, 2): x and y columns
+    order = np.argsort(node.astype(np.int64) * max(n_rows, 1) + row)
+    node, row, val = node[order], row[order], val[order]
+    per_drone = np.bincount(node, minlength=n)
+    # Column 2d + k holds drone d's barrier rows then its bound row n_rows + 2d + k.
+    nnz = np.concatenate([np.repeat(per_drone + 1, 2), np.full(n_slack, 2)])
+    indptr = np.zeros(n_var + 1, dtype=np.int64)
+    np.cumsum(nnz, out=indptr[1:])
+    indices = np.empty(indptr[-1], dtype=np.int64)
+    data = np.empty(indptr[-1])
+    rank = np.arange(len(node)) - (np.cumsum(per_drone) - per_drone)[node]
+    for k in range(2):                                          # the two axes, not drones
+        at = indptr[2 * node + k] + rank
+        indices[at] = row
+        data[at] = val[:, k]
+    ctrl_end = indptr[1:n_u + 1] - 1                            # last entry of each drone column
+    indices[ctrl_end] = n_rows + np.arange(n_u)
+    data[ctrl_end] = 1.0
+    slack_start = indptr[n_u:n_var]
+    indices[slack_start] = slack_rows                           # -s on its violated row
+    data[slack_start] = -1.0
+    indices[slack_start + 1] = n_rows + n_u + np.arange(n_slack)
+    data[slack_start + 1] = 1.0
+    return csc_matrix((data, indices.astype(np.int32), indptr.astype(np.int32)),
+                      shape=(n_rows + n_var, n_var))
+
+
+def _constraint_matrix_reference(i: np.ndarray, j: np.ndarray, coef: np.ndarray,
+                                 slack_rows: np.ndarray, n: int) -> csc_matrix:
+    """COO-built twin of :func:`_constraint_matrix` (the pre-optimisation assembly; for tests)."""
+    n_rows, n_slack = len(i), len(slack_rows)
+    n_u = 2 * n
+    n_var = n_u + n_slack
+    xyz = np.arange(2)
+    row_ids = np.arange(n_rows)
+    j_is_drone = j < n
+    a_rows = np.concatenate([np.repeat(row_ids, 2), np.repeat(row_ids[j_is_drone], 2), slack_rows,
+                             n_rows + np.arange(n_var)])
+    a_cols = np.concatenate([(2 * i[:, None] + xyz).ravel(), (2 * j[j_is_drone][:, None] + xyz).ravel(),
+                             n_u + np.arange(n_slack), np.arange(n_var)])
+    a_vals = np.concatenate([coef.ravel(), -coef[j_is_drone].ravel(), -np.ones(n_slack),
+                             np.ones(n_var)])
+    return csc_matrix((a_vals, (a_rows, a_cols)), shape=(n_rows + n_var, n_var))
 
 
 def _clip_norm(vec: np.ndarray, limit: float) -> np.ndarray:

@@ -14,6 +14,8 @@ from planner.mccst import (
     STRONG_PARAMS,
     MccstParams,
     MccstPlanner,
+    _constraint_matrix,
+    _constraint_matrix_reference,
     _mst_reference,
     assign_tasks,
     candidate_edges,
@@ -467,3 +469,26 @@ def test_carried_rho_starts_cold_at_a_run_start_and_solves(rng):
     assert np.all(np.abs(out_c.disp_m) <= V / np.sqrt(2) + 1e-12)
     again = carry.plan(tick1)                                        # same t_step: a new run
     np.testing.assert_array_equal(again.disp_m, out_k.disp_m)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_direct_csc_constraint_matrix_equals_coo_reference(seed):
+    """The QP's constraint matrix is assembled straight into CSC; it must equal, entry for entry
+    (same indptr, sorted row indices and values), the COO-built reference, with and without base
+    ends, slacks and empty barrier sets."""
+    rng = np.random.default_rng(seed)
+    n = 30
+    for n_rows in (0, 1, 40, 200):
+        i = rng.integers(0, n, n_rows)
+        j = (i + 1 + rng.integers(0, n, n_rows)) % (n + 1)     # may be the base (== n)
+        j = np.where(j == i, n, j)
+        coef = rng.normal(size=(n_rows, 2))
+        slack_rows = np.flatnonzero(rng.random(n_rows) < 0.3)
+        fast = _constraint_matrix(i, j, coef, slack_rows, n)
+        ref = _constraint_matrix_reference(i, j, coef, slack_rows, n)
+        ref.sort_indices()
+        assert fast.shape == ref.shape
+        assert fast.has_sorted_indices
+        np.testing.assert_array_equal(fast.indptr, ref.indptr)
+        np.testing.assert_array_equal(fast.indices, ref.indices)
+        np.testing.assert_array_equal(fast.data, ref.data)
