@@ -454,6 +454,22 @@ def edge_slack(x: np.ndarray, u_hat: np.ndarray, edges: np.ndarray, r_c: np.ndar
     return np.where(subgroup[i] != subgroup[j], delta / params.subgroup_factor, delta)
 
 
+def _argsort_stable(values: np.ndarray) -> np.ndarray:
+    """``np.argsort(values, kind='stable')``, computed with the (SIMD) default sort when it is the
+    same permutation.
+
+    Without ties the ascending order is unique, so any sort gives it; numpy's default introsort is
+    ~5x faster than its stable sort on 1e4-1e5 floats (the dense XL start has ~1e5 candidate
+    edges). Ties (equal adjacent sorted values, or NaN) fall back to the stable sort, so ties stay
+    broken by index exactly as before.
+    """
+    order = np.argsort(values)
+    ranked = values[order]
+    if len(ranked) > 1 and not np.all(ranked[1:] > ranked[:-1]):
+        order = np.argsort(values, kind="stable")
+    return order
+
+
 def spanning_tree_edges(n_nodes: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Indices of the edges of a minimum spanning tree (forest, if disconnected).
 
@@ -474,7 +490,7 @@ def spanning_tree_edges(n_nodes: int, edges: np.ndarray, weights: np.ndarray) ->
     """
     if len(edges) == 0:
         return np.zeros(0, dtype=np.intp)
-    order = np.argsort(weights, kind="stable")
+    order = _argsort_stable(weights)
     rank = np.empty(len(edges), dtype=float)
     rank[order] = np.arange(1, len(edges) + 1)
     graph = coo_matrix((rank, (edges[:, 0], edges[:, 1])), shape=(n_nodes, n_nodes)).tocsr()

@@ -14,6 +14,7 @@ from planner.mccst import (
     STRONG_PARAMS,
     MccstParams,
     MccstPlanner,
+    _argsort_stable,
     _constraint_matrix,
     _constraint_matrix_reference,
     _mst_reference,
@@ -492,3 +493,15 @@ def test_direct_csc_constraint_matrix_equals_coo_reference(seed):
         np.testing.assert_array_equal(fast.indptr, ref.indptr)
         np.testing.assert_array_equal(fast.indices, ref.indices)
         np.testing.assert_array_equal(fast.data, ref.data)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_fast_argsort_equals_stable_argsort(seed):
+    """The MST's rank sort takes numpy's default sort when no ties exist and the stable one
+    otherwise: the permutation must equal ``kind='stable'`` in both cases."""
+    rng = np.random.default_rng(seed)
+    distinct = rng.normal(size=5000)
+    tied = np.round(rng.normal(size=5000), 1)                  # many equal values
+    for values in (distinct, tied, np.zeros(0), np.ones(1), np.array([2.0, 1.0, 2.0, 1.0])):
+        np.testing.assert_array_equal(_argsort_stable(values),
+                                      np.argsort(values, kind="stable"))
