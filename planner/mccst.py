@@ -222,7 +222,11 @@ class MccstParams:
     """Gain of the discrete-time variant, per tick, in (0, 1]: a barrier may close at most this
     fraction of its remaining margin h per tick."""
     solver_eps: float = 1e-4
-    """OSQP absolute and relative tolerance (constraint rows are in paper length^2 per tick)."""
+    """OSQP absolute and relative tolerance (constraint rows are in paper length^2 per tick).
+    1e-3 cuts the XL QP solve ~2.3x (XL / 0 %, 6 seeds: 8.3 -> 4.8 s CPU per run) but leaves the
+    controls of a median XL tick ~0.2 paper units (two box widths) from the exact optimum, against
+    ~0.1 at 1e-4, and shifts paired means slightly down (S / 1 %, 100 seeds: TU1 -0.58 ± 0.54);
+    not the default (docs/tuning/mccst_calibration.md §7)."""
     solver_max_iter: int = 10000
     """OSQP iteration cap; hitting it is reported (and falls back to nominal controls)."""
     carry_rho: bool = True
