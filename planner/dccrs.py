@@ -64,7 +64,7 @@ import numpy as np
 from planner.geometry import step_toward
 from planner.knowledge import MessageLayer
 from planner.methods import PlanOutput, TickInput
-from planner.phireman import INFO_MODELS, SPEED_RULES, PhiremanParams, descend, parse_params
+from planner.phireman import INFO_MODELS, SPEED_RULES, PhiremanParams, _pair_gradient_xy, descend, parse_params
 from planner.problem import ProblemConfig
 
 __all__ = [
@@ -223,27 +223,8 @@ def weighted_pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e
 def _weighted_pair_gradient_xy(pos_u, rows, others_x, others_y, weight, attraction, floor, repulsion, reach,
                                pair_factor):
     """:func:`weighted_pair_gradient_entries` with the believed positions as two (E,) coordinate arrays."""
-    n = len(pos_u)
-    dx = pos_u[:, 0][rows] - others_x
-    dy = pos_u[:, 1][rows] - others_y
-    d2 = dx * dx
-    d2 += dy * dy
-    d = np.sqrt(d2)
-    inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)
-    coef = inv * inv
-    coef *= inv
-    coef *= (attraction * np.asarray(weight, float))[rows]     # w_i ℳ / d^3 where d > d_min ...
-    coef[d <= floor] = 0.0
-    push = np.flatnonzero(d < reach)                           # ... - P (reach - d) / d, 0 < d < reach
-    push = push[d[push] > 0]
-    coef[push] -= repulsion * (reach * inv[push] - 1.0)
-    dx *= coef
-    dy *= coef
-    out = np.empty((n, 2))
-    out[:, 0] = np.bincount(rows, dx, minlength=n)
-    out[:, 1] = np.bincount(rows, dy, minlength=n)
-    out *= pair_factor
-    return out
+    return _pair_gradient_xy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach, pair_factor,
+                             weight=weight)
 
 
 def _leader_distances(pos_u, leaders_u):

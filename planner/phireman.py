@@ -357,8 +357,10 @@ def pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e: np.ndar
                              pair_factor)
 
 
-def _pair_gradient_xy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach, pair_factor):
-    """:func:`pair_gradient_entries` with the believed positions as two (E,) coordinate arrays."""
+def _pair_gradient_xy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach, pair_factor,
+                      weight=None):
+    """:func:`pair_gradient_entries` with the believed positions as two (E,) coordinate arrays;
+    ``weight`` (n,), if given, scales each drone's attraction (DCCRS's density weighting)."""
     n = len(pos_u)
     dx = pos_u[:, 0][rows] - others_x
     dy = pos_u[:, 1][rows] - others_y
@@ -368,7 +370,7 @@ def _pair_gradient_xy(pos_u, rows, others_x, others_y, attraction, floor, repuls
     inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)
     coef = inv * inv
     coef *= inv
-    coef *= attraction                                    # ℳ / d^3 where d > d_min ...
+    coef *= attraction if weight is None else (attraction * np.asarray(weight, float))[rows]  # (w_i) ℳ / d^3, d > d_min ...
     coef[d <= floor] = 0.0
     push = np.flatnonzero(d < reach)                      # ... - P (reach - d) / d where 0 < d < reach
     push = push[d[push] > 0]
