@@ -476,23 +476,7 @@ class KnowledgeDense:
                pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float, base_reach_m: float,
                age_max_steps: int, dist_max_m: float, base_m: np.ndarray, *,
                after_move: bool = False, forget_unheard: bool = False) -> None:
-        """Deliver the messages broadcast during step t-1, then each drone records its own state at t.
-
-        When a drone broadcasts within a step decides what a message carries:
-
-        * ``after_move=False``: at the start of step t-1, before moving. Links at t-1 join the drones
-          alive at t-1 within r, and a neighbour is seen where it was before its last move.
-        * ``after_move=True``: at the end of step t-1, after moving. Links join the drones alive at t
-          within r at their positions at t, so direct neighbours are seen where they are now, two-hop
-          ones one step late, and so on (still one hop per step). A drone lost during t-1 sends nothing.
-
-        Either way, the base sends the tree it computed at t-1 to drones within ``base_reach_m`` =
-        min(R, r) of it over the same links, and nothing is delivered at the first step.
-        ``forget_unheard``: a drone drops an entry about a drone it believes within radio range but
-        did not hear in this delivery (what a mesh radio's neighbour table does on a missed beacon).
-        Afterwards the view (``rows``, ``cols``, ``known_view`` and its entries) describes every alive
-        holder.
-        """
+        """The dense (N, N) version of :meth:`Knowledge.update` (same semantics; the test reference)."""
         n = len(pos_m)
         self.pos_hist_m[t_step] = pos_m
         if after_move:
