@@ -24,6 +24,7 @@ from planner.mccst import (
     edge_slack,
     make_mccst,
     nominal_controls,
+    solve_cbf_qp,
     spanning_tree_edges,
 )
 from planner.methods import TickInput, make_planner
@@ -117,9 +118,10 @@ def test_speed_limit_always_respected(rng, params, unit):
             assert speed[tick.networked].max() > 0.5 * limit  # it does move
 
 
-def test_solver_failure_falls_back_to_clipped_nominal(rng):
+@pytest.mark.parametrize("solver", ["piqp", "osqp"])
+def test_solver_failure_falls_back_to_clipped_nominal(rng, solver):
     tick = _random_connected_tick(rng)
-    planner = make_mccst(PROBLEM, {"solver_max_iter": 1}, rng)
+    planner = make_mccst(PROBLEM, {"solver_max_iter": 1, "solver": solver}, rng)
     out = planner.plan(tick)
     assert out.info["fallback"] is True
     assert out.info["status"] not in ("solved", "solved inaccurate")
@@ -459,8 +461,8 @@ def test_carried_rho_starts_cold_at_a_run_start_and_solves(rng):
     point of the tolerance set: eps = 1e-4 residuals leave this QP's controls ~0.05 from the exact
     optimum whichever rho is used)."""
     tick0 = _random_connected_tick(rng)
-    carry = make_mccst(PROBLEM, {}, rng)
-    cold = make_mccst(PROBLEM, {"carry_rho": False}, rng)
+    carry = make_mccst(PROBLEM, {"solver": "osqp"}, rng)
+    cold = make_mccst(PROBLEM, {"solver": "osqp", "carry_rho": False}, rng)
     first_c, first_k = carry.plan(tick0), cold.plan(tick0)
     np.testing.assert_array_equal(first_c.disp_m, first_k.disp_m)   # t_step 0: no carried rho
     assert carry._rho is not None and carry._rho != 0.1
@@ -505,3 +507,98 @@ def test_fast_argsort_equals_stable_argsort(seed):
     for values in (distinct, tied, np.zeros(0), np.ones(1), np.array([2.0, 1.0, 2.0, 1.0])):
         np.testing.assert_array_equal(_argsort_stable(values),
                                       np.argsort(values, kind="stable"))
+
+
+def _random_qp(rng, n=12, n_tree=10, n_col=8):
+    """A CBF-QP instance like the planner's: tree edges (some to the base, node n), near pairs,
+    some barriers violated (slacked), some capped (never active)."""
+    x = np.vstack([rng.uniform(-1.5, 1.5, (n, 2)), np.zeros((1, 2))])
+    u_hat = rng.uniform(-0.2, 0.2, (n, 2))
+    tree = np.column_stack([rng.integers(0, n, n_tree), rng.integers(0, n + 1, n_tree)])
+    tree = tree[tree[:, 0] != tree[:, 1]]
+    d = np.linalg.norm(x[tree[:, 0]] - x[tree[:, 1]], axis=1)
+    r_c = d * rng.uniform(0.97, 1.3, len(d))           # some violated, some with margin
+    col = np.column_stack([rng.integers(0, n, n_col), rng.integers(0, n, n_col)])
+    col = col[col[:, 0] < col[:, 1]]
+    return x, u_hat, tree, r_c, col
+
+
+def _qp_reference(x, u_hat, tree, r_c, col, box, params):
+    """The same CBF-QP written out row by row and solved by scipy's SLSQP over every row (no
+    pruning), slow and independent of both solver paths."""
+    from scipy.optimize import minimize
+    n = len(u_hat)
+    rows = [(int(a), int(b), 1.0, params.gamma * (rc ** 2 - np.sum((x[a] - x[b]) ** 2)) ** 3, True)
+            for (a, b), rc in zip(tree, r_c)]
+    rows += [(int(a), int(b), -1.0, params.gamma * (np.sum((x[a] - x[b]) ** 2)
+                                                    - params.safety_radius ** 2) ** 3, False)
+             for a, b in col]
+    slacked = [k for k, row in enumerate(rows) if row[3] < 0]
+    pen = np.array([params.slack_penalty if rows[k][4] else params.collision_slack_penalty
+                    for k in slacked])
+
+    def lhs(z, k):
+        a, b, sign, _, _ = rows[k]
+        u = z[:2 * n].reshape(n, 2)
+        ub = u[b] if b < n else np.zeros(2)
+        return 2 * sign * (x[a] - x[b]) @ (u[a] - ub)
+
+    def cons(z):
+        s = np.zeros(len(rows))
+        s[slacked] = z[2 * n:]
+        return np.array([rows[k][3] + s[k] - lhs(z, k) for k in range(len(rows))])
+
+    def cost(z):
+        return np.sum((z[:2 * n] - u_hat.ravel()) ** 2) + np.sum(pen * z[2 * n:] ** 2)
+
+    z0 = np.concatenate([np.zeros(2 * n), [-rows[k][3] for k in slacked]])   # feasible start
+    bounds = [(-box, box)] * (2 * n) + [(0, None)] * len(slacked)
+    res = minimize(cost, z0, method="SLSQP", bounds=bounds,
+                   constraints=[{"type": "ineq", "fun": cons}],
+                   options={"ftol": 1e-14, "maxiter": 2000})
+    assert res.success, res.message
+    return res.x[:2 * n].reshape(n, 2)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_piqp_optimum_equals_a_slow_reference_solve(seed):
+    """PIQP drops the rows that cannot bind inside the box; the reference keeps every row. Both
+    must land on the same optimum (unique: the objective is strictly convex). OSQP at its default
+    tolerance is only near it (the reason PIQP is the default)."""
+    rng = np.random.default_rng(seed)
+    x, u_hat, tree, r_c, col = _random_qp(rng)
+    params = MccstParams(gamma=1.0, solver_eps=1e-9)
+    box = V / np.sqrt(2)
+    got = solve_cbf_qp(x, u_hat, tree, r_c, col, box, params)
+    assert got.used_solution and got.status == "solved"
+    assert np.all(np.abs(got.u) <= box)
+    ref = _qp_reference(x, u_hat, tree, r_c, col, box, params)
+    np.testing.assert_allclose(got.u, ref, atol=1e-5)
+    osqp_u = solve_cbf_qp(x, u_hat, tree, r_c, col, box, dataclasses.replace(params, solver="osqp",
+                                                                            solver_eps=1e-4)).u
+    assert np.abs(osqp_u - ref).max() < 0.05
+
+
+def test_piqp_optimum_satisfies_kkt_by_brute_force():
+    """Against an obviously-correct reference: for a 2-drone QP, the optimum over a fine grid of
+    controls (slacks solved in closed form) is within the grid step of PIQP's."""
+    x = np.array([[1.0, 0.0], [2.6, 0.0], [0.0, 0.0]])          # base at the origin
+    u_hat = np.array([[0.1, 0.05], [0.1, -0.05]])                 # both pulled away east
+    tree = np.array([[0, 2], [1, 0]])
+    r_c = np.array([1.05, 1.5])                                    # 1-0 violated, 0-base tight
+    params = MccstParams(gamma=1.0, solver_eps=1e-9)
+    box = V / np.sqrt(2)
+    got = solve_cbf_qp(x, u_hat, tree, r_c, np.zeros((0, 2), dtype=int), box, params)
+    grid = np.linspace(-box, box, 41)
+    u0x, u0y, u1x, u1y = np.meshgrid(grid, grid, grid, grid, indexing="ij")
+    u = np.stack([u0x, u0y, u1x, u1y], axis=-1).reshape(-1, 2, 2)
+    diff = x[tree[:, 0]] - x[tree[:, 1]]
+    rhs = params.gamma * (r_c ** 2 - (diff ** 2).sum(1)) ** 3
+    lhs0 = 2 * (diff[0] * u[:, 0]).sum(-1)                           # base end: u_0 only
+    lhs1 = 2 * (diff[1] * (u[:, 1] - u[:, 0])).sum(-1)
+    slack0 = np.maximum(lhs0 - rhs[0], 0.0) if rhs[0] < 0 else np.where(lhs0 <= rhs[0], 0.0, np.inf)
+    slack1 = np.maximum(lhs1 - rhs[1], 0.0) if rhs[1] < 0 else np.where(lhs1 <= rhs[1], 0.0, np.inf)
+    cost = (((u - u_hat) ** 2).sum((1, 2)) + params.slack_penalty * (slack0 ** 2 + slack1 ** 2))
+    best = u[np.argmin(cost)]
+    assert np.isfinite(cost.min())
+    np.testing.assert_allclose(got.u, best, atol=grid[1] - grid[0])
