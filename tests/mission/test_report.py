@@ -230,3 +230,25 @@ def test_central_information_section(tmp_path, rng):
     line = next(ln for ln in section.splitlines() if ln.startswith("| M | 2 |"))
     assert "(-4.00)" in line and "(-0.50 ✓)" in line and "(+0.50 ✓)" in line
     assert result.summary["central_vs_async"] == {"async": 0, "central": 1, "configs": 20}
+
+
+def test_per_baseline_split_of_the_paper_bolds(rng):
+    """Where the paper bolds ΦIREMAN, the split counts the cells ours is significantly above each
+    baseline separately: a DCCRS that ties ΦIREMAN must show up as 0 above DCCRS and all above
+    MCCST, and no bold."""
+    from mission.report import Cell, _phireman_vs_each
+
+    bolded = [(size, att) for (size, att) in paper.TABLE_II if paper.paper_bold(size, att, "tu1") == "phireman"
+              and paper.paper_bold(size, att, "tu2") == "phireman"][:3]
+    assert bolded, "the paper bolds ΦIREMAN on both metrics somewhere"
+    cells = []
+    for size, att in bolded:
+        noise = rng.normal(0, 3, N_SEEDS)
+        cells.append(Cell(size, att, {"phireman": _sample("phireman", 80 + noise),
+                                      "dccrs": _sample("dccrs", 80 + noise[::-1]),
+                                      "mccst": _sample("mccst", 60 + rng.normal(0, 3, N_SEEDS))}))
+    text, stats = _phireman_vs_each(cells)
+    assert stats["paper_bolds_phireman"] == 2 * len(bolded)
+    assert stats["above_mccst"] == stats["above_mccst_paired"] == 2 * len(bolded)
+    assert stats["above_dccrs"] == 0 and stats["bold_both"] == 0
+    assert f"above MCCST in **{2 * len(bolded)}**" in text and "above DCCRS in **0**" in text
