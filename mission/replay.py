@@ -147,7 +147,8 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
     if truth.get("tu1") is not None:
         tu = f" — TU1 {100 * truth['tu1']:.1f} %, TU2 {100 * truth['tu2']:.1f} % (ground truth)"
     ax.set(xlabel="time (s)", ylabel="%", ylim=(0, 102), title=f"{title}{tu}")
-    ax.legend(loc="lower left", fontsize=8)
+    # Below the axes: inside, any corner hides a curve (they span 0-100 % over the whole run).
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, fontsize=8, frameon=False)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     path = out_dir / "fig2_timeseries.png"
