@@ -72,9 +72,16 @@ def draw_frame(ax, pos_m, alive, active, task_pos_m, connected, tree, radio_rang
     ax.tick_params(labelsize=6)
 
 
+def _strip_legend(fig, ax) -> None:
+    """One legend for a frame strip, below the panels (inside one, it hides tasks near a corner)."""
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.5, 0.0), ncol=len(labels), fontsize=7,
+               frameon=False)
+
+
 def plot_frame_strip(record, frames: list[int], problem, title: str, path) -> None:
     """Fig. 4-style strip: a few snapshots of one run (east to the right, north up)."""
-    fig, axes = plt.subplots(1, len(frames), figsize=(3.2 * len(frames), 3.6))
+    fig, axes = plt.subplots(1, len(frames), figsize=(3.2 * len(frames), 3.9))
     axes = np.atleast_1d(axes)
     for ax, t in zip(axes, frames):
         draw_frame(ax, record.pos_m[t], record.alive[t], record.active[t], record.task_pos_m[t],
@@ -82,8 +89,8 @@ def plot_frame_strip(record, frames: list[int], problem, title: str, path) -> No
                    problem.base_range_m, problem.field_half_width_m)
         ax.set_title(f"t = {t}: {record.connected[t].sum()}/{len(record.connected[t])} tasks, "
                      f"{record.active[t].sum()} active", fontsize=8)
-    axes[-1].legend(loc="upper right", fontsize=6, framealpha=0.8)
+    _strip_legend(fig, axes[-1])
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.13, 1, 1))
     fig.savefig(path, dpi=130)
     plt.close(fig)

@@ -120,7 +120,7 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
     import matplotlib.pyplot as plt
     from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
 
-    from mission.plots import draw_frame
+    from mission.plots import _strip_legend, draw_frame
 
     run = load_run(run_dir)
     out_dir = pathlib.Path(out_dir or run_dir)
@@ -158,7 +158,7 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
 
     # Fig. 4: frame strip
     picks = np.unique(np.linspace(0, len(run.t_s) - 1, 5).round().astype(int))
-    fig, axes = plt.subplots(1, len(picks), figsize=(3.3 * len(picks), 3.7))
+    fig, axes = plt.subplots(1, len(picks), figsize=(3.3 * len(picks), 4.0))
     for ax, k in zip(np.atleast_1d(axes), picks):
         draw_frame(ax, run.pos_m[k], run.alive[k], run.active[k], run.task_pos_m[k], run.connected[k],
                    _tree_at(run.trees, k), radio, base, extent, hazard_zones=zones)
@@ -166,9 +166,9 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
                      f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} active", fontsize=8)
         ax.set_xlabel("east (m)", fontsize=7)
     np.atleast_1d(axes)[0].set_ylabel("north (m)", fontsize=7)
-    np.atleast_1d(axes)[-1].legend(loc="upper right", fontsize=6, framealpha=0.8)
+    _strip_legend(fig, np.atleast_1d(axes)[-1])
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.13, 1, 1))
     path = out_dir / "frames.png"
     fig.savefig(path, dpi=130)
     plt.close(fig)
