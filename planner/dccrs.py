@@ -64,7 +64,8 @@ import numpy as np
 from planner.geometry import step_toward
 from planner.knowledge import MessageLayer
 from planner.methods import PlanOutput, TickInput
-from planner.phireman import INFO_MODELS, SPEED_RULES, PhiremanParams, _pair_gradient_xy, descend, parse_params
+from planner.phireman import (INFO_MODELS, SPEED_RULES, PhiremanParams, _EntriesByDrone, _pair_gradient_xy,
+                              descend, parse_params)
 from planner.problem import ProblemConfig
 
 __all__ = [
@@ -216,15 +217,8 @@ def weighted_pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e
     (x_i - y_k) is summed per drone by ``np.bincount``. Agrees with the dense kernel and the loops
     to rounding (not bit for bit: 1/d^3 is formed as (1/d)^3).
     """
-    return _weighted_pair_gradient_xy(pos_u, rows, others_e[:, 0], others_e[:, 1], weight, attraction, floor,
-                                      repulsion, reach, pair_factor)
-
-
-def _weighted_pair_gradient_xy(pos_u, rows, others_x, others_y, weight, attraction, floor, repulsion, reach,
-                               pair_factor):
-    """:func:`weighted_pair_gradient_entries` with the believed positions as two (E,) coordinate arrays."""
-    return _pair_gradient_xy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach, pair_factor,
-                             weight=weight)
+    return _pair_gradient_xy(pos_u, rows, others_e[:, 0], others_e[:, 1], attraction, floor, repulsion, reach,
+                             pair_factor, weight=weight)
 
 
 def _leader_distances(pos_u, leaders_u):
@@ -448,22 +442,13 @@ class DccrsPlanner:
             return np.bincount(er[np.einsum("ec,ec->e", dy, dy) <= self.r_u ** 2], minlength=n)
         gain = self._leader_gain(pos_u, leaders_u, claims)
 
-        ent_start = np.searchsorted(er, np.arange(n + 1))   # row-major: drone i's entries are
-        ent_count = np.diff(ent_start)                      # ent_start[i]:ent_start[i + 1]
-
-        y_x, y_y = y_e[:, 0].copy(), y_e[:, 1].copy()       # one contiguous array per coordinate
+        entries = _EntriesByDrone(er, y_e, n)
 
         def grad(x, rows):
             lead = leaders_u if leaders_u.ndim == 2 else leaders_u[rows]
-            if len(rows) == n:
-                r_e, ox, oy = er, y_x, y_y
-            else:  # the entries of the drones still moving, gathered by segment
-                count = ent_count[rows]
-                r_e = np.repeat(np.arange(len(rows)), count)
-                take = np.arange(len(r_e)) + np.repeat(ent_start[rows] - (np.cumsum(count) - count), count)
-                ox, oy = y_x[take], y_y[take]
-            return (_weighted_pair_gradient_xy(x[rows], r_e, ox, oy, weight[rows], p.attraction,
-                                               p.attraction_floor, p.repulsion, self.reach_u, p.pair_factor)
+            r_e, ox, oy = entries.of(rows)
+            return (_pair_gradient_xy(x[rows], r_e, ox, oy, p.attraction, p.attraction_floor, p.repulsion,
+                                      self.reach_u, p.pair_factor, weight=weight[rows])
                     + leader_gradient(x[rows], lead, gain[rows], p.leader_exponent, self.r_u, p.leader_floor))
 
         res = descend(pos_u, grad, self.vmax_u, p, separable=True)

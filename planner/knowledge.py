@@ -287,8 +287,57 @@ def propagate_stamps_reference(stamp, pairs) -> np.ndarray:
     return out
 
 
+def _flood_tree_stamp(tree_stamp: np.ndarray, idx: np.ndarray, pairs: np.ndarray,
+                      link_pos_m: np.ndarray, base_m: np.ndarray, base_reach_m: float,
+                      t_step: int) -> None:
+    """Deliver the task-tree stamps over one hop (in place on ``tree_stamp[idx]``).
+
+    The stamp rides in the same messages as the reports but has its own staleness rule: every
+    linked holder keeps the freshest stamp among itself and its neighbours (``pairs`` index
+    ``idx``), and holders within ``base_reach_m`` of the base at ``link_pos_m`` (positions of
+    ``idx``) receive the tree the base computed at step t - 1.
+    """
+    ts = tree_stamp[idx]
+    best = ts.copy()
+    if len(pairs):
+        np.maximum.at(best, pairs[:, 0], ts[pairs[:, 1]])
+        np.maximum.at(best, pairs[:, 1], ts[pairs[:, 0]])
+    at_base = np.linalg.norm(link_pos_m - base_m, axis=1) <= base_reach_m
+    best[at_base] = t_step - 1
+    tree_stamp[idx] = best
+
+
 @dataclass
-class Knowledge:
+class _StampTables:
+    """What both implementations hold: the (N, N) stamp table, the tree stamps and the history of
+    true positions (see :class:`Knowledge` for the attributes), with the views derived from them."""
+
+    stamp: np.ndarray
+    tree_stamp: np.ndarray
+    pos_hist_m: np.ndarray
+
+    @classmethod
+    def empty(cls, n_drones: int, n_steps: int):
+        """Nothing known, no tree, room for ``n_steps`` + 1 steps of positions."""
+        return cls(np.full((n_drones, n_drones), UNKNOWN, dtype=np.int64),
+                   np.full(n_drones, UNKNOWN, dtype=np.int64),
+                   np.zeros((n_steps + 1, n_drones, 2)))
+
+    def believed_positions_m(self) -> np.ndarray:
+        """(N, N, 2): where drone i believes drone k is (garbage where stamp is unknown)."""
+        n = self.stamp.shape[0]
+        s = np.where(self.stamp >= 0, self.stamp, 0)
+        return self.pos_hist_m[s, np.arange(n)[None, :]]
+
+    def known(self) -> np.ndarray:
+        """(N, N) bool: i holds a valid entry about k (k != i)."""
+        k = self.stamp != UNKNOWN
+        np.fill_diagonal(k, False)
+        return k
+
+
+@dataclass
+class Knowledge(_StampTables):
     """Per-drone beliefs of an episode under the asynchronous information model.
 
     The beliefs are held as a list of entries (holder, drone, stamp) in row-major order; once the
@@ -310,9 +359,6 @@ class Knowledge:
     known_view : (len(rows), len(cols)) bool, the same entries as a mask (built on request)
     """
 
-    stamp: np.ndarray
-    tree_stamp: np.ndarray
-    pos_hist_m: np.ndarray
     held_rows: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     held_cols: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     held_stamps: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
@@ -321,12 +367,6 @@ class Knowledge:
     entry_rows: np.ndarray = None
     entry_cols: np.ndarray = None
     entry_believed_m: np.ndarray = None
-
-    @classmethod
-    def empty(cls, n_drones: int, n_steps: int) -> "Knowledge":
-        return cls(np.full((n_drones, n_drones), UNKNOWN, dtype=np.int64),
-                   np.full(n_drones, UNKNOWN, dtype=np.int64),
-                   np.zeros((n_steps + 1, n_drones, 2)))
 
     @property
     def known_view(self) -> np.ndarray:
@@ -387,15 +427,7 @@ class Knowledge:
             # Holders outside ``idx`` have no links: they keep their forwarded entries (the others
             # are past the age cut-off below either way).
             r, c, s = propagate_entries(r, c, s, n, n, idx[pairs], t_sent, age_max_steps)
-            # The tree stamp rides in the same messages but has its own staleness rule.
-            ts = self.tree_stamp[idx]
-            best = ts.copy()
-            if len(pairs):
-                np.maximum.at(best, pairs[:, 0], ts[pairs[:, 1]])
-                np.maximum.at(best, pairs[:, 1], ts[pairs[:, 0]])
-            at_base = np.linalg.norm(link_pos_m[idx] - base_m, axis=1) <= base_reach_m
-            best[at_base] = t_step - 1
-            self.tree_stamp[idx] = best
+            _flood_tree_stamp(self.tree_stamp, idx, pairs, link_pos_m[idx], base_m, base_reach_m, t_step)
         # Own state is always fresh; dead drones hold nothing.
         self.tree_stamp[~alive] = UNKNOWN
         r, c, s = self._own(r, c, s, alive, t_step)
@@ -427,50 +459,27 @@ class Knowledge:
         self.entry_rows, self.entry_cols = row_of[er], col_of[ec]
         self.entry_believed_m = np.column_stack([bx, by])
 
-    def believed_positions_m(self) -> np.ndarray:
-        """(N, N, 2): where drone i believes drone k is (garbage where stamp is unknown)."""
-        n = self.stamp.shape[0]
-        s = np.where(self.stamp >= 0, self.stamp, 0)
-        return self.pos_hist_m[s, np.arange(n)[None, :]]
-
-    def known(self) -> np.ndarray:
-        """(N, N) bool: i holds a valid entry about k (k != i)."""
-        k = self.stamp != UNKNOWN
-        np.fill_diagonal(k, False)
-        return k
-
 
 @dataclass
-class KnowledgeDense:
+class KnowledgeDense(_StampTables):
     """The previous dense-table implementation of :class:`Knowledge` (for tests: every (N, N)
     operation in the open, the same semantics; :class:`Knowledge` must give identical tables).
 
     Attributes
     ----------
-    stamp : (N, N) int64, step of the freshest report drone i holds about drone k (-1 unknown)
-    tree_stamp : (N,) int64, step at which the base computed drone i's copy of the task tree (-1 none)
-    pos_hist_m : (T, N, 2) float64, true positions by step (the content of every report)
+    stamp, tree_stamp, pos_hist_m : as in :class:`Knowledge`
     rows, cols : index arrays of the current *view*: alive holders and drones anybody knows about
     known_view : (len(rows), len(cols)) bool, holder knows the drone (never itself)
     entry_rows, entry_cols : (E,) int, the True entries of ``known_view`` in row-major order
     entry_believed_m : (E, 2) believed position of each entry
     """
 
-    stamp: np.ndarray
-    tree_stamp: np.ndarray
-    pos_hist_m: np.ndarray
     rows: np.ndarray = None
     cols: np.ndarray = None
     known_view: np.ndarray = None
     entry_rows: np.ndarray = None
     entry_cols: np.ndarray = None
     entry_believed_m: np.ndarray = None
-
-    @classmethod
-    def empty(cls, n_drones: int, n_steps: int) -> "KnowledgeDense":
-        return cls(np.full((n_drones, n_drones), UNKNOWN, dtype=np.int64),
-                   np.full(n_drones, UNKNOWN, dtype=np.int64),
-                   np.zeros((n_steps + 1, n_drones, 2)))
 
     def update(self, t_step: int, pos_prev_m: np.ndarray | None, alive_prev: np.ndarray | None,
                pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float, base_reach_m: float,
@@ -498,15 +507,7 @@ class KnowledgeDense:
                 self.stamp[idx] = held
             else:
                 self.stamp[idx] = propagate_stamps_dense(held, pairs, t_sent, age_max_steps)
-            # The tree stamp rides in the same messages but has its own staleness rule.
-            ts = self.tree_stamp[idx]
-            best = ts.copy()
-            if len(pairs):
-                np.maximum.at(best, pairs[:, 0], ts[pairs[:, 1]])
-                np.maximum.at(best, pairs[:, 1], ts[pairs[:, 0]])
-            at_base = np.linalg.norm(link_pos_m[idx] - base_m, axis=1) <= base_reach_m
-            best[at_base] = t_step - 1
-            self.tree_stamp[idx] = best
+            _flood_tree_stamp(self.tree_stamp, idx, pairs, link_pos_m[idx], base_m, base_reach_m, t_step)
         # Own state is always fresh; dead drones hold nothing.
         self.stamp[~alive] = UNKNOWN
         self.tree_stamp[~alive] = UNKNOWN
@@ -533,18 +534,6 @@ class KnowledgeDense:
         known &= rows[:, None] != cols[None, :]
         self.rows, self.cols, self.known_view = rows, cols, known
         self.entry_rows, self.entry_cols, self.entry_believed_m = er[keep], ek[keep], believed[keep]
-
-    def believed_positions_m(self) -> np.ndarray:
-        """(N, N, 2): where drone i believes drone k is (garbage where stamp is unknown)."""
-        n = self.stamp.shape[0]
-        s = np.where(self.stamp >= 0, self.stamp, 0)
-        return self.pos_hist_m[s, np.arange(n)[None, :]]
-
-    def known(self) -> np.ndarray:
-        """(N, N) bool: i holds a valid entry about k (k != i)."""
-        k = self.stamp != UNKNOWN
-        np.fill_diagonal(k, False)
-        return k
 
 
 class MessageLayer:

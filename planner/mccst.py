@@ -606,24 +606,15 @@ def solve_cbf_qp(x: np.ndarray, u_hat: np.ndarray, tree: np.ndarray, r_c: np.nda
     reach = box * np.abs(coef).sum(axis=1) * np.where(j < n, 2.0, 1.0)
     rhs = np.minimum(rhs, reach + 1e-3)
     slack_rows = np.flatnonzero(rhs < 0)                        # violated barriers only
-    n_slack = len(slack_rows)
-    n_var = n_u + n_slack
-
+    slack_is_tree = slack_rows < n_tree
     if params.solver == "piqp":
-        return _solve_piqp(i, j, coef, rhs, reach, slack_rows, slack_rows < n_tree,
-                           u_hat, box, params)
+        return _solve_piqp(i, j, coef, rhs, reach, slack_rows, slack_is_tree, u_hat, box, params)
 
+    n_slack = len(slack_rows)
     a_mat = _constraint_matrix(i, j, coef, slack_rows, n)
     lower = np.concatenate([np.full(n_rows, -np.inf), np.full(n_u, -box), np.zeros(n_slack)])
     upper = np.concatenate([rhs, np.full(n_u, box), np.full(n_slack, np.inf)])
-
-    # Objective sum |u - u_hat|^2 + penalty sum s^2 = 1/2 z^T P z + q^T z + const.
-    slack_is_tree = slack_rows < n_tree
-    penalty = np.where(slack_is_tree, params.slack_penalty, params.collision_slack_penalty)
-    p_diag = np.concatenate([np.full(n_u, 2.0), 2.0 * penalty])
-    diag_idx = np.arange(n_var + 1, dtype=np.int32)
-    p_mat = csc_matrix((p_diag, diag_idx[:-1], diag_idx), shape=(n_var, n_var))  # diagonal, CSC
-    q_vec = np.concatenate([-2.0 * u_hat.ravel(), np.zeros(n_slack)])
+    p_mat, q_vec = _qp_objective(u_hat, slack_is_tree, params)
 
     solver = osqp.OSQP()
     # scaling=0: OSQP's Ruiz equilibration rescales the slack columns (P entry 2 * penalty) against
@@ -644,6 +635,19 @@ def solve_cbf_qp(x: np.ndarray, u_hat: np.ndarray, tree: np.ndarray, r_c: np.nda
                         float(slack[slack_is_tree].max(initial=0.0)),
                         float(slack[~slack_is_tree].max(initial=0.0)), float(res.info.rho_estimate))
     return QpResult(u_start, status, False, int(res.info.iter), float("nan"), float("nan"))
+
+
+def _qp_objective(u_hat: np.ndarray, slack_tree: np.ndarray, params: MccstParams
+                  ) -> tuple[csc_matrix, np.ndarray]:
+    """P (diagonal, CSC) and q of sum |u - u_hat|^2 + penalty sum s^2 = 1/2 z^T P z + q^T z + const,
+    z = (u_0x, u_0y, ..., one slack per slacked row); ``slack_tree`` marks the tree rows' slacks."""
+    n_u, n_slack = u_hat.size, len(slack_tree)
+    n_var = n_u + n_slack
+    penalty = np.where(slack_tree, params.slack_penalty, params.collision_slack_penalty)
+    p_diag = np.concatenate([np.full(n_u, 2.0), 2.0 * penalty])
+    diag_idx = np.arange(n_var + 1, dtype=np.int32)
+    p_mat = csc_matrix((p_diag, diag_idx[:-1], diag_idx), shape=(n_var, n_var))
+    return p_mat, np.concatenate([-2.0 * u_hat.ravel(), np.zeros(n_slack)])
 
 
 def _solve_piqp(i: np.ndarray, j: np.ndarray, coef: np.ndarray, rhs: np.ndarray,
@@ -667,27 +671,13 @@ def _solve_piqp(i: np.ndarray, j: np.ndarray, coef: np.ndarray, rhs: np.ndarray,
     n = len(u_hat)
     n_u = 2 * n
     n_slack = len(slack_rows)
-    n_var = n_u + n_slack
     keep = rhs <= reach                          # the others are capped, hence never active
     keep[slack_rows] = True                      # violated rows (rhs < 0) always bind
     rows = np.flatnonzero(keep)
-    new_row = np.full(len(rhs), -1, dtype=np.intp)
-    new_row[rows] = np.arange(len(rows))
-    ri, rj, rc = i[rows], j[rows], coef[rows]
-    j_drone = rj < n
-    r_ids = np.arange(len(rows))
-    g_rows = np.concatenate([np.repeat(r_ids, 2), np.repeat(r_ids[j_drone], 2),
-                             new_row[slack_rows]])
-    g_cols = np.concatenate([(2 * ri[:, None] + np.arange(2)).ravel(),
-                             (2 * rj[j_drone][:, None] + np.arange(2)).ravel(),
-                             n_u + np.arange(n_slack)])
-    g_vals = np.concatenate([rc.ravel(), -rc[j_drone].ravel(), -np.ones(n_slack)])
-    g_mat = csc_matrix((g_vals, (g_rows, g_cols)), shape=(len(rows), n_var))
-    penalty = np.where(slack_tree, params.slack_penalty, params.collision_slack_penalty)
-    p_diag = np.concatenate([np.full(n_u, 2.0), 2.0 * penalty])
-    diag_idx = np.arange(n_var + 1, dtype=np.int32)
-    p_mat = csc_matrix((p_diag, diag_idx[:-1], diag_idx), shape=(n_var, n_var))
-    q_vec = np.concatenate([-2.0 * u_hat.ravel(), np.zeros(n_slack)])
+    new_row = np.cumsum(keep) - 1                # a kept row's index among the kept ones
+    # The barrier rows of OSQP's matrix over the kept rows (its identity rows are PIQP's bounds).
+    g_mat = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n)[:len(rows)]
+    p_mat, q_vec = _qp_objective(u_hat, slack_tree, params)
     x_lo = np.concatenate([np.full(n_u, -box), np.zeros(n_slack)])
     x_hi = np.concatenate([np.full(n_u, box), np.full(n_slack, np.inf)])
 

@@ -357,6 +357,28 @@ def pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e: np.ndar
                              pair_factor)
 
 
+class _EntriesByDrone:
+    """The view's entries (holder rows ``rows_e`` in row-major order, believed positions ``y_e``
+    (E, 2)) grouped by holder, so that a descent can take the entries of the drones still moving.
+    Coordinates are kept as two contiguous arrays, the form :func:`_pair_gradient_xy` reads."""
+
+    def __init__(self, rows_e: np.ndarray, y_e: np.ndarray, n: int) -> None:
+        self.n = n
+        self.rows_e = rows_e
+        self.x, self.y = y_e[:, 0].copy(), y_e[:, 1].copy()
+        self.start = np.searchsorted(rows_e, np.arange(n + 1))   # drone i's: start[i]:start[i + 1]
+        self.count = np.diff(self.start)
+
+    def of(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(holder index into ``rows``, x, y) of the entries of drones ``rows`` (sorted)."""
+        if len(rows) == self.n:
+            return self.rows_e, self.x, self.y
+        count = self.count[rows]
+        r_e = np.repeat(np.arange(len(rows)), count)
+        take = np.arange(len(r_e)) + np.repeat(self.start[rows] - (np.cumsum(count) - count), count)
+        return r_e, self.x[take], self.y[take]
+
+
 def _pair_gradient_xy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach, pair_factor,
                       weight=None):
     """:func:`pair_gradient_entries` with the believed positions as two (E,) coordinate arrays;
@@ -634,20 +656,10 @@ class PhiremanPlanner:
         versions, version_of = np.unique(stamps, return_inverse=True)
         segments = TreeSegments([self.messages.broadcast(s) for s in versions], version_of, p.nodes_only,
                                 pos_u[idx], self.vmax_u)
-        n_view = len(idx)
-        ent_start = np.searchsorted(ent_r, np.arange(n_view + 1))   # entries are row-major: drone i's
-        ent_count = np.diff(ent_start)                              # are ent_start[i]:ent_start[i+1]
-
-        ent_x, ent_yc = ent_y[:, 0].copy(), ent_y[:, 1].copy()     # one contiguous array per coordinate
+        entries = _EntriesByDrone(ent_r, ent_y, len(idx))
 
         def grad(x, rows):
-            if len(rows) == n_view:
-                er, ox, oy = ent_r, ent_x, ent_yc
-            else:  # the entries of the drones still moving, gathered by segment
-                count = ent_count[rows]
-                er = np.repeat(np.arange(len(rows)), count)
-                take = np.arange(len(er)) + np.repeat(ent_start[rows] - (np.cumsum(count) - count), count)
-                ox, oy = ent_x[take], ent_yc[take]
+            er, ox, oy = entries.of(rows)
             return (_pair_gradient_xy(x[rows], er, ox, oy, p.attraction, p.attraction_floor,
                                       p.repulsion, self.reach_u, p.pair_factor)
                     + segments.gradient(x[rows], rows, p.thorn))

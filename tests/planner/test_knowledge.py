@@ -35,6 +35,14 @@ def _chain(n, spacing):
     return np.stack([np.arange(n) * spacing + 0.5, np.zeros(n)], axis=1)
 
 
+def _hold(k, pos, alive, steps, *args, **kwargs):
+    """``k.update`` at each step of ``steps`` with every drone fixed at ``pos`` (nothing is
+    delivered at step 0); ``args``/``kwargs``: the update's range, cut-off and base arguments."""
+    for t in steps:
+        first = t == 0
+        k.update(t, None if first else pos, None if first else alive, pos, alive, *args, **kwargs)
+
+
 def test_reports_travel_one_hop_per_step_and_tree_floods_from_base():
     n = 5
     pos = _chain(n, 1.6)  # base at 0, drone 0 at 0.5 (only it reaches the base), links 1.6 <= r
@@ -60,19 +68,11 @@ def test_age_and_distance_cutoffs_and_dead_drones():
     pos = _chain(n, 1.5)
     alive = np.ones(n, bool)
     k = Knowledge.empty(n, 30)
-    prev = None
-    for t in range(4):
-        k.update(t, prev, alive if prev is not None else None, pos, alive, 2.0, 2.0, age_max_steps=1,
-                 dist_max_m=100.0, base_m=np.zeros(2))
-        prev = pos
+    _hold(k, pos, alive, range(4), 2.0, 2.0, age_max_steps=1, dist_max_m=100.0, base_m=np.zeros(2))
     # with an age limit of 1 step, drone 0 can know drone 1 (1 hop) but never drone 2 (2 hops)
     assert k.stamp[0, 1] == 2 and k.stamp[0, 2] == -1
     k2 = Knowledge.empty(n, 30)
-    prev = None
-    for t in range(4):
-        k2.update(t, prev, alive if prev is not None else None, pos, alive, 2.0, 2.0, 10, dist_max_m=2.0,
-                  base_m=np.zeros(2))
-        prev = pos
+    _hold(k2, pos, alive, range(4), 2.0, 2.0, 10, dist_max_m=2.0, base_m=np.zeros(2))
     assert k2.stamp[0, 1] >= 0 and k2.stamp[0, 2] == -1  # drone 2 is 3.0 away > 2.0
     dead = alive.copy()
     dead[1] = False
