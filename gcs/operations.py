@@ -28,7 +28,8 @@ Phases (``Operator.phase``)::
   retried with an exponential back-off, never in a tight loop.
 * **run**: every ``control_period_s``, :func:`gcs.control.tick` plans for every vehicle the
   station hears that is armed and airborne; one SET_POSITION_TARGET_GLOBAL_INT each.
-* **end**: RTL or LAND every vehicle heard; done when all are on the ground / in the end mode.
+* **end**: RTL or LAND every vehicle heard; done when every vehicle heard has landed (disarmed),
+  or after ``end_timeout_s`` (``end_status`` says how many were still in the air).
 
 **Reclaim** runs in every phase after discovery: a vehicle heard again that is not in the guided
 mode (back from a failsafe RTL, or found in RTL by a restarted station) is switched back to
@@ -63,7 +64,8 @@ from planner.geometry import tasks_connected
 from planner.methods import Planner
 from planner.metrics import uptime_series
 
-__all__ = ["OperationsConfig", "Operator", "PHASES", "TickRecord"]
+__all__ = ["OperationsConfig", "Operator", "PHASES", "TickRecord", "OperatorAction",
+           "OPERATOR_ACTIONS"]
 
 log = logging.getLogger(__name__)
 
@@ -158,6 +160,27 @@ class TickRecord:
         return dict(self.__dict__)
 
 
+#: What an operator may ask of one vehicle (or of all): ``hold`` (leave the plan, hover where it
+#: is at its layer, still in GUIDED/OFFBOARD so the link failsafes still apply), ``rtl``, ``land``
+#: (leave the plan, the firmware's RTL / LAND mode), ``release`` (leave the plan, keep the last
+#: target) and ``rejoin`` (back into the plan: reclaimed like a vehicle back from a failsafe).
+OPERATOR_ACTIONS = ("hold", "rtl", "land", "release", "rejoin")
+
+
+@dataclass(frozen=True)
+class OperatorAction:
+    """One operator request, as recorded in ``events.jsonl`` (who asked, what, for whom)."""
+
+    t_s: float
+    action: str
+    link_id: int
+    sysid: int
+    source: str
+    """Where it came from (e.g. ``web 127.0.0.1``, ``cli``)."""
+    result: str
+    """``sent``, ``released``, ``rejoined`` or why nothing was sent."""
+
+
 @dataclass
 class _Row:
     next_action_s: float = -math.inf
@@ -241,6 +264,14 @@ class Operator:
         mode after launch."""
         self.counters = {"reclaim_attempts": 0, "relaunches": 0, "command_failures": 0,
                          "lost": 0, "recovered": 0}
+        self.released: dict[tuple[int, int], str] = {}
+        """Vehicles an operator took out of the plan -> the action that did it (hold, rtl, land,
+        release). The operator never plans, reclaims, relaunches or end-commands them."""
+        self.end_status: dict[str, int] | None = None
+        """At the end: vehicles heard on the ground / still in the air, and not heard."""
+        self.actions: list[OperatorAction] = []
+        self.on_action: Callable[[OperatorAction], None] | None = None
+        """Called with every :class:`OperatorAction` (the runner writes it to events.jsonl)."""
 
     # ------------------------------------------------------------------ inputs
 
@@ -338,6 +369,57 @@ class Operator:
             if row is not None:
                 row.next_action_s = -math.inf  # act on it at the next poll
 
+    # ------------------------------------------------------------------ operator actions
+
+    def operator_command(self, action: str, vid: tuple[int, int] | None, now_s: float,
+                         source: str = "") -> list[OperatorAction]:
+        """An operator's request for one vehicle ``(link_id, sysid)`` or, with ``vid=None``, for
+        every vehicle heard. Goes through the station's normal command path (acks, retries,
+        events, .tlog); returns what was done, one :class:`OperatorAction` per vehicle."""
+        if action not in OPERATOR_ACTIONS:
+            raise ValueError(f"unknown action {action!r}; valid: {', '.join(OPERATOR_ACTIONS)}")
+        snap = self.fleet.snapshot(now_s)
+        if vid is None:
+            rows = [i for i in range(snap.n_vehicles) if not snap.lost[i]]
+        else:
+            if tuple(vid) not in self._known:
+                raise UnknownVehicle(f"no vehicle link {vid[0]} sysid {vid[1]}")
+            rows = [self.fleet.index_of(*vid)]
+        out = []
+        for i in rows:
+            v = self._vid(snap, i)
+            result = self._operator_act(action, snap, i, v, now_s)
+            rec = OperatorAction(now_s, action, v[0], v[1], source, result)
+            self.actions.append(rec)
+            log.warning("operator %s: %s link %d sysid %d -> %s", source or "?", action, *v, result)
+            if self.on_action is not None:
+                self.on_action(rec)
+            out.append(rec)
+        return out
+
+    def _operator_act(self, action: str, snap: FleetSnapshot, i: int, vid: tuple[int, int],
+                      now_s: float) -> str:
+        if action == "rejoin":
+            if self.released.pop(vid, None) is None:
+                return "was not released"
+            row = self._rows.setdefault(i, _Row())
+            row.next_action_s = -math.inf  # reclaimed at the next poll like a recovered vehicle
+            return "rejoined"
+        self.released[vid] = action
+        try:
+            if action == "hold":
+                if not snap.has_position[i]:
+                    return "released (no position yet: holds its last target)"
+                self._hold(snap, [i], now_s)
+                return "sent"
+            if action in ("rtl", "land"):
+                self.station.clear_position_target(vid, now_s)
+                (self.station.rtl if action == "rtl" else self.station.land)(vid, now_s)
+                return "sent"
+        except (LinkUsageError, UnknownVehicle, ValueError) as exc:
+            return f"not sent: {exc}"
+        return "released"
+
     # ------------------------------------------------------------------ timing
 
     def next_poll_s(self, now_s: float) -> float:
@@ -400,6 +482,14 @@ class Operator:
 
     def _vid(self, snap: FleetSnapshot, i: int) -> tuple[int, int]:
         return int(snap.link_id[i]), int(snap.sysid_of_index[i])
+
+    def _in_plan(self, snap: FleetSnapshot) -> np.ndarray:
+        """(N,) bool: rows not taken out of the plan by an operator action."""
+        ok = np.ones(snap.n_vehicles, dtype=bool)
+        if self.released:
+            for i in range(snap.n_vehicles):
+                ok[i] = self._vid(snap, i) not in self.released
+        return ok
 
     def _start_audit(self, snap: FleetSnapshot, now_s: float) -> None:
         log.info("discovered %d vehicle(s)", snap.n_vehicles)
@@ -524,9 +614,10 @@ class Operator:
                 self._wave += 1
                 self._wave_since_s = now_s
         # Every started wave (and late discoveries): launch / keep flying.
+        in_plan = self._in_plan(snap)
         for w in self._waves[:self._wave + 1]:
             for i in w:
-                if i < snap.n_vehicles and heard[i]:
+                if i < snap.n_vehicles and heard[i] and in_plan[i]:
                     self._drive(snap, i, alt, now_s)
         if self._wave >= len(self._waves):
             rows = np.flatnonzero(heard)
@@ -637,6 +728,7 @@ class Operator:
         alt = self._alt_above_home_m(snap)
         heard = ~snap.lost
         airborne = heard & snap.armed & np.isfinite(alt) & (alt > self.config.airborne_alt_m)
+        airborne &= self._in_plan(snap)  # released vehicles are neither planned nor relays
         t_m = self.t_mission_s(now_s)
         task_pos = np.asarray(self.task_pos_fn(t_m), dtype=float).reshape(-1, 2)
         result = tick(snap.pos_ned_m, airborne, heard, task_pos, self.planner, self._t_step,
@@ -661,7 +753,7 @@ class Operator:
 
     def _reclaim(self, snap: FleetSnapshot, now_s: float) -> None:
         alt = self._alt_above_home_m(snap)
-        for i in np.flatnonzero(~snap.lost).tolist():
+        for i in np.flatnonzero(~snap.lost & self._in_plan(snap)).tolist():
             self._drive(snap, i, alt, now_s)
 
     def station_tu(self) -> tuple[float, float]:
@@ -683,19 +775,26 @@ class Operator:
             row.next_action_s = -math.inf
 
     def _poll_end(self, snap: FleetSnapshot, now_s: float) -> None:
-        pending = 0
+        """Send the end command until obeyed; done once every vehicle heard is on the ground
+        (disarmed: ArduCopter and PX4 both disarm after landing at the end of RTL / LAND), or at
+        ``end_timeout_s`` (:attr:`end_status` then says how many were still in the air)."""
+        airborne = 0
         for i in np.flatnonzero(~snap.lost).tolist():
+            if not snap.armed[i]:
+                continue  # on the ground
+            airborne += 1
             adapter = adapter_for(int(snap.autopilot[i]))
             mode = snap.mode[i]
-            want = adapter.rtl_mode if self.config.end == "rtl" else adapter.land_mode
-            if not snap.armed[i] or mode == want:
-                continue  # down, or obeying: the vehicle finishes on its own
-            pending += 1
+            vid = self._vid(snap, i)
+            # Obeying (or already coming down on its own, e.g. a battery failsafe LAND), or an
+            # operator sent it home / down: the vehicle finishes on its own.
+            if mode in (adapter.rtl_mode, adapter.land_mode) \
+                    or self.released.get(vid) in ("rtl", "land"):
+                continue
             row = self._rows.setdefault(i, _Row())
             if now_s < row.next_action_s:
                 continue
             row.next_action_s = now_s + self.config.action_retry_s
-            vid = self._vid(snap, i)
             try:
                 self.station.clear_position_target(vid, now_s)
                 if self.config.end == "rtl":
@@ -704,5 +803,11 @@ class Operator:
                     self.station.land(vid, now_s)
             except (LinkUsageError, UnknownVehicle, ValueError) as exc:
                 log.info("link %d sysid %d: %s", *vid, exc)
-        if pending == 0 or now_s - self._phase_since_s >= self.config.end_timeout_s:
+        heard = int((~snap.lost).sum())
+        self.end_status = {"on_ground": heard - airborne, "in_air": airborne,
+                           "not_heard": int(snap.lost.sum())}
+        if airborne == 0 or now_s - self._phase_since_s >= self.config.end_timeout_s:
+            if airborne:
+                log.warning("end: %d vehicle(s) still in the air after %.0f s (returning on "
+                            "their own)", airborne, now_s - self._phase_since_s)
             self._enter("done", now_s)
