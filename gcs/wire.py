@@ -12,6 +12,7 @@ counters in :class:`DecodeStats`, never exceptions.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import struct
@@ -257,6 +258,40 @@ class _NullFile:
         pass
 
 
+class _MAVLink(mavlink.MAVLink):
+    """pymavlink's parser with the signature check done in the C library's order.
+
+    pymavlink 2.4.x ``MAVLink.check_signature`` stores a frame's timestamp as its stream's
+    latest *before* comparing the signature, so one forged frame with a future timestamp (no key
+    needed) makes every later genuine frame of that ``(link id, sysid, compid)`` stream look
+    replayed: anyone on the radio can silence a vehicle. The C library (``mavlink_helpers.h``
+    ``mavlink_signature_check``) updates the stream only once the signature matched, as here.
+    Same logic as ``vehicle_emu/wire.py`` ``_MAVLink`` (the two packages never import each
+    other; to be merged).
+    """
+
+    def check_signature(self, msgbuf, srcSystem, srcComponent) -> bool:
+        signing = self.signing
+        link_id = msgbuf[-13]
+        tlow, thigh = self.mav_sign_unpacker.unpack(msgbuf[-12:-6])
+        timestamp = tlow + (thigh << 32)
+        stream_key = (link_id, srcSystem, srcComponent)
+        last = signing.stream_timestamps.get(stream_key)
+        if last is not None:
+            if timestamp <= last:
+                return False  # replayed or out of order
+        elif timestamp + 6000 * 1000 < signing.timestamp:
+            return False  # a new stream more than a minute behind us
+        h = hashlib.new("sha256")
+        h.update(signing.secret_key)
+        h.update(msgbuf[:-6])
+        if h.digest()[:6] != msgbuf[-6:]:
+            return False  # forged: remember nothing about it
+        signing.stream_timestamps[stream_key] = timestamp
+        signing.timestamp = max(signing.timestamp, timestamp)
+        return True
+
+
 @dataclass
 class DecodeStats:
     """Counters for what came in; bad bytes become counts, never exceptions."""
@@ -265,6 +300,8 @@ class DecodeStats:
     """Frames decoded into known messages."""
     bad_data: int = 0
     """Bad prefixes, CRC or length errors, rejected signatures (pymavlink BAD_DATA)."""
+    signature_rejected: int = 0
+    """Of ``bad_data``: frames refused by MAVLink 2 signing (bad, replayed or missing)."""
     unknown_msgid: int = 0
     """Well-formed frames whose message id is not in the dialect."""
     truncated: int = 0
@@ -280,7 +317,7 @@ class Decoder:
     def __init__(self, stats: DecodeStats, signing_key: bytes | None = None,
                  accept_unsigned: bool = True) -> None:
         self._stats = stats
-        self._mav = mavlink.MAVLink(_NullFile(), 0, 0)
+        self._mav = _MAVLink(_NullFile(), 0, 0)
         self._mav.robust_parsing = True
         if signing_key is not None:
             self._mav.signing.secret_key = signing_key
@@ -311,6 +348,8 @@ class Decoder:
             kind = msg.get_type()
             if kind == "BAD_DATA":
                 self._stats.bad_data += 1
+                if "signature" in str(getattr(msg, "reason", "")):
+                    self._stats.signature_rejected += 1
             elif kind.startswith("UNKNOWN"):
                 self._stats.unknown_msgid += 1
             else:

@@ -28,6 +28,13 @@ class FakeAutopilot:
         if signing_key is not None:
             self.parser.signing.secret_key = signing_key
 
+    def sign_outgoing(self, key: bytes, unix_time_s: float, link_id: int = 0) -> None:
+        """Sign every frame from now on (MAVLink 2 signing, timestamp from ``unix_time_s``)."""
+        self.mav.signing.secret_key = key
+        self.mav.signing.sign_outgoing = True
+        self.mav.signing.link_id = link_id
+        self.mav.signing.timestamp = int((unix_time_s - 1420070400) * 1e5)
+
     def _pack(self, msg) -> bytes:
         data = msg.pack(self.mav)
         self.mav.seq = (self.mav.seq + 1) % 256
