@@ -305,7 +305,6 @@ class VehicleCore:
         self.gcs_failsafe = False
         # PX4 offboard signal (setpoint stream) tracking.
         self._sp_last_s: float | None = None
-        self._sp_stream_start_s: float | None = None
         self._offboard_target = None
         self.offboard_failsafe = False
 
@@ -525,7 +524,7 @@ class VehicleCore:
 
         # PX4 offboard loss: COM_OF_LOSS_T then COM_OBL_RC_ACT (commander_params.yaml).
         if self.is_px4 and beh == "guided":
-            if self._sp_last_s is None or now_s - self._sp_last_s > self.params["COM_OF_LOSS_T"]:
+            if not self._offboard_signal_ok(now_s):
                 act = int(self.params["COM_OBL_RC_ACT"])
                 self.offboard_failsafe = True
                 if act in _PX4_OBL_DISARM:
@@ -1189,27 +1188,33 @@ class VehicleCore:
         return ned
 
     def _note_setpoint(self, now_s: float) -> None:
-        """PX4 offboard signal: a stream counts when setpoints arrive at > 2 Hz (gap <= 0.5 s)
-        and it is available after > 1 s of streaming (PX4 offboard docs, MAVLINK_NOTES §1.5)."""
-        if self._sp_last_s is None or now_s - self._sp_last_s > 0.5:
-            self._sp_stream_start_s = now_s
+        """PX4 offboard signal. mavlink_receiver.cpp handle_message_set_position_target_local_ned
+        / _global_int publish ``offboard_control_mode`` (timestamp = now) for every setpoint that
+        carries a position, velocity or acceleration in a supported frame; nothing else counts."""
         self._sp_last_s = now_s
 
     def _offboard_signal_ok(self, now_s: float) -> bool:
-        return (self._sp_last_s is not None and now_s - self._sp_last_s <= 0.5
-                and now_s - self._sp_stream_start_s > 1.0)
+        """PX4 HealthAndArmingChecks/checks/offboardCheck.cpp OffboardChecks::checkAndReport:
+        ``data_is_recent = now < offboard_control_mode.timestamp + COM_OF_LOSS_T``; the mode
+        requirement is only that, so ONE recent setpoint is enough to switch to OFFBOARD (the
+        "stream for > 1 s at > 2 Hz" of the PX4 docs is advice, not a firmware check)."""
+        return (self._sp_last_s is not None
+                and now_s < self._sp_last_s + self.params["COM_OF_LOSS_T"])
 
     def _on_set_position_target_local(self, m, addr, now_s: float) -> None:
         if not self._for_me(m.target_system, m.target_component):
             return
         self.stats.setpoints += 1
-        if self.is_px4:
-            self._note_setpoint(now_s)
         frame = m.coordinate_frame
         if frame not in _LOCAL_FRAMES:
+            # PX4: "coordinate frame unsupported", returns before offboard_control_mode.
             self.stats.setpoints_ignored += 1
             return
         mask = m.type_mask
+        if self.is_px4 and (mask & (_POS_BITS | _VEL_BITS | _ACC_BITS)) != (
+                _POS_BITS | _VEL_BITS | _ACC_BITS):
+            # PX4 publishes offboard_control_mode when ocm.position || velocity || acceleration.
+            self._note_setpoint(now_s)
         ph, i = self.physics, self.index
         pos = vel = None
         yaw = ph.yaw_rad[i]
@@ -1244,7 +1249,8 @@ class VehicleCore:
         elif not self._global_frame_ok(m.coordinate_frame):
             self.stats.setpoints_ignored += 1
             return
-        if self.is_px4:
+        if self.is_px4 and (mask & (_POS_BITS | _VEL_BITS | _ACC_BITS)) != (
+                _POS_BITS | _VEL_BITS | _ACC_BITS):
             # A dropped setpoint publishes no offboard_control_mode: it is no offboard signal.
             self._note_setpoint(now_s)
         if not mask & _VEL_BITS:

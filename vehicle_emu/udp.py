@@ -95,8 +95,9 @@ class EmulatorServer:
         asyncio's datagram transport reads one datagram per socket per loop iteration; when a
         station streams to a fleet (PX4: 10 Hz setpoints per vehicle) faster than that, the
         backlog would grow while simulated time advances, and the vehicles would see their
-        streams stall (PX4 refuses OFFBOARD on a gap > 0.5 s). Under lock-step pacing, simulated
-        time must not move on until what the station has already sent is delivered."""
+        streams stall (PX4 leaves OFFBOARD when the last setpoint is older than COM_OF_LOSS_T).
+        Under lock-step pacing, simulated time must not move on until what the station has
+        already sent is delivered."""
         if self._readers is None:
             self._readers = []
             for transport in self.transports:

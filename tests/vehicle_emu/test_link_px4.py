@@ -66,21 +66,45 @@ def test_do_set_mode_uses_unpacked_main_sub(gcs):
     assert acks(out, 176) == [ACCEPTED] and rig.core.mode_name == "POSCTL"
 
 
-def test_offboard_refused_without_prestream_then_accepted(gcs):
+def test_offboard_needs_a_recent_setpoint_not_a_long_stream(gcs):
+    """PX4 commander offboardCheck.cpp OffboardChecks::checkAndReport: the offboard signal is
+    valid while ``now < offboard_control_mode.timestamp + COM_OF_LOSS_T``; mavlink_receiver.cpp
+    handle_message_set_position_target_local_ned publishes that topic on every valid setpoint.
+    So one setpoint is enough (MAVSDK's Offboard::start() sends one, then switches)."""
     rig = Rig(gcs)
-    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [REJECTED]          # no stream
-    rig.run(0.8, sp=(0, 0, -5))                                                # < 1 s
-    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [REJECTED]
-    rig2 = Rig(gcs)
-    rig2.run(3.0, sp=(0, 0, -5), sp_period_s=0.6)                             # < 2 Hz
-    assert acks(rig2.send(gcs.command(176, 1, 6)), 176) == [REJECTED]
-    rig.run(1.3, sp=(0, 0, -5))                                                # > 1 s at 20 Hz
+    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [REJECTED]          # no setpoint yet
+    rig.run(0.5)
+    rig.send(gcs.local_target(0, 0, -5))                                       # exactly one
+    rig.run(rig.t + 0.9)                                                       # 0.9 s < 1.0 s
     assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [ACCEPTED]
     assert rig.core.custom_mode == OFFBOARD
     # arm in offboard while streaming: climbs to the setpoint
     assert acks(rig.send(gcs.command(400, 1)), 400) == [ACCEPTED]
     rig.run(rig.t + 6, sp=(10, 5, -5))
     assert np.allclose(rig.core.local_pos_ned_m, (10, 5, -5), atol=0.2)
+
+
+def test_offboard_refused_when_the_last_setpoint_is_older_than_com_of_loss_t(gcs):
+    rig = Rig(gcs, params={"COM_OF_LOSS_T": 1.0})
+    rig.send(gcs.local_target(0, 0, -5))
+    rig.run(1.1)                                                               # 1.1 s > 1.0 s
+    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [REJECTED]
+    assert rig.core.mode_name == "AUTO.LOITER"
+    # A slow stream (0.6 s period, < 2 Hz) keeps the signal: only its age counts.
+    rig.run(rig.t + 3.0, sp=(0, 0, -5), sp_period_s=0.6)
+    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [ACCEPTED]
+
+
+@pytest.mark.parametrize("frame, mask", [(6, 3576),       # GLOBAL_RELATIVE_ALT: not a local frame
+                                         (1, 0b111111111)])  # pos, vel, acc all ignored
+def test_px4_setpoints_that_publish_no_offboard_control_mode_do_not_count(gcs, frame, mask):
+    """mavlink_receiver.cpp: an unsupported frame returns before publishing; a setpoint with no
+    position, velocity or acceleration is "invalid" and publishes nothing."""
+    rig = Rig(gcs)
+    rig.send(gcs.local_target(0, 0, -5, mask=mask, frame=frame))
+    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [REJECTED]
+    rig.send(gcs.local_target(0, 0, -5))
+    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [ACCEPTED]
 
 
 def test_offboard_loss_falls_back_after_com_of_loss_t(gcs):
