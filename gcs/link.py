@@ -131,6 +131,17 @@ class StationConfig:
     never commanded; their GLOBAL_POSITION_INT (any component) becomes TaskPositionReceived, and
     the station asks them for it (SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM) until it arrives."""
     task_position_rate_hz: float = 1.0
+    allowed_sysids: frozenset[int] | None = None
+    """Only these sysids may become vehicles on this link (None: any). Frames from the others
+    are counted in ``LinkStats.refused_sysids`` / ``refused_by_sysid`` and dropped."""
+    max_vehicles: int | None = None
+    """At most this many vehicles on this link: the first heard; later sysids are refused."""
+    address_hold_s: float = 2.0
+    """Datagram links: a vehicle heard from its address within this long keeps that address;
+    frames with its sysid from another address meanwhile are counted as inconsistent and
+    dropped. Only a HEARTBEAT from a new address moves a vehicle whose old one went silent."""
+    warn_interval_s: float = 10.0
+    """Rate limit of the warnings about refused and inconsistent frames (per kind)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.sysid <= 255:
@@ -151,6 +162,17 @@ class StationConfig:
             raise ValueError("params_in_flight must be >= 1")
         if self.command_retries < 0 or self.param_retries < 0:
             raise ValueError("retries must be >= 0")
+        if self.allowed_sysids is not None:
+            allowed = frozenset(int(s) for s in self.allowed_sysids)
+            if any(not 1 <= s <= 255 for s in allowed):
+                raise ValueError(f"allowed_sysids must be in 1..255, got {sorted(allowed)}")
+            object.__setattr__(self, "allowed_sysids", allowed)
+        if self.max_vehicles is not None and self.max_vehicles < 1:
+            raise ValueError(f"max_vehicles must be >= 1 or None, got {self.max_vehicles}")
+        for name in ("address_hold_s", "warn_interval_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be >= 0, got {v}")
 
 
 @dataclass
@@ -172,6 +194,13 @@ class LinkStats:
     stream_rerequests: int = 0
     task_heartbeats: int = 0
     """Heartbeats from task systems (``StationConfig.task_sysids``), never vehicles."""
+    refused_sysids: int = 0
+    """Frames from sysids that may not become vehicles (``allowed_sysids``, ``max_vehicles``)."""
+    refused_by_sysid: dict[int, int] = field(default_factory=dict)
+    """The same, per sysid."""
+    inconsistent_frames: int = 0
+    """Frames that contradict what a vehicle has been: another autopilot or vehicle type in its
+    HEARTBEAT, or (datagram links) its sysid from a second address while the first is live."""
 
 
 @dataclass(frozen=True)
@@ -202,6 +231,8 @@ class _Vehicle:
     base_mode: int
     last_heartbeat_s: float
     lost: bool = False
+    addr_heard_s: float = -math.inf
+    """Core time of the last frame from ``addr``."""
     last_msg_s: dict[int, float] = field(default_factory=dict)
     use_data_stream: bool = False
     interval_accepted: bool = False
@@ -283,6 +314,7 @@ class StationLink:
         self._task_fix_s: dict[int, float] = {}
         self._task_request_s: dict[int, float] = {}
         self._timer_hint_s = now_s
+        self._warn = _RateLimitedLog(self.config.warn_interval_s)
 
     # ------------------------------------------------------------------ outputs
 
@@ -431,12 +463,26 @@ class StationLink:
         if sysid in self._task_sysids:
             self._on_task_message(msg, addr, now_s)
             return
-        if kind == "HEARTBEAT":
-            self._on_heartbeat(msg, addr, now_s)
-            return
         v = self._vehicles.get(sysid)
         if v is None:
-            self.stats.from_unknown_sysid += 1
+            if kind == "HEARTBEAT" and not self._is_vehicle_heartbeat(msg):
+                self.stats.non_vehicle_heartbeats += 1
+            elif not self._may_become_vehicle(sysid):
+                self._refuse(sysid, kind, addr, now_s)
+            elif kind == "HEARTBEAT":
+                self._discover(msg, addr, now_s)
+            else:
+                self.stats.from_unknown_sysid += 1
+            return
+        if msg.get_srcComponent() == _AUTOPILOT_COMPID and self.config.datagram:
+            # Its other components (gimbal, companion) may well talk from other ports; only
+            # the autopilot's own frames define where the vehicle is.
+            if addr == v.addr:
+                v.addr_heard_s = now_s
+            elif not self._moved(v, msg, kind, addr, now_s):
+                return
+        if kind == "HEARTBEAT":
+            self._on_heartbeat(v, msg, addr, now_s)
             return
         if msg.get_srcComponent() != _AUTOPILOT_COMPID:
             self.stats.ignored_messages += 1  # gimbal, camera, companion: not the autopilot
@@ -452,32 +498,91 @@ class StationLink:
                 log.info("link %d: ignoring %s (first seen from sysid %d)", self.link_id, kind,
                          sysid)
 
-    def _on_heartbeat(self, msg, addr: Addr, now_s: float) -> None:
-        sysid, compid = msg.get_srcSystem(), msg.get_srcComponent()
-        if compid != _AUTOPILOT_COMPID or msg.type in NON_VEHICLE_TYPES or sysid == 0:
-            self.stats.non_vehicle_heartbeats += 1
-            return
-        v = self._vehicles.get(sysid)
+    # ------------------------------------------------------------------ who is a vehicle
+
+    @staticmethod
+    def _is_vehicle_heartbeat(msg) -> bool:
+        return (msg.get_srcComponent() == _AUTOPILOT_COMPID and msg.type not in NON_VEHICLE_TYPES
+                and msg.get_srcSystem() != 0)
+
+    def _may_become_vehicle(self, sysid: int) -> bool:
+        cfg = self.config
+        if cfg.allowed_sysids is not None and sysid not in cfg.allowed_sysids:
+            return False
+        return cfg.max_vehicles is None or len(self._vehicles) < cfg.max_vehicles
+
+    def _refuse(self, sysid: int, kind: str, addr: Addr, now_s: float) -> None:
+        st = self.stats
+        st.refused_sysids += 1
+        st.refused_by_sysid[sysid] = st.refused_by_sysid.get(sysid, 0) + 1
+        self._warn(("refused",), now_s, "link %d: refused %s from sysid %d at %s (not an allowed "
+                   "vehicle on this link; %d refused so far)", self.link_id, kind, sysid, addr,
+                   st.refused_sysids)
+
+    def _inconsistent(self, v: _Vehicle, now_s: float, what: str, *args) -> None:
+        self.stats.inconsistent_frames += 1
+        self._warn(("inconsistent", v.sysid), now_s, "link %d sysid %d: " + what + " (%d such "
+                   "frames dropped on this link)", self.link_id, v.sysid, *args,
+                   self.stats.inconsistent_frames)
+
+    def _identity_changed(self, v: _Vehicle, msg) -> bool:
+        return msg.autopilot != v.autopilot or msg.type != v.vehicle_type
+
+    def _moved(self, v: _Vehicle, msg, kind: str, addr: Addr, now_s: float) -> bool:
+        """A datagram with ``v``'s sysid from an address other than ``v.addr``: True if the
+        vehicle really moved there (its old address silent, a consistent HEARTBEAT from the
+        new one), after which the frame is processed; False if it is dropped."""
+        if now_s - v.addr_heard_s < self.config.address_hold_s:
+            # Two live sources of one sysid: a duplicate route, a misconfigured second vehicle
+            # or a forger. Keep the first; never flip-flop commands between them.
+            self._inconsistent(v, now_s, "%s from %s while %s is live; kept %s", kind, addr,
+                               v.addr, v.addr)
+            return False
+        if kind != "HEARTBEAT" or not self._is_vehicle_heartbeat(msg) \
+                or (self._identity_changed(v, msg) and not v.lost):
+            self._inconsistent(v, now_s, "%s from %s, not its address %s (silent %.1f s)", kind,
+                               addr, v.addr, now_s - v.addr_heard_s)
+            return False
+        log.info("link %d sysid %d: moved from %s to %s (old address silent %.1f s)",
+                 self.link_id, v.sysid, v.addr, addr, now_s - v.addr_heard_s)
+        v.addr, v.addr_heard_s = addr, now_s  # a reboot or a NAT rebinding
+        return True
+
+    def _discover(self, msg, addr: Addr, now_s: float) -> None:
+        sysid = msg.get_srcSystem()
         adapter = adapter_for(msg.autopilot)
-        if v is None:
-            v = _Vehicle(sysid, addr, msg.autopilot, msg.type, adapter, msg.custom_mode,
-                         msg.base_mode, now_s)
-            v.last_msg_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now_s
-            self._vehicles[sysid] = v
-            self._wake(now_s + self.config.vehicle_timeout_s)
-            self._emit(VehicleDiscovered(self.link_id, sysid, now_s, msg.autopilot, msg.type,
-                                         msg.custom_mode, adapter.mode_name(msg.custom_mode),
-                                         v.armed))
-            # QGC sends a heartbeat at once so the vehicle knows its GCS (and arms its failsafe).
-            self._send(self._heartbeat_msg(), addr, now_s)
-            self._request_streams(v, now_s)
-            return
-        v.addr = addr  # follow the vehicle if its address changes (reboot, NAT)
+        v = _Vehicle(sysid, addr, msg.autopilot, msg.type, adapter, msg.custom_mode,
+                     msg.base_mode, now_s, addr_heard_s=now_s)
         v.last_msg_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now_s
-        if v.autopilot != msg.autopilot:
-            log.warning("link %d sysid %d: autopilot changed %d -> %d", self.link_id, sysid,
-                        v.autopilot, msg.autopilot)
-            v.autopilot, v.adapter = msg.autopilot, adapter
+        self._vehicles[sysid] = v
+        self._wake(now_s + self.config.vehicle_timeout_s)
+        self._emit(VehicleDiscovered(self.link_id, sysid, now_s, msg.autopilot, msg.type,
+                                     msg.custom_mode, adapter.mode_name(msg.custom_mode),
+                                     v.armed))
+        # QGC sends a heartbeat at once so the vehicle knows its GCS (and arms its failsafe).
+        self._send(self._heartbeat_msg(), addr, now_s)
+        self._request_streams(v, now_s)
+
+    def _on_heartbeat(self, v: _Vehicle, msg, addr: Addr, now_s: float) -> None:
+        sysid = v.sysid
+        if not self._is_vehicle_heartbeat(msg):
+            self.stats.non_vehicle_heartbeats += 1  # its gimbal, companion computer, ...
+            return
+        if self._identity_changed(v, msg):
+            if not v.lost:
+                # A live vehicle does not change firmware or frame: this is another system
+                # using its sysid (or noise that passed the CRC). Its mode would be decoded with
+                # the wrong adapter: drop the whole heartbeat.
+                self._inconsistent(v, now_s, "HEARTBEAT with autopilot %d type %d, but it is "
+                                   "autopilot %d type %d", msg.autopilot, msg.type, v.autopilot,
+                                   v.vehicle_type)
+                return
+            # Silent for a whole timeout, then back as something else: re-flashed or replaced.
+            log.warning("link %d sysid %d: back as autopilot %d type %d (was %d type %d)",
+                        self.link_id, sysid, msg.autopilot, msg.type, v.autopilot,
+                        v.vehicle_type)
+            v.autopilot, v.adapter = msg.autopilot, adapter_for(msg.autopilot)
+        v.last_msg_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now_s
         was_lost, silent_s = v.lost, now_s - v.last_heartbeat_s
         v.last_heartbeat_s = now_s
         was_armed, old_mode = v.armed, v.custom_mode
@@ -1004,6 +1109,27 @@ class StationLink:
         req.deadline_s = now_s + self.config.param_timeout_s
         self._wake(req.deadline_s)
         self._send(msg, v.addr, now_s)
+
+
+class _RateLimitedLog:
+    """Warnings at most once per ``interval_s`` of core time per key, with the count skipped."""
+
+    def __init__(self, interval_s: float) -> None:
+        self.interval_s = interval_s
+        self._last_s: dict[tuple, float] = {}
+        self._skipped: dict[tuple, int] = {}
+
+    def __call__(self, key: tuple, now_s: float, fmt: str, *args) -> None:
+        last = self._last_s.get(key)
+        if last is not None and now_s - last < self.interval_s:
+            self._skipped[key] = self._skipped.get(key, 0) + 1
+            return
+        self._last_s[key] = now_s
+        skipped = self._skipped.pop(key, 0)
+        if skipped:
+            fmt += " [%d similar warnings suppressed]"
+            args = (*args, skipped)
+        log.warning(fmt, *args)
 
 
 def _result_name(result: int) -> str:
