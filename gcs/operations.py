@@ -49,6 +49,7 @@ import numpy as np
 
 from gcs import audit as audit_mod
 from gcs.autopilot import adapter_for
+from gcs import limits as limits_mod
 from gcs.control import ControlConfig, layer_alt_m, tick
 from gcs.events import (
     CommandFailed, CommandTimedOut, Event, ParamReceived, ParamSetConfirmed, ParamSetFailed,
@@ -89,6 +90,13 @@ class OperationsConfig:
     apply_failsafes: bool = False
     """Fix fixable blocking audit findings by PARAM_SET (FS_GCS_ENABLE, the GCS sysid,
     NAV_DLL_ACT) before re-auditing. Never any parameter write without it."""
+    max_speed_m_s: float | None = None
+    """The mission's horizontal speed limit; with ``set_limits`` written into each vehicle's own
+    parameters at launch (:mod:`gcs.limits`). None: the firmware's limits are left alone."""
+    climb_rate_m_s: float | None = None
+    set_limits: bool = True
+    restore_params: bool = False
+    """After landing, write back the previous value of every parameter the station changed."""
     wave_size: int = 10
     wave_timeout_s: float = 40.0
     """A wave (and the final climb) waits at most this long for its vehicles."""
@@ -198,6 +206,11 @@ class _Row:
     not_ready_s: float = -math.inf
     """When the vehicle last refused to arm (not ready yet)."""
     reclaims: int = 0
+    reclaiming: bool = False
+    """GUIDED/OFFBOARD was asked of it while airborne in another mode; counted as a reclaim once
+    it is seen back in the guided mode (the same on a first run and after a station restart)."""
+    armed_seen_s: float = -math.inf
+    """When it was first seen armed after its last take-off command."""
 
 
 class Operator:
@@ -245,6 +258,10 @@ class Operator:
         self._param_types: dict[tuple[int, int], dict[str, int]] = {}
         self._sets_pending: set[tuple[int, int, str]] = set()
         self._fixes_sent_s: float | None = None
+        self._limits_sent_s: float | None = None
+        self._restore_sent_s: float | None = None
+        self.limit_warnings: list[str] = []
+        """Vehicles whose own speed limits could not be read or set (for people)."""
         self.prearm: dict[tuple[int, int], tuple[float, str]] = {}
         """Latest arming refusal text per vehicle ("PreArm: ..." STATUSTEXT) while launching."""
         self._audit_round = 1
@@ -260,13 +277,18 @@ class Operator:
         self.records: list[TickRecord] = []
         self.end_t0_s: float | None = None
         self.reclaimed: list[tuple[float, int, int]] = []
-        """(t_s, link_id, sysid) of every vehicle switched back to the guided mode from another
-        mode after launch."""
+        """(t_s, link_id, sysid) of every airborne vehicle seen back in the guided mode after the
+        station switched it from another mode (a failsafe RTL, or found flying by a restarted
+        station)."""
         self.counters = {"reclaim_attempts": 0, "relaunches": 0, "command_failures": 0,
                          "lost": 0, "recovered": 0}
         self.released: dict[tuple[int, int], str] = {}
         """Vehicles an operator took out of the plan -> the action that did it (hold, rtl, land,
         release). The operator never plans, reclaims, relaunches or end-commands them."""
+        self.failsafe_texts: list[tuple[float, tuple[int, int], str]] = []
+        """(t_s, vid, text) of every failsafe STATUSTEXT a vehicle sent."""
+        self.interrupted: str | None = None
+        """Set by :meth:`interrupt` (Ctrl-C): the action every vehicle was told."""
         self.end_status: dict[str, int] | None = None
         """At the end: vehicles heard on the ground / still in the air, and not heard."""
         self.actions: list[OperatorAction] = []
@@ -315,7 +337,7 @@ class Operator:
                           "reason": "" if ok else event.reason}
                 if not ok:
                     change["requested"] = event.requested
-                for c in self.param_changes:
+                for c in reversed(self.param_changes):  # the latest write of this name
                     if (c["link_id"], c["sysid"], c["name"]) == (*key, event.name):
                         change["previous"] = c["previous"]
                         c.update(change)
@@ -327,6 +349,11 @@ class Operator:
             text = event.text.strip()
             # ArduPilot AP_Arming::check_failed: "PreArm: ..." / "Arm: ..."; PX4 commander:
             # "Arming denied: ...", "Preflight Fail: ...".
+            low = text.lower()
+            # ArduPilot events.cpp "Failsafe" texts (e.g. "GCS Failsafe"), PX4 commander
+            # "Failsafe activated: ..." / "... failsafe ...": shown to the operator as they come.
+            if "failsafe" in low or "fail-safe" in low:
+                self.failsafe_texts.append((event.t_s, key, text))
             if text.startswith(("PreArm", "Arm:", "Arming denied", "Preflight Fail")):
                 old = self.prearm.get(key)
                 self.prearm[key] = (event.t_s, text)
@@ -420,6 +447,46 @@ class Operator:
             return f"not sent: {exc}"
         return "released"
 
+    def interrupt(self, action: str, now_s: float) -> None:
+        """The operator stopped the flight (Ctrl-C): ``end`` -> the mission's end action (RTL or
+        LAND), else ``hold`` / ``rtl`` / ``land`` for every vehicle heard; planning stops."""
+        self.interrupted = action
+        if action == "end":
+            if self.phase in ("discover", "audit", "refused"):
+                self._enter("done", now_s)  # nothing was launched: nothing to tell anyone
+            else:
+                self.begin_end(now_s)
+            return
+        self.operator_command(action, None, now_s, source="interrupt")
+        self._enter("done", now_s)
+
+    def interrupt_report(self, now_s: float) -> list[tuple[tuple[int, int], str, bool]]:
+        """After :meth:`interrupt`: per vehicle ``(vid, what it was told and what it does now,
+        obeying)`` for people."""
+        snap = self.fleet.snapshot(now_s)
+        out = []
+        for i in range(snap.n_vehicles):
+            vid = self._vid(snap, i)
+            adapter = adapter_for(int(snap.autopilot[i]))
+            mode, armed = snap.mode[i], bool(snap.armed[i])
+            action = self.interrupted or "end"
+            if action == "end":
+                action = self.config.end  # the mission's end action: "rtl" or "land"
+            if snap.lost[i]:
+                out.append((vid, f"not heard ({mode}): its own failsafe decides", False))
+                continue
+            if not armed:
+                out.append((vid, f"on the ground ({mode})", True))
+                continue
+            want = {"rtl": (adapter.rtl_mode, adapter.land_mode), "land": (adapter.land_mode,),
+                    "hold": (adapter.guided_mode,)}.get(action, ())
+            ok = mode in want
+            told = {"rtl": "RTL", "land": "LAND", "hold": "HOLD where it is"}.get(action, action)
+            out.append((vid, f"told {told}; now {mode}" if ok else
+                        f"told {told}; no confirmation yet (mode {mode}): if the station is "
+                        "gone, its link-loss failsafe acts", ok))
+        return out
+
     # ------------------------------------------------------------------ timing
 
     def next_poll_s(self, now_s: float) -> float:
@@ -499,7 +566,11 @@ class Operator:
         self._enter("audit", now_s)
         for i in range(snap.n_vehicles):
             vid = self._vid(snap, i)
-            for name in audit_mod.params_still_needed(int(snap.autopilot[i]), {}):
+            names = list(audit_mod.params_still_needed(int(snap.autopilot[i]), {}))
+            if self._limits_wanted():
+                names += [n for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
+                          if n not in names]
+            for name in names:
                 self._params_pending.add((*vid, name))
                 self.station.request_param(vid, name, now_s)
 
@@ -540,7 +611,57 @@ class Operator:
             return
         if report.overridden:
             log.warning("pre-flight audit OVERRIDDEN:\n%s", report.summary())
+        if self._limits_wanted():
+            if self._limits_sent_s is None:
+                if self._send_limits(vehicles, now_s):
+                    return
+            elif self._sets_pending \
+                    and now_s - self._limits_sent_s < self.config.audit_timeout_s:
+                return
         self._start_launch(snap, now_s)
+
+    def _limits_wanted(self) -> bool:
+        return self.config.set_limits and self.config.max_speed_m_s is not None
+
+    def _send_limits(self, vehicles, now_s: float) -> bool:
+        """PARAM_SET the mission's speed / climb limits where a vehicle differs; True if any
+        write was sent (each is confirmed by its PARAM_VALUE echo, ``param_changes``)."""
+        cfg = self.config
+        self._limits_sent_s = now_s
+        climb = cfg.climb_rate_m_s if cfg.climb_rate_m_s is not None else math.inf
+        for vid, (autopilot, params) in sorted(vehicles.items()):
+            wanted = limits_mod.LIMIT_PARAMS.get(autopilot, ())
+            missing = [n for n in wanted if n not in params]
+            if missing:
+                self.limit_warnings.append(
+                    f"link {vid[0]} sysid {vid[1]}: could not read {', '.join(missing)}: the "
+                    "mission's speed limits are not enforced by this vehicle")
+                log.warning("%s", self.limit_warnings[-1])
+            if not math.isfinite(climb):
+                params = {k: v for k, v in params.items() if k != "WPNAV_SPEED_UP"
+                          and k != "MPC_Z_VEL_MAX_UP"}
+            for name, value in limits_mod.limit_writes(autopilot, params, cfg.max_speed_m_s,
+                                                       climb if math.isfinite(climb) else 1.0):
+                self._set_param(vid, name, value, params.get(name), "limit", now_s)
+        return bool(self._sets_pending)
+
+    def _set_param(self, vid: tuple[int, int], name: str, value: float, previous: float | None,
+                   purpose: str, now_s: float) -> bool:
+        ptype = self._param_types.get(vid, {}).get(name)
+        if ptype is None:
+            return False
+        try:
+            self.station.set_param(vid, name, value, ptype, now_s, previous=previous)
+        except (UnknownVehicle, ValueError) as exc:
+            log.warning("link %d sysid %d: cannot set %s: %s", *vid, name, exc)
+            return False
+        self._sets_pending.add((*vid, name))
+        self.param_changes.append({"link_id": vid[0], "sysid": vid[1], "name": name,
+                                   "previous": previous, "value": value, "ok": None,
+                                   "reason": "pending", "purpose": purpose})
+        log.info("link %d sysid %d: setting %s %g -> %g (%s)", *vid, name,
+                 math.nan if previous is None else previous, value, purpose)
+        return True
 
     def _send_fixes(self, vehicles, now_s: float) -> bool:
         """PARAM_SET every fixable blocking finding; True if any write was sent."""
@@ -550,21 +671,7 @@ class Operator:
             vid = (va.link_id, va.sysid)
             autopilot, params = vehicles[vid]
             for name, value in audit_mod.failsafe_fixes(autopilot, params, self.gcs_sysid):
-                ptype = self._param_types.get(vid, {}).get(name)
-                if ptype is None:
-                    continue
-                try:
-                    self.station.set_param(vid, name, value, ptype, now_s,
-                                           previous=params.get(name))
-                except (UnknownVehicle, ValueError) as exc:
-                    log.warning("link %d sysid %d: cannot set %s: %s", *vid, name, exc)
-                    continue
-                self._sets_pending.add((*vid, name))
-                self.param_changes.append({"link_id": vid[0], "sysid": vid[1], "name": name,
-                                           "previous": params.get(name), "value": value,
-                                           "ok": None, "reason": "pending"})
-                log.info("link %d sysid %d: setting %s %g -> %g", *vid, name,
-                         params.get(name, math.nan), value)
+                self._set_param(vid, name, value, params.get(name), "failsafe", now_s)
         if self._sets_pending:
             self.initial_audit_report = before
             return True
@@ -661,11 +768,24 @@ class Operator:
         if guided and airborne:
             row.failures = 0
             row.not_ready_s = -math.inf
+            if row.reclaiming:
+                row.reclaiming = False
+                row.reclaims += 1
+                self.reclaimed.append((now_s, *self._vid(snap, i)))
+                log.info("reclaimed link %d sysid %d", *self._vid(snap, i))
             return True
+        if armed and row.armed_seen_s < row.takeoff_s:
+            row.armed_seen_s = now_s
         if now_s < row.next_action_s:
             return False
-        if not airborne and now_s - row.takeoff_s < self.config.takeoff_grace_s:
-            return False  # taking off: leave it alone (no second arm / take-off)
+        # Taking off: leave it alone (no second GUIDED/OFFBOARD, arm or take-off) for
+        # takeoff_grace_s after the command, and again after it was first seen armed (PX4 arms
+        # only after more than a second of setpoint streaming, then ramps the climb up over
+        # MPC_TKO_RAMP_T: its 2 m can take longer than the grace counted from the command).
+        if not airborne and (now_s - row.takeoff_s < self.config.takeoff_grace_s
+                             or (armed and guided and row.armed_seen_s >= row.takeoff_s
+                                 and now_s - row.armed_seen_s < self.config.takeoff_grace_s)):
+            return False
         vid = self._vid(snap, i)
         target_alt = float(layer_alt_m([i], self.control)[0])
         row.next_action_s = now_s + self.config.action_retry_s
@@ -677,10 +797,8 @@ class Operator:
                     self._hold(snap, [i], now_s)
                 self.station.engage_guided(vid, now_s)
                 self.counters["reclaim_attempts"] += 1
-                if row.launched:
-                    self.reclaimed.append((now_s, *vid))
-                    row.reclaims += 1
-                    log.info("reclaiming link %d sysid %d from %s", *vid, snap.mode[i])
+                row.reclaiming = True
+                log.info("reclaiming link %d sysid %d from %s", *vid, snap.mode[i])
                 return False
             if row.flew:
                 self.counters["relaunches"] += 1  # it flew, landed (e.g. RTL) and goes again
@@ -774,6 +892,22 @@ class Operator:
         for row in self._rows.values():
             row.next_action_s = -math.inf
 
+    def _restore(self, now_s: float) -> bool:
+        """Write back the previous value of every parameter the station changed (once); True
+        while the echoes are awaited."""
+        if self._restore_sent_s is None:
+            self._restore_sent_s = now_s
+            done: set[tuple[int, int, str]] = set()
+            for c in list(reversed(self.param_changes)):
+                key = (c["link_id"], c["sysid"], c["name"])
+                if key in done or c.get("purpose") == "restore" or not c.get("ok") \
+                        or c.get("previous") is None:
+                    continue
+                done.add(key)
+                self._set_param(key[:2], key[2], float(c["previous"]), float(c["value"]),
+                                "restore", now_s)
+        return bool(self._sets_pending) and now_s - self._restore_sent_s < 10.0
+
     def _poll_end(self, snap: FleetSnapshot, now_s: float) -> None:
         """Send the end command until obeyed; done once every vehicle heard is on the ground
         (disarmed: ArduCopter and PX4 both disarm after landing at the end of RTL / LAND), or at
@@ -807,7 +941,9 @@ class Operator:
         self.end_status = {"on_ground": heard - airborne, "in_air": airborne,
                            "not_heard": int(snap.lost.sum())}
         if airborne == 0 or now_s - self._phase_since_s >= self.config.end_timeout_s:
+            if self.config.restore_params and self._restore(now_s):
+                return  # wait for the echoes (or restore_timeout_s)
             if airborne:
-                log.warning("end: %d vehicle(s) still in the air after %.0f s (returning on "
-                            "their own)", airborne, now_s - self._phase_since_s)
+                log.info("end: %d vehicle(s) still in the air after %.0f s (returning on "
+                         "their own)", airborne, now_s - self._phase_since_s)
             self._enter("done", now_s)

@@ -61,6 +61,10 @@ __all__ = ["FlyOptions", "FlyResult", "MissionScenario", "mission_scenario", "co
 
 log = logging.getLogger(__name__)
 
+#: After Ctrl-C, how long (wall seconds) the station keeps its links up for the vehicles to
+#: confirm what they were told.
+INTERRUPT_SETTLE_S = 5.0
+
 #: Without a mission geofence, the fence is the task field plus this margin, metres.
 FENCE_MARGIN_M = 100.0
 
@@ -73,15 +77,18 @@ PLAN_SILENCE_S = 2.0
 POSITION_LOOP_TAU_S = 1.0
 
 
-def _speed_params(personalities: list[str], max_speed_m_s: float, user: dict | None) -> dict:
-    """Per-vehicle parameters that make the autopilots fly the mission's speed, as an operator
-    would set them: ArduPilot WPNAV_SPEED (cm/s; RTL_SPEED 0 follows it), PX4 MPC_XY_VEL_MAX
-    (offboard limit) and MPC_XY_CRUISE (RTL). Explicit overrides (``params``) win."""
+def _speed_params(personalities: list[str], max_speed_m_s: float, climb_rate_m_s: float,
+                  user: dict | None) -> dict:
+    """Per-vehicle parameters that make the emulated autopilots fly the mission's limits from
+    boot, as the station would set them on real vehicles (:func:`gcs.limits.limit_params`, so
+    the station finds nothing to write). Explicit overrides (``params``) win."""
+    from gcs.autopilot import ARDUPILOT, PX4
+    from gcs.limits import limit_params
+
     user = user or {}
     out = {}
     for i, p in enumerate(personalities):
-        want = ({"WPNAV_SPEED": 100.0 * max_speed_m_s} if p == "ardupilot" else
-                {"MPC_XY_VEL_MAX": max_speed_m_s, "MPC_XY_CRUISE": max_speed_m_s})
+        want = limit_params(ARDUPILOT if p == "ardupilot" else PX4, max_speed_m_s, climb_rate_m_s)
         out[i] = {k: v for k, v in want.items() if k not in user}
     return out
 
@@ -201,7 +208,8 @@ def build_swarm(mission: Mission, scenario: MissionScenario, *, seed: int,
     o = mission.origin
     pers = _personalities(mission, personality)
     swarm = _MissionSwarm(emu.count, personality=pers,
-                  per_vehicle_params=_speed_params(pers, emu.max_speed_m_s, params),
+                  per_vehicle_params=_speed_params(pers, emu.max_speed_m_s, emu.climb_rate_m_s,
+                                                   params),
                   home_lla=(o.lat_deg, o.lon_deg, o.alt_amsl_m), spawn_ned_m=spawn, radio=radio,
                   hazard_per_s=0.0, task_pos_fn=None, mux=mux, params=params,
                   rng=np.random.default_rng(np.random.SeedSequence([int(seed), 0xE1])),
@@ -343,11 +351,29 @@ class FlyOptions:
     expected_vehicles: int | None = None
     end_wait: bool = True
     """After the mission, wait until the vehicles are down (or the end timeout)."""
+    set_limits: bool = True
+    """Write the mission's speed / climb limits into each vehicle's own parameters at launch."""
+    restore_params: bool = False
+    """After landing, write back every parameter the station changed."""
+    on_interrupt: str = "end"
+    """What Ctrl-C tells every reachable vehicle: 'end' (the mission's end action), 'hold',
+    'rtl' or 'land'."""
     emulator_in_process: bool = False
     """Run the emulator on the station's event loop (tests: failure injection through
     ``world.swarm``) instead of its own process."""
     on_operator: Callable[["Operator", "object"], None] | None = None
     """Hook called on every poll with (operator, world or None) - tests inject failures here."""
+    serve: str | None = None
+    """``[HOST:]PORT``: serve the live web view there (:mod:`mission.live`)."""
+    serve_actions: bool = True
+    """Operator actions on the page (behind the key printed at start); False: read-only."""
+    tiles: str | None = None
+    """Background imagery of the live view: an XYZ tile folder or a URL template."""
+    forward: tuple[str, ...] = ()
+    """MAVLink forwarding outputs (``udpout:H:P``, ``udpin:H:P``, ``tcpin:H:P``, gcs.forward)."""
+    forward_readonly: bool = False
+    on_live: Callable[[dict], None] | None = None
+    """Called once with the live view's url and operator key, the forwarders' addresses."""
 
 
 @dataclass
@@ -449,7 +475,10 @@ def _station_config(mission: Mission) -> StationConfig:
 
 
 def _operations_config(mission: Mission, opts: FlyOptions, expected: int | None) -> OperationsConfig:
+    lim = mission.vehicles.limits
     return OperationsConfig(
+        max_speed_m_s=lim.max_speed_m_s, climb_rate_m_s=lim.climb_rate_m_s,
+        set_limits=opts.set_limits, restore_params=opts.restore_params,
         expected_vehicles=expected, discover_timeout_s=opts.discover_timeout_s,
         override_audit=opts.override_audit, apply_failsafes=opts.apply_failsafes,
         wave_size=opts.wave_size,
@@ -492,7 +521,12 @@ def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> d
          "lost": int(snap.lost.sum()), "modes": modes,
          "tasks_covered": last.tasks_covered if last else 0,
          "n_tasks": last.n_tasks if last else 0,
-         "tu1": last.tu1_so_far if last else None, "tu2": last.tu2_so_far if last else None}
+         "tu1": last.tu1_so_far if last else None, "tu2": last.tu2_so_far if last else None,
+         "command_failures": op.counters["command_failures"], "end_t0_s": op.end_t0_s,
+         "failsafes": len(op.failsafe_texts),
+         "last_failsafe": op.failsafe_texts[-1] if op.failsafe_texts else None,
+         "reclaims": len(op.reclaimed),
+         "wall_s": time.monotonic()}
     if world is not None and getattr(world, "swarm", None) is not None:
         d["truth_alive"] = int(world.swarm.alive.sum())
     return d
@@ -511,6 +545,8 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
 
     def on_event(ev) -> None:
         records.event(ev)
+        for listener in holder.get("listeners", ()):
+            listener(ev)
         op = holder.get("op")
         if op is not None:
             op.handle_event(ev)
@@ -530,41 +566,79 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
     station = Station([a.core for a in adapters])
     op = _make_operator(mission, scenario, station, opts, expected, clock(), seed)
     holder["op"] = op
+    op.on_action = records.events.write  # operator actions in events.jsonl, with their source
     for ev in holder.pop("early", []):
         op.handle_event(ev)
+    extras = []
+    if opts.serve or opts.forward:  # the live view and MAVLink forwarding, on this loop
+        from mission.live import attach
+
+        try:
+            extras = await attach(op, adapters, mission=mission, opts=opts, clock=clock,
+                                  records=records, listeners=holder.setdefault("listeners", []))
+        except (OSError, ValueError) as exc:
+            for a in adapters:
+                a.close()
+            raise RunnerError(f"cannot serve / forward: {exc}") from exc
     last_status = -math.inf
     started = ended = False
+    interrupted_wall: float | None = None
     try:
-        while not op.finished:
-            now = clock()
-            rec = op.poll(now)
-            if ack is not None:
-                ack(now)  # lock-step: everything due up to `now` is done (see PacedReader)
-            if world is not None:
-                if not started and op.mission_t0_s is not None:
-                    started = True
-                    world.start_mission(op.mission_t0_s)
-                if started and not ended and op.phase not in ("launch", "run"):
-                    ended = True
-                    world.end_mission()
-                world.poll(now)
-            if opts.on_operator is not None:
-                opts.on_operator(op, world)
-            if rec is not None:
-                records.metrics.write(rec.row())
-            if op.phase == "done" and not opts.end_wait:
+        while True:
+            if interrupted_wall is not None:
+                # Ctrl-C: keep the links up until every vehicle heard confirmed what it was
+                # told (or INTERRUPT_SETTLE_S of wall time), so acks and the .tlog are complete.
+                settled = all(ok for _, _, ok in op.interrupt_report(clock()))
+                if settled or time.monotonic() - interrupted_wall >= INTERRUPT_SETTLE_S:
+                    break
+            elif op.finished:
                 break
-            if op.phase == "end" and not opts.end_wait:
-                op.phase = "done"
-            for a in adapters:
-                a.transmit()
-            wall = time.monotonic()
-            if opts.status is not None and (wall - last_status >= 0.5 or op.finished):
-                last_status = wall
-                opts.status(_status_dict(op, now, rec, world))
-            delay = max(0.0, min(op.next_poll_s(now) - clock(), max_sleep_s) / speedup)
-            await asyncio.sleep(delay)
+            try:
+                now = clock()
+                rec = op.poll(now)
+                if ack is not None:
+                    ack(now)  # lock-step: everything due up to `now` is done (see PacedReader)
+                if world is not None:
+                    if not started and op.mission_t0_s is not None:
+                        started = True
+                        world.start_mission(op.mission_t0_s)
+                    if started and not ended and op.phase not in ("launch", "run"):
+                        ended = True
+                        world.end_mission()
+                    world.poll(now)
+                if opts.on_operator is not None:
+                    opts.on_operator(op, world)
+                if rec is not None:
+                    records.metrics.write(rec.row())
+                if op.phase == "done" and not opts.end_wait:
+                    break
+                if op.phase == "end" and not opts.end_wait:
+                    op.phase = "done"
+                for a in adapters:
+                    a.transmit()
+                wall = time.monotonic()
+                if opts.status is not None and (wall - last_status >= 0.5 or op.finished):
+                    last_status = wall
+                    d = _status_dict(op, now, rec, world)
+                    d["speedup"] = speedup
+                    opts.status(d)
+                delay = max(0.0, min(op.next_poll_s(now) - clock(), max_sleep_s) / speedup)
+                await asyncio.sleep(delay)
+            except asyncio.CancelledError:
+                # Ctrl-C (asyncio.run cancels the main task on the first SIGINT; a second one
+                # raises KeyboardInterrupt and abandons the flight).
+                task = asyncio.current_task()
+                if interrupted_wall is not None or task is None:
+                    raise
+                task.uncancel()
+                interrupted_wall = time.monotonic()
+                log.warning("interrupted: telling every vehicle to %s", opts.on_interrupt)
+                op.interrupt(opts.on_interrupt, clock())
+                for a in adapters:
+                    a.transmit()
     finally:
+        for x in extras:
+            await x.aclose()
         for a in adapters:
             a.close()
     return op
@@ -587,6 +661,12 @@ def _summary(mission: Mission, op: Operator, seed: int, kind: str, wall_s: float
         "live_tasks": None if op.live_tasks is None else {
             "sysids": list(op.live_tasks.sysids), "never_heard": list(op.live_tasks.waiting_for())},
         "reclaimed": len(op.reclaimed), "counters": op.counters,
+        "interrupted": op.interrupted, "end_status": op.end_status,
+        "interrupt_report": None if op.interrupted is None else [
+            {"link_id": v[0], "sysid": v[1], "state": text, "confirmed": ok}
+            for v, text, ok in op.interrupt_report(now_s)],
+        "param_changes": op.param_changes, "limit_warnings": op.limit_warnings,
+        "operator_actions": [dataclasses.asdict(a) for a in op.actions],
         "links": [{"link_id": l.link_id, "frames_out": l.stats.frames_out,
                    "frames_in": l.stats.decode.frames, "bad_data": l.stats.decode.bad_data,
                    "stream_fallbacks": l.stats.data_stream_fallbacks}
@@ -610,13 +690,20 @@ def _meta(mission: Mission, opts: FlyOptions, seed: int, kind: str, speedup: flo
     return {"seed": seed, "code_version": _code_version(), "backend": kind, "speedup": speedup,
             "connections": list(connections), "python": sys.version.split()[0],
             "options": {f.name: getattr(opts, f.name) for f in dataclasses.fields(opts)
-                        if f.name not in ("status", "on_operator")},
+                        if f.name not in ("status", "on_operator", "on_live")},
             "started_unix_s": time.time()}
 
 
-def _resolve(mission: Mission, opts: FlyOptions) -> tuple[int, float]:
+def _resolve(mission: Mission, opts: FlyOptions, *, real: bool = False) -> tuple[int, float]:
+    """Seed and speed-up. Real links run on the vehicles' clock: 1x unless ``--speedup`` says
+    they run faster (SITL ``--speedup``); the mission's ``run.speedup`` is the *emulator's*
+    speed and never applies to them (at 20x against 1x vehicles every vehicle was declared
+    lost)."""
     seed = mission.run.seed if opts.seed is None else int(opts.seed)
-    speedup = mission.run.speedup if opts.speedup is None else float(opts.speedup)
+    if real:
+        speedup = 1.0 if opts.speedup is None else float(opts.speedup)
+    else:
+        speedup = mission.run.speedup if opts.speedup is None else float(opts.speedup)
     if not speedup > 0:
         raise RunnerError(f"speedup must be > 0, got {speedup}")
     if opts.duration_s is not None and not opts.duration_s > 0:
@@ -728,6 +815,11 @@ class _InProcessEmulator:
 def _emulator_process_main(conn, mission: Mission, seed: int, personality, speedup: float,
                            sim, ack, params) -> None:
     """Entry point of the emulator process: serve, obey (start/end/kill/finish), report."""
+    import signal
+
+    # Ctrl-C reaches the whole process group: the station decides what the flight does (its
+    # end sequence needs the emulator alive); the emulator ends when told over the pipe.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     logging.getLogger().setLevel(logging.WARNING)
 
     async def main() -> None:
@@ -890,7 +982,7 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
 
 
 async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
-    seed, speedup = _resolve(mission, opts)
+    seed, speedup = _resolve(mission, opts, real=True)
     if opts.duration_s:
         mission = dataclasses.replace(mission, run=dataclasses.replace(
             mission.run, duration_s=max(opts.duration_s, mission.run.control_period_s)))

@@ -39,8 +39,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--personality", choices=("ardupilot", "px4", "mixed"), default=None,
                    help="emulated autopilot (default: the mission's)")
     p.add_argument("--speedup", type=float, default=None, metavar="K",
-                   help="simulated time / wall time (default: the mission's run.speedup; with "
-                        "--connect only for vehicles whose clock runs K times faster, e.g. SITL)")
+                   help="simulated time / wall time. Emulated: default the mission's "
+                        "run.speedup. Real links (--connect or vehicles.real): default 1, the "
+                        "vehicles' own clock; give K only for vehicles that run K times faster "
+                        "(SITL --speedup K)")
     p.add_argument("--seed", type=int, default=None, help="run seed (default: the mission's)")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="parent directory of the run directory (default: the mission's output.dir)")
@@ -59,7 +61,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --connect: start as soon as N vehicles are heard")
     p.add_argument("--wave-size", type=int, default=25, help="vehicles per take-off wave")
     p.add_argument("--no-wait", action="store_true",
-                   help="do not wait for the vehicles to obey the end command")
+                   help="do not wait for the vehicles to land after the end command")
+    p.add_argument("--on-interrupt", choices=("end", "hold", "rtl", "land"), default="end",
+                   help="what Ctrl-C tells every vehicle the station reaches: 'end' (default) "
+                        "the --end action, 'hold' hover where it is (still under the station's "
+                        "link failsafes), 'rtl' or 'land'; the records are closed either way")
+    p.add_argument("--keep-firmware-limits", action="store_true",
+                   help="do not write the mission's speed and climb limits into the vehicles "
+                        "(ArduPilot WPNAV_SPEED / WPNAV_SPEED_UP, PX4 MPC_XY_VEL_MAX / "
+                        "MPC_XY_CRUISE / MPC_Z_VEL_MAX_UP); by default they are set at launch "
+                        "and confirmed by the vehicle")
+    p.add_argument("--restore-params", action="store_true",
+                   help="after landing, write back every parameter the station changed "
+                        "(speed limits, failsafes)")
 
 
 def _load(spec: str):
@@ -87,15 +101,41 @@ def _pct(x) -> str:
     return "  -  " if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:5.1f}%"
 
 
-def format_status(d: dict) -> str:
-    """One status line for people."""
-    modes = " ".join(f"{k}:{v}" for k, v in sorted(d["modes"].items(), key=lambda kv: -kv[1]))
-    t = (f"t+{d['t_mission_s']:5.0f}/{d['duration_s']:.0f}s" if d["phase"] in ("run", "end", "done")
-         else f"t={d['t_s']:5.0f}s")
-    line = (f"[{d['phase']:8s}] {t} vehicles {d['fleet']:3d} (net {d['networked']}, "
-            f"lost {d['lost']}, ret {d['returning']}) {modes} | tasks {d['tasks_covered']}/"
-            f"{d['n_tasks']} | TU1 {_pct(d['tu1'])} TU2 {_pct(d['tu2'])}")
-    return line
+def _pct0(x) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.0f}%"
+
+
+_PHASE_WORDS = {"discover": "finding", "audit": "checking", "launch": "take-off", "run": "flying",
+                "end": "landing", "done": "done", "refused": "refused"}
+
+
+def format_status(d: dict, width: int = 80) -> str:
+    """One status line for people that fits ``width`` columns (80 at least; more detail when
+    there is room): phase, mission clock, drones by state, crews connected, TU so far."""
+    phase = _PHASE_WORDS.get(d["phase"], d["phase"])
+    if d["phase"] == "run":
+        t = f"{d['t_mission_s']:.0f}/{d['duration_s']:.0f}s"
+    elif d["phase"] in ("end", "done") and d.get("end_t0_s") is not None:
+        t = f"+{d['t_s'] - d['end_t0_s']:.0f}s"
+    else:
+        t = f"{d['t_s']:.0f}s"
+    tu = f"TU1 {_pct0(d['tu1'])} TU2 {_pct0(d['tu2'])}"
+    crews = f"crews {d['tasks_covered']}/{d['n_tasks']}"
+    state = f"{d['networked']} net {d['lost']} lost {d['returning']} home"
+    line = f"{phase} {t} | {d['fleet']} drones: {state} | {crews} | {tu}"
+    if len(line) > width - 1:  # big fleets on a narrow terminal: the same words, tighter
+        tu = f"TU1/TU2 {_pct0(d['tu1'])}/{_pct0(d['tu2'])}"
+        line = f"{phase} {t} {d['fleet']} drones: {state}, {crews}, {tu}"
+    if width >= 110:
+        extra = []
+        if d.get("reclaims"):
+            extra.append(f"{d['reclaims']} reclaimed")
+        modes = " ".join(f"{k}:{v}" for k, v in sorted(d["modes"].items(), key=lambda kv: -kv[1]))
+        if modes:
+            extra.append(modes)
+        if extra:
+            line += " | " + ", ".join(extra)
+    return line[:max(40, width - 1)]
 
 
 def format_param_changes(changes) -> list[str]:
@@ -114,15 +154,59 @@ def format_param_changes(changes) -> list[str]:
 
 
 class _Status:
+    """The live status line (rewritten in place on a terminal, a line per phase change and every
+    30 s otherwise) and warnings, each printed once on its own line above it, when the flight
+    degrades: the emulation far slower than asked, command failures, failsafes reported by
+    vehicles."""
+
     def __init__(self, stream=sys.stderr) -> None:
+        import shutil
+
         self.stream = stream
         self.tty = stream.isatty()
+        self.columns = shutil.get_terminal_size((80, 24)).columns if self.tty else 80
         self.width = 0
         self.last_phase = None
         self.last_print_t = -math.inf
+        self._failures_warned = 0
+        self._failsafes_warned = 0
+        self._slow_warned = False
+        self._pace: list[tuple[float, float]] = []
+
+    def _warn(self, text: str) -> None:
+        if self.tty and self.width:
+            self.stream.write("\r" + " " * self.width + "\r")
+            self.width = 0
+        self.stream.write(f"warning: {text}\n")
+
+    def _warnings(self, d: dict) -> None:
+        n = d.get("command_failures", 0)
+        if n >= max(5, 2 * self._failures_warned) and n > self._failures_warned:
+            self._warn(f"{n} commands failed or went unanswered so far (a vehicle refusing, or "
+                       "a lossy link; -v shows which)")
+            self._failures_warned = n
+        k = d.get("failsafes", 0)
+        if k > self._failsafes_warned and d.get("last_failsafe"):
+            t_s, (link_id, sysid), text = d["last_failsafe"]
+            more = f" (+{k - self._failsafes_warned - 1} more)" if k - self._failsafes_warned > 1 else ""
+            self._warn(f"link {link_id} sysid {sysid} reports \"{text}\"{more}")
+            self._failsafes_warned = k
+        want = d.get("speedup")
+        if want and want > 1 and not self._slow_warned and d["phase"] == "run":
+            self._pace.append((d["wall_s"], d["t_s"]))
+            self._pace = [p for p in self._pace if d["wall_s"] - p[0] <= 10.0]
+            w0, t0 = self._pace[0]
+            if d["wall_s"] - w0 >= 5.0:
+                got = (d["t_s"] - t0) / (d["wall_s"] - w0)
+                if got < 0.5 * want:
+                    self._warn(f"running at {got:.1f}x instead of {want:g}x (this machine is "
+                               "too busy or the fleet too large; timings stay correct, the "
+                               "flight just takes longer)")
+                    self._slow_warned = True
 
     def __call__(self, d: dict) -> None:
-        line = format_status(d)
+        self._warnings(d)
+        line = format_status(d, self.columns)
         if self.tty:
             pad = max(0, self.width - len(line))
             self.stream.write("\r" + line + " " * pad)
@@ -139,6 +223,31 @@ class _Status:
         if self.tty and self.width:
             self.stream.write("\n")
             self.stream.flush()
+            self.width = 0
+
+
+def _header(mission, args, real: bool) -> str:
+    """What this run flies, with the options that change it (never the mission's words alone)."""
+    v = mission.vehicles
+    if real:
+        links = list(args.connect) or list(v.real.connections if v.real else [])
+        fleet = (f"real vehicles on {len(links)} link(s)"
+                 + (f", starting with the first {args.vehicles} heard" if args.vehicles else ""))
+        speed = (f"vehicle clock x{args.speedup:g} (SITL)" if args.speedup else
+                 "vehicle clock (1x)")
+    else:
+        pers = args.personality or v.emulated.personality
+        fleet = f"{v.emulated.count} emulated {pers} drones"
+        speed = f"{args.speedup or mission.run.speedup:g}x real time"
+    duration = args.duration_s or mission.run.duration_s
+    return (f"{mission.name}: {fleet}; {mission.n_tasks} crews/tasks; planner "
+            f"{mission.planner.method}; {duration:g} s of mission at {speed}")
+
+
+_EXPLAIN = ("TU1: the share of crews connected to the base through the drones, averaged over "
+            "the mission.\nTU2: the same, counting at each moment only the crews the swarm had "
+            "already reached once\n     (so the time to first reach a crew is not held against "
+            "it). 100 % = always connected.")
 
 
 def run(args) -> int:
@@ -152,6 +261,15 @@ def run(args) -> int:
         raise UserError(f"--duration-s must be > 0, got {args.duration_s}")
     if args.wave_size < 1:
         raise UserError("--wave-size must be >= 1")
+    real = bool(args.connect) or mission.vehicles.real is not None
+    if real and args.personality:
+        raise UserError("--personality applies to emulated vehicles only; real vehicles "
+                        "report their own autopilot")
+    if not real and args.vehicles is not None:
+        raise UserError("--vehicles applies to real links (--connect); the emulated fleet size "
+                        "is the mission's vehicles.emulated.count")
+    if args.vehicles is not None and args.vehicles < 1:
+        raise UserError(f"--vehicles must be >= 1, got {args.vehicles}")
     if args.connect:
         from gcs.connection import parse_connection
 
@@ -166,8 +284,10 @@ def run(args) -> int:
                       override_audit=args.override_audit,
                       apply_failsafes=args.apply_failsafes, connections=tuple(args.connect),
                       wave_size=args.wave_size, status=status,
-                      expected_vehicles=args.vehicles, end_wait=not args.no_wait)
-    print(mission.summary(), file=sys.stderr)
+                      expected_vehicles=args.vehicles, end_wait=not args.no_wait,
+                      set_limits=not args.keep_firmware_limits,
+                      restore_params=args.restore_params, on_interrupt=args.on_interrupt)
+    print(_header(mission, args, real), file=sys.stderr)
     try:
         result = fly(mission, opts)
     except RunnerError as exc:
@@ -178,6 +298,8 @@ def run(args) -> int:
     op = result.operator
     for line in format_param_changes(op.param_changes):
         print(line, file=sys.stderr)
+    for line in op.limit_warnings:
+        print(f"warning: {line}", file=sys.stderr)
     if op.prearm:
         print(f"{len(op.prearm)} vehicle(s) refused to arm at first (not ready); last reason:",
               file=sys.stderr)
@@ -196,13 +318,27 @@ def run(args) -> int:
                   f"Run directory: {result.run_dir}", file=sys.stderr)
         return 1
     st = s["station"]
+    if op.interrupted is not None:
+        print(f"interrupted: every vehicle the station reached was told to "
+              f"{op.interrupted if op.interrupted != 'end' else args.end.upper()}:",
+              file=sys.stderr)
+        for item in s.get("interrupt_report") or []:
+            print(f"  link {item['link_id']} sysid {item['sysid']}: {item['state']}",
+                  file=sys.stderr)
     print(f"run directory: {result.run_dir}")
+    n_rec = s["reclaimed"]
     print(f"flown {s['mission_s_flown']:.0f} s of mission in {s['wall_s']:.1f} s wall "
-          f"(speed-up {s['speedup_achieved']:.1f}x); {s['vehicles_discovered']} vehicles, "
-          f"{s['reclaimed']} reclaims")
+          f"(speed-up {s['speedup_achieved']:.1f}x); {s['vehicles_discovered']} vehicles; "
+          f"{n_rec} reclaim{'s' if n_rec != 1 else ''} (a vehicle back from its own "
+          "failsafe, taken into the plan again)")
+    end = s.get("end_status")
+    if end and end.get("in_air"):
+        print(f"{end['in_air']} vehicle(s) still in the air when the station stopped "
+              "(returning on their own)")
     print(f"TU1/TU2 as the station saw them:     {_pct(st['tu1'])} / {_pct(st['tu2'])}")
     if "truth" in s:
         tr = s["truth"]
         print(f"TU1/TU2 from the emulator's truth:   {_pct(tr['tu1'])} / {_pct(tr['tu2'])}"
               f"   ({tr['alive_end']} vehicles alive at the end)")
-    return 0
+    print(_EXPLAIN)
+    return 130 if op.interrupted is not None else 0
