@@ -1,32 +1,47 @@
 """Pre-flight audit of lost-link behaviour: pure functions over parameter dicts.
 
 The station reads the parameters listed in :data:`AUDIT_PARAMS` (``StationLink.request_param``),
-then :func:`audit_fleet` says, per vehicle, what a lost link would do and whether it is safe to
-fly. Rules (MAVLINK_NOTES §1.4, §1.5, §3):
+then :func:`audit_fleet` says, per vehicle, what a lost station (heartbeats) or a lost setpoint
+stream would make the vehicle do, and whether that is safe. Safe means: it flies home (Return /
+RTL / SmartRTL-or-RTL). Landing where it is, holding away from home, disarming or terminating in
+the air, or carrying on without the station is **blocking** (MAVLINK_NOTES §1.4, §1.5, §3). The
+rules follow each firmware's own source, cited at each rule below.
 
-ArduPilot
-  * ``FS_GCS_ENABLE`` = 0: no GCS failsafe; a vehicle cut off keeps flying its last target
-    -> **blocking**. 2 (continue AUTO) -> warning. Others (RTL / SmartRTL / Land) fine.
+ArduPilot Copter (ArduCopter/events.cpp ``failsafe_gcs_check`` / ``failsafe_gcs_on_event``)
+  * ``FS_GCS_ENABLE``: 1 RTL, 2 (4.0+: RTL; 3.x: continue AUTO else RTL), 3 SmartRTL-or-RTL ->
+    fine; 6 (mission DO_LAND_START / DO_RETURN_PATH_START, else RTL) -> warning; 0 disabled,
+    4 SmartRTL-or-Land, 5 Land, 7 Brake-or-Land -> **blocking** (fix: 1).
+  * ``FS_OPTIONS`` (4.0+): no bit changes the GCS failsafe in GUIDED (bit 1 only in AUTO, bit 4
+    only in pilot-controlled modes, bit 2 is the RC failsafe); reported, never blocking.
   * ``SYSID_MYGCS`` (newer: ``MAV_GCS_SYSID``, optional range up to ``MAV_GCS_SYSID_HI``) must
-    include our sysid, else our heartbeats do not count for the failsafe -> **blocking**.
-  * ``FS_GCS_TIMEOUT`` > 10 s -> warning; ``GUID_TIMEOUT`` reported (velocity targets only).
-PX4
-  * ``NAV_DLL_ACT`` = 0 (data-link loss action disabled, the default) -> **blocking**;
-    5/6 (terminate / disarm: falls out of the sky) -> **blocking**.
-  * ``COM_OBL_RC_ACT`` (offboard loss action) 6/7 (terminate / disarm) -> **blocking**;
-    1/2 (altitude / manual: needs a pilot) -> warning. Without a manual control signal (no RC,
-    the usual swarm set-up) PX4 falls back from 0-2 to Return (``Failsafe::checkModeFallback``,
-    src/modules/commander/failsafe/failsafe.cpp); the finding says so.
-  * ``COM_OF_LOSS_T``, ``COM_DL_LOSS_T`` reported.
-Unknown autopilot or a parameter that could not be read -> **blocking**.
+    include our sysid, else our heartbeats do not count and the failsafe never arms ->
+    **blocking** (fix: ours).
+  * ``FS_GCS_TIMEOUT`` (4.x; 3.x has a fixed 5 s) > 10 s -> warning; ``GUID_TIMEOUT`` reported.
+PX4 (src/modules/commander/failsafe/failsafe.cpp, framework.cpp)
+  * ``NAV_DLL_ACT`` (data-link loss): 2 Return fine; 0 disabled (the default), 1 Hold, 3 Land,
+    5 Terminate, 6 Disarm, 7 Hold-without-failsafe -> **blocking** (fix: 2).
+    ``COM_DLL_EXCEPT`` (newer PX4) bit 2 (Offboard) ignores it in OFFBOARD -> **blocking**
+    (fix: clear the bit).
+  * Offboard loss after ``COM_OF_LOSS_T``: ``COM_OBL_RC_ACT`` 3 Return fine; 4 Land, 5 Hold,
+    6 Terminate, 7 Disarm -> **blocking** (fix: 3). 0-2 (Position / Altitude / Stabilized) fall
+    back to a manual mode *for a pilot*; without manual control (no RC, the usual swarm set-up,
+    always with ``COM_RC_IN_MODE`` 4) PX4 since PR #26289 (main 2026-01, backported to 1.16)
+    takes the RC-loss action ``NAV_RCL_ACT`` instead: not 2 (Return) -> **blocking** (fix: 2).
+    PX4 v1.14 to that fix stayed in Position mode and hovered; only the data-link failsafe
+    then brings it home (it outranks the fallback): a warning.
+  * PX4 <= v1.13 (``COM_OBL_ACT`` present): offboard loss without RC -> ``COM_OBL_ACT``; not
+    2 (Return) -> **blocking** (fix: 2).
+  * ``COM_DL_LOSS_T``, ``COM_FAIL_ACT_T`` (hold before acting), ``COM_RC_IN_MODE``,
+    ``COM_RCL_EXCEPT`` reported.
+Unknown autopilot or a parameter that matters and could not be read -> **blocking**;
+parameters that older firmware lacks are in :data:`OPTIONAL_PARAMS` (reasons in
+:data:`OPTIONAL_REASONS`) and their absence means "this firmware has no such setting".
 
 A blocking finding refuses the flight unless ``override=True`` (the verdict then says so).
 
-:func:`failsafe_fixes` lists the parameter writes that clear the *fixable* blocking findings
-(``phireman fly --apply-failsafes``): ArduPilot ``FS_GCS_ENABLE`` 0 -> 1 (RTL), the GCS sysid
-(whichever of ``SYSID_MYGCS`` / ``MAV_GCS_SYSID`` the vehicle has) -> ours; PX4 ``NAV_DLL_ACT``
-0 / 5 / 6 -> 2 (Return). A parameter that could not be read, an unknown autopilot or a
-dangerous offboard-loss action is not fixed here and still blocks.
+:func:`failsafe_fixes` lists the parameter writes that clear every *fixable* blocking finding
+(``phireman fly --apply-failsafes``). A parameter that could not be read or an unknown autopilot
+is not fixed and still blocks.
 """
 
 from __future__ import annotations
@@ -37,25 +52,55 @@ from typing import Mapping
 from gcs.autopilot import ARDUPILOT, PX4
 
 __all__ = ["Finding", "VehicleAudit", "AuditReport", "AUDIT_PARAMS", "params_to_read",
-           "ALTERNATIVE_NAMES", "FOLLOW_UP_PARAMS", "OPTIONAL_PARAMS", "params_still_needed",
-           "audit_ardupilot", "audit_px4", "audit_vehicle", "audit_fleet", "failsafe_fixes",
-           "FS_GCS_ENABLE_FIX", "NAV_DLL_ACT_FIX"]
+           "ALTERNATIVE_NAMES", "FOLLOW_UP_PARAMS", "OPTIONAL_PARAMS", "OPTIONAL_REASONS",
+           "params_still_needed", "audit_ardupilot", "audit_px4", "audit_vehicle", "audit_fleet",
+           "failsafe_fixes", "FS_GCS_ENABLE_FIX", "NAV_DLL_ACT_FIX", "NAV_RCL_ACT_FIX",
+           "COM_OBL_RC_ACT_FIX", "COM_OBL_ACT_FIX"]
 
 #: What to read per autopilot. ArduPilot alternatives: old or new GCS-sysid names.
 AUDIT_PARAMS: dict[int, tuple[str, ...]] = {
-    ARDUPILOT: ("FS_GCS_ENABLE", "FS_GCS_TIMEOUT", "GUID_TIMEOUT", "SYSID_MYGCS",
+    ARDUPILOT: ("FS_GCS_ENABLE", "FS_GCS_TIMEOUT", "FS_OPTIONS", "GUID_TIMEOUT", "SYSID_MYGCS",
                 "MAV_GCS_SYSID", "MAV_GCS_SYSID_HI"),
-    PX4: ("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_DLL_ACT", "COM_DL_LOSS_T"),
+    PX4: ("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_RCL_ACT", "NAV_DLL_ACT", "COM_DL_LOSS_T",
+          "COM_RC_IN_MODE", "COM_RCL_EXCEPT", "COM_DLL_EXCEPT", "COM_FAIL_ACT_T", "COM_OBL_ACT"),
 }
 
 BLOCKING, WARNING, INFO = "blocking", "warning", "info"
 
-_FS_GCS_ENABLE = {0: "disabled", 1: "RTL", 2: "continue AUTO, else RTL", 3: "SmartRTL or RTL",
-                  4: "SmartRTL or Land", 5: "Land", 6: "auto DO_LAND_START or RTL",
-                  7: "brake or land"}
-_NAV_DLL_ACT = {0: "disabled", 1: "hold", 2: "return", 3: "land", 5: "terminate", 6: "disarm"}
-_COM_OBL_RC_ACT = {0: "position", 1: "altitude", 2: "manual", 3: "return", 4: "land", 5: "hold",
-                   6: "terminate", 7: "disarm"}
+# ArduCopter Parameters.cpp FS_GCS_ENABLE @Values; actions as failsafe_gcs_on_event maps them
+# (an out-of-range value falls to its ``default:`` branch, RTL).
+_FS_GCS_ENABLE = {0: "disabled: a cut-off copter keeps flying its last target",
+                  1: "RTL (Land if RTL cannot start)",
+                  2: "RTL (4.0+; Copter 3.x continues an AUTO mission)",
+                  3: "SmartRTL, else RTL",
+                  4: "SmartRTL, else Land where it is",
+                  5: "Land where it is",
+                  6: "the mission's DO_LAND_START / DO_RETURN_PATH_START sequence, else RTL",
+                  7: "Brake, else Land where it is"}
+_FS_GCS_SAFE, _FS_GCS_WARN = frozenset({1, 2, 3}), frozenset({6})
+# FS_OPTIONS bits (ArduCopter Copter.h FailsafeOption; events.cpp failsafe_gcs_on_event).
+_FS_OPTIONS_BITS = {1: "continue AUTO on RC failsafe", 2: "continue AUTO on GCS failsafe",
+                    4: "continue GUIDED on RC failsafe (the GCS failsafe still fires)",
+                    8: "continue landing on any failsafe",
+                    16: "continue pilot-controlled modes on GCS failsafe", 32: "release gripper"}
+
+# PX4 gcs_connection_loss_failsafe_mode (failsafe.h) as fromNavDllOrRclActParam maps it; shared
+# by NAV_DLL_ACT and NAV_RCL_ACT. 7 (newest PX4) is "Hold mode, no failsafe": Action::None in the
+# failsafe state machine; unknown values fall to ``default:``, also Action::None.
+_NAV_ACT = {0: "no action (disabled)", 1: "Hold where it is", 2: "Return",
+            3: "Land where it is", 5: "Terminate: motors off, falls", 6: "Disarm in the air",
+            7: "no failsafe action (Hold as a mode switch)"}
+# offboard_loss_failsafe_mode (failsafe.h) as fromOffboardLossActParam maps it.
+_COM_OBL_RC_ACT = {0: "Position mode", 1: "Altitude mode", 2: "Stabilized mode", 3: "Return",
+                   4: "Land where it is", 5: "Hold where it is", 6: "Terminate: motors off, falls",
+                   7: "Disarm in the air"}
+# PX4 <= v1.13 commander_params.c COM_OBL_ACT (offboard loss without RC).
+_COM_OBL_ACT = {-1: "disabled", 0: "Land where it is", 1: "Hold where it is", 2: "Return",
+                3: "Terminate: motors off, falls", 4: "Lockdown: disarm in the air"}
+# COM_DLL_EXCEPT / COM_RCL_EXCEPT bits (failsafe.h LinkLossExceptionBits).
+_EXCEPT_MISSION, _EXCEPT_AUTO, _EXCEPT_OFFBOARD = 1, 2, 4
+# COM_RC_IN_MODE (failsafe.h RcInMode): 4 = manual control disabled.
+_RC_IN_MODE_DISABLED = 4
 
 
 #: Spellings of one parameter across firmware versions: once one is read, the others are not
@@ -64,8 +109,19 @@ ALTERNATIVE_NAMES: dict[str, tuple[str, ...]] = {
     "SYSID_MYGCS": ("MAV_GCS_SYSID",), "MAV_GCS_SYSID": ("SYSID_MYGCS",)}
 #: Read only once the key was read (the GCS-sysid range exists only with the new name).
 FOLLOW_UP_PARAMS: dict[str, tuple[str, ...]] = {"MAV_GCS_SYSID": ("MAV_GCS_SYSID_HI",)}
-#: Absent on many firmwares and not needed for a verdict: never re-requested.
-OPTIONAL_PARAMS = frozenset({"MAV_GCS_SYSID_HI"})
+#: Why each optional parameter may be absent: a firmware that lacks it has no such setting, so
+#: its absence is not "unknown" (these are asked for once, never re-requested).
+OPTIONAL_REASONS: dict[str, str] = {
+    "MAV_GCS_SYSID_HI": "GCS-sysid range, only with the MAV_GCS_SYSID spelling (PR #30627)",
+    "FS_GCS_TIMEOUT": "Copter 3.x has a fixed 5 s GCS timeout (events.cpp FS_GCS_TIMEOUT_MS)",
+    "FS_OPTIONS": "added in Copter 4.0; older firmware has no failsafe options",
+    "COM_DLL_EXCEPT": "data-link-loss exceptions exist only in recent PX4 (failsafe.h)",
+    "COM_FAIL_ACT_T": "the hold-before-action delay came with the v1.14 failsafe framework",
+    "COM_RCL_EXCEPT": "absent on old PX4; informational (RC loss, not station loss)",
+    "COM_OBL_ACT": "PX4 <= v1.13 only (offboard loss without RC); v1.14 removed it",
+}
+#: Absent on many firmwares: never re-requested (see :data:`OPTIONAL_REASONS`).
+OPTIONAL_PARAMS = frozenset(OPTIONAL_REASONS)
 
 
 def params_to_read(autopilot: int) -> tuple[str, ...]:
@@ -142,20 +198,46 @@ def _missing(name: str) -> Finding:
     return Finding(BLOCKING, name, "could not be read; lost-link behaviour unknown")
 
 
+def _int(params: Mapping[str, float], name: str) -> int | None:
+    v = params.get(name)
+    return None if v is None else int(round(v))
+
+
+# ------------------------------------------------------------------------------- ArduPilot
+
+def _gcs_sysid(params: Mapping[str, float]) -> str:
+    # SYSID_MYGCS was renamed MAV_GCS_SYSID (ArduPilot PR #30627); either may be present.
+    return "MAV_GCS_SYSID" if "MAV_GCS_SYSID" in params else "SYSID_MYGCS"
+
+
+def _sysid_ok(params: Mapping[str, float], name: str, gcs_sysid: int) -> bool:
+    lo = int(params[name])
+    hi = int(params.get("MAV_GCS_SYSID_HI", 0) or 0)
+    return lo == gcs_sysid or (hi > lo and lo <= gcs_sysid <= hi)
+
+
 def audit_ardupilot(params: Mapping[str, float], gcs_sysid: int = 255) -> tuple[Finding, ...]:
     out: list[Finding] = []
-    fs = params.get("FS_GCS_ENABLE")
+    fs = _int(params, "FS_GCS_ENABLE")
     if fs is None:
         out.append(_missing("FS_GCS_ENABLE"))
     else:
-        what = _FS_GCS_ENABLE.get(int(fs), f"unknown value {fs:g}")
-        if int(fs) == 0:
-            out.append(Finding(BLOCKING, "FS_GCS_ENABLE", "0: no GCS failsafe; a vehicle cut off "
-                               "from the station keeps flying its last target"))
-        elif int(fs) == 2:
-            out.append(Finding(WARNING, "FS_GCS_ENABLE", f"2: {what}"))
-        else:
-            out.append(Finding(INFO, "FS_GCS_ENABLE", f"{int(fs)}: {what}"))
+        # failsafe_gcs_on_event: FS_GCS_ENABLE -> desired_action; default branch -> RTL.
+        what = _FS_GCS_ENABLE.get(fs, f"unknown value {fs}: the firmware falls back to RTL")
+        sev = (INFO if fs in _FS_GCS_SAFE else WARNING if fs in _FS_GCS_WARN or
+               fs not in _FS_GCS_ENABLE else BLOCKING)
+        out.append(Finding(sev, "FS_GCS_ENABLE", f"{fs}: station lost: {what}"))
+    opts = _int(params, "FS_OPTIONS")
+    if opts is not None:
+        # events.cpp failsafe_gcs_on_event: GCS_CONTINUE_IF_AUTO applies only in AUTO,
+        # GCS_CONTINUE_IF_PILOT_CONTROL only when !flightmode->is_autopilot() (GUIDED is one),
+        # CONTINUE_IF_LANDING only while landing. We fly GUIDED, so none of them keeps a cut-off
+        # copter going; the AUTO one is flagged in case a pilot switches to AUTO.
+        bits = [f"{b} ({what})" for b, what in _FS_OPTIONS_BITS.items() if opts & b]
+        sev = WARNING if opts & 2 else INFO
+        text = ", ".join(bits) if bits else "no options"
+        out.append(Finding(sev, "FS_OPTIONS", f"{opts}: {text}; none changes the GCS failsafe "
+                           "in GUIDED"))
     timeout = params.get("FS_GCS_TIMEOUT")
     if timeout is not None:
         sev = WARNING if timeout > 10 else INFO
@@ -164,46 +246,120 @@ def audit_ardupilot(params: Mapping[str, float], gcs_sysid: int = 255) -> tuple[
     if guid is not None:
         out.append(Finding(INFO, "GUID_TIMEOUT", f"{guid:g} s (velocity targets only; position "
                            "targets persist and are re-sent every second)"))
-    # SYSID_MYGCS was renamed MAV_GCS_SYSID (ArduPilot PR #30627); either may be present.
-    name = "MAV_GCS_SYSID" if "MAV_GCS_SYSID" in params else "SYSID_MYGCS"
-    mygcs = params.get(name)
-    if mygcs is None:
+    name = _gcs_sysid(params)
+    if name not in params:
         out.append(_missing("SYSID_MYGCS / MAV_GCS_SYSID"))
     else:
-        lo = int(mygcs)
+        lo = int(params[name])
         hi = int(params.get("MAV_GCS_SYSID_HI", 0) or 0)
-        ok = lo == gcs_sysid or (hi > lo and lo <= gcs_sysid <= hi)
-        if ok:
-            out.append(Finding(INFO, name, f"{lo} includes our sysid {gcs_sysid}"))
+        rng = f"{lo}{f'..{hi}' if hi > lo else ''}"
+        if _sysid_ok(params, name, gcs_sysid):
+            out.append(Finding(INFO, name, f"{rng} includes our sysid {gcs_sysid}"))
         else:
-            out.append(Finding(BLOCKING, name, f"{lo}{f'..{hi}' if hi > lo else ''} does not "
-                               f"include our sysid {gcs_sysid}: our heartbeats would not count "
-                               "for the GCS failsafe"))
+            # failsafe_gcs_check returns while sysid_myggcs_last_seen_time_ms() == 0.
+            out.append(Finding(BLOCKING, name, f"{rng} does not include our sysid {gcs_sysid}: "
+                               "our heartbeats do not count, the GCS failsafe never arms"))
     return tuple(out)
+
+
+# ------------------------------------------------------------------------------------ PX4
+
+def _px4_offboard(params: Mapping[str, float]) -> list[Finding]:
+    """What offboard (setpoint-stream) loss does: Failsafe::checkModeFallback."""
+    out: list[Finding] = []
+    obl = _int(params, "COM_OBL_RC_ACT")
+    rcl = _int(params, "NAV_RCL_ACT")
+    old = _int(params, "COM_OBL_ACT")   # PX4 <= v1.13 only
+    rc_mode = _int(params, "COM_RC_IN_MODE")
+    if rc_mode is None:
+        out.append(Finding(WARNING, "COM_RC_IN_MODE", "could not be read; whether an RC is "
+                           "expected is unknown (the verdict assumes none)"))
+    elif rc_mode == _RC_IN_MODE_DISABLED:
+        out.append(Finding(INFO, "COM_RC_IN_MODE", "4: no manual control at all: every "
+                           "'without RC' case below applies"))
+    else:
+        out.append(Finding(INFO, "COM_RC_IN_MODE", f"{rc_mode}: an RC / joystick may be used; "
+                           "the verdict assumes none is present"))
+    if obl is None:
+        out.append(_missing("COM_OBL_RC_ACT"))
+    if rcl is None:
+        out.append(_missing("NAV_RCL_ACT"))
+    if old is not None:
+        # PX4 <= v1.13 (state_machine_helper): COM_OBL_ACT without RC, COM_OBL_RC_ACT with RC.
+        what = _COM_OBL_ACT.get(old, f"unknown value {old}")
+        sev = INFO if old == COM_OBL_ACT_FIX else BLOCKING
+        out.append(Finding(sev, "COM_OBL_ACT", f"{old}: offboard loss without RC: {what}"))
+        if obl is not None:
+            what = _COM_OBL_RC_ACT.get(obl, f"unknown value {obl}")
+            sev = INFO if obl == COM_OBL_RC_ACT_FIX else WARNING
+            out.append(Finding(sev, "COM_OBL_RC_ACT", f"{obl}: offboard loss with RC: {what}"))
+        if rcl is not None:
+            out.append(Finding(INFO, "NAV_RCL_ACT", f"{rcl}: RC loss: "
+                               f"{_NAV_ACT.get(rcl, f'unknown value {rcl}')}"))
+        return out
+    if obl is None:
+        return out
+    if obl == COM_OBL_RC_ACT_FIX:
+        out.append(Finding(INFO, "COM_OBL_RC_ACT", "3: offboard loss: Return, with or "
+                           "without RC"))
+        if rcl is not None:
+            out.append(Finding(INFO, "NAV_RCL_ACT", f"{rcl}: RC loss (RC present at arming): "
+                               f"{_NAV_ACT.get(rcl, f'unknown value {rcl}')}"))
+        return out
+    if obl in (4, 5, 6, 7) or obl not in _COM_OBL_RC_ACT:
+        what = _COM_OBL_RC_ACT.get(obl, f"unknown value {obl}")
+        out.append(Finding(BLOCKING, "COM_OBL_RC_ACT", f"{obl}: offboard loss: {what}"))
+        return out
+    # 0-2: FallbackPosCtrl/AltCtrl/Stab. modeCanRun() ignores mode_req_manual_control
+    # (framework.cpp), so without the fix of PR #26289 PX4 stays in that manual mode with no
+    # pilot; with it, checkModeFallback replaces a manual fallback by NAV_RCL_ACT's action when
+    # manual_control_signal_lost (set whenever no valid manual_control_setpoint arrives,
+    # rcAndDataLinkCheck.cpp, so also with COM_RC_IN_MODE 4).
+    mode = _COM_OBL_RC_ACT[obl]
+    out.append(Finding(WARNING, "COM_OBL_RC_ACT", f"{obl}: offboard loss: with RC, {mode} for "
+                       "the pilot; without RC, current PX4 takes NAV_RCL_ACT's action (next "
+                       f"finding), PX4 v1.14-1.16.0 stays in {mode} and hovers until the "
+                       "data-link failsafe; 3 (Return) is version-independent"))
+    if rcl is not None:
+        what = _NAV_ACT.get(rcl, f"unknown value {rcl}: no failsafe action")
+        sev = INFO if rcl == NAV_RCL_ACT_FIX else BLOCKING
+        out.append(Finding(sev, "NAV_RCL_ACT", f"offboard loss: without RC, PX4 uses "
+                           f"NAV_RCL_ACT={rcl}: {what}"))
+    return out
 
 
 def audit_px4(params: Mapping[str, float], gcs_sysid: int = 255) -> tuple[Finding, ...]:
     out: list[Finding] = []
-    dll = params.get("NAV_DLL_ACT")
+    dll = _int(params, "NAV_DLL_ACT")
     if dll is None:
         out.append(_missing("NAV_DLL_ACT"))
     else:
-        what = _NAV_DLL_ACT.get(int(dll), f"unknown value {dll:g}")
-        if int(dll) == 0:
-            out.append(Finding(BLOCKING, "NAV_DLL_ACT", "0: data-link loss failsafe disabled "
-                               "(PX4 default)"))
-        elif int(dll) in (5, 6):
-            out.append(Finding(BLOCKING, "NAV_DLL_ACT", f"{int(dll)}: {what} on link loss"))
+        # checkStateAndMode: gcs_connection_lost -> fromNavDllOrRclActParam(NAV_DLL_ACT).
+        what = _NAV_ACT.get(dll, f"unknown value {dll}: no failsafe action")
+        sev = INFO if dll == NAV_DLL_ACT_FIX else BLOCKING
+        out.append(Finding(sev, "NAV_DLL_ACT", f"{dll}: station lost: {what}"))
+    exc = _int(params, "COM_DLL_EXCEPT")
+    if exc is not None:
+        # isFailsafeIgnored(user_intended_mode, COM_DLL_EXCEPT): bit 2 Offboard, bit 1 auto modes.
+        if exc & _EXCEPT_OFFBOARD:
+            out.append(Finding(BLOCKING, "COM_DLL_EXCEPT", f"{exc}: data-link loss ignored in "
+                               "Offboard: a cut-off vehicle relies on the offboard-loss action"))
+        elif exc & _EXCEPT_AUTO:
+            out.append(Finding(WARNING, "COM_DLL_EXCEPT", f"{exc}: data-link loss ignored in "
+                               "auto modes (Hold, Takeoff, Return, Land)"))
         else:
-            out.append(Finding(INFO, "NAV_DLL_ACT", f"{int(dll)}: {what}"))
-    obl = params.get("COM_OBL_RC_ACT")
-    if obl is None:
-        out.append(_missing("COM_OBL_RC_ACT"))
-    else:
-        what = _COM_OBL_RC_ACT.get(int(obl), f"unknown value {obl:g}")
-        sev = BLOCKING if int(obl) in (6, 7) else WARNING if int(obl) in (1, 2) else INFO
-        note = " (without RC: return)" if int(obl) in (0, 1, 2) else ""
-        out.append(Finding(sev, "COM_OBL_RC_ACT", f"{int(obl)}: {what}{note} on offboard loss"))
+            out.append(Finding(INFO, "COM_DLL_EXCEPT", f"{exc}: no exception for Offboard"))
+    out += _px4_offboard(params)
+    rexc = _int(params, "COM_RCL_EXCEPT")
+    if rexc is not None:
+        note = "RC loss ignored in Offboard" if rexc & _EXCEPT_OFFBOARD else "no Offboard exception"
+        out.append(Finding(INFO, "COM_RCL_EXCEPT", f"{rexc}: {note} (RC loss, not station loss)"))
+    delay = params.get("COM_FAIL_ACT_T")
+    if delay is not None:
+        # framework.cpp: with COM_FAIL_ACT_T > 0.1 s, Hold first (not for Disarm / Terminate).
+        sev = WARNING if delay > 10 else INFO
+        out.append(Finding(sev, "COM_FAIL_ACT_T", f"{delay:g} s in Hold before a failsafe "
+                           "action"))
     for name, meaning in (("COM_OF_LOSS_T", "offboard loss timeout"),
                           ("COM_DL_LOSS_T", "data-link loss timeout")):
         if name in params:
@@ -233,12 +389,17 @@ def audit_fleet(vehicles: Mapping[tuple[int, int], tuple[int, Mapping[str, float
                        cleared_to_fly=all_safe or override)
 
 
-#: ArduPilot FS_GCS_ENABLE value written by --apply-failsafes: 1 = RTL (ArduCopter
-#: Parameters.cpp; the failsafe's action in GUIDED, events.cpp failsafe_gcs_on_event).
+#: ArduPilot FS_GCS_ENABLE written by --apply-failsafes: 1 = RTL (ArduCopter Parameters.cpp;
+#: events.cpp failsafe_gcs_on_event FS_GCS_ENABLED_ALWAYS_RTL).
 FS_GCS_ENABLE_FIX = 1
-#: PX4 NAV_DLL_ACT value written by --apply-failsafes: 2 = Return mode
-#: (src/modules/commander/commander_params.yaml).
+#: PX4 NAV_DLL_ACT / NAV_RCL_ACT written by --apply-failsafes: 2 = Return mode
+#: (failsafe.h gcs_connection_loss_failsafe_mode::Return_mode).
 NAV_DLL_ACT_FIX = 2
+NAV_RCL_ACT_FIX = 2
+#: PX4 COM_OBL_RC_ACT Return (failsafe.h offboard_loss_failsafe_mode::Return_mode).
+COM_OBL_RC_ACT_FIX = 3
+#: PX4 <= v1.13 COM_OBL_ACT Return (commander_params.c).
+COM_OBL_ACT_FIX = 2
 
 
 def failsafe_fixes(autopilot: int, params: Mapping[str, float],
@@ -246,23 +407,28 @@ def failsafe_fixes(autopilot: int, params: Mapping[str, float],
     """``(name, value)`` writes that clear this vehicle's fixable blocking findings.
 
     Only parameters that were read are written (the vehicle has them, under that spelling), and
-    only when the audit blocks on them; nothing for a safe vehicle.
+    only when the audit blocks on them; nothing for a safe vehicle. Values are floats; the
+    operator sends each with the PARAM_VALUE param_type it read (all integers here).
     """
     out: list[tuple[str, float]] = []
+    blocking = {f.param for f in (audit_ardupilot(params, gcs_sysid) if autopilot == ARDUPILOT
+                                  else audit_px4(params, gcs_sysid) if autopilot == PX4 else ())
+                if f.severity == BLOCKING}
     if autopilot == ARDUPILOT:
-        fs = params.get("FS_GCS_ENABLE")
-        if fs is not None and int(fs) == 0:
+        if "FS_GCS_ENABLE" in blocking and "FS_GCS_ENABLE" in params:
             out.append(("FS_GCS_ENABLE", float(FS_GCS_ENABLE_FIX)))
         # The spelling the firmware has (SYSID_MYGCS was renamed MAV_GCS_SYSID, PR #30627).
-        name = "MAV_GCS_SYSID" if "MAV_GCS_SYSID" in params else "SYSID_MYGCS"
-        if name in params:
-            lo = int(params[name])
-            hi = int(params.get("MAV_GCS_SYSID_HI", 0) or 0)
-            if not (lo == gcs_sysid or (hi > lo and lo <= gcs_sysid <= hi)):
-                # With a range, lo = ours keeps [ours, hi] (or a single id once hi <= ours).
-                out.append((name, float(gcs_sysid)))
+        name = _gcs_sysid(params)
+        if name in blocking and name in params:
+            # With a range, lo = ours keeps [ours, hi] (or a single id once hi <= ours).
+            out.append((name, float(gcs_sysid)))
     elif autopilot == PX4:
-        dll = params.get("NAV_DLL_ACT")
-        if dll is not None and int(dll) in (0, 5, 6):
-            out.append(("NAV_DLL_ACT", float(NAV_DLL_ACT_FIX)))
+        for name, value in (("NAV_DLL_ACT", NAV_DLL_ACT_FIX),
+                            ("COM_OBL_RC_ACT", COM_OBL_RC_ACT_FIX),
+                            ("NAV_RCL_ACT", NAV_RCL_ACT_FIX), ("COM_OBL_ACT", COM_OBL_ACT_FIX)):
+            if name in blocking and name in params:
+                out.append((name, float(value)))
+        if "COM_DLL_EXCEPT" in blocking and "COM_DLL_EXCEPT" in params:
+            cleared = int(params["COM_DLL_EXCEPT"]) & ~_EXCEPT_OFFBOARD
+            out.append(("COM_DLL_EXCEPT", float(cleared)))
     return tuple(out)

@@ -11,6 +11,10 @@ Deviations from firmware defaults, chosen so the emulator reproduces the paper's
 * PX4 ``NAV_DLL_ACT`` defaults to 0 (disabled) in the firmware; here 2 (Return), and
   ``COM_DL_LOSS_T`` keeps its firmware default of 10 s (configurable).
 
+The lost-link parameters the station audits (``gcs.audit.AUDIT_PARAMS``) are all here, so an
+emulated vehicle answers every read; the ones only older firmware has (PX4 ``COM_OBL_ACT``,
+ArduPilot ``MAV_GCS_SYSID`` / ``MAV_GCS_SYSID_HI``) are absent, as on the firmware emulated.
+
 Every default can be overridden per vehicle (``Swarm(params=...)`` or PARAM_SET on the wire).
 """
 
@@ -49,7 +53,7 @@ ARDUPILOT_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("SYSID_MYGCS", 255, _I16, 1, 255),
     ParamSpec("FS_GCS_ENABLE", 1, _I8, 0, 7),      # emulator default (firmware: 0)
     ParamSpec("FS_GCS_TIMEOUT", 5.0, _F, 2, 120),  # s
-    ParamSpec("FS_OPTIONS", 0, _I32, 0, 2**31 - 1),
+    ParamSpec("FS_OPTIONS", 16, _I32, 0, 2**31 - 1),  # bit 4: continue pilot modes on GCS failsafe
     ParamSpec("GUID_TIMEOUT", 3.0, _F, 0.1, 5),    # s
     ParamSpec("WPNAV_SPEED", 1000.0, _F, 10, 2000),  # cm/s
     ParamSpec("WPNAV_SPEED_UP", 250.0, _F, 10, 1000),  # cm/s
@@ -67,8 +71,13 @@ PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("MAV_SYS_ID", 1, _I32, 1, 250),
     ParamSpec("COM_OF_LOSS_T", 1.0, _F, 0, 60),    # s
     ParamSpec("COM_OBL_RC_ACT", 0, _I32, 0, 7),    # 0 Position, 1 Altitude, 2 Manual, 3 RTL, 4 Land, 5 Hold
-    ParamSpec("NAV_DLL_ACT", 2, _I32, 0, 6),       # emulator default (firmware: 0 disabled)
+    ParamSpec("NAV_RCL_ACT", 2, _I32, 0, 7),       # 2 Return (offboard-loss action without RC)
+    ParamSpec("NAV_DLL_ACT", 2, _I32, 0, 7),       # emulator default (firmware: 0 disabled)
     ParamSpec("COM_DL_LOSS_T", 10, _I32, 5, 300),  # s
+    ParamSpec("COM_RC_IN_MODE", 3, _I32, 0, 8),    # 3 RC or MAVLink, keep first
+    ParamSpec("COM_RCL_EXCEPT", 0, _I32, 0, 31),   # bitmask; 0 no exceptions
+    ParamSpec("COM_DLL_EXCEPT", 0, _I32, 0, 31),   # bitmask; 0 no exceptions
+    ParamSpec("COM_FAIL_ACT_T", 0.0, _F, 0, 25),   # s in Hold before a failsafe action
     ParamSpec("COM_DISARM_PRFLT", 10.0, _F, -1, 20),  # s
     ParamSpec("MPC_XY_CRUISE", 5.0, _F, 3, 20),    # m/s (auto modes)
     ParamSpec("MPC_XY_VEL_MAX", 12.0, _F, 0, 20),  # m/s (offboard / position limit)

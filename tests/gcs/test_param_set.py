@@ -146,14 +146,23 @@ def test_failsafe_fixes_ardupilot():
 
 
 def test_failsafe_fixes_px4():
-    for bad in (0, 5, 6):
+    for bad in (0, 1, 3, 5, 6, 7):
         assert audit.failsafe_fixes(PX4, {"NAV_DLL_ACT": bad}) == (("NAV_DLL_ACT", 2.0),)
-    assert audit.failsafe_fixes(PX4, {"NAV_DLL_ACT": 3, "COM_OBL_RC_ACT": 6}) == ()
+    assert audit.failsafe_fixes(PX4, {"NAV_DLL_ACT": 3, "COM_OBL_RC_ACT": 6}) == (
+        ("NAV_DLL_ACT", 2.0), ("COM_OBL_RC_ACT", 3.0))
+    # Offboard loss falling back to NAV_RCL_ACT (no RC): Return written there.
+    assert audit.failsafe_fixes(PX4, {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 0,
+                                      "NAV_RCL_ACT": 6}) == (("NAV_RCL_ACT", 2.0),)
 
 
 def test_fixed_params_pass_the_audit():
     for ap, params in ((AP, {"FS_GCS_ENABLE": 0, "SYSID_MYGCS": 7}),
-                       (PX4, {"NAV_DLL_ACT": 0, "COM_OBL_RC_ACT": 0})):
+                       (AP, {"FS_GCS_ENABLE": 7, "MAV_GCS_SYSID": 7, "FS_OPTIONS": 18}),
+                       (PX4, {"NAV_DLL_ACT": 0, "COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 3}),
+                       (PX4, {"NAV_DLL_ACT": 6, "COM_OBL_RC_ACT": 7, "NAV_RCL_ACT": 0,
+                              "COM_DLL_EXCEPT": 6}),
+                       (PX4, {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 2,
+                              "COM_OBL_ACT": 0})):
         assert not audit.audit_vehicle(0, 1, ap, params).safe
         fixed = dict(params, **dict(audit.failsafe_fixes(ap, params)))
         assert audit.audit_vehicle(0, 1, ap, fixed).safe
