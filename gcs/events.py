@@ -14,6 +14,7 @@ __all__ = [
     "Event", "VehicleDiscovered", "VehicleLost", "VehicleRecovered", "ModeChanged",
     "ArmedChanged", "TelemetryReceived", "CommandAcked", "CommandInProgress", "CommandFailed",
     "CommandTimedOut", "ParamReceived", "ParamTimedOut", "ParamSetConfirmed", "ParamSetFailed", "StatusText",
+    "HomePositionReceived", "TaskPositionReceived",
 ]
 
 
@@ -107,6 +108,24 @@ class TelemetryReceived(Event):
             _finite("vel_ned_m_s", v)
         if self.yaw_rad is not None:
             _finite("yaw_rad", self.yaw_rad)
+
+
+@dataclass(frozen=True)
+class HomePositionReceived(Event):
+    """The vehicle's home (HOME_POSITION, message 242), emitted when first heard and whenever it
+    changes (both autopilots reset home when they arm)."""
+
+    lat_deg: float = 0.0
+    lon_deg: float = 0.0
+    alt_amsl_m: float = 0.0
+    """Home altitude above mean sea level, metres: the datum of GLOBAL_RELATIVE_ALT frames."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("lat_deg", "lon_deg", "alt_amsl_m"):
+            _finite(name, getattr(self, name))
+        if not -90.0 <= self.lat_deg <= 90.0 or not -180.0 <= self.lon_deg <= 180.0:
+            raise ValueError(f"lat/lon out of range: {self.lat_deg}, {self.lon_deg}")
 
 
 @dataclass(frozen=True)

@@ -26,8 +26,8 @@ import numpy as np
 
 from gcs.autopilot import adapter_for
 from gcs.events import (
-    ArmedChanged, Event, ModeChanged, TelemetryReceived, VehicleDiscovered, VehicleLost,
-    VehicleRecovered,
+    ArmedChanged, Event, HomePositionReceived, ModeChanged, TelemetryReceived,
+    VehicleDiscovered, VehicleLost, VehicleRecovered,
 )
 from planner.geometry import geodetic_to_ned_m, ned_to_geodetic
 
@@ -64,7 +64,8 @@ class FleetSnapshot:
     has_position: np.ndarray
     """(N,) bool."""
     home_amsl_m: np.ndarray
-    """(N,) float64: each vehicle's home altitude AMSL (alt - relative_alt), metres."""
+    """(N,) float64: each vehicle's home altitude AMSL, metres: HOME_POSITION's once the vehicle
+    sent one, else GLOBAL_POSITION_INT ``alt - relative_alt`` (NaN before either)."""
     last_heard_s: np.ndarray
     """(N,) float64: core time of the last event from the vehicle, seconds."""
     networked: np.ndarray
@@ -81,6 +82,8 @@ class FleetSnapshot:
     """(N,) int: HEARTBEAT.autopilot (3 ArduPilot, 12 PX4)."""
     mode: tuple[str, ...]
     """Mode names, per row."""
+    home_reported: np.ndarray | None = None
+    """(N,) bool: ``home_amsl_m`` is from HOME_POSITION (not the estimate)."""
 
     @property
     def n_vehicles(self) -> int:
@@ -101,6 +104,7 @@ class FleetView:
         self._geo: list[tuple[float, float, float]] = []        # lat, lon, alt_amsl (NaN = none)
         self._vel: list[tuple[float, float, float]] = []
         self._home_amsl: list[float] = []
+        self._home_reported: list[bool] = []
         self._last_heard: list[float] = []
         self._link_lost: list[bool] = []
         self._was_lost: list[bool] = []
@@ -126,6 +130,7 @@ class FleetView:
         self._geo.append(nan3)
         self._vel.append(nan3)
         self._home_amsl.append(math.nan)
+        self._home_reported.append(False)
         self._last_heard.append(-math.inf)
         self._link_lost.append(False)
         self._was_lost.append(False)
@@ -152,6 +157,8 @@ class FleetView:
 
     def apply(self, event: Event) -> None:
         """Fold one link event into the rows (events of other kinds are ignored)."""
+        if not isinstance(event, Event):
+            return  # link state (LinkUp / LinkDown): no vehicle row
         i = self.register(event.link_id, event.sysid)
         if event.t_s - self._last_heard[i] > self.timeout_s and math.isfinite(self._last_heard[i]):
             self._was_lost[i] = True  # silent past the timeout, whatever the link said
@@ -163,7 +170,14 @@ class FleetView:
         if isinstance(event, TelemetryReceived):
             self._geo[i] = (event.lat_deg, event.lon_deg, event.alt_amsl_m)
             self._vel[i] = event.vel_ned_m_s
-            self._home_amsl[i] = event.alt_amsl_m - event.rel_alt_m
+            if not self._home_reported[i]:
+                # A stand-in until HOME_POSITION: on PX4 alt and relative_alt come from different
+                # estimates (global position vs local z minus home z) and their difference moves
+                # by 1-2.5 m in flight, which would move every altitude target with it.
+                self._home_amsl[i] = event.alt_amsl_m - event.rel_alt_m
+        elif isinstance(event, HomePositionReceived):
+            self._home_amsl[i] = event.alt_amsl_m
+            self._home_reported[i] = True
         elif isinstance(event, VehicleDiscovered):
             self._autopilot[i] = event.autopilot
             self._custom_mode[i] = event.custom_mode
@@ -211,7 +225,8 @@ class FleetView:
             last_heard_s=last, networked=heard & ~returning, lost=~heard, returning=returning,
             armed=np.array(self._armed, dtype=bool), custom_mode=custom, autopilot=autopilot,
             mode=tuple(adapter_for(a).mode_name(m) for a, m in zip(self._autopilot,
-                                                                    self._custom_mode)))
+                                                                    self._custom_mode)),
+            home_reported=np.array(self._home_reported, dtype=bool))
 
     def targets_to_global(self, indices, target_ned_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Mission-NED targets to what SET_POSITION_TARGET_GLOBAL_INT (frame 6) wants.

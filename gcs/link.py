@@ -31,7 +31,7 @@ from gcs import wire
 from gcs.autopilot import Adapter, CommandSpec, adapter_for
 from gcs.events import (
     ArmedChanged, CommandAcked, CommandFailed, CommandInProgress, CommandTimedOut, Event,
-    ModeChanged, ParamReceived, ParamSetConfirmed, ParamSetFailed, ParamTimedOut, StatusText,
+    HomePositionReceived, ModeChanged, ParamReceived, ParamSetConfirmed, ParamSetFailed, ParamTimedOut, StatusText,
     TaskPositionReceived,
     TelemetryReceived, VehicleDiscovered, VehicleLost, VehicleRecovered,
 )
@@ -142,6 +142,10 @@ class StationConfig:
     dropped. Only a HEARTBEAT from a new address moves a vehicle whose old one went silent."""
     warn_interval_s: float = 10.0
     """Rate limit of the warnings about refused and inconsistent frames (per kind)."""
+    request_home_position: bool = True
+    """Ask every vehicle for HOME_POSITION (MAV_CMD_REQUEST_MESSAGE) on discovery, recovery and
+    arming, and every ``home_request_period_s`` until one arrives."""
+    home_request_period_s: float = 5.0
 
     def __post_init__(self) -> None:
         if not 1 <= self.sysid <= 255:
@@ -154,7 +158,7 @@ class StationConfig:
             raise ValueError(f"task_sysids must be in 1..255, got {self.task_sysids}")
         for name in ("heartbeat_period_s", "vehicle_timeout_s", "command_timeout_s",
                      "param_timeout_s", "telemetry_stale_s", "command_in_progress_timeout_s",
-                     "task_position_rate_hz"):
+                     "task_position_rate_hz", "home_request_period_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be > 0, got {v}")
@@ -218,6 +222,8 @@ class VehicleInfo:
     lost: bool
     last_heartbeat_s: float
     streaming_setpoints: bool
+    home_alt_amsl_m: float = math.nan
+    """From HOME_POSITION; NaN until the vehicle sent one."""
 
 
 @dataclass
@@ -242,6 +248,11 @@ class _Vehicle:
     setpoint_since_s: float = math.nan
     setpoint_next_s: float = math.inf
     deferred: list[Any] = field(default_factory=list)         # _Command waiting for prestream
+    home: HomePositionReceived | None = None
+    home_request_s: float = math.inf
+    """When to (re-)request HOME_POSITION (inf: not needed, or one request is in flight)."""
+    home_by_get_home: bool = False
+    """REQUEST_MESSAGE unsupported: use the older MAV_CMD_GET_HOME_POSITION."""
 
     @property
     def armed(self) -> bool:
@@ -360,6 +371,8 @@ class StationLink:
                 t = min(t, v.setpoint_next_s)
             if v.deferred:
                 t = min(t, v.setpoint_since_s + v.adapter.prestream_s)
+            if not v.lost:
+                t = min(t, v.home_request_s)
         return t
 
     # ------------------------------------------------------------------ queries
@@ -379,7 +392,8 @@ class StationLink:
     def _info(self, v: _Vehicle) -> VehicleInfo:
         return VehicleInfo(self.link_id, v.sysid, v.autopilot, v.vehicle_type, v.adapter.name,
                            v.custom_mode, v.adapter.mode_name(v.custom_mode), v.armed, v.lost,
-                           v.last_heartbeat_s, v.setpoint is not None)
+                           v.last_heartbeat_s, v.setpoint is not None,
+                           v.home.alt_amsl_m if v.home is not None else math.nan)
 
     def _get(self, sysid: int) -> _Vehicle:
         try:
@@ -562,6 +576,7 @@ class StationLink:
         # QGC sends a heartbeat at once so the vehicle knows its GCS (and arms its failsafe).
         self._send(self._heartbeat_msg(), addr, now_s)
         self._request_streams(v, now_s)
+        self._request_home(v, now_s)
 
     def _on_heartbeat(self, v: _Vehicle, msg, addr: Addr, now_s: float) -> None:
         sysid = v.sysid
@@ -594,12 +609,18 @@ class StationLink:
                                         v.adapter.mode_name(v.custom_mode)))
             self._send(self._heartbeat_msg(), addr, now_s)
             self._request_streams(v, now_s)  # it may have rebooted and forgotten our rates
+            self._request_home(v, now_s)
         if old_mode != v.custom_mode:
             self._emit(ModeChanged(self.link_id, sysid, now_s, v.custom_mode,
                                    v.adapter.mode_name(v.custom_mode),
                                    v.adapter.mode_name(old_mode)))
         if was_armed != v.armed:
             self._emit(ArmedChanged(self.link_id, sysid, now_s, v.armed))
+            if v.armed:
+                # Both autopilots move home to where they arm (ArduCopter AP_Arming_Copter::arm
+                # set_home_to_current_location; PX4 Commander::set_home_position on arming):
+                # ask for the new one rather than wait for the next unsolicited message.
+                self._request_home(v, now_s)
 
     def _on_task_message(self, msg, addr: Addr, now_s: float) -> None:
         """A task system: its position, and a position stream request while none arrives."""
@@ -659,6 +680,58 @@ class StationLink:
             return
         v.position = ev
         self._emit(ev)
+
+    def _on_home_position(self, v: _Vehicle, msg, now_s: float) -> None:
+        if msg.latitude == 0 and msg.longitude == 0:  # no home yet
+            self.stats.invalid_telemetry += 1
+            return
+        try:
+            ev = HomePositionReceived(self.link_id, v.sysid, now_s,
+                                      lat_deg=wire.e7_to_deg(msg.latitude),
+                                      lon_deg=wire.e7_to_deg(msg.longitude),
+                                      alt_amsl_m=wire.mm_to_m(msg.altitude))
+        except ValueError:
+            self.stats.invalid_telemetry += 1
+            return
+        v.home_request_s = math.inf
+        old = v.home
+        v.home = ev
+        if old is None or (old.lat_deg, old.lon_deg, old.alt_amsl_m) != (
+                ev.lat_deg, ev.lon_deg, ev.alt_amsl_m):
+            self._emit(ev)  # PX4 streams it every 2 s: only news become events
+
+    def _request_home(self, v: _Vehicle, now_s: float) -> None:
+        """MAV_CMD_REQUEST_MESSAGE(HOME_POSITION) (PX4 mavlink_receiver.cpp
+        handle_message_command_long -> request_message; ArduPilot GCS_Common.cpp
+        handle_command_request_message, MSG_HOME), or MAV_CMD_GET_HOME_POSITION on firmware
+        without it. Re-sent every ``home_request_period_s`` until HOME_POSITION arrives: before a
+        GPS fix neither autopilot has a home to send."""
+        if not self.config.request_home_position:
+            return
+        v.home_request_s = math.inf  # re-armed when this command finishes without a home
+        if v.home_by_get_home:
+            command, params = mavlink.MAV_CMD_GET_HOME_POSITION, (0.0,) * 7
+        else:
+            command = mavlink.MAV_CMD_REQUEST_MESSAGE
+            params = (float(mavlink.MAVLINK_MSG_ID_HOME_POSITION),) + (0.0,) * 6
+        key = (v.sysid, command)
+        if any(c is not None and c.internal is not None
+               for c in (self._commands.get(key), *self._queued.get(key, ()))):
+            return  # already asked and waiting
+        cmd = self._new_command(v.sysid, command, params, use_int=False)
+        cmd.internal = lambda result, t_s, v=v: self._on_home_request_result(v, result, t_s)
+        self._submit(cmd, now_s)
+
+    def _on_home_request_result(self, v: _Vehicle, result: int | None, now_s: float) -> None:
+        if result == mavlink.MAV_RESULT_UNSUPPORTED and not v.home_by_get_home:
+            v.home_by_get_home = True
+        elif result not in (None, mavlink.MAV_RESULT_ACCEPTED):
+            log.debug("link %d sysid %d: HOME_POSITION request refused (%s)", self.link_id,
+                      v.sysid, _result_name(result))
+        if v.home is None or result != mavlink.MAV_RESULT_ACCEPTED:
+            # The message follows the ACK; if it never comes, ask again later.
+            v.home_request_s = now_s + self.config.home_request_period_s
+            self._wake(v.home_request_s)
 
     def _on_command_ack(self, v: _Vehicle, msg, now_s: float) -> None:
         target = getattr(msg, "target_system", 0)
@@ -779,6 +852,11 @@ class StationLink:
                 # A silent vehicle is not streamed to (dead ones are most of a fleet's silence
                 # late in a mission); on recovery it is reclaimed with a fresh target.
                 self._send_setpoint(v, now_s)
+            if not v.lost and now_s >= v.home_request_s:
+                if v.home is None:
+                    self._request_home(v, now_s)
+                else:
+                    v.home_request_s = math.inf
             if v.deferred and now_s >= v.setpoint_since_s + v.adapter.prestream_s:
                 deferred, v.deferred = v.deferred, []
                 for cmd in deferred:
@@ -999,21 +1077,21 @@ class StationLink:
         ``alt_m`` is above the vehicle's home unless ``frame`` is given (then it is in that
         frame). On the wire it goes in the adapter's frame: ArduPilot GLOBAL_RELATIVE_ALT_INT (6,
         a Location ABOVE_HOME, ArduCopter GCS_Mavlink.cpp); PX4 GLOBAL_INT (5) with the AMSL
-        altitude home + ``alt_m``, home AMSL being GLOBAL_POSITION_INT ``alt - relative_alt``
-        (PX4's frame-6 conversion in mavlink_receiver.cpp computes ``home.alt - alt - ref_alt``,
-        right only when home is at the EKF origin's altitude). Sent at once, then re-sent every
+        altitude home + ``alt_m``, home AMSL being HOME_POSITION's altitude (GLOBAL_POSITION_INT
+        ``alt - relative_alt`` until one arrives; PX4's frame-6 conversion in
+        mavlink_receiver.cpp computes ``home.alt - alt - ref_alt``, right only when home is at
+        the EKF origin's altitude). Sent at once, then re-sent every
         ``adapter.setpoint_period_s`` (1 s ArduPilot, 0.1 s PX4) until
         :meth:`clear_position_target`, so a lost datagram or a GUID_TIMEOUT never leaves the
         vehicle without a target and PX4 keeps its OFFBOARD stream.
 
-        Raises LinkUsageError if the frame needs the home altitude and no position came yet.
+        Raises LinkUsageError if the frame needs the home altitude and neither HOME_POSITION nor
+        a position came yet.
         """
         v = self._get(sysid)
         fr = v.adapter.setpoint_frame if frame is None else frame
         if frame is None and fr == mavlink.MAV_FRAME_GLOBAL_INT:
-            if v.position is None:
-                raise LinkUsageError(f"sysid {sysid}: no position yet, home altitude unknown")
-            alt_m = float(alt_m) + v.position.alt_amsl_m - v.position.rel_alt_m
+            alt_m = float(alt_m) + self._home_alt_amsl_m(v)
         # Validate now (a local error) rather than at the next resend.
         wire.position_target_global_int(target_system=sysid, lat_deg=lat_deg, lon_deg=lon_deg,
                                         alt_m=alt_m, frame=fr)
@@ -1021,6 +1099,16 @@ class StationLink:
             v.setpoint_since_s = now_s
         v.setpoint = (float(lat_deg), float(lon_deg), float(alt_m), fr)
         self._send_setpoint(v, now_s)
+
+    def _home_alt_amsl_m(self, v: _Vehicle) -> float:
+        """HOME_POSITION's altitude; until it arrives, GLOBAL_POSITION_INT ``alt -
+        relative_alt`` (on PX4 the two come from different estimates and their difference moves
+        by metres in flight, so it is only a stand-in)."""
+        if v.home is not None:
+            return v.home.alt_amsl_m
+        if v.position is None:
+            raise LinkUsageError(f"sysid {v.sysid}: no position yet, home altitude unknown")
+        return v.position.alt_amsl_m - v.position.rel_alt_m
 
     def clear_position_target(self, sysid: int, now_s: float) -> None:
         """Stop re-sending the position target (commands waiting for the pre-stream fail)."""
@@ -1143,12 +1231,13 @@ _HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
     "PARAM_VALUE": StationLink._on_param_value,
     "PARAM_ERROR": StationLink._on_param_error,
     "STATUSTEXT": StationLink._on_statustext,
+    "HOME_POSITION": StationLink._on_home_position,
 }
 
 #: Known and deliberately ignored here (requested for display or future use; counted only).
 _IGNORED = frozenset({
     "SYS_STATUS", "GPS_RAW_INT", "EXTENDED_SYS_STATE", "LOCAL_POSITION_NED", "ATTITUDE",
-    "VFR_HUD", "HOME_POSITION", "GPS_GLOBAL_ORIGIN", "POSITION_TARGET_GLOBAL_INT",
+    "VFR_HUD", "GPS_GLOBAL_ORIGIN", "POSITION_TARGET_GLOBAL_INT",
     "POSITION_TARGET_LOCAL_NED", "RADIO_STATUS", "TIMESYNC", "SYSTEM_TIME", "BATTERY_STATUS",
     "PARAM_REQUEST_READ", "MISSION_CURRENT", "NAV_CONTROLLER_OUTPUT", "AUTOPILOT_VERSION",
     "PING", "ALTITUDE", "ESTIMATOR_STATUS", "VIBRATION", "HIGHRES_IMU", "SCALED_IMU",

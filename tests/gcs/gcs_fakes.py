@@ -52,6 +52,11 @@ class FakeAutopilot:
             time_boot_ms, round(lat_deg * 1e7), round(lon_deg * 1e7), round(alt_amsl_m * 1000),
             round(rel_alt_m * 1000), *(round(v * 100) for v in vel_ned_m_s), hdg_cdeg))
 
+    def home_position(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> bytes:
+        return self._pack(mav.MAVLink_home_position_message(
+            round(lat_deg * 1e7), round(lon_deg * 1e7), round(alt_amsl_m * 1000), 0.0, 0.0, 0.0,
+            [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0))
+
     def ack(self, command: int, result: int = mav.MAV_RESULT_ACCEPTED, progress: int = 0,
             target_system: int = 255) -> bytes:
         return self._pack(mav.MAVLink_command_ack_message(command, result, progress, 0,

@@ -10,6 +10,9 @@ from gcs.events import CommandAcked
 from gcs.link import StationConfig
 from gcs.records import TlogWriter
 
+#: No stream or HOME_POSITION requests: these tests check exact command sequences.
+_CFG = StationConfig(stream_rates_hz=(), request_home_position=False)
+
 pytestmark = pytest.mark.udp
 
 
@@ -45,7 +48,7 @@ def test_udpout_station_discovers_commands_and_records(tmp_path):
         host, port = transport.get_extra_info("sockname")
         tlog = TlogWriter(tmp_path / "aio.tlog")
         station = await StationAdapter(f"udpout:{host}:{port}",
-                                       StationConfig(stream_rates_hz=()), tlog=tlog).start()
+                                       _CFG, tlog=tlog).start()
         try:
             hb, gcs_addr = await _next(vehicle.inbox, "HEARTBEAT")  # udpout heartbeats first
             assert hb.type == 6 and hb.get_srcSystem() == 255
@@ -88,7 +91,7 @@ def test_tcp_client_stream_reassembles_split_frames():
         server = await asyncio.start_server(vehicle, "127.0.0.1", 0)
         host, port = server.sockets[0].getsockname()[:2]
         station = await StationAdapter(f"tcp:{host}:{port}",
-                                       StationConfig(stream_rates_hz=())).start()
+                                       _CFG).start()
         try:
             ev = await _next(station.events, "VehicleDiscovered")
             assert (ev.sysid, ev.mode) == (2, "OFFBOARD")
@@ -127,7 +130,7 @@ def test_tcp_client_reconnects_when_the_server_restarts():
 
         server = await asyncio.start_server(vehicle, "127.0.0.1", 0)
         host, port = server.sockets[0].getsockname()[:2]
-        station = await StationAdapter(f"tcp:{host}:{port}", StationConfig(stream_rates_hz=()),
+        station = await StationAdapter(f"tcp:{host}:{port}", _CFG,
                                        reconnect_s=(0.05, 0.2)).start()
         try:
             ev = await _next(station.events, "VehicleDiscovered")

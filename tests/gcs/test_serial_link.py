@@ -18,6 +18,9 @@ from gcs.aio import SerialLinkError, StationAdapter, _SerialPort, open_links
 from gcs.connection import parse_connection
 from gcs.link import StationConfig
 
+#: No stream or HOME_POSITION requests: these tests check exact command sequences.
+_CFG = StationConfig(stream_rates_hz=(), request_home_position=False)
+
 pytestmark = [
     pytest.mark.skipif(not hasattr(os, "openpty") or os.name != "posix",
                        reason="needs os.openpty (POSIX pseudo-terminals)"),
@@ -85,7 +88,7 @@ def test_station_flies_a_serial_link_on_a_pty(pty):
                            vehicle_type=mav.MAV_TYPE_QUADROTOR)
         master = _Master(master_fd, ap)
         # The CLI's path: connection string -> StationAdapter(...).start() (open_links here).
-        [station] = await open_links([f"{path},57600"], StationConfig(stream_rates_hz=()))
+        [station] = await open_links([f"{path},57600"], _CFG)
         chunks: asyncio.Queue = asyncio.Queue()
         receive = station.receive
 
