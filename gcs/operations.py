@@ -17,9 +17,11 @@ Phases (``Operator.phase``)::
   position of every live task tracker (:mod:`gcs.tasks`; refused after ``task_wait_timeout_s``).
 * **audit**: read the lost-link parameters of every vehicle (:mod:`gcs.audit`); refuse unless
   every vehicle is safe or ``override_audit``. With ``apply_failsafes`` (and only then: no
-  parameter is ever written otherwise), every fixable blocking finding is first fixed by a
+  failsafe parameter is ever written otherwise), every fixable blocking finding is first fixed by a
   PARAM_SET confirmed by the vehicle's PARAM_VALUE echo (:func:`gcs.audit.failsafe_fixes`), and
-  the fleet re-audited with the echoed values; ``param_changes`` records every write.
+  the fleet re-audited with the echoed values; ``param_changes`` records every write. Then,
+  with ``set_limits``, the mission's speed and climb limits are written into each vehicle's
+  own parameters (:mod:`gcs.limits`), each confirmed by its echo.
 * **launch**: in waves of ``wave_size``: GUIDED (ArduPilot) / pre-streamed OFFBOARD (PX4), arm,
   take off to the vehicle's layer; the next wave starts as soon as most of this one is off the
   ground (waves spread the command burst and the take-off, they do not wait for the climb);
@@ -88,8 +90,10 @@ class OperationsConfig:
     audit_rounds: int = 3
     """Parameter reads that timed out are requested again, up to this many rounds in all."""
     apply_failsafes: bool = False
-    """Fix fixable blocking audit findings by PARAM_SET (FS_GCS_ENABLE, the GCS sysid,
-    NAV_DLL_ACT) before re-auditing. Never any parameter write without it."""
+    """Fix fixable blocking audit findings by PARAM_SET (:func:`gcs.audit.failsafe_fixes`:
+    ArduPilot FS_GCS_ENABLE, the GCS sysid; PX4 NAV_DLL_ACT, NAV_RCL_ACT, COM_OBL_RC_ACT,
+    COM_OBL_ACT, COM_DLL_EXCEPT) before re-auditing. No failsafe parameter is ever written
+    without it (the mission's speed limits are, see ``set_limits``)."""
     max_speed_m_s: float | None = None
     """The mission's horizontal speed limit; with ``set_limits`` written into each vehicle's own
     parameters at launch (:mod:`gcs.limits`). None: the firmware's limits are left alone."""
@@ -473,7 +477,8 @@ class Operator:
             if action == "end":
                 action = self.config.end  # the mission's end action: "rtl" or "land"
             if snap.lost[i]:
-                out.append((vid, f"not heard ({mode}): its own failsafe decides", False))
+                out.append((vid, f"not heard (lost or out of range; last mode {mode}): its own "
+                                 "link-loss failsafe decides", False))
                 continue
             if not armed:
                 out.append((vid, f"on the ground ({mode})", True))

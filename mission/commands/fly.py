@@ -52,9 +52,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="fly even if the pre-flight audit finds unsafe lost-link settings")
     p.add_argument("--apply-failsafes", action="store_true",
                    help="during the audit, write the safe lost-link parameters it asks for "
-                        "(ArduPilot FS_GCS_ENABLE=1 RTL and SYSID_MYGCS/MAV_GCS_SYSID = our "
-                        "sysid; PX4 NAV_DLL_ACT=2 Return), each confirmed by the vehicle's "
-                        "echo; without this flag no parameter is ever written")
+                        "(ArduPilot FS_GCS_ENABLE=1 RTL and MAV_GCS_SYSID/SYSID_MYGCS = our "
+                        "sysid; PX4 NAV_DLL_ACT=2 and NAV_RCL_ACT=2 Return, COM_OBL_RC_ACT=3 "
+                        "Return, the offboard bit of COM_DLL_EXCEPT cleared), each confirmed by "
+                        "the vehicle's echo; without this flag no failsafe parameter is written")
     p.add_argument("--duration-s", type=float, default=None,
                    help="mission length in seconds (default: the mission's run.duration_s)")
     p.add_argument("--vehicles", type=int, default=None, metavar="N",
@@ -250,6 +251,24 @@ _EXPLAIN = ("TU1: the share of crews connected to the base through the drones, a
             "it). 100 % = always connected.")
 
 
+def _group_report(items: list[dict], per_line: int = 12) -> list[str]:
+    """One line per vehicle for small fleets; for large ones, one line per kind of answer
+    (``told RTL; now RTL``, ``not heard``...) with the vehicles it applies to."""
+    if len(items) <= per_line:
+        return [f"link {i['link_id']} sysid {i['sysid']}: {i['state']}" for i in items]
+    groups: dict[str, list[str]] = {}
+    for i in items:
+        kind = (i["state"].split("; last mode")[0] + ")" if "; last mode" in i["state"] else
+                i["state"].split(" (mode")[0] if not i["confirmed"] else i["state"])
+        groups.setdefault(kind, []).append(f"{i['link_id']}:{i['sysid']}")
+    out = []
+    for kind, who in groups.items():
+        shown = ", ".join(who[:per_line]) + (f" +{len(who) - per_line} more" if len(who) > per_line
+                                             else "")
+        out.append(f"{len(who)} vehicle(s) {kind} [link:sysid {shown}]")
+    return out
+
+
 def run(args) -> int:
     from mission.cli import UserError
     from mission.runners import FlyOptions, RunnerError, fly
@@ -322,9 +341,8 @@ def run(args) -> int:
         print(f"interrupted: every vehicle the station reached was told to "
               f"{op.interrupted if op.interrupted != 'end' else args.end.upper()}:",
               file=sys.stderr)
-        for item in s.get("interrupt_report") or []:
-            print(f"  link {item['link_id']} sysid {item['sysid']}: {item['state']}",
-                  file=sys.stderr)
+        for line in _group_report(s.get("interrupt_report") or []):
+            print(f"  {line}", file=sys.stderr)
     print(f"run directory: {result.run_dir}")
     n_rec = s["reclaimed"]
     print(f"flown {s['mission_s_flown']:.0f} s of mission in {s['wall_s']:.1f} s wall "

@@ -235,15 +235,17 @@ def test_apply_failsafes_fixes_px4_nav_dll_act_bytewise():
     assert f.op.audit_report.cleared_to_fly and not f.op.audit_report.overridden
 
 
-def test_apply_failsafes_leaves_unfixable_findings_blocking():
-    # COM_OBL_RC_ACT 6 (terminate on offboard loss) is not one we write: still refused.
+def test_apply_failsafes_fixes_a_disarming_offboard_loss_action():
+    # COM_OBL_RC_ACT 6 (terminate on offboard loss) and NAV_DLL_ACT 0 are both written to
+    # Return (gcs/audit.py failsafe_fixes), confirmed by the echo, and the flight is cleared.
     f = _InMemoryFlight(_mission(n=1, personality="px4"),
                         params={"NAV_DLL_ACT": 0, "COM_OBL_RC_ACT": 6}, apply_failsafes=True)
-    f.run_until_phase("refused", limit_s=120.0)
+    f.run_until_phase("launch", limit_s=120.0)
     core = f.swarm.cores[0]
-    assert core.params["NAV_DLL_ACT"] == 2 and core.params["COM_OBL_RC_ACT"] == 6
-    (unsafe,) = f.op.audit_report.unsafe
-    assert [b.param for b in unsafe.blocking] == ["COM_OBL_RC_ACT"]
+    assert core.params["NAV_DLL_ACT"] == 2 and core.params["COM_OBL_RC_ACT"] == 3
+    assert f.op.audit_report.cleared_to_fly and not f.op.audit_report.overridden
+    written = {c["name"] for c in f.op.param_changes if c["ok"]}
+    assert {"NAV_DLL_ACT", "COM_OBL_RC_ACT"} <= written
 
 
 @pytest.mark.parametrize("personality,ready_s", [("ardupilot", 40.0), ("ardupilot", 70.0),
