@@ -161,6 +161,43 @@ _R = mavlink  # short alias for MAV_RESULT_* below
 MAX_DATAGRAM_BYTES = 1200
 TICK_S = 0.05
 
+#: ArduPilot AP_Math/location.cpp ``check_lat(int32_t)`` / ``check_lng(int32_t)``:
+#: ``labs(lat) <= 90*1e7`` and ``labs(lng) <= 180*1e7`` (degE7, bounds included).
+_AP_LAT_E7_MAX, _AP_LON_E7_MAX = 900_000_000, 1_800_000_000
+#: PX4 mavlink_receiver.cpp handle_message_command_int: x == y == INT32_MAX means "not given"
+#: (param5/6 = NaN); x == y == 0x7ff80000 is "NAN was by accident sent as int" -> DENIED.
+_INT32_MAX, _NAN_AS_INT = 2**31 - 1, 0x7FF80000
+#: PX4 lib/geo/geo.h CONSTANTS_RADIUS_OF_EARTH (m), used by MapProjection.
+_PX4_EARTH_RADIUS_M = 6371000.0
+
+
+def ap_check_latlng_e7(lat_e7: int, lon_e7: int) -> bool:
+    """ArduPilot ``check_latlng(int32_t lat, int32_t lng)`` (AP_Math/location.cpp)."""
+    return abs(int(lat_e7)) <= _AP_LAT_E7_MAX and abs(int(lon_e7)) <= _AP_LON_E7_MAX
+
+
+def px4_map_project(lat_deg: float, lon_deg: float, ref_lat_deg: float,
+                    ref_lon_deg: float) -> tuple[float, float]:
+    """PX4 lib/geo/geo.cpp ``MapProjection::project``: azimuthal equidistant projection on a
+    sphere of radius CONSTANTS_RADIUS_OF_EARTH around the EKF origin; (north_m, east_m) as
+    float32, like the firmware's ``float &x, float &y``.
+
+    PX4 does not range-check the latitude / longitude it is given (neither mavlink_receiver.cpp
+    nor navigator_main.cpp DO_REPOSITION do): a latitude of 100 deg is, through sin/cos, the
+    point at 80 deg on the far meridian, and the vehicle is sent there.
+    """
+    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
+    ref_lat, ref_lon = math.radians(ref_lat_deg), math.radians(ref_lon_deg)
+    sin_lat, cos_lat = math.sin(lat), math.cos(lat)
+    ref_sin, ref_cos = math.sin(ref_lat), math.cos(ref_lat)
+    cos_d_lon = math.cos(lon - ref_lon)
+    arg = min(1.0, max(-1.0, ref_sin * sin_lat + ref_cos * cos_lat * cos_d_lon))
+    c = math.acos(arg)
+    k = c / math.sin(c) if abs(c) > 0 else 1.0
+    x = k * (ref_cos * sin_lat - ref_sin * cos_lat * cos_d_lon) * _PX4_EARTH_RADIUS_M
+    y = k * cos_lat * math.sin(lon - ref_lon) * _PX4_EARTH_RADIUS_M
+    return float(np.float32(x)), float(np.float32(y))
+
 
 @dataclass
 class CoreStats:
@@ -1159,9 +1196,23 @@ class VehicleCore:
             return C.MAV_RESULT_FAILED
         if not math.isfinite(p[6]):
             return C.MAV_RESULT_FAILED
-        pos = self._global_to_world(int(p[4]), int(p[5]), float(p[6]), frame)
+        x, y = int(p[4]), int(p[5])
+        keep_horizontal = False
+        if self.is_px4:
+            # mavlink_receiver.cpp handle_message_command_int (see _NAN_AS_INT, _INT32_MAX);
+            # navigator_main.cpp DO_REPOSITION keeps the current lat/lon when they are NaN.
+            if x == y == _NAN_AS_INT:
+                return C.MAV_RESULT_DENIED
+            if x == y == _INT32_MAX:  # altitude only: convert it at home, keep north/east
+                x, y = (wire.lat_e7_from_deg(v) for v in self.home_lla[:2])
+                keep_horizontal = True
+        # ArduCopter handle_command_int_do_reposition: ``if (!check_latlng(packet.x, packet.y))
+        # return MAV_RESULT_DENIED`` (inside _global_to_world); PX4 has no such check.
+        pos = self._global_to_world(x, y, float(p[6]), frame)
         if pos is None:
             return C.MAV_RESULT_DENIED
+        if keep_horizontal:
+            pos[:2] = self.physics.target_pos_ned_m[self.index, :2]
         guided = px4_custom_mode(*PX4_LOITER) if self.is_px4 else AP_GUIDED
         if self._mode_key != guided:
             self._set_mode(guided, now_s, "command")
@@ -1177,15 +1228,31 @@ class VehicleCore:
         return frame in (_PX4_GLOBAL_INT_FRAMES if self.is_px4 else _GLOBAL_AMSL + _GLOBAL_REL)
 
     def _global_to_world(self, lat_e7: int, lon_e7: int, alt_m: float, frame: int):
+        """A global target -> world NED (m), or None where the firmware refuses it.
+
+        ArduPilot: ``check_latlng`` first (ArduCopter/GCS_Mavlink.cpp
+        handle_message_set_position_target_global_int "sanity check location",
+        handle_command_int_do_reposition, both before the frame is looked at).
+        PX4: no range check; mavlink_receiver.cpp handle_message_set_position_target_global_int
+        (and the navigator for DO_REPOSITION) project with ``MapProjection::project`` around the
+        EKF origin and take ``z = ref_alt - alt``. In range the emulator's ellipsoid geodesy
+        stands in for that spherical projection (they agree to 0.3 %, and it is the geodesy the
+        emulator's telemetry uses); off the globe the firmware's projection itself is used
+        (:func:`px4_map_project`), so the vehicle sets off where PX4 would send it.
+        """
+        if not self.is_px4 and not ap_check_latlng_e7(lat_e7, lon_e7):
+            return None
         if not self._global_frame_ok(frame):
             return None
         if frame in _GLOBAL_AMSL:
             alt_amsl = alt_m
         else:  # _GLOBAL_REL: flat terrain at home altitude, terrain-relative == home-relative
             alt_amsl = alt_m + self.home_lla[2]
-        ned = geodetic_to_ned_m(wire.deg_from_lat_e7(lat_e7), wire.deg_from_lat_e7(lon_e7),
-                                alt_amsl, *self.physics.origin_lla)
-        return ned
+        lat_deg, lon_deg = wire.deg_from_lat_e7(lat_e7), wire.deg_from_lat_e7(lon_e7)
+        if self.is_px4 and not ap_check_latlng_e7(lat_e7, lon_e7):
+            north, east = px4_map_project(lat_deg, lon_deg, *self.home_lla[:2])
+            return self.home_ned_m + np.array((north, east, self.home_lla[2] - alt_amsl))
+        return geodetic_to_ned_m(lat_deg, lon_deg, alt_amsl, *self.physics.origin_lla)
 
     def _note_setpoint(self, now_s: float) -> None:
         """PX4 offboard signal. mavlink_receiver.cpp handle_message_set_position_target_local_ned
@@ -1245,6 +1312,11 @@ class VehicleCore:
             pos = self._global_to_world(m.lat_int, m.lon_int, m.alt, m.coordinate_frame)
             if pos is None:
                 self.stats.setpoints_ignored += 1
+                if not self.is_px4 and self._behaviour == "guided" and self.armed:
+                    # ArduCopter: bad location or frame -> "input is not valid so stop"
+                    # (copter.mode_guided.init(true)): brake and hold.
+                    self.physics.hold(self.index)
+                    self._vel_target_s = None
                 return
         elif not self._global_frame_ok(m.coordinate_frame):
             self.stats.setpoints_ignored += 1
