@@ -15,7 +15,8 @@ import logging
 import os
 import sys
 
-__all__ = ["main", "UserError", "COMMANDS"]
+__all__ = ["main", "UserError", "COMMANDS", "parse_rate", "rate_arg", "positive_int", "add_workers_argument",
+           "resolve_workers", "add_seed_arguments", "version_string", "did_you_mean"]
 
 #: subcommand name -> module under mission.commands (order = order in --help).
 COMMANDS: dict[str, str] = {
@@ -35,6 +36,96 @@ class UserError(Exception):
     """A mistake in the user's input: printed as one clear message, exit status 2, no traceback."""
 
 
+# ----------------------------------------------------------------------------------------------
+# One parser / one default for the options several commands share
+# ----------------------------------------------------------------------------------------------
+
+def parse_rate(text: str, option: str = "--attrition") -> float:
+    """A probability given as a fraction (``0.01``) or a percent (``1%``): the one rate parser.
+
+    Raises
+    ------
+    UserError
+        Not a number, or outside [0, 1].
+    """
+    t = str(text).strip()
+    try:
+        value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
+    except ValueError:
+        raise UserError(f"{option}: expected a fraction like 0.01 or a percent like 1%, got {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise UserError(f"{option}: {text} is not a probability in [0, 1] (0.01 = 1%)")
+    return value
+
+
+def rate_arg(text: str) -> float:
+    """argparse ``type=`` for a single rate (0.01 or 1%)."""
+    try:
+        return parse_rate(text)
+    except UserError as exc:
+        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[-1]) from None
+
+
+def positive_int(text: str) -> int:
+    """argparse ``type=`` for a count that must be >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def default_workers() -> int:
+    """The one default for --workers everywhere: the cores of this machine, at most 8."""
+    return max(1, min(os.cpu_count() or 1, 8))
+
+
+def add_workers_argument(p: argparse.ArgumentParser, what: str = "worker processes") -> None:
+    p.add_argument("--workers", type=positive_int, default=None, metavar="N",
+                   help=f"{what} (default: the number of cores, at most 8; here {default_workers()})")
+
+
+def resolve_workers(n: int | None) -> int:
+    return default_workers() if n is None else int(n)
+
+
+def add_seed_arguments(p: argparse.ArgumentParser, seeds_default: int | None, seeds_help: str) -> None:
+    """``--seed S`` (the first run's seed, as in ``phireman fly``; alias ``--seed-start``) and ``--seeds N``."""
+    p.add_argument("--seed", "--seed-start", dest="seed", type=int, default=None, metavar="S",
+                   help="seed of the first run (default 0; --seed-start is an alias); runs use S, S+1, ...")
+    p.add_argument("--seeds", type=positive_int, default=seeds_default, metavar="N", help=seeds_help)
+
+
+def did_you_mean(word: str, choices) -> str:
+    """' (did you mean X?)' for the closest of ``choices``, or ''."""
+    import difflib
+
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+def version_string() -> str:
+    """'phireman 0.1.0 (git v0.1-12-gabc1234-dirty)': package metadata, plus git describe if available."""
+    import subprocess
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        text = f"phireman {version('phireman')}"
+    except PackageNotFoundError:
+        text = "phireman (not installed)"
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    try:
+        out = subprocess.run(["git", "-C", root, "describe", "--tags", "--always", "--dirty"],
+                             capture_output=True, text=True, timeout=5)
+        if out.returncode == 0 and out.stdout.strip():
+            text += f" (git {out.stdout.strip()})"
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return text
+
+
 def _load(name: str):
     return importlib.import_module(f"mission.commands.{COMMANDS[name]}")
 
@@ -50,6 +141,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="count", default=0,
                         help="more log output (-v info, -vv debug)")
+    parser.add_argument("--version", action="store_true", help="print the version (package and git) and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         if only is not None and name != only:
@@ -80,6 +172,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
                         format="%(levelname)s %(name)s: %(message)s")
+    if args.version:
+        print(version_string())
+        return 0
     module = getattr(args, "_module", None)
     if module is None:
         parser.print_help()

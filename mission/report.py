@@ -197,9 +197,14 @@ class Selector:
 # ----------------------------------------------------------------------------------------------
 
 def _fmt(mean: float, ci: float) -> str:
+    """'mean ± half', or the interval clipped to [0, 100] when it reaches past (few seeds)."""
+    from mission.sim import format_pct_ci
+
     if math.isnan(mean):
         return "–"
-    return f"{mean:.2f} ± {ci:.2f}" if not math.isnan(ci) else f"{mean:.2f}"
+    if math.isnan(ci):
+        return f"{mean:.2f}"
+    return format_pct_ci(mean, ci)[0]
 
 
 def _fmt_p(p: float) -> str:

@@ -15,7 +15,6 @@ them (``run_many``).
 from __future__ import annotations
 
 import logging
-import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -28,7 +27,7 @@ from planner.metrics import UptimeSeries, uptime_series
 from planner.problem import ProblemConfig
 from vehicle_emu.world import World, draw_scenario, spawn_streams
 
-__all__ = ["EpisodeRecord", "EpisodeResult", "run_episode", "run_many", "mean_ci95"]
+__all__ = ["EpisodeRecord", "EpisodeResult", "run_episode", "run_many", "mean_ci95", "format_pct_ci"]
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +105,10 @@ def run_episode(problem: ProblemConfig, method: str, params: dict | None, seed: 
         if record and t in frames:
             rec.trees[t] = out.tree
         p_loss = problem.attrition_per_step if loss_prob_fn is None else loss_prob_fn(t, world.pos_m)
-        world.step(out.disp_m, active, p_loss, scenario.attrition_u[t])
+        # A planner that publishes rally points (planner.resilient) switches the world's
+        # recovery rule for its disconnected drones; every other planner leaves it at "fly home".
+        world.step(out.disp_m, active, p_loss, scenario.attrition_u[t],
+                   getattr(planner, "recovery_target_m", None))
     if record:
         rec.connected = connected
     series = uptime_series(connected[:tau])
@@ -128,11 +130,19 @@ def _run_chunk(args) -> list[dict]:
     return out
 
 
+def _ignore_sigint() -> None:
+    """Pool worker: Ctrl-C is the parent's to handle (otherwise every worker prints a traceback)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def run_many(problem: ProblemConfig, method: str, params: dict | None, seeds: list[int],
              workers: int | None = None, progress: Callable[[int], None] | None = None) -> list[dict]:
     """Run many seeds, in worker processes when ``workers`` > 1; results sorted by seed.
 
-    Each chunk of seeds is independent; the result does not depend on ``workers``.
+    Each chunk of seeds is independent; the result does not depend on ``workers``. On Ctrl-C the
+    workers are stopped (they ignore SIGINT themselves) and KeyboardInterrupt propagates.
     """
     workers = workers or 1
     if workers <= 1 or len(seeds) <= 1:
@@ -142,14 +152,29 @@ def run_many(problem: ProblemConfig, method: str, params: dict | None, seeds: li
             if progress:
                 progress(1)
         return rows
+    from concurrent.futures import as_completed
+
     chunk = max(1, min(10, len(seeds) // (workers * 4) or 1))
     chunks = [seeds[i:i + chunk] for i in range(0, len(seeds), chunk)]
     rows = []
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for part in pool.map(_run_chunk, [(problem, method, params, c) for c in chunks]):
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_sigint)
+    try:
+        futures = [pool.submit(_run_chunk, (problem, method, params, c)) for c in chunks]
+        for fut in as_completed(futures):
+            part = fut.result()
             rows.extend(part)
             if progress:
                 progress(len(part))
+    except BaseException:
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+        for p in procs:
+            p.join(timeout=5)
+        raise
+    pool.shutdown(wait=True)
     return sorted(rows, key=lambda r: r["seed"])
 
 
@@ -164,5 +189,24 @@ def mean_ci95(values) -> tuple[float, float]:
     return float(x.mean()), float(half)
 
 
+def format_pct_ci(mean: float, half: float, lo: float = 0.0, hi: float = 100.0) -> tuple[str, bool]:
+    """'80.00 ± 1.23', or the interval clipped to [lo, hi] when it reaches past them.
+
+    Returns the text and whether it was clipped. A percentage cannot leave [0, 100], so an
+    interval that does (few seeds, skewed data) is shown as its clipped bounds rather than as a
+    ± half-width wider than the range: '80.00 (95 % CI 0.00–100.00, clipped)'.
+    """
+    if np.isnan(mean):
+        return "–", False
+    if np.isnan(half):
+        return f"{mean:.2f} (1 run, no CI)", False
+    if mean - half < lo - 1e-9 or mean + half > hi + 1e-9:
+        return f"{mean:.2f} (95 % CI {max(lo, mean - half):.2f}–{min(hi, mean + half):.2f}, clipped)", True
+    return f"{mean:.2f} ± {half:.2f}", False
+
+
 def default_workers() -> int:
-    return max(1, min(os.cpu_count() or 1, 8))
+    """The one --workers default (defined in mission.cli)."""
+    from mission.cli import default_workers as _default
+
+    return _default()

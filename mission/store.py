@@ -126,18 +126,30 @@ class ResultStore:
 
     def __init__(self, path: str | pathlib.Path, readonly: bool = False) -> None:
         self.path = pathlib.Path(path)
-        if readonly:
-            if not self.path.exists():
-                raise FileNotFoundError(f"no results store at {self.path}")
-            self.db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, timeout=30)
-        else:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.db = sqlite3.connect(self.path, timeout=30)
-            # WAL: readers never block the writer; a killed writer loses only uncommitted rows.
-            self.db.execute("PRAGMA journal_mode=WAL")
-            self.db.execute("PRAGMA synchronous=NORMAL")
-        self.db.row_factory = sqlite3.Row
-        self._check_schema(readonly)
+        if self.path.is_dir():
+            raise StoreError(f"{self.path} is a directory; a results store is one SQLite file, "
+                             f"e.g. {self.path / 'results.sqlite'}")
+        if readonly and not self.path.exists():
+            raise FileNotFoundError(f"no results store at {self.path}")
+        try:
+            if readonly:
+                self.db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, timeout=30)
+            else:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self.db = sqlite3.connect(self.path, timeout=30)
+                # WAL: readers never block the writer; a killed writer loses only uncommitted rows.
+                self.db.execute("PRAGMA journal_mode=WAL")
+                self.db.execute("PRAGMA synchronous=NORMAL")
+            self.db.row_factory = sqlite3.Row
+            self._check_schema(readonly)
+        except sqlite3.DatabaseError as exc:
+            msg = str(exc)
+            if "not a database" in msg:
+                raise StoreError(f"{self.path} is not a phireman results store (not an SQLite file); "
+                                 f"give the .sqlite file written by 'phireman sweep --store'") from None
+            raise StoreError(f"{self.path}: cannot open the results store: {msg}") from None
+        except OSError as exc:
+            raise StoreError(f"{self.path}: cannot create the results store: {exc.strerror or exc}") from None
 
     def _check_schema(self, readonly: bool) -> None:
         tables = {r[0] for r in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'")}

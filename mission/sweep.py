@@ -44,6 +44,7 @@ __all__ = [
     "ConfigSpec", "Grid", "ResolvedConfig", "Chunk", "SweepSummary",
     "paper_table_grid", "paper_ablations_grid", "custom_grid", "product_grid", "ABLATION_VARIANTS",
     "resolve", "plan_chunks", "run_chunk", "run_sweep", "code_version", "canonical_json", "estimate_run_s",
+    "measured_costs", "MEASURED_RUN_S",
     "LocalExecutor", "DaskExecutor", "EXECUTORS",
 ]
 
@@ -337,13 +338,59 @@ class Chunk:
     """Rough estimate of the chunk's run time on one core, seconds (for ordering and the ETA)."""
 
 
-def estimate_run_s(problem) -> float:
-    """A rough per-run cost, seconds on one core: dominated by the O(n²) pair terms.
+#: Measured wall seconds per run in a pool worker (2 workers on a 2-core machine) for ΦIREMAN
+#: (async), 200 steps, scaled reading: mean over 100 seeds of the paper-table sweep of
+#: docs/results/paper_table (its store's ``wall_s``). (size, attrition per step) -> seconds.
+MEASURED_RUN_S: dict[tuple[str, float], float] = {
+    ("XS", 0.0): 0.35, ("XS", 0.005): 0.34, ("XS", 0.01): 0.31, ("XS", 0.02): 0.26, ("XS", 0.05): 0.13,
+    ("S", 0.0): 0.51, ("S", 0.005): 0.46, ("S", 0.01): 0.39, ("S", 0.02): 0.33, ("S", 0.05): 0.20,
+    ("M", 0.0): 0.77, ("M", 0.005): 0.57, ("M", 0.01): 0.54, ("M", 0.02): 0.47, ("M", 0.05): 0.25,
+    ("L", 0.0): 1.53, ("L", 0.005): 1.11, ("L", 0.01): 0.93, ("L", 0.02): 0.67, ("L", 0.05): 0.46,
+    ("XL", 0.0): 5.32, ("XL", 0.005): 3.68, ("XL", 0.01): 2.87, ("XL", 0.02): 2.05, ("XL", 0.05): 1.23,
+}
+#: Cost of a method relative to ΦIREMAN (async), same store, all sizes together.
+METHOD_COST_FACTOR: dict[str, float] = {"phireman": 1.0, "dccrs": 0.9, "mccst": 0.68, "phireman-central": 0.8,
+                                        "phireman-no-task": 0.75, "phireman-nodes-only": 0.95}
 
-    Measured at 1 %/step for ΦIREMAN / DCCRS (async): XS ≈ 0.9, S ≈ 1.2, M ≈ 3, L ≈ 12–20,
-    XL ≈ 50–60 s; MCCST is cheaper at L / XL. Used to order chunks and for the cost-weighted ETA.
+
+def estimate_run_s(problem, method: str = "phireman", measured: dict | None = None) -> float:
+    """Expected wall seconds of one run in one worker.
+
+    From ``measured`` ((size, method) -> recorded mean seconds at 200 steps, e.g. the store's own
+    rows, see :func:`measured_costs`) when it has this size and method, else from the table
+    measured on this project's 2-core machine (``MEASURED_RUN_S``, interpolated in attrition,
+    times ``METHOD_COST_FACTOR``). Scaled by ``n_steps / 200``; other sizes (custom drone counts)
+    follow the O(n²) pair terms from the nearest preset.
     """
-    return problem.n_steps / 200.0 * (0.6 + 2.3e-4 * problem.n_drones ** 2)
+    steps = problem.n_steps / 200.0
+    size = str(getattr(problem, "size", "")).upper()
+    if measured and (size, method) in measured:
+        return steps * measured[(size, method)]
+    import numpy as np
+
+    from planner.problem import problem_preset
+
+    sizes = sorted({s for s, _ in MEASURED_RUN_S}, key=lambda s: problem_preset(s, 0.0).n_drones)
+    by_n = {s: problem_preset(s, 0.0).n_drones for s in sizes}
+    nearest = min(sizes, key=lambda s: abs(by_n[s] - problem.n_drones))
+    levels = sorted(p for s, p in MEASURED_RUN_S if s == nearest)
+    base = float(np.interp(problem.attrition_per_step, levels, [MEASURED_RUN_S[(nearest, p)] for p in levels]))
+    scale = (problem.n_drones / by_n[nearest]) ** 2 if problem.n_drones > by_n[nearest] else 1.0
+    return steps * base * scale * METHOD_COST_FACTOR.get(method, 1.0)
+
+
+def measured_costs(rows) -> dict[tuple[str, str], float]:
+    """(size, method) -> mean wall seconds per ok run, normalised to 200 steps, from store rows."""
+    sums: dict[tuple[str, str], list[float]] = {}
+    for r in rows:
+        if r.get("status") != "ok" or not r.get("wall_s"):
+            continue
+        try:
+            n_steps = json.loads(r["config_json"])["problem"]["n_steps"]
+        except (KeyError, TypeError, ValueError):
+            continue
+        sums.setdefault((r["size"], r["method"]), []).append(r["wall_s"] * 200.0 / max(n_steps, 1))
+    return {k: sum(v) / len(v) for k, v in sums.items() if len(v) >= 3}
 
 
 def plan_chunks(todo: list[tuple[ResolvedConfig, list[int]]], chunk: int | None = None,
@@ -356,14 +403,14 @@ def plan_chunks(todo: list[tuple[ResolvedConfig, list[int]]], chunk: int | None 
     """
     chunks: list[Chunk] = []
     for rc, seeds in todo:
-        per_run = estimate_run_s(rc.problem)
+        per_run = estimate_run_s(rc.problem, rc.spec.method)
         size = chunk or max(1, min(10, int(target_s / max(per_run, 1e-6))))
         for i in range(0, len(seeds), size):
             part = seeds[i:i + size]
             chunks.append(Chunk(len(chunks), rc.problem, rc.spec.method, dict(rc.spec.params), part,
                                 [rc.run_key(s) for s in part], per_run * len(part)))
     # Largest per-run cost first (then larger chunks), stable for equal costs.
-    chunks.sort(key=lambda c: (-estimate_run_s(c.problem), -len(c.seeds), c.id))
+    chunks.sort(key=lambda c: (-c.cost_s / len(c.seeds), -len(c.seeds), c.id))
     return chunks
 
 

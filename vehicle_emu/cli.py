@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import logging
 import signal
+import socket
 
 import numpy as np
 
@@ -182,10 +183,29 @@ async def _serve(swarm: Swarm, clock: RealClock, args) -> None:
 
 
 def run(args) -> int:
+    """Build and serve the swarm.
+
+    Raises
+    ------
+    UsageError
+        Bad input, or a port that cannot be bound (taken, privileged, bad --bind address): one
+        line with the cause and the fix; the command line reports it with exit status 2.
+    """
+    import errno
+
+    swarm, clock = _build(args)
     try:
-        swarm, clock = _build(args)
-    except UsageError as exc:
-        log.error("phireman emulate: error: %s", exc)
-        return 2
-    asyncio.run(_serve(swarm, clock, args))
+        asyncio.run(_serve(swarm, clock, args))
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            last = args.base_port + (swarm.n_networks if args.mux else swarm.n) - 1
+            raise UsageError(f"UDP port in {args.bind}:{args.base_port}..{last} is already in use (another "
+                             f"emulator, SITL or ground station?); choose another --base-port, or "
+                             f"--base-port 0 for free ports") from None
+        if exc.errno in (errno.EACCES, errno.EPERM):
+            raise UsageError(f"not allowed to bind {args.bind}:{args.base_port} (ports below 1024 need "
+                             f"privileges); choose --base-port 1024 or above") from None
+        if exc.errno in (errno.EADDRNOTAVAIL, errno.EAFNOSUPPORT) or isinstance(exc, socket.gaierror):
+            raise UsageError(f"--bind {args.bind}: not an address of this machine ({exc.strerror or exc})") from None
+        raise
     return 0

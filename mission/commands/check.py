@@ -49,4 +49,33 @@ def run(args) -> int:
             print(f"{path}: {line}", file=sys.stderr)
         return 2
     print(f"OK: {mission.summary()}")
+    for note in mission_notes(path, mission):
+        print(f"note: {note}")
     return 0
+
+
+def mission_notes(path: Path, mission) -> list[str]:
+    """What the mission does that its file does not say: defaults that invent things."""
+    import yaml
+
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError):
+        return []
+    raw = raw if isinstance(raw, dict) else {}
+    notes = []
+    n_random = sum(t.count for t in mission.tasks if t.kind == "random")
+    if "tasks" not in raw:
+        w = next((t.random.field_half_width_m for t in mission.tasks if t.random is not None), None)
+        notes.append(f"the file has no 'tasks:', so the default applies: {n_random} tasks placed at random "
+                     f"(uniform within ±{w:g} m of the base, random-walking) from seed {mission.run.seed}; "
+                     f"add 'tasks:' with tracks or random_walk starts to place your crews")
+    elif n_random:
+        notes.append(f"{n_random} of the {mission.n_tasks} tasks are generated at random from seed "
+                     f"{mission.run.seed} (tasks: random); they move with the seed")
+    if "vehicles" not in raw:
+        notes.append(f"the file has no 'vehicles:', so the default applies: {mission.vehicles.count} emulated drones")
+    if "origin" not in raw:
+        notes.append(f"the file has no 'origin:', so the default applies ({mission.origin.lat_deg:.5f}, "
+                     f"{mission.origin.lon_deg:.5f}, the autopilots' SITL home); set it for real flights")
+    return notes

@@ -6,7 +6,7 @@ import math
 import sys
 from pathlib import Path
 
-from mission.cli import UserError
+from mission.cli import UserError, parse_rate
 
 HELP = "write the paper's configurations as mission files (new), show or list missions"
 DESCRIPTION = """\
@@ -30,8 +30,8 @@ def add_arguments(parser) -> None:
                          description="Write the paper's configuration as a mission in SI units.")
     new.add_argument("--preset", default="S", type=str.upper, choices=SIZES,
                      help="problem size from Table III (default: S)")
-    new.add_argument("--attrition", type=float, default=0.01, metavar="P",
-                     help="per-drone, per-step loss probability in [0, 1) (default: 0.01 = 1 %%)")
+    new.add_argument("--attrition", default="0.01", metavar="P",
+                     help="per-drone, per-step loss probability in [0, 1), 0.01 or 1%% (default: 0.01 = 1 %%)")
     new.add_argument("--unit-m", type=float, default=50.0, metavar="M",
                      help="metres per paper length unit (default: 50)")
     new.add_argument("--reading", choices=("scaled", "literal"), default="scaled",
@@ -101,6 +101,7 @@ def _run_new(args) -> int:
     from mission.load import MissionError, dump_mission, validate_mission
     from mission.schema import paper_mission
 
+    args.attrition = parse_rate(args.attrition)
     if not 0.0 <= args.attrition < 1.0:
         raise UserError(f"--attrition must be a per-step probability in [0, 1), got {args.attrition}")
     if not (args.unit_m > 0 and math.isfinite(args.unit_m)):

@@ -31,34 +31,58 @@ examples:
 """
 
 
+#: Options that describe a paper preset; a mission file fixes these itself.
+_PRESET_ONLY = {
+    "size": ("--size", "the mission's vehicles.count and tasks set the size"),
+    "attrition": ("--attrition", "the mission sets attrition (attrition.rate_per_s, hazard zones, scripted losses)"),
+    "method": ("--method", "the mission names its planner (planner.method)"),
+    "info": ("--info", "the mission sets the information model (planner.info)"),
+    "reading": ("--reading", "a mission is already in metres; readings apply to the paper's units"),
+    "set": ("--set", "the mission sets its problem and planner parameters (planner.params, radio, vehicles)"),
+    "workers": ("--workers", "mission runs are played one after another in this process"),
+}
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from mission.cli import add_seed_arguments, add_workers_argument, rate_arg
     from planner.problem import SIZES
 
-    p.add_argument("--size", default="S", type=str.upper, choices=list(SIZES), help="problem size (default S)")
-    p.add_argument("--attrition", default=0.01, type=float, metavar="P",
-                   help="per-drone, per-step loss probability (default 0.01)")
-    p.add_argument("--seeds", default=100, type=int, metavar="N", help="number of seeded scenarios (default 100)")
-    p.add_argument("--seed-start", default=0, type=int, metavar="S", help="first seed (default 0)")
-    p.add_argument("--method", default="phireman", help="planner name (default phireman); see --list-methods")
+    p.add_argument("--size", default=None, type=str.upper, choices=list(SIZES), help="problem size (default S)")
+    p.add_argument("--attrition", default=None, type=rate_arg, metavar="P",
+                   help="per-drone, per-step loss probability, a fraction (0.01) or a percent (1%%); default 0.01")
+    add_seed_arguments(p, None, "number of seeded scenarios (default 100; with --mission 1)")
+    p.add_argument("--method", default=None, help="planner name (default phireman); see --list-methods")
     p.add_argument("--list-methods", action="store_true", help="list the registered planners and exit")
     p.add_argument("--info", choices=["async", "central"], default=None,
                    help="PhiIREMAN/DCCRS information model (default: the method's own, async for phireman)")
-    p.add_argument("--reading", choices=["scaled", "literal"], default="scaled", help="length reading (default scaled)")
+    p.add_argument("--reading", choices=["scaled", "literal"], default=None, help="length reading (default scaled)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a problem field (e.g. max_speed_m_s=0.2, task_border=none) or a planner "
                         "parameter (e.g. step_size=0.3); repeatable")
-    p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
+    add_workers_argument(p)
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="write runs.csv, summary.json, fig2_timeseries.png and frames.png here")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--mission", default=None, metavar="MISSION",
                    help="play a mission file (or shipped example name) in-process instead of a paper preset; "
-                        "--seeds counts from the mission's seed (default 1 run); --out writes a run directory")
+                        "--seed replaces the mission's seed, --seeds N plays N seeds from it (default 1); "
+                        "--out writes a run directory. --size/--attrition/--method/--info/--reading/--set/"
+                        "--workers do not apply (the mission sets them)")
+
+
+def ci_note(n: int, clipped: bool) -> str | None:
+    """A line for people when the confidence interval is not meaningful or was clipped."""
+    if n < 3:
+        return (f"note: {n} run(s): too few for a useful 95 % CI; intervals wider than the 0-100 % range "
+                f"are shown clipped to [0, 100] (use --seeds 3 or more; 30+ for tight intervals)")
+    if clipped:
+        return "note: intervals reaching past 0 or 100 % are shown clipped to [0, 100]"
+    return None
 
 
 def run(args) -> int:
-    from mission.cli import UserError
-    from mission.sim import default_workers, mean_ci95, run_episode, run_many
+    from mission.cli import UserError, resolve_workers
+    from mission.sim import format_pct_ci, mean_ci95, run_episode, run_many
     from planner.methods import UnknownMethod, make_planner, method_names
     from planner.problem import problem_preset
 
@@ -67,23 +91,33 @@ def run(args) -> int:
         return 0
     if args.mission is not None:
         return _run_mission(args)
-    if args.seeds < 1:
-        raise UserError("--seeds must be >= 1")
-    from mission.commands.sweep import split_overrides
+    args.size = args.size or "S"
+    args.attrition = 0.01 if args.attrition is None else args.attrition
+    args.method = args.method or "phireman"
+    args.reading = args.reading or "scaled"
+    n_seeds = 100 if args.seeds is None else args.seeds
+    seed0 = 0 if args.seed is None else args.seed
+    from mission.commands.sweep import check_overrides, split_overrides
 
     problem_over, params = split_overrides(args.set)
     if args.info is not None:
         params["info"] = args.info
     try:
         problem = problem_preset(args.size, args.attrition, args.reading, **problem_over)
-        make_planner(args.method, problem, params)  # validate names and parameters before running
+    except (ValueError, TypeError) as exc:
+        raise UserError(str(exc)) from None
+    if args.method not in method_names():
+        raise UserError(f"--method: unknown planner {args.method!r}; valid methods: {', '.join(method_names())}")
+    check_overrides([args.method], problem, params)
+    try:
+        make_planner(args.method, problem, params)  # validate values before running
     except UnknownMethod as exc:
         raise UserError(str(exc)) from None
     except (ValueError, TypeError) as exc:
         raise UserError(str(exc)) from None
 
-    seeds = list(range(args.seed_start, args.seed_start + args.seeds))
-    workers = args.workers or default_workers()
+    seeds = list(range(seed0, seed0 + n_seeds))
+    workers = resolve_workers(args.workers)
     label = (f"{args.method}{'/' + params['info'] if 'info' in params else ''} | size {problem.size} "
              f"({problem.n_drones} drones, {problem.n_tasks} tasks) | attrition {100 * args.attrition:g} %/step "
              f"| {args.reading} reading | {len(seeds)} seeds")
@@ -93,20 +127,35 @@ def run(args) -> int:
     if not args.no_progress:
         from tqdm import tqdm
         bar = tqdm(total=len(seeds), unit="run", file=sys.stderr, leave=False)
-    rows = run_many(problem, args.method, params, seeds, workers, progress=bar.update if bar else None)
+    try:
+        rows = run_many(problem, args.method, params, seeds, workers, progress=bar.update if bar else None)
+    except KeyboardInterrupt:
+        done = bar.n if bar else 0
+        if bar:
+            bar.close()
+        print(f"interrupted after {done} of {len(seeds)} runs; nothing was written", file=sys.stderr)
+        raise
     if bar:
         bar.close()
     wall = time.perf_counter() - t0
     tu1, tu1_ci = mean_ci95([100 * r["tu1"] for r in rows])
     tu2, tu2_ci = mean_ci95([100 * r["tu2"] for r in rows])
     per_run = sum(r["wall_s"] for r in rows) / len(rows)
-    print(f"TU1 = {tu1:.2f} ± {tu1_ci:.2f} %")
-    print(f"TU2 = {tu2:.2f} ± {tu2_ci:.2f} %")
+    t1_txt, c1 = format_pct_ci(tu1, tu1_ci)
+    t2_txt, c2 = format_pct_ci(tu2, tu2_ci)
+    print(f"TU1 = {t1_txt} %")
+    print(f"TU2 = {t2_txt} %")
+    note = ci_note(len(rows), c1 or c2)
+    if note:
+        print(note, file=sys.stderr)
     print(f"{len(rows)} runs in {wall:.1f} s wall ({per_run:.3f} s per run per core, {workers} workers)")
 
     if args.out is not None:
         out = args.out
-        out.mkdir(parents=True, exist_ok=True)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UserError(f"--out {out}: {exc.strerror or exc}") from None
         with open(out / "runs.csv", "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=["seed", "method", "tu1", "tu2", "wall_s", "final_alive", "final_active"])
             w.writeheader()
@@ -118,49 +167,87 @@ def run(args) -> int:
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
         from mission.plots import plot_frame_strip, plot_time_series
 
-        plot_time_series(rows, problem.n_drones, problem.n_tasks, label, out / "fig2_timeseries.png")
+        title = (f"{args.method}, size {problem.size}, {100 * args.attrition:g} %/step attrition, "
+                 f"{len(seeds)} seeds: TU1 {t1_txt} %, TU2 {t2_txt} %")
+        plot_time_series(rows, problem.n_drones, problem.n_tasks, title, out / "fig2_timeseries.png")
         frames = [0, problem.n_steps // 8, problem.n_steps // 3, problem.n_steps * 2 // 3, problem.n_steps]
         ep = run_episode(problem, args.method, params, seeds[0], record=True, frames=frames)
-        plot_frame_strip(ep.record, frames, problem, f"{label.split(' | ')[0]}, seed {seeds[0]}",
-                         out / "frames.png")
+        plot_frame_strip(ep.record, frames, problem,
+                         f"{args.method}, size {problem.size}, {100 * args.attrition:g} %/step, seed {seeds[0]}: "
+                         f"TU1 {100 * ep.tu1:.1f} %, TU2 {100 * ep.tu2:.1f} %", out / "frames.png")
         print(f"wrote {out}/runs.csv, summary.json, fig2_timeseries.png, frames.png")
     return 0
 
 
+def _refuse_preset_flags(args) -> None:
+    from mission.cli import UserError
+
+    given = [(flag, why) for attr, (flag, why) in _PRESET_ONLY.items()
+             if getattr(args, attr, None) not in (None, [])]
+    if not given:
+        return
+    flags = " and ".join(f for f, _ in given)
+    reasons = "; ".join(f"{f}: {why}" for f, why in given)
+    raise UserError(f"{flags} {'does' if len(given) == 1 else 'do'} not apply with --mission ({reasons}). "
+                    f"Edit a copy of the mission (phireman mission show {args.mission} > my.yaml; "
+                    f"phireman mission new --preset S --attrition 2% writes a paper configuration), "
+                    f"or drop --mission to simulate the paper's preset")
+
+
 def _run_mission(args) -> int:
     from mission.cli import UserError
-    from mission.examples import example_path
+    from mission.examples import example_path, list_examples
     from mission.load import MissionError, load_mission
     from mission.playback import run_inprocess, write_run_dir
-    from mission.sim import mean_ci95
+    from mission.sim import format_pct_ci, mean_ci95
 
+    _refuse_preset_flags(args)
     path = pathlib.Path(args.mission)
     if not path.exists():
         try:
             path = example_path(args.mission)
         except (KeyError, ValueError, FileNotFoundError):
-            raise UserError(f"{args.mission}: no such file or shipped example") from None
+            raise UserError(f"--mission {args.mission}: no such file or shipped example "
+                            f"({', '.join(list_examples())})") from None
     try:
         mission = load_mission(path)
     except MissionError as exc:
         raise UserError("invalid mission:\n  " + "\n  ".join(exc.errors)) from None
-    n = args.seeds if "--seeds" in sys.argv else 1
-    seeds = [mission.run.seed + k for k in range(n)]
+    n = 1 if args.seeds is None else args.seeds
+    first = mission.run.seed if args.seed is None else args.seed
+    seeds = [first + k for k in range(n)]
     print(mission.summary(), file=sys.stderr)
     results = []
-    for seed in seeds:
-        try:
-            r = run_inprocess(mission, seed)
-        except ValueError as exc:
-            raise UserError(str(exc)) from None
-        results.append(r)
-        print(f"seed {seed}: TU1 = {100 * r.tu1:.2f} %, TU2 = {100 * r.tu2:.2f} %, {len(r.losses)} losses, "
-              f"{r.wall_s:.2f} s")
+    bar = None
+    if n > 1 and not args.no_progress:
+        from tqdm import tqdm
+        bar = tqdm(total=n, unit="run", file=sys.stderr, leave=False)
+    try:
+        for seed in seeds:
+            try:
+                r = run_inprocess(mission, seed)
+            except ValueError as exc:
+                raise UserError(str(exc)) from None
+            results.append(r)
+            line = (f"seed {seed}: TU1 = {100 * r.tu1:.2f} %, TU2 = {100 * r.tu2:.2f} %, {len(r.losses)} losses, "
+                    f"{r.wall_s:.2f} s")
+            (bar.write(line) if bar else print(line))
+            if bar:
+                bar.update(1)
+    finally:
+        if bar:
+            bar.close()
     if len(results) > 1:
-        tu1, c1 = mean_ci95([100 * r.tu1 for r in results])
-        tu2, c2 = mean_ci95([100 * r.tu2 for r in results])
-        print(f"TU1 = {tu1:.2f} ± {c1:.2f} %\nTU2 = {tu2:.2f} ± {c2:.2f} %")
+        t1, c1 = format_pct_ci(*mean_ci95([100 * r.tu1 for r in results]))
+        t2, c2 = format_pct_ci(*mean_ci95([100 * r.tu2 for r in results]))
+        print(f"TU1 = {t1} %\nTU2 = {t2} %")
+        note = ci_note(len(results), c1 or c2)
+        if note:
+            print(note, file=sys.stderr)
     if args.out is not None:
-        write_run_dir(mission, results[0], args.out)
+        try:
+            write_run_dir(mission, results[0], args.out)
+        except OSError as exc:
+            raise UserError(f"--out {args.out}: {exc.strerror or exc}") from None
         print(f"wrote run directory {args.out} (seed {results[0].seed}); see it with: phireman replay {args.out}")
     return 0

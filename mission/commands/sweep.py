@@ -18,10 +18,10 @@ raises is stored as an error row and the sweep goes on (exit status 1 if the gri
 
 grids:
   paper-table      Table II: sizes XS S M L XL x attrition 0 0.5 1 2 5 %/step x phireman, dccrs,
-                   mccst x 100 seeds = 7,500 runs (--sizes/--attrition/--methods select a subset)
+                   mccst x 100 seeds = 7,500 runs (--size/--attrition/--method select a subset)
   paper-ablations  at S / 1 %: default, Þ = 0 (phireman-no-task), nodes only, v = 0.1 and 0.2,
                    σ = 0 and 0.2 (paper units, times the preset's length unit) x 100 seeds
-  custom           --sizes x --attrition x --methods x --seeds, with --set overrides
+  custom           --size x --attrition x --method x --seeds, with --set overrides
 
 executors:
   local (default)  a process pool of --workers processes (chunks of seeds, largest configs first)
@@ -32,10 +32,14 @@ executors:
 examples:
   phireman sweep --grid paper-table --store results.sqlite
   phireman sweep --grid paper-ablations --store results.sqlite --workers 2
-  phireman sweep --grid custom --sizes XS S --attrition 0 0.01 --methods phireman --seeds 10 \\
+  phireman sweep --grid custom --size XS S --attrition 0 1% --method phireman --seeds 10 \\
                  --set n_steps=50 --store quick.sqlite
   phireman sweep --grid paper-table --executor dask --scheduler tcp://10.0.0.5:8786 --store results.sqlite
+  phireman sweep --grid paper-table --dry-run      # runs to do and a time estimate
   phireman report results.sqlite --out report/
+
+--size/--method take one or more values (--sizes/--methods are accepted as aliases); --seed S
+--seeds N runs seeds S..S+N-1 (--seed-start is an alias of --seed).
 """
 
 GRIDS = ("paper-table", "paper-ablations", "custom")
@@ -44,13 +48,11 @@ GRIDS = ("paper-table", "paper-ablations", "custom")
 def add_common_arguments(p: argparse.ArgumentParser, seeds_default: int = 100,
                          store_default: str = "results.sqlite") -> None:
     """Options shared by sweep and tune: seeds, reading, overrides, executor, store."""
-    from mission.sim import default_workers
+    from mission.cli import add_seed_arguments, add_workers_argument
 
     p.add_argument("--store", type=pathlib.Path, default=pathlib.Path(store_default),
-                   help=f"SQLite results store (created if missing; default {store_default})")
-    p.add_argument("--seeds", type=int, default=seeds_default, metavar="N",
-                   help=f"seeded scenarios per configuration (default {seeds_default})")
-    p.add_argument("--seed-start", type=int, default=0, metavar="S", help="first seed (default 0)")
+                   help=f"SQLite results store file (created if missing; default {store_default})")
+    add_seed_arguments(p, seeds_default, f"seeded scenarios per configuration (default {seeds_default})")
     p.add_argument("--reading", choices=["scaled", "literal"], default="scaled",
                    help="length reading (default scaled, PAPER_NOTES §6.4)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -58,8 +60,7 @@ def add_common_arguments(p: argparse.ArgumentParser, seeds_default: int = 100,
                         "(e.g. step_size=0.3) in every configuration; repeatable")
     p.add_argument("--executor", choices=["local", "dask"], default="local",
                    help="local process pool (default) or dask")
-    p.add_argument("--workers", type=int, default=default_workers(), metavar="N",
-                   help=f"worker processes for the local pool or a Dask LocalCluster (default {default_workers()})")
+    add_workers_argument(p, "worker processes for the local pool or a Dask LocalCluster")
     p.add_argument("--scheduler", default=None, metavar="ADDR",
                    help="existing Dask scheduler, e.g. tcp://host:8786 (implies --executor dask)")
     p.add_argument("--chunk", type=int, default=None, metavar="N",
@@ -72,14 +73,15 @@ def add_common_arguments(p: argparse.ArgumentParser, seeds_default: int = 100,
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--grid", choices=GRIDS, default="paper-table", help="which grid (default paper-table)")
-    p.add_argument("--sizes", nargs="+", default=None, metavar="SIZE",
-                   help="sizes (XS S M L XL; space- or comma-separated; default all)")
+    p.add_argument("--size", "--sizes", dest="sizes", nargs="+", default=None, metavar="SIZE",
+                   help="sizes (XS S M L XL; space- or comma-separated; default all; alias --sizes)")
     p.add_argument("--attrition", nargs="+", default=None, metavar="P",
                    help="per-step attrition levels as fractions (0.01) or percents (1%%); default the paper's 5")
-    p.add_argument("--methods", nargs="+", default=None, metavar="NAME",
-                   help="planner names (default phireman dccrs mccst); see 'phireman sim --list-methods'")
+    p.add_argument("--method", "--methods", dest="methods", nargs="+", default=None, metavar="NAME",
+                   help="planner names (default phireman dccrs mccst; alias --methods); "
+                        "see 'phireman sim --list-methods'")
     add_common_arguments(p)
-    p.add_argument("--dry-run", action="store_true", help="print the plan (runs, present, to do) and exit")
+    p.add_argument("--dry-run", action="store_true", help="print the plan (runs, present, to do, time estimate) and exit")
 
 
 def split_list(values: list[str] | None) -> list[str] | None:
@@ -89,20 +91,12 @@ def split_list(values: list[str] | None) -> list[str] | None:
 
 
 def parse_attrition(values: list[str] | None) -> list[float] | None:
-    from mission.cli import UserError
+    from mission.cli import parse_rate
 
     items = split_list(values)
     if items is None:
         return None
-    out = []
-    for v in items:
-        try:
-            out.append(float(v[:-1]) / 100 if v.endswith("%") else float(v))
-        except ValueError:
-            raise UserError(f"--attrition: expected a fraction like 0.01 or a percent like 1%, got {v!r}") from None
-        if not 0.0 <= out[-1] <= 1.0:
-            raise UserError(f"--attrition: {v} is not a probability in [0, 1]")
-    return out
+    return [parse_rate(v) for v in items]
 
 
 def parse_value(text: str, field=None):
@@ -145,13 +139,50 @@ def split_overrides(pairs: list[str], option: str = "--set") -> tuple[dict, dict
     return problem, params
 
 
-def validate_methods(methods: list[str] | None) -> None:
-    from mission.cli import UserError
+def validate_methods(methods: list[str] | None, option: str = "--method") -> None:
+    from mission.cli import UserError, did_you_mean
     from planner.methods import method_names
 
     for m in methods or []:
         if m not in method_names():
-            raise UserError(f"unknown method {m!r}; valid methods: {', '.join(method_names())}")
+            raise UserError(f"{option}: unknown planner {m!r}{did_you_mean(m, method_names())}; "
+                            f"valid methods: {', '.join(method_names())}")
+
+
+def planner_parameter_names(method: str, problem) -> list[str] | None:
+    """The parameter names ``method`` accepts (its params dataclass / dict), or None if unknown."""
+    from planner.methods import make_planner
+
+    prm = getattr(make_planner(method, problem, {}), "params", None)
+    if dataclasses.is_dataclass(prm):
+        return [f.name for f in dataclasses.fields(prm)]
+    if isinstance(prm, dict):
+        return list(prm)
+    return None
+
+
+def check_overrides(methods, problem, params: dict, option: str = "--set") -> None:
+    """Refuse, before anything runs, a planner parameter that one of ``methods`` does not take.
+
+    A misspelt key would otherwise fail every run (stored as error rows) or be silently ignored.
+    """
+    from mission.cli import UserError, did_you_mean
+    from planner.problem import ProblemConfig
+
+    problem_fields = [f.name for f in dataclasses.fields(ProblemConfig)]
+    methods = list(dict.fromkeys(methods))
+    names = {m: planner_parameter_names(m, problem) for m in methods}
+    for method in methods:
+        if names[method] is None:
+            continue
+        for key in params:
+            if key in names[method]:
+                continue
+            hint = did_you_mean(key, names[method] + problem_fields)
+            takers = [m for m in methods if m != method and key in (names[m] or [])]
+            where = (f"; only {', '.join(takers)} take(s) it, so run {method} separately" if takers else "")
+            raise UserError(f"{option} {key}: not a parameter of {method} nor a problem field{hint}{where}. "
+                            f"{method} takes: {', '.join(names[method])}")
 
 
 def execute(grid, args, argv: list[str]) -> int:
@@ -160,8 +191,9 @@ def execute(grid, args, argv: list[str]) -> int:
     from mission.store import ResultStore, StoreError
     from mission.sweep import code_version, run_sweep
 
-    if args.workers < 1:
-        raise UserError("--workers must be >= 1")
+    from mission.cli import resolve_workers
+
+    args.workers = resolve_workers(args.workers)
     if args.chunk is not None and args.chunk < 1:
         raise UserError("--chunk must be >= 1")
     try:
@@ -214,27 +246,39 @@ def build_grid(args):
     attrition = parse_attrition(args.attrition)
     methods = split_list(args.methods)
     validate_methods(methods)
-    if args.seeds < 1:
-        raise UserError("--seeds must be >= 1")
-    seeds = range(args.seed_start, args.seed_start + args.seeds)
+    seed0 = args.seed or 0
+    seeds = range(seed0, seed0 + args.seeds)
     problem, params = split_overrides(args.set)
     if args.grid == "paper-table":
         grid = paper_table_grid(seeds, sizes, attrition, methods, args.reading, params, problem)
     elif args.grid == "paper-ablations":
         if sizes or attrition or methods:
             raise UserError("paper-ablations is fixed at S / 1 % with its own variants; "
-                            "--sizes/--attrition/--methods do not apply (use --grid custom)")
+                            "--size/--attrition/--method do not apply (use --grid custom)")
         grid = paper_ablations_grid(seeds, args.reading, params=params, problem_overrides=problem)
     else:
         if not (sizes and attrition is not None and methods):
-            raise UserError("--grid custom needs --sizes, --attrition and --methods")
+            raise UserError("--grid custom needs --size, --attrition and --method")
         grid = custom_grid(sizes, attrition, methods, seeds, args.reading, params, problem)
-    try:
-        for spec in grid.configs:
-            spec.problem()
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    check_grid(grid)
     return grid
+
+
+def check_grid(grid, option: str = "--set") -> None:
+    """Every configuration's problem builds and every planner takes its parameters: refuse up front."""
+    from mission.cli import UserError
+
+    try:
+        problems = [spec.problem() for spec in grid.configs]
+    except (ValueError, TypeError) as exc:
+        raise UserError(str(exc)) from None
+    methods = [spec.method for spec in grid.configs]
+    seen = set()
+    for spec, problem in zip(grid.configs, problems):
+        key = (spec.method, tuple(sorted(spec.params)))
+        if key not in seen:
+            seen.add(key)
+            check_overrides([spec.method] + methods, problem, spec.params, option)
 
 
 def run(args) -> int:
@@ -244,24 +288,45 @@ def run(args) -> int:
     return execute(grid, args, ["phireman", *sys.argv[1:]])
 
 
-def _dry_run(grid, args) -> int:
-    from mission.store import ResultStore
-    from mission.sweep import estimate_run_s, resolve
+def _fmt_duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
 
+
+def _dry_run(grid, args) -> int:
+    from mission.cli import UserError, resolve_workers
+    from mission.store import ResultStore, StoreError
+    from mission.sweep import estimate_run_s, measured_costs, resolve
+
+    workers = resolve_workers(args.workers)
     present = set()
+    measured = {}
     if args.store.exists():
-        with ResultStore(args.store, readonly=True) as store:
-            present = store.keys()
+        try:
+            with ResultStore(args.store, readonly=True) as store:
+                present = store.keys()
+                measured = measured_costs(store.runs())
+        except StoreError as exc:
+            raise UserError(str(exc)) from None
     todo_s = 0.0
     todo = 0
+    from_store = 0
     for spec in grid.configs:
         rc = resolve(spec)
         missing = sum(rc.run_key(s) not in present for s in grid.seeds)
         todo += missing
-        todo_s += missing * estimate_run_s(rc.problem)
+        todo_s += missing * estimate_run_s(rc.problem, spec.method, measured)
+        from_store += missing * ((spec.size.upper(), spec.method) in measured)
         note = f"  [{rc.resolve_error}]" if rc.resolve_error else ""
         print(f"{spec.size:>2} {100 * spec.attrition:4g} % {spec.method:<20} {spec.label:<12} "
               f"{missing:4d}/{len(grid.seeds)} to run{note}")
-    print(f"{grid.n_runs} runs, {grid.n_runs - todo} present, {todo} to run "
-          f"(rough estimate {todo_s / 60 / max(args.workers, 1):.0f} min on {args.workers} workers)")
+    basis = ("this store's recorded run times" if from_store == todo and todo else
+             "run times measured on a 2-core machine (docs/results/paper_table)" if not from_store else
+             "this store's run times where it has the size and method, else times measured on a 2-core machine")
+    print(f"{grid.n_runs} runs, {grid.n_runs - todo} present, {todo} to run: about "
+          f"{_fmt_duration(todo_s / workers)} on {workers} workers (from {basis}; "
+          f"slower if the cores are shared)")
     return 0

@@ -17,7 +17,7 @@ beats it on TU1 (seeds are shared): settings with p >= 0.05 are statistically in
 from the best at this number of seeds.
 
 Keys that are problem fields (ProblemConfig, e.g. n_steps) override the problem; any other key is a
-planner parameter (an unknown one makes its runs fail, and they are reported as errors).
+planner parameter. A key that is neither is refused before anything runs (with the closest name).
 With --out, writes the search as Markdown (the command line that reproduces it, the code version,
 the ranked table) to --out/<method>_<size>_<attrition>pct.md, or to --out itself if it ends in .md.
 
@@ -31,12 +31,14 @@ examples:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from mission.commands.sweep import add_common_arguments
 
-    p.add_argument("--method", required=True, help="planner name (phireman, dccrs, mccst, ...)")
+    p.add_argument("--method", "--methods", dest="method", required=True,
+                   help="planner name (phireman, dccrs, mccst, ...)")
     p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="a parameter and its candidate values; repeatable (the search is their product)")
-    p.add_argument("--size", default="S", type=str.upper, help="problem size (default S, as the paper)")
+    p.add_argument("--size", "--sizes", dest="size", default="S", type=str.upper,
+                   help="problem size (default S, as the paper)")
     p.add_argument("--attrition", default="0.01", metavar="P",
-                   help="per-step attrition as a fraction or percent (default 0.01, as the paper)")
+                   help="per-step attrition as a fraction or percent, 0.01 or 1%% (default 0.01, as the paper)")
     add_common_arguments(p, seeds_default=30, store_default="tune.sqlite")
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="directory (or .md file) for the Markdown record of the search")
@@ -78,8 +80,8 @@ def reproduce_command(args) -> str:
     for g in args.grid:
         parts += ["--grid", g]
     parts += ["--size", args.size, "--attrition", str(args.attrition), "--seeds", str(args.seeds)]
-    if args.seed_start:
-        parts += ["--seed-start", str(args.seed_start)]
+    if args.seed:
+        parts += ["--seed", str(args.seed)]
     if args.reading != "scaled":
         parts += ["--reading", args.reading]
     for s in args.set:
@@ -92,7 +94,7 @@ def reproduce_command(args) -> str:
 
 def run(args) -> int:
     from mission.cli import UserError
-    from mission.commands.sweep import execute, parse_attrition, split_overrides, validate_methods
+    from mission.commands.sweep import check_grid, execute, parse_attrition, split_overrides, validate_methods
     from mission.report import ALPHA, Selector, _fmt, _fmt_p, p_greater_paired, rank_samples
     from mission.store import ResultStore
     from mission.sweep import code_version, product_grid
@@ -108,13 +110,10 @@ def run(args) -> int:
         raise UserError("--attrition takes one level")
     axes = _parse_axes(args.grid)
     problem, params = split_overrides(args.set)
-    seeds = range(args.seed_start, args.seed_start + args.seeds)
+    seed0 = args.seed or 0
+    seeds = range(seed0, seed0 + args.seeds)
     grid = product_grid(args.method, axes, seeds, args.size, attrition[0], args.reading, params, problem)
-    try:
-        for spec in grid.configs:
-            spec.problem()
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    check_grid(grid, "--grid/--set")
     command = reproduce_command(args)
     status = execute(grid, args, shlex.split(command))
     if status == 130:
@@ -152,7 +151,7 @@ def run(args) -> int:
         md = [f"# Tuning {args.method} at {args.size} / {100 * attrition[0]:g} %/step", "",
               "Reproduce with:", "", "```sh", command, "```", "",
               f"- code: `{code_version()}`",
-              f"- reading: {args.reading}; seeds {args.seed_start}..{args.seed_start + args.seeds - 1} "
+              f"- reading: {args.reading}; seeds {seed0}..{seed0 + args.seeds - 1} "
               f"(the same for every setting)",
               f"- search: " + "; ".join(f"`{k}` ∈ {{{', '.join(map(str, v))}}}" for k, v in axes.items()),
               f"- common overrides: {', '.join(args.set) or 'none'}",

@@ -1,0 +1,289 @@
+"""Issue 14: every command as a newcomer meets it. No silent surprises (every flag honoured or
+refused with the reason), no tracebacks (one-line cause and fix, exit 2 for bad input, 130 for
+Ctrl-C), one vocabulary for the options commands share."""
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import sqlite3
+import subprocess
+import sys
+import time
+
+import pytest
+
+from mission.cli import main, parse_rate, UserError
+
+PHIREMAN = [sys.executable, "-m", "mission.cli"]
+FAST = ["--set", "n_steps=20"]
+
+
+def _err(capsys) -> str:
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return err
+
+
+# -- sim --mission: flags that describe a paper preset are refused, not ignored ------------------
+
+@pytest.mark.parametrize("flags, named", [
+    (["--attrition", "0.05", "--method", "mccst"], ["--attrition", "--method"]),
+    (["--size", "XL"], ["--size"]),
+    (["--set", "nonsense=1"], ["--set"]),
+    (["--reading", "literal"], ["--reading"]),
+    (["--workers", "2"], ["--workers"]),
+])
+def test_sim_mission_refuses_preset_flags(flags, named, capsys):
+    assert main(["sim", "--mission", "wildfire", *flags]) == 2
+    err = _err(capsys)
+    assert "do" in err and "not apply with --mission" in err
+    for flag in named:
+        assert flag in err
+    assert "mission show wildfire" in err  # the fix
+    assert "TU1" not in capsys.readouterr().out
+
+
+def test_sim_mission_honours_seed_and_seeds(capsys):
+    assert main(["sim", "--mission", "wildfire", "--seed", "5", "--seeds", "2", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "seed 5:" in out and "seed 6:" in out and "seed 1:" not in out
+
+
+# -- one parser for rates, one meaning for --seed, one --workers ------------------------------------
+
+def test_parse_rate_accepts_fractions_and_percents():
+    assert parse_rate("0.01") == pytest.approx(0.01)
+    assert parse_rate("1%") == pytest.approx(0.01)
+    assert parse_rate("0.5 %".replace(" ", "")) == pytest.approx(0.005)
+    for bad in ("abc", "150%", "-0.1", "2"):
+        with pytest.raises(UserError):
+            parse_rate(bad)
+
+
+def test_sim_accepts_percent_attrition_and_seed_alias(capsys, tmp_path):
+    a = tmp_path / "a"
+    b = tmp_path / "b"
+    common = ["sim", "--size", "XS", "--seeds", "2", "--workers", "1", "--no-progress", *FAST]
+    assert main(common + ["--attrition", "2%", "--seed", "7", "--out", str(a)]) == 0
+    assert main(common + ["--attrition", "0.02", "--seed-start", "7", "--out", str(b)]) == 0
+    out = capsys.readouterr().out
+    assert "TU1 = " in out
+    assert (a / "runs.csv").read_text() .splitlines()[1].startswith("7,")
+    strip = lambda p: [line.split(",")[:4] for line in (p / "runs.csv").read_text().splitlines()]  # noqa: E731
+    assert strip(a) == strip(b)
+
+
+@pytest.mark.parametrize("cmd", [["sim"], ["sweep", "--dry-run"], ["tune", "--method", "phireman",
+                                                                    "--grid", "step_size=0.1"]])
+def test_workers_zero_is_refused_everywhere(cmd, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([*cmd, "--workers", "0"])
+    assert exc.value.code == 2
+    assert "--workers: must be >= 1" in capsys.readouterr().err
+
+
+def test_workers_default_is_one_place():
+    from mission import cli, sim
+    from mission.commands import sweep
+
+    assert sim.default_workers() == cli.default_workers()
+    p = cli.build_parser("sweep")
+    args = p.parse_args(["sweep"])
+    assert args.workers is None  # resolved by mission.cli.resolve_workers, not frozen at import
+    assert cli.resolve_workers(None) == cli.default_workers()
+    assert sweep  # imported
+
+
+def test_sweep_accepts_both_spellings(tmp_path, capsys):
+    store = tmp_path / "s.sqlite"
+    base = ["sweep", "--grid", "custom", "--attrition", "1%", "--seeds", "1", "--dry-run", "--store", str(store)]
+    assert main(base + ["--size", "XS", "S", "--method", "phireman", "mccst"]) == 0
+    new = capsys.readouterr().out
+    assert main(base + ["--sizes", "XS", "S", "--methods", "phireman", "mccst"]) == 0
+    assert capsys.readouterr().out == new
+    assert "4 runs" in new
+
+
+def test_version(capsys):
+    assert main(["--version"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("phireman ") and any(ch.isdigit() for ch in out)
+
+
+# -- tracebacks become one-line causes with the fix ------------------------------------------------
+
+def test_sweep_store_that_is_a_directory(tmp_path, capsys):
+    assert main(["sweep", "--grid", "custom", "--size", "XS", "--attrition", "0", "--method", "phireman",
+                 "--seeds", "1", "--store", str(tmp_path), "--no-progress", *FAST]) == 2
+    err = _err(capsys)
+    assert "is a directory" in err and "results.sqlite" in err
+
+
+def test_report_on_a_file_that_is_not_a_store(tmp_path, capsys):
+    f = tmp_path / "README.md"
+    f.write_text("# not a database\n" * 100)
+    assert main(["report", str(f), "--out", str(tmp_path / "r")]) == 2
+    err = _err(capsys)
+    assert "not a phireman results store" in err and "phireman sweep --store" in err
+    assert main(["report", str(tmp_path / "missing.sqlite"), "--out", str(tmp_path / "r")]) == 2
+    assert "no results store" in _err(capsys)
+
+
+def test_report_on_an_sqlite_file_of_something_else(tmp_path, capsys):
+    f = tmp_path / "other.sqlite"
+    db = sqlite3.connect(f)
+    db.execute("CREATE TABLE t (x)")
+    db.commit()
+    db.close()
+    assert main(["report", str(f), "--out", str(tmp_path / "r")]) == 2
+    assert "not a phireman results store" in _err(capsys)
+
+
+def test_emulate_port_in_use(capsys):
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    try:
+        port = s.getsockname()[1]
+        assert main(["emulate", "--vehicles", "1", "--base-port", str(port), "--duration-s", "0.1"]) == 2
+    finally:
+        s.close()
+    err = _err(capsys)
+    assert "already in use" in err and "--base-port" in err
+
+
+# -- unknown --set parameters are refused before anything runs -------------------------------------
+
+def test_sweep_unknown_parameter_refused_with_suggestion(tmp_path, capsys):
+    store = tmp_path / "s.sqlite"
+    assert main(["sweep", "--grid", "custom", "--size", "XS", "--attrition", "0", "--method", "phireman",
+                 "--seeds", "1", "--set", "step_sise=0.2", "--store", str(store), "--no-progress"]) == 2
+    err = _err(capsys)
+    assert "step_sise" in err and "did you mean step_size?" in err
+    assert not store.exists()  # nothing ran, nothing stored
+
+
+def test_sweep_parameter_of_one_method_only(tmp_path, capsys):
+    assert main(["sweep", "--grid", "custom", "--size", "XS", "--attrition", "0", "--method", "phireman",
+                 "mccst", "--seeds", "1", "--set", "thorn=0.5", "--dry-run",
+                 "--store", str(tmp_path / "s.sqlite")]) == 2
+    err = _err(capsys)
+    assert "not a parameter of mccst" in err and "only phireman" in err
+
+
+def test_tune_unknown_grid_key_refused(tmp_path, capsys):
+    store = tmp_path / "t.sqlite"
+    assert main(["tune", "--method", "phireman", "--grid", "stepsize=0.1,0.2", "--seeds", "2",
+                 "--store", str(store), "--no-progress"]) == 2
+    assert "did you mean step_size?" in _err(capsys)
+    assert not store.exists()
+
+
+# -- the time estimate comes from measured costs ---------------------------------------------------
+
+def test_dry_run_estimate_uses_measured_costs_and_the_store(tmp_path, capsys):
+    from mission.sweep import estimate_run_s, measured_costs
+    from planner.problem import problem_preset
+
+    xl, xs = problem_preset("XL", 0.01), problem_preset("XS", 0.01)
+    assert estimate_run_s(xl) > 5 * estimate_run_s(xs)
+    assert estimate_run_s(xl, "mccst") < estimate_run_s(xl, "phireman")
+    # the paper table: 7,500 runs measured at about 56 min on 2 workers
+    assert main(["sweep", "--grid", "paper-table", "--dry-run", "--workers", "2",
+                 "--store", str(tmp_path / "none.sqlite")]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    minutes = int(last.split("about ")[1].split(" min")[0])
+    assert 35 <= minutes <= 90, last
+    # the store's own durations win when it has the size and method
+    rows = [{"status": "ok", "wall_s": 10.0, "size": "XS", "method": "phireman",
+             "config_json": '{"problem": {"n_steps": 100}}'}] * 3
+    measured = measured_costs(rows)
+    assert measured[("XS", "phireman")] == pytest.approx(20.0)
+    assert estimate_run_s(xs, "phireman", measured) == pytest.approx(20.0)
+
+
+# -- confidence intervals stay inside [0, 100] -----------------------------------------------------
+
+def test_ci_wider_than_the_range_is_clipped_and_explained():
+    from mission.report import _fmt
+    from mission.sim import format_pct_ci, mean_ci95
+
+    mean, half = mean_ci95([60.0, 100.0])
+    assert half > 100
+    text, clipped = format_pct_ci(mean, half)
+    assert clipped and "clipped" in text and "0.00–100.00" in text and "±" not in text
+    assert _fmt(mean, half) == text
+    assert format_pct_ci(50.0, 1.5) == ("50.00 ± 1.50", False)
+
+
+def test_sim_notes_too_few_seeds(capsys):
+    assert main(["sim", "--size", "XS", "--seeds", "2", "--workers", "1", "--no-progress", *FAST]) == 0
+    err = _err(capsys)
+    assert "2 run(s): too few" in err
+
+
+# -- check says what it invented -------------------------------------------------------------------
+
+def test_check_notes_invented_tasks(tmp_path, capsys):
+    f = tmp_path / "bare.yaml"
+    f.write_text("name: bare\n")
+    assert main(["check", str(f)]) == 0
+    out = capsys.readouterr().out
+    assert "OK:" in out and "no 'tasks:'" in out and "at random" in out
+    assert main(["check", "wildfire"]) == 0
+    assert "no 'tasks:'" not in capsys.readouterr().out
+
+
+# -- Ctrl-C: exit 130, no traceback from the workers, the sweep keeps what it stored ---------------
+
+def _interrupt(args, ready, timeout=90):
+    proc = subprocess.Popen(PHIREMAN + args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and proc.poll() is None and not ready():
+            time.sleep(0.05)
+        assert proc.poll() is None, proc.communicate()[1]
+        os.killpg(proc.pid, signal.SIGINT)  # as the terminal does: the whole process group
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    return proc.returncode, out, err
+
+
+def test_ctrl_c_during_sim_exits_130_without_tracebacks():
+    # a worker pool that is busy long enough to be interrupted
+    args = ["sim", "--size", "S", "--seeds", "400", "--workers", "2", "--no-progress"]
+    t0 = time.monotonic()
+    code, out, err = _interrupt(args, lambda: time.monotonic() - t0 > 4)
+    assert code == 130, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err
+    assert "interrupted after" in err and "of 400 runs; nothing was written" in err
+    assert "TU1" not in out
+
+
+def test_ctrl_c_during_sweep_keeps_what_it_stored(tmp_path):
+    store = tmp_path / "s.sqlite"
+    args = ["sweep", "--grid", "custom", "--size", "XS", "--attrition", "0", "1%", "--method", "phireman",
+            "--seeds", "60", "--chunk", "1", "--workers", "2", "--no-progress", "--store", str(store)]
+
+    def some_rows():
+        try:
+            db = sqlite3.connect(f"file:{store}?mode=ro", uri=True, timeout=1)
+            try:
+                return db.execute("SELECT COUNT(*) FROM runs").fetchone()[0] >= 2
+            finally:
+                db.close()
+        except sqlite3.Error:
+            return False
+
+    code, out, err = _interrupt(args, some_rows)
+    assert code == 130, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err
+    assert "rerun the same command" in err
+    db = sqlite3.connect(store)
+    n = db.execute("SELECT COUNT(*) FROM runs").fetchone()[0]
+    db.close()
+    assert 2 <= n < 120
