@@ -29,6 +29,7 @@ COMMANDS: dict[str, str] = {
     "check": "check",
     "mission": "mission_new",
     "replay": "replay",
+    "sitl": "sitl",
 }
 
 
