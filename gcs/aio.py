@@ -222,6 +222,8 @@ class StationAdapter:
         """TCP client: first and longest wait (wall seconds) between reconnection attempts."""
         self.reconnects = 0
         self._writer: asyncio.StreamWriter | None = None
+        self._taps: list[Callable[[bytes, object], None]] = []
+        self._tap_peers: dict = {}
 
     def now(self) -> float:
         return self._clock() if self._clock else asyncio.get_running_loop().time()
@@ -333,9 +335,43 @@ class StationAdapter:
                 self.transmit()
 
     def receive(self, data: bytes, addr) -> None:
+        if self._taps:
+            self._tap_raw(data, addr)
         if self.core is not None:
             self.core.receive_datagram(data, addr, self.now())
             self.transmit()
+
+    # Raw tap (MAVLink forwarding, gcs.forward): the bytes as they arrive, and frames injected
+    # as they are, beside the station core (which neither sees nor answers them).
+
+    def add_tap(self, tap: Callable[[bytes, object], None]) -> None:
+        """Call ``tap(data, addr)`` with every chunk of bytes received on this link, before the
+        station core decodes it (UDP: one datagram; TCP/serial: whatever the read returned)."""
+        self._taps.append(tap)
+
+    def _tap_raw(self, data: bytes, addr) -> None:
+        self._tap_peers[addr] = None
+        for tap in self._taps:
+            try:
+                tap(data, addr)
+            except Exception:
+                log.exception("link %d: tap failed", self.link_id)
+
+    def send_raw(self, frame: bytes) -> None:
+        """Send one MAVLink frame as is to this link's peers (the static ones and every address
+        heard since the first tap), and write it to the .tlog as an outgoing frame."""
+        if self.core is None:
+            return
+        peers = list(dict.fromkeys((*self.core.config.static_peers, *self._tap_peers))) or [None]
+        for addr in peers:
+            try:
+                self._send(frame, addr)
+            except (OSError, TypeError) as exc:  # unreachable / not yet connected
+                log.debug("link %d: raw send to %s failed: %s", self.link_id, addr, exc)
+            if self.spec.kind not in ("udpin",):
+                break  # connected socket, TCP or serial: one peer whatever addr says
+        if self._tlog is not None:
+            self._tlog.write(self.now() + self.core.config.unix_time_offset_s, frame)
 
     def _on_timer(self) -> None:
         self._timer = None

@@ -76,6 +76,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="after landing, write back every parameter the station changed "
                         "(speed limits, failsafes)")
 
+    from mission.live.cli import add_fly_arguments
+
+    add_fly_arguments(p)  # --serve, --serve-actions, --tiles, --forward, --forward-readonly
+
 
 def _load(spec: str):
     from pathlib import Path
@@ -306,6 +310,9 @@ def run(args) -> int:
                       expected_vehicles=args.vehicles, end_wait=not args.no_wait,
                       set_limits=not args.keep_firmware_limits,
                       restore_params=args.restore_params, on_interrupt=args.on_interrupt)
+    from mission.live.cli import fly_options
+
+    opts = fly_options(opts, args)  # --serve / --forward (mission.live)
     print(_header(mission, args, real), file=sys.stderr)
     try:
         result = fly(mission, opts)

@@ -24,6 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=pathlib.Path, default=None, help="where to write (default: the run directory)")
     p.add_argument("--animation", choices=["gif", "mp4", "none"], default="gif", help="animation format (default gif)")
     p.add_argument("--max-frames", type=int, default=120, help="animation frames (default 120)")
+    from mission.live.cli import add_replay_arguments
+
+    add_replay_arguments(p)  # --serve, --tiles, --export, --at
 
 
 def run(args) -> int:
@@ -32,6 +35,11 @@ def run(args) -> int:
 
     if not args.run_dir.is_dir():
         raise UserError(f"{args.run_dir}: not a directory")
+    from mission.live.cli import run_replay
+
+    served = run_replay(args)  # --serve / --export: the live page or a GIS file instead of plots
+    if served is not None:
+        return served
     from tqdm import tqdm
 
     bar = tqdm(total=args.max_frames, unit="frame", file=sys.stderr, leave=False) if args.animation != "none" else None

@@ -1,0 +1,82 @@
+"""The operator's live picture: a web view served by the station, its replay, MAVLink forwarding
+and GIS export (issue 17; docs/live_view.md).
+
+* :func:`attach` - called once by the runner (``mission.runners._run_station``) when
+  ``FlyOptions.serve`` or ``FlyOptions.forward`` is set, on the station's event loop after the
+  links are open: starts the web server (:mod:`mission.live.server`) reading the operator
+  (:mod:`mission.live.station`) and the MAVLink forwarder (:mod:`gcs.forward`).
+* :mod:`mission.live.replay` - the same page for a recorded run directory.
+* :mod:`mission.live.export` - GeoJSON / KML of a run at chosen times.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+from typing import Callable
+
+__all__ = ["attach"]
+
+log = logging.getLogger(__name__)
+
+
+class _Closer:
+    def __init__(self, *closers) -> None:
+        self._closers = closers
+
+    async def aclose(self) -> None:
+        for c in self._closers:
+            r = c()
+            if hasattr(r, "__await__"):
+                await r
+
+
+async def attach(op, adapters, *, mission, opts, clock: Callable[[], float], records=None,
+                 listeners: list | None = None) -> list:
+    """Start what ``opts`` asks for (serve, forward) around a running station.
+
+    Returns objects with ``async aclose()``, to close before the links. ``opts.on_live``, if set,
+    is called once with ``{"url", "key", "forward"}`` (the page's address, the operator key or
+    None, the forwarding outputs' local addresses).
+    """
+    out: list = []
+    info: dict = {"url": None, "key": None, "forward": []}
+    if records is not None:  # every operator action in events.jsonl, whoever asked
+        prev = op.on_action
+
+        def on_action(rec) -> None:
+            if prev is not None:
+                prev(rec)
+            records.events.write(rec)
+
+        op.on_action = on_action
+    if getattr(opts, "forward", ()):
+        from gcs.forward import Forwarder
+
+        fwd = Forwarder(opts.forward, readonly=opts.forward_readonly, gcs_sysid=op.gcs_sysid)
+        for a in adapters:
+            fwd.attach(a, datagram=a.spec.kind in ("udpin", "udpout"))
+        await fwd.start()
+        out.append(_Closer(fwd.close))
+        info["forward"] = list(fwd.addresses)
+        info["forwarder"] = fwd
+        log.info("forwarding MAVLink to %s%s", ", ".join(opts.forward),
+                 " (read-only)" if opts.forward_readonly else "")
+    if getattr(opts, "serve", None):
+        from mission.live.server import LiveServer, parse_serve, tiles_meta
+        from mission.live.station import LiveStation
+
+        host, port = parse_serve(opts.serve)
+        tiles, tiles_dir = tiles_meta(getattr(opts, "tiles", None))
+        actions = getattr(opts, "serve_actions", True)
+        live = LiveStation(op, mission, clock, adapters, actions=actions, tiles=tiles)
+        if listeners is not None:
+            listeners.append(live.on_event)
+        key = secrets.token_urlsafe(18) if actions else None
+        server = await LiveServer(live, host, port, key=key, tiles_dir=tiles_dir).start()
+        live.start(server)
+        out.append(_Closer(live.aclose, server.aclose))
+        info.update(url=server.url, key=key, server=server, live=live)
+    if getattr(opts, "on_live", None) is not None:
+        opts.on_live(info)
+    return out
