@@ -43,7 +43,7 @@ from .physics import CTRL_POS, CTRL_VEL, Physics
 from .wire import dialect as mavlink
 
 __all__ = [
-    "VehicleCore", "CoreStats", "ARDUPILOT_MODES", "PX4_MODES", "px4_custom_mode",
+    "VehicleCore", "CoreStats", "RateLimitedLog", "ARDUPILOT_MODES", "PX4_MODES", "px4_custom_mode",
     "PERSONALITIES",
 ]
 
@@ -171,6 +171,32 @@ _INT32_MAX, _NAN_AS_INT = 2**31 - 1, 0x7FF80000
 _PX4_EARTH_RADIUS_M = 6371000.0
 
 
+#: Largest finite float32: every float field on the wire (and every float in both firmwares'
+#: position paths) is single precision.
+_FLT_MAX = float(np.finfo(np.float32).max)
+
+
+def _f32(v: float) -> float:
+    """Saturate to the float32 range so that packing a wire float never overflows (NaN kept)."""
+    v = float(v)
+    return _FLT_MAX if v > _FLT_MAX else (-_FLT_MAX if v < -_FLT_MAX else v)
+
+
+def _e7_sat(deg: float) -> int:
+    """degE7 for an int32 field; non-finite -> INT32_MAX (MAVLink's "unknown" for lat/lon)."""
+    deg = float(deg)
+    if not math.isfinite(deg):
+        return _INT32_MAX
+    return max(-_INT32_MAX, min(_INT32_MAX, wire.lat_e7_from_deg(deg)))
+
+
+def _f32_norm_overflows(vec) -> bool:
+    """True when the float32 Euclidean norm of ``vec`` is infinite (x*x overflows)."""
+    with np.errstate(over="ignore"):
+        v = np.asarray(vec, dtype=np.float64).astype(np.float32)
+        return not np.isfinite(np.sqrt(np.sum(v * v, dtype=np.float32)))
+
+
 def ap_check_latlng_e7(lat_e7: int, lon_e7: int) -> bool:
     """ArduPilot ``check_latlng(int32_t lat, int32_t lng)`` (AP_Math/location.cpp)."""
     return abs(int(lat_e7)) <= _AP_LAT_E7_MAX and abs(int(lon_e7)) <= _AP_LON_E7_MAX
@@ -212,6 +238,7 @@ class CoreStats:
     not_for_us: int = 0
     unhandled: int = 0
     handler_errors: int = 0
+    telemetry_errors: int = 0
     commands: int = 0
     setpoints: int = 0
     setpoints_ignored: int = 0
@@ -222,6 +249,44 @@ class CoreStats:
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+class RateLimitedLog:
+    """Log at most one record per ``key`` per ``interval_s`` (explicit time, sans-I/O).
+
+    Remote input can repeat a fault thousands of times a second (a garbage stream, a client
+    speaking an unknown dialect); each is counted in the stats, but the log gets one line per
+    key and interval, and the next line says how many were suppressed in between (the
+    ``GCS_MAVLINK`` "N messages suppressed" idea; MAVProxy does likewise for repeated
+    errors). Keys are categories, never peer addresses, so the table stays small; it is capped
+    at ``max_keys`` anyway (oldest dropped).
+    """
+
+    def __init__(self, logger: logging.Logger, interval_s: float = 10.0,
+                 max_keys: int = 256) -> None:
+        self.logger = logger
+        self.interval_s = float(interval_s)
+        self.max_keys = int(max_keys)
+        self._state: dict = {}   # key -> [last_logged_s, n_suppressed]
+        self.n_logged = 0
+        self.n_suppressed = 0
+
+    def log(self, now_s: float, key, level: int, msg: str, *args, **kwargs) -> bool:
+        """Log ``msg % args`` unless ``key`` was logged less than ``interval_s`` ago."""
+        st = self._state.get(key)
+        if st is not None and now_s - st[0] < self.interval_s:
+            st[1] += 1
+            self.n_suppressed += 1
+            return False
+        if st is not None and st[1]:
+            msg = msg + " (%d more suppressed in the last %.0f s)"
+            args = args + (st[1], now_s - st[0])
+        if st is None and len(self._state) >= self.max_keys:
+            self._state.pop(next(iter(self._state)))
+        self._state[key] = [now_s, 0]
+        self.n_logged += 1
+        self.logger.log(level, msg, *args, **kwargs)
+        return True
 
 
 def _pid_str(param_id) -> str:
@@ -260,6 +325,8 @@ class VehicleCore:
     unix_time_at_zero_s : float
         Wall-clock Unix time corresponding to ``now_s == 0``; used only for MAVLink signing
         timestamps (the firmware uses GPS time there).
+    log_limiter : RateLimitedLog, optional
+        Rate limit for warnings caused by remote input (a Swarm shares one among its cores).
 
     Notes
     -----
@@ -275,7 +342,7 @@ class VehicleCore:
                  origin_lla: tuple[float, float, float] = (0.0, 0.0, 0.0),
                  params=None, signing_key: bytes | None = None, trusted_addrs=(),
                  ekf_ready_after_s: float = 0.0, unix_time_at_zero_s: float = 1.7e9,
-                 network: int = 0) -> None:
+                 network: int = 0, log_limiter: RateLimitedLog | None = None) -> None:
         if personality not in PERSONALITIES:
             raise ValueError(f"personality must be one of {PERSONALITIES}, got {personality!r}")
         if not 1 <= int(sysid) <= 254:
@@ -313,6 +380,8 @@ class VehicleCore:
         self._out: list[bytes] = []
         self._events: deque = deque()
         self._logged_types: set[str] = set()
+        #: Warnings caused by remote input go through this (shared by a Swarm's cores).
+        self.log_limiter = log_limiter if log_limiter is not None else RateLimitedLog(log)
 
         # Home / EKF origin = spawn point (world NED and geodetic).
         i = self.index
@@ -413,8 +482,13 @@ class VehicleCore:
         st.truncated_bytes += res.n_truncated_bytes
         if res.n_signature_rejected:
             st.signing_rejected += res.n_signature_rejected
-            log.info("sysid %d: rejected %d frame(s) failing MAVLink signing from %s",
-                     self.sysid, res.n_signature_rejected, addr)
+            self._warn_limited(now_s, "signing", "sysid %d: rejected %d frame(s) failing "
+                               "MAVLink signing from %s", self.sysid,
+                               res.n_signature_rejected, addr, level=logging.INFO)
+        if res.n_bad or res.n_unknown:
+            self._warn_limited(now_s, "bad_data", "sysid %d: %d bad frame(s), %d unknown "
+                               "message id(s) from %s (totals: %d bad, %d unknown)", self.sysid,
+                               res.n_bad, res.n_unknown, addr, st.bad_data, st.unknown_msg_ids)
         for msg in res.messages:
             self.receive_message(msg, addr, now_s)
 
@@ -434,7 +508,8 @@ class VehicleCore:
             handler(msg, addr, now_s)
         except Exception:  # noqa: BLE001 - a handler bug must not kill the adapter loop
             st.handler_errors += 1
-            log.exception("sysid %d: handler for %s failed", self.sysid, mtype)
+            self._warn_limited(now_s, f"handler:{mtype}", "sysid %d: handler for %s failed",
+                               self.sysid, mtype, level=logging.ERROR, exc_info=True)
 
     def handle_timer(self, now_s: float) -> None:
         """Run timers: (own physics), autopilot rules, due telemetry."""
@@ -701,7 +776,13 @@ class VehicleCore:
                 # Keep phase, but never burst to catch up after a long gap.
                 nxt = t_due + interval
                 due[msg_id] = nxt if nxt > now_s else now_s + interval
-                self._send(self._builders[msg_id](now_s))
+                try:
+                    self._send(self._builders[msg_id](now_s))
+                except Exception:  # noqa: BLE001 - a bad value must not stop the other streams
+                    self.stats.telemetry_errors += 1
+                    self._warn_limited(now_s, f"telemetry:{msg_id}",
+                                       "sysid %d: building message %d failed", self.sysid,
+                                       msg_id, exc_info=True)
 
     def _send(self, msg) -> None:
         buf = self._codec.encode(msg)
@@ -773,7 +854,8 @@ class VehicleCore:
         p = ph.pos_ned_m[i] - self.home_ned_m
         v = ph.vel_ned_m_s[i]
         return mavlink.MAVLink_local_position_ned_message(
-            self._boot_ms(now_s), p[NORTH], p[EAST], p[DOWN], v[NORTH], v[EAST], v[DOWN])
+            self._boot_ms(now_s), *(_f32(c) for c in (p[NORTH], p[EAST], p[DOWN], v[NORTH],
+                                                       v[EAST], v[DOWN])))
 
     def _msg_gps_raw_int(self, now_s: float):
         ph, i = self.physics, self.index
@@ -846,18 +928,18 @@ class VehicleCore:
     def _msg_position_target_local(self, now_s: float):
         p, v, mask = self._target_local()
         return mavlink.MAVLink_position_target_local_ned_message(
-            self._boot_ms(now_s), mavlink.MAV_FRAME_LOCAL_NED, mask, p[0], p[1], p[2],
-            v[0], v[1], v[2], 0.0, 0.0, 0.0, 0.0, 0.0)
+            self._boot_ms(now_s), mavlink.MAV_FRAME_LOCAL_NED, mask,
+            *(_f32(c) for c in (p[0], p[1], p[2], v[0], v[1], v[2])), 0.0, 0.0, 0.0, 0.0, 0.0)
 
     def _msg_position_target_global(self, now_s: float):
         ph, i = self.physics, self.index
         from planner.geometry import ned_to_geodetic  # scalar path, low rate
         _, v, mask = self._target_local()
-        lat, lon, alt = ned_to_geodetic(ph.target_pos_ned_m[i], *ph.origin_lla)
+        with np.errstate(all="ignore"):
+            lat, lon, alt = ned_to_geodetic(ph.target_pos_ned_m[i], *ph.origin_lla)
         return mavlink.MAVLink_position_target_global_int_message(
-            self._boot_ms(now_s), mavlink.MAV_FRAME_GLOBAL_INT, mask,
-            wire.lat_e7_from_deg(float(lat)), wire.lat_e7_from_deg(float(lon)), float(alt),
-            v[0], v[1], v[2], 0.0, 0.0, 0.0, 0.0, 0.0)
+            self._boot_ms(now_s), mavlink.MAV_FRAME_GLOBAL_INT, mask, _e7_sat(lat), _e7_sat(lon),
+            *(_f32(c) for c in (alt, v[0], v[1], v[2])), 0.0, 0.0, 0.0, 0.0, 0.0)
 
     def _msg_autopilot_version(self, now_s: float):
         # ArduCopter GCS_Mavlink.cpp GCS_MAVLINK_Copter::capabilities (+ GCS_Common: C_CAST,
@@ -893,6 +975,10 @@ class VehicleCore:
 
     def _nop(self, msg, addr, now_s: float) -> None:
         return None
+
+    def _warn_limited(self, now_s: float, key: str, msg: str, *args,
+                      level: int = logging.WARNING, **kwargs) -> bool:
+        return self.log_limiter.log(now_s, key, level, msg, *args, **kwargs)
 
     def _for_me(self, target_system: int, target_component: int) -> bool:
         ok = target_system in (0, self.sysid) and target_component in (0, self.compid)
@@ -1287,6 +1373,13 @@ class VehicleCore:
         yaw = ph.yaw_rad[i]
         cy, sy = math.cos(yaw), math.sin(yaw)
         body = frame in (mavlink.MAV_FRAME_BODY_NED, mavlink.MAV_FRAME_BODY_OFFSET_NED)
+        if not self.is_px4 and any(
+                abs(c) * 100.0 > _FLT_MAX for c in (m.x, m.y, m.z, m.vx, m.vy, m.vz)):
+            # ArduCopter/GCS_Mavlink.cpp handle_message_set_position_target_local_ned "convert
+            # to cm": ``packet.x * 100.0f`` is +-inf in float beyond FLT_MAX / 100 (3.4e36 m):
+            # not a usable target; the emulator's rule for non-finite input (ignore) applies.
+            self.stats.setpoints_ignored += 1
+            return
         if not mask & _POS_BITS:
             x, y, z = m.x, m.y, m.z
             if body:  # ArduCopter rotate_body_frame_to_NE
@@ -1357,6 +1450,13 @@ class VehicleCore:
         if self.is_px4 and not self.armed:
             return
         if pos is not None:
+            if self.is_px4 and _f32_norm_overflows(pos[:2] - ph.pos_ned_m[i, :2]):
+                # PX4 mc_pos_control PositionControl::_positionControl: the horizontal velocity
+                # setpoint is ControlMath::constrainXY(vel_sp_position.xy(), ..., lim), which for
+                # ``v0.length() >= max`` returns ``v0.normalized() * max``; a float32 error whose
+                # squared norm overflows has an infinite length, normalized() is then 0: no
+                # horizontal motion. The vehicle keeps its north/east (the altitude still flies).
+                pos = np.array((ph.pos_ned_m[i, NORTH], ph.pos_ned_m[i, EAST], pos[DOWN]))
             ph.command_position(i, pos, vel)
             self._vel_target_s = None
             self._takeoff_target_down_m = None
@@ -1534,8 +1634,8 @@ class VehicleCore:
             return
         if addr not in self.trusted_addrs or self.armed:
             self.stats.signing_rejected += 1
-            log.warning("sysid %d: SETUP_SIGNING from untrusted link %s (or armed) refused",
-                        self.sysid, addr)
+            self._warn_limited(now_s, "setup_signing", "sysid %d: SETUP_SIGNING from untrusted "
+                               "link %s (or armed) refused", self.sysid, addr)
             return
         key = bytes(bytearray(m.secret_key)) if not isinstance(m.secret_key, bytes) else m.secret_key
         self._codec.set_signing_key(key, initial_timestamp=m.initial_timestamp)

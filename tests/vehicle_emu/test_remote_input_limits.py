@@ -163,3 +163,62 @@ def test_px4_reposition_int32_max_keeps_the_horizontal_target(gcs):
     assert after[:2] == pytest.approx(before[:2], abs=1e-9)
     assert after[2] - rig.core.home_ned_m[2] == pytest.approx(-20.0)
     assert rig.reposition(0x7FF80000, 0x7FF80000) == [DENIED]
+
+
+# ---------------------------------------------------------------------------------------------
+# Finite but absurd local targets (float32 max is 3.4e38)
+# ---------------------------------------------------------------------------------------------
+
+HUGE_TARGETS = [(3e38, 0.0, -10.0), (3e38, 3e38, -10.0), (-3e38, 3e38, -3e38), (3.4e38, 0, 0),
+                (0.0, 0.0, -3e38)]
+
+
+@pytest.mark.parametrize("target", HUGE_TARGETS)
+def test_huge_local_target_never_raises(flying, target):
+    """No exception from remote input, ever: every stream keeps flowing with finite (float32-
+    saturated) values and the vehicle state stays finite."""
+    rig = flying
+    sp = mavlink.MAVLink_set_position_target_local_ned_message(
+        0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, *target, 0, 0, 0, 0, 0, 0, 0, 0)
+    out = rig.run(rig.t + 3.0, sp_msg=sp)
+    st = rig.core.stats
+    assert st.handler_errors == 0 and st.telemetry_errors == 0
+    for mtype in ("POSITION_TARGET_LOCAL_NED", "POSITION_TARGET_GLOBAL_INT",
+                  "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT"):
+        assert len(of_type(out, mtype)) >= 25, mtype        # 10 Hz for 3 s
+    assert len(of_type(out, "HEARTBEAT")) >= 3              # 1 Hz
+    assert np.all(np.isfinite(rig.core.physics.pos_ned_m))
+    assert np.all(np.isfinite(rig.core.physics.vel_ned_m_s))
+
+
+def test_ardupilot_ignores_targets_whose_cm_value_overflows(gcs):
+    """ArduCopter/GCS_Mavlink.cpp handle_message_set_position_target_local_ned converts to cm
+    in float: ``packet.x * 100.0f`` is inf beyond FLT_MAX / 100; such a setpoint is no usable
+    target and the vehicle keeps holding where it is."""
+    rig = Flying(gcs, "ardupilot")
+    ignored = rig.core.stats.setpoints_ignored
+    rig.send(gcs.local_target(3e38, 0, -10))
+    assert rig.core.stats.setpoints_ignored == ignored + 1
+    rig.run(rig.t + 3.0)
+    assert rig.core.local_pos_ned_m == pytest.approx((0, 0, -10), abs=0.3)
+    rig.send(gcs.local_target(3e30, 0, -10))           # fits in cm: accepted and flown
+    assert rig.core.stats.setpoints_ignored == ignored + 1
+    rig.run(rig.t + 2.0)
+    assert rig.core.local_pos_ned_m[0] > 3.0
+
+
+def test_px4_holds_north_east_when_the_float32_error_norm_overflows(gcs):
+    """PX4 PositionControl::_positionControl -> ControlMath::constrainXY: an error vector with an
+    infinite float32 length is ``normalized() * max`` = 0, no horizontal motion; the vertical
+    channel is constrained separately and still flies (here: the 20 m altitude)."""
+    rig = Flying(gcs, "px4")
+    sp = mavlink.MAVLink_set_position_target_local_ned_message(
+        0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, 3e38, 3e38, -20.0, 0, 0, 0, 0, 0, 0, 0, 0)
+    rig.run(rig.t + 10.0, sp_msg=sp)
+    assert rig.core.mode_name == "OFFBOARD"
+    assert rig.core.local_pos_ned_m == pytest.approx((0, 0, -20), abs=0.3)
+    # 1e19 m: the float32 squared norm (2e38) is still finite -> PX4 flies towards it
+    sp = mavlink.MAVLink_set_position_target_local_ned_message(
+        0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, 1e19, 0.0, -20.0, 0, 0, 0, 0, 0, 0, 0, 0)
+    rig.run(rig.t + 2.0, sp_msg=sp)
+    assert rig.core.local_pos_ned_m[0] > 3.0
