@@ -146,6 +146,17 @@ class StationConfig:
     """Ask every vehicle for HOME_POSITION (MAV_CMD_REQUEST_MESSAGE) on discovery, recovery and
     arming, and every ``home_request_period_s`` until one arrives."""
     home_request_period_s: float = 5.0
+    disable_unused_messages: bool = True
+    """Turn off what the station does not use: when a vehicle's autopilot sends a message the
+    station neither handles nor asked for (``stream_rates_hz``, ``stale_msgids``), send it
+    MAV_CMD_SET_MESSAGE_INTERVAL with interval -1 ("stop sending": ArduPilot GCS_Common.cpp
+    set_message_interval; PX4 MavlinkReceiver::set_message_interval, rate 0 stops the stream).
+    PX4 streams ~300 frames/s per vehicle on a GCS link by default; the station reads 3 of them.
+    Only this channel of the vehicle is affected (both autopilots keep intervals per link)."""
+    disable_retry_s: float = 10.0
+    """A message still arriving this long after we asked to stop it is asked again ..."""
+    disable_attempts: int = 3
+    """... at most this many times per (vehicle, message) (reset when the vehicle reboots)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.sysid <= 255:
@@ -158,10 +169,12 @@ class StationConfig:
             raise ValueError(f"task_sysids must be in 1..255, got {self.task_sysids}")
         for name in ("heartbeat_period_s", "vehicle_timeout_s", "command_timeout_s",
                      "param_timeout_s", "telemetry_stale_s", "command_in_progress_timeout_s",
-                     "task_position_rate_hz", "home_request_period_s"):
+                     "task_position_rate_hz", "home_request_period_s", "disable_retry_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be > 0, got {v}")
+        if self.disable_attempts < 0:
+            raise ValueError("disable_attempts must be >= 0")
         if self.params_in_flight < 1:
             raise ValueError("params_in_flight must be >= 1")
         if self.command_retries < 0 or self.param_retries < 0:
@@ -202,6 +215,10 @@ class LinkStats:
     """Frames from sysids that may not become vehicles (``allowed_sysids``, ``max_vehicles``)."""
     refused_by_sysid: dict[int, int] = field(default_factory=dict)
     """The same, per sysid."""
+    messages_disabled: int = 0
+    """SET_MESSAGE_INTERVAL(-1) requests the vehicles accepted (``disable_unused_messages``)."""
+    disable_requests: int = 0
+    """SET_MESSAGE_INTERVAL(-1) requests sent (first sends; the command retries not counted)."""
     inconsistent_frames: int = 0
     """Frames that contradict what a vehicle has been: another autopilot or vehicle type in its
     HEARTBEAT, or (datagram links) its sysid from a second address while the first is live."""
@@ -253,6 +270,10 @@ class _Vehicle:
     """When to (re-)request HOME_POSITION (inf: not needed, or one request is in flight)."""
     home_by_get_home: bool = False
     """REQUEST_MESSAGE unsupported: use the older MAV_CMD_GET_HOME_POSITION."""
+    disable_tries: dict[int, tuple[int, float]] = field(default_factory=dict)
+    """msgid -> (requests so far, core time of the last one) for unused messages."""
+    disable_queue: dict[int, None] = field(default_factory=dict)
+    """Unused message ids waiting for the SET_MESSAGE_INTERVAL slot to be free."""
 
     @property
     def armed(self) -> bool:
@@ -271,6 +292,8 @@ class _Command:
     deadline_s: float = math.inf
     in_progress: bool = False
     component: int = _AUTOPILOT_COMPID
+    retries: int | None = None
+    """Re-sends before giving up (None: ``StationConfig.command_retries``)."""
 
 
 @dataclass
@@ -302,7 +325,8 @@ class StationLink:
         self._codec = wire.Codec(self.config.sysid, self.config.compid,
                                  signing_key=self.config.signing_key,
                                  signing_link_id=link_id & 0xFF,
-                                 accept_unsigned=self.config.accept_unsigned)
+                                 accept_unsigned=self.config.accept_unsigned,
+                                 full_msgids=_DECODED_MSGIDS)
         self.stats = LinkStats(decode=self._codec.stats)
         self._t0_s = now_s
         self._decoders: dict[Addr, wire.Decoder] = {}
@@ -326,6 +350,9 @@ class StationLink:
         self._task_request_s: dict[int, float] = {}
         self._timer_hint_s = now_s
         self._warn = _RateLimitedLog(self.config.warn_interval_s)
+        self._used_msgids = (_NEVER_DISABLE
+                             | {m for m, _ in self.config.stream_rates_hz}
+                             | set(self.config.stale_msgids))
 
     # ------------------------------------------------------------------ outputs
 
@@ -507,6 +534,8 @@ class StationLink:
             handler(self, v, msg, now_s)
         else:
             self.stats.ignored_messages += 1
+            if self.config.disable_unused_messages:
+                self._note_unused(v, msg.get_msgId(), now_s)
             if kind not in _IGNORED and kind not in self._warned_types:
                 self._warned_types.add(kind)
                 log.info("link %d: ignoring %s (first seen from sysid %d)", self.link_id, kind,
@@ -610,6 +639,8 @@ class StationLink:
             self._send(self._heartbeat_msg(), addr, now_s)
             self._request_streams(v, now_s)  # it may have rebooted and forgotten our rates
             self._request_home(v, now_s)
+            v.disable_tries.clear()  # ... and our stops: a reboot restores the default streams
+            v.disable_queue.clear()
         if old_mode != v.custom_mode:
             self._emit(ModeChanged(self.link_id, sysid, now_s, v.custom_mode,
                                    v.adapter.mode_name(v.custom_mode),
@@ -818,7 +849,8 @@ class StationLink:
             if self._next_heartbeat_s <= now_s:  # we were late: do not burst to catch up
                 self._next_heartbeat_s = now_s + cfg.heartbeat_period_s
         for cmd in [c for c in self._commands.values() if c.deadline_s <= now_s]:
-            if not cmd.in_progress and cmd.attempts <= cfg.command_retries:
+            retries = cfg.command_retries if cmd.retries is None else cmd.retries
+            if not cmd.in_progress and cmd.attempts <= retries:
                 self._transmit_command(cmd, now_s)  # confirmation = attempts so far
             else:
                 self._finish_command(cmd, now_s, None)
@@ -926,6 +958,49 @@ class StationLink:
                 v.sysid, _AUTOPILOT_COMPID, stream, max(1, int(round(rate_hz))), 1)
             self._send(msg, v.addr, now_s)
 
+    # ------------------------------------------------------------------ unused messages
+
+    def _note_unused(self, v: _Vehicle, msgid: int, now_s: float) -> None:
+        """A frame the station does not use, from ``v``'s autopilot: ask it to stop that
+        message, once, and again (up to ``disable_attempts``) if it keeps coming."""
+        if msgid in self._used_msgids or v.use_data_stream or msgid in v.disable_queue:
+            return  # the REQUEST_DATA_STREAM fallback has no per-message stop
+        tries, last_s = v.disable_tries.get(msgid, (0, -math.inf))
+        if tries >= self.config.disable_attempts or now_s - last_s < self.config.disable_retry_s:
+            return
+        v.disable_tries[msgid] = (tries + 1, now_s)
+        v.disable_queue[msgid] = None
+        self._pump_disables(v, now_s)
+
+    def _pump_disables(self, v: _Vehicle, now_s: float) -> None:
+        # One at a time, and only when no stream request is in flight or queued for this
+        # vehicle: COMMAND_ACK names only the command id, and the station's own stream requests
+        # must never wait behind a batch of stops.
+        key = (v.sysid, _CMD_SET_MESSAGE_INTERVAL)
+        if not v.disable_queue or key in self._commands or self._queued.get(key) \
+                or v.lost or v.sysid not in self._vehicles:
+            return
+        msgid = next(iter(v.disable_queue))
+        del v.disable_queue[msgid]
+        params = (float(msgid), -1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        cmd = self._new_command(v.sysid, _CMD_SET_MESSAGE_INTERVAL, params, use_int=False)
+        cmd.retries = 1  # best effort; the message itself tells us if it did not stop
+        cmd.internal = lambda result, t_s, v=v, m=msgid: self._on_disable_result(v, m, result, t_s)
+        self.stats.disable_requests += 1
+        self._submit(cmd, now_s)
+
+    def _on_disable_result(self, v: _Vehicle, msgid: int, result: int | None,
+                           now_s: float) -> None:
+        if result == mavlink.MAV_RESULT_ACCEPTED:
+            self.stats.messages_disabled += 1
+            log.debug("link %d sysid %d: message %d stopped", self.link_id, v.sysid, msgid)
+        elif result is not None:
+            # DENIED / FAILED: not a stream this autopilot can stop (a reply to something,
+            # or no ap_message for it in ArduPilot): never ask again.
+            v.disable_tries[msgid] = (self.config.disable_attempts, now_s)
+            log.info("link %d sysid %d: cannot stop message %d (%s)", self.link_id, v.sysid,
+                     msgid, _result_name(result))
+
     # ------------------------------------------------------------------ commands
 
     def _new_command(self, sysid: int, command: int, params: tuple, *, use_int: bool) -> _Command:
@@ -980,6 +1055,8 @@ class StationLink:
             if cmd.sysid in self._vehicles:
                 self._commands[key] = nxt
                 self._transmit_command(nxt, now_s)
+        elif cmd.command == _CMD_SET_MESSAGE_INTERVAL and cmd.sysid in self._vehicles:
+            self._pump_disables(self._vehicles[cmd.sysid], now_s)
 
     def send_command_long(self, sysid: int, command: int, params=(0.0,) * 7, now_s: float = 0.0,
                           *, component: int = _AUTOPILOT_COMPID) -> int:
@@ -1233,6 +1310,23 @@ _HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
     "STATUSTEXT": StationLink._on_statustext,
     "HOME_POSITION": StationLink._on_home_position,
 }
+
+#: Fully decoded; every other known message stays a checked :class:`~gcs.wire.RawFrame`.
+_DECODED_MSGIDS = frozenset(
+    getattr(mavlink, f"MAVLINK_MSG_ID_{name}") for name in ("HEARTBEAT", *_HANDLERS))
+
+#: Never asked to stop, used or not: replies to requests (ours or another GCS's), protocol
+#: traffic, one-off notices; stopping them is refused at best and breaks a protocol at worst.
+_NEVER_DISABLE = _DECODED_MSGIDS | frozenset(
+    getattr(mavlink, f"MAVLINK_MSG_ID_{name}") for name in (
+        "AUTOPILOT_VERSION", "TIMESYNC", "PING", "SYSTEM_TIME", "MESSAGE_INTERVAL",
+        "COMMAND_LONG", "COMMAND_INT", "PARAM_REQUEST_READ", "PARAM_SET", "PARAM_EXT_VALUE",
+        "PARAM_EXT_ACK", "MISSION_COUNT", "MISSION_ITEM", "MISSION_ITEM_INT", "MISSION_REQUEST",
+        "MISSION_REQUEST_INT", "MISSION_ACK", "MISSION_ITEM_REACHED", "MISSION_REQUEST_LIST",
+        "FILE_TRANSFER_PROTOCOL", "LOG_ENTRY", "LOG_DATA", "FENCE_POINT", "RALLY_POINT",
+        "MAG_CAL_PROGRESS", "MAG_CAL_REPORT", "SETUP_SIGNING", "RADIO_STATUS",
+        "SET_POSITION_TARGET_GLOBAL_INT", "SET_POSITION_TARGET_LOCAL_NED", "SET_MODE",
+        "REQUEST_DATA_STREAM"))
 
 #: Known and deliberately ignored here (requested for display or future use; counted only).
 _IGNORED = frozenset({

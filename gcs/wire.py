@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 __all__ = [
-    "mavlink", "Codec", "Decoder", "DecodeStats",
+    "mavlink", "Codec", "Decoder", "DecodeStats", "RawFrame",
     "deg_to_e7", "e7_to_deg", "m_to_mm", "mm_to_m", "m_s_to_cm_s", "cm_s_to_m_s",
     "hdg_cdeg_to_yaw_rad", "yaw_rad_to_hdg_cdeg", "s_to_time_boot_ms", "hz_to_interval_us",
     "TYPE_MASK_POSITION", "TYPE_MASK_VELOCITY", "TYPE_MASK_POSITION_VELOCITY",
@@ -258,8 +258,47 @@ class _NullFile:
         pass
 
 
+class RawFrame:
+    """A checked frame whose payload was not unpacked: the station does not use its message.
+
+    CRC and signature are verified as for any frame; only the header is read (message id,
+    sender, sequence), so it costs a fraction of a full decode. Same accessors as a pymavlink
+    message for what the link layer reads (``get_type``, ``get_msgId``, ``get_srcSystem``,
+    ``get_srcComponent``, ``get_seq``, ``get_msgbuf``), and no fields.
+    """
+
+    __slots__ = ("_msgid", "_name", "_sysid", "_compid", "_seq", "_buf")
+
+    def __init__(self, msgid: int, name: str, sysid: int, compid: int, seq: int,
+                 buf: bytes) -> None:
+        self._msgid, self._name, self._sysid, self._compid = msgid, name, sysid, compid
+        self._seq, self._buf = seq, buf
+
+    def get_type(self) -> str:
+        return self._name
+
+    def get_msgId(self) -> int:  # noqa: N802 - pymavlink's spelling
+        return self._msgid
+
+    def get_srcSystem(self) -> int:  # noqa: N802
+        return self._sysid
+
+    def get_srcComponent(self) -> int:  # noqa: N802
+        return self._compid
+
+    def get_seq(self) -> int:
+        return self._seq
+
+    def get_msgbuf(self) -> bytes:
+        return self._buf
+
+    def __repr__(self) -> str:
+        return f"RawFrame({self._name}, sysid={self._sysid}, compid={self._compid})"
+
+
 class _MAVLink(mavlink.MAVLink):
-    """pymavlink's parser with the signature check done in the C library's order.
+    """pymavlink's parser with the signature check done in the C library's order, and frames
+    of messages nobody reads left undecoded (:class:`RawFrame`).
 
     pymavlink 2.4.x ``MAVLink.check_signature`` stores a frame's timestamp as its stream's
     latest *before* comparing the signature, so one forged frame with a future timestamp (no key
@@ -269,6 +308,49 @@ class _MAVLink(mavlink.MAVLink):
     Same logic as ``vehicle_emu/wire.py`` ``_MAVLink`` (the two packages never import each
     other; to be merged).
     """
+
+    full_msgids: frozenset[int] | None = None
+    """Message ids decoded into pymavlink objects; the others become RawFrame (None: all)."""
+
+    def decode(self, msgbuf):
+        full = self.full_msgids
+        if full is not None and len(msgbuf) >= 10:
+            if msgbuf[0] == mavlink.PROTOCOL_MARKER_V2:
+                msgid = msgbuf[7] | (msgbuf[8] << 8) | (msgbuf[9] << 16)
+            else:
+                msgid = msgbuf[5]
+            if msgid not in full and msgid in mavlink.mavlink_map:
+                return self._decode_raw(msgbuf, msgid)
+        return super().decode(msgbuf)
+
+    def _decode_raw(self, msgbuf, msgid: int) -> RawFrame:
+        """pymavlink ``MAVLink.decode`` up to and including the signature check, without the
+        payload: the same frames are refused, with the same reasons."""
+        if msgbuf[0] == mavlink.PROTOCOL_MARKER_V2:
+            headerlen, incompat = 10, msgbuf[2]
+            seq, sysid, compid = msgbuf[4], msgbuf[5], msgbuf[6]
+        else:
+            headerlen, incompat = 6, 0
+            seq, sysid, compid = msgbuf[2], msgbuf[3], msgbuf[4]
+        sig_len = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN if incompat & mavlink.MAVLINK_IFLAG_SIGNED \
+            else 0
+        if msgbuf[1] != len(msgbuf) - (headerlen + 2 + sig_len):
+            raise mavlink.MAVError("invalid MAVLink message length")
+        msgtype = mavlink.mavlink_map[msgid]
+        end = len(msgbuf) - sig_len
+        crc = msgbuf[end - 2] | (msgbuf[end - 1] << 8)
+        crcbuf = msgbuf[1:end - 2]
+        crcbuf.append(msgtype.crc_extra)
+        if mavlink.x25crc(crcbuf).crc != crc:
+            raise mavlink.MAVError(f"invalid MAVLink CRC in msgID {msgid}")
+        signing = self.signing
+        if signing.secret_key is not None:
+            accept = bool(sig_len) and self.check_signature(msgbuf, sysid, compid)
+            if not accept and signing.allow_unsigned_callback is not None:
+                accept = signing.allow_unsigned_callback(self, msgid)
+            if not accept:
+                raise mavlink.MAVError("Invalid signature")
+        return RawFrame(msgid, msgtype.msgname, sysid, compid, seq, bytes(msgbuf))
 
     def check_signature(self, msgbuf, srcSystem, srcComponent) -> bool:
         signing = self.signing
@@ -297,7 +379,9 @@ class DecodeStats:
     """Counters for what came in; bad bytes become counts, never exceptions."""
 
     frames: int = 0
-    """Frames decoded into known messages."""
+    """Frames decoded into known messages (raw frames included)."""
+    raw_frames: int = 0
+    """Of ``frames``: checked but not unpacked (:class:`RawFrame`), nobody reads them."""
     bad_data: int = 0
     """Bad prefixes, CRC or length errors, rejected signatures (pymavlink BAD_DATA)."""
     signature_rejected: int = 0
@@ -315,10 +399,12 @@ class Decoder:
     """Parser state for one remote address (a stream or a sequence of datagrams)."""
 
     def __init__(self, stats: DecodeStats, signing_key: bytes | None = None,
-                 accept_unsigned: bool = True) -> None:
+                 accept_unsigned: bool = True,
+                 full_msgids: frozenset[int] | None = None) -> None:
         self._stats = stats
         self._mav = _MAVLink(_NullFile(), 0, 0)
         self._mav.robust_parsing = True
+        self._mav.full_msgids = full_msgids
         if signing_key is not None:
             self._mav.signing.secret_key = signing_key
             if accept_unsigned:
@@ -330,7 +416,8 @@ class Decoder:
         self._mav.expected_length = mavlink.HEADER_LEN_V1 + 2
 
     def feed(self, data: bytes, *, datagram: bool = True) -> list:
-        """Decode ``data``; return the good messages (pymavlink objects) in order.
+        """Decode ``data``; return the good messages (pymavlink objects, or :class:`RawFrame`
+        for ids outside the decoder's ``full_msgids``) in order.
 
         With ``datagram=True`` (UDP) an incomplete trailing frame is dropped and counted; with
         ``datagram=False`` (TCP, serial) it is kept for the next call.
@@ -354,6 +441,8 @@ class Decoder:
                 self._stats.unknown_msgid += 1
             else:
                 self._stats.frames += 1
+                if type(msg) is RawFrame:
+                    self._stats.raw_frames += 1
                 out.append(msg)
         if datagram and self._mav.buf_len() > 0:
             self._stats.truncated += 1
@@ -365,12 +454,14 @@ class Codec:
     """Our side of the wire: encoder (seq, sysid/compid, optional signing) and decoder factory."""
 
     def __init__(self, sysid: int, compid: int, *, signing_key: bytes | None = None,
-                 signing_link_id: int = 0, accept_unsigned: bool = True) -> None:
+                 signing_link_id: int = 0, accept_unsigned: bool = True,
+                 full_msgids: frozenset[int] | None = None) -> None:
         if signing_key is not None and len(signing_key) != 32:
             raise ValueError(f"signing_key must be 32 bytes, got {len(signing_key)}")
         self._mav = mavlink.MAVLink(_NullFile(), sysid, compid)
         self._signing_key = signing_key
         self._accept_unsigned = accept_unsigned
+        self._full_msgids = full_msgids
         self.stats = DecodeStats()
         if signing_key is not None:
             self._mav.signing.secret_key = signing_key
@@ -393,4 +484,4 @@ class Codec:
         return bytes(buf)
 
     def new_decoder(self) -> Decoder:
-        return Decoder(self.stats, self._signing_key, self._accept_unsigned)
+        return Decoder(self.stats, self._signing_key, self._accept_unsigned, self._full_msgids)

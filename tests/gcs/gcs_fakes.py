@@ -40,6 +40,16 @@ class FakeAutopilot:
         self.mav.seq = (self.mav.seq + 1) % 256
         return bytes(data)
 
+    def pack(self, msg) -> bytes:
+        """Any pymavlink message, as this vehicle would send it."""
+        return self._pack(msg)
+
+    def attitude(self, t_ms: int = 0) -> bytes:
+        return self._pack(mav.MAVLink_attitude_message(t_ms, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0))
+
+    def local_position(self, t_ms: int = 0) -> bytes:
+        return self._pack(mav.MAVLink_local_position_ned_message(t_ms, 1.0, 2.0, -3.0, 0, 0, 0))
+
     def heartbeat(self, custom_mode: int = 0, armed: bool = False) -> bytes:
         base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
         return self._pack(mav.MAVLink_heartbeat_message(

@@ -67,3 +67,61 @@ def test_event_log_metrics_and_summary(tmp_path):
     write_summary(tmp_path / "summary.json", {"tu1": 0.99, "seeds": (1, 2)})
     assert json.loads((tmp_path / "summary.json").read_text()) == {"seeds": [1, 2], "tu1": 0.99}
     assert not (tmp_path / "summary.json.tmp").exists()
+
+
+def _wait_for(predicate, timeout_s: float = 10.0) -> bool:
+    """Wait on a condition (bounded), never assert on elapsed time."""
+    import threading
+    done = threading.Event()
+    for _ in range(int(timeout_s / 0.01)):
+        if predicate():
+            return True
+        done.wait(0.01)
+    return predicate()
+
+
+def test_writes_are_buffered_and_close_writes_everything(tmp_path):
+    path = tmp_path / "b.tlog"
+    tlog = TlogWriter(path, flush_period_s=3600.0)  # the thread will not flush in this test
+    frames = [(1.7e9 + i, bool(i % 2), bytes([0xFD, i % 256, 0, 0])) for i in range(1000)]
+    tlog.write_frames(frames[:500])
+    for t, _, f in frames[500:]:
+        tlog.write(t, f)
+    assert path.stat().st_size == 0  # nothing written on the caller's thread
+    tlog.close()
+    raw = path.read_bytes()
+    assert len(raw) == 1000 * 12 and tlog.frames == 1000
+    assert raw[:12] == int(1.7e9 * 1e6).to_bytes(8, "big") + bytes([0xFD, 0, 0, 0])
+    assert raw[-4:] == bytes([0xFD, 999 % 256, 0, 0])
+    tlog.close()  # idempotent
+    with pytest.raises(ValueError):
+        tlog.write(0.0, b"x")
+
+
+def test_background_thread_flushes_without_close(tmp_path):
+    ev_path, m_path = tmp_path / "e.jsonl", tmp_path / "m.csv"
+    events = EventLog(ev_path, flush_period_s=0.02)
+    metrics = MetricsWriter(m_path, flush_period_s=0.02)
+    try:
+        events.write(VehicleLost(0, 3, 12.5, 7.5))
+        metrics.write({"t_s": 0.0, "networked": 3})
+        # Crash safety: the records reach the file while the writers are still open.
+        assert _wait_for(lambda: ev_path.stat().st_size > 0 and m_path.stat().st_size > 0)
+        assert json.loads(ev_path.read_text())["sysid"] == 3
+        assert m_path.read_text().splitlines() == ["t_s,networked", "0.0,3"]
+    finally:
+        events.close()
+        metrics.close()
+
+
+def test_order_is_kept_across_flushes(tmp_path):
+    path = tmp_path / "o.tlog"
+    tlog = TlogWriter(path, flush_period_s=0.001)
+    for i in range(20000):
+        tlog.write(float(i), b"")
+        if i % 5000 == 0:
+            tlog.flush()  # flushes from this thread interleave with the background ones
+    tlog.close()
+    raw = path.read_bytes()
+    stamps = [int.from_bytes(raw[k:k + 8], "big") for k in range(0, len(raw), 8)]
+    assert stamps == [i * 1_000_000 for i in range(20000)]
