@@ -194,14 +194,14 @@ def format_pct_ci(mean: float, half: float, lo: float = 0.0, hi: float = 100.0) 
 
     Returns the text and whether it was clipped. A percentage cannot leave [0, 100], so an
     interval that does (few seeds, skewed data) is shown as its clipped bounds rather than as a
-    ± half-width wider than the range: '80.00 (95 % CI 0.00–100.00, clipped)'.
+    ± half-width wider than the range: '80.00 (CI 0.00–100.00 clipped)'.
     """
     if np.isnan(mean):
         return "–", False
     if np.isnan(half):
         return f"{mean:.2f} (1 run, no CI)", False
     if mean - half < lo - 1e-9 or mean + half > hi + 1e-9:
-        return f"{mean:.2f} (95 % CI {max(lo, mean - half):.2f}–{min(hi, mean + half):.2f}, clipped)", True
+        return f"{mean:.2f} (CI {max(lo, mean - half):.2f}–{min(hi, mean + half):.2f} clipped)", True
     return f"{mean:.2f} ± {half:.2f}", False
 
 

@@ -287,3 +287,64 @@ def test_ctrl_c_during_sweep_keeps_what_it_stored(tmp_path):
     n = db.execute("SELECT COUNT(*) FROM runs").fetchone()[0]
     db.close()
     assert 2 <= n < 120
+
+
+# -- report leads with the user's own configurations and grades only the paper's ------------------
+
+@pytest.fixture(scope="module")
+def custom_store(tmp_path_factory):
+    path = tmp_path_factory.mktemp("custom") / "custom.sqlite"
+    assert main(["sweep", "--grid", "custom", "--size", "XS", "--attrition", "0", "1%", "--method", "phireman",
+                 "mccst", "--seeds", "3", "--set", "n_steps=20", "--workers", "1", "--no-progress",
+                 "--store", str(path)]) == 0
+    return path
+
+
+def test_report_on_a_custom_store_leads_with_it(custom_store, tmp_path, capsys):
+    capsys.readouterr()
+    assert main(["report", str(custom_store), "--out", str(tmp_path / "r"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "leads with your 4 configurations" in out and "0 of 20" not in out
+    md = (tmp_path / "r" / "report.md").read_text()
+    lines = md.splitlines()
+    first_section = next(line for line in lines if line.startswith("## "))
+    assert first_section == "## Your configurations"
+    assert md.count("n_steps=20") >= 4
+    assert "## Table II" not in md and "| – | – |" not in md  # no rows of dashes
+    assert len(lines) < 40
+
+
+def test_report_with_overrides_does_not_grade_against_the_paper(custom_store, tmp_path, capsys):
+    capsys.readouterr()
+    assert main(["report", str(custom_store), "--out", str(tmp_path / "r"), "--set", "n_steps=20",
+                 "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "not compared with the paper" in out and "within 3 pp" not in out
+    md = (tmp_path / "r" / "report.md").read_text()
+    assert "n_steps=20 (the paper's: 200)" in md
+    assert "## Ours against the paper" not in md and " vs " not in md.split("## Table II")[1]
+    assert "## Table II (ours)" in md and "| XS | 1 |" in md and "| S |" not in md
+
+
+def test_compared_heatmap_panels_share_one_colour_scale(monkeypatch, tmp_path):
+    from mission import report
+
+    calls = []
+    real = report._heatmap
+
+    def spy(ax, z, marks, sizes, levels, title, vmax=None):
+        calls.append((title, vmax))
+        return real(ax, z, marks, sizes, levels, title, vmax)
+
+    monkeypatch.setattr(report, "_heatmap", spy)
+    cell = report.Cell("S", 0.01, {m: None for m in ("phireman", "dccrs", "mccst")})
+    s = report.Sample(report.ConfigSpec("S", 0.01, "phireman"))
+    s.by_seed = {"tu1": {0: 70.0, 1: 72.0}, "tu2": {0: 80.0, 1: 81.0}}
+    b = report.Sample(report.ConfigSpec("S", 0.01, "dccrs"))
+    b.by_seed = {"tu1": {0: 40.0, 1: 42.0}, "tu2": {0: 79.0, 1: 80.0}}
+    cell.samples.update(phireman=s, dccrs=b)
+    for metric in ("tu1", "tu2"):
+        cell.unpaired[metric] = report.best_of(cell.samples, metric)
+    report.heatmaps([cell], tmp_path)
+    fig3 = [v for t, v in calls if "max(DCCRS, MCCST)" in t]
+    assert len(fig3) == 4 and len(set(fig3)) == 1 and fig3[0] >= 29  # ours (+29) and paper (+2.6) alike

@@ -155,13 +155,15 @@ def test_report_on_a_synthetic_store(synthetic_store, tmp_path):
     assert "81.83 vs 80.83 (+1.00 ✓)" in md
     assert "72.21 vs 78.21 (-6.00 ✗)" in md
     # Summary and misses: XS / 0 % misses for ΦIREMAN and is listed with a diagnosis.
-    assert "within 3 pp of the paper at 0–2 % attrition: **1 of 20**" in md
+    # only the 3 paper configurations with data are counted (and listed): not "1 of 20"
+    assert "within 3 pp of the paper at 0–2 % attrition: **1 of 3** configurations with data" in md
+    assert "| M | 1 |" not in md
     misses = md.split("## Configurations that miss")[1].split("## The 5 % column")[0]
     xs = next(line for line in misses.splitlines() if line.startswith("- XS / 0 %: TU1 Δ -"))
     assert "exceeds the combined 95 % CIs" in xs and "specific to this planner" in xs
     assert "- S / 1 %" in misses.split("**DCCRS**")[1]  # DCCRS −6 misses its 5 pp
-    # The 5 % column comes with its explanation.
-    assert "PAPER_NOTES §9.5" in md
+    # No 5 % data in this store: no 5 % section of empty cells.
+    assert "## The 5 % column" not in md
     # Bold agreement: the paper bolds ΦIREMAN at S / 0.5 %, our unpaired test does not.
     agreement = md.split("## Significance against the paper's bolding")[1]
     assert "LaTeX" in agreement
@@ -200,7 +202,7 @@ def test_report_command(synthetic_store, tmp_path, capsys):
     notes = tmp_path / "notes.md"
     notes.write_text("XS / 0 % misses because of a synthetic shift.")
     assert main(["report", str(synthetic_store), "--out", str(out), "--notes", str(notes), "--no-figures"]) == 0
-    assert "within 3 pp at 0-2 %: 1 of 20" in capsys.readouterr().out
+    assert "within 3 pp of the paper at 0-2 %: 1 of 3 paper configurations with data" in capsys.readouterr().out
     md = (out / "report.md").read_text()
     assert md.rstrip().endswith("XS / 0 % misses because of a synthetic shift.")
     assert not list(out.glob("*.png"))
@@ -229,7 +231,7 @@ def test_central_information_section(tmp_path, rng):
     section = md.split("asynchronous and central information against the paper")[1]
     line = next(ln for ln in section.splitlines() if ln.startswith("| M | 2 |"))
     assert "(-4.00)" in line and "(-0.50 ✓)" in line and "(+0.50 ✓)" in line
-    assert result.summary["central_vs_async"] == {"async": 0, "central": 1, "configs": 20}
+    assert result.summary["central_vs_async"] == {"async": 0, "central": 1, "configs": 1}
 
 
 def test_per_baseline_split_of_the_paper_bolds(rng):
