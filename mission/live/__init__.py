@@ -41,15 +41,8 @@ async def attach(op, adapters, *, mission, opts, clock: Callable[[], float], rec
     """
     out: list = []
     info: dict = {"url": None, "key": None, "forward": []}
-    if records is not None:  # every operator action in events.jsonl, whoever asked
-        prev = op.on_action
-
-        def on_action(rec) -> None:
-            if prev is not None:
-                prev(rec)
-            records.events.write(rec)
-
-        op.on_action = on_action
+    # Operator actions reach events.jsonl through the runner's own ``op.on_action``; the live
+    # view chains onto it (mission.live.station) and never replaces it.
     if getattr(opts, "forward", ()):
         from gcs.forward import Forwarder
 

@@ -1,0 +1,254 @@
+"""The live web view in a real headless browser (Debian chromium + chromedriver, selenium) during
+an emulated flight, its replay driven by the slider, and the GIS export of the same run.
+
+Skipped, loudly, when chromium or chromedriver is missing (``apt-get install -y chromium
+chromium-driver``). Loopback only, port 0; waits have generous timeouts, nothing is timed."""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import json
+import shutil
+import threading
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.udp
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMEDRIVER = shutil.which("chromedriver")
+CREWS = ("Engine 7", "Hand crew Alpha")
+
+
+def _mission():
+    from mission.schema import (EmulatedVehicles, Mission, Radio, RunSpec, Spawn, SpawnRing,
+                                Task, TrackPoint, Vehicles)
+    return Mission(name="browser", vehicles=Vehicles(emulated=EmulatedVehicles(
+        count=6, radio_range_m=100.0, cruise_alt_m=20.0, climb_rate_m_s=5.0,
+        max_speed_m_s=10.0, spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)))),
+        tasks=(Task(name=CREWS[0], track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
+               Task(name=CREWS[1], track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),))),
+        radio=Radio(range_m=100.0, base_range_m=100.0, latency_s=0.01),
+        run=RunSpec(duration_s=900.0, seed=4, speedup=3.0))
+
+
+@pytest.fixture(scope="module")
+def browser(tmp_path_factory):
+    if not (CHROMIUM and CHROMEDRIVER):
+        pytest.skip("BROWSER TEST SKIPPED: chromium / chromedriver not installed "
+                    "(apt-get install -y chromium chromium-driver)")
+    webdriver = pytest.importorskip("selenium.webdriver", reason="BROWSER TEST SKIPPED: no selenium")
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    for a in ("--headless=new", "--no-sandbox", "--disable-gpu",
+              "--disable-background-networking", "--disable-component-update", "--disable-sync",
+              "--no-first-run", "--window-size=1400,900",
+              f"--user-data-dir={tmp_path_factory.mktemp('chrome-profile')}"):
+        opts.add_argument(a)
+    opts.binary_location = CHROMIUM
+    drv = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
+    yield drv
+    drv.quit()
+
+
+def _wait(cond, timeout_s: float, what: str):
+    end = time.monotonic() + timeout_s
+    last = None
+    while time.monotonic() < end:
+        try:
+            last = cond()
+            if last:
+                return last
+        except Exception as exc:  # noqa: BLE001 - page still loading
+            last = exc
+        time.sleep(0.2)
+    raise AssertionError(f"timed out waiting for {what} (last: {last!r})")
+
+
+def _count(drv, state: str) -> int:
+    return int(drv.find_element("id", f"count-{state}").text)
+
+
+@pytest.fixture(scope="module")
+def live_run(browser, tmp_path_factory):
+    """Fly, watch and act through the page; returns the run directory (for the replay tests)."""
+    from mission.runners import FlyOptions, fly_emulated_async
+
+    tmp = tmp_path_factory.mktemp("live")
+    info, box = {}, {}
+    kill, stop = threading.Event(), threading.Event()
+
+    def hook(op, world):
+        if kill.is_set() and "killed" not in box:
+            box["killed"] = world.swarm.sysid_of_index[0]
+            world.kill(0)
+        if stop.is_set():
+            op.phase = "done"
+
+    opts = FlyOptions(emulator_in_process=True, out_dir=str(tmp), serve="127.0.0.1:0",
+                      on_live=info.update, on_operator=hook)
+
+    def run():
+        try:
+            box["result"] = asyncio.run(fly_emulated_async(_mission(), opts))
+        except BaseException as exc:  # noqa: BLE001
+            box["error"] = exc
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    try:
+        _wait(lambda: info.get("url"), 60, "the live view to start")
+        drv = browser
+        drv.get(f"{info['url']}#key={info['key']}")
+        # Every vehicle networked, crews by name.
+        _wait(lambda: _count(drv, "networked") == 6, 120, "6 networked vehicles on the page")
+        names = [li.get_attribute("data-name") for li in
+                 drv.find_elements("css selector", "#crew-list li")]
+        assert names == list(CREWS)
+        assert drv.execute_script("return window.phiremanFrame.v.id.length") == 6
+        # A vehicle dies: the page shows it lost.
+        kill.set()
+        _wait(lambda: _count(drv, "lost") == 1 and _count(drv, "networked") == 5, 60,
+              "1 lost, 5 networked after the kill")
+        _wait(lambda: f"vehicle {box['killed']} lost" in drv.find_element("id", "events").text,
+              60, "the loss in the events feed")
+        # An action without the key is refused.
+        req = urllib.request.Request(info["url"] + "api/action", method="POST",
+                                     data=b'{"action": "rtl", "vehicle": "all"}',
+                                     headers={"Content-Type": "application/json"})
+        with pytest.raises(urllib.error.HTTPError) as err:
+            urllib.request.urlopen(req, timeout=10)
+        assert err.value.code == 403
+        # RTL one vehicle from the page, behind the confirmation.
+        swarm = box.get("result") and box["result"].swarm
+        target = 3 if box["killed"] != 3 else 4
+        # The table and the vehicle card are redrawn with every frame: find and click at once.
+        _wait(lambda: drv.find_element("css selector", f'#vtable tr[data-vid="0:{target}"]')
+              .click() or True, 30, "a click on the vehicle's row")
+
+        def click_rtl():
+            b = drv.find_element("css selector", 'button[data-act="rtl"]')
+            if not b.is_enabled():
+                return False
+            b.click()
+            return True
+
+        _wait(click_rtl, 30, "a click on the enabled RTL button (key given)")
+        assert drv.find_element("id", "modal").is_displayed()
+        drv.find_element("id", "confirm").click()
+        _wait(lambda: drv.find_element("id", "selected-state").get_attribute("data-state")
+              == "returning", 60, "the vehicle shown returning")
+        box["rtl_sysid"] = target
+        # The emulator's vehicle itself is in RTL (ArduCopter custom_mode 6).
+        from mission import runners  # noqa: F401  (the swarm comes back with the result)
+        box["rtl_seen_page"] = True
+    finally:
+        stop.set()
+        th.join(180)
+    assert "error" not in box, box.get("error")
+    res = box["result"]
+    idx = list(res.swarm.sysid_of_index).index(box["rtl_sysid"])
+    core = res.swarm.cores[idx]
+    assert core.custom_mode == 6, f"vehicle {box['rtl_sysid']} mode {core.custom_mode}, not RTL"
+    events = [json.loads(x) for x in (res.run_dir / "events.jsonl").read_text().splitlines()]
+    acts = [e for e in events if e["type"] == "OperatorAction"]
+    assert [(a["action"], a["sysid"], a["source"]) for a in acts] == \
+        [("rtl", box["rtl_sysid"], "web 127.0.0.1")]
+    return res.run_dir
+
+
+def test_live_page_counts_kill_and_rtl(live_run):
+    assert (Path(live_run) / "flight.tlog").stat().st_size > 0
+
+
+def _metrics(run_dir):
+    with open(run_dir / "metrics.csv", newline="") as f:
+        return [{k: float(v) for k, v in r.items() if v not in ("", None)}
+                for r in csv.DictReader(f)]
+
+
+@pytest.fixture(scope="module")
+def replay_server(live_run):
+    from mission.live.replay import ReplaySource
+    from mission.live.server import LiveServer
+
+    src = ReplaySource(live_run)
+    box, ready = {}, threading.Event()
+
+    def run():
+        async def main():
+            server = await LiveServer(src, "127.0.0.1", 0).start()
+            box["url"], box["stop"] = server.url, asyncio.Event()
+            box["loop"] = asyncio.get_running_loop()
+            ready.set()
+            await box["stop"].wait()
+            await server.aclose()
+        asyncio.run(main())
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    assert ready.wait(60)
+    yield src, box["url"]
+    box["loop"].call_soon_threadsafe(box["stop"].set)
+    th.join(30)
+
+
+def _steady(rows, k, key, span=3):
+    """The value of metrics column ``key`` if the same for ticks k-span..k+span, else None."""
+    vals = {r[key] for r in rows[max(0, k - span):k + span + 1]}
+    return vals.pop() if len(vals) == 1 else None
+
+
+def test_replay_slider_matches_the_records(browser, replay_server):
+    src, url = replay_server
+    rows = _metrics(src.run_dir)
+    drv = browser
+    drv.get(url)
+    slider = _wait(lambda: drv.find_element("id", "slider"), 30, "the slider")
+    assert _wait(lambda: drv.find_element("id", "badge").text == "REPLAY", 30, "replay badge")
+    checked = 0
+    for frac in (0.2, 0.5, 0.8):
+        k = int(frac * (len(rows) - 1))
+        nets, lost = _steady(rows, k, "networked"), _steady(rows, k, "lost")
+        if nets is None or lost is None:
+            continue  # a transition: the 0.5 s frame grid may straddle it
+        i = src.index_at(rows[k]["t_mission_s"])
+        drv.execute_script("const s = document.getElementById('slider'); s.value = arguments[0];"
+                           "s.dispatchEvent(new Event('input'));", i)
+        want_t = src.frame(i)["t_mission_s"]
+        _wait(lambda: drv.execute_script("return window.phiremanFrame.t_mission_s") == want_t,
+              30, f"the page at the slider's time t+{want_t} s")
+        _wait(lambda: _count(drv, "networked") + _count(drv, "reclaimed") == nets
+              and _count(drv, "lost") == lost, 30,
+              f"counts at t+{rows[k]['t_mission_s']:.0f} s = metrics.csv ({nets} net, {lost} lost)")
+        assert int(slider.get_attribute("value")) == i
+        checked += 1
+    assert checked >= 2
+    # Play: the slider moves on by itself.
+    before = int(slider.get_attribute("value"))
+    drv.find_element("id", "play").click()
+    _wait(lambda: int(slider.get_attribute("value")) > before, 30, "play to advance the slider")
+    drv.find_element("id", "play").click()
+
+
+def test_geojson_and_kml_export(live_run, tmp_path):
+    from mission.live.export import export_run
+    from mission.live.replay import ReplaySource
+
+    src = ReplaySource(live_run)
+    path = export_run(src, "geojson", [10.0], tmp_path / "x.geojson")
+    feats = json.loads(path.read_text())["features"]
+    kinds = {f["properties"]["kind"] for f in feats}
+    assert {"base", "geofence", "vehicle_track", "crew_track", "vehicle", "crew", "link"} <= kinds
+    assert {f["properties"]["name"] for f in feats if f["properties"]["kind"] == "crew"} == set(CREWS)
+    assert len([f for f in feats if f["properties"]["kind"] == "vehicle_track"]) == 6
+    lon, lat = feats[0]["geometry"]["coordinates"][:2]
+    assert abs(lat - src.mission.origin.lat_deg) < 1e-6 and abs(lon - src.mission.origin.lon_deg) < 1e-6
+    kml = export_run(src, "kml", [10.0], tmp_path / "x.kml").read_text()
+    assert kml.count("<Placemark>") == len(feats) and CREWS[1] in kml
