@@ -15,8 +15,14 @@ Endpoints (how a GCS reaches vehicles):
 * ``mux=True``: one endpoint per network; frames are routed by their ``target_system`` (0 or
   no target field = every vehicle of that network).
 
-Each endpoint sends to its *peers*: addresses it has heard from plus configured GCS addresses
-(``udpout`` style). The radio decides what gets through (:mod:`vehicle_emu.radio`).
+Each endpoint sends to its *peers*: configured GCS addresses (``udpout`` style, permanent) plus
+the addresses it has heard from. Learned peers are forgotten after ``peer_timeout_s`` without a
+datagram from them, and at most ``max_peers`` are kept per endpoint (the least recently heard is
+dropped for a new one). Real autopilots are stricter: PX4's mavlink UDP instance latches one
+partner (mavlink_receiver.cpp "partner IP"), MAVProxy's ``udpin`` answers only its last sender;
+several peers are kept here so that a station and a third-party GCS can share an endpoint, but a
+stream of one-off senders (scanners, restarted clients on new ports) can no longer multiply the
+telemetry without bound. The radio decides what gets through (:mod:`vehicle_emu.radio`).
 
 One tick (:meth:`Swarm.handle_timer`): attrition -> autopilot rules of every core ->
 vectorised physics step -> geodetic update -> radio update -> ground-truth record -> telemetry.
@@ -38,16 +44,24 @@ from planner.metrics import task_uptime, uptime_series
 from . import events as ev
 from . import wire
 from .attrition import Attrition
-from .link import TICK_S, VehicleCore
+from .link import TICK_S, RateLimitedLog, VehicleCore
 from .physics import Physics
 from .radio import Radio, RadioConfig
 
-__all__ = ["Swarm", "TruthLog", "VEHICLES_PER_NETWORK", "identity_of_index"]
+__all__ = ["Swarm", "TruthLog", "VEHICLES_PER_NETWORK", "identity_of_index", "PEER_TIMEOUT_S",
+           "MAX_PEERS"]
 
 log = logging.getLogger(__name__)
 
 VEHICLES_PER_NETWORK = 254
 _MAX_EVENTS = 100_000
+#: Default silence (vehicle seconds) after which a learned peer is forgotten: 6 x ArduPilot's
+#: FS_GCS_TIMEOUT default (5 s), 3 x PX4's COM_DL_LOSS_T default (10 s); by then the vehicles
+#: themselves have declared that GCS lost.
+PEER_TIMEOUT_S = 30.0
+#: Default cap on learned peers per endpoint.
+MAX_PEERS = 8
+_PEER_SWEEP_PERIOD_S = 1.0
 
 
 def identity_of_index(index: int, per_network: int = VEHICLES_PER_NETWORK) -> tuple[int, int]:
@@ -129,6 +143,12 @@ class Swarm:
     radio_period_s : float
         How often connectivity is recomputed (vehicle seconds; also on every kill). At 10 m/s
         the default 0.1 s is 1 m of motion; 0 recomputes every tick.
+    peer_timeout_s : float
+        A learned peer (not one of ``gcs_addrs``) silent this long (vehicle seconds) is
+        forgotten. Under a real-time speed-up S a GCS that does not scale its send rate is
+        silent S times longer in vehicle time; raise this accordingly.
+    max_peers : int
+        Learned peers kept per endpoint (least recently heard dropped first).
     """
 
     def __init__(self, n_vehicles: int, *, personality="ardupilot",
@@ -142,7 +162,8 @@ class Swarm:
                  tick_s: float = TICK_S, truth_period_s: float = 1.0,
                  ekf_ready_after_s: float = 0.0, unix_time_at_zero_s: float = 1.7e9,
                  max_speed_h_m_s: float = 10.0, tau_pos_s: float = 1.0,
-                 radio_period_s: float = 0.1) -> None:
+                 radio_period_s: float = 0.1, peer_timeout_s: float = PEER_TIMEOUT_S,
+                 max_peers: int = MAX_PEERS) -> None:
         if n_vehicles < 1:
             raise ValueError(f"n_vehicles must be >= 1, got {n_vehicles}")
         n = int(n_vehicles)
@@ -173,6 +194,9 @@ class Swarm:
         self._index_of = {(int(self.network_of_index[i]), int(self.sysid_of_index[i])): i
                           for i in range(n)}
         per_vehicle_params = per_vehicle_params or {}
+        #: Rate limits for warnings caused by remote input (one shared by all cores).
+        self.log_limiter = RateLimitedLog(log)
+        core_limiter = RateLimitedLog(logging.getLogger(VehicleCore.__module__))
         self.cores: list[VehicleCore] = []
         for i in range(n):
             p = dict(params or {})
@@ -182,7 +206,8 @@ class Swarm:
                                signing_key=signing_key, trusted_addrs=trusted_addrs,
                                ekf_ready_after_s=ekf_ready_after_s,
                                unix_time_at_zero_s=unix_time_at_zero_s,
-                               network=int(self.network_of_index[i]))
+                               network=int(self.network_of_index[i]),
+                               log_limiter=core_limiter)
             for msg_id, hz in (stream_rates_hz or {}).items():
                 core.set_stream_rate(int(msg_id), float(hz), now_s)
             self.cores.append(core)
@@ -190,7 +215,17 @@ class Swarm:
         self.mux = bool(mux)
         self.n_endpoints = self.n_networks if self.mux else n
         self._gcs_addrs = list(gcs_addrs)
-        self.peers: list[list] = [list(self._gcs_addrs) for _ in range(self.n_endpoints)]
+        if not peer_timeout_s > 0 or int(max_peers) < 1:
+            raise ValueError("peer_timeout_s must be > 0 and max_peers >= 1")
+        self.peer_timeout_s = float(peer_timeout_s)
+        self.max_peers = int(max_peers)
+        self._static_peers: list[list] = [list(self._gcs_addrs) for _ in range(self.n_endpoints)]
+        #: Per endpoint: learned addr -> last heard (vehicle s), least recently heard first.
+        self._learned: list[dict] = [{} for _ in range(self.n_endpoints)]
+        self._endpoints_learned: set[int] = set()
+        self._next_peer_sweep_s = float(now_s) + _PEER_SWEEP_PERIOD_S
+        #: Per endpoint: every destination (static then learned); rebuilt when peers change.
+        self.peers: list[list] = [list(p) for p in self._static_peers]
         self._routers = [wire.dialect.MAVLink(None, 255, 0) for _ in range(self.n_networks)]
         for r in self._routers:
             r.robust_parsing = True
@@ -205,7 +240,8 @@ class Swarm:
         self.truth = TruthLog([], [], [], [], [])
         self.stats = {"datagrams_in": 0, "datagrams_out": 0,
                       "dropped_radio_in": 0, "dropped_radio_out": 0, "dropped_dead": 0,
-                      "unroutable": 0, "ticks": 0}
+                      "unroutable": 0, "ticks": 0, "peers_learned": 0, "peers_expired": 0,
+                      "peers_evicted": 0}
         self._radio_dirty = False
         self.radio.update(self.physics.pos_ned_m, self.physics.alive)
         self._record_truth(self._t_s)  # sample 0: the state before any motion
@@ -224,9 +260,62 @@ class Swarm:
         return int(self.network_of_index[index]) if self.mux else int(index)
 
     def add_peer(self, endpoint: int, addr) -> None:
-        """Add a destination for everything ``endpoint`` sends (``udpout``)."""
-        if addr not in self.peers[endpoint]:
-            self.peers[endpoint].append(addr)
+        """Add a permanent destination for everything ``endpoint`` sends (``udpout``)."""
+        if addr not in self._static_peers[endpoint]:
+            self._static_peers[endpoint].append(addr)
+            self._learned[endpoint].pop(addr, None)
+            self._rebuild_peers(endpoint)
+
+    def _rebuild_peers(self, endpoint: int) -> None:
+        self.peers[endpoint] = self._static_peers[endpoint] + list(self._learned[endpoint])
+        if self._learned[endpoint]:
+            self._endpoints_learned.add(endpoint)
+        else:
+            self._endpoints_learned.discard(endpoint)
+
+    def _heard_from(self, endpoint: int, addr, now_s: float) -> None:
+        """Learn ``addr`` as a peer of ``endpoint`` (SITL ``udpin``) or refresh it."""
+        if addr in self._static_peers[endpoint]:
+            return
+        learned = self._learned[endpoint]
+        if addr in learned:
+            del learned[addr]          # re-insert at the end: most recently heard
+            learned[addr] = now_s
+            return
+        if len(learned) >= self.max_peers:
+            old = next(iter(learned))  # least recently heard
+            del learned[old]
+            self.stats["peers_evicted"] += 1
+            self.log_limiter.log(now_s, "peer_evicted", logging.WARNING,
+                                 "endpoint %d: more than %d peers, dropped %s for %s", endpoint,
+                                 self.max_peers, old, addr)
+        learned[addr] = now_s
+        self.stats["peers_learned"] += 1
+        self.log_limiter.log(now_s, "peer_new", logging.INFO, "endpoint %d: new peer %s",
+                             endpoint, addr)
+        self._rebuild_peers(endpoint)
+
+    def expire_peers(self, now_s: float) -> int:
+        """Forget learned peers silent for more than ``peer_timeout_s``; returns how many."""
+        n = 0
+        for endpoint in list(self._endpoints_learned):
+            learned = self._learned[endpoint]
+            stale = []
+            for addr, t in learned.items():   # least recently heard first
+                if now_s - t <= self.peer_timeout_s:
+                    break
+                stale.append(addr)
+            if stale:
+                for addr in stale:
+                    del learned[addr]
+                n += len(stale)
+                self._rebuild_peers(endpoint)
+        if n:
+            self.stats["peers_expired"] += n
+            self.log_limiter.log(now_s, "peer_expired", logging.INFO,
+                                 "forgot %d peer(s) silent for more than %.0f s", n,
+                                 self.peer_timeout_s)
+        return n
 
     # ------------------------------------------------------------------ sans-I/O surface
 
@@ -237,9 +326,8 @@ class Swarm:
     def receive_datagram(self, endpoint: int, data: bytes, addr, now_s: float) -> None:
         """A datagram from a GCS arrived at ``endpoint`` from ``addr``."""
         self.stats["datagrams_in"] += 1
-        peers = self.peers[endpoint]
-        if addr is not None and addr not in peers:
-            peers.append(addr)  # learn the GCS address, as SITL's udpin does
+        if addr is not None:
+            self._heard_from(endpoint, addr, now_s)  # learn the GCS address (SITL udpin)
         if not self.mux:
             self._radio_to_vehicle(endpoint, data, addr, now_s)
             return
@@ -255,11 +343,17 @@ class Swarm:
                 target = getattr(m, "target_system", 0)
             if not msgs:
                 self.stats["unroutable"] += 1
+                self.log_limiter.log(now_s, "unroutable", logging.WARNING,
+                                     "endpoint %d: undecodable frame from %s (%d so far)",
+                                     endpoint, addr, self.stats["unroutable"])
                 continue
             if target:
                 i = self._index_of.get((endpoint, int(target)))
                 if i is None:
                     self.stats["unroutable"] += 1
+                    self.log_limiter.log(now_s, "no_target", logging.WARNING,
+                                         "endpoint %d: frame for unknown sysid %d from %s",
+                                         endpoint, int(target), addr)
                     continue
                 self._radio_to_vehicle(i, frame, addr, now_s)
             else:
@@ -291,6 +385,9 @@ class Swarm:
         ph = self.physics
         # Deliver delayed inbound packets that are due.
         self._deliver_delayed(now_s, inbound=True)
+        if now_s >= self._next_peer_sweep_s:
+            self.expire_peers(now_s)
+            self._next_peer_sweep_s = now_s + _PEER_SWEEP_PERIOD_S
         if dt > 0:
             for i, cause in self.attrition.step(t0, now_s, ph.alive, ~ph.landed & ph.armed):
                 self.kill(i, now_s, cause)

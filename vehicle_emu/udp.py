@@ -18,6 +18,7 @@ import threading
 import time
 
 from .clock import RealClock
+from .link import RateLimitedLog
 from .swarm import Swarm
 
 __all__ = ["EmulatorServer", "run_in_thread", "ThreadedEmulator"]
@@ -67,6 +68,8 @@ class EmulatorServer:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._closed = False
         self._readers: list | None = None
+        #: Errors caused by what arrives on the sockets are logged at most once per interval.
+        self.log_limiter = RateLimitedLog(log)
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
@@ -83,11 +86,16 @@ class EmulatorServer:
 
     def _on_datagram(self, endpoint: int, data: bytes, addr) -> None:
         now = self.clock.now()
+        self._receive(endpoint, data, addr, now)
+        self._flush(now)
+
+    def _receive(self, endpoint: int, data: bytes, addr, now: float) -> None:
         try:
             self.swarm.receive_datagram(endpoint, data, addr, now)
         except Exception:  # noqa: BLE001 - never let one packet kill the loop
-            log.exception("endpoint %d: error handling a datagram from %s", endpoint, addr)
-        self._flush(now)
+            self.log_limiter.log(now, "receive", logging.ERROR,
+                                 "endpoint %d: error handling a datagram from %s", endpoint,
+                                 addr, exc_info=True)
 
     def _drain(self, now: float, limit: int = 4096) -> None:
         """Read every datagram already queued on the sockets before time moves on.
@@ -117,11 +125,7 @@ class EmulatorServer:
                 except OSError:
                     self.n_socket_errors += 1
                     break
-                try:
-                    self.swarm.receive_datagram(endpoint, data, addr, now)
-                except Exception:  # noqa: BLE001
-                    log.exception("endpoint %d: error handling a datagram from %s", endpoint,
-                                  addr)
+                self._receive(endpoint, data, addr, now)
         self._flush(now)
 
     def _flush(self, now: float) -> None:
@@ -131,7 +135,8 @@ class EmulatorServer:
                 transports[endpoint].sendto(data, addr)
             except (OSError, ValueError, TypeError) as exc:
                 self.n_socket_errors += 1
-                log.debug("sendto %s failed: %s", addr, exc)
+                self.log_limiter.log(now, "sendto", logging.DEBUG, "sendto %s failed: %s",
+                                     addr, exc)
         ev = self.swarm.next_event()
         while ev is not None:
             self.n_events += 1
@@ -148,7 +153,8 @@ class EmulatorServer:
         try:
             self.swarm.handle_timer(now)
         except Exception:  # noqa: BLE001
-            log.exception("swarm tick failed at t=%.3f", now)
+            self.log_limiter.log(now, "tick", logging.ERROR, "swarm tick failed at t=%.3f", now,
+                                 exc_info=True)
         self._flush(now)
         delay = self.clock.wall_delay_s(self.swarm.next_timer_s() - self.clock.now())
         if advance is not None:
