@@ -6,6 +6,16 @@ timer at ``next_timer_s()``. Local calls follow the same path: call the core, th
 :meth:`StationAdapter.transmit`. The clock is injectable (default: the loop's monotonic clock);
 with a simulation speed-up, pass the simulated clock and ``time_scale`` = the speed-up so timers
 are re-armed in wall seconds.
+
+Links that are down are the normal case, not an error: a ``tcp:`` server (SITL, a companion
+computer) not yet up, a USB radio not yet plugged in, a ``udpout:`` network not yet routable.
+:meth:`StationAdapter.start` then succeeds anyway and keeps trying in the background with a
+doubling wait (``reconnect_s``), as it does when such a link drops later; the state is
+:attr:`StationAdapter.connected` and the :class:`~gcs.events.LinkDown` /
+:class:`~gcs.events.LinkUp` events, each logged once per change. Only a mistake that waiting
+cannot fix raises, in one line: a ``udpin:`` / ``tcpin:`` address that cannot be bound (in use,
+not ours), a host name that does not resolve, a file that is not a serial port, a serial device
+we may not open, pyserial missing (:class:`LinkOpenError`, :class:`SerialLinkError`).
 """
 
 from __future__ import annotations
@@ -20,11 +30,11 @@ import time
 from typing import Callable
 
 from gcs.connection import ConnectionSpec, parse_connection
-from gcs.events import Event
+from gcs.events import Event, LinkDown, LinkEvent, LinkUp
 from gcs.link import StationConfig, StationLink
 from gcs.records import TlogWriter
 
-__all__ = ["StationAdapter", "SerialLinkError", "open_links"]
+__all__ = ["StationAdapter", "SerialLinkError", "LinkOpenError", "open_links"]
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +54,21 @@ class _Udp(asyncio.DatagramProtocol):
 
 class SerialLinkError(OSError, RuntimeError):
     """A serial link that cannot be opened (also a RuntimeError, as before pyserial was a
-    dependency); the message names the device and the reason in one line."""
+    dependency); the message names the device and the reason in one line. ``retryable``: the
+    device may appear later (absent, busy, I/O error), so the station waits for it rather than
+    fail."""
+
+    retryable: bool = False
+
+
+class LinkOpenError(OSError):
+    """A link that cannot be opened and that waiting will not fix (one line: which, why)."""
+
+
+#: Errors opening a serial device that go away by themselves: not plugged in yet (ENOENT,
+#: ENODEV, ENXIO), another program or ModemManager probing it (EBUSY), a device mid-reset.
+_SERIAL_RETRY_ERRNOS = frozenset({errno.ENOENT, errno.ENODEV, errno.ENXIO, errno.EBUSY,
+                                  errno.EIO, errno.EAGAIN, errno.EINTR})
 
 
 class _SerialPort:
@@ -92,7 +116,9 @@ class _SerialPort:
         try:
             port = serial.Serial(spec.device, spec.baud, timeout=0)
         except (OSError, ValueError) as exc:  # SerialException is an OSError
-            raise SerialLinkError(_serial_open_reason(spec, exc)) from exc
+            err = SerialLinkError(_serial_open_reason(spec, exc))
+            err.retryable = getattr(exc, "errno", None) in _SERIAL_RETRY_ERRNOS
+            raise err from exc
         try:
             return cls(port, loop, on_data, name=spec.device, baud=spec.baud, link_id=link_id,
                        on_lost=on_lost)
@@ -193,6 +219,26 @@ def _serial_open_reason(spec: ConnectionSpec, exc: BaseException) -> str:
     return f"serial device {spec.device!r} at {spec.baud} baud: {reason}"
 
 
+def _open_reason(spec: ConnectionSpec, exc: BaseException) -> str:
+    """One line: which link, what it tried, why it failed, and the likely cause."""
+    if spec.kind == "serial":
+        return _serial_open_reason(spec, exc)
+    host, port = spec.address
+    if isinstance(exc, socket.gaierror):
+        return f"{spec.text}: cannot resolve host {host!r} ({exc.strerror or exc})"
+    code = getattr(exc, "errno", None)
+    if isinstance(code, int) and code > 0:
+        reason = os.strerror(code)
+    else:
+        reason = str(exc) or type(exc).__name__
+    if spec.kind in ("udpin", "tcpin"):
+        hint = {errno.EADDRINUSE: " (another station, MAVProxy or QGroundControl on this port?)",
+                errno.EADDRNOTAVAIL: " (not an address of this computer)",
+                errno.EACCES: " (ports below 1024 need privileges)"}.get(code, "")
+        return f"{spec.text}: cannot listen on {host}:{port}: {reason}{hint}"
+    return f"{spec.text}: cannot connect to {host}:{port}: {reason}"
+
+
 class StationAdapter:
     """One link: a transport from a connection string plus its station core."""
 
@@ -201,7 +247,8 @@ class StationAdapter:
                  wall_clock: Callable[[], float] = time.time, tlog: TlogWriter | None = None,
                  on_event: Callable[[Event], None] | None = None,
                  time_scale: float = 1.0,
-                 reconnect_s: tuple[float, float] = (1.0, 8.0)) -> None:
+                 reconnect_s: tuple[float, float] = (1.0, 8.0),
+                 on_link_event: Callable[[LinkEvent], None] | None = None) -> None:
         self.spec = parse_connection(connection) if isinstance(connection, str) else connection
         self.link_id = link_id
         self._config = config or StationConfig()
@@ -219,73 +266,230 @@ class StationAdapter:
         self._closers: list[Callable[[], None]] = []
         self.local_address = None
         self.reconnect_s = reconnect_s
-        """TCP client: first and longest wait (wall seconds) between reconnection attempts."""
+        """tcp, udpout, serial: first and longest wait (wall seconds) between connection
+        attempts while the link is down."""
         self.reconnects = 0
+        """Connections made after the first attempt at start (reconnections, late links)."""
         self._writer: asyncio.StreamWriter | None = None
+        self._on_link_event = on_link_event
+        self._connected: bool | None = None
+        self.down_reason = ""
+        """Why the link is down (empty while it is up)."""
+        self._port: _SerialPort | None = None
+        self._port_lost: asyncio.Event | None = None
         self._taps: list[Callable[[bytes, object], None]] = []
         self._tap_peers: dict = {}
 
     def now(self) -> float:
         return self._clock() if self._clock else asyncio.get_running_loop().time()
 
+    @property
+    def connected(self) -> bool:
+        """The transport is up: bound (udpin, tcpin), connected (tcp, udpout) or open (serial).
+        Says nothing about the vehicles behind it (they have their own timeouts)."""
+        return bool(self._connected)
+
+    def _set_connected(self, up: bool, reason: str = "") -> None:
+        """Record a state change: logged once, and a LinkUp / LinkDown event."""
+        if up:
+            self.down_reason = ""
+        elif reason:
+            self.down_reason = reason
+        if self._connected is up:
+            return
+        first = self._connected is None
+        self._connected = up
+        now = self.now()
+        if up:
+            log.log(logging.DEBUG if first else logging.WARNING, "link %d: %s is up",
+                    self.link_id, self.spec.text)
+            self._emit_link_event(LinkUp(self.link_id, now, connection=self.spec.text))
+        else:
+            log.warning("link %d: %s is down (%s); retrying in the background", self.link_id,
+                        self.spec.text, self.down_reason)
+            self._emit_link_event(LinkDown(self.link_id, now, connection=self.spec.text,
+                                           reason=self.down_reason))
+
+    def _emit_link_event(self, event: LinkEvent) -> None:
+        # To on_link_event, or to the events queue when there is no on_event; never to on_event
+        # itself: its consumers take vehicle events (Event, with a sysid).
+        if self._on_link_event is not None:
+            try:
+                self._on_link_event(event)
+            except Exception:
+                log.exception("link %d: link event handler failed on %r", self.link_id, event)
+        elif self._on_event is None:
+            self.events.put_nowait(event)
+
     async def start(self) -> "StationAdapter":
+        """Open the link. A link that is down is retried in the background (see the module
+        docstring); a mistake raises :class:`LinkOpenError` or :class:`SerialLinkError` (both
+        OSError), in one line."""
         loop = asyncio.get_running_loop()
         if self._clock is None:
             self._clock = loop.time
         spec, cfg = self.spec, self._config
         static: tuple = ()
-        if spec.kind in ("udpin", "udpout"):
-            remote = spec.address if spec.kind == "udpout" else None
-            local = spec.address if spec.kind == "udpin" else None
-            transport, _ = await loop.create_datagram_endpoint(
-                lambda: _Udp(self), local_addr=local, remote_addr=remote)
-            self.local_address = transport.get_extra_info("sockname")
-            sock = transport.get_extra_info("socket")
-            if sock is not None:  # bursts from hundreds of vehicles: a deeper receive queue
-                try:
-                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _UDP_RCVBUF_BYTES)
-                except OSError:
-                    pass
-            if remote is not None:  # connected socket: one peer, whatever addr the core names
-                static = (remote,)
-                self._send = lambda data, addr: transport.sendto(data)
-            else:
-                self._send = transport.sendto
-            self._closers.append(transport.close)
-        elif spec.kind == "tcp":
-            reader, self._writer = await asyncio.open_connection(*spec.address)
-            static = (spec.address,)
-            self._send = lambda data, addr: self._tcp_write(data)
-            task = loop.create_task(self._tcp_client(reader, spec.address))
-            self._closers += [task.cancel, self._close_writer]
-        elif spec.kind == "tcpin":
-            async def on_client(reader, writer):
-                peer = writer.get_extra_info("peername")
-                self._send = lambda data, addr: writer.write(data)  # the latest client wins
-                await self._read_stream(reader, peer)
-            server = await asyncio.start_server(on_client, *spec.address)
-            self.local_address = server.sockets[0].getsockname()
-            self._closers.append(server.close)
-        else:
-            self._open_serial(spec, loop)
+        if spec.kind in ("udpout", "tcp"):
+            static = (spec.address,)  # heartbeat it before hearing anything
+        elif spec.kind == "serial":
             static = (spec.device,)
         cfg = dataclasses.replace(
             cfg, static_peers=tuple(cfg.static_peers) + static,
             datagram=spec.kind in ("udpin", "udpout"), record_frames=self._tlog is not None,
             unix_time_offset_s=self._wall_clock() - self.now())
         self.core = StationLink(cfg, link_id=self.link_id, now_s=self.now())
+        try:
+            if spec.kind == "udpin":
+                await self._open_udp(loop)
+            elif spec.kind == "tcpin":
+                await self._open_tcpin()
+            else:
+                await self._open_client(loop)
+        except BaseException:
+            self.close()
+            raise
         self.transmit()
         return self
 
-    def _open_serial(self, spec: ConnectionSpec, loop: asyncio.AbstractEventLoop) -> None:
-        port = _SerialPort.open(spec, loop, lambda data: self.receive(data, spec.device),
-                                link_id=self.link_id)
-        self._send = lambda data, addr: port.write(data)
-        self._closers.append(port.close)
+    async def _open_udp(self, loop: asyncio.AbstractEventLoop) -> None:
+        spec = self.spec
+        remote = spec.address if spec.kind == "udpout" else None
+        local = spec.address if spec.kind == "udpin" else None
+        try:
+            transport, _ = await loop.create_datagram_endpoint(
+                lambda: _Udp(self), local_addr=local, remote_addr=remote)
+        except OSError as exc:
+            if spec.kind == "udpin" or isinstance(exc, socket.gaierror):
+                raise LinkOpenError(_open_reason(spec, exc)) from exc
+            raise
+        self.local_address = transport.get_extra_info("sockname")
+        sock = transport.get_extra_info("socket")
+        if sock is not None:  # bursts from hundreds of vehicles: a deeper receive queue
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _UDP_RCVBUF_BYTES)
+            except OSError:
+                pass
+        if remote is not None:  # connected socket: one peer, whatever addr the core names
+            self._send = lambda data, addr: transport.sendto(data)
+        else:
+            self._send = transport.sendto
+        self._closers.append(transport.close)
+        self._set_connected(True)
 
-    def _start_reader(self, reader: asyncio.StreamReader, peer) -> None:
-        task = asyncio.get_running_loop().create_task(self._read_stream(reader, peer))
+    async def _open_tcpin(self) -> None:
+        spec = self.spec
+
+        async def on_client(reader, writer):
+            peer = writer.get_extra_info("peername")
+            self._send = lambda data, addr: writer.write(data)  # the latest client wins
+            await self._read_stream(reader, peer)
+        try:
+            server = await asyncio.start_server(on_client, *spec.address)
+        except OSError as exc:
+            raise LinkOpenError(_open_reason(spec, exc)) from exc
+        self.local_address = server.sockets[0].getsockname()
+        self._closers.append(server.close)
+        self._set_connected(True)
+
+    async def _open_client(self, loop: asyncio.AbstractEventLoop) -> None:
+        """tcp, udpout, serial: one attempt now; while the link is down a background task keeps
+        trying, and afterwards keeps it up (TCP reconnection, serial re-plug)."""
+        reader = None
+        if self.spec.kind == "tcp":
+            self._closers.append(self._close_writer)
+        try:
+            reader = await self._connect_once(loop)
+        except LinkOpenError:
+            raise
+        except socket.gaierror as exc:  # a typo in the host name: waiting will not fix it
+            raise LinkOpenError(_open_reason(self.spec, exc)) from exc
+        except SerialLinkError as exc:
+            if not exc.retryable:
+                raise
+            self._set_connected(False, str(exc))
+        except OSError as exc:
+            self._set_connected(False, _open_reason(self.spec, exc))
+        else:
+            self._set_connected(True)
+        if self.spec.kind == "udpout" and self.connected:
+            return  # a UDP socket, once connected, does not go down
+        task = loop.create_task(self._keep_up(reader))
         self._closers.append(task.cancel)
+
+    async def _connect_once(self, loop: asyncio.AbstractEventLoop):
+        """One connection attempt; returns the TCP reader (None for udpout, serial)."""
+        spec = self.spec
+        if spec.kind == "tcp":
+            reader, self._writer = await asyncio.open_connection(*spec.address)
+            self._send = lambda data, addr: self._tcp_write(data)
+            return reader
+        if spec.kind == "udpout":
+            await self._open_udp(loop)
+            return None
+        self._open_serial(spec, loop)
+        return None
+
+    async def _keep_up(self, reader) -> None:
+        """For the adapter's life: wait for the link to drop (TCP end of stream, serial hang-up),
+        then reconnect with a doubling wait, as MAVProxy's ``autoreconnect`` does, with a fresh
+        decoder. Vehicles time out meanwhile and are recovered when heard again."""
+        loop = asyncio.get_running_loop()
+        first, longest = self.reconnect_s
+        spec = self.spec
+        peer = spec.device if spec.kind == "serial" else spec.address
+        while True:
+            if self.connected:
+                if spec.kind == "tcp":
+                    await self._read_stream(reader, peer)
+                    self._close_writer()
+                    self._set_connected(False, "connection closed")
+                elif spec.kind == "serial":
+                    assert self._port_lost is not None
+                    await self._port_lost.wait()
+                    self._set_connected(False, f"serial port lost ({self.down_reason})")
+                else:
+                    return
+                if self.core is not None:
+                    self.core.reset_stream(peer)
+            delay = first
+            while True:
+                await asyncio.sleep(delay)
+                try:
+                    reader = await self._connect_once(loop)
+                except OSError as exc:
+                    reason = str(exc) if isinstance(exc, SerialLinkError) \
+                        else _open_reason(spec, exc)
+                    self.down_reason = reason
+                    log.debug("link %d: %s still down: %s", self.link_id, spec.text, reason)
+                    delay = min(2 * delay, longest)
+                    continue
+                break
+            self.reconnects += 1
+            self._set_connected(True)
+            if self.core is not None:
+                self.core.handle_timer(self.now())  # whatever fell due while it was down
+                self.transmit()
+
+    def _open_serial(self, spec: ConnectionSpec, loop: asyncio.AbstractEventLoop) -> None:
+        if self._port_lost is None:
+            self._port_lost = asyncio.Event()
+            self._closers.append(self._close_port)
+        lost = self._port_lost
+
+        def on_lost(why: str) -> None:
+            self.down_reason = why
+            lost.set()
+
+        port = _SerialPort.open(spec, loop, lambda data: self.receive(data, spec.device),
+                                link_id=self.link_id, on_lost=on_lost)
+        lost.clear()
+        self._port = port
+        self._send = lambda data, addr: port.write(data)
+
+    def _close_port(self) -> None:
+        if self._port is not None:
+            self._port.close()
 
     async def _read_stream(self, reader: asyncio.StreamReader, peer) -> None:
         try:
@@ -306,33 +510,6 @@ class StationAdapter:
         if self._writer is not None:
             self._writer.close()
             self._writer = None
-
-    async def _tcp_client(self, reader: asyncio.StreamReader, peer) -> None:
-        """Read the TCP stream; when the server goes away (SITL restarted, a companion computer
-        rebooted), reconnect with a doubling wait, as MAVProxy's ``autoreconnect`` does, and start
-        a fresh decoder. Vehicles time out meanwhile and are recovered when heard again."""
-        first, longest = self.reconnect_s
-        while True:
-            await self._read_stream(reader, peer)
-            self._close_writer()
-            if self.core is not None:
-                self.core.reset_stream(peer)
-            log.warning("link %d: TCP connection to %s:%s lost; reconnecting", self.link_id, *peer)
-            delay = first
-            while True:
-                await asyncio.sleep(delay)
-                try:
-                    reader, self._writer = await asyncio.open_connection(*peer)
-                except OSError as exc:
-                    log.debug("link %d: reconnect to %s:%s: %s", self.link_id, *peer, exc)
-                    delay = min(2 * delay, longest)
-                    continue
-                break
-            self.reconnects += 1
-            log.warning("link %d: reconnected to %s:%s", self.link_id, *peer)
-            if self.core is not None:
-                self.core.handle_timer(self.now())  # whatever fell due while reconnecting
-                self.transmit()
 
     def receive(self, data: bytes, addr) -> None:
         if self._taps:

@@ -14,7 +14,7 @@ __all__ = [
     "Event", "VehicleDiscovered", "VehicleLost", "VehicleRecovered", "ModeChanged",
     "ArmedChanged", "TelemetryReceived", "CommandAcked", "CommandInProgress", "CommandFailed",
     "CommandTimedOut", "ParamReceived", "ParamTimedOut", "ParamSetConfirmed", "ParamSetFailed", "StatusText",
-    "HomePositionReceived", "TaskPositionReceived",
+    "HomePositionReceived", "TaskPositionReceived", "LinkEvent", "LinkUp", "LinkDown",
 ]
 
 
@@ -224,3 +224,35 @@ class StatusText(Event):
     severity: int = 6
     """MAV_SEVERITY (0 emergency .. 7 debug)."""
     text: str = ""
+
+
+# ------------------------------------------------------------------------------------------------
+# Link state: about a transport, not a vehicle (no sysid), so not an Event. Emitted by the
+# asyncio adapter (gcs.aio.StationAdapter), once per change.
+
+
+@dataclass(frozen=True)
+class LinkEvent:
+    link_id: int
+    """Which link (adapter) changed state."""
+    t_s: float
+    """Core time of the change, seconds."""
+    connection: str = ""
+    """The connection string, as given (``tcp:127.0.0.1:5760``)."""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.link_id, int) or self.link_id < 0:
+            raise ValueError(f"link_id must be a non-negative int, got {self.link_id!r}")
+        _finite("t_s", self.t_s)
+
+
+@dataclass(frozen=True)
+class LinkUp(LinkEvent):
+    """The transport is up: bound, connected or opened (at start, or again after LinkDown)."""
+
+
+@dataclass(frozen=True)
+class LinkDown(LinkEvent):
+    """The transport is down (never connected yet, or lost); the adapter keeps retrying."""
+
+    reason: str = ""

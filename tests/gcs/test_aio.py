@@ -5,7 +5,7 @@ import asyncio
 import pytest
 from gcs_fakes import FakeAutopilot
 
-from gcs.aio import StationAdapter
+from gcs.aio import LinkOpenError, StationAdapter
 from gcs.events import CommandAcked
 from gcs.link import StationConfig
 from gcs.records import TlogWriter
@@ -146,5 +146,88 @@ def test_tcp_client_reconnects_when_the_server_restarts():
             while not sessions.empty():
                 w = sessions.get_nowait()
                 w.close()
+
+    asyncio.run(main())
+
+
+async def _free_tcp_port() -> int:
+    """A port nothing listens on (bound on port 0 by the kernel, then released)."""
+    server = await asyncio.start_server(lambda r, w: None, "127.0.0.1", 0)
+    port = server.sockets[0].getsockname()[1]
+    server.close()
+    await server.wait_closed()
+    return port
+
+
+def test_tcp_server_not_up_at_start_is_retried_in_the_background():
+    """SITL not started yet: start() succeeds with the link down (LinkDown, once), connects when
+    the server comes up (LinkUp) and hears the vehicle; never fatal."""
+    async def main():
+        port = await _free_tcp_port()
+        link_events: list = []
+        station_events: list = []
+        station = await StationAdapter(f"tcp:127.0.0.1:{port}", _CFG, reconnect_s=(0.02, 0.05),
+                                       on_event=station_events.append,
+                                       on_link_event=link_events.append).start()
+        ap = FakeAutopilot(sysid=6)
+        up = asyncio.Event()
+        server = None
+        try:
+            assert not station.connected and "Connection refused" in station.down_reason
+            assert [type(e).__name__ for e in link_events] == ["LinkDown"]
+            assert "\n" not in link_events[0].reason and str(port) in link_events[0].reason
+            station.transmit()  # sending while down: dropped, no error
+
+            async def vehicle(reader, writer):
+                writer.write(ap.heartbeat(4))
+                await writer.drain()
+                up.set()
+                while await reader.read(4096):
+                    pass
+                writer.close()
+            server = await asyncio.start_server(vehicle, "127.0.0.1", port)
+            await asyncio.wait_for(up.wait(), 5.0)
+            while not any(type(e).__name__ == "VehicleDiscovered" for e in station_events):
+                await asyncio.sleep(0.01)
+            assert station.connected and station.reconnects == 1
+            assert [type(e).__name__ for e in link_events] == ["LinkDown", "LinkUp"]
+            # Link events never reach on_event (its consumers expect vehicles, with a sysid).
+            assert all(hasattr(e, "sysid") for e in station_events)
+        finally:
+            station.close()
+            if server is not None:
+                server.close()
+
+    asyncio.run(asyncio.wait_for(main(), 20.0))
+
+
+def test_udpin_address_in_use_is_a_one_line_error():
+    async def main():
+        loop = asyncio.get_running_loop()
+        taken, _ = await loop.create_datagram_endpoint(asyncio.DatagramProtocol,
+                                                       local_addr=("127.0.0.1", 0))
+        port = taken.get_extra_info("sockname")[1]
+        try:
+            with pytest.raises(LinkOpenError) as info:
+                await StationAdapter(f"udpin:127.0.0.1:{port}", _CFG).start()
+        finally:
+            taken.close()
+        return info.value
+
+    exc = asyncio.run(main())
+    msg = str(exc)
+    assert isinstance(exc, OSError) and "\n" not in msg
+    assert "cannot listen on 127.0.0.1" in msg and "in use" in msg
+
+
+def test_udpin_is_up_at_once():
+    async def main():
+        station = await StationAdapter("udpin:127.0.0.1:0", _CFG).start()
+        try:
+            assert station.connected
+            ev = await asyncio.wait_for(station.events.get(), 5.0)
+            assert type(ev).__name__ == "LinkUp" and ev.connection == "udpin:127.0.0.1:0"
+        finally:
+            station.close()
 
     asyncio.run(main())

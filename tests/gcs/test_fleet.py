@@ -89,3 +89,11 @@ def test_vehicle_without_position_has_nan_rows():
     snap = fleet.snapshot(0.1)
     assert not snap.has_position[0] and np.isnan(snap.pos_ned_m).all()
     assert snap.n_vehicles == 1
+
+
+def test_link_state_events_make_no_rows():
+    from gcs.events import LinkDown, LinkUp
+    fleet = FleetView(ORIGIN)
+    fleet.apply(LinkDown(0, 1.0, connection="tcp:127.0.0.1:5760", reason="refused"))
+    fleet.apply(LinkUp(0, 2.0, connection="tcp:127.0.0.1:5760"))
+    assert len(fleet) == 0 and fleet.snapshot(2.0).n_vehicles == 0

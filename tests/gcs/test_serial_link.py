@@ -195,19 +195,64 @@ def test_writes_never_block_and_drop_whole_frames(pty):
     asyncio.run(main())
 
 
-def test_missing_device_is_a_one_line_error(tmp_path):
+def test_missing_device_is_waited_for_with_a_one_line_reason(tmp_path):
+    """A USB radio not plugged in yet: start() succeeds, the link is down with a one-line
+    reason, and it is retried (see test_device_plugged_in_later_and_replugged)."""
     path = tmp_path / "ttyNOPE"
 
     async def main():
-        with pytest.raises(SerialLinkError) as info:
-            await StationAdapter(f"{path},57600").start()
-        return info.value
+        station = await StationAdapter(f"{path},57600", _CFG, reconnect_s=(0.05, 0.1)).start()
+        try:
+            ev = await _next(station.events, "LinkDown")
+            assert not station.connected and station.core is not None
+            return ev
+        finally:
+            station.close()
 
-    exc = asyncio.run(main())
-    assert isinstance(exc, OSError)  # what the fly runner reports as "cannot open link"
-    msg = str(exc)
-    assert "\n" not in msg and str(path) in msg and "No such file or directory" in msg
-    assert msg.count("Errno") == 0
+    ev = asyncio.run(main())
+    assert ev.link_id == 0 and ev.connection == f"{path},57600"
+    assert "\n" not in ev.reason and str(path) in ev.reason
+    assert "No such file or directory" in ev.reason and ev.reason.count("Errno") == 0
+
+
+def test_device_plugged_in_later_and_replugged(tmp_path):
+    """The device path appears after start (a symlink, as udev's /dev/serial/by-id names are),
+    the vehicle is heard; the radio is unplugged (hang-up) and plugged in again (a new pty):
+    the station reopens it and hears the vehicle again."""
+    link = tmp_path / "ttyRADIO"
+
+    async def main():
+        station = await StationAdapter(f"{link},57600", _CFG, reconnect_s=(0.02, 0.05)).start()
+        ptys = []
+        try:
+            await _next(station.events, "LinkDown")
+            for life in range(2):
+                master_fd, slave_fd = os.openpty()
+                ptys += [master_fd, slave_fd]
+                tmp = tmp_path / f"ttyRADIO.{life}"
+                os.symlink(os.ttyname(slave_fd), tmp)
+                os.replace(tmp, link)  # plugged in
+                await _next(station.events, "LinkUp")
+                assert station.connected and station.reconnects == life + 1
+                master = _Master(master_fd, FakeAutopilot(sysid=4 + life))
+                master.start()
+                # The station heartbeats the new port by itself (a static peer) ...
+                assert (await _next(master.inbox, "HEARTBEAT")).get_srcSystem() == 255
+                master.send(master.ap.heartbeat(4))  # ... and hears what comes up it.
+                assert (await _next(station.events, "VehicleDiscovered")).sysid == 4 + life
+                master.stop()
+                if life == 0:  # unplugged: the hang-up takes the link down, once
+                    os.close(master_fd)
+                    os.close(slave_fd)
+                    ptys.clear()
+                    down = await _next(station.events, "LinkDown")
+                    assert "lost" in down.reason and not station.connected
+        finally:
+            station.close()
+            for fd in ptys:
+                os.close(fd)
+
+    asyncio.run(main())
 
 
 def test_a_regular_file_is_not_a_serial_port(tmp_path):
