@@ -13,7 +13,7 @@ import numpy as np
 from .clock import RealClock
 from .link import M_GLOBAL_POSITION_INT, M_LOCAL_POSITION_NED
 from .radio import RadioConfig
-from .swarm import Swarm
+from .swarm import PEER_TIMEOUT_S, Swarm
 from .udp import EmulatorServer
 
 __all__ = ["HELP", "DESCRIPTION", "add_arguments", "run"]
@@ -148,7 +148,9 @@ def _build(args) -> tuple[Swarm, RealClock]:
                       hazard_per_s=args.attrition_per_s, kills=kills, mux=args.mux,
                       gcs_addrs=args.gcs, signing_key=args.signing_key, params=params,
                       stream_rates_hz=dict(args.rate), rng=np.random.default_rng(args.seed),
-                      unix_time_at_zero_s=clock.unix_time_at_zero_s)
+                      unix_time_at_zero_s=clock.unix_time_at_zero_s,
+                      # a third-party GCS sends in wall time: forget it after 30 WALL seconds
+                      peer_timeout_s=PEER_TIMEOUT_S * max(1.0, args.speedup))
     except (ValueError, KeyError) as exc:
         raise UserError(str(exc)) from exc
     return swarm, clock
