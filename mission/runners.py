@@ -461,14 +461,17 @@ def live_task_connections(mission: Mission, connections: list[str]) -> list[str]
     return extra
 
 
-def _station_config(mission: Mission) -> StationConfig:
+def _station_config(mission: Mission, max_vehicles: int | None = None) -> StationConfig:
     key = None
     real = mission.vehicles.real
     if real is not None and real.signing_key_hex:
         key = bytes.fromhex(real.signing_key_hex)
+    # Who is a vehicle (real links): the mission's sysids, else the first N heard (--vehicles).
+    allowed = frozenset(real.sysids) if real is not None and real.sysids else None
     # Fleet-scale telemetry (MAVLINK_NOTES §2, Skybrush): position at 2 Hz is all the plan uses;
     # every other stream costs decode time at 50+ vehicles x speed-up.
     return StationConfig(signing_key=key, command_timeout_s=1.0, param_timeout_s=2.0,
+                         allowed_sysids=allowed, max_vehicles=max_vehicles,
                          param_retries=4, task_sysids=tuple(live_task_columns(mission).values()),
                          stream_rates_hz=((mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 2.0),
                                           (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 0.2)))
@@ -540,7 +543,7 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
                        ack: Callable[[float], None] | None = None) -> Operator:
     """The station's loop. ``max_sleep_s`` (simulated seconds): wake at least this often even
     when idle, so a paced emulator is never starved of clock acknowledgements."""
-    cfg = _station_config(mission)
+    cfg = _station_config(mission, expected if world is None else None)
     holder: dict = {}
 
     def on_event(ev) -> None:
@@ -556,9 +559,13 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
     adapters = []
     try:
         for i, conn in enumerate(connections):
+            # A link down at start (a vehicle not booted yet, a radio not plugged in) is
+            # retried in the background and reported (LinkDown / LinkUp in events.jsonl),
+            # never fatal while others work; only a mistake waiting cannot fix raises.
             adapters.append(await StationAdapter(conn, cfg, link_id=i, clock=clock,
                                                  tlog=records.tlog, on_event=on_event,
-                                                 time_scale=speedup).start())
+                                                 time_scale=speedup,
+                                                 on_link_event=records.events.write).start())
     except (OSError, ValueError) as exc:
         for a in adapters:
             a.close()
@@ -621,6 +628,8 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
                     last_status = wall
                     d = _status_dict(op, now, rec, world)
                     d["speedup"] = speedup
+                    d["links_down"] = [(a.link_id, a.spec.text, a.down_reason)
+                                       for a in adapters if not a.connected]
                     opts.status(d)
                 delay = max(0.0, min(op.next_poll_s(now) - clock(), max_sleep_s) / speedup)
                 await asyncio.sleep(delay)
@@ -632,7 +641,7 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
                     raise
                 task.uncancel()
                 interrupted_wall = time.monotonic()
-                log.warning("interrupted: telling every vehicle to %s", opts.on_interrupt)
+                log.info("interrupted: telling every vehicle to %s", opts.on_interrupt)
                 op.interrupt(opts.on_interrupt, clock())
                 for a in adapters:
                     a.transmit()

@@ -343,9 +343,19 @@ class RealVehicles(FlightLimits):
     '/dev/ttyUSB0,57600'. Vehicles are numbered in the order their heartbeats are first heard."""
     signing_key_hex: str | None = None
     """MAVLink 2 signing key: 64 hex digits (32 bytes). Unset: unsigned links."""
+    sysids: tuple[int, ...] | None = None
+    """The MAVLink system ids of this mission's vehicles: on every link only these become
+    vehicles, anything else is refused and counted (phantoms from a noisy radio, another
+    operator's drones). Unset: any autopilot heard, up to ``phireman fly --vehicles N``."""
 
     def validate(self) -> list[tuple[str, str]]:
         problems = super().validate()
+        if self.sysids is not None:
+            bad = [s for s in self.sysids if not 1 <= s <= 254]
+            if bad:
+                problems.append(("sysids", f"system ids must be in 1..254, got {bad}"))
+            if len(set(self.sysids)) != len(self.sysids):
+                problems.append(("sysids", "duplicate system ids"))
         for i, conn in enumerate(self.connections):
             msg = _connection_problem(conn)
             if msg:

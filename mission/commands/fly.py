@@ -185,6 +185,7 @@ class _Status:
         self.stream.write(f"warning: {text}\n")
 
     def _warnings(self, d: dict) -> None:
+        # Links going down / up are logged by gcs.aio (one line per change).
         n = d.get("command_failures", 0)
         if n >= max(5, 2 * self._failures_warned) and n > self._failures_warned:
             self._warn(f"{n} commands failed or went unanswered so far (a vehicle refusing, or "
@@ -344,7 +345,10 @@ def run(args) -> int:
                   f"Run directory: {result.run_dir}", file=sys.stderr)
         return 1
     st = s["station"]
-    if op.interrupted is not None:
+    if op.interrupted is not None and not s.get("interrupt_report"):
+        print("interrupted before any vehicle was heard: nothing was commanded",
+              file=sys.stderr)
+    elif op.interrupted is not None:
         print(f"interrupted: every vehicle the station reached was told to "
               f"{op.interrupted if op.interrupted != 'end' else args.end.upper()}:",
               file=sys.stderr)

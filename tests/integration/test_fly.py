@@ -132,3 +132,33 @@ def test_station_sigkilled_and_restarted_reclaims_every_live_vehicle(tmp_path):
         assert all(c.alive for c in swarm.cores)
     finally:
         emu.stop()
+
+
+def test_ctrl_c_ends_the_flight_deliberately_and_the_run_replays(tmp_path):
+    # Ctrl-C (SIGINT) during the mission: every vehicle is told the end action (RTL), the
+    # report says what each was told, summary.json and truth.npz are written, exit 130, and no
+    # traceback (the emulator child ignores SIGINT: the station ends the flight).
+    path = _mission_file(tmp_path, count=4, duration_s=400.0, speedup=10.0)
+    out_dir = tmp_path / "runs"
+    proc = subprocess.Popen([*PHIREMAN, "fly", str(path), "--out", str(out_dir)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    try:
+        def flying():
+            runs = list(out_dir.glob("*/metrics.csv"))
+            return bool(runs) and len(runs[0].read_text().splitlines()) >= 4
+        _wait(flying, 120, "the mission to start")
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, out
+    assert "Traceback" not in out and "KeyboardInterrupt" not in out, out
+    assert "told to RTL" in out
+    (run,) = out_dir.iterdir()
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["interrupted"] == "end"
+    told = summary["interrupt_report"]
+    assert len(told) == 4 and sum(t["confirmed"] for t in told) >= 3
+    assert (run / "truth.npz").exists()

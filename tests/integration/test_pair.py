@@ -327,3 +327,97 @@ def test_relay_loss_cuts_a_branch_whose_vehicles_return_and_are_reclaimed():
     lost = {e.sysid for e in f.events if isinstance(e, VehicleLost)}
     assert far_sysids <= lost
     assert far_sysids <= {s for _, _, s in f.op.reclaimed}
+
+
+# ------------------------------------------------------------------ limits, operator, restart
+
+
+def _with_speed(mission, max_speed_m_s):
+    emu = dataclasses.replace(mission.vehicles.emulated, max_speed_m_s=max_speed_m_s)
+    return dataclasses.replace(mission, vehicles=dataclasses.replace(mission.vehicles,
+                                                                     emulated=emu))
+
+
+@pytest.mark.parametrize("personality,firmware_defaults,expect", [
+    ("ardupilot", {"WPNAV_SPEED": 1000.0, "WPNAV_SPEED_UP": 250.0},
+     {"WPNAV_SPEED": 400.0, "WPNAV_SPEED_UP": 500.0}),
+    ("px4", {"MPC_XY_VEL_MAX": 12.0, "MPC_XY_CRUISE": 5.0, "MPC_Z_VEL_MAX_UP": 3.0},
+     {"MPC_XY_VEL_MAX": 4.0, "MPC_XY_CRUISE": 4.0, "MPC_Z_VEL_MAX_UP": 5.0}),
+])
+def test_the_missions_limits_are_written_into_the_firmware_and_restored(
+        personality, firmware_defaults, expect):
+    # The firmware's own defaults (faster than the mission) are replaced by the mission's limits
+    # at launch (gcs/limits.py), each confirmed by its echo, and written back after landing.
+    f = _InMemoryFlight(_with_speed(_mission(n=2, personality=personality, duration_s=5.0), 4.0),
+                        params=firmware_defaults, restore_params=True)
+    f.run_until_phase("run", limit_s=120.0)
+    for core in f.swarm.cores:
+        assert {k: core.params[k] for k in expect} == pytest.approx(expect)
+    limits = [c for c in f.op.param_changes if c.get("purpose") == "limit"]
+    assert {c["name"] for c in limits} == set(expect) and all(c["ok"] for c in limits)
+    f.run_until_phase("done", limit_s=400.0)
+    assert f.op.end_status["in_air"] == 0  # done = landed, not merely "in RTL"
+    for core in f.swarm.cores:
+        assert {k: core.params[k] for k in expect} == pytest.approx(firmware_defaults)
+
+
+def test_keep_firmware_limits_writes_nothing():
+    f = _InMemoryFlight(_with_speed(_mission(n=2), 4.0), params={"WPNAV_SPEED": 1000.0},
+                        set_limits=False)
+    f.run_until_phase("run", limit_s=120.0)
+    assert f.op.param_changes == []
+    assert all(core.params["WPNAV_SPEED"] == 1000.0 for core in f.swarm.cores)
+
+
+def test_a_restarted_station_counts_its_reclaims():
+    # The first station flies, goes silent (killed): every vehicle fails safe to RTL. A new
+    # station (new Operator, nothing remembered) finds them airborne in RTL and reclaims them:
+    # counted exactly as reclaims after a failsafe on the first run.
+    f = _InMemoryFlight(_mission(n=3, duration_s=120.0))
+    f.run_until_phase("run")
+    f.run_until(f.ether.now_s + 5.0)
+    f.ether.cut_links.add(0)
+    f.run_until(f.ether.now_s + 8.0)
+    assert all(c.custom_mode == 6 for c in f.swarm.cores)  # ArduCopter RTL
+    mission = _mission(n=3, duration_s=120.0)
+    now = f.ether.now_s
+    scenario = mission_scenario(mission, 3)
+    station = station_for_swarm(f.swarm, now_s=now)
+    op = _make_operator(mission, scenario, station, FlyOptions(wave_size=10), 3, now, 3)
+    ether = LockstepEther(f.swarm, station, np.random.default_rng(4), now_s=now)
+    ether.on_event = op.handle_event
+    ether.advance_to(now + 40.0, poll=op.poll, poll_period_s=0.5)
+    assert op.phase == "run"
+    assert {s for _, _, s in op.reclaimed} == {1, 2, 3}
+    assert all(c.custom_mode == 4 for c in f.swarm.cores)  # GUIDED again
+
+
+def test_operator_actions_release_rtl_and_rejoin():
+    f = _InMemoryFlight(_mission(n=4, duration_s=200.0))
+    f.run_until_phase("run")
+    f.run_until(f.ether.now_s + 3.0)
+    now = f.ether.now_s
+    (rec,) = f.op.operator_command("rtl", (0, 2), now, source="test")
+    assert rec.result == "sent" and (0, 2) in f.op.released
+    f.run_until(now + 3.0)
+    core = f.swarm.cores[1]
+    assert core.custom_mode == 6  # RTL: not reclaimed, not planned
+    assert f.op.records[-1].planned == 3
+    assert not any(s == 2 for _, _, s in f.op.reclaimed)
+    f.op.operator_command("rejoin", (0, 2), f.ether.now_s, source="test")
+    f.run_until(f.ether.now_s + 6.0)
+    assert core.custom_mode == 4 and f.op.records[-1].planned == 4
+    with pytest.raises(ValueError):
+        f.op.operator_command("explode", None, f.ether.now_s)
+
+
+@pytest.mark.parametrize("action,mode", [("end", 6), ("hold", 4), ("land", 9)])
+def test_interrupt_tells_every_vehicle_and_reports_it(action, mode):
+    f = _InMemoryFlight(_mission(n=3, duration_s=200.0))
+    f.run_until_phase("run")
+    f.run_until(f.ether.now_s + 3.0)
+    f.op.interrupt(action, f.ether.now_s)
+    f.run_until(f.ether.now_s + 3.0)
+    assert all(c.custom_mode == mode for c in f.swarm.cores)  # ArduCopter RTL 6 GUIDED 4 LAND 9
+    report = f.op.interrupt_report(f.ether.now_s)
+    assert len(report) == 3 and all(ok for _, _, ok in report), report
