@@ -220,12 +220,13 @@ def _serial_open_reason(spec: ConnectionSpec, exc: BaseException) -> str:
 
 
 def _open_reason(spec: ConnectionSpec, exc: BaseException) -> str:
-    """One line: which link, what it tried, why it failed, and the likely cause."""
+    """One line: what was tried, why it failed, the likely cause (the caller names the link,
+    as the runner's "cannot open link 'udpin:...': ..." does)."""
     if spec.kind == "serial":
         return _serial_open_reason(spec, exc)
     host, port = spec.address
     if isinstance(exc, socket.gaierror):
-        return f"{spec.text}: cannot resolve host {host!r} ({exc.strerror or exc})"
+        return f"cannot resolve host {host!r} ({exc.strerror or exc})"
     code = getattr(exc, "errno", None)
     if isinstance(code, int) and code > 0:
         reason = os.strerror(code)
@@ -235,8 +236,8 @@ def _open_reason(spec: ConnectionSpec, exc: BaseException) -> str:
         hint = {errno.EADDRINUSE: " (another station, MAVProxy or QGroundControl on this port?)",
                 errno.EADDRNOTAVAIL: " (not an address of this computer)",
                 errno.EACCES: " (ports below 1024 need privileges)"}.get(code, "")
-        return f"{spec.text}: cannot listen on {host}:{port}: {reason}{hint}"
-    return f"{spec.text}: cannot connect to {host}:{port}: {reason}"
+        return f"cannot listen on {host}:{port}: {reason}{hint}"
+    return f"cannot connect to {host}:{port}: {reason}"
 
 
 class StationAdapter:
