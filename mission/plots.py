@@ -1,96 +1,254 @@
-"""Figures people would rather look at than read: the paper's Fig. 2 and a Fig. 4-style strip."""
+"""Figures people would rather look at than read: the paper's Fig. 2, a Fig. 4-style frame strip,
+and the animation of a run.
+
+Every map is drawn by one :class:`FrameView`: its artists are created once and updated per frame,
+so a strip, a single frame and a 100-frame animation share the same look and the same complete
+legend (:func:`legend_handles`), and an animation renders in seconds. Maps are east to the right,
+north up, with the unit on the axes: metres for missions, paper length units for the paper's
+presets (``unit``).
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 
-__all__ = ["plot_time_series", "plot_frame_strip", "draw_frame"]
+__all__ = ["plot_time_series", "plot_frame_strip", "draw_frame", "Scene", "FrameView", "legend_handles",
+           "short_name", "crew_links", "PAPER_UNIT"]
+
+#: Axis label unit of the paper's presets (the scaled reading keeps paper units, PAPER_NOTES §6.4).
+PAPER_UNIT = "paper length units"
+
+C_ACTIVE, C_IDLE, C_LOST = "tab:blue", "tab:gray", "black"
+C_OK, C_CUT, C_TREE, C_BASE, C_HAZARD, C_CREW = "tab:green", "tab:red", "tab:orange", "darkgreen", "tab:red", "green"
 
 
-def plot_time_series(rows: list[dict], n_drones: int, n_tasks: int, title: str, path) -> None:
-    """Fig. 2: alive, alive-and-active drones and connected tasks over time (mean and 5-95 % band)."""
-    fig, ax = plt.subplots(figsize=(7, 4))
-    series = [("alive_count", n_drones, "drones alive", "tab:gray"),
-              ("active_count", n_drones, "drones alive and active", "tab:blue"),
-              ("n_connected", n_tasks, "tasks connected (ret)", "tab:red")]
+def plot_time_series(rows: list[dict], n_drones: int, n_tasks: int, title: str, path,
+                     step_label: str = "step (paper time steps)") -> None:
+    """Fig. 2: alive, alive-and-active drones and connected tasks over time across runs.
+
+    Lines are the mean over runs; the shaded band around each spans the 5th to 95th percentile
+    of the runs at that step (labelled in the legend).
+    """
+    fig, ax = plt.subplots(figsize=(8, 4.8))
+    series = [("alive_count", n_drones, "drones alive (% of initial)", C_IDLE),
+              ("active_count", n_drones, "drones alive and networked (% of initial)", C_ACTIVE),
+              ("n_connected", n_tasks, "tasks connected (% of tasks)", C_CUT)]
     for key, total, label, colour in series:
         data = np.array([r[key][: len(rows[0]["tu1_step"])] for r in rows], dtype=float) / total
         t = np.arange(data.shape[1])
-        ax.plot(t, 100 * data.mean(0), color=colour, label=label)
-        lo, hi = np.percentile(100 * data, [5, 95], axis=0)
-        ax.fill_between(t, lo, hi, color=colour, alpha=0.15, linewidth=0)
-    ax.set_xlabel("step")
-    ax.set_ylabel("% of initial drones / of tasks")
+        ax.plot(t, 100 * data.mean(0), color=colour, label=f"{label}, mean of {len(rows)} runs")
+        if len(rows) > 1:
+            lo, hi = np.percentile(100 * data, [5, 95], axis=0)
+            ax.fill_between(t, lo, hi, color=colour, alpha=0.15, linewidth=0)
+    if len(rows) > 1:
+        ax.fill_between([], [], [], color="gray", alpha=0.25, linewidth=0, label="band: 5–95 % of runs")
+    ax.set_xlabel(step_label, fontsize=10)
+    ax.set_ylabel("%", fontsize=10)
     ax.set_ylim(0, 102)
+    ax.tick_params(labelsize=9)
     ax.set_title(title, fontsize=10)
     # Below the axes: inside, any corner hides a curve (they span 0-100 % over the whole run).
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, fontsize=8, frameon=False)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, fontsize=8.5, frameon=False)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
 
 
-def draw_frame(ax, pos_m, alive, active, task_pos_m, connected, tree, radio_range_m, base_range_m,
-               half_width_m, links: bool = True, hazard_zones=()) -> None:
-    """One snapshot: radio links, drones by state, tasks by connection, the task tree, the base."""
-    from planner.geometry import neighbour_pairs
+def short_name(name: str | None) -> str:
+    """'Crew 1 (hand crew, east flank)' -> 'Crew 1': the label drawn next to a task."""
+    return "" if not name else name.split(" (")[0].strip()
 
-    ax.add_patch(plt.Circle((0, 0), min(base_range_m, radio_range_m), color="tab:green", alpha=0.12))
-    for zone in hazard_zones:
-        zone(ax)
-    if links and active.any():
+
+def crew_links(task_pos_m, pos_m, active, range_m) -> np.ndarray:
+    """(K, 2, 2) segments task -> the nearest active drone strictly within range (what connects it)."""
+    idx = np.flatnonzero(active)
+    if not len(idx) or not len(task_pos_m):
+        return np.zeros((0, 2, 2))
+    d = np.linalg.norm(task_pos_m[:, None, :] - pos_m[idx][None, :, :], axis=2)
+    near = d.argmin(1)
+    ok = d[np.arange(len(task_pos_m)), near] < range_m
+    return np.stack([task_pos_m[ok], pos_m[idx[near[ok]]]], 1)
+
+
+@dataclass
+class Scene:
+    """What does not change during a run: ranges, extent, hazard zones, names, units."""
+
+    radio_range_m: float
+    base_range_m: float
+    extent_m: float
+    hazard_zones: list = field(default_factory=list)
+    """Painters ``paint(ax)`` adding one patch each (mission.replay)."""
+    task_names: list | None = None
+    unit: str = "m"
+    tree_recomputed: bool = False
+    """The tree is rebuilt from the recorded task positions (the run did not record the planner's)."""
+    fontsize: float = 9.0
+
+
+def legend_handles(scene: Scene) -> list:
+    """Proxy artists for everything a map can show (also what is absent at a given instant)."""
+    h = [Line2D([], [], marker="s", ls="", color=C_BASE, markersize=8, label="base station"),
+         Patch(color=C_OK, alpha=0.15, label=f"base radio range ({scene.base_range_m:g} {scene.unit})"),
+         Line2D([], [], marker="o", ls="", color=C_ACTIVE, markersize=5, label="drone, networked"),
+         Line2D([], [], marker="o", ls="", color=C_IDLE, markersize=5, label="drone, cut off (flying home)"),
+         Line2D([], [], marker="x", ls="", color=C_LOST, markersize=6, label="drone lost"),
+         Line2D([], [], color=C_ACTIVE, alpha=0.5, lw=1, label=f"radio link (≤ {scene.radio_range_m:g} {scene.unit})"),
+         Line2D([], [], marker="*", ls="", color=C_OK, markeredgecolor="black", markersize=12,
+                label="task / crew, connected"),
+         Line2D([], [], marker="*", ls="", color=C_CUT, markeredgecolor="black", markersize=12,
+                label="task / crew, cut off"),
+         Line2D([], [], color=C_CREW, ls="--", lw=1.4, label="drone serving a crew"),
+         Line2D([], [], color=C_TREE, lw=1.6, marker="o", markerfacecolor="none", markersize=5,
+                label="task tree" + (" (rebuilt from positions)" if scene.tree_recomputed else " (planner's)")
+                + ", Steiner points")]
+    if scene.hazard_zones:
+        h.append(Patch(color=C_HAZARD, alpha=0.15, label="hazard zone"))
+    return h
+
+
+class FrameView:
+    """One map on ``ax``: static background once, dynamic artists updated by :meth:`update`."""
+
+    def __init__(self, ax, scene: Scene, clock: bool = False) -> None:
+        self.ax, self.scene = ax, scene
+        fs = scene.fontsize
+        ax.add_patch(plt.Circle((0, 0), min(scene.base_range_m, scene.radio_range_m), color=C_OK, alpha=0.12,
+                                zorder=0))
+        for zone in scene.hazard_zones:
+            zone(ax)
+        self.links = LineCollection([], colors=C_ACTIVE, alpha=0.3, linewidths=0.6, zorder=1)
+        self.crew = LineCollection([], colors=C_CREW, linestyles="--", linewidths=1.4, zorder=2)
+        self.tree = LineCollection([], colors=C_TREE, linewidths=1.6, alpha=0.85, zorder=2)
+        for c in (self.links, self.crew, self.tree):
+            ax.add_collection(c)
+        empty = np.zeros((0, 2))
+        self.steiner = ax.scatter(empty[:, 0], empty[:, 1], s=22, facecolors="none", edgecolors=C_TREE, zorder=3)
+        self.lost = ax.scatter(empty[:, 0], empty[:, 1], marker="x", s=16, color=C_LOST, alpha=0.55, zorder=3)
+        self.idle = ax.scatter(empty[:, 0], empty[:, 1], s=14, color=C_IDLE, zorder=4)
+        self.active = ax.scatter(empty[:, 0], empty[:, 1], s=14, color=C_ACTIVE, zorder=4)
+        self.task_ok = ax.scatter(empty[:, 0], empty[:, 1], marker="*", s=150, color=C_OK, edgecolors="black",
+                                  linewidths=0.5, zorder=5)
+        self.task_cut = ax.scatter(empty[:, 0], empty[:, 1], marker="*", s=150, color=C_CUT, edgecolors="black",
+                                   linewidths=0.5, zorder=5)
+        ax.plot([0], [0], marker="s", color=C_BASE, markersize=9, ls="", zorder=6)
+        names = scene.task_names or []
+        self.labels = [ax.text(0, 0, short_name(n), fontsize=fs - 1.5, zorder=7, clip_on=True,
+                               bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.7))
+                       for n in (names if len(names) <= 20 else [])]
+        self.clock = (ax.text(0.02, 0.98, "", transform=ax.transAxes, ha="left", va="top", fontsize=fs + 1,
+                              zorder=8, bbox=dict(boxstyle="round,pad=0.3", fc="white", ec="0.6", alpha=0.85))
+                      if clock else None)
+        lim = scene.extent_m * 1.15
+        ax.set_xlim(-lim, lim)
+        ax.set_ylim(-lim, lim)
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=fs - 1)
+        ax.set_xlabel(f"east ({scene.unit})", fontsize=fs)
+        ax.set_ylabel(f"north ({scene.unit})", fontsize=fs)
+        ax.grid(alpha=0.2)
+
+    def update(self, pos_m, alive, active, task_pos_m, connected, tree, clock_text: str = "") -> list:
+        """Redraw the dynamic part for one instant; returns the artists changed (for blitting).
+
+        Positions are (north, east) rows; the map draws east on x and north on y.
+        """
+        from planner.geometry import neighbour_pairs
+
+        xy = lambda a: np.asarray(a, float)[..., ::-1]  # (north, east) -> (x = east, y = north)  # noqa: E731
+        active = np.asarray(active, bool) & np.asarray(alive, bool)
         idx = np.flatnonzero(active)
-        pairs = idx[neighbour_pairs(pos_m[idx], radio_range_m)]
-        if len(pairs):
-            seg = pos_m[pairs]  # (P, 2, 2)
-            ax.plot(seg[:, :, 1].T, seg[:, :, 0].T, color="tab:blue", alpha=0.15, lw=0.5)
-    if tree is not None:
-        for a, b in zip(*tree.segments()):
-            ax.plot([a[1], b[1]], [a[0], b[0]], color="tab:orange", lw=1.2, alpha=0.8)
-        st = tree.nodes_m[tree.n_tasks + 1:]
-        if len(st):
-            ax.scatter(st[:, 1], st[:, 0], s=12, facecolors="none", edgecolors="tab:orange")
-    dead = ~alive
-    idle = alive & ~active
-    ax.scatter(pos_m[dead, 1], pos_m[dead, 0], marker="x", s=10, color="black", alpha=0.5, label="lost")
-    ax.scatter(pos_m[idle, 1], pos_m[idle, 0], s=8, color="tab:gray", label="disconnected")
-    ax.scatter(pos_m[active, 1], pos_m[active, 0], s=8, color="tab:blue", label="active")
-    ax.scatter(task_pos_m[connected, 1], task_pos_m[connected, 0], marker="*", s=90, color="tab:green",
-               edgecolors="black", linewidths=0.4, label="task (connected)")
-    ax.scatter(task_pos_m[~connected, 1], task_pos_m[~connected, 0], marker="*", s=90, color="tab:red",
-               edgecolors="black", linewidths=0.4, label="task (cut off)")
-    ax.plot([0], [0], marker="s", color="tab:green", markersize=7)
-    lim = half_width_m * 1.1
-    ax.set_xlim(-lim, lim)
-    ax.set_ylim(-lim, lim)
-    ax.set_aspect("equal")
-    ax.tick_params(labelsize=6)
+        pairs = idx[neighbour_pairs(pos_m[idx], self.scene.radio_range_m)] if len(idx) > 1 else np.zeros((0, 2), int)
+        self.links.set_segments(xy(pos_m[pairs]) if len(pairs) else [])
+        self.crew.set_segments(xy(crew_links(task_pos_m, pos_m, active, self.scene.radio_range_m)))
+        if tree is not None:
+            a, b = tree.segments()
+            self.tree.set_segments(xy(np.stack([a, b], 1)) if len(a) else [])
+            st = tree.nodes_m[tree.n_tasks + 1:]
+            self.steiner.set_offsets(xy(st) if len(st) else np.zeros((0, 2)))
+        else:
+            self.tree.set_segments([])
+            self.steiner.set_offsets(np.zeros((0, 2)))
+        dead, idle = ~np.asarray(alive, bool), np.asarray(alive, bool) & ~active
+        self.lost.set_offsets(xy(pos_m[dead]))
+        self.idle.set_offsets(xy(pos_m[idle]))
+        self.active.set_offsets(xy(pos_m[active]))
+        connected = np.asarray(connected, bool)
+        self.task_ok.set_offsets(xy(task_pos_m[connected]))
+        self.task_cut.set_offsets(xy(task_pos_m[~connected]))
+        off = self.scene.extent_m * 0.03
+        for label, p in zip(self.labels, task_pos_m):
+            right = p[1] > 0.55 * self.scene.extent_m  # near the right edge: label on the left
+            label.set_position((p[1] - off if right else p[1] + off, p[0] + off))
+            label.set_horizontalalignment("right" if right else "left")
+        changed = [self.links, self.crew, self.tree, self.steiner, self.lost, self.idle, self.active,
+                   self.task_ok, self.task_cut, *self.labels]
+        if self.clock is not None:
+            self.clock.set_text(clock_text)
+            changed.append(self.clock)
+        return changed
 
 
-def _strip_legend(fig, ax) -> None:
-    """One legend for a frame strip, below the panels (inside one, it hides tasks near a corner)."""
-    handles, labels = ax.get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.5, 0.0), ncol=len(labels), fontsize=7,
-               frameon=False)
+def draw_frame(ax, pos_m, alive, active, task_pos_m, connected, tree, radio_range_m, base_range_m,
+               half_width_m, links: bool = True, hazard_zones=(), task_names=None, unit: str = "m") -> FrameView:
+    """One snapshot on ``ax`` (kept for callers of the old API); returns its :class:`FrameView`."""
+    view = FrameView(ax, Scene(radio_range_m, base_range_m, half_width_m, list(hazard_zones), task_names, unit))
+    view.update(pos_m, alive, active if links else np.zeros_like(active), task_pos_m, connected, tree)
+    return view
 
 
-def plot_frame_strip(record, frames: list[int], problem, title: str, path) -> None:
+def strip_figure(n_frames: int, scene: Scene):
+    """A figure for a frame strip: frames in rows of three, the legend in the last cell."""
+    cols = 3
+    rows = (n_frames + 1 + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 5.2 * rows))
+    axes = np.atleast_1d(axes).ravel()
+    legend_ax = axes[n_frames]
+    legend_ax.axis("off")
+    legend_ax.legend(handles=legend_handles(scene), loc="upper left", fontsize=scene.fontsize + 1, frameon=False,
+                     title="legend", title_fontsize=scene.fontsize + 2, alignment="left")
+    for ax in axes[n_frames + 1:]:
+        ax.axis("off")
+    return fig, axes[:n_frames], legend_ax
+
+
+def plot_frame_strip(record, frames: list[int], problem, title: str, path, unit: str = PAPER_UNIT,
+                     step_s: float | None = None) -> None:
     """Fig. 4-style strip: a few snapshots of one run (east to the right, north up)."""
-    fig, axes = plt.subplots(1, len(frames), figsize=(3.2 * len(frames), 3.9))
-    axes = np.atleast_1d(axes)
+    trees = dict(record.trees)
+    recomputed = any(trees.get(t) is None for t in frames)
+    scene = Scene(problem.radio_range_m, problem.base_range_m, problem.field_half_width_m, unit=unit,
+                  tree_recomputed=recomputed)
+    fig, axes, legend_ax = strip_figure(len(frames), scene)
     for ax, t in zip(axes, frames):
-        draw_frame(ax, record.pos_m[t], record.alive[t], record.active[t], record.task_pos_m[t],
-                   record.connected[t], record.trees.get(t), problem.radio_range_m,
-                   problem.base_range_m, problem.field_half_width_m)
-        ax.set_title(f"t = {t}: {record.connected[t].sum()}/{len(record.connected[t])} tasks, "
-                     f"{record.active[t].sum()} active", fontsize=8)
-    _strip_legend(fig, axes[-1])
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout(rect=(0, 0.13, 1, 1))
-    fig.savefig(path, dpi=130)
+        tree = trees.get(t)
+        if tree is None:
+            from planner.steiner import build_task_tree
+
+            tree = build_task_tree(np.zeros(2), record.task_pos_m[t])
+        FrameView(ax, scene).update(record.pos_m[t], record.alive[t], record.active[t], record.task_pos_m[t],
+                                    record.connected[t], tree)
+        when = f"step {t}" if step_s is None else f"t = {t * step_s:g} s"
+        ax.set_title(f"{when}: {record.connected[t].sum()}/{len(record.connected[t])} tasks connected, "
+                     f"{(record.active[t] & record.alive[t]).sum()}/{len(record.alive[t])} drones networked",
+                     fontsize=scene.fontsize + 1)
+    fig.suptitle(title, fontsize=13)
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
+    fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+# Kept for old imports.
+def _strip_legend(fig, ax) -> None:  # pragma: no cover - superseded by strip_figure
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=max(1, len(labels)), fontsize=8, frameon=False)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RunData", "load_run", "replay"]
+__all__ = ["RunData", "load_run", "replay", "find_run_dir", "check_animation_writer", "tree_at"]
 
 
 @dataclass
@@ -111,44 +111,132 @@ def _zone_painters(mission):
     return painters
 
 
+def find_run_dir(path: pathlib.Path) -> tuple[pathlib.Path, str | None]:
+    """The run directory to replay: ``path`` itself, or the newest run directory inside it.
+
+    ``phireman fly --out DIR`` makes ``DIR/<stamp>/`` while ``phireman sim --mission --out DIR``
+    writes ``DIR`` itself; both are accepted. Returns the directory and a note for people when it
+    picked one of several (or None).
+
+    Raises
+    ------
+    FileNotFoundError
+        With a hint: what a run directory holds and which commands write one.
+    """
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such directory")
+    if not path.is_dir():
+        raise FileNotFoundError(f"{path} is a file; replay takes a run directory (holding truth.npz), "
+                                f"e.g. the --out of 'phireman sim --mission wildfire --out runs/wf'")
+    if (path / "truth.npz").is_file():
+        return path, None
+    runs = sorted((d for d in path.iterdir() if d.is_dir() and (d / "truth.npz").is_file()),
+                  key=lambda d: ((d / "truth.npz").stat().st_mtime, d.name))
+    if runs:
+        note = None
+        if len(runs) > 1:
+            note = (f"{path} holds {len(runs)} run directories; replaying the newest, {runs[-1].name} "
+                    f"(give its path to choose another)")
+        else:
+            note = f"replaying {runs[-1]}"
+        return runs[-1], note
+    if (path / "summary.json").is_file() or (path / "flight.tlog").is_file():
+        raise FileNotFoundError(f"{path} is a run directory without truth.npz: it was flown with real vehicles "
+                                f"(--connect), so there is no ground truth to draw; its metrics.csv and "
+                                f"flight.tlog hold what the station saw")
+    raise FileNotFoundError(f"{path}: no truth.npz here or in its subdirectories; a run directory is written by "
+                            f"'phireman sim --mission MISSION --out DIR' or 'phireman fly' (emulated)")
+
+
+def _task_names(run: RunData) -> list | None:
+    names = run.summary.get("task_names")
+    if names:
+        return list(names)
+    if run.mission is not None:
+        try:
+            from mission.playback import build_scenario
+
+            return list(build_scenario(run.mission, run.summary.get("seed")).task_names)
+        except Exception:  # names are a nicety; a mission that cannot be redrawn still replays
+            return None
+    return None
+
+
+def tree_at(run: RunData, k: int):
+    """The task tree at sample ``k``: the recorded one, else rebuilt from the task positions."""
+    tree = _tree_at(run.trees, k) if run.trees else None
+    if tree is not None:
+        return tree
+    from planner.steiner import build_task_tree
+
+    base = np.zeros(2)
+    return build_task_tree(base, run.task_pos_m[k])
+
+
+def _scene(run: RunData, fontsize: float = 9.0):
+    from mission.plots import Scene
+
+    radio = run.mission.radio.range_m if run.mission is not None else 2.0
+    base = run.mission.radio.base_range_m if run.mission is not None else radio
+    base = radio if base is None else base
+    extent = max(np.abs(run.task_pos_m).max(), np.abs(run.pos_m[run.alive]).max() if run.alive.any() else 1.0)
+    return Scene(radio, base, float(extent), _zone_painters(run.mission), _task_names(run), "m",
+                 tree_recomputed=not run.trees, fontsize=fontsize)
+
+
+def check_animation_writer(animation: str) -> None:
+    """Refuse up front an animation format whose encoder is missing (instead of failing at the end)."""
+    if animation == "mp4":
+        import shutil
+
+        from matplotlib.animation import FFMpegWriter
+
+        if shutil.which("ffmpeg") is None and not FFMpegWriter.isAvailable():
+            raise ValueError("--animation mp4 needs ffmpeg, which is not installed (apt install ffmpeg); "
+                             "use --animation gif (the default) or none")
+
+
 def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation: str = "gif",
-           max_frames: int = 120, progress=None) -> list[pathlib.Path]:
+           max_frames: int = 100, progress=None) -> list[pathlib.Path]:
     """Render fig2_timeseries.png, frames.png and an animation of a run; returns the files written."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
+    from mission.plots import FrameView, strip_figure
 
-    from mission.plots import _strip_legend, draw_frame
-
+    check_animation_writer(animation)
     run = load_run(run_dir)
     out_dir = pathlib.Path(out_dir or run_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
-    radio = run.mission.radio.range_m if run.mission is not None else 2.0
-    base = run.mission.radio.base_range_m if run.mission is not None else radio
-    extent = max(np.abs(run.task_pos_m).max(), np.abs(run.pos_m[run.alive]).max() if run.alive.any() else 1.0)
-    zones = _zone_painters(run.mission)
-    title = run.mission.name if run.mission is not None else run_dir.name
+    title = run.mission.name if run.mission is not None else pathlib.Path(run_dir).name
     n_drones, n_tasks = run.pos_m.shape[1], run.task_pos_m.shape[1]
-
-    # Fig. 2: alive, alive and active, connected tasks
-    fig, ax = plt.subplots(figsize=(7, 4))
-    ax.plot(run.t_s, 100 * run.alive.mean(1), color="tab:gray", label="drones alive")
-    ax.plot(run.t_s, 100 * (run.alive & run.active).mean(1), color="tab:blue", label="drones alive and active")
-    ax.plot(run.t_s, 100 * run.connected.mean(1), color="tab:red", label="tasks connected (ret)")
-    ever = np.logical_or.accumulate(run.connected, axis=0).sum(1)
-    tu2 = np.divide(run.connected.sum(1), ever, out=np.zeros(len(ever)), where=ever > 0)
-    ax.plot(run.t_s, 100 * tu2, color="tab:red", ls="--", lw=0.8, label="connected / ever connected")
     tu = ""
     truth = run.summary.get("truth") if isinstance(run.summary.get("truth"), dict) else {
         "tu1": run.summary.get("truth_tu1"), "tu2": run.summary.get("truth_tu2")}  # fly / in-process
     if truth.get("tu1") is not None:
-        tu = f" — TU1 {100 * truth['tu1']:.1f} %, TU2 {100 * truth['tu2']:.1f} % (ground truth)"
-    ax.set(xlabel="time (s)", ylabel="%", ylim=(0, 102), title=f"{title}{tu}")
+        tu = f": TU1 {100 * truth['tu1']:.1f} %, TU2 {100 * truth['tu2']:.1f} % (ground truth)"
+    seed = run.summary.get("seed")
+    full_title = f"{title}{'' if seed is None else f', seed {seed}'}{tu}"
+
+    # Fig. 2: alive, alive and active, connected tasks
+    fig, ax = plt.subplots(figsize=(8, 4.8))
+    ax.plot(run.t_s, 100 * run.alive.mean(1), color="tab:gray", label=f"drones alive (% of {n_drones})")
+    ax.plot(run.t_s, 100 * (run.alive & run.active).mean(1), color="tab:blue",
+            label=f"drones alive and networked (% of {n_drones})")
+    ax.plot(run.t_s, 100 * run.connected.mean(1), color="tab:red", label=f"tasks connected (% of {n_tasks})")
+    ever = np.logical_or.accumulate(run.connected, axis=0).sum(1)
+    tu2 = np.divide(run.connected.sum(1), ever, out=np.zeros(len(ever)), where=ever > 0)
+    ax.plot(run.t_s, 100 * tu2, color="tab:red", ls="--", lw=0.9, label="connected / ever connected (TU2's integrand)")
+    ax.set_xlabel("mission time (s)", fontsize=10)
+    ax.set_ylabel("%", fontsize=10)
+    ax.set(ylim=(0, 102))
+    ax.set_title(full_title, fontsize=10)
+    ax.tick_params(labelsize=9)
     # Below the axes: inside, any corner hides a curve (they span 0-100 % over the whole run).
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, fontsize=8, frameon=False)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, fontsize=8.5, frameon=False)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     path = out_dir / "fig2_timeseries.png"
@@ -157,44 +245,85 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
     written.append(path)
 
     # Fig. 4: frame strip
+    scene = _scene(run)
     picks = np.unique(np.linspace(0, len(run.t_s) - 1, 5).round().astype(int))
-    fig, axes = plt.subplots(1, len(picks), figsize=(3.3 * len(picks), 4.0))
-    for ax, k in zip(np.atleast_1d(axes), picks):
-        draw_frame(ax, run.pos_m[k], run.alive[k], run.active[k], run.task_pos_m[k], run.connected[k],
-                   _tree_at(run.trees, k), radio, base, extent, hazard_zones=zones)
-        ax.set_title(f"t = {run.t_s[k]:.0f} s: {run.connected[k].sum()}/{n_tasks} tasks, "
-                     f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} active", fontsize=8)
-        ax.set_xlabel("east (m)", fontsize=7)
-    np.atleast_1d(axes)[0].set_ylabel("north (m)", fontsize=7)
-    _strip_legend(fig, np.atleast_1d(axes)[-1])
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout(rect=(0, 0.13, 1, 1))
+    fig, axes, _ = strip_figure(len(picks), scene)
+    for ax, k in zip(axes, picks):
+        FrameView(ax, scene).update(run.pos_m[k], run.alive[k], run.active[k], run.task_pos_m[k],
+                                    run.connected[k], tree_at(run, k))
+        ax.set_title(f"t = {run.t_s[k]:.0f} s: {run.connected[k].sum()}/{n_tasks} tasks connected, "
+                     f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked", fontsize=10)
+    fig.suptitle(full_title, fontsize=13)
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
     path = out_dir / "frames.png"
-    fig.savefig(path, dpi=130)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
     written.append(path)
 
     if animation != "none":
         ks = np.unique(np.linspace(0, len(run.t_s) - 1, min(max_frames, len(run.t_s))).round().astype(int))
-        fig, ax = plt.subplots(figsize=(5.5, 5.5))
-
-        def draw(i):
-            ax.clear()
-            k = ks[i]
-            draw_frame(ax, run.pos_m[k], run.alive[k], run.active[k], run.task_pos_m[k], run.connected[k],
-                       _tree_at(run.trees, k), radio, base, extent, hazard_zones=zones)
-            ax.set_title(f"{title}: t = {run.t_s[k]:.0f} s, {run.connected[k].sum()}/{n_tasks} tasks connected, "
-                         f"{(run.alive[k] & run.active[k]).sum()} drones active", fontsize=8)
-            if progress:
-                progress(1)
-
-        anim = FuncAnimation(fig, draw, frames=len(ks))
-        if animation == "mp4":
-            path = out_dir / "animation.mp4"
-            anim.save(path, writer=FFMpegWriter(fps=10))
-        else:
-            path = out_dir / "animation.gif"
-            anim.save(path, writer=PillowWriter(fps=10))
-        plt.close(fig)
+        fps = max(4, min(12, round(len(ks) / 10)))  # about 10 s whatever the length
+        path = out_dir / f"animation.{animation}"
+        _animate(run, ks, full_title, path, fps, progress)
         written.append(path)
     return written
+
+
+def _animate(run: RunData, ks: np.ndarray, title: str, path: pathlib.Path, fps: int, progress=None) -> None:
+    """Render the animation by blitting: the background (axes, legend, zones, base) is drawn once,
+    each frame redraws only the moving artists onto a copy of it, so a 100-frame GIF takes seconds
+    rather than minutes (a full figure redraw per frame is dominated by text layout)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from PIL import Image
+
+    from mission.plots import FrameView, legend_handles
+
+    n_drones, n_tasks = run.pos_m.shape[1], run.task_pos_m.shape[1]
+    scene = _scene(run, fontsize=8.0)
+    dpi = 72 if path.suffix == ".gif" else 100
+    fig = plt.figure(figsize=(9.6, 6.4), dpi=dpi)
+    canvas = FigureCanvasAgg(fig)
+    ax = fig.add_axes((0.08, 0.09, 0.56, 0.84))
+    fig.legend(handles=legend_handles(scene), loc="center left", bbox_to_anchor=(0.655, 0.5), fontsize=7.5,
+               frameon=False)
+    fig.suptitle(title, fontsize=10)
+    view = FrameView(ax, scene, clock=True)
+    moving = view.update(run.pos_m[0], run.alive[0], run.active[0], run.task_pos_m[0], run.connected[0], None, " ")
+    for a in moving:
+        a.set_animated(True)
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
+    images = []
+    ffmpeg = None
+    if path.suffix == ".mp4":
+        import subprocess
+
+        w, h = canvas.get_width_height()
+        ffmpeg = subprocess.Popen(["ffmpeg", "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgba",
+                                   "-s", f"{w}x{h}", "-r", str(fps), "-i", "-", "-pix_fmt", "yuv420p",
+                                   "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", str(path)], stdin=subprocess.PIPE)
+    try:
+        for k in ks:
+            canvas.restore_region(background)
+            for a in view.update(run.pos_m[k], run.alive[k], run.active[k], run.task_pos_m[k], run.connected[k],
+                                 tree_at(run, k),
+                                 f"t = {run.t_s[k]:5.0f} s\n{run.connected[k].sum()}/{n_tasks} tasks connected\n"
+                                 f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked"):
+                ax.draw_artist(a)
+            rgba = np.asarray(canvas.buffer_rgba())
+            if ffmpeg is not None:
+                ffmpeg.stdin.write(rgba.tobytes())
+            else:
+                images.append(Image.fromarray(rgba[..., :3]).quantize(colors=256, method=Image.Quantize.MEDIANCUT))
+            if progress:
+                progress(1)
+    finally:
+        plt.close(fig)
+        if ffmpeg is not None:
+            ffmpeg.stdin.close()
+            if ffmpeg.wait() != 0:
+                raise ValueError(f"ffmpeg failed to write {path}")
+    if images:
+        images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0,
+                       optimize=False)

@@ -7,23 +7,32 @@ import sys
 
 HELP = "render a recorded run: Fig. 2 time series, Fig. 4 frame strip, animation"
 DESCRIPTION = """\
-Read a run directory written by 'phireman sim --mission ... --out DIR' or 'phireman fly' and render:
+Read a run directory written by 'phireman sim --mission ... --out DIR' or 'phireman fly' and render
+(RUN_DIR may also be a parent of run directories, e.g. fly's output dir: the newest is replayed):
 
   fig2_timeseries.png  drones alive, drones alive and active, tasks connected over time
-  frames.png           five snapshots: radio links, drones by state, tasks, task tree, hazard zones
-  animation.gif        the whole run (or --animation mp4 when ffmpeg is installed, none to skip)
+  frames.png           five snapshots with a full legend: base and its radio range, radio links,
+                       drones by state, crews by name with the drone serving each, the task tree
+                       (rebuilt from the positions when the run did not record it), hazard zones
+  animation.gif        the whole run with axes, legend and clock, about 10 s long (--animation mp4
+                       when ffmpeg is installed, none to skip)
 
 examples:
   phireman sim --mission wildfire --out runs/wildfire && phireman replay runs/wildfire
   phireman replay runs/wildfire --out /tmp/plots --animation none
+  phireman replay runs                  # the newest run directory under runs/
 """
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("run_dir", type=pathlib.Path, help="a run directory (holds truth.npz)")
+    from mission.cli import positive_int
+
+    p.add_argument("run_dir", type=pathlib.Path,
+                   help="a run directory (holds truth.npz), or a directory of run directories (the newest is used)")
     p.add_argument("--out", type=pathlib.Path, default=None, help="where to write (default: the run directory)")
     p.add_argument("--animation", choices=["gif", "mp4", "none"], default="gif", help="animation format (default gif)")
-    p.add_argument("--max-frames", type=int, default=120, help="animation frames (default 120)")
+    p.add_argument("--max-frames", type=positive_int, default=100, help="animation frames (default 100)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     from mission.live.cli import add_replay_arguments
 
     add_replay_arguments(p)  # --serve, --tiles, --export, --at
@@ -31,20 +40,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     from mission.cli import UserError
-    from mission.replay import replay
+    from mission.replay import check_animation_writer, find_run_dir, replay
 
-    if not args.run_dir.is_dir():
-        raise UserError(f"{args.run_dir}: not a directory")
-    from mission.live.cli import run_replay
-
-    served = run_replay(args)  # --serve / --export: the live page or a GIS file instead of plots
-    if served is not None:
-        return served
+    try:
+        check_animation_writer(args.animation)
+        run_dir, note = find_run_dir(args.run_dir)
+    except (FileNotFoundError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    if note:
+        print(note, file=sys.stderr)
     from tqdm import tqdm
 
-    bar = tqdm(total=args.max_frames, unit="frame", file=sys.stderr, leave=False) if args.animation != "none" else None
+    bar = None
+    if args.animation != "none" and not args.no_progress:
+        bar = tqdm(total=args.max_frames, unit="frame", file=sys.stderr, leave=False, desc="animation")
     try:
-        files = replay(args.run_dir, args.out, args.animation, args.max_frames, progress=bar.update if bar else None)
+        files = replay(run_dir, args.out, args.animation, args.max_frames, progress=bar.update if bar else None)
     except (FileNotFoundError, ValueError) as exc:
         raise UserError(str(exc)) from None
     finally:

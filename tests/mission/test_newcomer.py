@@ -348,3 +348,103 @@ def test_compared_heatmap_panels_share_one_colour_scale(monkeypatch, tmp_path):
     report.heatmaps([cell], tmp_path)
     fig3 = [v for t, v in calls if "max(DCCRS, MCCST)" in t]
     assert len(fig3) == 4 and len(set(fig3)) == 1 and fig3[0] >= 29  # ours (+29) and paper (+2.6) alike
+
+
+# -- replay: parent directories, hints, encoders checked up front, pictures that explain themselves
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "wf"
+    assert main(["sim", "--mission", "hazard_zone", "--out", str(out)]) == 0
+    return out
+
+
+def test_replay_parent_directory_picks_the_newest(run_dir, tmp_path, capsys):
+    import shutil
+
+    parent = tmp_path / "runs"
+    older, newer = parent / "20260101-000000-a", parent / "20260102-000000-b"
+    shutil.copytree(run_dir, older)
+    shutil.copytree(run_dir, newer)
+    os.utime(older / "truth.npz", (1, 1))
+    capsys.readouterr()
+    assert main(["replay", str(parent), "--animation", "none", "--out", str(tmp_path / "o")]) == 0
+    err = _err(capsys)
+    assert "holds 2 run directories" in err and newer.name in err
+    assert (tmp_path / "o" / "frames.png").is_file()
+
+
+def test_replay_hint_when_there_is_no_truth(tmp_path, capsys):
+    assert main(["replay", str(tmp_path)]) == 2
+    err = _err(capsys)
+    assert "no truth.npz" in err and "phireman sim --mission" in err
+    (tmp_path / "summary.json").write_text("{}")
+    assert main(["replay", str(tmp_path)]) == 2
+    assert "real vehicles" in _err(capsys)
+
+
+def test_replay_mp4_without_ffmpeg_fails_up_front(run_dir, tmp_path, monkeypatch, capsys):
+    import shutil
+
+    from matplotlib.animation import FFMpegWriter
+
+    import mission.replay as replay_mod
+
+    monkeypatch.setattr(shutil, "which", lambda name, *a, **k: None)
+    monkeypatch.setattr(FFMpegWriter, "isAvailable", classmethod(lambda cls: False))
+    called = []
+    monkeypatch.setattr(replay_mod, "load_run", lambda *a, **k: called.append(1))
+    assert main(["replay", str(run_dir), "--animation", "mp4", "--out", str(tmp_path)]) == 2
+    err = _err(capsys)
+    assert "needs ffmpeg" in err and "--animation gif" in err
+    assert not called and not list(tmp_path.iterdir())  # nothing rendered before refusing
+
+
+def test_legend_is_complete():
+    from mission.plots import Scene, legend_handles
+
+    labels = [h.get_label() for h in legend_handles(Scene(100, 80, 300, [lambda ax: None], unit="m"))]
+    for needle in ("base station", "base radio range (80 m)", "radio link", "drone lost", "cut off",
+                   "drone serving a crew", "task tree", "Steiner", "hazard zone"):
+        assert any(needle in label for label in labels), needle
+    paper = [h.get_label() for h in legend_handles(Scene(2, 2, 5, unit="paper length units"))]
+    assert not any("hazard" in label for label in paper) and any("paper length units" in label for label in paper)
+
+
+def test_frame_shows_names_links_and_a_tree_without_recorded_trees(run_dir):
+    import matplotlib.pyplot as plt
+
+    from mission.plots import FrameView
+    from mission.replay import _scene, load_run, tree_at
+
+    (run_dir / "trees.json").rename(run_dir / "trees.json.bak")
+    try:
+        run = load_run(run_dir)
+        assert not run.trees
+        k = len(run.t_s) // 2
+        tree = tree_at(run, k)  # rebuilt from the recorded positions
+        assert tree is not None and tree.n_tasks == run.task_pos_m.shape[1]
+        scene = _scene(run)
+        assert scene.tree_recomputed and scene.hazard_zones and scene.task_names
+        fig, ax = plt.subplots()
+        view = FrameView(ax, scene, clock=True)
+        view.update(run.pos_m[k], run.alive[k], run.active[k], run.task_pos_m[k], run.connected[k], tree, "t = 1 s")
+        assert len(view.tree.get_segments()) == len(tree.nodes_m) - 1
+        assert len(view.crew.get_segments()) == run.connected[k].sum()  # one serving drone per connected crew
+        assert [t.get_text() for t in view.labels] == [n.split(" (")[0] for n in scene.task_names]
+        assert ax.get_xlabel() == "east (m)" and ax.get_ylabel() == "north (m)"
+        assert view.clock.get_text() == "t = 1 s"
+        plt.close(fig)
+    finally:
+        (run_dir / "trees.json.bak").rename(run_dir / "trees.json")
+
+
+def test_animation_has_the_frames_asked_for(run_dir, tmp_path):
+    from PIL import Image
+
+    from mission.replay import replay
+
+    files = replay(run_dir, tmp_path, "gif", max_frames=12)
+    gif = next(f for f in files if f.suffix == ".gif")
+    with Image.open(gif) as im:
+        assert im.n_frames == 12 and im.size[0] > 500
