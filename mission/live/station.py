@@ -35,7 +35,7 @@ __all__ = ["LiveStation", "event_entry"]
 log = logging.getLogger(__name__)
 
 #: Frames cost at most this fraction of the station's wall time (the sampler slows down).
-CPU_BUDGET = 0.02
+CPU_BUDGET = 0.015
 MIN_PERIOD_S = 0.25
 
 

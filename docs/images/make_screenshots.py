@@ -1,0 +1,136 @@
+"""Make the live-view screenshots of the README and docs/live_view.md (headless chromium).
+
+    nice .venv/bin/python docs/images/make_screenshots.py
+
+1. live_wildfire.png: ``phireman fly wildfire`` (50 emulated ArduPilot drones, emulator process,
+   10x) served with --serve; one vehicle sent home (RTL) and one held through the page's own
+   API with the operator key, a vehicle selected; shot at mission time ~90 s.
+2. replay_hazard.png: the ``hazard_zone`` mission flown, then ``phireman replay --serve`` of
+   its run directory, the slider at ~t+120 s (zone 1 active), the emulator-truth layer off.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import shutil
+import tempfile
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def browser():
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    o = webdriver.ChromeOptions()
+    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+              "--disable-component-update", "--disable-sync", "--no-first-run",
+              "--window-size=1600,1000", "--hide-scrollbars",
+              f"--user-data-dir={tempfile.mkdtemp(prefix='phireman-shot-')}"):
+        o.add_argument(a)
+    o.binary_location = shutil.which("chromium")
+    return webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=o)
+
+
+def post(info, action, vehicle):
+    req = urllib.request.Request(info["url"] + "api/action", method="POST",
+                                 data=json.dumps({"action": action, "vehicle": vehicle}).encode(),
+                                 headers={"Content-Type": "application/json",
+                                          "X-Operator-Key": info["key"]})
+    return json.loads(urllib.request.urlopen(req, timeout=10).read())
+
+
+def live_shot(out_dir: Path) -> Path:
+    from mission.examples import example_path
+    from mission.load import load_mission
+    from mission.runners import FlyOptions, fly_emulated_async
+
+    mission = load_mission(example_path("wildfire"))
+    info, state = {}, {"t": None, "stop": False}
+
+    def hook(op, world):
+        state["t"] = op.t_mission_s(op.fleet.snapshot(0).t_s) if op.mission_t0_s else None
+        if state["stop"]:
+            op.phase = "done"
+
+    def run():
+        asyncio.run(fly_emulated_async(mission, FlyOptions(
+            speedup=10.0, out_dir=str(out_dir), serve="127.0.0.1:0", on_live=info.update,
+            on_operator=hook)))
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    while "url" not in info:
+        time.sleep(0.2)
+    drv = browser()
+    try:
+        drv.get(f"{info['url']}#key={info['key']}")
+
+        def t_mission():
+            return drv.execute_script("return window.phiremanFrame && "
+                                      "window.phiremanFrame.t_mission_s")
+        while (t_mission() or 0) < 50:
+            time.sleep(0.5)
+        post(info, "rtl", "0:12")
+        post(info, "hold", "0:31")
+        while (t_mission() or 0) < 90:
+            time.sleep(0.5)
+        drv.execute_script("document.querySelector('#vtable tr[data-vid=\"0:31\"]').click()")
+        time.sleep(1.0)
+        path = HERE / "live_wildfire.png"
+        drv.save_screenshot(str(path))
+    finally:
+        drv.quit()
+        state["stop"] = True
+        th.join(120)
+    return path
+
+
+def replay_shot(out_dir: Path) -> Path:
+    from mission.examples import example_path
+    from mission.live.replay import ReplaySource
+    from mission.live.server import LiveServer
+    from mission.load import load_mission
+    from mission.runners import FlyOptions, fly_emulated
+
+    res = fly_emulated(load_mission(example_path("hazard_zone")),
+                       FlyOptions(speedup=20.0, out_dir=str(out_dir), end_wait=False))
+    src = ReplaySource(res.run_dir)
+    box, ready = {}, threading.Event()
+
+    def serve():
+        async def main():
+            server = await LiveServer(src, "127.0.0.1", 0).start()
+            box.update(url=server.url, stop=asyncio.Event(), loop=asyncio.get_running_loop())
+            ready.set()
+            await box["stop"].wait()
+            await server.aclose()
+        asyncio.run(main())
+
+    threading.Thread(target=serve, daemon=True).start()
+    ready.wait(60)
+    drv = browser()
+    try:
+        drv.get(box["url"])
+        time.sleep(3)
+        i = src.index_at(120.0)
+        drv.execute_script("const s = document.getElementById('slider'); s.value = arguments[0];"
+                           "s.dispatchEvent(new Event('input'));", i)
+        time.sleep(2)
+        path = HERE / "replay_hazard.png"
+        drv.save_screenshot(str(path))
+    finally:
+        drv.quit()
+        box["loop"].call_soon_threadsafe(box["stop"].set)
+    return path
+
+
+if __name__ == "__main__":
+    with tempfile.TemporaryDirectory() as tmp:
+        print(live_shot(Path(tmp)))
+        print(replay_shot(Path(tmp)))
