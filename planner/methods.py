@@ -65,6 +65,7 @@ METHODS: dict[str, str] = {
     "phireman-nodes-only": "planner.phireman:make_phireman_nodes_only",
     "dccrs": "planner.dccrs:make_dccrs",
     "mccst": "planner.mccst:make_mccst",
+    "phireman-resilient": "planner.resilient:make_resilient",
 }
 
 

@@ -136,7 +136,7 @@ class World:
         return tasks_connected(self.task_pos_m, self.pos_m, active, self.problem.radio_range_m)
 
     def step(self, disp_m: np.ndarray, active: np.ndarray, loss_prob: np.ndarray | float,
-             attrition_u: np.ndarray) -> np.ndarray:
+             attrition_u: np.ndarray, recovery_target_m: np.ndarray | None = None) -> np.ndarray:
         """Advance one step (PAPER_NOTES §7 #2: plan -> attrition -> execute -> tasks walk).
 
         Parameters
@@ -145,6 +145,10 @@ class World:
         active : (N,) bool, the active mask measured at the start of this step.
         loss_prob : (N,) or scalar, per-drone loss probability this step.
         attrition_u : (N,) uniforms of this step.
+        recovery_target_m : (N, 2), optional. The rally-point rule (a world option that only a
+            planner publishing rally points switches on, ``planner.resilient``): a disconnected
+            drone flies to its row instead of the base; NaN rows, and ``None`` (the paper's rule,
+            every other method), fly home.
 
         Returns
         -------
@@ -153,7 +157,11 @@ class World:
         p = self.problem
         vmax = p.max_speed_m_s * p.dt_s
         # Disconnected but alive: straight home at full speed (never overshooting the base).
-        disp = np.where(active[:, None], disp_m, step_toward(self.pos_m, self.base_m, vmax))
+        home = self.base_m
+        if recovery_target_m is not None:
+            target = np.asarray(recovery_target_m, dtype=float)
+            home = np.where(np.isfinite(target).all(axis=1)[:, None], target, self.base_m)
+        disp = np.where(active[:, None], disp_m, step_toward(self.pos_m, home, vmax))
         # The world enforces the speed limit whatever the planner says.
         norm = np.linalg.norm(disp, axis=1)
         disp = disp * (np.minimum(1.0, vmax / np.where(norm > 0, norm, 1.0)))[:, None]

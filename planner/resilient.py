@@ -1,0 +1,591 @@
+"""ΦIREMAN-resilient: PhiIREMAN plus mechanisms that keep more tasks connected under attrition.
+
+Beyond the paper (issue 15). The planner is :class:`planner.phireman.PhiremanPlanner` (same
+energy, descent, message layer and task tree) with three switchable mechanisms, each a parameter
+of :class:`ResilientParams` so that it can be ablated:
+
+* **Triage** (``triage_length_per_drone``). The paper's tree spans every task whatever the number
+  of drones left; under attrition the survivors are spread over every branch and too few to hold
+  any of them. Here the base keeps, each tick, only the tasks the networked drones can afford: it
+  adds tasks greedily by the tree length they add (their path to the part already kept, :func:
+  `select_tasks`) while the kept length stays within ``triage_length_per_drone`` × |D'(t)|, and
+  broadcasts the tree pruned to them (:func:`prune_tree`). With enough drones nothing is pruned
+  and the planner is PhiIREMAN. The base uses |D'(t)|, which the paper's controller receives.
+* **Rally points** (``rally``). The tree broadcast also defines one rally point per branch, on the
+  branch at ``rally_dist`` from the base (:func:`rally_points`). A drone cut off from the network
+  flies to the nearest rally point of the tree copy it holds (the last one it received while
+  connected) instead of straight home; it is planned again as soon as it reconnects. If it has
+  waited ``rally_wait_steps`` at the point without reconnecting it flies home. This changes the
+  world's rule for this planner only: the planner exposes the per-drone targets as
+  ``recovery_target_m`` and the world model (``vehicle_emu.world.World.step``) uses them when
+  given (ArduPilot "RTL to the nearest rally point", PX4 "return to the closest safe point").
+* **Task-motion prediction** (``predict_steps``). The base builds the tree on the tasks'
+  positions extrapolated ``predict_steps`` ahead with an exponentially smoothed velocity.
+
+Units: as PhiIREMAN, every length parameter is in paper units (1 unit = r / 2); instructions and
+``recovery_target_m`` are metres.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.geometry import step_toward, tasks_connected
+from planner.knowledge import MessageLayer
+from planner.methods import PlanOutput, TickInput
+from planner.phireman import (PhiremanParams, PhiremanPlanner, TreeSegments, _EntriesByDrone,
+                              _pair_gradient_xy, descend, parse_params)
+from planner.problem import ProblemConfig
+from planner.steiner import TaskTree, maintain_task_tree
+
+__all__ = ["ResilientParams", "ResilientPlanner", "task_paths", "select_tasks", "select_tasks_reference",
+           "prune_tree", "rally_points", "rally_points_reference", "nearest_rally", "claim_targets",
+           "claim_targets_reference", "claim_gradient", "tether_anchors", "tether", "make_resilient"]
+
+
+@dataclass(frozen=True)
+class ResilientParams(PhiremanParams):
+    """PhiIREMAN's parameters (same defaults) plus the resilience mechanisms (paper units)."""
+
+    triage_length_per_drone: float = 0.0
+    """Triage: tree length (paper units) the base budgets per networked drone; 0 or inf = off
+    (every task kept, as PhiIREMAN)."""
+    triage_keep_bonus: float = 0.2
+    """Triage hysteresis: a task kept last tick competes with its added length times (1 - bonus)."""
+    rally: bool = False
+    """Rally points: a disconnected drone flies to the nearest rally point it knows, not home."""
+    rally_dist: float = 2.0
+    """Distance of each branch's rally point from the base along the branch, paper units (the base
+    reaches min(R, r) = 2)."""
+    rally_wait_steps: int = 10
+    """Steps a disconnected drone waits at its rally point before flying home."""
+    claim_gain: float = 0.05
+    """Coverage claim: pull (force, like Þ) of a drone toward an unconnected task it is the nearest
+    known drone to, within ``claim_reach``; 0 = off."""
+    claim_reach: float = 4.0
+    """Coverage claim: only drones nearer than this to an unconnected task claim it, paper units."""
+    claim_tether: float = 0.0
+    """Coverage claim: a claiming drone's move is cut back so that it stays within this fraction
+    of r of its anchor (the known drone within r nearest the base, or the base); 0 = no tether."""
+    predict_steps: float = 0.0
+    """Task-motion prediction: the tree is built on tasks extrapolated this many steps (0 = off)."""
+    predict_smoothing: float = 0.3
+    """Weight of the newest observed displacement in the smoothed task velocity."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("triage_length_per_drone", "rally_dist", "predict_steps", "claim_gain", "claim_reach"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not 0.0 <= self.triage_keep_bonus < 1.0:
+            raise ValueError(f"triage_keep_bonus must be in [0, 1), got {self.triage_keep_bonus}")
+        if not 0.0 < self.predict_smoothing <= 1.0:
+            raise ValueError(f"predict_smoothing must be in (0, 1], got {self.predict_smoothing}")
+        if self.rally_wait_steps < 0:
+            raise ValueError(f"rally_wait_steps must be >= 0, got {self.rally_wait_steps}")
+
+    @property
+    def triage_on(self) -> bool:
+        return 0.0 < self.triage_length_per_drone < np.inf
+
+
+# --------------------------------------------------------------------------------------------
+# Triage: which tasks the drones can afford
+# --------------------------------------------------------------------------------------------
+
+def task_paths(tree: TaskTree) -> np.ndarray:
+    """(M, K) bool: ``P[k, v]`` is True when node v lies on task k's tree path to the base (v != 0).
+
+    Edge v -> parent(v) belongs to the path exactly when ``P[k, v]``. Vectorised over tasks; the
+    loop runs over the tree depth.
+    """
+    m, k = tree.n_tasks, tree.n_nodes
+    paths = np.zeros((m, k), dtype=bool)
+    cur = np.arange(1, m + 1)
+    rows = np.arange(m)
+    for _ in range(k):
+        live = cur > 0
+        if not live.any():
+            break
+        paths[rows[live], cur[live]] = True
+        cur = np.where(live, tree.parent[np.maximum(cur, 0)], 0)
+    return paths
+
+
+def select_tasks(tree: TaskTree, budget: float, kept: np.ndarray | None = None,
+                 keep_bonus: float = 0.0) -> np.ndarray:
+    """Greedy triage: the tasks whose union of tree paths fits in ``budget`` (tree length).
+
+    Repeatedly adds the task whose path adds the least new length to the part already kept (the
+    length of a task kept last tick counts ``1 - keep_bonus`` times for the ordering), until the
+    next one would exceed ``budget``. The nearest task is always kept.
+
+    Parameters
+    ----------
+    tree : the full task tree (any length unit)
+    budget : the affordable tree length, same unit
+    kept : (M,) bool, the tasks kept last tick (hysteresis), optional
+    keep_bonus : in [0, 1)
+
+    Returns
+    -------
+    (M,) bool, the kept tasks.
+    """
+    m = tree.n_tasks
+    if m == 0:
+        return np.zeros(0, dtype=bool)
+    paths = task_paths(tree).astype(float)
+    edge = tree.edge_lengths_m()
+    favour = np.ones(m) if kept is None else np.where(kept, 1.0 - keep_bonus, 1.0)
+    chosen = np.zeros(m, dtype=bool)
+    uncovered = edge.copy()           # length of each node's parent edge not yet in the kept part
+    uncovered[0] = 0.0
+    used = 0.0
+    for _ in range(m):                # loop over tasks added (<= M), vectorised over candidates
+        added = paths @ uncovered
+        order = np.where(chosen, np.inf, added * favour)
+        k = int(np.argmin(order))
+        if chosen[k]:
+            break
+        if chosen.any() and used + added[k] > budget:
+            break
+        chosen[k] = True
+        used += added[k]
+        uncovered[paths[k] > 0] = 0.0
+    return chosen
+
+
+def select_tasks_reference(tree: TaskTree, budget: float, kept=None, keep_bonus: float = 0.0) -> np.ndarray:
+    """Loop-by-loop transcription of :func:`select_tasks` (walks parent pointers; for tests)."""
+    m = tree.n_tasks
+    edge = tree.edge_lengths_m()
+    covered = {0}
+    chosen = [False] * m
+    used = 0.0
+
+    def added(k):
+        v, total = k + 1, 0.0
+        while v not in covered:
+            total += float(edge[v])
+            v = int(tree.parent[v])
+        return total
+
+    for _ in range(m):
+        best, best_key = None, np.inf
+        for k in range(m):
+            if chosen[k]:
+                continue
+            key = added(k) * ((1.0 - keep_bonus) if kept is not None and kept[k] else 1.0)
+            if key < best_key:
+                best, best_key = k, key
+        if best is None:
+            break
+        a = added(best)
+        if any(chosen) and used + a > budget:
+            break
+        chosen[best] = True
+        used += a
+        v = best + 1
+        while v not in covered:
+            covered.add(v)
+            v = int(tree.parent[v])
+    return np.array(chosen, dtype=bool)
+
+
+def prune_tree(tree: TaskTree, keep: np.ndarray) -> TaskTree:
+    """The tree restricted to the paths of the ``keep`` tasks (and any task node on them).
+
+    Node order stays base, tasks, Steiner nodes (tasks and Steiner nodes in their old order); a
+    Steiner node left with a single child is spliced out (its child hangs from its parent), since
+    it no longer joins anything. ``keep`` all True returns ``tree`` itself.
+    """
+    keep = np.asarray(keep, dtype=bool)
+    if keep.all():
+        return tree
+    on_path = task_paths(tree)[keep].any(axis=0)
+    on_path[0] = True
+    parent = tree.parent.copy()
+    n_t = tree.n_tasks
+    is_steiner = np.arange(tree.n_nodes) > n_t
+    # Splice pass-through Steiner nodes, bottom-up until none is left (loop over tree nodes).
+    changed = True
+    while changed:
+        changed = False
+        kids = np.bincount(parent[1:][on_path[1:]], minlength=tree.n_nodes)
+        lone = np.flatnonzero(on_path & is_steiner & (kids == 1))
+        for s in lone:
+            child = np.flatnonzero(on_path & (parent == s))
+            parent[child] = parent[s]
+            on_path[s] = False
+            changed = True
+            break
+    old = np.flatnonzero(on_path)
+    new_index = np.full(tree.n_nodes, -1, dtype=np.int64)
+    new_index[old] = np.arange(len(old))
+    new_parent = np.where(parent[old] < 0, -1, new_index[np.maximum(parent[old], 0)])
+    new_parent[0] = -1
+    n_tasks = int(np.count_nonzero(old[1:] <= n_t))
+    return TaskTree(tree.nodes_m[old], new_parent, n_tasks)
+
+
+# --------------------------------------------------------------------------------------------
+# Rally points
+# --------------------------------------------------------------------------------------------
+
+def rally_points(tree: TaskTree, dist: float) -> np.ndarray:
+    """(B, 2): one rally point per branch of the tree, at ``dist`` from the base along the branch.
+
+    A branch is a child c of the base. The point lies on the path base -> c -> (first child ...)
+    at tree distance ``dist`` from the base, following the first child at each node, or at the end
+    of the path if it is shorter. Same length unit as the tree.
+    """
+    nodes, parent = tree.nodes_m, tree.parent
+    branches = np.flatnonzero(parent == 0)
+    if len(branches) == 0:
+        return np.zeros((0, 2))
+    first_child = np.full(tree.n_nodes, -1, dtype=np.int64)
+    order = np.arange(tree.n_nodes - 1, 0, -1)          # reversed so the lowest child id wins
+    first_child[parent[order]] = order
+    edge = tree.edge_lengths_m()
+    out = np.empty((len(branches), 2))
+    at = np.zeros(len(branches), dtype=np.int64)        # current node (start: base)
+    nxt = branches.copy()
+    left = np.full(len(branches), float(dist))
+    done = np.zeros(len(branches), dtype=bool)
+    for _ in range(tree.n_nodes):                        # loop over path depth, vectorised over branches
+        if done.all():
+            break
+        go = ~done & (nxt >= 0)
+        e = np.where(go, edge[np.maximum(nxt, 0)], 0.0)
+        inside = go & (e >= left)
+        frac = np.divide(left, e, out=np.zeros_like(left), where=e > 0)
+        a, b = nodes[at], nodes[np.maximum(nxt, 0)]
+        out[inside] = (a + frac[:, None] * (b - a))[inside]
+        done |= inside
+        end = ~done & (nxt < 0)                          # path ended before dist: its last node
+        out[end] = nodes[at][end]
+        done |= end
+        step = ~done
+        left = np.where(step, left - e, left)
+        at = np.where(step, nxt, at)
+        nxt = np.where(step, first_child[np.maximum(nxt, 0)], nxt)
+    return out
+
+
+def rally_points_reference(tree: TaskTree, dist: float) -> np.ndarray:
+    """Per-branch loop transcription of :func:`rally_points` (for tests)."""
+    nodes, parent = tree.nodes_m, tree.parent
+    pts = []
+    for c in range(1, tree.n_nodes):
+        if parent[c] != 0:
+            continue
+        a, v, left = 0, c, float(dist)
+        while True:
+            e = float(np.linalg.norm(nodes[v] - nodes[a]))
+            if e >= left:
+                pts.append(nodes[a] + (left / e if e > 0 else 0.0) * (nodes[v] - nodes[a]))
+                break
+            left -= e
+            kids = [w for w in range(1, tree.n_nodes) if parent[w] == v]
+            if not kids:
+                pts.append(nodes[v].copy())
+                break
+            a, v = v, min(kids)
+    return np.array(pts, dtype=float).reshape(-1, 2)
+
+
+def nearest_rally(pos: np.ndarray, rally: np.ndarray) -> np.ndarray:
+    """(n, 2): the nearest row of ``rally`` (B, 2) to each position (NaN rows if B = 0)."""
+    pos = np.asarray(pos, float)
+    if len(rally) == 0:
+        return np.full_like(pos, np.nan)
+    d2 = ((pos[:, None, :] - rally[None, :, :]) ** 2).sum(-1)
+    return rally[np.argmin(d2, axis=1)]
+
+
+# --------------------------------------------------------------------------------------------
+# Coverage claims
+# --------------------------------------------------------------------------------------------
+
+def claim_targets(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, stamps: np.ndarray,
+                  open_by_stamp: dict, reach: float) -> np.ndarray:
+    """(n, 2): the unconnected task each drone claims (NaN rows: none).
+
+    Drone i claims the nearest task of the open (unconnected) tasks in the broadcast it holds
+    (``open_by_stamp[stamps[i]]``) that lies within ``reach`` of it and to which no drone it knows
+    (its entries: holder ``ent_r``, believed position ``ent_y``) is nearer. Ties go to the claimer.
+    Loops over broadcast versions (a handful), vectorised over drones, entries and tasks.
+    """
+    n = len(pos_u)
+    out = np.full((n, 2), np.nan)
+    for s in np.unique(stamps):
+        tasks = open_by_stamp.get(int(s))
+        if tasks is None or len(tasks) == 0:
+            continue
+        rows = np.flatnonzero(stamps == s)
+        d_own = np.sqrt(((pos_u[rows, None, :] - tasks[None]) ** 2).sum(-1))        # (r, T)
+        local = np.full(n, -1)
+        local[rows] = np.arange(len(rows))
+        take = local[ent_r] >= 0
+        er = local[ent_r[take]]
+        d_ent = np.sqrt(((ent_y[take][:, None, :] - tasks[None]) ** 2).sum(-1))        # (E', T)
+        d_other = np.full_like(d_own, np.inf)
+        np.minimum.at(d_other, er, d_ent)
+        ok = (d_own < reach) & (d_own <= d_other)
+        cost = np.where(ok, d_own, np.inf)
+        best = np.argmin(cost, axis=1)
+        has = np.isfinite(cost[np.arange(len(rows)), best])
+        out[rows[has]] = tasks[best[has]]
+    return out
+
+
+def claim_targets_reference(pos_u, ent_r, ent_y, stamps, open_by_stamp, reach) -> np.ndarray:
+    """Per-drone loop transcription of :func:`claim_targets` (for tests)."""
+    n = len(pos_u)
+    out = np.full((n, 2), np.nan)
+    for i in range(n):
+        tasks = open_by_stamp.get(int(stamps[i]))
+        if tasks is None:
+            continue
+        best, best_d = None, np.inf
+        for t in tasks:
+            d = float(np.linalg.norm(pos_u[i] - t))
+            if d >= reach:
+                continue
+            others = [float(np.linalg.norm(ent_y[e] - t)) for e in range(len(ent_r)) if ent_r[e] == i]
+            if others and min(others) < d:
+                continue
+            if d < best_d:
+                best, best_d = t, d
+        if best is not None:
+            out[i] = best
+    return out
+
+
+def tether_anchors(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, base_u: np.ndarray,
+                   r_u: float, base_reach_u: float) -> np.ndarray:
+    """(n, 2): each drone's anchor toward the base: the base if the drone is within its reach,
+    else the known drone within r of it (believed position) nearest the base, else NaN."""
+    n = len(pos_u)
+    out = np.full((n, 2), np.nan)
+    d_ent = np.linalg.norm(ent_y - pos_u[ent_r], axis=1)
+    ok = d_ent <= r_u
+    key = np.where(ok, np.linalg.norm(ent_y - base_u, axis=1), np.inf)
+    best = np.full(n, np.inf)
+    np.minimum.at(best, ent_r, key)
+    first = np.full(n, -1)
+    hit = np.flatnonzero(ok & (key == best[ent_r]))
+    first[ent_r[hit[::-1]]] = hit[::-1]                  # the first entry reaching the minimum
+    has = first >= 0
+    out[has] = ent_y[first[has]]
+    at_base = np.linalg.norm(pos_u - base_u, axis=1) <= base_reach_u
+    out[at_base] = base_u
+    return out
+
+
+def tether(new_u: np.ndarray, anchor_u: np.ndarray, length: float) -> np.ndarray:
+    """Positions pulled back onto the disc of radius ``length`` around each anchor (NaN: unchanged)."""
+    off = new_u - anchor_u
+    d = np.linalg.norm(off, axis=1)
+    over = np.isfinite(d) & (d > length)
+    out = new_u.copy()
+    out[over] = anchor_u[over] + off[over] * (length / d[over])[:, None]
+    return out
+
+
+def claim_gradient(pos_u: np.ndarray, target: np.ndarray, gain: float) -> np.ndarray:
+    """∇ of gain · |x - target| (0 where the target is NaN or reached)."""
+    off = pos_u - target
+    d = np.sqrt((off ** 2).sum(-1))
+    ok = np.isfinite(d) & (d > 1e-12)
+    out = np.zeros_like(pos_u)
+    out[ok] = gain * off[ok] / d[ok, None]
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# The planner
+# --------------------------------------------------------------------------------------------
+
+class ResilientPlanner(PhiremanPlanner):
+    """PhiIREMAN with triage, rally points and task-motion prediction (see the module docstring).
+
+    Attributes
+    ----------
+    recovery_target_m : (N, 2) or None
+        After each :meth:`plan`, where each drone flies if the world finds it disconnected (NaN:
+        home). None when rally points are off, so the world keeps the paper's rule.
+    kept_tasks : (M,) bool
+        The tasks the base kept at the last tick (all True without triage).
+    """
+
+    def __init__(self, problem: ProblemConfig, params: ResilientParams, rng: np.random.Generator):
+        super().__init__(problem, params, rng)
+        self.full_tree: TaskTree | None = None
+        self.kept_tasks: np.ndarray | None = None
+        self.recovery_target_m: np.ndarray | None = None
+        self._task_prev_u: np.ndarray | None = None
+        self._task_vel_u: np.ndarray | None = None
+        self._rally_by_stamp: dict[int, np.ndarray] = {}     # broadcast stamp -> rally points (units)
+        self._target_u: np.ndarray | None = None             # per-drone recovery target (NaN = none yet)
+        self._waited = np.zeros(problem.n_drones, dtype=np.int64)
+        self._central_stamp = np.full(problem.n_drones, -1, dtype=np.int64)
+        self._open_by_stamp: dict[int, np.ndarray] = {}      # broadcast stamp -> unconnected kept tasks
+
+    # -- the base's side ---------------------------------------------------------------------
+    def _predicted_tasks(self, tasks_u: np.ndarray) -> np.ndarray:
+        p = self.params
+        if self._task_prev_u is None or len(self._task_prev_u) != len(tasks_u):
+            self._task_vel_u = np.zeros_like(tasks_u)
+        else:
+            a = p.predict_smoothing
+            self._task_vel_u = (1 - a) * self._task_vel_u + a * (tasks_u - self._task_prev_u)
+        self._task_prev_u = tasks_u.copy()
+        if p.predict_steps <= 0:
+            return tasks_u
+        return tasks_u + p.predict_steps * self._task_vel_u
+
+    def _base_tree(self, tick: TickInput, tasks_u: np.ndarray, base_u: np.ndarray, n_networked: int) -> TaskTree:
+        p = self.params
+        self.full_tree = maintain_task_tree(self.full_tree, base_u, self._predicted_tasks(tasks_u), tick.t_step,
+                                            base_weight=p.base_weight, accept_ratio=p.accept_ratio,
+                                            rebuild_period=p.rebuild_period)
+        if p.triage_on and n_networked > 0:
+            kept = select_tasks(self.full_tree, p.triage_length_per_drone * n_networked,
+                                self.kept_tasks, p.triage_keep_bonus)
+        else:
+            kept = np.ones(self.full_tree.n_tasks, dtype=bool)
+        self.kept_tasks = kept
+        return prune_tree(self.full_tree, kept)
+
+    # -- main entry --------------------------------------------------------------------------
+    def plan(self, tick: TickInput) -> PlanOutput:
+        p = self.params
+        pos_u = np.asarray(tick.pos_m, float) / self.unit_m
+        tasks_u = np.asarray(tick.task_pos_m, float) / self.unit_m
+        base_u = np.asarray(tick.base_m, float) / self.unit_m
+        alive = np.asarray(tick.alive, bool)
+        networked = np.asarray(tick.networked, bool) & alive
+        self.tree = self._base_tree(tick, tasks_u, base_u, int(networked.sum()))
+        if p.rally:
+            self._rally_by_stamp[tick.t_step] = rally_points(self.tree, p.rally_dist)
+        if p.claim_gain > 0:
+            # The base hears a crew exactly when the crew is connected (A(t)), so it can broadcast
+            # the kept tasks that are not.
+            conn = tasks_connected(tasks_u, pos_u, networked, self.r_u)
+            self._open_by_stamp[tick.t_step] = tasks_u[self.kept_tasks & ~conn]
+            for old in [s for s in self._open_by_stamp if s < tick.t_step - p.tree_stale_steps - 1]:
+                del self._open_by_stamp[old]
+        disp_u = np.zeros_like(pos_u)
+        info: dict = {"kept_tasks": int(self.kept_tasks.sum())}
+        if p.info == "central":
+            from planner.phireman import task_gradient
+            idx = np.flatnonzero(networked)
+            self._central_stamp[idx] = tick.t_step
+            if len(idx):
+                tree = self.tree
+                mask = ~np.eye(len(idx), dtype=bool)
+
+                def grad(x, rows):
+                    return task_gradient(x, tree, p.thorn, p.nodes_only) + self._pair_grad(x, x, mask)
+
+                res = descend(pos_u[idx], grad, self.vmax_u, p)
+                disp_u[idx] = res.disp_u
+                info.update(iterations=res.iterations, converged=res.converged)
+            stamps = self._central_stamp
+        else:
+            disp_u, more = self._plan_async(tick, pos_u, base_u, networked)
+            info.update(more)
+            stamps = self.messages.knowledge.tree_stamp
+        if p.rally:
+            self._update_recovery(pos_u, base_u, alive, networked, stamps)
+        return PlanOutput(disp_u * self.unit_m, tree=self._tree_to_m(self.tree), info=info)
+
+    def _plan_async(self, tick: TickInput, pos_u, base_u, planning):
+        """PhiIREMAN's asynchronous step (same code path) plus the coverage-claim pull."""
+        p = self.params
+        if self.messages is None:
+            self.messages = MessageLayer(len(pos_u), self.problem.n_steps, self.r_u, self.base_reach_u,
+                                         p.age_max_steps, p.dist_max, p.tree_stale_steps,
+                                         after_move=p.broadcast_after_move, forget_unheard=p.forget_unheard)
+        stale = planning & self.messages.step(tick.t_step, pos_u, np.asarray(tick.alive, bool), base_u,
+                                              self.tree)
+        disp_u = np.zeros_like(pos_u)
+        disp_u[stale] = step_toward(pos_u[stale], base_u, self.vmax_u)
+        idx = np.flatnonzero(planning & ~stale)
+        if len(idx) == 0:
+            return disp_u, {"stale_tree": int(stale.sum())}
+        ent_r, _, ent_y, stamps = self.messages.view_entries(idx)
+        versions, version_of = np.unique(stamps, return_inverse=True)
+        segments = TreeSegments([self.messages.broadcast(s) for s in versions], version_of, p.nodes_only,
+                                pos_u[idx], self.vmax_u)
+        entries = _EntriesByDrone(ent_r, ent_y, len(idx))
+        claim = None
+        if p.claim_gain > 0:
+            claim = claim_targets(pos_u[idx], ent_r, ent_y, stamps, self._open_by_stamp, p.claim_reach)
+            has_claim = np.isfinite(claim).all(axis=1)
+            if not has_claim.any():
+                claim = None
+
+        def grad(x, rows):
+            er, ox, oy = entries.of(rows)
+            g = (_pair_gradient_xy(x[rows], er, ox, oy, p.attraction, p.attraction_floor,
+                                   p.repulsion, self.reach_u, p.pair_factor)
+                 + segments.gradient(x[rows], rows, p.thorn))
+            if claim is not None:
+                g += claim_gradient(x[rows], claim[rows], p.claim_gain)
+            return g
+
+        res = descend(pos_u[idx], grad, self.vmax_u, p, separable=True)
+        disp_u[idx] = res.disp_u
+        if claim is not None and p.claim_tether > 0:
+            rows = np.flatnonzero(np.isfinite(claim).all(axis=1))
+            anchor = tether_anchors(pos_u[idx], ent_r, ent_y, base_u, self.r_u, self.base_reach_u)
+            x0, length = pos_u[idx][rows], p.claim_tether * self.r_u
+            new = tether(x0 + disp_u[idx][rows], anchor[rows], length)
+            # Already beyond the tether (stale anchor): only moves that do not pull away further.
+            outside = np.linalg.norm(x0 - anchor[rows], axis=1) > length
+            away = outside & (np.linalg.norm(x0 + disp_u[idx][rows] - anchor[rows], axis=1)
+                              > np.linalg.norm(x0 - anchor[rows], axis=1))
+            new[outside] = np.where(away[outside, None], x0[outside], (x0 + disp_u[idx][rows])[outside])
+            disp_u[idx[rows]] = new - x0
+        return disp_u, {"iterations": res.iterations, "converged": res.converged,
+                        "stale_tree": int(stale.sum()),
+                        "claims": 0 if claim is None else int(np.isfinite(claim).all(axis=1).sum())}
+
+    def _update_recovery(self, pos_u, base_u, alive, networked, stamps) -> None:
+        """Per-drone rally targets: chosen when a drone is first seen disconnected, from the tree
+        copy it holds; kept until it reconnects; home after ``rally_wait_steps`` at the point."""
+        p = self.params
+        n = len(pos_u)
+        if self._target_u is None:
+            self._target_u = np.full((n, 2), np.nan)
+        target = self._target_u
+        target[networked] = np.nan
+        self._waited[networked] = 0
+        fresh = alive & ~networked & ~np.isfinite(target).all(axis=1)
+        stamps = np.asarray(stamps)
+        for s in np.unique(stamps[fresh]):                # loop over tree versions held, not drones
+            rows = np.flatnonzero(fresh & (stamps == s))
+            pts = self._rally_by_stamp.get(int(s)) if s >= 0 else None
+            target[rows] = nearest_rally(pos_u[rows], pts) if pts is not None else np.nan
+        # Waiting at the point (arrived, still cut off): count, then give up and fly home.
+        has = alive & ~networked & np.isfinite(target).all(axis=1)
+        arrived = np.zeros(n, dtype=bool)
+        arrived[has] = np.linalg.norm(pos_u[has] - target[has], axis=1) <= 1e-6
+        self._waited[arrived] += 1
+        give_up = arrived & (self._waited > p.rally_wait_steps)
+        target[give_up] = base_u
+        # Forget rally sets no drone holds any more.
+        held = set(np.unique(stamps[alive]).tolist())
+        for s in [s for s in self._rally_by_stamp if s not in held and s != max(self._rally_by_stamp)]:
+            del self._rally_by_stamp[s]
+        self.recovery_target_m = target * self.unit_m
+
+
+def make_resilient(problem: ProblemConfig, params: dict, rng: np.random.Generator) -> ResilientPlanner:
+    """ΦIREMAN-resilient with the parameters given (``info`` defaults to the paper's 'async')."""
+    return ResilientPlanner(problem, parse_params(params, ResilientParams), rng)
