@@ -24,10 +24,14 @@ lengths (see README).
 examples:
   phireman sim                                   # S, 1 %/step, 100 seeds, PhiIREMAN (async)
   phireman sim --size M --info central --seeds 20
-  phireman sim --method mccst --attrition 0.02
+  phireman sim --method mccst --attrition 2%      # or 0.02; --seed 100 --seeds 20 runs seeds 100..119
   phireman sim --set step_size=0.3 --set max_speed_m_s=0.2 --out runs/s1
   phireman sim --mission wildfire --out runs/wf    # play a mission file in-process, then:
   phireman replay runs/wf                          # plots and an animation of that run
+
+With --mission the mission file sets the size, attrition, planner and its parameters: --size,
+--attrition, --method, --info, --reading, --set and --workers are refused rather than ignored.
+Confidence intervals reaching past 0 or 100 % (few seeds) are printed clipped to [0, 100].
 """
 
 
