@@ -576,14 +576,21 @@ class StationAdapter:
                 log.debug("link %d: send to %s failed: %s", self.link_id, addr, exc)
         if self._tlog is not None:
             self._tlog.write_frames(core.take_frames())
-        if self._timer is not None:
-            self._timer.cancel()
         t = core.next_timer_s()
         if t is not None:
             # Core seconds -> wall seconds: under a speed-up every station timer (the 1 Hz GCS
             # heartbeat included) must follow the vehicles' clock (MAVLINK_NOTES §5).
-            delay = max(0.0, t - self.now()) / self.time_scale
-            self._timer = asyncio.get_running_loop().call_later(delay, self._on_timer)
+            loop = asyncio.get_running_loop()
+            when = loop.time() + max(0.0, t - self.now()) / self.time_scale
+            # Keep a pending timer that is due no later: cancelling and re-arming it on every
+            # received datagram starved it under steady traffic (asyncio runs the I/O callbacks
+            # of an iteration before the timers that fell due, so a due timer was cancelled
+            # before it could run, and heartbeats and setpoints stopped). An early wake-up is
+            # harmless: handle_timer recomputes the next deadline and transmit re-arms.
+            if self._timer is None or self._timer.cancelled() or when < self._timer.when():
+                if self._timer is not None:
+                    self._timer.cancel()
+                self._timer = loop.call_at(when, self._on_timer)
 
     def close(self) -> None:
         if self._timer is not None:

@@ -16,7 +16,8 @@ The composition root (ARCHITECTURE §4.1, §4.4): this module is the only place 
 
 A run directory holds: ``mission.yaml`` (resolved), ``run.json`` (seed, code version, options),
 ``flight.tlog`` (every frame both ways), ``events.jsonl``, ``metrics.csv`` (one row per control
-tick), ``summary.json`` and, when emulated, ``truth.npz``. Every record is flushed as written.
+tick), ``summary.json`` and, when emulated, ``truth.npz``. Records are written by a background
+thread every half second (:mod:`gcs.records`), off the control path; ``close()`` writes the rest.
 """
 
 from __future__ import annotations
@@ -414,7 +415,7 @@ def _new_run_dir(mission: Mission, opts: FlyOptions, seed: int, kind: str) -> Pa
 
 
 class _Records:
-    """The run directory's writers (each flushes per record)."""
+    """The run directory's writers (buffered, written every 0.5 s by a background thread)."""
 
     def __init__(self, run_dir: Path, mission: Mission, meta: dict) -> None:
         from mission.load import dump_mission
@@ -544,6 +545,10 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
     """The station's loop. ``max_sleep_s`` (simulated seconds): wake at least this often even
     when idle, so a paced emulator is never starved of clock acknowledgements."""
     cfg = _station_config(mission, expected if world is None else None)
+    if opts.forward:
+        # A forwarded GCS (QGroundControl, MAVProxy) wants the telemetry the station itself
+        # does not use: do not turn it off (gcs.link disable_unused_messages).
+        cfg = dataclasses.replace(cfg, disable_unused_messages=False)
     holder: dict = {}
 
     def on_event(ev) -> None:
@@ -678,7 +683,13 @@ def _summary(mission: Mission, op: Operator, seed: int, kind: str, wall_s: float
         "operator_actions": [dataclasses.asdict(a) for a in op.actions],
         "links": [{"link_id": l.link_id, "frames_out": l.stats.frames_out,
                    "frames_in": l.stats.decode.frames, "bad_data": l.stats.decode.bad_data,
-                   "stream_fallbacks": l.stats.data_stream_fallbacks}
+                   "raw_frames": l.stats.decode.raw_frames,
+                   "signature_rejected": l.stats.decode.signature_rejected,
+                   "stream_fallbacks": l.stats.data_stream_fallbacks,
+                   "refused_sysids": l.stats.refused_sysids,
+                   "refused_by_sysid": dict(l.stats.refused_by_sysid),
+                   "inconsistent_frames": l.stats.inconsistent_frames,
+                   "messages_disabled": l.stats.messages_disabled}
                   for l in op.station.links],
         "audit": None if op.audit_report is None else {
             "cleared_to_fly": op.audit_report.cleared_to_fly,

@@ -360,6 +360,18 @@ def run(args) -> int:
           f"(speed-up {s['speedup_achieved']:.1f}x); {s['vehicles_discovered']} vehicles; "
           f"{n_rec} reclaim{'s' if n_rec != 1 else ''} (a vehicle back from its own "
           "failsafe, taken into the plan again)")
+    refused: dict[int, int] = {}
+    for link in s.get("links", []):
+        for sysid, n in (link.get("refused_by_sysid") or {}).items():
+            refused[int(sysid)] = refused.get(int(sysid), 0) + n
+    if refused:
+        who = ", ".join(f"{k} ({v})" for k, v in sorted(refused.items())[:8])
+        more = f" and {len(refused) - 8} more" if len(refused) > 8 else ""
+        print(f"ignored {sum(refused.values())} frame(s) from {len(refused)} system(s) that are "
+              f"not this mission's vehicles: sysid (frames) {who}{more}")
+    bad = sum(link.get("bad_data", 0) for link in s.get("links", []))
+    if bad:
+        print(f"{bad} corrupt or unsigned frame(s) were dropped")
     end = s.get("end_status")
     if end and end.get("in_air"):
         print(f"{end['in_air']} vehicle(s) still in the air when the station stopped "

@@ -231,3 +231,34 @@ def test_udpin_is_up_at_once():
             station.close()
 
     asyncio.run(main())
+
+
+def test_steady_incoming_traffic_does_not_starve_the_station_timers():
+    # A vehicle that streams (PX4: ~300 frames/s) calls transmit() on every datagram. Re-arming
+    # the timer on each call cancelled it before it could run (asyncio runs an iteration's I/O
+    # callbacks before the timers that fell due): heartbeats and setpoints stopped while frames
+    # kept arriving. The core clock here is explicit: 0.01 s per datagram, 4 s in all.
+    async def main():
+        loop = asyncio.get_running_loop()
+        transport, vehicle = await loop.create_datagram_endpoint(
+            _Vehicle, local_addr=("127.0.0.1", 0))
+        host, port = transport.get_extra_info("sockname")
+        now = [0.0]
+        station = await StationAdapter(f"udpout:{host}:{port}", _CFG,
+                                       clock=lambda: now[0]).start()
+        try:
+            _, gcs_addr = await _next(vehicle.inbox, "HEARTBEAT")
+            beats = 0
+            for _ in range(400):
+                now[0] += 0.01
+                transport.sendto(vehicle.ap.heartbeat(4), gcs_addr)  # one every loop iteration
+                await asyncio.sleep(0)
+                while not vehicle.inbox.empty():
+                    m, _ = vehicle.inbox.get_nowait()
+                    beats += m.get_type() == "HEARTBEAT"
+        finally:
+            station.close()
+            transport.close()
+        assert beats >= 3, beats  # 1 Hz over 4 s of core time (the first one was taken above)
+
+    asyncio.run(main())
