@@ -216,3 +216,41 @@ def test_ardupilot_sitl_life_cycle(tmp_path):
 def test_px4_sitl_life_cycle(tmp_path):
     _life_cycle(tmp_path, "px4", "sitl_px4", speedup=1.0, guided_mode="OFFBOARD",
                 fs_modes=("AUTO.RTL", "AUTO.LAND", "AUTO.LOITER"))
+
+
+# ------------------------------------------------------------------ the audit on real firmware
+
+_REFUSALS = [
+    # (firmware, boot parameters, parameter the audit must name, what it must say)
+    ("ardupilot", {}, "FS_GCS_ENABLE", "disabled"),                        # copter default 0
+    ("ardupilot", {"FS_GCS_ENABLE": 5}, "FS_GCS_ENABLE", "Land"),
+    ("ardupilot", {"FS_GCS_ENABLE": 1, "MAV_GCS_SYSID": 200}, "SYSID", "does not include"),
+    ("px4", {"NAV_DLL_ACT": 0}, "NAV_DLL_ACT", "disabled"),                # PX4 default
+    ("px4", {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 6}, "NAV_RCL_ACT", "isarm"),
+    ("px4", {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 4}, "COM_OBL_RC_ACT", "Land"),
+]
+
+
+@pytest.mark.parametrize("firmware,params,name,words", _REFUSALS,
+                         ids=[f"{f}-{n}-{'-'.join(f'{k}{v}' for k, v in p.items()) or 'defaults'}"
+                              for f, p, n, _ in _REFUSALS])
+def test_the_audit_refuses_unsafe_lost_link_settings_on_real_firmware(tmp_path, firmware, params,
+                                                                      name, words):
+    """Each unsafe setting, booted into the real firmware, makes `phireman fly` (without
+    --apply-failsafes) refuse before anything is armed, naming the parameter."""
+    binary = _binary_or_skip(firmware)
+    from mission.sitl import DEFAULT_HOMES
+
+    mission = "sitl_ardupilot" if firmware == "ardupilot" else "sitl_px4"
+    spec = SitlSpec(firmware, 1, binary, DEFAULT_HOMES[firmware], params=dict(params),
+                    workdir=tmp_path / "sitl", first_instance=0)
+    with SitlSwarm(spec) as sitl:
+        out = subprocess.run([*PHIREMAN, "fly", mission, "--connect", sitl.connection(0),
+                              "--out", str(tmp_path / "runs")], cwd=ROOT, capture_output=True,
+                             text=True, timeout=300)
+    text = out.stdout + out.stderr
+    assert out.returncode == 1, text[-3000:]
+    assert "refused the flight" in text
+    blocking = [line for line in text.splitlines() if "[blocking]" in line]
+    assert any(name in line and words in line for line in blocking), text[-3000:]
+    assert "ArmedChanged" not in (next((tmp_path / "runs").iterdir()) / "events.jsonl").read_text()
