@@ -235,6 +235,7 @@ def test_valid_mission_prints_ok_summary(tmp_path, capsys):
     assert out.startswith("OK: tiny: 4 emulated ardupilot drones, 10 tasks")
 
 
+@pytest.mark.timeout(30)  # a guard that did not bite would run away; no wall-clock assertion (CONTRIBUTING)
 @pytest.mark.parametrize("text, expected", [
     (BILLION_LAUGHS, "alias"),
     ("name: " + "[" * 5000 + "]" * 5000, "nested deeper"),
@@ -246,7 +247,5 @@ def test_pure_python_loader_has_the_same_guards(monkeypatch, text, expected):
     import mission.load as load
 
     monkeypatch.setattr(load, "_BoundedLoader", load._BoundedSafeLoader)
-    start = time.perf_counter()
     with pytest.raises(load.MissionError, match=expected):
         load.loads_mission(text)
-    assert time.perf_counter() - start < 0.5
