@@ -169,7 +169,9 @@ class PX4Adapter(Adapter):
     guided_mode = "OFFBOARD"
     rtl_mode = "AUTO.RTL"
     land_mode = "AUTO.LAND"
-    # COM_OBL_RC_ACT / NAV_DLL_ACT outcomes: position hold, hold, RTL, land.
+    # Failsafe outcomes (failsafe.cpp checkModeFallback / checkStateAndMode): POSCTL (offboard
+    # loss, COM_OBL_RC_ACT 0, with RC; without RC only PX4 v1.14 to 1.16.0), Hold, RTL, Land
+    # (COM_OBL_RC_ACT 3-5; 0-2 without RC take NAV_RCL_ACT's action; NAV_DLL_ACT).
     failsafe_modes = frozenset({"POSCTL", "AUTO.LOITER", "AUTO.RTL", "AUTO.LAND"})
     # Position targets in GLOBAL_INT (AMSL): PX4 mavlink_receiver.cpp
     # handle_message_set_position_target_global_int accepts frames 5, 6 and 11 only (others:

@@ -67,6 +67,9 @@ ARDUPILOT_MODES: dict[int, tuple[str, str]] = {
 #: SMART_RTL, BRAKE, CIRCLE (ArduCopter/mode_*.h).
 _AP_ARMABLE = frozenset({0, 1, 2, 4, 5, 16})
 AP_AUTO, AP_GUIDED, AP_LOITER, AP_RTL, AP_LAND = 3, 4, 5, 6, 9
+#: Modes whose ``is_autopilot()`` is false (ArduCopter/mode.h): STABILIZE, ACRO, ALT_HOLD,
+#: LOITER, POSHOLD, BRAKE. AUTO, GUIDED, RTL, CIRCLE, LAND and SMART_RTL are autopilot modes.
+_AP_PILOT_MODES = frozenset({0, 1, 2, 5, 16, 17})
 
 
 def px4_custom_mode(main: int, sub: int = 0) -> int:
@@ -86,19 +89,27 @@ PX4_MODES: dict[tuple[int, int], tuple[str, str]] = {
 PX4_POSCTL, PX4_OFFBOARD = (3, 0), (6, 0)
 PX4_TAKEOFF, PX4_LOITER, PX4_MISSION, PX4_RTL, PX4_LAND = (4, 2), (4, 3), (4, 4), (4, 5), (4, 6)
 _PX4_NOT_ARMABLE = frozenset({PX4_RTL, PX4_LAND})
-#: COM_OBL_RC_ACT values -> fallback mode (commander_params.yaml: 0 Position, 1 Altitude,
-#: 2 Stabilized, 3 Return, 4 Land, 5 Hold, 6 Terminate, 7 Disarm). The manual fallbacks need a
-#: manual control signal, and an emulated vehicle never has one (no RC, no joystick): PX4's
-#: ``Failsafe::checkModeFallback`` (src/modules/commander/failsafe/failsafe.cpp, v1.14 and later)
-#: then steps POSCTL -> ALTCTL -> STAB, none of which ``modeCanRun`` without manual control, and
-#: ends in "Last, check can_run for intended mode ... action = Action::RTL". So on an emulated
-#: PX4, as on a real one flown without RC, 0-2 mean Return after COM_OF_LOSS_T.
-_PX4_OBL_ACT = {0: PX4_RTL, 1: PX4_RTL, 2: PX4_RTL, 3: PX4_RTL, 4: PX4_LAND, 5: PX4_LOITER}
-#: COM_OBL_RC_ACT values that stop the motors (Terminate, Disarm).
-_PX4_OBL_DISARM = frozenset({6, 7})
-#: NAV_DLL_ACT values (commander_params.yaml): 0 disabled, 1 Hold, 2 Return, 3 Land,
-#: 5 Terminate, 6 Disarm.
-_PX4_DLL_ACT = {1: PX4_LOITER, 2: PX4_RTL, 3: PX4_LAND}
+#: COM_OBL_RC_ACT (failsafe.h ``offboard_loss_failsafe_mode``) as PX4's
+#: src/modules/commander/failsafe/failsafe.cpp ``Failsafe::fromOffboardLossActParam`` maps it:
+#: 3 Return, 4 Land, 5 Hold are modes the vehicle flies by itself; 6 Terminate and 7 Disarm stop
+#: the motors (below); 0 Position, 1 Altitude, 2 Stabilized (and, through ``default:``, any
+#: other value, as Position) are manual-mode fallbacks for a pilot (next comment).
+_PX4_OBL_ACT = {3: PX4_RTL, 4: PX4_LAND, 5: PX4_LOITER}
+#: COM_OBL_RC_ACT values that stop the motors in the air (Terminate, Disarm).
+_PX4_OBL_STOP = frozenset({6, 7})
+# The manual fallbacks need a manual control signal and an emulated vehicle never has one (no
+# RC, no joystick). PX4's ``Failsafe::checkModeFallback`` (failsafe.cpp; PR #26289, main 2026-01,
+# backported to 1.16) then replaces the fallback: ``if (status_flags.manual_control_signal_lost
+# && manualControlFallbackAction(action)) action = manualControlLossFallbackAction();``, the
+# RC-loss action of NAV_RCL_ACT. Its "Last, check can_run" step does not undo that: ``modeCanRun``
+# ignores the manual-control requirement (framework.cpp), so the intended POSCTL/ALTCTL/STAB
+# "can run" and the NAV_RCL_ACT action stands, even when it is "none".
+#: NAV_DLL_ACT and NAV_RCL_ACT (failsafe.h ``gcs_connection_loss_failsafe_mode``) as
+#: failsafe.cpp ``Failsafe::fromNavDllOrRclActParam`` maps them: 1 Hold, 2 Return, 3 Land;
+#: 5 Terminate and 6 Disarm stop the motors (:data:`_PX4_NAV_STOP`); 0 Disabled, 7 "Hold mode, no
+#: failsafe" and unknown values (``default:``) are ``Action::None``: no failsafe action.
+_PX4_NAV_ACT = {1: PX4_LOITER, 2: PX4_RTL, 3: PX4_LAND}
+_PX4_NAV_STOP = frozenset({5, 6})
 
 # ---------------------------------------------------------------------------------------------
 # Streams
@@ -634,24 +645,52 @@ class VehicleCore:
             self._vel_target_s = None
             ph.command_velocity(i, (0.0, 0.0, 0.0))
 
-        # PX4 offboard loss: COM_OF_LOSS_T then COM_OBL_RC_ACT (commander_params.yaml).
+        # PX4 offboard loss: no setpoint for COM_OF_LOSS_T (offboardCheck.cpp), then the mode
+        # fallback of failsafe.cpp Failsafe::checkModeFallback, once per loss (a fallback of
+        # "none" leaves the vehicle in OFFBOARD; a setpoint arriving again ends the loss).
         if self.is_px4 and beh == "guided":
-            if not self._offboard_signal_ok(now_s):
-                act = int(self.params["COM_OBL_RC_ACT"])
+            if self._offboard_signal_ok(now_s):
+                self.offboard_failsafe = False
+            elif not self.offboard_failsafe:
                 self.offboard_failsafe = True
-                if act in _PX4_OBL_DISARM:
-                    self._disarm(now_s, "failsafe", force=True)
-                    action = "DISARM"
-                else:
-                    target = _PX4_OBL_ACT.get(act, PX4_RTL)
-                    self._set_mode(px4_custom_mode(*target), now_s, "failsafe")
-                    action = PX4_MODES[target][0]
+                action = self._px4_offboard_loss(now_s)
                 self._events.append(ev.FailsafeTriggered(self.sysid, now_s, "offboard", action))
-                self._statustext(now_s, mavlink.MAV_SEVERITY_WARNING,
-                                 "Failsafe activated: No offboard signal")
 
         self._missions.update(now_s)
         self._check_gcs_link(now_s)
+
+    def _px4_offboard_loss(self, now_s: float) -> str:
+        """Act on a lost offboard signal; returns the action taken ("NONE" for none).
+
+        failsafe.cpp ``Failsafe::checkModeFallback``: COM_OBL_RC_ACT through
+        ``fromOffboardLossActParam``; a manual fallback (0-2, or an unknown value) without
+        manual control becomes NAV_RCL_ACT's action through ``fromNavDllOrRclActParam``
+        (PR #26289; see the comment above :data:`_PX4_NAV_ACT`). NAV_RCL_ACT 0 / 7 is ``Action::None``: the
+        vehicle stays in OFFBOARD and the physics keeps the last target (PX4's multicopter
+        position controller keeps the last ``trajectory_setpoint``). Terminate and Disarm
+        stop the motors: in the air the vehicle falls (physics drops a disarmed vehicle).
+        """
+        act = int(self.params["COM_OBL_RC_ACT"])
+        if act in _PX4_OBL_STOP:
+            target, stop = None, True
+        elif act in _PX4_OBL_ACT:
+            target, stop = _PX4_OBL_ACT[act], False
+        else:  # 0-2 and ``default:`` (Position): no manual control -> NAV_RCL_ACT
+            rcl = int(self.params["NAV_RCL_ACT"])
+            target, stop = _PX4_NAV_ACT.get(rcl), rcl in _PX4_NAV_STOP
+        if stop:
+            if not self.armed:
+                return "NONE"
+            self._statustext(now_s, mavlink.MAV_SEVERITY_CRITICAL,
+                             "Failsafe activated: No offboard signal")
+            self._disarm(now_s, "failsafe", force=True)
+            return "DISARM"
+        if target is None:
+            return "NONE"
+        self._set_mode(px4_custom_mode(*target), now_s, "failsafe")
+        self._statustext(now_s, mavlink.MAV_SEVERITY_WARNING,
+                         "Failsafe activated: No offboard signal")
+        return PX4_MODES[target][0]
 
     def _check_gcs_link(self, now_s: float) -> None:
         """GCS failsafe.
@@ -694,10 +733,10 @@ class VehicleCore:
             return "DISARM"
         if self.is_px4:
             act = int(self.params["NAV_DLL_ACT"])
-            if act == 6 or act == 5:
+            if act in _PX4_NAV_STOP:
                 self._disarm(now_s, "failsafe", force=True)
                 return "DISARM"
-            target = _PX4_DLL_ACT.get(act)
+            target = _PX4_NAV_ACT.get(act)
             if target is None:
                 return "NONE"
             self._set_mode(px4_custom_mode(*target), now_s, "failsafe")
@@ -706,9 +745,19 @@ class VehicleCore:
             return PX4_MODES[target][0]
         fs = int(self.params["FS_GCS_ENABLE"])
         if self._behaviour in ("rtl", "land"):
+            # RTL: the failsafe's set_mode(RTL) is a no-op in RTL. LAND (simplification): the
+            # firmware switches a landing copter to the FS_GCS_ENABLE action unless FS_OPTIONS
+            # bit 3 (8, continue landing) is set; here it always continues landing.
             return "NONE"
-        # FS_OPTIONS bit 2 (value 4): continue in GUIDED on GCS failsafe.
-        if self._behaviour == "guided" and int(self.params["FS_OPTIONS"]) & 4:
+        # ArduCopter/events.cpp Copter::failsafe_gcs_on_event, FS_OPTIONS (Copter.h
+        # FailsafeOption): bit 1 (2, GCS_CONTINUE_IF_AUTO) continues AUTO; bit 4 (16,
+        # GCS_CONTINUE_IF_PILOT_CONTROL) continues a mode with ``!flightmode->is_autopilot()``.
+        # Bit 2 (4, RC_CONTINUE_IF_GUIDED) is the RC failsafe only: GUIDED is an autopilot mode
+        # (mode.h ModeGuided::is_autopilot), so no bit keeps GUIDED on a GCS failsafe.
+        opts = int(self.params["FS_OPTIONS"])
+        if self._mode_key == AP_AUTO and opts & 2:
+            return "NONE"
+        if opts & 16 and self._mode_key in _AP_PILOT_MODES:
             return "NONE"
         mode = AP_LAND if fs == 5 else AP_RTL  # 1, 2, 3, 4 end in RTL here (no SmartRTL path)
         self._set_mode(mode, now_s, "failsafe")

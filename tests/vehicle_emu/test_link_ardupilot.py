@@ -229,6 +229,40 @@ def test_gcs_failsafe_rtl_home_and_stays_in_rtl(gcs):
     assert acks(rig.send(gcs.command(176, 1, 4)), 176) == [ACCEPTED]
 
 
+def _gcs_lost_in(gcs, mode: int, fs_options: int) -> Rig:
+    """A copter flying at 10 m in ``mode`` whose GCS heartbeats stop for 6 s (> 5 s)."""
+    rig = Rig(gcs, params={"FS_OPTIONS": fs_options})
+    rig.run(1.0, hb_period_s=1.0)
+    rig.guided_armed_at(10.0)
+    if mode == 3:
+        # The emulator refuses AUTO on the wire (it flies no missions): entered directly to
+        # check the failsafe rule for it.
+        rig.core._set_mode(mode, rig.t, "test")
+    elif mode != 4:
+        assert acks(rig.send(gcs.command(176, 1, mode)), 176) == [ACCEPTED]
+    rig.run(rig.t + 1.0, hb_period_s=1.0)
+    rig.events()
+    rig.run(rig.last_hb_t + 6.0)
+    assert rig.core.gcs_failsafe and rig.core.armed
+    return rig
+
+
+# ArduCopter/events.cpp Copter::failsafe_gcs_on_event: FS_OPTIONS bit 1 (2) continues AUTO,
+# bit 4 (16) continues modes that are not ``is_autopilot()`` (mode.h: LOITER, ALT_HOLD, ...).
+# Bit 2 (4) is RC_CONTINUE_IF_GUIDED, the RC failsafe only: GUIDED gets the FS_GCS_ENABLE action
+# (1, RTL) whatever FS_OPTIONS says.
+@pytest.mark.parametrize("mode, fs_options, after", [
+    (4, 4, "RTL"), (4, 2 | 4 | 16, "RTL"),              # GUIDED: no bit keeps it
+    (5, 16, "LOITER"), (5, 0, "RTL"), (5, 4, "RTL"),    # LOITER: pilot-controlled, bit 4 only
+    (3, 2, "AUTO"), (3, 16, "RTL"),                     # AUTO: bit 1 only (is_autopilot)
+])
+def test_gcs_failsafe_fs_options(gcs, mode, fs_options, after):
+    rig = _gcs_lost_in(gcs, mode, fs_options)
+    assert rig.core.mode_name == after
+    fs = [e for e in rig.events() if isinstance(e, ev.FailsafeTriggered)]
+    assert [(e.kind, e.action) for e in fs] == [("gcs", "NONE" if after != "RTL" else "RTL")]
+
+
 def test_failsafe_ignores_heartbeats_from_other_sysids():
     from emu_helpers import FakeGcs
     rig = Rig(FakeGcs(sysid=254))

@@ -117,35 +117,89 @@ def test_offboard_loss_falls_back_after_com_of_loss_t(gcs):
     rig.run(t_stop + 0.9)
     assert rig.core.mode_name == "OFFBOARD"
     rig.run(t_stop + 1.2)
-    # COM_OBL_RC_ACT = 0 (Position) needs a manual control signal; with none PX4 returns.
+    # COM_OBL_RC_ACT = 0 (Position) needs a manual control signal; with none, PX4's
+    # failsafe.cpp Failsafe::checkModeFallback takes NAV_RCL_ACT's action (PR #26289), which
+    # is 2 (Return) in the emulator's defaults.
+    assert rig.core.params["COM_OBL_RC_ACT"] == 0 and rig.core.params["NAV_RCL_ACT"] == 2
     assert rig.core.mode_name == "AUTO.RTL"
     fs = [e for e in iter(rig.core.next_event, None) if isinstance(e, ev.FailsafeTriggered)]
     assert (fs[0].kind, fs[0].action) == ("offboard", "AUTO.RTL")
 
 
-def _flying_offboard(gcs, **params) -> Rig:
+def _flying_offboard(gcs, sp=(0, 0, -5), **params) -> Rig:
     """A PX4 rig armed in OFFBOARD at 5 m, its setpoint stream just stopped."""
     rig = Rig(gcs, params=params)
-    rig.run(1.5, sp=(0, 0, -5))
+    rig.run(1.5, sp=sp)
     rig.send(gcs.command(176, 1, 6))
     rig.send(gcs.command(400, 1))
-    rig.run(5.0, sp=(0, 0, -5))
+    rig.run(5.0, sp=sp)
     assert rig.core.armed and rig.core.mode_name == "OFFBOARD"
     return rig
 
 
-@pytest.mark.parametrize("act, mode", [(1, "AUTO.RTL"), (2, "AUTO.RTL"), (3, "AUTO.RTL"),
-                                       (4, "AUTO.LAND"), (5, "AUTO.LOITER")])
-def test_offboard_loss_action_without_rc(gcs, act, mode):
-    rig = _flying_offboard(gcs, COM_OBL_RC_ACT=act)
+def _offboard_failsafes(rig) -> list:
+    return [(e.kind, e.action) for e in iter(rig.core.next_event, None)
+            if isinstance(e, ev.FailsafeTriggered)]
+
+
+# failsafe.cpp Failsafe::fromOffboardLossActParam: 3 Return, 4 Land, 5 Hold act directly,
+# whatever NAV_RCL_ACT says (0 here: it would be "no action" for the manual fallbacks).
+@pytest.mark.parametrize("act, mode", [(3, "AUTO.RTL"), (4, "AUTO.LAND"), (5, "AUTO.LOITER")])
+def test_offboard_loss_direct_action(gcs, act, mode):
+    rig = _flying_offboard(gcs, COM_OBL_RC_ACT=act, NAV_RCL_ACT=0)
     rig.run(rig.t + 1.2)
     assert rig.core.mode_name == mode
+    assert ("offboard", mode) in _offboard_failsafes(rig)
 
 
-def test_offboard_loss_disarm_action_stops_the_motors(gcs):
-    rig = _flying_offboard(gcs, COM_OBL_RC_ACT=7)
+# 0 Position, 1 Altitude, 2 Stabilized need manual control; without it checkModeFallback
+# replaces them by NAV_RCL_ACT's action (failsafe.cpp fromNavDllOrRclActParam: 1 Hold,
+# 2 Return, 3 Land), so a manual mode is never entered.
+@pytest.mark.parametrize("obl", [0, 1, 2])
+@pytest.mark.parametrize("rcl, mode", [(1, "AUTO.LOITER"), (2, "AUTO.RTL"), (3, "AUTO.LAND")])
+def test_offboard_loss_manual_fallback_without_rc_takes_nav_rcl_act(gcs, obl, rcl, mode):
+    rig = _flying_offboard(gcs, COM_OBL_RC_ACT=obl, NAV_RCL_ACT=rcl)
+    rig.run(rig.t + 1.2)
+    assert rig.core.mode_name == mode and rig.core.armed
+    assert _offboard_failsafes(rig) == [("offboard", mode)]
+
+
+@pytest.mark.parametrize("rcl", [0, 7])
+def test_offboard_loss_manual_fallback_with_nav_rcl_act_none_keeps_last_setpoint(gcs, rcl):
+    """NAV_RCL_ACT 0 (Disabled) and 7 (Hold mode, no failsafe) are Action::None in
+    fromNavDllOrRclActParam: the vehicle stays in OFFBOARD on its last setpoint, here a
+    velocity setpoint it keeps flying."""
+    rig = Rig(gcs, params={"COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": rcl})
+    rig.run(1.5, sp=(0, 0, -5))
+    rig.send(gcs.command(176, 1, 6))
+    rig.send(gcs.command(400, 1))
+    rig.run(8.0, sp=(0, 0, -5))
+    rig.send(gcs.local_target(0, 0, 0, mask=0b110111000111, vx=2.0))    # velocity only
+    t_stop = rig.t
+    north0 = rig.core.local_pos_ned_m[0]
+    rig.run(t_stop + 4.0)
+    assert rig.core.mode_name == "OFFBOARD" and rig.core.armed
+    assert rig.core.local_pos_ned_m[0] - north0 > 4.0            # still flying north
+    assert _offboard_failsafes(rig) == [("offboard", "NONE")]    # reported once per loss
+    # A setpoint ends the loss; the next loss is a new one.
+    rig.run(rig.t + 0.5, sp=(rig.core.local_pos_ned_m[0], 0, -5))
+    rig.run(rig.t + 1.2)
+    assert _offboard_failsafes(rig) == [("offboard", "NONE")]
+
+
+@pytest.mark.parametrize("params", [{"COM_OBL_RC_ACT": 6}, {"COM_OBL_RC_ACT": 7},
+                                    {"COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 5},
+                                    {"COM_OBL_RC_ACT": 1, "NAV_RCL_ACT": 6}])
+def test_offboard_loss_terminate_or_disarm_stops_the_motors_and_falls(gcs, params):
+    """COM_OBL_RC_ACT 6 Terminate / 7 Disarm, or a manual fallback without RC whose NAV_RCL_ACT
+    is 5 Terminate / 6 Disarm: motors off in the air, the vehicle falls."""
+    rig = _flying_offboard(gcs, **params)
+    assert rig.core.local_pos_ned_m[2] < -4.5
     rig.run(rig.t + 1.2)
     assert not rig.core.armed
+    assert _offboard_failsafes(rig) == [("offboard", "DISARM")]
+    rig.run(rig.t + 3.0)
+    assert rig.core.landed and rig.core.local_pos_ned_m[2] > -0.5
 
 
 def test_datalink_loss_returns_home_with_emulator_default(gcs):
