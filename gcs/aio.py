@@ -1,6 +1,6 @@
 """A thin asyncio adapter: runs a :class:`~gcs.link.StationLink` over UDP, TCP or serial.
 
-The cycle, after aioquic's ``transmit()`` (ARCHITECTURE §4.3): receive -> ``core.receive_datagram(
+The cycle, after aioquic's ``transmit()`` (docs/design/architecture.md §2.1): receive -> ``core.receive_datagram(
 data, addr, now)`` -> drain events -> send everything from ``datagrams_to_send`` -> re-arm one
 timer at ``next_timer_s()``. Local calls follow the same path: call the core, then
 :meth:`StationAdapter.transmit`. The clock is injectable (default: the loop's monotonic clock);
@@ -579,7 +579,7 @@ class StationAdapter:
         t = core.next_timer_s()
         if t is not None:
             # Core seconds -> wall seconds: under a speed-up every station timer (the 1 Hz GCS
-            # heartbeat included) must follow the vehicles' clock (MAVLINK_NOTES §5).
+            # heartbeat included) must follow the vehicles' clock (docs/design/mavlink.md §4.2).
             loop = asyncio.get_running_loop()
             when = loop.time() + max(0.0, t - self.now()) / self.time_scale
             # Keep a pending timer that is due no later: cancelling and re-arming it on every

@@ -4,7 +4,7 @@ The station reads the parameters listed in :data:`AUDIT_PARAMS` (``StationLink.r
 then :func:`audit_fleet` says, per vehicle, what a lost station (heartbeats) or a lost setpoint
 stream would make the vehicle do, and whether that is safe. Safe means: it flies home (Return /
 RTL / SmartRTL-or-RTL). Landing where it is, holding away from home, disarming or terminating in
-the air, or carrying on without the station is **blocking** (MAVLINK_NOTES §1.4, §1.5, §3). The
+the air, or carrying on without the station is **blocking** (docs/design/mavlink.md §1.4, §1.5, §3). The
 rules follow each firmware's own source, cited at each rule below.
 
 ArduPilot Copter (ArduCopter/events.cpp ``failsafe_gcs_check`` / ``failsafe_gcs_on_event``)

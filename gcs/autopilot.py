@@ -2,7 +2,7 @@
 
 An adapter is pure policy: mode tables, which command (with which params) does what, how often a
 position target must be re-sent, and whether setpoints must stream before a mode change. The link
-core (:mod:`gcs.link`) asks the adapter and does the sending. Sources: MAVLINK_NOTES §1.4, §1.5.
+core (:mod:`gcs.link`) asks the adapter and does the sending. Sources: docs/design/mavlink.md §1.4, §1.5.
 """
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ class Adapter:
         return bool(self.guided_mode) and self.mode_name(custom_mode) == self.guided_mode
 
     def arm(self) -> CommandSpec:
-        # param2 = 0: never the 21196 force-arm magic in the product path (MAVLINK_NOTES §1.3).
+        # param2 = 0: never the 21196 force-arm magic in the product path (docs/design/mavlink.md §1.3).
         return _cmd(_CMD_ARM_DISARM, 1, 0)
 
     def disarm(self) -> CommandSpec:

@@ -1,6 +1,6 @@
 """Connection strings as MAVProxy / pymavlink (and MAVSDK) users write them.
 
-Accepted forms (MAVLINK_NOTES §1.8; pymavlink ``mavutil.mavlink_connection``):
+Accepted forms (docs/design/mavlink.md §1.8; pymavlink ``mavutil.mavlink_connection``):
 
 ==========================  ===========================================================
 ``udpin:HOST:PORT``         listen on HOST:PORT (``0.0.0.0:14550`` is the usual GCS port)

@@ -1,6 +1,6 @@
 """The control tick: what the station believes -> the planner -> one position target per vehicle.
 
-A pure function (ARCHITECTURE §4.1, §4.3 "per-tick hot path"): no clock, no sockets, no truth.
+A pure function (docs/design/architecture.md §1.1, §2.3 "per-tick hot path"): no clock, no sockets, no truth.
 Its inputs are what the station *believes* (a :class:`~gcs.fleet.FleetSnapshot`-like set of
 arrays, positions in the mission's local NED frame converted from GLOBAL_POSITION_INT) and the
 task positions; its output is a target for every planned row, in the same frame. Encoding those

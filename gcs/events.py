@@ -1,4 +1,4 @@
-"""Events the station core emits: frozen, validated, named as past-tense facts (ARCHITECTURE §4.3).
+"""Events the station core emits: frozen, validated, named as past-tense facts (docs/design/architecture.md §2.2).
 
 Every event carries the vehicle identity ``(link_id, sysid)`` and the core time ``t_s`` at which the
 core learned the fact. The constructors validate, so a NaN or an out-of-range sysid can never

@@ -2,10 +2,10 @@
 
 Positions are in the **mission's** local NED frame (one named geodetic origin), converted from
 GLOBAL_POSITION_INT. LOCAL_POSITION_NED is never used here: each autopilot's local frame is
-relative to its own EKF origin, which differs per vehicle (MAVLINK_NOTES §1.6).
+relative to its own EKF origin, which differs per vehicle (docs/design/mavlink.md §1.6).
 
 Rows are stable: a vehicle keeps its row index for the whole run, lost or not
-(ARCHITECTURE §4.4); ``index`` (the row) and ``sysid`` (MAVLink id) are distinct, and
+(docs/design/architecture.md §3.1); ``index`` (the row) and ``sysid`` (MAVLink id) are distinct, and
 ``(link_id, sysid)`` is the vehicle identity (sysids repeat across MAVLink networks).
 
 State per vehicle at ``snapshot(now_s)``:

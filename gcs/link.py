@@ -1,6 +1,6 @@
 """The station-side MAVLink core for one link: bytes and ``now_s`` in, bytes and events out.
 
-No sockets, no clock, no threads (ARCHITECTURE §4.3; aioquic's surface):
+No sockets, no clock, no threads (docs/design/architecture.md §2.1; aioquic's surface):
 
 * inputs: :meth:`StationLink.receive_datagram`, :meth:`StationLink.handle_timer` and local calls
   (:meth:`~StationLink.set_mode`, :meth:`~StationLink.arm`, :meth:`~StationLink.takeoff`,
@@ -13,10 +13,10 @@ No sockets, no clock, no threads (ARCHITECTURE §4.3; aioquic's surface):
 an in-memory ether uses. The core keeps its own sysid -> address table: a message *to* a vehicle
 goes only to the address that vehicle was last heard from; only broadcasts (our HEARTBEAT) go to
 every peer. This is deliberately not mavutil's ``udpin`` behaviour of sending everything to
-everyone (MAVLINK_NOTES §5), which at 250 vehicles per network multiplies traffic by 250.
+everyone (docs/design/mavlink.md §5.3), which at 250 vehicles per network multiplies traffic by 250.
 
 Errors: a misuse of this API (unknown sysid, unknown mode name) raises; anything a remote sends
-is counted in :attr:`StationLink.stats` and dropped, never raised (ARCHITECTURE §4.8).
+is counted in :attr:`StationLink.stats` and dropped, never raised (docs/design/architecture.md §7).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ log = logging.getLogger(__name__)
 
 Addr = Hashable
 
-#: HEARTBEAT.type values that never create a vehicle (MAVLINK_NOTES §1.1): another GCS, a
+#: HEARTBEAT.type values that never create a vehicle (docs/design/mavlink.md §1.1): another GCS, a
 #: companion computer, a gimbal, an ADS-B receiver.
 NON_VEHICLE_TYPES = frozenset({
     mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_TYPE_GIMBAL,
@@ -52,7 +52,7 @@ NON_VEHICLE_TYPES = frozenset({
 })
 
 _MSG = mavlink  # message-id constants live on the dialect module
-#: Telemetry we ask for (Skybrush's fleet-scale rates, MAVLINK_NOTES §2): message id -> Hz.
+#: Telemetry we ask for (Skybrush's fleet-scale rates, docs/design/mavlink.md §2): message id -> Hz.
 DEFAULT_STREAM_RATES_HZ: tuple[tuple[int, float], ...] = (
     (_MSG.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 4.0),
     (_MSG.MAVLINK_MSG_ID_SYS_STATUS, 1.0),
@@ -90,7 +90,7 @@ class StationConfig:
 
     sysid: int = 255
     """Our MAVLink system id. 255 is ArduPilot's default SYSID_MYGCS / MAV_GCS_SYSID, the only
-    sender whose heartbeats count for the GCS failsafe (MAVLINK_NOTES §1.1)."""
+    sender whose heartbeats count for the GCS failsafe (docs/design/mavlink.md §1.1)."""
     compid: int = mavlink.MAV_COMP_ID_MISSIONPLANNER
     """Our component id: 190 (MAV_COMP_ID_MISSIONPLANNER), what QGroundControl and Mission Planner
     send (QGC ``MAVLinkProtocol::getComponentId``). Not 0: component 0 is the broadcast *target*
@@ -938,7 +938,7 @@ class StationLink:
             return
         # No ACK, UNSUPPORTED, or refused before anything was accepted: older ArduPilot and
         # some routers. Fall back to REQUEST_DATA_STREAM for this vehicle from now on (Skybrush
-        # pattern, MAVLINK_NOTES §1.2).
+        # pattern, docs/design/mavlink.md §1.2).
         log.info("link %d sysid %d: SET_MESSAGE_INTERVAL result %s, falling back to "
                  "REQUEST_DATA_STREAM", self.link_id, v.sysid, result)
         v.use_data_stream = True

@@ -1,6 +1,6 @@
 """Several links as one sans-I/O station: vehicles addressed by ``(link_id, sysid)``.
 
-Sysids are 8-bit, so more than ~250 vehicles need several MAVLink networks (MAVLINK_NOTES §5);
+Sysids are 8-bit, so more than ~250 vehicles need several MAVLink networks (docs/design/mavlink.md §5.4);
 each network is one :class:`~gcs.link.StationLink`. This object only routes: per-vehicle calls go
 to the right link, timers and events are merged. It owns no sockets and reads no clock.
 """

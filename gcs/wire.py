@@ -1,12 +1,12 @@
 """The station's MAVLink codec: pymavlink message classes, our own framing state, wire <-> SI.
 
 Everything that knows a wire integer (``lat_e7``, ``alt_mm``, ``vx_cm_s``, ``hdg_cdeg``,
-``time_boot_ms``) lives here, each behind one named converter (ARCHITECTURE §4.5). The pymavlink
+``time_boot_ms``) lives here, each behind one named converter (docs/design/architecture.md §4). The pymavlink
 ``MAVLink`` object (sequence counter, signing state, parser buffer) is private to this module;
 ``mavutil`` is never imported: it reads ``MAVLINK20``/``MAVLINK_DIALECT`` from the environment at
-import time and its ``udpin`` mode sends every packet to every peer (MAVLINK_NOTES §5).
+import time and its ``udpin`` mode sends every packet to every peer (docs/design/mavlink.md §5.3).
 
-Decoding is robust: bad bytes on a lossy radio are *expected* (ARCHITECTURE §4.8) and become
+Decoding is robust: bad bytes on a lossy radio are *expected* (docs/design/architecture.md §7) and become
 counters in :class:`DecodeStats`, never exceptions.
 """
 
@@ -106,7 +106,7 @@ def hz_to_interval_us(rate_hz: float) -> float:
 # --------------------------------------------------------------------------------------------
 # SET_POSITION_TARGET_* type_mask. Bits are *ignore* flags: 0-2 position, 3-5 velocity,
 # 6-8 acceleration, 9 force, 10 yaw, 11 yaw rate. Values from ardupilot_wiki
-# copter-commands-in-guided-mode.rst (MAVLINK_NOTES §1.4). Never mask a single axis: ArduCopter
+# copter-commands-in-guided-mode.rst (docs/design/mavlink.md §1.4). Never mask a single axis: ArduCopter
 # drops the whole position if Z is ignored (Skybrush driver.py), PX4 ignores a whole vector group
 # if any bit in it is set (mavros#402).
 # --------------------------------------------------------------------------------------------

@@ -3,7 +3,7 @@
 Source: the LaTeX of Kent, Stefani, Plancher, "Robust Geospatial Coordination of Multi-Agent
 Communications Networks Under Attrition" (IEEE RA-L 2026, arXiv:2512.02079), tables
 ``tab:delta`` (Table II) and ``tab:param_results`` (ablations); the same values are in
-PAPER_NOTES §6.1 and §6.3. The bold cells of Table II are read from the ``\\textbf`` entries of the
+docs/design/model.md §6.1 and §6.3. The bold cells of Table II are read from the ``\\textbf`` entries of the
 LaTeX (exact, not approximated). In the ablation table the paper italicises the scores that are
 significantly below the default (p < 0.05).
 
@@ -113,10 +113,10 @@ ABLATIONS: tuple[AblationRow, ...] = (
     AblationRow("σ = 0.2", 80.18, 1.47, 84.48, 1.39, False, False),
 )
 
-#: Why the 5 % column is not a correctness target (PAPER_NOTES §9.5).
+#: Why the 5 % column is not a correctness target (docs/design/model.md §9.5).
 FIVE_PERCENT_NOTE = (
     "The 5 %/step column is not reproducible with independent per-step Bernoulli attrition "
-    "(PAPER_NOTES §9.5). An independent implementation comes out 5–9 points below the paper at "
+    "(docs/design/model.md §9.5). An independent implementation comes out 5–9 points below the paper at "
     "every size (S ≈ 19 against 25.6) and no modelling variant closes the gap; the paper's 5 % "
     "behaves like about 4 % here, and the paper's own baselines score 20–23 on S / 5 %. The column "
     "is reported for completeness, with a gap below the paper expected for every method; it is "

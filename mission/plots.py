@@ -24,7 +24,7 @@ from matplotlib.patches import Patch  # noqa: E402
 __all__ = ["plot_time_series", "plot_frame_strip", "draw_frame", "Scene", "FrameView", "legend_handles",
            "short_name", "crew_links", "PAPER_UNIT"]
 
-#: Axis label unit of the paper's presets (the scaled reading keeps paper units, PAPER_NOTES §6.4).
+#: Axis label unit of the paper's presets (the scaled reading keeps paper units, docs/design/model.md §6.4).
 PAPER_UNIT = "paper length units"
 
 C_ACTIVE, C_IDLE, C_LOST = "tab:blue", "tab:gray", "black"

@@ -356,12 +356,12 @@ def _miss_reason(c: Cell, method: str, methods) -> str:
                            + "): a difference in the shared world model or protocol rather than in this planner")
         elif all(abs(d) <= paper.TOLERANCE_PP[m] for m, d in d_oth.items()):
             reasons.append(f"on {name} the other methods match the paper: specific to this planner "
-                           "(tuning or one of its modelling choices, PAPER_NOTES §9.2–9.4)")
+                           "(tuning or one of its modelling choices, docs/design/model.md §9.2–9.4)")
     d_self = c.delta(method, "tu1")
     if c.attrition >= 0.02 and not math.isnan(d_self) and d_self < 0:
         reasons.append("high attrition, where the result is most sensitive to the attrition model; at 5 % "
                        "the paper's attrition behaves milder than independent per-step Bernoulli losses "
-                       "(PAPER_NOTES §9.5)")
+                       "(docs/design/model.md §9.5)")
     return "; ".join(reasons) or "no diagnosis"
 
 
@@ -870,7 +870,7 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
     md = [f"# Evaluation report: {pathlib.Path(store_path).name}", ""]
     md += [f"- generated: {utc_now()} from `{store_path}` ({len(rows)} runs: {n_ok} ok, "
            f"{len(rows) - n_ok} errors)",
-           f"- reading: **{reading}**" + (" (every length × field half-width / 5; PAPER_NOTES §6.4)"
+           f"- reading: **{reading}**" + (" (every length × field half-width / 5; docs/design/model.md §6.4)"
                                            if reading == "scaled" else " (lengths as printed)")
            + "; readings in the store: " + ", ".join(f"{k} ({v})" for k, v in readings.items()),
            "- code version(s) of the rows in the paper tables: "
@@ -878,7 +878,7 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
            f"- the paper's Table II configurations: {len(cells)} of {len(all_cells)} have data "
            f"({have_table} of {expected_table} (configuration, method) cells, {have_runs} ok runs)",
            f"- paper values: {paper.SOURCE}",
-           "- DCCRS is a **reconstruction** (PAPER_NOTES §3.3): the original paper was not identified."]
+           "- DCCRS is a **reconstruction** (docs/design/model.md §3.3): the original paper was not identified."]
     if params or problem_overrides:
         md.append(f"- overrides applied to every configuration: "
                   f"{', '.join(f'{k}={v}' for k, v in {**problem_overrides, **params}.items())}")
@@ -933,7 +933,7 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
             if central is not None:
                 md += ["## ΦIREMAN: asynchronous and central information against the paper", "",
                        "The paper's ΦIREMAN passes messages between drones (asynchronous, reconstructed: "
-                       "PAPER_NOTES §5.4); `phireman-central` is the same planner given every networked "
+                       "docs/design/model.md §5.4); `phireman-central` is the same planner given every networked "
                        "drone's current position, as the ground station has it. Same scenarios and "
                        "attrition draws (seeds). ✓: |Δ| ≤ 3 pp.", "", central[0], ""]
             if any(c.attrition <= 0.02 + 1e-12 for c in cells):

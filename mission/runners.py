@@ -1,12 +1,12 @@
 """Drivers that fly a mission with the ground station (``gcs``), against the emulator or real links.
 
-The composition root (ARCHITECTURE §4.1, §4.4): this module is the only place where the station
+The composition root (docs/design/architecture.md §1.1, §3.1): this module is the only place where the station
 (:mod:`gcs`) and the emulator (:mod:`vehicle_emu`) meet, and they meet only through bytes.
 
 * :func:`fly_emulated` - builds a :class:`vehicle_emu.swarm.Swarm` from the mission, serves it on
   loopback UDP (ephemeral ports, the emulator in its own process) and flies it with the station
   over real sockets, both on one *paced* simulated clock (``run.speedup``: every timer of both
-  sides follows it, MAVLINK_NOTES §5; lock-step pacing so that a stalled process slows the
+  sides follows it, docs/design/mavlink.md §4.2; lock-step pacing so that a stalled process slows the
   simulation down instead of tripping every vehicle's link failsafe, see
   :func:`fly_emulated_async`). Ground truth (TU1/TU2, arrays) comes from the emulator.
 * Real links (:func:`fly_real`) stay on the wall clock: nobody can pause real vehicles.
@@ -226,7 +226,7 @@ class _MissionWorld:
     attrition switched on at mission start, scripted losses, hazard zones, task motion for the
     ground truth. Never visible to the station.
 
-    Losses follow the in-process world's draws (common random numbers, PAPER_NOTES §6.1): at
+    Losses follow the in-process world's draws (common random numbers, docs/design/model.md §6.1): at
     mission step ``t`` vehicle ``i`` is lost iff ``u[t, i] < p_i(t)``, with the uniforms of
     :func:`mission.playback.build_scenario` (the run's attrition stream) and the per-step
     probability of :func:`mission.playback.loss_probability` (background rate plus the active
@@ -469,7 +469,7 @@ def _station_config(mission: Mission, max_vehicles: int | None = None) -> Statio
         key = bytes.fromhex(real.signing_key_hex)
     # Who is a vehicle (real links): the mission's sysids, else the first N heard (--vehicles).
     allowed = frozenset(real.sysids) if real is not None and real.sysids else None
-    # Fleet-scale telemetry (MAVLINK_NOTES §2, Skybrush): position at 2 Hz is all the plan uses;
+    # Fleet-scale telemetry (docs/design/mavlink.md §2, Skybrush): position at 2 Hz is all the plan uses;
     # every other stream costs decode time at 50+ vehicles x speed-up.
     return StationConfig(signing_key=key, command_timeout_s=1.0, param_timeout_s=2.0,
                          allowed_sysids=allowed, max_vehicles=max_vehicles,
@@ -962,7 +962,7 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     # derived from wall time alone, a 0.25 s hiccup of the station at 20x is 5 s of simulated
     # time: every vehicle's GCS failsafe (FS_GCS_TIMEOUT 5 s; PX4 COM_OF_LOSS_T 1 s) fires at
     # once, although the station did nothing wrong in its own time. SITL driven by MAVProxy at
-    # high SIM_SPEEDUP fails the same way (MAVLINK_NOTES §4.1). So the emulator owns simulated
+    # high SIM_SPEEDUP fails the same way (docs/design/mavlink.md §4.1). So the emulator owns simulated
     # time (a shared double it advances from wall time x speed-up, by at most two ticks per
     # iteration, never more than PACE_SLACK_S beyond the station's last clock read) and the
     # station's clock acknowledges every read: a lagging process slows the simulation instead

@@ -5,7 +5,7 @@ vehicles fly, where the tasks (fire crews, rovers) are and how they move, what t
 what kills drones, which planner runs, and for how long. The same file is played by the in-process
 simulator, by the emulator + ground station, and on real links.
 
-Rules (ARCHITECTURE §4.6)
+Rules (docs/design/architecture.md §5)
 -------------------------
 * This module is the **only** place where defaults live. The loader reads them from the dataclass
   fields; runners read them from the loaded :class:`Mission`.
@@ -848,7 +848,7 @@ def paper_mission(size: str = "S", attrition_per_step: float = 0.01, unit_m: flo
     unit_m : float
         Metres per paper length unit (> 0).
     reading : {'scaled', 'literal'}
-        'scaled' multiplies every length by half-width / 5 (PAPER_NOTES §6.4).
+        'scaled' multiplies every length by half-width / 5 (docs/design/model.md §6.4).
     step_s : float
         Seconds per paper step (the control period).
     seed : int

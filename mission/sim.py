@@ -1,6 +1,6 @@
 """In-process RTNUA simulation: the paper's world model driven by a registered planner.
 
-One episode = ``problem.n_steps`` steps of (PAPER_NOTES §7 #2, #16):
+One episode = ``problem.n_steps`` steps of (docs/design/model.md §7 #2, #16):
 
 1. measure: active drones D'(t) and connected tasks A(t) (the metrics' left Riemann sum),
 2. plan: the planner sees the networked drones and all tasks,

@@ -432,7 +432,7 @@ def run_chunk(chunk: Chunk) -> list[dict]:
             row.update(status="ok", error=None, tu1=float(r["tu1"]), tu2=float(r["tu2"]),
                        wall_s=float(r["wall_s"]), final_alive=int(r["final_alive"]),
                        final_active=int(r["final_active"]))
-        except Exception as exc:  # one failed run is data, the sweep goes on (ARCHITECTURE §4.8)
+        except Exception as exc:  # one failed run is data, the sweep goes on (docs/design/architecture.md §7)
             log.debug("run %s seed %s failed", chunk.method, seed, exc_info=True)
             row.update(status="error", error=f"{type(exc).__name__}: {exc}"[:4000], tu1=None, tu2=None,
                        wall_s=time.perf_counter() - t0, final_alive=None, final_active=None)

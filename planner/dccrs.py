@@ -5,7 +5,7 @@ a name given in the manuscript". They describe it only as potential fields from 
 repulsion and velocity matching of neighbours, plus modifications for density and distance to the
 leader, with tasks acting as leader drones; and they say PhiIREMAN differs from it by using a
 Steiner-tree approximation instead of velocity matching and leader following. This module is the
-parametric reconstruction of PAPER_NOTES §3.3, i.e.
+parametric reconstruction of docs/design/model.md §3.3, i.e.
 
     DCCRS ≈ PhiIREMAN − task-tree potential + leader following + velocity matching
             (+ density weighting of the attraction, distance-to-leader weighting of the pull)
@@ -75,7 +75,7 @@ __all__ = [
     "weighted_pair_gradient_entries", "velocity_match_entries",
 ]
 
-LABEL = "DCCRS (reconstruction, PAPER_NOTES §3.3; original paper not identified)"
+LABEL = "DCCRS (reconstruction, docs/design/model.md §3.3; original paper not identified)"
 
 _PH = PhiremanParams()  # the hyper-parameters with PhiIREMAN equivalents take its defaults
 
@@ -140,7 +140,7 @@ class DccrsParams:
     """α_v, share of the neighbours' mean last displacement in the instruction; grid {0.1, 0.3, 0.5};
     tuned 0.1."""
     base_as_leader: bool = False
-    """Treat the base as an extra static leader (PAPER_NOTES §3.3 item 7; faithful default: no; the
+    """Treat the base as an extra static leader (docs/design/model.md §3.3 item 7; faithful default: no; the
     search found +0.4 pp TU1 for True, well inside the noise)."""
     leader_cap: int = 0
     """Density gate: > 0 = no leader pull for a drone outside r of its leader once this many known
@@ -352,7 +352,7 @@ def velocity_match_reference(disp_pot_u, neighbours, vel_u, alpha, vmax) -> np.n
 # --------------------------------------------------------------------------------------------
 
 class DccrsPlanner:
-    """DCCRS baseline — reconstruction of PAPER_NOTES §3.3 (original paper not identified).
+    """DCCRS baseline — reconstruction of docs/design/model.md §3.3 (original paper not identified).
 
     Flocking (attraction with density weighting, repulsion, velocity matching) plus leader following
     toward the nearest task; no task tree. Same message layer and descent as PhiIREMAN.
@@ -525,5 +525,5 @@ class DccrsPlanner:
 
 
 def make_dccrs(problem: ProblemConfig, params: dict, rng: np.random.Generator) -> DccrsPlanner:
-    """The DCCRS reconstruction (PAPER_NOTES §3.3) with the parameters given (``info`` default 'async')."""
+    """The DCCRS reconstruction (docs/design/model.md §3.3) with the parameters given (``info`` default 'async')."""
     return DccrsPlanner(problem, parse_params(params, DccrsParams), rng)

@@ -1,9 +1,9 @@
 """Shared geometry: distances, radio connectivity, geodetic <-> local NED.
 
 The emulator's radio model and the planner's connectivity metric both call :func:`active_mask`, so
-"who is networked" means the same thing everywhere by construction (ARCHITECTURE §4.2).
+"who is networked" means the same thing everywhere by construction (docs/design/architecture.md §1.2).
 
-Inequalities follow the paper (PAPER_NOTES §4): drone-drone and drone-base links use ``<=``; a task
+Inequalities follow the paper (docs/design/model.md §4): drone-drone and drone-base links use ``<=``; a task
 is served only by a drone strictly closer than r (``<``).
 """
 

@@ -1,4 +1,4 @@
-"""Asynchronous message passing: what each drone knows (PAPER_NOTES §5.4, ARCHITECTURE §4.4b).
+"""Asynchronous message passing: what each drone knows (docs/design/model.md §5.4, docs/design/architecture.md §3.2).
 
 Each drone broadcasts its table to its radio neighbours; they receive it at the next step. For
 every drone id a table keeps the most recent report (recency rule), and drops entries older than
@@ -537,7 +537,7 @@ class KnowledgeDense(_StampTables):
 
 
 class MessageLayer:
-    """The asynchronous information model of one planner over a run (PAPER_NOTES §5.4).
+    """The asynchronous information model of one planner over a run (docs/design/model.md §5.4).
 
     Owns the :class:`Knowledge` tables, the previous tick needed to deliver messages, and a short
     history of what the base broadcast (PhiIREMAN: its task tree; DCCRS: the task positions), so

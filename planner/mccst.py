@@ -1,7 +1,7 @@
 """MCCST baseline: minimum connectivity-constraint spanning tree + CBF-QP (Luo, Yi, Sycara 2020).
 
 Each tick, with perfect and instantaneous knowledge (the RTNUA paper's "cheating" MCCST), the
-planner (PAPER_NOTES §2.4):
+planner (docs/design/model.md §2.4):
 
 1. takes the networked drones A = D'(t) and the base station b (a fixed node, u_b = 0);
 2. gives drones tasks (``'balanced'``: at most ``task_capacity`` drones per task, default
@@ -65,7 +65,7 @@ Units. The planner works in *paper units*: positions are divided by ``problem.le
 time is counted in ticks (one tick = ``problem.dt_s``), so u is a displacement per tick and
 v = max_speed_m_s * dt_s / length_unit_m (0.15 in every preset). gamma is then in
 1 / (paper length^4 * tick) and the defaults of :class:`MccstParams` hold for every size of the
-scaled reading (PAPER_NOTES §2.3: the authors' gamma = 1e4 in Robotarium metres and seconds maps
+scaled reading (docs/design/model.md §2.2: the authors' gamma = 1e4 in Robotarium metres and seconds maps
 to gamma ~ 1 here; the calibrated default uses 1e4 unscaled). Outputs are converted back to
 metres.
 
@@ -112,7 +112,7 @@ References
 W. Luo, S. Yi, K. Sycara, "Behavior Mixing with Minimum Global and Subgroup Connectivity
 Maintenance for Large-Scale Multi-Robot Systems", ICRA 2020, pp. 9845-9851. Authors' MATLAB code:
 ChendiDotLin/Online_Connectivity-aware_MultiRobot_Deployment (GetGraphWeight.m,
-create_con_barrier_certificate.m). PAPER_NOTES §2.
+create_con_barrier_certificate.m). docs/design/model.md §2.
 """
 
 from __future__ import annotations
@@ -176,7 +176,7 @@ class MccstParams:
     """CBF gain of the cubic class-K function gamma * h^3, 1 / (paper length^4 * tick). Calibrated
     default 1e4: the authors' value taken literally (docs/tuning/mccst_calibration.md); with it the
     barrier only binds within a few hundredths of r_c and one-tick overshoot can break tree links.
-    ~1 is the authors' 1e4 rescaled to RTNUA units (PAPER_NOTES §2.3) and, with kappa = 0.9, keeps
+    ~1 is the authors' 1e4 rescaled to RTNUA units (docs/design/model.md §2.2) and, with kappa = 0.9, keeps
     every slack-free tree link within r (module docstring; ``BALANCED_PARAMS``)."""
     kappa: float = 0.95
     """Barrier radius as a fraction of the link radius: r_c = kappa * r (base: kappa * min(R, r)).
@@ -188,7 +188,7 @@ class MccstParams:
     law saturates only beyond v / k_p = 7.5 paper units, i.e. a plain proportional approach with a
     ~50-tick time constant. 1 saturates until the drone is within v of its task."""
     hold_distance: float = 0.0
-    """Nominal controls stop this far from the task, paper units (PAPER_NOTES §2.4 step 3 allows a
+    """Nominal controls stop this far from the task, paper units (docs/design/model.md §2.4 step 3 allows a
     hold zone). 0 = drive onto the task point."""
     assignment: str = "balanced"
     """Subgroup rule: 'balanced' (exact, capacity ceil(|A| / m) per task) or 'nearest' task."""

@@ -1,4 +1,4 @@
-"""Task-uptime metrics TU1 and TU2 (paper eqs. for TU1/TU2, discretised as PAPER_NOTES §6.2).
+"""Task-uptime metrics TU1 and TU2 (paper eqs. for TU1/TU2, discretised as docs/design/model.md §6.2).
 
 Per scenario, with A_i(t) the connection indicator of task i at step t = 0 .. tau-1 (measured before
 the step's motion, a left Riemann sum):

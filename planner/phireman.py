@@ -1,12 +1,12 @@
 """PhiIREMAN: potential-field gradient descent around a semi-Steiner task tree.
 
-Energy of drone i (paper, Sec. "Swarm Dynamics"; PAPER_NOTES §5.1):
+Energy of drone i (paper, Sec. "Swarm Dynamics"; docs/design/model.md §5.1):
 
     E_i = Þ h_T(x_i) - ℳ sum_{j != i} 1 / max(|x_i - x_j|, d_min) + P/2 sum_{|x_i - x_j| < q_i + q_j} (q_i + q_j - |x_i - x_j|)^2
 
 Each control tick the controller takes several gradient steps on the motion instructions and stops
 at equilibrium, after ``max_descent_steps``, or when an instruction would exceed the speed limit
-(PAPER_NOTES §5.2, §9.3). All maths runs in *paper length units* (positions divided by
+(docs/design/model.md §5.2, §9.3). All maths runs in *paper length units* (positions divided by
 ``problem.length_unit_m``), so the coefficients Þ, ℳ, P are scale-free; instructions are returned in
 metres.
 
@@ -66,7 +66,7 @@ class PhiremanParams:
     repulsion_radius_ratio: float = 0.5
     """q_i = ratio * r_i ("nominally r_i / 2", paper)."""
     attraction_floor: float = 0.5
-    """d_min, paper units: attraction evaluated as -ℳ / max(d, d_min) (PAPER_NOTES §9.2)."""
+    """d_min, paper units: attraction evaluated as -ℳ / max(d, d_min) (docs/design/model.md §9.2)."""
     pair_factor: float = 2.0
     """c: 2 = gradient of the total energy (each pair counted in E_i and E_j), 1 = own energy."""
     step_size: float = 0.2
@@ -78,7 +78,7 @@ class PhiremanParams:
     """Equilibrium: stop when every drone's step is below this, paper units."""
     speed_rule: str = "auto"
     """At the speed limit: 'uniform' scales the last step so the fastest drone moves exactly v and
-    stops the descent (PAPER_NOTES §9.3; needs one planner for all drones); 'per_drone' does that
+    stops the descent (docs/design/model.md §9.3; needs one planner for all drones); 'per_drone' does that
     per drone and lets the others continue, each drone also stopping at its own equilibrium (what
     independent drones can do); 'clip' clips each drone to v and keeps iterating.
     'auto' = 'uniform' for central, 'per_drone' for async."""

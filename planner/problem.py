@@ -2,11 +2,11 @@
 
 Lengths are metres and one simulation step lasts ``dt_s`` seconds (1 s by default), so the paper's
 dimensionless lengths and "per step" speeds read directly as metres and metres per step. This
-module is the single home of the problem's defaults (PAPER_NOTES §5.5).
+module is the single home of the problem's defaults (docs/design/model.md §5.5).
 
 The *scaled* reading (default) multiplies every length (r, q, v, R, ring radius and noise, task
 sigma) by ``field_half_width / 5``, so that every size is the S geometry with more drones and tasks;
-the *literal* reading keeps the paper's lengths as printed. PAPER_NOTES §6.4 and §9.1 show that only
+the *literal* reading keeps the paper's lengths as printed. docs/design/model.md §6.4 and §9.1 show that only
 the scaled reading can produce the paper's M, L and XL numbers.
 """
 
@@ -67,7 +67,7 @@ class ProblemConfig:
     task_walk_sigma_m: float = 0.1
     """Per-step, per-axis standard deviation of the task random walk, metres."""
     task_border: str = "clip"
-    """What tasks do at the field border: 'none', 'clip' or 'reflect' (PAPER_NOTES §7 #13)."""
+    """What tasks do at the field border: 'none', 'clip' or 'reflect' (docs/design/model.md §7 #13)."""
     attrition_per_step: float = 0.01
     """Independent per-drone, per-step probability of irreversible loss."""
     n_steps: int = 200
@@ -118,7 +118,7 @@ def problem_preset(size: str = "S", attrition_per_step: float = 0.01, reading: s
     attrition_per_step : float
         Per-drone, per-step loss probability (the paper uses 0, 0.005, 0.01, 0.02, 0.05).
     reading : {'scaled', 'literal'}
-        'scaled' multiplies every length by half-width / 5 (PAPER_NOTES §6.4); 'literal' keeps the
+        'scaled' multiplies every length by half-width / 5 (docs/design/model.md §6.4); 'literal' keeps the
         printed lengths.
     **overrides
         Any other :class:`ProblemConfig` field, in metres / seconds (applied after scaling).

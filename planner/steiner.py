@@ -1,4 +1,4 @@
-"""The semi-Steiner task tree of PhiIREMAN (PAPER_NOTES §5.3, §7 #10).
+"""The semi-Steiner task tree of PhiIREMAN (docs/design/model.md §5.3, §7 #10).
 
 The tree joins the base station B, every task and auxiliary Steiner nodes. Its cost is the paper's
 
@@ -664,7 +664,7 @@ def _relax_steiner(nodes_m: np.ndarray, parent: np.ndarray, n_tasks: int,
 
 def build_task_tree(base_m, task_pos_m, base_weight: float = 1.0,
                     refine_sweeps: int = 3) -> TaskTree:
-    """Build a semi-Steiner task tree greedily (PAPER_NOTES §5.3).
+    """Build a semi-Steiner task tree greedily (docs/design/model.md §5.3).
 
     Parameters
     ----------
@@ -761,7 +761,7 @@ def update_task_positions(tree: TaskTree, task_pos_m, sweeps: int = 3) -> TaskTr
 def maintain_task_tree(tree: TaskTree | None, base_m, task_pos_m, t_step: int,
                        base_weight: float = 1.0, accept_ratio: float = 0.99,
                        rebuild_period: int = 10, sweeps: int = 3) -> TaskTree:
-    """The per-tick tree policy of PhiIREMAN (PAPER_NOTES §5.3, §7 #10).
+    """The per-tick tree policy of PhiIREMAN (docs/design/model.md §5.3, §7 #10).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""The dependency rules of ARCHITECTURE §4.2, enforced on every run."""
+"""The dependency rules of docs/design/architecture.md §1.2, enforced on every run."""
 import ast
 import pathlib
 import subprocess

@@ -1,7 +1,7 @@
 """Attrition: random vehicle losses at a hazard rate, plus scripted kills at given times.
 
 A lost vehicle stops moving and goes silent forever (its core is killed; its row stays, with
-``alive = False``: arrays are never compacted, ARCHITECTURE §4.4).
+``alive = False``: arrays are never compacted, docs/design/architecture.md §3.1).
 
 Random losses are a Poisson process per vehicle: over a step of ``dt_s`` an alive vehicle dies
 with probability ``1 - exp(-hazard_per_s * dt_s)``, so the result does not depend on the tick

@@ -3,7 +3,7 @@
 Every vehicle timer (heartbeats, GUID_TIMEOUT, FS_GCS_TIMEOUT, COM_OF_LOSS_T, telemetry) runs
 on the *vehicle* clock that these produce. Under a speed-up S, all of them run S times faster
 in wall time, exactly like SITL's SIM_SPEEDUP; a GCS must therefore also scale its heartbeat
-period, or the failsafe fires (measured on SITL at S = 10, MAVLINK_NOTES §5).
+period, or the failsafe fires (measured on SITL at S = 10, docs/design/mavlink.md §5.1).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Events of the vehicle emulator: frozen, validated, past-tense facts (ARCHITECTURE §4.3).
+"""Events of the vehicle emulator: frozen, validated, past-tense facts (docs/design/architecture.md §2.2).
 
 They are produced by :class:`vehicle_emu.link.VehicleCore` and :class:`vehicle_emu.swarm.Swarm`
 and drained with ``next_event()``. Only state changes and commands become events, never the

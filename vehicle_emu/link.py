@@ -1,6 +1,6 @@
 """Sans-I/O vehicle-side MAVLink core: one emulated autopilot (ArduPilot Copter or PX4).
 
-Surface (aioquic style, ARCHITECTURE §4.3)::
+Surface (aioquic style, docs/design/architecture.md §2.1)::
 
     core.receive_datagram(data, addr, now_s)    # bytes in
     core.handle_timer(now_s)                    # timers: failsafes, timeouts, telemetry
@@ -132,7 +132,7 @@ M_VFR_HUD = mavlink.MAVLINK_MSG_ID_VFR_HUD
 
 #: PX4's mavlink module streams without being asked (``src/modules/mavlink/mavlink_main.cpp``,
 #: ``configure_streams_to_default``, MAVLINK_MODE_NORMAL/ONBOARD; rates approximate, Hz).
-#: ArduPilot streams nothing but HEARTBEAT until asked (measured on SITL, MAVLINK_NOTES §5).
+#: ArduPilot streams nothing but HEARTBEAT until asked (measured on SITL, docs/design/mavlink.md §5.1).
 PX4_DEFAULT_RATES_HZ = {
     M_HEARTBEAT: 1.0, M_SYS_STATUS: 1.0, M_EXTENDED_SYS_STATE: 1.0, M_GLOBAL_POSITION_INT: 5.0,
     M_LOCAL_POSITION_NED: 5.0, M_GPS_RAW_INT: 1.0, M_HOME_POSITION: 0.5,
@@ -157,7 +157,7 @@ _FORCE_MAGIC = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2: force (ArduPilot & 
 
 # type_mask ignore bits (POSITION_TARGET_TYPEMASK); a group counts as ignored if ANY of its
 # three bits is set: ArduCopter GCS_Mavlink.cpp tests ``type_mask & POS_IGNORE`` with
-# POS_IGNORE = X|Y|Z, so masking only Z drops the whole position (MAVLINK_NOTES §1.4); PX4
+# POS_IGNORE = X|Y|Z, so masking only Z drops the whole position (docs/design/mavlink.md §1.4); PX4
 # mavlink_receiver.cpp does the same per vector group (mavros#402).
 _POS_BITS, _VEL_BITS, _ACC_BITS = 0b111, 0b111 << 3, 0b111 << 6
 _LOCAL_FRAMES = (mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_OFFSET_NED,
@@ -330,7 +330,7 @@ class VehicleCore:
     trusted_addrs : collection, optional
         Source addresses from which SETUP_SIGNING is honoured ("trusted link": the analogue of
         a USB cable; ArduPilot and PX4 refuse key changes over an arbitrary radio link).
-        SETUP_SIGNING is also refused while armed (PX4 behaviour, MAVLINK_NOTES §3).
+        SETUP_SIGNING is also refused while armed (PX4 behaviour, docs/design/mavlink.md §3).
     ekf_ready_after_s : float
         Arming is refused until this long after boot (SITL needs ~40 s; default 0).
     unix_time_at_zero_s : float
@@ -698,7 +698,7 @@ class VehicleCore:
         ArduPilot (ArduCopter/events.cpp ``failsafe_gcs_check``): disabled when FS_GCS_ENABLE=0;
         inactive until a heartbeat from SYSID_MYGCS was seen; triggers when the last one is
         older than FS_GCS_TIMEOUT; clears when heartbeats resume, but the vehicle stays in the
-        failsafe mode until a GCS changes it (measured on SITL, MAVLINK_NOTES §5).
+        failsafe mode until a GCS changes it (measured on SITL, docs/design/mavlink.md §5.1).
         PX4: data-link loss after COM_DL_LOSS_T without a GCS heartbeat, action NAV_DLL_ACT.
         """
         last = self._last_gcs_hb_s

@@ -1,6 +1,6 @@
 """Vectorised 3-D kinematics of N multicopters (one call per tick for all vehicles).
 
-Model (deliberately simple, ARCHITECTURE §4.7 struct-of-arrays):
+Model (deliberately simple, docs/design/architecture.md §6 struct-of-arrays):
 
 * Each vehicle has a control kind: ``CTRL_POS`` (track ``target_pos_ned_m`` with a first-order
   P law plus optional velocity feed-forward), ``CTRL_VEL`` (track ``target_vel_ned_m_s``) or

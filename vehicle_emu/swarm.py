@@ -6,7 +6,7 @@ Sans-I/O like the cores: bytes and ``now_s`` in, ``(endpoint, bytes, addr)`` out
 Identity: vehicle ``index`` (array row, 0..N-1) is distinct from its MAVLink identity
 ``(network, sysid)``: ``network = index // 254``, ``sysid = index % 254 + 1``. Sysids are 8-bit
 and 255 is the GCS, so more than 254 vehicles are split over several MAVLink networks
-(MAVLINK_NOTES §5), each served by its own endpoint(s).
+(docs/design/mavlink.md §5.4), each served by its own endpoint(s).
 
 Endpoints (how a GCS reaches vehicles):
 

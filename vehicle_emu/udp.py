@@ -1,4 +1,4 @@
-"""Thin asyncio UDP adapter for :class:`vehicle_emu.swarm.Swarm` (ARCHITECTURE §4.3).
+"""Thin asyncio UDP adapter for :class:`vehicle_emu.swarm.Swarm` (docs/design/architecture.md §2.1).
 
 Cycle (after aioquic ``transmit()``): receive -> ``swarm.receive_datagram(endpoint, data, addr,
 clock.now())`` -> send everything from ``datagrams_to_send`` -> re-arm one timer at

@@ -3,12 +3,12 @@
 Everything inside the emulator is SI (metres, seconds, radians, degrees only for geodetic
 coordinates). The integer units of the wire (``lat_e7``, ``alt_mm``, ``vx_cm_s``, ``hdg_cdeg``,
 ``time_boot_ms`` ...) exist only here, each behind a named converter, so a reviewer can check
-every scale factor in one screen (ARCHITECTURE §4.5).
+every scale factor in one screen (docs/design/architecture.md §4).
 
 The pymavlink ``MAVLink`` object is private to :class:`Codec`. We import the generated dialect
 module directly (``pymavlink.dialects.v20.ardupilotmega``) and never ``mavutil``: mavutil reads
 ``MAVLINK20``/``MAVLINK_DIALECT`` from the environment at import time and is built around files
-and sockets (MAVLINK_NOTES §5).
+and sockets (docs/design/mavlink.md §5.3).
 
 Why one ``MAVLink`` instance per vehicle: pymavlink stamps ``seq``, ``srcSystem`` and the
 signing state from the instance at ``pack`` time; sharing one instance between vehicles would

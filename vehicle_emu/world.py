@@ -1,10 +1,10 @@
-"""The paper's world model: the ground truth of an RTNUA episode (PAPER_NOTES §4, §7).
+"""The paper's world model: the ground truth of an RTNUA episode (docs/design/model.md §4, §7).
 
 Everything here is vectorised over drones and tasks. The world owns positions, the alive mask,
 attrition and task motion; "active" (networked) is recomputed exactly every step with
 :func:`planner.geometry.active_mask` (the same function the emulator's radio uses).
 
-Random streams (common random numbers, PAPER_NOTES §6.1): a run's integer ``seed`` is split by
+Random streams (common random numbers, docs/design/model.md §6.1): a run's integer ``seed`` is split by
 :class:`numpy.random.SeedSequence` into three independent children,
 
 * ``scenario``  ring noise, initial task positions and every task random-walk increment,
@@ -92,7 +92,7 @@ def draw_scenario(problem: ProblemConfig, streams: RunStreams) -> Scenario:
     """Draw the paper's scenario: ring of drones, uniform tasks with a random walk, attrition uniforms."""
     rng = streams.scenario
     n, m, tau = problem.n_drones, problem.n_tasks, problem.n_steps
-    angles = 2 * np.pi * np.arange(n) / n  # evenly spaced (PAPER_NOTES §7 #14)
+    angles = 2 * np.pi * np.arange(n) / n  # evenly spaced (docs/design/model.md §7 #14)
     ring = problem.ring_radius_m * np.stack([np.cos(angles), np.sin(angles)], axis=1)
     drone_pos0 = ring + rng.normal(0.0, problem.ring_noise_m, size=(n, 2))
     w = problem.field_half_width_m
@@ -137,7 +137,7 @@ class World:
 
     def step(self, disp_m: np.ndarray, active: np.ndarray, loss_prob: np.ndarray | float,
              attrition_u: np.ndarray, recovery_target_m: np.ndarray | None = None) -> np.ndarray:
-        """Advance one step (PAPER_NOTES §7 #2: plan -> attrition -> execute -> tasks walk).
+        """Advance one step (docs/design/model.md §7 #2: plan -> attrition -> execute -> tasks walk).
 
         Parameters
         ----------

@@ -11,7 +11,7 @@ from mission.cli import UserError, parse_rate
 HELP = "write the paper's configurations as mission files (new), show or list missions"
 DESCRIPTION = """\
   phireman mission new --preset S --attrition 0.01 --unit-m 50 > m.yaml
-      The paper's configuration (Table III, PAPER_NOTES §5.5/§6.1) as a mission in SI units.
+      The paper's configuration (Table III, docs/design/model.md §5.5/§6.1) as a mission in SI units.
       One paper length unit becomes --unit-m metres and one paper step --step-s seconds; the
       per-step attrition p becomes rate_per_s = -ln(1 - p) / step_s. The file's header explains
       every conversion.

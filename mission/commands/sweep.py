@@ -54,7 +54,7 @@ def add_common_arguments(p: argparse.ArgumentParser, seeds_default: int = 100,
                    help=f"SQLite results store file (created if missing; default {store_default})")
     add_seed_arguments(p, seeds_default, f"seeded scenarios per configuration (default {seeds_default})")
     p.add_argument("--reading", choices=["scaled", "literal"], default="scaled",
-                   help="length reading (default scaled, PAPER_NOTES §6.4)")
+                   help="length reading (default scaled, docs/design/model.md §6.4)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a problem field (metres, e.g. n_steps=50) or a planner parameter "
                         "(e.g. step_size=0.3) in every configuration; repeatable")

@@ -44,7 +44,7 @@ class _Client:
         self.mav.seq = (self.mav.seq + 1) % 256
 
     def heartbeat(self, force=False):
-        # 1 Hz GCS heartbeat in *vehicle* time (wall period / speed-up), MAVLINK_NOTES §5.
+        # 1 Hz GCS heartbeat in *vehicle* time (wall period / speed-up), docs/design/mavlink.md §4.2.
         now = time.monotonic()
         if force or now - self.last_hb > 0.5 / SPEEDUP:
             self.last_hb = now

@@ -1,4 +1,4 @@
-"""DCCRS reconstruction (PAPER_NOTES §3.3): kernels against references, reduction to PhiIREMAN, contract."""
+"""DCCRS reconstruction (docs/design/model.md §3.3): kernels against references, reduction to PhiIREMAN, contract."""
 import dataclasses
 
 import numpy as np

@@ -15,7 +15,7 @@ def test_active_mask_matches_the_recursive_definition(rng, n):
 
 
 def test_link_inequalities_are_the_papers():
-    # drone links and the base use <=, task links use < (PAPER_NOTES §4)
+    # drone links and the base use <=, task links use < (docs/design/model.md §4)
     pos = np.array([[2.0, 0.0], [4.0, 0.0]])
     assert active_mask(pos, np.ones(2, bool), 2.0, 2.0).tolist() == [True, True]
     assert active_mask(pos, np.array([False, True]), 2.0, 2.0).tolist() == [False, False]  # no relay
