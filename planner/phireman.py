@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner import _kernels
 from planner.geometry import step_toward
 from planner.knowledge import MessageLayer
 from planner.methods import PlanOutput, TickInput
@@ -232,6 +233,7 @@ class TreeSegments:
         self.ab2 = np.einsum("nec,nec->ne", self.ab, self.ab)
         self.valid = valid[version]
         self.entries = None
+        self._columns = None
         if pos0 is not None and self.n:
             d2 = self._d2(pos0, self.a, self.ab, self.ab2, self.valid)[1]
             dist = np.sqrt(d2)
@@ -272,6 +274,23 @@ class TreeSegments:
             chosen[rows] = True
             take = chosen[er]
             er, a, ab, ab2 = (np.cumsum(chosen) - 1)[er[take]], a[take], ab[take], ab2[take]
+        if _kernels.NUMBA and _kernels.ENABLED:
+            # compiled twin of the NumPy lines below, bit for bit (tests/planner/test_kernels.py)
+            if self._columns is None or len(rows) != self.n:
+                cols = (np.asarray(er, np.int64), np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]),
+                        np.ascontiguousarray(ab[:, 0]), np.ascontiguousarray(ab[:, 1]), np.ascontiguousarray(ab2))
+                if len(rows) == self.n:
+                    self._columns = cols
+            else:
+                cols = self._columns
+            pos_u = np.asarray(pos_u, float)
+            return _kernels.entries_segment_gradient(np.ascontiguousarray(pos_u[:, 0]),
+                                                     np.ascontiguousarray(pos_u[:, 1]), *cols, len(pos_u),
+                                                     float(thorn))
+        return self._gradient_entries_numpy(pos_u, er, a, ab, ab2, thorn)
+
+    @staticmethod
+    def _gradient_entries_numpy(pos_u, er, a, ab, ab2, thorn):
         x = pos_u[er]
         ap = x - a
         t = np.clip(np.divide(np.einsum("ec,ec->e", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
@@ -382,7 +401,24 @@ class _EntriesByDrone:
 def _pair_gradient_xy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach, pair_factor,
                       weight=None):
     """:func:`pair_gradient_entries` with the believed positions as two (E,) coordinate arrays;
-    ``weight`` (n,), if given, scales each drone's attraction (DCCRS's density weighting)."""
+    ``weight`` (n,), if given, scales each drone's attraction (DCCRS's density weighting).
+
+    Runs the compiled :func:`planner._kernels.entries_pair_gradient` when available (bit for bit the same; :func:`_pair_gradient_xy_numpy` is its reference)."""
+    if _kernels.NUMBA and _kernels.ENABLED:
+        pos_u = np.asarray(pos_u, float)
+        aw = (np.full(len(pos_u), float(attraction)) if weight is None
+              else attraction * np.asarray(weight, float))       # the NumPy version's (ℳ w_i)
+        return _kernels.entries_pair_gradient(
+            np.ascontiguousarray(pos_u[:, 0]), np.ascontiguousarray(pos_u[:, 1]),
+            np.asarray(rows, np.int64), np.asarray(others_x, float), np.asarray(others_y, float),
+            len(pos_u), aw, float(floor), float(repulsion), float(reach), float(pair_factor))
+    return _pair_gradient_xy_numpy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach,
+                                   pair_factor, weight)
+
+
+def _pair_gradient_xy_numpy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach,
+                            pair_factor, weight=None):
+    """The NumPy version of :func:`_pair_gradient_xy` (the reference of its compiled kernel)."""
     n = len(pos_u)
     dx = pos_u[:, 0][rows] - others_x
     dy = pos_u[:, 1][rows] - others_y
@@ -624,11 +660,25 @@ class PhiremanPlanner:
             idx = np.flatnonzero(planning)
             if len(idx):
                 tree = self.tree
-                mask = ~np.eye(len(idx), dtype=bool)
+                if _kernels.NUMBA and _kernels.ENABLED:
+                    # O(n) memory, compiled: the all-pairs sum without the (n, n) arrays, the tree
+                    # distance without the (n, E) ones (the NumPy branch below is the reference).
+                    if p.nodes_only or tree.n_nodes == 1:
+                        seg_a = seg_b = tree.nodes_m
+                    else:
+                        seg_a, seg_b = tree.segments()
 
-                def grad(x, rows):
-                    return (task_gradient(x, tree, p.thorn, p.nodes_only)
-                            + self._pair_grad(x, x, mask))
+                    def grad(x, rows):
+                        task = (_kernels.segment_gradient(x, seg_a, seg_b, p.thorn) if p.thorn
+                                else np.zeros_like(x))
+                        return task + _kernels.central_pair_gradient(
+                            x, p.attraction, p.attraction_floor, p.repulsion, self.reach_u, p.pair_factor)
+                else:
+                    mask = ~np.eye(len(idx), dtype=bool)
+
+                    def grad(x, rows):
+                        return (task_gradient(x, tree, p.thorn, p.nodes_only)
+                                + self._pair_grad(x, x, mask))
 
                 res = descend(pos_u[idx], grad, self.vmax_u, p)
                 disp_u[idx] = res.disp_u
@@ -657,6 +707,12 @@ class PhiremanPlanner:
         segments = TreeSegments([self.messages.broadcast(s) for s in versions], version_of, p.nodes_only,
                                 pos_u[idx], self.vmax_u)
         entries = _EntriesByDrone(ent_r, ent_y, len(idx))
+        if _kernels.NUMBA and _kernels.ENABLED and p.speed_rule == "per_drone" and segments.entries is not None:
+            # The whole descent in one compiled call, bit for bit the NumPy one below.
+            res = _descend_separable_compiled(pos_u[idx], entries, segments, p, self.reach_u, self.vmax_u)
+            disp_u[idx] = res.disp_u
+            return disp_u, {"iterations": res.iterations, "converged": res.converged,
+                            "stale_tree": int(stale.sum())}
 
         def grad(x, rows):
             er, ox, oy = entries.of(rows)
@@ -668,6 +724,29 @@ class PhiremanPlanner:
         disp_u[idx] = res.disp_u
         return disp_u, {"iterations": res.iterations, "converged": res.converged,
                         "stale_tree": int(stale.sum())}
+
+
+def _descend_separable_compiled(pos_u: np.ndarray, entries: _EntriesByDrone, segments: TreeSegments,
+                                p: PhiremanParams, reach_u: float, vmax_u: float) -> DescentResult:
+    """:func:`descend` (``separable=True``, 'per_drone' rule) of the async planner's gradient (pair
+    term over ``entries`` + task term over ``segments``' candidate entries), by
+    :func:`planner._kernels.descend_separable`; same :class:`DescentResult` bit for bit."""
+    er, a, ab, ab2 = segments.entries
+    seg_start = np.searchsorted(er, np.arange(len(pos_u) + 1))
+    pos_u = np.asarray(pos_u, float)
+    delta, stop, at_limit = _kernels.descend_separable(
+        np.ascontiguousarray(pos_u[:, 0]), np.ascontiguousarray(pos_u[:, 1]), entries.start, entries.x, entries.y,
+        seg_start, np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]), np.ascontiguousarray(ab[:, 0]),
+        np.ascontiguousarray(ab[:, 1]), np.ascontiguousarray(ab2), float(p.attraction), float(p.attraction_floor),
+        float(p.repulsion), float(reach_u), float(p.pair_factor), float(p.thorn), float(p.step_size),
+        float(p.tolerance), float(vmax_u), int(p.max_descent_steps))
+    hit = bool(at_limit.any())
+    last = int(stop.max())
+    if last > p.max_descent_steps:                        # some drone never stopped
+        return DescentResult(delta, p.max_descent_steps, False, hit)
+    # descend returns at the first step after which nobody moves: converged iff no drone that
+    # stopped at that step stopped at the speed limit (the equilibrium test comes first)
+    return DescentResult(delta, last, not bool((at_limit & (stop == last)).any()), hit)
 
 
 def _make(problem, params, rng, **forced):

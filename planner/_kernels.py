@@ -1,0 +1,352 @@
+"""Compiled per-tick kernels (Numba), each the fast twin of a NumPy function kept as its reference.
+
+Every kernel here has a slow, obviously-correct NumPy (or loop) version in the module that uses it,
+and ``tests/planner/test_kernels.py`` compares the two. When Numba is not importable ``NUMBA`` is
+False and the callers use the NumPy versions, so the planners still run (slower).
+
+Kernels are compiled on first use and cached on disk (``cache=True``), so a short run pays the
+compilation once per machine, not once per process.
+
+Bit-identity. The kernels use no ``fastmath`` flags (LLVM then neither reorders nor fuses floating
+point operations into FMAs), so an element-wise formula written in the same operation order as the
+NumPy version gives the same bits, and a sum accumulated in the same order as ``np.bincount`` (entry
+order) gives the same bits as well. Where NumPy sums in another order (BLAS products, pairwise
+sums), the kernel's docstring says so.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+try:  # pragma: no cover - exercised by whichever environment runs the tests
+    import numba
+    from numba import njit, prange
+
+    NUMBA = True
+except ImportError:  # pragma: no cover
+    NUMBA = False
+
+    def njit(*args, **kwargs):
+        if args and callable(args[0]):
+            return args[0]
+        return lambda f: f
+
+    prange = range
+
+#: False: the callers run the NumPy reference paths instead (benchmarks and tests compare the two).
+ENABLED = True
+
+__all__ = ["NUMBA", "central_pair_gradient", "segment_gradient", "entries_pair_gradient",
+           "entries_segment_gradient"]
+
+#: From this many drones the all-pairs kernel runs its rows on Numba's thread pool (the rows are
+#: independent and each is summed in a fixed order, so the result does not depend on the threads).
+PARALLEL_MIN_DRONES = 1500
+
+
+#: Flags of the all-pairs kernel only: reassociation lets LLVM vectorise drone i's sum over j
+#: (4 pairs per instruction, ~5x); the order is then fixed by the compiled code, so the result is
+#: still deterministic, but it is not the order of any NumPy expression.
+_PAIR_FASTMATH = {"reassoc", "nsz", "contract"}
+
+
+def _central_pair_body(x, y, attraction, floor, repulsion, reach, pair_factor, out, i):
+    xi, yi = x[i], y[i]
+    gx = 0.0
+    gy = 0.0
+    for j in range(len(x)):
+        dx = xi - x[j]
+        dy = yi - y[j]
+        d2 = dx * dx + dy * dy
+        # branch-free (selects), so the loop vectorises; j == i gives d2 = 0, hence coef = 0
+        pos = d2 > 0.0
+        inv = 1.0 / math.sqrt(d2 if pos else 1.0)
+        inv = inv if pos else 0.0
+        d = d2 * inv
+        att = attraction * inv * inv * inv if d > floor else 0.0
+        rep = repulsion * (reach * inv - 1.0) if (d < reach and pos) else 0.0
+        coef = att - rep
+        gx += coef * dx
+        gy += coef * dy
+    out[i, 0] = pair_factor * gx
+    out[i, 1] = pair_factor * gy
+
+
+if NUMBA:
+    _central_pair_body = njit(cache=True, inline="always", fastmath=_PAIR_FASTMATH)(_central_pair_body)
+
+
+@njit(cache=True, fastmath=_PAIR_FASTMATH)
+def _central_pair_serial(x, y, attraction, floor, repulsion, reach, pair_factor):
+    out = np.empty((len(x), 2))
+    for i in range(len(x)):
+        _central_pair_body(x, y, attraction, floor, repulsion, reach, pair_factor, out, i)
+    return out
+
+
+@njit(cache=True, parallel=True, fastmath=_PAIR_FASTMATH)
+def _central_pair_parallel(x, y, attraction, floor, repulsion, reach, pair_factor):
+    out = np.empty((len(x), 2))
+    for i in prange(len(x)):
+        _central_pair_body(x, y, attraction, floor, repulsion, reach, pair_factor, out, i)
+    return out
+
+
+def central_pair_gradient(pos_u: np.ndarray, attraction: float, floor: float, repulsion: float,
+                          reach: float, pair_factor: float) -> np.ndarray:
+    """All-pairs :func:`planner.phireman.pair_gradient` of the central view (every drone sees every
+    other, mask = not self), O(n) memory.
+
+    Parameters
+    ----------
+    pos_u : (n, 2) positions, paper units
+    attraction, floor, repulsion, reach, pair_factor : as :func:`planner.phireman.pair_gradient`
+
+    Returns
+    -------
+    (n, 2) gradient. The differences are formed directly (the NumPy version expands
+    d^2 = |x|^2 + |y|^2 - 2 x.y, losing ~|x|^2 eps) and drone i's sum is vectorised (reassociated),
+    while NumPy sums by BLAS: the two agree to rounding (~1e-14 relative here, ~1e-10 for NumPy's
+    expansion at 2,000 drones), not bit for bit.
+    """
+    pos_u = np.asarray(pos_u, dtype=np.float64)
+    x = np.ascontiguousarray(pos_u[:, 0])
+    y = np.ascontiguousarray(pos_u[:, 1])
+    kernel = _central_pair_parallel if len(x) >= PARALLEL_MIN_DRONES else _central_pair_serial
+    return kernel(x, y, float(attraction), float(floor), float(repulsion), float(reach), float(pair_factor))
+
+
+@njit(cache=True)
+def _segment_gradient(px, py, ax, ay, ex, ey, e2, thorn):
+    n = len(px)
+    m = len(ax)
+    out = np.empty((n, 2))
+    d2 = np.empty(m)
+    for i in range(n):
+        xi = px[i]
+        yi = py[i]
+        # pass 1, element-wise (LLVM vectorises it; no reassociation, so the bits are NumPy's)
+        for s in range(m):
+            qx = xi - ax[s]
+            qy = yi - ay[s]
+            t = (qx * ex[s] + qy * ey[s]) / e2[s] if e2[s] > 0.0 else 0.0
+            t = min(max(t, 0.0), 1.0)
+            ox = xi - (ax[s] + t * ex[s])
+            oy = yi - (ay[s] + t * ey[s])
+            d2[s] = ox * ox + oy * oy
+        # pass 2: the first minimum, as np.argmin
+        best = 0
+        for s in range(1, m):
+            if d2[s] < d2[best]:
+                best = s
+        t = (((xi - ax[best]) * ex[best] + (yi - ay[best]) * ey[best]) / e2[best]) if e2[best] > 0.0 else 0.0
+        t = min(max(t, 0.0), 1.0)
+        bx = xi - (ax[best] + t * ex[best])
+        by = yi - (ay[best] + t * ey[best])
+        dist = math.sqrt(bx * bx + by * by)
+        if dist > 1e-12:
+            out[i, 0] = thorn * bx / dist
+            out[i, 1] = thorn * by / dist
+        else:
+            out[i, 0] = 0.0
+            out[i, 1] = 0.0
+    return out
+
+
+def segment_gradient(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, thorn: float) -> np.ndarray:
+    """∇ Þ h_T for drones sharing one tree given as segments: the fast twin of
+    :func:`planner.phireman.task_gradient` (via :func:`planner.steiner.distance_to_tree`), same
+    per-element formula and first-minimum rule, O(n) memory instead of (n, E).
+
+    Parameters
+    ----------
+    pos_u : (n, 2) positions
+    seg_a, seg_b : (E, 2) segment ends (a zero-length segment is a node), E >= 1
+    thorn : Þ
+    """
+    pos_u = np.asarray(pos_u, dtype=np.float64)
+    a = np.asarray(seg_a, dtype=np.float64)
+    ab = np.asarray(seg_b, dtype=np.float64) - a
+    e2 = ab[:, 0] * ab[:, 0] + ab[:, 1] * ab[:, 1]
+    return _segment_gradient(np.ascontiguousarray(pos_u[:, 0]), np.ascontiguousarray(pos_u[:, 1]),
+                             np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]),
+                             np.ascontiguousarray(ab[:, 0]), np.ascontiguousarray(ab[:, 1]), e2, float(thorn))
+
+
+@njit(cache=True)
+def entries_pair_gradient(px, py, rows, ox, oy, n, attraction, floor, repulsion, reach, pair_factor):
+    """:func:`planner.phireman._pair_gradient_xy`, bit for bit: the same element-wise operations in
+    the same order, summed per holder in entry order as ``np.bincount`` does.
+
+    px, py : (m,) positions of the m drones whose entries are given; rows : (E,) holder of each
+    entry (into px); ox, oy : (E,) believed positions; n : rows of the output (>= max(rows) + 1);
+    attraction : (m,) ℳ per holder (ℳ w_i for DCCRS's density weighting; ℳ * 1.0 == ℳ exactly).
+    """
+    sx = np.zeros(n)
+    sy = np.zeros(n)
+    for e in range(len(rows)):
+        r = rows[e]
+        dx = px[r] - ox[e]
+        dy = py[r] - oy[e]
+        d2 = dx * dx
+        d2 += dy * dy
+        d = math.sqrt(d2)
+        inv = 1.0 / d if d > 0 else 0.0
+        coef = inv * inv
+        coef *= inv
+        coef *= attraction[r]
+        if d <= floor:
+            coef = 0.0
+        if d < reach and d > 0:
+            coef -= repulsion * (reach * inv - 1.0)
+        sx[r] += dx * coef
+        sy[r] += dy * coef
+    out = np.empty((n, 2))
+    for i in range(n):
+        out[i, 0] = sx[i] * pair_factor
+        out[i, 1] = sy[i] * pair_factor
+    return out
+
+
+@njit(cache=True)
+def entries_segment_gradient(px, py, er, ax, ay, ex, ey, e2, n, thorn):
+    """:meth:`planner.phireman.TreeSegments._gradient_entries`, bit for bit: per entry (drone er[e],
+    segment e) the same clamped projection, the first minimum per drone (entries of a drone are
+    consecutive, in segment order). Every drone 0..n-1 has at least one entry."""
+    out = np.empty((n, 2))
+    e = 0
+    m = len(er)
+    while e < m:
+        i = er[e]
+        best = np.inf
+        bx = 0.0
+        by = 0.0
+        while e < m and er[e] == i:
+            qx = px[i] - ax[e]
+            qy = py[i] - ay[e]
+            t = 0.0
+            if e2[e] > 0:
+                t = (qx * ex[e] + qy * ey[e]) / e2[e]
+            t = min(max(t, 0.0), 1.0)
+            fx = ax[e] + t * ex[e]
+            fy = ay[e] + t * ey[e]
+            offx = px[i] - fx
+            offy = py[i] - fy
+            d2 = offx * offx + offy * offy
+            if d2 < best:
+                best, bx, by = d2, offx, offy
+            e += 1
+        dist = math.sqrt(best)
+        if dist > 1e-12:
+            out[i, 0] = thorn * bx / dist
+            out[i, 1] = thorn * by / dist
+        else:
+            out[i, 0] = 0.0
+            out[i, 1] = 0.0
+    return out
+
+
+@njit(cache=True)
+def descend_separable(px, py, pair_start, ox, oy, seg_start, ax, ay, ex, ey, e2, attraction, floor,
+                      repulsion, reach, pair_factor, thorn, step_size, tolerance, vmax, max_steps):
+    """The async PhiIREMAN descent of one tick (:func:`planner.phireman.descend` with
+    ``separable=True`` and the 'per_drone' speed rule), every drone in one compiled loop.
+
+    With separable gradients and the per-drone rule each drone's descent is independent of the
+    others', so it runs drone by drone: gradient = pair term over the drone's entries
+    ``pair_start[i]:pair_start[i + 1]`` (summed in entry order, as ``np.bincount``) + task term
+    over its candidate segments ``seg_start[i]:seg_start[i + 1]`` (first minimum), then the same
+    step, equilibrium and speed-limit arithmetic as the NumPy descent, bit for bit.
+
+    Returns
+    -------
+    delta : (n, 2) instructions
+    stop : (n,) int, the descent step at which the drone stopped (max_steps + 1: never)
+    at_limit : (n,) bool, it stopped at the speed limit (else at its equilibrium)
+    """
+    n = len(px)
+    delta = np.zeros((n, 2))
+    stop = np.full(n, max_steps + 1, dtype=np.int64)
+    at_limit = np.zeros(n, dtype=np.bool_)
+    v2 = vmax * vmax
+    neg_eta = -step_size
+    for i in range(n):
+        dx_i = 0.0
+        dy_i = 0.0
+        for k in range(1, max_steps + 1):
+            xi = px[i] + dx_i
+            yi = py[i] + dy_i
+            # pair term (planner.phireman._pair_gradient_xy)
+            sx = 0.0
+            sy = 0.0
+            for e in range(pair_start[i], pair_start[i + 1]):
+                ddx = xi - ox[e]
+                ddy = yi - oy[e]
+                d2 = ddx * ddx
+                d2 += ddy * ddy
+                d = math.sqrt(d2)
+                inv = 1.0 / d if d > 0 else 0.0
+                coef = inv * inv
+                coef *= inv
+                coef *= attraction
+                if d <= floor:
+                    coef = 0.0
+                if d < reach and d > 0:
+                    coef -= repulsion * (reach * inv - 1.0)
+                sx += ddx * coef
+                sy += ddy * coef
+            gx = sx * pair_factor
+            gy = sy * pair_factor
+            # task term (TreeSegments._gradient_entries)
+            if thorn != 0.0:
+                best = np.inf
+                bx = 0.0
+                by = 0.0
+                for s in range(seg_start[i], seg_start[i + 1]):
+                    qx = xi - ax[s]
+                    qy = yi - ay[s]
+                    t = 0.0
+                    if e2[s] > 0:
+                        t = (qx * ex[s] + qy * ey[s]) / e2[s]
+                    t = min(max(t, 0.0), 1.0)
+                    fx = ax[s] + t * ex[s]
+                    fy = ay[s] + t * ey[s]
+                    offx = xi - fx
+                    offy = yi - fy
+                    dd = offx * offx + offy * offy
+                    if dd < best:
+                        best, bx, by = dd, offx, offy
+                dist = math.sqrt(best)
+                if dist > 1e-12:
+                    gx = gx + thorn * bx / dist
+                    gy = gy + thorn * by / dist
+                else:
+                    gx = gx + 0.0
+                    gy = gy + 0.0
+            stx = neg_eta * gx
+            sty = neg_eta * gy
+            if max(abs(stx), abs(sty)) < tolerance:
+                stop[i] = k
+                break
+            nx = dx_i + stx
+            ny = dy_i + sty
+            if nx * nx + ny * ny > v2:
+                # planner.phireman._scale_to_limit
+                a = stx * stx + sty * sty
+                b = dx_i * stx + dy_i * sty
+                c = (dx_i * dx_i + dy_i * dy_i) - v2
+                disc = math.sqrt(max(b * b - a * c, 0.0))
+                alpha = (-b + disc) / a if a > 0 else 1.0
+                alpha = min(max(alpha, 0.0), 1.0)
+                dx_i = dx_i + alpha * stx
+                dy_i = dy_i + alpha * sty
+                stop[i] = k
+                at_limit[i] = True
+                break
+            dx_i = nx
+            dy_i = ny
+        delta[i, 0] = dx_i
+        delta[i, 1] = dy_i
+    return delta, stop, at_limit

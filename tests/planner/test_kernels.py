@@ -1,0 +1,170 @@
+"""The compiled kernels (planner._kernels) against their NumPy references.
+
+Where the kernel repeats the NumPy arithmetic in the same order, the results must be identical bit
+for bit (that is what keeps per-seed results unchanged); the all-pairs central kernel sums in
+another order and must agree to rounding.
+"""
+import numpy as np
+import pytest
+
+from planner import _kernels
+from planner.phireman import (PhiremanParams, PhiremanPlanner, TreeSegments, _pair_gradient_xy,
+                              _pair_gradient_xy_numpy, pair_gradient, pair_gradient_reference, task_gradient)
+from planner.methods import TickInput
+from planner.problem import problem_preset
+from planner.steiner import TaskTree, build_task_tree
+
+pytestmark = pytest.mark.skipif(not _kernels.NUMBA, reason="numba not installed")
+
+KW = dict(attraction=0.05, floor=0.5, repulsion=0.3, reach=2.0, pair_factor=2.0)
+
+
+@pytest.fixture
+def numpy_only():
+    """Run the NumPy reference paths inside the block."""
+    def switch(on: bool):
+        _kernels.ENABLED = not on
+    yield switch
+    _kernels.ENABLED = True
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 150, 1600])
+def test_central_pair_gradient_matches_dense_and_loops(rng, n):
+    x = rng.uniform(-8, 8, (n, 2))
+    mask = ~np.eye(n, dtype=bool)
+    dense = pair_gradient(x, x, mask, **KW)
+    scale = max(np.abs(dense).max(initial=0.0), 1e-300)
+    assert np.allclose(_kernels.central_pair_gradient(x, **KW), dense, rtol=1e-10, atol=1e-10 * scale)
+    if n <= 150:
+        if n > 2:
+            # coincident drones contribute nothing to each other (the dense kernel's d^2 expansion
+            # cancels badly there, so only the loops are the reference for these)
+            x[1] = x[0]
+            x[2] = x[0] + [0.3, 0.0]     # inside the attraction floor and the repulsion reach
+        ref = pair_gradient_reference(x, x, mask, **KW)
+        assert np.allclose(_kernels.central_pair_gradient(x, **KW), ref, rtol=1e-12,
+                           atol=1e-12 * max(np.abs(ref).max(initial=0.0), 1e-300))
+
+
+@pytest.mark.parametrize("n_tasks,nodes_only", [(0, False), (1, False), (9, False), (60, False), (9, True)])
+def test_segment_gradient_bit_identical_to_task_gradient(rng, n_tasks, nodes_only):
+    tree = build_task_tree(np.zeros(2), rng.uniform(-8, 8, (n_tasks, 2)))
+    x = rng.uniform(-9, 9, (400, 2))
+    x[:3] = tree.nodes_m[:3] if tree.n_nodes >= 3 else x[:3]      # on the tree: gradient 0
+    if nodes_only or tree.n_nodes == 1:
+        a = b = tree.nodes_m
+    else:
+        a, b = tree.segments()
+    assert np.array_equal(_kernels.segment_gradient(x, a, b, 0.05), task_gradient(x, tree, 0.05, nodes_only))
+
+
+def test_segment_gradient_zero_length_edge(rng):
+    nodes = np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 1.0], [-2.0, 3.0]])
+    tree = TaskTree(nodes, np.array([-1, 0, 1, 0]), 3)
+    x = rng.uniform(-4, 4, (100, 2))
+    a, b = tree.segments()
+    assert np.array_equal(_kernels.segment_gradient(x, a, b, 0.05), task_gradient(x, tree, 0.05))
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+@pytest.mark.parametrize("n,k,density", [(1, 1, 1.0), (40, 60, 0.3), (300, 300, 0.2), (20, 20, 0.0)])
+def test_entries_pair_gradient_bit_identical(rng, n, k, density, weighted):
+    x = rng.uniform(-6, 6, (n, 2))
+    beliefs = rng.uniform(-6, 6, (n, k, 2))
+    if k >= n:
+        beliefs[np.arange(n), np.arange(n)] = x                  # d = 0 entries
+    beliefs[:, :2] = x[:, None, :] + [0.2, -0.1]                  # inside floor and reach
+    mask = rng.random((n, k)) < density
+    r, c = np.nonzero(mask)
+    w = rng.uniform(0.5, 2.0, n) if weighted else None
+    args = (x, r, beliefs[r, c, 0].copy(), beliefs[r, c, 1].copy(), KW["attraction"], KW["floor"],
+            KW["repulsion"], KW["reach"], KW["pair_factor"])
+    got = _pair_gradient_xy(*args, weight=w)
+    want = _pair_gradient_xy_numpy(*args, weight=w)
+    assert np.array_equal(got, want)
+    if not weighted and n * k <= 20_000:
+        ref = pair_gradient_reference(x, beliefs, mask, **KW)
+        assert np.allclose(got, ref, rtol=1e-12, atol=1e-12 * max(np.abs(ref).max(initial=0.0), 1e-300))
+
+
+def test_tree_segments_entries_kernel_bit_identical(rng, numpy_only):
+    trees = [build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(1, 30)), 2))) for _ in range(4)]
+    n = 400
+    x0 = rng.uniform(-9, 9, (n, 2))
+    version = rng.integers(0, 4, n)
+    for nodes_only in (False, True):
+        seg = TreeSegments(trees, version, nodes_only, x0, 0.15)
+        for _ in range(3):
+            x = x0 + rng.uniform(-0.1, 0.1, (n, 2))
+            rows = np.flatnonzero(rng.random(n) < 0.4)
+            for r in (np.arange(n), rows):
+                got = seg.gradient(x[r], r, 0.05)
+                numpy_only(True)
+                want = seg.gradient(x[r], r, 0.05)
+                numpy_only(False)
+                assert np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("info", ["async", "central"])
+def test_planner_with_and_without_kernels(rng, info, numpy_only):
+    """Whole ticks: async bit for bit; central to rounding (its pair sum is reordered)."""
+    prob = problem_preset("M", 0.01)
+    outs = []
+    for numpy_path in (False, True):
+        numpy_only(numpy_path)
+        planner = PhiremanPlanner(prob, PhiremanParams(info=info), np.random.default_rng(0))
+        r = np.random.default_rng(5)
+        pos = r.uniform(-prob.field_half_width_m / 3, prob.field_half_width_m / 3, (prob.n_drones, 2))
+        tasks = r.uniform(-prob.field_half_width_m, prob.field_half_width_m, (prob.n_tasks, 2))
+        alive = np.ones(prob.n_drones, bool)
+        disp = []
+        for t in range(12):
+            out = planner.plan(TickInput(t, pos, alive, alive, tasks))
+            disp.append(out.disp_m)
+            pos = pos + out.disp_m
+        outs.append(np.array(disp))
+    if info == "async":
+        assert np.array_equal(outs[0], outs[1])
+    else:
+        assert np.allclose(outs[0], outs[1], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("thorn,max_steps", [(0.05, 10), (0.0, 10), (0.05, 2), (0.5, 10)])
+def test_compiled_async_descent_bit_identical(rng, thorn, max_steps):
+    """descend_separable against descend(separable=True, per_drone) on the same entries, including
+    the iterations / converged / hit_speed_limit diagnostics."""
+    from planner.phireman import (DescentResult, _descend_separable_compiled, _EntriesByDrone, descend)
+    n = 300
+    trees = [build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(1, 20)), 2))) for _ in range(3)]
+    x0 = rng.uniform(-9, 9, (n, 2))
+    version = rng.integers(0, 3, n)
+    p = PhiremanParams(thorn=thorn, max_descent_steps=max_steps, speed_rule="per_drone")
+    vmax, reach = 0.3, 2.0
+    mask = rng.random((n, n)) < 0.08
+    mask[np.arange(n), np.arange(n)] = False
+    r, c = np.nonzero(mask)
+    y = x0[c] + rng.normal(0, 0.05, (len(r), 2))
+    segs = TreeSegments(trees, version, False, x0, vmax)
+    ent = _EntriesByDrone(r, y, n)
+
+    def grad(x, rows):
+        er, ox, oy = ent.of(rows)
+        return (_pair_gradient_xy_numpy(x[rows], er, ox, oy, p.attraction, p.attraction_floor, p.repulsion,
+                                        reach, p.pair_factor)
+                + segs._gradient_entries_numpy(x[rows], *_sub_entries(segs, rows), p.thorn)
+                if p.thorn else _pair_gradient_xy_numpy(x[rows], er, ox, oy, p.attraction, p.attraction_floor,
+                                                        p.repulsion, reach, p.pair_factor) + np.zeros((len(rows), 2)))
+
+    want = descend(x0, grad, vmax, p, separable=True)
+    got = _descend_separable_compiled(x0, ent, segs, p, reach, vmax)
+    assert np.array_equal(got.disp_u, want.disp_u)
+    assert (got.iterations, got.converged, got.hit_speed_limit) == (want.iterations, want.converged,
+                                                                    want.hit_speed_limit)
+
+
+def _sub_entries(segs, rows):
+    er, a, ab, ab2 = segs.entries
+    chosen = np.zeros(segs.n, dtype=bool)
+    chosen[rows] = True
+    take = chosen[er]
+    return (np.cumsum(chosen) - 1)[er[take]], a[take], ab[take], ab2[take]
