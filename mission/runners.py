@@ -1001,6 +1001,16 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     return FlyResult(run_dir, summary, op, emu.swarm)
 
 
+def _expected_real(mission: Mission, opts: FlyOptions) -> int | None:
+    """How many vehicles to wait for before the audit: ``--vehicles N``, else the mission's
+    ``vehicles.real.sysids`` (every listed vehicle), else None (wait until no new vehicle for
+    a few seconds; a vehicle heard later is still taken in)."""
+    if opts.expected_vehicles is not None:
+        return opts.expected_vehicles
+    real = mission.vehicles.real
+    return len(real.sysids) if real is not None and real.sysids else None
+
+
 async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     seed, speedup = _resolve(mission, opts, real=True)
     if opts.duration_s:
@@ -1020,7 +1030,8 @@ async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     wall0 = time.monotonic()
     try:
         op = await _run_station(mission, scenario, connections, opts, records, clock=clock.now,
-                                speedup=speedup, expected=opts.expected_vehicles, seed=seed)
+                                speedup=speedup, expected=_expected_real(mission, opts),
+                                seed=seed)
         summary = _summary(mission, op, seed, "real", time.monotonic() - wall0, speedup, None,
                            run_dir, clock.now())
         write_summary(run_dir / "summary.json", summary)

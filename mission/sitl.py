@@ -193,7 +193,10 @@ class SitlSwarm:
                 files.append(str(extra))
             cmd = [str(spec.binary), "--model", "quad", "--speedup", f"{spec.speedup:g}",
                    "-I", str(i), "--sysid", str(i + 1),
-                   "--home", f"{lat:.7f},{lon:.7f},{alt:.2f},0", "-w"]
+                   "--home", f"{lat:.7f},{lon:.7f},{alt:.2f},0", "-w",
+                   # Without it SERIAL0 is "tcp:0:wait": the firmware would not boot (GPS,
+                   # EKF) until a ground station connects (libraries/AP_HAL_SITL/SITL_cmdline.cpp).
+                   "--serial0", "tcp:0"]
             if files:
                 cmd += ["--defaults", ",".join(files)]
         else:

@@ -81,6 +81,15 @@ def run(args) -> int:
         swarm = SitlSwarm(spec).start()
     except SitlError as exc:
         raise UserError(str(exc)) from None
+    import signal
+
+    def _stop(signum, frame):
+        raise KeyboardInterrupt
+
+    # Ctrl-C, kill, a closed terminal: stop exactly what was started (SIGINT may arrive
+    # ignored from a background job's shell; take it back).
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _stop)
     try:
         print(f"started {args.vehicles} {args.firmware} SITL vehicle(s) around "
               f"{origin[0]:.6f}, {origin[1]:.6f} ({origin[2]:g} m); working directories under "
