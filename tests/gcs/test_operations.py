@@ -1192,3 +1192,77 @@ def test_a_second_interrupt_after_done_stays_done():
     op.interrupt("land", 2.5)
     assert op.phase == "done" and op.interrupted == "land"
     assert len(station.of("land")) == 1
+
+
+# --------------------------------------------------------------------- the transition table
+
+
+def test_every_phase_has_a_table_row_and_a_poll_handler():
+    from gcs.operations import TRANSITIONS, Phase
+
+    assert tuple(p.value for p in Phase) == PHASES
+    assert set(TRANSITIONS) == set(Phase) == set(Operator._POLL)
+    # Every phase is reachable from discover, and every phase can reach done.
+    seen, todo = {Phase.DISCOVER}, [Phase.DISCOVER]
+    while todo:
+        for nxt in TRANSITIONS[todo.pop()].values():
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    assert seen == set(Phase)
+    for phase in Phase:
+        reach, todo = {phase}, [phase]
+        while todo:
+            for nxt in TRANSITIONS[todo.pop()].values():
+                if nxt not in reach:
+                    reach.add(nxt)
+                    todo.append(nxt)
+        assert Phase.DONE in reach, phase
+
+
+def test_an_illegal_transition_raises():
+    from gcs.operations import IllegalTransition, Trigger
+
+    op, station, feed, vids = make(1)
+    with pytest.raises(IllegalTransition):
+        op._enter(Trigger.LAUNCHED, 0.0)  # discover -> run: no such move
+    assert op.phase == "discover"
+    feed.poll(0.0)
+    assert op.phase == "launch"
+    for trigger in (Trigger.FOUND, Trigger.CLEARED, Trigger.UNSAFE, Trigger.LANDED):
+        with pytest.raises(IllegalTransition):
+            op._enter(trigger, 0.5)
+    assert op.phase == "launch"
+    op.interrupt("rtl", 1.0)
+    assert op.phase == "done"
+    for trigger in Trigger:
+        if trigger is not Trigger.INTERRUPT:
+            with pytest.raises(IllegalTransition):
+                op._enter(trigger, 2.0)
+
+
+def test_the_phase_is_a_string_enum_a_driver_may_set():
+    import json
+
+    from gcs.operations import Phase
+
+    op, station, feed, vids = to_run(1)
+    assert op.phase is Phase.RUN and op.phase == "run" and hash(op.phase) == hash("run")
+    assert json.dumps({"phase": op.phase}) == '{"phase": "run"}'
+    assert op.phase in ("launch", "run") and f"phase {op.phase}" == "phase run"
+    op.phase = "done"  # what a runner's stop hook does
+    assert op.phase is Phase.DONE and op.finished
+    with pytest.raises(ValueError):
+        op.phase = "hovering"
+
+
+def test_a_subclass_of_a_handled_event_gets_its_handler():
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class LoudStatusText(StatusText):
+        pass
+
+    op, station, feed, (v,) = make(1)
+    feed.emit(LoudStatusText(0, 1, 1.0, 2, "GCS Failsafe"))
+    assert op.failsafe_texts == [(1.0, v, "GCS Failsafe")]

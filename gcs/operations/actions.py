@@ -1,0 +1,120 @@
+"""Operator actions: one vehicle (or all) taken out of the plan and held, sent home or down,
+released or brought back (``rejoin``), and the Ctrl-C interrupt with its report.
+
+A mixin of :class:`gcs.operations.Operator` (split out of one 950-line module along this seam:
+what a person asks of the flight, as opposed to what the plan does). It holds no state of its
+own: the attributes are the operator's (``released``, ``actions``, ``on_action``,
+``interrupted``, set up in ``Operator.__init__``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from gcs.autopilot import adapter_for
+from gcs.fleet import FleetSnapshot
+from gcs.link import LinkUsageError, UnknownVehicle
+from gcs.operations.config import OPERATOR_ACTIONS, OperatorAction, _Row
+from gcs.operations.phases import Phase, Trigger
+
+__all__ = ["OperatorActions"]
+
+log = logging.getLogger(__name__)
+
+#: Phases in which nothing was launched: an "end" interrupt has nobody to tell.
+_NOTHING_LAUNCHED = frozenset({Phase.DISCOVER, Phase.AUDIT, Phase.REFUSED})
+
+
+class OperatorActions:
+    """What an operator may ask of :class:`gcs.operations.Operator` (see the module docstring)."""
+
+    def operator_command(self, action: str, vid: tuple[int, int] | None, now_s: float,
+                         source: str = "") -> list[OperatorAction]:
+        """An operator's request for one vehicle ``(link_id, sysid)`` or, with ``vid=None``, for
+        every vehicle heard. Goes through the station's normal command path (acks, retries,
+        events, .tlog); returns what was done, one :class:`OperatorAction` per vehicle."""
+        if action not in OPERATOR_ACTIONS:
+            raise ValueError(f"unknown action {action!r}; valid: {', '.join(OPERATOR_ACTIONS)}")
+        snap = self.fleet.snapshot(now_s)
+        if vid is None:
+            rows = [i for i in range(snap.n_vehicles) if not snap.lost[i]]
+        else:
+            if tuple(vid) not in self._known:
+                raise UnknownVehicle(f"no vehicle link {vid[0]} sysid {vid[1]}")
+            rows = [self.fleet.index_of(*vid)]
+        out = []
+        for i in rows:
+            v = self._vid(snap, i)
+            result = self._operator_act(action, snap, i, v, now_s)
+            rec = OperatorAction(now_s, action, v[0], v[1], source, result)
+            self.actions.append(rec)
+            log.warning("operator %s: %s link %d sysid %d -> %s", source or "?", action, *v, result)
+            if self.on_action is not None:
+                self.on_action(rec)
+            out.append(rec)
+        return out
+
+    def _operator_act(self, action: str, snap: FleetSnapshot, i: int, vid: tuple[int, int],
+                      now_s: float) -> str:
+        if action == "rejoin":
+            if self.released.pop(vid, None) is None:
+                return "was not released"
+            row = self._rows.setdefault(i, _Row())
+            row.next_action_s = -math.inf  # reclaimed at the next poll like a recovered vehicle
+            return "rejoined"
+        self.released[vid] = action
+        try:
+            if action == "hold":
+                if not snap.has_position[i]:
+                    return "released (no position yet: holds its last target)"
+                self._hold(snap, [i], now_s)
+                return "sent"
+            if action in ("rtl", "land"):
+                self.station.clear_position_target(vid, now_s)
+                (self.station.rtl if action == "rtl" else self.station.land)(vid, now_s)
+                return "sent"
+        except (LinkUsageError, UnknownVehicle, ValueError) as exc:
+            return f"not sent: {exc}"
+        return "released"
+
+    def interrupt(self, action: str, now_s: float) -> None:
+        """The operator stopped the flight (Ctrl-C): ``end`` -> the mission's end action (RTL or
+        LAND), else ``hold`` / ``rtl`` / ``land`` for every vehicle heard; planning stops."""
+        self.interrupted = action
+        if action == "end":
+            if self.phase in _NOTHING_LAUNCHED:
+                self._enter(Trigger.INTERRUPT, now_s)  # nothing to tell anyone
+            else:
+                self.begin_end(now_s)
+            return
+        self.operator_command(action, None, now_s, source="interrupt")
+        self._enter(Trigger.INTERRUPT, now_s)
+
+    def interrupt_report(self, now_s: float) -> list[tuple[tuple[int, int], str, bool]]:
+        """After :meth:`interrupt`: per vehicle ``(vid, what it was told and what it does now,
+        obeying)`` for people."""
+        snap = self.fleet.snapshot(now_s)
+        out = []
+        for i in range(snap.n_vehicles):
+            vid = self._vid(snap, i)
+            adapter = adapter_for(int(snap.autopilot[i]))
+            mode, armed = snap.mode[i], bool(snap.armed[i])
+            action = self.interrupted or "end"
+            if action == "end":
+                action = self.config.end  # the mission's end action: "rtl" or "land"
+            if snap.lost[i]:
+                out.append((vid, f"not heard (lost or out of range; last mode {mode}): its own "
+                                 "link-loss failsafe decides", False))
+                continue
+            if not armed:
+                out.append((vid, f"on the ground ({mode})", True))
+                continue
+            want = {"rtl": (adapter.rtl_mode, adapter.land_mode), "land": (adapter.land_mode,),
+                    "hold": (adapter.guided_mode,)}.get(action, ())
+            ok = mode in want
+            told = {"rtl": "RTL", "land": "LAND", "hold": "HOLD where it is"}.get(action, action)
+            out.append((vid, f"told {told}; now {mode}" if ok else
+                        f"told {told}; no confirmation yet (mode {mode}): if the station is "
+                        "gone, its link-loss failsafe acts", ok))
+        return out

@@ -1,0 +1,198 @@
+"""The audit step: lost-link parameter reads in rounds, ``apply_failsafes`` fixes and the
+mission's speed limits, every write confirmed by its PARAM_VALUE echo.
+
+A mixin of :class:`gcs.operations.Operator` (split out of one 950-line module along this seam:
+everything that reads or writes a vehicle's parameters, and the PARAM_* events that answer it).
+It holds no state of its own: the attributes are the operator's (``_params``,
+``_params_pending``, ``_param_types``, ``_sets_pending``, ``param_changes``, ``audit_report``...,
+set up in ``Operator.__init__``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from gcs import audit as audit_mod
+from gcs import limits as limits_mod
+from gcs.events import ParamReceived, ParamSetConfirmed, ParamSetFailed, ParamTimedOut
+from gcs.fleet import FleetSnapshot
+from gcs.link import UnknownVehicle
+from gcs.operations.phases import Phase, Trigger
+
+__all__ = ["AuditStep"]
+
+log = logging.getLogger(__name__)
+
+
+class AuditStep:
+    """Parameter reads and writes of :class:`gcs.operations.Operator` (see the module docstring)."""
+
+    # ------------------------------------------------------------------ events
+
+    def _on_param_received(self, event: ParamReceived, key: tuple[int, int]) -> None:
+        self._params.setdefault(key, {})[event.name] = event.value
+        self._param_types.setdefault(key, {})[event.name] = event.param_type
+        self._params_pending.discard((*key, event.name))
+        # Renamed parameters: the firmware has one spelling; stop asking for the other.
+        for alt in audit_mod.ALTERNATIVE_NAMES.get(event.name, ()):
+            if (*key, alt) in self._params_pending:
+                self._params_pending.discard((*key, alt))
+                try:
+                    self.station.link(key[0]).cancel_param(key[1], alt, event.t_s)
+                except (KeyError, IndexError):
+                    pass
+        for extra in audit_mod.FOLLOW_UP_PARAMS.get(event.name, ()):
+            if self.phase == Phase.AUDIT and extra not in self._params.get(key, {}):
+                self._params_pending.add((*key, extra))
+                self.station.request_param(key, extra, event.t_s)
+
+    def _on_param_timed_out(self, event: ParamTimedOut, key: tuple[int, int]) -> None:
+        self._params_pending.discard((*key, event.name))
+
+    def _on_param_set(self, event: ParamSetConfirmed | ParamSetFailed,
+                      key: tuple[int, int]) -> None:
+        """A write's outcome (confirmed by its echo, or failed): recorded in ``param_changes``."""
+        if (*key, event.name) not in self._sets_pending:
+            return
+        self._sets_pending.discard((*key, event.name))
+        ok = isinstance(event, ParamSetConfirmed)
+        change = {"link_id": key[0], "sysid": key[1], "name": event.name,
+                  "previous": event.previous if ok else None,
+                  "value": event.value, "ok": ok,
+                  "reason": "" if ok else event.reason}
+        if not ok:
+            change["requested"] = event.requested
+        for c in reversed(self.param_changes):  # the latest write of this name
+            if (c["link_id"], c["sysid"], c["name"]) == (*key, event.name):
+                change["previous"] = c["previous"]
+                c.update(change)
+                break
+        (log.info if ok else log.warning)(
+            "link %d sysid %d: %s %s", *key, event.name,
+            f"set to {event.value:g}" if ok else f"NOT set: {event.reason}")
+
+    # ------------------------------------------------------------------ the audit phase
+
+    def _start_audit(self, snap: FleetSnapshot, now_s: float) -> None:
+        """Discovery is over: request the audit's (and the limits') parameters of every vehicle,
+        or launch at once when the audit is off."""
+        log.info("discovered %d vehicle(s)", snap.n_vehicles)
+        if not self.config.audit:
+            self._start_launch(snap, now_s, Trigger.FOUND_UNAUDITED)
+            return
+        self._enter(Trigger.FOUND, now_s)
+        for i in range(snap.n_vehicles):
+            vid = self._vid(snap, i)
+            names = list(audit_mod.params_still_needed(int(snap.autopilot[i]), {}))
+            if self._limits_wanted():
+                names += [n for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
+                          if n not in names]
+            for name in names:
+                self._params_pending.add((*vid, name))
+                self.station.request_param(vid, name, now_s)
+
+    def _poll_audit(self, snap: FleetSnapshot, now_s: float) -> None:
+        """Wait for the reads (in rounds), fix (``apply_failsafes``), audit, write the limits;
+        then launch, or refuse."""
+        in_time = now_s - self._phase_since_s < self.config.audit_timeout_s
+        if self._params_pending and in_time:
+            return
+        if in_time and self._audit_round < self.config.audit_rounds:
+            # Another round for whatever timed out (a loaded link, a vehicle still booting);
+            # names a firmware does not have (the other GCS-sysid spelling) just time out again.
+            self._audit_round += 1
+            for i in range(snap.n_vehicles):
+                vid = self._vid(snap, i)
+                got = self._params.get(vid, {})
+                for name in audit_mod.params_still_needed(int(snap.autopilot[i]), got):
+                    if name not in audit_mod.OPTIONAL_PARAMS and not snap.lost[i]:
+                        self._params_pending.add((*vid, name))
+                        self.station.request_param(vid, name, now_s)
+            if self._params_pending:
+                return
+        vehicles = {self._vid(snap, i): (int(snap.autopilot[i]),
+                                         self._params.get(self._vid(snap, i), {}))
+                    for i in range(snap.n_vehicles)}
+        if self.config.apply_failsafes:
+            if self._fixes_sent_s is None:
+                if self._send_fixes(vehicles, now_s):
+                    return
+            elif self._sets_pending \
+                    and now_s - self._fixes_sent_s < self.config.audit_timeout_s:
+                return  # the link ends every set with Confirmed or Failed; this is a backstop
+        report = audit_mod.audit_fleet(vehicles, self.gcs_sysid,
+                                       override=self.config.override_audit)
+        self.audit_report = report
+        if not report.cleared_to_fly:
+            log.warning("pre-flight audit refused the flight:\n%s", report.summary())
+            self.refusal = "the pre-flight audit found unsafe lost-link settings"
+            self._enter(Trigger.UNSAFE, now_s)
+            return
+        if report.overridden:
+            log.warning("pre-flight audit OVERRIDDEN:\n%s", report.summary())
+        if self._limits_wanted():
+            if self._limits_sent_s is None:
+                if self._send_limits(vehicles, now_s):
+                    return
+            elif self._sets_pending \
+                    and now_s - self._limits_sent_s < self.config.audit_timeout_s:
+                return
+        self._start_launch(snap, now_s, Trigger.CLEARED)
+
+    def _limits_wanted(self) -> bool:
+        return self.config.set_limits and self.config.max_speed_m_s is not None
+
+    def _send_limits(self, vehicles, now_s: float) -> bool:
+        """PARAM_SET the mission's speed / climb limits where a vehicle differs; True if any
+        write was sent (each is confirmed by its PARAM_VALUE echo, ``param_changes``)."""
+        cfg = self.config
+        self._limits_sent_s = now_s
+        climb = cfg.climb_rate_m_s if cfg.climb_rate_m_s is not None else math.inf
+        for vid, (autopilot, params) in sorted(vehicles.items()):
+            wanted = limits_mod.LIMIT_PARAMS.get(autopilot, ())
+            missing = [n for n in wanted if n not in params]
+            if missing:
+                self.limit_warnings.append(
+                    f"link {vid[0]} sysid {vid[1]}: could not read {', '.join(missing)}: the "
+                    "mission's speed limits are not enforced by this vehicle")
+                log.warning("%s", self.limit_warnings[-1])
+            if not math.isfinite(climb):
+                params = {k: v for k, v in params.items() if k != "WPNAV_SPEED_UP"
+                          and k != "MPC_Z_VEL_MAX_UP"}
+            for name, value in limits_mod.limit_writes(autopilot, params, cfg.max_speed_m_s,
+                                                       climb if math.isfinite(climb) else 1.0):
+                self._set_param(vid, name, value, params.get(name), "limit", now_s)
+        return bool(self._sets_pending)
+
+    def _set_param(self, vid: tuple[int, int], name: str, value: float, previous: float | None,
+                   purpose: str, now_s: float) -> bool:
+        ptype = self._param_types.get(vid, {}).get(name)
+        if ptype is None:
+            return False
+        try:
+            self.station.set_param(vid, name, value, ptype, now_s, previous=previous)
+        except (UnknownVehicle, ValueError) as exc:
+            log.warning("link %d sysid %d: cannot set %s: %s", *vid, name, exc)
+            return False
+        self._sets_pending.add((*vid, name))
+        self.param_changes.append({"link_id": vid[0], "sysid": vid[1], "name": name,
+                                   "previous": previous, "value": value, "ok": None,
+                                   "reason": "pending", "purpose": purpose})
+        log.info("link %d sysid %d: setting %s %g -> %g (%s)", *vid, name,
+                 math.nan if previous is None else previous, value, purpose)
+        return True
+
+    def _send_fixes(self, vehicles, now_s: float) -> bool:
+        """PARAM_SET every fixable blocking finding; True if any write was sent."""
+        before = audit_mod.audit_fleet(vehicles, self.gcs_sysid)
+        self._fixes_sent_s = now_s
+        for va in before.unsafe:
+            vid = (va.link_id, va.sysid)
+            autopilot, params = vehicles[vid]
+            for name, value in audit_mod.failsafe_fixes(autopilot, params, self.gcs_sysid):
+                self._set_param(vid, name, value, params.get(name), "failsafe", now_s)
+        if self._sets_pending:
+            self.initial_audit_report = before
+            return True
+        return False

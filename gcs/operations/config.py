@@ -1,0 +1,156 @@
+"""The operator's configuration and records: what it is told (:class:`OperationsConfig`) and what
+it reports (:class:`TickRecord`, :class:`OperatorAction`), plus its per-vehicle bookkeeping.
+
+Plain data, split from the machine (:mod:`gcs.operations.operator`) so each step module imports
+them without importing the operator.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["OperationsConfig", "TickRecord", "OPERATOR_ACTIONS", "OperatorAction"]
+
+
+@dataclass(frozen=True)
+class OperationsConfig:
+    """Sequencing and timing. Times are station-core seconds (the vehicles' clock under
+    speed-up); units in the names."""
+
+    expected_vehicles: int | None = None
+    """Start as soon as this many vehicles are discovered (None: wait ``discover_settle_s``)."""
+    discover_timeout_s: float = 30.0
+    discover_settle_s: float = 3.0
+    audit: bool = True
+    override_audit: bool = False
+    audit_timeout_s: float = 60.0
+    audit_rounds: int = 3
+    """Parameter reads that timed out are requested again, up to this many rounds in all."""
+    apply_failsafes: bool = False
+    """Fix fixable blocking audit findings by PARAM_SET (:func:`gcs.audit.failsafe_fixes`:
+    ArduPilot FS_GCS_ENABLE, the GCS sysid; PX4 NAV_DLL_ACT, NAV_RCL_ACT, COM_OBL_RC_ACT,
+    COM_OBL_ACT, COM_DLL_EXCEPT) before re-auditing. No failsafe parameter is ever written
+    without it (the mission's speed limits are, see ``set_limits``)."""
+    max_speed_m_s: float | None = None
+    """The mission's horizontal speed limit; with ``set_limits`` written into each vehicle's own
+    parameters at launch (:mod:`gcs.limits`). None: the firmware's limits are left alone."""
+    climb_rate_m_s: float | None = None
+    set_limits: bool = True
+    restore_params: bool = False
+    """After landing, write back the previous value of every parameter the station changed."""
+    wave_size: int = 10
+    wave_timeout_s: float = 40.0
+    """A wave (and the final climb) waits at most this long for its vehicles."""
+    wave_airborne_frac: float = 0.8
+    """The next wave starts when this fraction of the wave's live vehicles is airborne."""
+    wave_climbed_frac: float = 0.8
+    """The run starts when this fraction of the fleet's live vehicles is above
+    ``climbed_alt_frac`` of its target altitude."""
+    climbed_alt_frac: float = 0.7
+    takeoff_grace_s: float = 6.0
+    """After a take-off command, an armed vehicle still on the ground is given this long to leave
+    it before the take-off is sent again (below ArduCopter's DISARM_DELAY, 10 s)."""
+    max_backoff_s: float = 24.0
+    """Back-off cap after repeated command failures on one vehicle."""
+    prearm_retry_s: float = 5.0
+    """A vehicle that refused to arm (not ready: ArduPilot MAV_RESULT_FAILED with a "PreArm:"
+    STATUSTEXT while the EKF/GPS converge, ~40 s in SITL; PX4 TEMPORARILY_REJECTED) is asked
+    again this often, without exponential back-off; the launch waits for it."""
+    launch_timeout_s: float = 300.0
+    """The launch gives up waiting for vehicles that keep refusing to arm after this long
+    (from the start of the launch) and starts the run with those that flew."""
+    control_period_s: float = 1.0
+    duration_s: float = 200.0
+    """Length of the run phase (the mission), seconds."""
+    end: str = "rtl"
+    """'rtl' or 'land'."""
+    end_timeout_s: float = 180.0
+    action_retry_s: float = 3.0
+    """Minimum time between two mode/arm/takeoff attempts on one vehicle."""
+    airborne_alt_m: float = 2.0
+    """Above home by more than this = airborne."""
+    radio_range_m: float = math.inf
+    """For "tasks covered as the station sees them" (a task within range of a networked vehicle)."""
+    poll_period_s: float = 0.25
+    task_wait_timeout_s: float = 120.0
+    """Live tasks (crew trackers): after discovery, wait at most this long for every tracker's
+    first position before refusing to launch (a task the station cannot see cannot be served)."""
+
+    def __post_init__(self) -> None:
+        if self.end not in ("rtl", "land"):
+            raise ValueError(f"end must be 'rtl' or 'land', got {self.end!r}")
+        if self.wave_size < 1:
+            raise ValueError("wave_size must be >= 1")
+        for name in ("control_period_s", "duration_s", "poll_period_s", "action_retry_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0")
+
+
+@dataclass(frozen=True)
+class TickRecord:
+    """Per-tick metrics as the station saw them."""
+
+    t_s: float
+    t_mission_s: float
+    t_step: int
+    fleet: int
+    networked: int
+    planned: int
+    lost: int
+    returning: int
+    guided: int
+    tasks_covered: int
+    n_tasks: int
+    tu1_so_far: float
+    tu2_so_far: float
+    plan_iterations: int | None = None
+
+    def row(self) -> dict:
+        return dict(self.__dict__)
+
+
+#: What an operator may ask of one vehicle (or of all): ``hold`` (leave the plan, hover where it
+#: is at its layer, still in GUIDED/OFFBOARD so the link failsafes still apply), ``rtl``, ``land``
+#: (leave the plan, the firmware's RTL / LAND mode), ``release`` (leave the plan, keep the last
+#: target) and ``rejoin`` (back into the plan: reclaimed like a vehicle back from a failsafe).
+OPERATOR_ACTIONS = ("hold", "rtl", "land", "release", "rejoin")
+
+
+@dataclass(frozen=True)
+class OperatorAction:
+    """One operator request, as recorded in ``events.jsonl`` (who asked, what, for whom)."""
+
+    t_s: float
+    action: str
+    link_id: int
+    sysid: int
+    source: str
+    """Where it came from (e.g. ``web 127.0.0.1``, ``cli``)."""
+    result: str
+    """``sent``, ``released``, ``rejoined`` or why nothing was sent."""
+
+
+@dataclass
+class _Row:
+    next_action_s: float = -math.inf
+    launched: bool = False
+    flew: bool = False
+    """Seen airborne at least once (a later take-off is a relaunch)."""
+    takeoff_s: float = -math.inf
+    """When the last take-off was commanded."""
+    failures: int = 0
+    """Consecutive failed attempts (exponential back-off); an attempt's commands (GUIDED, arm,
+    take-off) failing together count once."""
+    attempt: int = 0
+    failed_attempt: int = -1
+    refused_attempt: int = -1
+    not_ready_s: float = -math.inf
+    """When the vehicle last refused to arm (not ready yet)."""
+    reclaims: int = 0
+    reclaiming: bool = False
+    """GUIDED/OFFBOARD was asked of it while airborne in another mode; counted as a reclaim once
+    it is seen back in the guided mode (the same on a first run and after a station restart)."""
+    armed_seen_s: float = -math.inf
+    """When it was first seen armed after its last take-off command."""
+
