@@ -9,7 +9,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from gcs.wire import mavlink
+from mavedge import mavlink
+from mavedge.modes import (ARDUCOPTER_MODES, ARDUCOPTER_NAMES, PX4_MODES, PX4_NAMES,
+                           px4_custom_mode, px4_main_sub)
 
 __all__ = [
     "CommandSpec", "Adapter", "ArduCopterAdapter", "PX4Adapter", "GenericAdapter",
@@ -18,8 +20,7 @@ __all__ = [
     "ARDUPILOT", "PX4",
 ]
 
-ARDUPILOT = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA  # 3
-PX4 = mavlink.MAV_AUTOPILOT_PX4                  # 12
+from mavedge.modes import ARDUPILOT, PX4  # noqa: E402  (3, 12)
 
 _CMD_DO_SET_MODE = mavlink.MAV_CMD_DO_SET_MODE                  # 176
 _CMD_ARM_DISARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM          # 400
@@ -50,35 +51,10 @@ def _cmd(command: int, *params: float, after_prestream: bool = False) -> Command
     return CommandSpec(command, p, after_prestream)  # type: ignore[arg-type]
 
 
-# ArduCopter HEARTBEAT.custom_mode (mavlink ardupilotmega COPTER_MODE).
-ARDUCOPTER_MODES: dict[str, int] = {
-    "STABILIZE": 0, "ACRO": 1, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6,
-    "CIRCLE": 7, "LAND": 9, "DRIFT": 11, "SPORT": 13, "FLIP": 14, "AUTOTUNE": 15, "POSHOLD": 16,
-    "BRAKE": 17, "THROW": 18, "AVOID_ADSB": 19, "GUIDED_NOGPS": 20, "SMART_RTL": 21,
-    "FLOWHOLD": 22, "FOLLOW": 23, "ZIGZAG": 24, "SYSTEMID": 25, "AUTOROTATE": 26, "AUTO_RTL": 27,
-    "TURTLE": 28,
-}
-_ARDUCOPTER_NAMES = {v: k for k, v in ARDUCOPTER_MODES.items()}
-
-# PX4 (main, sub) (px4_custom_mode.h): main in bits 16-23, sub in bits 24-31 of custom_mode.
-PX4_MODES: dict[str, tuple[int, int]] = {
-    "MANUAL": (1, 0), "ALTCTL": (2, 0), "POSCTL": (3, 0),
-    "AUTO.READY": (4, 1), "AUTO.TAKEOFF": (4, 2), "AUTO.LOITER": (4, 3), "AUTO.MISSION": (4, 4),
-    "AUTO.RTL": (4, 5), "AUTO.LAND": (4, 6), "AUTO.RTGS": (4, 7), "AUTO.FOLLOW_TARGET": (4, 8),
-    "AUTO.PRECLAND": (4, 9),
-    "ACRO": (5, 0), "OFFBOARD": (6, 0), "STABILIZED": (7, 0), "RATTITUDE": (8, 0),
-}
-_PX4_NAMES = {v: k for k, v in PX4_MODES.items()}
-
-
-def px4_custom_mode(main: int, sub: int = 0) -> int:
-    """Pack PX4 (main, sub) into HEARTBEAT.custom_mode. OFFBOARD (6, 0) -> 393216."""
-    return ((main & 0xFF) << 16) | ((sub & 0xFF) << 24)
-
-
-def px4_main_sub(custom_mode: int) -> tuple[int, int]:
-    """Unpack HEARTBEAT.custom_mode into PX4 (main, sub)."""
-    return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+# Mode tables and the PX4 custom_mode packing are wire facts shared with the emulator
+# (mavedge.modes: ArduCopter from pymavlink's COPTER_MODE enum, PX4 from px4_custom_mode.h).
+_ARDUCOPTER_NAMES = ARDUCOPTER_NAMES
+_PX4_NAMES = PX4_NAMES
 
 
 class Adapter:

@@ -33,6 +33,11 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from mavedge.modes import px4_custom_mode
+from mavedge.params import param_id_to_str as _pid_str
+from mavedge.setpoints import ACC_BITS as _ACC_BITS
+from mavedge.setpoints import POS_BITS as _POS_BITS
+from mavedge.setpoints import VEL_BITS as _VEL_BITS
 from planner.geometry import DOWN, EAST, NORTH, geodetic_to_ned_m
 
 from . import events as ev
@@ -70,12 +75,6 @@ AP_AUTO, AP_GUIDED, AP_LOITER, AP_RTL, AP_LAND = 3, 4, 5, 6, 9
 #: Modes whose ``is_autopilot()`` is false (ArduCopter/mode.h): STABILIZE, ACRO, ALT_HOLD,
 #: LOITER, POSHOLD, BRAKE. AUTO, GUIDED, RTL, CIRCLE, LAND and SMART_RTL are autopilot modes.
 _AP_PILOT_MODES = frozenset({0, 1, 2, 5, 16, 17})
-
-
-def px4_custom_mode(main: int, sub: int = 0) -> int:
-    """PX4 packs main mode in bits 16-23 and sub mode in bits 24-31 of custom_mode
-    (``src/modules/commander/px4_custom_mode.h``)."""
-    return (main << 16) | (sub << 24)
 
 
 #: PX4 (main, sub) -> (name, behaviour).
@@ -159,7 +158,7 @@ _FORCE_MAGIC = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2: force (ArduPilot & 
 # three bits is set: ArduCopter GCS_Mavlink.cpp tests ``type_mask & POS_IGNORE`` with
 # POS_IGNORE = X|Y|Z, so masking only Z drops the whole position (docs/design/mavlink.md §1.4); PX4
 # mavlink_receiver.cpp does the same per vector group (mavros#402).
-_POS_BITS, _VEL_BITS, _ACC_BITS = 0b111, 0b111 << 3, 0b111 << 6
+# (mavedge.setpoints POS_BITS, VEL_BITS, ACC_BITS)
 _LOCAL_FRAMES = (mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_OFFSET_NED,
                  mavlink.MAV_FRAME_BODY_NED, mavlink.MAV_FRAME_BODY_OFFSET_NED)
 _GLOBAL_AMSL = (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT)
@@ -194,11 +193,9 @@ def _f32(v: float) -> float:
 
 
 def _e7_sat(deg: float) -> int:
-    """degE7 for an int32 field; non-finite -> INT32_MAX (MAVLink's "unknown" for lat/lon)."""
-    deg = float(deg)
-    if not math.isfinite(deg):
-        return _INT32_MAX
-    return max(-_INT32_MAX, min(_INT32_MAX, wire.lat_e7_from_deg(deg)))
+    """degE7 for an int32 field; non-finite -> INT32_MAX (MAVLink's "unknown" for lat/lon),
+    clamped to int32 (mavedge.units.deg_to_e7)."""
+    return wire.lat_e7_from_deg(deg)
 
 
 def _f32_norm_overflows(vec) -> bool:
@@ -298,12 +295,6 @@ class RateLimitedLog:
         self.n_logged += 1
         self.logger.log(level, msg, *args, **kwargs)
         return True
-
-
-def _pid_str(param_id) -> str:
-    if isinstance(param_id, bytes):
-        param_id = param_id.decode("ascii", errors="replace")
-    return str(param_id).split("\x00", 1)[0]
 
 
 class VehicleCore:

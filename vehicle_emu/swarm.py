@@ -226,9 +226,6 @@ class Swarm:
         self._next_peer_sweep_s = float(now_s) + _PEER_SWEEP_PERIOD_S
         #: Per endpoint: every destination (static then learned); rebuilt when peers change.
         self.peers: list[list] = [list(p) for p in self._static_peers]
-        self._routers = [wire.dialect.MAVLink(None, 255, 0) for _ in range(self.n_networks)]
-        for r in self._routers:
-            r.robust_parsing = True
         self._members = [np.flatnonzero(self.network_of_index == k).tolist()
                          for k in range(self.n_networks)]
 
@@ -331,29 +328,25 @@ class Swarm:
         if not self.mux:
             self._radio_to_vehicle(endpoint, data, addr, now_s)
             return
-        router = self._routers[endpoint]
-        for frame in wire.split_frames(data):
-            try:
-                msgs = router.parse_buffer(frame) or []
-            except Exception:  # noqa: BLE001 - remote bytes never raise
-                msgs = []
-            router.buf, router.buf_index = bytearray(), 0
-            target = None
-            for m in msgs:
-                target = getattr(m, "target_system", 0)
-            if not msgs:
-                self.stats["unroutable"] += 1
-                self.log_limiter.log(now_s, "unroutable", logging.WARNING,
-                                     "endpoint %d: undecodable frame from %s (%d so far)",
-                                     endpoint, addr, self.stats["unroutable"])
-                continue
+        # One parse per frame: the router reads the header and the target_system byte
+        # (mavedge.codec.frame_target_system); the addressed core does the only full decode
+        # (CRC, signature with its own key and streams, unpack).
+        frames = wire.split_frames(data)
+        if not frames and data:
+            self.stats["unroutable"] += 1
+            self.log_limiter.log(now_s, "unroutable", logging.WARNING,
+                                 "endpoint %d: no MAVLink frame in a datagram from %s (%d so far)",
+                                 endpoint, addr, self.stats["unroutable"])
+            return
+        for frame in frames:
+            target = wire.frame_target_system(frame)
             if target:
-                i = self._index_of.get((endpoint, int(target)))
+                i = self._index_of.get((endpoint, target))
                 if i is None:
                     self.stats["unroutable"] += 1
                     self.log_limiter.log(now_s, "no_target", logging.WARNING,
                                          "endpoint %d: frame for unknown sysid %d from %s",
-                                         endpoint, int(target), addr)
+                                         endpoint, target, addr)
                     continue
                 self._radio_to_vehicle(i, frame, addr, now_s)
             else:

@@ -172,3 +172,28 @@ def test_out_of_range_vehicle_failsafes_home_and_is_heard_again():
     assert swarm.active[0] and of_type(got[1], "HEARTBEAT")   # home again and heard
     swarm.receive_datagram(0, gcs.command(176, 1, 4), GCS_ADDR, t)
     assert core.mode_name == "GUIDED"             # the ground station takes it back
+
+
+def test_mux_router_parses_each_frame_once(monkeypatch):
+    """The router reads target_system from the header bytes; only the addressed core decodes
+    (CRC, signature, unpack): one pymavlink decode per frame, not two (issue 13.1)."""
+    swarm = Swarm(5, rng=np.random.default_rng(7), mux=True)
+    gcs = FakeGcs()
+    data = gcs.command(400, 1, target=3) + gcs.heartbeat()
+    calls = []
+    orig = mavlink.MAVLink.decode
+
+    def counting(self, msgbuf):
+        calls.append(1)
+        return orig(self, msgbuf)
+
+    monkeypatch.setattr(mavlink.MAVLink, "decode", counting)
+    swarm.receive_datagram(0, data, GCS_ADDR, 0.0)
+    # one decode for the addressed COMMAND_LONG, one per member for the broadcast HEARTBEAT
+    assert len(calls) == 1 + 5
+    assert [c.stats.commands for c in swarm.cores] == [0, 0, 1, 0, 0]
+    assert [c.stats.gcs_heartbeats for c in swarm.cores] == [1] * 5
+    # a frame for a sysid nobody has is unroutable, and so is a datagram without a frame
+    swarm.receive_datagram(0, gcs.command(400, 1, target=99), GCS_ADDR, 0.0)
+    swarm.receive_datagram(0, b"\x01\x02\x03", GCS_ADDR, 0.0)
+    assert swarm.stats["unroutable"] == 2
