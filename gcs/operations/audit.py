@@ -105,10 +105,16 @@ class AuditStep:
             for i in range(snap.n_vehicles):
                 vid = self._vid(snap, i)
                 got = self._params.get(vid, {})
-                for name in audit_mod.params_still_needed(int(snap.autopilot[i]), got):
-                    if name not in audit_mod.OPTIONAL_PARAMS and not snap.lost[i]:
-                        self._params_pending.add((*vid, name))
-                        self.station.request_param(vid, name, now_s)
+                names = [n for n in audit_mod.params_still_needed(int(snap.autopilot[i]), got)
+                         if n not in audit_mod.OPTIONAL_PARAMS]
+                if self._limits_wanted():  # vehicles discovered late, reads lost: the limits too
+                    names += [n for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
+                              if n not in got and n not in names]
+                if snap.lost[i]:
+                    continue
+                for name in names:
+                    self._params_pending.add((*vid, name))
+                    self.station.request_param(vid, name, now_s)
             if self._params_pending:
                 return
         vehicles = {self._vid(snap, i): (int(snap.autopilot[i]),

@@ -526,9 +526,14 @@ def test_limits_already_right_write_nothing_and_unreadable_ones_warn():
     answer_audit(feed, station, 0.5, {**AP_SAFE, "WPNAV_SPEED": 1000.0, "WPNAV_SPEED_UP": 250.0},
                  vid=vids[0])
     answer_audit(feed, station, 0.5, AP_SAFE, vid=vids[1])
-    for name in ("WPNAV_SPEED", "WPNAV_SPEED_UP"):
-        feed.emit(ParamTimedOut(0, 2, 0.6, name, 3))
-    feed.poll(0.75)
+    # Unreadable limits are asked again in each audit round (a vehicle booting, a lost read),
+    # then reported.
+    for k in range(3):
+        for name in ("WPNAV_SPEED", "WPNAV_SPEED_UP"):
+            feed.emit(ParamTimedOut(0, 2, 0.6 + k, name, 3))
+        feed.poll(0.75 + k)
+    asked = [c for c in station.of("request_param") if c[2] == "WPNAV_SPEED"]
+    assert len(asked) == 1 + 3  # vehicle 1 once, vehicle 2 in each of the 3 rounds
     # Without a climb rate only the speed is written; vehicle 1 already has it; vehicle 2's
     # could not be read.
     assert station.of("set_param") == []
