@@ -350,3 +350,93 @@ def descend_separable(px, py, pair_start, ox, oy, seg_start, ax, ay, ex, ey, e2,
         delta[i, 0] = dx_i
         delta[i, 1] = dy_i
     return delta, stop, at_limit
+
+
+@njit(cache=True)
+def prune_segments(px, py, version, ax, ay, ex, ey, e2, count, margin):
+    """The candidate segments of :class:`planner.phireman.TreeSegments` (``pos0`` given): for drone
+    i holding tree ``version[i]``, the segments s < count[v] with D_s <= min_s D_s + margin +
+    1e-9 (1 + min_s D_s), D_s the distance from (px[i], py[i]) computed as ``TreeSegments._d2``
+    does. ax, ay, ex, ey, e2 : (V, E) segment starts, directions and squared lengths per version;
+    margin = 2 radius (1 + 1e-9), computed by the caller as the NumPy version does.
+
+    Returns (r, s), (C,) int64 each, row-major (by drone, then segment), as ``np.nonzero``.
+    """
+    n = len(px)
+    e_max = ax.shape[1]
+    dist = np.empty(e_max)
+    keep_r = np.empty(n * 4, dtype=np.int64)
+    keep_s = np.empty(n * 4, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        v = version[i]
+        low = np.inf
+        for s in range(count[v]):
+            qx = px[i] - ax[v, s]
+            qy = py[i] - ay[v, s]
+            t = (qx * ex[v, s] + qy * ey[v, s]) / e2[v, s] if e2[v, s] > 0 else 0.0
+            t = min(max(t, 0.0), 1.0)
+            ox = px[i] - (ax[v, s] + t * ex[v, s])
+            oy = py[i] - (ay[v, s] + t * ey[v, s])
+            d = math.sqrt(ox * ox + oy * oy)
+            dist[s] = d
+            if d < low:
+                low = d
+        bound = low + margin + 1e-9 * (1.0 + low)
+        for s in range(count[v]):
+            if dist[s] <= bound:
+                if m == len(keep_r):
+                    keep_r = np.concatenate((keep_r, np.empty(len(keep_r), dtype=np.int64)))
+                    keep_s = np.concatenate((keep_s, np.empty(len(keep_s), dtype=np.int64)))
+                keep_r[m] = i
+                keep_s[m] = s
+                m += 1
+    return keep_r[:m], keep_s[:m]
+
+
+@njit(cache=True)
+def propagate_max(start, cols, stamps, link_start, link_src, n_cols):
+    """One hop of the recency rule on an entry list (:func:`planner.knowledge.propagate_entries`):
+    new[i, k] = max over j in {i} U N(i) of sent[j, k], as a per-entry maximum over a CSR
+    adjacency. Integer maxima, so exactly the bit-set / max-plus versions' result.
+
+    start : (n + 1,) CSR offsets of the (row-major) entries by holder; cols, stamps : (E,)
+    link_start : (n + 1,) CSR offsets of each holder's sources in link_src (its self-loop included)
+    Returns rows, cols, stamps (E',) row-major, columns ascending within a row.
+    """
+    n = len(start) - 1
+    best = np.full(n_cols, -1, dtype=np.int64)
+    touched = np.empty(n_cols, dtype=np.int64)
+    cap = max(len(cols), 16)
+    out_r = np.empty(cap, dtype=np.int64)
+    out_c = np.empty(cap, dtype=np.int64)
+    out_s = np.empty(cap, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        nt = 0
+        for li in range(link_start[i], link_start[i + 1]):
+            j = link_src[li]
+            for e in range(start[j], start[j + 1]):
+                k = cols[e]
+                if best[k] < 0:
+                    touched[nt] = k
+                    nt += 1
+                if stamps[e] > best[k]:
+                    best[k] = stamps[e]
+        if nt == 0:
+            continue
+        ks = np.sort(touched[:nt])
+        if m + nt > cap:
+            while m + nt > cap:
+                cap *= 2
+            out_r = np.concatenate((out_r, np.empty(cap - len(out_r), dtype=np.int64)))
+            out_c = np.concatenate((out_c, np.empty(cap - len(out_c), dtype=np.int64)))
+            out_s = np.concatenate((out_s, np.empty(cap - len(out_s), dtype=np.int64)))
+        for q in range(nt):
+            k = ks[q]
+            out_r[m] = i
+            out_c[m] = k
+            out_s[m] = best[k]
+            best[k] = -1
+            m += 1
+    return out_r[:m], out_c[:m], out_s[:m]

@@ -228,12 +228,24 @@ class TreeSegments:
                  pos0: np.ndarray | None = None, radius: float = 0.0) -> None:
         seg_a, seg_b, valid = padded_segments(trees, nodes_only)
         self.n = len(version)
-        self.a = seg_a[version]                                     # (n, E, 2)
-        self.ab = seg_b[version] - self.a
-        self.ab2 = np.einsum("nec,nec->ne", self.ab, self.ab)
-        self.valid = valid[version]
         self.entries = None
         self._columns = None
+        self._dense = None
+        self._padded = (seg_a, seg_b, valid, np.asarray(version))
+        if pos0 is not None and self.n and _kernels.NUMBA and _kernels.ENABLED:
+            # Compiled pruning, the same candidates as the NumPy lines below (test_kernels.py);
+            # per tree version, not per drone: ab and |ab|^2 of the V versions, gathered per entry.
+            ab_v = seg_b - seg_a
+            ab2_v = np.einsum("vec,vec->ve", ab_v, ab_v)
+            pos0 = np.asarray(pos0, float)
+            r, s = _kernels.prune_segments(
+                np.ascontiguousarray(pos0[:, 0]), np.ascontiguousarray(pos0[:, 1]),
+                np.asarray(version, np.int64), np.ascontiguousarray(seg_a[..., 0]),
+                np.ascontiguousarray(seg_a[..., 1]), np.ascontiguousarray(ab_v[..., 0]),
+                np.ascontiguousarray(ab_v[..., 1]), ab2_v, valid.sum(axis=1), 2.0 * radius * (1 + 1e-9))
+            v = np.asarray(version)[r]
+            self.entries = (r, seg_a[v, s], ab_v[v, s], ab2_v[v, s])
+            return
         if pos0 is not None and self.n:
             d2 = self._d2(pos0, self.a, self.ab, self.ab2, self.valid)[1]
             dist = np.sqrt(d2)
@@ -241,6 +253,34 @@ class TreeSegments:
             bound = dist.min(axis=1) + 2.0 * radius * (1 + 1e-9) + 1e-9 * (1.0 + dist.min(axis=1))
             r, s = np.nonzero(self.valid & (dist <= bound[:, None]))    # row-major: by drone, then segment
             self.entries = (r, self.a[r, s], self.ab[r, s], self.ab2[r, s])
+
+    def _dense_arrays(self):
+        if self._dense is None:
+            seg_a, seg_b, valid, version = self._padded
+            a = seg_a[version]                                      # (n, E, 2)
+            ab = seg_b[version] - a
+            self._dense = (a, ab, np.einsum("nec,nec->ne", ab, ab), valid[version])
+        return self._dense
+
+    @property
+    def a(self) -> np.ndarray:
+        """(n, E, 2) each drone's segment starts (padded)."""
+        return self._dense_arrays()[0]
+
+    @property
+    def ab(self) -> np.ndarray:
+        """(n, E, 2) each drone's segment directions b - a."""
+        return self._dense_arrays()[1]
+
+    @property
+    def ab2(self) -> np.ndarray:
+        """(n, E) |b - a|^2."""
+        return self._dense_arrays()[2]
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(n, E) bool, the segment exists (padding is False)."""
+        return self._dense_arrays()[3]
 
     @staticmethod
     def _d2(pos_u, a, ab, ab2, ok):

@@ -168,3 +168,65 @@ def _sub_entries(segs, rows):
     chosen[rows] = True
     take = chosen[er]
     return (np.cumsum(chosen) - 1)[er[take]], a[take], ab[take], ab2[take]
+
+
+@pytest.mark.parametrize("nodes_only", [False, True])
+def test_tree_segments_compiled_pruning_identical(rng, numpy_only, nodes_only):
+    trees = [build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(0, 40)), 2))) for _ in range(5)]
+    n = 500
+    x0 = rng.uniform(-9, 9, (n, 2))
+    x0[:5] = trees[0].nodes_m[0]                                    # on a node: distance 0
+    version = rng.integers(0, 5, n)
+    for radius in (0.0, 0.15, 3.0):
+        fast = TreeSegments(trees, version, nodes_only, x0, radius)
+        numpy_only(True)
+        slow = TreeSegments(trees, version, nodes_only, x0, radius)
+        numpy_only(False)
+        for got, want in zip(fast.entries, slow.entries):
+            assert got.dtype == want.dtype and np.array_equal(got, want)
+        for name in ("a", "ab", "ab2", "valid"):                      # the dense arrays, on request
+            assert np.array_equal(getattr(fast, name), getattr(slow, name))
+
+
+@pytest.mark.parametrize("n,radius,age_max", [(60, 100.0, 3), (300, 4.0, 3), (520, 2.5, 3), (200, 5.0, 20),
+                                              (50, 5.0, 0)])
+def test_propagate_entries_compiled_identical(rng, numpy_only, n, radius, age_max):
+    from planner.knowledge import propagate_entries, propagate_stamps_reference
+    t_sent = 30
+    stamp = np.where(rng.random((n, n)) < 0.3, rng.integers(t_sent - age_max - 2, t_sent + 1, (n, n)), -1)
+    pos = rng.uniform(0, 40, (n, 2))
+    d = np.linalg.norm(pos[:, None] - pos[None], axis=2)
+    i, j = np.nonzero(np.triu(d <= radius, 1))
+    pairs = np.column_stack([i, j])
+    r, c = np.nonzero(stamp >= 0)
+    got = propagate_entries(r, c, stamp[r, c], n, n, pairs, t_sent, age_max)
+    numpy_only(True)
+    want = propagate_entries(r, c, stamp[r, c], n, n, pairs, t_sent, age_max)
+    numpy_only(False)
+    for g, w in zip(got, want):
+        assert np.array_equal(g, w)
+    fresh = np.where(t_sent - stamp <= age_max, stamp, -1)
+    table = np.full((n, n), -1)
+    table[got[0], got[1]] = got[2]
+    assert np.array_equal(table, propagate_stamps_reference(fresh, pairs))
+
+
+def test_propagate_max_kernel_directly(rng):
+    """The kernel itself (whatever the cost rule in propagate_entries picks) on a small case."""
+    from planner.knowledge import propagate_stamps_reference
+    n = 40
+    stamp = np.where(rng.random((n, n)) < 0.4, rng.integers(0, 9, (n, n)), -1)
+    pos = rng.uniform(0, 10, (n, 2))
+    d = np.linalg.norm(pos[:, None] - pos[None], axis=2)
+    i, j = np.nonzero(np.triu(d <= 3.0, 1))
+    src = np.concatenate([j, i, np.arange(n)])
+    dst = np.concatenate([i, j, np.arange(n)])
+    order = np.argsort(dst, kind="stable")
+    r, c = np.nonzero(stamp >= 0)
+    start = np.searchsorted(r, np.arange(n + 1))
+    nr, nc, ns = _kernels.propagate_max(start, c.astype(np.int64), stamp[r, c].astype(np.int64),
+                                        np.searchsorted(dst[order], np.arange(n + 1)), src[order].astype(np.int64), n)
+    assert np.all(np.diff(nr * n + nc) > 0)                             # row-major, no duplicates
+    table = np.full((n, n), -1)
+    table[nr, nc] = ns
+    assert np.array_equal(table, propagate_stamps_reference(stamp, np.column_stack([i, j])))
