@@ -440,3 +440,54 @@ def propagate_max(start, cols, stamps, link_start, link_src, n_cols):
             best[k] = -1
             m += 1
     return out_r[:m], out_c[:m], out_s[:m]
+
+
+@njit(cache=True)
+def grid_pairs(x, y, range_m, cell, x0, y0, nx, ny):
+    """All pairs i < j with sqrt(dx^2 + dy^2) <= range_m (the distance as ``np.linalg.norm`` of
+    the difference computes it), found through a uniform grid of ``cell``-sized cells (cell >=
+    range_m, so a pair lies in the same or adjacent cells). Returns (P, 2) int64 sorted by (i, j).
+    """
+    n = len(x)
+    cx = np.empty(n, dtype=np.int64)
+    cy = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        cx[i] = min(max(int((x[i] - x0) / cell), 0), nx - 1)
+        cy[i] = min(max(int((y[i] - y0) / cell), 0), ny - 1)
+    cid = cx * ny + cy
+    order = np.argsort(cid, kind="mergesort")
+    head = np.zeros(nx * ny + 1, dtype=np.int64)
+    for i in range(n):
+        head[cid[i] + 1] += 1
+    for c in range(nx * ny):
+        head[c + 1] += head[c]
+    cap = 4 * n + 16
+    pi = np.empty(cap, dtype=np.int64)
+    pj = np.empty(cap, dtype=np.int64)
+    m = 0
+    r2 = range_m
+    for i in range(n):
+        for ax in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
+            for ay in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
+                c = ax * ny + ay
+                for q in range(head[c], head[c + 1]):
+                    j = order[q]
+                    if j <= i:
+                        continue
+                    dx = x[i] - x[j]
+                    dy = y[i] - y[j]
+                    if math.sqrt(dx * dx + dy * dy) <= r2:
+                        if m == cap:
+                            cap *= 2
+                            pi = np.concatenate((pi, np.empty(cap - len(pi), dtype=np.int64)))
+                            pj = np.concatenate((pj, np.empty(cap - len(pj), dtype=np.int64)))
+                        pi[m] = i
+                        pj[m] = j
+                        m += 1
+    out = np.empty((m, 2), dtype=np.int64)
+    key = pi[:m] * n + pj[:m]
+    o = np.argsort(key)
+    for q in range(m):
+        out[q, 0] = pi[o[q]]
+        out[q, 1] = pj[o[q]]
+    return out

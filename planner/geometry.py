@@ -15,10 +15,13 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from planner import _kernels
+
 __all__ = [
     "NORTH", "EAST", "DOWN",
     "pairwise_distance_m",
     "neighbour_pairs",
+    "radio_pairs",
     "active_mask",
     "active_mask_reference",
     "tasks_connected",
@@ -69,6 +72,30 @@ def neighbour_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
     return pairs[d <= range_m].astype(np.intp)
 
 
+def radio_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
+    """The pairs of :func:`neighbour_pairs` (the same set: the same inclusive test on the same
+    distance), sorted by (i, j); for callers to whom the order does not matter (connectivity, the
+    message hop). Compiled grid search (:func:`planner._kernels.grid_pairs`) when available and
+    the swarm's bounding box holds at most a few cells per drone; else :func:`neighbour_pairs`
+    (the reference, whose pair order is the KD-tree's).
+    """
+    pos_m = np.asarray(pos_m, dtype=float)
+    n = len(pos_m)
+    if n < 2 or not (_kernels.NUMBA and _kernels.ENABLED) or not np.isfinite(range_m) or range_m <= 0:
+        return neighbour_pairs(pos_m, range_m)
+    if pos_m.ndim != 2 or pos_m.shape[1] != 2 or not np.all(np.isfinite(pos_m)):
+        return neighbour_pairs(pos_m, range_m)
+    lo = pos_m.min(axis=0)
+    hi = pos_m.max(axis=0)
+    cell = float(range_m) * (1 + 1e-6)      # > range: a pair within range lies in adjacent cells
+    nx = int((hi[0] - lo[0]) // cell) + 1
+    ny = int((hi[1] - lo[1]) // cell) + 1
+    if nx * ny > 8 * n + 4096:              # a sparse spread: the KD-tree is the better index
+        return neighbour_pairs(pos_m, range_m)
+    return _kernels.grid_pairs(np.ascontiguousarray(pos_m[:, 0]), np.ascontiguousarray(pos_m[:, 1]),
+                               float(range_m), cell, float(lo[0]), float(lo[1]), nx, ny).astype(np.intp)
+
+
 def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
                 base_range_m: float, base_m: np.ndarray | None = None) -> np.ndarray:
     """Drones connected to the base through a chain of alive drones (the paper's a_i).
@@ -106,7 +133,7 @@ def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
     reached = np.linalg.norm(p - base, axis=1) <= min(base_range_m, radio_range_m)
     if not reached.any():
         return out
-    pairs = neighbour_pairs(p, radio_range_m)
+    pairs = radio_pairs(p, radio_range_m)     # the order of the pairs does not matter here
     if len(p) > _BFS_MAX_DRONES:
         k = len(p)  # node k is the base, linked to every drone within its reach
         at_base = np.flatnonzero(reached)

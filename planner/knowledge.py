@@ -22,7 +22,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from planner import _kernels
-from planner.geometry import neighbour_pairs
+from planner.geometry import neighbour_pairs, radio_pairs
 
 __all__ = ["Knowledge", "KnowledgeDense", "MessageLayer", "propagate_entries", "propagate_stamps",
            "propagate_stamps_dense", "propagate_stamps_reference", "UNKNOWN"]
@@ -443,7 +443,7 @@ class Knowledge(_StampTables):
             link_pos_m, link_alive, t_sent = pos_prev_m, alive_prev, t_step - 1
         if pos_prev_m is not None:
             idx = np.flatnonzero(link_alive)
-            pairs = neighbour_pairs(link_pos_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
+            pairs = radio_pairs(link_pos_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
             # Holders outside ``idx`` have no links: they keep their forwarded entries (the others
             # are past the age cut-off below either way).
             r, c, s = propagate_entries(r, c, s, n, n, idx[pairs], t_sent, age_max_steps)

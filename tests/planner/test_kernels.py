@@ -230,3 +230,22 @@ def test_propagate_max_kernel_directly(rng):
     table = np.full((n, n), -1)
     table[nr, nc] = ns
     assert np.array_equal(table, propagate_stamps_reference(stamp, np.column_stack([i, j])))
+
+
+@pytest.mark.parametrize("n,spread,r", [(2, 1.0, 2.0), (50, 5.0, 2.0), (500, 50.0, 2.0), (3000, 150.0, 2.0),
+                                        (400, 1000.0, 2.0), (300, 3.0, 0.7)])
+def test_radio_pairs_same_set_as_neighbour_pairs(rng, n, spread, r):
+    from planner.geometry import neighbour_pairs, radio_pairs
+    x = rng.uniform(-spread, spread, (n, 2))
+    x[: n // 4] = np.round(x[: n // 4] / r) * r            # lattice points: pairs at exactly r
+    x[-1] = x[0]                                             # coincident
+    got = radio_pairs(x, r)
+    want = neighbour_pairs(x, r)
+    assert np.array_equal(got, want[np.lexsort((want[:, 1], want[:, 0]))])
+    assert got.dtype == want.dtype
+
+
+def test_radio_pairs_falls_back_outside_two_dimensions(rng):
+    from planner.geometry import neighbour_pairs, radio_pairs
+    x = rng.uniform(-3, 3, (60, 3))
+    assert np.array_equal(radio_pairs(x, 1.0), neighbour_pairs(x, 1.0))
