@@ -491,3 +491,99 @@ def grid_pairs(x, y, range_m, cell, x0, y0, nx, ny):
         out[q, 0] = pi[o[q]]
         out[q, 1] = pj[o[q]]
     return out
+
+
+@njit(cache=True)
+def finish_knowledge_update(r, c, s, alive, t_step, age_cut, hist, px, py, far2, radio2, forget, t_sent,
+                            old_r, old_c, stamp):
+    """The end of :meth:`planner.knowledge.Knowledge.update` after the message hop, in one pass,
+    with the NumPy version's integer rules and the same float arithmetic (bit for bit):
+
+    own entries (dead holders' entries dropped, every alive holder's own entry stamped t_step,
+    inserted in row-major order if missing), the age cut (stamp >= age_cut), the distance cut
+    (d^2 > far2, plus believed within radio range yet not heard, stamp < t_sent, if ``forget``),
+    the (N, N) ``stamp`` table updated in place (old entries cleared, new ones written).
+
+    r, c, s : (E,) entries after the hop, row-major, one per (r, c); hist : (T, N, 2) positions.
+    Returns rows, cols, stamps (kept entries), col_held (N,) bool (known to somebody before the
+    distance cut), believed x and y (E',) of the kept entries.
+    """
+    n = len(alive)
+    m = len(r)
+    cap = m + n
+    nr = np.empty(cap, dtype=np.int64)
+    nc = np.empty(cap, dtype=np.int64)
+    ns = np.empty(cap, dtype=np.int64)
+    q = 0
+    e = 0
+    # own entries + age cut, holder by holder (entries are row-major)
+    for i in range(n):
+        start = e
+        while e < m and r[e] == i:
+            e += 1
+        if not alive[i]:
+            continue
+        placed = False
+        for f in range(start, e):
+            k = c[f]
+            if not placed and k >= i:
+                placed = True
+                nr[q] = i
+                nc[q] = i
+                ns[q] = t_step
+                q += 1
+                if k == i:
+                    continue
+            st = s[f]
+            if st >= age_cut:
+                nr[q] = i
+                nc[q] = k
+                ns[q] = st
+                q += 1
+        if not placed:
+            nr[q] = i
+            nc[q] = i
+            ns[q] = t_step
+            q += 1
+    col_held = np.zeros(n, dtype=np.bool_)
+    for f in range(q):
+        col_held[nc[f]] = True
+    # distance cut
+    keep = np.empty(q, dtype=np.bool_)
+    bx = np.empty(q)
+    by = np.empty(q)
+    kept = 0
+    for f in range(q):
+        x = hist[ns[f], nc[f], 0]
+        y = hist[ns[f], nc[f], 1]
+        dx = x - px[nr[f]]
+        dy = y - py[nr[f]]
+        d2 = dx * dx
+        d2 += dy * dy
+        far = d2 > far2
+        if forget and d2 <= radio2 and ns[f] < t_sent:
+            far = True
+        keep[f] = not far
+        bx[f] = x
+        by[f] = y
+        if not far:
+            kept += 1
+    rr = np.empty(kept, dtype=np.int64)
+    cc = np.empty(kept, dtype=np.int64)
+    ss = np.empty(kept, dtype=np.int64)
+    xx = np.empty(kept)
+    yy = np.empty(kept)
+    w = 0
+    for f in range(q):
+        if keep[f]:
+            rr[w] = nr[f]
+            cc[w] = nc[f]
+            ss[w] = ns[f]
+            xx[w] = bx[f]
+            yy[w] = by[f]
+            w += 1
+    for f in range(len(old_r)):
+        stamp[old_r[f], old_c[f]] = -1
+    for f in range(kept):
+        stamp[rr[f], cc[f]] = ss[f]
+    return rr, cc, ss, col_held, xx, yy

@@ -450,6 +450,18 @@ class Knowledge(_StampTables):
             _flood_tree_stamp(self.tree_stamp, idx, pairs, link_pos_m[idx], base_m, base_reach_m, t_step)
         # Own state is always fresh; dead drones hold nothing.
         self.tree_stamp[~alive] = UNKNOWN
+        if _kernels.NUMBA and _kernels.ENABLED and self.pos_hist_m.flags.c_contiguous:
+            # the lines below in one compiled pass, bit for bit (tests/planner/test_kernels.py)
+            pos_m = np.asarray(pos_m, float)
+            r, c, s, col_held, bx, by = _kernels.finish_knowledge_update(
+                np.asarray(r, np.int64), np.asarray(c, np.int64), np.asarray(s, np.int64), alive, int(t_step),
+                int(t_step - age_max_steps), self.pos_hist_m, np.ascontiguousarray(pos_m[:, 0]),
+                np.ascontiguousarray(pos_m[:, 1]), dist_max_m * dist_max_m, radio_range_m * radio_range_m,
+                bool(forget_unheard and pos_prev_m is not None), int(t_sent),
+                np.asarray(self.held_rows, np.int64), np.asarray(self.held_cols, np.int64), self.stamp)
+            self.held_rows, self.held_cols, self.held_stamps = r, c, s
+            self._set_view(alive, col_held, r, c, bx, by)
+            return
         r, c, s = self._own(r, c, s, alive, t_step)
         # Forget stale entries, then distant ones (measured from the holder's own position).
         r, c, s = _select(s >= t_step - age_max_steps, r, c, s)
@@ -472,10 +484,14 @@ class Knowledge(_StampTables):
         self.stamp[self.held_rows, self.held_cols] = UNKNOWN
         self.stamp[r, c] = s
         self.held_rows, self.held_cols, self.held_stamps = r, c, s
+        self._set_view(alive, col_held, r, c, bx, by)
+
+    def _set_view(self, alive, col_held, r, c, bx, by) -> None:
+        """The view of every alive holder from the kept entries (self entries left out)."""
         er, ec, bx, by = _select(r != c, r, c, bx, by)
         row_of = np.cumsum(alive) - 1
         col_of = np.cumsum(col_held) - 1
-        self.rows, self.cols = rows, cols
+        self.rows, self.cols = np.flatnonzero(alive), np.flatnonzero(col_held)
         self.entry_rows, self.entry_cols = row_of[er], col_of[ec]
         self.entry_believed_m = np.column_stack([bx, by])
 

@@ -249,3 +249,27 @@ def test_radio_pairs_falls_back_outside_two_dimensions(rng):
     from planner.geometry import neighbour_pairs, radio_pairs
     x = rng.uniform(-3, 3, (60, 3))
     assert np.array_equal(radio_pairs(x, 1.0), neighbour_pairs(x, 1.0))
+
+
+@pytest.mark.parametrize("after_move,forget", [(True, True), (False, False), (True, False)])
+def test_knowledge_update_compiled_identical(rng, numpy_only, after_move, forget):
+    """A run of the message layer with the compiled end of update and without: same tables, same
+    entries, same views, every step (with losses, so dead holders and missing own entries occur)."""
+    from planner.knowledge import MessageLayer
+    n, steps = 120, 25
+    layers = [MessageLayer(n, steps, 2.0, 2.0, 3, 6.0, 15, after_move=after_move, forget_unheard=forget)
+              for _ in range(2)]
+    pos = rng.uniform(-3, 3, (n, 2))
+    alive = np.ones(n, bool)
+    for t in range(steps):
+        for layer, numpy_path in zip(layers, (False, True)):
+            numpy_only(numpy_path)
+            layer.step(t, pos.copy(), alive.copy(), np.zeros(2), object())
+        numpy_only(False)
+        a, b = layers[0].knowledge, layers[1].knowledge
+        assert np.array_equal(a.stamp, b.stamp) and np.array_equal(a.tree_stamp, b.tree_stamp)
+        for name in ("held_rows", "held_cols", "held_stamps", "rows", "cols", "entry_rows", "entry_cols",
+                     "entry_believed_m"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        pos = pos + rng.normal(0, 0.4, (n, 2))
+        alive &= rng.random(n) > 0.03
