@@ -25,8 +25,10 @@ Facts of the firmware this follows (checked on ArduCopter 4.7-dev and PX4 main):
   the eeprom to the defaults (copter defaults have FS_GCS_ENABLE = 0: the audit refuses them
   until ``--apply-failsafes``).
 * PX4 SITL instance ``i`` (``px4 -i i``) has MAV_SYS_ID ``i + 1`` and its GCS MAVLink link on
-  local UDP ``18570 + i`` (ROMFS/px4fmu_common/init.d-posix/px4-rc.mavlink); it answers the
-  address it last heard from, so ``udpout:127.0.0.1:18570+i`` reaches exactly one vehicle.
+  local UDP ``18570 + i`` (ROMFS/px4fmu_common/init.d-posix/px4-rc.mavlink), sending to UDP
+  14550 until it latches onto the first ground station it hears, for good: the station listens
+  with ``udpin:127.0.0.1:14550`` (one link for every instance, the port a restarted station
+  binds again).
   SIH's home comes from SIH_LOC_LAT0 / SIH_LOC_LON0 / SIH_LOC_H0, and any parameter can be given
   at boot as ``PX4_PARAM_<NAME>=<value>`` in the environment (init.d-posix/rcS). PX4 keeps
   ``/tmp/px4-sock-<i>`` and ``/tmp/px4_lock-<i>`` per instance, so instance numbers must be
@@ -59,6 +61,10 @@ DEFAULT_HOMES = {"ardupilot": (-35.363261, 149.165230, 584.0),
                  "px4": (47.397742, 8.545594, 489.4)}
 
 _ENV = {"ardupilot": "PHIREMAN_ARDUCOPTER", "px4": "PHIREMAN_PX4"}
+
+#: Where every PX4 SITL instance sends its GCS link (px4-rc.mavlink: the mavlink module's
+#: default remote port).
+PX4_GCS_PORT = 14550
 _EARTH_RADIUS_M = 6_371_008.8
 
 
@@ -150,13 +156,19 @@ class SitlSwarm:
         return self.instance(k) + 1
 
     def connection(self, k: int) -> str:
+        """The station's link to vehicle ``k``. PX4: every instance sends its GCS link to UDP
+        14550 and latches onto the first ground station it hears for good
+        (src/modules/mavlink/mavlink_receiver.cpp, ``set_client_source_initialized``): a station
+        restarted on another port would never be answered, so all share ``udpin`` 14550, the
+        port a restarted station binds again."""
         i = self.instance(k)
         if self.spec.firmware == "ardupilot":
             return f"tcp:127.0.0.1:{5760 + 10 * i}"
-        return f"udpout:127.0.0.1:{18570 + i}"
+        return f"udpin:127.0.0.1:{PX4_GCS_PORT}"
 
     def connections(self) -> list[str]:
-        return [self.connection(k) for k in range(self.spec.n_vehicles)]
+        """The distinct links that reach every vehicle (ArduPilot: one each; PX4: one)."""
+        return list(dict.fromkeys(self.connection(k) for k in range(self.spec.n_vehicles)))
 
     # ------------------------------------------------------------------ start / stop
 

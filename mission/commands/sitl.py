@@ -21,8 +21,8 @@ phireman ships no firmware: point it at your own build.
               (or PHIREMAN_ARDUCOPTER_DEFAULTS). Vehicle i: sysid i+1, tcp:127.0.0.1:5760+10i.
   PX4 (SIH):  make px4_sitl  (PX4-Autopilot source tree)
               -> --binary build/px4_sitl_default/bin/px4, or set PHIREMAN_PX4 (its etc
-              directory is ../etc, or PHIREMAN_PX4_ETC). Vehicle i: sysid i+1,
-              udpout:127.0.0.1:18570+i. Runs at 1x.
+              directory is ../etc, or PHIREMAN_PX4_ETC). Vehicle i: sysid i+1; every
+              vehicle on udpin:127.0.0.1:14550 (PX4's GCS port). Runs at 1x.
 
 Examples:
   phireman sitl ardupilot --vehicles 3 --mission sitl_ardupilot
@@ -94,8 +94,8 @@ def run(args) -> int:
         print(f"started {args.vehicles} {args.firmware} SITL vehicle(s) around "
               f"{origin[0]:.6f}, {origin[1]:.6f} ({origin[2]:g} m); working directories under "
               f"{swarm.workdir}")
-        for k, conn in enumerate(swarm.connections()):
-            print(f"  vehicle {k}: sysid {swarm.sysid(k)}  {conn}")
+        for k in range(args.vehicles):
+            print(f"  vehicle {k}: sysid {swarm.sysid(k)}  {swarm.connection(k)}")
         connects = " ".join(f"--connect {c}" for c in swarm.connections())
         speed = f" --speedup {args.speedup:g}" if args.speedup != 1.0 else ""
         hint = (f"phireman fly {mission_name or 'MISSION'} {connects}{speed} --apply-failsafes")

@@ -188,7 +188,11 @@ def _life_cycle(tmp_path: Path, firmware: str, mission: str, speedup: float,
         ev2 = _events(run2)
         assert rc == 0, (runs2.parent / "station2.log").read_text()[-3000:]
         assert summary["phase"] == "done"
-        assert summary["reclaimed"] >= 2, summary["reclaimed"]
+        # Both survivors flew the plan again: reclaimed in the air, or (PX4 Return is quick near
+        # home) relaunched after their own failsafe had landed them.
+        back = {e["sysid"] for e in ev2 if e["type"] == "ModeChanged" and e["mode"] == guided_mode}
+        assert {1, 2} <= back, back
+        assert summary["reclaimed"] >= 1, summary["reclaimed"]
         assert summary["end_status"]["in_air"] == 0, summary["end_status"]
         assert summary["counters"]["lost"] >= 1
         m_rows = _metrics(run2)
