@@ -1,8 +1,17 @@
 """ΦIREMAN-resilient: PhiIREMAN plus mechanisms that keep more tasks connected under attrition.
 
 Beyond the paper (issue 15). The planner is :class:`planner.phireman.PhiremanPlanner` (same
-energy, descent, message layer and task tree) with three switchable mechanisms, each a parameter
-of :class:`ResilientParams` so that it can be ablated:
+energy, descent, message layer and task tree) with switchable mechanisms, each a parameter of
+:class:`ResilientParams` so that it can be ablated (every one off is PhiIREMAN, bit for bit):
+
+* **Coverage claims** (``claim_gain``, ``claim_reach``). The tree potential is flat along the
+  tree, so nothing pulls a drone out to the end of a branch whose crew has lost its link; with
+  few drones left the swarm sits near the base while a crew a few metres out is unserved. The
+  base hears a crew exactly when the crew is connected, so it broadcasts, with the tree, the kept
+  tasks that are not (:func:`planner.geometry.tasks_connected` on D'(t)). A drone whose nearest
+  such task is within ``claim_reach`` and who knows no drone nearer to it adds
+  ``claim_gain`` × |x - task| to its energy (:func:`claim_targets`, :func:`claim_gradient`). The
+  optional ``claim_tether`` keeps a claimer within a fraction of r of its anchor toward the base.
 
 * **Triage** (``triage_length_per_drone``). The paper's tree spans every task whatever the number
   of drones left; under attrition the survivors are spread over every branch and too few to hold
@@ -62,9 +71,10 @@ class ResilientParams(PhiremanParams):
     reaches min(R, r) = 2)."""
     rally_wait_steps: int = 10
     """Steps a disconnected drone waits at its rally point before flying home."""
-    claim_gain: float = 0.05
-    """Coverage claim: pull (force, like Þ) of a drone toward an unconnected task it is the nearest
-    known drone to, within ``claim_reach``; 0 = off."""
+    claim_gain: float = 0.03
+    """Coverage claim: pull (a force, like Þ) of a drone toward its nearest unconnected task when
+    that task is within ``claim_reach`` and no drone it knows is nearer to it; 0 = off. Chosen at
+    S / 1 % and M / 2 % on seeds 1000-1099 (docs/tuning/resilient.md)."""
     claim_reach: float = 4.0
     """Coverage claim: only drones nearer than this to an unconnected task claim it, paper units."""
     claim_tether: float = 0.0
@@ -314,31 +324,39 @@ def claim_targets(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, stamp
                   open_by_stamp: dict, reach: float) -> np.ndarray:
     """(n, 2): the unconnected task each drone claims (NaN rows: none).
 
-    Drone i claims the nearest task of the open (unconnected) tasks in the broadcast it holds
-    (``open_by_stamp[stamps[i]]``) that lies within ``reach`` of it and to which no drone it knows
-    (its entries: holder ``ent_r``, believed position ``ent_y``) is nearer. Ties go to the claimer.
-    Loops over broadcast versions (a handful), vectorised over drones, entries and tasks.
+    Drone i looks at the nearest task of the open (unconnected) tasks in the broadcast it holds
+    (``open_by_stamp[stamps[i]]``); it claims it if the task lies within ``reach`` and no drone it
+    knows (its entries: holder ``ent_r``, believed position ``ent_y``) is nearer to it (ties go to
+    the claimer). One candidate per drone keeps the work proportional to the entries (XL has
+    ~15,000, up to 250,000 while the swarm is still packed at take-off). Loops over broadcast
+    versions (a handful), vectorised over drones, tasks and entries.
     """
     n = len(pos_u)
     out = np.full((n, 2), np.nan)
+    ent_r = np.asarray(ent_r)
+    cand = np.full(n, -1)                                     # index of the nearest open task
+    d_own = np.full(n, np.inf)
+    task_of = np.zeros((n, 2))
     for s in np.unique(stamps):
         tasks = open_by_stamp.get(int(s))
         if tasks is None or len(tasks) == 0:
             continue
         rows = np.flatnonzero(stamps == s)
-        d_own = np.sqrt(((pos_u[rows, None, :] - tasks[None]) ** 2).sum(-1))        # (r, T)
-        local = np.full(n, -1)
-        local[rows] = np.arange(len(rows))
-        take = local[ent_r] >= 0
-        er = local[ent_r[take]]
-        d_ent = np.sqrt(((ent_y[take][:, None, :] - tasks[None]) ** 2).sum(-1))        # (E', T)
-        d_other = np.full_like(d_own, np.inf)
-        np.minimum.at(d_other, er, d_ent)
-        ok = (d_own < reach) & (d_own <= d_other)
-        cost = np.where(ok, d_own, np.inf)
-        best = np.argmin(cost, axis=1)
-        has = np.isfinite(cost[np.arange(len(rows)), best])
-        out[rows[has]] = tasks[best[has]]
+        d = np.sqrt(((pos_u[rows, None, :] - tasks[None]) ** 2).sum(-1))            # (r, T)
+        k = np.argmin(d, axis=1)
+        near = d[np.arange(len(rows)), k]
+        cand[rows] = k
+        d_own[rows] = near
+        task_of[rows] = tasks[k]
+    ok = (cand >= 0) & (d_own < reach)
+    if not ok.any():
+        return out
+    # Is a known drone nearer to the candidate task than the claimer? One pass over the entries.
+    d_ent = np.sqrt(((ent_y - task_of[ent_r]) ** 2).sum(-1))
+    d_other = np.full(n, np.inf)
+    np.minimum.at(d_other, ent_r, d_ent)
+    mine = ok & (d_own <= d_other)
+    out[mine] = task_of[mine]
     return out
 
 
@@ -348,20 +366,17 @@ def claim_targets_reference(pos_u, ent_r, ent_y, stamps, open_by_stamp, reach) -
     out = np.full((n, 2), np.nan)
     for i in range(n):
         tasks = open_by_stamp.get(int(stamps[i]))
-        if tasks is None:
+        if tasks is None or len(tasks) == 0:
             continue
-        best, best_d = None, np.inf
-        for t in tasks:
-            d = float(np.linalg.norm(pos_u[i] - t))
-            if d >= reach:
-                continue
-            others = [float(np.linalg.norm(ent_y[e] - t)) for e in range(len(ent_r)) if ent_r[e] == i]
-            if others and min(others) < d:
-                continue
-            if d < best_d:
-                best, best_d = t, d
-        if best is not None:
-            out[i] = best
+        dists = [float(np.linalg.norm(pos_u[i] - t)) for t in tasks]
+        t = tasks[int(np.argmin(dists))]
+        d = min(dists)
+        if d >= reach:
+            continue
+        others = [float(np.linalg.norm(ent_y[e] - t)) for e in range(len(ent_r)) if ent_r[e] == i]
+        if others and min(others) < d:
+            continue
+        out[i] = t
     return out
 
 

@@ -243,3 +243,10 @@ def test_prediction_builds_the_tree_on_extrapolated_tasks():
     for t in range(3):
         off.plan(TickInput(t, pos, np.ones(3, bool), np.ones(3, bool), y0 + t * vel))
     assert np.allclose(off.full_tree.nodes_m[1:3], y0 + 2 * vel)
+
+
+def test_planner_runs_with_every_mechanism_on():
+    p = problem_preset("XS", 0.02).replace(n_steps=40)
+    r = run_episode(p, "phireman-resilient", {"claim_tether": 0.9, "rally": True, "triage_length_per_drone": 3.0,
+                                              "predict_steps": 5.0}, 2)
+    assert 0.0 <= r.tu1 <= 1.0
