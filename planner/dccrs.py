@@ -64,7 +64,8 @@ import numpy as np
 from planner.geometry import step_toward
 from planner.knowledge import MessageLayer
 from planner.methods import PlanOutput, TickInput
-from planner.phireman import (INFO_MODELS, SPEED_RULES, PhiremanParams, _EntriesByDrone, _pair_gradient_xy,
+from planner import _kernels
+from planner.phireman import (_descent_result, INFO_MODELS, SPEED_RULES, PhiremanParams, _EntriesByDrone, _pair_gradient_xy,
                               descend, parse_params)
 from planner.problem import ProblemConfig
 
@@ -443,6 +444,18 @@ class DccrsPlanner:
         gain = self._leader_gain(pos_u, leaders_u, claims)
 
         entries = _EntriesByDrone(er, y_e, n)
+        if _kernels.NUMBA and _kernels.ENABLED and p.speed_rule == "per_drone" and n and leaders_u.shape[-2] >= 1:
+            # the whole descent compiled, bit for bit the NumPy one below (tests/planner/test_kernels.py)
+            lead = np.broadcast_to(leaders_u, (n,) + leaders_u.shape[-2:])
+            pos_u = np.asarray(pos_u, float)
+            delta, stop, at_limit = _kernels.descend_separable_leader(
+                np.ascontiguousarray(pos_u[:, 0]), np.ascontiguousarray(pos_u[:, 1]), entries.start, entries.x,
+                entries.y, p.attraction * np.asarray(weight, float), np.ascontiguousarray(lead[..., 0]),
+                np.ascontiguousarray(lead[..., 1]), np.asarray(gain, float), float(p.leader_exponent), float(self.r_u),
+                float(p.leader_floor), float(p.attraction_floor), float(p.repulsion), float(self.reach_u),
+                float(p.pair_factor), float(p.step_size), float(p.tolerance), float(self.vmax_u),
+                int(p.max_descent_steps))
+            return _descent_result(delta, stop, at_limit, p.max_descent_steps), near_e, weight
 
         def grad(x, rows):
             lead = leaders_u if leaders_u.ndim == 2 else leaders_u[rows]

@@ -780,10 +780,16 @@ def _descend_separable_compiled(pos_u: np.ndarray, entries: _EntriesByDrone, seg
         np.ascontiguousarray(ab[:, 1]), np.ascontiguousarray(ab2), float(p.attraction), float(p.attraction_floor),
         float(p.repulsion), float(reach_u), float(p.pair_factor), float(p.thorn), float(p.step_size),
         float(p.tolerance), float(vmax_u), int(p.max_descent_steps))
+    return _descent_result(delta, stop, at_limit, p.max_descent_steps)
+
+
+def _descent_result(delta: np.ndarray, stop: np.ndarray, at_limit: np.ndarray, max_steps: int) -> DescentResult:
+    """The :class:`DescentResult` :func:`descend` (separable, 'per_drone') returns, from each drone's
+    stopping step and cause as the compiled descents report them."""
     hit = bool(at_limit.any())
     last = int(stop.max())
-    if last > p.max_descent_steps:                        # some drone never stopped
-        return DescentResult(delta, p.max_descent_steps, False, hit)
+    if last > max_steps:                                  # some drone never stopped
+        return DescentResult(delta, max_steps, False, hit)
     # descend returns at the first step after which nobody moves: converged iff no drone that
     # stopped at that step stopped at the speed limit (the equilibrium test comes first)
     return DescentResult(delta, last, not bool((at_limit & (stop == last)).any()), hit)

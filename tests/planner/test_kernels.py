@@ -273,3 +273,28 @@ def test_knowledge_update_compiled_identical(rng, numpy_only, after_move, forget
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
         pos = pos + rng.normal(0, 0.4, (n, 2))
         alive &= rng.random(n) > 0.03
+
+
+@pytest.mark.parametrize("params", [{}, {"leader_exponent": 2.0}, {"leader_cap": 2}, {"max_descent_steps": 2},
+                                    {"leader_exponent": -1.0}])
+def test_dccrs_compiled_descent_identical(numpy_only, params):
+    """DCCRS ticks with the compiled descent and with the NumPy one: same instructions and info."""
+    from planner.methods import make_planner
+    prob = problem_preset("M", 0.01)
+    outs = []
+    for numpy_path in (False, True):
+        numpy_only(numpy_path)
+        planner = make_planner("dccrs", prob, dict(params), np.random.default_rng(0))
+        r = np.random.default_rng(7)
+        pos = r.uniform(-prob.field_half_width_m / 3, prob.field_half_width_m / 3, (prob.n_drones, 2))
+        tasks = r.uniform(-prob.field_half_width_m, prob.field_half_width_m, (prob.n_tasks, 2))
+        alive = np.ones(prob.n_drones, bool)
+        run = []
+        for t in range(15):
+            out = planner.plan(TickInput(t, pos, alive, alive, tasks))
+            run.append((out.disp_m, out.info.get("iterations"), out.info.get("converged")))
+            pos = pos + out.disp_m
+            alive &= r.random(prob.n_drones) > 0.01
+        outs.append(run)
+    for (d0, i0, c0), (d1, i1, c1) in zip(*outs):
+        assert np.array_equal(d0, d1) and (i0, c0) == (i1, c1)
