@@ -1002,13 +1002,11 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
 
 
 def _expected_real(mission: Mission, opts: FlyOptions) -> int | None:
-    """How many vehicles to wait for before the audit: ``--vehicles N``, else the mission's
-    ``vehicles.real.sysids`` (every listed vehicle), else None (wait until no new vehicle for
-    a few seconds; a vehicle heard later is still taken in)."""
-    if opts.expected_vehicles is not None:
-        return opts.expected_vehicles
-    real = mission.vehicles.real
-    return len(real.sysids) if real is not None and real.sysids else None
+    """How many vehicles to wait for before the audit: ``--vehicles N``, else None (start once
+    no new vehicle was heard for a few seconds). Not the mission's ``sysids``: a restarted
+    station with one vehicle gone would wait the whole discovery timeout while the others fly
+    home on their own failsafe."""
+    return opts.expected_vehicles
 
 
 async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
