@@ -491,6 +491,36 @@ def _operations_config(mission: Mission, opts: FlyOptions, expected: int | None)
         radio_range_m=mission.radio.range_m, poll_period_s=0.5)
 
 
+def _planner_spec(mission: Mission) -> tuple[str, object, dict]:
+    """(method, problem, params) of the station's planner for ``mission``."""
+    problem = mission.problem_config()
+    method = mission.planner.method
+    params = dict(mission.planner.params)
+    if method == "phireman":
+        params["info"] = "central"  # the station plans centrally from D'(t)
+    return method, problem, params
+
+
+def _warm_up_planner(method: str, problem, params: dict, scenario: MissionScenario) -> None:
+    """Run a throw-away planner of the same kind for two ticks on a small made-up fleet, so
+    that everything its first real tick needs (imports, Numba kernels compiled or loaded from
+    their cache) is ready before the flight: the station's loop must never stall in flight
+    (a first tick that compiled for ~10 s stopped heartbeats and setpoints: ArduCopter's GCS
+    failsafe acts after FS_GCS_TIMEOUT 5 s, PX4's offboard loss after COM_OF_LOSS_T 1 s)."""
+    from planner.methods import TickInput
+
+    t0 = time.monotonic()
+    rng = np.random.default_rng(0)
+    tasks = np.nan_to_num(np.asarray(scenario.task_pos_m(0.0), dtype=float).reshape(-1, 2))
+    half = max(float(np.abs(tasks).max(initial=0.0)), 10.0)
+    n = 8
+    pos = rng.uniform(-half / 4, half / 4, size=(n, 2))
+    throwaway = make_planner(method, problem, dict(params), np.random.default_rng(0))
+    for t_step in range(2):
+        throwaway.plan(TickInput(t_step, pos, np.ones(n, bool), np.ones(n, bool), tasks))
+    log.info("planner %s warmed up in %.2f s", method, time.monotonic() - t0)
+
+
 def _make_operator(mission: Mission, scenario: MissionScenario, station: Station,
                    opts: FlyOptions, expected: int | None, now_s: float, seed: int) -> Operator:
     o = mission.origin
@@ -500,11 +530,7 @@ def _make_operator(mission: Mission, scenario: MissionScenario, station: Station
     # stayed a planned relay for 5 s (about 2.5 drones at any time at 1 %/s attrition).
     fleet = FleetView(MissionOrigin(o.lat_deg, o.lon_deg, o.alt_amsl_m),
                       timeout_s=min(PLAN_SILENCE_S, station.links[0].config.vehicle_timeout_s))
-    problem = mission.problem_config()
-    method = mission.planner.method
-    params = dict(mission.planner.params)
-    if method == "phireman":
-        params["info"] = "central"  # the station plans centrally from D'(t)
+    method, problem, params = _planner_spec(mission)
     planner = make_planner(method, problem, params, spawn_streams(seed).algorithm)
     live = live_task_columns(mission)
     return Operator(station, fleet, planner, scenario.task_pos_m, control_config(mission, scenario),
@@ -544,6 +570,8 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
                        ack: Callable[[float], None] | None = None) -> Operator:
     """The station's loop. ``max_sleep_s`` (simulated seconds): wake at least this often even
     when idle, so a paced emulator is never starved of clock acknowledgements."""
+    # Before any link is open (a stall now costs nothing; in flight it trips failsafes).
+    _warm_up_planner(*_planner_spec(mission), scenario)
     cfg = _station_config(mission, expected if world is None else None)
     if opts.forward:
         # A forwarded GCS (QGroundControl, MAVProxy) wants the telemetry the station itself
