@@ -79,9 +79,10 @@ def find_binary(firmware: str, binary: str | None = None) -> Path:
         raise SitlError(f"unknown firmware {firmware!r}; valid: {', '.join(FIRMWARES)}")
     text = binary or os.environ.get(_ENV[firmware])
     if not text:
-        what = ("an ArduCopter SITL build (ArduPilot: ./waf configure --board sitl && ./waf "
-                "copter -> build/sitl/bin/arducopter)" if firmware == "ardupilot" else
-                "a PX4 SITL build (PX4-Autopilot: make px4_sitl -> build/px4_sitl_default/bin/px4)")
+        what = ("your ArduCopter SITL binary (build/sitl/bin/arducopter in an ArduPilot tree, "
+                "see ArduPilot's SITL documentation)" if firmware == "ardupilot" else
+                "your PX4 SITL binary (build/px4_sitl_default/bin/px4 in a PX4-Autopilot tree, "
+                "see PX4's simulation documentation)")
         raise SitlError(f"no {firmware} SITL binary: pass --binary PATH or set {_ENV[firmware]} "
                         f"to {what}")
     path = Path(text).expanduser()

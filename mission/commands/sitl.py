@@ -15,11 +15,11 @@ around the mission's origin (5 m apart), each with its own system id and port, a
 connection strings to fly them with. Runs until Ctrl-C, then stops exactly what it started.
 phireman ships no firmware: point it at your own build.
 
-  ArduCopter: ./waf configure --board sitl && ./waf copter  (ArduPilot source tree)
+  ArduCopter: your SITL build of an ArduPilot tree (see ArduPilot's SITL documentation)
               -> --binary build/sitl/bin/arducopter, or set PHIREMAN_ARDUCOPTER; the defaults
               file Tools/autotest/default_params/copter.parm is looked for beside the binary
               (or PHIREMAN_ARDUCOPTER_DEFAULTS). Vehicle i: sysid i+1, tcp:127.0.0.1:5760+10i.
-  PX4 (SIH):  make px4_sitl  (PX4-Autopilot source tree)
+  PX4 (SIH):  your SITL build of a PX4-Autopilot tree (see PX4's simulation documentation)
               -> --binary build/px4_sitl_default/bin/px4, or set PHIREMAN_PX4 (its etc
               directory is ../etc, or PHIREMAN_PX4_ETC). Vehicle i: sysid i+1; every
               vehicle on udpin:127.0.0.1:14550 (PX4's GCS port). Runs at 1x.
