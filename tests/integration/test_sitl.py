@@ -146,6 +146,11 @@ def _life_cycle(tmp_path: Path, firmware: str, mission: str, speedup: float,
             assert armed == {1, 2, 3} and guided == {1, 2, 3}
             sets = {(e["sysid"], e["name"]) for e in ev1 if e["type"] == "ParamSetConfirmed"}
             print(f"\n[{firmware}] first station: parameters written {sorted(sets)}")
+            t1 = ev1[0]["t_s"]
+            run_start = float(_metrics(_run_dir(runs1))[0]["t_s"]) - t1
+            print(f"[{firmware}] first station timeline (plan running, layers reached, at "
+                  f"t+{run_start:.1f} s):\n  " + "\n  ".join(
+                      line for line in _timeline(ev1, t1) if "StatusText" not in line))
         finally:
             # 2. The station dies (SIGKILL: no goodbye).
             st1.send_signal(signal.SIGKILL)
