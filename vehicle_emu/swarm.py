@@ -47,6 +47,7 @@ from .attrition import Attrition
 from .link import TICK_S, RateLimitedLog, VehicleCore
 from .physics import Physics
 from .radio import Radio, RadioConfig
+from .telemetry_batch import BatchTelemetry
 
 __all__ = ["Swarm", "TruthLog", "VEHICLES_PER_NETWORK", "identity_of_index", "PEER_TIMEOUT_S",
            "MAX_PEERS"]
@@ -163,7 +164,7 @@ class Swarm:
                  ekf_ready_after_s: float = 0.0, unix_time_at_zero_s: float = 1.7e9,
                  max_speed_h_m_s: float = 10.0, tau_pos_s: float = 1.0,
                  radio_period_s: float = 0.1, peer_timeout_s: float = PEER_TIMEOUT_S,
-                 max_peers: int = MAX_PEERS) -> None:
+                 max_peers: int = MAX_PEERS, telemetry: str = "batch") -> None:
         if n_vehicles < 1:
             raise ValueError(f"n_vehicles must be >= 1, got {n_vehicles}")
         n = int(n_vehicles)
@@ -240,6 +241,13 @@ class Swarm:
                       "unroutable": 0, "ticks": 0, "peers_learned": 0, "peers_expired": 0,
                       "peers_evicted": 0}
         self._radio_dirty = False
+        if telemetry not in ("batch", "reference"):
+            raise ValueError(f"telemetry must be 'batch' or 'reference', got {telemetry!r}")
+        #: 'batch': each message type packed once per tick for all vehicles due
+        #: (vehicle_emu.telemetry_batch); 'reference': every core builds its own (the slow path
+        #: the batch output is tested against, byte for byte).
+        self.telemetry = telemetry
+        self._batch = BatchTelemetry(self.cores, self.physics) if telemetry == "batch" else None
         self.radio.update(self.physics.pos_ned_m, self.physics.alive)
         self._record_truth(self._t_s)  # sample 0: the state before any motion
 
@@ -400,9 +408,12 @@ class Swarm:
             self._record_truth(now_s)
             while self._next_truth_s <= now_s + 1e-9:
                 self._next_truth_s += self.truth_period_s
+        if self._batch is not None:
+            self._batch.emit(now_s)
         for core in cores:
             if core.alive:
-                core.emit_telemetry(now_s)
+                if self._batch is None:
+                    core.emit_telemetry(now_s)
                 ev_ = core.next_event()
                 while ev_ is not None:
                     self._events.append(ev_)

@@ -56,12 +56,14 @@ def f32(v: float) -> float:
 class StreamScheduler:
     """Interval and next due time of every stream of one vehicle (msg id -> seconds)."""
 
-    __slots__ = ("default_interval_s", "interval_s", "next_due_s")
+    __slots__ = ("default_interval_s", "interval_s", "next_due_s", "next_any_s")
 
     def __init__(self, default_rates_hz: dict[int, float], now_s: float) -> None:
         self.default_interval_s = {k: 1.0 / v for k, v in default_rates_hz.items()}
         self.interval_s: dict[int, float] = dict(self.default_interval_s)
         self.next_due_s: dict[int, float] = {k: float(now_s) for k in self.interval_s}
+        self.next_any_s = min(self.next_due_s.values(), default=math.inf)
+        """Earliest due time of any stream (a swarm skips vehicles with nothing due)."""
 
     def set_interval(self, msg_id: int, interval_s: float, now_s: float) -> bool:
         """Stream ``msg_id`` every ``interval_s`` (0 = default, < 0 = off); False if we have
@@ -77,6 +79,7 @@ class StreamScheduler:
             interval_s = max(interval_s, 0.001)
             self.interval_s[msg_id] = interval_s
             self.next_due_s[msg_id] = now_s
+        self.next_any_s = min(self.next_due_s.values(), default=math.inf)
         return True
 
     def due(self, now_s: float) -> list[int]:
@@ -90,6 +93,7 @@ class StreamScheduler:
                 nxt = t_due + intervals[msg_id]
                 due[msg_id] = nxt if nxt > now_s else now_s + intervals[msg_id]
                 out.append(msg_id)
+        self.next_any_s = min(due.values(), default=math.inf)
         return out
 
 
