@@ -673,3 +673,51 @@ def descend_separable_leader(px, py, pair_start, ox, oy, aw, lx, ly, gain, expon
         delta[i, 0] = dx_i
         delta[i, 1] = dy_i
     return delta, stop, at_limit
+
+
+@njit(cache=True, fastmath={"nnan", "nsz"})
+def _row_min(row, add, n):
+    # no NaN here; nnan / nsz only let LLVM vectorise the min (the sums are not reordered)
+    m = np.inf
+    for v in range(n):
+        c = row[v] + add[v]
+        m = c if c < m else m
+    return m
+
+
+@njit(cache=True)
+def _first_at(row, add, n, value):
+    for v in range(n):
+        if row[v] + add[v] == value:
+            return v
+    return 0
+
+
+@njit(cache=True)
+def greedy_pick(direct, split, cb_path, parent, n_free, n, with_path):
+    """One step's choice in :func:`planner.steiner._greedy_tree`: the first minimum (row-major, as
+    ``np.argmin`` on the flattened array) of cost_a = direct[:n_free, :n] + cb_path[:n] and of
+    cost_b = split[:n_free, :n] + cb_path[parent[:n]] (without ``with_path``: direct and split
+    themselves), without forming either array: row minima first (vectorised), then the first
+    column in the first row that attains the overall minimum. Returns (ia, a_min, ib, b_min)."""
+    pa = np.zeros(n)
+    pb = np.zeros(n)
+    if with_path:
+        for v in range(n):
+            pa[v] = cb_path[v]
+            pb[v] = cb_path[parent[v]]
+    # x + 0.0 == x for every x here (costs are >= 0 or inf), so the additions change nothing then
+    ra = 0
+    rb = 0
+    a_min = _row_min(direct[0], pa, n)
+    b_min = _row_min(split[0], pb, n)
+    for j in range(1, n_free):
+        m = _row_min(direct[j], pa, n)
+        if m < a_min:
+            a_min, ra = m, j
+        m = _row_min(split[j], pb, n)
+        if m < b_min:
+            b_min, rb = m, j
+    ia = ra * n + _first_at(direct[ra], pa, n, a_min)
+    ib = rb * n + _first_at(split[rb], pb, n, b_min)
+    return ia, a_min, ib, b_min

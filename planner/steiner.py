@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
+from planner import _kernels
+
 __all__ = [
     "TaskTree",
     "fermat_point",
@@ -517,16 +519,22 @@ def _greedy_tree(base: np.ndarray, tasks: np.ndarray, cb: float) -> tuple[np.nda
     add_node_columns([0], m)
     for n_free in range(m, 0, -1):
         n = n_nodes[0]
-        if cb == 0.0:
-            cost_a = direct[:n_free, :n]
-            cost_b = split[:n_free, :n]
+        if _kernels.NUMBA and _kernels.ENABLED:
+            # the lines below without forming the (F, n) cost arrays, the same sums and first minima
+            ia, a_min, ib, b_min = _kernels.greedy_pick(direct, split, cb * path if cb != 0.0 else path, parent,
+                                                        n_free, n, cb != 0.0)
+            use_direct = a_min <= b_min
         else:
-            cb_path = cb * path[:n]
-            cost_a = direct[:n_free, :n] + cb_path                # (a), (F, n)
-            cost_b = split[:n_free, :n] + cb_path[parent[:n]]     # (b); column 0 (B) is inf
-        ia = int(np.argmin(cost_a))
-        ib = int(np.argmin(cost_b))
-        use_direct = cost_a.flat[ia] <= cost_b.flat[ib]
+            if cb == 0.0:
+                cost_a = direct[:n_free, :n]
+                cost_b = split[:n_free, :n]
+            else:
+                cb_path = cb * path[:n]
+                cost_a = direct[:n_free, :n] + cb_path                # (a), (F, n)
+                cost_b = split[:n_free, :n] + cb_path[parent[:n]]     # (b); column 0 (B) is inf
+            ia = int(np.argmin(cost_a))
+            ib = int(np.argmin(cost_b))
+            use_direct = cost_a.flat[ia] <= cost_b.flat[ib]
         j, col = divmod(ia if use_direct else ib, n)
         k = int(row_task[j])
         y = complex(task_z[k])

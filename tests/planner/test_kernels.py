@@ -298,3 +298,16 @@ def test_dccrs_compiled_descent_identical(numpy_only, params):
         outs.append(run)
     for (d0, i0, c0), (d1, i1, c1) in zip(*outs):
         assert np.array_equal(d0, d1) and (i0, c0) == (i1, c1)
+
+
+@pytest.mark.parametrize("m,cb", [(1, 1.0), (5, 1.0), (40, 1.0), (40, 0.0), (120, 0.5)])
+def test_greedy_tree_compiled_pick_identical(rng, numpy_only, m, cb):
+    tasks = rng.uniform(-20, 20, (m, 2))
+    if m >= 5:
+        tasks[1] = tasks[0]                                  # duplicate tasks: exact ties
+        tasks[2:5] = [[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]]     # collinear
+    fast = build_task_tree(np.array([0.5, -0.5]), tasks, cb)
+    numpy_only(True)
+    slow = build_task_tree(np.array([0.5, -0.5]), tasks, cb)
+    numpy_only(False)
+    assert np.array_equal(fast.nodes_m, slow.nodes_m) and np.array_equal(fast.parent, slow.parent)
