@@ -410,14 +410,15 @@ class Swarm:
                 self._next_truth_s += self.truth_period_s
         if self._batch is not None:
             self._batch.emit(now_s)
+        events = self._events
+        reference = self._batch is None
         for core in cores:
             if core.alive:
-                if self._batch is None:
+                if reference:
                     core.emit_telemetry(now_s)
-                ev_ = core.next_event()
-                while ev_ is not None:
-                    self._events.append(ev_)
-                    ev_ = core.next_event()
+                queue = core._events  # next_event() until empty, without a call per core
+                while queue:
+                    events.append(queue.popleft())
         self.stats["ticks"] += 1
 
     step = handle_timer

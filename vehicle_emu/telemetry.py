@@ -56,7 +56,7 @@ def f32(v: float) -> float:
 class StreamScheduler:
     """Interval and next due time of every stream of one vehicle (msg id -> seconds)."""
 
-    __slots__ = ("default_interval_s", "interval_s", "next_due_s", "next_any_s")
+    __slots__ = ("default_interval_s", "interval_s", "next_due_s", "next_any_s", "_mirror")
 
     def __init__(self, default_rates_hz: dict[int, float], now_s: float) -> None:
         self.default_interval_s = {k: 1.0 / v for k, v in default_rates_hz.items()}
@@ -64,6 +64,17 @@ class StreamScheduler:
         self.next_due_s: dict[int, float] = {k: float(now_s) for k in self.interval_s}
         self.next_any_s = min(self.next_due_s.values(), default=math.inf)
         """Earliest due time of any stream (a swarm skips vehicles with nothing due)."""
+        self._mirror = None
+
+    def mirror_into(self, array, index: int) -> None:
+        """Keep ``array[index]`` equal to :attr:`next_any_s` (a swarm's vector of them)."""
+        self._mirror = (array, index)
+        array[index] = self.next_any_s
+
+    def _update_next_any(self) -> None:
+        self.next_any_s = nxt = min(self.next_due_s.values(), default=math.inf)
+        if self._mirror is not None:
+            self._mirror[0][self._mirror[1]] = nxt
 
     def set_interval(self, msg_id: int, interval_s: float, now_s: float) -> bool:
         """Stream ``msg_id`` every ``interval_s`` (0 = default, < 0 = off); False if we have
@@ -79,7 +90,7 @@ class StreamScheduler:
             interval_s = max(interval_s, 0.001)
             self.interval_s[msg_id] = interval_s
             self.next_due_s[msg_id] = now_s
-        self.next_any_s = min(self.next_due_s.values(), default=math.inf)
+        self._update_next_any()
         return True
 
     def due(self, now_s: float) -> list[int]:
@@ -93,7 +104,7 @@ class StreamScheduler:
                 nxt = t_due + intervals[msg_id]
                 due[msg_id] = nxt if nxt > now_s else now_s + intervals[msg_id]
                 out.append(msg_id)
-        self.next_any_s = min(due.values(), default=math.inf)
+        self._update_next_any()
         return out
 
 

@@ -354,6 +354,11 @@ class BatchTelemetry:
                                      dtype=np.int64)
         self.sysid = np.array([c.sysid for c in self.cores], dtype=np.int64)
         self.compid = np.array([c.compid for c in self.cores], dtype=np.int64)
+        #: Earliest due time per vehicle, mirrored by each core's StreamScheduler, so that a
+        #: tick visits only the vehicles with something due.
+        self.next_any_s = np.full(len(self.cores), np.inf)
+        for i, c in enumerate(self.cores):
+            c.streams.mirror_into(self.next_any_s, i)
         self.n_batched = 0
         """Frames packed by the batch path so far."""
         self.n_reference = 0
@@ -379,12 +384,13 @@ class BatchTelemetry:
         jobs: dict[int, list] = {}
         batched = BATCHED_TYPES
         builders = tm.BUILDERS
-        for core in self.cores:
+        cores_all = self.cores
+        for i in np.flatnonzero(self.next_any_s <= now_s + 1e-9).tolist():
+            core = cores_all[i]
             if not core.alive:
+                self.next_any_s[i] = np.inf  # silent forever
                 continue
             streams = core.streams
-            if now_s + 1e-9 < streams.next_any_s:
-                continue
             if sane is None:
                 sane = self._sane_rows()
             codec = core._codec

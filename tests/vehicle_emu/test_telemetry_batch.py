@@ -52,6 +52,12 @@ def test_batch_frames_equal_reference_frames():
             for sw in (ref, bat):
                 sw.cores[2]._set_mode(sw.cores[2].pers.rtl_mode, t, "test")
                 sw.cores[10]._disarm(t, "test")
+        if k == 90:  # a vehicle lost: silent from now on, on both paths
+            for sw in (ref, bat):
+                sw.kill(12, t)
+        if k == 100:  # a GCS asks for a stream mid-run (SET_MESSAGE_INTERVAL path)
+            for sw in (ref, bat):
+                sw.cores[13].set_stream_rate(tm.M_ATTITUDE, 4.0, t)
         ref.handle_timer(t)
         bat.handle_timer(t)
         a, b = ref.datagrams_to_send(t), bat.datagrams_to_send(t)
