@@ -45,8 +45,9 @@ import numpy as np
 from planner.geometry import step_toward, tasks_connected
 from planner.knowledge import MessageLayer
 from planner.methods import PlanOutput, TickInput
-from planner.phireman import (PhiremanParams, PhiremanPlanner, TreeSegments, _EntriesByDrone,
-                              _pair_gradient_xy, descend, parse_params)
+from planner import _kernels
+from planner.phireman import (PhiremanParams, PhiremanPlanner, TreeSegments, _descend_separable_compiled,
+                              _EntriesByDrone, _pair_gradient_xy, descend, parse_params)
 from planner.problem import ProblemConfig
 from planner.steiner import TaskTree, maintain_task_tree
 
@@ -554,8 +555,29 @@ class ResilientPlanner(PhiremanPlanner):
                 g += claim_gradient(x[rows], claim[rows], p.claim_gain)
             return g
 
-        res = descend(pos_u[idx], grad, self.vmax_u, p, separable=True)
-        disp_u[idx] = res.disp_u
+        if _kernels.NUMBA and _kernels.ENABLED and p.speed_rule == "per_drone" and segments.entries is not None:
+            # The descent is separable (each drone against its fixed beliefs), so the drones without
+            # a claim take PhiIREMAN's compiled descent (bit for bit the NumPy one) and only the
+            # claimers run the NumPy descent with the claim term; same instructions as one NumPy
+            # descent of everybody (tests/planner/test_resilient.py).
+            res = _descend_separable_compiled(pos_u[idx], entries, segments, p, self.reach_u, self.vmax_u)
+            disp_u[idx] = res.disp_u
+            if claim is not None:
+                crow = np.flatnonzero(np.isfinite(claim).all(axis=1))
+
+                def grad_claimers(xs, rows):
+                    full = crow[rows]
+                    er, ox, oy = entries.of(full)
+                    return (_pair_gradient_xy(xs[rows], er, ox, oy, p.attraction, p.attraction_floor,
+                                              p.repulsion, self.reach_u, p.pair_factor)
+                            + segments.gradient(xs[rows], full, p.thorn)
+                            + claim_gradient(xs[rows], claim[full], p.claim_gain))
+
+                sub = descend(pos_u[idx[crow]], grad_claimers, self.vmax_u, p, separable=True)
+                disp_u[idx[crow]] = sub.disp_u
+        else:
+            res = descend(pos_u[idx], grad, self.vmax_u, p, separable=True)
+            disp_u[idx] = res.disp_u
         if claim is not None and p.claim_tether > 0:
             rows = np.flatnonzero(np.isfinite(claim).all(axis=1))
             anchor = tether_anchors(pos_u[idx], ent_r, ent_y, base_u, self.r_u, self.base_reach_u)
