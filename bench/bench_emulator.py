@@ -50,7 +50,7 @@ def _sink(port_q: mp.Queue, result_q: mp.Queue, duration_s: float) -> None:
     while time.monotonic() < end:
         try:
             data, addr = sock.recvfrom(65535)
-        except socket.timeout:
+        except TimeoutError:
             if started is not None:
                 break
             continue

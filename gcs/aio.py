@@ -27,7 +27,7 @@ import logging
 import os
 import socket
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from gcs.connection import ConnectionSpec, parse_connection
 from gcs.events import Event, LinkDown, LinkEvent, LinkUp
@@ -42,7 +42,7 @@ _UDP_RCVBUF_BYTES = 4 << 20
 
 
 class _Udp(asyncio.DatagramProtocol):
-    def __init__(self, owner: "StationAdapter") -> None:
+    def __init__(self, owner: StationAdapter) -> None:
         self.owner = owner
 
     def datagram_received(self, data: bytes, addr) -> None:
@@ -104,7 +104,7 @@ class _SerialPort:
     @classmethod
     def open(cls, spec: ConnectionSpec, loop: asyncio.AbstractEventLoop,
              on_data: Callable[[bytes], None], *, link_id: int = 0,
-             on_lost: Callable[[str], None] | None = None) -> "_SerialPort":
+             on_lost: Callable[[str], None] | None = None) -> _SerialPort:
         if os.name != "posix":
             raise SerialLinkError(f"{spec.text!r}: serial links are supported on Linux and macOS "
                                   "only (they need the event loop's add_reader)")
@@ -322,7 +322,7 @@ class StationAdapter:
         elif self._on_event is None:
             self.events.put_nowait(event)
 
-    async def start(self) -> "StationAdapter":
+    async def start(self) -> StationAdapter:
         """Open the link. A link that is down is retried in the background (see the module
         docstring); a mistake raises :class:`LinkOpenError` or :class:`SerialLinkError` (both
         OSError), in one line."""

@@ -47,7 +47,7 @@ is not fixed and still blocks.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping
+from collections.abc import Mapping
 
 from gcs.autopilot import ARDUPILOT, PX4
 

@@ -47,7 +47,7 @@ class Geofence:
             raise ValueError(f"max_alt_m must be > 0, got {self.max_alt_m}")
 
     @classmethod
-    def square(cls, half_width_m: float, max_alt_m: float = math.inf) -> "Geofence":
+    def square(cls, half_width_m: float, max_alt_m: float = math.inf) -> Geofence:
         """A square of half-width ``half_width_m`` centred on the base station."""
         if not half_width_m > 0:
             raise ValueError(f"half_width_m must be > 0, got {half_width_m}")

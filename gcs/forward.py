@@ -29,7 +29,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import Callable, Protocol, Sequence
+from typing import Protocol
+from collections.abc import Callable, Sequence
 
 from gcs.connection import ConnectionSpec, parse_connection
 from gcs.wire import mavlink
@@ -125,7 +126,7 @@ class Forwarder:
         lid = link.link_id
         link.add_tap(lambda data, addr: self.from_vehicle(lid, data, addr, datagram=datagram))
 
-    async def start(self) -> "Forwarder":
+    async def start(self) -> Forwarder:
         loop = asyncio.get_running_loop()
         for spec in self.specs:
             out = _Output(self, spec)

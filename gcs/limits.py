@@ -25,7 +25,7 @@ PX4 multicopter
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 from gcs.autopilot import ARDUPILOT, PX4
 

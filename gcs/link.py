@@ -25,7 +25,8 @@ import logging
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Callable, Hashable
+from typing import Any
+from collections.abc import Callable, Hashable
 
 from gcs import wire
 from gcs.autopilot import Adapter, CommandSpec, adapter_for

@@ -27,7 +27,8 @@ import threading
 import weakref
 from collections import deque
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 __all__ = ["TlogWriter", "EventLog", "MetricsWriter", "write_summary", "DEFAULT_FLUSH_PERIOD_S"]
 
@@ -105,7 +106,7 @@ class _BackgroundFile:
         _OPEN.discard(self)
 
 
-_OPEN: "weakref.WeakSet[_BackgroundFile]" = weakref.WeakSet()
+_OPEN: weakref.WeakSet[_BackgroundFile] = weakref.WeakSet()
 
 
 @atexit.register
@@ -143,7 +144,7 @@ class TlogWriter:
     def close(self) -> None:
         self._file.close()
 
-    def __enter__(self) -> "TlogWriter":
+    def __enter__(self) -> TlogWriter:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -183,7 +184,7 @@ class EventLog:
     def close(self) -> None:
         self._file.close()
 
-    def __enter__(self) -> "EventLog":
+    def __enter__(self) -> EventLog:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -232,7 +233,7 @@ class MetricsWriter:
     def close(self) -> None:
         self._file.close()
 
-    def __enter__(self) -> "MetricsWriter":
+    def __enter__(self) -> MetricsWriter:
         return self
 
     def __exit__(self, *exc) -> None:

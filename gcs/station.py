@@ -7,7 +7,7 @@ to the right link, timers and events are merged. It owns no sockets and reads no
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 from gcs.events import Event
 from gcs.link import StationLink, UnknownVehicle, VehicleInfo

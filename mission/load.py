@@ -188,7 +188,7 @@ def _parse_yaml(text: str | bytes) -> Any:
             raise MissionError([f"refused: nested deeper than {MAX_DEPTH} levels{where}"]) from None
         raise MissionError([f"not valid YAML: {problem}{where}"]) from None
     except RecursionError:
-        raise MissionError([f"refused: nested too deeply"]) from None
+        raise MissionError(["refused: nested too deeply"]) from None
 
 
 # --------------------------------------------------------------------------------------------

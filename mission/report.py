@@ -378,7 +378,7 @@ def _agreement_summary(cells: list[Cell], methods) -> tuple[str, dict]:
         stats[m] = {"configs": len(core), "with_data": len(have), "within_both": both, "within_tu1": t1,
                     "within_tu2": t2, "tolerance_pp": tol}
         target = " (target: at least 18 of 20)" if m == "phireman" else " (target: most)"
-        of_all = "" if len(core) >= 20 else f" with data (the paper's table has 20)"
+        of_all = "" if len(core) >= 20 else " with data (the paper's table has 20)"
         lines.append(f"- **{paper.METHOD_LABELS.get(m, m)}** within {tol:g} pp of the paper at 0–2 % "
                      f"attrition: **{both} of {len(core)}** configurations{of_all} on both TU1 and TU2{target}; "
                      f"TU1 alone {t1}, TU2 alone {t2}"
@@ -537,7 +537,7 @@ def _ablations(selector: Selector, reading: str, params: dict, problem_overrides
     header = ["Configuration", "TU1 (ours)", "TU2 (ours)", "TU1 (paper)", "TU2 (paper)",
               "below default: ours TU1 / TU2 (p unpaired; paired)", "paper", "agrees"]
     rows, csv_samples = [], []
-    for label, (spec, s) in samples.items():
+    for label, (_spec, s) in samples.items():
         ref = paper_rows.get(label)
         csv_samples.append(s if s is not None else None)
         if s is None or s.n == 0:

@@ -27,13 +27,12 @@ import dataclasses
 import json
 import logging
 import math
-import os
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -362,7 +361,7 @@ class FlyOptions:
     emulator_in_process: bool = False
     """Run the emulator on the station's event loop (tests: failure injection through
     ``world.swarm``) instead of its own process."""
-    on_operator: Callable[["Operator", "object"], None] | None = None
+    on_operator: Callable[[Operator, object], None] | None = None
     """Hook called on every poll with (operator, world or None) - tests inject failures here."""
     serve: str | None = None
     """``[HOST:]PORT``: serve the live web view there (:mod:`mission.live`)."""
@@ -805,7 +804,7 @@ def _emulator_tick_s(speedup: float) -> float:
 
 
 def _build_world(mission: Mission, seed: int, personality: str | None, clock,
-                 params: dict | None) -> "_MissionWorld":
+                 params: dict | None) -> _MissionWorld:
     scenario = mission_scenario(mission, seed)
     swarm = build_swarm(mission, scenario, seed=seed, personality=personality,
                         unix_time_at_zero_s=clock.unix_time_at_zero_s, params=params,
@@ -831,7 +830,7 @@ class _InProcessEmulator:
     """The emulator on the station's own event loop (small fleets, tests: the swarm is
     reachable for failure injection through :attr:`swarm`)."""
 
-    def __init__(self, world: "_MissionWorld", clock: PacedClock) -> None:
+    def __init__(self, world: _MissionWorld, clock: PacedClock) -> None:
         self.world = world
         self.swarm = world.swarm
         self.server = EmulatorServer(world.swarm, clock)
@@ -1117,7 +1116,7 @@ class LockstepEther:
         """Move everything queued on both sides (repeat until quiet)."""
         for _ in range(4):
             moved = 0
-            for lid, data, addr in self.station.datagrams_to_send(self.now_s):
+            for lid, data, _addr in self.station.datagrams_to_send(self.now_s):
                 if lid in self.cut_links or self._drop():
                     continue
                 self.swarm.receive_datagram(lid, data, ("gcs", lid), self.now_s)

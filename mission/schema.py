@@ -141,7 +141,7 @@ def paper_length_unit_m(radio_range_m: float) -> float:
     return radio_range_m / 2.0
 
 
-def _approx_local_m(origin: "Origin", lat_deg: float, lon_deg: float) -> tuple[float, float]:
+def _approx_local_m(origin: Origin, lat_deg: float, lon_deg: float) -> tuple[float, float]:
     """(north_m, east_m) of a lat/lon relative to the origin, equirectangular (validation only)."""
     north = math.radians(lat_deg - origin.lat_deg) * _EARTH_RADIUS_M
     dlon = (lon_deg - origin.lon_deg + 180.0) % 360.0 - 180.0

@@ -173,7 +173,7 @@ class SitlSwarm:
 
     # ------------------------------------------------------------------ start / stop
 
-    def start(self) -> "SitlSwarm":
+    def start(self) -> SitlSwarm:
         spec = self.spec
         if spec.workdir is None:
             self._tmp = tempfile.mkdtemp(prefix=f"phireman-sitl-{spec.firmware}-")
@@ -261,7 +261,7 @@ class SitlSwarm:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
 
-    def __enter__(self) -> "SitlSwarm":
+    def __enter__(self) -> SitlSwarm:
         return self.start()
 
     def __exit__(self, *exc) -> None:

@@ -43,7 +43,7 @@ import datetime as _dt
 import json
 import pathlib
 import sqlite3
-from typing import Iterable, Iterator
+from collections.abc import Iterable, Iterator
 
 __all__ = ["ResultStore", "StoreError", "SCHEMA_VERSION", "ROW_FIELDS", "utc_now"]
 
@@ -112,7 +112,7 @@ class StoreError(RuntimeError):
 
 
 def utc_now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
 
 
 class ResultStore:
@@ -172,7 +172,7 @@ class ResultStore:
     def close(self) -> None:
         self.db.close()
 
-    def __enter__(self) -> "ResultStore":
+    def __enter__(self) -> ResultStore:
         return self
 
     def __exit__(self, *exc) -> None:

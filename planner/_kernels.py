@@ -21,7 +21,6 @@ import math
 import numpy as np
 
 try:  # pragma: no cover - exercised by whichever environment runs the tests
-    import numba
     from numba import njit, prange
 
     NUMBA = True

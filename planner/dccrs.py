@@ -390,7 +390,6 @@ class DccrsPlanner:
         total energy); otherwise they are fixed beliefs (async, as in PhiIREMAN).
         """
         p = self.params
-        n = len(pos_u)
         diff = pos_u[:, None, :] - others_u
         near = mask & (np.einsum("nkc,nkc->nk", diff, diff) <= self.r_u ** 2)   # N_i
         rho = near.sum(axis=1)

@@ -465,9 +465,7 @@ class Knowledge(_StampTables):
         r, c, s = self._own(r, c, s, alive, t_step)
         # Forget stale entries, then distant ones (measured from the holder's own position).
         r, c, s = _select(s >= t_step - age_max_steps, r, c, s)
-        rows = np.flatnonzero(alive)
         col_held = np.bincount(c, minlength=n) > 0          # known to somebody before the distance cut
-        cols = np.flatnonzero(col_held)
         hist = self.pos_hist_m.reshape(-1, 2)
         at = s * n + c                                      # pos_hist_m[s, c], one coordinate at a time
         bx, by = hist[:, 0][at], hist[:, 1][at]
@@ -522,7 +520,6 @@ class KnowledgeDense(_StampTables):
                age_max_steps: int, dist_max_m: float, base_m: np.ndarray, *,
                after_move: bool = False, forget_unheard: bool = False) -> None:
         """The dense (N, N) version of :meth:`Knowledge.update` (same semantics; the test reference)."""
-        n = len(pos_m)
         self.pos_hist_m[t_step] = pos_m
         if after_move:
             link_pos_m, link_alive, t_sent = pos_m, alive, t_step

@@ -291,7 +291,7 @@ class MccstParams:
             raise ValueError("MccstParams: " + "; ".join(problems))
 
     @classmethod
-    def from_dict(cls, params: dict) -> "MccstParams":
+    def from_dict(cls, params: dict) -> MccstParams:
         """Build from a ``params`` dict; unknown keys raise ValueError listing the valid ones."""
         valid = [f.name for f in dataclasses.fields(cls)]
         unknown = sorted(set(params) - set(valid))

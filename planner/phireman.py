@@ -634,7 +634,7 @@ def descend_reference(pos_u, gradient, vmax, p: PhiremanParams) -> np.ndarray:
             lo, hi = 0.0, 1.0
             for _ in range(60):
                 mid = (lo + hi) / 2
-                if np.linalg.norm(delta[i] + mid * steps[i]) > vmax:
+                if np.linalg.norm(delta[i] + mid * steps[i]) > vmax:  # noqa: B023 - called in this iteration only
                     hi = mid
                 else:
                     lo = mid

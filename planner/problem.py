@@ -103,7 +103,7 @@ class ProblemConfig:
         if problems:
             raise ValueError("; ".join(problems))
 
-    def replace(self, **changes) -> "ProblemConfig":
+    def replace(self, **changes) -> ProblemConfig:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 

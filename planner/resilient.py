@@ -37,7 +37,6 @@ Units: as PhiIREMAN, every length parameter is in paper units (1 unit = r / 2); 
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np

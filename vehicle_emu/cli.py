@@ -176,7 +176,7 @@ async def _serve(swarm: Swarm, clock: RealClock, args) -> None:
         else:
             try:
                 await asyncio.wait_for(stop.wait(), clock.wall_delay_s(args.duration_s))
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 pass
     finally:
         server.close()

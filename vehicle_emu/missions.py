@@ -64,7 +64,7 @@ class MissionItem:
     z: float
 
     @classmethod
-    def from_msg(cls, m) -> "MissionItem":
+    def from_msg(cls, m) -> MissionItem:
         x, y = m.x, m.y
         if m.get_type() == "MISSION_ITEM":
             # Legacy float item: lat/lon in degrees for global frames (common.xml MISSION_ITEM).

@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 
 
 class _EndpointProtocol(asyncio.DatagramProtocol):
-    def __init__(self, server: "EmulatorServer", endpoint: int) -> None:
+    def __init__(self, server: EmulatorServer, endpoint: int) -> None:
         self.server = server
         self.endpoint = endpoint
 

@@ -118,7 +118,7 @@ class World:
     base_m: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
     @classmethod
-    def from_scenario(cls, problem: ProblemConfig, scenario: Scenario) -> "World":
+    def from_scenario(cls, problem: ProblemConfig, scenario: Scenario) -> World:
         return cls(problem, scenario.drone_pos0_m.copy(), np.ones(len(scenario.drone_pos0_m), bool),
                    scenario.task_track_m)
 

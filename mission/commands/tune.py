@@ -153,7 +153,7 @@ def run(args) -> int:
               f"- code: `{code_version()}`",
               f"- reading: {args.reading}; seeds {seed0}..{seed0 + args.seeds - 1} "
               f"(the same for every setting)",
-              f"- search: " + "; ".join(f"`{k}` ∈ {{{', '.join(map(str, v))}}}" for k, v in axes.items()),
+              "- search: " + "; ".join(f"`{k}` ∈ {{{', '.join(map(str, v))}}}" for k, v in axes.items()),
               f"- common overrides: {', '.join(args.set) or 'none'}",
               f"- ranked by mean TU1, then TU2; last column: one-tailed paired t-test that the best setting "
               f"beats this one on TU1 (n.s. = not significant at p < {ALPHA})", ""]

@@ -191,7 +191,7 @@ class ReplaySource:
                 first_disc.setdefault(ev.sysid, ev.t_s)
         # tlog stamp offset: first HEARTBEAT of a vehicle <-> its VehicleDiscovered event.
         first_hb: dict[int, float] = {}
-        for stamp, sysid, compid, msg in tlog:
+        for stamp, sysid, _compid, msg in tlog:
             if msg.get_msgId() == _HB and sysid in first_disc and sysid not in first_hb:
                 first_hb[sysid] = stamp
         diffs = [first_hb[s] - first_disc[s] for s in first_hb]

@@ -130,7 +130,7 @@ class LiveServer:
             host = "127.0.0.1"
         return f"http://{host}:{self.port}/"
 
-    async def start(self) -> "LiveServer":
+    async def start(self) -> LiveServer:
         self._runner = web.AppRunner(self.app, access_log=None, handle_signals=False)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
@@ -191,7 +191,7 @@ class LiveServer:
                 if seq == seen or not data:
                     try:
                         await asyncio.wait_for(self._changed.wait(), 15.0)
-                    except asyncio.TimeoutError:
+                    except TimeoutError:
                         await resp.write(b": keep-alive\n\n")
                     continue
                 seen = seq
@@ -215,7 +215,7 @@ class LiveServer:
             body = await request.json()
             action, vehicle = str(body["action"]), str(body.get("vehicle", ""))
         except (ValueError, KeyError, TypeError):
-            raise web.HTTPBadRequest(text='expected {"action": ..., "vehicle": "L:S" | "all"}')
+            raise web.HTTPBadRequest(text='expected {"action": ..., "vehicle": "L:S" | "all"}') from None
         try:
             done = act(action, vehicle, f"web {request.remote}")
         except (ValueError, KeyError, LookupError) as exc:

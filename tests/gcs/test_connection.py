@@ -49,6 +49,6 @@ def test_bad_connection_strings_say_why(text, fragment):
 
 def test_address_of_serial_is_an_error():
     with pytest.raises(ValueError):
-        parse_connection("/dev/ttyUSB0").address
+        _ = parse_connection("/dev/ttyUSB0").address
     with pytest.raises(ValueError):
         ConnectionSpec(kind="bogus")

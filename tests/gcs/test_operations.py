@@ -52,7 +52,7 @@ AP_SAFE = {"FS_GCS_ENABLE": 1.0, "FS_GCS_TIMEOUT": 5.0, "FS_OPTIONS": 0.0, "GUID
 
 
 class FakeLink:
-    def __init__(self, station: "FakeStation", link_id: int) -> None:
+    def __init__(self, station: FakeStation, link_id: int) -> None:
         self.station, self.link_id = station, link_id
 
     def cancel_param(self, sysid: int, name: str, now_s: float) -> bool:
@@ -679,7 +679,7 @@ def test_command_failures_back_off_exponentially():
                       CommandFailed(0, 1, t_fail, cmd, 0, mavlink.MAV_RESULT_DENIED
                                     if cmd == TAKEOFF else mavlink.MAV_RESULT_UNSUPPORTED))
         t = feed.run(t_fail, t_fail + 100.0, 0.25,
-                     until=lambda op: bool(station.of("takeoff", since_s=t_fail)))
+                     until=lambda op: bool(station.of("takeoff", since_s=t_fail)))  # noqa: B023
         attempts.append(t)
     gaps = [b - a for a, b in zip(attempts, attempts[1:])]
     # First retry after the 3 s minimum (the failure came 0.5 s in: 0.5 + 3), then doubling,

@@ -134,7 +134,7 @@ def test_fuzz_random_bytes_and_frames_create_no_vehicle_and_are_counted(station)
     rng = random.Random(12)
     link = station(allowed_sysids=frozenset({1, 2}), address_hold_s=2.0)
     real = {1: (FakeAutopilot(sysid=1), A1), 2: (FakeAutopilot(sysid=2), A2)}
-    strangers = [("192.0.2.%d" % i, 40000 + i) for i in range(5)]
+    strangers = [(f"192.0.2.{i}", 40000 + i) for i in range(5)]
     aps: dict = {}
     expect_refused = expect_inconsistent = 0
     t = 0.0

@@ -54,7 +54,7 @@ class _Client:
         self.sock.settimeout(timeout_s)
         try:
             data, _ = self.sock.recvfrom(65535)
-        except socket.timeout:
+        except TimeoutError:
             return []
         return [m for m in (self.rx.parse_buffer(data) or []) if m.get_type() != "BAD_DATA"]
 

@@ -22,7 +22,7 @@ from mission.runners import (
     station_for_swarm,
 )
 from mission.schema import (
-    Attrition, EmulatedVehicles, LocalPoint, Mission, Radio, RunSpec, ScriptedLoss, Spawn,
+    Attrition, EmulatedVehicles, Mission, Radio, RunSpec, ScriptedLoss, Spawn,
     SpawnRing, Task, TrackPoint, Vehicles,
 )
 from vehicle_emu.swarm import Swarm
@@ -192,7 +192,7 @@ def test_audit_refusal_writes_no_parameter_without_the_flag():
 
 def _sent_messages(f):
     out = []
-    for t, outgoing, frame in f.station.links[0].take_frames():
+    for _t, outgoing, frame in f.station.links[0].take_frames():
         if outgoing:
             m = mavlink.MAVLink(None)
             m.robust_parsing = True

@@ -126,7 +126,6 @@ def live_run(browser, tmp_path_factory):
             urllib.request.urlopen(req, timeout=10)
         assert err.value.code == 403
         # RTL one vehicle from the page, behind the confirmation.
-        swarm = box.get("result") and box["result"].swarm
         target = 3 if box["killed"] != 3 else 4
         # The table and the vehicle card are redrawn with every frame: find and click at once.
         _wait(lambda: drv.find_element("css selector", f'#vtable tr[data-vid="0:{target}"]')
@@ -222,10 +221,10 @@ def test_replay_slider_matches_the_records(browser, replay_server):
         drv.execute_script("const s = document.getElementById('slider'); s.value = arguments[0];"
                            "s.dispatchEvent(new Event('input'));", i)
         want_t = src.frame(i)["t_mission_s"]
-        _wait(lambda: drv.execute_script("return window.phiremanFrame.t_mission_s") == want_t,
+        _wait(lambda: drv.execute_script("return window.phiremanFrame.t_mission_s") == want_t,  # noqa: B023
               30, f"the page at the slider's time t+{want_t} s")
-        _wait(lambda: _count(drv, "networked") + _count(drv, "reclaimed") == nets
-              and _count(drv, "lost") == lost, 30,
+        _wait(lambda: _count(drv, "networked") + _count(drv, "reclaimed") == nets  # noqa: B023
+              and _count(drv, "lost") == lost, 30,  # noqa: B023
               f"counts at t+{rows[k]['t_mission_s']:.0f} s = metrics.csv ({nets} net, {lost} lost)")
         assert int(slider.get_attribute("value")) == i
         checked += 1

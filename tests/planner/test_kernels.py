@@ -133,7 +133,7 @@ def test_planner_with_and_without_kernels(rng, info, numpy_only):
 def test_compiled_async_descent_bit_identical(rng, thorn, max_steps):
     """descend_separable against descend(separable=True, per_drone) on the same entries, including
     the iterations / converged / hit_speed_limit diagnostics."""
-    from planner.phireman import (DescentResult, _descend_separable_compiled, _EntriesByDrone, descend)
+    from planner.phireman import (_descend_separable_compiled, _EntriesByDrone, descend)
     n = 300
     trees = [build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(1, 20)), 2))) for _ in range(3)]
     x0 = rng.uniform(-9, 9, (n, 2))

@@ -56,7 +56,7 @@ def test_descend_matches_reference_and_respects_the_speed_limit(rng, rule):
         mask = ~np.eye(len(x), dtype=bool)
 
         def grad(y, rows):
-            return task_gradient(y, tree, p.thorn) + pair_gradient(y, y, mask, p.attraction,
+            return task_gradient(y, tree, p.thorn) + pair_gradient(y, y, mask, p.attraction,  # noqa: B023
                                                                    p.attraction_floor, p.repulsion, 2.0, 2.0)
 
         res = descend(x, grad, 0.15, p)

@@ -1,5 +1,4 @@
 """ArduPilot Copter personality: modes, arming, takeoff, setpoints, timeouts, failsafe."""
-import math
 
 import numpy as np
 import pytest

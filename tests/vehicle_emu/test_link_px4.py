@@ -241,7 +241,7 @@ def test_px4_global_targets_only_in_int_frames(gcs, frame, flown):
     msg = mavlink.MAVLink_set_position_target_global_int_message(
         0, 1, 1, frame, 3576, round(lat * 1e7), round(lon * 1e7), alt, 0, 0, 0, 0, 0, 0, 0, 0)
     ignored = rig.core.stats.setpoints_ignored
-    for k in range(60):  # 3 s of a 20 Hz stream of that one target
+    for _ in range(60):  # 3 s of a 20 Hz stream of that one target
         rig.t = round(rig.t + 0.05, 6)
         rig.core.receive_datagram(gcs.frame(msg), GCS_ADDR, rig.t)
         rig.core.handle_timer(rig.t)

@@ -40,7 +40,7 @@ def test_one_off_senders_are_forgotten_and_capped(gcs):
     swarm = _swarm(peer_timeout_s=10.0, max_peers=4)
     hb = gcs.heartbeat()
     for k in range(2000):
-        swarm.receive_datagram(0, hb, ("10.9.%d.%d" % (k // 250, k % 250), 40000 + k), 0.01)
+        swarm.receive_datagram(0, hb, (f"10.9.{k // 250}.{k % 250}", 40000 + k), 0.01)
     assert len(swarm.peers[0]) == 4                      # the cap
     assert swarm.stats["peers_evicted"] == 2000 - 4
     dests, n = _tick(swarm, 0.0, 5.0)
