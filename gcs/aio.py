@@ -28,6 +28,7 @@ import os
 import socket
 import time
 from collections.abc import Callable
+from typing import Any
 
 from gcs.connection import ConnectionSpec, parse_connection
 from gcs.events import Event, LinkDown, LinkEvent, LinkUp
@@ -119,6 +120,7 @@ class _SerialPort:
             err = SerialLinkError(_serial_open_reason(spec, exc))
             err.retryable = getattr(exc, "errno", None) in _SERIAL_RETRY_ERRNOS
             raise err from exc
+        assert spec.device is not None and spec.baud is not None  # a serial spec has both
         try:
             return cls(port, loop, on_data, name=spec.device, baud=spec.baud, link_id=link_id,
                        on_lost=on_lost)
@@ -168,6 +170,7 @@ class _SerialPort:
 
     def _write_now(self, data) -> int | None:
         """Bytes the kernel took at once (0 if it would block); None if the port was lost."""
+        assert self._fd is not None  # both callers return early on a closed port
         try:
             return os.write(self._fd, data)
         except (BlockingIOError, InterruptedError):
@@ -235,7 +238,7 @@ def _open_reason(spec: ConnectionSpec, exc: BaseException) -> str:
     if spec.kind in ("udpin", "tcpin"):
         hint = {errno.EADDRINUSE: " (another station, MAVProxy or QGroundControl on this port?)",
                 errno.EADDRNOTAVAIL: " (not an address of this computer)",
-                errno.EACCES: " (ports below 1024 need privileges)"}.get(code, "")
+                errno.EACCES: " (ports below 1024 need privileges)"}.get(code or 0, "")
         return f"cannot listen on {host}:{port}: {reason}{hint}"
     return f"cannot connect to {host}:{port}: {reason}"
 
@@ -260,11 +263,11 @@ class StationAdapter:
         self._wall_clock = wall_clock
         self._tlog = tlog
         self._on_event = on_event
-        self.events: asyncio.Queue[Event] = asyncio.Queue()
+        self.events: asyncio.Queue[Event | LinkEvent] = asyncio.Queue()
         self.core: StationLink | None = None
-        self._send: Callable[[bytes, object], None] = lambda data, addr: None
+        self._send: Callable[[bytes, Any], None] = lambda data, addr: None
         self._timer: asyncio.TimerHandle | None = None
-        self._closers: list[Callable[[], None]] = []
+        self._closers: list[Callable[[], object]] = []
         self.local_address = None
         self.reconnect_s = reconnect_s
         """tcp, udpout, serial: first and longest wait (wall seconds) between connection

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import Protocol
+from typing import Any, Protocol
 from collections.abc import Callable, Sequence
 
 from gcs.connection import ConnectionSpec, parse_connection
@@ -110,7 +110,7 @@ class Forwarder:
         self.links: list[RawLink] = []
         self._links_of_sysid: dict[int, set[int]] = {}
         self._stream_bufs: dict[tuple[int, object], bytearray] = {}
-        self._parsers: dict[object, object] = {}
+        self._parsers: dict[object, Any] = {}  # pymavlink MAVLink parsers
         self._outputs: list[_Output] = []
         self.addresses: list[tuple[str, int]] = []
         """Local address of each output (udpin/tcpin: the bound port; udpout: our socket)."""
@@ -132,6 +132,7 @@ class Forwarder:
             out = _Output(self, spec)
             await out.start(loop)
             self._outputs.append(out)
+            assert out.local_address is not None  # set by start()
             self.addresses.append(out.local_address)
         return self
 
@@ -214,11 +215,11 @@ class _Output:
     def __init__(self, owner: Forwarder, spec: ConnectionSpec) -> None:
         self.owner = owner
         self.spec = spec
-        self.local_address = None
-        self._udp = None
+        self.local_address: tuple[str, int] | None = None
+        self._udp: asyncio.DatagramTransport | None = None
         self._peers: dict = {}
         self._writers: list[asyncio.StreamWriter] = []
-        self._server = None
+        self._server: asyncio.Server | None = None
         self._tasks: list[asyncio.Task] = []
 
     async def start(self, loop: asyncio.AbstractEventLoop) -> None:
@@ -237,7 +238,7 @@ class _Output:
                 def error_received(self, exc):  # nobody listening yet (ICMP): keep sending
                     log.debug("forward %s: %s", spec.text, exc)
 
-            kw = ({"remote_addr": spec.address} if spec.kind == "udpout"
+            kw: dict[str, Any] = ({"remote_addr": spec.address} if spec.kind == "udpout"
                   else {"local_addr": spec.address})
             self._udp, _ = await loop.create_datagram_endpoint(_P, **kw)
             self.local_address = self._udp.get_extra_info("sockname")[:2]
@@ -265,8 +266,10 @@ class _Output:
     def send(self, payload: bytes) -> None:
         try:
             if self.spec.kind == "udpout":
+                assert self._udp is not None  # started
                 self._udp.sendto(payload)
             elif self.spec.kind == "udpin":
+                assert self._udp is not None  # started
                 for peer in self._peers:
                     self._udp.sendto(payload, peer)
             else:

@@ -15,6 +15,7 @@ import math
 from gcs.autopilot import adapter_for
 from gcs.fleet import FleetSnapshot
 from gcs.link import LinkUsageError, UnknownVehicle
+from gcs.operations._state import OperatorState
 from gcs.operations.config import OPERATOR_ACTIONS, OperatorAction, _Row
 from gcs.operations.phases import Phase, Trigger
 
@@ -26,7 +27,7 @@ log = logging.getLogger(__name__)
 _NOTHING_LAUNCHED = frozenset({Phase.DISCOVER, Phase.AUDIT, Phase.REFUSED})
 
 
-class OperatorActions:
+class OperatorActions(OperatorState):
     """What an operator may ask of :class:`gcs.operations.Operator` (see the module docstring)."""
 
     def operator_command(self, action: str, vid: tuple[int, int] | None, now_s: float,

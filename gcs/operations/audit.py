@@ -18,6 +18,7 @@ from gcs import limits as limits_mod
 from gcs.events import ParamReceived, ParamSetConfirmed, ParamSetFailed, ParamTimedOut
 from gcs.fleet import FleetSnapshot
 from gcs.link import UnknownVehicle
+from gcs.operations._state import OperatorState
 from gcs.operations.phases import Phase, Trigger
 
 __all__ = ["AuditStep"]
@@ -25,7 +26,7 @@ __all__ = ["AuditStep"]
 log = logging.getLogger(__name__)
 
 
-class AuditStep:
+class AuditStep(OperatorState):
     """Parameter reads and writes of :class:`gcs.operations.Operator` (see the module docstring)."""
 
     # ------------------------------------------------------------------ events
@@ -58,10 +59,10 @@ class AuditStep:
         self._sets_pending.discard((*key, event.name))
         ok = isinstance(event, ParamSetConfirmed)
         change = {"link_id": key[0], "sysid": key[1], "name": event.name,
-                  "previous": event.previous if ok else None,
+                  "previous": event.previous if isinstance(event, ParamSetConfirmed) else None,
                   "value": event.value, "ok": ok,
-                  "reason": "" if ok else event.reason}
-        if not ok:
+                  "reason": event.reason if isinstance(event, ParamSetFailed) else ""}
+        if isinstance(event, ParamSetFailed):
             change["requested"] = event.requested
         for c in reversed(self.param_changes):  # the latest write of this name
             if (c["link_id"], c["sysid"], c["name"]) == (*key, event.name):
@@ -70,7 +71,7 @@ class AuditStep:
                 break
         (log.info if ok else log.warning)(
             "link %d sysid %d: %s %s", *key, event.name,
-            f"set to {event.value:g}" if ok else f"NOT set: {event.reason}")
+            f"set to {event.value:g}" if ok else f"NOT set: {change['reason']}")
 
     # ------------------------------------------------------------------ the audit phase
 
@@ -155,6 +156,7 @@ class AuditStep:
         cfg = self.config
         self._limits_sent_s = now_s
         climb = cfg.climb_rate_m_s if cfg.climb_rate_m_s is not None else math.inf
+        assert cfg.max_speed_m_s is not None  # only called when _limits_wanted()
         for vid, (autopilot, params) in sorted(vehicles.items()):
             wanted = limits_mod.LIMIT_PARAMS.get(autopilot, ())
             missing = [n for n in wanted if n not in params]

@@ -17,6 +17,7 @@ import numpy as np
 from gcs.autopilot import adapter_for
 from gcs.fleet import FleetSnapshot
 from gcs.link import LinkUsageError, UnknownVehicle
+from gcs.operations._state import OperatorState
 from gcs.operations.config import _Row
 from gcs.operations.phases import TRANSITIONS, Trigger
 
@@ -25,7 +26,7 @@ __all__ = ["EndStep"]
 log = logging.getLogger(__name__)
 
 
-class EndStep:
+class EndStep(OperatorState):
     """The end of a flight for :class:`gcs.operations.Operator` (see the module docstring)."""
 
     def begin_end(self, now_s: float) -> None:

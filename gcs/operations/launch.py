@@ -20,6 +20,7 @@ from gcs.control import layer_alt_m
 from gcs.events import CommandFailed, CommandTimedOut
 from gcs.fleet import FleetSnapshot
 from gcs.link import LinkUsageError, UnknownVehicle
+from gcs.operations._state import OperatorState
 from gcs.operations.config import _Row
 from gcs.operations.phases import Trigger
 from gcs.wire import mavlink
@@ -33,7 +34,7 @@ _NOT_READY = (mavlink.MAV_RESULT_FAILED, mavlink.MAV_RESULT_TEMPORARILY_REJECTED
               mavlink.MAV_RESULT_DENIED)
 
 
-class LaunchStep:
+class LaunchStep(OperatorState):
     """Take-off, retries and reclaim of :class:`gcs.operations.Operator` (see the module
     docstring)."""
 

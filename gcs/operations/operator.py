@@ -288,6 +288,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
             if self._next_tick_s <= now_s:
                 self._next_tick_s = now_s + cfg.control_period_s
         self._reclaim(snap, now_s)
+        assert self.mission_t0_s is not None  # set when the run phase starts
         if now_s - self.mission_t0_s >= cfg.duration_s - 1e-9 and self._t_step >= 1:
             self.begin_end(now_s)
         return record
