@@ -150,6 +150,10 @@ class Swarm:
         silent S times longer in vehicle time; raise this accordingly.
     max_peers : int
         Learned peers kept per endpoint (least recently heard dropped first).
+    telemetry : {'batch', 'reference'}
+        'batch' (default): each message type packed once per tick for every vehicle due
+        (:mod:`vehicle_emu.telemetry_batch`); 'reference': every vehicle builds and packs its
+        own messages with pymavlink (the slower path the batch is tested against byte for byte).
     """
 
     def __init__(self, n_vehicles: int, *, personality="ardupilot",

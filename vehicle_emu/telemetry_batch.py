@@ -26,6 +26,7 @@ when any of its state is non-finite or absurd (the reference path counts a faili
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 
@@ -40,6 +41,8 @@ from . import telemetry as tm
 from .physics import CTRL_VEL
 
 __all__ = ["BatchTelemetry", "pack_frames", "BATCHED_TYPES"]
+
+log = logging.getLogger(__name__)
 
 _FLT_MAX = float(np.finfo(np.float32).max)
 _BASE_FLAGS = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
@@ -378,6 +381,22 @@ class BatchTelemetry:
                   & (np.abs(ph.alt_amsl_m) < _SANE))
         return ok
 
+    @staticmethod
+    def _one(core, msg_id: int, seq: int, now_s: float) -> bytes:
+        """One frame by the reference builder with a reserved sequence number (b"" and a
+        counted telemetry error if the builder fails, as in the reference path)."""
+        try:
+            msg = tm.BUILDERS[msg_id](core, now_s)
+        except Exception:  # noqa: BLE001
+            core.stats.telemetry_errors += 1
+            return b""
+        mav = core._codec._mav
+        saved, mav.seq = mav.seq, seq
+        try:
+            return bytes(msg.pack(mav))
+        finally:
+            mav.seq = saved
+
     def emit(self, now_s: float) -> None:
         """Everything due at ``now_s``, for every live core (their ``emit_telemetry``)."""
         sane = None
@@ -420,8 +439,13 @@ class BatchTelemetry:
             cores = [j[0] for j in job]
             rows = np.fromiter((c.index for c in cores), dtype=np.intp, count=len(cores))
             seq = np.fromiter((j[2] for j in job), dtype=np.int64, count=len(job))
-            frames = pack_frames(cls, fields_fn(self, cores, rows, now_s), seq,
-                                 self.sysid[rows], self.compid[rows])
+            try:
+                frames = pack_frames(cls, fields_fn(self, cores, rows, now_s), seq,
+                                     self.sysid[rows], self.compid[rows])
+            except Exception:  # noqa: BLE001 - never lose a tick: pack these the slow way
+                log.exception("batched %s failed; packing %d frames one by one", cls.msgname,
+                              len(job))
+                frames = [self._one(core, msg_id, s, now_s) for core, _, s in job]
             for (core, slot, _), frame in zip(job, frames):
                 core._out[slot] = frame
                 st = core.stats

@@ -103,3 +103,21 @@ def test_pack_frames_match_pymavlink(msg_id):
                 if val is not None else 0
         msg = cls(**kwargs)
         assert frames[r] == bytes(msg.pack(mav)), (cls.msgname, r)
+
+
+def test_a_failing_batch_falls_back_to_the_reference_frames(monkeypatch):
+    """A bug in a vectorised field function costs speed, never frames or sequence numbers."""
+    import vehicle_emu.telemetry_batch as tb
+
+    ref, bat = _swarm("reference", n=12), _swarm("batch", n=12)
+    cls, _ = tb.BATCHED_TYPES[tm.M_GLOBAL_POSITION_INT]
+
+    def broken(*_a):
+        raise RuntimeError("boom")
+    monkeypatch.setitem(tb.BATCHED_TYPES, tm.M_GLOBAL_POSITION_INT, (cls, broken))
+    t = 0.0
+    for k in range(30):
+        t = round(t + 0.05, 6)
+        ref.handle_timer(t)
+        bat.handle_timer(t)
+        assert ref.datagrams_to_send(t) == bat.datagrams_to_send(t), f"tick {k}"
