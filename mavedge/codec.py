@@ -208,7 +208,7 @@ class Decoder:
         ``datagram=False`` (TCP, serial) it is kept for the next call.
         """
         self._stats.bytes_in += len(data)
-        out = []
+        out: list = []
         try:
             msgs = self._mav.parse_buffer(data) or []
         except Exception:  # pymavlink bug or exotic input: count it, reset, carry on

@@ -27,12 +27,12 @@ try:  # pragma: no cover - exercised by whichever environment runs the tests
 except ImportError:  # pragma: no cover
     NUMBA = False
 
-    def njit(*args, **kwargs):
+    def njit(*args, **kwargs):  # type: ignore[no-redef]  # numba's stand-in when absent
         if args and callable(args[0]):
             return args[0]
         return lambda f: f
 
-    prange = range
+    prange = range  # type: ignore[misc]  # numba's stand-in when absent
 
 #: False: the callers run the NumPy reference paths instead (benchmarks and tests compare the two).
 ENABLED = True

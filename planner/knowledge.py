@@ -17,6 +17,7 @@ drone holds a few dozen entries once the swarm spreads), not N^2. :class:`Knowle
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -382,15 +383,16 @@ class Knowledge(_StampTables):
     held_rows: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     held_cols: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     held_stamps: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
-    rows: np.ndarray = None
-    cols: np.ndarray = None
-    entry_rows: np.ndarray = None
-    entry_cols: np.ndarray = None
-    entry_believed_m: np.ndarray = None
+    rows: np.ndarray | None = None
+    cols: np.ndarray | None = None
+    entry_rows: np.ndarray | None = None
+    entry_cols: np.ndarray | None = None
+    entry_believed_m: np.ndarray | None = None
 
     @property
     def known_view(self) -> np.ndarray:
         """(len(rows), len(cols)) bool: the holder knows the drone (never itself)."""
+        assert self.rows is not None and self.cols is not None  # set by update()
         known = np.zeros((len(self.rows), len(self.cols)), dtype=bool)
         known[self.entry_rows, self.entry_cols] = True
         return known
@@ -440,7 +442,7 @@ class Knowledge(_StampTables):
             self.tree_stamp[~alive] = UNKNOWN
             r, c, s = self._own(r, c, s, alive, t_step)
         else:
-            link_pos_m, link_alive, t_sent = pos_prev_m, alive_prev, t_step - 1
+            link_pos_m, link_alive, t_sent = pos_prev_m, alive_prev, t_step - 1  # type: ignore[assignment]  # read only if pos_prev_m is not None
         if pos_prev_m is not None:
             idx = np.flatnonzero(link_alive)
             pairs = radio_pairs(link_pos_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
@@ -508,12 +510,12 @@ class KnowledgeDense(_StampTables):
     entry_believed_m : (E, 2) believed position of each entry
     """
 
-    rows: np.ndarray = None
-    cols: np.ndarray = None
-    known_view: np.ndarray = None
-    entry_rows: np.ndarray = None
-    entry_cols: np.ndarray = None
-    entry_believed_m: np.ndarray = None
+    rows: np.ndarray | None = None
+    cols: np.ndarray | None = None
+    known_view: np.ndarray | None = None
+    entry_rows: np.ndarray | None = None
+    entry_cols: np.ndarray | None = None
+    entry_believed_m: np.ndarray | None = None
 
     def update(self, t_step: int, pos_prev_m: np.ndarray | None, alive_prev: np.ndarray | None,
                pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float, base_reach_m: float,
@@ -528,7 +530,7 @@ class KnowledgeDense(_StampTables):
             own = np.flatnonzero(alive)
             self.stamp[own, own] = t_step
         else:
-            link_pos_m, link_alive, t_sent = pos_prev_m, alive_prev, t_step - 1
+            link_pos_m, link_alive, t_sent = pos_prev_m, alive_prev, t_step - 1  # type: ignore[assignment]  # read only if pos_prev_m is not None
         if pos_prev_m is not None:
             idx = np.flatnonzero(link_alive)
             pairs = neighbour_pairs(link_pos_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
@@ -598,7 +600,7 @@ class MessageLayer:
         self.after_move = after_move
         self.forget_unheard = forget_unheard
         self._prev: tuple[np.ndarray, np.ndarray] | None = None
-        self._broadcasts: dict[int, object] = {}
+        self._broadcasts: dict[int, Any] = {}  # whatever the planner broadcasts (a TaskTree)
 
     def step(self, t_step: int, pos_u: np.ndarray, alive: np.ndarray, base_u: np.ndarray,
              broadcast: object) -> np.ndarray:
@@ -617,7 +619,7 @@ class MessageLayer:
             del self._broadcasts[old]
         return (kn.tree_stamp < 0) | (t_step - kn.tree_stamp > self.stale_steps)
 
-    def broadcast(self, stamp: int) -> object:
+    def broadcast(self, stamp: int) -> Any:
         """What the base broadcast at step ``stamp`` (still held by some drone)."""
         return self._broadcasts[int(stamp)]
 

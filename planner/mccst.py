@@ -822,7 +822,7 @@ class MccstPlanner:
         fresh = (held is None or len(held) != n_all or tick.t_step == 0
                  or tick.t_step <= self._last_t_step)
         self._last_t_step = tick.t_step
-        if fresh:
+        if fresh or held is None:  # (held is None implies fresh: said for the type checker)
             held = np.full(n_all, -1, dtype=np.intp)
             alive = np.flatnonzero(np.asarray(tick.alive, dtype=bool))
             held[alive] = assign_tasks(pos_m[alive] / unit, task_x, prm.assignment,

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -228,7 +229,7 @@ class TreeSegments:
                  pos0: np.ndarray | None = None, radius: float = 0.0) -> None:
         seg_a, seg_b, valid = padded_segments(trees, nodes_only)
         self.n = len(version)
-        self.entries = None
+        self.entries: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._columns = None
         self._dense = None
         self._padded = (seg_a, seg_b, valid, np.asarray(version))
@@ -547,7 +548,20 @@ def _scale_to_limit(delta: np.ndarray, step: np.ndarray, vmax: float) -> np.ndar
     return np.clip(alpha, 0.0, 1.0)
 
 
-def descend(pos_u: np.ndarray, gradient, vmax: float, p: PhiremanParams,
+class DescentParams(Protocol):
+    """What :func:`descend` reads of its parameters (:class:`PhiremanParams`, DCCRS's)."""
+
+    @property
+    def step_size(self) -> float: ...
+    @property
+    def tolerance(self) -> float: ...
+    @property
+    def speed_rule(self) -> str: ...
+    @property
+    def max_descent_steps(self) -> int: ...
+
+
+def descend(pos_u: np.ndarray, gradient, vmax: float, p: DescentParams,
             separable: bool = False) -> DescentResult:
     """Multi-step gradient descent on the instructions with the paper's stopping rules.
 
@@ -771,6 +785,7 @@ def _descend_separable_compiled(pos_u: np.ndarray, entries: _EntriesByDrone, seg
     """:func:`descend` (``separable=True``, 'per_drone' rule) of the async planner's gradient (pair
     term over ``entries`` + task term over ``segments``' candidate entries), by
     :func:`planner._kernels.descend_separable`; same :class:`DescentResult` bit for bit."""
+    assert segments.entries is not None  # the callers check
     er, a, ab, ab2 = segments.entries
     seg_start = np.searchsorted(er, np.arange(len(pos_u) + 1))
     pos_u = np.asarray(pos_u, float)

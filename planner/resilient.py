@@ -437,6 +437,8 @@ class ResilientPlanner(PhiremanPlanner):
         The tasks the base kept at the last tick (all True without triage).
     """
 
+    params: ResilientParams
+
     def __init__(self, problem: ProblemConfig, params: ResilientParams, rng: np.random.Generator):
         super().__init__(problem, params, rng)
         self.full_tree: TaskTree | None = None
@@ -457,6 +459,7 @@ class ResilientPlanner(PhiremanPlanner):
             self._task_vel_u = np.zeros_like(tasks_u)
         else:
             a = p.predict_smoothing
+            assert self._task_vel_u is not None  # set together with _task_prev_u
             self._task_vel_u = (1 - a) * self._task_vel_u + a * (tasks_u - self._task_prev_u)
         self._task_prev_u = tasks_u.copy()
         if p.predict_steps <= 0:
@@ -485,6 +488,7 @@ class ResilientPlanner(PhiremanPlanner):
         alive = np.asarray(tick.alive, bool)
         networked = np.asarray(tick.networked, bool) & alive
         self.tree = self._base_tree(tick, tasks_u, base_u, int(networked.sum()))
+        assert self.kept_tasks is not None  # set by _base_tree
         if p.rally:
             self._rally_by_stamp[tick.t_step] = rally_points(self.tree, p.rally_dist)
         if p.claim_gain > 0:
@@ -514,6 +518,7 @@ class ResilientPlanner(PhiremanPlanner):
         else:
             disp_u, more = self._plan_async(tick, pos_u, base_u, networked)
             info.update(more)
+            assert self.messages is not None  # built by _plan_async
             stamps = self.messages.knowledge.tree_stamp
         if p.rally:
             self._update_recovery(pos_u, base_u, alive, networked, stamps)
