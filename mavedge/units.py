@@ -22,6 +22,7 @@ wire unit. Saturation rules, the same for the station and the emulator:
 from __future__ import annotations
 
 import math
+from typing import SupportsFloat
 
 __all__ = [
     "INT32_MIN", "INT32_MAX", "INT16_MAX", "UINT16_MAX",
@@ -35,7 +36,7 @@ INT16_MAX = 2**15 - 1
 UINT16_MAX = 0xFFFF
 
 
-def deg_to_e7(deg: float) -> int:
+def deg_to_e7(deg: SupportsFloat) -> int:
     """Degrees to ``degE7`` (int32, clamped; non-finite -> INT32_MAX). 47.5 -> 475000000."""
     deg = float(deg)
     if not math.isfinite(deg):

@@ -179,6 +179,12 @@ class VehicleCore:
     not flown (acceleration-only targets make ArduPilot hold, like its "invalid input" path).
     """
 
+    # Set from the parameters by the personality (vehicle_emu/personality/*.py).
+    _guided_speed_m_s: float
+    _auto_speed_m_s: float
+    _rtl_alt_m: float
+    _rtl_hover_alt_m: float | None
+
     def __init__(self, sysid: int, personality: str = "ardupilot", *, now_s: float = 0.0,
                  physics: Physics | None = None, index: int = 0,
                  origin_lla: tuple[float, float, float] = (0.0, 0.0, 0.0),
@@ -237,7 +243,9 @@ class VehicleCore:
         self._landed_armed_since_s: float | None = None
         self._has_taken_off = False
         self._mode_key = self.pers.boot_mode
-        self.mode_name, self._behaviour = self.pers.mode_info(self._mode_key)
+        mode_info = self.pers.mode_info(self._mode_key)
+        assert mode_info is not None  # the boot mode is one of the firmware's
+        self.mode_name, self._behaviour = mode_info
         self._rtl_phase = ""
         self._rtl_cruise_down_m: float | None = None
         self._takeoff_target_down_m: float | None = None
@@ -356,7 +364,9 @@ class VehicleCore:
         if not self._out:
             return []
         frames, self._out = self._out, []
-        out, cur, size = [], [], 0
+        out: list[tuple[bytes, object]] = []
+        cur: list[bytes] = []
+        size = 0
         for f in frames:
             if size + len(f) > MAX_DATAGRAM_BYTES and cur:
                 out.append((b"".join(cur), None))

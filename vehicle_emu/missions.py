@@ -256,6 +256,7 @@ class MissionServer:
 
     def _request(self, now_s: float) -> None:
         up = self._upload
+        assert up is not None  # requests are sent during an upload only
         up.last_request_s = now_s
         cls = (mavlink.MAVLink_mission_request_int_message if self.px4 and self._int_mode
                else mavlink.MAVLink_mission_request_message)

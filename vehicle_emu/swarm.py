@@ -35,6 +35,7 @@ import logging
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -179,7 +180,7 @@ class Swarm:
             raise ValueError("personality sequence must have one entry per vehicle")
         rng = rng if rng is not None else np.random.default_rng(0)
         radio_rng, attrition_rng = rng.spawn(2)
-        self.home_lla = tuple(float(v) for v in home_lla)
+        self.home_lla = cast(tuple[float, float, float], tuple(float(v) for v in home_lla))
         spawn = (grid_spawn_ned_m(n, spawn_spacing_m) if spawn_ned_m is None
                  else np.asarray(spawn_ned_m, dtype=float).reshape(n, 3))
         self.physics = Physics(spawn, origin_lla=self.home_lla, max_speed_h_m_s=max_speed_h_m_s,

@@ -10,6 +10,7 @@ both firmwares' stream code does (phase kept, no burst to catch up after a gap).
 from __future__ import annotations
 
 import math
+from typing import Any, SupportsFloat
 
 import numpy as np
 
@@ -47,7 +48,7 @@ M_VFR_HUD = mavlink.MAVLINK_MSG_ID_VFR_HUD
 _FLT_MAX = float(np.finfo(np.float32).max)
 
 
-def f32(v: float) -> float:
+def f32(v: SupportsFloat) -> float:
     """Saturate to the float32 range so that packing a wire float never overflows (NaN kept)."""
     v = float(v)
     return _FLT_MAX if v > _FLT_MAX else (-_FLT_MAX if v < -_FLT_MAX else v)
@@ -64,7 +65,7 @@ class StreamScheduler:
         self.next_due_s: dict[int, float] = {k: float(now_s) for k in self.interval_s}
         self.next_any_s = min(self.next_due_s.values(), default=math.inf)
         """Earliest due time of any stream (a swarm skips vehicles with nothing due)."""
-        self._mirror = None
+        self._mirror: tuple[Any, int] | None = None
 
     def mirror_into(self, array, index: int) -> None:
         """Keep ``array[index]`` equal to :attr:`next_any_s` (a swarm's vector of them)."""

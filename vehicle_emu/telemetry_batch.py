@@ -69,7 +69,7 @@ class _Layout:
         tokens = re.findall(r"(\d*)([a-zA-Z?])", fmt)
         if len(tokens) != len(cls.ordered_fieldnames):
             raise ValueError(f"cannot map the wire layout of {cls.msgname}")
-        spec = []
+        spec: list[tuple] = []  # numpy dtype fields: (name, code) or (name, code, shape)
         for (count, code), name in zip(tokens, cls.ordered_fieldnames):
             n = int(count) if count else 1
             if code == "s":

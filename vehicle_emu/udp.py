@@ -12,6 +12,7 @@ or per network with ``Swarm(mux=True)``), or every endpoint on an ephemeral port
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import socket
 import threading
@@ -77,7 +78,7 @@ class EmulatorServer:
         for e in range(self.swarm.n_endpoints):
             port = self.base_port + e if self.base_port else 0
             transport, _ = await loop.create_datagram_endpoint(
-                lambda e=e: _EndpointProtocol(self, e), local_addr=(self.host, port))
+                functools.partial(_EndpointProtocol, self, e), local_addr=(self.host, port))
             self.transports.append(transport)
             self.addresses.append(transport.get_extra_info("sockname")[:2])
         log.info("emulating %d vehicles on %d endpoint(s) %s:%d..%d", self.swarm.n,
@@ -132,7 +133,7 @@ class EmulatorServer:
         transports = self.transports
         for endpoint, data, addr in self.swarm.datagrams_to_send(now):
             try:
-                transports[endpoint].sendto(data, addr)
+                transports[endpoint].sendto(data, addr)  # type: ignore[arg-type]  # (host, port) or None
             except (OSError, ValueError, TypeError) as exc:
                 self.n_socket_errors += 1
                 self.log_limiter.log(now, "sendto", logging.DEBUG, "sendto %s failed: %s",
@@ -160,6 +161,7 @@ class EmulatorServer:
         if advance is not None:
             # A paced clock may be held back by the station: look again within one tick.
             delay = min(delay, self.clock.wall_delay_s(self.swarm.tick_s))
+        assert self._loop is not None  # set by start()
         self._timer = self._loop.call_later(delay, self._on_timer)
 
     def close(self) -> None:
