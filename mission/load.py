@@ -333,7 +333,7 @@ def _parse_value(tp: Any, node: Any, path: str, errs: list[str], limits: dict) -
             else:
                 out[key] = parsed
         return out if ok else _BAD
-    if dataclasses.is_dataclass(tp):
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
         return _parse_section(tp, node, path, errs)
     raise TypeError(f"unsupported schema type {tp!r}")  # programming error in the schema
 

@@ -22,6 +22,7 @@ import logging
 import math
 import pathlib
 import time
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +61,7 @@ def spawn_positions(mission: Mission, rng: np.random.Generator) -> np.ndarray:
         noise = ring.noise_m if ring is not None else 0.0
         angles = 2 * np.pi * np.arange(n) / n
         return radius * np.stack([np.cos(angles), np.sin(angles)], 1) + rng.normal(0, noise, (n, 2))
+    assert emu.spawn.positions is not None  # a spawn is a ring or positions (the schema)
     pts = np.array([[p.north_m, p.east_m] for p in emu.spawn.positions], dtype=float)
     if len(pts) < n:  # schema allows fewer positions than drones: the rest start at the base
         pts = np.vstack([pts, np.zeros((n - len(pts), 2))])
@@ -82,6 +84,7 @@ def task_track_m(mission: Mission, rng: np.random.Generator, n_steps: int, *,
         label = task.name or f"task {i}"
         kind = task.kind
         if kind == "track":
+            assert task.track is not None  # each kind has its field (the schema)
             pts = [(p.t_s, *p.local_m(mission.origin)) for p in task.track]
             t_k = np.array([p[0] for p in pts])
             north = np.interp(times, t_k, [p[1] for p in pts])
@@ -90,6 +93,7 @@ def task_track_m(mission: Mission, rng: np.random.Generator, n_steps: int, *,
             names.append(label)
         elif kind == "random_walk":
             rw = task.random_walk
+            assert rw is not None
             start = np.array([rw.start.local_m(mission.origin)], dtype=float)
             sigma = rw.sigma_m_per_sqrt_s * math.sqrt(dt)
             half = rw.field_half_width_m if rw.field_half_width_m is not None else float("inf")
@@ -99,6 +103,7 @@ def task_track_m(mission: Mission, rng: np.random.Generator, n_steps: int, *,
             names.append(label)
         elif kind == "random":
             gen = task.random
+            assert gen is not None
             w = gen.field_half_width_m
             start = rng.uniform(-w, w, (gen.count, 2))
             inc = rng.normal(0, gen.sigma_m_per_sqrt_s * math.sqrt(dt), (n_steps, gen.count, 2))
@@ -108,6 +113,7 @@ def task_track_m(mission: Mission, rng: np.random.Generator, n_steps: int, *,
             columns.append(np.full((n_steps + 1, 1, 2), np.nan))
             names.append(label)
         else:
+            assert task.mavlink is not None
             raise ValueError(f"tasks[{i}]: a live MAVLink task (sysid {task.mavlink.sysid}) has no "
                              "track to simulate; fly it against real links (--connect) instead")
     return np.concatenate(columns, axis=1), names
@@ -124,7 +130,7 @@ def task_position_fn(track_m: np.ndarray, dt_s: float):
         a = k - lo
         return (1 - a) * track_m[lo] + a * track_m[hi]
 
-    position.times_s = times
+    position.times_s = times  # type: ignore[attr-defined]  # read by the emulator's truth
     return position
 
 
@@ -153,6 +159,7 @@ def zone_mask(zone: HazardZone, pos_m: np.ndarray) -> np.ndarray:
         return np.hypot(north - c.north_m, east - c.east_m) <= zone.circle.radius_m
     inside = np.zeros(len(pos_m), dtype=bool)
     pts = zone.polygon
+    assert pts is not None  # a zone is a circle or a polygon (the schema)
     for a, b in zip(pts, pts[1:] + pts[:1]):  # loop over polygon edges, vectorised over drones
         crosses = (a.north_m > north) != (b.north_m > north)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -182,7 +189,7 @@ class PlaybackResult:
     task_names: list[str]
 
 
-def run_inprocess(mission: Mission, seed: int | None = None, frames: tuple[int, ...] = ()) -> PlaybackResult:
+def run_inprocess(mission: Mission, seed: int | None = None, frames: Collection[int] = ()) -> PlaybackResult:
     """Play ``mission`` on the in-process world model with its planner (one tick per control period)."""
     t0 = time.perf_counter()
     seed = mission.run.seed if seed is None else seed

@@ -169,11 +169,11 @@ class FrameView:
         active = np.asarray(active, bool) & np.asarray(alive, bool)
         idx = np.flatnonzero(active)
         pairs = idx[neighbour_pairs(pos_m[idx], self.scene.radio_range_m)] if len(idx) > 1 else np.zeros((0, 2), int)
-        self.links.set_segments(xy(pos_m[pairs]) if len(pairs) else [])
-        self.crew.set_segments(xy(crew_links(task_pos_m, pos_m, active, self.scene.radio_range_m)))
+        self.links.set_segments(xy(pos_m[pairs]) if len(pairs) else [])  # type: ignore[arg-type]  # (n, 2, 2) arrays are fine
+        self.crew.set_segments(xy(crew_links(task_pos_m, pos_m, active, self.scene.radio_range_m)))  # type: ignore[arg-type]
         if tree is not None:
             a, b = tree.segments()
-            self.tree.set_segments(xy(np.stack([a, b], 1)) if len(a) else [])
+            self.tree.set_segments(xy(np.stack([a, b], 1)) if len(a) else [])  # type: ignore[arg-type]
             st = tree.nodes_m[tree.n_tasks + 1:]
             self.steiner.set_offsets(xy(st) if len(st) else np.zeros((0, 2)))
         else:

@@ -12,8 +12,12 @@ from __future__ import annotations
 import json
 import pathlib
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from mission.schema import Mission
 
 __all__ = ["RunData", "load_run", "replay", "find_run_dir", "check_animation_writer", "tree_at"]
 
@@ -27,7 +31,7 @@ class RunData:
     task_pos_m: np.ndarray     # (T, M, 2)
     connected: np.ndarray      # (T, M)
     trees: dict                # step index -> TaskTree-like (nodes_m, parent, n_tasks, segments())
-    mission: object
+    mission: Mission | None
     summary: dict
 
 
@@ -214,7 +218,7 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
     title = run.mission.name if run.mission is not None else pathlib.Path(run_dir).name
     n_drones, n_tasks = run.pos_m.shape[1], run.task_pos_m.shape[1]
     tu = ""
-    truth = run.summary.get("truth") if isinstance(run.summary.get("truth"), dict) else {
+    truth: dict = got if isinstance(got := run.summary.get("truth"), dict) else {
         "tu1": run.summary.get("truth_tu1"), "tu2": run.summary.get("truth_tu2")}  # fly / in-process
     if truth.get("tu1") is not None:
         tu = f": TU1 {100 * truth['tu1']:.1f} %, TU2 {100 * truth['tu2']:.1f} % (ground truth)"
@@ -313,7 +317,7 @@ def _animate(run: RunData, ks: np.ndarray, title: str, path: pathlib.Path, fps: 
                 ax.draw_artist(a)
             rgba = np.asarray(canvas.buffer_rgba())
             if ffmpeg is not None:
-                ffmpeg.stdin.write(rgba.tobytes())
+                ffmpeg.stdin.write(rgba.tobytes())  # type: ignore[union-attr]  # stdin=PIPE
             else:
                 images.append(Image.fromarray(rgba[..., :3]).quantize(colors=256, method=Image.Quantize.MEDIANCUT))
             if progress:
@@ -321,7 +325,7 @@ def _animate(run: RunData, ks: np.ndarray, title: str, path: pathlib.Path, fps: 
     finally:
         plt.close(fig)
         if ffmpeg is not None:
-            ffmpeg.stdin.close()
+            ffmpeg.stdin.close()  # type: ignore[union-attr]  # stdin=PIPE
             if ffmpeg.wait() != 0:
                 raise ValueError(f"ffmpeg failed to write {path}")
     if images:

@@ -32,6 +32,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from collections.abc import Callable
 
 import numpy as np
@@ -49,6 +50,7 @@ from gcs.wire import mavlink
 from mission.schema import Mission
 from planner.methods import make_planner
 from planner.metrics import task_uptime
+from planner.problem import ProblemConfig
 from vehicle_emu.clock import PacedClock, PacedReader
 from vehicle_emu.radio import RadioConfig
 from vehicle_emu.swarm import Swarm
@@ -254,7 +256,10 @@ class _MissionWorld:
         swarm.task_pos_fn = self._task_pos
         # Sample 0 was recorded without tasks; restart the truth log with tasks from here on.
         tr = swarm.truth
-        tr.t_s.clear(), tr.pos_ned_m.clear(), tr.alive.clear(), tr.active.clear()
+        tr.t_s.clear()
+        tr.pos_ned_m.clear()
+        tr.alive.clear()
+        tr.active.clear()
         tr.task_connected.clear()
 
     def _task_pos(self, t_s: float) -> np.ndarray:
@@ -301,11 +306,11 @@ class _MissionWorld:
         """Ground truth for the summary and ``truth.npz`` (plain, picklable)."""
         truth = self.truth_tu(duration_s)
         truth["alive_end"] = int(self.swarm.alive.sum())
-        arrays = self.swarm.truth.arrays()
+        arrays: dict[str, Any] = self.swarm.truth.arrays()
         arrays.update(mission_t0_s=np.float64(np.nan if self.t0_s is None else self.t0_s),
                       sysid_of_index=self.swarm.sysid_of_index,
                       network_of_index=self.swarm.network_of_index)
-        stats = dict(self.swarm.stats)
+        stats: dict[str, float] = dict(self.swarm.stats)
         stats["cpu_s"] = time.process_time()
         return {"truth": truth, "stats": stats, "arrays": arrays}
 
@@ -446,6 +451,7 @@ def live_task_columns(mission: Mission) -> dict[int, int]:
     out, col = {}, 0
     for task in mission.tasks:
         if task.kind == "mavlink":
+            assert task.mavlink is not None  # the schema's invariant
             out[col] = task.mavlink.sysid
         col += task.count
     return out
@@ -455,7 +461,7 @@ def live_task_connections(mission: Mission, connections: list[str]) -> list[str]
     """Links to open for live task trackers that do not share one of ``connections``."""
     extra = []
     for task in mission.tasks:
-        conn = task.mavlink.connection if task.kind == "mavlink" else None
+        conn = task.mavlink.connection if task.kind == "mavlink" and task.mavlink else None
         if conn and conn not in connections and conn not in extra:
             extra.append(conn)
     return extra
@@ -490,7 +496,7 @@ def _operations_config(mission: Mission, opts: FlyOptions, expected: int | None)
         radio_range_m=mission.radio.range_m, poll_period_s=0.5)
 
 
-def _planner_spec(mission: Mission) -> tuple[str, object, dict]:
+def _planner_spec(mission: Mission) -> tuple[str, ProblemConfig, dict]:
     """(method, problem, params) of the station's planner for ``mission``."""
     problem = mission.problem_config()
     method = mission.planner.method
@@ -564,7 +570,7 @@ def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> d
 async def _run_station(mission: Mission, scenario: MissionScenario, connections: list[str],
                        opts: FlyOptions, records: _Records, *, clock: Callable[[], float],
                        speedup: float, expected: int | None, seed: int,
-                       world: _MissionWorld | None = None,
+                       world: _InProcessEmulator | _EmulatorProcess | None = None,
                        max_sleep_s: float = math.inf,
                        ack: Callable[[float], None] | None = None) -> Operator:
     """The station's loop. ``max_sleep_s`` (simulated seconds): wake at least this often even
@@ -602,7 +608,7 @@ async def _run_station(mission: Mission, scenario: MissionScenario, connections:
         for a in adapters:
             a.close()
         raise RunnerError(f"cannot open link {conn!r}: {exc}") from exc
-    station = Station([a.core for a in adapters])
+    station = Station([a.core for a in adapters])  # type: ignore[misc]  # started: each has a core
     op = _make_operator(mission, scenario, station, opts, expected, clock(), seed)
     holder["op"] = op
     op.on_action = records.events.write  # operator actions in events.jsonl, with their source
@@ -998,6 +1004,7 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     # charged to the vehicles' clocks.
     sim, ack = _paced_values(opts.emulator_in_process)
     clock = PacedReader(speedup, sim, ack)
+    emu: _InProcessEmulator | _EmulatorProcess
     if opts.emulator_in_process:
         emu_clock = _emulator_clock(speedup, sim, ack)
         emu = _InProcessEmulator(_build_world(mission, seed, opts.personality, emu_clock,

@@ -238,7 +238,9 @@ class Position(_Section):
     def local_m(self, origin: Origin) -> tuple[float, float]:
         """(north_m, east_m) in the mission frame."""
         if self.is_geo:
+            assert self.lat_deg is not None and self.lon_deg is not None  # is_geo
             return origin.to_local_m(self.lat_deg, self.lon_deg, self.alt_m)
+        assert self.north_m is not None and self.east_m is not None  # validated
         return float(self.north_m), float(self.east_m)
 
 
@@ -386,7 +388,9 @@ class Vehicles(_Section):
     @property
     def limits(self) -> FlightLimits:
         """The flight limits of whichever kind is set."""
-        return self.emulated if self.emulated is not None else self.real
+        limits = self.emulated if self.emulated is not None else self.real
+        assert limits is not None  # exactly one kind is set (validated)
+        return limits
 
     @property
     def count(self) -> int:
@@ -583,6 +587,7 @@ class HazardZone(_Section):
             return math.hypot(north_m - c.north_m, east_m - c.east_m) <= self.circle.radius_m
         inside = False
         pts = self.polygon
+        assert pts is not None  # a circle or a polygon (validated)
         for a, b in zip(pts, pts[1:] + pts[:1]):
             if (a.north_m > north_m) != (b.north_m > north_m):
                 x = a.east_m + (north_m - a.north_m) * (b.east_m - a.east_m) / (b.north_m - a.north_m)
@@ -752,9 +757,9 @@ class Mission(_Section):
             elif task.random_walk is not None:
                 pts = [(f"tasks[{i}].random_walk.start", task.random_walk.start)]
             for where, p in pts:
-                n_m, e_m = (_approx_local_m(self.origin, p.lat_deg, p.lon_deg) if p.is_geo
+                n_m, e_m = (_approx_local_m(self.origin, p.lat_deg, p.lon_deg) if p.is_geo  # type: ignore[arg-type]  # is_geo: lat/lon set
                             else (p.north_m, p.east_m))
-                d = math.hypot(n_m, e_m)
+                d = math.hypot(n_m, e_m)  # type: ignore[arg-type]  # north/east set unless is_geo
                 if d > MAX_DISTANCE_FROM_ORIGIN_M:
                     problems.append((where, f"is {d / 1000:.0f} km from the origin (limit "
                                             f"{MAX_DISTANCE_FROM_ORIGIN_M / 1000:.0f} km); "
@@ -812,6 +817,7 @@ class Mission(_Section):
         if v.emulated is not None:
             fleet = f"{v.emulated.count} emulated {v.emulated.personality} drones"
         else:
+            assert v.real is not None  # exactly one kind is set (validated)
             fleet = f"{len(v.real.connections)} real link(s)"
         kinds: dict[str, int] = {}
         for t in self.tasks:
@@ -884,7 +890,7 @@ def paper_mission(size: str = "S", attrition_per_step: float = 0.01, unit_m: flo
             count=cfg.n_tasks,
             field_half_width_m=cfg.field_half_width_m * L,
             sigma_m_per_sqrt_s=cfg.task_walk_sigma_m * L / math.sqrt(step_s),
-            border=cfg.task_border,
+            border=cfg.task_border,  # type: ignore[arg-type]  # checked against BORDER_POLICIES
         )),),
         radio=Radio(range_m=cfg.radio_range_m * L, base_range_m=cfg.base_range_m * L),
         attrition=Attrition(rate_per_s=rate_from_per_step(attrition_per_step, step_s)),

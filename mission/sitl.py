@@ -191,6 +191,7 @@ class SitlSwarm:
 
     def _start_one(self, k: int) -> subprocess.Popen:
         spec, i = self.spec, self.instance(k)
+        assert self.workdir is not None  # set by start()
         cwd = self.workdir / f"{spec.firmware}-{i}"
         cwd.mkdir(parents=True, exist_ok=True)
         lat, lon, alt = self.homes[k]

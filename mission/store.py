@@ -246,6 +246,7 @@ class ResultStore:
                 "INSERT INTO sweeps (started_utc, grid, argv, executor, workers, code_version, planned, "
                 "present) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                 (utc_now(), grid, json.dumps(argv), executor, workers, code_version, planned, present))
+            assert cur.lastrowid is not None  # set by the INSERT
             return int(cur.lastrowid)
 
     def finish_sweep(self, sweep_id: int, completed: int, errors: int, interrupted: bool,

@@ -36,10 +36,13 @@ import subprocess
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Iterable, Iterator
 
 from mission.store import ResultStore, utc_now
+
+if TYPE_CHECKING:
+    from concurrent.futures import ProcessPoolExecutor
 
 __all__ = [
     "ConfigSpec", "Grid", "ResolvedConfig", "Chunk", "SweepSummary",
@@ -62,14 +65,14 @@ def _json_default(obj: Any) -> Any:
     try:
         import numpy as np
     except ImportError:  # pragma: no cover
-        np = None
+        np = None  # type: ignore[assignment]
     if np is not None and isinstance(obj, np.generic):
         return obj.item()
     if np is not None and isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, (set, frozenset)):
         return sorted(obj)
-    if dataclasses.is_dataclass(obj):
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return dataclasses.asdict(obj)
     return str(obj)
 
@@ -263,7 +266,7 @@ def resolve(spec: ConfigSpec) -> ResolvedConfig:
     try:
         planner = make_planner(spec.method, problem, spec.params)
         prm = getattr(planner, "params", None)
-        if dataclasses.is_dataclass(prm):
+        if dataclasses.is_dataclass(prm) and not isinstance(prm, type):
             params = json.loads(canonical_json(dataclasses.asdict(prm)))
         elif isinstance(prm, dict):
             params = json.loads(canonical_json(prm))
@@ -470,9 +473,9 @@ class LocalExecutor:
 
     def __init__(self, workers: int = 1) -> None:
         self.workers = max(1, int(workers))
-        self._pool = None
+        self._pool: ProcessPoolExecutor | None = None
 
-    def run(self, chunks: list[Chunk]) -> Iterator[tuple[Chunk, list[dict] | Exception]]:
+    def run(self, chunks: list[Chunk]) -> Iterator[tuple[Chunk, list[dict] | BaseException]]:
         """Yield ``(chunk, rows)`` as chunks complete (``(chunk, exc)`` if the executor lost it)."""
         if self.workers == 1:
             for c in chunks:
@@ -538,7 +541,7 @@ class DaskExecutor:
         self.workers = len(self.client.scheduler_info().get("workers", {})) or workers
         self._futures: list = []
 
-    def run(self, chunks: list[Chunk]) -> Iterator[tuple[Chunk, list[dict] | Exception]]:
+    def run(self, chunks: list[Chunk]) -> Iterator[tuple[Chunk, list[dict] | BaseException]]:
         from dask.distributed import as_completed
 
         token = hashlib.sha256(f"{os.getpid()}-{time.time()}".encode()).hexdigest()[:8]
@@ -690,7 +693,7 @@ def run_sweep(grid: Grid, store: ResultStore, executor: str = "local", workers: 
             raise KeyboardInterrupt
         old_term = signal.signal(signal.SIGTERM, _term)
 
-    ex = None
+    ex: DaskExecutor | LocalExecutor | None = None
     warned_code = False
     t_run = time.perf_counter()
     try:

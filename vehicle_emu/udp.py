@@ -18,7 +18,7 @@ import socket
 import threading
 import time
 
-from .clock import RealClock
+from .clock import PacedClock, RealClock
 from .link import RateLimitedLog
 from .swarm import Swarm
 
@@ -55,7 +55,7 @@ class EmulatorServer:
         Endpoint ``e`` binds ``base_port + e``; 0 = ephemeral ports.
     """
 
-    def __init__(self, swarm: Swarm, clock: RealClock, host: str = "127.0.0.1",
+    def __init__(self, swarm: Swarm, clock: RealClock | PacedClock, host: str = "127.0.0.1",
                  base_port: int = 0) -> None:
         self.swarm = swarm
         self.clock = clock

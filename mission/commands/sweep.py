@@ -173,16 +173,17 @@ def check_overrides(methods, problem, params: dict, option: str = "--set") -> No
     methods = list(dict.fromkeys(methods))
     names = {m: planner_parameter_names(m, problem) for m in methods}
     for method in methods:
-        if names[method] is None:
+        taken = names[method]
+        if taken is None:
             continue
         for key in params:
-            if key in names[method]:
+            if key in taken:
                 continue
-            hint = did_you_mean(key, names[method] + problem_fields)
+            hint = did_you_mean(key, taken + problem_fields)
             takers = [m for m in methods if m != method and key in (names[m] or [])]
             where = (f"; only {', '.join(takers)} take(s) it, so run {method} separately" if takers else "")
             raise UserError(f"{option} {key}: not a parameter of {method} nor a problem field{hint}{where}. "
-                            f"{method} takes: {', '.join(names[method])}")
+                            f"{method} takes: {', '.join(taken)}")
 
 
 def execute(grid, args, argv: list[str]) -> int:

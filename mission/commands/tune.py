@@ -106,6 +106,7 @@ def run(args) -> int:
     if args.seeds < 2:
         raise UserError("--seeds must be >= 2 (confidence intervals and tests need two)")
     attrition = parse_attrition([args.attrition])
+    assert attrition is not None  # given a list
     if len(attrition) != 1:
         raise UserError("--attrition takes one level")
     axes = _parse_axes(args.grid)
@@ -121,8 +122,7 @@ def run(args) -> int:
 
     with ResultStore(args.store, readonly=True) as store:
         selector = Selector(store.runs())
-    samples = [selector.sample(spec) for spec in grid.configs]
-    samples = [s for s in samples if s is not None]
+    samples = [s for s in (selector.sample(spec) for spec in grid.configs) if s is not None]
     ranked = rank_samples(samples)
     best = ranked[0] if ranked and ranked[0].n else None
     header = ["rank", "setting", "TU1 (%)", "TU2 (%)", "n", "errors", "p(best > this, TU1, paired)"]

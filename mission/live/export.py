@@ -58,9 +58,9 @@ def features(src, at_mission_s: list[float]) -> list[dict]:
         for i in np.flatnonzero(s.has_position & ~s.lost).tolist():
             tracks.setdefault(f"{s.link_id[i]}:{s.sysid_of_index[i]}", []).append(
                 s.pos_ned_m[i, :2])
-    for vid, pts in tracks.items():
-        if len(pts) > 1:
-            out.append(_feature("LineString", _lonlat(src, pts), kind="vehicle_track",
+    for vid, track in tracks.items():
+        if len(track) > 1:
+            out.append(_feature("LineString", _lonlat(src, track), kind="vehicle_track",
                                 vehicle=vid))
     t_end = max(0.0, src.t_mission(src.times_s[-1]) or 0.0)
     ts = np.arange(0.0, t_end + 1e-9, 2.0)

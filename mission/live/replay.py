@@ -34,12 +34,13 @@ import logging
 import math
 import struct
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from gcs import events as gcs_events
 from gcs.control import layer_alt_m
-from gcs.fleet import FleetView, MissionOrigin
+from gcs.fleet import FleetSnapshot, FleetView, MissionOrigin
 from gcs.wire import mavlink
 from mission.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
 from planner.geometry import geodetic_to_ned_m
@@ -97,7 +98,8 @@ def _event_from_record(rec: dict):
     if cls is None or not isinstance(cls, type) or not issubclass(cls, gcs_events.Event):
         return None
     names = {f.name for f in dataclasses.fields(cls)}
-    kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in rec.items() if k in names}
+    kw: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in rec.items()
+                          if k in names}
     try:
         return cls(**kw)
     except (TypeError, ValueError):
@@ -107,7 +109,7 @@ def _event_from_record(rec: dict):
 @dataclasses.dataclass
 class _Frame:
     t_s: float
-    snap: object
+    snap: FleetSnapshot
     hdg_deg: np.ndarray
     target_ned_m: np.ndarray
     released: dict
@@ -116,6 +118,8 @@ class _Frame:
 
 class ReplaySource:
     """Frames of a recorded run (see the module docstring); :meth:`frame` by index."""
+
+    tiles: dict | None  # set by the replay command (--tiles); read with getattr
 
     def __init__(self, run_dir: Path, *, dt_s: float = 0.5) -> None:
         from mission.load import load_mission
@@ -196,7 +200,8 @@ class ReplaySource:
                 first_hb[sysid] = stamp
         diffs = [first_hb[s] - first_disc[s] for s in first_hb]
         self.offset_s = float(np.median(diffs)) if diffs else (tlog[0][0] if tlog else 0.0)
-        tel, targets = [], {}
+        tel: list[gcs_events.TelemetryReceived] = []
+        targets: dict = {}
         for stamp, sysid, compid, msg in tlog:
             t = stamp - self.offset_s
             mid = msg.get_msgId()
@@ -304,7 +309,7 @@ class ReplaySource:
     def meta(self) -> dict:
         m = mission_meta(self.mission, self.control.geofence, mode="replay", actions=False,
                          tiles=getattr(self, "tiles", None), duration_s=self.duration_s)
-        m["replay"] = {"t": [None if self.t_mission(t) is None else round(self.t_mission(t), 2)
+        m["replay"] = {"t": [None if (tm := self.t_mission(t)) is None else round(tm, 2)
                              for t in self.times_s],
                        "run_dir": str(self.run_dir), "has_truth": self.truth is not None}
         # before the mission start the slider shows core time relative to the start

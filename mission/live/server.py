@@ -135,7 +135,7 @@ class LiveServer:
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
         await site.start()
-        sock = site._server.sockets[0]  # the bound port (0 -> ephemeral)
+        sock = site._server.sockets[0]  # type: ignore[union-attr]  # the bound port (0 -> ephemeral)
         self.port = sock.getsockname()[1]
         if not is_loopback(self.host):
             log.warning("live view served on %s:%d: reachable from other machines%s", self.host,

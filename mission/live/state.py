@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
@@ -29,6 +30,9 @@ from scipy.spatial import cKDTree
 
 from gcs.autopilot import adapter_for
 from planner.geometry import tasks_connected
+
+if TYPE_CHECKING:
+    from gcs.fleet import FleetSnapshot
 
 __all__ = ["STATES", "STATE_LABELS", "crew_names", "mission_meta", "classify", "Picture",
            "frame_dict", "radio_links", "mst_tree"]
@@ -176,7 +180,7 @@ class Picture:
     t_s: float
     t_mission_s: float | None
     phase: str
-    snap: object
+    snap: FleetSnapshot
     """gcs.fleet.FleetSnapshot."""
     states: np.ndarray
     heading_deg: np.ndarray
