@@ -23,12 +23,16 @@ import math
 import pathlib
 from collections import Counter
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mission import paper
 from mission.store import ResultStore, utc_now
 from mission.sweep import ConfigSpec, paper_ablations_grid, paper_table_grid, resolve
+
+if TYPE_CHECKING:
+    from matplotlib.image import AxesImage
 
 __all__ = [
     "Sample", "Selector", "mean_ci95", "p_greater", "p_greater_paired", "best_of", "build_report",
@@ -297,7 +301,7 @@ def _table_ii(cells: list[Cell], methods) -> str:
                 row.append(f"**{paper.METHOD_LABELS.get(v.best, v.best)}** p={_fmt_p(v.p)}")
             else:
                 row.append(f"none ({SHORT.get(v.best, v.best)} p={_fmt_p(v.p)})")
-        ns = [str(c.samples[m].n) if c.samples.get(m) else "0" for m in methods]
+        ns = [str(s_m.n) if (s_m := c.samples.get(m)) else "0" for m in methods]
         row.append("/".join(ns))
         rows.append(row)
     return _md_table(header, rows, "lr" + "r" * (2 * len(methods)) + "lll")
@@ -371,7 +375,7 @@ def _agreement_summary(cells: list[Cell], methods) -> tuple[str, dict]:
     stats = {}
     for m in methods:
         tol = paper.TOLERANCE_PP[m]
-        have = [c for c in core if c.samples.get(m) is not None and c.samples[m].n > 0]
+        have = [c for c in core if (s_m := c.samples.get(m)) is not None and s_m.n > 0]
         both = sum(bool(c.within(m, "tu1")) and bool(c.within(m, "tu2")) for c in have)
         t1 = sum(bool(c.within(m, "tu1")) for c in have)
         t2 = sum(bool(c.within(m, "tu2")) for c in have)
@@ -504,8 +508,8 @@ def _phireman_vs_each(cells: list[Cell]) -> tuple[str, dict]:
         for metric in paper.METRICS:
             if paper.paper_bold(c.size, c.attrition, metric) != "phireman":
                 continue
-            others = {b: c.samples.get(b) for b in baselines}
-            if any(o is None or o.n < 2 for o in others.values()):
+            others = {b: o for b in baselines if (o := c.samples.get(b)) is not None and o.n >= 2}
+            if len(others) < len(baselines):
                 continue
             bold_cells.append({b: (p_greater(phi, o, metric) < ALPHA, p_greater_paired(phi, o, metric) < ALPHA)
                                for b, o in others.items()})
@@ -594,7 +598,7 @@ def _common_limit(arrays) -> float:
     return max(1.0, max(float(f.max()) for f in finite)) if finite else 1.0
 
 
-def _heatmap(ax, z, marks, sizes, levels, title, vmax=None) -> object:
+def _heatmap(ax, z, marks, sizes, levels, title, vmax=None) -> AxesImage:
     from matplotlib.colors import TwoSlopeNorm
 
     finite = z[np.isfinite(z)]
@@ -646,9 +650,9 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
     for other in ("dccrs", "mccst"):
         fig = Figure(figsize=(10, 4.2), layout="constrained")
         axes = fig.subplots(1, 2)
-        panels = [_grid_of(cells, _pair_diff(cells, other, metric)) for metric in paper.METRICS]
-        lim = _common_limit(z for z, *_ in panels)
-        for ax, metric, (z, marks, sizes, levels) in zip(axes, paper.METRICS, panels):
+        pair_panels = [_grid_of(cells, _pair_diff(cells, other, metric)) for metric in paper.METRICS]
+        lim = _common_limit(z for z, *_ in pair_panels)
+        for ax, metric, (z, marks, sizes, levels) in zip(axes, paper.METRICS, pair_panels):
             im = _heatmap(ax, z, marks, sizes, levels,
                           f"{METRIC_LABELS[metric]}: ΦIREMAN − {paper.METHOD_LABELS[other]} (pp)", vmax=lim)
             fig.colorbar(im, ax=ax, shrink=0.8)
@@ -660,8 +664,7 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
     def ours(metric):
         def fn(c: Cell):
             a = c.samples.get("phireman")
-            base = [c.samples.get(m) for m in ("dccrs", "mccst")]
-            base = [b for b in base if b is not None and b.n]
+            base = [b for b in (c.samples.get(m) for m in ("dccrs", "mccst")) if b is not None and b.n]
             if a is None or not a.n or not base:
                 return np.nan, ""
             v = c.unpaired[metric]
@@ -676,7 +679,7 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
                 return np.nan, ""
             bold = paper.paper_bold(c.size, c.attrition, metric)
             mark = "*" if bold == "phireman" else ("°" if bold else "")
-            return vals["phireman"][0] - max(vals["dccrs"][0], vals["mccst"][0]), mark
+            return vals["phireman"][0] - max(vals["dccrs"][0], vals["mccst"][0]), mark  # type: ignore[index]  # none is None (above)
         return fn
 
     fig = Figure(figsize=(10, 8), layout="constrained")
@@ -853,8 +856,7 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
     for r in rows:
         if r["run_key"] not in selector.used and r["spec_key"] not in other_specs:
             other_specs[r["spec_key"]] = _spec_from_row(r)
-    other_samples = [selector.sample(spec) for spec in other_specs.values()]
-    other_samples = [s for s in other_samples if s is not None]
+    other_samples = [s for s in (selector.sample(spec) for spec in other_specs.values()) if s is not None]
     tick("collected the other configurations")
 
     used_versions = Counter(r["code_version"] for r in rows if r["run_key"] in selector.used)
@@ -896,11 +898,11 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
         for s in sorted(other_samples, key=lambda s: (s.spec.size, s.spec.attrition, s.spec.method, s.spec.label)):
             yours.append((s, "— (not a paper configuration)"))
         for c in cells:
-            for m, s in c.samples.items():
-                if s is None or not s.n:
+            for m, smp in c.samples.items():
+                if smp is None or not smp.n:
                     continue
                 ref = [paper.paper_value(c.size, c.attrition, m, k) for k in paper.METRICS]
-                yours.append((s, f"{ref[0][0]:.2f} / {ref[1][0]:.2f}" if comparable and all(ref)
+                yours.append((smp, f"{ref[0][0]:.2f} / {ref[1][0]:.2f}" if comparable and all(ref)  # type: ignore[index]  # all(ref)
                               else "— (differs from the paper)" if all(ref) else "—"))
         md += ["## Your configurations", "",
                f"{len(yours)} configurations with data, TU1 and TU2 in % (mean ± half-width of the 95 % CI "
@@ -968,7 +970,7 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
                _md_table(["label", "size", "p (%)", "reading", "method", "overrides", "n", "errors", "TU1", "TU2"],
                          rows_md, "llrlllrrrr"), ""]
 
-    errors = Counter()
+    errors: Counter[tuple[str, str]] = Counter()
     for r in rows:
         if r["status"] == "error":
             errors[(r["method"], (r["error"] or "?").splitlines()[0][:200])] += 1
