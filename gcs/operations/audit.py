@@ -25,6 +25,10 @@ __all__ = ["AuditStep"]
 
 log = logging.getLogger(__name__)
 
+#: After every required audit read was answered, how long optional ones are still waited for
+#: (station seconds): a firmware's answers to one burst of reads arrive within a fraction of it.
+OPTIONAL_GRACE_S = 1.5
+
 
 class AuditStep(OperatorState):
     """Parameter reads and writes of :class:`gcs.operations.Operator` (see the module docstring)."""
@@ -32,6 +36,7 @@ class AuditStep(OperatorState):
     # ------------------------------------------------------------------ events
 
     def _on_param_received(self, event: ParamReceived, key: tuple[int, int]) -> None:
+        self._last_param_s = max(self._last_param_s, event.t_s)
         self._params.setdefault(key, {})[event.name] = event.value
         self._param_types.setdefault(key, {})[event.name] = event.param_type
         self._params_pending.discard((*key, event.name))
@@ -98,7 +103,20 @@ class AuditStep(OperatorState):
         then launch, or refuse."""
         in_time = now_s - self._phase_since_s < self.config.audit_timeout_s
         if self._params_pending and in_time:
-            return
+            # Optional parameters (absent on some firmware versions, gcs/audit.py
+            # OPTIONAL_PARAMS) are not waited for once every other read has been answered for
+            # OPTIONAL_GRACE_S: a firmware without them would otherwise hold the audit for a
+            # whole read timeout with retries (~10 s on PX4 1.18: COM_OBL_ACT), and a station
+            # restarted in flight would reclaim its vehicles that much later.
+            required = [p for p in self._params_pending if p[2] not in audit_mod.OPTIONAL_PARAMS]
+            if required or now_s - self._last_param_s < OPTIONAL_GRACE_S:
+                return
+            for link_id, sysid, name in sorted(self._params_pending):
+                try:
+                    self.station.link(link_id).cancel_param(sysid, name, now_s)
+                except (KeyError, IndexError):
+                    pass
+            self._params_pending.clear()
         if in_time and self._audit_round < self.config.audit_rounds:
             # Another round for whatever timed out (a loaded link, a vehicle still booting);
             # names a firmware does not have (the other GCS-sysid spelling) just time out again.

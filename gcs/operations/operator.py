@@ -97,6 +97,8 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
         self._rows: dict[int, _Row] = {}
         self._params: dict[tuple[int, int], dict[str, float]] = {}
         self._params_pending: set[tuple[int, int, str]] = set()
+        self._last_param_s = -math.inf
+        """When the last audit parameter was received (optional reads wait a little after it)."""
         self._known: set[tuple[int, int]] = set()
         self.audit_report: audit_mod.AuditReport | None = None
         self.initial_audit_report: audit_mod.AuditReport | None = None

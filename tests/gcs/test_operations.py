@@ -1271,3 +1271,23 @@ def test_a_subclass_of_a_handled_event_gets_its_handler():
     op, station, feed, (v,) = make(1)
     feed.emit(LoudStatusText(0, 1, 1.0, 2, "GCS Failsafe"))
     assert op.failsafe_texts == [(1.0, v, "GCS Failsafe")]
+
+
+def test_optional_parameters_a_firmware_lacks_do_not_hold_the_audit():
+    # PX4 1.18 has no COM_OBL_ACT (PX4 <= 1.13 only) and no answer comes for it: once every
+    # required read is answered the audit waits OPTIONAL_GRACE_S, not a read timeout with
+    # retries (a restarted station reclaimed its PX4 vehicles ~10 s late).
+    from gcs.operations.audit import OPTIONAL_GRACE_S
+
+    safe = {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 3.0, "NAV_RCL_ACT": 2.0, "NAV_DLL_ACT": 2.0,
+            "COM_DL_LOSS_T": 10.0, "COM_RC_IN_MODE": 4.0, "COM_RCL_EXCEPT": 0.0,
+            "COM_DLL_EXCEPT": 0.0, "COM_FAIL_ACT_T": 0.0}
+    op, station, feed, (v,) = make(1, audit=True, autopilot=PX4)
+    feed.poll(0.0)
+    assert ("request_param", v, "COM_OBL_ACT") in [c[:3] for c in station.calls]
+    answer_audit(feed, station, 0.5, safe)
+    feed.poll(0.5 + OPTIONAL_GRACE_S / 2)
+    assert op.phase == "audit"                       # a late optional answer is still welcome
+    feed.poll(0.5 + OPTIONAL_GRACE_S + 0.1)
+    assert op.phase == "launch"
+    assert ("cancel_param", v, "COM_OBL_ACT") in [c[:3] for c in station.calls]
