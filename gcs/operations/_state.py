@@ -37,6 +37,7 @@ class OperatorState:
         _rows: dict[int, _Row]
         _params: dict[tuple[int, int], dict[str, float]]
         _params_pending: set[tuple[int, int, str]]
+        _last_param_s: float
         _known: set[tuple[int, int]]
         audit_report: audit_mod.AuditReport | None
         initial_audit_report: audit_mod.AuditReport | None
