@@ -29,6 +29,7 @@ import logging
 import re
 import struct
 from dataclasses import dataclass, field
+from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -43,7 +44,7 @@ log = logging.getLogger(__name__)
 
 
 class _NullFile:
-    def write(self, _data) -> None:  # pymavlink's MAVLink wants a file; we never use it
+    def write(self, _data: bytes) -> None:  # pymavlink's MAVLink wants a file; we never use it
         pass
 
 
@@ -83,13 +84,13 @@ class RawFrame:
         return f"RawFrame({self._name}, sysid={self._sysid}, compid={self._compid})"
 
 
-class _MAVLink(mavlink.MAVLink):
+class _MAVLink(mavlink.MAVLink):  # type: ignore[misc]  # pymavlink is untyped
     """pymavlink's parser with the C library's signature check and optional raw frames."""
 
     full_msgids: frozenset[int] | None = None
     """Message ids decoded into pymavlink objects; the others become RawFrame (None: all)."""
 
-    def decode(self, msgbuf):
+    def decode(self, msgbuf: bytearray) -> Any:
         full = self.full_msgids
         if full is not None and len(msgbuf) >= 10:
             if msgbuf[0] == mavlink.PROTOCOL_MARKER_V2:
@@ -100,7 +101,7 @@ class _MAVLink(mavlink.MAVLink):
                 return self._decode_raw(msgbuf, msgid)
         return super().decode(msgbuf)
 
-    def _decode_raw(self, msgbuf, msgid: int) -> RawFrame:
+    def _decode_raw(self, msgbuf: bytearray, msgid: int) -> RawFrame:
         """pymavlink ``MAVLink.decode`` up to and including the signature check, without the
         payload: the same frames are refused, with the same reasons."""
         if msgbuf[0] == mavlink.PROTOCOL_MARKER_V2:
@@ -129,7 +130,7 @@ class _MAVLink(mavlink.MAVLink):
                 raise mavlink.MAVError("Invalid signature")
         return RawFrame(msgid, msgtype.msgname, sysid, compid, seq, bytes(msgbuf))
 
-    def check_signature(self, msgbuf, srcSystem, srcComponent) -> bool:  # noqa: N803
+    def check_signature(self, msgbuf: bytearray, srcSystem: int, srcComponent: int) -> bool:  # noqa: N803
         signing = self.signing
         link_id = msgbuf[-13]
         tlow, thigh = self.mav_sign_unpacker.unpack(msgbuf[-12:-6])
@@ -200,7 +201,7 @@ class Decoder:
     def _reset(self) -> None:
         _reset_parser(self._mav)
 
-    def feed(self, data: bytes, *, datagram: bool = True) -> list:
+    def feed(self, data: bytes, *, datagram: bool = True) -> list[Any]:
         """Decode ``data``; return the good messages (pymavlink objects, or :class:`RawFrame`
         for ids outside the decoder's ``full_msgids``) in order.
 
@@ -208,7 +209,7 @@ class Decoder:
         ``datagram=False`` (TCP, serial) it is kept for the next call.
         """
         self._stats.bytes_in += len(data)
-        out: list = []
+        out: list[Any] = []
         try:
             msgs = self._mav.parse_buffer(data) or []
         except Exception:  # pymavlink bug or exotic input: count it, reset, carry on
@@ -263,7 +264,7 @@ class Codec:
         ts = signing_timestamp_from_s(unix_time_s)
         self._mav.signing.timestamp = max(self._mav.signing.timestamp, ts)
 
-    def encode(self, msg) -> bytes:
+    def encode(self, msg: Any) -> bytes:
         """Pack one message as a MAVLink 2 frame with our ids and the next sequence number."""
         buf = msg.pack(self._mav)
         self._mav.seq = (self._mav.seq + 1) % 256
@@ -281,7 +282,7 @@ class Codec:
 class DecodeResult:
     """What one datagram decoded to."""
 
-    messages: list = field(default_factory=list)
+    messages: list[Any] = field(default_factory=list)
     """Good messages (pymavlink message objects), in wire order."""
     n_bad: int = 0
     """Frames or byte runs that failed (bad prefix, CRC, length)."""
@@ -313,7 +314,7 @@ class VehicleCodec:
     """
 
     def __init__(self, sysid: int, compid: int = 1, signing_key: bytes | None = None,
-                 allow_unsigned_ids: frozenset = frozenset(), link_id: int = 0) -> None:
+                 allow_unsigned_ids: frozenset[int] = frozenset(), link_id: int = 0) -> None:
         if not 1 <= sysid <= 255:
             raise ValueError(f"sysid must be 1..255, got {sysid}")
         self._mav = _MAVLink(_NullFile(), srcSystem=sysid, srcComponent=compid)
@@ -363,7 +364,7 @@ class VehicleCodec:
         if timestamp > self._mav.signing.timestamp:
             self._mav.signing.timestamp = timestamp
 
-    def encode(self, msg) -> bytes:
+    def encode(self, msg: Any) -> bytes:
         """Pack one message with our seq and (if enabled) signature; advance seq."""
         mav = self._mav
         buf = msg.pack(mav)

@@ -56,7 +56,7 @@ def is_int_param_type(param_type: int) -> bool:
     return param_type in _FMT
 
 
-def param_id_to_str(param_id) -> str:
+def param_id_to_str(param_id: bytes | str) -> str:
     """PARAM_VALUE.param_id (bytes or str, NUL padded, 16 chars max) to a clean name."""
     if isinstance(param_id, bytes):
         param_id = param_id.decode("ascii", errors="replace")

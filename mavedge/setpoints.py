@@ -11,6 +11,7 @@ PX4 mavlink_receiver.cpp ignores a whole vector group if any bit in it is set (m
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -46,7 +47,7 @@ TYPE_MASK_YAW_RATE = POS_BITS | VEL_BITS | ACC_BITS | YAW_BIT                  #
 TYPE_MASK_POSITION_YAW = VEL_BITS | ACC_BITS | YAW_RATE_BIT                    # 0x09F8 = 2552
 
 
-def _mask(vel, yaw_rad) -> int:
+def _mask(vel: tuple[float, float, float] | None, yaw_rad: float | None) -> int:
     mask = TYPE_MASK_POSITION if vel is None else TYPE_MASK_POSITION_VELOCITY
     if yaw_rad is not None:
         mask &= ~YAW_BIT
@@ -57,7 +58,7 @@ def position_target_global_int(*, target_system: int, lat_deg: float, lon_deg: f
                                frame: int = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
                                time_boot_s: float = 0.0, target_component: int = 1,
                                vel_ned_m_s: tuple[float, float, float] | None = None,
-                               yaw_rad: float | None = None):
+                               yaw_rad: float | None = None) -> Any:
     """A SET_POSITION_TARGET_GLOBAL_INT message with the right type_mask.
 
     ``alt_m`` is interpreted by ``frame``: above home for GLOBAL_RELATIVE_ALT_INT (6, default),
@@ -78,7 +79,7 @@ def position_target_local_ned(*, target_system: int, pos_ned_m: tuple[float, flo
                               frame: int = mavlink.MAV_FRAME_LOCAL_NED, time_boot_s: float = 0.0,
                               target_component: int = 1,
                               vel_ned_m_s: tuple[float, float, float] | None = None,
-                              yaw_rad: float | None = None):
+                              yaw_rad: float | None = None) -> Any:
     """A SET_POSITION_TARGET_LOCAL_NED message (``pos_ned_m`` in *that vehicle's* local frame)."""
     x, y, z = (float(v) for v in pos_ned_m)
     if not all(math.isfinite(v) for v in (x, y, z)):
