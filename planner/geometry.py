@@ -10,6 +10,7 @@ is served only by a drone strictly closer than r (``<``).
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 import pymap3d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -165,7 +166,8 @@ def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
     return out
 
 
-def active_mask_reference(pos_m, alive, radio_range_m, base_range_m, base_m=None) -> np.ndarray:
+def active_mask_reference(pos_m: npt.ArrayLike, alive: np.ndarray, radio_range_m: float,
+                          base_range_m: float, base_m: npt.ArrayLike | None = None) -> np.ndarray:
     """Slow, obviously-correct fixed point of the paper's recursive definition (for tests)."""
     pos_m = np.asarray(pos_m, dtype=float)
     n = len(pos_m)
@@ -223,7 +225,8 @@ def step_toward(pos_m: np.ndarray, target_m: np.ndarray, max_step_m: float) -> n
     return to_target * (np.minimum(max_step_m, dist) / np.where(dist > 0, dist, 1.0))[..., None]
 
 
-def geodetic_to_ned_m(lat_deg, lon_deg, alt_amsl_m, origin_lat_deg: float, origin_lon_deg: float,
+def geodetic_to_ned_m(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike, alt_amsl_m: npt.ArrayLike,
+                      origin_lat_deg: float, origin_lon_deg: float,
                       origin_alt_amsl_m: float) -> np.ndarray:
     """WGS-84 geodetic to local NED metres around an origin (pymap3d, exact ellipsoid).
 
@@ -234,7 +237,7 @@ def geodetic_to_ned_m(lat_deg, lon_deg, alt_amsl_m, origin_lat_deg: float, origi
     return np.stack(np.broadcast_arrays(n, e, d), axis=-1).astype(float)
 
 
-def ned_to_geodetic(ned_m, origin_lat_deg: float, origin_lon_deg: float,
+def ned_to_geodetic(ned_m: npt.ArrayLike, origin_lat_deg: float, origin_lon_deg: float,
                     origin_alt_amsl_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local NED metres around an origin to (lat_deg, lon_deg, alt_amsl_m)."""
     ned_m = np.asarray(ned_m, dtype=float)

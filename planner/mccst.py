@@ -119,6 +119,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import osqp
@@ -154,14 +155,14 @@ SPEED_BOUNDS = ("box", "clip", "none")
 #: Overrides that give the pre-calibration default: every networked drone tasked by a balanced
 #: assignment re-solved each tick, gamma = 1 (rescaled), kappa = 0.9, saturated k_p = 1. The CBF
 #: guarantee of the module docstring holds. Scores far above the paper's MCCST under attrition.
-BALANCED_PARAMS: dict = {"reassign_period": 1, "task_capacity": 0,
+BALANCED_PARAMS: dict[str, Any] = {"reassign_period": 1, "task_capacity": 0,
                          "keep_task_when_disconnected": True, "gamma": 1.0, "kappa": 0.9,
                          "k_p": 1.0}
 
 #: Overrides for the strongest variant found (best TU1 and TU2 on the calibration set): one drone
 #: per task, re-chosen every tick (an implicit attrition recovery), every other drone an untasked
 #: relay; gamma = 1, kappa = 0.9, k_p = 1. Beats the paper's PhiIREMAN at S / 1 %.
-STRONG_PARAMS: dict = {**BALANCED_PARAMS, "task_capacity": 1}
+STRONG_PARAMS: dict[str, Any] = {**BALANCED_PARAMS, "task_capacity": 1}
 
 #: OSQP statuses whose primal solution is used; anything else triggers the nominal fallback.
 _ACCEPTED_STATUSES = ("solved", "solved inaccurate")
@@ -291,7 +292,7 @@ class MccstParams:
             raise ValueError("MccstParams: " + "; ".join(problems))
 
     @classmethod
-    def from_dict(cls, params: dict) -> MccstParams:
+    def from_dict(cls, params: dict[str, Any]) -> MccstParams:
         """Build from a ``params`` dict; unknown keys raise ValueError listing the valid ones."""
         valid = [f.name for f in dataclasses.fields(cls)]
         unknown = sorted(set(params) - set(valid))
@@ -519,7 +520,7 @@ def spanning_tree_edges(n_nodes: int, edges: np.ndarray, weights: np.ndarray) ->
     return np.sort(order[tree.data.astype(np.intp) - 1])
 
 
-def _mst_reference(n_nodes: int, edges: np.ndarray, weights: np.ndarray) -> set[frozenset]:
+def _mst_reference(n_nodes: int, edges: np.ndarray, weights: np.ndarray) -> set[frozenset[int]]:
     """networkx's Kruskal MST on the same weights, as a set of node pairs (slow; for tests)."""
     import networkx as nx
 
@@ -919,7 +920,7 @@ class MccstPlanner:
         return PlanOutput(disp_m=disp_m, tree=None, info=info)
 
 
-def make_mccst(problem: ProblemConfig, params: dict, rng: np.random.Generator) -> MccstPlanner:
+def make_mccst(problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator) -> MccstPlanner:
     """Registry factory (``METHODS['mccst']``).
 
     Parameters

@@ -50,7 +50,7 @@ class PlanOutput:
     """(N, 2) float64: motion instruction per drone for this tick, metres (|disp| <= v * dt)."""
     tree: Any = None
     """The task tree used this tick (``planner.steiner.TaskTree``) or None, for plots."""
-    info: dict = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
     """Diagnostics (descent iterations, solver status, ...)."""
 
 
@@ -78,7 +78,7 @@ def method_names() -> list[str]:
     return list(METHODS)
 
 
-def make_planner(name: str, problem: ProblemConfig, params: dict | None = None,
+def make_planner(name: str, problem: ProblemConfig, params: dict[str, Any] | None = None,
                  rng: np.random.Generator | None = None) -> Planner:
     """Build the planner registered under ``name``.
 
@@ -94,5 +94,5 @@ def make_planner(name: str, problem: ProblemConfig, params: dict | None = None,
     except KeyError as exc:
         raise UnknownMethod(f"unknown method {name!r}; valid methods: {', '.join(METHODS)}") from exc
     module_name, factory_name = target.split(":")
-    factory: Callable = getattr(importlib.import_module(module_name), factory_name)
+    factory: Callable[..., Planner] = getattr(importlib.import_module(module_name), factory_name)
     return factory(problem, dict(params or {}), rng if rng is not None else np.random.default_rng(0))

@@ -83,7 +83,7 @@ def task_uptime(connected: np.ndarray, zero_over_zero: str = "zero") -> tuple[fl
     raise ValueError(f"zero_over_zero must be 'zero', 'skip' or 'one', got {zero_over_zero!r}")
 
 
-def task_uptime_reference(connected) -> tuple[float, float]:
+def task_uptime_reference(connected: np.ndarray) -> tuple[float, float]:
     """Slow, loop-by-loop transcription of the definitions (for tests)."""
     rows = [list(map(bool, r)) for r in connected]
     tau = len(rows)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 __all__ = [
     "ProblemConfig",
@@ -103,13 +104,13 @@ class ProblemConfig:
         if problems:
             raise ValueError("; ".join(problems))
 
-    def replace(self, **changes) -> ProblemConfig:
+    def replace(self, **changes: Any) -> ProblemConfig:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
 
 def problem_preset(size: str = "S", attrition_per_step: float = 0.01, reading: str = "scaled",
-                   **overrides) -> ProblemConfig:
+                   **overrides: Any) -> ProblemConfig:
     """The paper's configuration for ``size`` (Table III) at the given attrition rate.
 
     Parameters

@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import minimize
 
 from planner import _kernels
@@ -214,7 +215,7 @@ def _fermat_scalar(ax: float, ay: float, bx: float, by: float, cx: float,
     return ax + scale * (wb * abx + wc * acx), ay + scale * (wb * aby + wc * acy), -1
 
 
-def fermat_point(a_m, b_m, c_m) -> np.ndarray:
+def fermat_point(a_m: npt.ArrayLike, b_m: npt.ArrayLike, c_m: npt.ArrayLike) -> np.ndarray:
     """Fermat point (geometric median) of one triangle.
 
     Parameters
@@ -239,7 +240,8 @@ def fermat_point(a_m, b_m, c_m) -> np.ndarray:
     return np.array([x, y], dtype=np.float64)
 
 
-def _fermat_complex(a, b, c, exact_ab: bool = True):
+def _fermat_complex(a: np.ndarray, b: np.ndarray, c: np.ndarray, exact_ab: bool = True
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Vectorised Fermat points of triangles given as complex arrays ``x + 1j*y`` (broadcastable).
 
     Returns ``(z, at_a, at_b, at_c)``. ``at_X`` marks triangles whose angle at X is ≥ 120° (or X
@@ -284,7 +286,7 @@ def _as_complex(xy_m: np.ndarray) -> np.ndarray:
     return xy_m[..., 0] + 1j * xy_m[..., 1]
 
 
-def fermat_points(a_m, b_m, c_m) -> np.ndarray:
+def fermat_points(a_m: npt.ArrayLike, b_m: npt.ArrayLike, c_m: npt.ArrayLike) -> np.ndarray:
     """Vectorised Fermat points of P triangles (closed form, exact up to rounding).
 
     Parameters
@@ -321,7 +323,7 @@ def fermat_points(a_m, b_m, c_m) -> np.ndarray:
     return np.stack([z.real, z.imag], axis=1)
 
 
-def fermat_point_reference(a_m, b_m, c_m) -> np.ndarray:
+def fermat_point_reference(a_m: npt.ArrayLike, b_m: npt.ArrayLike, c_m: npt.ArrayLike) -> np.ndarray:
     """Slow check of :func:`fermat_point` by direct minimisation (for tests).
 
     Minimises ``|x-a| + |x-b| + |x-c|`` with Nelder-Mead from the centroid at tight tolerances,
@@ -421,7 +423,8 @@ def tree_cost(tree: TaskTree, base_weight: float = 1.0) -> tuple[float, float, f
 # --------------------------------------------------------------------------------------------
 
 
-def _check_inputs(base_m, task_pos_m, base_weight) -> tuple[np.ndarray, np.ndarray, float]:
+def _check_inputs(base_m: npt.ArrayLike, task_pos_m: npt.ArrayLike,
+                  base_weight: float) -> tuple[np.ndarray, np.ndarray, float]:
     base = np.asarray(base_m, dtype=np.float64)
     tasks = np.asarray(task_pos_m, dtype=np.float64)
     if base.shape != (2,) or not np.all(np.isfinite(base)):
@@ -670,7 +673,7 @@ def _relax_steiner(nodes_m: np.ndarray, parent: np.ndarray, n_tasks: int,
 # --------------------------------------------------------------------------------------------
 
 
-def build_task_tree(base_m, task_pos_m, base_weight: float = 1.0,
+def build_task_tree(base_m: npt.ArrayLike, task_pos_m: npt.ArrayLike, base_weight: float = 1.0,
                     refine_sweeps: int = 3) -> TaskTree:
     """Build a semi-Steiner task tree greedily (docs/design/model.md §5.3).
 
@@ -734,7 +737,7 @@ def build_task_tree(base_m, task_pos_m, base_weight: float = 1.0,
     return greedy
 
 
-def update_task_positions(tree: TaskTree, task_pos_m, sweeps: int = 3) -> TaskTree:
+def update_task_positions(tree: TaskTree, task_pos_m: npt.ArrayLike, sweeps: int = 3) -> TaskTree:
     """Move the task nodes, keep the topology, and relax the Steiner nodes to Fermat points.
 
     Parameters
@@ -766,7 +769,8 @@ def update_task_positions(tree: TaskTree, task_pos_m, sweeps: int = 3) -> TaskTr
     return TaskTree(nodes, parent, tree.n_tasks)
 
 
-def maintain_task_tree(tree: TaskTree | None, base_m, task_pos_m, t_step: int,
+def maintain_task_tree(tree: TaskTree | None, base_m: npt.ArrayLike, task_pos_m: npt.ArrayLike,
+                       t_step: int,
                        base_weight: float = 1.0, accept_ratio: float = 0.99,
                        rebuild_period: int = 10, sweeps: int = 3) -> TaskTree:
     """The per-tick tree policy of PhiIREMAN (docs/design/model.md §5.3, §7 #10).
@@ -822,14 +826,14 @@ def maintain_task_tree(tree: TaskTree | None, base_m, task_pos_m, t_step: int,
 # --------------------------------------------------------------------------------------------
 
 
-def _check_points(points_m) -> np.ndarray:
+def _check_points(points_m: npt.ArrayLike) -> np.ndarray:
     pts = np.asarray(points_m, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise ValueError(f"points_m must be (P, 2) float64 metres, got shape {pts.shape}")
     return pts
 
 
-def distance_to_tree(points_m, tree: TaskTree,
+def distance_to_tree(points_m: npt.ArrayLike, tree: TaskTree,
                      nodes_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Distance from each point to the task tree, and the nearest point on it.
 
@@ -878,7 +882,7 @@ def distance_to_tree(points_m, tree: TaskTree,
     return np.sqrt(np.einsum("pd,pd->p", delta, delta)), nearest
 
 
-def distance_to_tree_reference(points_m, tree: TaskTree,
+def distance_to_tree_reference(points_m: npt.ArrayLike, tree: TaskTree,
                                nodes_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Plain-loop version of :func:`distance_to_tree` (for tests)."""
     pts = _check_points(points_m)
