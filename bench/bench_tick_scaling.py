@@ -65,14 +65,17 @@ def run(n: int, m: int, ticks: int, method: str, seed: int) -> dict | None:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def plot(rows: list[dict], path: str) -> None:
+def plot(rows: list[dict], path: str, before: list[dict] | None = None) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     n = [r["drones"] for r in rows]
     fig, ax = plt.subplots(figsize=(6, 4.2))
+    if before:
+        ax.loglog([r["drones"] for r in before], [r["cpu_p50_ms"] for r in before], "v:", color="tab:red",
+                  label="before (NumPy, dense N x N): CPU p50")
     ax.loglog(n, [r["cpu_p50_ms"] for r in rows], "o-", label="tick CPU p50")
-    ax.loglog(n, [r["wall_p95_ms"] for r in rows], "s--", alpha=0.6, label="tick wall p95 (shared machine)")
+    ax.loglog(n, [r["cpu_mean_ms"] for r in rows], "^-", alpha=0.6, label="tick CPU mean (incl. tree rebuilds)")
     ax.scatter([2000, 10000], [50, 500], marker="x", color="k", zorder=5, label="goals (2,000: 50 ms; 10,000: 500 ms)")
     for r in rows:
         ax.annotate(f"{r['tasks']}", (r["drones"], r["cpu_p50_ms"]), textcoords="offset points",
@@ -94,7 +97,16 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--plot", default=None, help="write a log-log PNG of tick time against drones")
     ap.add_argument("--json", default=None, help="also write the rows as JSON")
+    ap.add_argument("--from-json", default=None, help="plot rows written by --json instead of measuring")
+    ap.add_argument("--baseline-json", nargs="+", default=None,
+                    help="rows of an earlier code tree (--json run there) to draw as 'before'")
     args = ap.parse_args()
+    before = None
+    if args.baseline_json:
+        before = sorted((r for f in args.baseline_json for r in json.load(open(f))), key=lambda r: r["drones"])
+    if args.from_json:
+        plot(json.load(open(args.from_json)), args.plot, before)
+        return
     print(f"{'drones':>7} {'tasks':>6} {'first ms':>9} {'cpu p50':>8} {'cpu mean':>9} {'wall p50':>9} "
           f"{'wall p95':>9} {'peak MB':>8}", flush=True)
     rows = []
@@ -109,7 +121,7 @@ def main() -> None:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
     if args.plot and rows:
-        plot(rows, args.plot)
+        plot(rows, args.plot, before)
 
 
 if __name__ == "__main__":
