@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from planner.methods import Planner, TickInput
 
@@ -84,7 +86,7 @@ class ControlConfig:
             raise ValueError("n_layers must be >= 1 and layer_spacing_m >= 0")
 
 
-def layer_alt_m(rows, config: ControlConfig) -> np.ndarray:
+def layer_alt_m(rows: npt.ArrayLike, config: ControlConfig) -> np.ndarray:
     """(K,) cruise altitude above the base of each row (vectorised ``FlightLimits.layer_alt_m``)."""
     rows = np.asarray(rows, dtype=int)
     alt = config.cruise_alt_m + (rows % config.n_layers) * config.layer_spacing_m
@@ -101,7 +103,7 @@ class TickResult:
     """(K, 3) float64: targets in the mission NED frame (down = -altitude above the base)."""
     disp_m: np.ndarray
     """(K, 2) float64: the planner's horizontal displacement for those rows, metres."""
-    info: dict
+    info: dict[str, Any]
     """The planner's diagnostics."""
 
 

@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from gcs.autopilot import adapter_for
 from gcs.events import (
@@ -228,7 +229,8 @@ class FleetView:
                                                                     self._custom_mode)),
             home_reported=np.array(self._home_reported, dtype=bool))
 
-    def targets_to_global(self, indices, target_ned_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def targets_to_global(self, indices: npt.ArrayLike, target_ned_m: npt.ArrayLike
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Mission-NED targets to what SET_POSITION_TARGET_GLOBAL_INT (frame 6) wants.
 
         Parameters

@@ -28,7 +28,7 @@ import weakref
 from collections import deque
 from pathlib import Path
 from typing import Any
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 __all__ = ["TlogWriter", "EventLog", "MetricsWriter", "write_summary", "DEFAULT_FLUSH_PERIOD_S"]
 
@@ -118,7 +118,7 @@ def _flush_open_files() -> None:  # a run that ends without close() still keeps 
 class TlogWriter:
     """Append MAVLink frames with their timestamps to a .tlog (buffered, see the module doc)."""
 
-    def __init__(self, path: str | os.PathLike, *, fsync: bool = False,
+    def __init__(self, path: str | os.PathLike[str], *, fsync: bool = False,
                  flush_period_s: float = DEFAULT_FLUSH_PERIOD_S) -> None:
         self.path = Path(path)
         self._file = _BackgroundFile(self.path, "ab", flush_period_s=flush_period_s,
@@ -130,7 +130,7 @@ class TlogWriter:
         self._file.write(_TLOG_STAMP.pack(int(unix_time_s * 1e6)) + bytes(frame))
         self.frames += 1
 
-    def write_frames(self, frames) -> None:
+    def write_frames(self, frames: Sequence[tuple[float, bool, bytes]]) -> None:
         """Write ``(unix_time_s, outgoing, frame)`` tuples from ``StationLink.take_frames()``."""
         if not frames:
             return
@@ -147,7 +147,7 @@ class TlogWriter:
     def __enter__(self) -> TlogWriter:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
@@ -168,7 +168,7 @@ def _jsonable(value: Any) -> Any:
 class EventLog:
     """JSON-lines event log, appended (buffered, see the module doc)."""
 
-    def __init__(self, path: str | os.PathLike, *,
+    def __init__(self, path: str | os.PathLike[str], *,
                  flush_period_s: float = DEFAULT_FLUSH_PERIOD_S) -> None:
         self.path = Path(path)
         self._file = _BackgroundFile(self.path, "ab", flush_period_s=flush_period_s,
@@ -187,7 +187,7 @@ class EventLog:
     def __enter__(self) -> EventLog:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
@@ -205,14 +205,14 @@ class MetricsWriter:
     """Per-tick metrics rows: ``.csv`` (header from the first row) or ``.jsonl`` (buffered, see
     the module doc)."""
 
-    def __init__(self, path: str | os.PathLike, *,
+    def __init__(self, path: str | os.PathLike[str], *,
                  flush_period_s: float = DEFAULT_FLUSH_PERIOD_S) -> None:
         self.path = Path(path)
         self._csv = self.path.suffix.lower() == ".csv"
         self._file = _BackgroundFile(self.path, "wb", flush_period_s=flush_period_s,
                                      fsync=False)
         self._f = _TextSink(self._file)
-        self._writer: csv.DictWriter | None = None
+        self._writer: csv.DictWriter[str] | None = None
 
     def write(self, row: Mapping[str, Any]) -> None:
         data = _jsonable(dict(row))
@@ -236,11 +236,11 @@ class MetricsWriter:
     def __enter__(self) -> MetricsWriter:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-def write_summary(path: str | os.PathLike, summary: Mapping[str, Any]) -> None:
+def write_summary(path: str | os.PathLike[str], summary: Mapping[str, Any]) -> None:
     """Write the run summary JSON atomically."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")

@@ -56,7 +56,7 @@ class LiveTasks:
     def __len__(self) -> int:
         return len(self._cols)
 
-    def apply(self, event) -> bool:
+    def apply(self, event: object) -> bool:
         """Fold one event; True if it was a position of one of our trackers."""
         if not isinstance(event, TaskPositionReceived) or event.sysid not in self._row_of:
             return False

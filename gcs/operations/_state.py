@@ -7,10 +7,11 @@ behaviour.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import numpy as np
+    import numpy.typing as npt
 
     from gcs import audit as audit_mod
     from gcs.control import ControlConfig
@@ -41,7 +42,7 @@ class OperatorState:
         _known: set[tuple[int, int]]
         audit_report: audit_mod.AuditReport | None
         initial_audit_report: audit_mod.AuditReport | None
-        param_changes: list[dict]
+        param_changes: list[dict[str, Any]]
         _param_types: dict[tuple[int, int], dict[str, int]]
         _sets_pending: set[tuple[int, int, str]]
         _fixes_sent_s: float | None
@@ -78,5 +79,5 @@ class OperatorState:
         def _set_param(self, vid: tuple[int, int], name: str, value: float,
                        previous: float | None, purpose: str, now_s: float) -> bool: ...
         def _start_launch(self, snap: FleetSnapshot, now_s: float, trigger: Trigger) -> None: ...
-        def _hold(self, snap: FleetSnapshot, rows, now_s: float) -> None: ...
+        def _hold(self, snap: FleetSnapshot, rows: npt.ArrayLike, now_s: float) -> None: ...
         def begin_end(self, now_s: float) -> None: ...

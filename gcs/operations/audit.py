@@ -25,6 +25,9 @@ __all__ = ["AuditStep"]
 
 log = logging.getLogger(__name__)
 
+#: (link_id, sysid) -> (MAV_AUTOPILOT, the parameters read from it).
+_Vehicles = dict[tuple[int, int], tuple[int, dict[str, float]]]
+
 #: After every required audit read was answered, how long optional ones are still waited for
 #: (station seconds): a firmware's answers to one burst of reads arrive within a fraction of it.
 OPTIONAL_GRACE_S = 1.5
@@ -168,7 +171,7 @@ class AuditStep(OperatorState):
     def _limits_wanted(self) -> bool:
         return self.config.set_limits and self.config.max_speed_m_s is not None
 
-    def _send_limits(self, vehicles, now_s: float) -> bool:
+    def _send_limits(self, vehicles: _Vehicles, now_s: float) -> bool:
         """PARAM_SET the mission's speed / climb limits where a vehicle differs; True if any
         write was sent (each is confirmed by its PARAM_VALUE echo, ``param_changes``)."""
         cfg = self.config
@@ -209,7 +212,7 @@ class AuditStep(OperatorState):
                  math.nan if previous is None else previous, value, purpose)
         return True
 
-    def _send_fixes(self, vehicles, now_s: float) -> bool:
+    def _send_fixes(self, vehicles: _Vehicles, now_s: float) -> bool:
         """PARAM_SET every fixable blocking finding; True if any write was sent."""
         before = audit_mod.audit_fleet(vehicles, self.gcs_sysid)
         self._fixes_sent_s = now_s

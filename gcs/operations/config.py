@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 __all__ = ["OperationsConfig", "TickRecord", "OPERATOR_ACTIONS", "OperatorAction"]
 
@@ -106,7 +107,7 @@ class TickRecord:
     tu2_so_far: float
     plan_iterations: int | None = None
 
-    def row(self) -> dict:
+    def row(self) -> dict[str, Any]:
         return dict(self.__dict__)
 
 

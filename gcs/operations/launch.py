@@ -14,6 +14,7 @@ import logging
 import math
 
 import numpy as np
+import numpy.typing as npt
 
 from gcs.autopilot import adapter_for
 from gcs.control import layer_alt_m
@@ -218,7 +219,7 @@ class LaunchStep(OperatorState):
             log.warning("link %d sysid %d: %s", *vid, exc)
         return False
 
-    def _hold(self, snap: FleetSnapshot, rows, now_s: float) -> None:
+    def _hold(self, snap: FleetSnapshot, rows: npt.ArrayLike, now_s: float) -> None:
         rows = np.asarray(rows, dtype=int)
         target = np.column_stack([snap.pos_ned_m[rows, :2], -layer_alt_m(rows, self.control)])
         self._send_targets(snap, rows, target, now_s)

@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -52,7 +53,7 @@ __all__ = ["Operator"]
 log = logging.getLogger(__name__)
 
 
-def _lookup(table: dict, cls: type):
+def _lookup(table: Mapping[Any, Callable[..., None]], cls: type) -> Callable[..., None] | None:
     """``table``'s entry for ``cls`` or its nearest listed base class (None if none)."""
     for base in cls.__mro__:
         handler = table.get(base)
@@ -103,7 +104,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
         self.audit_report: audit_mod.AuditReport | None = None
         self.initial_audit_report: audit_mod.AuditReport | None = None
         """The audit before ``apply_failsafes`` changed anything (None if nothing was set)."""
-        self.param_changes: list[dict] = []
+        self.param_changes: list[dict[str, Any]] = []
         """One dict per parameter write: link_id, sysid, name, previous, value, ok, reason."""
         self._param_types: dict[tuple[int, int], dict[str, int]] = {}
         self._sets_pending: set[tuple[int, int, str]] = set()
@@ -219,11 +220,11 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
             row.next_action_s = -math.inf  # act on it at the next poll
 
     #: Events from systems that are not vehicles (no fleet row): type -> handler(op, event).
-    _SYSTEM_HANDLERS = {TaskPositionReceived: _on_task_position}
+    _SYSTEM_HANDLERS: dict[type, Callable[..., None]] = {TaskPositionReceived: _on_task_position}
 
     #: Vehicle events, after the fleet view folded them: type -> handler(op, event, vid).
     #: Types not listed (telemetry, mode, armed, home, acks) only update the fleet view.
-    _EVENT_HANDLERS = {
+    _EVENT_HANDLERS: dict[type, Callable[..., None]] = {
         VehicleDiscovered: _on_vehicle_discovered,
         ParamReceived: AuditStep._on_param_received,
         ParamTimedOut: AuditStep._on_param_timed_out,
