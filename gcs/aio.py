@@ -46,7 +46,7 @@ class _Udp(asyncio.DatagramProtocol):
     def __init__(self, owner: StationAdapter) -> None:
         self.owner = owner
 
-    def datagram_received(self, data: bytes, addr) -> None:
+    def datagram_received(self, data: bytes, addr: Any) -> None:
         self.owner.receive(data, addr)
 
     def error_received(self, exc: Exception) -> None:  # ICMP unreachable etc.: keep going
@@ -86,7 +86,7 @@ class _SerialPort:
 
     READ_CHUNK_BYTES = 65536
 
-    def __init__(self, port, loop: asyncio.AbstractEventLoop, on_data: Callable[[bytes], None], *,
+    def __init__(self, port: Any, loop: asyncio.AbstractEventLoop, on_data: Callable[[bytes], None], *,
                  name: str, baud: int, link_id: int = 0,
                  on_lost: Callable[[str], None] | None = None) -> None:
         self._port = port
@@ -168,7 +168,7 @@ class _SerialPort:
             self._tx += data[n:]
             self._loop.add_writer(self._fd, self._writable)
 
-    def _write_now(self, data) -> int | None:
+    def _write_now(self, data: bytes | bytearray) -> int | None:
         """Bytes the kernel took at once (0 if it would block); None if the port was lost."""
         assert self._fd is not None  # both callers return early on a closed port
         try:
@@ -282,7 +282,7 @@ class StationAdapter:
         self._port: _SerialPort | None = None
         self._port_lost: asyncio.Event | None = None
         self._taps: list[Callable[[bytes, object], None]] = []
-        self._tap_peers: dict = {}
+        self._tap_peers: dict[Any, Any] = {}
 
     def now(self) -> float:
         return self._clock() if self._clock else asyncio.get_running_loop().time()
@@ -333,7 +333,7 @@ class StationAdapter:
         if self._clock is None:
             self._clock = loop.time
         spec, cfg = self.spec, self._config
-        static: tuple = ()
+        static: tuple[Any, ...] = ()
         if spec.kind in ("udpout", "tcp"):
             static = (spec.address,)  # heartbeat it before hearing anything
         elif spec.kind == "serial":
@@ -384,7 +384,7 @@ class StationAdapter:
     async def _open_tcpin(self) -> None:
         spec = self.spec
 
-        async def on_client(reader, writer):
+        async def on_client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
             peer = writer.get_extra_info("peername")
             self._send = lambda data, addr: writer.write(data)  # the latest client wins
             await self._read_stream(reader, peer)
@@ -421,7 +421,7 @@ class StationAdapter:
         task = loop.create_task(self._keep_up(reader))
         self._closers.append(task.cancel)
 
-    async def _connect_once(self, loop: asyncio.AbstractEventLoop):
+    async def _connect_once(self, loop: asyncio.AbstractEventLoop) -> asyncio.StreamReader | None:
         """One connection attempt; returns the TCP reader (None for udpout, serial)."""
         spec = self.spec
         if spec.kind == "tcp":
@@ -434,7 +434,7 @@ class StationAdapter:
         self._open_serial(spec, loop)
         return None
 
-    async def _keep_up(self, reader) -> None:
+    async def _keep_up(self, reader: asyncio.StreamReader | None) -> None:
         """For the adapter's life: wait for the link to drop (TCP end of stream, serial hang-up),
         then reconnect with a doubling wait, as MAVProxy's ``autoreconnect`` does, with a fresh
         decoder. Vehicles time out meanwhile and are recovered when heard again."""
@@ -445,6 +445,7 @@ class StationAdapter:
         while True:
             if self.connected:
                 if spec.kind == "tcp":
+                    assert reader is not None  # a connected TCP link has its reader
                     await self._read_stream(reader, peer)
                     self._close_writer()
                     self._set_connected(False, "connection closed")
@@ -495,7 +496,7 @@ class StationAdapter:
         if self._port is not None:
             self._port.close()
 
-    async def _read_stream(self, reader: asyncio.StreamReader, peer) -> None:
+    async def _read_stream(self, reader: asyncio.StreamReader, peer: Any) -> None:
         try:
             while data := await reader.read(65536):
                 self.receive(data, peer)
@@ -515,7 +516,7 @@ class StationAdapter:
             self._writer.close()
             self._writer = None
 
-    def receive(self, data: bytes, addr) -> None:
+    def receive(self, data: bytes, addr: Any) -> None:
         if self._taps:
             self._tap_raw(data, addr)
         if self.core is not None:
@@ -530,7 +531,7 @@ class StationAdapter:
         station core decodes it (UDP: one datagram; TCP/serial: whatever the read returned)."""
         self._taps.append(tap)
 
-    def _tap_raw(self, data: bytes, addr) -> None:
+    def _tap_raw(self, data: bytes, addr: Any) -> None:
         self._tap_peers[addr] = None
         for tap in self._taps:
             try:
@@ -604,7 +605,7 @@ class StationAdapter:
 
 
 async def open_links(connections: list[str], config: StationConfig | None = None,
-                     **kwargs) -> list[StationAdapter]:
+                     **kwargs: Any) -> list[StationAdapter]:
     """Start one adapter per connection string, with link ids 0, 1, ..."""
     return [await StationAdapter(c, config, link_id=i, **kwargs).start()
             for i, c in enumerate(connections)]

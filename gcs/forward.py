@@ -143,7 +143,7 @@ class Forwarder:
 
     # ------------------------------------------------------------------ vehicles -> outputs
 
-    def from_vehicle(self, link_id: int, data: bytes, addr, *, datagram: bool = True) -> None:
+    def from_vehicle(self, link_id: int, data: bytes, addr: Any, *, datagram: bool = True) -> None:
         """Bytes heard on link ``link_id``: forward every frame not from the station's sysid."""
         if datagram:
             frames, _ = split_frames(data)
@@ -171,7 +171,7 @@ class Forwarder:
 
     # ------------------------------------------------------------------ outputs -> vehicles
 
-    def from_output(self, data: bytes, source) -> None:
+    def from_output(self, data: bytes, source: object) -> None:
         """Bytes from an output peer ``source``: decode, filter, route by ``target_system``."""
         parser = self._parsers.get(source)
         if parser is None:
@@ -217,10 +217,10 @@ class _Output:
         self.spec = spec
         self.local_address: tuple[str, int] | None = None
         self._udp: asyncio.DatagramTransport | None = None
-        self._peers: dict = {}
+        self._peers: dict[Any, None] = {}
         self._writers: list[asyncio.StreamWriter] = []
         self._server: asyncio.Server | None = None
-        self._tasks: list[asyncio.Task] = []
+        self._tasks: list[asyncio.Task[Any]] = []
 
     async def start(self, loop: asyncio.AbstractEventLoop) -> None:
         spec = self.spec
@@ -228,14 +228,14 @@ class _Output:
             out = self
 
             class _P(asyncio.DatagramProtocol):
-                def datagram_received(self, data, addr):
+                def datagram_received(self, data: bytes, addr: Any) -> None:
                     if spec.kind == "udpin":
                         if addr not in out._peers and len(out._peers) >= _MAX_UDP_PEERS:
                             out._peers.pop(next(iter(out._peers)))
                         out._peers[addr] = None
                     out.owner.from_output(data, (spec.text, addr))
 
-                def error_received(self, exc):  # nobody listening yet (ICMP): keep sending
+                def error_received(self, exc: Exception) -> None:  # nobody listening yet (ICMP): keep sending
                     log.debug("forward %s: %s", spec.text, exc)
 
             kw: dict[str, Any] = ({"remote_addr": spec.address} if spec.kind == "udpout"
@@ -243,7 +243,8 @@ class _Output:
             self._udp, _ = await loop.create_datagram_endpoint(_P, **kw)
             self.local_address = self._udp.get_extra_info("sockname")[:2]
         else:
-            async def on_client(reader, writer):
+            async def on_client(reader: asyncio.StreamReader,
+                                writer: asyncio.StreamWriter) -> None:
                 if len(self._writers) >= _MAX_TCP_CLIENTS:
                     writer.close()
                     return

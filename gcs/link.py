@@ -434,7 +434,7 @@ class StationLink:
     def _emit(self, event: Event) -> None:
         self._events.append(event)
 
-    def _send(self, msg, addr: Addr, now_s: float) -> None:
+    def _send(self, msg: Any, addr: Addr, now_s: float) -> None:
         if self._codec.signing:
             self._codec.set_signing_time(now_s + self.config.unix_time_offset_s)
         frame = self._codec.encode(msg)
@@ -443,7 +443,7 @@ class StationLink:
         if self.config.record_frames:
             self._frames.append((now_s + self.config.unix_time_offset_s, True, frame))
 
-    def _broadcast(self, msg, now_s: float) -> None:
+    def _broadcast(self, msg: Any, now_s: float) -> None:
         # Each peer gets its own frame (same seq is fine for a broadcast: encode once).
         if not self._peers:
             return
@@ -456,7 +456,7 @@ class StationLink:
             self._out.append((frame, addr))
             self.stats.frames_out += 1
 
-    def _heartbeat_msg(self):
+    def _heartbeat_msg(self) -> Any:
         # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, base_mode 0, state ACTIVE (mavlink.io heartbeat).
         return mavlink.MAVLink_heartbeat_message(
             mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
@@ -486,7 +486,7 @@ class StationLink:
                 log.exception("link %d: handler error on %s from sysid %d", self.link_id,
                               msg.get_type(), msg.get_srcSystem())
 
-    def _dispatch(self, msg, addr: Addr, now_s: float) -> None:
+    def _dispatch(self, msg: Any, addr: Addr, now_s: float) -> None:
         kind = msg.get_type()
         sysid = msg.get_srcSystem()
         if sysid == self.config.sysid:
@@ -545,7 +545,7 @@ class StationLink:
     # ------------------------------------------------------------------ who is a vehicle
 
     @staticmethod
-    def _is_vehicle_heartbeat(msg) -> bool:
+    def _is_vehicle_heartbeat(msg: Any) -> bool:
         return (msg.get_srcComponent() == _AUTOPILOT_COMPID and msg.type not in NON_VEHICLE_TYPES
                 and msg.get_srcSystem() != 0)
 
@@ -563,16 +563,16 @@ class StationLink:
                    "vehicle on this link; %d refused so far)", self.link_id, kind, sysid, addr,
                    st.refused_sysids)
 
-    def _inconsistent(self, v: _Vehicle, now_s: float, what: str, *args) -> None:
+    def _inconsistent(self, v: _Vehicle, now_s: float, what: str, *args: object) -> None:
         self.stats.inconsistent_frames += 1
         self._warn(("inconsistent", v.sysid), now_s, "link %d sysid %d: " + what + " (%d such "
                    "frames dropped on this link)", self.link_id, v.sysid, *args,
                    self.stats.inconsistent_frames)
 
-    def _identity_changed(self, v: _Vehicle, msg) -> bool:
+    def _identity_changed(self, v: _Vehicle, msg: Any) -> bool:
         return msg.autopilot != v.autopilot or msg.type != v.vehicle_type
 
-    def _moved(self, v: _Vehicle, msg, kind: str, addr: Addr, now_s: float) -> bool:
+    def _moved(self, v: _Vehicle, msg: Any, kind: str, addr: Addr, now_s: float) -> bool:
         """A datagram with ``v``'s sysid from an address other than ``v.addr``: True if the
         vehicle really moved there (its old address silent, a consistent HEARTBEAT from the
         new one), after which the frame is processed; False if it is dropped."""
@@ -592,7 +592,7 @@ class StationLink:
         v.addr, v.addr_heard_s = addr, now_s  # a reboot or a NAT rebinding
         return True
 
-    def _discover(self, msg, addr: Addr, now_s: float) -> None:
+    def _discover(self, msg: Any, addr: Addr, now_s: float) -> None:
         sysid = msg.get_srcSystem()
         adapter = adapter_for(msg.autopilot)
         v = _Vehicle(sysid, addr, msg.autopilot, msg.type, adapter, msg.custom_mode,
@@ -608,7 +608,7 @@ class StationLink:
         self._request_streams(v, now_s)
         self._request_home(v, now_s)
 
-    def _on_heartbeat(self, v: _Vehicle, msg, addr: Addr, now_s: float) -> None:
+    def _on_heartbeat(self, v: _Vehicle, msg: Any, addr: Addr, now_s: float) -> None:
         sysid = v.sysid
         if not self._is_vehicle_heartbeat(msg):
             self.stats.non_vehicle_heartbeats += 1  # its gimbal, companion computer, ...
@@ -654,7 +654,7 @@ class StationLink:
                 # ask for the new one rather than wait for the next unsolicited message.
                 self._request_home(v, now_s)
 
-    def _on_task_message(self, msg, addr: Addr, now_s: float) -> None:
+    def _on_task_message(self, msg: Any, addr: Addr, now_s: float) -> None:
         """A task system: its position, and a position stream request while none arrives."""
         sysid = msg.get_srcSystem()
         kind = msg.get_type()
@@ -695,7 +695,7 @@ class StationLink:
             sysid, compid, mavlink.MAV_DATA_STREAM_POSITION, max(1, int(round(hz))), 1),
             addr, now_s)
 
-    def _on_global_position(self, v: _Vehicle, msg, now_s: float) -> None:
+    def _on_global_position(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         if msg.lat == 0 and msg.lon == 0:  # ArduPilot before a GPS fix
             self.stats.invalid_telemetry += 1
             return
@@ -713,7 +713,7 @@ class StationLink:
         v.position = ev
         self._emit(ev)
 
-    def _on_home_position(self, v: _Vehicle, msg, now_s: float) -> None:
+    def _on_home_position(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         if msg.latitude == 0 and msg.longitude == 0:  # no home yet
             self.stats.invalid_telemetry += 1
             return
@@ -765,7 +765,7 @@ class StationLink:
             v.home_request_s = now_s + self.config.home_request_period_s
             self._wake(v.home_request_s)
 
-    def _on_command_ack(self, v: _Vehicle, msg, now_s: float) -> None:
+    def _on_command_ack(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         target = getattr(msg, "target_system", 0)
         if target not in (0, self.config.sysid):
             return  # an ACK for another station
@@ -784,7 +784,7 @@ class StationLink:
             return
         self._finish_command(cmd, now_s, msg.result)
 
-    def _on_param_value(self, v: _Vehicle, msg, now_s: float) -> None:
+    def _on_param_value(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         name = wire.param_id_to_str(msg.param_id)
         if not name:
             self.stats.invalid_telemetry += 1
@@ -820,7 +820,7 @@ class StationLink:
             self._emit(ParamSetFailed(self.link_id, ps.sysid, now_s, ps.name, ps.value, value,
                                       f"the vehicle kept {value:g}", ps.attempts))
 
-    def _on_param_error(self, v: _Vehicle, msg, now_s: float) -> None:
+    def _on_param_error(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         # PARAM_ERROR (newer ArduPilot GCS_Param.cpp send_param_error): a precise refusal.
         name = wire.param_id_to_str(msg.param_id)
         ps = self._param_sets.pop((v.sysid, name), None)
@@ -832,7 +832,7 @@ class StationLink:
         self._emit(ParamSetFailed(self.link_id, v.sysid, now_s, name, ps.value, None, reason,
                                   ps.attempts))
 
-    def _on_statustext(self, v: _Vehicle, msg, now_s: float) -> None:
+    def _on_statustext(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         text = msg.text
         if isinstance(text, bytes):
             text = text.decode("utf-8", errors="replace")
@@ -1004,7 +1004,7 @@ class StationLink:
 
     # ------------------------------------------------------------------ commands
 
-    def _new_command(self, sysid: int, command: int, params: tuple, *, use_int: bool) -> _Command:
+    def _new_command(self, sysid: int, command: int, params: tuple[float, ...], *, use_int: bool) -> _Command:
         cmd = _Command(self._next_request_id, sysid, command, tuple(params), use_int)
         self._next_request_id += 1
         return cmd
@@ -1059,7 +1059,7 @@ class StationLink:
         elif cmd.command == _CMD_SET_MESSAGE_INTERVAL and cmd.sysid in self._vehicles:
             self._pump_disables(self._vehicles[cmd.sysid], now_s)
 
-    def send_command_long(self, sysid: int, command: int, params=(0.0,) * 7, now_s: float = 0.0,
+    def send_command_long(self, sysid: int, command: int, params: tuple[float, ...] = (0.0,) * 7, now_s: float = 0.0,
                           *, component: int = _AUTOPILOT_COMPID) -> int:
         """Send a COMMAND_LONG with ACK matching and retries; returns the request id.
 
@@ -1075,7 +1075,7 @@ class StationLink:
         return cmd.request_id
 
     def send_command_int(self, sysid: int, command: int, *, frame: int,
-                         params=(0.0, 0.0, 0.0, 0.0), lat_deg: float = 0.0, lon_deg: float = 0.0,
+                         params: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0), lat_deg: float = 0.0, lon_deg: float = 0.0,
                          alt_m: float = 0.0, now_s: float = 0.0) -> int:
         """Send a COMMAND_INT (positional commands: x/y as degE7); returns the request id."""
         self._get(sysid)
@@ -1282,10 +1282,10 @@ class _RateLimitedLog:
 
     def __init__(self, interval_s: float) -> None:
         self.interval_s = interval_s
-        self._last_s: dict[tuple, float] = {}
-        self._skipped: dict[tuple, int] = {}
+        self._last_s: dict[tuple[Any, ...], float] = {}
+        self._skipped: dict[tuple[Any, ...], int] = {}
 
-    def __call__(self, key: tuple, now_s: float, fmt: str, *args) -> None:
+    def __call__(self, key: tuple[Any, ...], now_s: float, fmt: str, *args: object) -> None:
         last = self._last_s.get(key)
         if last is not None and now_s - last < self.interval_s:
             self._skipped[key] = self._skipped.get(key, 0) + 1
