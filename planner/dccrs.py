@@ -57,7 +57,9 @@ multi-agent dynamic systems", IEEE TAC 51(3), 2006 (building blocks, not DCCRS i
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -65,7 +67,7 @@ from planner.geometry import step_toward
 from planner.knowledge import MessageLayer
 from planner.methods import PlanOutput, TickInput
 from planner import _kernels
-from planner.phireman import (_descent_result, INFO_MODELS, SPEED_RULES, PhiremanParams, _EntriesByDrone, _pair_gradient_xy,
+from planner.phireman import (_descent_result, INFO_MODELS, DescentResult, SPEED_RULES, PhiremanParams, _EntriesByDrone, _pair_gradient_xy,
                               descend, parse_params)
 from planner.problem import ProblemConfig
 
@@ -222,7 +224,7 @@ def weighted_pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e
                              pair_factor, weight=weight)
 
 
-def _leader_distances(pos_u, leaders_u):
+def _leader_distances(pos_u: np.ndarray, leaders_u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(n,) distance to the nearest leader (the first on ties) and (n, 2) the offset x - y to it;
     ``leaders_u`` (n, L, 2). The square root is taken of the nearest only."""
     diff = pos_u[:, None, :] - leaders_u            # (n, L, 2)
@@ -232,7 +234,7 @@ def _leader_distances(pos_u, leaders_u):
     return np.sqrt(d2[rows, k]), diff[rows, k]
 
 
-def leader_gradient(pos_u: np.ndarray, leaders_u: np.ndarray, gain, exponent: float, r: float,
+def leader_gradient(pos_u: np.ndarray, leaders_u: np.ndarray, gain: np.ndarray, exponent: float, r: float,
                     floor: float) -> np.ndarray:
     """∇ of E^L = k_L (d/r)^γ d toward the nearest leader, d floored at ``floor`` in the weight.
 
@@ -256,7 +258,8 @@ def leader_gradient(pos_u: np.ndarray, leaders_u: np.ndarray, gain, exponent: fl
     return away * np.divide(mag, d, out=np.zeros_like(d), where=d > 0)[:, None]
 
 
-def leader_gradient_reference(pos_u, leaders_u, gain, exponent, r, floor) -> np.ndarray:
+def leader_gradient_reference(pos_u: np.ndarray, leaders_u: np.ndarray, gain: np.ndarray, exponent: float,
+                              r: float, floor: float) -> np.ndarray:
     """Loop version of :func:`leader_gradient` (for tests)."""
     pos_u = np.asarray(pos_u, float)
     n = len(pos_u)
@@ -276,7 +279,8 @@ def leader_gradient_reference(pos_u, leaders_u, gain, exponent, r, floor) -> np.
     return out
 
 
-def leader_energy(pos_u, leaders_u, gain, exponent, r, floor) -> np.ndarray:
+def leader_energy(pos_u: np.ndarray, leaders_u: np.ndarray, gain: np.ndarray, exponent: float, r: float,
+                  floor: float) -> np.ndarray:
     """(n,) E^L_i: k_L (d/r)^γ d for d >= f, continued linearly with the slope at f below it."""
     pos_u = np.asarray(pos_u, float)
     n = len(pos_u)
@@ -334,7 +338,8 @@ def velocity_match_entries(disp_pot_u: np.ndarray, rows: np.ndarray, vel_e: np.n
     return out * np.minimum(1.0, vmax / np.where(norm > 0, norm, 1.0))[:, None]
 
 
-def velocity_match_reference(disp_pot_u, neighbours, vel_u, alpha, vmax) -> np.ndarray:
+def velocity_match_reference(disp_pot_u: np.ndarray, neighbours: np.ndarray, vel_u: np.ndarray, alpha: float,
+                             vmax: float) -> np.ndarray:
     """Loop version of :func:`velocity_match` (for tests)."""
     n = len(disp_pot_u)
     out = np.zeros((n, 2))
@@ -383,7 +388,8 @@ class DccrsPlanner:
         base = np.broadcast_to(base_u, tasks_u.shape[:-2] + (1, 2))
         return np.concatenate([tasks_u, base], axis=-2)
 
-    def _descend(self, pos_u, others_u, mask, leaders_u, joint: bool):
+    def _descend(self, pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, leaders_u: np.ndarray,
+                 joint: bool) -> tuple[DescentResult, np.ndarray, np.ndarray]:
         """Density weights, leader gate and the potential descent; returns (result, N_i, weights).
 
         ``joint``: the others are the planned drones themselves and move with the iterate (central,
@@ -395,12 +401,12 @@ class DccrsPlanner:
         rho = near.sum(axis=1)
         weight = density_weight(rho, p.density_target, p.density_exponent, p.density_weight_min,
                                 p.density_weight_max)
-        def claims(y):  # known neighbours within r of each drone's leader point y
+        def claims(y: np.ndarray) -> np.ndarray:  # known neighbours within r of each drone's leader point y
             dy = others_u - y[:, None, :]
             return (mask & (np.einsum("nkc,nkc->nk", dy, dy) <= self.r_u ** 2)).sum(axis=1)
         gain = self._leader_gain(pos_u, leaders_u, claims)
 
-        def grad(x, rows):
+        def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
             if joint:  # central: every drone, the others move with the iterate
                 return (weighted_pair_gradient(x, x[None, :, :], mask, weight, p.attraction, p.attraction_floor,
                                                p.repulsion, self.reach_u, p.pair_factor)
@@ -413,7 +419,8 @@ class DccrsPlanner:
         res = descend(pos_u, grad, self.vmax_u, p, separable=not joint)
         return res, near, weight
 
-    def _leader_gain(self, pos_u, leaders_u, claims):
+    def _leader_gain(self, pos_u: np.ndarray, leaders_u: np.ndarray,
+                     claims: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
         """(n,) leader-following gain: 0 for a drone farther than r from its leader whose leader
         point already has ``leader_cap`` known neighbours (``claims(y)`` counts them)."""
         p = self.params
@@ -426,7 +433,8 @@ class DccrsPlanner:
             gain[(d > self.r_u) & (claim >= p.leader_cap)] = 0.0
         return gain
 
-    def _descend_entries(self, pos_u, er, y_e, leaders_u):
+    def _descend_entries(self, pos_u: np.ndarray, er: np.ndarray, y_e: np.ndarray, leaders_u: np.ndarray
+                         ) -> tuple[DescentResult, np.ndarray, np.ndarray]:
         """:meth:`_descend` (async, fixed beliefs) from the known entries of the view: ``er`` (E,)
         holder rows in row-major order, ``y_e`` (E, 2) believed positions; leaders (n, L, 2).
         Returns (result, boolean over entries marking N_i, weights). Agrees with the dense one to rounding."""
@@ -437,7 +445,7 @@ class DccrsPlanner:
         rho = np.bincount(er[near_e], minlength=n)
         weight = density_weight(rho, p.density_target, p.density_exponent, p.density_weight_min,
                                 p.density_weight_max)
-        def claims(y):  # the same count over the entries
+        def claims(y: np.ndarray) -> np.ndarray:  # the same count over the entries
             dy = y_e - y[er]
             return np.bincount(er[np.einsum("ec,ec->e", dy, dy) <= self.r_u ** 2], minlength=n)
         gain = self._leader_gain(pos_u, leaders_u, claims)
@@ -456,7 +464,7 @@ class DccrsPlanner:
                 int(p.max_descent_steps))
             return _descent_result(delta, stop, at_limit, p.max_descent_steps), near_e, weight
 
-        def grad(x, rows):
+        def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
             lead = leaders_u if leaders_u.ndim == 2 else leaders_u[rows]
             r_e, ox, oy = entries.of(rows)
             return (_pair_gradient_xy(x[rows], r_e, ox, oy, p.attraction, p.attraction_floor, p.repulsion,
@@ -480,7 +488,8 @@ class DccrsPlanner:
         info["label"] = LABEL
         return PlanOutput(disp_u * self.unit_m, tree=None, info=info)
 
-    def _plan_central(self, tick, pos_u, tasks_u, base_u, planning):
+    def _plan_central(self, tick: TickInput, pos_u: np.ndarray, tasks_u: np.ndarray, base_u: np.ndarray,
+                      planning: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
         p = self.params
         alive = np.asarray(tick.alive, bool)
         prev = self._prev
@@ -502,7 +511,8 @@ class DccrsPlanner:
         return disp_u, {"iterations": res.iterations, "converged": res.converged,
                         "mean_density_weight": float(weight.mean())}
 
-    def _plan_async(self, tick, pos_u, tasks_u, base_u, planning):
+    def _plan_async(self, tick: TickInput, pos_u: np.ndarray, tasks_u: np.ndarray, base_u: np.ndarray,
+                    planning: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
         p = self.params
         if self.messages is None:
             self.messages = MessageLayer(len(pos_u), self.problem.n_steps, self.r_u, self.base_reach_u,
@@ -536,6 +546,6 @@ class DccrsPlanner:
                         "stale_tree": int(stale.sum()), "mean_density_weight": float(weight.mean())}
 
 
-def make_dccrs(problem: ProblemConfig, params: dict, rng: np.random.Generator) -> DccrsPlanner:
+def make_dccrs(problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator) -> DccrsPlanner:
     """The DCCRS reconstruction (docs/design/model.md §3.3) with the parameters given (``info`` default 'async')."""
     return DccrsPlanner(problem, parse_params(params, DccrsParams), rng)

@@ -439,8 +439,9 @@ class _EntriesByDrone:
         return r_e, self.x[take], self.y[take]
 
 
-def _pair_gradient_xy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach, pair_factor,
-                      weight=None):
+def _pair_gradient_xy(pos_u: np.ndarray, rows: np.ndarray, others_x: np.ndarray, others_y: np.ndarray,
+                      attraction: float, floor: float, repulsion: float, reach: float, pair_factor: float,
+                      weight: np.ndarray | None = None) -> np.ndarray:
     """:func:`pair_gradient_entries` with the believed positions as two (E,) coordinate arrays;
     ``weight`` (n,), if given, scales each drone's attraction (DCCRS's density weighting).
 
