@@ -535,6 +535,7 @@ class DccrsPlanner:
         res, near_e, weight = self._descend_entries(pos_u[idx], er, believed, leaders)
         nr = er[near_e]
         if p.velocity_matching > 0:
+            assert kn.cols is not None  # set by the knowledge update
             col_e = kn.cols[ek[near_e]]
             stamp_e = kn.stamp[idx[nr], col_e]
             s = np.where(stamp_e >= 1, stamp_e, 1)       # as believed_velocities, per entry

@@ -17,7 +17,7 @@ drone holds a few dozen entries once the swarm spreads), not N^2. :class:`Knowle
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -155,7 +155,9 @@ def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_
     return key[last] // n_cols, key[last] % n_cols, val[last]
 
 
-def _propagate_bitsets(rows, cols, stamps, n_holders, n_cols, src, dst, t_sent, max_level):
+def _propagate_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holders: int, n_cols: int,
+                       src: np.ndarray, dst: np.ndarray, t_sent: int, max_level: int
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`propagate_entries` for few age levels: for each level L, the set of drones a holder
     knows with age <= L is a bit row; a holder's new set is the OR of its neighbours' (and its own),
     so a level costs one gather of (links, columns / 64) words. The new age of an entry is the first
@@ -164,7 +166,7 @@ def _propagate_bitsets(rows, cols, stamps, n_holders, n_cols, src, dst, t_sent, 
     col_ids = np.flatnonzero(held)
     n_k = len(col_ids)
     width = 64 * ((n_k + 63) // 64)
-    age = np.full(n_holders * width, 127, dtype=np.int8)           # 127: not held (max_level < 16)
+    age: np.ndarray = np.full(n_holders * width, 127, dtype=np.int8)           # 127: not held (max_level < 16)
     age[rows * width + (np.cumsum(held) - 1)[cols]] = t_sent - stamps
     age = age.reshape(n_holders, width)
     key = dst.astype(np.int16) if n_holders < 2 ** 15 else dst    # small keys: radix sort
@@ -297,7 +299,7 @@ def propagate_stamps_dense(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | N
     return out
 
 
-def propagate_stamps_reference(stamp, pairs) -> np.ndarray:
+def propagate_stamps_reference(stamp: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     """Plain-loop version of :func:`propagate_stamps` (for tests)."""
     stamp = np.asarray(stamp)
     out = stamp.copy()
@@ -338,7 +340,7 @@ class _StampTables:
     pos_hist_m: np.ndarray
 
     @classmethod
-    def empty(cls, n_drones: int, n_steps: int):
+    def empty(cls, n_drones: int, n_steps: int) -> Self:
         """Nothing known, no tree, room for ``n_steps`` + 1 steps of positions."""
         return cls(np.full((n_drones, n_drones), UNKNOWN, dtype=np.int64),
                    np.full(n_drones, UNKNOWN, dtype=np.int64),
@@ -398,7 +400,8 @@ class Knowledge(_StampTables):
         return known
 
     @staticmethod
-    def _own(r, c, s, alive, t_step):
+    def _own(r: np.ndarray, c: np.ndarray, s: np.ndarray, alive: np.ndarray,
+             t_step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Drop the entries of dead holders; every alive holder's own entry is stamped ``t_step``."""
         r, c, s = _select(alive[r], r, c, s)
         own = r == c
@@ -486,7 +489,8 @@ class Knowledge(_StampTables):
         self.held_rows, self.held_cols, self.held_stamps = r, c, s
         self._set_view(alive, col_held, r, c, bx, by)
 
-    def _set_view(self, alive, col_held, r, c, bx, by) -> None:
+    def _set_view(self, alive: np.ndarray, col_held: np.ndarray, r: np.ndarray, c: np.ndarray,
+                  bx: np.ndarray, by: np.ndarray) -> None:
         """The view of every alive holder from the kept entries (self entries left out)."""
         er, ec, bx, by = _select(r != c, r, c, bx, by)
         row_of = np.cumsum(alive) - 1
@@ -628,6 +632,7 @@ class MessageLayer:
         stamps (n,) of alive ``holders`` (columns are ``knowledge.cols``). Dense; the planners use
         :meth:`view_entries`."""
         kn = self.knowledge
+        assert kn.cols is not None  # set by update()
         er, ek, believed, stamps = self.view_entries(holders)
         dense = np.zeros((len(holders), len(kn.cols), 2))
         dense[er, ek] = believed
@@ -641,6 +646,8 @@ class MessageLayer:
         When every alive drone is asked for, the columns and positions are the layer's own arrays
         (read them, do not write them)."""
         kn = self.knowledge
+        assert kn.rows is not None and kn.entry_rows is not None  # set by update()
+        assert kn.entry_cols is not None and kn.entry_believed_m is not None
         holders = np.asarray(holders)
         local = np.full(len(kn.rows), -1, dtype=np.intp)
         local[np.searchsorted(kn.rows, holders)] = np.arange(len(holders))  # holders are alive
