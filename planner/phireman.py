@@ -690,7 +690,8 @@ class PhiremanPlanner:
         self.messages: MessageLayer | None = None  # async information model, built on first use
 
     # -- helpers --------------------------------------------------------------------------
-    def _pair_grad(self, pos_u, others_u, mask, others_sq=None):
+    def _pair_grad(self, pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray,
+                   others_sq: np.ndarray | None = None) -> np.ndarray:
         p = self.params
         return pair_gradient(pos_u, others_u, mask, p.attraction, p.attraction_floor, p.repulsion,
                              self.reach_u, p.pair_factor, others_sq)

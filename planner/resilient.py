@@ -38,6 +38,7 @@ Units: as PhiIREMAN, every length parameter is in paper units (1 unit = r / 2); 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -168,7 +169,8 @@ def select_tasks(tree: TaskTree, budget: float, kept: np.ndarray | None = None,
     return chosen
 
 
-def select_tasks_reference(tree: TaskTree, budget: float, kept=None, keep_bonus: float = 0.0) -> np.ndarray:
+def select_tasks_reference(tree: TaskTree, budget: float, kept: np.ndarray | None = None,
+                           keep_bonus: float = 0.0) -> np.ndarray:
     """Loop-by-loop transcription of :func:`select_tasks` (walks parent pointers; for tests)."""
     m = tree.n_tasks
     edge = tree.edge_lengths_m()
@@ -176,7 +178,7 @@ def select_tasks_reference(tree: TaskTree, budget: float, kept=None, keep_bonus:
     chosen = [False] * m
     used = 0.0
 
-    def added(k):
+    def added(k: int) -> float:
         v, total = k + 1, 0.0
         while v not in covered:
             total += float(edge[v])
@@ -321,7 +323,7 @@ def nearest_rally(pos: np.ndarray, rally: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 
 def claim_targets(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, stamps: np.ndarray,
-                  open_by_stamp: dict, reach: float) -> np.ndarray:
+                  open_by_stamp: dict[int, np.ndarray], reach: float) -> np.ndarray:
     """(n, 2): the unconnected task each drone claims (NaN rows: none).
 
     Drone i looks at the nearest task of the open (unconnected) tasks in the broadcast it holds
@@ -360,7 +362,8 @@ def claim_targets(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, stamp
     return out
 
 
-def claim_targets_reference(pos_u, ent_r, ent_y, stamps, open_by_stamp, reach) -> np.ndarray:
+def claim_targets_reference(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, stamps: np.ndarray,
+                            open_by_stamp: dict[int, np.ndarray], reach: float) -> np.ndarray:
     """Per-drone loop transcription of :func:`claim_targets` (for tests)."""
     n = len(pos_u)
     out = np.full((n, 2), np.nan)
@@ -499,7 +502,7 @@ class ResilientPlanner(PhiremanPlanner):
             for old in [s for s in self._open_by_stamp if s < tick.t_step - p.tree_stale_steps - 1]:
                 del self._open_by_stamp[old]
         disp_u = np.zeros_like(pos_u)
-        info: dict = {"kept_tasks": int(self.kept_tasks.sum())}
+        info: dict[str, Any] = {"kept_tasks": int(self.kept_tasks.sum())}
         if p.info == "central":
             from planner.phireman import task_gradient
             idx = np.flatnonzero(networked)
@@ -508,7 +511,7 @@ class ResilientPlanner(PhiremanPlanner):
                 tree = self.tree
                 mask = ~np.eye(len(idx), dtype=bool)
 
-                def grad(x, rows):
+                def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
                     return task_gradient(x, tree, p.thorn, p.nodes_only) + self._pair_grad(x, x, mask)
 
                 res = descend(pos_u[idx], grad, self.vmax_u, p)
@@ -524,7 +527,8 @@ class ResilientPlanner(PhiremanPlanner):
             self._update_recovery(pos_u, base_u, alive, networked, stamps)
         return PlanOutput(disp_u * self.unit_m, tree=self._tree_to_m(self.tree), info=info)
 
-    def _plan_async(self, tick: TickInput, pos_u, base_u, planning):
+    def _plan_async(self, tick: TickInput, pos_u: np.ndarray, base_u: np.ndarray,
+                    planning: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
         """PhiIREMAN's asynchronous step (same code path) plus the coverage-claim pull."""
         p = self.params
         if self.messages is None:
@@ -550,7 +554,7 @@ class ResilientPlanner(PhiremanPlanner):
             if not has_claim.any():
                 claim = None
 
-        def grad(x, rows):
+        def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
             er, ox, oy = entries.of(rows)
             g = (_pair_gradient_xy(x[rows], er, ox, oy, p.attraction, p.attraction_floor,
                                    p.repulsion, self.reach_u, p.pair_factor)
@@ -569,7 +573,7 @@ class ResilientPlanner(PhiremanPlanner):
             if claim is not None:
                 crow = np.flatnonzero(np.isfinite(claim).all(axis=1))
 
-                def grad_claimers(xs, rows):
+                def grad_claimers(xs: np.ndarray, rows: np.ndarray) -> np.ndarray:
                     full = crow[rows]
                     er, ox, oy = entries.of(full)
                     return (_pair_gradient_xy(xs[rows], er, ox, oy, p.attraction, p.attraction_floor,
@@ -597,7 +601,8 @@ class ResilientPlanner(PhiremanPlanner):
                         "stale_tree": int(stale.sum()),
                         "claims": 0 if claim is None else int(np.isfinite(claim).all(axis=1).sum())}
 
-    def _update_recovery(self, pos_u, base_u, alive, networked, stamps) -> None:
+    def _update_recovery(self, pos_u: np.ndarray, base_u: np.ndarray, alive: np.ndarray,
+                         networked: np.ndarray, stamps: np.ndarray) -> None:
         """Per-drone rally targets: chosen when a drone is first seen disconnected, from the tree
         copy it holds; kept until it reconnects; home after ``rally_wait_steps`` at the point."""
         p = self.params
@@ -627,6 +632,6 @@ class ResilientPlanner(PhiremanPlanner):
         self.recovery_target_m = target * self.unit_m
 
 
-def make_resilient(problem: ProblemConfig, params: dict, rng: np.random.Generator) -> ResilientPlanner:
+def make_resilient(problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator) -> ResilientPlanner:
     """ΦIREMAN-resilient with the parameters given (``info`` defaults to the paper's 'async')."""
     return ResilientPlanner(problem, parse_params(params, ResilientParams), rng)
