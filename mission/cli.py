@@ -108,23 +108,11 @@ def did_you_mean(word: str, choices) -> str:
 
 
 def version_string() -> str:
-    """'phireman 0.1.0 (git v0.1-12-gabc1234-dirty)': package metadata, plus git describe if available."""
-    import subprocess
-    from importlib.metadata import PackageNotFoundError, version
+    """The code version (:func:`mission.version.code_version`, as store rows and run directories
+    record it): 'phireman 0.1.0 git 29588b621a73[+dirty] src 484d1b5b63d6'."""
+    from mission.version import code_version
 
-    try:
-        text = f"phireman {version('phireman')}"
-    except PackageNotFoundError:
-        text = "phireman (not installed)"
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    try:
-        out = subprocess.run(["git", "-C", root, "describe", "--tags", "--always", "--dirty"],
-                             capture_output=True, text=True, timeout=5)
-        if out.returncode == 0 and out.stdout.strip():
-            text += f" (git {out.stdout.strip()})"
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return text
+    return code_version()
 
 
 def _load(name: str):

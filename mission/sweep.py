@@ -24,15 +24,12 @@ usual ``if __name__ == "__main__":`` guard; the ``phireman`` command has it.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
 import json
 import logging
 import os
-import pathlib
 import signal
 import socket
-import subprocess
 import threading
 import time
 from dataclasses import dataclass, field
@@ -40,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Iterable, Iterator
 
 from mission.store import ResultStore, utc_now
+from mission.version import code_version  # re-exported: one code version for rows and run dirs
 
 if TYPE_CHECKING:
     from concurrent.futures import ProcessPoolExecutor
@@ -276,52 +274,6 @@ def resolve(spec: ConfigSpec) -> ResolvedConfig:
               "params_resolved": error is None}
     config = json.loads(canonical_json(config))
     return ResolvedConfig(spec, problem, config, _hash(canonical_json(config)), error)
-
-
-# ----------------------------------------------------------------------------------------------
-# Code version
-# ----------------------------------------------------------------------------------------------
-
-_ROOT = pathlib.Path(__file__).resolve().parents[1]
-
-
-def _source_files() -> list[pathlib.Path]:
-    """Sources whose change can change a run's numbers: the planners, the world, the episode loop."""
-    files = sorted((_ROOT / "planner").rglob("*.py"))
-    files += [_ROOT / "vehicle_emu" / "world.py", _ROOT / "mission" / "sim.py"]
-    return [f for f in files if f.is_file()]
-
-
-@functools.lru_cache(maxsize=1)
-def code_version() -> str:
-    """'phireman <version> git <commit>[+dirty] src <hash>' of the code in this process.
-
-    ``src`` hashes planner/**.py, vehicle_emu/world.py and mission/sim.py as they were when first
-    asked (cached per process), so rows from changed code are distinguishable even without git.
-    """
-    try:
-        from importlib.metadata import version
-
-        pkg = version("phireman")
-    except Exception:  # not installed as a distribution
-        pkg = "unknown"
-    h = hashlib.sha256()
-    for f in _source_files():
-        h.update(f.relative_to(_ROOT).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
-    commit = "none"
-    try:
-        out = subprocess.run(["git", "-C", str(_ROOT), "rev-parse", "--short=12", "HEAD"],
-                             capture_output=True, text=True, timeout=10)
-        if out.returncode == 0:
-            commit = out.stdout.strip()
-            dirty = subprocess.run(
-                ["git", "-C", str(_ROOT), "status", "--porcelain", "--", "planner", "vehicle_emu/world.py",
-                 "mission/sim.py"], capture_output=True, text=True, timeout=10)
-            if dirty.returncode == 0 and dirty.stdout.strip():
-                commit += "+dirty"
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return f"phireman {pkg} git {commit} src {h.hexdigest()[:12]}"
 
 
 # ----------------------------------------------------------------------------------------------

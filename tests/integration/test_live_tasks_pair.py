@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from mission.runners import (
-    FlyOptions, LockstepEther, _make_operator, build_swarm, live_task_columns, mission_scenario,
-    station_for_swarm,
-)
+from mission.ether import LockstepEther, station_for_swarm
+from mission.fly_options import FlyOptions
+from mission.mission_world import build_swarm, mission_scenario
+from mission.station_loop import live_task_columns, make_operator
 from mission.schema import (
     EmulatedVehicles, MavlinkSource, Mission, Radio, RunSpec, Spawn, SpawnRing, Task, TrackPoint,
     Vehicles,
@@ -64,8 +64,8 @@ class _Flight:
         scenario = mission_scenario(mission, 3, live_tasks=True)
         swarm = build_swarm(mission, scenario, seed=3)
         self.station = station_for_swarm(swarm, task_sysids=tuple(live_task_columns(mission).values()))
-        self.op = _make_operator(mission, scenario, self.station, FlyOptions(wave_size=10),
-                                 6, 0.0, 3)
+        self.op = make_operator(mission, scenario, self.station, FlyOptions(wave_size=10),
+                                6, 0.0, 3)
         self.ether = LockstepEther(swarm, self.station, np.random.default_rng(3))
         self.ether.on_event = self.op.handle_event
         self.tracker = _Tracker()

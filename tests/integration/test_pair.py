@@ -17,10 +17,10 @@ from gcs.events import (
     ArmedChanged, CommandTimedOut, ParamSetConfirmed, VehicleDiscovered, VehicleLost,
 )
 from gcs.control import layer_alt_m
-from mission.runners import (
-    FlyOptions, LockstepEther, _MissionWorld, _make_operator, build_swarm, mission_scenario,
-    station_for_swarm,
-)
+from mission.ether import LockstepEther, station_for_swarm
+from mission.fly_options import FlyOptions
+from mission.mission_world import MissionWorld, build_swarm, mission_scenario
+from mission.station_loop import make_operator
 from mission.schema import (
     Attrition, EmulatedVehicles, Mission, Radio, RunSpec, ScriptedLoss, Spawn,
     SpawnRing, Task, TrackPoint, Vehicles,
@@ -134,11 +134,11 @@ class _InMemoryFlight:
             # until then, like SITL for its first ~40 s.
             for core in self.swarm.cores:
                 core._ekf_ready_s = float(ekf_ready_s)
-        self.world = _MissionWorld(mission, scenario, self.swarm)
+        self.world = MissionWorld(mission, scenario, self.swarm)
         self.station = station_for_swarm(self.swarm, record_frames=record)
-        self.op = _make_operator(mission, scenario, self.station,
-                                 FlyOptions(wave_size=10, **opts), mission.vehicles.count, 0.0,
-                                 seed)
+        self.op = make_operator(mission, scenario, self.station,
+                                FlyOptions(wave_size=10, **opts), mission.vehicles.count, 0.0,
+                                seed)
         self.ether = LockstepEther(self.swarm, self.station, np.random.default_rng(seed),
                                    loss=loss)
         self.events = []
@@ -383,7 +383,7 @@ def test_a_restarted_station_counts_its_reclaims():
     now = f.ether.now_s
     scenario = mission_scenario(mission, 3)
     station = station_for_swarm(f.swarm, now_s=now)
-    op = _make_operator(mission, scenario, station, FlyOptions(wave_size=10), 3, now, 3)
+    op = make_operator(mission, scenario, station, FlyOptions(wave_size=10), 3, now, 3)
     ether = LockstepEther(f.swarm, station, np.random.default_rng(4), now_s=now)
     ether.on_event = op.handle_event
     ether.advance_to(now + 40.0, poll=op.poll, poll_period_s=0.5)

@@ -1,0 +1,67 @@
+"""What ``phireman fly`` asks of the runners, and the error a runner raises when it cannot fly.
+
+The lowest module of the flight path (:mod:`mission.runners` and the modules it is cut into,
+pyproject.toml's import-linter contracts): every other one imports it, it imports none of them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from gcs.operations import Operator
+
+__all__ = ["FlyOptions", "RunnerError"]
+
+
+class RunnerError(ValueError):
+    """A mission or option this runner cannot fly (reported to the user as a UserError)."""
+
+
+@dataclass
+class FlyOptions:
+    """What ``phireman fly`` passes to the runners."""
+
+    seed: int | None = None
+    personality: str | None = None
+    speedup: float | None = None
+    """None: the mission's ``run.speedup``."""
+    duration_s: float | None = None
+    out_dir: str | None = None
+    end: str = "rtl"
+    override_audit: bool = False
+    apply_failsafes: bool = False
+    """Write the safe lost-link parameters the audit asks for (PARAM_SET, echo-confirmed)."""
+    connections: tuple[str, ...] = ()
+    wave_size: int = 25
+    status: Callable[[dict], None] | None = None
+    """Called about twice a second (wall) with a status dict."""
+    emulator_params: dict | None = None
+    """Parameter overrides for every emulated vehicle (tests)."""
+    discover_timeout_s: float = 30.0
+    expected_vehicles: int | None = None
+    end_wait: bool = True
+    """After the mission, wait until the vehicles are down (or the end timeout)."""
+    set_limits: bool = True
+    """Write the mission's speed / climb limits into each vehicle's own parameters at launch."""
+    restore_params: bool = False
+    """After landing, write back every parameter the station changed."""
+    on_interrupt: str = "end"
+    """What Ctrl-C tells every reachable vehicle: 'end' (the mission's end action), 'hold',
+    'rtl' or 'land'."""
+    emulator_in_process: bool = False
+    """Run the emulator on the station's event loop (tests: failure injection through
+    ``world.swarm``) instead of its own process."""
+    on_operator: Callable[[Operator, object], None] | None = None
+    """Hook called on every poll with (operator, world or None) - tests inject failures here."""
+    serve: str | None = None
+    """``[HOST:]PORT``: serve the live web view there (:mod:`mission.live`)."""
+    serve_actions: bool = True
+    """Operator actions on the page (behind the key printed at start); False: read-only."""
+    tiles: str | None = None
+    """Background imagery of the live view: an XYZ tile folder or a URL template."""
+    forward: tuple[str, ...] = ()
+    """MAVLink forwarding outputs (``udpout:H:P``, ``udpin:H:P``, ``tcpin:H:P``, gcs.forward)."""
+    forward_readonly: bool = False
+    on_live: Callable[[dict], None] | None = None
+    """Called once with the live view's url and operator key, the forwarders' addresses."""

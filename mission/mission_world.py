@@ -1,0 +1,280 @@
+"""The emulator built for a mission, and the mission's world rules applied to it.
+
+* :func:`mission_scenario` - the deterministic part of one flight (spawn, task tracks), drawn
+  from the seed in the in-process simulator's order (:mod:`mission.scenario`);
+* :func:`control_config` - the station's altitude layers and geofence for the mission;
+* :func:`build_swarm` - the emulator (:class:`vehicle_emu.swarm.Swarm`) for the mission;
+* :class:`MissionWorld` - attrition, scripted losses, hazard zones and task motion applied to
+  that emulator on the mission clock (runner side: never visible to the station).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from gcs.control import ControlConfig, Geofence
+from mission.fly_options import RunnerError
+from mission.scenario import build_scenario, loss_probability, spawn_positions, task_track_m
+from mission.schema import Mission
+from planner.metrics import task_uptime
+from vehicle_emu.radio import RadioConfig
+from vehicle_emu.swarm import Swarm
+from vehicle_emu.world import spawn_streams
+
+__all__ = ["MissionScenario", "mission_scenario", "control_config", "build_swarm", "MissionWorld",
+           "FENCE_MARGIN_M", "POSITION_LOOP_TAU_S"]
+
+log = logging.getLogger(__name__)
+
+#: Without a mission geofence, the fence is the task field plus this margin, metres.
+FENCE_MARGIN_M = 100.0
+
+
+#: Time constant of a multicopter's position loop (ArduPilot/PX4 position controllers, and the
+#: emulator's ``Physics.tau_pos_s``): the station leads its targets by this much (ControlConfig).
+POSITION_LOOP_TAU_S = 1.0
+
+
+def _speed_params(personalities: list[str], max_speed_m_s: float, climb_rate_m_s: float,
+                  user: dict | None) -> dict:
+    """Per-vehicle parameters that make the emulated autopilots fly the mission's limits from
+    boot, as the station would set them on real vehicles (:func:`gcs.limits.limit_params`, so
+    the station finds nothing to write). Explicit overrides (``params``) win."""
+    from gcs.autopilot import ARDUPILOT, PX4
+    from gcs.limits import limit_params
+
+    user = user or {}
+    out = {}
+    for i, p in enumerate(personalities):
+        want = limit_params(ARDUPILOT if p == "ardupilot" else PX4, max_speed_m_s, climb_rate_m_s)
+        out[i] = {k: v for k, v in want.items() if k not in user}
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# What the mission implies: spawn, task tracks, fence
+
+
+@dataclass(frozen=True)
+class MissionScenario:
+    """The deterministic part of one run of a mission, drawn from the seed."""
+
+    spawn_ne_m: np.ndarray
+    """(N, 2) start positions, mission frame, metres."""
+    task_track_m: np.ndarray
+    """(tau + 1, M, 2) task positions at t = k * control_period_s, metres."""
+    dt_s: float
+
+    def task_pos_m(self, t_s: float) -> np.ndarray:
+        """(M, 2) task positions at mission time ``t_s`` (linear between steps, held at the ends)."""
+        k = max(0.0, t_s) / self.dt_s
+        last = len(self.task_track_m) - 1
+        k0 = min(int(math.floor(k)), last)
+        k1 = min(k0 + 1, last)
+        a = min(max(k - k0, 0.0), 1.0) if k1 > k0 else 0.0
+        return self.task_track_m[k0] * (1 - a) + self.task_track_m[k1] * a
+
+
+def mission_scenario(mission: Mission, seed: int | None = None, *,
+                     live_tasks: bool = False) -> MissionScenario:
+    """Spawn positions and task tracks of ``mission`` for ``seed`` (default ``run.seed``).
+
+    Random draws come from the run's *scenario* stream (:func:`vehicle_emu.world.spawn_streams`),
+    in the in-process simulator's order: ring noise, then each task entry in file order (random
+    starts, then walk increments).
+    """
+    seed = mission.run.seed if seed is None else seed
+    rng = spawn_streams(seed).scenario
+    spawn = spawn_positions(mission, rng)
+    try:
+        track, _ = task_track_m(mission, rng, mission.run.n_steps,
+                                live="nan" if live_tasks else "refuse")
+    except ValueError as exc:  # live MAVLink tasks
+        raise RunnerError(str(exc)) from None
+    return MissionScenario(spawn, track, mission.run.control_period_s)
+
+
+def control_config(mission: Mission, scenario: MissionScenario | None = None) -> ControlConfig:
+    """Altitude layers from the mission's flight limits; the mission's geofence, or by default the
+    task field plus :data:`FENCE_MARGIN_M`."""
+    lim = mission.vehicles.limits
+    half = mission.problem_config().field_half_width_m
+    if scenario is not None:
+        half = max(half, float(np.abs(scenario.task_track_m).max(initial=0.0)),
+                   float(np.abs(scenario.spawn_ne_m).max(initial=0.0)))
+    fence = mission.geofence
+    geofence = Geofence.square(fence.half_width_m if fence.half_width_m is not None else half + FENCE_MARGIN_M,
+                               fence.max_alt_m if fence.max_alt_m is not None else math.inf)
+    return ControlConfig(cruise_alt_m=lim.cruise_alt_m, layer_spacing_m=lim.layer_spacing_m,
+                         n_layers=lim.n_layers, geofence=geofence,
+                         lead=1.0 + POSITION_LOOP_TAU_S / mission.run.control_period_s)
+
+
+def _personalities(mission: Mission, override: str | None) -> list[str]:
+    n = mission.vehicles.count
+    p = override or (mission.vehicles.emulated.personality if mission.vehicles.emulated else
+                     "ardupilot")
+    if p == "mixed":
+        return ["ardupilot" if i % 2 == 0 else "px4" for i in range(n)]
+    if p not in ("ardupilot", "px4"):
+        raise RunnerError(f"unknown personality {p!r}; valid: ardupilot, px4, mixed")
+    return [p] * n
+
+
+class _MissionSwarm(Swarm):
+    """A swarm whose full autopilot/physics tick runs at ``tick_s`` cadence only.
+
+    ``Swarm.next_timer_s`` also wakes for every radio-delayed packet; the base class then runs a
+    whole tick (every core, physics, radio) per delivery, which at 50 vehicles, per-hop latency
+    and a 20x speed-up multiplies the emulator's CPU several times and starves its sockets.
+    Between ticks only the delayed packets are delivered here.
+    """
+
+    def handle_timer(self, now_s: float) -> None:
+        if self.stats["ticks"] and now_s < self.now_s + self.tick_s - 1e-9:
+            self._deliver_delayed(now_s, inbound=True)
+            return
+        super().handle_timer(now_s)
+
+    step = handle_timer
+
+
+def build_swarm(mission: Mission, scenario: MissionScenario, *, seed: int,
+                personality: str | None = None, unix_time_at_zero_s: float = 1.7e9,
+                mux: bool = True, params: dict | None = None, tick_s: float = 0.05) -> Swarm:
+    """The emulator for ``mission``: count, personality, spawn, radio, flight limits.
+
+    Attrition is *not* armed here: :class:`MissionWorld` switches it on when the station starts
+    the mission (take-off is not part of the paper's horizon), then applies the background rate,
+    the scripted losses and the hazard zones on the mission clock.
+    """
+    if mission.vehicles.emulated is None:
+        raise RunnerError("the mission flies real vehicles (vehicles.real); use --connect or an "
+                          "emulated mission")
+    emu = mission.vehicles.emulated
+    radio = RadioConfig(radio_range_m=emu.radio_range_m or mission.radio.range_m,
+                        base_range_m=mission.radio.base_range_m,
+                        latency_per_hop_s=mission.radio.latency_s,
+                        loss_per_hop=min(mission.radio.loss_prob, 0.999))
+    spawn = np.column_stack([scenario.spawn_ne_m, np.zeros(len(scenario.spawn_ne_m))])
+    o = mission.origin
+    pers = _personalities(mission, personality)
+    swarm = _MissionSwarm(emu.count, personality=pers,
+                  per_vehicle_params=_speed_params(pers, emu.max_speed_m_s, emu.climb_rate_m_s,
+                                                   params),
+                  home_lla=(o.lat_deg, o.lon_deg, o.alt_amsl_m), spawn_ned_m=spawn, radio=radio,
+                  hazard_per_s=0.0, task_pos_fn=None, mux=mux, params=params,
+                  rng=np.random.default_rng(np.random.SeedSequence([int(seed), 0xE1])),
+                  truth_period_s=mission.run.control_period_s,
+                  unix_time_at_zero_s=unix_time_at_zero_s, max_speed_h_m_s=emu.max_speed_m_s,
+                  tick_s=tick_s, radio_period_s=0.2)
+    swarm.physics.climb_rate_m_s[:] = emu.climb_rate_m_s
+    return swarm
+
+
+class MissionWorld:
+    """The mission's world rules applied to the emulator on the mission clock (runner side):
+    attrition switched on at mission start, scripted losses, hazard zones, task motion for the
+    ground truth. Never visible to the station.
+
+    Losses follow the in-process world's draws (common random numbers, docs/design/model.md §6.1): at
+    mission step ``t`` vehicle ``i`` is lost iff ``u[t, i] < p_i(t)``, with the uniforms of
+    :func:`mission.scenario.build_scenario` (the run's attrition stream) and the per-step
+    probability of :func:`mission.scenario.loss_probability` (background rate plus the active
+    hazard zones containing the vehicle, from its true position at the step). The loss takes
+    effect half a step later (the in-process world measures connectivity, then attrits, then
+    moves), through the emulator's kill hook. Scripted losses happen at their exact times.
+    The truth is sampled on the mission's step grid ``t0 + k * dt``, so both backends integrate
+    TU1/TU2 over the same ``duration / dt`` instants of ``[0, duration)``.
+    """
+
+    def __init__(self, mission: Mission, scenario: MissionScenario, swarm: Swarm,
+                 seed: int | None = None) -> None:
+        self.mission = mission
+        self.scenario = scenario
+        self.swarm = swarm
+        self.t0_s: float | None = None
+        seed = mission.run.seed if seed is None else seed
+        scn = build_scenario(mission, seed)
+        self._attrition_u = scn.attrition_u
+        self._step = 0
+        self._stopped = False
+        self._doomed = np.zeros(swarm.n, dtype=bool)
+        self.losses: list[tuple[float, int, str]] = []
+        swarm.task_pos_fn = self._task_pos
+        # Sample 0 was recorded without tasks; restart the truth log with tasks from here on.
+        tr = swarm.truth
+        tr.t_s.clear()
+        tr.pos_ned_m.clear()
+        tr.alive.clear()
+        tr.active.clear()
+        tr.task_connected.clear()
+
+    def _task_pos(self, t_s: float) -> np.ndarray:
+        return self.scenario.task_pos_m(0.0 if self.t0_s is None else t_s - self.t0_s)
+
+    def start(self, t0_s: float) -> None:
+        """The station began the mission at emulator time ``t0_s``."""
+        self.t0_s = t0_s
+        self.swarm.attrition.hazard_per_s = np.zeros(self.swarm.n)
+        for loss in self.mission.attrition.scripted:
+            if loss.vehicle < self.swarm.n:
+                self.swarm.attrition.add_kill(t0_s + loss.t_s, loss.vehicle)
+                self._doomed[loss.vehicle] = True
+                self.losses.append((loss.t_s, loss.vehicle, "scripted"))
+        self.swarm.sample_truth_from(t0_s)
+        self.poll(self.swarm.now_s)
+        log.info("mission world started at t=%.2f s", t0_s)
+
+    def poll(self, now_s: float) -> None:
+        """Draw the losses of every mission step that has begun (call at least every dt/2)."""
+        if self.t0_s is None or self._stopped:
+            return
+        dt = self.mission.run.control_period_s
+        u = self._attrition_u
+        while self._step < len(u) and now_s >= self.t0_s + self._step * dt - 1e-9:
+            t = self._step
+            pos = self.swarm.physics.pos_ned_m[:, :2]
+            p = loss_probability(self.mission, t * dt, pos)
+            hit = self.swarm.physics.alive & ~self._doomed & (u[t] < p)
+            for i in np.flatnonzero(hit).tolist():
+                self._doomed[i] = True
+                self.swarm.attrition.add_kill(self.t0_s + (t + 0.5) * dt, i)
+                self.losses.append(((t + 0.5) * dt, i, "attrition"))
+            self._step += 1
+
+    def stop_attrition(self) -> None:
+        """The mission is over: no more random losses (the end is not part of the horizon)."""
+        self._stopped = True
+        self.t_end_s = self.swarm.now_s
+
+    def report(self, duration_s: float) -> dict:
+        """Ground truth for the summary and ``truth.npz`` (plain, picklable)."""
+        truth = self.truth_tu(duration_s)
+        truth["alive_end"] = int(self.swarm.alive.sum())
+        arrays: dict[str, Any] = self.swarm.truth.arrays()
+        arrays.update(mission_t0_s=np.float64(np.nan if self.t0_s is None else self.t0_s),
+                      sysid_of_index=self.swarm.sysid_of_index,
+                      network_of_index=self.swarm.network_of_index)
+        stats: dict[str, float] = dict(self.swarm.stats)
+        stats["cpu_s"] = time.process_time()
+        return {"truth": truth, "stats": stats, "arrays": arrays}
+
+    def truth_tu(self, duration_s: float) -> dict:
+        """Ground-truth TU1/TU2 over the truth samples in [t0, t0 + duration)."""
+        tr = self.swarm.truth
+        if self.t0_s is None or not tr.task_connected:
+            return {"tu1": None, "tu2": None, "samples": 0}
+        t = np.asarray(tr.t_s)
+        sel = (t >= self.t0_s - 1e-9) & (t < self.t0_s + duration_s - 1e-9)
+        conn = np.asarray(tr.task_connected)[sel]
+        if len(conn) == 0:
+            return {"tu1": None, "tu2": None, "samples": 0}
+        tu1, tu2 = task_uptime(conn)
+        return {"tu1": tu1, "tu2": tu2, "samples": int(len(conn))}

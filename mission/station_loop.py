@@ -1,0 +1,300 @@
+"""The ground station's loop of a flight: the same code for emulated and real links.
+
+* :func:`run_station` - opens the links, builds the :class:`gcs.operations.Operator`, polls it
+  on the flight's clock until the mission is done (or Ctrl-C has settled), records every event
+  and tick into the run directory (:class:`mission.run_dir.Records`) and drives the emulator's
+  world rules when there is an emulator;
+* :func:`make_operator` - the operator for a mission (planner, fleet view, control and operations
+  configuration): also what the in-memory tests drive through :class:`mission.ether.LockstepEther`;
+* the planner is warmed up before any link opens, so the loop never stalls in flight.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import logging
+import math
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from gcs.aio import StationAdapter
+from gcs.fleet import FleetView, MissionOrigin
+from gcs.link import StationConfig
+from gcs.operations import OperationsConfig, Operator, TickRecord
+from gcs.station import Station
+from gcs.tasks import LiveTasks
+from gcs.wire import mavlink
+from mission.fly_options import FlyOptions, RunnerError
+from mission.mission_world import MissionScenario, control_config
+from mission.run_dir import Records
+from mission.schema import Mission
+from planner.methods import make_planner
+from planner.problem import ProblemConfig
+from vehicle_emu.world import spawn_streams
+
+if TYPE_CHECKING:
+    from mission.emulator_host import EmulatorProcess, InProcessEmulator
+
+__all__ = ["run_station", "make_operator", "live_task_columns", "live_task_connections",
+           "INTERRUPT_SETTLE_S", "PLAN_SILENCE_S"]
+
+log = logging.getLogger(__name__)
+
+#: After Ctrl-C, how long (wall seconds) the station keeps its links up for the vehicles to
+#: confirm what they were told.
+INTERRUPT_SETTLE_S = 5.0
+
+#: A vehicle silent this long (simulated seconds) is out of the planned network D'(t).
+PLAN_SILENCE_S = 2.0
+
+def live_task_columns(mission: Mission) -> dict[int, int]:
+    """Task column -> tracker sysid of every live MAVLink task (columns as in task_track_m)."""
+    out, col = {}, 0
+    for task in mission.tasks:
+        if task.kind == "mavlink":
+            assert task.mavlink is not None  # the schema's invariant
+            out[col] = task.mavlink.sysid
+        col += task.count
+    return out
+
+
+def live_task_connections(mission: Mission, connections: list[str]) -> list[str]:
+    """Links to open for live task trackers that do not share one of ``connections``."""
+    extra = []
+    for task in mission.tasks:
+        conn = task.mavlink.connection if task.kind == "mavlink" and task.mavlink else None
+        if conn and conn not in connections and conn not in extra:
+            extra.append(conn)
+    return extra
+
+
+def _station_config(mission: Mission, max_vehicles: int | None = None) -> StationConfig:
+    key = None
+    real = mission.vehicles.real
+    if real is not None and real.signing_key_hex:
+        key = bytes.fromhex(real.signing_key_hex)
+    # Who is a vehicle (real links): the mission's sysids, else the first N heard (--vehicles).
+    allowed = frozenset(real.sysids) if real is not None and real.sysids else None
+    # Fleet-scale telemetry (docs/design/mavlink.md §2, Skybrush): position at 2 Hz is all the plan uses;
+    # every other stream costs decode time at 50+ vehicles x speed-up.
+    return StationConfig(signing_key=key, command_timeout_s=1.0, param_timeout_s=2.0,
+                         allowed_sysids=allowed, max_vehicles=max_vehicles,
+                         param_retries=4, task_sysids=tuple(live_task_columns(mission).values()),
+                         stream_rates_hz=((mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 2.0),
+                                          (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 0.2)))
+
+
+def _operations_config(mission: Mission, opts: FlyOptions, expected: int | None) -> OperationsConfig:
+    lim = mission.vehicles.limits
+    return OperationsConfig(
+        max_speed_m_s=lim.max_speed_m_s, climb_rate_m_s=lim.climb_rate_m_s,
+        set_limits=opts.set_limits, restore_params=opts.restore_params,
+        expected_vehicles=expected, discover_timeout_s=opts.discover_timeout_s,
+        override_audit=opts.override_audit, apply_failsafes=opts.apply_failsafes,
+        wave_size=opts.wave_size,
+        control_period_s=mission.run.control_period_s,
+        duration_s=opts.duration_s or mission.run.duration_s, end=opts.end,
+        radio_range_m=mission.radio.range_m, poll_period_s=0.5)
+
+
+def _planner_spec(mission: Mission) -> tuple[str, ProblemConfig, dict]:
+    """(method, problem, params) of the station's planner for ``mission``."""
+    problem = mission.problem_config()
+    method = mission.planner.method
+    params = dict(mission.planner.params)
+    if method == "phireman":
+        params["info"] = "central"  # the station plans centrally from D'(t)
+    return method, problem, params
+
+
+def _warm_up_planner(method: str, problem, params: dict, scenario: MissionScenario) -> None:
+    """Run a throw-away planner of the same kind for two ticks on a small made-up fleet, so
+    that everything its first real tick needs (imports, Numba kernels compiled or loaded from
+    their cache) is ready before the flight: the station's loop must never stall in flight
+    (a first tick that compiled for ~10 s stopped heartbeats and setpoints: ArduCopter's GCS
+    failsafe acts after FS_GCS_TIMEOUT 5 s, PX4's offboard loss after COM_OF_LOSS_T 1 s)."""
+    from planner.methods import TickInput
+
+    t0 = time.monotonic()
+    rng = np.random.default_rng(0)
+    tasks = np.nan_to_num(np.asarray(scenario.task_pos_m(0.0), dtype=float).reshape(-1, 2))
+    half = max(float(np.abs(tasks).max(initial=0.0)), 10.0)
+    n = 8
+    pos = rng.uniform(-half / 4, half / 4, size=(n, 2))
+    throwaway = make_planner(method, problem, dict(params), np.random.default_rng(0))
+    for t_step in range(2):
+        throwaway.plan(TickInput(t_step, pos, np.ones(n, bool), np.ones(n, bool), tasks))
+    log.info("planner %s warmed up in %.2f s", method, time.monotonic() - t0)
+
+
+def make_operator(mission: Mission, scenario: MissionScenario, station: Station,
+                  opts: FlyOptions, expected: int | None, now_s: float, seed: int) -> Operator:
+    """The operator that flies ``mission`` with ``station``: its fleet view (D'(t)), the
+    mission's planner on the run's algorithm stream, the control and operations configuration
+    and, for live MAVLink tasks, their trackers. ``expected``: vehicles to wait for (None: until
+    no new vehicle is heard for a while)."""
+    o = mission.origin
+    # D'(t) for planning: a vehicle streaming position at 2 Hz (plus 1 Hz heartbeats) that has
+    # been silent for 2 s has missed four reports: plan without it (the link still declares it
+    # lost only after its own vehicle_timeout_s). With the 5 s link timeout, a drone that died
+    # stayed a planned relay for 5 s (about 2.5 drones at any time at 1 %/s attrition).
+    fleet = FleetView(MissionOrigin(o.lat_deg, o.lon_deg, o.alt_amsl_m),
+                      timeout_s=min(PLAN_SILENCE_S, station.links[0].config.vehicle_timeout_s))
+    method, problem, params = _planner_spec(mission)
+    planner = make_planner(method, problem, params, spawn_streams(seed).algorithm)
+    live = live_task_columns(mission)
+    return Operator(station, fleet, planner, scenario.task_pos_m, control_config(mission, scenario),
+                    _operations_config(mission, opts, expected), now_s=now_s,
+                    live_tasks=LiveTasks(fleet.origin, live) if live else None)
+
+
+def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> dict:
+    snap = op.fleet.snapshot(now_s)
+    modes: dict[str, int] = {}
+    for m, lost in zip(snap.mode, snap.lost):
+        key = "LOST" if lost else m
+        modes[key] = modes.get(key, 0) + 1
+    last = op.records[-1] if op.records else None
+    d = {"phase": op.phase, "t_s": now_s, "t_mission_s": op.t_mission_s(now_s),
+         "duration_s": op.config.duration_s, "fleet": snap.n_vehicles,
+         "networked": int(snap.networked.sum()), "returning": int(snap.returning.sum()),
+         "lost": int(snap.lost.sum()), "modes": modes,
+         "tasks_covered": last.tasks_covered if last else 0,
+         "n_tasks": last.n_tasks if last else 0,
+         "tu1": last.tu1_so_far if last else None, "tu2": last.tu2_so_far if last else None,
+         "command_failures": op.counters["command_failures"], "end_t0_s": op.end_t0_s,
+         "failsafes": len(op.failsafe_texts),
+         "last_failsafe": op.failsafe_texts[-1] if op.failsafe_texts else None,
+         "reclaims": len(op.reclaimed),
+         "wall_s": time.monotonic()}
+    if world is not None and getattr(world, "swarm", None) is not None:
+        d["truth_alive"] = int(world.swarm.alive.sum())
+    return d
+
+
+async def run_station(mission: Mission, scenario: MissionScenario, connections: list[str],
+                       opts: FlyOptions, records: Records, *, clock: Callable[[], float],
+                       speedup: float, expected: int | None, seed: int,
+                       world: InProcessEmulator | EmulatorProcess | None = None,
+                       max_sleep_s: float = math.inf,
+                       ack: Callable[[float], None] | None = None) -> Operator:
+    """The station's loop. ``max_sleep_s`` (simulated seconds): wake at least this often even
+    when idle, so a paced emulator is never starved of clock acknowledgements."""
+    # Before any link is open (a stall now costs nothing; in flight it trips failsafes).
+    _warm_up_planner(*_planner_spec(mission), scenario)
+    cfg = _station_config(mission, expected if world is None else None)
+    if opts.forward:
+        # A forwarded GCS (QGroundControl, MAVProxy) wants the telemetry the station itself
+        # does not use: do not turn it off (gcs.link disable_unused_messages).
+        cfg = dataclasses.replace(cfg, disable_unused_messages=False)
+    holder: dict = {}
+
+    def on_event(ev) -> None:
+        records.event(ev)
+        for listener in holder.get("listeners", ()):
+            listener(ev)
+        op = holder.get("op")
+        if op is not None:
+            op.handle_event(ev)
+        else:
+            holder.setdefault("early", []).append(ev)
+
+    adapters = []
+    try:
+        for i, conn in enumerate(connections):
+            # A link down at start (a vehicle not booted yet, a radio not plugged in) is
+            # retried in the background and reported (LinkDown / LinkUp in events.jsonl),
+            # never fatal while others work; only a mistake waiting cannot fix raises.
+            adapters.append(await StationAdapter(conn, cfg, link_id=i, clock=clock,
+                                                 tlog=records.tlog, on_event=on_event,
+                                                 time_scale=speedup,
+                                                 on_link_event=records.events.write).start())
+    except (OSError, ValueError) as exc:
+        for a in adapters:
+            a.close()
+        raise RunnerError(f"cannot open link {conn!r}: {exc}") from exc
+    station = Station([a.core for a in adapters])  # type: ignore[misc]  # started: each has a core
+    op = make_operator(mission, scenario, station, opts, expected, clock(), seed)
+    holder["op"] = op
+    op.on_action = records.events.write  # operator actions in events.jsonl, with their source
+    for ev in holder.pop("early", []):
+        op.handle_event(ev)
+    extras = []
+    if opts.serve or opts.forward:  # the live view and MAVLink forwarding, on this loop
+        from mission.live import attach
+
+        try:
+            extras = await attach(op, adapters, mission=mission, opts=opts, clock=clock,
+                                  records=records, listeners=holder.setdefault("listeners", []))
+        except (OSError, ValueError) as exc:
+            for a in adapters:
+                a.close()
+            raise RunnerError(f"cannot serve / forward: {exc}") from exc
+    last_status = -math.inf
+    started = ended = False
+    interrupted_wall: float | None = None
+    try:
+        while True:
+            if interrupted_wall is not None:
+                # Ctrl-C: keep the links up until every vehicle heard confirmed what it was
+                # told (or INTERRUPT_SETTLE_S of wall time), so acks and the .tlog are complete.
+                settled = all(ok for _, _, ok in op.interrupt_report(clock()))
+                if settled or time.monotonic() - interrupted_wall >= INTERRUPT_SETTLE_S:
+                    break
+            elif op.finished:
+                break
+            try:
+                now = clock()
+                rec = op.poll(now)
+                if ack is not None:
+                    ack(now)  # lock-step: everything due up to `now` is done (see PacedReader)
+                if world is not None:
+                    if not started and op.mission_t0_s is not None:
+                        started = True
+                        world.start_mission(op.mission_t0_s)
+                    if started and not ended and op.phase not in ("launch", "run"):
+                        ended = True
+                        world.end_mission()
+                    world.poll(now)
+                if opts.on_operator is not None:
+                    opts.on_operator(op, world)
+                if rec is not None:
+                    records.metrics.write(rec.row())
+                if op.phase == "done" and not opts.end_wait:
+                    break
+                if op.phase == "end" and not opts.end_wait:
+                    op.phase = "done"
+                for a in adapters:
+                    a.transmit()
+                wall = time.monotonic()
+                if opts.status is not None and (wall - last_status >= 0.5 or op.finished):
+                    last_status = wall
+                    d = _status_dict(op, now, rec, world)
+                    d["speedup"] = speedup
+                    d["links_down"] = [(a.link_id, a.spec.text, a.down_reason)
+                                       for a in adapters if not a.connected]
+                    opts.status(d)
+                delay = max(0.0, min(op.next_poll_s(now) - clock(), max_sleep_s) / speedup)
+                await asyncio.sleep(delay)
+            except asyncio.CancelledError:
+                # Ctrl-C (asyncio.run cancels the main task on the first SIGINT; a second one
+                # raises KeyboardInterrupt and abandons the flight).
+                task = asyncio.current_task()
+                if interrupted_wall is not None or task is None:
+                    raise
+                task.uncancel()
+                interrupted_wall = time.monotonic()
+                log.info("interrupted: telling every vehicle to %s", opts.on_interrupt)
+                op.interrupt(opts.on_interrupt, clock())
+                for a in adapters:
+                    a.transmit()
+    finally:
+        for x in extras:
+            await x.aclose()
+        for a in adapters:
+            a.close()
+    return op
