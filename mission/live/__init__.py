@@ -1,7 +1,7 @@
 """The operator's live picture: a web view served by the station, its replay, MAVLink forwarding
 and GIS export (issue 17; docs/live_view.md).
 
-* :func:`attach` - called once by the runner (``mission.runners._run_station``) when
+* :func:`attach` - called once by the runner (``mission.station_loop.run_station``) when
   ``FlyOptions.serve`` or ``FlyOptions.forward`` is set, on the station's event loop after the
   links are open: starts the web server (:mod:`mission.live.server`) reading the operator
   (:mod:`mission.live.station`) and the MAVLink forwarder (:mod:`gcs.forward`).
