@@ -229,7 +229,12 @@ class ReplaySource:
         t_first = stream[0][0] if stream else 0.0
         t_last = stream[-1][0] if stream else 0.0
         dt = max(dt_s, (t_last - t_first) / MAX_FRAMES)
-        times = np.arange(t_first, t_last + dt, dt)
+        # The grid, plus a frame at every control tick (metrics.csv t_s): the slider can stand
+        # on the very instant a metrics row was taken, so the page shows what the station
+        # believed then (a grid frame up to dt earlier can precede a change the tick saw).
+        ticks = [r["t_s"] for r in self.metrics if r.get("t_s") is not None]
+        times = np.unique(np.concatenate([np.arange(t_first, t_last + dt, dt),
+                                          np.asarray(ticks, dtype=float)]))
         fleet = FleetView(self.origin, timeout_s=2.0)  # mission.runners.PLAN_SILENCE_S
         yaw: dict[tuple[int, int], float] = {}
         released: dict[tuple[int, int], str] = {}
@@ -323,6 +328,14 @@ class ReplaySource:
         """The frame at (or just before) mission time ``t_mission_s``."""
         t = t_mission_s + (self.t0_s or 0.0)
         return max(0, bisect.bisect_right(self.times_s, t + 1e-9) - 1)
+
+    def tick_index(self, k: int) -> int:
+        """The frame taken at the instant of metrics row ``k`` (every control tick has one)."""
+        t = self.metrics[k]["t_s"]
+        i = bisect.bisect_left(self.times_s, t)
+        if i >= len(self.times_s) or self.times_s[i] != t:
+            raise LookupError(f"no frame at tick {k} (t_s {t})")
+        return i
 
     def phase_at(self, t_s: float) -> str:
         if self.t0_s is None or t_s < self.t0_s:
