@@ -111,14 +111,13 @@ class TelemetryReceived(Event):
 
 
 @dataclass(frozen=True)
-class HomePositionReceived(Event):
-    """The vehicle's home (HOME_POSITION, message 242), emitted when first heard and whenever it
-    changes (both autopilots reset home when they arm)."""
+class _GeoPoint(Event):
+    """A geodetic point heard from a system (checked finite and on the globe)."""
 
     lat_deg: float = 0.0
     lon_deg: float = 0.0
     alt_amsl_m: float = 0.0
-    """Home altitude above mean sea level, metres: the datum of GLOBAL_RELATIVE_ALT frames."""
+    """Altitude above mean sea level, metres."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -129,20 +128,16 @@ class HomePositionReceived(Event):
 
 
 @dataclass(frozen=True)
-class TaskPositionReceived(Event):
+class HomePositionReceived(_GeoPoint):
+    """The vehicle's home (HOME_POSITION, message 242), emitted when first heard and whenever it
+    changes (both autopilots reset home when they arm). ``alt_amsl_m`` is the datum of
+    GLOBAL_RELATIVE_ALT frames."""
+
+
+@dataclass(frozen=True)
+class TaskPositionReceived(_GeoPoint):
     """A GLOBAL_POSITION_INT from a *task* system (a crew's tracker, a rover), not a vehicle the
     station flies: ``sysid`` is one of ``StationConfig.task_sysids``."""
-
-    lat_deg: float = 0.0
-    lon_deg: float = 0.0
-    alt_amsl_m: float = 0.0
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        for name in ("lat_deg", "lon_deg", "alt_amsl_m"):
-            _finite(name, getattr(self, name))
-        if not -90.0 <= self.lat_deg <= 90.0 or not -180.0 <= self.lon_deg <= 180.0:
-            raise ValueError(f"lat/lon out of range: {self.lat_deg}, {self.lon_deg}")
 
 
 @dataclass(frozen=True)
