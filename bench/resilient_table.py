@@ -89,7 +89,7 @@ def main_table(baseline: dict, new: dict) -> tuple[str, dict]:
              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: |"]
     counts = {"better_both": 0, "worse_any": 0, "cells": 0, "below95": 0, "better_both_below95": 0,
               "worse_any_below95": 0, "better_tu1": 0, "better_tu2": 0, "better_both_1t": 0,
-              "better_both_1t_below95": 0}
+              "better_both_1t_below95": 0, "worse_any_1t": 0}
     for size in SIZES:
         for att in ATTRITION_LEVELS:
             key = (size, round(att, 6))
@@ -106,6 +106,8 @@ def main_table(baseline: dict, new: dict) -> tuple[str, dict]:
                 counts["worse_any"] += worse
                 # one-tailed paired test in the direction of Δ (the paper's and `phireman report`'s convention)
                 better1 = all(not np.isnan(p) and p / 2 < 0.05 and d > 0 for d, p in ((d1, p1), (d2, p2)))
+                worse1 = any(not np.isnan(p) and p / 2 < 0.05 and d < 0 for d, p in ((d1, p1), (d2, p2)))
+                counts["worse_any_1t"] += worse1
                 counts["better_both_1t"] += better1
                 counts["better_both_1t_below95"] += better1 and below
                 counts["better_tu1"] += (p1 < 0.05 and d1 > 0)
@@ -165,7 +167,8 @@ def main(argv=None) -> int:
     print(f"- among the {counts['below95']} cells where the paper's ΦIREMAN is below 95 % TU1 (‡): better on "
           f"both {counts['better_both_below95']}, worse on either {counts['worse_any_below95']}")
     print(f"- with the one-tailed paired test (p/2 in the direction of Δ, the paper's convention): better on both "
-          f"in {counts['better_both_1t']} cells, {counts['better_both_1t_below95']} of them ‡")
+          f"in {counts['better_both_1t']} cells, {counts['better_both_1t_below95']} of them ‡; worse on either in "
+          f"{counts['worse_any_1t']}")
     if args.ablations is not None:
         cells = []
         for item in (args.ablations or ["S:1", "M:2"]):
