@@ -174,6 +174,36 @@ def segment_gradient(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, th
                              np.ascontiguousarray(ab[:, 0]), np.ascontiguousarray(ab[:, 1]), e2, float(thorn))
 
 
+@njit(cache=True, inline="always")
+def _pair_coef(dx, dy, attraction, floor, repulsion, reach):
+    """One entry's pair-gradient coefficient (gradient = (dx, dy) * coef):
+    :func:`planner.phireman._pair_gradient_xy`'s element-wise operations in the same order."""
+    d2 = dx * dx
+    d2 += dy * dy
+    d = math.sqrt(d2)
+    inv = 1.0 / d if d > 0 else 0.0
+    coef = inv * inv
+    coef *= inv
+    coef *= attraction
+    if d <= floor:
+        coef = 0.0
+    if d < reach and d > 0:
+        coef -= repulsion * (reach * inv - 1.0)
+    return coef
+
+
+@njit(cache=True, inline="always")
+def _limit_fraction(dx, dy, stx, sty, v2):
+    """The fraction of the step (stx, sty) from (dx, dy) that ends on the speed limit |d| = √v2
+    (:func:`planner.phireman._scale_to_limit`, same arithmetic), clipped to [0, 1]."""
+    a = stx * stx + sty * sty
+    b = dx * stx + dy * sty
+    c = (dx * dx + dy * dy) - v2
+    disc = math.sqrt(max(b * b - a * c, 0.0))
+    alpha = (-b + disc) / a if a > 0 else 1.0
+    return min(max(alpha, 0.0), 1.0)
+
+
 @njit(cache=True)
 def entries_pair_gradient(px, py, rows, ox, oy, n, attraction, floor, repulsion, reach, pair_factor):
     """:func:`planner.phireman._pair_gradient_xy`, bit for bit: the same element-wise operations in
@@ -189,17 +219,7 @@ def entries_pair_gradient(px, py, rows, ox, oy, n, attraction, floor, repulsion,
         r = rows[e]
         dx = px[r] - ox[e]
         dy = py[r] - oy[e]
-        d2 = dx * dx
-        d2 += dy * dy
-        d = math.sqrt(d2)
-        inv = 1.0 / d if d > 0 else 0.0
-        coef = inv * inv
-        coef *= inv
-        coef *= attraction[r]
-        if d <= floor:
-            coef = 0.0
-        if d < reach and d > 0:
-            coef -= repulsion * (reach * inv - 1.0)
+        coef = _pair_coef(dx, dy, attraction[r], floor, repulsion, reach)
         sx[r] += dx * coef
         sy[r] += dy * coef
     out = np.empty((n, 2))
@@ -283,17 +303,7 @@ def descend_separable(px, py, pair_start, ox, oy, seg_start, ax, ay, ex, ey, e2,
             for e in range(pair_start[i], pair_start[i + 1]):
                 ddx = xi - ox[e]
                 ddy = yi - oy[e]
-                d2 = ddx * ddx
-                d2 += ddy * ddy
-                d = math.sqrt(d2)
-                inv = 1.0 / d if d > 0 else 0.0
-                coef = inv * inv
-                coef *= inv
-                coef *= attraction
-                if d <= floor:
-                    coef = 0.0
-                if d < reach and d > 0:
-                    coef -= repulsion * (reach * inv - 1.0)
+                coef = _pair_coef(ddx, ddy, attraction, floor, repulsion, reach)
                 sx += ddx * coef
                 sy += ddy * coef
             gx = sx * pair_factor
@@ -332,13 +342,7 @@ def descend_separable(px, py, pair_start, ox, oy, seg_start, ax, ay, ex, ey, e2,
             nx = dx_i + stx
             ny = dy_i + sty
             if nx * nx + ny * ny > v2:
-                # planner.phireman._scale_to_limit
-                a = stx * stx + sty * sty
-                b = dx_i * stx + dy_i * sty
-                c = (dx_i * dx_i + dy_i * dy_i) - v2
-                disc = math.sqrt(max(b * b - a * c, 0.0))
-                alpha = (-b + disc) / a if a > 0 else 1.0
-                alpha = min(max(alpha, 0.0), 1.0)
+                alpha = _limit_fraction(dx_i, dy_i, stx, sty, v2)
                 dx_i = dx_i + alpha * stx
                 dy_i = dy_i + alpha * sty
                 stop[i] = k
@@ -618,17 +622,7 @@ def descend_separable_leader(px, py, pair_start, ox, oy, aw, lx, ly, gain, expon
             for e in range(pair_start[i], pair_start[i + 1]):
                 ddx = xi - ox[e]
                 ddy = yi - oy[e]
-                d2 = ddx * ddx
-                d2 += ddy * ddy
-                d = math.sqrt(d2)
-                inv = 1.0 / d if d > 0 else 0.0
-                coef = inv * inv
-                coef *= inv
-                coef *= a_i
-                if d <= floor:
-                    coef = 0.0
-                if d < reach and d > 0:
-                    coef -= repulsion * (reach * inv - 1.0)
+                coef = _pair_coef(ddx, ddy, a_i, floor, repulsion, reach)
                 sx += ddx * coef
                 sy += ddy * coef
             gx = sx * pair_factor
@@ -656,12 +650,7 @@ def descend_separable_leader(px, py, pair_start, ox, oy, aw, lx, ly, gain, expon
             nx = dx_i + stx
             ny = dy_i + sty
             if nx * nx + ny * ny > v2:
-                a = stx * stx + sty * sty
-                b = dx_i * stx + dy_i * sty
-                c = (dx_i * dx_i + dy_i * dy_i) - v2
-                disc = math.sqrt(max(b * b - a * c, 0.0))
-                alpha = (-b + disc) / a if a > 0 else 1.0
-                alpha = min(max(alpha, 0.0), 1.0)
+                alpha = _limit_fraction(dx_i, dy_i, stx, sty, v2)
                 dx_i = dx_i + alpha * stx
                 dy_i = dy_i + alpha * sty
                 stop[i] = k
