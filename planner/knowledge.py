@@ -23,7 +23,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from planner import _kernels
-from planner.geometry import neighbour_pairs, radio_pairs
+from planner.geometry import neighbour_pairs, radio_pairs, step_toward
 
 __all__ = ["Knowledge", "KnowledgeDense", "MessageLayer", "propagate_entries", "propagate_stamps",
            "propagate_stamps_dense", "propagate_stamps_reference", "UNKNOWN"]
@@ -591,6 +591,28 @@ class MessageLayer:
     after_move, forget_unheard : when in a step a drone broadcasts, and whether it forgets neighbours
         it did not hear (:meth:`Knowledge.update`); the planners' parameters hold the defaults
     """
+
+    @classmethod
+    def from_params(cls, n_drones: int, n_steps: int, radio_range_u: float, base_reach_u: float,
+                    p: Any) -> MessageLayer:
+        """The layer with a planner's message timing (``age_max_steps``, ``dist_max``,
+        ``tree_stale_steps``, ``broadcast_after_move``, ``forget_unheard`` of PhiremanParams,
+        DccrsParams or ResilientParams)."""
+        return cls(n_drones, n_steps, radio_range_u, base_reach_u, p.age_max_steps, p.dist_max,
+                   p.tree_stale_steps, after_move=p.broadcast_after_move,
+                   forget_unheard=p.forget_unheard)
+
+    def step_or_home(self, t_step: int, pos_u: np.ndarray, alive: np.ndarray, base_u: np.ndarray,
+                     payload: Any, planning: np.ndarray, vmax_u: float
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`step`, then the paper's rule for drones whose broadcast went stale: assume
+        disconnection and fly to the known base location at full speed. Returns ``(stale,
+        disp_u)``: the planning drones that are stale, and (N, 2) instructions (zero for the
+        others, for the planner to fill)."""
+        stale = planning & self.step(t_step, pos_u, np.asarray(alive, bool), base_u, payload)
+        disp_u = np.zeros_like(pos_u)
+        disp_u[stale] = step_toward(pos_u[stale], base_u, vmax_u)
+        return stale, disp_u
 
     def __init__(self, n_drones: int, n_steps: int, radio_range_u: float, base_reach_u: float,
                  age_max_steps: int, dist_max_u: float, stale_steps: int, *, after_move: bool,

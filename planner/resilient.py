@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.geometry import step_toward, tasks_connected
+from planner.geometry import tasks_connected
 from planner.knowledge import MessageLayer
 from planner.methods import PlanOutput, TickInput
 from planner import _kernels
@@ -532,13 +532,10 @@ class ResilientPlanner(PhiremanPlanner):
         """PhiIREMAN's asynchronous step (same code path) plus the coverage-claim pull."""
         p = self.params
         if self.messages is None:
-            self.messages = MessageLayer(len(pos_u), self.problem.n_steps, self.r_u, self.base_reach_u,
-                                         p.age_max_steps, p.dist_max, p.tree_stale_steps,
-                                         after_move=p.broadcast_after_move, forget_unheard=p.forget_unheard)
-        stale = planning & self.messages.step(tick.t_step, pos_u, np.asarray(tick.alive, bool), base_u,
-                                              self.tree)
-        disp_u = np.zeros_like(pos_u)
-        disp_u[stale] = step_toward(pos_u[stale], base_u, self.vmax_u)
+            self.messages = MessageLayer.from_params(len(pos_u), self.problem.n_steps, self.r_u,
+                                                     self.base_reach_u, p)
+        stale, disp_u = self.messages.step_or_home(tick.t_step, pos_u, tick.alive, base_u, self.tree,
+                                                   planning, self.vmax_u)
         idx = np.flatnonzero(planning & ~stale)
         if len(idx) == 0:
             return disp_u, {"stale_tree": int(stale.sum())}
