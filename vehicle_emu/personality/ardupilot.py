@@ -8,7 +8,8 @@ from mavedge import mavlink
 from mavedge.modes import ARDUCOPTER_MODES
 from vehicle_emu.telemetry import M_HEARTBEAT
 
-from .base import FLT_MAX, GLOBAL_AMSL, GLOBAL_REL, Personality, ap_check_latlng_e7
+from .base import (COMMON_CAPABILITIES, FLT_MAX, GLOBAL_AMSL, GLOBAL_REL, Personality,
+                   ap_check_latlng_e7)
 
 __all__ = ["ArduPilot", "ARDUPILOT_MODES", "AP_AUTO", "AP_GUIDED", "AP_LOITER", "AP_RTL",
            "AP_LAND"]
@@ -68,17 +69,8 @@ class ArduPilot(Personality):
     no_such_message = _C.MAV_RESULT_FAILED
     param_bytewise = False
     # ArduCopter GCS_Mavlink.cpp GCS_MAVLINK_Copter::capabilities (+ GCS_Common: C_CAST,
-    # MAVLINK2, MISSION_FENCE, MISSION_RALLY); FTP, SET_ATTITUDE_TARGET, FLIGHT_TERMINATION,
-    # TERRAIN left out on purpose: the emulator does not implement them and a GCS would try.
-    capabilities = (_C.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-                    | _C.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-                    | _C.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-                    | _C.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                    | _C.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
-                    | _C.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-                    | _C.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
-                    | _C.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
-                    | _C.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
+    # MAVLINK2, MISSION_FENCE, MISSION_RALLY), less what the emulator lacks (base.py).
+    capabilities = COMMON_CAPABILITIES | _C.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
     sw_version = (4 << 24) | (6 << 16) | (0 << 8) | 0xFF  # 4.6.0 official
     # GCS_Common.cpp update_sensor_status_flags: GEOFENCE is "healthy" unless the fence has
     # failed, even when no fence is present (MAVProxy's fence module reports "fence breach"

@@ -16,6 +16,18 @@ from mavedge import mavlink
 from mavedge.units import deg_to_e7, e7_to_deg
 from planner.geometry import geodetic_to_ned_m
 
+#: AUTOPILOT_VERSION.capabilities both firmwares announce and the emulator implements (each
+#: personality adds its parameter encoding); FTP, SET_ATTITUDE_TARGET, FLIGHT_TERMINATION,
+#: TERRAIN are left out on purpose: the emulator does not implement them and a GCS would try.
+COMMON_CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+                       | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+                       | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+                       | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                       | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+                       | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+                       | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+                       | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
+
 __all__ = ["Personality", "ap_check_latlng_e7", "px4_map_project", "FLT_MAX", "LOCAL_FRAMES",
            "GLOBAL_AMSL", "GLOBAL_REL", "TARGET_MASK_POSITION"]
 

@@ -16,7 +16,7 @@ from vehicle_emu.telemetry import (M_EXTENDED_SYS_STATE, M_GLOBAL_POSITION_INT, 
                                    M_POSITION_TARGET_GLOBAL_INT, M_POSITION_TARGET_LOCAL_NED,
                                    M_SYS_STATUS)
 
-from .base import Personality, px4_map_project
+from .base import COMMON_CAPABILITIES, Personality, px4_map_project
 
 __all__ = ["PX4", "PX4_MODES", "PX4_DEFAULT_RATES_HZ"]
 
@@ -97,17 +97,8 @@ class PX4(Personality):
     # mavlink_receiver.cpp handle_request_message_command: no stream sent -> DENIED.
     no_such_message = _C.MAV_RESULT_DENIED
     param_bytewise = True
-    # mavlink_main.cpp send_autopilot_capabilities (FTP, SET_ATTITUDE_TARGET, ... left out: the
-    # emulator does not implement them and a GCS would try them).
-    capabilities = (_C.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-                    | _C.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-                    | _C.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-                    | _C.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                    | _C.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
-                    | _C.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-                    | _C.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
-                    | _C.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
-                    | _C.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    # mavlink_main.cpp send_autopilot_capabilities, less what the emulator lacks (base.py).
+    capabilities = (COMMON_CAPABILITIES | _C.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
                     | _C.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT)
     sw_version = (1 << 24) | (15 << 16) | (0 << 8) | 0xFF  # 1.15.0 release
     sys_status_health_extra = 0
