@@ -32,6 +32,18 @@ __all__ = ["EpisodeRecord", "EpisodeResult", "run_episode", "run_many", "mean_ci
 log = logging.getLogger(__name__)
 
 
+
+def stop_pool_now(pool: ProcessPoolExecutor) -> None:
+    """Stop a process pool at once (Ctrl-C, an error): queued work is cancelled and the workers,
+    which ignore SIGINT, are terminated and joined, so nothing is left running or printing."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join(timeout=5)
+
 @dataclass
 class EpisodeRecord:
     """Full trajectories of one episode (for plots and replay)."""
@@ -166,13 +178,7 @@ def run_many(problem: ProblemConfig, method: str, params: dict | None, seeds: li
             if progress:
                 progress(len(part))
     except BaseException:
-        procs = list((getattr(pool, "_processes", None) or {}).values())
-        pool.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
-            if p.is_alive():
-                p.terminate()
-        for p in procs:
-            p.join(timeout=5)
+        stop_pool_now(pool)
         raise
     pool.shutdown(wait=True)
     return sorted(rows, key=lambda r: r["seed"])

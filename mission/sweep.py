@@ -456,13 +456,9 @@ class LocalExecutor:
             return
         if cancel:
             # Stop the workers now (they ignore SIGINT); completed chunks are already stored.
-            procs = list(getattr(pool, "_processes", {}).values())
-            pool.shutdown(wait=False, cancel_futures=True)
-            for p in procs:
-                if p.is_alive():
-                    p.terminate()
-            for p in procs:
-                p.join(timeout=5)
+            from mission.sim import stop_pool_now
+
+            stop_pool_now(pool)
         else:
             pool.shutdown(wait=True)
 
