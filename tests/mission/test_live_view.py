@@ -129,15 +129,15 @@ def live_run(browser, tmp_path_factory):
         # RTL one vehicle from the page, behind the confirmation.
         target = 3 if box["killed"] != 3 else 4
         # The table and the vehicle card are redrawn with every frame: find and click at once.
-        _wait(lambda: drv.find_element("css selector", f'#vtable tr[data-vid="0:{target}"]')
-              .click() or True, 30, "a click on the vehicle's row")
+        # Found and clicked in one script: between a WebDriver find and its click the redraw can
+        # replace the element (StaleElementReference on a loaded machine).
+        click_js = ("const e = document.querySelector(arguments[0]);"
+                    "if (!e || e.disabled) return false; e.click(); return true;")
+        _wait(lambda: drv.execute_script(click_js, f'#vtable tr[data-vid="0:{target}"]'), 30,
+              "a click on the vehicle's row")
 
         def click_rtl():
-            b = drv.find_element("css selector", 'button[data-act="rtl"]')
-            if not b.is_enabled():
-                return False
-            b.click()
-            return True
+            return drv.execute_script(click_js, 'button[data-act="rtl"]')
 
         _wait(click_rtl, 30, "a click on the enabled RTL button (key given)")
         assert drv.find_element("id", "modal").is_displayed()
