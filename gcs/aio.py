@@ -3,9 +3,10 @@
 The cycle, after aioquic's ``transmit()`` (docs/design/architecture.md §2.1): receive -> ``core.receive_datagram(
 data, addr, now)`` -> drain events -> send everything from ``datagrams_to_send`` -> re-arm one
 timer at ``next_timer_s()``. Local calls follow the same path: call the core, then
-:meth:`StationAdapter.transmit`. The clock is injectable (default: the loop's monotonic clock);
-with a simulation speed-up, pass the simulated clock and ``time_scale`` = the speed-up so timers
-are re-armed in wall seconds.
+:meth:`StationAdapter.transmit`. The clock is injectable: a :class:`mavedge.clock.Clock` (its
+``now`` is the core's time, its ``wall_delay_s`` re-arms timers in wall seconds, its
+``unix_time_at_zero_s`` stamps signatures and the .tlog), or a bare ``now()`` callable with
+``time_scale`` = the speed-up; default: the loop's monotonic clock at 1x.
 
 Links that are down are the normal case, not an error: a ``tcp:`` server (SITL, a companion
 computer) not yet up, a USB radio not yet plugged in, a ``udpout:`` network not yet routable.
@@ -34,6 +35,7 @@ from gcs.connection import ConnectionSpec, parse_connection
 from gcs.events import Event, LinkDown, LinkEvent, LinkUp
 from gcs.link import StationConfig, StationLink
 from gcs.records import TlogWriter
+from mavedge.clock import Clock
 
 __all__ = ["StationAdapter", "SerialLinkError", "LinkOpenError", "open_links"]
 
@@ -243,11 +245,34 @@ def _open_reason(spec: ConnectionSpec, exc: BaseException) -> str:
     return f"cannot connect to {host}:{port}: {reason}"
 
 
+class _NowFnClock:
+    """A bare ``now()`` callable, a speed-up and a Unix clock as a :class:`Clock` (the form
+    ``mission.station_loop`` passes; the default is the loop's own clock). The Unix anchor is
+    read when asked: the core is built at :meth:`StationAdapter.start`."""
+
+    def __init__(self, now_fn: Callable[[], float], time_scale: float,
+                 wall_clock: Callable[[], float]) -> None:
+        self.now = now_fn
+        self.time_scale = time_scale
+        self._wall_clock = wall_clock
+
+    def wall_delay_s(self, dt_s: float) -> float:
+        return max(0.0, dt_s) / self.time_scale
+
+    @property
+    def unix_time_at_zero_s(self) -> float:
+        return self._wall_clock() - self.now()
+
+
 class StationAdapter:
-    """One link: a transport from a connection string plus its station core."""
+    """One link: a transport from a connection string plus its station core.
+
+    ``clock``: a :class:`~mavedge.clock.Clock`, or a bare ``now()`` callable whose wall speed
+    is ``time_scale`` and whose Unix anchor is read from ``wall_clock`` (a Clock carries both:
+    leave ``time_scale`` and ``wall_clock`` alone). Default: the running loop's clock."""
 
     def __init__(self, connection: str | ConnectionSpec, config: StationConfig | None = None, *,
-                 link_id: int = 0, clock: Callable[[], float] | None = None,
+                 link_id: int = 0, clock: Clock | Callable[[], float] | None = None,
                  wall_clock: Callable[[], float] = time.time, tlog: TlogWriter | None = None,
                  on_event: Callable[[Event], None] | None = None,
                  time_scale: float = 1.0,
@@ -258,9 +283,13 @@ class StationAdapter:
         self._config = config or StationConfig()
         if not time_scale > 0:
             raise ValueError(f"time_scale must be > 0, got {time_scale}")
-        self._clock = clock
+        if isinstance(clock, Clock) and time_scale != 1.0:
+            raise ValueError("a Clock brings its own speed-up: leave time_scale at 1")
         self.time_scale = float(time_scale)
         self._wall_clock = wall_clock
+        self._clock: Clock | None = (
+            clock if isinstance(clock, Clock) or clock is None
+            else _NowFnClock(clock, self.time_scale, wall_clock))
         self._tlog = tlog
         self._on_event = on_event
         self.events: asyncio.Queue[Event | LinkEvent] = asyncio.Queue()
@@ -285,7 +314,8 @@ class StationAdapter:
         self._tap_peers: dict[Any, Any] = {}
 
     def now(self) -> float:
-        return self._clock() if self._clock else asyncio.get_running_loop().time()
+        clock = self._clock
+        return clock.now() if clock is not None else asyncio.get_running_loop().time()
 
     @property
     def connected(self) -> bool:
@@ -331,7 +361,7 @@ class StationAdapter:
         OSError), in one line."""
         loop = asyncio.get_running_loop()
         if self._clock is None:
-            self._clock = loop.time
+            self._clock = _NowFnClock(loop.time, self.time_scale, self._wall_clock)
         spec, cfg = self.spec, self._config
         static: tuple[Any, ...] = ()
         if spec.kind in ("udpout", "tcp"):
@@ -341,7 +371,7 @@ class StationAdapter:
         cfg = dataclasses.replace(
             cfg, static_peers=tuple(cfg.static_peers) + static,
             datagram=spec.kind in ("udpin", "udpout"), record_frames=self._tlog is not None,
-            unix_time_offset_s=self._wall_clock() - self.now())
+            unix_time_at_zero_s=self._clock.unix_time_at_zero_s)
         self.core = StationLink(cfg, link_id=self.link_id, now_s=self.now())
         try:
             if spec.kind == "udpin":
@@ -553,7 +583,7 @@ class StationAdapter:
             if self.spec.kind not in ("udpin",):
                 break  # connected socket, TCP or serial: one peer whatever addr says
         if self._tlog is not None:
-            self._tlog.write(self.now() + self.core.config.unix_time_offset_s, frame)
+            self._tlog.write(self.now() + self.core.config.unix_time_at_zero_s, frame)
 
     def _on_timer(self) -> None:
         self._timer = None
@@ -585,7 +615,8 @@ class StationAdapter:
             # Core seconds -> wall seconds: under a speed-up every station timer (the 1 Hz GCS
             # heartbeat included) must follow the vehicles' clock (docs/design/mavlink.md §4.2).
             loop = asyncio.get_running_loop()
-            when = loop.time() + max(0.0, t - self.now()) / self.time_scale
+            assert self._clock is not None  # set by start()
+            when = loop.time() + self._clock.wall_delay_s(t - self.now())
             # Keep a pending timer that is due no later: cancelling and re-arming it on every
             # received datagram starved it under steady traffic (asyncio runs the I/O callbacks
             # of an iteration before the timers that fell due, so a due timer was cancelled

@@ -123,8 +123,9 @@ class StationConfig:
     """32-byte MAVLink 2 signing key; outgoing frames are signed when set."""
     accept_unsigned: bool = True
     """With a key: still accept unsigned incoming frames (pymavlink allow_unsigned_callback)."""
-    unix_time_offset_s: float = 0.0
-    """``unix time = now_s + offset``; only for signing timestamps and frame records."""
+    unix_time_at_zero_s: float = 0.0
+    """The Unix time that ``now_s == 0`` stands for (:attr:`mavedge.clock.Clock.unix_time_at_zero_s`):
+    ``unix time = unix_time_at_zero_s + now_s``; only for signing timestamps and frame records."""
     record_frames: bool = False
     """Keep every frame in and out for :meth:`StationLink.take_frames` (the .tlog)."""
     task_sysids: tuple[int, ...] = ()
@@ -436,22 +437,22 @@ class StationLink:
 
     def _send(self, msg: Any, addr: Addr, now_s: float) -> None:
         if self._codec.signing:
-            self._codec.set_signing_time(now_s + self.config.unix_time_offset_s)
+            self._codec.set_signing_time(now_s + self.config.unix_time_at_zero_s)
         frame = self._codec.encode(msg)
         self._out.append((frame, addr))
         self.stats.frames_out += 1
         if self.config.record_frames:
-            self._frames.append((now_s + self.config.unix_time_offset_s, True, frame))
+            self._frames.append((now_s + self.config.unix_time_at_zero_s, True, frame))
 
     def _broadcast(self, msg: Any, now_s: float) -> None:
         # Each peer gets its own frame (same seq is fine for a broadcast: encode once).
         if not self._peers:
             return
         if self._codec.signing:
-            self._codec.set_signing_time(now_s + self.config.unix_time_offset_s)
+            self._codec.set_signing_time(now_s + self.config.unix_time_at_zero_s)
         frame = self._codec.encode(msg)
         if self.config.record_frames:
-            self._frames.append((now_s + self.config.unix_time_offset_s, True, frame))
+            self._frames.append((now_s + self.config.unix_time_at_zero_s, True, frame))
         for addr in self._peers:
             self._out.append((frame, addr))
             self.stats.frames_out += 1
@@ -477,7 +478,7 @@ class StationLink:
         for msg in dec.feed(bytes(data), datagram=self.config.datagram):
             self._peers.setdefault(addr, None)
             if self.config.record_frames:
-                self._frames.append((now_s + self.config.unix_time_offset_s, False,
+                self._frames.append((now_s + self.config.unix_time_at_zero_s, False,
                                      bytes(msg.get_msgbuf())))
             try:
                 self._dispatch(msg, addr, now_s)

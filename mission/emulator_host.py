@@ -17,10 +17,10 @@ from __future__ import annotations
 import asyncio
 import logging
 
+from mavedge.clock import PacedClock, SharedValue
 from mission.fly_options import RunnerError
 from mission.mission_world import MissionWorld, build_swarm, mission_scenario
 from mission.schema import Mission
-from vehicle_emu.clock import PacedClock
 from vehicle_emu.udp import EmulatorServer
 
 __all__ = ["PACE_SLACK_S", "paced_values", "emulator_clock", "build_world", "InProcessEmulator",
@@ -35,7 +35,7 @@ __all__ = ["PACE_SLACK_S", "paced_values", "emulator_clock", "build_world", "InP
 PACE_SLACK_S = 0.25
 
 
-def paced_values(in_process: bool):
+def paced_values(in_process: bool) -> tuple[SharedValue, SharedValue]:
     """The shared simulated time and the station's acknowledgement (doubles, no lock: one
     writer each; an aligned 8-byte store is atomic)."""
     import multiprocessing as mp
@@ -44,7 +44,7 @@ def paced_values(in_process: bool):
     return ctx.RawValue("d", 0.0), ctx.RawValue("d", 0.0)
 
 
-def emulator_clock(speedup: float, sim, ack) -> PacedClock:
+def emulator_clock(speedup: float, sim: SharedValue, ack: SharedValue) -> PacedClock:
     return PacedClock(speedup, sim, ack, max_step_s=2 * _emulator_tick_s(speedup),
                       slack_s=PACE_SLACK_S)
 
@@ -55,7 +55,7 @@ def _emulator_tick_s(speedup: float) -> float:
     return 0.05 if speedup < 10 else 0.1
 
 
-def build_world(mission: Mission, seed: int, personality: str | None, clock,
+def build_world(mission: Mission, seed: int, personality: str | None, clock: PacedClock,
                  params: dict | None) -> MissionWorld:
     scenario = mission_scenario(mission, seed)
     swarm = build_swarm(mission, scenario, seed=seed, personality=personality,
@@ -112,7 +112,7 @@ class InProcessEmulator:
 
 
 def _emulator_process_main(conn, mission: Mission, seed: int, personality, speedup: float,
-                           sim, ack, params) -> None:
+                           sim: SharedValue, ack: SharedValue, params) -> None:
     """Entry point of the emulator process: serve, obey (start/end/kill/finish), report."""
     import signal
 
@@ -177,7 +177,8 @@ class EmulatorProcess:
     """The emulator in its own process (the default: the station and the emulator each get a
     core), talking to the station only over loopback UDP; control messages over a pipe."""
 
-    def __init__(self, mission: Mission, seed: int, personality, speedup: float, sim, ack,
+    def __init__(self, mission: Mission, seed: int, personality, speedup: float,
+                 sim: SharedValue, ack: SharedValue,
                  params: dict | None) -> None:
         import multiprocessing as mp
 

@@ -40,6 +40,7 @@ import numpy as np
 
 from gcs.operations import Operator
 from gcs.records import write_summary
+from mavedge.clock import Clock, PacedReader, RealClock
 from mission.emulator_host import (
     PACE_SLACK_S, EmulatorProcess, InProcessEmulator, build_world, emulator_clock, paced_values,
 )
@@ -54,7 +55,6 @@ from mission.schema import Mission
 from mission.station_loop import (
     INTERRUPT_SETTLE_S, PLAN_SILENCE_S, live_task_columns, live_task_connections, run_station,
 )
-from vehicle_emu.clock import PacedReader
 from vehicle_emu.swarm import Swarm
 
 __all__ = ["FlyOptions", "FlyResult", "MissionScenario", "mission_scenario", "control_config",
@@ -62,7 +62,7 @@ __all__ = ["FlyOptions", "FlyResult", "MissionScenario", "mission_scenario", "co
            "RunnerError", "station_for_swarm", "fly_emulated_async", "fly_real_async",
            # re-exported from the modules this one was cut into (importers of mission.runners)
            "live_task_columns", "live_task_connections", "PLAN_SILENCE_S", "INTERRUPT_SETTLE_S",
-           "POSITION_LOOP_TAU_S", "PACE_SLACK_S", "SimClock"]
+           "POSITION_LOOP_TAU_S", "PACE_SLACK_S"]
 
 
 @dataclass
@@ -90,22 +90,6 @@ def _resolve(mission: Mission, opts: FlyOptions, *, real: bool = False) -> tuple
     return seed, speedup
 
 
-class SimClock:
-    """Simulated time = (monotonic wall time - ``wall0``) x speed-up, shared across processes
-    (CLOCK_MONOTONIC is system-wide), so the emulator and the station follow one clock."""
-
-    def __init__(self, speedup: float, wall0: float | None = None) -> None:
-        self.speedup = float(speedup)
-        self.wall0 = time.monotonic() if wall0 is None else float(wall0)
-        self.unix_time_at_zero_s = time.time() - (time.monotonic() - self.wall0)
-
-    def now(self) -> float:
-        return (time.monotonic() - self.wall0) * self.speedup
-
-    def wall_delay_s(self, dt_s: float) -> float:
-        return max(0.0, dt_s / self.speedup)
-
-
 async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     seed, speedup = _resolve(mission, opts)
     if opts.duration_s:
@@ -128,7 +112,7 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     # Sim time also stays at 0 while the emulator process starts, so its start-up is not
     # charged to the vehicles' clocks.
     sim, ack = paced_values(opts.emulator_in_process)
-    clock = PacedReader(speedup, sim, ack)
+    clock: PacedReader = PacedReader(speedup, sim, ack)
     emu: InProcessEmulator | EmulatorProcess
     if opts.emulator_in_process:
         emu_clock = emulator_clock(speedup, sim, ack)
@@ -181,7 +165,9 @@ async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     scenario = mission_scenario(mission, seed, live_tasks=True)
     # Real links run on the wall clock; --speedup > 1 only for vehicles whose clock runs faster
     # (SITL SIM_SPEEDUP, the emulator): the station's timers must follow theirs.
-    clock = SimClock(speedup)
+    # Wall time x speed-up on CLOCK_MONOTONIC (system-wide: a RealClock given this one's wall0_s
+    # in another process reads the same time).
+    clock: Clock = RealClock(speedup, time.monotonic)
     run_dir = new_run_dir(mission, opts, seed, "real")
     records = Records(run_dir, mission, run_meta(mission, opts, seed, "real", speedup, connections))
     wall0 = time.monotonic()

@@ -10,7 +10,8 @@ import socket
 
 import numpy as np
 
-from .clock import RealClock
+from mavedge.clock import RealClock
+
 from .link import M_GLOBAL_POSITION_INT, M_LOCAL_POSITION_NED
 from .radio import RadioConfig
 from .swarm import PEER_TIMEOUT_S, Swarm

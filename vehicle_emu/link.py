@@ -209,7 +209,7 @@ class VehicleCore:
         self._boot_s = float(now_s)
         self._physics_t_s = float(now_s)
         self._last_timer_s = float(now_s)
-        self._unix_at_zero_s = float(unix_time_at_zero_s)
+        self._unix_time_at_zero_s = float(unix_time_at_zero_s)
         self._ekf_ready_s = float(now_s) + float(ekf_ready_after_s)
         self.trusted_addrs = frozenset(trusted_addrs)
 
@@ -543,7 +543,7 @@ class VehicleCore:
             return
         if self._codec.signing_enabled:
             self._codec.advance_signing_timestamp(
-                wire.signing_timestamp_from_s(self._unix_at_zero_s + now_s))
+                wire.signing_timestamp_from_s(self._unix_time_at_zero_s + now_s))
         builders = tm.BUILDERS
         for msg_id in self.streams.due(now_s):
             try:

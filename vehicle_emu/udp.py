@@ -18,7 +18,8 @@ import socket
 import threading
 import time
 
-from .clock import PacedClock, RealClock
+from mavedge.clock import Clock, PacedClock, RealClock
+
 from .link import RateLimitedLog
 from .swarm import Swarm
 
@@ -41,21 +42,22 @@ class _EndpointProtocol(asyncio.DatagramProtocol):
 
 
 class EmulatorServer:
-    """Runs a swarm on real sockets and a real clock.
+    """Runs a swarm on real sockets and a clock.
 
     Parameters
     ----------
     swarm : Swarm
-    clock : RealClock
-        Vehicle clock (with speed-up); a :class:`~vehicle_emu.clock.PacedClock` is advanced
-        once per timer iteration (lock-step with a station in another process).
+    clock : Clock
+        Vehicle clock (a :class:`~mavedge.clock.RealClock` with its speed-up); a
+        :class:`~mavedge.clock.PacedClock` is advanced once per timer iteration (lock-step with
+        a station in another process).
     host : str
         Bind address (loopback by default).
     base_port : int
         Endpoint ``e`` binds ``base_port + e``; 0 = ephemeral ports.
     """
 
-    def __init__(self, swarm: Swarm, clock: RealClock | PacedClock, host: str = "127.0.0.1",
+    def __init__(self, swarm: Swarm, clock: Clock, host: str = "127.0.0.1",
                  base_port: int = 0) -> None:
         self.swarm = swarm
         self.clock = clock
@@ -147,10 +149,10 @@ class EmulatorServer:
     def _on_timer(self) -> None:
         if self._closed:
             return
-        advance = getattr(self.clock, "advance", None)
-        if advance is not None:
-            self._drain(self.clock.now())
-        now = advance() if advance is not None else self.clock.now()  # PacedClock: lock-step
+        paced = self.clock if isinstance(self.clock, PacedClock) else None
+        if paced is not None:  # lock-step: deliver what the station sent, then move time
+            self._drain(paced.now())
+        now = paced.advance() if paced is not None else self.clock.now()
         try:
             self.swarm.handle_timer(now)
         except Exception:  # noqa: BLE001
@@ -158,7 +160,7 @@ class EmulatorServer:
                                  exc_info=True)
         self._flush(now)
         delay = self.clock.wall_delay_s(self.swarm.next_timer_s() - self.clock.now())
-        if advance is not None:
+        if paced is not None:
             # A paced clock may be held back by the station: look again within one tick.
             delay = min(delay, self.clock.wall_delay_s(self.swarm.tick_s))
         assert self._loop is not None  # set by start()

@@ -9,6 +9,7 @@ from gcs.aio import LinkOpenError, StationAdapter
 from gcs.events import CommandAcked
 from gcs.link import StationConfig
 from gcs.records import TlogWriter
+from mavedge.clock import VirtualClock
 
 #: No stream or HOME_POSITION requests: these tests check exact command sequences.
 _CFG = StationConfig(stream_rates_hz=(), request_home_position=False)
@@ -262,3 +263,37 @@ def test_steady_incoming_traffic_does_not_starve_the_station_timers():
         assert beats >= 3, beats  # 1 Hz over 4 s of core time (the first one was taken above)
 
     asyncio.run(main())
+
+
+def test_station_on_a_clock_follows_its_time_and_unix_anchor():
+    # A mavedge Clock carries the core's time, the wall delay of its timers and the Unix anchor
+    # of signatures and .tlog stamps. A VirtualClock: nothing is due until the test moves time.
+    async def main():
+        loop = asyncio.get_running_loop()
+        transport, vehicle = await loop.create_datagram_endpoint(
+            _Vehicle, local_addr=("127.0.0.1", 0))
+        host, port = transport.get_extra_info("sockname")
+        clock = VirtualClock(10.0, unix_time_at_zero_s=1.75e9)
+        station = await StationAdapter(f"udpout:{host}:{port}", _CFG, clock=clock).start()
+        try:
+            assert station.now() == 10.0
+            assert station.core.config.unix_time_at_zero_s == 1.75e9
+            await _next(vehicle.inbox, "HEARTBEAT")  # the first one, at start
+            beats = 0
+            for _ in range(3):  # 1 Hz in clock time: one heartbeat per second moved
+                clock.advance(1.0)
+                station.transmit()
+                await _next(vehicle.inbox, "HEARTBEAT")
+                beats += 1
+            assert station.now() == 13.0
+        finally:
+            station.close()
+            transport.close()
+        assert beats == 3
+
+    asyncio.run(main())
+
+
+def test_a_clock_brings_its_own_speedup():
+    with pytest.raises(ValueError, match="time_scale"):
+        StationAdapter("udpout:127.0.0.1:14550", _CFG, clock=VirtualClock(), time_scale=10.0)

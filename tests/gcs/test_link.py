@@ -405,7 +405,7 @@ def test_garbage_around_frames_three_ways(station):
 
 def test_signing_signs_outgoing_frames(station):
     key = bytes(range(32))
-    link = station(signing_key=key, static_peers=(A1,), unix_time_offset_s=1.7e9)
+    link = station(signing_key=key, static_peers=(A1,), unix_time_at_zero_s=1.7e9)
     link.handle_timer(0.0)
     (data, _), = link.datagrams_to_send(0.0)
     assert data[0] == 0xFD and data[2] & mav.MAVLINK_IFLAG_SIGNED

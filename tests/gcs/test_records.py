@@ -15,7 +15,7 @@ A1 = ("127.0.0.1", 14550)
 def test_tlog_round_trip_through_mavutil(tmp_path):
     from pymavlink import mavutil
 
-    link = StationLink(StationConfig(record_frames=True, unix_time_offset_s=1.7e9))
+    link = StationLink(StationConfig(record_frames=True, unix_time_at_zero_s=1.7e9))
     ap = FakeAutopilot(sysid=1)
     link.receive_datagram(ap.heartbeat(4), A1, 0.0)
     link.receive_datagram(ap.global_position(47.5, 8.25, 500.0, 12.34), A1, 0.25)

@@ -16,7 +16,7 @@ def _signed_vehicle(sysid: int = 1, t_s: float = 0.0) -> FakeAutopilot:
 
 
 def test_forged_future_timestamp_does_not_lock_out_the_real_vehicle(station):
-    link = station(signing_key=KEY, accept_unsigned=False, unix_time_offset_s=OFFSET_S)
+    link = station(signing_key=KEY, accept_unsigned=False, unix_time_at_zero_s=OFFSET_S)
     real = _signed_vehicle()
     link.receive_datagram(real.heartbeat(4), A1, 0.0)
     assert [type(e) for e in drain(link)] == [VehicleDiscovered]
@@ -40,7 +40,7 @@ def test_forged_future_timestamp_does_not_lock_out_the_real_vehicle(station):
 
 
 def test_replayed_and_unsigned_frames_are_rejected(station):
-    link = station(signing_key=KEY, accept_unsigned=False, unix_time_offset_s=OFFSET_S)
+    link = station(signing_key=KEY, accept_unsigned=False, unix_time_at_zero_s=OFFSET_S)
     real = _signed_vehicle()
     hb = real.heartbeat(4)
     link.receive_datagram(hb, A1, 0.0)

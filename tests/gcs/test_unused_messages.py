@@ -145,7 +145,7 @@ def test_unused_frames_are_checked_but_not_unpacked():
 def test_raw_frames_obey_signing():
     key = bytes(range(32))
     link = StationLink(StationConfig(signing_key=key, accept_unsigned=False,
-                                     unix_time_offset_s=1.7e9))
+                                     unix_time_at_zero_s=1.7e9))
     signed, plain = FakeAutopilot(sysid=1), FakeAutopilot(sysid=1)
     signed.sign_outgoing(key, 1.7e9)
     link.receive_datagram(signed.heartbeat(4), A1, 0.0)

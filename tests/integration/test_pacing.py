@@ -1,5 +1,5 @@
 """Lock-step pacing of the emulated backend: a stalled station slows simulated time down instead
-of tripping every vehicle's GCS failsafe (mission.runners, vehicle_emu.clock.PacedClock)."""
+of tripping every vehicle's GCS failsafe (mission.runners, mavedge.clock.PacedClock)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from vehicle_emu.clock import PacedClock, PacedReader
+from mavedge.clock import PacedClock, PacedReader
 
 
 class _V:
