@@ -177,8 +177,16 @@ class AutopilotRules(CoreState):
         if info is None:
             return False
         name, beh = info
+        if key == self._mode_key:
+            # Re-selecting the current mode changes nothing: ArduCopter ``Copter::set_mode``
+            # (ArduCopter/mode.cpp) returns true "immediately if we are already in the desired
+            # mode", without re-initialising it; PX4's navigator runs a mode's on_activation only
+            # when the navigation state changes (src/modules/navigator/navigator_main.cpp,
+            # Navigator::run). So a GCS's retried DO_SET_MODE(GUIDED) during a take-off climb
+            # does not stop the climb (docs/design/mavlink.md §3).
+            return True
         ph, i = self.physics, self.index
-        changed = key != self._mode_key
+        changed = True
         self._mode_key, self.mode_name, self._behaviour = key, name, beh
         if reason != "failsafe":
             self.offboard_failsafe = False

@@ -71,6 +71,10 @@ class OperationsConfig:
     """Minimum time between two mode/arm/takeoff attempts on one vehicle."""
     airborne_alt_m: float = 2.0
     """Above home by more than this = airborne."""
+    liftoff_alt_m: float = 1.0
+    """Armed in GUIDED above home by more than this (but not yet airborne) = off the ground: a
+    take-off that stopped short. The launch then climbs it with a position target instead of a
+    second NAV_TAKEOFF, which ArduCopter refuses once off the ground (docs/design/mavlink.md §3)."""
     radio_range_m: float = math.inf
     """For "tasks covered as the station sees them" (a task within range of a networked vehicle)."""
     poll_period_s: float = 0.25
@@ -154,4 +158,7 @@ class _Row:
     it is seen back in the guided mode (the same on a first run and after a station restart)."""
     armed_seen_s: float = -math.inf
     """When it was first seen armed after its last take-off command."""
+    climb_sent: bool = False
+    """The last attempt climbed it by a position target (a take-off stopped short); the next one
+    sends NAV_TAKEOFF again, so a vehicle whose altitude reads high on the ground is not stuck."""
 

@@ -198,6 +198,21 @@ class LaunchStep(OperatorState):
                 row.reclaiming = True
                 log.info("reclaiming link %d sysid %d from %s", *vid, snap.mode[i])
                 return False
+            climb = (armed and guided and not adapter.takeoff_by_offboard_climb and row.launched
+                     and not row.climb_sent and bool(snap.has_position[i])
+                     and bool(np.isfinite(alt[i])) and float(alt[i]) > self.config.liftoff_alt_m)
+            row.climb_sent = climb
+            if climb:
+                # Off the ground but short of airborne (a take-off stopped short): ArduCopter
+                # refuses a second NAV_TAKEOFF here ("can't takeoff again", Mode::do_user_takeoff
+                # in ArduCopter/mode.cpp: MAV_RESULT_FAILED while !land_complete), so a retried
+                # take-off would fail forever. A position target at its layer climbs it instead
+                # (GUIDED flies position targets in the air).
+                self._hold(snap, [i], now_s)
+                self.counters["takeoff_climbs"] += 1
+                log.info("link %d sysid %d: off the ground at %.1f m, climbing by position target",
+                         *vid, float(alt[i]))
+                return False
             if row.flew:
                 self.counters["relaunches"] += 1  # it flew, landed (e.g. RTL) and goes again
                 row.flew = False

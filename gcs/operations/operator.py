@@ -132,7 +132,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
         station switched it from another mode (a failsafe RTL, or found flying by a restarted
         station)."""
         self.counters = {"reclaim_attempts": 0, "relaunches": 0, "command_failures": 0,
-                         "lost": 0, "recovered": 0}
+                         "lost": 0, "recovered": 0, "takeoff_climbs": 0}
         self.released: dict[tuple[int, int], str] = {}
         """Vehicles an operator took out of the plan -> the action that did it (hold, rtl, land,
         release). The operator never plans, reclaims, relaunches or end-commands them."""

@@ -582,7 +582,7 @@ def test_no_second_takeoff_while_climbing():
     feed.poll(0.0)
     feed.mode(v, 0.5, GUIDED)
     feed.armed(v, 0.5, True)
-    feed.alt(v, 0.5, 1.0)  # armed, climbing, not airborne yet (2 m)
+    feed.alt(v, 0.5, 0.5)  # armed, still on the ground (below liftoff_alt_m, 1 m)
     feed.run(0.5, 6.25)
     assert len(station.of("takeoff")) == 1 and len(station.of("arm")) == 1
     # 6 s after it was first seen armed, still on the ground: the take-off alone again.
@@ -599,6 +599,33 @@ def test_a_vehicle_off_the_ground_is_left_alone():
     feed.run(2.0, 30.0)
     assert station.names(0.25) == []
     assert op.phase == "launch"  # 5 m < 0.7 x 20 m: not climbed
+
+
+def test_a_takeoff_stopped_short_is_climbed_by_a_position_target_not_a_second_takeoff():
+    # ArduCopter refuses NAV_TAKEOFF off the ground (Mode::do_user_takeoff); a vehicle hovering
+    # at 1.4 m after an interrupted take-off must be climbed by a target, alternating with a
+    # take-off in case its altitude reads high on the ground.
+    op, station, feed, (v,) = make(1, wave_timeout_s=1000.0, takeoff_grace_s=6.0,
+                                   action_retry_s=3.0)
+    feed.poll(0.0)
+    assert station.names(0.0) == ["engage_guided", "arm", "takeoff"]
+    feed.mode(v, 0.5, GUIDED)
+    feed.armed(v, 0.5, True)
+    feed.alt(v, 0.5, 1.4)
+    feed.run(0.5, 6.25)
+    assert station.names(0.25) == []
+    feed.poll(6.5)
+    assert station.names(6.5) == ["set_position_target"]
+    assert station.of("set_position_target", v)[0][4] == pytest.approx(20.0)  # its layer
+    assert op.counters["takeoff_climbs"] == 1
+    feed.run(6.75, 9.5)
+    assert station.names(9.5) == ["takeoff"]  # the climb did not help: a take-off again
+    # after the take-off's grace (counted from the command and from when it was seen armed)
+    t = feed.run(9.75, 30.0, until=lambda op: bool(station.names(9.75)))
+    assert t > 15.0 and station.names(9.75) == ["set_position_target"]
+    feed.alt(v, t + 0.5, 19.0)  # it climbs: airborne, no take-off any more; the run starts
+    feed.run(t + 0.5, 60.0)
+    assert "takeoff" not in station.names(t + 0.5) and op.phase == "run"
 
 
 def test_an_unarmed_vehicle_is_sent_the_takeoff_again_after_the_grace():
@@ -1037,12 +1064,12 @@ def test_home_position_moves_the_altitude_above_home():
     feed.poll(0.0)
     feed.mode(v, 0.1, GUIDED)
     feed.armed(v, 0.1, True)
-    feed.alt(v, 0.1, 1.5)  # 1.5 m above the estimated home: on the ground
+    feed.alt(v, 0.1, 0.5)  # 0.5 m above the estimated home: on the ground
     feed.run(0.25, 2.75)
     assert len(station.of("takeoff")) == 1
     feed.poll(3.0)  # grace over, action_retry_s since the last attempt: sent again
     assert len(station.of("takeoff")) == 2
-    # HOME_POSITION says home is 5 m lower: 6.5 m above it, airborne.
+    # HOME_POSITION says home is 5 m lower: 5.5 m above it, airborne.
     feed.emit(HomePositionReceived(0, 1, 3.1, ORIGIN.lat_deg, ORIGIN.lon_deg,
                                    ORIGIN.alt_amsl_m - 5.0))
     feed.run(3.25, 12.0)

@@ -307,3 +307,20 @@ def test_commands_for_other_sysids_are_ignored(gcs):
     rig = Rig(gcs)
     out = rig.send(gcs.command(400, 1, target=7))
     assert out == [] and rig.core.stats.not_for_us == 1 and not rig.core.armed
+
+
+def test_guided_again_during_the_takeoff_climb_changes_nothing(gcs):
+    # A GCS that retries its DO_SET_MODE(GUIDED) while the take-off climbs (its first ACK came
+    # late) must not stop the climb: ArduCopter Copter::set_mode returns at once for the current
+    # mode. The emulator once re-entered GUIDED, held at 1.4 m, and refused every later take-off.
+    rig = Rig(gcs)
+    assert acks(rig.send(gcs.command(176, 1, 4)), 176) == [ACCEPTED]
+    assert acks(rig.send(gcs.command(400, 1)), 400) == [ACCEPTED]
+    assert acks(rig.send(gcs.command(22, 0, 0, 0, 0, 0, 0, 10)), 22) == [ACCEPTED]
+    rig.run(0.6, hb_period_s=1.0)
+    assert 0.0 < -rig.core.local_pos_ned_m[2] < 5.0
+    rig.events()
+    assert acks(rig.send(gcs.command(176, 1, 4)), 176) == [ACCEPTED]
+    assert not any(type(e).__name__ == "ModeChanged" for e in rig.events())
+    rig.run(rig.t + 10.0 / 2.5 + 4, hb_period_s=1.0)
+    assert rig.core.local_pos_ned_m[2] == pytest.approx(-10.0, abs=0.2)
