@@ -186,7 +186,6 @@ class AutopilotRules(CoreState):
             # does not stop the climb (docs/design/mavlink.md §3).
             return True
         ph, i = self.physics, self.index
-        changed = True
         self._mode_key, self.mode_name, self._behaviour = key, name, beh
         if reason != "failsafe":
             self.offboard_failsafe = False
@@ -203,6 +202,5 @@ class AutopilotRules(CoreState):
             pass  # PX4 flies the setpoint it kept
         elif beh != "takeoff":
             ph.hold(i)
-        if changed:
-            self._events.append(ev.ModeChanged(self.sysid, now_s, name, key, reason))
+        self._events.append(ev.ModeChanged(self.sysid, now_s, name, key, reason))
         return True
