@@ -33,12 +33,15 @@ All positions are paper units (:mod:`planner.units`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from planner.knowledge import MessageLayer
 from planner.units import PaperUnits
+
+if TYPE_CHECKING:  # the message layer (SciPy, Numba) is imported when a run first uses it, so that
+    # the names here (INFO_MODELS, ...) cost planner.methods and mission.schema nothing
+    from planner.knowledge import MessageLayer
 
 __all__ = ["INFO_MODELS", "PAPER_INFO", "STATION_INFO", "SPEED_RULES", "check_info", "check_speed_rule",
            "resolve_speed_rule", "MessageTiming", "CentralView", "MessageView", "CentralInfo",
@@ -208,6 +211,8 @@ class MessagePassingInfo:
         plans from), send the stale drones home and return the planned drones' entries."""
         u = self.units
         if self.layer is None:
+            from planner.knowledge import MessageLayer
+
             self.layer = MessageLayer.from_params(len(pos_u), self.n_steps, u.radio_range_u, u.base_reach_u,
                                                   self.timing)
         layer = self.layer

@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from planner.problem import ProblemConfig
-from planner.steiner import TaskTree
+if TYPE_CHECKING:  # imported for the annotations only: this module stays light (numpy)
+    from planner.problem import ProblemConfig
+    from planner.steiner import TaskTree
 
 __all__ = ["PaperUnits"]
 
