@@ -67,8 +67,9 @@ def test_the_schema_spells_the_planner_models_and_defaults_to_the_stations():
     assert PlannerSpec().info == STATION_INFO == "central"
 
 
-def test_station_flies_dccrs_with_message_passing_when_the_mission_says_async():
-    op = _fly(_mission("dccrs", "async"))
+@pytest.mark.parametrize("method", ["dccrs", "phireman"])
+def test_station_flies_with_message_passing_when_the_mission_says_async(method):
+    op = _fly(_mission(method, "async"))
     model = op.planner.info_model
     assert isinstance(model, MessagePassingInfo)
     assert op.planner.params.info == "async"
