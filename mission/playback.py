@@ -62,9 +62,7 @@ def run_inprocess(mission: Mission, seed: int | None = None, frames: Collection[
     scn = build_scenario(mission, seed)
     problem = dataclasses.replace(mission.problem_config(), n_drones=len(scn.drone_pos0_m),
                                   n_tasks=scn.task_track_m.shape[1])
-    params = dict(mission.planner.params)
-    if mission.planner.method in ("phireman", "dccrs"):
-        params.setdefault("info", mission.planner.info)
+    params = mission.planner.run_params()
     planner = make_planner(mission.planner.method, problem, params, spawn_streams(seed).algorithm)
     world = World(problem, scn.drone_pos0_m.copy(), np.ones(len(scn.drone_pos0_m), bool), scn.task_track_m)
     tau, n, m = mission.run.n_steps, problem.n_drones, problem.n_tasks

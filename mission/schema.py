@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -66,11 +67,14 @@ __all__ = [
 
 Personality = Literal["ardupilot", "px4", "mixed"]
 Border = Literal["none", "clip", "reflect"]
+#: planner.info: the information models of planner.info.INFO_MODELS (spelled out here because a
+#: Literal is static and this module does not import the planner; tests/mission/test_station_info.py
+#: checks the two agree).
 InfoMode = Literal["central", "async"]
 
 PERSONALITIES: tuple[str, ...] = ("ardupilot", "px4", "mixed")
 BORDERS: tuple[str, ...] = ("none", "clip", "reflect")
-INFO_MODES: tuple[str, ...] = ("central", "async")
+INFO_MODES: tuple[str, ...] = typing.get_args(InfoMode)
 
 #: Any position farther than this from the origin is refused (catches swapped lat/lon, typos), m.
 MAX_DISTANCE_FROM_ORIGIN_M = 100_000.0
@@ -632,13 +636,19 @@ class PlannerSpec(_Section):
     method: str = "phireman"
     """Registered planner name, e.g. 'phireman', 'dccrs', 'mccst'."""
     info: InfoMode = "central"
-    """'central': one planner sees every networked drone (ground station); 'async': each drone
-    plans from what reached it by message passing (paper §5.4)."""
+    """The information model every backend of this mission plans with (the ground station of
+    ``phireman fly``, the in-process playback, ``phireman sim --mission``): 'central', one planner
+    sees every networked drone (the ground station's model, planner.info.STATION_INFO, the
+    default); 'async', each drone plans from what reached it by message passing (the paper's,
+    docs/design/model.md §5.4). A method with one model (MCCST, 'phireman-central': central only,
+    planner.methods.INFO_OF) refuses the other. The paper presets of ``phireman sim`` and the
+    sweeps are not missions: they run the planner's own default, the paper's 'async'."""
     params: dict[str, float | int | bool | str] = _f(factory=dict)
-    """Method parameters, name -> scalar, in the method's own (paper) units."""
+    """Method parameters, name -> scalar, in the method's own (paper) units (not ``info``: that is
+    ``planner.info``)."""
 
     def validate(self) -> list[tuple[str, str]]:
-        from planner.methods import METHODS
+        from planner.methods import INFO_OF, METHODS
 
         if self.method not in METHODS:
             import difflib
@@ -647,7 +657,22 @@ class PlannerSpec(_Section):
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             return [("method", f"unknown planner method {self.method!r}{hint}; valid methods: "
                                f"{', '.join(METHODS)}")]
-        return []
+        problems = []
+        if self.info not in INFO_OF[self.method]:
+            problems.append(("info", f"{self.method} plans with {' or '.join(INFO_OF[self.method])} "
+                                     f"information only, got {self.info!r}"))
+        if "info" in self.params:
+            problems.append(("params", "the information model is planner.info, not a planner parameter"))
+        return problems
+
+    def run_params(self) -> dict[str, Any]:
+        """The parameters to build this planner with (``planner.methods.make_planner``):
+        ``params`` plus the information model ``info``. Every backend that runs a mission (the
+        station, the in-process playback) calls this: the one place a mission's information model
+        is decided (planner.methods.params_with_info)."""
+        from planner.methods import params_with_info
+
+        return params_with_info(self.method, self.params, self.info)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -102,13 +102,9 @@ def _operations_config(mission: Mission, opts: FlyOptions, expected: int | None)
 
 
 def _planner_spec(mission: Mission) -> tuple[str, ProblemConfig, dict]:
-    """(method, problem, params) of the station's planner for ``mission``."""
-    problem = mission.problem_config()
-    method = mission.planner.method
-    params = dict(mission.planner.params)
-    if method == "phireman":
-        params["info"] = "central"  # the station plans centrally from D'(t)
-    return method, problem, params
+    """(method, problem, params) of the station's planner for ``mission``: central information
+    (planner.info) unless the mission's ``planner.info`` says otherwise (PlannerSpec.run_params)."""
+    return mission.planner.method, mission.problem_config(), mission.planner.run_params()
 
 
 def _warm_up_planner(method: str, problem, params: dict, scenario: MissionScenario) -> None:

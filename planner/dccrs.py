@@ -30,10 +30,10 @@ Per networked drone i at tick t (paper units, 1 unit = r / 2 at the paper's r = 
   executed displacement as known to i (pos(s) − pos(s−1) for i's stamp s of j; 0 if s = 0); a drone
   with no neighbours keeps δx_i^pot. Finally |δx_i| ≤ v.
 
-Information (``info``):
+Information (``info``, planner.info):
 
 * ``async`` (default, as in the paper's comparison): PhiIREMAN's message layer
-  (:class:`planner.knowledge.MessageLayer`, shared with ``PhiremanPlanner._plan_async``). The
+  (:class:`planner.info.MessagePassingInfo` over :class:`planner.knowledge.MessageLayer`). The
   base floods the task positions instead of a tree: drone i knows the tasks where they were at its
   flood stamp (``tasks_hist[tree_stamp[i]]``); a drone whose flood is older than
   ``tree_stale_steps`` assumes disconnection and heads for the base, as in PhiIREMAN.
@@ -63,12 +63,14 @@ from typing import Any
 
 import numpy as np
 
-from planner.knowledge import MessageLayer
-from planner.methods import PlanOutput, TickInput
 from planner import _kernels
-from planner.phireman import (_descent_result, INFO_MODELS, DescentResult, SPEED_RULES, PhiremanParams, _EntriesByDrone, _pair_gradient_xy,
+from planner.info import (CentralView, MessageView, check_info, check_speed_rule, information_model,
+                          resolve_speed_rule)
+from planner.methods import PlanOutput, TickInput
+from planner.phireman import (DescentResult, PhiremanParams, _descent_result, _EntriesByDrone, _pair_gradient_xy,
                               descend, parse_params)
 from planner.problem import ProblemConfig
+from planner.units import PaperUnits
 
 __all__ = [
     "LABEL", "DccrsParams", "DccrsPlanner", "make_dccrs",
@@ -112,7 +114,7 @@ class DccrsParams:
     """Speed-limit stopping rule of the descent (see planner.phireman.descend); 'auto' resolves as in
     PhiIREMAN ('uniform' for central, 'per_drone' for async)."""
     info: str = _PH.info
-    """'async' (message passing) or 'central' (D'(t), true positions)."""
+    """'async' (message passing) or 'central' (D'(t), true positions); planner.info."""
     age_max_steps: int = _PH.age_max_steps
     """Async: forget neighbour reports older than this many steps."""
     dist_max: float = _PH.dist_max
@@ -149,10 +151,8 @@ class DccrsParams:
     drones are within r of that leader; 0 = off."""
 
     def __post_init__(self) -> None:
-        if self.speed_rule not in SPEED_RULES:
-            raise ValueError(f"speed_rule must be one of {SPEED_RULES}, got {self.speed_rule!r}")
-        if self.info not in INFO_MODELS:
-            raise ValueError(f"info must be one of {INFO_MODELS}, got {self.info!r}")
+        check_speed_rule(self.speed_rule)
+        check_info(self.info)
         for name in ("step_size", "tolerance", "repulsion_radius_ratio", "dist_max", "leader_floor",
                      "density_weight_min"):
             if not getattr(self, name) > 0:
@@ -363,21 +363,17 @@ class DccrsPlanner:
     toward the nearest task; no task tree. Same message layer and descent as PhiIREMAN.
     """
 
-    def __init__(self, problem: ProblemConfig, params: DccrsParams, rng: np.random.Generator):
+    def __init__(self, problem: ProblemConfig, params: DccrsParams, rng: np.random.Generator) -> None:
         self.problem = problem
-        self.params = params
         self.rng = rng  # unused: deterministic given its inputs
-        unit = problem.length_unit_m
-        self.unit_m = unit
-        self.r_u = problem.radio_range_m / unit
-        self.base_reach_u = min(problem.base_range_m, problem.radio_range_m) / unit
-        self.vmax_u = problem.max_speed_m_s * problem.dt_s / unit
-        self.reach_u = 2 * params.repulsion_radius_ratio * self.r_u
+        self.units = PaperUnits.of(problem)
         if params.speed_rule == "auto":  # as PhiIREMAN: one joint stop (central), per drone (async)
-            self.params = dataclasses.replace(
-                params, speed_rule="uniform" if params.info == "central" else "per_drone")
-        self.messages: MessageLayer | None = None  # async information model, built on first use
-        self._prev: tuple[np.ndarray, np.ndarray] | None = None  # central: last tick, for velocities
+            params = dataclasses.replace(params, speed_rule=resolve_speed_rule(params.speed_rule, params.info))
+        self.params = params
+        self.r_u = self.units.radio_range_u
+        self.vmax_u = self.units.max_step_u
+        self.reach_u = 2 * params.repulsion_radius_ratio * self.r_u
+        self.info_model = information_model(params.info, self.units, problem.n_steps, params)
 
     # -- shared pieces ----------------------------------------------------------------------
     def _leaders(self, tasks_u: np.ndarray, base_u: np.ndarray) -> np.ndarray:
@@ -475,72 +471,56 @@ class DccrsPlanner:
 
     # -- main entry -----------------------------------------------------------------------
     def plan(self, tick: TickInput) -> PlanOutput:
-        p = self.params
-        pos_u = np.asarray(tick.pos_m, float) / self.unit_m
-        tasks_u = np.asarray(tick.task_pos_m, float) / self.unit_m
-        base_u = np.asarray(tick.base_m, float) / self.unit_m
+        u = self.units
+        pos_u = u.to_u(tick.pos_m)
+        tasks_u = u.to_u(tick.task_pos_m)
+        base_u = u.to_u(tick.base_m)
         planning = np.asarray(tick.networked, bool) & np.asarray(tick.alive, bool)
-        if p.info == "central":
-            disp_u, info = self._plan_central(tick, pos_u, tasks_u, base_u, planning)
+        # The base broadcasts the task positions it sees (in place of PhiIREMAN's tree).
+        view = self.info_model.see(tick.t_step, pos_u, tick.alive, planning, base_u, tasks_u)
+        if isinstance(view, CentralView):
+            disp_u, info = self._plan_central(pos_u, tasks_u, base_u, view)
         else:
-            disp_u, info = self._plan_async(tick, pos_u, tasks_u, base_u, planning)
+            disp_u, info = self._plan_async(pos_u, base_u, view)
         info["label"] = LABEL
-        return PlanOutput(disp_u * self.unit_m, tree=None, info=info)
+        return PlanOutput(u.to_m(disp_u), tree=None, info=info)
 
-    def _plan_central(self, tick: TickInput, pos_u: np.ndarray, tasks_u: np.ndarray, base_u: np.ndarray,
-                      planning: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    def _plan_central(self, pos_u: np.ndarray, tasks_u: np.ndarray, base_u: np.ndarray, view: CentralView
+                      ) -> tuple[np.ndarray, dict[str, Any]]:
         p = self.params
-        alive = np.asarray(tick.alive, bool)
-        prev = self._prev
-        self._prev = (pos_u, alive)
-        disp_u = np.zeros_like(pos_u)
-        idx = np.flatnonzero(planning)
+        idx, disp_u = view.planned, view.disp_u
         if len(idx) == 0:
-            return disp_u, {}
+            return disp_u, view.info()
         x = pos_u[idx]
         mask = ~np.eye(len(idx), dtype=bool)
         leaders = self._leaders(tasks_u, base_u)
         res, near, weight = self._descend(x, x[None, :, :], mask, leaders, joint=True)
-        if prev is not None and len(prev[0]) == len(pos_u):
-            vel = (pos_u - prev[0])[idx]               # true executed displacements t-1 -> t
-        else:
-            vel = np.zeros_like(x)
+        # true executed displacements t-1 -> t
+        vel = (pos_u - view.prev_pos_u)[idx] if view.prev_pos_u is not None else np.zeros_like(x)
         disp_u[idx] = velocity_match(res.disp_u, near, np.broadcast_to(vel, (len(idx),) + vel.shape),
                                      p.velocity_matching, self.vmax_u)
         return disp_u, {"iterations": res.iterations, "converged": res.converged,
                         "mean_density_weight": float(weight.mean())}
 
-    def _plan_async(self, tick: TickInput, pos_u: np.ndarray, tasks_u: np.ndarray, base_u: np.ndarray,
-                    planning: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    def _plan_async(self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
+                    ) -> tuple[np.ndarray, dict[str, Any]]:
         p = self.params
-        if self.messages is None:
-            self.messages = MessageLayer.from_params(len(pos_u), self.problem.n_steps, self.r_u,
-                                                     self.base_reach_u, p)
-        # The base floods the task positions it sees (in place of PhiIREMAN's tree).
-        # Stale flood: assume disconnection and fly to the known base location at full speed.
-        stale, disp_u = self.messages.step_or_home(tick.t_step, pos_u, tick.alive, base_u, tasks_u,
-                                                   planning, self.vmax_u)
-        idx = np.flatnonzero(planning & ~stale)
+        idx, disp_u = view.planned, view.disp_u     # stale drones already head home
         if len(idx) == 0:
-            return disp_u, {"stale_tree": int(stale.sum())}
-        # Known entries of the view only (rows into idx, columns into kn.cols, row-major).
-        er, ek, believed, stamps = self.messages.view_entries(idx)
-        kn = self.messages.knowledge
-        uniq, inv = np.unique(stamps, return_inverse=True)
-        leaders = self._leaders(np.stack([self.messages.broadcast(s) for s in uniq])[inv], base_u)
-        res, near_e, weight = self._descend_entries(pos_u[idx], er, believed, leaders)
+            return disp_u, view.info()
+        # Known entries of the view only (rows into idx, columns into the layer's columns, row-major).
+        er, ek = view.rows_e, view.cols_e
+        floods, version_of = view.broadcasts()      # the task positions each drone last received
+        leaders = self._leaders(np.stack(floods)[version_of], base_u)
+        res, near_e, weight = self._descend_entries(pos_u[idx], er, view.believed_u, leaders)
         nr = er[near_e]
         if p.velocity_matching > 0:
-            assert kn.cols is not None  # set by the knowledge update
-            col_e = kn.cols[ek[near_e]]
-            stamp_e = kn.stamp[idx[nr], col_e]
-            s = np.where(stamp_e >= 1, stamp_e, 1)       # as believed_velocities, per entry
-            vel = np.where((stamp_e >= 1)[:, None], kn.pos_hist_m[s, col_e] - kn.pos_hist_m[s - 1, col_e], 0.0)
+            vel = view.believed_displacement_u(idx[nr], ek[near_e])
             disp_u[idx] = velocity_match_entries(res.disp_u, nr, vel, p.velocity_matching, self.vmax_u)
         else:
             disp_u[idx] = velocity_match_entries(res.disp_u, nr, np.zeros((len(nr), 2)), 0.0, self.vmax_u)
-        return disp_u, {"iterations": res.iterations, "converged": res.converged,
-                        "stale_tree": int(stale.sum()), "mean_density_weight": float(weight.mean())}
+        return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info(),
+                        "mean_density_weight": float(weight.mean())}
 
 
 def make_dccrs(problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator) -> DccrsPlanner:

@@ -5,23 +5,31 @@ with a :class:`TickInput`; it returns a :class:`PlanOutput` whose ``disp_m`` is 
 instruction of every drone for this tick (metres, already within the speed limit). Rows of drones
 that are not networked are ignored by the caller (the RTNUA default sends them home).
 
-The same interface serves the in-process simulator, the sweeps and the ground station (which uses
-``info='central'``: one planner that sees every networked drone).
+The same interface serves the in-process simulator, the sweeps and the ground station.
+
+Information models (planner.info). :data:`INFO_OF` says which models each method plans with: the
+potential-field planners take both ('async', the paper's message passing and their default, and
+'central'); MCCST and 'phireman-central' are central only (MCCST is the centralised controller of
+Luo et al. with perfect knowledge: it has no message-passing form). :func:`make_planner` accepts
+``info`` for every method and refuses a model the method does not have, and
+:func:`params_with_info` is how a run that has decided its model (a mission's ``planner.info``)
+asks for it.
 """
 
 from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
-from collections.abc import Callable
 
 import numpy as np
 
+from planner.info import INFO_MODELS, check_info
 from planner.problem import ProblemConfig
 
-__all__ = ["TickInput", "PlanOutput", "Planner", "METHODS", "make_planner", "method_names",
-           "UnknownMethod"]
+__all__ = ["TickInput", "PlanOutput", "Planner", "METHODS", "INFO_OF", "make_planner", "method_names",
+           "info_models", "params_with_info", "UnknownMethod"]
 
 
 @dataclass(frozen=True)
@@ -70,12 +78,66 @@ METHODS: dict[str, str] = {
 }
 
 
+#: name -> the information models (planner.info.INFO_MODELS) the method plans with; a method
+#: with one plans with that one whatever it is asked (and refuses another).
+INFO_OF: dict[str, tuple[str, ...]] = {
+    "phireman": INFO_MODELS,
+    "phireman-central": ("central",),
+    "phireman-no-task": INFO_MODELS,
+    "phireman-nodes-only": INFO_MODELS,
+    "dccrs": INFO_MODELS,
+    "mccst": ("central",),        # centralised, perfect knowledge (planner.mccst)
+    "phireman-resilient": INFO_MODELS,
+}
+
+
 class UnknownMethod(ValueError):
     """A planner name that is not registered."""
 
 
 def method_names() -> list[str]:
     return list(METHODS)
+
+
+def _target(name: str) -> str:
+    try:
+        return METHODS[name]
+    except KeyError as exc:
+        raise UnknownMethod(f"unknown method {name!r}; valid methods: {', '.join(METHODS)}") from exc
+
+
+def info_models(name: str) -> tuple[str, ...]:
+    """The information models method ``name`` plans with (:data:`INFO_OF`)."""
+    _target(name)
+    return INFO_OF[name]
+
+
+def _check_info_of(name: str, info: Any) -> None:
+    check_info(info)
+    if info not in INFO_OF[name]:
+        raise ValueError(f"method {name!r} plans with {' or '.join(INFO_OF[name])} information only, "
+                         f"got info={info!r}")
+
+
+def params_with_info(name: str, params: Mapping[str, Any] | None, info: str) -> dict[str, Any]:
+    """``params`` for method ``name`` planning with information model ``info``: ``info`` set for a
+    method with both models, nothing added for a method with one (after checking it is ``info``).
+
+    Raises
+    ------
+    UnknownMethod
+        ``name`` is not registered.
+    ValueError
+        ``info`` is not a model of the method, or ``params`` already asks for another one.
+    """
+    _target(name)
+    _check_info_of(name, info)
+    out = dict(params or {})
+    if out.get("info", info) != info:
+        raise ValueError(f"params ask for info={out['info']!r} and the run for info={info!r}")
+    if len(INFO_OF[name]) > 1:
+        out["info"] = info
+    return out
 
 
 def make_planner(name: str, problem: ProblemConfig, params: dict[str, Any] | None = None,
@@ -87,12 +149,14 @@ def make_planner(name: str, problem: ProblemConfig, params: dict[str, Any] | Non
     UnknownMethod
         ``name`` is not registered; the message lists the valid names.
     ValueError
-        ``params`` contains a key the method does not know.
+        ``params`` contains a key the method does not know, or an ``info`` the method does not
+        plan with (:data:`INFO_OF`).
     """
-    try:
-        target = METHODS[name]
-    except KeyError as exc:
-        raise UnknownMethod(f"unknown method {name!r}; valid methods: {', '.join(METHODS)}") from exc
-    module_name, factory_name = target.split(":")
+    module_name, factory_name = _target(name).split(":")
+    params = dict(params or {})
+    if "info" in params:
+        _check_info_of(name, params["info"])
+        if len(INFO_OF[name]) == 1:  # a one-model method has no such parameter (MCCST)
+            del params["info"]
     factory: Callable[..., Planner] = getattr(importlib.import_module(module_name), factory_name)
-    return factory(problem, dict(params or {}), rng if rng is not None else np.random.default_rng(0))
+    return factory(problem, params, rng if rng is not None else np.random.default_rng(0))

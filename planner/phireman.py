@@ -10,7 +10,7 @@ at equilibrium, after ``max_descent_steps``, or when an instruction would exceed
 ``problem.length_unit_m``), so the coefficients Þ, ℳ, P are scale-free; instructions are returned in
 metres.
 
-Two information models (``info``):
+Two information models (``info``, planner.info):
 
 * ``central``: one planner sees every networked drone and descends the total energy jointly (the
   ground station's view).
@@ -18,6 +18,12 @@ Two information models (``info``):
   neighbour reports and its own copy of the base-computed tree, descending its energy with respect
   to its own instruction while the believed neighbours stay put; a drone whose tree copy is older
   than ``tree_stale_steps`` heads for the base.
+
+Paper units and the conversions are planner.units.
+
+This module is over ~600 lines because the descent, its reference transcriptions and the gradient
+kernels it runs (each with the NumPy reference of a compiled twin) are read together; the planner
+class itself is short.
 
 Modelling choices that are inferences, not statements of the paper, are named parameters with the
 defaults of :class:`PhiremanParams` (the only place they are defined).
@@ -31,16 +37,22 @@ Networks Under Attrition", IEEE RA-L 2026, arXiv:2512.02079.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 
 from planner import _kernels
-from planner.knowledge import MessageLayer
+from planner.info import (PAPER_INFO, CentralView, MessageView, check_info, check_speed_rule,
+                          information_model, resolve_speed_rule)
 from planner.methods import PlanOutput, TickInput
 from planner.problem import ProblemConfig
 from planner.steiner import TaskTree, distance_to_tree, maintain_task_tree
+from planner.units import PaperUnits
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 __all__ = [
     "PhiremanParams", "PhiremanPlanner", "DescentResult",
@@ -50,8 +62,16 @@ __all__ = [
     "make_phireman", "make_phireman_central", "make_phireman_no_task", "make_phireman_nodes_only",
 ]
 
-SPEED_RULES = ("auto", "uniform", "per_drone", "clip")
-INFO_MODELS = ("async", "central")
+#: A gradient for :func:`descend`: ``(x, rows) -> (len(rows), 2)``.
+Gradient = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+#: Four arrays: per-entry (rows, a, ab, |ab|^2) or per-drone (a, ab, |ab|^2, valid) segments.
+_Arrays4 = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+#: The entry columns of :func:`planner._kernels.entries_segment_gradient`: er, a_x, a_y, ab_x, ab_y, |ab|^2.
+_Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+ParamsT = TypeVar("ParamsT", bound="DataclassInstance")
 
 
 @dataclass(frozen=True)
@@ -82,7 +102,7 @@ class PhiremanParams:
     stops the descent (docs/design/model.md §9.3; needs one planner for all drones); 'per_drone' does that
     per drone and lets the others continue, each drone also stopping at its own equilibrium (what
     independent drones can do); 'clip' clips each drone to v and keeps iterating.
-    'auto' = 'uniform' for central, 'per_drone' for async."""
+    'auto' = 'uniform' for central, 'per_drone' for async (planner.info.resolve_speed_rule)."""
     base_weight: float = 1.0
     """c_b, weight of the task-to-base path lengths in the tree cost (paper default 1.0)."""
     accept_ratio: float = 0.99
@@ -91,8 +111,8 @@ class PhiremanParams:
     """Ticks between full tree rebuilds (Steiner points are refined every tick)."""
     nodes_only: bool = False
     """Ablation: h_T is the distance to the nearest tree node instead of the nearest segment."""
-    info: str = "async"
-    """'async' (paper's message passing) or 'central' (one planner sees D'(t))."""
+    info: str = PAPER_INFO
+    """'async' (paper's message passing) or 'central' (one planner sees D'(t)); planner.info."""
     age_max_steps: int = 3
     """Async: forget neighbour reports older than this many steps (grid-searched at S / 1 %,
     docs/tuning/phireman_S_1pct.md: 3 beats 5 and 10 — stale reports of lost drones attract)."""
@@ -110,10 +130,8 @@ class PhiremanParams:
     (a mesh radio's neighbour timeout); chosen at S / 1 % with ``broadcast_after_move``."""
 
     def __post_init__(self) -> None:
-        if self.speed_rule not in SPEED_RULES:
-            raise ValueError(f"speed_rule must be one of {SPEED_RULES}, got {self.speed_rule!r}")
-        if self.info not in INFO_MODELS:
-            raise ValueError(f"info must be one of {INFO_MODELS}, got {self.info!r}")
+        check_speed_rule(self.speed_rule)
+        check_info(self.info)
         for name in ("step_size", "tolerance", "repulsion_radius_ratio", "accept_ratio", "dist_max"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -122,13 +140,14 @@ class PhiremanParams:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
 
 
-def parse_params(params: dict, cls=PhiremanParams, **forced):
-    """Build a params dataclass from a mapping, rejecting unknown keys with the list of valid ones."""
+def parse_params(params: Mapping[str, Any], cls: type[ParamsT], **forced: Any) -> ParamsT:
+    """Build a ``cls`` params dataclass from a mapping (strings are parsed as the field's type),
+    rejecting unknown keys with the list of valid ones; ``forced`` values override ``params``."""
     valid = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(params) - set(valid))
     if unknown:
         raise ValueError(f"unknown parameter(s) {', '.join(unknown)}; valid: {', '.join(valid)}")
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     for key, value in {**params, **forced}.items():
         default = valid[key].default
         kwargs[key] = type(default)(value) if isinstance(default, (bool, int, float)) and not isinstance(value, str) else value
@@ -152,7 +171,8 @@ def task_gradient(pos_u: np.ndarray, tree: TaskTree, thorn: float, nodes_only: b
     return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
 
 
-def padded_segments(trees: list[TaskTree], nodes_only: bool = False):
+def padded_segments(trees: list[TaskTree], nodes_only: bool = False
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stack the segments of several trees, padded: (V, E, 2) ends a and b and a (V, E) validity mask.
 
     With ``nodes_only`` (or a single-node tree) each node becomes a zero-length segment, so the
@@ -228,9 +248,9 @@ class TreeSegments:
                  pos0: np.ndarray | None = None, radius: float = 0.0) -> None:
         seg_a, seg_b, valid = padded_segments(trees, nodes_only)
         self.n = len(version)
-        self.entries: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._columns = None
-        self._dense = None
+        self.entries: _Arrays4 | None = None
+        self._columns: _Columns | None = None
+        self._dense: _Arrays4 | None = None
         self._padded = (seg_a, seg_b, valid, np.asarray(version))
         if pos0 is not None and self.n and _kernels.NUMBA and _kernels.ENABLED:
             # Compiled pruning, the same candidates as the NumPy lines below (test_kernels.py);
@@ -254,7 +274,7 @@ class TreeSegments:
             r, s = np.nonzero(self.valid & (dist <= bound[:, None]))    # row-major: by drone, then segment
             self.entries = (r, self.a[r, s], self.ab[r, s], self.ab2[r, s])
 
-    def _dense_arrays(self):
+    def _dense_arrays(self) -> _Arrays4:
         if self._dense is None:
             seg_a, seg_b, valid, version = self._padded
             a = seg_a[version]                                      # (n, E, 2)
@@ -283,7 +303,8 @@ class TreeSegments:
         return self._dense_arrays()[3]
 
     @staticmethod
-    def _d2(pos_u, a, ab, ab2, ok):
+    def _d2(pos_u: np.ndarray, a: np.ndarray, ab: np.ndarray, ab2: np.ndarray, ok: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
         ap = pos_u[:, None, :] - a
         t = np.clip(np.divide(np.einsum("nec,nec->ne", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
         foot = a + t[:, :, None] * ab
@@ -307,7 +328,8 @@ class TreeSegments:
         dist = np.sqrt(d2[r, best])
         return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
 
-    def _gradient_entries(self, pos_u, rows, thorn):
+    def _gradient_entries(self, pos_u: np.ndarray, rows: np.ndarray, thorn: float) -> np.ndarray:
+        assert self.entries is not None  # the caller checks
         er, a, ab, ab2 = self.entries
         if len(rows) != self.n:
             chosen = np.zeros(self.n, dtype=bool)
@@ -316,6 +338,7 @@ class TreeSegments:
             er, a, ab, ab2 = (np.cumsum(chosen) - 1)[er[take]], a[take], ab[take], ab2[take]
         if _kernels.NUMBA and _kernels.ENABLED:
             # compiled twin of the NumPy lines below, bit for bit (tests/planner/test_kernels.py)
+            cols: _Columns
             if self._columns is None or len(rows) != self.n:
                 cols = (np.asarray(er, np.int64), np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]),
                         np.ascontiguousarray(ab[:, 0]), np.ascontiguousarray(ab[:, 1]), np.ascontiguousarray(ab2))
@@ -330,7 +353,8 @@ class TreeSegments:
         return self._gradient_entries_numpy(pos_u, er, a, ab, ab2, thorn)
 
     @staticmethod
-    def _gradient_entries_numpy(pos_u, er, a, ab, ab2, thorn):
+    def _gradient_entries_numpy(pos_u: np.ndarray, er: np.ndarray, a: np.ndarray, ab: np.ndarray,
+                                ab2: np.ndarray, thorn: float) -> np.ndarray:
         x = pos_u[er]
         ap = x - a
         t = np.clip(np.divide(np.einsum("ec,ec->e", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
@@ -457,8 +481,9 @@ def _pair_gradient_xy(pos_u: np.ndarray, rows: np.ndarray, others_x: np.ndarray,
                                    pair_factor, weight)
 
 
-def _pair_gradient_xy_numpy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach,
-                            pair_factor, weight=None):
+def _pair_gradient_xy_numpy(pos_u: np.ndarray, rows: np.ndarray, others_x: np.ndarray, others_y: np.ndarray,
+                            attraction: float, floor: float, repulsion: float, reach: float,
+                            pair_factor: float, weight: np.ndarray | None = None) -> np.ndarray:
     """The NumPy version of :func:`_pair_gradient_xy` (the reference of its compiled kernel)."""
     n = len(pos_u)
     dx = pos_u[:, 0][rows] - others_x
@@ -483,7 +508,8 @@ def _pair_gradient_xy_numpy(pos_u, rows, others_x, others_y, attraction, floor, 
     return out
 
 
-def pair_gradient_reference(pos_u, others_u, mask, attraction, floor, repulsion, reach, pair_factor):
+def pair_gradient_reference(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, attraction: float,
+                            floor: float, repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
     """Loop-by-loop transcription of :func:`pair_gradient` (for tests)."""
     pos_u = np.asarray(pos_u, float)
     others_u = np.asarray(others_u, float)
@@ -561,7 +587,7 @@ class DescentParams(Protocol):
     def max_descent_steps(self) -> int: ...
 
 
-def descend(pos_u: np.ndarray, gradient, vmax: float, p: DescentParams,
+def descend(pos_u: np.ndarray, gradient: Gradient, vmax: float, p: DescentParams,
             separable: bool = False) -> DescentResult:
     """Multi-step gradient descent on the instructions with the paper's stopping rules.
 
@@ -617,7 +643,7 @@ def descend(pos_u: np.ndarray, gradient, vmax: float, p: DescentParams,
     return DescentResult(delta, p.max_descent_steps, False, hit)
 
 
-def descend_reference(pos_u, gradient, vmax, p: PhiremanParams) -> np.ndarray:
+def descend_reference(pos_u: np.ndarray, gradient: Gradient, vmax: float, p: DescentParams) -> np.ndarray:
     """Per-drone loop version of :func:`descend` (instructions only; for tests)."""
     pos_u = np.asarray(pos_u, float)
     n = len(pos_u)
@@ -644,7 +670,7 @@ def descend_reference(pos_u, gradient, vmax, p: PhiremanParams) -> np.ndarray:
             delta = [x * min(1.0, vmax / float(np.linalg.norm(x))) if np.linalg.norm(x) > 0 else x for x in new]
             continue
 
-        def alpha(i):  # bisection: obviously correct, slow
+        def alpha(i: int) -> float:  # bisection: obviously correct, slow
             lo, hi = 0.0, 1.0
             for _ in range(60):
                 mid = (lo + hi) / 2
@@ -670,23 +696,24 @@ def descend_reference(pos_u, gradient, vmax, p: PhiremanParams) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 
 class PhiremanPlanner:
-    """PhiIREMAN behind the registry interface (see planner.methods)."""
+    """PhiIREMAN behind the registry interface (see planner.methods).
 
-    def __init__(self, problem: ProblemConfig, params: PhiremanParams, rng: np.random.Generator):
+    ``params.info`` picks the information model (planner.info): ``info_model`` gives each tick the
+    drones to plan and what they know; ``units`` converts metres to paper units and back.
+    """
+
+    params: PhiremanParams
+
+    def __init__(self, problem: ProblemConfig, params: PhiremanParams, rng: np.random.Generator) -> None:
         self.problem = problem
-        self.params = params
         self.rng = rng  # unused: PhiIREMAN is deterministic given its inputs
-        unit = problem.length_unit_m
-        self.unit_m = unit
-        self.r_u = problem.radio_range_m / unit
-        self.base_reach_u = min(problem.base_range_m, problem.radio_range_m) / unit
-        self.vmax_u = problem.max_speed_m_s * problem.dt_s / unit
-        self.reach_u = 2 * params.repulsion_radius_ratio * self.r_u
+        self.units = PaperUnits.of(problem)
         if params.speed_rule == "auto":
-            params = dataclasses.replace(params, speed_rule="uniform" if params.info == "central" else "per_drone")
-            self.params = params
+            params = dataclasses.replace(params, speed_rule=resolve_speed_rule(params.speed_rule, params.info))
+        self.params = params
+        self.reach_u = 2 * params.repulsion_radius_ratio * self.units.radio_range_u
         self.tree: TaskTree | None = None
-        self.messages: MessageLayer | None = None  # async information model, built on first use
+        self.info_model = information_model(params.info, self.units, problem.n_steps, params)
 
     # -- helpers --------------------------------------------------------------------------
     def _pair_grad(self, pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray,
@@ -695,87 +722,79 @@ class PhiremanPlanner:
         return pair_gradient(pos_u, others_u, mask, p.attraction, p.attraction_floor, p.repulsion,
                              self.reach_u, p.pair_factor, others_sq)
 
-    def _tree_to_m(self, tree: TaskTree | None) -> TaskTree | None:
-        if tree is None:
-            return None
-        return dataclasses.replace(tree, nodes_m=tree.nodes_m * self.unit_m)
-
     # -- main entry -----------------------------------------------------------------------
     def plan(self, tick: TickInput) -> PlanOutput:
-        p = self.params
-        pos_u = np.asarray(tick.pos_m, float) / self.unit_m
-        tasks_u = np.asarray(tick.task_pos_m, float) / self.unit_m
-        base_u = np.asarray(tick.base_m, float) / self.unit_m
-        self.tree = maintain_task_tree(self.tree, base_u, tasks_u, tick.t_step, base_weight=p.base_weight,
-                                       accept_ratio=p.accept_ratio, rebuild_period=p.rebuild_period)
-        disp_u = np.zeros_like(pos_u)
+        p, u = self.params, self.units
+        pos_u = u.to_u(tick.pos_m)
+        tasks_u = u.to_u(tick.task_pos_m)
+        base_u = u.to_u(tick.base_m)
+        self.tree = tree = maintain_task_tree(self.tree, base_u, tasks_u, tick.t_step, base_weight=p.base_weight,
+                                              accept_ratio=p.accept_ratio, rebuild_period=p.rebuild_period)
         planning = np.asarray(tick.networked, bool) & np.asarray(tick.alive, bool)
-        info: dict = {}
-        if p.info == "central":
-            idx = np.flatnonzero(planning)
-            if len(idx):
-                tree = self.tree
-                if _kernels.NUMBA and _kernels.ENABLED:
-                    # O(n) memory, compiled: the all-pairs sum without the (n, n) arrays, the tree
-                    # distance without the (n, E) ones (the NumPy branch below is the reference).
-                    if p.nodes_only or tree.n_nodes == 1:
-                        seg_a = seg_b = tree.nodes_m
-                    else:
-                        seg_a, seg_b = tree.segments()
-
-                    def grad(x, rows):
-                        task = (_kernels.segment_gradient(x, seg_a, seg_b, p.thorn) if p.thorn
-                                else np.zeros_like(x))
-                        return task + _kernels.central_pair_gradient(
-                            x, p.attraction, p.attraction_floor, p.repulsion, self.reach_u, p.pair_factor)
-                else:
-                    mask = ~np.eye(len(idx), dtype=bool)
-
-                    def grad(x, rows):
-                        return (task_gradient(x, tree, p.thorn, p.nodes_only)
-                                + self._pair_grad(x, x, mask))
-
-                res = descend(pos_u[idx], grad, self.vmax_u, p)
-                disp_u[idx] = res.disp_u
-                info = {"iterations": res.iterations, "converged": res.converged}
+        view = self.info_model.see(tick.t_step, pos_u, tick.alive, planning, base_u, tree)
+        if isinstance(view, CentralView):
+            disp_u, info = self._plan_central(pos_u, tree, view)
         else:
-            disp_u, info = self._plan_async(tick, pos_u, base_u, planning)
-        return PlanOutput(disp_u * self.unit_m, tree=self._tree_to_m(self.tree), info=info)
+            disp_u, info = self._plan_async(pos_u, base_u, view)
+        return PlanOutput(u.to_m(disp_u), tree=u.tree_to_m(tree), info=info)
 
-    def _plan_async(self, tick: TickInput, pos_u, base_u, planning):
+    def _plan_central(self, pos_u: np.ndarray, tree: TaskTree, view: CentralView
+                      ) -> tuple[np.ndarray, dict[str, Any]]:
+        """The networked drones descend the total energy jointly."""
         p = self.params
-        if self.messages is None:
-            self.messages = MessageLayer.from_params(len(pos_u), self.problem.n_steps, self.r_u,
-                                                     self.base_reach_u, p)
-        # Stale tree: assume disconnection and fly to the known base location at full speed.
-        stale, disp_u = self.messages.step_or_home(tick.t_step, pos_u, tick.alive, base_u, self.tree,
-                                                   planning, self.vmax_u)
-        idx = np.flatnonzero(planning & ~stale)
+        idx, disp_u = view.planned, view.disp_u
         if len(idx) == 0:
-            return disp_u, {"stale_tree": int(stale.sum())}
+            return disp_u, view.info()
+        grad: Gradient
+        if _kernels.NUMBA and _kernels.ENABLED:
+            # O(n) memory, compiled: the all-pairs sum without the (n, n) arrays, the tree
+            # distance without the (n, E) ones (the NumPy branch below is the reference).
+            if p.nodes_only or tree.n_nodes == 1:
+                seg_a = seg_b = tree.nodes_m
+            else:
+                seg_a, seg_b = tree.segments()
+
+            def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+                task = (_kernels.segment_gradient(x, seg_a, seg_b, p.thorn) if p.thorn
+                        else np.zeros_like(x))
+                return task + _kernels.central_pair_gradient(
+                    x, p.attraction, p.attraction_floor, p.repulsion, self.reach_u, p.pair_factor)
+        else:
+            mask = ~np.eye(len(idx), dtype=bool)
+
+            def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+                return task_gradient(x, tree, p.thorn, p.nodes_only) + self._pair_grad(x, x, mask)
+
+        res = descend(pos_u[idx], grad, self.units.max_step_u, p)
+        disp_u[idx] = res.disp_u
+        return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info()}
+
+    def _plan_async(self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
+                    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Each fresh drone descends its own energy against its beliefs and its tree copy (the
+        stale ones already head for ``base_u``)."""
+        p = self.params
+        idx, disp_u = view.planned, view.disp_u
+        if len(idx) == 0:
+            return disp_u, view.info()
+        vmax_u = self.units.max_step_u
         # Only the known entries interact (pair_gradient_entries), work proportional to them.
-        ent_r, _, ent_y, stamps = self.messages.view_entries(idx)  # (E,), (E,), (E, 2) paper units, (n_i,)
-        versions, version_of = np.unique(stamps, return_inverse=True)
-        segments = TreeSegments([self.messages.broadcast(s) for s in versions], version_of, p.nodes_only,
-                                pos_u[idx], self.vmax_u)
-        entries = _EntriesByDrone(ent_r, ent_y, len(idx))
+        trees, version_of = view.broadcasts()
+        segments = TreeSegments(trees, version_of, p.nodes_only, pos_u[idx], vmax_u)
+        entries = _EntriesByDrone(view.rows_e, view.believed_u, len(idx))
         if _kernels.NUMBA and _kernels.ENABLED and p.speed_rule == "per_drone" and segments.entries is not None:
             # The whole descent in one compiled call, bit for bit the NumPy one below.
-            res = _descend_separable_compiled(pos_u[idx], entries, segments, p, self.reach_u, self.vmax_u)
-            disp_u[idx] = res.disp_u
-            return disp_u, {"iterations": res.iterations, "converged": res.converged,
-                            "stale_tree": int(stale.sum())}
+            res = _descend_separable_compiled(pos_u[idx], entries, segments, p, self.reach_u, vmax_u)
+        else:
+            def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+                er, ox, oy = entries.of(rows)
+                return (_pair_gradient_xy(x[rows], er, ox, oy, p.attraction, p.attraction_floor,
+                                          p.repulsion, self.reach_u, p.pair_factor)
+                        + segments.gradient(x[rows], rows, p.thorn))
 
-        def grad(x, rows):
-            er, ox, oy = entries.of(rows)
-            return (_pair_gradient_xy(x[rows], er, ox, oy, p.attraction, p.attraction_floor,
-                                      p.repulsion, self.reach_u, p.pair_factor)
-                    + segments.gradient(x[rows], rows, p.thorn))
-
-        res = descend(pos_u[idx], grad, self.vmax_u, p, separable=True)
+            res = descend(pos_u[idx], grad, vmax_u, p, separable=True)
         disp_u[idx] = res.disp_u
-        return disp_u, {"iterations": res.iterations, "converged": res.converged,
-                        "stale_tree": int(stale.sum())}
+        return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info()}
 
 
 def _descend_separable_compiled(pos_u: np.ndarray, entries: _EntriesByDrone, segments: TreeSegments,
@@ -808,25 +827,29 @@ def _descent_result(delta: np.ndarray, stop: np.ndarray, at_limit: np.ndarray, m
     return DescentResult(delta, last, not bool((at_limit & (stop == last)).any()), hit)
 
 
-def _make(problem, params, rng, **forced):
+def _make(problem: ProblemConfig, params: Mapping[str, Any], rng: np.random.Generator,
+          **forced: Any) -> PhiremanPlanner:
     return PhiremanPlanner(problem, parse_params(params, PhiremanParams, **forced), rng)
 
 
-def make_phireman(problem: ProblemConfig, params: dict, rng: np.random.Generator) -> PhiremanPlanner:
+def make_phireman(problem: ProblemConfig, params: Mapping[str, Any], rng: np.random.Generator) -> PhiremanPlanner:
     """PhiIREMAN with the parameters given (``info`` defaults to the paper's 'async')."""
     return _make(problem, params, rng)
 
 
-def make_phireman_central(problem, params, rng):
+def make_phireman_central(problem: ProblemConfig, params: Mapping[str, Any],
+                          rng: np.random.Generator) -> PhiremanPlanner:
     """PhiIREMAN planned centrally from D'(t) (the ground station's information model)."""
     return _make(problem, params, rng, info="central")
 
 
-def make_phireman_no_task(problem, params, rng):
+def make_phireman_no_task(problem: ProblemConfig, params: Mapping[str, Any],
+                          rng: np.random.Generator) -> PhiremanPlanner:
     """Ablation Þ = 0: no task-tree potential."""
     return _make(problem, params, rng, thorn=0.0)
 
 
-def make_phireman_nodes_only(problem, params, rng):
+def make_phireman_nodes_only(problem: ProblemConfig, params: Mapping[str, Any],
+                             rng: np.random.Generator) -> PhiremanPlanner:
     """Ablation: the task potential is the distance to the nearest tree node."""
     return _make(problem, params, rng, nodes_only=True)

@@ -42,12 +42,12 @@ from typing import Any
 
 import numpy as np
 
-from planner.geometry import tasks_connected
-from planner.knowledge import MessageLayer
-from planner.methods import PlanOutput, TickInput
 from planner import _kernels
+from planner.geometry import tasks_connected
+from planner.info import CentralView, MessageView
+from planner.methods import PlanOutput, TickInput
 from planner.phireman import (PhiremanParams, PhiremanPlanner, TreeSegments, _descend_separable_compiled,
-                              _EntriesByDrone, _pair_gradient_xy, descend, parse_params)
+                              _EntriesByDrone, _pair_gradient_xy, descend, parse_params, task_gradient)
 from planner.problem import ProblemConfig
 from planner.steiner import TaskTree, maintain_task_tree
 
@@ -452,7 +452,6 @@ class ResilientPlanner(PhiremanPlanner):
         self._rally_by_stamp: dict[int, np.ndarray] = {}     # broadcast stamp -> rally points (units)
         self._target_u: np.ndarray | None = None             # per-drone recovery target (NaN = none yet)
         self._waited = np.zeros(problem.n_drones, dtype=np.int64)
-        self._central_stamp = np.full(problem.n_drones, -1, dtype=np.int64)
         self._open_by_stamp: dict[int, np.ndarray] = {}      # broadcast stamp -> unconnected kept tasks
 
     # -- the base's side ---------------------------------------------------------------------
@@ -484,10 +483,10 @@ class ResilientPlanner(PhiremanPlanner):
 
     # -- main entry --------------------------------------------------------------------------
     def plan(self, tick: TickInput) -> PlanOutput:
-        p = self.params
-        pos_u = np.asarray(tick.pos_m, float) / self.unit_m
-        tasks_u = np.asarray(tick.task_pos_m, float) / self.unit_m
-        base_u = np.asarray(tick.base_m, float) / self.unit_m
+        p, u = self.params, self.units
+        pos_u = u.to_u(tick.pos_m)
+        tasks_u = u.to_u(tick.task_pos_m)
+        base_u = u.to_u(tick.base_m)
         alive = np.asarray(tick.alive, bool)
         networked = np.asarray(tick.networked, bool) & alive
         self.tree = self._base_tree(tick, tasks_u, base_u, int(networked.sum()))
@@ -497,52 +496,50 @@ class ResilientPlanner(PhiremanPlanner):
         if p.claim_gain > 0:
             # The base hears a crew exactly when the crew is connected (A(t)), so it can broadcast
             # the kept tasks that are not.
-            conn = tasks_connected(tasks_u, pos_u, networked, self.r_u)
+            conn = tasks_connected(tasks_u, pos_u, networked, u.radio_range_u)
             self._open_by_stamp[tick.t_step] = tasks_u[self.kept_tasks & ~conn]
             for old in [s for s in self._open_by_stamp if s < tick.t_step - p.tree_stale_steps - 1]:
                 del self._open_by_stamp[old]
-        disp_u = np.zeros_like(pos_u)
         info: dict[str, Any] = {"kept_tasks": int(self.kept_tasks.sum())}
-        if p.info == "central":
-            from planner.phireman import task_gradient
-            idx = np.flatnonzero(networked)
-            self._central_stamp[idx] = tick.t_step
-            if len(idx):
-                tree = self.tree
-                mask = ~np.eye(len(idx), dtype=bool)
-
-                def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
-                    return task_gradient(x, tree, p.thorn, p.nodes_only) + self._pair_grad(x, x, mask)
-
-                res = descend(pos_u[idx], grad, self.vmax_u, p)
-                disp_u[idx] = res.disp_u
-                info.update(iterations=res.iterations, converged=res.converged)
-            stamps = self._central_stamp
+        view = self.info_model.see(tick.t_step, pos_u, tick.alive, networked, base_u, self.tree)
+        if isinstance(view, CentralView):
+            disp_u, more = self._plan_central_numpy(pos_u, self.tree, view)
         else:
-            disp_u, more = self._plan_async(tick, pos_u, base_u, networked)
-            info.update(more)
-            assert self.messages is not None  # built by _plan_async
-            stamps = self.messages.knowledge.tree_stamp
+            disp_u, more = self._plan_async(pos_u, base_u, view)
+        info.update(more)
         if p.rally:
-            self._update_recovery(pos_u, base_u, alive, networked, stamps)
-        return PlanOutput(disp_u * self.unit_m, tree=self._tree_to_m(self.tree), info=info)
+            self._update_recovery(pos_u, base_u, alive, networked, view.held_stamp)
+        return PlanOutput(u.to_m(disp_u), tree=u.tree_to_m(self.tree), info=info)
 
-    def _plan_async(self, tick: TickInput, pos_u: np.ndarray, base_u: np.ndarray,
-                    planning: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    def _plan_central_numpy(self, pos_u: np.ndarray, tree: TaskTree, view: CentralView
+                            ) -> tuple[np.ndarray, dict[str, Any]]:
+        """PhiIREMAN's central descent on the pruned tree, by the NumPy gradient. Not
+        ``PhiremanPlanner._plan_central``: its compiled gradient agrees with this one to ~1e-13 m
+        per tick, not bit for bit, and this planner's recorded runs used the NumPy one."""
+        p = self.params
+        idx, disp_u = view.planned, view.disp_u
+        if len(idx) == 0:
+            return disp_u, view.info()
+        mask = ~np.eye(len(idx), dtype=bool)
+
+        def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+            return task_gradient(x, tree, p.thorn, p.nodes_only) + self._pair_grad(x, x, mask)
+
+        res = descend(pos_u[idx], grad, self.units.max_step_u, p)
+        disp_u[idx] = res.disp_u
+        return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info()}
+
+    def _plan_async(self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
+                    ) -> tuple[np.ndarray, dict[str, Any]]:
         """PhiIREMAN's asynchronous step (same code path) plus the coverage-claim pull."""
         p = self.params
-        if self.messages is None:
-            self.messages = MessageLayer.from_params(len(pos_u), self.problem.n_steps, self.r_u,
-                                                     self.base_reach_u, p)
-        stale, disp_u = self.messages.step_or_home(tick.t_step, pos_u, tick.alive, base_u, self.tree,
-                                                   planning, self.vmax_u)
-        idx = np.flatnonzero(planning & ~stale)
+        idx, disp_u = view.planned, view.disp_u     # stale drones already head home
         if len(idx) == 0:
-            return disp_u, {"stale_tree": int(stale.sum())}
-        ent_r, _, ent_y, stamps = self.messages.view_entries(idx)
-        versions, version_of = np.unique(stamps, return_inverse=True)
-        segments = TreeSegments([self.messages.broadcast(s) for s in versions], version_of, p.nodes_only,
-                                pos_u[idx], self.vmax_u)
+            return disp_u, view.info()
+        r_u, vmax_u = self.units.radio_range_u, self.units.max_step_u
+        ent_r, ent_y, stamps = view.rows_e, view.believed_u, view.stamps
+        trees, version_of = view.broadcasts()
+        segments = TreeSegments(trees, version_of, p.nodes_only, pos_u[idx], vmax_u)
         entries = _EntriesByDrone(ent_r, ent_y, len(idx))
         claim = None
         if p.claim_gain > 0:
@@ -565,7 +562,7 @@ class ResilientPlanner(PhiremanPlanner):
             # a claim take PhiIREMAN's compiled descent (bit for bit the NumPy one) and only the
             # claimers run the NumPy descent with the claim term; same instructions as one NumPy
             # descent of everybody (tests/planner/test_resilient.py).
-            res = _descend_separable_compiled(pos_u[idx], entries, segments, p, self.reach_u, self.vmax_u)
+            res = _descend_separable_compiled(pos_u[idx], entries, segments, p, self.reach_u, vmax_u)
             disp_u[idx] = res.disp_u
             if claim is not None:
                 crow = np.flatnonzero(np.isfinite(claim).all(axis=1))
@@ -578,15 +575,15 @@ class ResilientPlanner(PhiremanPlanner):
                             + segments.gradient(xs[rows], full, p.thorn)
                             + claim_gradient(xs[rows], claim[full], p.claim_gain))
 
-                sub = descend(pos_u[idx[crow]], grad_claimers, self.vmax_u, p, separable=True)
+                sub = descend(pos_u[idx[crow]], grad_claimers, vmax_u, p, separable=True)
                 disp_u[idx[crow]] = sub.disp_u
         else:
-            res = descend(pos_u[idx], grad, self.vmax_u, p, separable=True)
+            res = descend(pos_u[idx], grad, vmax_u, p, separable=True)
             disp_u[idx] = res.disp_u
         if claim is not None and p.claim_tether > 0:
             rows = np.flatnonzero(np.isfinite(claim).all(axis=1))
-            anchor = tether_anchors(pos_u[idx], ent_r, ent_y, base_u, self.r_u, self.base_reach_u)
-            x0, length = pos_u[idx][rows], p.claim_tether * self.r_u
+            anchor = tether_anchors(pos_u[idx], ent_r, ent_y, base_u, r_u, self.units.base_reach_u)
+            x0, length = pos_u[idx][rows], p.claim_tether * r_u
             new = tether(x0 + disp_u[idx][rows], anchor[rows], length)
             # Already beyond the tether (stale anchor): only moves that do not pull away further.
             outside = np.linalg.norm(x0 - anchor[rows], axis=1) > length
@@ -594,8 +591,7 @@ class ResilientPlanner(PhiremanPlanner):
                               > np.linalg.norm(x0 - anchor[rows], axis=1))
             new[outside] = np.where(away[outside, None], x0[outside], (x0 + disp_u[idx][rows])[outside])
             disp_u[idx[rows]] = new - x0
-        return disp_u, {"iterations": res.iterations, "converged": res.converged,
-                        "stale_tree": int(stale.sum()),
+        return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info(),
                         "claims": 0 if claim is None else int(np.isfinite(claim).all(axis=1).sum())}
 
     def _update_recovery(self, pos_u: np.ndarray, base_u: np.ndarray, alive: np.ndarray,
@@ -626,7 +622,7 @@ class ResilientPlanner(PhiremanPlanner):
         held = set(np.unique(stamps[alive]).tolist())
         for s in [s for s in self._rally_by_stamp if s not in held and s != max(self._rally_by_stamp)]:
             del self._rally_by_stamp[s]
-        self.recovery_target_m = target * self.unit_m
+        self.recovery_target_m = self.units.to_m(target)
 
 
 def make_resilient(problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator) -> ResilientPlanner:
