@@ -179,4 +179,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    # `python -m mission.cli` runs this file as __main__; the commands import their errors from
+    # mission.cli, so run *that* module's main (else UserError would be two classes and a user's
+    # mistake would print a traceback).
+    from mission.cli import main as _main
+
+    sys.exit(_main())

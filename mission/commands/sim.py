@@ -87,7 +87,7 @@ def ci_note(n: int, clipped: bool) -> str | None:
 def run(args) -> int:
     from mission.cli import UserError, resolve_workers
     from mission.sim import format_pct_ci, mean_ci95, run_episode, run_many
-    from planner.methods import UnknownMethod, make_planner, method_names
+    from planner.methods import UnknownMethod, make_planner, method_names, params_with_info
     from planner.problem import problem_preset
 
     if args.list_methods:
@@ -104,8 +104,6 @@ def run(args) -> int:
     from mission.commands.sweep import check_overrides, split_overrides
 
     problem_over, params = split_overrides(args.set)
-    if args.info is not None:
-        params["info"] = args.info
     try:
         problem = problem_preset(args.size, args.attrition, args.reading, **problem_over)
     except (ValueError, TypeError) as exc:
@@ -114,6 +112,8 @@ def run(args) -> int:
         raise UserError(f"--method: unknown planner {args.method!r}; valid methods: {', '.join(method_names())}")
     check_overrides([args.method], problem, params)
     try:
+        if args.info is not None:  # one rule for which methods take which model (planner.methods)
+            params = params_with_info(args.method, params, args.info)
         make_planner(args.method, problem, params)  # validate values before running
     except UnknownMethod as exc:
         raise UserError(str(exc)) from None

@@ -37,3 +37,23 @@ def test_sim_runs_and_prints_uptime(capsys, tmp_path):
     assert "TU1 = " in out and "TU2 = " in out
     assert (tmp_path / "runs.csv").read_text().count("\n") == 3
     assert (tmp_path / "fig2_timeseries.png").stat().st_size > 1000
+
+
+def test_sim_info_follows_the_methods_models(capsys):
+    # MCCST plans centrally only: --info central is its own model, --info async a clean refusal.
+    assert main(["sim", "--size", "XS", "--method", "mccst", "--info", "async", "--seeds", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "central information only" in err and "Traceback" not in err
+    assert main(["sim", "--size", "XS", "--method", "mccst", "--info", "central", "--seeds", "1",
+                 "--workers", "1", "--no-progress", "--set", "n_steps=5"]) == 0
+
+
+def test_python_dash_m_reports_user_errors_without_a_traceback():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "mission.cli", "sim", "--method", "mccst",
+                          "--info", "async", "--seeds", "1"], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert "central information only" in out.stderr
