@@ -171,6 +171,13 @@ class MissionWorld:
                 self.swarm.attrition.add_kill(t0_s + loss.t_s, loss.vehicle)
                 self._doomed[loss.vehicle] = True
                 self.losses.append((loss.t_s, loss.vehicle, "scripted"))
+        # The launch's truth grid may already hold a sample at (or after) t0; the mission's grid
+        # starts with its own sample there, so drop it (else the first instant counted twice).
+        tr = self.swarm.truth
+        while tr.t_s and tr.t_s[-1] >= t0_s - 1e-9:
+            tr.t_s.pop()
+            for column in (tr.pos_ned_m, tr.alive, tr.active, tr.task_connected):
+                del column[len(tr.t_s):]
         self.swarm.sample_truth_from(t0_s)
         self.poll(self.swarm.now_s)
         log.info("mission world started at t=%.2f s", t0_s)
