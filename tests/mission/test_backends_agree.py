@@ -16,9 +16,10 @@ tau 1 s, led by ``ControlConfig.lead``) replaces the world's exact one-step move
 D'(t) is sampled every 0.2 s. That moves a task's first connection by about one step, and it
 can, rarely, tip the planner's late configuration into a different local optimum.
 
-Tolerances (measured on seeds 0-7 of this mission, both personalities: per-seed |dTU1| is 0 to
-0.01 on 7 seeds and 0.09 on one whose late configuration tips; the step series agree on >= 95 %
-of the steps on those 7 seeds):
+Tolerances (measured on seeds 0-7 of this mission with ``mixed``, ``ardupilot`` and ``px4``:
+per-seed |dTU1| is at most 0.01 on seeds 0-6 and 0.10 on seed 7, whose late configuration tips
+(|dTU2| 0.09); the step series agree on >= 95 % of the steps on seeds 0-6, 70 % on seed 7; the
+test flies seeds 0-3 to stay fast):
 
 * every seed: the first connection instants agree (the transient), |dTU1|, |dTU2| <= 0.12;
 * the mean over the seeds: |dTU1|, |dTU2| <= 0.04, connected-task counts equal on >= 85 % of
