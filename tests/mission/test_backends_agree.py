@@ -25,9 +25,10 @@ test flies seeds 0-3 to stay fast):
 * the mean over the seeds: |dTU1|, |dTU2| <= 0.04, connected-task counts equal on >= 85 % of
   the steps.
 
-A backend that drew another spawn or task motion, shifted the mission clock or the truth grid
-by a step or two, flew in another frame or ignored the planner misses at least one of these (a
-two-step shift of the emulator's truth grid alone makes the transient check fail).
+Each of these mutations, tried by hand, fails at least one test: the in-process backend drawing
+another seed's scenario (spawn), flying in a swapped frame (north <-> east tasks), ignoring the
+planner, or moving ``ControlConfig.lead`` times its planned step; the emulator's mission clock
+started one or two steps late.
 """
 
 from __future__ import annotations
@@ -70,9 +71,10 @@ def _mission(seed: int):
     return loads_mission(MISSION.replace("SEED", str(seed)))
 
 
-def _fly_in_memory(mission, seed: int) -> np.ndarray:
+def _fly_in_memory(mission, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Fly ``mission`` with the station against the emulator in memory; the truth's (K, M)
-    task connection on the mission's step grid ``t0 + k * dt``, k = 0 .. K-1."""
+    task connection on the mission's step grid ``t0 + k * dt``, k = 0 .. K-1, and the (N, 2)
+    true positions (north, east) at t0."""
     scenario = mission_scenario(mission, seed)
     swarm = build_swarm(mission, scenario, seed=seed)
     world = MissionWorld(mission, scenario, swarm)
@@ -95,7 +97,8 @@ def _fly_in_memory(mission, seed: int) -> np.ndarray:
     t = np.asarray(swarm.truth.t_s) - world.t0_s
     in_mission = (t > -1e-9) & (t < DURATION_S - 1e-9)
     assert np.allclose(np.diff(t[in_mission]), mission.run.control_period_s)
-    return np.asarray(swarm.truth.task_connected)[in_mission]
+    start_ne_m = np.asarray(swarm.truth.pos_ned_m)[in_mission][0][:, :2]
+    return np.asarray(swarm.truth.task_connected)[in_mission], start_ne_m
 
 
 def _tu(connected: np.ndarray) -> tuple[float, float]:
@@ -110,19 +113,22 @@ def runs():
     out = {}
     for seed in SEEDS:
         mission = _mission(seed)
-        inproc = run_inprocess(mission, seed).record.connected[:mission.run.n_steps]
-        out[seed] = (inproc, _fly_in_memory(mission, seed))
+        rec = run_inprocess(mission, seed).record
+        emu, emu_start_ne_m = _fly_in_memory(mission, seed)
+        out[seed] = (rec.connected[:mission.run.n_steps], emu, rec.pos_m[0], emu_start_ne_m)
     return out
 
 
-def test_both_backends_measure_the_same_instants(runs):
-    for seed, (inproc, emu) in runs.items():
+def test_both_backends_start_from_the_same_spawn_and_measure_the_same_instants(runs):
+    for seed, (inproc, emu, start_in, start_emu) in runs.items():
         assert inproc.shape == emu.shape == (40, 3), seed
+        # the emulated vehicles took off vertically from the same ring (spawn noise 2 m)
+        assert np.abs(start_in - start_emu).max() < 0.1, seed
 
 
 def test_the_transient_agrees_seed_by_seed(runs):
     """Until every task is first connected, the two backends count the same tasks (+-1 step)."""
-    for seed, (inproc, emu) in runs.items():
+    for seed, (inproc, emu, _, _) in runs.items():
         assert inproc[0].sum() < 3, "the mission must start with tasks out of reach (else vacuous)"
         first_in = [int(np.argmax(inproc[:, j])) for j in range(3)]
         first_emu = [int(np.argmax(emu[:, j])) for j in range(3)]
@@ -132,7 +138,7 @@ def test_the_transient_agrees_seed_by_seed(runs):
 
 def test_tu1_tu2_agree(runs):
     d1, d2, same = [], [], []
-    for seed, (inproc, emu) in runs.items():
+    for seed, (inproc, emu, _, _) in runs.items():
         (a1, a2), (b1, b2) = _tu(inproc), _tu(emu)
         d1.append(b1 - a1)
         d2.append(b2 - a2)
