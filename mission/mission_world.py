@@ -1,8 +1,9 @@
 """The emulator built for a mission, and the mission's world rules applied to it.
 
-* :func:`mission_scenario` - the deterministic part of one flight (spawn, task tracks), drawn
-  from the seed in the in-process simulator's order (:mod:`mission.scenario`);
-* :func:`control_config` - the station's altitude layers and geofence for the mission;
+* :func:`mission_scenario` - the seed's draws for a flight (:func:`mission.scenario.build_scenario`,
+  the one mission scenario type, with the runner's error for live tasks);
+* :func:`control_config` - the station's altitude layers and geofence for the mission
+  (defined in :mod:`mission.scenario`, re-exported);
 * :func:`build_swarm` - the emulator (:class:`vehicle_emu.swarm.Swarm`) for the mission;
 * :class:`MissionWorld` - attrition, scripted losses, hazard zones and task motion applied to
   that emulator on the mission clock (runner side: never visible to the station).
@@ -11,35 +12,24 @@
 from __future__ import annotations
 
 import logging
-import math
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from gcs.control import ControlConfig, Geofence
 from mission.fly_options import RunnerError
-from mission.scenario import build_scenario, loss_probability, spawn_positions, task_track_m
+from mission.scenario import (  # re-exported: importers of mission.mission_world
+    FENCE_MARGIN_M, POSITION_LOOP_TAU_S, MissionScenario, build_scenario, control_config,
+)
 from mission.schema import Mission
 from planner.metrics import task_uptime
 from vehicle_emu.radio import RadioConfig
 from vehicle_emu.swarm import Swarm
-from vehicle_emu.world import spawn_streams
 
 __all__ = ["MissionScenario", "mission_scenario", "control_config", "build_swarm", "MissionWorld",
            "FENCE_MARGIN_M", "POSITION_LOOP_TAU_S"]
 
 log = logging.getLogger(__name__)
-
-#: Without a mission geofence, the fence is the task field plus this margin, metres.
-FENCE_MARGIN_M = 100.0
-
-
-#: Time constant of a multicopter's position loop (ArduPilot/PX4 position controllers, and the
-#: emulator's ``Physics.tau_pos_s``): the station leads its targets by this much (ControlConfig).
-POSITION_LOOP_TAU_S = 1.0
-
 
 def _speed_params(personalities: list[str], max_speed_m_s: float, climb_rate_m_s: float,
                   user: dict | None) -> dict:
@@ -57,63 +47,15 @@ def _speed_params(personalities: list[str], max_speed_m_s: float, climb_rate_m_s
     return out
 
 
-# ------------------------------------------------------------------------------------------------
-# What the mission implies: spawn, task tracks, fence
-
-
-@dataclass(frozen=True)
-class MissionScenario:
-    """The deterministic part of one run of a mission, drawn from the seed."""
-
-    spawn_ne_m: np.ndarray
-    """(N, 2) start positions, mission frame, metres."""
-    task_track_m: np.ndarray
-    """(tau + 1, M, 2) task positions at t = k * control_period_s, metres."""
-    dt_s: float
-
-    def task_pos_m(self, t_s: float) -> np.ndarray:
-        """(M, 2) task positions at mission time ``t_s`` (linear between steps, held at the ends)."""
-        k = max(0.0, t_s) / self.dt_s
-        last = len(self.task_track_m) - 1
-        k0 = min(int(math.floor(k)), last)
-        k1 = min(k0 + 1, last)
-        a = min(max(k - k0, 0.0), 1.0) if k1 > k0 else 0.0
-        return self.task_track_m[k0] * (1 - a) + self.task_track_m[k1] * a
-
-
 def mission_scenario(mission: Mission, seed: int | None = None, *,
                      live_tasks: bool = False) -> MissionScenario:
-    """Spawn positions and task tracks of ``mission`` for ``seed`` (default ``run.seed``).
-
-    Random draws come from the run's *scenario* stream (:func:`vehicle_emu.world.spawn_streams`),
-    in the in-process simulator's order: ring noise, then each task entry in file order (random
-    starts, then walk increments).
-    """
-    seed = mission.run.seed if seed is None else seed
-    rng = spawn_streams(seed).scenario
-    spawn = spawn_positions(mission, rng)
+    """The seed's draws for a flight of ``mission`` (:func:`mission.scenario.build_scenario`:
+    spawn, task tracks, attrition uniforms, in the in-process simulator's order); a live MAVLink
+    task without ``live_tasks`` is a :class:`RunnerError`."""
     try:
-        track, _ = task_track_m(mission, rng, mission.run.n_steps,
-                                live="nan" if live_tasks else "refuse")
+        return build_scenario(mission, seed, live_tasks=live_tasks)
     except ValueError as exc:  # live MAVLink tasks
         raise RunnerError(str(exc)) from None
-    return MissionScenario(spawn, track, mission.run.control_period_s)
-
-
-def control_config(mission: Mission, scenario: MissionScenario | None = None) -> ControlConfig:
-    """Altitude layers from the mission's flight limits; the mission's geofence, or by default the
-    task field plus :data:`FENCE_MARGIN_M`."""
-    lim = mission.vehicles.limits
-    half = mission.problem_config().field_half_width_m
-    if scenario is not None:
-        half = max(half, float(np.abs(scenario.task_track_m).max(initial=0.0)),
-                   float(np.abs(scenario.spawn_ne_m).max(initial=0.0)))
-    fence = mission.geofence
-    geofence = Geofence.square(fence.half_width_m if fence.half_width_m is not None else half + FENCE_MARGIN_M,
-                               fence.max_alt_m if fence.max_alt_m is not None else math.inf)
-    return ControlConfig(cruise_alt_m=lim.cruise_alt_m, layer_spacing_m=lim.layer_spacing_m,
-                         n_layers=lim.n_layers, geofence=geofence,
-                         lead=1.0 + POSITION_LOOP_TAU_S / mission.run.control_period_s)
 
 
 def _personalities(mission: Mission, override: str | None) -> list[str]:
@@ -186,7 +128,7 @@ class MissionWorld:
     Losses follow the in-process world's draws (common random numbers, docs/design/model.md §6.1): at
     mission step ``t`` vehicle ``i`` is lost iff ``u[t, i] < p_i(t)``, with the uniforms of
     :func:`mission.scenario.build_scenario` (the run's attrition stream) and the per-step
-    probability of :func:`mission.scenario.loss_probability` (background rate plus the active
+    probability of :meth:`MissionScenario.loss_probability` (background rate plus the active
     hazard zones containing the vehicle, from its true position at the step). The loss takes
     effect half a step later (the in-process world measures connectivity, then attrits, then
     moves), through the emulator's kill hook. Scripted losses happen at their exact times.
@@ -200,9 +142,10 @@ class MissionWorld:
         self.scenario = scenario
         self.swarm = swarm
         self.t0_s: float | None = None
-        seed = mission.run.seed if seed is None else seed
-        scn = build_scenario(mission, seed)
-        self._attrition_u = scn.attrition_u
+        # ``seed`` is accepted for older callers: the uniforms are the scenario's, drawn from the
+        # seed the scenario was built with (one drawing, mission.scenario.build_scenario).
+        del seed
+        self._attrition_u = scenario.attrition_u
         self._step = 0
         self._stopped = False
         self._doomed = np.zeros(swarm.n, dtype=bool)
@@ -228,6 +171,13 @@ class MissionWorld:
                 self.swarm.attrition.add_kill(t0_s + loss.t_s, loss.vehicle)
                 self._doomed[loss.vehicle] = True
                 self.losses.append((loss.t_s, loss.vehicle, "scripted"))
+        # The launch's truth grid may already hold a sample at (or after) t0; the mission's grid
+        # starts with its own sample there, so drop it (else the first instant counted twice).
+        tr = self.swarm.truth
+        while tr.t_s and tr.t_s[-1] >= t0_s - 1e-9:
+            tr.t_s.pop()
+            for column in (tr.pos_ned_m, tr.alive, tr.active, tr.task_connected):
+                del column[len(tr.t_s):]
         self.swarm.sample_truth_from(t0_s)
         self.poll(self.swarm.now_s)
         log.info("mission world started at t=%.2f s", t0_s)
@@ -241,7 +191,7 @@ class MissionWorld:
         while self._step < len(u) and now_s >= self.t0_s + self._step * dt - 1e-9:
             t = self._step
             pos = self.swarm.physics.pos_ned_m[:, :2]
-            p = loss_probability(self.mission, t * dt, pos)
+            p = self.scenario.loss_probability(t * dt, pos)
             hit = self.swarm.physics.alive & ~self._doomed & (u[t] < p)
             for i in np.flatnonzero(hit).tolist():
                 self._doomed[i] = True

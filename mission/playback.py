@@ -8,7 +8,10 @@ is compared with). It maps the mission onto the world model of ``vehicle_emu.wor
 * tasks follow their tracks (sampled at every step), seeded random walks, or the ``random``
   generator; live ``mavlink`` tasks cannot be rehearsed in-process and are refused;
 * attrition per drone and step: background rate, plus every hazard zone that contains the drone
-  and is active, converted with p = 1 - exp(-rate * dt); scripted losses happen at their step.
+  and is active, converted with p = 1 - exp(-rate * dt); scripted losses happen at their step;
+* the world loop is :func:`mission.world_loop.run_world` (the one ``phireman sim`` and the sweep
+  use), and each step's targets come from the station's own tick, :func:`gcs.control.tick`
+  (planner -> geofence clip), through :func:`mission.world_loop.station_control`.
 
 Random streams follow ``vehicle_emu.world.spawn_streams``: spawn noise and task walks come from the
 scenario stream, attrition uniforms from the attrition stream, so the same seed gives the same run.
@@ -29,16 +32,16 @@ import numpy as np
 
 from mission.schema import Mission
 from mission.scenario import (  # re-exported: they were drawn here before mission.scenario
-    MissionScenario, build_scenario, loss_probability, spawn_positions, task_position_fn,
-    task_track_m, zone_mask,
+    MissionScenario, build_scenario, control_config, loss_probability, spawn_positions,
+    task_position_fn, task_track_m, zone_mask,
 )
-from mission.sim import EpisodeRecord
-from planner.methods import TickInput, make_planner
+from mission.world_loop import EpisodeRecord, run_world, station_control
+from planner.methods import make_planner
 from planner.metrics import UptimeSeries, uptime_series
 from vehicle_emu.world import World, spawn_streams
 
 __all__ = ["MissionScenario", "build_scenario", "spawn_positions", "task_track_m", "task_position_fn", "zone_mask",
-           "loss_probability", "PlaybackResult", "run_inprocess", "write_run_dir"]
+           "loss_probability", "control_config", "PlaybackResult", "run_inprocess", "write_run_dir"]
 
 log = logging.getLogger(__name__)
 
@@ -60,37 +63,23 @@ def run_inprocess(mission: Mission, seed: int | None = None, frames: Collection[
     t0 = time.perf_counter()
     seed = mission.run.seed if seed is None else seed
     scn = build_scenario(mission, seed)
-    problem = dataclasses.replace(mission.problem_config(), n_drones=len(scn.drone_pos0_m),
+    problem = dataclasses.replace(mission.problem_config(), n_drones=len(scn.spawn_ne_m),
                                   n_tasks=scn.task_track_m.shape[1])
     params = mission.planner.run_params()
     planner = make_planner(mission.planner.method, problem, params, spawn_streams(seed).algorithm)
-    world = World(problem, scn.drone_pos0_m.copy(), np.ones(len(scn.drone_pos0_m), bool), scn.task_track_m)
-    tau, n, m = mission.run.n_steps, problem.n_drones, problem.n_tasks
-    rec = EpisodeRecord(np.zeros((tau + 1, n, 2)), np.zeros((tau + 1, n), bool), np.zeros((tau + 1, n), bool),
-                        scn.task_track_m, np.zeros((tau + 1, m), bool))
-    frames = set(frames)
-    losses = []
-    # The station clips every target into the mission's geofence (gcs.control); so does this
-    # backend, with the same fence (mission_world.control_config, one place for its default).
-    from mission.mission_world import MissionScenario as _FlyScenario, control_config
-    fence = control_config(mission, _FlyScenario(scn.drone_pos0_m, scn.task_track_m, scn.dt_s)).geofence
-    for t in range(tau + 1):
-        active = world.active()
-        rec.connected[t] = world.tasks_connected(active)
-        rec.pos_m[t], rec.alive[t], rec.active[t] = world.pos_m, world.alive, active
-        if t == tau:
-            break
-        out = planner.plan(TickInput(t, world.pos_m, world.alive, active, world.task_pos_m, world.base_m))
-        if t in frames or not frames:
-            rec.trees[t] = out.tree
-        p_loss = loss_probability(mission, t * scn.dt_s, world.pos_m)
-        p_loss = np.where(scn.scripted_step == t, 1.0, p_loss)
-        disp_m = fence.clip_ne(world.pos_m + out.disp_m) - world.pos_m
-        lost = world.step(disp_m, active, p_loss, scn.attrition_u[t])
-        for i in np.flatnonzero(lost):
-            losses.append({"t_s": (t + 1) * scn.dt_s, "event": "vehicle_lost", "index": int(i),
-                           "scripted": bool(scn.scripted_step[i] == t),
-                           "north_m": float(world.pos_m[i, 0]), "east_m": float(world.pos_m[i, 1])})
+    world = World(problem, scn.spawn_ne_m.copy(), np.ones(len(scn.spawn_ne_m), bool), scn.task_track_m)
+    tau = mission.run.n_steps
+    # Targets as the station computes them (gcs.control.tick: planner, then the mission's fence).
+    run = run_world(world, planner, tau, scn.step_loss_probability, scn.attrition_u,
+                    controller=station_control(control_config(mission, scn)), record=True,
+                    frames=set(frames) or None)
+    rec = run.record
+    assert rec is not None  # record=True
+    dt = scn.dt_s
+    losses = [{"t_s": (t + 1) * dt, "event": "vehicle_lost", "index": i,
+               "scripted": bool(scn.scripted_step[i] == t),
+               "north_m": float(rec.pos_m[t + 1, i, 0]), "east_m": float(rec.pos_m[t + 1, i, 1])}
+              for t, i in run.losses]
     series = uptime_series(rec.connected[:tau])
     return PlaybackResult(seed, series.tu1, series.tu2, series, rec, losses, time.perf_counter() - t0,
                           scn.task_names)

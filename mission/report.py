@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mission import paper
+from mission.sim import mean_ci95  # the one definition, re-exported (it was defined here too)
 from mission.store import ResultStore, utc_now
 from mission.sweep import ConfigSpec, paper_ablations_grid, paper_table_grid, resolve
 
@@ -48,18 +49,6 @@ SHORT = {"phireman": "Φ", "dccrs": "D", "mccst": "M"}
 # ----------------------------------------------------------------------------------------------
 # Samples and statistics
 # ----------------------------------------------------------------------------------------------
-
-def mean_ci95(values) -> tuple[float, float]:
-    """Mean and half-width of the 95 % Student-t confidence interval (nan half-width if n < 2)."""
-    from scipy import stats
-
-    x = np.asarray(values, dtype=float)
-    if len(x) == 0:
-        return float("nan"), float("nan")
-    if len(x) < 2:
-        return float(x.mean()), float("nan")
-    return float(x.mean()), float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
-
 
 @dataclass
 class Sample:

@@ -1,15 +1,19 @@
-"""What one seed of a mission draws: spawn positions, task tracks, attrition uniforms and the
-per-step loss probability - one drawing order for every backend.
+"""What one seed of a mission draws: spawn positions, task tracks, attrition uniforms, the
+per-step loss probability and the fence - one scenario type and one drawing order for every
+backend.
 
-The in-process playback (:mod:`mission.playback`) and the emulated flights
-(:mod:`mission.mission_world`) both draw from here, so the same seed gives the same spawn, the
-same task motion and the same losses on both (common random numbers, docs/design/model.md §6.1):
+:class:`MissionScenario` is the only mission scenario type. The in-process playback
+(:mod:`mission.playback`), the emulated flights (:mod:`mission.mission_world`) and the station
+(:mod:`mission.station_loop`) all use it, so the same seed gives the same spawn, the same task
+motion and the same losses on each (common random numbers, docs/design/model.md §6.1):
 
 * drones start at the mission's spawn (ring with seeded noise, or explicit positions);
 * tasks follow their tracks (sampled at every control step), seeded random walks, or the
   ``random`` generator; live ``mavlink`` tasks have no track to draw;
 * attrition per drone and step: background rate, plus every hazard zone that contains the drone
-  and is active, converted with p = 1 - exp(-rate * dt); scripted losses happen at their step.
+  and is active, converted with p = 1 - exp(-rate * dt); scripted losses happen at their step;
+* the station's altitude layers and geofence (:func:`control_config`): the mission's fence, or
+  the task field plus :data:`FENCE_MARGIN_M`.
 
 Random streams follow ``vehicle_emu.world.spawn_streams``: spawn noise and task walks come from
 the scenario stream, attrition uniforms from the attrition stream.
@@ -18,27 +22,60 @@ the scenario stream, attrition uniforms from the attrition stream.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from mission.schema import HazardZone, Mission
+from gcs.control import ControlConfig, Geofence
+from mission.schema import Attrition, HazardZone, Mission
 from vehicle_emu.world import RunStreams, spawn_streams, walk_tasks
 
 __all__ = ["MissionScenario", "build_scenario", "spawn_positions", "task_track_m",
-           "task_position_fn", "zone_mask", "loss_probability"]
+           "task_position_fn", "track_at", "zone_mask", "loss_probability", "control_config",
+           "FENCE_MARGIN_M", "POSITION_LOOP_TAU_S"]
+
+#: Without a mission geofence, the fence is the task field plus this margin, metres.
+FENCE_MARGIN_M = 100.0
+
+#: Time constant of a multicopter's position loop (ArduPilot/PX4 position controllers, and the
+#: emulator's ``Physics.tau_pos_s``): the station leads its targets by this much (ControlConfig).
+POSITION_LOOP_TAU_S = 1.0
 
 
 @dataclass(frozen=True)
 class MissionScenario:
-    """Everything random or scripted about one play of a mission, drawn up front."""
+    """Everything random or scripted about one run of a mission, drawn up front from its seed
+    (:func:`build_scenario`)."""
 
+    spawn_ne_m: np.ndarray
+    """(N, 2) start positions (north, east), mission frame, metres."""
+    task_track_m: np.ndarray
+    """(tau + 1, M, 2) task positions at t = k * dt_s, metres (NaN columns: live tasks)."""
     dt_s: float
-    drone_pos0_m: np.ndarray   # (N, 2) north, east
-    task_track_m: np.ndarray   # (T+1, M, 2) task positions at every step
-    task_names: list[str]
-    attrition_u: np.ndarray    # (T, N) uniforms
-    scripted_step: np.ndarray  # (N,) step at which each drone is scripted to die (-1 never)
+    """The control period, seconds: one world step."""
+    task_names: list[str] = field(default_factory=list)
+    attrition_u: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    """(tau, N) uniforms of the attrition stream: drone i is lost at step t iff u[t, i] < p_i(t)."""
+    scripted_step: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """(N,) step in which each drone is scripted to be lost (-1: never)."""
+    attrition: Attrition = field(default_factory=Attrition)
+    """The mission's attrition section (background rate, hazard zones, scripted losses)."""
+
+    def task_pos_m(self, t_s: float) -> np.ndarray:
+        """(M, 2) task positions at mission time ``t_s`` (linear between steps, held at the ends)."""
+        return track_at(self.task_track_m, self.dt_s, t_s)
+
+    def loss_probability(self, t_s: float, pos_m: np.ndarray) -> np.ndarray:
+        """(N,) loss probability of the step starting at ``t_s``: background plus the active hazard
+        zones containing each position (scripted losses not included)."""
+        return _loss_probability(self.attrition, self.dt_s, t_s, pos_m)
+
+    def step_loss_probability(self, t_step: int, pos_m: np.ndarray) -> np.ndarray:
+        """(N,) loss probability of world step ``t_step``, scripted losses included (p = 1 in the
+        step that contains their time): the in-process world's ``loss_prob``."""
+        p = self.loss_probability(t_step * self.dt_s, pos_m)
+        return np.where(self.scripted_step == t_step, 1.0, p)
 
 
 def spawn_positions(mission: Mission, rng: np.random.Generator) -> np.ndarray:
@@ -109,36 +146,47 @@ def task_track_m(mission: Mission, rng: np.random.Generator, n_steps: int, *,
     return np.concatenate(columns, axis=1), names
 
 
-def task_position_fn(track_m: np.ndarray, dt_s: float):
-    """A ``t_s -> (M, 2)`` function interpolating a sampled track (for the emulator's truth)."""
-    times = np.arange(len(track_m)) * dt_s
 
-    def position(t_s: float) -> np.ndarray:
-        k = float(np.clip(t_s / dt_s, 0, len(track_m) - 1))
-        lo = int(math.floor(k))
-        hi = min(lo + 1, len(track_m) - 1)
-        a = k - lo
-        return (1 - a) * track_m[lo] + a * track_m[hi]
-
-    position.times_s = times  # type: ignore[attr-defined]  # read by the emulator's truth
-    return position
+def track_at(track_m: np.ndarray, dt_s: float, t_s: float) -> np.ndarray:
+    """(M, 2) positions at ``t_s`` of a track sampled every ``dt_s`` (``track_m``: (K, M, 2)):
+    linear between samples, every column at once, exact at the samples, held at the ends."""
+    last = len(track_m) - 1
+    k = min(max(t_s / dt_s, 0.0), float(last))
+    lo = int(math.floor(k))
+    hi = min(lo + 1, last)
+    a = k - lo
+    return track_m[lo] * (1 - a) + track_m[hi] * a
 
 
-def build_scenario(mission: Mission, seed: int | None = None) -> MissionScenario:
-    """Draw a mission's scenario from ``seed`` (default: ``mission.run.seed``)."""
+def task_position_fn(track_m: np.ndarray, dt_s: float) -> Callable[[float], np.ndarray]:
+    """A ``t_s -> (M, 2)`` function interpolating a sampled track (:func:`track_at`)."""
+    return lambda t_s: track_at(track_m, dt_s, t_s)
+
+
+def build_scenario(mission: Mission, seed: int | None = None, *,
+                   live_tasks: bool = False) -> MissionScenario:
+    """Draw a mission's scenario from ``seed`` (default: ``mission.run.seed``).
+
+    Order of the draws: the scenario stream gives the ring noise, then each task entry in file
+    order (random starts, then walk increments); the attrition stream gives the (tau, N)
+    uniforms. ``live_tasks``: a live MAVLink task gets a NaN column (the station fills it from
+    its tracker) instead of raising ValueError (:func:`task_track_m`).
+    """
     seed = mission.run.seed if seed is None else seed
     streams: RunStreams = spawn_streams(seed)
     n_steps = mission.run.n_steps
     dt = mission.run.control_period_s
     pos0 = spawn_positions(mission, streams.scenario)
-    track, names = task_track_m(mission, streams.scenario, n_steps)
+    track, names = task_track_m(mission, streams.scenario, n_steps,
+                                live="nan" if live_tasks else "refuse")
     n = len(pos0)
     scripted = np.full(n, -1, dtype=np.int64)
     for loss in mission.attrition.scripted:
         if loss.vehicle < n:
             step = int(math.floor(loss.t_s / dt + 1e-9))
             scripted[loss.vehicle] = step if scripted[loss.vehicle] < 0 else min(scripted[loss.vehicle], step)
-    return MissionScenario(dt, pos0, track, names, streams.attrition.random((n_steps, n)), scripted)
+    return MissionScenario(pos0, track, dt, names, streams.attrition.random((n_steps, n)), scripted,
+                           mission.attrition)
 
 
 def zone_mask(zone: HazardZone, pos_m: np.ndarray) -> np.ndarray:
@@ -158,11 +206,30 @@ def zone_mask(zone: HazardZone, pos_m: np.ndarray) -> np.ndarray:
     return inside
 
 
-def loss_probability(mission: Mission, t_s: float, pos_m: np.ndarray) -> np.ndarray:
-    """(N,) per-step loss probability: background plus active hazard zones containing each drone."""
-    rate = np.full(len(pos_m), mission.attrition.rate_per_s)
-    for zone in mission.attrition.hazard_zones:
+def _loss_probability(attrition: Attrition, dt_s: float, t_s: float, pos_m: np.ndarray) -> np.ndarray:
+    rate = np.full(len(pos_m), attrition.rate_per_s)
+    for zone in attrition.hazard_zones:
         if zone.active(t_s):
             rate = rate + zone.rate_per_s * zone_mask(zone, pos_m)
-    return -np.expm1(-rate * mission.run.control_period_s)
+    return -np.expm1(-rate * dt_s)
 
+
+def loss_probability(mission: Mission, t_s: float, pos_m: np.ndarray) -> np.ndarray:
+    """(N,) per-step loss probability: background plus active hazard zones containing each drone."""
+    return _loss_probability(mission.attrition, mission.run.control_period_s, t_s, pos_m)
+
+
+def control_config(mission: Mission, scenario: MissionScenario | None = None) -> ControlConfig:
+    """Altitude layers from the mission's flight limits; the mission's geofence, or by default the
+    task field plus :data:`FENCE_MARGIN_M` (wide enough for the scenario's tracks and spawn)."""
+    lim = mission.vehicles.limits
+    half = mission.problem_config().field_half_width_m
+    if scenario is not None:
+        half = max(half, float(np.abs(scenario.task_track_m).max(initial=0.0)),
+                   float(np.abs(scenario.spawn_ne_m).max(initial=0.0)))
+    fence = mission.geofence
+    geofence = Geofence.square(fence.half_width_m if fence.half_width_m is not None else half + FENCE_MARGIN_M,
+                               fence.max_alt_m if fence.max_alt_m is not None else math.inf)
+    return ControlConfig(cruise_alt_m=lim.cruise_alt_m, layer_spacing_m=lim.layer_spacing_m,
+                         n_layers=lim.n_layers, geofence=geofence,
+                         lead=1.0 + POSITION_LOOP_TAU_S / mission.run.control_period_s)

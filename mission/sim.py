@@ -1,12 +1,9 @@
 """In-process RTNUA simulation: the paper's world model driven by a registered planner.
 
-One episode = ``problem.n_steps`` steps of (docs/design/model.md §7 #2, #16):
-
-1. measure: active drones D'(t) and connected tasks A(t) (the metrics' left Riemann sum),
-2. plan: the planner sees the networked drones and all tasks,
-3. attrition: one uniform per drone from the attrition stream,
-4. execute: active drones follow the plan, disconnected ones fly home, lost ones stop,
-5. tasks walk (pre-drawn from the scenario stream).
+One episode = ``problem.n_steps`` steps of :func:`mission.world_loop.run_world` (measure ->
+plan -> attrit -> step, docs/design/model.md §7 #2, #16) on the paper's scenario
+(:func:`vehicle_emu.world.draw_scenario`), with the planner's displacements as they are (the
+paper's world has no geofence).
 
 Runs are independent given their seed, so results do not depend on how many worker processes run
 them (``run_many``).
@@ -17,12 +14,13 @@ from __future__ import annotations
 import logging
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 
 import numpy as np
 
-from planner.methods import TickInput, make_planner
+from mission.world_loop import EpisodeRecord, run_world
+from planner.methods import make_planner
 from planner.metrics import UptimeSeries, uptime_series
 from planner.problem import ProblemConfig
 from vehicle_emu.world import World, draw_scenario, spawn_streams
@@ -30,7 +28,6 @@ from vehicle_emu.world import World, draw_scenario, spawn_streams
 __all__ = ["EpisodeRecord", "EpisodeResult", "run_episode", "run_many", "mean_ci95", "format_pct_ci"]
 
 log = logging.getLogger(__name__)
-
 
 
 def stop_pool_now(pool: ProcessPoolExecutor) -> None:
@@ -43,17 +40,6 @@ def stop_pool_now(pool: ProcessPoolExecutor) -> None:
             p.terminate()
     for p in procs:
         p.join(timeout=5)
-
-@dataclass
-class EpisodeRecord:
-    """Full trajectories of one episode (for plots and replay)."""
-
-    pos_m: np.ndarray        # (tau+1, N, 2)
-    alive: np.ndarray        # (tau+1, N) bool
-    active: np.ndarray       # (tau+1, N) bool
-    task_pos_m: np.ndarray   # (tau+1, M, 2)
-    connected: np.ndarray    # (tau+1, M) bool
-    trees: dict = field(default_factory=dict)  # step -> TaskTree (metres), at recorded frames
 
 
 @dataclass
@@ -95,37 +81,12 @@ def run_episode(problem: ProblemConfig, method: str, params: dict | None, seed: 
     scenario = draw_scenario(problem, streams)
     world = World.from_scenario(problem, scenario)
     planner = make_planner(method, problem, params, streams.algorithm)
-    tau = problem.n_steps
-    n, m = problem.n_drones, problem.n_tasks
-    connected = np.zeros((tau + 1, m), dtype=bool)
-    alive_count = np.zeros(tau, dtype=np.int64)
-    active_count = np.zeros(tau, dtype=np.int64)
-    frames = set(frames)
-    if record:
-        rec = EpisodeRecord(np.zeros((tau + 1, n, 2)), np.zeros((tau + 1, n), bool),
-                            np.zeros((tau + 1, n), bool), scenario.task_track_m.copy(),
-                            np.zeros((tau + 1, m), bool))
-    for t in range(tau + 1):
-        active = world.active()
-        connected[t] = world.tasks_connected(active)
-        if record:
-            rec.pos_m[t], rec.alive[t], rec.active[t] = world.pos_m, world.alive, active
-        if t == tau:
-            break
-        alive_count[t], active_count[t] = world.alive.sum(), active.sum()
-        out = planner.plan(TickInput(t, world.pos_m, world.alive, active, world.task_pos_m, world.base_m))
-        if record and t in frames:
-            rec.trees[t] = out.tree
-        p_loss = problem.attrition_per_step if loss_prob_fn is None else loss_prob_fn(t, world.pos_m)
-        # A planner that publishes rally points (planner.resilient) switches the world's
-        # recovery rule for its disconnected drones; every other planner leaves it at "fly home".
-        world.step(out.disp_m, active, p_loss, scenario.attrition_u[t],
-                   getattr(planner, "recovery_target_m", None))
-    if record:
-        rec.connected = connected
-    series = uptime_series(connected[:tau])
-    return EpisodeResult(seed, method, series.tu1, series.tu2, series, alive_count, active_count,
-                         time.perf_counter() - t0, rec if record else None)
+    run = run_world(world, planner, problem.n_steps,
+                    problem.attrition_per_step if loss_prob_fn is None else loss_prob_fn,
+                    scenario.attrition_u, record=record, frames=set(frames))
+    series = uptime_series(run.connected[:problem.n_steps])
+    return EpisodeResult(seed, method, series.tu1, series.tu2, series, run.alive_count,
+                         run.active_count, time.perf_counter() - t0, run.record)
 
 
 def _run_chunk(args) -> list[dict]:
@@ -185,7 +146,9 @@ def run_many(problem: ProblemConfig, method: str, params: dict | None, seeds: li
 
 
 def mean_ci95(values) -> tuple[float, float]:
-    """Mean and the half-width of its 95 % Student-t confidence interval."""
+    """Mean and the half-width of its 95 % Student-t confidence interval (nan half-width if
+    n < 2; nan, nan if n = 0). The one definition: ``phireman sim``, ``phireman play`` and the
+    report (:mod:`mission.report`) use it."""
     from scipy import stats
 
     x = np.asarray(values, dtype=float)

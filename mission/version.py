@@ -18,11 +18,15 @@ __all__ = ["code_version"]
 
 _ROOT = pathlib.Path(__file__).resolve().parents[1]
 
+#: Hashed sources outside planner/ (paths from the repository root).
+_LOOSE_SOURCES = ("vehicle_emu/world.py", "mission/sim.py", "mission/world_loop.py")
+
 
 def _source_files() -> list[pathlib.Path]:
-    """Sources whose change can change a run's numbers: the planners, the world, the episode loop."""
+    """Sources whose change can change a run's numbers: the planners, the world, the episode and
+    the world loop (:data:`_LOOSE_SOURCES`)."""
     files = sorted((_ROOT / "planner").rglob("*.py"))
-    files += [_ROOT / "vehicle_emu" / "world.py", _ROOT / "mission" / "sim.py"]
+    files += [_ROOT / p for p in _LOOSE_SOURCES]
     return [f for f in files if f.is_file()]
 
 
@@ -30,7 +34,8 @@ def _source_files() -> list[pathlib.Path]:
 def code_version() -> str:
     """'phireman <version> git <commit>[+dirty] src <hash>' of the code in this process.
 
-    ``src`` hashes planner/**.py, vehicle_emu/world.py and mission/sim.py as they were when first
+    ``src`` hashes planner/**.py, vehicle_emu/world.py, mission/sim.py and mission/world_loop.py
+    (:func:`_source_files`) as they were when first
     asked (cached per process), so rows from changed code are distinguishable even without git;
     ``+dirty`` says that git sees uncommitted changes to those same sources.
     """
@@ -51,7 +56,7 @@ def code_version() -> str:
             commit = out.stdout.strip()
             dirty = subprocess.run(
                 ["git", "-C", str(_ROOT), "status", "--porcelain", "--", "planner",
-                 "vehicle_emu/world.py", "mission/sim.py"],
+                 *_LOOSE_SOURCES],
                 capture_output=True, text=True, timeout=10)
             if dirty.returncode == 0 and dirty.stdout.strip():
                 commit += "+dirty"
