@@ -190,20 +190,8 @@ def build_scenario(mission: Mission, seed: int | None = None, *,
 
 
 def zone_mask(zone: HazardZone, pos_m: np.ndarray) -> np.ndarray:
-    """(N,) bool: which positions (north, east) lie in the zone (vectorised over drones)."""
-    north, east = pos_m[:, 0], pos_m[:, 1]
-    if zone.circle is not None:
-        c = zone.circle.center
-        return np.hypot(north - c.north_m, east - c.east_m) <= zone.circle.radius_m
-    inside = np.zeros(len(pos_m), dtype=bool)
-    pts = zone.polygon
-    assert pts is not None  # a zone is a circle or a polygon (the schema)
-    for a, b in zip(pts, pts[1:] + pts[:1]):  # loop over polygon edges, vectorised over drones
-        crosses = (a.north_m > north) != (b.north_m > north)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x = a.east_m + (north - a.north_m) * (b.east_m - a.east_m) / (b.north_m - a.north_m)
-        inside ^= crosses & (east < x)
-    return inside
+    """(N,) bool: which positions (north, east) lie in the zone (:meth:`HazardZone.contains_ne`)."""
+    return np.asarray(zone.contains_ne(pos_m), dtype=bool)
 
 
 def _loss_probability(attrition: Attrition, dt_s: float, t_s: float, pos_m: np.ndarray) -> np.ndarray:

@@ -588,20 +588,30 @@ class HazardZone(_Section):
             problems.append(("polygon", "has zero area (vertices are collinear)"))
         return problems
 
-    def contains(self, north_m: float, east_m: float) -> bool:
-        """Whether a local point is inside the zone (ignores the time window)."""
+    def contains_ne(self, pos_ne_m: Any) -> Any:
+        """(N,) bool: which local points (north, east), an (N, 2) array in metres, lie in the zone
+        (ignores the time window). The one point-in-zone test of the code base: even-odd ray
+        casting over the polygon's edges, vectorised over the points."""
+        import numpy as np
+
+        pos = np.asarray(pos_ne_m, dtype=float).reshape(-1, 2)
+        north, east = pos[:, 0], pos[:, 1]
         if self.circle is not None:
             c = self.circle.center
-            return math.hypot(north_m - c.north_m, east_m - c.east_m) <= self.circle.radius_m
-        inside = False
+            return np.hypot(north - c.north_m, east - c.east_m) <= self.circle.radius_m
+        inside = np.zeros(len(pos), dtype=bool)
         pts = self.polygon
         assert pts is not None  # a circle or a polygon (validated)
-        for a, b in zip(pts, pts[1:] + pts[:1]):
-            if (a.north_m > north_m) != (b.north_m > north_m):
-                x = a.east_m + (north_m - a.north_m) * (b.east_m - a.east_m) / (b.north_m - a.north_m)
-                if east_m < x:
-                    inside = not inside
+        for a, b in zip(pts, pts[1:] + pts[:1]):  # edges; an edge crossed by the ray flips
+            crosses = (a.north_m > north) != (b.north_m > north)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x = a.east_m + (north - a.north_m) * (b.east_m - a.east_m) / (b.north_m - a.north_m)
+            inside ^= crosses & (east < x)
         return inside
+
+    def contains(self, north_m: float, east_m: float) -> bool:
+        """Whether one local point is inside the zone (ignores the time window)."""
+        return bool(self.contains_ne([[north_m, east_m]])[0])
 
     def active(self, t_s: float) -> bool:
         """Whether the zone is active at time ``t_s``."""

@@ -56,7 +56,16 @@ attrition:
     circle, square = m.attrition.hazard_zones
     assert zone_mask(circle, pts).tolist() == [True, False, False, False]
     assert zone_mask(square, pts).tolist() == [False, False, True, False]
-    assert [square.contains(*p) for p in pts] == zone_mask(square, pts).tolist()
+    assert [square.contains(*p) for p in pts] == [False, False, True, False]
+    # a concave (L-shaped) zone: the notch is outside
+    ell = loads_mission(BASE + """
+attrition:
+  hazard_zones:
+    - polygon: [{north_m: 0, east_m: 0}, {north_m: 0, east_m: 20}, {north_m: 10, east_m: 20},
+                {north_m: 10, east_m: 10}, {north_m: 20, east_m: 10}, {north_m: 20, east_m: 0}]
+""").attrition.hazard_zones[0]
+    probe = np.array([[5, 5], [5, 15], [15, 5], [15, 15], [-1, 5], [25, 5]], dtype=float)
+    assert zone_mask(ell, probe).tolist() == [True, True, True, False, False, False]
     assert loss_probability(m, 0.0, pts)[2] == 0.0          # window not open yet
     assert loss_probability(m, 15.0, pts)[2] > 0.0
     assert loss_probability(m, 20.0, pts)[2] == 0.0          # end_s is exclusive
