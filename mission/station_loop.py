@@ -106,7 +106,7 @@ def _planner_spec(mission: Mission) -> tuple[str, ProblemConfig, dict]:
     problem = mission.problem_config()
     method = mission.planner.method
     params = dict(mission.planner.params)
-    if method == "phireman":
+    if method in ("phireman", "phireman-resilient"):
         params["info"] = "central"  # the station plans centrally from D'(t)
     return method, problem, params
 
@@ -125,7 +125,9 @@ def _warm_up_planner(method: str, problem, params: dict, scenario: MissionScenar
     half = max(float(np.abs(tasks).max(initial=0.0)), 10.0)
     n = 8
     pos = rng.uniform(-half / 4, half / 4, size=(n, 2))
-    throwaway = make_planner(method, problem, dict(params), np.random.default_rng(0))
+    # A fleet of n (phireman-resilient's rally bookkeeping is sized by the problem's drones).
+    throwaway = make_planner(method, dataclasses.replace(problem, n_drones=n), dict(params),
+                             np.random.default_rng(0))
     for t_step in range(2):
         throwaway.plan(TickInput(t_step, pos, np.ones(n, bool), np.ones(n, bool), tasks))
     log.info("planner %s warmed up in %.2f s", method, time.monotonic() - t0)
