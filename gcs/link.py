@@ -36,6 +36,7 @@ from gcs.events import (
     TaskPositionReceived,
     TelemetryReceived, VehicleDiscovered, VehicleLost, VehicleRecovered,
 )
+from gcs.rally import mission_event
 from gcs.wire import mavlink
 
 __all__ = ["StationConfig", "StationLink", "VehicleInfo", "LinkStats", "UnknownVehicle",
@@ -832,6 +833,14 @@ class StationLink:
         self._emit(ParamSetFailed(self.link_id, v.sysid, now_s, name, ps.value, None, reason,
                                   ps.attempts))
 
+    # Rally points (gcs/rally.py): the vehicle's replies to an upload go to its keeper as events.
+    def _on_mission_protocol(self, v: _Vehicle, msg: Any, now_s: float) -> None:
+        self._emit(mission_event(self.link_id, v.sysid, msg, now_s))
+
+    def send_message(self, sysid: int, msg: Any, now_s: float) -> None:
+        """Queue one ready-made message to a vehicle (its last address): gcs/rally.py's uploads."""
+        self._send(msg, self._get(sysid).addr, now_s)
+
     def _on_statustext(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         text = msg.text
         if isinstance(text, bytes):
@@ -1310,6 +1319,9 @@ _HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
     "PARAM_ERROR": StationLink._on_param_error,
     "STATUSTEXT": StationLink._on_statustext,
     "HOME_POSITION": StationLink._on_home_position,
+    "MISSION_REQUEST": StationLink._on_mission_protocol,       # gcs/rally.py
+    "MISSION_REQUEST_INT": StationLink._on_mission_protocol,
+    "MISSION_ACK": StationLink._on_mission_protocol,
 }
 
 #: Fully decoded; every other known message stays a checked :class:`~gcs.wire.RawFrame`.

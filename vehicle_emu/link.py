@@ -248,6 +248,7 @@ class VehicleCore:
         self.mode_name, self._behaviour = mode_info
         self._rtl_phase = ""
         self._rtl_cruise_down_m: float | None = None
+        self._rtl_dest_ned_m = self.home_ned_m.copy()  # home, or a rally point (personality)
         self._takeoff_target_down_m: float | None = None
         self._vel_target_s: float | None = None
         self._target_mask = 0b110111111000  # what POSITION_TARGET_* reports
@@ -506,7 +507,7 @@ class VehicleCore:
         if not self.armed:
             return
         pos = ph.pos_ned_m[i]
-        home = self.home_ned_m
+        home = self._rtl_dest_ned_m  # home or the rally point chosen at RTL entry
         phase = self._rtl_phase
         if phase == "climb":
             if self._rtl_cruise_down_m is None:  # return altitude fixed at RTL entry
@@ -742,6 +743,7 @@ class VehicleCore:
         if beh == "rtl":
             self._rtl_phase = "climb"
             self._rtl_cruise_down_m = None
+            self._rtl_dest_ned_m = self.pers.rtl_destination_ned_m()
         elif beh == "land":
             ph.command_land(i)
         elif beh == "guided" and self.pers.resume_offboard(now_s):
