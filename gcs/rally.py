@@ -229,6 +229,13 @@ class RallyConfig:
     alt_above_home_m: float = 40.0
     """Rally point altitude (RALLY_POINT z, above home). ArduCopter returns at the higher of it
     and its RTL altitude; the emulator returns at the RTL altitude."""
+    inward_m: float = 10.0
+    """Each point is uploaded this much nearer the base (along the line to it; on the tree's
+    first edge, where the planner's points lie). The planner puts them at ``rally_dist`` = r from
+    the base, exactly at the edge of the base's reach (min(R, r)); a firmware stops within its
+    acceptance radius of a point (ArduCopter WPNAV_RADIUS 2 m, PX4 NAV_ACC_RAD 10 m), so a drone
+    returning from beyond stopped 0.5-1 m outside the base's reach, was never heard again and
+    landed there (tests/integration/test_rally_flight.py found it)."""
     max_points: int = 10
     """Points kept (the nearest the base first): ArduPilot stores 10+ (``AP_Rally::get_rally_max``
     from the storage size, 15 bytes per point)."""
@@ -238,7 +245,7 @@ class RallyConfig:
     retries: int = 5
 
     def __post_init__(self) -> None:
-        if not (self.move_threshold_m >= 0 and self.min_period_s >= 0 and self.retry_after_s >= 0
+        if not (self.move_threshold_m >= 0 and self.min_period_s >= 0 and self.inward_m >= 0 and self.retry_after_s >= 0
                 and self.ack_timeout_s > 0 and self.retries >= 0 and self.max_points >= 0):
             raise ValueError(f"invalid rally configuration {self}")
         if not -32768 <= self.alt_above_home_m <= 32767:
@@ -299,6 +306,8 @@ class RallyKeeper:
             return False
         pts = np.asarray(points_ne_m, dtype=float).reshape(-1, 2)
         pts = pts[np.isfinite(pts).all(axis=1)]
+        r = np.hypot(*pts.T)
+        pts = pts * (np.maximum(r - self.config.inward_m, 0.0) / np.where(r > 0, r, 1.0))[:, None]
         if len(pts) > self.config.max_points:  # the nearest the base first (stable order)
             pts = pts[np.argsort(np.hypot(*pts.T), kind="stable")[:self.config.max_points]]
         if not force and (now_s - self._published_s < self.config.min_period_s
