@@ -66,15 +66,24 @@ class RallyStep(OperatorState):
         """Uploads to every vehicle heard and in the plan (run and end phases)."""
         if self.rally is None or self._phase not in (Phase.RUN, Phase.END):
             return
-        if self._phase == Phase.END and self.rally.points_ne_m is not None \
-                and len(self.rally.points_ne_m):
-            self.rally.publish(np.zeros((0, 2)), now_s, force=True)
+        self._rally_clear_at_end(now_s)
         rows = np.flatnonzero(~snap.lost & self._in_plan(snap)).tolist()
         self._send_rally(self.rally.poll([self._vid(snap, i) for i in rows], now_s), now_s)
 
+    def _rally_clear_at_end(self, now_s: float) -> None:
+        """In the end phase the set is empty (adopted at once, whatever the rate limit)."""
+        assert self.rally is not None
+        if self._phase == Phase.END and self.rally.points_ne_m is not None \
+                and len(self.rally.points_ne_m):
+            self.rally.publish(np.zeros((0, 2)), now_s, force=True)
+
     def _rally_holds_end(self, vid: tuple[int, int], now_s: float) -> bool:
-        """True while ``vid``'s end RTL should wait for its rally points to be cleared."""
-        if self.rally is None or self.rally.version == 0 or self.rally.up_to_date(vid):
+        """True while ``vid``'s end RTL should wait for its rally points to be cleared (the
+        end step asks before its first RTL, in the poll that entered the end: clear first)."""
+        if self.rally is None:
+            return False
+        self._rally_clear_at_end(now_s)
+        if self.rally.version == 0 or self.rally.up_to_date(vid):
             return False
         assert self.end_t0_s is not None  # set by begin_end
         return now_s - self.end_t0_s < END_CLEAR_WAIT_S

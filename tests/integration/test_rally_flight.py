@@ -13,6 +13,8 @@ the base's range again and the station reclaims them.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -131,3 +133,19 @@ def test_without_rally_points_the_cut_drones_head_home():
         assert core.mode_name == "RTL" or (0, int(f.swarm.sysid_of_index[i])) in {
             (lid, s) for _, lid, s in f.op.reclaimed}
         np.testing.assert_allclose(core._rtl_dest_ned_m, core.home_ned_m)
+
+
+def test_the_end_clears_the_rally_points_before_the_rtl_so_it_goes_home():
+    mission = dataclasses.replace(_mission("ardupilot", rally=True),
+                                  run=RunSpec(duration_s=40.0, control_period_s=1.0, seed=SEED))
+    f = Flight(mission)
+    f.run_until_phase("run")
+    f.run_until(f.op.mission_t0_s + 30.0)
+    assert all(len(core.pers.rally_ne_m()) == 1 for core in f.swarm.cores)
+    f.run_until_phase("done", limit_s=400.0)
+    rtl = [core for core in f.swarm.cores if core.mode_name == "RTL"]
+    assert len(rtl) == len(f.swarm.cores)                     # the end command: RTL
+    for core in rtl:
+        assert core.pers.rally_ne_m().shape == (0, 2)         # cleared first ...
+        np.testing.assert_allclose(core._rtl_dest_ned_m, core.home_ned_m)   # ... so: home
+        assert core.landed and not core.armed
