@@ -42,9 +42,9 @@ def _mission(personality: str, rally: bool) -> Mission:
 
 
 class Flight:
-    def __init__(self, mission: Mission) -> None:
+    def __init__(self, mission: Mission, params: dict | None = None) -> None:
         scenario = mission_scenario(mission, SEED)
-        self.swarm = build_swarm(mission, scenario, seed=SEED)
+        self.swarm = build_swarm(mission, scenario, seed=SEED, params=params)
         self.world = MissionWorld(mission, scenario, self.swarm)
         self.station = station_for_swarm(self.swarm)
         self.op = make_operator(mission, scenario, self.station, FlyOptions(wave_size=10),
@@ -149,3 +149,16 @@ def test_the_end_clears_the_rally_points_before_the_rtl_so_it_goes_home():
         assert core.pers.rally_ne_m().shape == (0, 2)         # cleared first ...
         np.testing.assert_allclose(core._rtl_dest_ned_m, core.home_ned_m)   # ... so: home
         assert core.landed and not core.armed
+
+
+@pytest.mark.parametrize("personality, boot, name, want", [
+    ("ardupilot", {}, "RALLY_LIMIT_KM", 0.0),             # Copter default 0.3 km -> no limit
+    ("px4", {"RTL_TYPE": 2}, "RTL_TYPE", 0.0),             # 2 ignores rally points -> 0
+])
+def test_the_audit_makes_the_firmware_use_rally_points(personality, boot, name, want):
+    f = Flight(_mission(personality, rally=True), params=boot)
+    f.run_until_phase("run")
+    assert [core.params[name] for core in f.swarm.cores] == [want] * len(f.swarm.cores)
+    changes = [c for c in f.op.param_changes if c["name"] == name]
+    assert len(changes) == len(f.swarm.cores)
+    assert all(c["ok"] and c["purpose"] == "rally" for c in changes)
