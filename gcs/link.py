@@ -45,6 +45,7 @@ from gcs.link_discovery import NON_VEHICLE_TYPES, VehicleDiscovery
 from gcs.link_params import ParamProtocol
 from gcs.link_state import (_AUTOPILOT_COMPID, Addr, LinkUsageError, UnknownVehicle, _Command,
                             _ParamRequest, _ParamSet, _RateLimitedLog, _Vehicle)
+from gcs.rally import mission_event
 from gcs.wire import mavlink
 
 __all__ = ["StationConfig", "StationLink", "VehicleInfo", "LinkStats", "UnknownVehicle",
@@ -319,6 +320,14 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
     def address_of(self, sysid: int) -> Addr:
         return self._get(sysid).addr
 
+    # Rally points (gcs/rally.py): the vehicle's replies to an upload go to its keeper as events.
+    def _on_mission_protocol(self, v: _Vehicle, msg: Any, now_s: float) -> None:
+        self._emit(mission_event(self.link_id, v.sysid, msg, now_s))
+
+    def send_message(self, sysid: int, msg: Any, now_s: float) -> None:
+        """Queue one ready-made message to a vehicle (its last address): gcs/rally.py's uploads."""
+        self._send(msg, self._get(sysid).addr, now_s)
+
     def _info(self, v: _Vehicle) -> VehicleInfo:
         return VehicleInfo(self.link_id, v.sysid, v.autopilot, v.vehicle_type, v.adapter.name,
                            v.custom_mode, v.adapter.mode_name(v.custom_mode), v.armed, v.lost,
@@ -470,6 +479,9 @@ _HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
     "PARAM_ERROR": StationLink._on_param_error,
     "STATUSTEXT": StationLink._on_statustext,
     "HOME_POSITION": StationLink._on_home_position,
+    "MISSION_REQUEST": StationLink._on_mission_protocol,       # gcs/rally.py
+    "MISSION_REQUEST_INT": StationLink._on_mission_protocol,
+    "MISSION_ACK": StationLink._on_mission_protocol,
 }
 
 #: Fully decoded; every other known message stays a checked :class:`~gcs.wire.RawFrame`.

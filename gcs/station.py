@@ -98,6 +98,9 @@ class Station:
     def land(self, vid: VehicleId, now_s: float) -> int:
         return self.link(vid[0]).land(vid[1], now_s)
 
+    def send_message(self, vid: VehicleId, msg: object, now_s: float) -> None:
+        self.link(vid[0]).send_message(vid[1], msg, now_s)
+
     def request_param(self, vid: VehicleId, name: str, now_s: float) -> None:
         self.link(vid[0]).request_param(vid[1], name, now_s)
 

@@ -25,6 +25,7 @@ from gcs.aio import StationAdapter
 from gcs.fleet import FleetView, MissionOrigin
 from gcs.link import StationConfig
 from gcs.operations import OperationsConfig, Operator, TickRecord
+from gcs.rally import RallyConfig, RallyKeeper
 from gcs.station import Station
 from gcs.tasks import LiveTasks
 from gcs.wire import mavlink
@@ -121,7 +122,9 @@ def _warm_up_planner(method: str, problem, params: dict, scenario: MissionScenar
     half = max(float(np.abs(tasks).max(initial=0.0)), 10.0)
     n = 8
     pos = rng.uniform(-half / 4, half / 4, size=(n, 2))
-    throwaway = make_planner(method, problem, dict(params), np.random.default_rng(0))
+    # A fleet of n (phireman-resilient's rally bookkeeping is sized by the problem's drones).
+    throwaway = make_planner(method, dataclasses.replace(problem, n_drones=n), dict(params),
+                             np.random.default_rng(0))
     for t_step in range(2):
         throwaway.plan(TickInput(t_step, pos, np.ones(n, bool), np.ones(n, bool), tasks))
     log.info("planner %s warmed up in %.2f s", method, time.monotonic() - t0)
@@ -145,7 +148,18 @@ def make_operator(mission: Mission, scenario: MissionScenario, station: Station,
     live = live_task_columns(mission)
     return Operator(station, fleet, planner, scenario.task_pos_m, control_config(mission, scenario),
                     _operations_config(mission, opts, expected), now_s=now_s,
-                    live_tasks=LiveTasks(fleet.origin, live) if live else None)
+                    live_tasks=LiveTasks(fleet.origin, live) if live else None,
+                    rally=_rally_keeper(mission, params))
+
+
+def _rally_keeper(mission: Mission, params: dict) -> RallyKeeper | None:
+    """Rally points on the vehicles (gcs/rally.py) when the planner publishes them:
+    ``phireman-resilient`` with ``rally: true``; at the mission's cruise altitude."""
+    if mission.planner.method != "phireman-resilient" or not params.get("rally", False):
+        return None
+    o = mission.origin
+    return RallyKeeper(o.lat_deg, o.lon_deg,
+                       RallyConfig(alt_above_home_m=mission.vehicles.limits.cruise_alt_m))
 
 
 def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> dict:

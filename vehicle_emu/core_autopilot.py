@@ -120,7 +120,7 @@ class AutopilotRules(CoreState):
         if not self.armed:
             return
         pos = ph.pos_ned_m[i]
-        home = self.home_ned_m
+        home = self._rtl_dest_ned_m  # home or the rally point chosen at RTL entry
         phase = self._rtl_phase
         if phase == "climb":
             if self._rtl_cruise_down_m is None:  # return altitude fixed at RTL entry
@@ -196,6 +196,7 @@ class AutopilotRules(CoreState):
         if beh == "rtl":
             self._rtl_phase = "climb"
             self._rtl_cruise_down_m = None
+            self._rtl_dest_ned_m = self.pers.rtl_destination_ned_m()
         elif beh == "land":
             ph.command_land(i)
         elif beh == "guided" and self.pers.resume_offboard(now_s):

@@ -137,6 +137,8 @@ class CoreState:
     _behaviour: str
     _rtl_phase: str
     _rtl_cruise_down_m: float | None
+    _rtl_dest_ned_m: np.ndarray
+    """Where RTL flies: home, or the rally point the personality chose at RTL entry."""
     _takeoff_target_down_m: float | None
     _vel_target_s: float | None
     _target_mask: int

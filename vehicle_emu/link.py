@@ -178,6 +178,7 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         self.mode_name, self._behaviour = mode_info
         self._rtl_phase = ""
         self._rtl_cruise_down_m: float | None = None
+        self._rtl_dest_ned_m = self.home_ned_m.copy()  # home, or a rally point (personality)
         self._takeoff_target_down_m: float | None = None
         self._vel_target_s: float | None = None
         self._target_mask = 0b110111111000  # what POSITION_TARGET_* reports

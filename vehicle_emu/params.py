@@ -63,6 +63,9 @@ ARDUPILOT_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("RTL_ALT_FINAL", 0.0, _F, 0, 1000),  # cm; 0 = land at home
     ParamSpec("RTL_SPEED", 0.0, _F, 0, 2000),      # cm/s; 0 = WPNAV_SPEED
     ParamSpec("DISARM_DELAY", 10, _I8, 0, 127),    # s
+    # libraries/AP_Rally/AP_Rally.cpp, Copter defaults (RTL to the nearest rally point or home).
+    ParamSpec("RALLY_LIMIT_KM", 0.3, _F, 0, 1000),  # km; 0 = no limit
+    ParamSpec("RALLY_INCL_HOME", 1, _I8, 0, 1),
 )
 
 # PX4 (v1.14+) names and defaults: src/modules/commander/commander_params.yaml,
@@ -88,6 +91,7 @@ PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("RTL_RETURN_ALT", 60.0, _F, 0, 150),  # m above home
     ParamSpec("RTL_DESCEND_ALT", 30.0, _F, 2, 100),  # m (used as hover height if RTL_LAND_DELAY<0)
     ParamSpec("RTL_LAND_DELAY", 0.0, _F, -1, 300),  # s; -1 = hover at RTL_DESCEND_ALT
+    ParamSpec("RTL_TYPE", 0, _I32, 0, 5),          # 0 closest of home / rally points (rtl_params.c)
 )
 
 

@@ -50,7 +50,8 @@ Layout (one 950-line module split along its seams; each module's docstring says 
 dispatch, discovery, the run's control tick), and the steps it mixes in:
 :mod:`~gcs.operations.audit` (parameter reads and writes), :mod:`~gcs.operations.launch`
 (take-off, retries, reclaim), :mod:`~gcs.operations.end` (RTL / LAND, restore) and
-:mod:`~gcs.operations.actions` (operator actions, interrupt).
+:mod:`~gcs.operations.actions` (operator actions, interrupt) and :mod:`~gcs.operations.rally`
+(the planner's rally points kept on the vehicles, issue 15).
 """
 
 from gcs.operations.config import OPERATOR_ACTIONS, OperationsConfig, OperatorAction, TickRecord

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     from gcs.fleet import FleetSnapshot, FleetView
     from gcs.operations.config import OperationsConfig, OperatorAction, _Row
     from gcs.operations.phases import Phase, Trigger
+    from gcs.rally import RallyKeeper
     from gcs.station import Station
 
 __all__ = ["OperatorState"]
@@ -48,6 +49,8 @@ class OperatorState:
         _fixes_sent_s: float | None
         _limits_sent_s: float | None
         _restore_sent_s: float | None
+        _rally_params_sent_s: float | None
+        rally: RallyKeeper | None
         limit_warnings: list[str]
         prearm: dict[tuple[int, int], tuple[float, str]]
         _audit_round: int
@@ -81,3 +84,4 @@ class OperatorState:
         def _start_launch(self, snap: FleetSnapshot, now_s: float, trigger: Trigger) -> None: ...
         def _hold(self, snap: FleetSnapshot, rows: npt.ArrayLike, now_s: float) -> None: ...
         def begin_end(self, now_s: float) -> None: ...
+        def _rally_holds_end(self, vid: tuple[int, int], now_s: float) -> bool: ...

@@ -15,6 +15,7 @@ import math
 
 from gcs import audit as audit_mod
 from gcs import limits as limits_mod
+from gcs import rally as rally_mod
 from gcs.events import ParamReceived, ParamSetConfirmed, ParamSetFailed, ParamTimedOut
 from gcs.fleet import FleetSnapshot
 from gcs.link import UnknownVehicle
@@ -97,6 +98,9 @@ class AuditStep(OperatorState):
             if self._limits_wanted():
                 names += [n for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
                           if n not in names]
+            if self.rally is not None:  # the settings that make RTL use rally points
+                names += [n for n in rally_mod.RALLY_PARAMS.get(int(snap.autopilot[i]), ())
+                          if n not in names]
             for name in names:
                 self._params_pending.add((*vid, name))
                 self.station.request_param(vid, name, now_s)
@@ -132,6 +136,9 @@ class AuditStep(OperatorState):
                 if self._limits_wanted():  # vehicles discovered late, reads lost: the limits too
                     names += [n for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
                               if n not in got and n not in names]
+                if self.rally is not None:
+                    names += [n for n in rally_mod.RALLY_PARAMS.get(int(snap.autopilot[i]), ())
+                              if n not in got and n not in names]
                 if snap.lost[i]:
                     continue
                 for name in names:
@@ -166,6 +173,13 @@ class AuditStep(OperatorState):
             elif self._sets_pending \
                     and now_s - self._limits_sent_s < self.config.audit_timeout_s:
                 return
+        if self.rally is not None:
+            if self._rally_params_sent_s is None:
+                if self._send_rally_params(vehicles, now_s):
+                    return
+            elif self._sets_pending \
+                    and now_s - self._rally_params_sent_s < self.config.audit_timeout_s:
+                return
         self._start_launch(snap, now_s, Trigger.CLEARED)
 
     def _limits_wanted(self) -> bool:
@@ -192,6 +206,15 @@ class AuditStep(OperatorState):
             for name, value in limits_mod.limit_writes(autopilot, params, cfg.max_speed_m_s,
                                                        climb if math.isfinite(climb) else 1.0):
                 self._set_param(vid, name, value, params.get(name), "limit", now_s)
+        return bool(self._sets_pending)
+
+    def _send_rally_params(self, vehicles: _Vehicles, now_s: float) -> bool:
+        """PARAM_SET what makes each vehicle's RTL use the rally points (gcs/rally.py
+        RALLY_PARAMS); True if any write was sent."""
+        self._rally_params_sent_s = now_s
+        for vid, (autopilot, params) in sorted(vehicles.items()):
+            for name, value in rally_mod.rally_param_writes(autopilot, params):
+                self._set_param(vid, name, value, params.get(name), "rally", now_s)
         return bool(self._sets_pending)
 
     def _set_param(self, vid: tuple[int, int], name: str, value: float, previous: float | None,

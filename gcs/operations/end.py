@@ -74,6 +74,8 @@ class EndStep(OperatorState):
             row = self._rows.setdefault(i, _Row())
             if now_s < row.next_action_s:
                 continue
+            if self.config.end == "rtl" and self._rally_holds_end(vid, now_s):
+                continue  # its rally points are being cleared first (gcs/operations/rally.py)
             row.next_action_s = now_s + self.config.action_retry_s
             try:
                 self.station.clear_position_target(vid, now_s)

@@ -42,6 +42,8 @@ from gcs.operations.config import OperationsConfig, OperatorAction, TickRecord, 
 from gcs.operations.end import EndStep
 from gcs.operations.launch import LaunchStep
 from gcs.operations.phases import Phase, Trigger, next_phase
+from gcs.operations.rally import RallyStep
+from gcs.rally import MissionProtocolReceived, RallyKeeper
 from gcs.station import Station
 from gcs.tasks import LiveTasks
 from planner.geometry import tasks_connected
@@ -62,7 +64,7 @@ def _lookup(table: Mapping[Any, Callable[..., None]], cls: type) -> Callable[...
     return None
 
 
-class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
+class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
     """Launch, run, end and reclaim (see the :mod:`gcs.operations` docstring).
 
     Parameters
@@ -75,16 +77,19 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
     control : altitudes and geofence
     config : sequencing
     now_s : core time at construction
+    rally : keeps the planner's rally points on the vehicles (gcs.operations.rally); None: off
     """
 
     def __init__(self, station: Station, fleet: FleetView, planner: Planner,
                  task_pos_fn: Callable[[float], np.ndarray], control: ControlConfig,
                  config: OperationsConfig = OperationsConfig(), *, now_s: float = 0.0,
-                 gcs_sysid: int = 255, live_tasks: LiveTasks | None = None) -> None:
+                 gcs_sysid: int = 255, live_tasks: LiveTasks | None = None,
+                 rally: RallyKeeper | None = None) -> None:
         self.station = station
         self.fleet = fleet
         self.planner = planner
         self.live_tasks = live_tasks
+        self.rally = rally
         self.task_pos_fn = task_pos_fn if live_tasks is None else (
             lambda t_s: live_tasks.fill(task_pos_fn(t_s)))
         self.refusal: str | None = None
@@ -112,6 +117,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
         self._fixes_sent_s: float | None = None
         self._limits_sent_s: float | None = None
         self._restore_sent_s: float | None = None
+        self._rally_params_sent_s: float | None = None
         self.limit_warnings: list[str] = []
         """Vehicles whose own speed limits could not be read or set (for people)."""
         self.prearm: dict[tuple[int, int], tuple[float, str]] = {}
@@ -236,6 +242,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
         CommandTimedOut: LaunchStep._on_command_failed,
         VehicleLost: _on_vehicle_lost,
         VehicleRecovered: _on_vehicle_recovered,
+        MissionProtocolReceived: RallyStep._on_mission_protocol,
     }
 
     # ------------------------------------------------------------------ timing
@@ -260,6 +267,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
             rec = self._POLL[self._phase](self, snap, now_s)
             if rec is not None:
                 record = rec
+        self._rally_poll(snap, now_s)
         return record
 
     def _poll_discover(self, snap: FleetSnapshot, now_s: float) -> None:
@@ -337,6 +345,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions):
         result = tick(snap.pos_ned_m, airborne, heard, task_pos, self.planner, self._t_step,
                       self.control)
         self._send_targets(snap, result.rows, result.target_ned_m, now_s)
+        self._rally_after_tick(now_s)
         ne = np.where(snap.has_position[:, None], snap.pos_ned_m[:, :2], np.inf)
         covered = tasks_connected(task_pos, ne, heard & snap.has_position,
                                   self.config.radio_range_m)

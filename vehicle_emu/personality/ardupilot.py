@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from mavedge import mavlink
 from mavedge.modes import ARDUCOPTER_MODES
 from vehicle_emu.telemetry import M_HEARTBEAT
@@ -206,6 +208,36 @@ class ArduPilot(Personality):
         # ArduCopter handle_command_int_do_reposition / set_position_target_global_int:
         # ``if (!check_latlng(packet.x, packet.y)) return MAV_RESULT_DENIED``.
         return ap_check_latlng_e7(lat_e7, lon_e7)
+
+    # -- return (RTL) ---------------------------------------------------------------------
+
+    def rtl_destination_ned_m(self) -> np.ndarray:
+        """ArduCopter RTL returns to ``AP_Rally::calc_best_rally_or_home_location`` (ArduCopter/
+        mode_rtl.cpp ``ModeRTL::compute_return_target``, at RTL entry through ``build_path``),
+        libraries/AP_Rally/AP_Rally.cpp:
+
+        * ``find_nearest_rally_point``: the nearest stored point (the first of equals, strict
+          ``dis < min_dis``); none if ``RALLY_LIMIT_KM`` > 0 and it is farther than that (then home);
+        * ``calc_best_rally_or_home_location``: that point if ``RALLY_INCL_HOME`` = 0 or it is
+          nearer than home (strict ``<``), else home.
+
+        ``AP_Rally_Copter::is_valid`` (the point inside the fence) is not modelled: every point is
+        valid.
+        """
+        core = self.core
+        pts = self.rally_ne_m()
+        if len(pts) == 0:
+            return self._rally_or_home(None)
+        pos = core.physics.pos_ned_m[core.index, :2]
+        dist = np.hypot(*(pts - pos).T)
+        k = int(np.argmin(dist))                     # first of equal minima, as the strict loop
+        limit_km = float(core.params["RALLY_LIMIT_KM"])
+        if limit_km > 0 and dist[k] > limit_km * 1000.0:
+            return self._rally_or_home(None)
+        d_home = float(np.hypot(*(core.home_ned_m[:2] - pos)))
+        if not int(core.params["RALLY_INCL_HOME"]) or dist[k] < d_home:
+            return self._rally_or_home(pts[k])
+        return self._rally_or_home(None)
 
     # -- streams and parameters -----------------------------------------------------------
 

@@ -262,6 +262,38 @@ class Personality:
     def home_e7(self) -> tuple[int, int]:
         return deg_to_e7(self.core.home_lla[0]), deg_to_e7(self.core.home_lla[1])
 
+    # -- return (RTL) -------------------------------------------------------------------
+
+    def rally_ne_m(self) -> np.ndarray:
+        """(K, 2) world north / east (m) of the stored rally points, in upload order.
+
+        Items in a global frame only (lat / lon in degE7); a point at lat = lon = 0 is skipped, as
+        ArduPilot's ``AP_Rally::get_rally_point_with_index`` "sanity check" and PX4's
+        ``RTL::extractValidSafePointPosition`` (null island) both do. The altitude of a rally point
+        is not used: the emulator returns at the RTL altitude (see :meth:`rtl_destination_ned_m`).
+        """
+        core = self.core
+        out = []
+        for it in core._missions.items.get(mavlink.MAV_MISSION_TYPE_RALLY, ()):
+            if it.frame not in GLOBAL_AMSL + GLOBAL_REL or (it.x == 0 and it.y == 0):
+                continue
+            ned = geodetic_to_ned_m(e7_to_deg(it.x), e7_to_deg(it.y), core.home_lla[2],
+                                    *core.physics.origin_lla)
+            out.append((float(ned[0]), float(ned[1])))
+        return np.array(out, dtype=float).reshape(-1, 2)
+
+    def rtl_destination_ned_m(self) -> np.ndarray:
+        """World NED (m) of where RTL flies, chosen when RTL starts (down: home's; the return
+        altitude is the core's). Home here; each firmware's rally-point rule in the subclasses."""
+        return self.core.home_ned_m.copy()
+
+    def _rally_or_home(self, ne_m: np.ndarray | None) -> np.ndarray:
+        """Home, or the rally point ``ne_m`` at home's down."""
+        home = self.core.home_ned_m
+        if ne_m is None:
+            return home.copy()
+        return np.array((ne_m[0], ne_m[1], home[2]), dtype=float)
+
     # -- streams and parameters -----------------------------------------------------------
 
     def on_request_data_stream(self, m, now_s: float) -> None:

@@ -69,6 +69,12 @@ _NAN_AS_INT = 0x7FF80000
 _ALL_GROUPS = POS_BITS | VEL_BITS | ACC_BITS
 
 
+#: src/modules/navigator/rtl.cpp ``MAX_DIST_FROM_HOME_FOR_LAND_APPROACHES`` (m): rally points this
+#: close to home are ignored; ``MIN_DIST_THRESHOLD`` (m): the margin a nearer point needs.
+_PX4_RALLY_NEAR_HOME_M = 10.0
+_PX4_RALLY_MIN_DIST_M = 2.0
+
+
 def _f32_norm_overflows(vec) -> bool:
     """True when the float32 Euclidean norm of ``vec`` is infinite (x*x overflows)."""
     with np.errstate(over="ignore"):
@@ -330,6 +336,41 @@ class PX4(Personality):
         core = self.core
         north, east = px4_map_project(lat_deg, lon_deg, *core.home_lla[:2])
         return core.home_ned_m + np.array((north, east, core.home_lla[2] - alt_amsl_m))
+
+    # -- return (RTL) ---------------------------------------------------------------------
+
+    def rtl_destination_ned_m(self) -> np.ndarray:
+        """PX4 Return's destination, chosen on activation (src/modules/navigator/rtl.cpp
+        ``RTL::setRtlTypeAndDestination`` -> ``RTL::findRtlDestination`` ->
+        ``RTL::findClosestSafePoint``), by ``RTL_TYPE`` (rtl_params.c):
+
+        * 0 (default) and 3: the closest of home and the rally points (mission landings are not
+          flown by the emulator); 1: the closest rally point, home only without one
+          (``prioritize_safe_points_over_home``: ``min_dist`` starts at FLT_MAX); 5: the closest
+          rally point, else where it is (the current position);
+        * 2 and 4 return along the mission / to its landing and do not consider rally points:
+          home here (the emulator flies no missions);
+        * a rally point within ``MAX_DIST_FROM_HOME_FOR_LAND_APPROACHES`` (10 m) of home is
+          ignored (except with 5), and one wins only when nearer than the best so far by
+          ``MIN_DIST_THRESHOLD`` (2 m): ``(dist + MIN_DIST_THRESHOLD) < min_dist``.
+        """
+        core = self.core
+        rtl_type = int(core.params["RTL_TYPE"])
+        if rtl_type in (2, 4):
+            return self._rally_or_home(None)
+        pos = core.physics.pos_ned_m[core.index, :2]
+        home_ne = core.home_ned_m[:2]
+        min_dist = math.inf if rtl_type in (1, 5) else float(np.hypot(*(home_ne - pos)))
+        best = None
+        for pt in self.rally_ne_m():               # loop over a handful of stored points
+            if rtl_type != 5 and float(np.hypot(*(pt - home_ne))) <= _PX4_RALLY_NEAR_HOME_M:
+                continue
+            dist = float(np.hypot(*(pt - pos)))
+            if dist + _PX4_RALLY_MIN_DIST_M < min_dist:
+                min_dist, best = dist, pt
+        if best is None and rtl_type == 5:
+            return np.array((pos[0], pos[1], core.home_ned_m[2]), dtype=float)
+        return self._rally_or_home(best)
 
     # -- parameters -----------------------------------------------------------------------
 
