@@ -603,8 +603,15 @@ class ResilientPlanner(PhiremanPlanner):
         copy it holds; kept until it reconnects; home after ``rally_wait_steps`` at the point."""
         p = self.params
         n = len(pos_u)
-        if self._target_u is None:
-            self._target_u = np.full((n, 2), np.nan)
+        if self._target_u is None or len(self._target_u) != n or len(self._waited) != n:
+            # Sized by the tick, not the problem: a station plans for the vehicles it has (fewer
+            # than the mission's count on real links, more rows as vehicles are discovered);
+            # rows keep their index, so the kept prefix stays with its drone.
+            old_t = np.full((0, 2), np.nan) if self._target_u is None else self._target_u
+            keep = min(n, len(old_t), len(self._waited))
+            target_new, waited_new = np.full((n, 2), np.nan), np.zeros(n, dtype=np.int64)
+            target_new[:keep], waited_new[:keep] = old_t[:keep], self._waited[:keep]
+            self._target_u, self._waited = target_new, waited_new
         target = self._target_u
         target[networked] = np.nan
         self._waited[networked] = 0

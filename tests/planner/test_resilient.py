@@ -250,3 +250,21 @@ def test_planner_runs_with_every_mechanism_on():
     r = run_episode(p, "phireman-resilient", {"claim_tether": 0.9, "rally": True, "triage_length_per_drone": 3.0,
                                               "predict_steps": 5.0}, 2)
     assert 0.0 <= r.tu1 <= 1.0
+
+
+@pytest.mark.parametrize("info", ["central", "async"])
+def test_rally_planner_plans_for_the_fleet_it_is_given(info):
+    # A station plans for the vehicles it has: 6 of the mission's 10 on real links, then more
+    # rows as vehicles are discovered. The rally bookkeeping must follow the tick's size.
+    p = problem_preset("XS", 0.0).replace(n_drones=10)
+    planner = make_planner("phireman-resilient", p, {"rally": True, "info": info}, np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    tasks = rng.uniform(-200, 200, (p.n_tasks, 2))
+    # (The message layer is sized at its first tick: with async information the fleet may be
+    # smaller than the problem's but must not grow.)
+    sizes = ((6, 0), (6, 1), (12, 2), (12, 3)) if info == "central" else ((6, 0), (6, 1), (6, 2))
+    for n, t in sizes:
+        pos = rng.uniform(-50, 50, (n, 2))
+        out = planner.plan(TickInput(t, pos, np.ones(n, bool), np.ones(n, bool), tasks))
+        assert out.disp_m.shape == (n, 2)
+        assert planner.recovery_target_m.shape == (n, 2)
