@@ -497,15 +497,13 @@ def grid_pairs(x, y, range_m, cell, x0, y0, nx, ny):
 
 
 @njit(cache=True)
-def finish_knowledge_update(r, c, s, alive, t_step, age_cut, hist, px, py, far2, radio2, forget, t_sent,
-                            old_r, old_c, stamp):
+def finish_knowledge_update(r, c, s, alive, t_step, age_cut, hist, px, py, far2, radio2, forget, t_sent):
     """The end of :meth:`planner.knowledge.Knowledge.update` after the message hop, in one pass,
     with the NumPy version's integer rules and the same float arithmetic (bit for bit):
 
     own entries (dead holders' entries dropped, every alive holder's own entry stamped t_step,
     inserted in row-major order if missing), the age cut (stamp >= age_cut), the distance cut
-    (d^2 > far2, plus believed within radio range yet not heard, stamp < t_sent, if ``forget``),
-    the (N, N) ``stamp`` table updated in place (old entries cleared, new ones written).
+    (d^2 > far2, plus believed within radio range yet not heard, stamp < t_sent, if ``forget``).
 
     r, c, s : (E,) entries after the hop, row-major, one per (r, c); hist : (T, N, 2) positions.
     Returns rows, cols, stamps (kept entries), col_held (N,) bool (known to somebody before the
@@ -585,10 +583,6 @@ def finish_knowledge_update(r, c, s, alive, t_step, age_cut, hist, px, py, far2,
             xx[w] = bx[f]
             yy[w] = by[f]
             w += 1
-    for f in range(len(old_r)):
-        stamp[old_r[f], old_c[f]] = -1
-    for f in range(kept):
-        stamp[rr[f], cc[f]] = ss[f]
     return rr, cc, ss, col_held, xx, yy
 
 

@@ -16,7 +16,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from planner import _kernels
+from planner import _graph_kernels, _kernels
 
 __all__ = [
     "NORTH", "EAST", "DOWN",
@@ -133,6 +133,10 @@ def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
     base = np.zeros(p.shape[1]) if base_m is None else np.asarray(base_m, dtype=float)
     reached = np.linalg.norm(p - base, axis=1) <= min(base_range_m, radio_range_m)
     if not reached.any():
+        return out
+    fast = _graph_kernels.reach_from(p, reached, radio_range_m)
+    if fast is not None:            # a grid breadth-first search, no pair list (the same set)
+        out[idx] = fast
         return out
     pairs = radio_pairs(p, radio_range_m)     # the order of the pairs does not matter here
     if len(p) > _BFS_MAX_DRONES:
