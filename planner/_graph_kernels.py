@@ -15,7 +15,8 @@ the same result up to rounding.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, TypeVar, cast
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
@@ -187,9 +188,9 @@ def reach_from(pos_m: np.ndarray, reached: np.ndarray, range_m: float) -> np.nda
     ny = int((hi[1] - lo[1]) // cell) + 1
     if nx * ny > 8 * n + 4096:
         return None
-    return cast(np.ndarray, _reach_from_jit(np.ascontiguousarray(pos_m[:, 0]), np.ascontiguousarray(pos_m[:, 1]),
-                                            np.asarray(reached, dtype=np.bool_), float(range_m), cell,
-                                            float(lo[0]), float(lo[1]), nx, ny))
+    return _reach_from_jit(np.ascontiguousarray(pos_m[:, 0]), np.ascontiguousarray(pos_m[:, 1]),
+                           np.asarray(reached, dtype=np.bool_), float(range_m), cell, float(lo[0]), float(lo[1]),
+                           nx, ny)
 
 
 def _knn_pairs(x: np.ndarray, y: np.ndarray, reach: float, k: int, cell: float, x0: float, y0: float,
@@ -383,8 +384,7 @@ def hop_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holder
     in place of the reference's gather of every link's row (which held links x columns / 8 bytes per
     level: ~370 MB at 2,000 packed drones). Integer results, so exactly the reference's entries, in
     the same row-major order. Every stamp must lie in [t_sent - max_level, t_sent]."""
-    return cast(tuple[np.ndarray, np.ndarray, np.ndarray],
-                _hop_bitsets_jit(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
+    return (_hop_bitsets_jit(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
                                  np.asarray(stamps, np.int64), int(n_holders), int(n_cols),
                                  np.asarray(link_start, np.int64), np.asarray(link_src, np.int64),
                                  int(t_sent), int(max_level)))
@@ -418,8 +418,7 @@ def edge_terms(x: np.ndarray, u: np.ndarray, edges: np.ndarray, r_c: np.ndarray,
     components sums x then y, checked by tests), so the same bits. None without Numba."""
     if not (_kernels.NUMBA and _kernels.ENABLED) or x.ndim != 2 or x.shape[1] != 2:
         return None
-    return cast(tuple[np.ndarray, np.ndarray, np.ndarray],
-                _edge_terms_jit(np.ascontiguousarray(x[:, 0], dtype=np.float64),
+    return (_edge_terms_jit(np.ascontiguousarray(x[:, 0], dtype=np.float64),
                                 np.ascontiguousarray(x[:, 1], dtype=np.float64),
                                 np.ascontiguousarray(u[:, 0], dtype=np.float64),
                                 np.ascontiguousarray(u[:, 1], dtype=np.float64),

@@ -381,10 +381,10 @@ class StampTable:
         dense[self._rows, self._cols] = self._stamps
         return dense if dtype is None else dense.astype(dtype)
 
-    def __eq__(self, other: object) -> Any:  # type: ignore[override]  # elementwise, as an array
+    def __eq__(self, other: object) -> Any:  # elementwise, as an array
         return np.asarray(self) == other
 
-    def __ne__(self, other: object) -> Any:  # type: ignore[override]  # elementwise, as an array
+    def __ne__(self, other: object) -> Any:  # elementwise, as an array
         return np.asarray(self) != other
 
     def __ge__(self, other: Any) -> Any:
@@ -411,7 +411,7 @@ class _StampTables:
     pos_hist_m: np.ndarray
 
     def _stamp_array(self) -> np.ndarray:
-        return np.asarray(getattr(self, "stamp"))
+        raise NotImplementedError  # each implementation holds its table its own way
 
     def believed_positions_m(self) -> np.ndarray:
         """(N, N, 2): where drone i believes drone k is (garbage where stamp is unknown)."""
@@ -470,6 +470,9 @@ class Knowledge(_StampTables):
     def stamp(self) -> StampTable:
         """The (N, N) stamp table as a read-only view of the entries (see :class:`StampTable`)."""
         return StampTable(self.n_drones, self.held_rows, self.held_cols, self.held_stamps)
+
+    def _stamp_array(self) -> np.ndarray:
+        return np.asarray(self.stamp)
 
     @property
     def known_view(self) -> np.ndarray:
@@ -603,6 +606,9 @@ class KnowledgeDense(_StampTables):
         """Nothing known, no tree, room for ``n_steps`` + 1 steps of positions."""
         return cls(np.full(n_drones, UNKNOWN, dtype=np.int64), np.zeros((n_steps + 1, n_drones, 2)),
                    np.full((n_drones, n_drones), UNKNOWN, dtype=np.int64))
+
+    def _stamp_array(self) -> np.ndarray:
+        return self.stamp
 
     def update(self, t_step: int, pos_prev_m: np.ndarray | None, alive_prev: np.ndarray | None,
                pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float, base_reach_m: float,
