@@ -1,5 +1,6 @@
-"""Compiled graph kernels (Numba): the MCCST's spanning tree, the radio graph's reach from the base,
-MCCST's collision pairs.
+"""Compiled graph and geometry kernels (Numba): the MCCST's spanning tree, collision pairs and edge
+terms, the radio graph's reach from the base, the tasks' coverage, the world's bounded moves, the
+message layer's bit-set hop.
 
 Kept apart from :mod:`planner._kernels` (the planners' descent and message kernels) so that each
 module stays readable; the same rules hold (docs in :mod:`planner._kernels`): every kernel has a
@@ -22,7 +23,8 @@ import numpy as np
 
 from planner import _kernels
 
-__all__ = ["mst_prim", "reach_from", "knn_pairs", "hop_bitsets", "edge_terms"]
+__all__ = ["mst_prim", "reach_from", "knn_pairs", "hop_bitsets", "edge_terms", "any_within",
+           "bounded_moves", "reaches_root"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
@@ -426,3 +428,122 @@ def edge_terms(x: np.ndarray, u: np.ndarray, edges: np.ndarray, r_c: np.ndarray,
                                 np.ascontiguousarray(edges[:, 1], dtype=np.int64),
                                 np.ascontiguousarray(np.broadcast_to(r_c, (len(edges),)), dtype=np.float64),
                                 np.ascontiguousarray(group, dtype=np.int64)))
+
+
+def _any_within(tx: np.ndarray, ty: np.ndarray, x: np.ndarray, y: np.ndarray, range_m: float) -> np.ndarray:
+    out = np.zeros(len(tx), dtype=np.bool_)
+    for t in range(len(tx)):
+        for j in range(len(x)):
+            dx = tx[t] - x[j]
+            dy = ty[t] - y[j]
+            if math.sqrt(dx * dx + dy * dy) < range_m:
+                out[t] = True
+                break
+    return out
+
+
+_any_within_jit = _jit(_any_within)
+
+#: Above this many (task, drone) pairs :func:`any_within` leaves the work to the KD-tree.
+ANY_WITHIN_MAX_PAIRS = 2_000_000
+
+
+def any_within(task_pos_m: np.ndarray, pos_m: np.ndarray, range_m: float) -> np.ndarray | None:
+    """(M,) bool: some row of ``pos_m`` lies strictly closer than ``range_m`` to each task, the
+    distance sqrt(dx^2 + dy^2) as the KD-tree's nearest-neighbour query computes it (squares
+    summed x then y, one square root), by brute force with an early exit: for the swarms of one
+    mission (M x N below ``ANY_WITHIN_MAX_PAIRS``) cheaper than building a KD-tree every tick.
+    None when it does not apply (no Numba, not 2-D, NaN or non-finite drones): the caller queries
+    the KD-tree (:func:`planner.geometry.tasks_connected`)."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or len(task_pos_m) * len(pos_m) > ANY_WITHIN_MAX_PAIRS:
+        return None
+    if task_pos_m.ndim != 2 or task_pos_m.shape[1] != 2 or pos_m.ndim != 2 or pos_m.shape[1] != 2:
+        return None
+    if not np.all(np.isfinite(pos_m)) or np.any(np.isnan(task_pos_m)) or not np.isfinite(range_m):
+        return None
+    return _any_within_jit(np.ascontiguousarray(task_pos_m[:, 0], dtype=np.float64),
+                           np.ascontiguousarray(task_pos_m[:, 1], dtype=np.float64),
+                           np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
+                           np.ascontiguousarray(pos_m[:, 1], dtype=np.float64), float(range_m))
+
+
+def _bounded_moves(px: np.ndarray, py: np.ndarray, dx_in: np.ndarray, dy_in: np.ndarray, active: np.ndarray,
+                   alive: np.ndarray, hx: float, hy: float, vmax: float) -> np.ndarray:
+    n = len(px)
+    out = np.empty((n, 2))
+    for i in range(n):
+        if active[i]:
+            dx = dx_in[i]
+            dy = dy_in[i]
+        else:                                   # planner.geometry.step_toward, row by row
+            tx = hx - px[i]
+            ty = hy - py[i]
+            dist = math.sqrt(tx * tx + ty * ty)
+            f = min(vmax, dist) / (dist if dist > 0 else 1.0)
+            dx = tx * f
+            dy = ty * f
+        norm = math.sqrt(dx * dx + dy * dy)
+        s = min(1.0, vmax / (norm if norm > 0 else 1.0))
+        a = 1.0 if alive[i] else 0.0
+        out[i, 0] = px[i] + dx * s * a
+        out[i, 1] = py[i] + dy * s * a
+    return out
+
+
+_bounded_moves_jit = _jit(_bounded_moves)
+
+
+def bounded_moves(pos_m: np.ndarray, disp_m: np.ndarray, active: np.ndarray, alive: np.ndarray,
+                  home_m: np.ndarray, vmax: float) -> np.ndarray | None:
+    """The motion of :meth:`vehicle_emu.world.World.step` for one home point, in one pass: active
+    drones take ``disp_m``, the others head for ``home_m`` (never overshooting it), every
+    displacement is scaled down to ``vmax``, and only ``alive`` drones move. The same operations
+    in the same order as the NumPy lines there (``np.linalg.norm`` of two components sums x^2 then
+    y^2; a bool times a float is a product with 1.0 or 0.0), so the same bits; a new (N, 2) array.
+    None when it does not apply (no Numba, not 2-D, non-finite or NaN input, home not one point)."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or pos_m.ndim != 2 or pos_m.shape[1] != 2:
+        return None
+    if disp_m.shape != pos_m.shape or np.shape(home_m) != (2,) or not np.isfinite(vmax):
+        return None
+    if not (np.all(np.isfinite(pos_m)) and np.all(np.isfinite(disp_m)) and np.all(np.isfinite(home_m))):
+        return None
+    return _bounded_moves_jit(np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
+                              np.ascontiguousarray(pos_m[:, 1], dtype=np.float64),
+                              np.ascontiguousarray(disp_m[:, 0], dtype=np.float64),
+                              np.ascontiguousarray(disp_m[:, 1], dtype=np.float64),
+                              np.asarray(active, dtype=np.bool_), np.asarray(alive, dtype=np.bool_),
+                              float(home_m[0]), float(home_m[1]), float(vmax))
+
+
+def _reaches_root(parent: np.ndarray) -> bool:
+    k = len(parent)
+    state = np.zeros(k, dtype=np.int8)         # 0 unseen, 1 on the current walk, 2 reaches node 0
+    state[0] = 2
+    path = np.empty(k, dtype=np.int64)
+    for v in range(k):
+        m = 0
+        u = v
+        while state[u] == 0:
+            state[u] = 1
+            path[m] = u
+            m += 1
+            u = parent[u]
+            if u < 0 or u >= k:
+                return False
+        if state[u] == 1:
+            return False
+        for q in range(m):
+            state[path[q]] = 2
+    return True
+
+
+_reaches_root_jit = _jit(_reaches_root)
+
+
+def reaches_root(parent: np.ndarray) -> bool | None:
+    """Whether every node's parent pointers lead to node 0 (no cycle, indices in range; node 0's
+    own parent is not followed), in O(K): the check of :class:`planner.steiner.TaskTree`, whose
+    reference is the pointer jumping of ``_root_path_lengths``. None without Numba."""
+    if not (_kernels.NUMBA and _kernels.ENABLED):
+        return None
+    return bool(_reaches_root_jit(np.asarray(parent, dtype=np.int64)))

@@ -17,6 +17,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from planner import _graph_kernels, _kernels
+from planner._graph_kernels import bounded_moves
 
 __all__ = [
     "NORTH", "EAST", "DOWN",
@@ -27,6 +28,7 @@ __all__ = [
     "active_mask_reference",
     "tasks_connected",
     "step_toward",
+    "bounded_moves",
     "geodetic_to_ned_m",
     "ned_to_geodetic",
 ]
@@ -210,6 +212,9 @@ def tasks_connected(task_pos_m: np.ndarray, drone_pos_m: np.ndarray, active: np.
     act = np.asarray(drone_pos_m, dtype=float)[np.asarray(active, dtype=bool)]
     if len(act) == 0 or len(task_pos_m) == 0:
         return np.zeros(len(task_pos_m), dtype=bool)
+    fast = _graph_kernels.any_within(task_pos_m, act, radio_range_m)
+    if fast is not None:        # brute force, compiled: the same distance, no KD-tree per tick
+        return fast
     d, _ = cKDTree(act).query(task_pos_m, k=1)
     return d < radio_range_m
 

@@ -151,3 +151,63 @@ def test_stamp_table_lookup_is_the_dense_table(rng):
     assert (empty[qr, qc] == -1).all()
     with pytest.raises(IndexError):
         table[np.array([n]), np.array([0])]
+
+
+def test_any_within_is_the_kd_tree_coverage(rng, reference_paths):
+    from planner.geometry import tasks_connected
+    for trial in range(300):
+        n, m, w = int(rng.integers(1, 200)), int(rng.integers(1, 40)), rng.uniform(1, 20)
+        x, tasks = rng.uniform(-w, w, (n, 2)), rng.uniform(-w, w, (m, 2))
+        active = rng.random(n) > 0.2
+        if trial % 5 == 0:
+            x, tasks = np.round(x, 1), np.round(tasks, 1)
+        if trial % 7 == 0:
+            tasks[0] = x[0] + [2.0, 0.0]          # exactly at r: not covered (strict)
+            active[0] = True
+        got = tasks_connected(tasks, x, active, 2.0)
+        reference_paths(True)
+        want = tasks_connected(tasks, x, active, 2.0)
+        reference_paths(False)
+        assert np.array_equal(got, want), trial
+
+
+def test_world_step_compiled_is_the_numpy_step(rng, reference_paths):
+    """Whole episodes of the world with random instructions: same positions bit for bit, same losses."""
+    from dataclasses import replace
+
+    from mission.sim import draw_scenario, spawn_streams
+    from planner.problem import problem_preset
+    from vehicle_emu.world import World
+    for size, seed in (("XS", 0), ("S", 1), ("M", 2)):
+        problem = replace(problem_preset(size, 0.02))
+        scenario = draw_scenario(problem, spawn_streams(seed))
+        worlds = [World.from_scenario(problem, scenario) for _ in range(2)]
+        vmax = problem.max_speed_m_s * problem.dt_s
+        for t in range(60):
+            active = worlds[0].active()
+            disp = rng.normal(0, vmax, (problem.n_drones, 2)) * rng.choice([0.0, 0.5, 3.0], (problem.n_drones, 1))
+            for k, world in enumerate(worlds):
+                reference_paths(k == 1)
+                lost = world.step(disp, active, problem.attrition_per_step, scenario.attrition_u[t])
+            reference_paths(False)
+            assert np.array_equal(worlds[0].pos_m, worlds[1].pos_m) and np.array_equal(worlds[0].alive, worlds[1].alive)
+            assert lost.dtype == bool
+
+
+def test_reaches_root_is_the_pointer_jumping_check(rng):
+    from planner.steiner import _edge_lengths, _root_path_lengths
+    for _ in range(500):
+        k = int(rng.integers(1, 30))
+        parent = rng.integers(0, k, k)              # TaskTree checks the range before the cycles
+        parent[0] = -1
+        if rng.random() < 0.5:                      # a proper tree: parents earlier in a shuffle
+            order = rng.permutation(np.arange(1, k))
+            chain = np.concatenate([[0], order])
+            for pos in range(1, k):
+                parent[chain[pos]] = chain[rng.integers(0, pos)]
+        try:
+            _root_path_lengths(parent, _edge_lengths(np.zeros((k, 2)), parent))
+            want = True
+        except ValueError:
+            want = False
+        assert _graph_kernels.reaches_root(parent) is want
