@@ -312,9 +312,17 @@ def knn_pairs(x: np.ndarray, reach: float, k: int) -> np.ndarray | None:
     return np.column_stack([key // n, key % n]).astype(np.intp)
 
 
+#: de Bruijn table: the index of the lowest set bit of a uint64 w is
+#: _DEBRUIJN_INDEX[((w & -w) * _DEBRUIJN) >> 58].
+_DEBRUIJN = 0x03F79D71B4CB0A89
+_DEBRUIJN_INDEX = np.zeros(64, dtype=np.int64)
+for _b in range(64):
+    _DEBRUIJN_INDEX[(((1 << _b) * _DEBRUIJN) & 0xFFFFFFFFFFFFFFFF) >> 58] = _b
+
+
 def _hop_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holders: int, n_cols: int,
-                 link_start: np.ndarray, link_src: np.ndarray, t_sent: int,
-                 max_level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 link_start: np.ndarray, link_src: np.ndarray, t_sent: int, max_level: int,
+                 debruijn_index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     levels = max_level + 1
     col_of = np.full(n_cols, -1, dtype=np.int64)
     for e in range(len(cols)):
@@ -329,38 +337,41 @@ def _hop_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holde
         if col_of[k] >= 0:
             col_ids[col_of[k]] = k
     words = (n_k + 63) // 64
-    # sets[i, L]: the columns holder i holds with age <= L, one bit each
-    sets = np.zeros((n_holders, levels, words), dtype=np.uint64)
+    block = levels * words
+    # sets[i * block + L * words + w]: the columns holder i holds with age <= L, one bit each
+    sets = np.zeros(n_holders * block, dtype=np.uint64)
     one = np.uint64(1)
     for e in range(len(rows)):
         kk = col_of[cols[e]]
         bit = one << np.uint64(kk & 63)
+        base = rows[e] * block + (kk >> 6)
         for level in range(t_sent - stamps[e], levels):
-            sets[rows[e], level, kk >> 6] |= bit
-    acc = np.zeros((levels, words), dtype=np.uint64)
-    cap = max(len(rows), 16)
+            sets[base + level * words] |= bit
+    acc = np.zeros(block, dtype=np.uint64)
+    cap = max(len(rows) + n_holders, 16)
     out_r = np.empty(cap, dtype=np.int64)
     out_c = np.empty(cap, dtype=np.int64)
     out_s = np.empty(cap, dtype=np.int64)
     m = 0
+    magic = np.uint64(_DEBRUIJN)
+    shift = np.uint64(58)
+    top = (levels - 1) * words
     for i in range(n_holders):
-        acc[:, :] = 0
+        for q in range(block):
+            acc[q] = 0
         for li in range(link_start[i], link_start[i + 1]):
-            j = link_src[li]
-            for level in range(levels):
-                for w in range(words):
-                    acc[level, w] |= sets[j, level, w]
+            src = link_src[li] * block
+            for q in range(block):
+                acc[q] |= sets[src + q]
         for w in range(words):
-            word = acc[levels - 1, w]
-            if word == 0:
-                continue
-            for b in range(64):
-                bit = one << np.uint64(b)
-                if word & bit == 0:
-                    continue
+            word = acc[top + w]
+            while word:
+                low = word & (~word + one)                 # the lowest set bit
+                b = debruijn_index[(low * magic) >> shift]
+                word ^= low
                 count = 0
                 for level in range(levels):
-                    if acc[level, w] & bit:
+                    if acc[level * words + w] & low:
                         count += 1
                 if m == cap:
                     cap *= 2
@@ -389,7 +400,7 @@ def hop_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holder
     return (_hop_bitsets_jit(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
                                  np.asarray(stamps, np.int64), int(n_holders), int(n_cols),
                                  np.asarray(link_start, np.int64), np.asarray(link_src, np.int64),
-                                 int(t_sent), int(max_level)))
+                                 int(t_sent), int(max_level), _DEBRUIJN_INDEX))
 
 
 def _edge_terms(x: np.ndarray, y: np.ndarray, ux: np.ndarray, uy: np.ndarray, ei: np.ndarray, ej: np.ndarray,

@@ -119,10 +119,12 @@ def test_hop_bitsets_is_the_numpy_bitset_hop(rng):
             assert np.array_equal(a, b), trial
 
 
-@pytest.mark.parametrize("max_per_bit", [0.0, 1e9])
-def test_propagate_entries_same_whichever_compiled_hop(rng, monkeypatch, max_per_bit):
-    """The cost model picks the per-entry maximum or the compiled bit sets: same entries."""
+@pytest.mark.parametrize("max_per_bit", [1e-9, 1e9])
+@pytest.mark.parametrize("compiled_from", [0, 10_000])
+def test_propagate_entries_same_whichever_compiled_hop(rng, monkeypatch, max_per_bit, compiled_from):
+    """The cost model picks the per-entry maximum, the compiled or NumPy's bit sets: same entries."""
     monkeypatch.setattr(knowledge, "_MAX_PER_BIT_WORD", max_per_bit)
+    monkeypatch.setattr(knowledge, "_COMPILED_BITSET_MIN_HOLDERS", compiled_from)
     for _ in range(30):
         n = int(rng.integers(2, 200))
         x = rng.uniform(0, 6, (n, 2))
