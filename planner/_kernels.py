@@ -465,10 +465,12 @@ def propagate_max(start: np.ndarray, cols: np.ndarray, stamps: np.ndarray, link_
 
 
 @njit(cache=True)
-def grid_pairs(x: np.ndarray, y: np.ndarray, range_m: float, cell: float, x0: float, y0: float, nx: int, ny: int) -> np.ndarray:
+def grid_pairs(x: np.ndarray, y: np.ndarray, range_m: float, cell: float, x0: float, y0: float, nx: int,
+               ny: int, ordered: bool = True) -> np.ndarray:
     """All pairs i < j with sqrt(dx^2 + dy^2) <= range_m (the distance as ``np.linalg.norm`` of
     the difference computes it), found through a uniform grid of ``cell``-sized cells (cell >=
-    range_m, so a pair lies in the same or adjacent cells). Returns (P, 2) int64 sorted by (i, j).
+    range_m, so a pair lies in the same or adjacent cells). Returns (P, 2) int64 sorted by (i, j)
+    (``ordered``; else in the order found, i ascending, which saves the sort of P keys).
     """
     n = len(x)
     cx = np.empty(n, dtype=np.int64)
@@ -507,6 +509,11 @@ def grid_pairs(x: np.ndarray, y: np.ndarray, range_m: float, cell: float, x0: fl
                         pj[m] = j
                         m += 1
     out = np.empty((m, 2), dtype=np.int64)
+    if not ordered:                     # the order in which the cells were scanned
+        for q in range(m):
+            out[q, 0] = pi[q]
+            out[q, 1] = pj[q]
+        return out
     key = pi[:m] * n + pj[:m]
     o = np.argsort(key)
     for q in range(m):

@@ -75,12 +75,13 @@ def neighbour_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
     return pairs[d <= range_m].astype(np.intp)
 
 
-def radio_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
+def radio_pairs(pos_m: np.ndarray, range_m: float, ordered: bool = True) -> np.ndarray:
     """The pairs of :func:`neighbour_pairs` (the same set: the same inclusive test on the same
     distance), sorted by (i, j); for callers to whom the order does not matter (connectivity, the
     message hop). Compiled grid search (:func:`planner._kernels.grid_pairs`) when available and
     the swarm's bounding box holds at most a few cells per drone; else :func:`neighbour_pairs`
-    (the reference, whose pair order is the KD-tree's).
+    (the reference, whose pair order is the KD-tree's). ``ordered=False``: the same set in no
+    particular order (each pair still i < j), for callers that take maxima over the pairs.
     """
     pos_m = np.asarray(pos_m, dtype=float)
     n = len(pos_m)
@@ -96,7 +97,8 @@ def radio_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
     if nx * ny > 8 * n + 4096:              # a sparse spread: the KD-tree is the better index
         return neighbour_pairs(pos_m, range_m)
     return _kernels.grid_pairs(np.ascontiguousarray(pos_m[:, 0]), np.ascontiguousarray(pos_m[:, 1]),
-                               float(range_m), cell, float(lo[0]), float(lo[1]), nx, ny).astype(np.intp)
+                               float(range_m), cell, float(lo[0]), float(lo[1]), nx, ny,
+                               bool(ordered)).astype(np.intp, copy=False)
 
 
 def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,

@@ -546,7 +546,9 @@ class Knowledge(_StampTables):
             link_pos_m, link_alive, t_sent = pos_prev_m, alive_prev, t_step - 1  # type: ignore[assignment]  # read only if pos_prev_m is not None
         if pos_prev_m is not None:
             idx = np.flatnonzero(link_alive)
-            pairs = radio_pairs(link_pos_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
+            # Unordered pairs: the hop and the tree flood take maxima over the links (any order).
+            pairs = (radio_pairs(link_pos_m[idx], radio_range_m, ordered=False) if len(idx) > 1
+                     else np.empty((0, 2), np.intp))
             # Holders outside ``idx`` have no links: they keep their forwarded entries (the others
             # are past the age cut-off below either way).
             r, c, s = propagate_entries(r, c, s, n, n, idx[pairs], t_sent, age_max_steps)
