@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -149,6 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nsweep estimate ({len(cfg)} configurations x {args.sweep_seeds} seeds): CPU {tot_old:.1f} -> "
           f"{tot_new:.1f} min ({tot_old / tot_new:.2f}x); wall on {args.workers} workers (CPU / workers, "
           f"perfect packing): {tot_old / args.workers:.1f} -> {tot_new / args.workers:.1f} min")
+    if args.commit:
+        shutil.rmtree(base, ignore_errors=True)
     bad = sum(r[5][4:6] != r[6][4:6] for r in rows)
     print("TU1 / TU2: all identical" if not bad else f"TU1 / TU2: {bad} of {len(rows)} runs differ")
     return 1 if bad else 0
