@@ -12,27 +12,39 @@ point operations into FMAs), so an element-wise formula written in the same oper
 NumPy version gives the same bits, and a sum accumulated in the same order as ``np.bincount`` (entry
 order) gives the same bits as well. Where NumPy sums in another order (BLAS products, pairwise
 sums), the kernel's docstring says so.
+
+Size: ~730 lines, above the ~600 guideline: the planners' compiled kernels in one place (one
+import, one Numba cache); the graph and geometry kernels live in :mod:`planner._graph_kernels`.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
 try:  # pragma: no cover - exercised by whichever environment runs the tests
-    from numba import njit, prange
+    import numba
 
     NUMBA = True
+    prange: Any = numba.prange
 except ImportError:  # pragma: no cover
     NUMBA = False
+    prange = range
 
-    def njit(*args, **kwargs):  # type: ignore[no-redef]  # numba's stand-in when absent
-        if args and callable(args[0]):
-            return args[0]
-        return lambda f: f
+_F = TypeVar("_F", bound=Callable[..., Any])
 
-    prange = range  # type: ignore[misc]  # numba's stand-in when absent
+
+def njit(**options: Any) -> Callable[[_F], _F]:
+    """``numba.njit(**options)`` that keeps the function's signature for the type checker (Numba's
+    decorator is untyped); the plain function when Numba is missing."""
+    def wrap(func: _F) -> _F:
+        if not NUMBA:  # pragma: no cover
+            return func
+        return cast(_F, numba.njit(**options)(func))
+    return wrap
 
 #: False: the callers run the NumPy reference paths instead (benchmarks and tests compare the two).
 ENABLED = True
@@ -51,7 +63,8 @@ PARALLEL_MIN_DRONES = 1500
 _PAIR_FASTMATH = {"reassoc", "nsz", "contract"}
 
 
-def _central_pair_body(x, y, attraction, floor, repulsion, reach, pair_factor, out, i):
+def _central_pair_body_py(x: np.ndarray, y: np.ndarray, attraction: float, floor: float, repulsion: float, reach: float, pair_factor: float,
+                       out: np.ndarray, i: int) -> None:
     xi, yi = x[i], y[i]
     gx = 0.0
     gy = 0.0
@@ -73,12 +86,12 @@ def _central_pair_body(x, y, attraction, floor, repulsion, reach, pair_factor, o
     out[i, 1] = pair_factor * gy
 
 
-if NUMBA:
-    _central_pair_body = njit(cache=True, inline="always", fastmath=_PAIR_FASTMATH)(_central_pair_body)
+_central_pair_body = njit(cache=True, inline="always", fastmath=_PAIR_FASTMATH)(_central_pair_body_py)
 
 
 @njit(cache=True, fastmath=_PAIR_FASTMATH)
-def _central_pair_serial(x, y, attraction, floor, repulsion, reach, pair_factor):
+def _central_pair_serial(x: np.ndarray, y: np.ndarray, attraction: float, floor: float, repulsion: float, reach: float,
+                         pair_factor: float) -> np.ndarray:
     out = np.empty((len(x), 2))
     for i in range(len(x)):
         _central_pair_body(x, y, attraction, floor, repulsion, reach, pair_factor, out, i)
@@ -86,7 +99,8 @@ def _central_pair_serial(x, y, attraction, floor, repulsion, reach, pair_factor)
 
 
 @njit(cache=True, parallel=True, fastmath=_PAIR_FASTMATH)
-def _central_pair_parallel(x, y, attraction, floor, repulsion, reach, pair_factor):
+def _central_pair_parallel(x: np.ndarray, y: np.ndarray, attraction: float, floor: float, repulsion: float, reach: float,
+                           pair_factor: float) -> np.ndarray:
     out = np.empty((len(x), 2))
     for i in prange(len(x)):
         _central_pair_body(x, y, attraction, floor, repulsion, reach, pair_factor, out, i)
@@ -118,7 +132,7 @@ def central_pair_gradient(pos_u: np.ndarray, attraction: float, floor: float, re
 
 
 @njit(cache=True)
-def _segment_gradient(px, py, ax, ay, ex, ey, e2, thorn):
+def _segment_gradient(px: np.ndarray, py: np.ndarray, ax: np.ndarray, ay: np.ndarray, ex: np.ndarray, ey: np.ndarray, e2: np.ndarray, thorn: float) -> np.ndarray:
     n = len(px)
     m = len(ax)
     out = np.empty((n, 2))
@@ -175,7 +189,7 @@ def segment_gradient(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, th
 
 
 @njit(cache=True, inline="always")
-def _pair_coef(dx, dy, attraction, floor, repulsion, reach):
+def _pair_coef(dx: float, dy: float, attraction: float, floor: float, repulsion: float, reach: float) -> float:
     """One entry's pair-gradient coefficient (gradient = (dx, dy) * coef):
     :func:`planner.phireman._pair_gradient_xy`'s element-wise operations in the same order."""
     d2 = dx * dx
@@ -193,7 +207,7 @@ def _pair_coef(dx, dy, attraction, floor, repulsion, reach):
 
 
 @njit(cache=True, inline="always")
-def _limit_fraction(dx, dy, stx, sty, v2):
+def _limit_fraction(dx: float, dy: float, stx: float, sty: float, v2: float) -> float:
     """The fraction of the step (stx, sty) from (dx, dy) that ends on the speed limit |d| = √v2
     (:func:`planner.phireman._scale_to_limit`, same arithmetic), clipped to [0, 1]."""
     a = stx * stx + sty * sty
@@ -205,7 +219,8 @@ def _limit_fraction(dx, dy, stx, sty, v2):
 
 
 @njit(cache=True)
-def entries_pair_gradient(px, py, rows, ox, oy, n, attraction, floor, repulsion, reach, pair_factor):
+def entries_pair_gradient(px: np.ndarray, py: np.ndarray, rows: np.ndarray, ox: np.ndarray, oy: np.ndarray, n: int, attraction: np.ndarray, floor: float,
+                          repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
     """:func:`planner.phireman._pair_gradient_xy`, bit for bit: the same element-wise operations in
     the same order, summed per holder in entry order as ``np.bincount`` does.
 
@@ -230,7 +245,7 @@ def entries_pair_gradient(px, py, rows, ox, oy, n, attraction, floor, repulsion,
 
 
 @njit(cache=True)
-def entries_segment_gradient(px, py, er, ax, ay, ex, ey, e2, n, thorn):
+def entries_segment_gradient(px: np.ndarray, py: np.ndarray, er: np.ndarray, ax: np.ndarray, ay: np.ndarray, ex: np.ndarray, ey: np.ndarray, e2: np.ndarray, n: int, thorn: float) -> np.ndarray:
     """:meth:`planner.phireman.TreeSegments._gradient_entries`, bit for bit: per entry (drone er[e],
     segment e) the same clamped projection, the first minimum per drone (entries of a drone are
     consecutive, in segment order). Every drone 0..n-1 has at least one entry."""
@@ -268,8 +283,10 @@ def entries_segment_gradient(px, py, er, ax, ay, ex, ey, e2, n, thorn):
 
 
 @njit(cache=True)
-def descend_separable(px, py, pair_start, ox, oy, seg_start, ax, ay, ex, ey, e2, attraction, floor,
-                      repulsion, reach, pair_factor, thorn, step_size, tolerance, vmax, max_steps):
+def descend_separable(px: np.ndarray, py: np.ndarray, pair_start: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg_start: np.ndarray, ax: np.ndarray, ay: np.ndarray, ex: np.ndarray, ey: np.ndarray,
+                      e2: np.ndarray, attraction: float, floor: float, repulsion: float, reach: float,
+                      pair_factor: float, thorn: float, step_size: float, tolerance: float, vmax: float,
+                      max_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The async PhiIREMAN descent of one tick (:func:`planner.phireman.descend` with
     ``separable=True`` and the 'per_drone' speed rule), every drone in one compiled loop.
 
@@ -356,7 +373,8 @@ def descend_separable(px, py, pair_start, ox, oy, seg_start, ax, ay, ex, ey, e2,
 
 
 @njit(cache=True)
-def prune_segments(px, py, version, ax, ay, ex, ey, e2, count, margin):
+def prune_segments(px: np.ndarray, py: np.ndarray, version: np.ndarray, ax: np.ndarray, ay: np.ndarray, ex: np.ndarray, ey: np.ndarray, e2: np.ndarray, count: np.ndarray,
+                   margin: float) -> tuple[np.ndarray, np.ndarray]:
     """The candidate segments of :class:`planner.phireman.TreeSegments` (``pos0`` given): for drone
     i holding tree ``version[i]``, the segments s < count[v] with D_s <= min_s D_s + margin +
     1e-9 (1 + min_s D_s), D_s the distance from (px[i], py[i]) computed as ``TreeSegments._d2``
@@ -398,7 +416,8 @@ def prune_segments(px, py, version, ax, ay, ex, ey, e2, count, margin):
 
 
 @njit(cache=True)
-def propagate_max(start, cols, stamps, link_start, link_src, n_cols):
+def propagate_max(start: np.ndarray, cols: np.ndarray, stamps: np.ndarray, link_start: np.ndarray, link_src: np.ndarray,
+                  n_cols: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One hop of the recency rule on an entry list (:func:`planner.knowledge.propagate_entries`):
     new[i, k] = max over j in {i} U N(i) of sent[j, k], as a per-entry maximum over a CSR
     adjacency. Integer maxima, so exactly the bit-set / max-plus versions' result.
@@ -446,10 +465,12 @@ def propagate_max(start, cols, stamps, link_start, link_src, n_cols):
 
 
 @njit(cache=True)
-def grid_pairs(x, y, range_m, cell, x0, y0, nx, ny):
+def grid_pairs(x: np.ndarray, y: np.ndarray, range_m: float, cell: float, x0: float, y0: float, nx: int,
+               ny: int, ordered: bool = True) -> np.ndarray:
     """All pairs i < j with sqrt(dx^2 + dy^2) <= range_m (the distance as ``np.linalg.norm`` of
     the difference computes it), found through a uniform grid of ``cell``-sized cells (cell >=
-    range_m, so a pair lies in the same or adjacent cells). Returns (P, 2) int64 sorted by (i, j).
+    range_m, so a pair lies in the same or adjacent cells). Returns (P, 2) int64 sorted by (i, j)
+    (``ordered``; else in the order found, i ascending, which saves the sort of P keys).
     """
     n = len(x)
     cx = np.empty(n, dtype=np.int64)
@@ -488,6 +509,11 @@ def grid_pairs(x, y, range_m, cell, x0, y0, nx, ny):
                         pj[m] = j
                         m += 1
     out = np.empty((m, 2), dtype=np.int64)
+    if not ordered:                     # the order in which the cells were scanned
+        for q in range(m):
+            out[q, 0] = pi[q]
+            out[q, 1] = pj[q]
+        return out
     key = pi[:m] * n + pj[:m]
     o = np.argsort(key)
     for q in range(m):
@@ -497,15 +523,15 @@ def grid_pairs(x, y, range_m, cell, x0, y0, nx, ny):
 
 
 @njit(cache=True)
-def finish_knowledge_update(r, c, s, alive, t_step, age_cut, hist, px, py, far2, radio2, forget, t_sent,
-                            old_r, old_c, stamp):
+def finish_knowledge_update(r: np.ndarray, c: np.ndarray, s: np.ndarray, alive: np.ndarray, t_step: int, age_cut: int, hist: np.ndarray, px: np.ndarray, py: np.ndarray,
+                            far2: float, radio2: float, forget: bool,
+                            t_sent: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The end of :meth:`planner.knowledge.Knowledge.update` after the message hop, in one pass,
     with the NumPy version's integer rules and the same float arithmetic (bit for bit):
 
     own entries (dead holders' entries dropped, every alive holder's own entry stamped t_step,
     inserted in row-major order if missing), the age cut (stamp >= age_cut), the distance cut
-    (d^2 > far2, plus believed within radio range yet not heard, stamp < t_sent, if ``forget``),
-    the (N, N) ``stamp`` table updated in place (old entries cleared, new ones written).
+    (d^2 > far2, plus believed within radio range yet not heard, stamp < t_sent, if ``forget``).
 
     r, c, s : (E,) entries after the hop, row-major, one per (r, c); hist : (T, N, 2) positions.
     Returns rows, cols, stamps (kept entries), col_held (N,) bool (known to somebody before the
@@ -585,16 +611,14 @@ def finish_knowledge_update(r, c, s, alive, t_step, age_cut, hist, px, py, far2,
             xx[w] = bx[f]
             yy[w] = by[f]
             w += 1
-    for f in range(len(old_r)):
-        stamp[old_r[f], old_c[f]] = -1
-    for f in range(kept):
-        stamp[rr[f], cc[f]] = ss[f]
     return rr, cc, ss, col_held, xx, yy
 
 
 @njit(cache=True)
-def descend_separable_leader(px, py, pair_start, ox, oy, aw, lx, ly, gain, exponent, r, lfloor, floor,
-                             repulsion, reach, pair_factor, step_size, tolerance, vmax, max_steps):
+def descend_separable_leader(px: np.ndarray, py: np.ndarray, pair_start: np.ndarray, ox: np.ndarray, oy: np.ndarray, aw: np.ndarray, lx: np.ndarray, ly: np.ndarray, gain: np.ndarray,
+                             exponent: float, r: float, lfloor: float, floor: float, repulsion: float,
+                             reach: float, pair_factor: float, step_size: float, tolerance: float,
+                             vmax: float, max_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """DCCRS's async descent (:meth:`planner.dccrs.DccrsPlanner._descend_entries`: ``descend``
     with ``separable=True``, 'per_drone'), every drone in one compiled loop: pair term with
     per-holder attraction aw[i] = ℳ w_i over the drone's entries + leader term
@@ -664,7 +688,7 @@ def descend_separable_leader(px, py, pair_start, ox, oy, aw, lx, ly, gain, expon
 
 
 @njit(cache=True, fastmath={"nnan", "nsz"})
-def _row_min(row, add, n):
+def _row_min(row: np.ndarray, add: np.ndarray, n: int) -> float:
     # no NaN here; nnan / nsz only let LLVM vectorise the min (the sums are not reordered)
     m = np.inf
     for v in range(n):
@@ -674,7 +698,7 @@ def _row_min(row, add, n):
 
 
 @njit(cache=True)
-def _first_at(row, add, n, value):
+def _first_at(row: np.ndarray, add: np.ndarray, n: int, value: float) -> int:
     for v in range(n):
         if row[v] + add[v] == value:
             return v
@@ -682,7 +706,8 @@ def _first_at(row, add, n, value):
 
 
 @njit(cache=True)
-def greedy_pick(direct, split, cb_path, parent, n_free, n, with_path):
+def greedy_pick(direct: np.ndarray, split: np.ndarray, cb_path: np.ndarray, parent: np.ndarray, n_free: int, n: int,
+                with_path: bool) -> tuple[int, float, int, float]:
     """One step's choice in :func:`planner.steiner._greedy_tree`: the first minimum (row-major, as
     ``np.argmin`` on the flattened array) of cost_a = direct[:n_free, :n] + cb_path[:n] and of
     cost_b = split[:n_free, :n] + cb_path[parent[:n]] (without ``with_path``: direct and split

@@ -16,7 +16,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from planner import _kernels
+from planner import _graph_kernels, _kernels
+from planner._graph_kernels import bounded_moves
 
 __all__ = [
     "NORTH", "EAST", "DOWN",
@@ -27,6 +28,7 @@ __all__ = [
     "active_mask_reference",
     "tasks_connected",
     "step_toward",
+    "bounded_moves",
     "geodetic_to_ned_m",
     "ned_to_geodetic",
 ]
@@ -73,12 +75,13 @@ def neighbour_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
     return pairs[d <= range_m].astype(np.intp)
 
 
-def radio_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
+def radio_pairs(pos_m: np.ndarray, range_m: float, ordered: bool = True) -> np.ndarray:
     """The pairs of :func:`neighbour_pairs` (the same set: the same inclusive test on the same
     distance), sorted by (i, j); for callers to whom the order does not matter (connectivity, the
     message hop). Compiled grid search (:func:`planner._kernels.grid_pairs`) when available and
     the swarm's bounding box holds at most a few cells per drone; else :func:`neighbour_pairs`
-    (the reference, whose pair order is the KD-tree's).
+    (the reference, whose pair order is the KD-tree's). ``ordered=False``: the same set in no
+    particular order (each pair still i < j), for callers that take maxima over the pairs.
     """
     pos_m = np.asarray(pos_m, dtype=float)
     n = len(pos_m)
@@ -94,7 +97,8 @@ def radio_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
     if nx * ny > 8 * n + 4096:              # a sparse spread: the KD-tree is the better index
         return neighbour_pairs(pos_m, range_m)
     return _kernels.grid_pairs(np.ascontiguousarray(pos_m[:, 0]), np.ascontiguousarray(pos_m[:, 1]),
-                               float(range_m), cell, float(lo[0]), float(lo[1]), nx, ny).astype(np.intp)
+                               float(range_m), cell, float(lo[0]), float(lo[1]), nx, ny,
+                               bool(ordered)).astype(np.intp, copy=False)
 
 
 def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
@@ -133,6 +137,10 @@ def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
     base = np.zeros(p.shape[1]) if base_m is None else np.asarray(base_m, dtype=float)
     reached = np.linalg.norm(p - base, axis=1) <= min(base_range_m, radio_range_m)
     if not reached.any():
+        return out
+    fast = _graph_kernels.reach_from(p, reached, radio_range_m)
+    if fast is not None:            # a grid breadth-first search, no pair list (the same set)
+        out[idx] = fast
         return out
     pairs = radio_pairs(p, radio_range_m)     # the order of the pairs does not matter here
     if len(p) > _BFS_MAX_DRONES:
@@ -206,6 +214,9 @@ def tasks_connected(task_pos_m: np.ndarray, drone_pos_m: np.ndarray, active: np.
     act = np.asarray(drone_pos_m, dtype=float)[np.asarray(active, dtype=bool)]
     if len(act) == 0 or len(task_pos_m) == 0:
         return np.zeros(len(task_pos_m), dtype=bool)
+    fast = _graph_kernels.any_within(task_pos_m, act, radio_range_m)
+    if fast is not None:        # brute force, compiled: the same distance, no KD-tree per tick
+        return fast
     d, _ = cKDTree(act).query(task_pos_m, k=1)
     return d < radio_range_m
 

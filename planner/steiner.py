@@ -31,7 +31,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import minimize
 
-from planner import _kernels
+from planner import _graph_kernels, _kernels
 
 __all__ = [
     "TaskTree",
@@ -104,8 +104,12 @@ class TaskTree:
             raise ValueError(f"parent[0] must be -1 (the base is the root), got {parent[0]}")
         if k > 1 and (parent[1:].min() < 0 or parent[1:].max() >= k):
             raise ValueError(f"parent indices must lie in [0, {k - 1}]")
-        # Raises on a cycle (some node never reaches the root).
-        _root_path_lengths(parent, _edge_lengths(nodes, parent))
+        # Raises on a cycle (some node never reaches the root); compiled O(K) walk when available.
+        rooted = _graph_kernels.reaches_root(parent)
+        if rooted is None:
+            _root_path_lengths(parent, _edge_lengths(nodes, parent))
+        elif not rooted:
+            raise ValueError("parent pointers contain a cycle: not every node reaches the base")
         nodes.setflags(write=False)
         parent.setflags(write=False)
         object.__setattr__(self, "nodes_m", nodes)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.geometry import active_mask, step_toward, tasks_connected
+from planner.geometry import active_mask, bounded_moves, step_toward, tasks_connected
 from planner.problem import ProblemConfig
 
 __all__ = ["Scenario", "RunStreams", "spawn_streams", "draw_scenario", "walk_tasks", "World"]
@@ -158,6 +158,17 @@ class World:
         vmax = p.max_speed_m_s * p.dt_s
         # Disconnected but alive: straight home at full speed (never overshooting the base).
         home = self.base_m
+        if recovery_target_m is None:
+            # Compiled when available: the lines below in one pass, bit for bit
+            # (tests/planner/test_graph_kernels.py).
+            lost = self.alive & (attrition_u < loss_prob)
+            moved = bounded_moves(self.pos_m, np.asarray(disp_m, dtype=float), active, self.alive & ~lost,
+                                  home, vmax)
+            if moved is not None:
+                self.alive = self.alive & ~lost
+                self.pos_m = moved
+                self.t_step += 1
+                return lost
         if recovery_target_m is not None:
             target = np.asarray(recovery_target_m, dtype=float)
             home = np.where(np.isfinite(target).all(axis=1)[:, None], target, self.base_m)

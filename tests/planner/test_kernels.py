@@ -243,6 +243,9 @@ def test_radio_pairs_same_set_as_neighbour_pairs(rng, n, spread, r):
     want = neighbour_pairs(x, r)
     assert np.array_equal(got, want[np.lexsort((want[:, 1], want[:, 0]))])
     assert got.dtype == want.dtype
+    loose = radio_pairs(x, r, ordered=False)
+    assert np.array_equal(loose[np.lexsort((loose[:, 1], loose[:, 0]))], got)
+    assert (loose[:, 0] < loose[:, 1]).all()
 
 
 def test_radio_pairs_falls_back_outside_two_dimensions(rng):

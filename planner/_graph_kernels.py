@@ -1,0 +1,560 @@
+"""Compiled graph and geometry kernels (Numba): the MCCST's spanning tree, collision pairs and edge
+terms, the radio graph's reach from the base, the tasks' coverage, the world's bounded moves, the
+message layer's bit-set hop.
+
+Kept apart from :mod:`planner._kernels` (the planners' descent and message kernels) so that each
+module stays readable; the same rules hold (docs in :mod:`planner._kernels`): every kernel has a
+NumPy / SciPy reference in the module that calls it, ``tests/planner/test_graph_kernels.py``
+compares the two, nothing here uses ``fastmath``, and when Numba is missing (``_kernels.NUMBA``
+False) or switched off (``_kernels.ENABLED`` False) the callers run the references.
+
+Every kernel here returns a *set* (a tree's edges, a mask, sorted pairs) that does not depend on
+the order in which it was found, so the callers get exactly the reference's result, not merely
+the same result up to rounding.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
+
+import numpy as np
+
+from planner import _kernels
+
+__all__ = ["mst_prim", "reach_from", "knn_pairs", "hop_bitsets", "edge_terms", "any_within",
+           "bounded_moves", "reaches_root"]
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _jit(func: _F) -> _F:
+    """``numba.njit(cache=True)`` with the function's own signature for the type checker (Numba's
+    decorator is untyped); the plain function when Numba is missing."""
+    if not _kernels.NUMBA:  # pragma: no cover
+        return func
+    from numba import njit
+
+    return cast(_F, njit(cache=True)(func))
+
+
+def _mst_prim(n_nodes: int, ei: np.ndarray, ej: np.ndarray, w: np.ndarray) -> tuple[bool, np.ndarray]:
+    n_edges = len(ei)
+    for e in range(n_edges):
+        if math.isnan(w[e]):
+            return False, np.zeros(0, dtype=np.int64)
+    # CSR adjacency: each undirected edge listed at both ends (edge id, other end).
+    deg = np.zeros(n_nodes + 1, dtype=np.int64)
+    for e in range(n_edges):
+        deg[ei[e] + 1] += 1
+        deg[ej[e] + 1] += 1
+    for v in range(n_nodes):
+        deg[v + 1] += deg[v]
+    fill = deg[:-1].copy()
+    adj_e = np.empty(2 * n_edges, dtype=np.int64)
+    adj_v = np.empty(2 * n_edges, dtype=np.int64)
+    for e in range(n_edges):
+        a, b = ei[e], ej[e]
+        adj_e[fill[a]] = e
+        adj_v[fill[a]] = b
+        fill[a] += 1
+        adj_e[fill[b]] = e
+        adj_v[fill[b]] = a
+        fill[b] += 1
+    in_tree = np.zeros(n_nodes, dtype=np.bool_)
+    key_w = np.full(n_nodes, np.inf)
+    key_e = np.full(n_nodes, -1, dtype=np.int64)
+    out = np.empty(max(n_nodes - 1, 0), dtype=np.int64)
+    m = 0
+    for root in range(n_nodes):
+        if in_tree[root]:
+            continue
+        v = root
+        while v >= 0:
+            in_tree[v] = True
+            if key_e[v] >= 0:
+                out[m] = key_e[v]
+                m += 1
+            for q in range(deg[v], deg[v + 1]):
+                u = adj_v[q]
+                if in_tree[u]:
+                    continue
+                e = adj_e[q]
+                if w[e] < key_w[u] or (w[e] == key_w[u] and (key_e[u] < 0 or e < key_e[u])):
+                    key_w[u] = w[e]
+                    key_e[u] = e
+            # the next vertex: the lightest edge (weight, then index) into the tree
+            v = -1
+            bw = np.inf
+            be = -1
+            for u in range(n_nodes):
+                if in_tree[u] or key_e[u] < 0:
+                    continue
+                if key_w[u] < bw or (key_w[u] == bw and key_e[u] < be) or be < 0:
+                    bw = key_w[u]
+                    be = key_e[u]
+                    v = u
+    return True, np.sort(out[:m])
+
+
+_mst_prim_jit = _jit(_mst_prim)
+
+#: Above this many nodes the O(n^2) vertex scan of :func:`mst_prim` loses to the sort-based
+#: reference (MCCST's swarms have at most 501 nodes in the paper's sizes).
+MST_PRIM_MAX_NODES = 4000
+
+
+def mst_prim(n_nodes: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray | None:
+    """The minimum spanning forest of ``edges`` (unique unordered pairs) under the strict order
+    (weight, edge index), as sorted edge indices; None when the kernel does not apply (no Numba,
+    switched off, NaN weights, more than ``MST_PRIM_MAX_NODES`` nodes).
+
+    Under a strict total order the minimum spanning forest is unique, so this is exactly the edge
+    set of :func:`planner.mccst.spanning_tree_edges`'s reference path (weights replaced by their
+    ranks, ties by index, then scipy's ``minimum_spanning_tree``). Prim's algorithm on a CSR
+    adjacency with an O(n) scan for the next vertex: O(n^2 + E), no sort of the E weights.
+    """
+    if not (_kernels.NUMBA and _kernels.ENABLED) or n_nodes > MST_PRIM_MAX_NODES:
+        return None
+    ok, tree = _mst_prim_jit(int(n_nodes), np.ascontiguousarray(edges[:, 0], dtype=np.int64),
+                             np.ascontiguousarray(edges[:, 1], dtype=np.int64),
+                             np.ascontiguousarray(weights, dtype=np.float64))
+    return tree.astype(np.intp) if ok else None
+
+
+def _reach_from(x: np.ndarray, y: np.ndarray, reached: np.ndarray, range_m: float, cell: float,
+                x0: float, y0: float, nx: int, ny: int) -> np.ndarray:
+    n = len(x)
+    cx = np.empty(n, dtype=np.int64)
+    cy = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        cx[i] = min(max(int((x[i] - x0) / cell), 0), nx - 1)
+        cy[i] = min(max(int((y[i] - y0) / cell), 0), ny - 1)
+    head = np.zeros(nx * ny + 1, dtype=np.int64)
+    for i in range(n):
+        head[cx[i] * ny + cy[i] + 1] += 1
+    for c in range(nx * ny):
+        head[c + 1] += head[c]
+    fill = head[:-1].copy()
+    members = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        c = cx[i] * ny + cy[i]
+        members[fill[c]] = i
+        fill[c] += 1
+    out = reached.copy()
+    queue = np.empty(n, dtype=np.int64)
+    tail = 0
+    for i in range(n):
+        if out[i]:
+            queue[tail] = i
+            tail += 1
+    front = 0
+    while front < tail:
+        i = queue[front]
+        front += 1
+        for ax in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
+            for ay in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
+                c = ax * ny + ay
+                for q in range(head[c], head[c + 1]):
+                    j = members[q]
+                    if out[j]:
+                        continue
+                    dx = x[i] - x[j]
+                    dy = y[i] - y[j]
+                    if math.sqrt(dx * dx + dy * dy) <= range_m:
+                        out[j] = True
+                        queue[tail] = j
+                        tail += 1
+    return out
+
+
+_reach_from_jit = _jit(_reach_from)
+
+
+def reach_from(pos_m: np.ndarray, reached: np.ndarray, range_m: float) -> np.ndarray | None:
+    """Every drone joined to a ``reached`` one by a chain of links |x_i - x_j| <= ``range_m``
+    (the distance computed as :func:`planner.geometry.neighbour_pairs` computes it), as an (n,)
+    bool mask: a breadth-first search over a uniform grid, no pair list. None when the kernel
+    does not apply (no Numba, switched off, non-finite input, or a spread too sparse for a grid:
+    the caller then uses the pair list)."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or not np.isfinite(range_m) or range_m <= 0:
+        return None
+    n = len(pos_m)
+    if n == 0 or pos_m.ndim != 2 or pos_m.shape[1] != 2 or not np.all(np.isfinite(pos_m)):
+        return None
+    lo = pos_m.min(axis=0)
+    hi = pos_m.max(axis=0)
+    cell = float(range_m) * (1 + 1e-6)      # > range: a link lies in the same or adjacent cells
+    nx = int((hi[0] - lo[0]) // cell) + 1
+    ny = int((hi[1] - lo[1]) // cell) + 1
+    if nx * ny > 8 * n + 4096:
+        return None
+    return _reach_from_jit(np.ascontiguousarray(pos_m[:, 0]), np.ascontiguousarray(pos_m[:, 1]),
+                           np.asarray(reached, dtype=np.bool_), float(range_m), cell, float(lo[0]), float(lo[1]),
+                           nx, ny)
+
+
+def _knn_pairs(x: np.ndarray, y: np.ndarray, reach: float, k: int, cell: float, x0: float, y0: float,
+               nx: int, ny: int) -> tuple[bool, np.ndarray]:
+    n = len(x)
+    cx = np.empty(n, dtype=np.int64)
+    cy = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        cx[i] = min(max(int((x[i] - x0) / cell), 0), nx - 1)
+        cy[i] = min(max(int((y[i] - y0) / cell), 0), ny - 1)
+    head = np.zeros(nx * ny + 1, dtype=np.int64)
+    for i in range(n):
+        head[cx[i] * ny + cy[i] + 1] += 1
+    for c in range(nx * ny):
+        head[c + 1] += head[c]
+    fill = head[:-1].copy()
+    members = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        c = cx[i] * ny + cy[i]
+        members[fill[c]] = i
+        fill[c] += 1
+    best_d = np.empty(k)
+    best_j = np.empty(k, dtype=np.int64)
+    keys = np.empty(n * k, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        nb = 0
+        for ax in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
+            for ay in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
+                c = ax * ny + ay
+                for q in range(head[c], head[c + 1]):
+                    j = members[q]
+                    if j == i:
+                        continue
+                    dx = x[i] - x[j]
+                    dy = y[i] - y[j]
+                    d = math.sqrt(dx * dx + dy * dy)
+                    if not d < reach:
+                        continue
+                    # insert (d, j) into the sorted list of the k best, order (distance, index)
+                    if nb == k and not (d < best_d[k - 1] or (d == best_d[k - 1] and j < best_j[k - 1])):
+                        continue
+                    p = nb if nb < k else k - 1
+                    while p > 0 and (d < best_d[p - 1] or (d == best_d[p - 1] and j < best_j[p - 1])):
+                        if p < k:
+                            best_d[p] = best_d[p - 1]
+                            best_j[p] = best_j[p - 1]
+                        p -= 1
+                    best_d[p] = d
+                    best_j[p] = j
+                    if nb < k:
+                        nb += 1
+        # A tie at the k-th distance (or a distance within rounding of ``reach``) is broken by
+        # whatever order the KD-tree reference visits points in: report it, the caller falls back.
+        kth = best_d[k - 1] if nb == k else -1.0
+        for ax in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
+            for ay in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
+                c = ax * ny + ay
+                for q in range(head[c], head[c + 1]):
+                    j = members[q]
+                    if j == i:
+                        continue
+                    dx = x[i] - x[j]
+                    dy = y[i] - y[j]
+                    d = math.sqrt(dx * dx + dy * dy)
+                    if abs(d - reach) <= 1e-9 * reach:
+                        return False, keys[:0]
+                    if d == kth and not _in(best_j, nb, j):
+                        return False, keys[:0]
+        for q in range(nb):
+            j = best_j[q]
+            keys[m] = min(i, j) * n + max(i, j)
+            m += 1
+    return True, np.unique(keys[:m])
+
+
+def _in(values: np.ndarray, count: int, v: int) -> bool:
+    for q in range(count):
+        if values[q] == v:
+            return True
+    return False
+
+
+if _kernels.NUMBA:
+    from numba import njit as _njit
+
+    _in = _njit(cache=True, inline="always")(_in)
+
+
+_knn_pairs_jit = _jit(_knn_pairs)
+
+
+def knn_pairs(x: np.ndarray, reach: float, k: int) -> np.ndarray | None:
+    """Pairs (i, j), i < j, sorted, unique, such that j is among i's ``k`` nearest drones strictly
+    closer than ``reach`` or i among j's (nearest by (distance, index); distance as
+    ``np.linalg.norm`` of the difference). The grid twin of :func:`planner.mccst.collision_candidates`
+    with a cap; None when the kernel does not apply (the caller uses the KD-tree), and None on a tie
+    at some drone's k-th distance or a distance within 1e-9 (relative) of ``reach``: there the
+    KD-tree's visiting order, or its squared-distance test, decides, and only the reference
+    reproduces it."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or not np.isfinite(reach) or reach <= 0 or k <= 0:
+        return None
+    n = len(x)
+    if n < 2 or x.ndim != 2 or x.shape[1] != 2 or not np.all(np.isfinite(x)):
+        return None
+    lo = x.min(axis=0)
+    hi = x.max(axis=0)
+    cell = float(reach) * (1 + 1e-6)
+    nx = int((hi[0] - lo[0]) // cell) + 1
+    ny = int((hi[1] - lo[1]) // cell) + 1
+    if nx * ny > 8 * n + 4096:
+        return None
+    ok, key = _knn_pairs_jit(np.ascontiguousarray(x[:, 0]), np.ascontiguousarray(x[:, 1]), float(reach),
+                             int(k), cell, float(lo[0]), float(lo[1]), nx, ny)
+    if not ok:
+        return None
+    return np.column_stack([key // n, key % n]).astype(np.intp)
+
+
+#: de Bruijn table: the index of the lowest set bit of a uint64 w is
+#: _DEBRUIJN_INDEX[((w & -w) * _DEBRUIJN) >> 58].
+_DEBRUIJN = 0x03F79D71B4CB0A89
+_DEBRUIJN_INDEX = np.zeros(64, dtype=np.int64)
+for _b in range(64):
+    _DEBRUIJN_INDEX[(((1 << _b) * _DEBRUIJN) & 0xFFFFFFFFFFFFFFFF) >> 58] = _b
+
+
+def _hop_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holders: int, n_cols: int,
+                 link_start: np.ndarray, link_src: np.ndarray, t_sent: int, max_level: int,
+                 debruijn_index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    levels = max_level + 1
+    col_of = np.full(n_cols, -1, dtype=np.int64)
+    for e in range(len(cols)):
+        col_of[cols[e]] = 0
+    n_k = 0
+    for k in range(n_cols):
+        if col_of[k] == 0:
+            col_of[k] = n_k
+            n_k += 1
+    col_ids = np.empty(n_k, dtype=np.int64)
+    for k in range(n_cols):
+        if col_of[k] >= 0:
+            col_ids[col_of[k]] = k
+    words = (n_k + 63) // 64
+    block = levels * words
+    # sets[i * block + L * words + w]: the columns holder i holds with age <= L, one bit each
+    sets = np.zeros(n_holders * block, dtype=np.uint64)
+    one = np.uint64(1)
+    for e in range(len(rows)):
+        kk = col_of[cols[e]]
+        bit = one << np.uint64(kk & 63)
+        base = rows[e] * block + (kk >> 6)
+        for level in range(t_sent - stamps[e], levels):
+            sets[base + level * words] |= bit
+    acc = np.zeros(block, dtype=np.uint64)
+    cap = max(len(rows) + n_holders, 16)
+    out_r = np.empty(cap, dtype=np.int64)
+    out_c = np.empty(cap, dtype=np.int64)
+    out_s = np.empty(cap, dtype=np.int64)
+    m = 0
+    magic = np.uint64(_DEBRUIJN)
+    shift = np.uint64(58)
+    top = (levels - 1) * words
+    for i in range(n_holders):
+        for q in range(block):
+            acc[q] = 0
+        for li in range(link_start[i], link_start[i + 1]):
+            src = link_src[li] * block
+            for q in range(block):
+                acc[q] |= sets[src + q]
+        for w in range(words):
+            word = acc[top + w]
+            while word:
+                low = word & (~word + one)                 # the lowest set bit
+                b = debruijn_index[(low * magic) >> shift]
+                word ^= low
+                count = 0
+                for level in range(levels):
+                    if acc[level * words + w] & low:
+                        count += 1
+                if m == cap:
+                    cap *= 2
+                    out_r = np.concatenate((out_r, np.empty(cap - len(out_r), dtype=np.int64)))
+                    out_c = np.concatenate((out_c, np.empty(cap - len(out_c), dtype=np.int64)))
+                    out_s = np.concatenate((out_s, np.empty(cap - len(out_s), dtype=np.int64)))
+                out_r[m] = i
+                out_c[m] = col_ids[w * 64 + b]
+                out_s[m] = t_sent - (levels - count)
+                m += 1
+    return out_r[:m], out_c[:m], out_s[:m]
+
+
+_hop_bitsets_jit = _jit(_hop_bitsets)
+
+
+def hop_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holders: int, n_cols: int,
+                link_start: np.ndarray, link_src: np.ndarray, t_sent: int,
+                max_level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The compiled twin of :func:`planner.knowledge._propagate_bitsets` (one hop of the recency
+    rule on bit sets, one set per age level): holder i's sets are the OR of its sources' sets
+    (``link_src[link_start[i]:link_start[i + 1]]``, its self-loop included), OR-ed source by source
+    in place of the reference's gather of every link's row (which held links x columns / 8 bytes per
+    level: ~370 MB at 2,000 packed drones). Integer results, so exactly the reference's entries, in
+    the same row-major order. Every stamp must lie in [t_sent - max_level, t_sent]."""
+    return (_hop_bitsets_jit(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
+                                 np.asarray(stamps, np.int64), int(n_holders), int(n_cols),
+                                 np.asarray(link_start, np.int64), np.asarray(link_src, np.int64),
+                                 int(t_sent), int(max_level), _DEBRUIJN_INDEX))
+
+
+def _edge_terms(x: np.ndarray, y: np.ndarray, ux: np.ndarray, uy: np.ndarray, ei: np.ndarray, ej: np.ndarray,
+                r_c: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n_edges = len(ei)
+    h = np.empty(n_edges)
+    dot = np.empty(n_edges)
+    cross = np.empty(n_edges, dtype=np.bool_)
+    for e in range(n_edges):
+        i = ei[e]
+        j = ej[e]
+        dx = x[i] - x[j]
+        dy = y[i] - y[j]
+        h[e] = r_c[e] * r_c[e] - (dx * dx + dy * dy)
+        dot[e] = dx * (ux[i] - ux[j]) + dy * (uy[i] - uy[j])
+        cross[e] = group[i] != group[j]
+    return h, dot, cross
+
+
+_edge_terms_jit = _jit(_edge_terms)
+
+
+def edge_terms(x: np.ndarray, u: np.ndarray, edges: np.ndarray, r_c: np.ndarray,
+               group: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Per edge (i, j): h = r_c^2 - |x_i - x_j|^2, (x_i - x_j) . (u_i - u_j) and whether i and j
+    are in different groups, in one pass (:func:`planner.mccst.edge_slack` without its gathers).
+    The same operations in the same order as the NumPy expressions there (``np.einsum`` over two
+    components sums x then y, checked by tests), so the same bits. None without Numba."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or x.ndim != 2 or x.shape[1] != 2:
+        return None
+    return (_edge_terms_jit(np.ascontiguousarray(x[:, 0], dtype=np.float64),
+                                np.ascontiguousarray(x[:, 1], dtype=np.float64),
+                                np.ascontiguousarray(u[:, 0], dtype=np.float64),
+                                np.ascontiguousarray(u[:, 1], dtype=np.float64),
+                                np.ascontiguousarray(edges[:, 0], dtype=np.int64),
+                                np.ascontiguousarray(edges[:, 1], dtype=np.int64),
+                                np.ascontiguousarray(np.broadcast_to(r_c, (len(edges),)), dtype=np.float64),
+                                np.ascontiguousarray(group, dtype=np.int64)))
+
+
+def _any_within(tx: np.ndarray, ty: np.ndarray, x: np.ndarray, y: np.ndarray, range_m: float) -> np.ndarray:
+    out = np.zeros(len(tx), dtype=np.bool_)
+    for t in range(len(tx)):
+        for j in range(len(x)):
+            dx = tx[t] - x[j]
+            dy = ty[t] - y[j]
+            if math.sqrt(dx * dx + dy * dy) < range_m:
+                out[t] = True
+                break
+    return out
+
+
+_any_within_jit = _jit(_any_within)
+
+#: Above this many (task, drone) pairs :func:`any_within` leaves the work to the KD-tree.
+ANY_WITHIN_MAX_PAIRS = 2_000_000
+
+
+def any_within(task_pos_m: np.ndarray, pos_m: np.ndarray, range_m: float) -> np.ndarray | None:
+    """(M,) bool: some row of ``pos_m`` lies strictly closer than ``range_m`` to each task, the
+    distance sqrt(dx^2 + dy^2) as the KD-tree's nearest-neighbour query computes it (squares
+    summed x then y, one square root), by brute force with an early exit: for the swarms of one
+    mission (M x N below ``ANY_WITHIN_MAX_PAIRS``) cheaper than building a KD-tree every tick.
+    None when it does not apply (no Numba, not 2-D, NaN or non-finite drones): the caller queries
+    the KD-tree (:func:`planner.geometry.tasks_connected`)."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or len(task_pos_m) * len(pos_m) > ANY_WITHIN_MAX_PAIRS:
+        return None
+    if task_pos_m.ndim != 2 or task_pos_m.shape[1] != 2 or pos_m.ndim != 2 or pos_m.shape[1] != 2:
+        return None
+    if not np.all(np.isfinite(pos_m)) or np.any(np.isnan(task_pos_m)) or not np.isfinite(range_m):
+        return None
+    return _any_within_jit(np.ascontiguousarray(task_pos_m[:, 0], dtype=np.float64),
+                           np.ascontiguousarray(task_pos_m[:, 1], dtype=np.float64),
+                           np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
+                           np.ascontiguousarray(pos_m[:, 1], dtype=np.float64), float(range_m))
+
+
+def _bounded_moves(px: np.ndarray, py: np.ndarray, dx_in: np.ndarray, dy_in: np.ndarray, active: np.ndarray,
+                   alive: np.ndarray, hx: float, hy: float, vmax: float) -> np.ndarray:
+    n = len(px)
+    out = np.empty((n, 2))
+    for i in range(n):
+        if active[i]:
+            dx = dx_in[i]
+            dy = dy_in[i]
+        else:                                   # planner.geometry.step_toward, row by row
+            tx = hx - px[i]
+            ty = hy - py[i]
+            dist = math.sqrt(tx * tx + ty * ty)
+            f = min(vmax, dist) / (dist if dist > 0 else 1.0)
+            dx = tx * f
+            dy = ty * f
+        norm = math.sqrt(dx * dx + dy * dy)
+        s = min(1.0, vmax / (norm if norm > 0 else 1.0))
+        a = 1.0 if alive[i] else 0.0
+        out[i, 0] = px[i] + dx * s * a
+        out[i, 1] = py[i] + dy * s * a
+    return out
+
+
+_bounded_moves_jit = _jit(_bounded_moves)
+
+
+def bounded_moves(pos_m: np.ndarray, disp_m: np.ndarray, active: np.ndarray, alive: np.ndarray,
+                  home_m: np.ndarray, vmax: float) -> np.ndarray | None:
+    """The motion of :meth:`vehicle_emu.world.World.step` for one home point, in one pass: active
+    drones take ``disp_m``, the others head for ``home_m`` (never overshooting it), every
+    displacement is scaled down to ``vmax``, and only ``alive`` drones move. The same operations
+    in the same order as the NumPy lines there (``np.linalg.norm`` of two components sums x^2 then
+    y^2; a bool times a float is a product with 1.0 or 0.0), so the same bits; a new (N, 2) array.
+    None when it does not apply (no Numba, not 2-D, non-finite or NaN input, home not one point)."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or pos_m.ndim != 2 or pos_m.shape[1] != 2:
+        return None
+    if disp_m.shape != pos_m.shape or np.shape(home_m) != (2,) or not np.isfinite(vmax):
+        return None
+    if not (np.all(np.isfinite(pos_m)) and np.all(np.isfinite(disp_m)) and np.all(np.isfinite(home_m))):
+        return None
+    return _bounded_moves_jit(np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
+                              np.ascontiguousarray(pos_m[:, 1], dtype=np.float64),
+                              np.ascontiguousarray(disp_m[:, 0], dtype=np.float64),
+                              np.ascontiguousarray(disp_m[:, 1], dtype=np.float64),
+                              np.asarray(active, dtype=np.bool_), np.asarray(alive, dtype=np.bool_),
+                              float(home_m[0]), float(home_m[1]), float(vmax))
+
+
+def _reaches_root(parent: np.ndarray) -> bool:
+    k = len(parent)
+    state = np.zeros(k, dtype=np.int8)         # 0 unseen, 1 on the current walk, 2 reaches node 0
+    state[0] = 2
+    path = np.empty(k, dtype=np.int64)
+    for v in range(k):
+        m = 0
+        u = v
+        while state[u] == 0:
+            state[u] = 1
+            path[m] = u
+            m += 1
+            u = parent[u]
+            if u < 0 or u >= k:
+                return False
+        if state[u] == 1:
+            return False
+        for q in range(m):
+            state[path[q]] = 2
+    return True
+
+
+_reaches_root_jit = _jit(_reaches_root)
+
+
+def reaches_root(parent: np.ndarray) -> bool | None:
+    """Whether every node's parent pointers lead to node 0 (no cycle, indices in range; node 0's
+    own parent is not followed), in O(K): the check of :class:`planner.steiner.TaskTree`, whose
+    reference is the pointer jumping of ``_root_path_lengths``. None without Numba."""
+    if not (_kernels.NUMBA and _kernels.ENABLED):
+        return None
+    return bool(_reaches_root_jit(np.asarray(parent, dtype=np.int64)))
