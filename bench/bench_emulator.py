@@ -92,10 +92,17 @@ def _make_swarm(args, kind: str, sink_port: int | None) -> Swarm:
         rates = {M_GLOBAL_POSITION_INT: args.rate_hz, M_SYS_STATUS: 1.0}
         if args.local:
             rates[M_LOCAL_POSITION_NED] = args.rate_hz
-    swarm = Swarm(len(pers), personality=pers, mux=not args.per_vehicle_ports,
-                  spawn_spacing_m=30.0, radio=RadioConfig(radio_range_m=args.radio_range_m),
-                  gcs_addrs=[("127.0.0.1", sink_port or 9)], stream_rates_hz=rates, rng=rng,
-                  telemetry=kind)
+    swarm = Swarm(
+        len(pers),
+        personality=pers,
+        mux=not args.per_vehicle_ports,
+        spawn_spacing_m=30.0,
+        radio=RadioConfig(radio_range_m=args.radio_range_m),
+        gcs_addrs=[("127.0.0.1", sink_port or 9)],
+        stream_rates_hz=rates,
+        rng=rng,
+        telemetry=kind,
+    )
     # Everyone airborne and flying to random points: physics and radio do real work.
     ph = swarm.physics
     ph.armed[:] = True
@@ -128,9 +135,11 @@ def _tick_cpu(args, kind: str) -> dict:
     msgs = swarm.core_stats()["messages_out"] - m0
     sim_s = 5 * per * swarm.tick_s
     cpu_tick = float(np.median(blocks))
-    return {"cpu_per_tick_ms": round(cpu_tick * 1e3, 2),
-            "cpu_share_at_real_time": round(cpu_tick / swarm.tick_s, 3),
-            "messages_per_sim_s": round(msgs / sim_s)}
+    return {
+        "cpu_per_tick_ms": round(cpu_tick * 1e3, 2),
+        "cpu_share_at_real_time": round(cpu_tick / swarm.tick_s, 3),
+        "messages_per_sim_s": round(msgs / sim_s),
+    }
 
 
 async def _realtime(args, kind: str) -> dict:
@@ -148,12 +157,14 @@ async def _realtime(args, kind: str) -> dict:
     def timed():
         late.append(clock.now() - swarm.next_timer_s())
         orig()
+
     server._on_timer = timed
     px4 = np.array([c.personality == "px4" for c in swarm.cores])
 
     def sent():
         m = np.array([c.stats.messages_out for c in swarm.cores])
         return m[px4].sum(), m[~px4].sum()
+
     (p0, a0) = sent()
     cpu0, wall0 = time.process_time(), time.monotonic()
     await asyncio.sleep(args.duration_s)
@@ -178,11 +189,14 @@ async def _realtime(args, kind: str) -> dict:
     n_px4 = args.px4 if (args.px4 or args.ardupilot) else 0
     n_ap = args.ardupilot if (args.px4 or args.ardupilot) else 0
     out = {
-        "vehicles": swarm.n, "networks": swarm.n_networks, "duration_s": round(wall, 2),
+        "vehicles": swarm.n,
+        "networks": swarm.n_networks,
+        "duration_s": round(wall, 2),
         "cpu_share_of_one_core": round((cpu1 - cpu0) / wall, 3),
         "messages_per_s": round((p1 - p0 + a1 - a0) / wall),
         "datagrams_sent_per_s": round(swarm.stats["datagrams_out"] / wall),
-        "datagrams_received_by_sink": n_recv, "bytes_received_by_sink": n_bytes,
+        "datagrams_received_by_sink": n_recv,
+        "bytes_received_by_sink": n_bytes,
         "ticks_per_s": round(swarm.stats["ticks"] / wall, 1),
         "tick_lateness_p50_ms": round(float(np.median(late_arr)) * 1e3, 2),
         "tick_lateness_p99_ms": round(float(np.quantile(late_arr, 0.99)) * 1e3, 2),
@@ -192,25 +206,33 @@ async def _realtime(args, kind: str) -> dict:
     # share of every frame sent in the server's life (boot burst included) the sink counted.
     p_all, a_all = sent()
     if n_px4:
-        out["px4_msgs_per_vehicle_s"] = {"default": 17.5,
-                                         "achieved": round((p1 - p0) / wall / n_px4, 2),
-                                         "delivered": round(f_px4 / max(1, p_all), 4)}
+        out["px4_msgs_per_vehicle_s"] = {
+            "default": 17.5,
+            "achieved": round((p1 - p0) / wall / n_px4, 2),
+            "delivered": round(f_px4 / max(1, p_all), 4),
+        }
     if n_ap:
-        out["ardupilot_msgs_per_vehicle_s"] = {"default": 1.0,
-                                               "achieved": round((a1 - a0) / wall / n_ap, 2),
-                                               "delivered": round(f_ap / max(1, a_all), 4)}
+        out["ardupilot_msgs_per_vehicle_s"] = {
+            "default": 1.0,
+            "achieved": round((a1 - a0) / wall / n_ap, 2),
+            "delivered": round(f_ap / max(1, a_all), 4),
+        }
     return out
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--px4", type=int, default=0, help="PX4 vehicles (with --ardupilot)")
     p.add_argument("--ardupilot", type=int, default=0, help="ArduPilot vehicles")
     p.add_argument("--vehicles", type=int, default=500)
     p.add_argument("--personality", default="ardupilot")
-    p.add_argument("--default-rates", action="store_true",
-                   help="each firmware's own default streams (implied by --px4/--ardupilot)")
+    p.add_argument(
+        "--default-rates",
+        action="store_true",
+        help="each firmware's own default streams (implied by --px4/--ardupilot)",
+    )
     p.add_argument("--duration-s", type=float, default=10.0)
     p.add_argument("--ticks", type=int, default=100, help="virtual-clock ticks per measurement")
     p.add_argument("--rate-hz", type=float, default=10.0)
@@ -229,11 +251,13 @@ def main() -> None:
     if len(kinds) == 2:
         ref, bat = result["tick"]["reference"], result["tick"]["batch"]
         result["ratio_reference_over_batch"] = {
-            "cpu_per_tick": round(ref["cpu_per_tick_ms"] / bat["cpu_per_tick_ms"], 2)}
+            "cpu_per_tick": round(ref["cpu_per_tick_ms"] / bat["cpu_per_tick_ms"], 2)
+        }
         if "realtime" in result:
             rr, rb = result["realtime"]["reference"], result["realtime"]["batch"]
             result["ratio_reference_over_batch"]["realtime_cpu_share"] = round(
-                rr["cpu_share_of_one_core"] / rb["cpu_share_of_one_core"], 2)
+                rr["cpu_share_of_one_core"] / rb["cpu_share_of_one_core"], 2
+            )
     print(json.dumps(result, indent=2))
 
 

@@ -40,6 +40,7 @@ class _Observer(threading.Thread):
 
     def run(self) -> None:
         from gcs.autopilot import mode_name
+
         last_req = 0.0
         while not self.stop:
             now = time.monotonic()
@@ -73,18 +74,36 @@ def measure(firmware: str) -> None:
     m = _load(mission)
     o = m.origin
     tmp = Path(tempfile.mkdtemp(prefix=f"bench-fs-{firmware}-"))
-    spec = SitlSpec(firmware, 1, find_binary(firmware), (o.lat_deg, o.lon_deg, o.alt_amsl_m),
-                    workdir=tmp / "sitl")
+    spec = SitlSpec(
+        firmware,
+        1,
+        find_binary(firmware),
+        (o.lat_deg, o.lon_deg, o.alt_amsl_m),
+        workdir=tmp / "sitl",
+    )
     phireman = str(Path(sys.executable).with_name("phireman"))
     with SitlSwarm(spec) as sitl:
         time.sleep(2.0)
-        obs = _Observer("tcp:127.0.0.1:5762" if firmware == "ardupilot" else "udpin:127.0.0.1:14540",
-                        firmware)
+        obs = _Observer(
+            "tcp:127.0.0.1:5762" if firmware == "ardupilot" else "udpin:127.0.0.1:14540", firmware
+        )
         obs.start()
-        cmd = [phireman, "fly", mission, "--connect", sitl.connection(0), "--apply-failsafes",
-               "--duration-s", "600"]
-        st = subprocess.Popen([*cmd, "--out", str(tmp / "s1")], cwd=ROOT,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        cmd = [
+            phireman,
+            "fly",
+            mission,
+            "--connect",
+            sitl.connection(0),
+            "--apply-failsafes",
+            "--duration-s",
+            "600",
+        ]
+        st = subprocess.Popen(
+            [*cmd, "--out", str(tmp / "s1")],
+            cwd=ROOT,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         t_start = time.monotonic()
         while not _flying(tmp / "s1"):
             time.sleep(0.2)
@@ -100,8 +119,12 @@ def measure(firmware: str) -> None:
                 break
         fs = next(((t, mode) for t, mode, _ in obs.modes if t > t_kill and mode != guided), None)
         t_restart = time.monotonic()
-        st2 = subprocess.Popen([*cmd, "--out", str(tmp / "s2")], cwd=ROOT,
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        st2 = subprocess.Popen(
+            [*cmd, "--out", str(tmp / "s2")],
+            cwd=ROOT,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         while not any(t > t_restart and mode == guided for t, mode, _ in obs.modes):
             time.sleep(0.05)
             if time.monotonic() - t_restart > 120:
@@ -110,18 +133,28 @@ def measure(firmware: str) -> None:
         st2.send_signal(signal.SIGKILL)
         st2.wait()
         obs.stop = True
-    print(f"{firmware}: station SIGKILLed -> "
-          + (f"{fs[1]} after {fs[0] - t_kill:.2f} s" if fs else "no failsafe within 60 s")
-          + "; restarted station -> "
-          + (f"{guided} again {back - t_restart:.1f} s after its start" if back else
-             "not reclaimed within 120 s"))
-    print("  modes seen: " + ", ".join(f"{t - t_start:.1f}s {mode}{'' if a else ' (disarmed)'}"
-                                       for t, mode, a in obs.modes))
+    print(
+        f"{firmware}: station SIGKILLed -> "
+        + (f"{fs[1]} after {fs[0] - t_kill:.2f} s" if fs else "no failsafe within 60 s")
+        + "; restarted station -> "
+        + (
+            f"{guided} again {back - t_restart:.1f} s after its start"
+            if back
+            else "not reclaimed within 120 s"
+        )
+    )
+    print(
+        "  modes seen: "
+        + ", ".join(
+            f"{t - t_start:.1f}s {mode}{'' if a else ' (disarmed)'}" for t, mode, a in obs.modes
+        )
+    )
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("firmware", nargs="+", choices=("ardupilot", "px4"))
     for fw in ap.parse_args().firmware:
         measure(fw)

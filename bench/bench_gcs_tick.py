@@ -28,8 +28,9 @@ def main() -> None:
     prob = problem_preset("XL", 0.01)
     w = prob.field_half_width_m
     planner = make_planner("phireman-central", prob, {}, rng)
-    pos = np.column_stack([rng.uniform(-w / 3, w / 3, (prob.n_drones, 2)),
-                           np.full(prob.n_drones, -30.0)])
+    pos = np.column_stack(
+        [rng.uniform(-w / 3, w / 3, (prob.n_drones, 2)), np.full(prob.n_drones, -30.0)]
+    )
     tasks = rng.uniform(-w, w, (prob.n_tasks, 2))
     net = np.ones(prob.n_drones, bool)
     cfg = ControlConfig(geofence=Geofence.square(1.2 * w))
@@ -41,11 +42,19 @@ def main() -> None:
         times.append(time.perf_counter() - t0)
         pos[r.rows, :2] = r.target_ned_m[:, :2]
     ms = np.array(times) * 1e3
-    print(json.dumps({"vehicles": prob.n_drones, "tasks": prob.n_tasks, "ticks": args.ticks,
-                      "p50_ms": round(float(np.percentile(ms, 50)), 2),
-                      "p95_ms": round(float(np.percentile(ms, 95)), 2),
-                      "max_ms": round(float(ms.max()), 2),
-                      "first_ms": round(float(ms[0]), 2)}))
+    print(
+        json.dumps(
+            {
+                "vehicles": prob.n_drones,
+                "tasks": prob.n_tasks,
+                "ticks": args.ticks,
+                "p50_ms": round(float(np.percentile(ms, 50)), 2),
+                "p95_ms": round(float(np.percentile(ms, 95)), 2),
+                "max_ms": round(float(ms.max()), 2),
+                "first_ms": round(float(ms[0]), 2),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ prints the CPU seconds per run per cell, old and new, and the Table II time they
 2 workers, perfect packing). Where runs differ, the means over the seeds and their 95 % confidence
 intervals are printed (the t quantile of the paired seeds).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,8 +41,13 @@ print(json.dumps(out))
 
 def run_tree(tree: str, items: list) -> list:
     env = {**os.environ, "PYTHONPATH": tree, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-    out = subprocess.run([sys.executable, "-c", CHILD, json.dumps(items)], capture_output=True, text=True,
-                         env=env, cwd=tree)
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, json.dumps(items)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tree,
+    )
     if out.returncode:
         sys.exit(out.stderr[-3000:])
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -50,6 +56,7 @@ def run_tree(tree: str, items: list) -> list:
 def _ci(values):
     import numpy as np
     from scipy import stats
+
     v = np.asarray(values, float)
     if len(v) < 2:
         return float(v.mean()), float("nan")
@@ -57,19 +64,27 @@ def _ci(values):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--baseline", required=True, help="root of the code tree to compare against")
     ap.add_argument("--methods", nargs="+", default=["phireman", "dccrs", "mccst"])
     ap.add_argument("--cells", nargs="+", default=["S:1"], metavar="SIZE:PCT")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
-    ap.add_argument("--seed-range", type=int, nargs=2, metavar=("FIRST", "STOP"), help="seeds FIRST..STOP-1")
-    ap.add_argument("--table-cost", action="store_true", help="every Table II cell (5 sizes x 5 levels)")
+    ap.add_argument(
+        "--seed-range", type=int, nargs=2, metavar=("FIRST", "STOP"), help="seeds FIRST..STOP-1"
+    )
+    ap.add_argument(
+        "--table-cost", action="store_true", help="every Table II cell (5 sizes x 5 levels)"
+    )
     ap.add_argument("--quiet", action="store_true", help="one line per cell, not per run")
     args = ap.parse_args(argv)
     seeds = list(range(*args.seed_range)) if args.seed_range else args.seeds
     cells = args.cells
     if args.table_cost:
-        cells = [f"{s}:{p}" for s in ("XS", "S", "M", "L", "XL") for p in ("0", "0.5", "1", "2", "5")]
+        cells = [
+            f"{s}:{p}" for s in ("XS", "S", "M", "L", "XL") for p in ("0", "0.5", "1", "2", "5")
+        ]
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     bad = 0
     total_old = total_new = 0.0
@@ -84,16 +99,21 @@ def main(argv=None) -> int:
                 same = o[4:6] == n[4:6]
                 diff += not same
                 if not args.quiet:
-                    print(f"{o[0]:9s} {o[1]:2s} {pct:>4s} % seed {o[3]:3d}: TU1 {o[4]!r:22} {n[4]!r:22} TU2 "
-                          f"{o[5]!r:22} {n[5]!r:22} {'identical' if same else 'DIFFERENT'}  "
-                          f"cpu {o[6]:.2f} -> {n[6]:.2f} s", flush=True)
+                    print(
+                        f"{o[0]:9s} {o[1]:2s} {pct:>4s} % seed {o[3]:3d}: TU1 {o[4]!r:22} {n[4]!r:22} TU2 "
+                        f"{o[5]!r:22} {n[5]!r:22} {'identical' if same else 'DIFFERENT'}  "
+                        f"cpu {o[6]:.2f} -> {n[6]:.2f} s",
+                        flush=True,
+                    )
             bad += diff
             c_old = sum(o[6] for o, _ in rows) / len(rows)
             c_new = sum(n[6] for _, n in rows) / len(rows)
             total_old += c_old
             total_new += c_new
-            line = (f"{m:9s} {size:2s} {pct:>4s} %: {len(rows) - diff}/{len(rows)} identical, cpu s/run "
-                    f"{c_old:.3f} -> {c_new:.3f} ({c_old / c_new:.2f}x)")
+            line = (
+                f"{m:9s} {size:2s} {pct:>4s} %: {len(rows) - diff}/{len(rows)} identical, cpu s/run "
+                f"{c_old:.3f} -> {c_new:.3f} ({c_old / c_new:.2f}x)"
+            )
             if diff:
                 for k, name in ((4, "TU1"), (5, "TU2")):
                     mo, ho = _ci([o[k] for o, _ in rows])
@@ -101,8 +121,10 @@ def main(argv=None) -> int:
                     line += f"; {name} {mo:.4f} ± {ho:.4f} -> {mn:.4f} ± {hn:.4f}"
             print(line, flush=True)
     if args.table_cost:
-        print(f"Table II at 100 seeds, 2 workers (CPU s / 2, perfect packing): "
-              f"{total_old * 100 / 2 / 60:.1f} min -> {total_new * 100 / 2 / 60:.1f} min")
+        print(
+            f"Table II at 100 seeds, 2 workers (CPU s / 2, perfect packing): "
+            f"{total_old * 100 / 2 / 60:.1f} min -> {total_new * 100 / 2 / 60:.1f} min"
+        )
     print("all identical" if not bad else f"{bad} runs differ")
     return 1 if bad else 0
 

@@ -44,8 +44,11 @@ def _station_gaps(run_dir: Path) -> dict[int, dict]:
     for sysid, t in sorted(times.items()):
         gaps = [b - a for a, b in zip(t, t[1:])]
         gaps.sort()
-        out[sysid] = {"setpoints": len(t), "max_gap_s": gaps[-1] if gaps else math.nan,
-                      "p99_gap_s": gaps[int(0.99 * (len(gaps) - 1))] if gaps else math.nan}
+        out[sysid] = {
+            "setpoints": len(t),
+            "max_gap_s": gaps[-1] if gaps else math.nan,
+            "p99_gap_s": gaps[int(0.99 * (len(gaps) - 1))] if gaps else math.nan,
+        }
     return out
 
 
@@ -72,8 +75,9 @@ def _px4_gaps(workdir: Path) -> dict[str, dict]:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--vehicles", type=int, default=3)
     ap.add_argument("--duration-s", type=float, default=300.0)
     ap.add_argument("--load", type=int, default=2, help="busy processes competing for the CPU")
@@ -86,16 +90,28 @@ def main() -> int:
     m = _load("sitl_px4")
     o = m.origin
     workdir = Path(args.keep or tempfile.mkdtemp(prefix="bench-px4-gap-"))
-    spec = SitlSpec("px4", args.vehicles, find_binary("px4"), (o.lat_deg, o.lon_deg, o.alt_amsl_m),
-                    workdir=workdir / "sitl")
-    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
-            for _ in range(args.load)]
+    spec = SitlSpec(
+        "px4",
+        args.vehicles,
+        find_binary("px4"),
+        (o.lat_deg, o.lon_deg, o.alt_amsl_m),
+        workdir=workdir / "sitl",
+    )
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
     try:
         with SitlSwarm(spec) as sitl:
             out = workdir / "runs"
-            cmd = [str(Path(sys.executable).with_name("phireman")), "fly", "sitl_px4",
-                   *sum((["--connect", c] for c in sitl.connections()), []),
-                   "--apply-failsafes", "--duration-s", f"{args.duration_s:g}", "--out", str(out)]
+            cmd = [
+                str(Path(sys.executable).with_name("phireman")),
+                "fly",
+                "sitl_px4",
+                *sum((["--connect", c] for c in sitl.connections()), []),
+                "--apply-failsafes",
+                "--duration-s",
+                f"{args.duration_s:g}",
+                "--out",
+                str(out),
+            ]
             print("running:", " ".join(cmd), flush=True)
             t0 = time.monotonic()
             rc = subprocess.run(cmd, cwd=ROOT).returncode
@@ -107,18 +123,25 @@ def main() -> int:
     summary = json.loads((run_dir / "summary.json").read_text())
     station = _station_gaps(run_dir)
     px4 = _px4_gaps(workdir / "sitl")
-    print(f"\n{args.vehicles} PX4 SIH vehicles, {args.duration_s:g} s mission, {args.load} busy "
-          f"processes; station TU1/TU2 {summary['station']['tu1']:.3f} / "
-          f"{summary['station']['tu2']:.3f}")
+    print(
+        f"\n{args.vehicles} PX4 SIH vehicles, {args.duration_s:g} s mission, {args.load} busy "
+        f"processes; station TU1/TU2 {summary['station']['tu1']:.3f} / "
+        f"{summary['station']['tu2']:.3f}"
+    )
     print("station's .tlog (setpoints sent):")
     for sysid, g in station.items():
-        print(f"  sysid {sysid}: {g['setpoints']} setpoints, max gap {g['max_gap_s']:.3f} s, "
-              f"p99 {g['p99_gap_s']:.3f} s")
+        print(
+            f"  sysid {sysid}: {g['setpoints']} setpoints, max gap {g['max_gap_s']:.3f} s, "
+            f"p99 {g['p99_gap_s']:.3f} s"
+        )
     print("PX4's own log (offboard_control_mode received):")
     for inst, g in px4.items():
         print(f"  {inst}: {g}")
-    failsafes = [e for e in map(json.loads, (run_dir / "events.jsonl").read_text().splitlines())
-                 if e.get("type") == "StatusText" and "failsafe" in e.get("text", "").lower()]
+    failsafes = [
+        e
+        for e in map(json.loads, (run_dir / "events.jsonl").read_text().splitlines())
+        if e.get("type") == "StatusText" and "failsafe" in e.get("text", "").lower()
+    ]
     print(f"failsafe texts from the vehicles during the flight: {len(failsafes)}")
     return 0
 

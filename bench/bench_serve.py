@@ -48,8 +48,9 @@ def _sse_reader(info: dict, stop: threading.Event, stats: dict) -> None:
         time.sleep(0.05)
     if stop.is_set():
         return
-    proc = subprocess.Popen([sys.executable, "-c", _READER, info["url"]],
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _READER, info["url"]], stdout=subprocess.PIPE, text=True
+    )
     for line in proc.stdout:
         stats["frames"], stats["bytes"] = (int(x) for x in line.split())
         if stop.is_set():
@@ -73,19 +74,34 @@ def one_run(mission, args, serve: bool) -> dict:
         reader = threading.Thread(target=_sse_reader, args=(info, stop, stats), daemon=True)
         reader.start()
     with tempfile.TemporaryDirectory() as out:
-        r = fly_emulated(mission, FlyOptions(
-            speedup=args.speedup, duration_s=args.duration_s, out_dir=out, wave_size=100,
-            end_wait=False, override_audit=True, on_operator=hook,
-            serve="127.0.0.1:0" if serve else None, on_live=info.update))
+        r = fly_emulated(
+            mission,
+            FlyOptions(
+                speedup=args.speedup,
+                duration_s=args.duration_s,
+                out_dir=out,
+                wave_size=100,
+                end_wait=False,
+                override_audit=True,
+                on_operator=hook,
+                serve="127.0.0.1:0" if serve else None,
+                on_live=info.update,
+            ),
+        )
     stop.set()
     if reader is not None:
         reader.join(30)
     d = np.diff(np.array(ticks[2:]))  # the first ticks include the launch settling
     live = info.get("live")
-    return {"period_median_s": float(np.median(d)), "period_mean_s": float(np.mean(d)),
-            "ticks": len(ticks), "frames": stats["frames"], "mb": stats["bytes"] / 1e6,
-            "frame_cpu_ms": (1e3 * live.frame_cpu_s / max(1, live.frames_built)) if live else None,
-            "speedup_achieved": r.summary["speedup_achieved"]}
+    return {
+        "period_median_s": float(np.median(d)),
+        "period_mean_s": float(np.mean(d)),
+        "ticks": len(ticks),
+        "frames": stats["frames"],
+        "mb": stats["bytes"] / 1e6,
+        "frame_cpu_ms": (1e3 * live.frame_cpu_s / max(1, live.frames_built)) if live else None,
+        "speedup_achieved": r.summary["speedup_achieved"],
+    }
 
 
 def main() -> None:
@@ -98,24 +114,37 @@ def main() -> None:
     logging.disable(logging.WARNING)  # per-vehicle warnings of 500 vehicles are not the point here
     m = paper_mission("XL", 0.0, seed=0)
     emu = dataclasses.replace(m.vehicles.emulated, count=args.vehicles)
-    m = dataclasses.replace(m, vehicles=dataclasses.replace(m.vehicles, emulated=emu),
-                            planner=dataclasses.replace(m.planner, info="central"))
+    m = dataclasses.replace(
+        m,
+        vehicles=dataclasses.replace(m.vehicles, emulated=emu),
+        planner=dataclasses.replace(m.planner, info="central"),
+    )
     off, on = [], []
     for k in range(args.pairs):
         for serve, bucket in ((False, off), (True, on)):
             res = one_run(m, args, serve)
             bucket.append(res)
-            print(f"pair {k + 1} {'serve' if serve else 'plain'}: tick period median "
-                  f"{res['period_median_s'] * 1e3:.1f} ms, mean {res['period_mean_s'] * 1e3:.1f} ms, "
-                  f"{res['ticks']} ticks" + (f"; {res['frames']} frames to the client "
-                                            f"({res['mb']:.1f} MB), {res['frame_cpu_ms']:.1f} ms "
-                                            "CPU per frame" if serve else ""), flush=True)
+            print(
+                f"pair {k + 1} {'serve' if serve else 'plain'}: tick period median "
+                f"{res['period_median_s'] * 1e3:.1f} ms, mean {res['period_mean_s'] * 1e3:.1f} ms, "
+                f"{res['ticks']} ticks"
+                + (
+                    f"; {res['frames']} frames to the client "
+                    f"({res['mb']:.1f} MB), {res['frame_cpu_ms']:.1f} ms "
+                    "CPU per frame"
+                    if serve
+                    else ""
+                ),
+                flush=True,
+            )
     a = float(np.mean([r["period_mean_s"] for r in off]))
     b = float(np.mean([r["period_mean_s"] for r in on]))
-    print(f"\n{args.vehicles} vehicles, speed-up {args.speedup}: control tick period "
-          f"without --serve {a * 1e3:.1f} ms, with --serve (+ an SSE client) {b * 1e3:.1f} ms, "
-          f"ratio {b / a:.3f} ({'within' if b / a <= 1.05 else 'NOT within'} 5 %); per pair "
-          + ", ".join(f"{y['period_mean_s'] / x['period_mean_s']:.3f}" for x, y in zip(off, on)))
+    print(
+        f"\n{args.vehicles} vehicles, speed-up {args.speedup}: control tick period "
+        f"without --serve {a * 1e3:.1f} ms, with --serve (+ an SSE client) {b * 1e3:.1f} ms, "
+        f"ratio {b / a:.3f} ({'within' if b / a <= 1.05 else 'NOT within'} 5 %); per pair "
+        + ", ".join(f"{y['period_mean_s'] / x['period_mean_s']:.3f}" for x, y in zip(off, on))
+    )
 
 
 if __name__ == "__main__":

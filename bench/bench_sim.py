@@ -11,6 +11,7 @@ its own; CPU time (process_time) is reported beside wall time because it is robu
 the CPU seconds per run. ``--numpy-ref`` does the same with this tree's NumPy reference paths
 (``planner._kernels.ENABLED = False``) as "old".
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,14 +42,34 @@ print(json.dumps({"size": size, "info": info, "s_per_run": sum(times) / len(time
 """
 
 
-def run_cell(size: str, info: str, args, tree: str | None = None, numpy_ref: bool = False) -> dict | None:
-    env = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "PATH": "/usr/bin:/bin",
-           "HOME": os.environ.get("HOME", "/tmp")}
+def run_cell(
+    size: str, info: str, args, tree: str | None = None, numpy_ref: bool = False
+) -> dict | None:
+    env = {
+        "OMP_NUM_THREADS": "1",
+        "OPENBLAS_NUM_THREADS": "1",
+        "PATH": "/usr/bin:/bin",
+        "HOME": os.environ.get("HOME", "/tmp"),
+    }
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env["PYTHONPATH"] = tree or here
-    out = subprocess.run([sys.executable, "-c", CHILD, size, info, str(args.seeds), args.method,
-                          str(args.attrition), "numpy" if numpy_ref else "fast"],
-                         capture_output=True, text=True, env=env, cwd=tree or here)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            CHILD,
+            size,
+            info,
+            str(args.seeds),
+            args.method,
+            str(args.attrition),
+            "numpy" if numpy_ref else "fast",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tree or here,
+    )
     if out.returncode:
         print(out.stderr[-2000:], file=sys.stderr)
         return None
@@ -56,14 +77,22 @@ def run_cell(size: str, info: str, args, tree: str | None = None, numpy_ref: boo
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--sizes", nargs="+", default=["XS", "S", "M", "L", "XL"])
     ap.add_argument("--infos", nargs="+", default=["central", "async"])
     ap.add_argument("--method", default="phireman")
-    ap.add_argument("--attrition", type=float, default=0.01, help="per-step loss probability (0.01 = 1 %%)")
-    ap.add_argument("--baseline", default=None, help="code tree to compare against (old / new ratios)")
-    ap.add_argument("--numpy-ref", action="store_true", help="compare against this tree's NumPy paths")
+    ap.add_argument(
+        "--attrition", type=float, default=0.01, help="per-step loss probability (0.01 = 1 %%)"
+    )
+    ap.add_argument(
+        "--baseline", default=None, help="code tree to compare against (old / new ratios)"
+    )
+    ap.add_argument(
+        "--numpy-ref", action="store_true", help="compare against this tree's NumPy paths"
+    )
     args = ap.parse_args()
     compare = args.baseline is not None or args.numpy_ref
     # CPU time is the figure to quote on a shared machine; wall time is printed beside it.
@@ -71,13 +100,18 @@ def main() -> None:
     print(head + (f" {'old cpu s':>10} {'old/new':>8}" if compare else ""), flush=True)
     for size in args.sizes:
         for info in args.infos:
-            old = (run_cell(size, info, args, args.baseline, args.numpy_ref and args.baseline is None)
-                   if compare else None)
+            old = (
+                run_cell(size, info, args, args.baseline, args.numpy_ref and args.baseline is None)
+                if compare
+                else None
+            )
             r = run_cell(size, info, args)
             if r is None:
                 continue
-            line = (f"{size:>4} {info:>8} {r['cpu_s_per_run']:10.3f} {r['min_cpu_s']:10.3f} "
-                    f"{r['s_per_run']:10.3f} {r['peak_rss_mb']:8.0f}")
+            line = (
+                f"{size:>4} {info:>8} {r['cpu_s_per_run']:10.3f} {r['min_cpu_s']:10.3f} "
+                f"{r['s_per_run']:10.3f} {r['peak_rss_mb']:8.0f}"
+            )
             if old is not None:
                 line += f" {old['cpu_s_per_run']:10.3f} {old['cpu_s_per_run'] / r['cpu_s_per_run']:8.2f}"
             print(line, flush=True)

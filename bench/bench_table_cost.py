@@ -16,6 +16,7 @@ ratio, then the full sweep (100 seeds) in CPU minutes and its wall time on ``--w
 
 Exit status 1 if any run's TU1 / TU2 differ between the trees.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,10 +59,21 @@ print(json.dumps(out))
 
 
 def run_tree(tree: str, request: dict) -> list:
-    env = {**os.environ, "PYTHONPATH": tree, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-           "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
-    out = subprocess.run([sys.executable, "-c", CHILD, json.dumps(request)], capture_output=True, text=True,
-                         env=env, cwd=tree)
+    env = {
+        **os.environ,
+        "PYTHONPATH": tree,
+        "OMP_NUM_THREADS": "1",
+        "OPENBLAS_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+        "NUMBA_NUM_THREADS": "1",
+    }
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, json.dumps(request)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tree,
+    )
     if out.returncode:
         sys.exit(f"{tree}: {out.stderr[-3000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -70,36 +82,68 @@ def run_tree(tree: str, request: dict) -> list:
 def export_commit(commit: str, here: str) -> str:
     """``git archive <commit>`` of this repository into a fresh temporary directory."""
     dest = tempfile.mkdtemp(prefix=f"phireman-{commit[:10]}-")
-    archive = subprocess.run(["git", "-C", here, "archive", commit], capture_output=True, check=True).stdout
+    archive = subprocess.run(
+        ["git", "-C", here, "archive", commit], capture_output=True, check=True
+    ).stdout
     subprocess.run(["tar", "-x", "-C", dest], input=archive, check=True)
     return dest
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     src = ap.add_mutually_exclusive_group(required=True)
     src.add_argument("--baseline", help="root of the previous code tree")
     src.add_argument("--commit", help="a commit of this repository (git archive into a temp dir)")
     ap.add_argument("--sizes", nargs="+", default=list(SIZES))
-    ap.add_argument("--attrition", nargs="+", type=float, default=list(LEVELS), help="fractions, e.g. 0.01")
+    ap.add_argument(
+        "--attrition", nargs="+", type=float, default=list(LEVELS), help="fractions, e.g. 0.01"
+    )
     ap.add_argument("--methods", nargs="+", default=list(METHODS))
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
-    ap.add_argument("--repeat", type=int, default=1,
-                    help="run each (config, seed) this many times and keep the least CPU (a shared machine)")
-    ap.add_argument("--no-ablations", action="store_true", help="skip the 7 ablation variants at S / 1 %%")
-    ap.add_argument("--workers", type=int, default=2, help="workers of the sweep whose time is estimated")
-    ap.add_argument("--sweep-seeds", type=int, default=100, help="seeds of the sweep whose time is estimated")
+    ap.add_argument(
+        "--repeat",
+        type=int,
+        default=1,
+        help="run each (config, seed) this many times and keep the least CPU (a shared machine)",
+    )
+    ap.add_argument(
+        "--no-ablations", action="store_true", help="skip the 7 ablation variants at S / 1 %%"
+    )
+    ap.add_argument(
+        "--workers", type=int, default=2, help="workers of the sweep whose time is estimated"
+    )
+    ap.add_argument(
+        "--sweep-seeds", type=int, default=100, help="seeds of the sweep whose time is estimated"
+    )
     ap.add_argument("--quiet", action="store_true", help="no line per cell")
     args = ap.parse_args(argv)
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     base = args.baseline or export_commit(args.commit, here)
-    print(f"old: {base}{f' (commit {args.commit})' if args.commit else ''}\nnew: {here}", flush=True)
+    print(
+        f"old: {base}{f' (commit {args.commit})' if args.commit else ''}\nnew: {here}", flush=True
+    )
 
-    requests = [(size, {"grid": "table", "sizes": [size], "attrition": args.attrition, "methods": args.methods,
-                        "seeds": args.seeds, "repeat": args.repeat}) for size in args.sizes]
+    requests = [
+        (
+            size,
+            {
+                "grid": "table",
+                "sizes": [size],
+                "attrition": args.attrition,
+                "methods": args.methods,
+                "seeds": args.seeds,
+                "repeat": args.repeat,
+            },
+        )
+        for size in args.sizes
+    ]
     if not args.no_ablations:
-        requests.append(("ablations", {"grid": "ablations", "seeds": args.seeds, "repeat": args.repeat}))
-    rows = []                                          # (group, label, size, att, seed, old, new)
+        requests.append(
+            ("ablations", {"grid": "ablations", "seeds": args.seeds, "repeat": args.repeat})
+        )
+    rows = []  # (group, label, size, att, seed, old, new)
     for k, (group, req) in enumerate(requests):
         # alternate which tree goes first, so that a drift in load does not always favour one
         first, second = (base, here) if k % 2 == 0 else (here, base)
@@ -115,8 +159,11 @@ def main(argv: list[str] | None = None) -> int:
                 c_old = sum(r[5][6] for r in cell) / len(cell)
                 c_new = sum(r[6][6] for r in cell) / len(cell)
                 if not args.quiet:
-                    print(f"{group:9s} {label:20s} {100 * att:4.1f} %: cpu s/run {c_old:7.3f} -> {c_new:7.3f} "
-                          f"({c_old / c_new:4.2f}x)  TU1/TU2 identical {same}/{len(cell)}", flush=True)
+                    print(
+                        f"{group:9s} {label:20s} {100 * att:4.1f} %: cpu s/run {c_old:7.3f} -> {c_new:7.3f} "
+                        f"({c_old / c_new:4.2f}x)  TU1/TU2 identical {same}/{len(cell)}",
+                        flush=True,
+                    )
 
     # Per (size, method): mean CPU s per run over the levels and seeds measured.
     per = defaultdict(lambda: [0.0, 0.0, 0])
@@ -137,7 +184,9 @@ def main(argv: list[str] | None = None) -> int:
         o = sum(v[0] for k, v in per.items() if k[0] == "ablations")
         n = sum(v[1] for k, v in per.items() if k[0] == "ablations")
         c = sum(v[2] for k, v in per.items() if k[0] == "ablations")
-        print(f"{'ablations':9s} {o / c:7.3f} -> {n / c:6.3f} {o / n:4.2f}x (7 variants at S / 1 %)")
+        print(
+            f"{'ablations':9s} {o / c:7.3f} -> {n / c:6.3f} {o / n:4.2f}x (7 variants at S / 1 %)"
+        )
 
     # The sweep: every (config) at --sweep-seeds seeds; a config's cost is its measured mean.
     cfg = defaultdict(lambda: [0.0, 0.0, 0])
@@ -147,9 +196,11 @@ def main(argv: list[str] | None = None) -> int:
         cfg[(group, label, att)][2] += 1
     tot_old = sum(v[0] / v[2] for v in cfg.values()) * args.sweep_seeds / 60
     tot_new = sum(v[1] / v[2] for v in cfg.values()) * args.sweep_seeds / 60
-    print(f"\nsweep estimate ({len(cfg)} configurations x {args.sweep_seeds} seeds): CPU {tot_old:.1f} -> "
-          f"{tot_new:.1f} min ({tot_old / tot_new:.2f}x); wall on {args.workers} workers (CPU / workers, "
-          f"perfect packing): {tot_old / args.workers:.1f} -> {tot_new / args.workers:.1f} min")
+    print(
+        f"\nsweep estimate ({len(cfg)} configurations x {args.sweep_seeds} seeds): CPU {tot_old:.1f} -> "
+        f"{tot_new:.1f} min ({tot_old / tot_new:.2f}x); wall on {args.workers} workers (CPU / workers, "
+        f"perfect packing): {tot_old / args.workers:.1f} -> {tot_new / args.workers:.1f} min"
+    )
     if args.commit:
         shutil.rmtree(base, ignore_errors=True)
     bad = sum(r[5][4:6] != r[6][4:6] for r in rows)

@@ -11,6 +11,7 @@ The first tick (tree build, JIT warm-up) is reported apart as ``first``.
 
 CPU time (process_time) is printed beside wall time: on a shared machine it is the figure to quote.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -55,10 +56,19 @@ print(json.dumps({"drones": n, "tasks": m, "first_ms": wall[0] * 1e3,
 
 
 def run(n: int, m: int, ticks: int, method: str, seed: int) -> dict | None:
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-           "NUMBA_NUM_THREADS": "1"}
-    out = subprocess.run([sys.executable, "-c", CHILD, str(n), str(m), str(ticks), method, str(seed)],
-                         capture_output=True, text=True, env=env)
+    env = {
+        **os.environ,
+        "OMP_NUM_THREADS": "1",
+        "OPENBLAS_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+        "NUMBA_NUM_THREADS": "1",
+    }
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, str(n), str(m), str(ticks), method, str(seed)],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     if out.returncode:
         print(out.stderr[-2000:], file=sys.stderr)
         return None
@@ -67,19 +77,45 @@ def run(n: int, m: int, ticks: int, method: str, seed: int) -> dict | None:
 
 def plot(rows: list[dict], path: str, before: list[dict] | None = None) -> None:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     n = [r["drones"] for r in rows]
     fig, ax = plt.subplots(figsize=(6, 4.2))
     if before:
-        ax.loglog([r["drones"] for r in before], [r["cpu_p50_ms"] for r in before], "v:", color="tab:red",
-                  label="before (NumPy, dense N x N): CPU p50")
+        ax.loglog(
+            [r["drones"] for r in before],
+            [r["cpu_p50_ms"] for r in before],
+            "v:",
+            color="tab:red",
+            label="before (NumPy, dense N x N): CPU p50",
+        )
     ax.loglog(n, [r["cpu_p50_ms"] for r in rows], "o-", label="tick CPU p50")
-    ax.loglog(n, [r["cpu_mean_ms"] for r in rows], "^-", alpha=0.6, label="tick CPU mean (incl. tree rebuilds)")
-    ax.scatter([2000, 10000], [50, 500], marker="x", color="k", zorder=5, label="goals (2,000: 50 ms; 10,000: 500 ms)")
+    ax.loglog(
+        n,
+        [r["cpu_mean_ms"] for r in rows],
+        "^-",
+        alpha=0.6,
+        label="tick CPU mean (incl. tree rebuilds)",
+    )
+    ax.scatter(
+        [2000, 10000],
+        [50, 500],
+        marker="x",
+        color="k",
+        zorder=5,
+        label="goals (2,000: 50 ms; 10,000: 500 ms)",
+    )
     for r in rows:
-        ax.annotate(f"{r['tasks']}", (r["drones"], r["cpu_p50_ms"]), textcoords="offset points",
-                    xytext=(4, -10), fontsize=7, color="0.4")
+        ax.annotate(
+            f"{r['tasks']}",
+            (r["drones"], r["cpu_p50_ms"]),
+            textcoords="offset points",
+            xytext=(4, -10),
+            fontsize=7,
+            color="0.4",
+        )
     ax.set_xlabel("drones (tasks annotated)")
     ax.set_ylabel("planning tick, ms")
     ax.set_title("PhiIREMAN central tick against swarm size")
@@ -90,33 +126,49 @@ def plot(rows: list[dict], path: str, before: list[dict] | None = None) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--sizes", nargs="+", type=int, default=list(TASKS))
     ap.add_argument("--ticks", type=int, default=20)
     ap.add_argument("--method", default="phireman-central")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--plot", default=None, help="write a log-log PNG of tick time against drones")
     ap.add_argument("--json", default=None, help="also write the rows as JSON")
-    ap.add_argument("--from-json", default=None, help="plot rows written by --json instead of measuring")
-    ap.add_argument("--baseline-json", nargs="+", default=None,
-                    help="rows of an earlier code tree (--json run there) to draw as 'before'")
+    ap.add_argument(
+        "--from-json", default=None, help="plot rows written by --json instead of measuring"
+    )
+    ap.add_argument(
+        "--baseline-json",
+        nargs="+",
+        default=None,
+        help="rows of an earlier code tree (--json run there) to draw as 'before'",
+    )
     args = ap.parse_args()
     before = None
     if args.baseline_json:
-        before = sorted((r for f in args.baseline_json for r in json.load(open(f))), key=lambda r: r["drones"])
+        before = sorted(
+            (r for f in args.baseline_json for r in json.load(open(f))), key=lambda r: r["drones"]
+        )
     if args.from_json:
         plot(json.load(open(args.from_json)), args.plot, before)
         return
-    print(f"{'drones':>7} {'tasks':>6} {'first ms':>9} {'cpu p50':>8} {'cpu mean':>9} {'wall p50':>9} "
-          f"{'wall p95':>9} {'peak MB':>8}", flush=True)
+    print(
+        f"{'drones':>7} {'tasks':>6} {'first ms':>9} {'cpu p50':>8} {'cpu mean':>9} {'wall p50':>9} "
+        f"{'wall p95':>9} {'peak MB':>8}",
+        flush=True,
+    )
     rows = []
     for n in args.sizes:
         r = run(n, TASKS.get(n, max(1, n // 10)), args.ticks, args.method, args.seed)
         if r is None:
             continue
         rows.append(r)
-        print(f"{n:7d} {r['tasks']:6d} {r['first_ms']:9.1f} {r['cpu_p50_ms']:8.1f} {r['cpu_mean_ms']:9.1f} "
-              f"{r['wall_p50_ms']:9.1f} {r['wall_p95_ms']:9.1f} {r['peak_rss_mb']:8.0f}", flush=True)
+        print(
+            f"{n:7d} {r['tasks']:6d} {r['first_ms']:9.1f} {r['cpu_p50_ms']:8.1f} {r['cpu_mean_ms']:9.1f} "
+            f"{r['wall_p50_ms']:9.1f} {r['wall_p95_ms']:9.1f} {r['peak_rss_mb']:8.0f}",
+            flush=True,
+        )
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)

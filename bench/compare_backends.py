@@ -52,37 +52,49 @@ def main(argv=None) -> int:
     seeds = _seeds(args.seeds)
     ref = {s: run_inprocess(mission, s) for s in seeds}
     status = 0
-    print(f"mission {mission.name}: in-process vs emulator (station over loopback UDP, "
-          f"{args.speedup:g}x requested); TU in %, truth")
+    print(
+        f"mission {mission.name}: in-process vs emulator (station over loopback UDP, "
+        f"{args.speedup:g}x requested); TU in %, truth"
+    )
     for pers in args.personality:
-        print(f"\n{pers}\n seed | in-proc TU1  TU2 | emulator TU1  TU2 |   dTU1   dTU2 | "
-              f"speed-up  wall s  alive(in/emu)")
+        print(
+            f"\n{pers}\n seed | in-proc TU1  TU2 | emulator TU1  TU2 |   dTU1   dTU2 | "
+            f"speed-up  wall s  alive(in/emu)"
+        )
         d1, d2, sp = [], [], []
         for s in seeds:
             r = ref[s]
             t = time.monotonic()
-            res = fly_emulated(mission, FlyOptions(seed=s, personality=pers, speedup=args.speedup,
-                                                   out_dir=out, end_wait=False))
+            res = fly_emulated(
+                mission,
+                FlyOptions(
+                    seed=s, personality=pers, speedup=args.speedup, out_dir=out, end_wait=False
+                ),
+            )
             wall = time.monotonic() - t
             sm = res.summary
             tr = sm.get("truth") or {}
             if sm["phase"] == "refused" or tr.get("tu1") is None:
-                print(f" {s:4d} | {100 * r.tu1:6.1f} {100 * r.tu2:5.1f} | "
-                      f"FAILED ({sm['phase']})")
+                print(f" {s:4d} | {100 * r.tu1:6.1f} {100 * r.tu2:5.1f} | FAILED ({sm['phase']})")
                 status = 1
                 continue
             e1, e2 = 100 * tr["tu1"], 100 * tr["tu2"]
             d1.append(e1 - 100 * r.tu1)
             d2.append(e2 - 100 * r.tu2)
             sp.append(sm["speedup_achieved"] or 0.0)
-            print(f" {s:4d} | {100 * r.tu1:11.1f} {100 * r.tu2:5.1f} | {e1:12.1f} {e2:5.1f} | "
-                  f"{d1[-1]:+6.1f} {d2[-1]:+6.1f} | {sp[-1]:8.1f} {wall:7.1f}  "
-                  f"{int(r.record.alive[-1].sum())}/{tr.get('alive_end')}", flush=True)
+            print(
+                f" {s:4d} | {100 * r.tu1:11.1f} {100 * r.tu2:5.1f} | {e1:12.1f} {e2:5.1f} | "
+                f"{d1[-1]:+6.1f} {d2[-1]:+6.1f} | {sp[-1]:8.1f} {wall:7.1f}  "
+                f"{int(r.record.alive[-1].sum())}/{tr.get('alive_end')}",
+                flush=True,
+            )
         if d1:
             m1, m2 = float(np.mean(d1)), float(np.mean(d2))
-            print(f" mean difference (emulator - in-process): TU1 {m1:+.2f} pts, TU2 {m2:+.2f} "
-                  f"pts; mean |d|: {np.mean(np.abs(d1)):.2f} / {np.mean(np.abs(d2)):.2f}; "
-                  f"speed-up achieved: mean {np.mean(sp):.1f}x, min {np.min(sp):.1f}x")
+            print(
+                f" mean difference (emulator - in-process): TU1 {m1:+.2f} pts, TU2 {m2:+.2f} "
+                f"pts; mean |d|: {np.mean(np.abs(d1)):.2f} / {np.mean(np.abs(d2)):.2f}; "
+                f"speed-up achieved: mean {np.mean(sp):.1f}x, min {np.min(sp):.1f}x"
+            )
             if abs(m1) > args.tolerance or abs(m2) > args.tolerance:
                 status = 1
     print(f"\nrun directories: {out}")

@@ -23,7 +23,9 @@ from planner.problem import problem_preset
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("store")
     ap.add_argument("--methods", nargs="+", default=["phireman", "dccrs", "mccst"])
     ap.add_argument("--cells", nargs="+", default=["S:1", "XS:2", "M:5", "L:2"], metavar="SIZE:PCT")
@@ -37,18 +39,27 @@ def main(argv=None) -> int:
         problem = problem_preset(size.upper(), att)
         for method in args.methods:
             for seed in args.seeds:
-                rows = [(tu1, tu2) for tu1, tu2, spec in con.execute(
-                    "SELECT tu1, tu2, spec_json FROM runs WHERE method = ? AND size = ? AND abs(attrition - ?) < 1e-9 "
-                    "AND seed = ? AND status = 'ok' AND reading = 'scaled'", (method, size.upper(), att, seed))
-                    if not json.loads(spec).get("problem_overrides") and not json.loads(spec).get("params")]
+                rows = [
+                    (tu1, tu2)
+                    for tu1, tu2, spec in con.execute(
+                        "SELECT tu1, tu2, spec_json FROM runs WHERE method = ? AND size = ? AND abs(attrition - ?) < 1e-9 "
+                        "AND seed = ? AND status = 'ok' AND reading = 'scaled'",
+                        (method, size.upper(), att, seed),
+                    )
+                    if not json.loads(spec).get("problem_overrides")
+                    and not json.loads(spec).get("params")
+                ]
                 if not rows:
                     print(f"{method:10s} {size:2s} {pct:>3s} % seed {seed}: not in the store")
                     continue
                 r = run_episode(problem, method, {}, seed)
                 same = (r.tu1, r.tu2) == rows[0]
                 bad += not same
-                print(f"{method:10s} {size:2s} {pct:>3s} % seed {seed}: stored {rows[0][0]!r} {rows[0][1]!r} "
-                      f"now {r.tu1!r} {r.tu2!r} {'identical' if same else 'DIFFERENT'}", flush=True)
+                print(
+                    f"{method:10s} {size:2s} {pct:>3s} % seed {seed}: stored {rows[0][0]!r} {rows[0][1]!r} "
+                    f"now {r.tu1!r} {r.tu2!r} {'identical' if same else 'DIFFERENT'}",
+                    flush=True,
+                )
     con.close()
     return 1 if bad else 0
 

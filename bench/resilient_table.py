@@ -35,13 +35,17 @@ NEW = "phireman-resilient"
 BASE = "phireman"
 
 
-def load(path: str, method: str, params: dict | None = None) -> dict[tuple[str, float], dict[int, tuple[float, float]]]:
+def load(
+    path: str, method: str, params: dict | None = None
+) -> dict[tuple[str, float], dict[int, tuple[float, float]]]:
     """{(size, attrition): {seed: (tu1 %, tu2 %)}} for ``method`` with exactly these parameter overrides."""
     con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
     out: dict = {}
     for size, att, seed, tu1, tu2, spec in con.execute(
-            "SELECT size, attrition, seed, tu1, tu2, spec_json FROM runs WHERE method = ? AND status = 'ok' "
-            "AND reading = 'scaled'", (method,)):
+        "SELECT size, attrition, seed, tu1, tu2, spec_json FROM runs WHERE method = ? AND status = 'ok' "
+        "AND reading = 'scaled'",
+        (method,),
+    ):
         s = json.loads(spec)
         if s.get("problem_overrides") or (s.get("params") or {}) != (params or {}):
             continue
@@ -62,7 +66,9 @@ def variants(path: str, method: str) -> list[dict]:
     return seen
 
 
-def paired(a: dict[int, tuple], b: dict[int, tuple], k: int) -> tuple[int, float, float, float, float]:
+def paired(
+    a: dict[int, tuple], b: dict[int, tuple], k: int
+) -> tuple[int, float, float, float, float]:
     """(n, mean a, mean b, mean(a - b), two-sided paired p) over the shared seeds, metric k."""
     seeds = sorted(set(a) & set(b))
     if len(seeds) < 2:
@@ -84,59 +90,93 @@ def _verdict(d: float, p: float) -> str:
 
 
 def main_table(baseline: dict, new: dict) -> tuple[str, dict]:
-    lines = ["| Size | p (%) | paper Φ TU1 / TU2 | ours `phireman` TU1 / TU2 | `phireman-resilient` TU1 / TU2 "
-             "| Δ TU1 (p) | Δ TU2 (p) | verdict | n |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: |"]
-    counts = {"better_both": 0, "worse_any": 0, "cells": 0, "below95": 0, "better_both_below95": 0,
-              "worse_any_below95": 0, "better_tu1": 0, "better_tu2": 0, "better_both_1t": 0,
-              "better_both_1t_below95": 0, "worse_any_1t": 0}
+    lines = [
+        "| Size | p (%) | paper Φ TU1 / TU2 | ours `phireman` TU1 / TU2 | `phireman-resilient` TU1 / TU2 "
+        "| Δ TU1 (p) | Δ TU2 (p) | verdict | n |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: |",
+    ]
+    counts = {
+        "better_both": 0,
+        "worse_any": 0,
+        "cells": 0,
+        "below95": 0,
+        "better_both_below95": 0,
+        "worse_any_below95": 0,
+        "better_tu1": 0,
+        "better_tu2": 0,
+        "better_both_1t": 0,
+        "better_both_1t_below95": 0,
+        "worse_any_1t": 0,
+    }
     for size in SIZES:
         for att in ATTRITION_LEVELS:
             key = (size, round(att, 6))
-            pv1, pv2 = paper_value(size, att, "phireman", "tu1"), paper_value(size, att, "phireman", "tu2")
+            pv1, pv2 = (
+                paper_value(size, att, "phireman", "tu1"),
+                paper_value(size, att, "phireman", "tu2"),
+            )
             a, b = new.get(key, {}), baseline.get(key, {})
             n, m1, b1, d1, p1 = paired(a, b, 0)
             _, m2, b2, d2, p2 = paired(a, b, 1)
             below = pv1 is not None and pv1[0] < 95.0
             if n >= 2:
                 counts["cells"] += 1
-                better = all(not np.isnan(p) and p < 0.05 and d > 0 for d, p in ((d1, p1), (d2, p2)))
+                better = all(
+                    not np.isnan(p) and p < 0.05 and d > 0 for d, p in ((d1, p1), (d2, p2))
+                )
                 worse = any(not np.isnan(p) and p < 0.05 and d < 0 for d, p in ((d1, p1), (d2, p2)))
                 counts["better_both"] += better
                 counts["worse_any"] += worse
                 # one-tailed paired test in the direction of Δ (the paper's and `phireman report`'s convention)
-                better1 = all(not np.isnan(p) and p / 2 < 0.05 and d > 0 for d, p in ((d1, p1), (d2, p2)))
-                worse1 = any(not np.isnan(p) and p / 2 < 0.05 and d < 0 for d, p in ((d1, p1), (d2, p2)))
+                better1 = all(
+                    not np.isnan(p) and p / 2 < 0.05 and d > 0 for d, p in ((d1, p1), (d2, p2))
+                )
+                worse1 = any(
+                    not np.isnan(p) and p / 2 < 0.05 and d < 0 for d, p in ((d1, p1), (d2, p2))
+                )
                 counts["worse_any_1t"] += worse1
                 counts["better_both_1t"] += better1
                 counts["better_both_1t_below95"] += better1 and below
-                counts["better_tu1"] += (p1 < 0.05 and d1 > 0)
-                counts["better_tu2"] += (p2 < 0.05 and d2 > 0)
+                counts["better_tu1"] += p1 < 0.05 and d1 > 0
+                counts["better_tu2"] += p2 < 0.05 and d2 > 0
                 if below:
                     counts["below95"] += 1
                     counts["better_both_below95"] += better
                     counts["worse_any_below95"] += worse
-                verdict = "better (both)" if better else ("worse" if worse else
-                                                          " / ".join(_verdict(d, p) for d, p in ((d1, p1), (d2, p2))))
+                verdict = (
+                    "better (both)"
+                    if better
+                    else (
+                        "worse"
+                        if worse
+                        else " / ".join(_verdict(d, p) for d, p in ((d1, p1), (d2, p2)))
+                    )
+                )
             else:
                 verdict = "no data"
             paper = f"{pv1[0]:.2f} / {pv2[0]:.2f}" if pv1 and pv2 else "–"
-            lines.append(f"| {size} | {100 * att:g} | {paper}{' ‡' if below else ''} | {b1:.2f} / {b2:.2f} | "
-                         f"{m1:.2f} / {m2:.2f} | {d1:+.2f} ({_p(p1)}) | {d2:+.2f} ({_p(p2)}) | {verdict} | {n} |")
+            lines.append(
+                f"| {size} | {100 * att:g} | {paper}{' ‡' if below else ''} | {b1:.2f} / {b2:.2f} | "
+                f"{m1:.2f} / {m2:.2f} | {d1:+.2f} ({_p(p1)}) | {d2:+.2f} ({_p(p2)}) | {verdict} | {n} |"
+            )
     return "\n".join(lines), counts
 
 
 def ablation_table(path: str, cells: list[tuple[str, float]]) -> str:
     default = load(path, NEW)
-    lines = ["| cell | variant | TU1 | TU2 | Δ TU1 vs default (p) | Δ TU2 vs default (p) | n |",
-             "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [
+        "| cell | variant | TU1 | TU2 | Δ TU1 vs default (p) | Δ TU2 vs default (p) | n |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for size, att in cells:
         key = (size, round(att, 6))
         d = default.get(key, {})
         if len(d) >= 2:
             arr = np.array(list(d.values()))
-            lines.append(f"| {size} / {100 * att:g} % | default | {arr[:, 0].mean():.2f} | {arr[:, 1].mean():.2f} "
-                         f"| – | – | {len(d)} |")
+            lines.append(
+                f"| {size} / {100 * att:g} % | default | {arr[:, 0].mean():.2f} | {arr[:, 1].mean():.2f} "
+                f"| – | – | {len(d)} |"
+            )
         for params in variants(path, NEW):
             v = load(path, NEW, params).get(key, {})
             if len(v) < 2:
@@ -144,34 +184,51 @@ def ablation_table(path: str, cells: list[tuple[str, float]]) -> str:
             n, m1, _, d1, p1 = paired(v, d, 0)
             _, m2, _, d2, p2 = paired(v, d, 1)
             label = ", ".join(f"{k}={val}" for k, val in sorted(params.items()))
-            lines.append(f"| {size} / {100 * att:g} % | {label} | {m1:.2f} | {m2:.2f} | {d1:+.2f} ({_p(p1)}) "
-                         f"| {d2:+.2f} ({_p(p2)}) | {n} |")
+            lines.append(
+                f"| {size} / {100 * att:g} % | {label} | {m1:.2f} | {m2:.2f} | {d1:+.2f} ({_p(p1)}) "
+                f"| {d2:+.2f} ({_p(p2)}) | {n} |"
+            )
     return "\n".join(lines)
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--baseline", required=True, help="store with the phireman rows (e.g. the paper table's)")
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--baseline", required=True, help="store with the phireman rows (e.g. the paper table's)"
+    )
     ap.add_argument("--store", required=True, help="store with the phireman-resilient rows")
-    ap.add_argument("--ablations", nargs="*", default=None, metavar="SIZE:PCT",
-                    help="ablation cells, e.g. S:1 M:2 (default when given without values: S:1 M:2)")
+    ap.add_argument(
+        "--ablations",
+        nargs="*",
+        default=None,
+        metavar="SIZE:PCT",
+        help="ablation cells, e.g. S:1 M:2 (default when given without values: S:1 M:2)",
+    )
     args = ap.parse_args(argv)
     base = load(args.baseline, BASE)
     new = load(args.store, NEW)
     table, counts = main_table(base, new)
     print(table)
     print()
-    print(f"- cells with data: {counts['cells']} of 25; significantly better on both TU1 and TU2 "
-          f"(two-sided paired t-test, p < 0.05): **{counts['better_both']}**; significantly worse on TU1 or "
-          f"TU2: **{counts['worse_any']}**; better on TU1: {counts['better_tu1']}, on TU2: {counts['better_tu2']}")
-    print(f"- among the {counts['below95']} cells where the paper's ΦIREMAN is below 95 % TU1 (‡): better on "
-          f"both {counts['better_both_below95']}, worse on either {counts['worse_any_below95']}")
-    print(f"- with the one-tailed paired test (p/2 in the direction of Δ, the paper's convention): better on both "
-          f"in {counts['better_both_1t']} cells, {counts['better_both_1t_below95']} of them ‡; worse on either in "
-          f"{counts['worse_any_1t']}")
+    print(
+        f"- cells with data: {counts['cells']} of 25; significantly better on both TU1 and TU2 "
+        f"(two-sided paired t-test, p < 0.05): **{counts['better_both']}**; significantly worse on TU1 or "
+        f"TU2: **{counts['worse_any']}**; better on TU1: {counts['better_tu1']}, on TU2: {counts['better_tu2']}"
+    )
+    print(
+        f"- among the {counts['below95']} cells where the paper's ΦIREMAN is below 95 % TU1 (‡): better on "
+        f"both {counts['better_both_below95']}, worse on either {counts['worse_any_below95']}"
+    )
+    print(
+        f"- with the one-tailed paired test (p/2 in the direction of Δ, the paper's convention): better on both "
+        f"in {counts['better_both_1t']} cells, {counts['better_both_1t_below95']} of them ‡; worse on either in "
+        f"{counts['worse_any_1t']}"
+    )
     if args.ablations is not None:
         cells = []
-        for item in (args.ablations or ["S:1", "M:2"]):
+        for item in args.ablations or ["S:1", "M:2"]:
             size, pct = item.split(":")
             cells.append((size.upper(), float(pct) / 100))
         print()

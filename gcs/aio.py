@@ -75,9 +75,11 @@ def _open_reason(spec: ConnectionSpec, exc: BaseException) -> str:
     else:
         reason = str(exc) or type(exc).__name__
     if spec.kind in ("udpin", "tcpin"):
-        hint = {errno.EADDRINUSE: " (another station, MAVProxy or QGroundControl on this port?)",
-                errno.EADDRNOTAVAIL: " (not an address of this computer)",
-                errno.EACCES: " (ports below 1024 need privileges)"}.get(code or 0, "")
+        hint = {
+            errno.EADDRINUSE: " (another station, MAVProxy or QGroundControl on this port?)",
+            errno.EADDRNOTAVAIL: " (not an address of this computer)",
+            errno.EACCES: " (ports below 1024 need privileges)",
+        }.get(code or 0, "")
         return f"cannot listen on {host}:{port}: {reason}{hint}"
     return f"cannot connect to {host}:{port}: {reason}"
 
@@ -87,8 +89,9 @@ class _NowFnClock:
     ``mission.station_loop`` passes; the default is the loop's own clock). The Unix anchor is
     read when asked: the core is built at :meth:`StationAdapter.start`."""
 
-    def __init__(self, now_fn: Callable[[], float], time_scale: float,
-                 wall_clock: Callable[[], float]) -> None:
+    def __init__(
+        self, now_fn: Callable[[], float], time_scale: float, wall_clock: Callable[[], float]
+    ) -> None:
         self.now = now_fn
         self.time_scale = time_scale
         self._wall_clock = wall_clock
@@ -108,13 +111,20 @@ class StationAdapter:
     is ``time_scale`` and whose Unix anchor is read from ``wall_clock`` (a Clock carries both:
     leave ``time_scale`` and ``wall_clock`` alone). Default: the running loop's clock."""
 
-    def __init__(self, connection: str | ConnectionSpec, config: StationConfig | None = None, *,
-                 link_id: int = 0, clock: Clock | Callable[[], float] | None = None,
-                 wall_clock: Callable[[], float] = time.time, tlog: TlogWriter | None = None,
-                 on_event: Callable[[Event], None] | None = None,
-                 time_scale: float = 1.0,
-                 reconnect_s: tuple[float, float] = (1.0, 8.0),
-                 on_link_event: Callable[[LinkEvent], None] | None = None) -> None:
+    def __init__(
+        self,
+        connection: str | ConnectionSpec,
+        config: StationConfig | None = None,
+        *,
+        link_id: int = 0,
+        clock: Clock | Callable[[], float] | None = None,
+        wall_clock: Callable[[], float] = time.time,
+        tlog: TlogWriter | None = None,
+        on_event: Callable[[Event], None] | None = None,
+        time_scale: float = 1.0,
+        reconnect_s: tuple[float, float] = (1.0, 8.0),
+        on_link_event: Callable[[LinkEvent], None] | None = None,
+    ) -> None:
         self.spec = parse_connection(connection) if isinstance(connection, str) else connection
         self.link_id = link_id
         self._config = config or StationConfig()
@@ -125,8 +135,10 @@ class StationAdapter:
         self.time_scale = float(time_scale)
         self._wall_clock = wall_clock
         self._clock: Clock | None = (
-            clock if isinstance(clock, Clock) or clock is None
-            else _NowFnClock(clock, self.time_scale, wall_clock))
+            clock
+            if isinstance(clock, Clock) or clock is None
+            else _NowFnClock(clock, self.time_scale, wall_clock)
+        )
         self._tlog = tlog
         self._on_event = on_event
         self.events: asyncio.Queue[Event | LinkEvent] = asyncio.Queue()
@@ -172,14 +184,23 @@ class StationAdapter:
         self._connected = up
         now = self.now()
         if up:
-            log.log(logging.DEBUG if first else logging.WARNING, "link %d: %s is up",
-                    self.link_id, self.spec.text)
+            log.log(
+                logging.DEBUG if first else logging.WARNING,
+                "link %d: %s is up",
+                self.link_id,
+                self.spec.text,
+            )
             self._emit_link_event(LinkUp(self.link_id, now, connection=self.spec.text))
         else:
-            log.warning("link %d: %s is down (%s); retrying in the background", self.link_id,
-                        self.spec.text, self.down_reason)
-            self._emit_link_event(LinkDown(self.link_id, now, connection=self.spec.text,
-                                           reason=self.down_reason))
+            log.warning(
+                "link %d: %s is down (%s); retrying in the background",
+                self.link_id,
+                self.spec.text,
+                self.down_reason,
+            )
+            self._emit_link_event(
+                LinkDown(self.link_id, now, connection=self.spec.text, reason=self.down_reason)
+            )
 
     def _emit_link_event(self, event: LinkEvent) -> None:
         # To on_link_event, or to the events queue when there is no on_event; never to on_event
@@ -206,9 +227,12 @@ class StationAdapter:
         elif spec.kind == "serial":
             static = (spec.device,)
         cfg = dataclasses.replace(
-            cfg, static_peers=tuple(cfg.static_peers) + static,
-            datagram=spec.kind in ("udpin", "udpout"), record_frames=self._tlog is not None,
-            unix_time_at_zero_s=self._clock.unix_time_at_zero_s)
+            cfg,
+            static_peers=tuple(cfg.static_peers) + static,
+            datagram=spec.kind in ("udpin", "udpout"),
+            record_frames=self._tlog is not None,
+            unix_time_at_zero_s=self._clock.unix_time_at_zero_s,
+        )
         self.core = StationLink(cfg, link_id=self.link_id, now_s=self.now())
         try:
             if spec.kind == "udpin":
@@ -229,7 +253,8 @@ class StationAdapter:
         local = spec.address if spec.kind == "udpin" else None
         try:
             transport, _ = await loop.create_datagram_endpoint(
-                lambda: _Udp(self), local_addr=local, remote_addr=remote)
+                lambda: _Udp(self), local_addr=local, remote_addr=remote
+            )
         except OSError as exc:
             if spec.kind == "udpin" or isinstance(exc, socket.gaierror):
                 raise LinkOpenError(_open_reason(spec, exc)) from exc
@@ -255,6 +280,7 @@ class StationAdapter:
             peer = writer.get_extra_info("peername")
             self._send = lambda data, addr: writer.write(data)  # the latest client wins
             await self._read_stream(reader, peer)
+
         try:
             server = await asyncio.start_server(on_client, *spec.address)
         except OSError as exc:
@@ -330,8 +356,9 @@ class StationAdapter:
                 try:
                     reader = await self._connect_once(loop)
                 except OSError as exc:
-                    reason = str(exc) if isinstance(exc, SerialLinkError) \
-                        else _open_reason(spec, exc)
+                    reason = (
+                        str(exc) if isinstance(exc, SerialLinkError) else _open_reason(spec, exc)
+                    )
                     self.down_reason = reason
                     log.debug("link %d: %s still down: %s", self.link_id, spec.text, reason)
                     delay = min(2 * delay, longest)
@@ -353,8 +380,13 @@ class StationAdapter:
             self.down_reason = why
             lost.set()
 
-        port = _SerialPort.open(spec, loop, lambda data: self.receive(data, spec.device),
-                                link_id=self.link_id, on_lost=on_lost)
+        port = _SerialPort.open(
+            spec,
+            loop,
+            lambda data: self.receive(data, spec.device),
+            link_id=self.link_id,
+            on_lost=on_lost,
+        )
         lost.clear()
         self._port = port
         self._send = lambda data, addr: port.write(data)
@@ -472,8 +504,11 @@ class StationAdapter:
         self._closers.clear()
 
 
-async def open_links(connections: list[str], config: StationConfig | None = None,
-                     **kwargs: Any) -> list[StationAdapter]:
+async def open_links(
+    connections: list[str], config: StationConfig | None = None, **kwargs: Any
+) -> list[StationAdapter]:
     """Start one adapter per connection string, with link ids 0, 1, ..."""
-    return [await StationAdapter(c, config, link_id=i, **kwargs).start()
-            for i, c in enumerate(connections)]
+    return [
+        await StationAdapter(c, config, link_id=i, **kwargs).start()
+        for i, c in enumerate(connections)
+    ]

@@ -51,52 +51,111 @@ from collections.abc import Mapping
 
 from gcs.autopilot import ARDUPILOT, PX4
 
-__all__ = ["Finding", "VehicleAudit", "AuditReport", "AUDIT_PARAMS", "params_to_read",
-           "ALTERNATIVE_NAMES", "FOLLOW_UP_PARAMS", "OPTIONAL_PARAMS", "OPTIONAL_REASONS",
-           "params_still_needed", "audit_ardupilot", "audit_px4", "audit_vehicle", "audit_fleet",
-           "failsafe_fixes", "FS_GCS_ENABLE_FIX", "NAV_DLL_ACT_FIX", "NAV_RCL_ACT_FIX",
-           "COM_OBL_RC_ACT_FIX", "COM_OBL_ACT_FIX"]
+__all__ = [
+    "Finding",
+    "VehicleAudit",
+    "AuditReport",
+    "AUDIT_PARAMS",
+    "params_to_read",
+    "ALTERNATIVE_NAMES",
+    "FOLLOW_UP_PARAMS",
+    "OPTIONAL_PARAMS",
+    "OPTIONAL_REASONS",
+    "params_still_needed",
+    "audit_ardupilot",
+    "audit_px4",
+    "audit_vehicle",
+    "audit_fleet",
+    "failsafe_fixes",
+    "FS_GCS_ENABLE_FIX",
+    "NAV_DLL_ACT_FIX",
+    "NAV_RCL_ACT_FIX",
+    "COM_OBL_RC_ACT_FIX",
+    "COM_OBL_ACT_FIX",
+]
 
 #: What to read per autopilot. ArduPilot alternatives: old or new GCS-sysid names.
 AUDIT_PARAMS: dict[int, tuple[str, ...]] = {
-    ARDUPILOT: ("FS_GCS_ENABLE", "FS_GCS_TIMEOUT", "FS_OPTIONS", "GUID_TIMEOUT", "SYSID_MYGCS",
-                "MAV_GCS_SYSID", "MAV_GCS_SYSID_HI"),
-    PX4: ("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_RCL_ACT", "NAV_DLL_ACT", "COM_DL_LOSS_T",
-          "COM_RC_IN_MODE", "COM_RCL_EXCEPT", "COM_DLL_EXCEPT", "COM_FAIL_ACT_T", "COM_OBL_ACT"),
+    ARDUPILOT: (
+        "FS_GCS_ENABLE",
+        "FS_GCS_TIMEOUT",
+        "FS_OPTIONS",
+        "GUID_TIMEOUT",
+        "SYSID_MYGCS",
+        "MAV_GCS_SYSID",
+        "MAV_GCS_SYSID_HI",
+    ),
+    PX4: (
+        "COM_OF_LOSS_T",
+        "COM_OBL_RC_ACT",
+        "NAV_RCL_ACT",
+        "NAV_DLL_ACT",
+        "COM_DL_LOSS_T",
+        "COM_RC_IN_MODE",
+        "COM_RCL_EXCEPT",
+        "COM_DLL_EXCEPT",
+        "COM_FAIL_ACT_T",
+        "COM_OBL_ACT",
+    ),
 }
 
 BLOCKING, WARNING, INFO = "blocking", "warning", "info"
 
 # ArduCopter Parameters.cpp FS_GCS_ENABLE @Values; actions as failsafe_gcs_on_event maps them
 # (an out-of-range value falls to its ``default:`` branch, RTL).
-_FS_GCS_ENABLE = {0: "disabled: a cut-off copter keeps flying its last target",
-                  1: "RTL (Land if RTL cannot start)",
-                  2: "RTL (4.0+; Copter 3.x continues an AUTO mission)",
-                  3: "SmartRTL, else RTL",
-                  4: "SmartRTL, else Land where it is",
-                  5: "Land where it is",
-                  6: "the mission's DO_LAND_START / DO_RETURN_PATH_START sequence, else RTL",
-                  7: "Brake, else Land where it is"}
+_FS_GCS_ENABLE = {
+    0: "disabled: a cut-off copter keeps flying its last target",
+    1: "RTL (Land if RTL cannot start)",
+    2: "RTL (4.0+; Copter 3.x continues an AUTO mission)",
+    3: "SmartRTL, else RTL",
+    4: "SmartRTL, else Land where it is",
+    5: "Land where it is",
+    6: "the mission's DO_LAND_START / DO_RETURN_PATH_START sequence, else RTL",
+    7: "Brake, else Land where it is",
+}
 _FS_GCS_SAFE, _FS_GCS_WARN = frozenset({1, 2, 3}), frozenset({6})
 # FS_OPTIONS bits (ArduCopter Copter.h FailsafeOption; events.cpp failsafe_gcs_on_event).
-_FS_OPTIONS_BITS = {1: "continue AUTO on RC failsafe", 2: "continue AUTO on GCS failsafe",
-                    4: "continue GUIDED on RC failsafe (the GCS failsafe still fires)",
-                    8: "continue landing on any failsafe",
-                    16: "continue pilot-controlled modes on GCS failsafe", 32: "release gripper"}
+_FS_OPTIONS_BITS = {
+    1: "continue AUTO on RC failsafe",
+    2: "continue AUTO on GCS failsafe",
+    4: "continue GUIDED on RC failsafe (the GCS failsafe still fires)",
+    8: "continue landing on any failsafe",
+    16: "continue pilot-controlled modes on GCS failsafe",
+    32: "release gripper",
+}
 
 # PX4 gcs_connection_loss_failsafe_mode (failsafe.h) as fromNavDllOrRclActParam maps it; shared
 # by NAV_DLL_ACT and NAV_RCL_ACT. 7 (newest PX4) is "Hold mode, no failsafe": Action::None in the
 # failsafe state machine; unknown values fall to ``default:``, also Action::None.
-_NAV_ACT = {0: "no action (disabled)", 1: "Hold where it is", 2: "Return",
-            3: "Land where it is", 5: "Terminate: motors off, falls", 6: "Disarm in the air",
-            7: "no failsafe action (Hold as a mode switch)"}
+_NAV_ACT = {
+    0: "no action (disabled)",
+    1: "Hold where it is",
+    2: "Return",
+    3: "Land where it is",
+    5: "Terminate: motors off, falls",
+    6: "Disarm in the air",
+    7: "no failsafe action (Hold as a mode switch)",
+}
 # offboard_loss_failsafe_mode (failsafe.h) as fromOffboardLossActParam maps it.
-_COM_OBL_RC_ACT = {0: "Position mode", 1: "Altitude mode", 2: "Stabilized mode", 3: "Return",
-                   4: "Land where it is", 5: "Hold where it is", 6: "Terminate: motors off, falls",
-                   7: "Disarm in the air"}
+_COM_OBL_RC_ACT = {
+    0: "Position mode",
+    1: "Altitude mode",
+    2: "Stabilized mode",
+    3: "Return",
+    4: "Land where it is",
+    5: "Hold where it is",
+    6: "Terminate: motors off, falls",
+    7: "Disarm in the air",
+}
 # PX4 <= v1.13 commander_params.c COM_OBL_ACT (offboard loss without RC).
-_COM_OBL_ACT = {-1: "disabled", 0: "Land where it is", 1: "Hold where it is", 2: "Return",
-                3: "Terminate: motors off, falls", 4: "Lockdown: disarm in the air"}
+_COM_OBL_ACT = {
+    -1: "disabled",
+    0: "Land where it is",
+    1: "Hold where it is",
+    2: "Return",
+    3: "Terminate: motors off, falls",
+    4: "Lockdown: disarm in the air",
+}
 # COM_DLL_EXCEPT / COM_RCL_EXCEPT bits (failsafe.h LinkLossExceptionBits).
 _EXCEPT_MISSION, _EXCEPT_AUTO, _EXCEPT_OFFBOARD = 1, 2, 4
 # COM_RC_IN_MODE (failsafe.h RcInMode): 4 = manual control disabled.
@@ -106,7 +165,9 @@ _RC_IN_MODE_DISABLED = 4
 #: Spellings of one parameter across firmware versions: once one is read, the others are not
 #: asked for again (a firmware has only one of them; re-reading the other just times out).
 ALTERNATIVE_NAMES: dict[str, tuple[str, ...]] = {
-    "SYSID_MYGCS": ("MAV_GCS_SYSID",), "MAV_GCS_SYSID": ("SYSID_MYGCS",)}
+    "SYSID_MYGCS": ("MAV_GCS_SYSID",),
+    "MAV_GCS_SYSID": ("SYSID_MYGCS",),
+}
 #: Read only once the key was read (the GCS-sysid range exists only with the new name).
 FOLLOW_UP_PARAMS: dict[str, tuple[str, ...]] = {"MAV_GCS_SYSID": ("MAV_GCS_SYSID_HI",)}
 #: Why each optional parameter may be absent: a firmware that lacks it has no such setting, so
@@ -187,9 +248,13 @@ class AuditReport:
             state = "ok" if v.safe else "UNSAFE"
             lines.append(f"link {v.link_id} sysid {v.sysid}: {state}")
             lines += [f"  [{f.severity}] {f.param}: {f.message}" for f in v.findings]
-        verdict = ("cleared to fly" if self.cleared_to_fly and not self.overridden else
-                   "cleared to fly (OVERRIDDEN: unsafe lost-link settings)" if self.cleared_to_fly
-                   else "REFUSED: fix the settings above or override")
+        verdict = (
+            "cleared to fly"
+            if self.cleared_to_fly and not self.overridden
+            else "cleared to fly (OVERRIDDEN: unsafe lost-link settings)"
+            if self.cleared_to_fly
+            else "REFUSED: fix the settings above or override"
+        )
         lines.append(verdict)
         return "\n".join(lines)
 
@@ -204,6 +269,7 @@ def _int(params: Mapping[str, float], name: str) -> int | None:
 
 
 # ------------------------------------------------------------------------------- ArduPilot
+
 
 def _gcs_sysid(params: Mapping[str, float]) -> str:
     # SYSID_MYGCS was renamed MAV_GCS_SYSID (ArduPilot PR #30627); either may be present.
@@ -224,8 +290,13 @@ def audit_ardupilot(params: Mapping[str, float], gcs_sysid: int = 255) -> tuple[
     else:
         # failsafe_gcs_on_event: FS_GCS_ENABLE -> desired_action; default branch -> RTL.
         what = _FS_GCS_ENABLE.get(fs, f"unknown value {fs}: the firmware falls back to RTL")
-        sev = (INFO if fs in _FS_GCS_SAFE else WARNING if fs in _FS_GCS_WARN or
-               fs not in _FS_GCS_ENABLE else BLOCKING)
+        sev = (
+            INFO
+            if fs in _FS_GCS_SAFE
+            else WARNING
+            if fs in _FS_GCS_WARN or fs not in _FS_GCS_ENABLE
+            else BLOCKING
+        )
         out.append(Finding(sev, "FS_GCS_ENABLE", f"{fs}: station lost: {what}"))
     opts = _int(params, "FS_OPTIONS")
     if opts is not None:
@@ -236,16 +307,23 @@ def audit_ardupilot(params: Mapping[str, float], gcs_sysid: int = 255) -> tuple[
         bits = [f"{b} ({what})" for b, what in _FS_OPTIONS_BITS.items() if opts & b]
         sev = WARNING if opts & 2 else INFO
         text = ", ".join(bits) if bits else "no options"
-        out.append(Finding(sev, "FS_OPTIONS", f"{opts}: {text}; none changes the GCS failsafe "
-                           "in GUIDED"))
+        out.append(
+            Finding(sev, "FS_OPTIONS", f"{opts}: {text}; none changes the GCS failsafe in GUIDED")
+        )
     timeout = params.get("FS_GCS_TIMEOUT")
     if timeout is not None:
         sev = WARNING if timeout > 10 else INFO
         out.append(Finding(sev, "FS_GCS_TIMEOUT", f"{timeout:g} s after the last GCS heartbeat"))
     guid = params.get("GUID_TIMEOUT")
     if guid is not None:
-        out.append(Finding(INFO, "GUID_TIMEOUT", f"{guid:g} s (velocity targets only; position "
-                           "targets persist and are re-sent every second)"))
+        out.append(
+            Finding(
+                INFO,
+                "GUID_TIMEOUT",
+                f"{guid:g} s (velocity targets only; position "
+                "targets persist and are re-sent every second)",
+            )
+        )
     name = _gcs_sysid(params)
     if name not in params:
         out.append(_missing("SYSID_MYGCS / MAV_GCS_SYSID"))
@@ -257,29 +335,52 @@ def audit_ardupilot(params: Mapping[str, float], gcs_sysid: int = 255) -> tuple[
             out.append(Finding(INFO, name, f"{rng} includes our sysid {gcs_sysid}"))
         else:
             # failsafe_gcs_check returns while sysid_myggcs_last_seen_time_ms() == 0.
-            out.append(Finding(BLOCKING, name, f"{rng} does not include our sysid {gcs_sysid}: "
-                               "our heartbeats do not count, the GCS failsafe never arms"))
+            out.append(
+                Finding(
+                    BLOCKING,
+                    name,
+                    f"{rng} does not include our sysid {gcs_sysid}: "
+                    "our heartbeats do not count, the GCS failsafe never arms",
+                )
+            )
     return tuple(out)
 
 
 # ------------------------------------------------------------------------------------ PX4
+
 
 def _px4_offboard(params: Mapping[str, float]) -> list[Finding]:
     """What offboard (setpoint-stream) loss does: Failsafe::checkModeFallback."""
     out: list[Finding] = []
     obl = _int(params, "COM_OBL_RC_ACT")
     rcl = _int(params, "NAV_RCL_ACT")
-    old = _int(params, "COM_OBL_ACT")   # PX4 <= v1.13 only
+    old = _int(params, "COM_OBL_ACT")  # PX4 <= v1.13 only
     rc_mode = _int(params, "COM_RC_IN_MODE")
     if rc_mode is None:
-        out.append(Finding(WARNING, "COM_RC_IN_MODE", "could not be read; whether an RC is "
-                           "expected is unknown (the verdict assumes none)"))
+        out.append(
+            Finding(
+                WARNING,
+                "COM_RC_IN_MODE",
+                "could not be read; whether an RC is "
+                "expected is unknown (the verdict assumes none)",
+            )
+        )
     elif rc_mode == _RC_IN_MODE_DISABLED:
-        out.append(Finding(INFO, "COM_RC_IN_MODE", "4: no manual control at all: every "
-                           "'without RC' case below applies"))
+        out.append(
+            Finding(
+                INFO,
+                "COM_RC_IN_MODE",
+                "4: no manual control at all: every 'without RC' case below applies",
+            )
+        )
     else:
-        out.append(Finding(INFO, "COM_RC_IN_MODE", f"{rc_mode}: an RC / joystick may be used; "
-                           "the verdict assumes none is present"))
+        out.append(
+            Finding(
+                INFO,
+                "COM_RC_IN_MODE",
+                f"{rc_mode}: an RC / joystick may be used; the verdict assumes none is present",
+            )
+        )
     if obl is None:
         out.append(_missing("COM_OBL_RC_ACT"))
     if rcl is None:
@@ -294,17 +395,27 @@ def _px4_offboard(params: Mapping[str, float]) -> list[Finding]:
             sev = INFO if obl == COM_OBL_RC_ACT_FIX else WARNING
             out.append(Finding(sev, "COM_OBL_RC_ACT", f"{obl}: offboard loss with RC: {what}"))
         if rcl is not None:
-            out.append(Finding(INFO, "NAV_RCL_ACT", f"{rcl}: RC loss: "
-                               f"{_NAV_ACT.get(rcl, f'unknown value {rcl}')}"))
+            out.append(
+                Finding(
+                    INFO,
+                    "NAV_RCL_ACT",
+                    f"{rcl}: RC loss: {_NAV_ACT.get(rcl, f'unknown value {rcl}')}",
+                )
+            )
         return out
     if obl is None:
         return out
     if obl == COM_OBL_RC_ACT_FIX:
-        out.append(Finding(INFO, "COM_OBL_RC_ACT", "3: offboard loss: Return, with or "
-                           "without RC"))
+        out.append(Finding(INFO, "COM_OBL_RC_ACT", "3: offboard loss: Return, with or without RC"))
         if rcl is not None:
-            out.append(Finding(INFO, "NAV_RCL_ACT", f"{rcl}: RC loss (RC present at arming): "
-                               f"{_NAV_ACT.get(rcl, f'unknown value {rcl}')}"))
+            out.append(
+                Finding(
+                    INFO,
+                    "NAV_RCL_ACT",
+                    f"{rcl}: RC loss (RC present at arming): "
+                    f"{_NAV_ACT.get(rcl, f'unknown value {rcl}')}",
+                )
+            )
         return out
     if obl in (4, 5, 6, 7) or obl not in _COM_OBL_RC_ACT:
         what = _COM_OBL_RC_ACT.get(obl, f"unknown value {obl}")
@@ -316,15 +427,24 @@ def _px4_offboard(params: Mapping[str, float]) -> list[Finding]:
     # manual_control_signal_lost (set whenever no valid manual_control_setpoint arrives,
     # rcAndDataLinkCheck.cpp, so also with COM_RC_IN_MODE 4).
     mode = _COM_OBL_RC_ACT[obl]
-    out.append(Finding(WARNING, "COM_OBL_RC_ACT", f"{obl}: offboard loss: with RC, {mode} for "
-                       "the pilot; without RC, current PX4 takes NAV_RCL_ACT's action (next "
-                       f"finding), PX4 v1.14-1.16.0 stays in {mode} and hovers until the "
-                       "data-link failsafe; 3 (Return) is version-independent"))
+    out.append(
+        Finding(
+            WARNING,
+            "COM_OBL_RC_ACT",
+            f"{obl}: offboard loss: with RC, {mode} for "
+            "the pilot; without RC, current PX4 takes NAV_RCL_ACT's action (next "
+            f"finding), PX4 v1.14-1.16.0 stays in {mode} and hovers until the "
+            "data-link failsafe; 3 (Return) is version-independent",
+        )
+    )
     if rcl is not None:
         what = _NAV_ACT.get(rcl, f"unknown value {rcl}: no failsafe action")
         sev = INFO if rcl == NAV_RCL_ACT_FIX else BLOCKING
-        out.append(Finding(sev, "NAV_RCL_ACT", f"offboard loss: without RC, PX4 uses "
-                           f"NAV_RCL_ACT={rcl}: {what}"))
+        out.append(
+            Finding(
+                sev, "NAV_RCL_ACT", f"offboard loss: without RC, PX4 uses NAV_RCL_ACT={rcl}: {what}"
+            )
+        )
     return out
 
 
@@ -342,11 +462,22 @@ def audit_px4(params: Mapping[str, float], gcs_sysid: int = 255) -> tuple[Findin
     if exc is not None:
         # isFailsafeIgnored(user_intended_mode, COM_DLL_EXCEPT): bit 2 Offboard, bit 1 auto modes.
         if exc & _EXCEPT_OFFBOARD:
-            out.append(Finding(BLOCKING, "COM_DLL_EXCEPT", f"{exc}: data-link loss ignored in "
-                               "Offboard: a cut-off vehicle relies on the offboard-loss action"))
+            out.append(
+                Finding(
+                    BLOCKING,
+                    "COM_DLL_EXCEPT",
+                    f"{exc}: data-link loss ignored in "
+                    "Offboard: a cut-off vehicle relies on the offboard-loss action",
+                )
+            )
         elif exc & _EXCEPT_AUTO:
-            out.append(Finding(WARNING, "COM_DLL_EXCEPT", f"{exc}: data-link loss ignored in "
-                               "auto modes (Hold, Takeoff, Return, Land)"))
+            out.append(
+                Finding(
+                    WARNING,
+                    "COM_DLL_EXCEPT",
+                    f"{exc}: data-link loss ignored in auto modes (Hold, Takeoff, Return, Land)",
+                )
+            )
         else:
             out.append(Finding(INFO, "COM_DLL_EXCEPT", f"{exc}: no exception for Offboard"))
     out += _px4_offboard(params)
@@ -358,35 +489,49 @@ def audit_px4(params: Mapping[str, float], gcs_sysid: int = 255) -> tuple[Findin
     if delay is not None:
         # framework.cpp: with COM_FAIL_ACT_T > 0.1 s, Hold first (not for Disarm / Terminate).
         sev = WARNING if delay > 10 else INFO
-        out.append(Finding(sev, "COM_FAIL_ACT_T", f"{delay:g} s in Hold before a failsafe "
-                           "action"))
-    for name, meaning in (("COM_OF_LOSS_T", "offboard loss timeout"),
-                          ("COM_DL_LOSS_T", "data-link loss timeout")):
+        out.append(Finding(sev, "COM_FAIL_ACT_T", f"{delay:g} s in Hold before a failsafe action"))
+    for name, meaning in (
+        ("COM_OF_LOSS_T", "offboard loss timeout"),
+        ("COM_DL_LOSS_T", "data-link loss timeout"),
+    ):
         if name in params:
             out.append(Finding(INFO, name, f"{params[name]:g} s {meaning}"))
     return tuple(out)
 
 
-def audit_vehicle(link_id: int, sysid: int, autopilot: int, params: Mapping[str, float],
-                  gcs_sysid: int = 255) -> VehicleAudit:
+def audit_vehicle(
+    link_id: int, sysid: int, autopilot: int, params: Mapping[str, float], gcs_sysid: int = 255
+) -> VehicleAudit:
     if autopilot == ARDUPILOT:
         findings = audit_ardupilot(params, gcs_sysid)
     elif autopilot == PX4:
         findings = audit_px4(params, gcs_sysid)
     else:
-        findings = (Finding(BLOCKING, "-", f"unknown autopilot {autopilot}: lost-link behaviour "
-                            "cannot be checked"),)
+        findings = (
+            Finding(
+                BLOCKING,
+                "-",
+                f"unknown autopilot {autopilot}: lost-link behaviour cannot be checked",
+            ),
+        )
     return VehicleAudit(link_id, sysid, autopilot, findings)
 
 
-def audit_fleet(vehicles: Mapping[tuple[int, int], tuple[int, Mapping[str, float]]],
-                gcs_sysid: int = 255, *, override: bool = False) -> AuditReport:
+def audit_fleet(
+    vehicles: Mapping[tuple[int, int], tuple[int, Mapping[str, float]]],
+    gcs_sysid: int = 255,
+    *,
+    override: bool = False,
+) -> AuditReport:
     """Audit every vehicle; ``vehicles`` maps (link_id, sysid) -> (autopilot, params)."""
-    audits = tuple(audit_vehicle(link, sysid, ap, params, gcs_sysid)
-                   for (link, sysid), (ap, params) in sorted(vehicles.items()))
+    audits = tuple(
+        audit_vehicle(link, sysid, ap, params, gcs_sysid)
+        for (link, sysid), (ap, params) in sorted(vehicles.items())
+    )
     all_safe = all(a.safe for a in audits)
-    return AuditReport(audits, overridden=override and not all_safe,
-                       cleared_to_fly=all_safe or override)
+    return AuditReport(
+        audits, overridden=override and not all_safe, cleared_to_fly=all_safe or override
+    )
 
 
 #: ArduPilot FS_GCS_ENABLE written by --apply-failsafes: 1 = RTL (ArduCopter Parameters.cpp;
@@ -402,8 +547,9 @@ COM_OBL_RC_ACT_FIX = 3
 COM_OBL_ACT_FIX = 2
 
 
-def failsafe_fixes(autopilot: int, params: Mapping[str, float],
-                   gcs_sysid: int = 255) -> tuple[tuple[str, float], ...]:
+def failsafe_fixes(
+    autopilot: int, params: Mapping[str, float], gcs_sysid: int = 255
+) -> tuple[tuple[str, float], ...]:
     """``(name, value)`` writes that clear this vehicle's fixable blocking findings.
 
     Only parameters that were read are written (the vehicle has them, under that spelling), and
@@ -411,9 +557,17 @@ def failsafe_fixes(autopilot: int, params: Mapping[str, float],
     operator sends each with the PARAM_VALUE param_type it read (all integers here).
     """
     out: list[tuple[str, float]] = []
-    blocking = {f.param for f in (audit_ardupilot(params, gcs_sysid) if autopilot == ARDUPILOT
-                                  else audit_px4(params, gcs_sysid) if autopilot == PX4 else ())
-                if f.severity == BLOCKING}
+    blocking = {
+        f.param
+        for f in (
+            audit_ardupilot(params, gcs_sysid)
+            if autopilot == ARDUPILOT
+            else audit_px4(params, gcs_sysid)
+            if autopilot == PX4
+            else ()
+        )
+        if f.severity == BLOCKING
+    }
     if autopilot == ARDUPILOT:
         if "FS_GCS_ENABLE" in blocking and "FS_GCS_ENABLE" in params:
             out.append(("FS_GCS_ENABLE", float(FS_GCS_ENABLE_FIX)))
@@ -423,9 +577,12 @@ def failsafe_fixes(autopilot: int, params: Mapping[str, float],
             # With a range, lo = ours keeps [ours, hi] (or a single id once hi <= ours).
             out.append((name, float(gcs_sysid)))
     elif autopilot == PX4:
-        for name, value in (("NAV_DLL_ACT", NAV_DLL_ACT_FIX),
-                            ("COM_OBL_RC_ACT", COM_OBL_RC_ACT_FIX),
-                            ("NAV_RCL_ACT", NAV_RCL_ACT_FIX), ("COM_OBL_ACT", COM_OBL_ACT_FIX)):
+        for name, value in (
+            ("NAV_DLL_ACT", NAV_DLL_ACT_FIX),
+            ("COM_OBL_RC_ACT", COM_OBL_RC_ACT_FIX),
+            ("NAV_RCL_ACT", NAV_RCL_ACT_FIX),
+            ("COM_OBL_ACT", COM_OBL_ACT_FIX),
+        ):
             if name in blocking and name in params:
                 out.append((name, float(value)))
         if "COM_DLL_EXCEPT" in blocking and "COM_DLL_EXCEPT" in params:

@@ -10,21 +10,38 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from mavedge import mavlink
-from mavedge.modes import (ARDUCOPTER_MODES, ARDUCOPTER_NAMES, PX4_MODES, PX4_NAMES,
-                           px4_custom_mode, px4_main_sub)
+from mavedge.modes import (
+    ARDUCOPTER_MODES,
+    ARDUCOPTER_NAMES,
+    PX4_MODES,
+    PX4_NAMES,
+    px4_custom_mode,
+    px4_main_sub,
+)
 
 __all__ = [
-    "CommandSpec", "Adapter", "ArduCopterAdapter", "PX4Adapter", "GenericAdapter",
-    "adapter_for", "mode_name", "is_failsafe_mode", "UnsupportedCommand",
-    "ARDUCOPTER_MODES", "PX4_MODES", "px4_custom_mode", "px4_main_sub",
-    "ARDUPILOT", "PX4",
+    "CommandSpec",
+    "Adapter",
+    "ArduCopterAdapter",
+    "PX4Adapter",
+    "GenericAdapter",
+    "adapter_for",
+    "mode_name",
+    "is_failsafe_mode",
+    "UnsupportedCommand",
+    "ARDUCOPTER_MODES",
+    "PX4_MODES",
+    "px4_custom_mode",
+    "px4_main_sub",
+    "ARDUPILOT",
+    "PX4",
 ]
 
 from mavedge.modes import ARDUPILOT, PX4  # noqa: E402  (3, 12)
 
-_CMD_DO_SET_MODE = mavlink.MAV_CMD_DO_SET_MODE                  # 176
-_CMD_ARM_DISARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM          # 400
-_CMD_NAV_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF                  # 22
+_CMD_DO_SET_MODE = mavlink.MAV_CMD_DO_SET_MODE  # 176
+_CMD_ARM_DISARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM  # 400
+_CMD_NAV_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF  # 22
 _CUSTOM_MODE_ENABLED = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED  # 1
 
 
@@ -123,8 +140,9 @@ class ArduCopterAdapter(Adapter):
         try:
             return ARDUCOPTER_MODES[name.upper()]
         except KeyError:
-            raise UnsupportedCommand(f"unknown ArduCopter mode {name!r}; known: "
-                                     f"{', '.join(ARDUCOPTER_MODES)}") from None
+            raise UnsupportedCommand(
+                f"unknown ArduCopter mode {name!r}; known: {', '.join(ARDUCOPTER_MODES)}"
+            ) from None
 
     def set_mode(self, name: str) -> CommandSpec:
         # MAV_CMD_DO_SET_MODE param1 = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, param2 = custom mode.
@@ -157,7 +175,7 @@ class PX4Adapter(Adapter):
     # from GLOBAL_POSITION_INT (alt - relative_alt = home.alt on PX4).
     setpoint_frame = mavlink.MAV_FRAME_GLOBAL_INT
     setpoint_period_s = 0.1  # >= 10 Hz (PX4 needs > 2 Hz; MAVSDK streams at 20 Hz)
-    prestream_s = 1.2        # "more than a second" of setpoints before OFFBOARD / arming
+    prestream_s = 1.2  # "more than a second" of setpoints before OFFBOARD / arming
     param_bytewise = True
     takeoff_by_offboard_climb = True
 
@@ -173,8 +191,9 @@ class PX4Adapter(Adapter):
         try:
             return px4_custom_mode(*PX4_MODES[name.upper()])
         except KeyError:
-            raise UnsupportedCommand(f"unknown PX4 mode {name!r}; known: "
-                                     f"{', '.join(PX4_MODES)}") from None
+            raise UnsupportedCommand(
+                f"unknown PX4 mode {name!r}; known: {', '.join(PX4_MODES)}"
+            ) from None
 
     def set_mode(self, name: str) -> CommandSpec:
         # DO_SET_MODE param2 = main mode, param3 = sub mode, UNPACKED: the packed HEARTBEAT word
@@ -182,10 +201,16 @@ class PX4Adapter(Adapter):
         try:
             main, sub = PX4_MODES[name.upper()]
         except KeyError:
-            raise UnsupportedCommand(f"unknown PX4 mode {name!r}; known: "
-                                     f"{', '.join(PX4_MODES)}") from None
-        return _cmd(_CMD_DO_SET_MODE, _CUSTOM_MODE_ENABLED, main, sub,
-                    after_prestream=name.upper() == "OFFBOARD")
+            raise UnsupportedCommand(
+                f"unknown PX4 mode {name!r}; known: {', '.join(PX4_MODES)}"
+            ) from None
+        return _cmd(
+            _CMD_DO_SET_MODE,
+            _CUSTOM_MODE_ENABLED,
+            main,
+            sub,
+            after_prestream=name.upper() == "OFFBOARD",
+        )
 
     def arm(self) -> CommandSpec:
         # Arming for OFFBOARD needs the setpoint stream first, like the mode switch.

@@ -25,8 +25,14 @@ __all__ = ["ConnectionSpec", "parse_connection", "DEFAULT_BAUD"]
 
 DEFAULT_BAUD = 115200
 _KINDS = ("udpin", "udpout", "tcp", "tcpin", "serial")
-_SCHEMES = {"udp": "udpin", "udpin": "udpin", "udpout": "udpout", "tcp": "tcp", "tcpin": "tcpin",
-            "serial": "serial"}
+_SCHEMES = {
+    "udp": "udpin",
+    "udpin": "udpin",
+    "udpout": "udpout",
+    "tcp": "tcp",
+    "tcpin": "tcpin",
+    "serial": "serial",
+}
 _UNSUPPORTED = {"udpbcast", "udpcast", "mcast", "ws", "wss", "wsserver"}
 _WINDOWS_COM = re.compile(r"^COM\d+$", re.IGNORECASE)
 
@@ -66,8 +72,9 @@ def _port(text: str, value: str) -> int:
 
 def _baud(text: str, value: str) -> int:
     if not value.isdigit() or int(value) <= 0:
-        raise ValueError(f"bad connection string {text!r}: baud rate {value!r} is not a positive "
-                         "integer")
+        raise ValueError(
+            f"bad connection string {text!r}: baud rate {value!r} is not a positive integer"
+        )
     return int(value)
 
 
@@ -102,8 +109,9 @@ def _serial(text: str, rest: str) -> ConnectionSpec:
             device, baud = rest, ""
     if not device:
         raise ValueError(f"bad connection string {text!r}: missing serial device")
-    return ConnectionSpec(kind="serial", device=device,
-                          baud=_baud(text, baud) if baud else DEFAULT_BAUD, text=text)
+    return ConnectionSpec(
+        kind="serial", device=device, baud=_baud(text, baud) if baud else DEFAULT_BAUD, text=text
+    )
 
 
 def parse_connection(text: str) -> ConnectionSpec:
@@ -125,8 +133,10 @@ def parse_connection(text: str) -> ConnectionSpec:
         raise ValueError(f"connection string must be a str, got {type(text).__name__}")
     s = text.strip()
     if not s:
-        raise ValueError("empty connection string; expected e.g. udpin:0.0.0.0:14550, "
-                         "udpout:127.0.0.1:14550, tcp:127.0.0.1:5760 or /dev/ttyUSB0,57600")
+        raise ValueError(
+            "empty connection string; expected e.g. udpin:0.0.0.0:14550, "
+            "udpout:127.0.0.1:14550, tcp:127.0.0.1:5760 or /dev/ttyUSB0,57600"
+        )
     scheme, sep, rest = s.partition(":")
     if sep and rest.startswith("//"):  # MAVSDK style udpin://host:port
         rest = rest[2:]
@@ -139,8 +149,10 @@ def parse_connection(text: str) -> ConnectionSpec:
             return _serial(text, rest)
         return _host_port(text, rest, kind)
     if sep and low in _UNSUPPORTED:
-        raise ValueError(f"connection type {scheme!r} in {text!r} is not supported; use one of "
-                         "udpin:, udpout:, udp:, tcp:, tcpin: or a serial DEVICE,BAUD")
+        raise ValueError(
+            f"connection type {scheme!r} in {text!r} is not supported; use one of "
+            "udpin:, udpout:, udp:, tcp:, tcpin: or a serial DEVICE,BAUD"
+        )
     # No known scheme: a serial device path, or HOST:PORT (udpin, as mavutil does).
     if s.startswith("/") or _WINDOWS_COM.match(s.split(",")[0].split(":")[0]):
         return _serial(text, s)
@@ -150,7 +162,11 @@ def parse_connection(text: str) -> ConnectionSpec:
         host, _, port = s.rpartition(":")
         if port.isdigit() and host and ":" not in host:
             return _host_port(text, s, "udpin")
-        raise ValueError(f"bad connection string {text!r}: unknown scheme {scheme!r}; expected "
-                         "udpin:, udpout:, udp:, tcp:, tcpin: or a serial DEVICE,BAUD")
-    raise ValueError(f"bad connection string {text!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, "
-                     "tcp:HOST:PORT, tcpin:HOST:PORT or a serial DEVICE,BAUD")
+        raise ValueError(
+            f"bad connection string {text!r}: unknown scheme {scheme!r}; expected "
+            "udpin:, udpout:, udp:, tcp:, tcpin: or a serial DEVICE,BAUD"
+        )
+    raise ValueError(
+        f"bad connection string {text!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, "
+        "tcp:HOST:PORT, tcpin:HOST:PORT or a serial DEVICE,BAUD"
+    )

@@ -57,8 +57,12 @@ class Geofence:
 
     def clip_ne(self, ne_m: np.ndarray) -> np.ndarray:
         """(K, 2) north/east clipped into the box."""
-        return np.column_stack([np.clip(ne_m[:, 0], self.north_min_m, self.north_max_m),
-                                np.clip(ne_m[:, 1], self.east_min_m, self.east_max_m)])
+        return np.column_stack(
+            [
+                np.clip(ne_m[:, 0], self.north_min_m, self.north_max_m),
+                np.clip(ne_m[:, 1], self.east_min_m, self.east_max_m),
+            ]
+        )
 
 
 @dataclass(frozen=True)
@@ -107,9 +111,15 @@ class TickResult:
     """The planner's diagnostics."""
 
 
-def tick(pos_ned_m: np.ndarray, networked: np.ndarray, alive: np.ndarray,
-         task_pos_m: np.ndarray, planner: Planner, t_step: int,
-         config: ControlConfig = ControlConfig()) -> TickResult:
+def tick(
+    pos_ned_m: np.ndarray,
+    networked: np.ndarray,
+    alive: np.ndarray,
+    task_pos_m: np.ndarray,
+    planner: Planner,
+    t_step: int,
+    config: ControlConfig = ControlConfig(),
+) -> TickResult:
     """One control tick.
 
     Parameters
@@ -130,8 +140,15 @@ def tick(pos_ned_m: np.ndarray, networked: np.ndarray, alive: np.ndarray,
     has_pos = np.isfinite(pos).all(axis=1)
     planned = np.asarray(networked, dtype=bool) & np.asarray(alive, dtype=bool) & has_pos
     ne = np.where(has_pos[:, None], pos[:, :2], 0.0)
-    out = planner.plan(TickInput(int(t_step), ne, np.asarray(alive, bool) & has_pos, planned,
-                                 np.asarray(task_pos_m, dtype=float).reshape(-1, 2)))
+    out = planner.plan(
+        TickInput(
+            int(t_step),
+            ne,
+            np.asarray(alive, bool) & has_pos,
+            planned,
+            np.asarray(task_pos_m, dtype=float).reshape(-1, 2),
+        )
+    )
     rows = np.flatnonzero(planned)
     disp = np.asarray(out.disp_m, dtype=float)[rows]
     target_ne = config.geofence.clip_ne(ne[rows] + config.lead * disp)

@@ -11,10 +11,27 @@ import math
 from dataclasses import dataclass
 
 __all__ = [
-    "Event", "VehicleDiscovered", "VehicleLost", "VehicleRecovered", "ModeChanged",
-    "ArmedChanged", "TelemetryReceived", "CommandAcked", "CommandInProgress", "CommandFailed",
-    "CommandTimedOut", "ParamReceived", "ParamTimedOut", "ParamSetConfirmed", "ParamSetFailed", "StatusText",
-    "HomePositionReceived", "TaskPositionReceived", "LinkEvent", "LinkUp", "LinkDown",
+    "Event",
+    "VehicleDiscovered",
+    "VehicleLost",
+    "VehicleRecovered",
+    "ModeChanged",
+    "ArmedChanged",
+    "TelemetryReceived",
+    "CommandAcked",
+    "CommandInProgress",
+    "CommandFailed",
+    "CommandTimedOut",
+    "ParamReceived",
+    "ParamTimedOut",
+    "ParamSetConfirmed",
+    "ParamSetFailed",
+    "StatusText",
+    "HomePositionReceived",
+    "TaskPositionReceived",
+    "LinkEvent",
+    "LinkUp",
+    "LinkDown",
 ]
 
 

@@ -27,8 +27,14 @@ import numpy.typing as npt
 
 from gcs.autopilot import adapter_for
 from gcs.events import (
-    ArmedChanged, Event, HomePositionReceived, ModeChanged, TelemetryReceived,
-    VehicleDiscovered, VehicleLost, VehicleRecovered,
+    ArmedChanged,
+    Event,
+    HomePositionReceived,
+    ModeChanged,
+    TelemetryReceived,
+    VehicleDiscovered,
+    VehicleLost,
+    VehicleRecovered,
 )
 from planner.geometry import geodetic_to_ned_m, ned_to_geodetic
 
@@ -44,8 +50,11 @@ class MissionOrigin:
     alt_amsl_m: float
 
     def __post_init__(self) -> None:
-        if not (-90 <= self.lat_deg <= 90 and -180 <= self.lon_deg <= 180
-                and math.isfinite(self.alt_amsl_m)):
+        if not (
+            -90 <= self.lat_deg <= 90
+            and -180 <= self.lon_deg <= 180
+            and math.isfinite(self.alt_amsl_m)
+        ):
             raise ValueError(f"invalid mission origin {self}")
 
 
@@ -102,7 +111,7 @@ class FleetView:
         self._index: dict[tuple[int, int], int] = {}
         self._link: list[int] = []
         self._sysid: list[int] = []
-        self._geo: list[tuple[float, float, float]] = []        # lat, lon, alt_amsl (NaN = none)
+        self._geo: list[tuple[float, float, float]] = []  # lat, lon, alt_amsl (NaN = none)
         self._vel: list[tuple[float, float, float]] = []
         self._home_amsl: list[float] = []
         self._home_reported: list[bool] = []
@@ -210,27 +219,50 @@ class FleetView:
         pos = np.full((n, 3), np.nan)
         if has_pos.any():
             o = self.origin
-            pos[has_pos] = geodetic_to_ned_m(geo[has_pos, 0], geo[has_pos, 1], geo[has_pos, 2],
-                                             o.lat_deg, o.lon_deg, o.alt_amsl_m)
+            pos[has_pos] = geodetic_to_ned_m(
+                geo[has_pos, 0],
+                geo[has_pos, 1],
+                geo[has_pos, 2],
+                o.lat_deg,
+                o.lon_deg,
+                o.alt_amsl_m,
+            )
         last = np.array(self._last_heard, dtype=float)
         heard = (now_s - last <= self.timeout_s) & ~np.array(self._link_lost, dtype=bool)
-        failsafe = np.array([adapter_for(a).is_failsafe_mode(m)
-                             for a, m in zip(self._autopilot, self._custom_mode)], dtype=bool)
+        failsafe = np.array(
+            [
+                adapter_for(a).is_failsafe_mode(m)
+                for a, m in zip(self._autopilot, self._custom_mode)
+            ],
+            dtype=bool,
+        )
         returning = heard & np.array(self._was_lost, dtype=bool) & failsafe
         autopilot = np.array(self._autopilot, dtype=int)
         custom = np.array(self._custom_mode, dtype=np.int64)
         return FleetSnapshot(
-            t_s=now_s, link_id=self.link_of_index, sysid_of_index=self.sysid_of_index,
-            pos_ned_m=pos, vel_ned_m_s=np.array(self._vel, dtype=float).reshape(n, 3),
-            has_position=has_pos, home_amsl_m=np.array(self._home_amsl, dtype=float),
-            last_heard_s=last, networked=heard & ~returning, lost=~heard, returning=returning,
-            armed=np.array(self._armed, dtype=bool), custom_mode=custom, autopilot=autopilot,
-            mode=tuple(adapter_for(a).mode_name(m) for a, m in zip(self._autopilot,
-                                                                    self._custom_mode)),
-            home_reported=np.array(self._home_reported, dtype=bool))
+            t_s=now_s,
+            link_id=self.link_of_index,
+            sysid_of_index=self.sysid_of_index,
+            pos_ned_m=pos,
+            vel_ned_m_s=np.array(self._vel, dtype=float).reshape(n, 3),
+            has_position=has_pos,
+            home_amsl_m=np.array(self._home_amsl, dtype=float),
+            last_heard_s=last,
+            networked=heard & ~returning,
+            lost=~heard,
+            returning=returning,
+            armed=np.array(self._armed, dtype=bool),
+            custom_mode=custom,
+            autopilot=autopilot,
+            mode=tuple(
+                adapter_for(a).mode_name(m) for a, m in zip(self._autopilot, self._custom_mode)
+            ),
+            home_reported=np.array(self._home_reported, dtype=bool),
+        )
 
-    def targets_to_global(self, indices: npt.ArrayLike, target_ned_m: npt.ArrayLike
-                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def targets_to_global(
+        self, indices: npt.ArrayLike, target_ned_m: npt.ArrayLike
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Mission-NED targets to what SET_POSITION_TARGET_GLOBAL_INT (frame 6) wants.
 
         Parameters

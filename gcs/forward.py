@@ -77,7 +77,7 @@ def split_frames(buf: bytes | bytearray) -> tuple[list[bytes], int]:
             total = ln + 12 + (13 if buf[i + 2] & 0x01 else 0)
         if i + total > n:
             break
-        out.append(bytes(buf[i:i + total]))
+        out.append(bytes(buf[i : i + total]))
         i += total
     return out, i
 
@@ -96,14 +96,17 @@ class Forwarder:
     gcs_sysid : the station's own MAVLink system id (never forwarded; dropped from outputs)
     """
 
-    def __init__(self, outputs: Sequence[str], *, readonly: bool = False,
-                 gcs_sysid: int = 255) -> None:
+    def __init__(
+        self, outputs: Sequence[str], *, readonly: bool = False, gcs_sysid: int = 255
+    ) -> None:
         self.specs: list[ConnectionSpec] = []
         for text in outputs:
             spec = parse_connection(text)
             if spec.kind not in OUTPUT_KINDS:
-                raise ValueError(f"forwarding output {text!r}: use udpout:H:P, udpin:H:P or "
-                                 f"tcpin:H:P (got a {spec.kind} connection)")
+                raise ValueError(
+                    f"forwarding output {text!r}: use udpout:H:P, udpin:H:P or "
+                    f"tcpin:H:P (got a {spec.kind} connection)"
+                )
             self.specs.append(spec)
         self.readonly = bool(readonly)
         self.gcs_sysid = int(gcs_sysid)
@@ -114,8 +117,14 @@ class Forwarder:
         self._outputs: list[_Output] = []
         self.addresses: list[tuple[str, int]] = []
         """Local address of each output (udpin/tcpin: the bound port; udpout: our socket)."""
-        self.stats = {"frames_out": 0, "frames_in": 0, "routed": 0, "dropped_readonly": 0,
-                      "dropped_own_sysid": 0, "dropped_undecodable": 0}
+        self.stats = {
+            "frames_out": 0,
+            "frames_in": 0,
+            "routed": 0,
+            "dropped_readonly": 0,
+            "dropped_own_sysid": 0,
+            "dropped_undecodable": 0,
+        }
         self._warned_sysid = False
 
     # ------------------------------------------------------------------ set-up
@@ -195,10 +204,13 @@ class Forwarder:
                 self.stats["dropped_own_sysid"] += 1
                 if not self._warned_sysid:
                     self._warned_sysid = True
-                    log.warning("forwarding: a ground station on %s uses sysid %d, the station's "
-                                "own: its messages are dropped. Give it another MAVLink system "
-                                "ID (QGroundControl: Application Settings -> MAVLink, e.g. 254)",
-                                source, self.gcs_sysid)
+                    log.warning(
+                        "forwarding: a ground station on %s uses sysid %d, the station's "
+                        "own: its messages are dropped. Give it another MAVLink system "
+                        "ID (QGroundControl: Application Settings -> MAVLink, e.g. 254)",
+                        source,
+                        self.gcs_sysid,
+                    )
                 continue
             frame = bytes(msg.get_msgbuf())
             target = int(getattr(msg, "target_system", 0) or 0)
@@ -235,16 +247,21 @@ class _Output:
                         out._peers[addr] = None
                     out.owner.from_output(data, (spec.text, addr))
 
-                def error_received(self, exc: Exception) -> None:  # nobody listening yet (ICMP): keep sending
+                def error_received(
+                    self, exc: Exception
+                ) -> None:  # nobody listening yet (ICMP): keep sending
                     log.debug("forward %s: %s", spec.text, exc)
 
-            kw: dict[str, Any] = ({"remote_addr": spec.address} if spec.kind == "udpout"
-                  else {"local_addr": spec.address})
+            kw: dict[str, Any] = (
+                {"remote_addr": spec.address}
+                if spec.kind == "udpout"
+                else {"local_addr": spec.address}
+            )
             self._udp, _ = await loop.create_datagram_endpoint(_P, **kw)
             self.local_address = self._udp.get_extra_info("sockname")[:2]
         else:
-            async def on_client(reader: asyncio.StreamReader,
-                                writer: asyncio.StreamWriter) -> None:
+
+            async def on_client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
                 if len(self._writers) >= _MAX_TCP_CLIENTS:
                     writer.close()
                     return

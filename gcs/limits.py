@@ -41,16 +41,27 @@ LIMIT_PARAMS: dict[int, tuple[str, ...]] = {
 def limit_params(autopilot: int, max_speed_m_s: float, climb_rate_m_s: float) -> dict[str, float]:
     """``{name: value}`` in the firmware's own units for these limits (empty if unknown firmware)."""
     if autopilot == ARDUPILOT:
-        return {"WPNAV_SPEED": round(100.0 * max_speed_m_s, 1),
-                "WPNAV_SPEED_UP": round(100.0 * climb_rate_m_s, 1)}
+        return {
+            "WPNAV_SPEED": round(100.0 * max_speed_m_s, 1),
+            "WPNAV_SPEED_UP": round(100.0 * climb_rate_m_s, 1),
+        }
     if autopilot == PX4:
-        return {"MPC_XY_CRUISE": float(max_speed_m_s), "MPC_XY_VEL_MAX": float(max_speed_m_s),
-                "MPC_Z_VEL_MAX_UP": float(climb_rate_m_s)}
+        return {
+            "MPC_XY_CRUISE": float(max_speed_m_s),
+            "MPC_XY_VEL_MAX": float(max_speed_m_s),
+            "MPC_Z_VEL_MAX_UP": float(climb_rate_m_s),
+        }
     return {}
 
 
-def limit_writes(autopilot: int, current: Mapping[str, float], max_speed_m_s: float,
-                 climb_rate_m_s: float, *, rel_tol: float = 1e-3) -> list[tuple[str, float]]:
+def limit_writes(
+    autopilot: int,
+    current: Mapping[str, float],
+    max_speed_m_s: float,
+    climb_rate_m_s: float,
+    *,
+    rel_tol: float = 1e-3,
+) -> list[tuple[str, float]]:
     """``(name, value)`` writes needed to bring ``current`` (values read from the vehicle) to the
     mission's limits, in :data:`LIMIT_PARAMS` order; parameters that were not read are skipped
     (the caller reports them)."""
@@ -62,7 +73,10 @@ def limit_writes(autopilot: int, current: Mapping[str, float], max_speed_m_s: fl
         have, value = float(current[name]), want[name]
         if abs(have - value) > rel_tol * max(abs(value), 1e-9):
             out.append((name, value))
-    if autopilot == PX4 and "MPC_XY_VEL_MAX" in current \
-            and want["MPC_XY_VEL_MAX"] > float(current["MPC_XY_VEL_MAX"]):
+    if (
+        autopilot == PX4
+        and "MPC_XY_VEL_MAX" in current
+        and want["MPC_XY_VEL_MAX"] > float(current["MPC_XY_VEL_MAX"])
+    ):
         out.sort(key=lambda nv: nv[0] != "MPC_XY_VEL_MAX")  # raise the cap before the cruise
     return out

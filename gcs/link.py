@@ -43,13 +43,30 @@ from gcs.events import Event, ParamSetFailed, ParamTimedOut, VehicleLost
 from gcs.link_actions import VehicleActions
 from gcs.link_discovery import NON_VEHICLE_TYPES, VehicleDiscovery
 from gcs.link_params import ParamProtocol
-from gcs.link_state import (_AUTOPILOT_COMPID, Addr, LinkUsageError, UnknownVehicle, _Command,
-                            _ParamRequest, _ParamSet, _RateLimitedLog, _Vehicle)
+from gcs.link_state import (
+    _AUTOPILOT_COMPID,
+    Addr,
+    LinkUsageError,
+    UnknownVehicle,
+    _Command,
+    _ParamRequest,
+    _ParamSet,
+    _RateLimitedLog,
+    _Vehicle,
+)
 from gcs.rally import mission_event
 from gcs.wire import mavlink
 
-__all__ = ["StationConfig", "StationLink", "VehicleInfo", "LinkStats", "UnknownVehicle",
-           "LinkUsageError", "NON_VEHICLE_TYPES", "DEFAULT_STREAM_RATES_HZ"]
+__all__ = [
+    "StationConfig",
+    "StationLink",
+    "VehicleInfo",
+    "LinkStats",
+    "UnknownVehicle",
+    "LinkUsageError",
+    "NON_VEHICLE_TYPES",
+    "DEFAULT_STREAM_RATES_HZ",
+]
 
 log = logging.getLogger(__name__)
 
@@ -147,9 +164,17 @@ class StationConfig:
             raise ValueError(f"task_sysids must not contain our own sysid {self.sysid}")
         if any(not 1 <= t <= 255 for t in self.task_sysids):
             raise ValueError(f"task_sysids must be in 1..255, got {self.task_sysids}")
-        for name in ("heartbeat_period_s", "vehicle_timeout_s", "command_timeout_s",
-                     "param_timeout_s", "telemetry_stale_s", "command_in_progress_timeout_s",
-                     "task_position_rate_hz", "home_request_period_s", "disable_retry_s"):
+        for name in (
+            "heartbeat_period_s",
+            "vehicle_timeout_s",
+            "command_timeout_s",
+            "param_timeout_s",
+            "telemetry_stale_s",
+            "command_in_progress_timeout_s",
+            "task_position_rate_hz",
+            "home_request_period_s",
+            "disable_retry_s",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be > 0, got {v}")
@@ -226,15 +251,19 @@ class VehicleInfo:
 class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
     """One link's station core (see the module docstring)."""
 
-    def __init__(self, config: StationConfig | None = None, *, link_id: int = 0,
-                 now_s: float = 0.0) -> None:
+    def __init__(
+        self, config: StationConfig | None = None, *, link_id: int = 0, now_s: float = 0.0
+    ) -> None:
         self.config = config or StationConfig()
         self.link_id = link_id
-        self._codec = wire.Codec(self.config.sysid, self.config.compid,
-                                 signing_key=self.config.signing_key,
-                                 signing_link_id=link_id & 0xFF,
-                                 accept_unsigned=self.config.accept_unsigned,
-                                 full_msgids=_DECODED_MSGIDS)
+        self._codec = wire.Codec(
+            self.config.sysid,
+            self.config.compid,
+            signing_key=self.config.signing_key,
+            signing_link_id=link_id & 0xFF,
+            accept_unsigned=self.config.accept_unsigned,
+            full_msgids=_DECODED_MSGIDS,
+        )
         self.stats = LinkStats(decode=self._codec.stats)
         self._t0_s = now_s
         self._decoders: dict[Addr, wire.Decoder] = {}
@@ -258,9 +287,11 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
         self._task_request_s: dict[int, float] = {}
         self._timer_hint_s = now_s
         self._warn = _RateLimitedLog(self.config.warn_interval_s)
-        self._used_msgids = (_NEVER_DISABLE
-                             | {m for m, _ in self.config.stream_rates_hz}
-                             | set(self.config.stale_msgids))
+        self._used_msgids = (
+            _NEVER_DISABLE
+            | {m for m, _ in self.config.stream_rates_hz}
+            | set(self.config.stale_msgids)
+        )
 
     # ------------------------------------------------------------------ outputs
 
@@ -329,10 +360,20 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
         self._send(msg, self._get(sysid).addr, now_s)
 
     def _info(self, v: _Vehicle) -> VehicleInfo:
-        return VehicleInfo(self.link_id, v.sysid, v.autopilot, v.vehicle_type, v.adapter.name,
-                           v.custom_mode, v.adapter.mode_name(v.custom_mode), v.armed, v.lost,
-                           v.last_heartbeat_s, v.setpoint is not None,
-                           v.home.alt_amsl_m if v.home is not None else math.nan)
+        return VehicleInfo(
+            self.link_id,
+            v.sysid,
+            v.autopilot,
+            v.vehicle_type,
+            v.adapter.name,
+            v.custom_mode,
+            v.adapter.mode_name(v.custom_mode),
+            v.armed,
+            v.lost,
+            v.last_heartbeat_s,
+            v.setpoint is not None,
+            v.home.alt_amsl_m if v.home is not None else math.nan,
+        )
 
     # ------------------------------------------------------------------ receiving
 
@@ -349,14 +390,19 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
         for msg in dec.feed(bytes(data), datagram=self.config.datagram):
             self._peers.setdefault(addr, None)
             if self.config.record_frames:
-                self._frames.append((now_s + self.config.unix_time_at_zero_s, False,
-                                     bytes(msg.get_msgbuf())))
+                self._frames.append(
+                    (now_s + self.config.unix_time_at_zero_s, False, bytes(msg.get_msgbuf()))
+                )
             try:
                 self._dispatch(msg, addr, now_s)
             except Exception:  # a handler bug must not take the link down
                 self.stats.handler_errors += 1
-                log.exception("link %d: handler error on %s from sysid %d", self.link_id,
-                              msg.get_type(), msg.get_srcSystem())
+                log.exception(
+                    "link %d: handler error on %s from sysid %d",
+                    self.link_id,
+                    msg.get_type(),
+                    msg.get_srcSystem(),
+                )
 
     def _dispatch(self, msg: Any, addr: Addr, now_s: float) -> None:
         kind = msg.get_type()
@@ -369,10 +415,15 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
                 # (GCS_Common.cpp handle_heartbeat), so that GCS keeps the failsafe from
                 # triggering when we are gone. Never a vehicle, never us.
                 self._warned_own_sysid = True
-                log.warning("link %d: another system sends heartbeats with our sysid %d "
-                            "(compid %d, MAVProxy?): its heartbeats also feed the vehicles' GCS "
-                            "failsafe; run SITL with --no-mavproxy or give one of us another "
-                            "sysid", self.link_id, sysid, msg.get_srcComponent())
+                log.warning(
+                    "link %d: another system sends heartbeats with our sysid %d "
+                    "(compid %d, MAVProxy?): its heartbeats also feed the vehicles' GCS "
+                    "failsafe; run SITL with --no-mavproxy or give one of us another "
+                    "sysid",
+                    self.link_id,
+                    sysid,
+                    msg.get_srcComponent(),
+                )
             return
         if sysid in self._task_sysids:
             self._on_task_message(msg, addr, now_s)
@@ -411,8 +462,9 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
                 self._note_unused(v, msg.get_msgId(), now_s)
             if kind not in _IGNORED and kind not in self._warned_types:
                 self._warned_types.add(kind)
-                log.info("link %d: ignoring %s (first seen from sysid %d)", self.link_id, kind,
-                         sysid)
+                log.info(
+                    "link %d: ignoring %s (first seen from sysid %d)", self.link_id, kind, sysid
+                )
 
     # ------------------------------------------------------------------ timers
 
@@ -442,21 +494,37 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
                 self._transmit_param_set(ps, now_s)
             else:
                 del self._param_sets[(ps.sysid, ps.name)]
-                self._emit(ParamSetFailed(self.link_id, ps.sysid, now_s, ps.name, ps.value, None,
-                                          "no PARAM_VALUE echo", ps.attempts))
+                self._emit(
+                    ParamSetFailed(
+                        self.link_id,
+                        ps.sysid,
+                        now_s,
+                        ps.name,
+                        ps.value,
+                        None,
+                        "no PARAM_VALUE echo",
+                        ps.attempts,
+                    )
+                )
         for v in self._vehicles.values():
             if not v.lost and now_s >= v.last_heartbeat_s + cfg.vehicle_timeout_s:
                 v.lost = True
                 self._emit(VehicleLost(self.link_id, v.sysid, now_s, v.last_heartbeat_s))
             if not v.lost and now_s >= self._stale_due_s(v):
                 self.stats.stream_rerequests += 1
-                log.info("link %d sysid %d: telemetry stale, re-requesting streams",
-                         self.link_id, v.sysid)
+                log.info(
+                    "link %d sysid %d: telemetry stale, re-requesting streams",
+                    self.link_id,
+                    v.sysid,
+                )
                 self._request_streams(v, now_s)
             # Batch resends: whatever is due within half a period goes now, so a fleet's
             # staggered streams coalesce into few wake-ups (each wake-up scans every vehicle).
-            if v.setpoint is not None and not v.lost \
-                    and now_s >= v.setpoint_next_s - 0.5 * v.adapter.setpoint_period_s:
+            if (
+                v.setpoint is not None
+                and not v.lost
+                and now_s >= v.setpoint_next_s - 0.5 * v.adapter.setpoint_period_s
+            ):
                 # A silent vehicle is not streamed to (dead ones are most of a fleet's silence
                 # late in a mission); on recovery it is reclaimed with a fresh target.
                 self._send_setpoint(v, now_s)
@@ -479,35 +547,92 @@ _HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
     "PARAM_ERROR": StationLink._on_param_error,
     "STATUSTEXT": StationLink._on_statustext,
     "HOME_POSITION": StationLink._on_home_position,
-    "MISSION_REQUEST": StationLink._on_mission_protocol,       # gcs/rally.py
+    "MISSION_REQUEST": StationLink._on_mission_protocol,  # gcs/rally.py
     "MISSION_REQUEST_INT": StationLink._on_mission_protocol,
     "MISSION_ACK": StationLink._on_mission_protocol,
 }
 
 #: Fully decoded; every other known message stays a checked :class:`~gcs.wire.RawFrame`.
 _DECODED_MSGIDS = frozenset(
-    getattr(mavlink, f"MAVLINK_MSG_ID_{name}") for name in ("HEARTBEAT", *_HANDLERS))
+    getattr(mavlink, f"MAVLINK_MSG_ID_{name}") for name in ("HEARTBEAT", *_HANDLERS)
+)
 
 #: Never asked to stop, used or not: replies to requests (ours or another GCS's), protocol
 #: traffic, one-off notices; stopping them is refused at best and breaks a protocol at worst.
 _NEVER_DISABLE = _DECODED_MSGIDS | frozenset(
-    getattr(mavlink, f"MAVLINK_MSG_ID_{name}") for name in (
-        "AUTOPILOT_VERSION", "TIMESYNC", "PING", "SYSTEM_TIME", "MESSAGE_INTERVAL",
-        "COMMAND_LONG", "COMMAND_INT", "PARAM_REQUEST_READ", "PARAM_SET", "PARAM_EXT_VALUE",
-        "PARAM_EXT_ACK", "MISSION_COUNT", "MISSION_ITEM", "MISSION_ITEM_INT", "MISSION_REQUEST",
-        "MISSION_REQUEST_INT", "MISSION_ACK", "MISSION_ITEM_REACHED", "MISSION_REQUEST_LIST",
-        "FILE_TRANSFER_PROTOCOL", "LOG_ENTRY", "LOG_DATA", "FENCE_POINT", "RALLY_POINT",
-        "MAG_CAL_PROGRESS", "MAG_CAL_REPORT", "SETUP_SIGNING", "RADIO_STATUS",
-        "SET_POSITION_TARGET_GLOBAL_INT", "SET_POSITION_TARGET_LOCAL_NED", "SET_MODE",
-        "REQUEST_DATA_STREAM"))
+    getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
+    for name in (
+        "AUTOPILOT_VERSION",
+        "TIMESYNC",
+        "PING",
+        "SYSTEM_TIME",
+        "MESSAGE_INTERVAL",
+        "COMMAND_LONG",
+        "COMMAND_INT",
+        "PARAM_REQUEST_READ",
+        "PARAM_SET",
+        "PARAM_EXT_VALUE",
+        "PARAM_EXT_ACK",
+        "MISSION_COUNT",
+        "MISSION_ITEM",
+        "MISSION_ITEM_INT",
+        "MISSION_REQUEST",
+        "MISSION_REQUEST_INT",
+        "MISSION_ACK",
+        "MISSION_ITEM_REACHED",
+        "MISSION_REQUEST_LIST",
+        "FILE_TRANSFER_PROTOCOL",
+        "LOG_ENTRY",
+        "LOG_DATA",
+        "FENCE_POINT",
+        "RALLY_POINT",
+        "MAG_CAL_PROGRESS",
+        "MAG_CAL_REPORT",
+        "SETUP_SIGNING",
+        "RADIO_STATUS",
+        "SET_POSITION_TARGET_GLOBAL_INT",
+        "SET_POSITION_TARGET_LOCAL_NED",
+        "SET_MODE",
+        "REQUEST_DATA_STREAM",
+    )
+)
 
 #: Known and deliberately ignored here (requested for display or future use; counted only).
-_IGNORED = frozenset({
-    "SYS_STATUS", "GPS_RAW_INT", "EXTENDED_SYS_STATE", "LOCAL_POSITION_NED", "ATTITUDE",
-    "VFR_HUD", "GPS_GLOBAL_ORIGIN", "POSITION_TARGET_GLOBAL_INT",
-    "POSITION_TARGET_LOCAL_NED", "RADIO_STATUS", "TIMESYNC", "SYSTEM_TIME", "BATTERY_STATUS",
-    "PARAM_REQUEST_READ", "MISSION_CURRENT", "NAV_CONTROLLER_OUTPUT", "AUTOPILOT_VERSION",
-    "PING", "ALTITUDE", "ESTIMATOR_STATUS", "VIBRATION", "HIGHRES_IMU", "SCALED_IMU",
-    "RAW_IMU", "SCALED_PRESSURE", "SERVO_OUTPUT_RAW", "RC_CHANNELS", "AHRS", "AHRS2",
-    "EKF_STATUS_REPORT", "POWER_STATUS", "MEMINFO", "TERRAIN_REPORT", "SIMSTATE",
-})
+_IGNORED = frozenset(
+    {
+        "SYS_STATUS",
+        "GPS_RAW_INT",
+        "EXTENDED_SYS_STATE",
+        "LOCAL_POSITION_NED",
+        "ATTITUDE",
+        "VFR_HUD",
+        "GPS_GLOBAL_ORIGIN",
+        "POSITION_TARGET_GLOBAL_INT",
+        "POSITION_TARGET_LOCAL_NED",
+        "RADIO_STATUS",
+        "TIMESYNC",
+        "SYSTEM_TIME",
+        "BATTERY_STATUS",
+        "PARAM_REQUEST_READ",
+        "MISSION_CURRENT",
+        "NAV_CONTROLLER_OUTPUT",
+        "AUTOPILOT_VERSION",
+        "PING",
+        "ALTITUDE",
+        "ESTIMATOR_STATUS",
+        "VIBRATION",
+        "HIGHRES_IMU",
+        "SCALED_IMU",
+        "RAW_IMU",
+        "SCALED_PRESSURE",
+        "SERVO_OUTPUT_RAW",
+        "RC_CHANNELS",
+        "AHRS",
+        "AHRS2",
+        "EKF_STATUS_REPORT",
+        "POWER_STATUS",
+        "MEMINFO",
+        "TERRAIN_REPORT",
+        "SIMSTATE",
+    }
+)

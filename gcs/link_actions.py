@@ -54,16 +54,25 @@ class VehicleActions(CommandTracker):
         if v.adapter.takeoff_by_offboard_climb:
             if v.position is None:
                 raise LinkUsageError(f"sysid {sysid}: no position yet, cannot climb in offboard")
-            self.set_position_target(sysid, v.position.lat_deg, v.position.lon_deg,
-                                     alt_above_home_m, now_s)
+            self.set_position_target(
+                sysid, v.position.lat_deg, v.position.lon_deg, alt_above_home_m, now_s
+            )
             self.engage_guided(sysid, now_s)
             return self.arm(sysid, now_s)
         spec = v.adapter.takeoff(alt_above_home_m)
         assert spec is not None
         return self._send_spec(sysid, spec, now_s)
 
-    def set_position_target(self, sysid: int, lat_deg: float, lon_deg: float, alt_m: float,
-                            now_s: float, *, frame: int | None = None) -> None:
+    def set_position_target(
+        self,
+        sysid: int,
+        lat_deg: float,
+        lon_deg: float,
+        alt_m: float,
+        now_s: float,
+        *,
+        frame: int | None = None,
+    ) -> None:
         """Set (and keep re-sending) a SET_POSITION_TARGET_GLOBAL_INT position target.
 
         ``alt_m`` is above the vehicle's home unless ``frame`` is given (then it is in that
@@ -85,8 +94,9 @@ class VehicleActions(CommandTracker):
         if frame is None and fr == mavlink.MAV_FRAME_GLOBAL_INT:
             alt_m = float(alt_m) + self._home_alt_amsl_m(v)
         # Validate now (a local error) rather than at the next resend.
-        wire.position_target_global_int(target_system=sysid, lat_deg=lat_deg, lon_deg=lon_deg,
-                                        alt_m=alt_m, frame=fr)
+        wire.position_target_global_int(
+            target_system=sysid, lat_deg=lat_deg, lon_deg=lon_deg, alt_m=alt_m, frame=fr
+        )
         if v.setpoint is None:
             v.setpoint_since_s = now_s
         v.setpoint = (float(lat_deg), float(lon_deg), float(alt_m), fr)
@@ -107,16 +117,30 @@ class VehicleActions(CommandTracker):
         v = self._get(sysid)
         v.setpoint, v.setpoint_next_s, v.setpoint_since_s = None, math.inf, math.nan
         for cmd in v.deferred:
-            self._emit(CommandFailed(self.link_id, sysid, now_s, cmd.command, cmd.request_id,
-                                     None, "setpoint stream stopped before it was long enough"))
+            self._emit(
+                CommandFailed(
+                    self.link_id,
+                    sysid,
+                    now_s,
+                    cmd.command,
+                    cmd.request_id,
+                    None,
+                    "setpoint stream stopped before it was long enough",
+                )
+            )
         v.deferred = []
 
     def _send_setpoint(self, v: _Vehicle, now_s: float) -> None:
         assert v.setpoint is not None
         lat, lon, alt, frame = v.setpoint
         msg = wire.position_target_global_int(
-            target_system=v.sysid, lat_deg=lat, lon_deg=lon, alt_m=alt, frame=frame,
-            time_boot_s=now_s - self._t0_s)
+            target_system=v.sysid,
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_m=alt,
+            frame=frame,
+            time_boot_s=now_s - self._t0_s,
+        )
         self._send(msg, v.addr, now_s)
         v.setpoint_next_s = now_s + v.adapter.setpoint_period_s
         self._wake(v.setpoint_next_s)

@@ -12,8 +12,15 @@ from typing import Any
 from gcs import wire
 from gcs.autopilot import CommandSpec
 from gcs.events import CommandAcked, CommandFailed, CommandInProgress, CommandTimedOut
-from gcs.link_state import (_AUTOPILOT_COMPID, _CMD_SET_MESSAGE_INTERVAL, LinkState,
-                            LinkUsageError, _Command, _result_name, _Vehicle)
+from gcs.link_state import (
+    _AUTOPILOT_COMPID,
+    _CMD_SET_MESSAGE_INTERVAL,
+    LinkState,
+    LinkUsageError,
+    _Command,
+    _result_name,
+    _Vehicle,
+)
 from gcs.wire import mavlink
 
 __all__ = ["CommandTracker"]
@@ -22,7 +29,9 @@ __all__ = ["CommandTracker"]
 class CommandTracker(LinkState):
     """Command / ACK tracking (a mixin of :class:`gcs.link.StationLink`)."""
 
-    def _new_command(self, sysid: int, command: int, params: tuple[float, ...], *, use_int: bool) -> _Command:
+    def _new_command(
+        self, sysid: int, command: int, params: tuple[float, ...], *, use_int: bool
+    ) -> _Command:
         cmd = _Command(self._next_request_id, sysid, command, tuple(params), use_int)
         self._next_request_id += 1
         return cmd
@@ -41,12 +50,25 @@ class CommandTracker(LinkState):
         if cmd.use_int:
             frame, p1, p2, p3, p4, x, y, z = cmd.params
             msg = mavlink.MAVLink_command_int_message(
-                cmd.sysid, cmd.component, int(frame), cmd.command, 0, 0, p1, p2, p3, p4,
-                int(x), int(y), z)
+                cmd.sysid,
+                cmd.component,
+                int(frame),
+                cmd.command,
+                0,
+                0,
+                p1,
+                p2,
+                p3,
+                p4,
+                int(x),
+                int(y),
+                z,
+            )
         else:
             # confirmation: 0 on the first send, incremented on every re-send (mavlink.io).
             msg = mavlink.MAVLink_command_long_message(
-                cmd.sysid, cmd.component, cmd.command, min(cmd.attempts, 255), *cmd.params)
+                cmd.sysid, cmd.component, cmd.command, min(cmd.attempts, 255), *cmd.params
+            )
         cmd.attempts += 1
         cmd.deadline_s = now_s + self.config.command_timeout_s
         self._wake(cmd.deadline_s)
@@ -58,14 +80,29 @@ class CommandTracker(LinkState):
         if cmd.internal is not None:
             cmd.internal(result, now_s)
         elif result is None:
-            self._emit(CommandTimedOut(self.link_id, cmd.sysid, now_s, cmd.command,
-                                       cmd.request_id, cmd.attempts))
+            self._emit(
+                CommandTimedOut(
+                    self.link_id, cmd.sysid, now_s, cmd.command, cmd.request_id, cmd.attempts
+                )
+            )
         elif result == mavlink.MAV_RESULT_ACCEPTED:
-            self._emit(CommandAcked(self.link_id, cmd.sysid, now_s, cmd.command, cmd.request_id,
-                                    cmd.attempts))
+            self._emit(
+                CommandAcked(
+                    self.link_id, cmd.sysid, now_s, cmd.command, cmd.request_id, cmd.attempts
+                )
+            )
         else:
-            self._emit(CommandFailed(self.link_id, cmd.sysid, now_s, cmd.command, cmd.request_id,
-                                     int(result), _result_name(result)))
+            self._emit(
+                CommandFailed(
+                    self.link_id,
+                    cmd.sysid,
+                    now_s,
+                    cmd.command,
+                    cmd.request_id,
+                    int(result),
+                    _result_name(result),
+                )
+            )
         queue = self._queued.get(key)
         if queue:
             nxt = queue.popleft()
@@ -77,8 +114,15 @@ class CommandTracker(LinkState):
         elif cmd.command == _CMD_SET_MESSAGE_INTERVAL and cmd.sysid in self._vehicles:
             self._pump_disables(self._vehicles[cmd.sysid], now_s)
 
-    def send_command_long(self, sysid: int, command: int, params: tuple[float, ...] = (0.0,) * 7, now_s: float = 0.0,
-                          *, component: int = _AUTOPILOT_COMPID) -> int:
+    def send_command_long(
+        self,
+        sysid: int,
+        command: int,
+        params: tuple[float, ...] = (0.0,) * 7,
+        now_s: float = 0.0,
+        *,
+        component: int = _AUTOPILOT_COMPID,
+    ) -> int:
         """Send a COMMAND_LONG with ACK matching and retries; returns the request id.
 
         Outcome events: CommandAcked, CommandInProgress, CommandFailed, CommandTimedOut.
@@ -92,17 +136,29 @@ class CommandTracker(LinkState):
         self._submit(cmd, now_s)
         return cmd.request_id
 
-    def send_command_int(self, sysid: int, command: int, *, frame: int,
-                         params: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0), lat_deg: float = 0.0, lon_deg: float = 0.0,
-                         alt_m: float = 0.0, now_s: float = 0.0) -> int:
+    def send_command_int(
+        self,
+        sysid: int,
+        command: int,
+        *,
+        frame: int,
+        params: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0),
+        lat_deg: float = 0.0,
+        lon_deg: float = 0.0,
+        alt_m: float = 0.0,
+        now_s: float = 0.0,
+    ) -> int:
         """Send a COMMAND_INT (positional commands: x/y as degE7); returns the request id."""
         self._get(sysid)
         p = tuple(float(v) for v in params)
         if len(p) != 4:
             raise ValueError(f"COMMAND_INT takes 4 params, got {len(p)}")
-        cmd = self._new_command(sysid, command, (frame, *p, wire.deg_to_e7(lat_deg),
-                                                 wire.deg_to_e7(lon_deg), float(alt_m)),
-                                use_int=True)
+        cmd = self._new_command(
+            sysid,
+            command,
+            (frame, *p, wire.deg_to_e7(lat_deg), wire.deg_to_e7(lon_deg), float(alt_m)),
+            use_int=True,
+        )
         self._submit(cmd, now_s)
         return cmd.request_id
 
@@ -113,7 +169,8 @@ class CommandTracker(LinkState):
             if v.setpoint is None:
                 raise LinkUsageError(
                     f"sysid {sysid} ({v.adapter.name}): stream position targets "
-                    "(set_position_target) before switching to offboard or arming")
+                    "(set_position_target) before switching to offboard or arming"
+                )
             if now_s < v.setpoint_since_s + v.adapter.prestream_s:
                 v.deferred.append(cmd)  # sent by handle_timer once the stream is old enough
                 self._wake(v.setpoint_since_s + v.adapter.prestream_s)
@@ -135,8 +192,11 @@ class CommandTracker(LinkState):
             cmd.deadline_s = now_s + self.config.command_in_progress_timeout_s
             self._wake(cmd.deadline_s)
             if cmd.internal is None:
-                self._emit(CommandInProgress(self.link_id, v.sysid, now_s, cmd.command,
-                                             cmd.request_id, int(msg.progress)))
+                self._emit(
+                    CommandInProgress(
+                        self.link_id, v.sysid, now_s, cmd.command, cmd.request_id, int(msg.progress)
+                    )
+                )
             return
         self._finish_command(cmd, now_s, msg.result)
 

@@ -12,9 +12,16 @@ from typing import Any
 
 from gcs import wire
 from gcs.autopilot import adapter_for
-from gcs.events import (ArmedChanged, HomePositionReceived, ModeChanged, StatusText,
-                        TaskPositionReceived, TelemetryReceived, VehicleDiscovered,
-                        VehicleRecovered)
+from gcs.events import (
+    ArmedChanged,
+    HomePositionReceived,
+    ModeChanged,
+    StatusText,
+    TaskPositionReceived,
+    TelemetryReceived,
+    VehicleDiscovered,
+    VehicleRecovered,
+)
 from gcs.link_state import _AUTOPILOT_COMPID, Addr, _result_name, _Vehicle
 from gcs.link_streams import StreamRequests
 from gcs.wire import mavlink
@@ -26,10 +33,14 @@ log = logging.getLogger("gcs.link")
 
 #: HEARTBEAT.type values that never create a vehicle (docs/design/mavlink.md §1.1): another GCS, a
 #: companion computer, a gimbal, an ADS-B receiver.
-NON_VEHICLE_TYPES = frozenset({
-    mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_TYPE_GIMBAL,
-    mavlink.MAV_TYPE_ADSB,
-})
+NON_VEHICLE_TYPES = frozenset(
+    {
+        mavlink.MAV_TYPE_GCS,
+        mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+        mavlink.MAV_TYPE_GIMBAL,
+        mavlink.MAV_TYPE_ADSB,
+    }
+)
 
 
 class VehicleDiscovery(StreamRequests):
@@ -39,8 +50,11 @@ class VehicleDiscovery(StreamRequests):
 
     @staticmethod
     def _is_vehicle_heartbeat(msg: Any) -> bool:
-        return (msg.get_srcComponent() == _AUTOPILOT_COMPID and msg.type not in NON_VEHICLE_TYPES
-                and msg.get_srcSystem() != 0)
+        return (
+            msg.get_srcComponent() == _AUTOPILOT_COMPID
+            and msg.type not in NON_VEHICLE_TYPES
+            and msg.get_srcSystem() != 0
+        )
 
     def _may_become_vehicle(self, sysid: int) -> bool:
         cfg = self.config
@@ -52,15 +66,29 @@ class VehicleDiscovery(StreamRequests):
         st = self.stats
         st.refused_sysids += 1
         st.refused_by_sysid[sysid] = st.refused_by_sysid.get(sysid, 0) + 1
-        self._warn(("refused",), now_s, "link %d: refused %s from sysid %d at %s (not an allowed "
-                   "vehicle on this link; %d refused so far)", self.link_id, kind, sysid, addr,
-                   st.refused_sysids)
+        self._warn(
+            ("refused",),
+            now_s,
+            "link %d: refused %s from sysid %d at %s (not an allowed "
+            "vehicle on this link; %d refused so far)",
+            self.link_id,
+            kind,
+            sysid,
+            addr,
+            st.refused_sysids,
+        )
 
     def _inconsistent(self, v: _Vehicle, now_s: float, what: str, *args: object) -> None:
         self.stats.inconsistent_frames += 1
-        self._warn(("inconsistent", v.sysid), now_s, "link %d sysid %d: " + what + " (%d such "
-                   "frames dropped on this link)", self.link_id, v.sysid, *args,
-                   self.stats.inconsistent_frames)
+        self._warn(
+            ("inconsistent", v.sysid),
+            now_s,
+            "link %d sysid %d: " + what + " (%d such frames dropped on this link)",
+            self.link_id,
+            v.sysid,
+            *args,
+            self.stats.inconsistent_frames,
+        )
 
     def _identity_changed(self, v: _Vehicle, msg: Any) -> bool:
         return msg.autopilot != v.autopilot or msg.type != v.vehicle_type
@@ -72,30 +100,65 @@ class VehicleDiscovery(StreamRequests):
         if now_s - v.addr_heard_s < self.config.address_hold_s:
             # Two live sources of one sysid: a duplicate route, a misconfigured second vehicle
             # or a forger. Keep the first; never flip-flop commands between them.
-            self._inconsistent(v, now_s, "%s from %s while %s is live; kept %s", kind, addr,
-                               v.addr, v.addr)
+            self._inconsistent(
+                v, now_s, "%s from %s while %s is live; kept %s", kind, addr, v.addr, v.addr
+            )
             return False
-        if kind != "HEARTBEAT" or not self._is_vehicle_heartbeat(msg) \
-                or (self._identity_changed(v, msg) and not v.lost):
-            self._inconsistent(v, now_s, "%s from %s, not its address %s (silent %.1f s)", kind,
-                               addr, v.addr, now_s - v.addr_heard_s)
+        if (
+            kind != "HEARTBEAT"
+            or not self._is_vehicle_heartbeat(msg)
+            or (self._identity_changed(v, msg) and not v.lost)
+        ):
+            self._inconsistent(
+                v,
+                now_s,
+                "%s from %s, not its address %s (silent %.1f s)",
+                kind,
+                addr,
+                v.addr,
+                now_s - v.addr_heard_s,
+            )
             return False
-        log.info("link %d sysid %d: moved from %s to %s (old address silent %.1f s)",
-                 self.link_id, v.sysid, v.addr, addr, now_s - v.addr_heard_s)
+        log.info(
+            "link %d sysid %d: moved from %s to %s (old address silent %.1f s)",
+            self.link_id,
+            v.sysid,
+            v.addr,
+            addr,
+            now_s - v.addr_heard_s,
+        )
         v.addr, v.addr_heard_s = addr, now_s  # a reboot or a NAT rebinding
         return True
 
     def _discover(self, msg: Any, addr: Addr, now_s: float) -> None:
         sysid = msg.get_srcSystem()
         adapter = adapter_for(msg.autopilot)
-        v = _Vehicle(sysid, addr, msg.autopilot, msg.type, adapter, msg.custom_mode,
-                     msg.base_mode, now_s, addr_heard_s=now_s)
+        v = _Vehicle(
+            sysid,
+            addr,
+            msg.autopilot,
+            msg.type,
+            adapter,
+            msg.custom_mode,
+            msg.base_mode,
+            now_s,
+            addr_heard_s=now_s,
+        )
         v.last_msg_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now_s
         self._vehicles[sysid] = v
         self._wake(now_s + self.config.vehicle_timeout_s)
-        self._emit(VehicleDiscovered(self.link_id, sysid, now_s, msg.autopilot, msg.type,
-                                     msg.custom_mode, adapter.mode_name(msg.custom_mode),
-                                     v.armed))
+        self._emit(
+            VehicleDiscovered(
+                self.link_id,
+                sysid,
+                now_s,
+                msg.autopilot,
+                msg.type,
+                msg.custom_mode,
+                adapter.mode_name(msg.custom_mode),
+                v.armed,
+            )
+        )
         # QGC sends a heartbeat at once so the vehicle knows its GCS (and arms its failsafe).
         self._send(self._heartbeat_msg(), addr, now_s)
         self._request_streams(v, now_s)
@@ -111,14 +174,26 @@ class VehicleDiscovery(StreamRequests):
                 # A live vehicle does not change firmware or frame: this is another system
                 # using its sysid (or noise that passed the CRC). Its mode would be decoded with
                 # the wrong adapter: drop the whole heartbeat.
-                self._inconsistent(v, now_s, "HEARTBEAT with autopilot %d type %d, but it is "
-                                   "autopilot %d type %d", msg.autopilot, msg.type, v.autopilot,
-                                   v.vehicle_type)
+                self._inconsistent(
+                    v,
+                    now_s,
+                    "HEARTBEAT with autopilot %d type %d, but it is autopilot %d type %d",
+                    msg.autopilot,
+                    msg.type,
+                    v.autopilot,
+                    v.vehicle_type,
+                )
                 return
             # Silent for a whole timeout, then back as something else: re-flashed or replaced.
-            log.warning("link %d sysid %d: back as autopilot %d type %d (was %d type %d)",
-                        self.link_id, sysid, msg.autopilot, msg.type, v.autopilot,
-                        v.vehicle_type)
+            log.warning(
+                "link %d sysid %d: back as autopilot %d type %d (was %d type %d)",
+                self.link_id,
+                sysid,
+                msg.autopilot,
+                msg.type,
+                v.autopilot,
+                v.vehicle_type,
+            )
             v.autopilot, v.adapter = msg.autopilot, adapter_for(msg.autopilot)
         v.last_msg_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now_s
         was_lost, silent_s = v.lost, now_s - v.last_heartbeat_s
@@ -128,17 +203,32 @@ class VehicleDiscovery(StreamRequests):
         if was_lost:
             v.lost = False
             self._wake(now_s + self.config.vehicle_timeout_s)
-            self._emit(VehicleRecovered(self.link_id, sysid, now_s, silent_s, v.custom_mode,
-                                        v.adapter.mode_name(v.custom_mode)))
+            self._emit(
+                VehicleRecovered(
+                    self.link_id,
+                    sysid,
+                    now_s,
+                    silent_s,
+                    v.custom_mode,
+                    v.adapter.mode_name(v.custom_mode),
+                )
+            )
             self._send(self._heartbeat_msg(), addr, now_s)
             self._request_streams(v, now_s)  # it may have rebooted and forgotten our rates
             self._request_home(v, now_s)
             v.disable_tries.clear()  # ... and our stops: a reboot restores the default streams
             v.disable_queue.clear()
         if old_mode != v.custom_mode:
-            self._emit(ModeChanged(self.link_id, sysid, now_s, v.custom_mode,
-                                   v.adapter.mode_name(v.custom_mode),
-                                   v.adapter.mode_name(old_mode)))
+            self._emit(
+                ModeChanged(
+                    self.link_id,
+                    sysid,
+                    now_s,
+                    v.custom_mode,
+                    v.adapter.mode_name(v.custom_mode),
+                    v.adapter.mode_name(old_mode),
+                )
+            )
         if was_armed != v.armed:
             self._emit(ArmedChanged(self.link_id, sysid, now_s, v.armed))
             if v.armed:
@@ -158,10 +248,14 @@ class VehicleDiscovery(StreamRequests):
                 self.stats.invalid_telemetry += 1
                 return
             try:
-                ev = TaskPositionReceived(self.link_id, sysid, now_s,
-                                          lat_deg=wire.e7_to_deg(msg.lat),
-                                          lon_deg=wire.e7_to_deg(msg.lon),
-                                          alt_amsl_m=wire.mm_to_m(msg.alt))
+                ev = TaskPositionReceived(
+                    self.link_id,
+                    sysid,
+                    now_s,
+                    lat_deg=wire.e7_to_deg(msg.lat),
+                    lon_deg=wire.e7_to_deg(msg.lon),
+                    alt_amsl_m=wire.mm_to_m(msg.alt),
+                )
             except ValueError:
                 self.stats.invalid_telemetry += 1
                 return
@@ -171,8 +265,10 @@ class VehicleDiscovery(StreamRequests):
             self.stats.task_heartbeats += 1
             last_fix = self._task_fix_s.get(sysid, -math.inf)
             last_req = self._task_request_s.get(sysid, -math.inf)
-            if (now_s - last_fix > self.config.telemetry_stale_s
-                    and now_s - last_req >= self.config.telemetry_stale_s):
+            if (
+                now_s - last_fix > self.config.telemetry_stale_s
+                and now_s - last_req >= self.config.telemetry_stale_s
+            ):
                 self._task_request_s[sysid] = now_s
                 self._request_task_position(sysid, msg.get_srcComponent(), addr, now_s)
         else:
@@ -182,13 +278,30 @@ class VehicleDiscovery(StreamRequests):
         """Fire-and-forget: trackers differ (an ArduPilot Rover streams only when asked; a plain
         tracker streams anyway and ignores both). No ACK is awaited: a task is never commanded."""
         hz = self.config.task_position_rate_hz
-        self._send(mavlink.MAVLink_command_long_message(
-            sysid, compid, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-            mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, wire.hz_to_interval_us(hz),
-            0, 0, 0, 0, 0), addr, now_s)
-        self._send(mavlink.MAVLink_request_data_stream_message(
-            sysid, compid, mavlink.MAV_DATA_STREAM_POSITION, max(1, int(round(hz))), 1),
-            addr, now_s)
+        self._send(
+            mavlink.MAVLink_command_long_message(
+                sysid,
+                compid,
+                mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                0,
+                mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                wire.hz_to_interval_us(hz),
+                0,
+                0,
+                0,
+                0,
+                0,
+            ),
+            addr,
+            now_s,
+        )
+        self._send(
+            mavlink.MAVLink_request_data_stream_message(
+                sysid, compid, mavlink.MAV_DATA_STREAM_POSITION, max(1, int(round(hz))), 1
+            ),
+            addr,
+            now_s,
+        )
 
     # ------------------------------------------------------------------ what a vehicle reports
 
@@ -198,12 +311,21 @@ class VehicleDiscovery(StreamRequests):
             return
         try:
             ev = TelemetryReceived(
-                self.link_id, v.sysid, now_s,
-                lat_deg=wire.e7_to_deg(msg.lat), lon_deg=wire.e7_to_deg(msg.lon),
-                alt_amsl_m=wire.mm_to_m(msg.alt), rel_alt_m=wire.mm_to_m(msg.relative_alt),
-                vel_ned_m_s=(wire.cm_s_to_m_s(msg.vx), wire.cm_s_to_m_s(msg.vy),
-                             wire.cm_s_to_m_s(msg.vz)),
-                yaw_rad=wire.hdg_cdeg_to_yaw_rad(msg.hdg), time_boot_s=msg.time_boot_ms / 1000.0)
+                self.link_id,
+                v.sysid,
+                now_s,
+                lat_deg=wire.e7_to_deg(msg.lat),
+                lon_deg=wire.e7_to_deg(msg.lon),
+                alt_amsl_m=wire.mm_to_m(msg.alt),
+                rel_alt_m=wire.mm_to_m(msg.relative_alt),
+                vel_ned_m_s=(
+                    wire.cm_s_to_m_s(msg.vx),
+                    wire.cm_s_to_m_s(msg.vy),
+                    wire.cm_s_to_m_s(msg.vz),
+                ),
+                yaw_rad=wire.hdg_cdeg_to_yaw_rad(msg.hdg),
+                time_boot_s=msg.time_boot_ms / 1000.0,
+            )
         except ValueError:
             self.stats.invalid_telemetry += 1
             return
@@ -215,10 +337,14 @@ class VehicleDiscovery(StreamRequests):
             self.stats.invalid_telemetry += 1
             return
         try:
-            ev = HomePositionReceived(self.link_id, v.sysid, now_s,
-                                      lat_deg=wire.e7_to_deg(msg.latitude),
-                                      lon_deg=wire.e7_to_deg(msg.longitude),
-                                      alt_amsl_m=wire.mm_to_m(msg.altitude))
+            ev = HomePositionReceived(
+                self.link_id,
+                v.sysid,
+                now_s,
+                lat_deg=wire.e7_to_deg(msg.latitude),
+                lon_deg=wire.e7_to_deg(msg.longitude),
+                alt_amsl_m=wire.mm_to_m(msg.altitude),
+            )
         except ValueError:
             self.stats.invalid_telemetry += 1
             return
@@ -226,7 +352,10 @@ class VehicleDiscovery(StreamRequests):
         old = v.home
         v.home = ev
         if old is None or (old.lat_deg, old.lon_deg, old.alt_amsl_m) != (
-                ev.lat_deg, ev.lon_deg, ev.alt_amsl_m):
+            ev.lat_deg,
+            ev.lon_deg,
+            ev.alt_amsl_m,
+        ):
             self._emit(ev)  # PX4 streams it every 2 s: only news become events
 
     def _request_home(self, v: _Vehicle, now_s: float) -> None:
@@ -244,8 +373,10 @@ class VehicleDiscovery(StreamRequests):
             command = mavlink.MAV_CMD_REQUEST_MESSAGE
             params = (float(mavlink.MAVLINK_MSG_ID_HOME_POSITION),) + (0.0,) * 6
         key = (v.sysid, command)
-        if any(c is not None and c.internal is not None
-               for c in (self._commands.get(key), *self._queued.get(key, ()))):
+        if any(
+            c is not None and c.internal is not None
+            for c in (self._commands.get(key), *self._queued.get(key, ()))
+        ):
             return  # already asked and waiting
         cmd = self._new_command(v.sysid, command, params, use_int=False)
         cmd.internal = lambda result, t_s, v=v: self._on_home_request_result(v, result, t_s)
@@ -255,8 +386,12 @@ class VehicleDiscovery(StreamRequests):
         if result == mavlink.MAV_RESULT_UNSUPPORTED and not v.home_by_get_home:
             v.home_by_get_home = True
         elif result not in (None, mavlink.MAV_RESULT_ACCEPTED):
-            log.debug("link %d sysid %d: HOME_POSITION request refused (%s)", self.link_id,
-                      v.sysid, _result_name(result))
+            log.debug(
+                "link %d sysid %d: HOME_POSITION request refused (%s)",
+                self.link_id,
+                v.sysid,
+                _result_name(result),
+            )
         if v.home is None or result != mavlink.MAV_RESULT_ACCEPTED:
             # The message follows the ACK; if it never comes, ask again later.
             v.home_request_s = now_s + self.config.home_request_period_s
@@ -266,5 +401,4 @@ class VehicleDiscovery(StreamRequests):
         text = msg.text
         if isinstance(text, bytes):
             text = text.decode("utf-8", errors="replace")
-        self._emit(StatusText(self.link_id, v.sysid, now_s, int(msg.severity),
-                              text.rstrip("\x00")))
+        self._emit(StatusText(self.link_id, v.sysid, now_s, int(msg.severity), text.rstrip("\x00")))

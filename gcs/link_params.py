@@ -47,8 +47,16 @@ class ParamProtocol(LinkState):
             self._params[key] = req
             self._transmit_param_request(req, now_s)
 
-    def set_param(self, sysid: int, name: str, value: float, param_type: int, now_s: float,
-                  *, previous: float | None = None) -> None:
+    def set_param(
+        self,
+        sysid: int,
+        name: str,
+        value: float,
+        param_type: int,
+        now_s: float,
+        *,
+        previous: float | None = None,
+    ) -> None:
         """PARAM_SET, re-sent until the PARAM_VALUE echo carries ``value``.
 
         ``param_type`` is the MAV_PARAM_TYPE the vehicle reported for ``name`` (PX4 refuses a
@@ -67,11 +75,12 @@ class ParamProtocol(LinkState):
 
     def _transmit_param_set(self, ps: _ParamSet, now_s: float) -> None:
         v = self._vehicles[ps.sysid]
-        wire_value = wire.encode_param_value(ps.value, ps.param_type,
-                                             bytewise=v.adapter.param_bytewise)
-        msg = mavlink.MAVLink_param_set_message(ps.sysid, _AUTOPILOT_COMPID,
-                                                ps.name.encode("ascii"), wire_value,
-                                                ps.param_type)
+        wire_value = wire.encode_param_value(
+            ps.value, ps.param_type, bytewise=v.adapter.param_bytewise
+        )
+        msg = mavlink.MAVLink_param_set_message(
+            ps.sysid, _AUTOPILOT_COMPID, ps.name.encode("ascii"), wire_value, ps.param_type
+        )
         ps.attempts += 1
         ps.deadline_s = now_s + self.config.param_timeout_s
         self._wake(ps.deadline_s)
@@ -80,7 +89,8 @@ class ParamProtocol(LinkState):
     def _transmit_param_request(self, req: _ParamRequest, now_s: float) -> None:
         v = self._vehicles[req.sysid]
         msg = mavlink.MAVLink_param_request_read_message(
-            req.sysid, _AUTOPILOT_COMPID, req.name.encode("ascii"), -1)
+            req.sysid, _AUTOPILOT_COMPID, req.name.encode("ascii"), -1
+        )
         req.attempts += 1
         req.deadline_s = now_s + self.config.param_timeout_s
         self._wake(req.deadline_s)
@@ -91,8 +101,9 @@ class ParamProtocol(LinkState):
         if not name:
             self.stats.invalid_telemetry += 1
             return
-        value = wire.decode_param_value(msg.param_value, msg.param_type,
-                                        bytewise=v.adapter.param_bytewise)
+        value = wire.decode_param_value(
+            msg.param_value, msg.param_type, bytewise=v.adapter.param_bytewise
+        )
         if not math.isfinite(value):
             self.stats.invalid_telemetry += 1
             return
@@ -112,15 +123,35 @@ class ParamProtocol(LinkState):
         key = (ps.sysid, ps.name)
         if wire.param_values_equal(ps.value, value, ps.param_type):
             del self._param_sets[key]
-            self._emit(ParamSetConfirmed(self.link_id, ps.sysid, now_s, ps.name, value,
-                                         ps.previous, ps.param_type, ps.attempts))
+            self._emit(
+                ParamSetConfirmed(
+                    self.link_id,
+                    ps.sysid,
+                    now_s,
+                    ps.name,
+                    value,
+                    ps.previous,
+                    ps.param_type,
+                    ps.attempts,
+                )
+            )
         elif ps.attempts <= self.config.param_retries:
             # Maybe the answer to an earlier read, crossing our set on the wire: ask again.
             self._transmit_param_set(ps, now_s)
         else:
             del self._param_sets[key]
-            self._emit(ParamSetFailed(self.link_id, ps.sysid, now_s, ps.name, ps.value, value,
-                                      f"the vehicle kept {value:g}", ps.attempts))
+            self._emit(
+                ParamSetFailed(
+                    self.link_id,
+                    ps.sysid,
+                    now_s,
+                    ps.name,
+                    ps.value,
+                    value,
+                    f"the vehicle kept {value:g}",
+                    ps.attempts,
+                )
+            )
 
     def _on_param_error(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         # PARAM_ERROR (newer ArduPilot GCS_Param.cpp send_param_error): a precise refusal.
@@ -131,5 +162,6 @@ class ParamProtocol(LinkState):
             return
         entry = mavlink.enums["MAV_PARAM_ERROR"].get(msg.error)
         reason = entry.name if entry is not None else f"MAV_PARAM_ERROR({msg.error})"
-        self._emit(ParamSetFailed(self.link_id, v.sysid, now_s, name, ps.value, None, reason,
-                                  ps.attempts))
+        self._emit(
+            ParamSetFailed(self.link_id, v.sysid, now_s, name, ps.value, None, reason, ps.attempts)
+        )

@@ -34,7 +34,7 @@ log = logging.getLogger("gcs.link")
 Addr = Hashable
 
 _CMD_SET_MESSAGE_INTERVAL = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL  # 511
-_AUTOPILOT_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1                 # 1
+_AUTOPILOT_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1  # 1
 
 
 class UnknownVehicle(KeyError):
@@ -63,10 +63,10 @@ class _Vehicle:
     interval_accepted: bool = False
     last_stream_request_s: float = -math.inf
     position: TelemetryReceived | None = None
-    setpoint: tuple[float, float, float, int] | None = None   # lat, lon, alt, frame
+    setpoint: tuple[float, float, float, int] | None = None  # lat, lon, alt, frame
     setpoint_since_s: float = math.nan
     setpoint_next_s: float = math.inf
-    deferred: list[Any] = field(default_factory=list)         # _Command waiting for prestream
+    deferred: list[Any] = field(default_factory=list)  # _Command waiting for prestream
     home: HomePositionReceived | None = None
     home_request_s: float = math.inf
     """When to (re-)request HOME_POSITION (inf: not needed, or one request is in flight)."""
@@ -87,7 +87,7 @@ class _Command:
     request_id: int
     sysid: int
     command: int
-    params: tuple[float, ...]          # 7 for COMMAND_LONG; (frame, p1..p4, x, y, z) for INT
+    params: tuple[float, ...]  # 7 for COMMAND_LONG; (frame, p1..p4, x, y, z) for INT
     use_int: bool
     internal: Callable[[int | None, float], None] | None = None  # stream bookkeeping (result, now)
     attempts: int = 0
@@ -141,7 +141,6 @@ class _RateLimitedLog:
 def _result_name(result: int) -> str:
     entry = mavlink.enums["MAV_RESULT"].get(result)
     return entry.name if entry is not None else f"MAV_RESULT({result})"
-
 
 
 class LinkState:
@@ -213,5 +212,5 @@ class LinkState:
     def _heartbeat_msg(self) -> Any:
         # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, base_mode 0, state ACTIVE (mavlink.io heartbeat).
         return mavlink.MAVLink_heartbeat_message(
-            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
-            mavlink.MAV_STATE_ACTIVE, 3)
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+        )

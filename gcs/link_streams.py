@@ -56,17 +56,20 @@ class StreamRequests(CommandTracker):
         for msgid, rate_hz in self.config.stream_rates_hz:
             key = (v.sysid, _CMD_SET_MESSAGE_INTERVAL)
             pending = [self._commands.get(key), *self._queued.get(key, ())]
-            if any(c is not None and c.internal is not None and c.params[0] == msgid
-                   for c in pending):
+            if any(
+                c is not None and c.internal is not None and c.params[0] == msgid for c in pending
+            ):
                 continue  # already asked and waiting
             params = (float(msgid), wire.hz_to_interval_us(rate_hz), 0.0, 0.0, 0.0, 0.0, 0.0)
             cmd = self._new_command(v.sysid, _CMD_SET_MESSAGE_INTERVAL, params, use_int=False)
-            cmd.internal = (lambda result, t_s, v=v, m=msgid:
-                            self._on_interval_result(v, result, t_s, m))
+            cmd.internal = lambda result, t_s, v=v, m=msgid: self._on_interval_result(
+                v, result, t_s, m
+            )
             self._submit(cmd, now_s)
 
-    def _on_interval_result(self, v: _Vehicle, result: int | None, now_s: float,
-                            msgid: int = 0) -> None:
+    def _on_interval_result(
+        self, v: _Vehicle, result: int | None, now_s: float, msgid: int = 0
+    ) -> None:
         if result == mavlink.MAV_RESULT_ACCEPTED:
             v.interval_accepted = True
             return
@@ -74,14 +77,23 @@ class StreamRequests(CommandTracker):
             return
         if result not in (None, mavlink.MAV_RESULT_UNSUPPORTED) and v.interval_accepted:
             # The command works on this vehicle; it just cannot stream this one message.
-            log.info("link %d sysid %d: message %d interval refused (%s)", self.link_id,
-                     v.sysid, msgid, _result_name(result))
+            log.info(
+                "link %d sysid %d: message %d interval refused (%s)",
+                self.link_id,
+                v.sysid,
+                msgid,
+                _result_name(result),
+            )
             return
         # No ACK, UNSUPPORTED, or refused before anything was accepted: older ArduPilot and
         # some routers. Fall back to REQUEST_DATA_STREAM for this vehicle from now on (Skybrush
         # pattern, docs/design/mavlink.md §1.2).
-        log.info("link %d sysid %d: SET_MESSAGE_INTERVAL result %s, falling back to "
-                 "REQUEST_DATA_STREAM", self.link_id, v.sysid, result)
+        log.info(
+            "link %d sysid %d: SET_MESSAGE_INTERVAL result %s, falling back to REQUEST_DATA_STREAM",
+            self.link_id,
+            v.sysid,
+            result,
+        )
         v.use_data_stream = True
         self.stats.data_stream_fallbacks += 1
         key = (v.sysid, _CMD_SET_MESSAGE_INTERVAL)
@@ -96,7 +108,8 @@ class StreamRequests(CommandTracker):
                 rates[stream] = max(rates.get(stream, 0.0), rate_hz)
         for stream, rate_hz in rates.items():
             msg = mavlink.MAVLink_request_data_stream_message(
-                v.sysid, _AUTOPILOT_COMPID, stream, max(1, int(round(rate_hz))), 1)
+                v.sysid, _AUTOPILOT_COMPID, stream, max(1, int(round(rate_hz))), 1
+            )
             self._send(msg, v.addr, now_s)
 
     # ------------------------------------------------------------------ unused messages
@@ -118,8 +131,13 @@ class StreamRequests(CommandTracker):
         # vehicle: COMMAND_ACK names only the command id, and the station's own stream requests
         # must never wait behind a batch of stops.
         key = (v.sysid, _CMD_SET_MESSAGE_INTERVAL)
-        if not v.disable_queue or key in self._commands or self._queued.get(key) \
-                or v.lost or v.sysid not in self._vehicles:
+        if (
+            not v.disable_queue
+            or key in self._commands
+            or self._queued.get(key)
+            or v.lost
+            or v.sysid not in self._vehicles
+        ):
             return
         msgid = next(iter(v.disable_queue))
         del v.disable_queue[msgid]
@@ -130,8 +148,7 @@ class StreamRequests(CommandTracker):
         self.stats.disable_requests += 1
         self._submit(cmd, now_s)
 
-    def _on_disable_result(self, v: _Vehicle, msgid: int, result: int | None,
-                           now_s: float) -> None:
+    def _on_disable_result(self, v: _Vehicle, msgid: int, result: int | None, now_s: float) -> None:
         if result == mavlink.MAV_RESULT_ACCEPTED:
             self.stats.messages_disabled += 1
             log.debug("link %d sysid %d: message %d stopped", self.link_id, v.sysid, msgid)
@@ -139,5 +156,10 @@ class StreamRequests(CommandTracker):
             # DENIED / FAILED: not a stream this autopilot can stop (a reply to something,
             # or no ap_message for it in ArduPilot): never ask again.
             v.disable_tries[msgid] = (self.config.disable_attempts, now_s)
-            log.info("link %d sysid %d: cannot stop message %d (%s)", self.link_id, v.sysid,
-                     msgid, _result_name(result))
+            log.info(
+                "link %d sysid %d: cannot stop message %d (%s)",
+                self.link_id,
+                v.sysid,
+                msgid,
+                _result_name(result),
+            )

@@ -47,9 +47,19 @@ from gcs.autopilot import ARDUPILOT, PX4
 from gcs.events import Event
 from gcs.wire import deg_to_e7, mavlink
 
-__all__ = ["MissionProtocolReceived", "mission_event", "RallyPoint", "UploadState", "RallyUpload",
-           "RallyConfig", "RallyKeeper", "RALLY_PARAMS", "rally_param_writes",
-           "planner_rally_points_m", "MISSION_PROTOCOL_MESSAGES"]
+__all__ = [
+    "MissionProtocolReceived",
+    "mission_event",
+    "RallyPoint",
+    "UploadState",
+    "RallyUpload",
+    "RallyConfig",
+    "RallyKeeper",
+    "RALLY_PARAMS",
+    "rally_param_writes",
+    "planner_rally_points_m",
+    "MISSION_PROTOCOL_MESSAGES",
+]
 
 log = logging.getLogger(__name__)
 
@@ -77,10 +87,16 @@ def mission_event(link_id: int, sysid: int, msg: Any, now_s: float) -> MissionPr
     """The event for one decoded MISSION_REQUEST / MISSION_REQUEST_INT / MISSION_ACK."""
     kind = msg.get_type()
     return MissionProtocolReceived(
-        link_id, sysid, now_s, kind=kind, mission_type=int(getattr(msg, "mission_type", 0)),
+        link_id,
+        sysid,
+        now_s,
+        kind=kind,
+        mission_type=int(getattr(msg, "mission_type", 0)),
         seq=int(msg.seq) if kind != "MISSION_ACK" else -1,
         result=int(msg.type) if kind == "MISSION_ACK" else -1,
-        target_system=int(msg.target_system), target_component=int(msg.target_component))
+        target_system=int(msg.target_system),
+        target_component=int(msg.target_component),
+    )
 
 
 @dataclass(frozen=True)
@@ -105,10 +121,18 @@ class RallyUpload:
     """One rally upload to one vehicle (see the module docstring). Outgoing messages are taken
     with :meth:`take_messages`; :meth:`handle_timer` runs the timeouts."""
 
-    def __init__(self, target_system: int, points: Sequence[RallyPoint], now_s: float, *,
-                 gcs_sysid: int = 255, gcs_compid: int = mavlink.MAV_COMP_ID_MISSIONPLANNER,
-                 target_component: int = mavlink.MAV_COMP_ID_AUTOPILOT1,
-                 ack_timeout_s: float = 1.5, retries: int = 5) -> None:
+    def __init__(
+        self,
+        target_system: int,
+        points: Sequence[RallyPoint],
+        now_s: float,
+        *,
+        gcs_sysid: int = 255,
+        gcs_compid: int = mavlink.MAV_COMP_ID_MISSIONPLANNER,
+        target_component: int = mavlink.MAV_COMP_ID_AUTOPILOT1,
+        ack_timeout_s: float = 1.5,
+        retries: int = 5,
+    ) -> None:
         self.target_system = int(target_system)
         self.target_component = int(target_component)
         self.points = tuple(points)
@@ -146,30 +170,41 @@ class RallyUpload:
     def _for_us(self, ev: MissionProtocolReceived) -> bool:
         # Replies to another GCS's transfer, or of another mission type, are not ours (QGC
         # drops them: "Incorrect mission_type received").
-        return (ev.sysid == self.target_system and ev.mission_type == T_RALLY
-                and ev.target_system in (0, self.gcs_sysid)
-                and ev.target_component in (0, self.gcs_compid))
+        return (
+            ev.sysid == self.target_system
+            and ev.mission_type == T_RALLY
+            and ev.target_system in (0, self.gcs_sysid)
+            and ev.target_component in (0, self.gcs_compid)
+        )
 
     def on_event(self, ev: MissionProtocolReceived, now_s: float) -> None:
         """A MISSION_REQUEST(_INT) or MISSION_ACK from the vehicle."""
         if self.finished or not self._for_us(ev):
             return
         if ev.kind == "MISSION_ACK":
-            if ev.result == mavlink.MAV_MISSION_INVALID_SEQUENCE and self.state == UploadState.SENDING:
+            if (
+                ev.result == mavlink.MAV_MISSION_INVALID_SEQUENCE
+                and self.state == UploadState.SENDING
+            ):
                 # ArduPilot MissionItemProtocol::handle_mission_item acks an item it did not ask
                 # for (a duplicate) with INVALID_SEQUENCE and carries on: not the end.
                 self.duplicates += 1
                 return
             if ev.result == mavlink.MAV_MISSION_ACCEPTED and (
-                    not self.points or self.items_sent >= len(self.points)):
+                not self.points or self.items_sent >= len(self.points)
+            ):
                 self._finish(UploadState.DONE, ev.result, "")
             elif ev.result == mavlink.MAV_MISSION_ACCEPTED:
                 self._finish(UploadState.FAILED, ev.result, "accepted before every item was sent")
             else:
-                self._finish(UploadState.FAILED, ev.result, f"vehicle refused: {_result_name(ev.result)}")
+                self._finish(
+                    UploadState.FAILED, ev.result, f"vehicle refused: {_result_name(ev.result)}"
+                )
             return
         if not 0 <= ev.seq < len(self.points):
-            self._finish(UploadState.FAILED, None, f"vehicle requested item {ev.seq} of {len(self.points)}")
+            self._finish(
+                UploadState.FAILED, None, f"vehicle requested item {ev.seq} of {len(self.points)}"
+            )
             return
         self.state = UploadState.SENDING
         self._send_item(ev.seq)
@@ -196,16 +231,34 @@ class RallyUpload:
         self._deadline_s = math.inf
 
     def _send_count(self, now_s: float) -> None:
-        self._out.append(mavlink.MAVLink_mission_count_message(
-            self.target_system, self.target_component, len(self.points), T_RALLY))
+        self._out.append(
+            mavlink.MAVLink_mission_count_message(
+                self.target_system, self.target_component, len(self.points), T_RALLY
+            )
+        )
         self._deadline_s = now_s + self.ack_timeout_s
 
     def _send_item(self, seq: int) -> None:
         p = self.points[seq]
-        self._out.append(mavlink.MAVLink_mission_item_int_message(
-            self.target_system, self.target_component, seq,
-            mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mavlink.MAV_CMD_NAV_RALLY_POINT,
-            0, 1, 0.0, 0.0, 0.0, 0.0, p.lat_e7, p.lon_e7, float(p.alt_above_home_m), T_RALLY))
+        self._out.append(
+            mavlink.MAVLink_mission_item_int_message(
+                self.target_system,
+                self.target_component,
+                seq,
+                mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                mavlink.MAV_CMD_NAV_RALLY_POINT,
+                0,
+                1,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                p.lat_e7,
+                p.lon_e7,
+                float(p.alt_above_home_m),
+                T_RALLY,
+            )
+        )
 
 
 def _result_name(result: int) -> str:
@@ -216,6 +269,7 @@ def _result_name(result: int) -> str:
 # ------------------------------------------------------------------------------------------------
 # The fleet's rally set
 # ------------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class RallyConfig:
@@ -245,8 +299,15 @@ class RallyConfig:
     retries: int = 5
 
     def __post_init__(self) -> None:
-        if not (self.move_threshold_m >= 0 and self.min_period_s >= 0 and self.inward_m >= 0 and self.retry_after_s >= 0
-                and self.ack_timeout_s > 0 and self.retries >= 0 and self.max_points >= 0):
+        if not (
+            self.move_threshold_m >= 0
+            and self.min_period_s >= 0
+            and self.inward_m >= 0
+            and self.retry_after_s >= 0
+            and self.ack_timeout_s > 0
+            and self.retries >= 0
+            and self.max_points >= 0
+        ):
             raise ValueError(f"invalid rally configuration {self}")
         if not -32768 <= self.alt_above_home_m <= 32767:
             # ArduPilot MissionItemProtocol_Rally::convert_MISSION_ITEM_INT_to_RallyLocation:
@@ -278,9 +339,15 @@ class RallyKeeper:
     gcs_sysid, gcs_compid : our identity (replies addressed elsewhere are not ours)
     """
 
-    def __init__(self, origin_lat_deg: float, origin_lon_deg: float,
-                 config: RallyConfig = RallyConfig(), *, gcs_sysid: int = 255,
-                 gcs_compid: int = mavlink.MAV_COMP_ID_MISSIONPLANNER) -> None:
+    def __init__(
+        self,
+        origin_lat_deg: float,
+        origin_lon_deg: float,
+        config: RallyConfig = RallyConfig(),
+        *,
+        gcs_sysid: int = 255,
+        gcs_compid: int = mavlink.MAV_COMP_ID_MISSIONPLANNER,
+    ) -> None:
         self.origin = (float(origin_lat_deg), float(origin_lon_deg))
         self.config = config
         self.gcs_sysid, self.gcs_compid = gcs_sysid, gcs_compid
@@ -309,9 +376,11 @@ class RallyKeeper:
         r = np.hypot(*pts.T)
         pts = pts * (np.maximum(r - self.config.inward_m, 0.0) / np.where(r > 0, r, 1.0))[:, None]
         if len(pts) > self.config.max_points:  # the nearest the base first (stable order)
-            pts = pts[np.argsort(np.hypot(*pts.T), kind="stable")[:self.config.max_points]]
-        if not force and (now_s - self._published_s < self.config.min_period_s
-                          or not set_moved(self.points_ne_m, pts, self.config.move_threshold_m)):
+            pts = pts[np.argsort(np.hypot(*pts.T), kind="stable")[: self.config.max_points]]
+        if not force and (
+            now_s - self._published_s < self.config.min_period_s
+            or not set_moved(self.points_ne_m, pts, self.config.move_threshold_m)
+        ):
             return False
         if force and self.points_ne_m is not None and not set_moved(self.points_ne_m, pts, 0.0):
             return False
@@ -331,8 +400,10 @@ class RallyKeeper:
             return ()
         ned = np.column_stack([pts, np.zeros(len(pts))])
         lat, lon, _ = ned_to_geodetic(ned, self.origin[0], self.origin[1], 0.0)
-        return (RallyPoint(deg_to_e7(float(a)), deg_to_e7(float(b)), self.config.alt_above_home_m)
-                for a, b in zip(np.atleast_1d(lat), np.atleast_1d(lon)))
+        return (
+            RallyPoint(deg_to_e7(float(a)), deg_to_e7(float(b)), self.config.alt_above_home_m)
+            for a, b in zip(np.atleast_1d(lat), np.atleast_1d(lon))
+        )
 
     def up_to_date(self, vid: VehicleId) -> bool:
         return self._accepted.get(vid) == self.version
@@ -350,12 +421,21 @@ class RallyKeeper:
         if self.version == 0:
             return out
         for vid in reachable:
-            if (vid in self._uploads or self.up_to_date(vid)
-                    or now_s < self._retry_s.get(vid, -math.inf)):
+            if (
+                vid in self._uploads
+                or self.up_to_date(vid)
+                or now_s < self._retry_s.get(vid, -math.inf)
+            ):
                 continue
-            up = RallyUpload(vid[1], self._points, now_s, gcs_sysid=self.gcs_sysid,
-                             gcs_compid=self.gcs_compid, ack_timeout_s=self.config.ack_timeout_s,
-                             retries=self.config.retries)
+            up = RallyUpload(
+                vid[1],
+                self._points,
+                now_s,
+                gcs_sysid=self.gcs_sysid,
+                gcs_compid=self.gcs_compid,
+                ack_timeout_s=self.config.ack_timeout_s,
+                retries=self.config.retries,
+            )
             self._uploads[vid] = (self.version, up)
             self.stats["uploads"] += 1
             out += [(vid, m) for m in up.take_messages()]
@@ -405,15 +485,21 @@ class RallyKeeper:
 #: PX4 ``RTL_TYPE`` (rtl_params.c): 0 (default) and 3 return to the closest of home and the rally
 #: points, 1 to the closest rally point; 2 and 4 ignore rally points (``RTL::findRtlDestination``),
 #: so those are set to 0.
-RALLY_PARAMS: dict[int, tuple[str, ...]] = {ARDUPILOT: ("RALLY_LIMIT_KM", "RALLY_INCL_HOME"),
-                                            PX4: ("RTL_TYPE",)}
+RALLY_PARAMS: dict[int, tuple[str, ...]] = {
+    ARDUPILOT: ("RALLY_LIMIT_KM", "RALLY_INCL_HOME"),
+    PX4: ("RTL_TYPE",),
+}
 
 
 def rally_param_writes(autopilot: int, current: Mapping[str, float]) -> list[tuple[str, float]]:
     """``(name, value)`` writes that make the firmware's RTL use rally points, given the values
     read (names not read are skipped)."""
     out: list[tuple[str, float]] = []
-    if autopilot == ARDUPILOT and "RALLY_LIMIT_KM" in current and float(current["RALLY_LIMIT_KM"]) != 0.0:
+    if (
+        autopilot == ARDUPILOT
+        and "RALLY_LIMIT_KM" in current
+        and float(current["RALLY_LIMIT_KM"]) != 0.0
+    ):
         out.append(("RALLY_LIMIT_KM", 0.0))
     if autopilot == PX4 and "RTL_TYPE" in current and int(current["RTL_TYPE"]) in (2, 4):
         out.append(("RTL_TYPE", 0.0))
@@ -426,6 +512,10 @@ def planner_rally_points_m(planner: Any) -> np.ndarray | None:
     current tree at ``rally_dist``, what its own world model uses), None for any other planner."""
     from planner.resilient import ResilientPlanner, rally_points
 
-    if not isinstance(planner, ResilientPlanner) or not planner.params.rally or planner.tree is None:
+    if (
+        not isinstance(planner, ResilientPlanner)
+        or not planner.params.rally
+        or planner.tree is None
+    ):
         return None
     return planner.units.to_m(rally_points(planner.tree, planner.params.rally_dist))

@@ -61,8 +61,7 @@ class _BackgroundFile:
         self.closed = False
         self.write_errors = 0
         self.flushes = 0
-        self._thread = threading.Thread(target=self._run, name=f"records:{path.name}",
-                                         daemon=True)
+        self._thread = threading.Thread(target=self._run, name=f"records:{path.name}", daemon=True)
         self._thread.start()
         _OPEN.add(self)
 
@@ -84,7 +83,7 @@ class _BackgroundFile:
             data = memoryview(b"".join([pending.popleft() for _ in range(len(pending))]))
             try:
                 while data:
-                    data = data[self._f.write(data):]
+                    data = data[self._f.write(data) :]
                 if self._fsync:
                     os.fsync(self._f.fileno())
             except OSError as exc:  # disk full, device gone: the run goes on without its records
@@ -118,11 +117,15 @@ def _flush_open_files() -> None:  # a run that ends without close() still keeps 
 class TlogWriter:
     """Append MAVLink frames with their timestamps to a .tlog (buffered, see the module doc)."""
 
-    def __init__(self, path: str | os.PathLike[str], *, fsync: bool = False,
-                 flush_period_s: float = DEFAULT_FLUSH_PERIOD_S) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        fsync: bool = False,
+        flush_period_s: float = DEFAULT_FLUSH_PERIOD_S,
+    ) -> None:
         self.path = Path(path)
-        self._file = _BackgroundFile(self.path, "ab", flush_period_s=flush_period_s,
-                                     fsync=fsync)
+        self._file = _BackgroundFile(self.path, "ab", flush_period_s=flush_period_s, fsync=fsync)
         self.frames = 0
 
     def write(self, unix_time_s: float, frame: bytes) -> None:
@@ -168,11 +171,11 @@ def _jsonable(value: Any) -> Any:
 class EventLog:
     """JSON-lines event log, appended (buffered, see the module doc)."""
 
-    def __init__(self, path: str | os.PathLike[str], *,
-                 flush_period_s: float = DEFAULT_FLUSH_PERIOD_S) -> None:
+    def __init__(
+        self, path: str | os.PathLike[str], *, flush_period_s: float = DEFAULT_FLUSH_PERIOD_S
+    ) -> None:
         self.path = Path(path)
-        self._file = _BackgroundFile(self.path, "ab", flush_period_s=flush_period_s,
-                                     fsync=False)
+        self._file = _BackgroundFile(self.path, "ab", flush_period_s=flush_period_s, fsync=False)
 
     def write(self, event: Any, **extra: Any) -> None:
         record = {"type": type(event).__name__, **_jsonable(event), **_jsonable(extra)}
@@ -205,12 +208,12 @@ class MetricsWriter:
     """Per-tick metrics rows: ``.csv`` (header from the first row) or ``.jsonl`` (buffered, see
     the module doc)."""
 
-    def __init__(self, path: str | os.PathLike[str], *,
-                 flush_period_s: float = DEFAULT_FLUSH_PERIOD_S) -> None:
+    def __init__(
+        self, path: str | os.PathLike[str], *, flush_period_s: float = DEFAULT_FLUSH_PERIOD_S
+    ) -> None:
         self.path = Path(path)
         self._csv = self.path.suffix.lower() == ".csv"
-        self._file = _BackgroundFile(self.path, "wb", flush_period_s=flush_period_s,
-                                     fsync=False)
+        self._file = _BackgroundFile(self.path, "wb", flush_period_s=flush_period_s, fsync=False)
         self._f = _TextSink(self._file)
         self._writer: csv.DictWriter[str] | None = None
 

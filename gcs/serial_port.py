@@ -31,8 +31,9 @@ class SerialLinkError(OSError, RuntimeError):
 
 #: Errors opening a serial device that go away by themselves: not plugged in yet (ENOENT,
 #: ENODEV, ENXIO), another program or ModemManager probing it (EBUSY), a device mid-reset.
-_SERIAL_RETRY_ERRNOS = frozenset({errno.ENOENT, errno.ENODEV, errno.ENXIO, errno.EBUSY,
-                                  errno.EIO, errno.EAGAIN, errno.EINTR})
+_SERIAL_RETRY_ERRNOS = frozenset(
+    {errno.ENOENT, errno.ENODEV, errno.ENXIO, errno.EBUSY, errno.EIO, errno.EAGAIN, errno.EINTR}
+)
 
 
 class _SerialPort:
@@ -49,9 +50,17 @@ class _SerialPort:
 
     READ_CHUNK_BYTES = 65536
 
-    def __init__(self, port: Any, loop: asyncio.AbstractEventLoop, on_data: Callable[[bytes], None], *,
-                 name: str, baud: int, link_id: int = 0,
-                 on_lost: Callable[[str], None] | None = None) -> None:
+    def __init__(
+        self,
+        port: Any,
+        loop: asyncio.AbstractEventLoop,
+        on_data: Callable[[bytes], None],
+        *,
+        name: str,
+        baud: int,
+        link_id: int = 0,
+        on_lost: Callable[[str], None] | None = None,
+    ) -> None:
         self._port = port
         self._fd: int | None = port.fileno()
         self._loop = loop
@@ -66,17 +75,26 @@ class _SerialPort:
         loop.add_reader(self._fd, self._readable)
 
     @classmethod
-    def open(cls, spec: ConnectionSpec, loop: asyncio.AbstractEventLoop,
-             on_data: Callable[[bytes], None], *, link_id: int = 0,
-             on_lost: Callable[[str], None] | None = None) -> _SerialPort:
+    def open(
+        cls,
+        spec: ConnectionSpec,
+        loop: asyncio.AbstractEventLoop,
+        on_data: Callable[[bytes], None],
+        *,
+        link_id: int = 0,
+        on_lost: Callable[[str], None] | None = None,
+    ) -> _SerialPort:
         if os.name != "posix":
-            raise SerialLinkError(f"{spec.text!r}: serial links are supported on Linux and macOS "
-                                  "only (they need the event loop's add_reader)")
+            raise SerialLinkError(
+                f"{spec.text!r}: serial links are supported on Linux and macOS "
+                "only (they need the event loop's add_reader)"
+            )
         try:
             import serial
         except ImportError:
-            raise SerialLinkError(f"{spec.text!r}: serial links need pyserial "
-                                  "(pip install 'pyserial>=3.5')") from None
+            raise SerialLinkError(
+                f"{spec.text!r}: serial links need pyserial (pip install 'pyserial>=3.5')"
+            ) from None
         try:
             port = serial.Serial(spec.device, spec.baud, timeout=0)
         except (OSError, ValueError) as exc:  # SerialException is an OSError
@@ -85,8 +103,15 @@ class _SerialPort:
             raise err from exc
         assert spec.device is not None and spec.baud is not None  # a serial spec has both
         try:
-            return cls(port, loop, on_data, name=spec.device, baud=spec.baud, link_id=link_id,
-                       on_lost=on_lost)
+            return cls(
+                port,
+                loop,
+                on_data,
+                name=spec.device,
+                baud=spec.baud,
+                link_id=link_id,
+                on_lost=on_lost,
+            )
         except BaseException:
             port.close()
             raise
@@ -121,8 +146,12 @@ class _SerialPort:
         if self._tx:  # keep order behind what is already waiting
             if len(self._tx) + len(data) > self.tx_limit_bytes:
                 self.frames_dropped += 1
-                log.debug("link %d: %s backlog full (%d bytes): frame dropped", self.link_id,
-                          self.name, len(self._tx))
+                log.debug(
+                    "link %d: %s backlog full (%d bytes): frame dropped",
+                    self.link_id,
+                    self.name,
+                    len(self._tx),
+                )
             else:
                 self._tx += data
             return

@@ -62,8 +62,11 @@ class Station:
 
     def datagrams_to_send(self, now_s: float) -> list[tuple[int, bytes, object]]:
         """``(link_id, data, addr)`` for every link."""
-        return [(lid, data, addr) for lid, link in self._links.items()
-                for data, addr in link.datagrams_to_send(now_s)]
+        return [
+            (lid, data, addr)
+            for lid, link in self._links.items()
+            for data, addr in link.datagrams_to_send(now_s)
+        ]
 
     # ---------------------------------------------------------------- vehicles
 
@@ -73,8 +76,9 @@ class Station:
     def networked(self) -> list[VehicleId]:
         return [(lid, s) for lid, link in self._links.items() for s in link.networked_sysids()]
 
-    def set_position_target(self, vid: VehicleId, lat_deg: float, lon_deg: float,
-                            alt_above_home_m: float, now_s: float) -> None:
+    def set_position_target(
+        self, vid: VehicleId, lat_deg: float, lon_deg: float, alt_above_home_m: float, now_s: float
+    ) -> None:
         self.link(vid[0]).set_position_target(vid[1], lat_deg, lon_deg, alt_above_home_m, now_s)
 
     def clear_position_target(self, vid: VehicleId, now_s: float) -> None:
@@ -104,6 +108,14 @@ class Station:
     def request_param(self, vid: VehicleId, name: str, now_s: float) -> None:
         self.link(vid[0]).request_param(vid[1], name, now_s)
 
-    def set_param(self, vid: VehicleId, name: str, value: float, param_type: int, now_s: float,
-                  *, previous: float | None = None) -> None:
+    def set_param(
+        self,
+        vid: VehicleId,
+        name: str,
+        value: float,
+        param_type: int,
+        now_s: float,
+        *,
+        previous: float | None = None,
+    ) -> None:
         self.link(vid[0]).set_param(vid[1], name, value, param_type, now_s, previous=previous)

@@ -62,14 +62,19 @@ class LiveTasks:
             return False
         k = self._row_of[event.sysid]
         o = self.origin
-        ned = geodetic_to_ned_m(event.lat_deg, event.lon_deg, event.alt_amsl_m,
-                                o.lat_deg, o.lon_deg, o.alt_amsl_m)
+        ned = geodetic_to_ned_m(
+            event.lat_deg, event.lon_deg, event.alt_amsl_m, o.lat_deg, o.lon_deg, o.alt_amsl_m
+        )
         first = not math.isfinite(self._last_fix_s[k])
         self._ne_m[k] = ned[:2]
         self._last_fix_s[k] = max(self._last_fix_s[k], event.t_s)
         if first:
-            log.info("live task (tracker sysid %d): first position %.1f m N, %.1f m E",
-                     event.sysid, ned[0], ned[1])
+            log.info(
+                "live task (tracker sysid %d): first position %.1f m N, %.1f m E",
+                event.sysid,
+                ned[0],
+                ned[1],
+            )
         return True
 
     def fill(self, task_pos_m: np.ndarray) -> np.ndarray:

@@ -72,8 +72,9 @@ def _check_speedup(speedup: float) -> float:
 class VirtualClock:
     """Time moves only when told to (tests, lock-step drivers); no wall delay."""
 
-    def __init__(self, t0_s: float = 0.0,
-                 unix_time_at_zero_s: float = VIRTUAL_UNIX_TIME_AT_ZERO_S) -> None:
+    def __init__(
+        self, t0_s: float = 0.0, unix_time_at_zero_s: float = VIRTUAL_UNIX_TIME_AT_ZERO_S
+    ) -> None:
         self.t_s = float(t0_s)
         self.unix_time_at_zero_s = float(unix_time_at_zero_s)
 
@@ -110,17 +111,24 @@ class RealClock:
         Unix time in seconds (injectable), read once for :attr:`unix_time_at_zero_s`.
     """
 
-    def __init__(self, speedup: float = 1.0, time_fn: Callable[[], float] = time.monotonic,
-                 t0_s: float = 0.0, *, wall0_s: float | None = None,
-                 unix_time_fn: Callable[[], float] = time.time) -> None:
+    def __init__(
+        self,
+        speedup: float = 1.0,
+        time_fn: Callable[[], float] = time.monotonic,
+        t0_s: float = 0.0,
+        *,
+        wall0_s: float | None = None,
+        unix_time_fn: Callable[[], float] = time.time,
+    ) -> None:
         self.speedup = _check_speedup(speedup)
         self._time_fn = time_fn
         now_wall = time_fn()
         self.wall0_s = now_wall if wall0_s is None else float(wall0_s)
         self.t0_s = float(t0_s)
         # Unix time at clock time 0: wall time now minus the wall time since clock time 0.
-        self.unix_time_at_zero_s = (unix_time_fn() - (now_wall - self.wall0_s)
-                                    - self.t0_s / self.speedup)
+        self.unix_time_at_zero_s = (
+            unix_time_fn() - (now_wall - self.wall0_s) - self.t0_s / self.speedup
+        )
 
     def now(self) -> float:
         return self.t0_s + (self._time_fn() - self.wall0_s) * self.speedup
@@ -147,10 +155,17 @@ class PacedClock:
     idle, or it throttles the emulator. ``time_fn`` and ``unix_time_fn`` are injectable (tests).
     """
 
-    def __init__(self, speedup: float, sim: SharedValue, ack: SharedValue, *,
-                 max_step_s: float = 0.2, slack_s: float = 0.5,
-                 time_fn: Callable[[], float] = time.monotonic,
-                 unix_time_fn: Callable[[], float] = time.time) -> None:
+    def __init__(
+        self,
+        speedup: float,
+        sim: SharedValue,
+        ack: SharedValue,
+        *,
+        max_step_s: float = 0.2,
+        slack_s: float = 0.5,
+        time_fn: Callable[[], float] = time.monotonic,
+        unix_time_fn: Callable[[], float] = time.time,
+    ) -> None:
         self.speedup = _check_speedup(speedup)
         if not (max_step_s > 0 and slack_s > 0):
             raise ValueError("max_step_s and slack_s must be > 0")
@@ -194,8 +209,14 @@ class PacedReader:
     the start); a station that falls behind (CPU-bound, stalled) thereby holds the emulator back
     instead of missing its heartbeat and setpoint deadlines in simulated time."""
 
-    def __init__(self, speedup: float, sim: SharedValue, ack: SharedValue, *,
-                 unix_time_fn: Callable[[], float] = time.time) -> None:
+    def __init__(
+        self,
+        speedup: float,
+        sim: SharedValue,
+        ack: SharedValue,
+        *,
+        unix_time_fn: Callable[[], float] = time.time,
+    ) -> None:
         self.speedup = _check_speedup(speedup)
         self.sim = sim
         self.ack = ack

@@ -36,8 +36,14 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from .units import signing_timestamp_from_s
 
 __all__ = [
-    "RawFrame", "DecodeStats", "Decoder", "Codec", "DecodeResult", "VehicleCodec",
-    "split_frames", "frame_target_system",
+    "RawFrame",
+    "DecodeStats",
+    "Decoder",
+    "Codec",
+    "DecodeResult",
+    "VehicleCodec",
+    "split_frames",
+    "frame_target_system",
 ]
 
 log = logging.getLogger(__name__)
@@ -57,8 +63,9 @@ class RawFrame:
 
     __slots__ = ("_msgid", "_name", "_sysid", "_compid", "_seq", "_buf")
 
-    def __init__(self, msgid: int, name: str, sysid: int, compid: int, seq: int,
-                 buf: bytes) -> None:
+    def __init__(
+        self, msgid: int, name: str, sysid: int, compid: int, seq: int, buf: bytes
+    ) -> None:
         self._msgid, self._name, self._sysid, self._compid = msgid, name, sysid, compid
         self._seq, self._buf = seq, buf
 
@@ -110,14 +117,15 @@ class _MAVLink(mavlink.MAVLink):  # type: ignore[misc]  # pymavlink is untyped
         else:
             headerlen, incompat = 6, 0
             seq, sysid, compid = msgbuf[2], msgbuf[3], msgbuf[4]
-        sig_len = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN if incompat & mavlink.MAVLINK_IFLAG_SIGNED \
-            else 0
+        sig_len = (
+            mavlink.MAVLINK_SIGNATURE_BLOCK_LEN if incompat & mavlink.MAVLINK_IFLAG_SIGNED else 0
+        )
         if msgbuf[1] != len(msgbuf) - (headerlen + 2 + sig_len):
             raise mavlink.MAVError("invalid MAVLink message length")
         msgtype = mavlink.mavlink_map[msgid]
         end = len(msgbuf) - sig_len
         crc = msgbuf[end - 2] | (msgbuf[end - 1] << 8)
-        crcbuf = msgbuf[1:end - 2]
+        crcbuf = msgbuf[1 : end - 2]
         crcbuf.append(msgtype.crc_extra)
         if mavlink.x25crc(crcbuf).crc != crc:
             raise mavlink.MAVError(f"invalid MAVLink CRC in msgID {msgid}")
@@ -162,6 +170,7 @@ def _reset_parser(mav: mavlink.MAVLink) -> None:
 # Station side
 # --------------------------------------------------------------------------------------------
 
+
 @dataclass
 class DecodeStats:
     """Counters for what came in; bad bytes become counts, never exceptions."""
@@ -186,9 +195,13 @@ class DecodeStats:
 class Decoder:
     """Parser state for one remote address (a stream or a sequence of datagrams)."""
 
-    def __init__(self, stats: DecodeStats, signing_key: bytes | None = None,
-                 accept_unsigned: bool = True,
-                 full_msgids: frozenset[int] | None = None) -> None:
+    def __init__(
+        self,
+        stats: DecodeStats,
+        signing_key: bytes | None = None,
+        accept_unsigned: bool = True,
+        full_msgids: frozenset[int] | None = None,
+    ) -> None:
         self._stats = stats
         self._mav = _MAVLink(_NullFile(), 0, 0)
         self._mav.robust_parsing = True
@@ -240,9 +253,16 @@ class Codec:
     """The station's side of the wire: encoder (seq, sysid/compid, optional signing) and
     decoder factory."""
 
-    def __init__(self, sysid: int, compid: int, *, signing_key: bytes | None = None,
-                 signing_link_id: int = 0, accept_unsigned: bool = True,
-                 full_msgids: frozenset[int] | None = None) -> None:
+    def __init__(
+        self,
+        sysid: int,
+        compid: int,
+        *,
+        signing_key: bytes | None = None,
+        signing_link_id: int = 0,
+        accept_unsigned: bool = True,
+        full_msgids: frozenset[int] | None = None,
+    ) -> None:
         if signing_key is not None and len(signing_key) != 32:
             raise ValueError(f"signing_key must be 32 bytes, got {len(signing_key)}")
         self._mav = mavlink.MAVLink(_NullFile(), sysid, compid)
@@ -277,6 +297,7 @@ class Codec:
 # --------------------------------------------------------------------------------------------
 # Vehicle side
 # --------------------------------------------------------------------------------------------
+
 
 @dataclass
 class DecodeResult:
@@ -313,8 +334,14 @@ class VehicleCodec:
         Signing link id (one per physical link).
     """
 
-    def __init__(self, sysid: int, compid: int = 1, signing_key: bytes | None = None,
-                 allow_unsigned_ids: frozenset[int] = frozenset(), link_id: int = 0) -> None:
+    def __init__(
+        self,
+        sysid: int,
+        compid: int = 1,
+        signing_key: bytes | None = None,
+        allow_unsigned_ids: frozenset[int] = frozenset(),
+        link_id: int = 0,
+    ) -> None:
         if not 1 <= sysid <= 255:
             raise ValueError(f"sysid must be 1..255, got {sysid}")
         self._mav = _MAVLink(_NullFile(), srcSystem=sysid, srcComponent=compid)
@@ -419,6 +446,7 @@ class VehicleCodec:
 # Routing without parsing
 # --------------------------------------------------------------------------------------------
 
+
 def split_frames(data: bytes) -> list[bytes]:
     """Split a datagram into raw MAVLink 2 / 1 frames by their headers, without CRC checks.
 
@@ -442,7 +470,7 @@ def split_frames(data: bytes) -> list[bytes]:
             continue
         if i + size > n:
             break
-        out.append(data[i:i + size])
+        out.append(data[i : i + size])
         i += size
     return out
 

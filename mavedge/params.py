@@ -33,18 +33,29 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from .units import INT32_MAX, INT32_MIN
 
 __all__ = [
-    "INT_PARAM_TYPES", "is_int_param_type", "param_id_to_str", "encode_param_value",
-    "decode_param_value", "param_values_equal", "param_to_wire_float", "param_from_wire_float",
+    "INT_PARAM_TYPES",
+    "is_int_param_type",
+    "param_id_to_str",
+    "encode_param_value",
+    "decode_param_value",
+    "param_values_equal",
+    "param_to_wire_float",
+    "param_from_wire_float",
 ]
 
 _FMT = {
-    mavlink.MAV_PARAM_TYPE_UINT8: "<B", mavlink.MAV_PARAM_TYPE_INT8: "<b",
-    mavlink.MAV_PARAM_TYPE_UINT16: "<H", mavlink.MAV_PARAM_TYPE_INT16: "<h",
-    mavlink.MAV_PARAM_TYPE_UINT32: "<I", mavlink.MAV_PARAM_TYPE_INT32: "<i",
+    mavlink.MAV_PARAM_TYPE_UINT8: "<B",
+    mavlink.MAV_PARAM_TYPE_INT8: "<b",
+    mavlink.MAV_PARAM_TYPE_UINT16: "<H",
+    mavlink.MAV_PARAM_TYPE_INT16: "<h",
+    mavlink.MAV_PARAM_TYPE_UINT32: "<I",
+    mavlink.MAV_PARAM_TYPE_INT32: "<i",
 }
 _RANGE = {
-    mavlink.MAV_PARAM_TYPE_UINT8: (0, 0xFF), mavlink.MAV_PARAM_TYPE_INT8: (-128, 127),
-    mavlink.MAV_PARAM_TYPE_UINT16: (0, 0xFFFF), mavlink.MAV_PARAM_TYPE_INT16: (-32768, 32767),
+    mavlink.MAV_PARAM_TYPE_UINT8: (0, 0xFF),
+    mavlink.MAV_PARAM_TYPE_INT8: (-128, 127),
+    mavlink.MAV_PARAM_TYPE_UINT16: (0, 0xFFFF),
+    mavlink.MAV_PARAM_TYPE_INT16: (-32768, 32767),
     mavlink.MAV_PARAM_TYPE_UINT32: (0, 0xFFFFFFFF),
     mavlink.MAV_PARAM_TYPE_INT32: (INT32_MIN, INT32_MAX),
 }
@@ -93,7 +104,7 @@ def decode_param_value(value: float, param_type: int, *, bytewise: bool) -> floa
     if not bytewise or fmt is None:
         return float(value)
     raw = struct.pack("<f", value)
-    return float(struct.unpack(fmt, raw[:struct.calcsize(fmt)])[0])
+    return float(struct.unpack(fmt, raw[: struct.calcsize(fmt)])[0])
 
 
 def param_values_equal(a: float, b: float, param_type: int) -> bool:

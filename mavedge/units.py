@@ -25,10 +25,24 @@ import math
 from typing import SupportsFloat
 
 __all__ = [
-    "INT32_MIN", "INT32_MAX", "INT16_MAX", "UINT16_MAX",
-    "deg_to_e7", "e7_to_deg", "m_to_mm", "mm_to_m", "m_s_to_cm_s", "cm_s_to_m_s",
-    "hdg_cdeg_to_yaw_rad", "yaw_rad_to_hdg_cdeg", "s_to_time_boot_ms", "s_to_time_usec",
-    "s_to_time_ns", "hz_to_interval_us", "SIGNING_EPOCH_UNIX_S", "signing_timestamp_from_s",
+    "INT32_MIN",
+    "INT32_MAX",
+    "INT16_MAX",
+    "UINT16_MAX",
+    "deg_to_e7",
+    "e7_to_deg",
+    "m_to_mm",
+    "mm_to_m",
+    "m_s_to_cm_s",
+    "cm_s_to_m_s",
+    "hdg_cdeg_to_yaw_rad",
+    "yaw_rad_to_hdg_cdeg",
+    "s_to_time_boot_ms",
+    "s_to_time_usec",
+    "s_to_time_ns",
+    "hz_to_interval_us",
+    "SIGNING_EPOCH_UNIX_S",
+    "signing_timestamp_from_s",
 ]
 
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1

@@ -15,8 +15,19 @@ import logging
 import os
 import sys
 
-__all__ = ["main", "UserError", "COMMANDS", "parse_rate", "rate_arg", "positive_int", "add_workers_argument",
-           "resolve_workers", "add_seed_arguments", "version_string", "did_you_mean"]
+__all__ = [
+    "main",
+    "UserError",
+    "COMMANDS",
+    "parse_rate",
+    "rate_arg",
+    "positive_int",
+    "add_workers_argument",
+    "resolve_workers",
+    "add_seed_arguments",
+    "version_string",
+    "did_you_mean",
+]
 
 #: subcommand name -> module under mission.commands (order = order in --help).
 COMMANDS: dict[str, str] = {
@@ -41,6 +52,7 @@ class UserError(Exception):
 # One parser / one default for the options several commands share
 # ----------------------------------------------------------------------------------------------
 
+
 def parse_rate(text: str, option: str = "--attrition") -> float:
     """A probability given as a fraction (``0.01``) or a percent (``1%``): the one rate parser.
 
@@ -53,7 +65,9 @@ def parse_rate(text: str, option: str = "--attrition") -> float:
     try:
         value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
     except ValueError:
-        raise UserError(f"{option}: expected a fraction like 0.01 or a percent like 1%, got {text!r}") from None
+        raise UserError(
+            f"{option}: expected a fraction like 0.01 or a percent like 1%, got {text!r}"
+        ) from None
     if not 0.0 <= value <= 1.0:
         raise UserError(f"{option}: {text} is not a probability in [0, 1] (0.01 = 1%)")
     return value
@@ -84,19 +98,35 @@ def default_workers() -> int:
 
 
 def add_workers_argument(p: argparse.ArgumentParser, what: str = "worker processes") -> None:
-    p.add_argument("--workers", type=positive_int, default=None, metavar="N",
-                   help=f"{what} (default: the number of cores, at most 8; here {default_workers()})")
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help=f"{what} (default: the number of cores, at most 8; here {default_workers()})",
+    )
 
 
 def resolve_workers(n: int | None) -> int:
     return default_workers() if n is None else int(n)
 
 
-def add_seed_arguments(p: argparse.ArgumentParser, seeds_default: int | None, seeds_help: str) -> None:
+def add_seed_arguments(
+    p: argparse.ArgumentParser, seeds_default: int | None, seeds_help: str
+) -> None:
     """``--seed S`` (the first run's seed, as in ``phireman fly``; alias ``--seed-start``) and ``--seeds N``."""
-    p.add_argument("--seed", "--seed-start", dest="seed", type=int, default=None, metavar="S",
-                   help="seed of the first run (default 0; --seed-start is an alias); runs use S, S+1, ...")
-    p.add_argument("--seeds", type=positive_int, default=seeds_default, metavar="N", help=seeds_help)
+    p.add_argument(
+        "--seed",
+        "--seed-start",
+        dest="seed",
+        type=int,
+        default=None,
+        metavar="S",
+        help="seed of the first run (default 0; --seed-start is an alias); runs use S, S+1, ...",
+    )
+    p.add_argument(
+        "--seeds", type=positive_int, default=seeds_default, metavar="N", help=seeds_help
+    )
 
 
 def did_you_mean(word: str, choices) -> str:
@@ -125,12 +155,16 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         description=(
             "Keep tasks (fire crews, rovers) networked to a base station with a drone relay swarm "
             "that survives attrition. Simulate the paper's RTNUA problem, reproduce its evaluation, "
-            "emulate MAVLink vehicles, and fly PhiIREMAN from a ground station."),
+            "emulate MAVLink vehicles, and fly PhiIREMAN from a ground station."
+        ),
         epilog="Run 'phireman COMMAND --help' for the options of one command.",
     )
-    parser.add_argument("-v", "--verbose", action="count", default=0,
-                        help="more log output (-v info, -vv debug)")
-    parser.add_argument("--version", action="store_true", help="print the version (package and git) and exit")
+    parser.add_argument(
+        "-v", "--verbose", action="count", default=0, help="more log output (-v info, -vv debug)"
+    )
+    parser.add_argument(
+        "--version", action="store_true", help="print the version (package and git) and exit"
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         if only is not None and name != only:
@@ -143,8 +177,12 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
             if exc.name and exc.name.startswith("mission.commands"):
                 continue
             raise
-        p = sub.add_parser(name, help=module.HELP.replace("%", "%%"), description=module.DESCRIPTION,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        p = sub.add_parser(
+            name,
+            help=module.HELP.replace("%", "%%"),
+            description=module.DESCRIPTION,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
         module.add_arguments(p)
         p.set_defaults(_module=module)
     return parser
@@ -159,8 +197,10 @@ def main(argv: list[str] | None = None) -> int:
     first = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(only=first if first in COMMANDS else None)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
-                        format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
+        format="%(levelname)s %(name)s: %(message)s",
+    )
     if args.version:
         print(version_string())
         return 0

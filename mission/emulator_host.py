@@ -23,8 +23,14 @@ from mission.mission_world import MissionWorld, build_swarm, mission_scenario
 from mission.schema import Mission
 from vehicle_emu.udp import EmulatorServer
 
-__all__ = ["PACE_SLACK_S", "paced_values", "emulator_clock", "build_world", "InProcessEmulator",
-           "EmulatorProcess"]
+__all__ = [
+    "PACE_SLACK_S",
+    "paced_values",
+    "emulator_clock",
+    "build_world",
+    "InProcessEmulator",
+    "EmulatorProcess",
+]
 
 #: Lock-step pacing of the emulated backend (see :func:`fly_emulated_async`): the emulator never
 #: runs more than this far (simulated seconds) ahead of the station's last acknowledged time.
@@ -45,8 +51,9 @@ def paced_values(in_process: bool) -> tuple[SharedValue, SharedValue]:
 
 
 def emulator_clock(speedup: float, sim: SharedValue, ack: SharedValue) -> PacedClock:
-    return PacedClock(speedup, sim, ack, max_step_s=2 * _emulator_tick_s(speedup),
-                      slack_s=PACE_SLACK_S)
+    return PacedClock(
+        speedup, sim, ack, max_step_s=2 * _emulator_tick_s(speedup), slack_s=PACE_SLACK_S
+    )
 
 
 def _emulator_tick_s(speedup: float) -> float:
@@ -55,12 +62,19 @@ def _emulator_tick_s(speedup: float) -> float:
     return 0.05 if speedup < 10 else 0.1
 
 
-def build_world(mission: Mission, seed: int, personality: str | None, clock: PacedClock,
-                 params: dict | None) -> MissionWorld:
+def build_world(
+    mission: Mission, seed: int, personality: str | None, clock: PacedClock, params: dict | None
+) -> MissionWorld:
     scenario = mission_scenario(mission, seed)
-    swarm = build_swarm(mission, scenario, seed=seed, personality=personality,
-                        unix_time_at_zero_s=clock.unix_time_at_zero_s, params=params,
-                        tick_s=_emulator_tick_s(clock.speedup))
+    swarm = build_swarm(
+        mission,
+        scenario,
+        seed=seed,
+        personality=personality,
+        unix_time_at_zero_s=clock.unix_time_at_zero_s,
+        params=params,
+        tick_s=_emulator_tick_s(clock.speedup),
+    )
     return MissionWorld(mission, scenario, swarm, seed=seed)
 
 
@@ -111,8 +125,16 @@ class InProcessEmulator:
         self.server.close()
 
 
-def _emulator_process_main(conn, mission: Mission, seed: int, personality, speedup: float,
-                           sim: SharedValue, ack: SharedValue, params) -> None:
+def _emulator_process_main(
+    conn,
+    mission: Mission,
+    seed: int,
+    personality,
+    speedup: float,
+    sim: SharedValue,
+    ack: SharedValue,
+    params,
+) -> None:
     """Entry point of the emulator process: serve, obey (start/end/kill/finish), report."""
     import signal
 
@@ -177,16 +199,26 @@ class EmulatorProcess:
     """The emulator in its own process (the default: the station and the emulator each get a
     core), talking to the station only over loopback UDP; control messages over a pipe."""
 
-    def __init__(self, mission: Mission, seed: int, personality, speedup: float,
-                 sim: SharedValue, ack: SharedValue,
-                 params: dict | None) -> None:
+    def __init__(
+        self,
+        mission: Mission,
+        seed: int,
+        personality,
+        speedup: float,
+        sim: SharedValue,
+        ack: SharedValue,
+        params: dict | None,
+    ) -> None:
         import multiprocessing as mp
 
         ctx = mp.get_context("spawn")  # a clean interpreter: no inherited loop or sockets
         self._conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_emulator_process_main, name="phireman-emulator",
-                                args=(child, mission, seed, personality, speedup, sim, ack,
-                                      params), daemon=True)
+        self.proc = ctx.Process(
+            target=_emulator_process_main,
+            name="phireman-emulator",
+            args=(child, mission, seed, personality, speedup, sim, ack, params),
+            daemon=True,
+        )
         self.swarm = None
 
     async def start(self) -> list[tuple[str, int]]:

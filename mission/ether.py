@@ -36,8 +36,14 @@ class LockstepEther:
     ``cut(link)`` / ``restore(link)`` sever a whole link (a dead station, a cable pulled).
     """
 
-    def __init__(self, swarm: Swarm, station: Station, rng: np.random.Generator,
-                 loss: float = 0.0, now_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        swarm: Swarm,
+        station: Station,
+        rng: np.random.Generator,
+        loss: float = 0.0,
+        now_s: float = 0.0,
+    ) -> None:
         if not swarm.mux:
             raise ValueError("LockstepEther needs Swarm(mux=True): one endpoint per network")
         self.swarm = swarm
@@ -75,8 +81,13 @@ class LockstepEther:
             if not moved:
                 break
 
-    def advance_to(self, t_s: float, *, poll: Callable[[float], None] | None = None,
-                   poll_period_s: float | None = None) -> None:
+    def advance_to(
+        self,
+        t_s: float,
+        *,
+        poll: Callable[[float], None] | None = None,
+        poll_period_s: float | None = None,
+    ) -> None:
         """Run both sides up to ``t_s``: swarm ticks, station timers, optional poll callback."""
         next_poll = self.now_s if poll is not None else math.inf
         while True:
@@ -100,7 +111,8 @@ class LockstepEther:
 def station_for_swarm(swarm: Swarm, now_s: float = 0.0, **config) -> Station:
     """A station with one in-memory link per MAVLink network of ``swarm`` (for the ether)."""
     cfg = StationConfig(static_peers=(), **config)
-    links = [StationLink(dataclasses.replace(cfg, static_peers=(("emu", k),)), link_id=k,
-                         now_s=now_s) for k in range(swarm.n_networks)]
+    links = [
+        StationLink(dataclasses.replace(cfg, static_peers=(("emu", k),)), link_id=k, now_s=now_s)
+        for k in range(swarm.n_networks)
+    ]
     return Station(links)
-

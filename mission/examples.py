@@ -19,8 +19,11 @@ def _dir():
 
 def list_examples() -> list[str]:
     """Names of the shipped example missions (file names without ``.yaml``), sorted."""
-    return sorted(entry.name[:-5] for entry in _dir().iterdir()
-                  if entry.name.endswith(".yaml") and entry.is_file())
+    return sorted(
+        entry.name[:-5]
+        for entry in _dir().iterdir()
+        if entry.name.endswith(".yaml") and entry.is_file()
+    )
 
 
 def _entry(name: str):

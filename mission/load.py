@@ -34,8 +34,17 @@ from mission import schema
 from mission.schema import Mission
 
 __all__ = [
-    "MissionError", "load_mission", "loads_mission", "mission_from_dict", "validate_mission",
-    "resolve", "resolved_dict", "dump_mission", "MAX_BYTES", "MAX_ALIASES", "MAX_DEPTH",
+    "MissionError",
+    "load_mission",
+    "loads_mission",
+    "mission_from_dict",
+    "validate_mission",
+    "resolve",
+    "resolved_dict",
+    "dump_mission",
+    "MAX_BYTES",
+    "MAX_ALIASES",
+    "MAX_DEPTH",
     "MAX_EXPANDED_NODES",
 ]
 
@@ -106,8 +115,10 @@ class _Guards:
                     try:
                         if key in seen:
                             mark = key_node.start_mark
-                            raise _Refused(f"duplicate key {key!r} (line {mark.line + 1}, first at line "
-                                           f"{seen[key].line + 1})")
+                            raise _Refused(
+                                f"duplicate key {key!r} (line {mark.line + 1}, first at line "
+                                f"{seen[key].line + 1})"
+                            )
                         seen[key] = key_node.start_mark
                     except TypeError:  # unhashable key: let PyYAML report it
                         pass
@@ -123,8 +134,14 @@ try:
 except ImportError:  # pragma: no cover - PyYAML built without libyaml
     _BoundedLoader: type = _BoundedSafeLoader
 else:
-    class _BoundedCLoader(_Guards, yaml.composer.Composer, _CParser, yaml.constructor.SafeConstructor,
-                          yaml.resolver.Resolver):
+
+    class _BoundedCLoader(
+        _Guards,
+        yaml.composer.Composer,
+        _CParser,
+        yaml.constructor.SafeConstructor,
+        yaml.resolver.Resolver,
+    ):
         """libyaml events, Python composition (with the guards), safe construction."""
 
         def __init__(self, stream):
@@ -155,8 +172,10 @@ def _check_expanded_size(root: yaml.Node) -> None:
         return total
 
     if size(root) > MAX_EXPANDED_NODES:
-        raise _Refused(f"more than {MAX_EXPANDED_NODES} nodes once aliases are expanded "
-                       "(an alias bomb?); refused")
+        raise _Refused(
+            f"more than {MAX_EXPANDED_NODES} nodes once aliases are expanded "
+            "(an alias bomb?); refused"
+        )
 
 
 def _parse_yaml(text: str | bytes) -> Any:
@@ -178,7 +197,9 @@ def _parse_yaml(text: str | bytes) -> Any:
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
         problem = exc.problem or str(exc)
         if "constructor for the tag" in problem:
-            problem = f"unsupported YAML tag {problem.split('tag', 1)[1].strip()}; tags are not allowed"
+            problem = (
+                f"unsupported YAML tag {problem.split('tag', 1)[1].strip()}; tags are not allowed"
+            )
         raise MissionError([f"not a plain YAML document: {problem}{where}"]) from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
@@ -241,8 +262,12 @@ def _check_number(value: float, path: str, limits: dict, errs: list[str]) -> boo
     if ge is not None and le is not None and ge < 0 and not ge <= value <= le:
         errs.append(f"{path}: must be within [{fmt(ge)}, {fmt(le)}], got {fmt(value)}")
         return False
-    checks = [(ge, ">=", lambda a, b: a >= b), (gt, ">", lambda a, b: a > b),
-              (le, "<=", lambda a, b: a <= b), (lt, "<", lambda a, b: a < b)]
+    checks = [
+        (ge, ">=", lambda a, b: a >= b),
+        (gt, ">", lambda a, b: a > b),
+        (le, "<=", lambda a, b: a <= b),
+        (lt, "<", lambda a, b: a < b),
+    ]
     for bound, op, ok in checks:
         if bound is not None and not ok(value, bound):
             errs.append(f"{path}: must be {op} {fmt(bound)}, got {fmt(value)}")
@@ -251,7 +276,9 @@ def _check_number(value: float, path: str, limits: dict, errs: list[str]) -> boo
 
 
 def _is_scalar(value: Any) -> bool:
-    return isinstance(value, (str, bool, int)) or (isinstance(value, float) and math.isfinite(value))
+    return isinstance(value, (str, bool, int)) or (
+        isinstance(value, float) and math.isfinite(value)
+    )
 
 
 def _parse_value(tp: Any, node: Any, path: str, errs: list[str], limits: dict) -> Any:
@@ -310,12 +337,16 @@ def _parse_value(tp: Any, node: Any, path: str, errs: list[str], limits: dict) -
             return _BAD
         n_min, n_max = limits.get("min_len"), limits.get("max_len")
         if n_min is not None and len(node) < n_min:
-            errs.append(f"{path}: needs at least {n_min} item{'s' if n_min != 1 else ''}, got {len(node)}")
+            errs.append(
+                f"{path}: needs at least {n_min} item{'s' if n_min != 1 else ''}, got {len(node)}"
+            )
             return _BAD
         if n_max is not None and len(node) > n_max:
             errs.append(f"{path}: at most {n_max} items, got {len(node)}")
             return _BAD
-        items = [_parse_value(args[0], item, f"{path}[{i}]", errs, {}) for i, item in enumerate(node)]
+        items = [
+            _parse_value(args[0], item, f"{path}[{i}]", errs, {}) for i, item in enumerate(node)
+        ]
         return _BAD if any(item is _BAD for item in items) else tuple(items)
     if origin is dict:
         if not isinstance(node, dict):
@@ -383,7 +414,9 @@ def resolve(mission: Mission) -> Mission:
     emu = mission.vehicles.emulated
     if emu is not None and emu.radio_range_m is None:
         emu = dataclasses.replace(emu, radio_range_m=mission.radio.range_m)
-        mission = dataclasses.replace(mission, vehicles=dataclasses.replace(mission.vehicles, emulated=emu))
+        mission = dataclasses.replace(
+            mission, vehicles=dataclasses.replace(mission.vehicles, emulated=emu)
+        )
     return mission
 
 
@@ -396,7 +429,9 @@ def mission_from_dict(data: Any) -> Mission:
         With every problem found, one ``path: message`` per entry.
     """
     if data is None:
-        raise MissionError(["<top level>: the document is empty (write {} for the default mission)"])
+        raise MissionError(
+            ["<top level>: the document is empty (write {} for the default mission)"]
+        )
     errs: list[str] = []
     mission = _parse_section(Mission, data, "", errs)
     if errs or mission is _BAD:
@@ -480,8 +515,14 @@ def dump_mission(mission: Mission, header: str | None = None) -> str:
 
     ``header`` (optional) is written first as ``#`` comment lines.
     """
-    text = yaml.dump(resolved_dict(mission), Dumper=_Dumper, sort_keys=False, allow_unicode=True,
-                     default_flow_style=False, width=4096)
+    text = yaml.dump(
+        resolved_dict(mission),
+        Dumper=_Dumper,
+        sort_keys=False,
+        allow_unicode=True,
+        default_flow_style=False,
+        width=4096,
+    )
     if header:
         lines = ["#" + (" " + line if line else "") for line in header.rstrip("\n").split("\n")]
         text = "\n".join(lines) + "\n" + text

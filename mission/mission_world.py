@@ -19,20 +19,33 @@ import numpy as np
 
 from mission.fly_options import RunnerError
 from mission.scenario import (  # re-exported: importers of mission.mission_world
-    FENCE_MARGIN_M, POSITION_LOOP_TAU_S, MissionScenario, build_scenario, control_config,
+    FENCE_MARGIN_M,
+    POSITION_LOOP_TAU_S,
+    MissionScenario,
+    build_scenario,
+    control_config,
 )
 from mission.schema import Mission
 from planner.metrics import task_uptime
 from vehicle_emu.radio import RadioConfig
 from vehicle_emu.swarm import Swarm
 
-__all__ = ["MissionScenario", "mission_scenario", "control_config", "build_swarm", "MissionWorld",
-           "FENCE_MARGIN_M", "POSITION_LOOP_TAU_S"]
+__all__ = [
+    "MissionScenario",
+    "mission_scenario",
+    "control_config",
+    "build_swarm",
+    "MissionWorld",
+    "FENCE_MARGIN_M",
+    "POSITION_LOOP_TAU_S",
+]
 
 log = logging.getLogger(__name__)
 
-def _speed_params(personalities: list[str], max_speed_m_s: float, climb_rate_m_s: float,
-                  user: dict | None) -> dict:
+
+def _speed_params(
+    personalities: list[str], max_speed_m_s: float, climb_rate_m_s: float, user: dict | None
+) -> dict:
     """Per-vehicle parameters that make the emulated autopilots fly the mission's limits from
     boot, as the station would set them on real vehicles (:func:`gcs.limits.limit_params`, so
     the station finds nothing to write). Explicit overrides (``params``) win."""
@@ -47,8 +60,9 @@ def _speed_params(personalities: list[str], max_speed_m_s: float, climb_rate_m_s
     return out
 
 
-def mission_scenario(mission: Mission, seed: int | None = None, *,
-                     live_tasks: bool = False) -> MissionScenario:
+def mission_scenario(
+    mission: Mission, seed: int | None = None, *, live_tasks: bool = False
+) -> MissionScenario:
     """The seed's draws for a flight of ``mission`` (:func:`mission.scenario.build_scenario`:
     spawn, task tracks, attrition uniforms, in the in-process simulator's order); a live MAVLink
     task without ``live_tasks`` is a :class:`RunnerError`."""
@@ -60,8 +74,9 @@ def mission_scenario(mission: Mission, seed: int | None = None, *,
 
 def _personalities(mission: Mission, override: str | None) -> list[str]:
     n = mission.vehicles.count
-    p = override or (mission.vehicles.emulated.personality if mission.vehicles.emulated else
-                     "ardupilot")
+    p = override or (
+        mission.vehicles.emulated.personality if mission.vehicles.emulated else "ardupilot"
+    )
     if p == "mixed":
         return ["ardupilot" if i % 2 == 0 else "px4" for i in range(n)]
     if p not in ("ardupilot", "px4"):
@@ -87,9 +102,17 @@ class _MissionSwarm(Swarm):
     step = handle_timer
 
 
-def build_swarm(mission: Mission, scenario: MissionScenario, *, seed: int,
-                personality: str | None = None, unix_time_at_zero_s: float = 1.7e9,
-                mux: bool = True, params: dict | None = None, tick_s: float = 0.05) -> Swarm:
+def build_swarm(
+    mission: Mission,
+    scenario: MissionScenario,
+    *,
+    seed: int,
+    personality: str | None = None,
+    unix_time_at_zero_s: float = 1.7e9,
+    mux: bool = True,
+    params: dict | None = None,
+    tick_s: float = 0.05,
+) -> Swarm:
     """The emulator for ``mission``: count, personality, spawn, radio, flight limits.
 
     Attrition is *not* armed here: :class:`MissionWorld` switches it on when the station starts
@@ -97,25 +120,37 @@ def build_swarm(mission: Mission, scenario: MissionScenario, *, seed: int,
     the scripted losses and the hazard zones on the mission clock.
     """
     if mission.vehicles.emulated is None:
-        raise RunnerError("the mission flies real vehicles (vehicles.real); use --connect or an "
-                          "emulated mission")
+        raise RunnerError(
+            "the mission flies real vehicles (vehicles.real); use --connect or an emulated mission"
+        )
     emu = mission.vehicles.emulated
-    radio = RadioConfig(radio_range_m=emu.radio_range_m or mission.radio.range_m,
-                        base_range_m=mission.radio.base_range_m,
-                        latency_per_hop_s=mission.radio.latency_s,
-                        loss_per_hop=min(mission.radio.loss_prob, 0.999))
+    radio = RadioConfig(
+        radio_range_m=emu.radio_range_m or mission.radio.range_m,
+        base_range_m=mission.radio.base_range_m,
+        latency_per_hop_s=mission.radio.latency_s,
+        loss_per_hop=min(mission.radio.loss_prob, 0.999),
+    )
     spawn = np.column_stack([scenario.spawn_ne_m, np.zeros(len(scenario.spawn_ne_m))])
     o = mission.origin
     pers = _personalities(mission, personality)
-    swarm = _MissionSwarm(emu.count, personality=pers,
-                  per_vehicle_params=_speed_params(pers, emu.max_speed_m_s, emu.climb_rate_m_s,
-                                                   params),
-                  home_lla=(o.lat_deg, o.lon_deg, o.alt_amsl_m), spawn_ned_m=spawn, radio=radio,
-                  hazard_per_s=0.0, task_pos_fn=None, mux=mux, params=params,
-                  rng=np.random.default_rng(np.random.SeedSequence([int(seed), 0xE1])),
-                  truth_period_s=mission.run.control_period_s,
-                  unix_time_at_zero_s=unix_time_at_zero_s, max_speed_h_m_s=emu.max_speed_m_s,
-                  tick_s=tick_s, radio_period_s=0.2)
+    swarm = _MissionSwarm(
+        emu.count,
+        personality=pers,
+        per_vehicle_params=_speed_params(pers, emu.max_speed_m_s, emu.climb_rate_m_s, params),
+        home_lla=(o.lat_deg, o.lon_deg, o.alt_amsl_m),
+        spawn_ned_m=spawn,
+        radio=radio,
+        hazard_per_s=0.0,
+        task_pos_fn=None,
+        mux=mux,
+        params=params,
+        rng=np.random.default_rng(np.random.SeedSequence([int(seed), 0xE1])),
+        truth_period_s=mission.run.control_period_s,
+        unix_time_at_zero_s=unix_time_at_zero_s,
+        max_speed_h_m_s=emu.max_speed_m_s,
+        tick_s=tick_s,
+        radio_period_s=0.2,
+    )
     swarm.physics.climb_rate_m_s[:] = emu.climb_rate_m_s
     return swarm
 
@@ -136,8 +171,9 @@ class MissionWorld:
     TU1/TU2 over the same ``duration / dt`` instants of ``[0, duration)``.
     """
 
-    def __init__(self, mission: Mission, scenario: MissionScenario, swarm: Swarm,
-                 seed: int | None = None) -> None:
+    def __init__(
+        self, mission: Mission, scenario: MissionScenario, swarm: Swarm, seed: int | None = None
+    ) -> None:
         self.mission = mission
         self.scenario = scenario
         self.swarm = swarm
@@ -177,7 +213,7 @@ class MissionWorld:
         while tr.t_s and tr.t_s[-1] >= t0_s - 1e-9:
             tr.t_s.pop()
             for column in (tr.pos_ned_m, tr.alive, tr.active, tr.task_connected):
-                del column[len(tr.t_s):]
+                del column[len(tr.t_s) :]
         self.swarm.sample_truth_from(t0_s)
         self.poll(self.swarm.now_s)
         log.info("mission world started at t=%.2f s", t0_s)
@@ -209,9 +245,11 @@ class MissionWorld:
         truth = self.truth_tu(duration_s)
         truth["alive_end"] = int(self.swarm.alive.sum())
         arrays: dict[str, Any] = self.swarm.truth.arrays()
-        arrays.update(mission_t0_s=np.float64(np.nan if self.t0_s is None else self.t0_s),
-                      sysid_of_index=self.swarm.sysid_of_index,
-                      network_of_index=self.swarm.network_of_index)
+        arrays.update(
+            mission_t0_s=np.float64(np.nan if self.t0_s is None else self.t0_s),
+            sysid_of_index=self.swarm.sysid_of_index,
+            network_of_index=self.swarm.network_of_index,
+        )
         stats: dict[str, float] = dict(self.swarm.stats)
         stats["cpu_s"] = time.process_time()
         return {"truth": truth, "stats": stats, "arrays": arrays}

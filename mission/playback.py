@@ -32,16 +32,33 @@ import numpy as np
 
 from mission.schema import Mission
 from mission.scenario import (  # re-exported: they were drawn here before mission.scenario
-    MissionScenario, build_scenario, control_config, loss_probability, spawn_positions,
-    task_position_fn, task_track_m, zone_mask,
+    MissionScenario,
+    build_scenario,
+    control_config,
+    loss_probability,
+    spawn_positions,
+    task_position_fn,
+    task_track_m,
+    zone_mask,
 )
 from mission.world_loop import EpisodeRecord, run_world, station_control
 from planner.methods import make_planner
 from planner.metrics import UptimeSeries, uptime_series
 from vehicle_emu.world import World, spawn_streams
 
-__all__ = ["MissionScenario", "build_scenario", "spawn_positions", "task_track_m", "task_position_fn", "zone_mask",
-           "loss_probability", "control_config", "PlaybackResult", "run_inprocess", "write_run_dir"]
+__all__ = [
+    "MissionScenario",
+    "build_scenario",
+    "spawn_positions",
+    "task_track_m",
+    "task_position_fn",
+    "zone_mask",
+    "loss_probability",
+    "control_config",
+    "PlaybackResult",
+    "run_inprocess",
+    "write_run_dir",
+]
 
 log = logging.getLogger(__name__)
 
@@ -58,40 +75,64 @@ class PlaybackResult:
     task_names: list[str]
 
 
-def run_inprocess(mission: Mission, seed: int | None = None, frames: Collection[int] = ()) -> PlaybackResult:
+def run_inprocess(
+    mission: Mission, seed: int | None = None, frames: Collection[int] = ()
+) -> PlaybackResult:
     """Play ``mission`` on the in-process world model with its planner (one tick per control period)."""
     t0 = time.perf_counter()
     seed = mission.run.seed if seed is None else seed
     scn = build_scenario(mission, seed)
-    problem = dataclasses.replace(mission.problem_config(), n_drones=len(scn.spawn_ne_m),
-                                  n_tasks=scn.task_track_m.shape[1])
+    problem = dataclasses.replace(
+        mission.problem_config(), n_drones=len(scn.spawn_ne_m), n_tasks=scn.task_track_m.shape[1]
+    )
     params = mission.planner.run_params()
     planner = make_planner(mission.planner.method, problem, params, spawn_streams(seed).algorithm)
-    world = World(problem, scn.spawn_ne_m.copy(), np.ones(len(scn.spawn_ne_m), bool), scn.task_track_m)
+    world = World(
+        problem, scn.spawn_ne_m.copy(), np.ones(len(scn.spawn_ne_m), bool), scn.task_track_m
+    )
     tau = mission.run.n_steps
     # Targets as the station computes them (gcs.control.tick: planner, then the mission's fence).
-    run = run_world(world, planner, tau, scn.step_loss_probability, scn.attrition_u,
-                    controller=station_control(control_config(mission, scn)), record=True,
-                    frames=set(frames) or None)
+    run = run_world(
+        world,
+        planner,
+        tau,
+        scn.step_loss_probability,
+        scn.attrition_u,
+        controller=station_control(control_config(mission, scn)),
+        record=True,
+        frames=set(frames) or None,
+    )
     rec = run.record
     assert rec is not None  # record=True
     dt = scn.dt_s
-    losses = [{"t_s": (t + 1) * dt, "event": "vehicle_lost", "index": i,
-               "scripted": bool(scn.scripted_step[i] == t),
-               "north_m": float(rec.pos_m[t + 1, i, 0]), "east_m": float(rec.pos_m[t + 1, i, 1])}
-              for t, i in run.losses]
+    losses = [
+        {
+            "t_s": (t + 1) * dt,
+            "event": "vehicle_lost",
+            "index": i,
+            "scripted": bool(scn.scripted_step[i] == t),
+            "north_m": float(rec.pos_m[t + 1, i, 0]),
+            "east_m": float(rec.pos_m[t + 1, i, 1]),
+        }
+        for t, i in run.losses
+    ]
     series = uptime_series(rec.connected[:tau])
-    return PlaybackResult(seed, series.tu1, series.tu2, series, rec, losses, time.perf_counter() - t0,
-                          scn.task_names)
+    return PlaybackResult(
+        seed, series.tu1, series.tu2, series, rec, losses, time.perf_counter() - t0, scn.task_names
+    )
 
 
-def write_run_dir(mission: Mission, result: PlaybackResult, out_dir: pathlib.Path, backend: str = "inprocess") -> None:
+def write_run_dir(
+    mission: Mission, result: PlaybackResult, out_dir: pathlib.Path, backend: str = "inprocess"
+) -> None:
     """Record a played mission: resolved mission, seed, code version, events, metrics, truth, summary."""
     from mission.load import dump_mission
     from mission.version import code_version
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "mission.yaml").write_text(dump_mission(mission, header=f"resolved mission, seed {result.seed}"))
+    (out_dir / "mission.yaml").write_text(
+        dump_mission(mission, header=f"resolved mission, seed {result.seed}")
+    )
     with open(out_dir / "events.jsonl", "w") as fh:
         for ev in result.losses:
             fh.write(json.dumps(ev) + "\n")
@@ -100,18 +141,43 @@ def write_run_dir(mission: Mission, result: PlaybackResult, out_dir: pathlib.Pat
     with open(out_dir / "metrics.csv", "w") as fh:
         fh.write("t_s,alive,active,tasks_connected,tasks_ever_connected,tu1_so_far,tu2_so_far\n")
         for t in range(tau):
-            fh.write(f"{t * mission.run.control_period_s:g},{int(rec.alive[t].sum())},{int(rec.active[t].sum())},"
-                     f"{int(s.n_connected[t])},{int(s.n_ever_connected[t])},"
-                     f"{s.tu1_step[:t + 1].mean():.6f},{s.tu2_step[:t + 1].mean():.6f}\n")
-    np.savez_compressed(out_dir / "truth.npz", t_s=np.arange(tau + 1) * mission.run.control_period_s,
-                        pos_ne_m=rec.pos_m, alive=rec.alive, active=rec.active, task_pos_ne_m=rec.task_pos_m,
-                        task_connected=rec.connected)
-    trees = {str(t): {"nodes_ne_m": tr.nodes_m.tolist(), "parent": tr.parent.tolist(), "n_tasks": tr.n_tasks}
-             for t, tr in rec.trees.items() if tr is not None}
+            fh.write(
+                f"{t * mission.run.control_period_s:g},{int(rec.alive[t].sum())},{int(rec.active[t].sum())},"
+                f"{int(s.n_connected[t])},{int(s.n_ever_connected[t])},"
+                f"{s.tu1_step[: t + 1].mean():.6f},{s.tu2_step[: t + 1].mean():.6f}\n"
+            )
+    np.savez_compressed(
+        out_dir / "truth.npz",
+        t_s=np.arange(tau + 1) * mission.run.control_period_s,
+        pos_ne_m=rec.pos_m,
+        alive=rec.alive,
+        active=rec.active,
+        task_pos_ne_m=rec.task_pos_m,
+        task_connected=rec.connected,
+    )
+    trees = {
+        str(t): {
+            "nodes_ne_m": tr.nodes_m.tolist(),
+            "parent": tr.parent.tolist(),
+            "n_tasks": tr.n_tasks,
+        }
+        for t, tr in rec.trees.items()
+        if tr is not None
+    }
     (out_dir / "trees.json").write_text(json.dumps(trees))
-    summary = {"backend": backend, "mission": mission.name, "seed": result.seed, "code_version": code_version(),
-               "tu1": result.tu1, "tu2": result.tu2, "truth_tu1": result.tu1, "truth_tu2": result.tu2,
-               "n_losses": len(result.losses), "final_alive": int(rec.alive[-1].sum()),
-               "final_active": int(rec.active[-1].sum()), "wall_s": result.wall_s,
-               "task_names": result.task_names}
+    summary = {
+        "backend": backend,
+        "mission": mission.name,
+        "seed": result.seed,
+        "code_version": code_version(),
+        "tu1": result.tu1,
+        "tu2": result.tu2,
+        "truth_tu1": result.tu1,
+        "truth_tu2": result.tu2,
+        "n_losses": len(result.losses),
+        "final_alive": int(rec.alive[-1].sum()),
+        "final_active": int(rec.active[-1].sum()),
+        "wall_s": result.wall_s,
+        "task_names": result.task_names,
+    }
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))

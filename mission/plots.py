@@ -21,27 +21,51 @@ from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
-__all__ = ["plot_time_series", "plot_frame_strip", "draw_frame", "Scene", "FrameView", "legend_handles",
-           "short_name", "crew_links", "PAPER_UNIT"]
+__all__ = [
+    "plot_time_series",
+    "plot_frame_strip",
+    "draw_frame",
+    "Scene",
+    "FrameView",
+    "legend_handles",
+    "short_name",
+    "crew_links",
+    "PAPER_UNIT",
+]
 
 #: Axis label unit of the paper's presets (the scaled reading keeps paper units, docs/design/model.md §6.4).
 PAPER_UNIT = "paper length units"
 
 C_ACTIVE, C_IDLE, C_LOST = "tab:blue", "tab:gray", "black"
-C_OK, C_CUT, C_TREE, C_BASE, C_HAZARD, C_CREW = "tab:green", "tab:red", "tab:orange", "darkgreen", "tab:red", "green"
+C_OK, C_CUT, C_TREE, C_BASE, C_HAZARD, C_CREW = (
+    "tab:green",
+    "tab:red",
+    "tab:orange",
+    "darkgreen",
+    "tab:red",
+    "green",
+)
 
 
-def plot_time_series(rows: list[dict], n_drones: int, n_tasks: int, title: str, path,
-                     step_label: str = "step (paper time steps)") -> None:
+def plot_time_series(
+    rows: list[dict],
+    n_drones: int,
+    n_tasks: int,
+    title: str,
+    path,
+    step_label: str = "step (paper time steps)",
+) -> None:
     """Fig. 2: alive, alive-and-active drones and connected tasks over time across runs.
 
     Lines are the mean over runs; the shaded band around each spans the 5th to 95th percentile
     of the runs at that step (labelled in the legend).
     """
     fig, ax = plt.subplots(figsize=(8, 4.8))
-    series = [("alive_count", n_drones, "drones alive (% of initial)", C_IDLE),
-              ("active_count", n_drones, "drones alive and networked (% of initial)", C_ACTIVE),
-              ("n_connected", n_tasks, "tasks connected (% of tasks)", C_CUT)]
+    series = [
+        ("alive_count", n_drones, "drones alive (% of initial)", C_IDLE),
+        ("active_count", n_drones, "drones alive and networked (% of initial)", C_ACTIVE),
+        ("n_connected", n_tasks, "tasks connected (% of tasks)", C_CUT),
+    ]
     for key, total, label, colour in series:
         data = np.array([r[key][: len(rows[0]["tu1_step"])] for r in rows], dtype=float) / total
         t = np.arange(data.shape[1])
@@ -50,7 +74,9 @@ def plot_time_series(rows: list[dict], n_drones: int, n_tasks: int, title: str, 
             lo, hi = np.percentile(100 * data, [5, 95], axis=0)
             ax.fill_between(t, lo, hi, color=colour, alpha=0.15, linewidth=0)
     if len(rows) > 1:
-        ax.fill_between([], [], [], color="gray", alpha=0.25, linewidth=0, label="band: 5–95 % of runs")
+        ax.fill_between(
+            [], [], [], color="gray", alpha=0.25, linewidth=0, label="band: 5–95 % of runs"
+        )
     ax.set_xlabel(step_label, fontsize=10)
     ax.set_ylabel("%", fontsize=10)
     ax.set_ylim(0, 102)
@@ -98,20 +124,64 @@ class Scene:
 
 def legend_handles(scene: Scene) -> list:
     """Proxy artists for everything a map can show (also what is absent at a given instant)."""
-    h = [Line2D([], [], marker="s", ls="", color=C_BASE, markersize=8, label="base station"),
-         Patch(color=C_OK, alpha=0.15, label=f"base radio range ({scene.base_range_m:g} {scene.unit})"),
-         Line2D([], [], marker="o", ls="", color=C_ACTIVE, markersize=5, label="drone, networked"),
-         Line2D([], [], marker="o", ls="", color=C_IDLE, markersize=5, label="drone, cut off (flying home)"),
-         Line2D([], [], marker="x", ls="", color=C_LOST, markersize=6, label="drone lost"),
-         Line2D([], [], color=C_ACTIVE, alpha=0.5, lw=1, label=f"radio link (≤ {scene.radio_range_m:g} {scene.unit})"),
-         Line2D([], [], marker="*", ls="", color=C_OK, markeredgecolor="black", markersize=12,
-                label="task / crew, connected"),
-         Line2D([], [], marker="*", ls="", color=C_CUT, markeredgecolor="black", markersize=12,
-                label="task / crew, cut off"),
-         Line2D([], [], color=C_CREW, ls="--", lw=1.4, label="drone serving a crew"),
-         Line2D([], [], color=C_TREE, lw=1.6, marker="o", markerfacecolor="none", markersize=5,
-                label="task tree" + (" (rebuilt from positions)" if scene.tree_recomputed else " (planner's)")
-                + ", Steiner points")]
+    h = [
+        Line2D([], [], marker="s", ls="", color=C_BASE, markersize=8, label="base station"),
+        Patch(
+            color=C_OK, alpha=0.15, label=f"base radio range ({scene.base_range_m:g} {scene.unit})"
+        ),
+        Line2D([], [], marker="o", ls="", color=C_ACTIVE, markersize=5, label="drone, networked"),
+        Line2D(
+            [],
+            [],
+            marker="o",
+            ls="",
+            color=C_IDLE,
+            markersize=5,
+            label="drone, cut off (flying home)",
+        ),
+        Line2D([], [], marker="x", ls="", color=C_LOST, markersize=6, label="drone lost"),
+        Line2D(
+            [],
+            [],
+            color=C_ACTIVE,
+            alpha=0.5,
+            lw=1,
+            label=f"radio link (≤ {scene.radio_range_m:g} {scene.unit})",
+        ),
+        Line2D(
+            [],
+            [],
+            marker="*",
+            ls="",
+            color=C_OK,
+            markeredgecolor="black",
+            markersize=12,
+            label="task / crew, connected",
+        ),
+        Line2D(
+            [],
+            [],
+            marker="*",
+            ls="",
+            color=C_CUT,
+            markeredgecolor="black",
+            markersize=12,
+            label="task / crew, cut off",
+        ),
+        Line2D([], [], color=C_CREW, ls="--", lw=1.4, label="drone serving a crew"),
+        Line2D(
+            [],
+            [],
+            color=C_TREE,
+            lw=1.6,
+            marker="o",
+            markerfacecolor="none",
+            markersize=5,
+            label="task tree"
+            + (" (rebuilt from positions)" if scene.tree_recomputed else " (planner's)")
+            + ", Steiner points",
+        ),
+    ]
     if scene.hazard_zones:
         h.append(Patch(color=C_HAZARD, alpha=0.15, label="hazard zone"))
     return h
@@ -123,8 +193,15 @@ class FrameView:
     def __init__(self, ax, scene: Scene, clock: bool = False) -> None:
         self.ax, self.scene = ax, scene
         fs = scene.fontsize
-        ax.add_patch(plt.Circle((0, 0), min(scene.base_range_m, scene.radio_range_m), color=C_OK, alpha=0.12,
-                                zorder=0))
+        ax.add_patch(
+            plt.Circle(
+                (0, 0),
+                min(scene.base_range_m, scene.radio_range_m),
+                color=C_OK,
+                alpha=0.12,
+                zorder=0,
+            )
+        )
         for zone in scene.hazard_zones:
             zone(ax)
         self.links = LineCollection([], colors=C_ACTIVE, alpha=0.3, linewidths=0.6, zorder=1)
@@ -133,22 +210,63 @@ class FrameView:
         for c in (self.links, self.crew, self.tree):
             ax.add_collection(c)
         empty = np.zeros((0, 2))
-        self.steiner = ax.scatter(empty[:, 0], empty[:, 1], s=22, facecolors="none", edgecolors=C_TREE, zorder=3)
-        self.lost = ax.scatter(empty[:, 0], empty[:, 1], marker="x", s=16, color=C_LOST, alpha=0.55, zorder=3)
+        self.steiner = ax.scatter(
+            empty[:, 0], empty[:, 1], s=22, facecolors="none", edgecolors=C_TREE, zorder=3
+        )
+        self.lost = ax.scatter(
+            empty[:, 0], empty[:, 1], marker="x", s=16, color=C_LOST, alpha=0.55, zorder=3
+        )
         self.idle = ax.scatter(empty[:, 0], empty[:, 1], s=14, color=C_IDLE, zorder=4)
         self.active = ax.scatter(empty[:, 0], empty[:, 1], s=14, color=C_ACTIVE, zorder=4)
-        self.task_ok = ax.scatter(empty[:, 0], empty[:, 1], marker="*", s=150, color=C_OK, edgecolors="black",
-                                  linewidths=0.5, zorder=5)
-        self.task_cut = ax.scatter(empty[:, 0], empty[:, 1], marker="*", s=150, color=C_CUT, edgecolors="black",
-                                   linewidths=0.5, zorder=5)
+        self.task_ok = ax.scatter(
+            empty[:, 0],
+            empty[:, 1],
+            marker="*",
+            s=150,
+            color=C_OK,
+            edgecolors="black",
+            linewidths=0.5,
+            zorder=5,
+        )
+        self.task_cut = ax.scatter(
+            empty[:, 0],
+            empty[:, 1],
+            marker="*",
+            s=150,
+            color=C_CUT,
+            edgecolors="black",
+            linewidths=0.5,
+            zorder=5,
+        )
         ax.plot([0], [0], marker="s", color=C_BASE, markersize=9, ls="", zorder=6)
         names = scene.task_names or []
-        self.labels = [ax.text(0, 0, short_name(n), fontsize=fs - 1.5, zorder=7, clip_on=True,
-                               bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.7))
-                       for n in (names if len(names) <= 20 else [])]
-        self.clock = (ax.text(0.02, 0.98, "", transform=ax.transAxes, ha="left", va="top", fontsize=fs + 1,
-                              zorder=8, bbox=dict(boxstyle="round,pad=0.3", fc="white", ec="0.6", alpha=0.85))
-                      if clock else None)
+        self.labels = [
+            ax.text(
+                0,
+                0,
+                short_name(n),
+                fontsize=fs - 1.5,
+                zorder=7,
+                clip_on=True,
+                bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.7),
+            )
+            for n in (names if len(names) <= 20 else [])
+        ]
+        self.clock = (
+            ax.text(
+                0.02,
+                0.98,
+                "",
+                transform=ax.transAxes,
+                ha="left",
+                va="top",
+                fontsize=fs + 1,
+                zorder=8,
+                bbox=dict(boxstyle="round,pad=0.3", fc="white", ec="0.6", alpha=0.85),
+            )
+            if clock
+            else None
+        )
         lim = scene.extent_m * 1.15
         ax.set_xlim(-lim, lim)
         ax.set_ylim(-lim, lim)
@@ -158,7 +276,9 @@ class FrameView:
         ax.set_ylabel(f"north ({scene.unit})", fontsize=fs)
         ax.grid(alpha=0.2)
 
-    def update(self, pos_m, alive, active, task_pos_m, connected, tree, clock_text: str = "") -> list:
+    def update(
+        self, pos_m, alive, active, task_pos_m, connected, tree, clock_text: str = ""
+    ) -> list:
         """Redraw the dynamic part for one instant; returns the artists changed (for blitting).
 
         Positions are (north, east) rows; the map draws east on x and north on y.
@@ -168,13 +288,17 @@ class FrameView:
         xy = lambda a: np.asarray(a, float)[..., ::-1]  # (north, east) -> (x = east, y = north)  # noqa: E731
         active = np.asarray(active, bool) & np.asarray(alive, bool)
         idx = np.flatnonzero(active)
-        pairs = idx[neighbour_pairs(pos_m[idx], self.scene.radio_range_m)] if len(idx) > 1 else np.zeros((0, 2), int)
+        pairs = (
+            idx[neighbour_pairs(pos_m[idx], self.scene.radio_range_m)]
+            if len(idx) > 1
+            else np.zeros((0, 2), int)
+        )
         self.links.set_segments(xy(pos_m[pairs]) if len(pairs) else [])  # type: ignore[arg-type]  # (n, 2, 2) arrays are fine
         self.crew.set_segments(xy(crew_links(task_pos_m, pos_m, active, self.scene.radio_range_m)))  # type: ignore[arg-type]
         if tree is not None:
             a, b = tree.segments()
             self.tree.set_segments(xy(np.stack([a, b], 1)) if len(a) else [])  # type: ignore[arg-type]
-            st = tree.nodes_m[tree.n_tasks + 1:]
+            st = tree.nodes_m[tree.n_tasks + 1 :]
             self.steiner.set_offsets(xy(st) if len(st) else np.zeros((0, 2)))
         else:
             self.tree.set_segments([])
@@ -191,19 +315,47 @@ class FrameView:
             right = p[1] > 0.55 * self.scene.extent_m  # near the right edge: label on the left
             label.set_position((p[1] - off if right else p[1] + off, p[0] + off))
             label.set_horizontalalignment("right" if right else "left")
-        changed = [self.links, self.crew, self.tree, self.steiner, self.lost, self.idle, self.active,
-                   self.task_ok, self.task_cut, *self.labels]
+        changed = [
+            self.links,
+            self.crew,
+            self.tree,
+            self.steiner,
+            self.lost,
+            self.idle,
+            self.active,
+            self.task_ok,
+            self.task_cut,
+            *self.labels,
+        ]
         if self.clock is not None:
             self.clock.set_text(clock_text)
             changed.append(self.clock)
         return changed
 
 
-def draw_frame(ax, pos_m, alive, active, task_pos_m, connected, tree, radio_range_m, base_range_m,
-               half_width_m, links: bool = True, hazard_zones=(), task_names=None, unit: str = "m") -> FrameView:
+def draw_frame(
+    ax,
+    pos_m,
+    alive,
+    active,
+    task_pos_m,
+    connected,
+    tree,
+    radio_range_m,
+    base_range_m,
+    half_width_m,
+    links: bool = True,
+    hazard_zones=(),
+    task_names=None,
+    unit: str = "m",
+) -> FrameView:
     """One snapshot on ``ax`` (kept for callers of the old API); returns its :class:`FrameView`."""
-    view = FrameView(ax, Scene(radio_range_m, base_range_m, half_width_m, list(hazard_zones), task_names, unit))
-    view.update(pos_m, alive, active if links else np.zeros_like(active), task_pos_m, connected, tree)
+    view = FrameView(
+        ax, Scene(radio_range_m, base_range_m, half_width_m, list(hazard_zones), task_names, unit)
+    )
+    view.update(
+        pos_m, alive, active if links else np.zeros_like(active), task_pos_m, connected, tree
+    )
     return view
 
 
@@ -215,20 +367,39 @@ def strip_figure(n_frames: int, scene: Scene):
     axes = np.atleast_1d(axes).ravel()
     legend_ax = axes[n_frames]
     legend_ax.axis("off")
-    legend_ax.legend(handles=legend_handles(scene), loc="upper left", fontsize=scene.fontsize + 1, frameon=False,
-                     title="legend", title_fontsize=scene.fontsize + 2, alignment="left")
-    for ax in axes[n_frames + 1:]:
+    legend_ax.legend(
+        handles=legend_handles(scene),
+        loc="upper left",
+        fontsize=scene.fontsize + 1,
+        frameon=False,
+        title="legend",
+        title_fontsize=scene.fontsize + 2,
+        alignment="left",
+    )
+    for ax in axes[n_frames + 1 :]:
         ax.axis("off")
     return fig, axes[:n_frames], legend_ax
 
 
-def plot_frame_strip(record, frames: list[int], problem, title: str, path, unit: str = PAPER_UNIT,
-                     step_s: float | None = None) -> None:
+def plot_frame_strip(
+    record,
+    frames: list[int],
+    problem,
+    title: str,
+    path,
+    unit: str = PAPER_UNIT,
+    step_s: float | None = None,
+) -> None:
     """Fig. 4-style strip: a few snapshots of one run (east to the right, north up)."""
     trees = dict(record.trees)
     recomputed = any(trees.get(t) is None for t in frames)
-    scene = Scene(problem.radio_range_m, problem.base_range_m, problem.field_half_width_m, unit=unit,
-                  tree_recomputed=recomputed)
+    scene = Scene(
+        problem.radio_range_m,
+        problem.base_range_m,
+        problem.field_half_width_m,
+        unit=unit,
+        tree_recomputed=recomputed,
+    )
     fig, axes, legend_ax = strip_figure(len(frames), scene)
     for ax, t in zip(axes, frames):
         tree = trees.get(t)
@@ -236,12 +407,20 @@ def plot_frame_strip(record, frames: list[int], problem, title: str, path, unit:
             from planner.steiner import build_task_tree
 
             tree = build_task_tree(np.zeros(2), record.task_pos_m[t])
-        FrameView(ax, scene).update(record.pos_m[t], record.alive[t], record.active[t], record.task_pos_m[t],
-                                    record.connected[t], tree)
+        FrameView(ax, scene).update(
+            record.pos_m[t],
+            record.alive[t],
+            record.active[t],
+            record.task_pos_m[t],
+            record.connected[t],
+            tree,
+        )
         when = f"step {t}" if step_s is None else f"t = {t * step_s:g} s"
-        ax.set_title(f"{when}: {record.connected[t].sum()}/{len(record.connected[t])} tasks connected, "
-                     f"{(record.active[t] & record.alive[t]).sum()}/{len(record.alive[t])} drones networked",
-                     fontsize=scene.fontsize + 1)
+        ax.set_title(
+            f"{when}: {record.connected[t].sum()}/{len(record.connected[t])} tasks connected, "
+            f"{(record.active[t] & record.alive[t]).sum()}/{len(record.alive[t])} drones networked",
+            fontsize=scene.fontsize + 1,
+        )
     fig.suptitle(title, fontsize=13)
     fig.tight_layout(rect=(0, 0, 1, 0.97))
     fig.savefig(path, dpi=110)
@@ -251,4 +430,6 @@ def plot_frame_strip(record, frames: list[int], problem, title: str, path, unit:
 # Kept for old imports.
 def _strip_legend(fig, ax) -> None:  # pragma: no cover - superseded by strip_figure
     handles, labels = ax.get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=max(1, len(labels)), fontsize=8, frameon=False)
+    fig.legend(
+        handles, labels, loc="lower center", ncol=max(1, len(labels)), fontsize=8, frameon=False
+    )

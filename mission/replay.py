@@ -25,12 +25,12 @@ __all__ = ["RunData", "load_run", "replay", "find_run_dir", "check_animation_wri
 @dataclass
 class RunData:
     t_s: np.ndarray
-    pos_m: np.ndarray          # (T, N, 2)
-    alive: np.ndarray          # (T, N)
-    active: np.ndarray         # (T, N)
-    task_pos_m: np.ndarray     # (T, M, 2)
-    connected: np.ndarray      # (T, M)
-    trees: dict                # step index -> TaskTree-like (nodes_m, parent, n_tasks, segments())
+    pos_m: np.ndarray  # (T, N, 2)
+    alive: np.ndarray  # (T, N)
+    active: np.ndarray  # (T, N)
+    task_pos_m: np.ndarray  # (T, M, 2)
+    connected: np.ndarray  # (T, M)
+    trees: dict  # step index -> TaskTree-like (nodes_m, parent, n_tasks, segments())
     mission: Mission | None
     summary: dict
 
@@ -53,10 +53,18 @@ def load_run(run_dir: pathlib.Path) -> RunData:
     run_dir = pathlib.Path(run_dir)
     truth_path = run_dir / "truth.npz"
     if not truth_path.is_file():
-        raise FileNotFoundError(f"{run_dir}: no truth.npz (replay needs a run recorded with ground truth)")
+        raise FileNotFoundError(
+            f"{run_dir}: no truth.npz (replay needs a run recorded with ground truth)"
+        )
     truth = np.load(truth_path)
-    mission = load_mission(run_dir / "mission.yaml") if (run_dir / "mission.yaml").is_file() else None
-    summary = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").is_file() else {}
+    mission = (
+        load_mission(run_dir / "mission.yaml") if (run_dir / "mission.yaml").is_file() else None
+    )
+    summary = (
+        json.loads((run_dir / "summary.json").read_text())
+        if (run_dir / "summary.json").is_file()
+        else {}
+    )
     if "pos_ne_m" in truth:
         pos = truth["pos_ne_m"]
     elif "pos_ned_m" in truth:
@@ -67,7 +75,10 @@ def load_run(run_dir: pathlib.Path) -> RunData:
     if "mission_t0_s" in truth:  # emulator truth also covers the launch: keep the mission interval
         keep = t_s >= float(truth["mission_t0_s"]) - 1e-9
         t_s = t_s[keep] - float(truth["mission_t0_s"])
-        truth = {k: (truth[k][keep] if truth[k].ndim and len(truth[k]) == len(keep) else truth[k]) for k in truth}
+        truth = {
+            k: (truth[k][keep] if truth[k].ndim and len(truth[k]) == len(keep) else truth[k])
+            for k in truth
+        }
     if "task_pos_ne_m" in truth:
         tasks = truth["task_pos_ne_m"]
     elif mission is not None:
@@ -77,15 +88,30 @@ def load_run(run_dir: pathlib.Path) -> RunData:
         fn = task_position_fn(scn.task_track_m, scn.dt_s)
         tasks = np.stack([fn(t) for t in t_s])
     else:
-        raise ValueError(f"{run_dir}: no task positions recorded and no mission.yaml to redraw them")
+        raise ValueError(
+            f"{run_dir}: no task positions recorded and no mission.yaml to redraw them"
+        )
     n_samples = min(len(t_s), len(pos), len(tasks))
-    connected = truth["task_connected"] if "task_connected" in truth else np.zeros(tasks.shape[:2], bool)
+    connected = (
+        truth["task_connected"] if "task_connected" in truth else np.zeros(tasks.shape[:2], bool)
+    )
     trees = {}
     if (run_dir / "trees.json").is_file():
         for key, tr in json.loads((run_dir / "trees.json").read_text()).items():
-            trees[int(key)] = _Tree(np.asarray(tr["nodes_ne_m"], float), np.asarray(tr["parent"], int), tr["n_tasks"])
-    return RunData(t_s[:n_samples], pos[:n_samples], truth["alive"][:n_samples], truth["active"][:n_samples],
-                   tasks[:n_samples], connected[:n_samples], trees, mission, summary)
+            trees[int(key)] = _Tree(
+                np.asarray(tr["nodes_ne_m"], float), np.asarray(tr["parent"], int), tr["n_tasks"]
+            )
+    return RunData(
+        t_s[:n_samples],
+        pos[:n_samples],
+        truth["alive"][:n_samples],
+        truth["active"][:n_samples],
+        tasks[:n_samples],
+        connected[:n_samples],
+        trees,
+        mission,
+        summary,
+    )
 
 
 def _tree_at(trees: dict, k: int):
@@ -104,13 +130,21 @@ def _zone_painters(mission):
             c = zone.circle
 
             def paint(ax, c=c):
-                ax.add_patch(plt.Circle((c.center.east_m, c.center.north_m), c.radius_m, color="tab:red",
-                                        alpha=0.12, hatch="//"))
+                ax.add_patch(
+                    plt.Circle(
+                        (c.center.east_m, c.center.north_m),
+                        c.radius_m,
+                        color="tab:red",
+                        alpha=0.12,
+                        hatch="//",
+                    )
+                )
         else:
             pts = [(p.east_m, p.north_m) for p in zone.polygon]
 
             def paint(ax, pts=pts):
                 ax.add_patch(plt.Polygon(pts, closed=True, color="tab:red", alpha=0.12))
+
         painters.append(paint)
     return painters
 
@@ -131,26 +165,36 @@ def find_run_dir(path: pathlib.Path) -> tuple[pathlib.Path, str | None]:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such directory")
     if not path.is_dir():
-        raise FileNotFoundError(f"{path} is a file; replay takes a run directory (holding truth.npz), "
-                                f"e.g. the --out of 'phireman sim --mission wildfire --out runs/wf'")
+        raise FileNotFoundError(
+            f"{path} is a file; replay takes a run directory (holding truth.npz), "
+            f"e.g. the --out of 'phireman sim --mission wildfire --out runs/wf'"
+        )
     if (path / "truth.npz").is_file():
         return path, None
-    runs = sorted((d for d in path.iterdir() if d.is_dir() and (d / "truth.npz").is_file()),
-                  key=lambda d: ((d / "truth.npz").stat().st_mtime, d.name))
+    runs = sorted(
+        (d for d in path.iterdir() if d.is_dir() and (d / "truth.npz").is_file()),
+        key=lambda d: ((d / "truth.npz").stat().st_mtime, d.name),
+    )
     if runs:
         note = None
         if len(runs) > 1:
-            note = (f"{path} holds {len(runs)} run directories; replaying the newest, {runs[-1].name} "
-                    f"(give its path to choose another)")
+            note = (
+                f"{path} holds {len(runs)} run directories; replaying the newest, {runs[-1].name} "
+                f"(give its path to choose another)"
+            )
         else:
             note = f"replaying {runs[-1]}"
         return runs[-1], note
     if (path / "summary.json").is_file() or (path / "flight.tlog").is_file():
-        raise FileNotFoundError(f"{path} is a run directory without truth.npz: it was flown with real vehicles "
-                                f"(--connect), so there is no ground truth to draw; its metrics.csv and "
-                                f"flight.tlog hold what the station saw")
-    raise FileNotFoundError(f"{path}: no truth.npz here or in its subdirectories; a run directory is written by "
-                            f"'phireman sim --mission MISSION --out DIR' or 'phireman fly' (emulated)")
+        raise FileNotFoundError(
+            f"{path} is a run directory without truth.npz: it was flown with real vehicles "
+            f"(--connect), so there is no ground truth to draw; its metrics.csv and "
+            f"flight.tlog hold what the station saw"
+        )
+    raise FileNotFoundError(
+        f"{path}: no truth.npz here or in its subdirectories; a run directory is written by "
+        f"'phireman sim --mission MISSION --out DIR' or 'phireman fly' (emulated)"
+    )
 
 
 def _task_names(run: RunData) -> list | None:
@@ -184,9 +228,19 @@ def _scene(run: RunData, fontsize: float = 9.0):
     radio = run.mission.radio.range_m if run.mission is not None else 2.0
     base = run.mission.radio.base_range_m if run.mission is not None else radio
     base = radio if base is None else base
-    extent = max(np.abs(run.task_pos_m).max(), np.abs(run.pos_m[run.alive]).max() if run.alive.any() else 1.0)
-    return Scene(radio, base, float(extent), _zone_painters(run.mission), _task_names(run), "m",
-                 tree_recomputed=not run.trees, fontsize=fontsize)
+    extent = max(
+        np.abs(run.task_pos_m).max(), np.abs(run.pos_m[run.alive]).max() if run.alive.any() else 1.0
+    )
+    return Scene(
+        radio,
+        base,
+        float(extent),
+        _zone_painters(run.mission),
+        _task_names(run),
+        "m",
+        tree_recomputed=not run.trees,
+        fontsize=fontsize,
+    )
 
 
 def check_animation_writer(animation: str) -> None:
@@ -197,12 +251,19 @@ def check_animation_writer(animation: str) -> None:
         from matplotlib.animation import FFMpegWriter
 
         if shutil.which("ffmpeg") is None and not FFMpegWriter.isAvailable():
-            raise ValueError("--animation mp4 needs ffmpeg, which is not installed (apt install ffmpeg); "
-                             "use --animation gif (the default) or none")
+            raise ValueError(
+                "--animation mp4 needs ffmpeg, which is not installed (apt install ffmpeg); "
+                "use --animation gif (the default) or none"
+            )
 
 
-def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation: str = "gif",
-           max_frames: int = 100, progress=None) -> list[pathlib.Path]:
+def replay(
+    run_dir: pathlib.Path,
+    out_dir: pathlib.Path | None = None,
+    animation: str = "gif",
+    max_frames: int = 100,
+    progress=None,
+) -> list[pathlib.Path]:
     """Render fig2_timeseries.png, frames.png and an animation of a run; returns the files written."""
     import matplotlib
 
@@ -218,8 +279,11 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
     title = run.mission.name if run.mission is not None else pathlib.Path(run_dir).name
     n_drones, n_tasks = run.pos_m.shape[1], run.task_pos_m.shape[1]
     tu = ""
-    truth: dict = got if isinstance(got := run.summary.get("truth"), dict) else {
-        "tu1": run.summary.get("truth_tu1"), "tu2": run.summary.get("truth_tu2")}  # fly / in-process
+    truth: dict = (
+        got
+        if isinstance(got := run.summary.get("truth"), dict)
+        else {"tu1": run.summary.get("truth_tu1"), "tu2": run.summary.get("truth_tu2")}
+    )  # fly / in-process
     if truth.get("tu1") is not None:
         tu = f": TU1 {100 * truth['tu1']:.1f} %, TU2 {100 * truth['tu2']:.1f} % (ground truth)"
     seed = run.summary.get("seed")
@@ -227,13 +291,31 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
 
     # Fig. 2: alive, alive and active, connected tasks
     fig, ax = plt.subplots(figsize=(8, 4.8))
-    ax.plot(run.t_s, 100 * run.alive.mean(1), color="tab:gray", label=f"drones alive (% of {n_drones})")
-    ax.plot(run.t_s, 100 * (run.alive & run.active).mean(1), color="tab:blue",
-            label=f"drones alive and networked (% of {n_drones})")
-    ax.plot(run.t_s, 100 * run.connected.mean(1), color="tab:red", label=f"tasks connected (% of {n_tasks})")
+    ax.plot(
+        run.t_s, 100 * run.alive.mean(1), color="tab:gray", label=f"drones alive (% of {n_drones})"
+    )
+    ax.plot(
+        run.t_s,
+        100 * (run.alive & run.active).mean(1),
+        color="tab:blue",
+        label=f"drones alive and networked (% of {n_drones})",
+    )
+    ax.plot(
+        run.t_s,
+        100 * run.connected.mean(1),
+        color="tab:red",
+        label=f"tasks connected (% of {n_tasks})",
+    )
     ever = np.logical_or.accumulate(run.connected, axis=0).sum(1)
     tu2 = np.divide(run.connected.sum(1), ever, out=np.zeros(len(ever)), where=ever > 0)
-    ax.plot(run.t_s, 100 * tu2, color="tab:red", ls="--", lw=0.9, label="connected / ever connected (TU2's integrand)")
+    ax.plot(
+        run.t_s,
+        100 * tu2,
+        color="tab:red",
+        ls="--",
+        lw=0.9,
+        label="connected / ever connected (TU2's integrand)",
+    )
     ax.set_xlabel("mission time (s)", fontsize=10)
     ax.set_ylabel("%", fontsize=10)
     ax.set(ylim=(0, 102))
@@ -253,10 +335,19 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
     picks = np.unique(np.linspace(0, len(run.t_s) - 1, 5).round().astype(int))
     fig, axes, _ = strip_figure(len(picks), scene)
     for ax, k in zip(axes, picks):
-        FrameView(ax, scene).update(run.pos_m[k], run.alive[k], run.active[k], run.task_pos_m[k],
-                                    run.connected[k], tree_at(run, k))
-        ax.set_title(f"t = {run.t_s[k]:.0f} s: {run.connected[k].sum()}/{n_tasks} tasks connected, "
-                     f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked", fontsize=10)
+        FrameView(ax, scene).update(
+            run.pos_m[k],
+            run.alive[k],
+            run.active[k],
+            run.task_pos_m[k],
+            run.connected[k],
+            tree_at(run, k),
+        )
+        ax.set_title(
+            f"t = {run.t_s[k]:.0f} s: {run.connected[k].sum()}/{n_tasks} tasks connected, "
+            f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked",
+            fontsize=10,
+        )
     fig.suptitle(full_title, fontsize=13)
     fig.tight_layout(rect=(0, 0, 1, 0.97))
     path = out_dir / "frames.png"
@@ -265,7 +356,9 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
     written.append(path)
 
     if animation != "none":
-        ks = np.unique(np.linspace(0, len(run.t_s) - 1, min(max_frames, len(run.t_s))).round().astype(int))
+        ks = np.unique(
+            np.linspace(0, len(run.t_s) - 1, min(max_frames, len(run.t_s))).round().astype(int)
+        )
         fps = max(4, min(12, round(len(ks) / 10)))  # about 10 s whatever the length
         path = out_dir / f"animation.{animation}"
         _animate(run, ks, full_title, path, fps, progress)
@@ -273,7 +366,9 @@ def replay(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None, animation
     return written
 
 
-def _animate(run: RunData, ks: np.ndarray, title: str, path: pathlib.Path, fps: int, progress=None) -> None:
+def _animate(
+    run: RunData, ks: np.ndarray, title: str, path: pathlib.Path, fps: int, progress=None
+) -> None:
     """Render the animation by blitting: the background (axes, legend, zones, base) is drawn once,
     each frame redraws only the moving artists onto a copy of it, so a 100-frame GIF takes seconds
     rather than minutes (a full figure redraw per frame is dominated by text layout)."""
@@ -289,11 +384,18 @@ def _animate(run: RunData, ks: np.ndarray, title: str, path: pathlib.Path, fps: 
     fig = plt.figure(figsize=(9.6, 6.4), dpi=dpi)
     canvas = FigureCanvasAgg(fig)
     ax = fig.add_axes((0.08, 0.09, 0.56, 0.84))
-    fig.legend(handles=legend_handles(scene), loc="center left", bbox_to_anchor=(0.655, 0.5), fontsize=7.5,
-               frameon=False)
+    fig.legend(
+        handles=legend_handles(scene),
+        loc="center left",
+        bbox_to_anchor=(0.655, 0.5),
+        fontsize=7.5,
+        frameon=False,
+    )
     fig.suptitle(title, fontsize=10)
     view = FrameView(ax, scene, clock=True)
-    moving = view.update(run.pos_m[0], run.alive[0], run.active[0], run.task_pos_m[0], run.connected[0], None, " ")
+    moving = view.update(
+        run.pos_m[0], run.alive[0], run.active[0], run.task_pos_m[0], run.connected[0], None, " "
+    )
     for a in moving:
         a.set_animated(True)
     canvas.draw()
@@ -304,22 +406,53 @@ def _animate(run: RunData, ks: np.ndarray, title: str, path: pathlib.Path, fps: 
         import subprocess
 
         w, h = canvas.get_width_height()
-        ffmpeg = subprocess.Popen(["ffmpeg", "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgba",
-                                   "-s", f"{w}x{h}", "-r", str(fps), "-i", "-", "-pix_fmt", "yuv420p",
-                                   "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", str(path)], stdin=subprocess.PIPE)
+        ffmpeg = subprocess.Popen(
+            [
+                "ffmpeg",
+                "-y",
+                "-loglevel",
+                "error",
+                "-f",
+                "rawvideo",
+                "-pix_fmt",
+                "rgba",
+                "-s",
+                f"{w}x{h}",
+                "-r",
+                str(fps),
+                "-i",
+                "-",
+                "-pix_fmt",
+                "yuv420p",
+                "-vf",
+                "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+                str(path),
+            ],
+            stdin=subprocess.PIPE,
+        )
     try:
         for k in ks:
             canvas.restore_region(background)
-            for a in view.update(run.pos_m[k], run.alive[k], run.active[k], run.task_pos_m[k], run.connected[k],
-                                 tree_at(run, k),
-                                 f"t = {run.t_s[k]:5.0f} s\n{run.connected[k].sum()}/{n_tasks} tasks connected\n"
-                                 f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked"):
+            for a in view.update(
+                run.pos_m[k],
+                run.alive[k],
+                run.active[k],
+                run.task_pos_m[k],
+                run.connected[k],
+                tree_at(run, k),
+                f"t = {run.t_s[k]:5.0f} s\n{run.connected[k].sum()}/{n_tasks} tasks connected\n"
+                f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked",
+            ):
                 ax.draw_artist(a)
             rgba = np.asarray(canvas.buffer_rgba())
             if ffmpeg is not None:
                 ffmpeg.stdin.write(rgba.tobytes())  # type: ignore[union-attr]  # stdin=PIPE
             else:
-                images.append(Image.fromarray(rgba[..., :3]).quantize(colors=256, method=Image.Quantize.MEDIANCUT))
+                images.append(
+                    Image.fromarray(rgba[..., :3]).quantize(
+                        colors=256, method=Image.Quantize.MEDIANCUT
+                    )
+                )
             if progress:
                 progress(1)
     finally:
@@ -329,5 +462,11 @@ def _animate(run: RunData, ks: np.ndarray, title: str, path: pathlib.Path, fps: 
             if ffmpeg.wait() != 0:
                 raise ValueError(f"ffmpeg failed to write {path}")
     if images:
-        images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0,
-                       optimize=False)
+        images[0].save(
+            path,
+            save_all=True,
+            append_images=images[1:],
+            duration=int(1000 / fps),
+            loop=0,
+            optimize=False,
+        )

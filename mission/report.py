@@ -36,8 +36,15 @@ if TYPE_CHECKING:
     from matplotlib.image import AxesImage
 
 __all__ = [
-    "Sample", "Selector", "mean_ci95", "p_greater", "p_greater_paired", "best_of", "build_report",
-    "rank_samples", "ALPHA",
+    "Sample",
+    "Selector",
+    "mean_ci95",
+    "p_greater",
+    "p_greater_paired",
+    "best_of",
+    "build_report",
+    "rank_samples",
+    "ALPHA",
 ]
 
 #: Significance level of every test in the report (the paper's).
@@ -49,6 +56,7 @@ SHORT = {"phireman": "Φ", "dccrs": "D", "mccst": "M"}
 # ----------------------------------------------------------------------------------------------
 # Samples and statistics
 # ----------------------------------------------------------------------------------------------
+
 
 @dataclass
 class Sample:
@@ -140,6 +148,7 @@ def best_of(samples: dict[str, Sample | None], metric: str, paired: bool = False
 # Selecting rows from the store
 # ----------------------------------------------------------------------------------------------
 
+
 class Selector:
     """Finds the rows of a configuration in a store: by spec key, or by resolved configuration key.
 
@@ -171,7 +180,9 @@ class Selector:
         if len(configs) > 1:
             latest = rows[-1]["config_key"]
             dropped = sum(n for k, n in configs.items() if k != latest)
-            sample.notes.append(f"{dropped} older rows with a different resolved configuration ignored")
+            sample.notes.append(
+                f"{dropped} older rows with a different resolved configuration ignored"
+            )
             rows = [r for r in rows if r["config_key"] == latest]
         for r in rows:
             self.used.add(r["run_key"])
@@ -188,6 +199,7 @@ class Selector:
 # ----------------------------------------------------------------------------------------------
 # Formatting helpers
 # ----------------------------------------------------------------------------------------------
+
 
 def _fmt(mean: float, ci: float) -> str:
     """'mean ± half', or the interval clipped to [0, 100] when it reaches past (few seeds)."""
@@ -226,6 +238,7 @@ def _md_table(header: list[str], rows: list[list[str]], align: str | None = None
 # Table II analysis
 # ----------------------------------------------------------------------------------------------
 
+
 @dataclass
 class Cell:
     size: str
@@ -248,11 +261,21 @@ class Cell:
         return abs(d) <= paper.TOLERANCE_PP[method] + 1e-9
 
 
-def analyse_table(selector: Selector, reading: str, params: dict, problem_overrides: dict,
-                  methods=paper.PAPER_METHODS) -> list[Cell]:
+def analyse_table(
+    selector: Selector,
+    reading: str,
+    params: dict,
+    problem_overrides: dict,
+    methods=paper.PAPER_METHODS,
+) -> list[Cell]:
     """Table II cells (size-major, then attrition) with their samples and both significance verdicts."""
-    grid = paper_table_grid(seeds=[], methods=methods, reading=reading, params=params,
-                            problem_overrides=problem_overrides)
+    grid = paper_table_grid(
+        seeds=[],
+        methods=methods,
+        reading=reading,
+        params=params,
+        problem_overrides=problem_overrides,
+    )
     cells: dict[tuple[str, float], Cell] = {}
     for spec in grid.configs:
         key = (spec.size, spec.attrition)
@@ -297,7 +320,9 @@ def _table_ii(cells: list[Cell], methods) -> str:
 
 
 def _vs_paper(cells: list[Cell], methods) -> str:
-    header = ["Size", "p (%)"] + [f"{SHORT.get(m, m)} {METRIC_LABELS[k]}" for m in methods for k in paper.METRICS]
+    header = ["Size", "p (%)"] + [
+        f"{SHORT.get(m, m)} {METRIC_LABELS[k]}" for m in methods for k in paper.METRICS
+    ]
     rows = []
     for c in cells:
         row = [c.size, _pct(c.attrition) + (" †" if c.attrition >= 0.05 else "")]
@@ -329,10 +354,14 @@ def _miss_reason(c: Cell, method: str, methods) -> str:
         if abs(d) <= paper.TOLERANCE_PP[method]:
             continue
         if abs(d) <= combined:
-            reasons.append(f"{METRIC_LABELS[metric]} Δ {d:+.2f} is within the combined 95 % CIs "
-                           f"(±{combined:.2f}): compatible with sampling noise")
+            reasons.append(
+                f"{METRIC_LABELS[metric]} Δ {d:+.2f} is within the combined 95 % CIs "
+                f"(±{combined:.2f}): compatible with sampling noise"
+            )
         else:
-            reasons.append(f"{METRIC_LABELS[metric]} Δ {d:+.2f} exceeds the combined 95 % CIs (±{combined:.2f})")
+            reasons.append(
+                f"{METRIC_LABELS[metric]} Δ {d:+.2f} exceeds the combined 95 % CIs (±{combined:.2f})"
+            )
     others = [m for m in methods if m != method]
     for metric in paper.METRICS:
         d_self = c.delta(method, metric)
@@ -344,17 +373,23 @@ def _miss_reason(c: Cell, method: str, methods) -> str:
             continue
         name = METRIC_LABELS[metric]
         if all(abs(d) > 1.0 and np.sign(d) == np.sign(d_self) for d in d_oth.values()):
-            reasons.append(f"on {name} the other methods are shifted the same way (Δ "
-                           + ", ".join(f"{SHORT.get(m, m)} {d:+.1f}" for m, d in d_oth.items())
-                           + "): a difference in the shared world model or protocol rather than in this planner")
+            reasons.append(
+                f"on {name} the other methods are shifted the same way (Δ "
+                + ", ".join(f"{SHORT.get(m, m)} {d:+.1f}" for m, d in d_oth.items())
+                + "): a difference in the shared world model or protocol rather than in this planner"
+            )
         elif all(abs(d) <= paper.TOLERANCE_PP[m] for m, d in d_oth.items()):
-            reasons.append(f"on {name} the other methods match the paper: specific to this planner "
-                           "(tuning or one of its modelling choices, docs/design/model.md §9.2–9.4)")
+            reasons.append(
+                f"on {name} the other methods match the paper: specific to this planner "
+                "(tuning or one of its modelling choices, docs/design/model.md §9.2–9.4)"
+            )
     d_self = c.delta(method, "tu1")
     if c.attrition >= 0.02 and not math.isnan(d_self) and d_self < 0:
-        reasons.append("high attrition, where the result is most sensitive to the attrition model; at 5 % "
-                       "the paper's attrition behaves milder than independent per-step Bernoulli losses "
-                       "(docs/design/model.md §9.5)")
+        reasons.append(
+            "high attrition, where the result is most sensitive to the attrition model; at 5 % "
+            "the paper's attrition behaves milder than independent per-step Bernoulli losses "
+            "(docs/design/model.md §9.5)"
+        )
     return "; ".join(reasons) or "no diagnosis"
 
 
@@ -368,16 +403,33 @@ def _agreement_summary(cells: list[Cell], methods) -> tuple[str, dict]:
         both = sum(bool(c.within(m, "tu1")) and bool(c.within(m, "tu2")) for c in have)
         t1 = sum(bool(c.within(m, "tu1")) for c in have)
         t2 = sum(bool(c.within(m, "tu2")) for c in have)
-        stats[m] = {"configs": len(core), "with_data": len(have), "within_both": both, "within_tu1": t1,
-                    "within_tu2": t2, "tolerance_pp": tol}
+        stats[m] = {
+            "configs": len(core),
+            "with_data": len(have),
+            "within_both": both,
+            "within_tu1": t1,
+            "within_tu2": t2,
+            "tolerance_pp": tol,
+        }
         # The target is about the paper's whole table; on a partial store it would mislead.
-        target = ("" if len(have) < 20 else
-                  " (target: at least 18 of 20)" if m == "phireman" else " (target: most)")
+        target = (
+            ""
+            if len(have) < 20
+            else " (target: at least 18 of 20)"
+            if m == "phireman"
+            else " (target: most)"
+        )
         of_all = "" if len(core) >= 20 else " with data (the paper's table has 20)"
-        lines.append(f"- **{paper.METHOD_LABELS.get(m, m)}** within {tol:g} pp of the paper at 0–2 % "
-                     f"attrition: **{both} of {len(core)}** configurations{of_all} on both TU1 and TU2{target}; "
-                     f"TU1 alone {t1}, TU2 alone {t2}"
-                     + (f"; {len(core) - len(have)} configurations have no data" if len(have) < len(core) else ""))
+        lines.append(
+            f"- **{paper.METHOD_LABELS.get(m, m)}** within {tol:g} pp of the paper at 0–2 % "
+            f"attrition: **{both} of {len(core)}** configurations{of_all} on both TU1 and TU2{target}; "
+            f"TU1 alone {t1}, TU2 alone {t2}"
+            + (
+                f"; {len(core) - len(have)} configurations have no data"
+                if len(have) < len(core)
+                else ""
+            )
+        )
     return "\n".join(lines), stats
 
 
@@ -391,8 +443,11 @@ def _central_vs_async(cells: list[Cell], central: list[Cell]) -> tuple[str, dict
     for c in cells:
         a, z = c.samples.get("phireman"), by_key.get((c.size, c.attrition))
         refs = [paper.paper_value(c.size, c.attrition, "phireman", k) for k in paper.METRICS]
-        row = [c.size, _pct(c.attrition) + (" †" if c.attrition >= 0.05 else ""),
-               " / ".join(f"{r[0]:.2f}" if r else "–" for r in refs)]
+        row = [
+            c.size,
+            _pct(c.attrition) + (" †" if c.attrition >= 0.05 else ""),
+            " / ".join(f"{r[0]:.2f}" if r else "–" for r in refs),
+        ]
         core = c.attrition <= 0.02 + 1e-12
         within["configs"] += core
         for name, smp in (("async", a), ("central", z)):
@@ -409,13 +464,28 @@ def _central_vs_async(cells: list[Cell], central: list[Cell]) -> tuple[str, dict
             within[name] += core and ok_both
         row.append(f"{a.n if a else 0} / {z.n if z else 0}")
         rows.append(row)
-    table = _md_table(["Size", "p (%)", "paper TU1 / TU2", "async TU1 (Δ)", "async TU2 (Δ)",
-                       "central TU1 (Δ)", "central TU2 (Δ)", "n async / central"], rows, "lrllllll")
-    text = [table, "",
-            f"- ΦIREMAN asynchronous (the paper's information model): within 3 pp on both TU1 and TU2 "
-            f"in **{within['async']} of {within['configs']}** configurations at 0–2 % attrition.",
-            f"- ΦIREMAN planned centrally (`phireman-central`, the ground station's model, same seeds): "
-            f"within 3 pp in **{within['central']} of {within['configs']}**."]
+    table = _md_table(
+        [
+            "Size",
+            "p (%)",
+            "paper TU1 / TU2",
+            "async TU1 (Δ)",
+            "async TU2 (Δ)",
+            "central TU1 (Δ)",
+            "central TU2 (Δ)",
+            "n async / central",
+        ],
+        rows,
+        "lrllllll",
+    )
+    text = [
+        table,
+        "",
+        f"- ΦIREMAN asynchronous (the paper's information model): within 3 pp on both TU1 and TU2 "
+        f"in **{within['async']} of {within['configs']}** configurations at 0–2 % attrition.",
+        f"- ΦIREMAN planned centrally (`phireman-central`, the ground station's model, same seeds): "
+        f"within 3 pp in **{within['central']} of {within['configs']}**.",
+    ]
     return "\n".join(text), within
 
 
@@ -432,24 +502,34 @@ def _misses(cells: list[Cell], methods) -> str:
                 continue
             if c.within(m, "tu1") and c.within(m, "tu2"):
                 continue
-            miss.append(f"- {c.size} / {_pct(c.attrition)} %: TU1 Δ {_signed(c.delta(m, 'tu1'))}, "
-                        f"TU2 Δ {_signed(c.delta(m, 'tu2'))} — {_miss_reason(c, m, methods)}")
+            miss.append(
+                f"- {c.size} / {_pct(c.attrition)} %: TU1 Δ {_signed(c.delta(m, 'tu1'))}, "
+                f"TU2 Δ {_signed(c.delta(m, 'tu2'))} — {_miss_reason(c, m, methods)}"
+            )
         if missing:
             miss.append(f"- no data: {', '.join(missing)}")
         title = f"**{paper.METHOD_LABELS.get(m, m)}** (tolerance {paper.TOLERANCE_PP[m]:g} pp)"
-        out.append(title + (": every configuration within tolerance." if not miss else ":\n" + "\n".join(miss)))
+        out.append(
+            title
+            + (": every configuration within tolerance." if not miss else ":\n" + "\n".join(miss))
+        )
     return "\n\n".join(out)
 
 
 def _five_percent(cells: list[Cell], methods) -> str:
-    header = ["Size"] + [f"{SHORT.get(m, m)} {METRIC_LABELS[k]} Δ" for m in methods for k in paper.METRICS]
+    header = ["Size"] + [
+        f"{SHORT.get(m, m)} {METRIC_LABELS[k]} Δ" for m in methods for k in paper.METRICS
+    ]
     rows = []
     for c in cells:
         if c.attrition < 0.05 - 1e-12:
             continue
         rows.append([c.size] + [_signed(c.delta(m, k)) for m in methods for k in paper.METRICS])
-    return paper.FIVE_PERCENT_NOTE + "\n\nΔ = ours − paper at 5 %/step (pp):\n\n" + _md_table(
-        header, rows, "l" + "r" * (len(header) - 1))
+    return (
+        paper.FIVE_PERCENT_NOTE
+        + "\n\nΔ = ours − paper at 5 %/step (pp):\n\n"
+        + _md_table(header, rows, "l" + "r" * (len(header) - 1))
+    )
 
 
 def _bold_agreement(cells: list[Cell]) -> tuple[str, dict]:
@@ -469,19 +549,29 @@ def _bold_agreement(cells: list[Cell]) -> tuple[str, dict]:
             agree_p += ours_p == ref
             if ours_u != ref:
                 name = lambda m: paper.METHOD_LABELS.get(m, m) if m else "none"  # noqa: E731
-                means = ", ".join(f"{SHORT.get(m, m)} {s.mean(metric):.2f}" for m, s in c.samples.items()
-                                  if s is not None and s.n)
-                diffs.append(f"- {c.size} / {_pct(c.attrition)} % {METRIC_LABELS[metric]}: paper bolds "
-                             f"{name(ref)}, we bold {name(ours_u)} (best {SHORT.get(u.best, u.best)}, "
-                             f"p = {_fmt_p(u.p)}; paired: {name(ours_p)}, p = {_fmt_p(p.p)}; means {means})")
-    text = (f"The paper's bold cells are read from its LaTeX source (`\\textbf` entries of Table II), not "
-            f"approximated. Of {total} (configuration, metric) cells with data, our unpaired test gives "
-            f"the same bold method (or none) in **{agree_u}**, the paired test in **{agree_p}**.")
+                means = ", ".join(
+                    f"{SHORT.get(m, m)} {s.mean(metric):.2f}"
+                    for m, s in c.samples.items()
+                    if s is not None and s.n
+                )
+                diffs.append(
+                    f"- {c.size} / {_pct(c.attrition)} % {METRIC_LABELS[metric]}: paper bolds "
+                    f"{name(ref)}, we bold {name(ours_u)} (best {SHORT.get(u.best, u.best)}, "
+                    f"p = {_fmt_p(u.p)}; paired: {name(ours_p)}, p = {_fmt_p(p.p)}; means {means})"
+                )
+    text = (
+        f"The paper's bold cells are read from its LaTeX source (`\\textbf` entries of Table II), not "
+        f"approximated. Of {total} (configuration, metric) cells with data, our unpaired test gives "
+        f"the same bold method (or none) in **{agree_u}**, the paired test in **{agree_p}**."
+    )
     pairwise, pair_stats = _phireman_vs_each(cells)
     if pairwise:
         text += "\n\n" + pairwise
     if diffs:
-        text += "\n\nCells where our unpaired significance differs from the paper's bolding:\n\n" + "\n".join(diffs)
+        text += (
+            "\n\nCells where our unpaired significance differs from the paper's bolding:\n\n"
+            + "\n".join(diffs)
+        )
     return text, {"cells": total, "agree_unpaired": agree_u, "agree_paired": agree_p, **pair_stats}
 
 
@@ -502,18 +592,32 @@ def _phireman_vs_each(cells: list[Cell]) -> tuple[str, dict]:
             others = {b: o for b in baselines if (o := c.samples.get(b)) is not None and o.n >= 2}
             if len(others) < len(baselines):
                 continue
-            bold_cells.append({b: (p_greater(phi, o, metric) < ALPHA, p_greater_paired(phi, o, metric) < ALPHA)
-                               for b, o in others.items()})
+            bold_cells.append(
+                {
+                    b: (p_greater(phi, o, metric) < ALPHA, p_greater_paired(phi, o, metric) < ALPHA)
+                    for b, o in others.items()
+                }
+            )
     if not bold_cells:
         return "", {}
     n = len(bold_cells)
-    counts = {b: (sum(v[b][0] for v in bold_cells), sum(v[b][1] for v in bold_cells)) for b in baselines}
-    both = (sum(all(v[b][0] for b in baselines) for v in bold_cells),
-            sum(all(v[b][1] for b in baselines) for v in bold_cells))
-    parts = [f"{paper.METHOD_LABELS.get(b, b)} in **{counts[b][0]}** (paired {counts[b][1]})" for b in baselines]
-    text = (f"Per baseline: the paper bolds ΦIREMAN in {n} (configuration, metric) cells. There, our "
-            f"ΦIREMAN is significantly above " + ", above ".join(parts)
-            + f", and above both (a bold) in {both[0]} (paired {both[1]}); one-tailed tests at p < {ALPHA:g}.")
+    counts = {
+        b: (sum(v[b][0] for v in bold_cells), sum(v[b][1] for v in bold_cells)) for b in baselines
+    }
+    both = (
+        sum(all(v[b][0] for b in baselines) for v in bold_cells),
+        sum(all(v[b][1] for b in baselines) for v in bold_cells),
+    )
+    parts = [
+        f"{paper.METHOD_LABELS.get(b, b)} in **{counts[b][0]}** (paired {counts[b][1]})"
+        for b in baselines
+    ]
+    text = (
+        f"Per baseline: the paper bolds ΦIREMAN in {n} (configuration, metric) cells. There, our "
+        f"ΦIREMAN is significantly above "
+        + ", above ".join(parts)
+        + f", and above both (a bold) in {both[0]} (paired {both[1]}); one-tailed tests at p < {ALPHA:g}."
+    )
     stats_out = {"paper_bolds_phireman": n, "bold_both": both[0], "bold_both_paired": both[1]}
     stats_out.update({f"above_{b}": counts[b][0] for b in baselines})
     stats_out.update({f"above_{b}_paired": counts[b][1] for b in baselines})
@@ -524,30 +628,61 @@ def _phireman_vs_each(cells: list[Cell]) -> tuple[str, dict]:
 # Ablations
 # ----------------------------------------------------------------------------------------------
 
-def _ablations(selector: Selector, reading: str, params: dict, problem_overrides: dict) -> tuple[str, list]:
-    grid = paper_ablations_grid(seeds=[], reading=reading, params=params, problem_overrides=problem_overrides)
+
+def _ablations(
+    selector: Selector, reading: str, params: dict, problem_overrides: dict
+) -> tuple[str, list]:
+    grid = paper_ablations_grid(
+        seeds=[], reading=reading, params=params, problem_overrides=problem_overrides
+    )
     samples = {spec.label: (spec, selector.sample(spec)) for spec in grid.configs}
     default = samples["default"][1]
     paper_rows = {r.label: r for r in paper.ABLATIONS}
-    header = ["Configuration", "TU1 (ours)", "TU2 (ours)", "TU1 (paper)", "TU2 (paper)",
-              "below default: ours TU1 / TU2 (p unpaired; paired)", "paper", "agrees"]
+    header = [
+        "Configuration",
+        "TU1 (ours)",
+        "TU2 (ours)",
+        "TU1 (paper)",
+        "TU2 (paper)",
+        "below default: ours TU1 / TU2 (p unpaired; paired)",
+        "paper",
+        "agrees",
+    ]
     rows, csv_samples = [], []
     for label, (_spec, s) in samples.items():
         ref = paper_rows.get(label)
         csv_samples.append(s if s is not None else None)
         if s is None or s.n == 0:
-            rows.append([label, "–", "–", _fmt(ref.tu1, ref.tu1_ci) if ref else "–",
-                         _fmt(ref.tu2, ref.tu2_ci) if ref else "–", "no data", "", ""])
+            rows.append(
+                [
+                    label,
+                    "–",
+                    "–",
+                    _fmt(ref.tu1, ref.tu1_ci) if ref else "–",
+                    _fmt(ref.tu2, ref.tu2_ci) if ref else "–",
+                    "no data",
+                    "",
+                    "",
+                ]
+            )
             continue
-        cells = [label, _fmt(*s.mean_ci("tu1")), _fmt(*s.mean_ci("tu2")),
-                 _fmt(ref.tu1, ref.tu1_ci) if ref else "–", _fmt(ref.tu2, ref.tu2_ci) if ref else "–"]
+        cells = [
+            label,
+            _fmt(*s.mean_ci("tu1")),
+            _fmt(*s.mean_ci("tu2")),
+            _fmt(ref.tu1, ref.tu1_ci) if ref else "–",
+            _fmt(ref.tu2, ref.tu2_ci) if ref else "–",
+        ]
         if label == "default" or default is None or default.n < 2:
             cells += ["—", "—", "—"]
             rows.append(cells)
             continue
         verdicts, agrees = [], []
-        for metric, paper_below in (("tu1", ref.tu1_below if ref else None), ("tu2", ref.tu2_below if ref else None)):
-            p_below = p_greater(default, s, metric)          # default > variant  <=> variant below
+        for metric, paper_below in (
+            ("tu1", ref.tu1_below if ref else None),
+            ("tu2", ref.tu2_below if ref else None),
+        ):
+            p_below = p_greater(default, s, metric)  # default > variant  <=> variant below
             p_below_paired = p_greater_paired(default, s, metric)
             p_above = p_greater(s, default, metric)
             below = p_below < ALPHA
@@ -555,21 +690,31 @@ def _ablations(selector: Selector, reading: str, params: dict, problem_overrides
             verdicts.append(f"{word} ({_fmt_p(p_below)}; {_fmt_p(p_below_paired)})")
             if paper_below is not None:
                 agrees.append("✓" if below == paper_below and not (p_above < ALPHA) else "✗")
-        paper_txt = ("both" if ref and ref.tu1_below and ref.tu2_below else
-                     "TU1 only" if ref and ref.tu1_below else "TU2 only" if ref and ref.tu2_below else "no")
+        paper_txt = (
+            "both"
+            if ref and ref.tu1_below and ref.tu2_below
+            else "TU1 only"
+            if ref and ref.tu1_below
+            else "TU2 only"
+            if ref and ref.tu2_below
+            else "no"
+        )
         cells += [" / ".join(verdicts), paper_txt, " ".join(agrees)]
         rows.append(cells)
     text = _md_table(header, rows, "lrrrrlll")
-    text += ("\n\n'below' = one-tailed unpaired Student's t-test that the default beats the variant, "
-             "p < 0.05 (paired test on shared seeds in the second p-value); 'above' = significantly above "
-             "the default (the paper found none). 'agrees' compares the unpaired verdict with the paper's "
-             "italics, TU1 then TU2.")
+    text += (
+        "\n\n'below' = one-tailed unpaired Student's t-test that the default beats the variant, "
+        "p < 0.05 (paired test on shared seeds in the second p-value); 'above' = significantly above "
+        "the default (the paper found none). 'agrees' compares the unpaired verdict with the paper's "
+        "italics, TU1 then TU2."
+    )
     return text, [s for s in csv_samples if s is not None]
 
 
 # ----------------------------------------------------------------------------------------------
 # Heatmaps
 # ----------------------------------------------------------------------------------------------
+
 
 def _grid_of(cells: list[Cell], fn) -> tuple[np.ndarray, np.ndarray, list[str], list[float]]:
     sizes = list(dict.fromkeys(c.size for c in cells))
@@ -597,8 +742,12 @@ def _heatmap(ax, z, marks, sizes, levels, title, vmax=None) -> AxesImage:
     import matplotlib
 
     cmap = matplotlib.colormaps["RdBu"].with_extremes(bad="#dddddd")
-    im = ax.imshow(np.ma.masked_invalid(z), cmap=cmap, norm=TwoSlopeNorm(vcenter=0.0, vmin=-lim, vmax=lim),
-                   aspect="auto")
+    im = ax.imshow(
+        np.ma.masked_invalid(z),
+        cmap=cmap,
+        norm=TwoSlopeNorm(vcenter=0.0, vmin=-lim, vmax=lim),
+        aspect="auto",
+    )
     ax.set_xticks(range(len(levels)), [f"{_pct(p)} %" for p in levels])
     ax.set_yticks(range(len(sizes)), sizes)
     ax.set_xlabel("attrition per step")
@@ -608,8 +757,15 @@ def _heatmap(ax, z, marks, sizes, levels, title, vmax=None) -> AxesImage:
         for j in range(z.shape[1]):
             if np.isfinite(z[i, j]):
                 strong = abs(z[i, j]) > 0.6 * lim
-                ax.text(j, i, f"{z[i, j]:+.1f}{marks[i, j]}", ha="center", va="center", fontsize=8,
-                        color="white" if strong else "black")
+                ax.text(
+                    j,
+                    i,
+                    f"{z[i, j]:+.1f}{marks[i, j]}",
+                    ha="center",
+                    va="center",
+                    fontsize=8,
+                    color="white" if strong else "black",
+                )
             else:
                 ax.text(j, i, "n/a", ha="center", va="center", fontsize=7, color="#777777")
     return im
@@ -628,8 +784,13 @@ def _pair_diff(cells, other: str, metric: str):
         a, b = c.samples.get("phireman"), c.samples.get(other)
         if a is None or b is None or a.n == 0 or b.n == 0:
             return np.nan, ""
-        mark = "*" if p_greater(a, b, metric) < ALPHA else ("°" if p_greater(b, a, metric) < ALPHA else "")
+        mark = (
+            "*"
+            if p_greater(a, b, metric) < ALPHA
+            else ("°" if p_greater(b, a, metric) < ALPHA else "")
+        )
         return a.mean(metric) - b.mean(metric), mark
+
     return fn
 
 
@@ -641,51 +802,83 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
     for other in ("dccrs", "mccst"):
         fig = Figure(figsize=(10, 4.2), layout="constrained")
         axes = fig.subplots(1, 2)
-        pair_panels = [_grid_of(cells, _pair_diff(cells, other, metric)) for metric in paper.METRICS]
+        pair_panels = [
+            _grid_of(cells, _pair_diff(cells, other, metric)) for metric in paper.METRICS
+        ]
         lim = _common_limit(z for z, *_ in pair_panels)
         for ax, metric, (z, marks, sizes, levels) in zip(axes, paper.METRICS, pair_panels):
-            im = _heatmap(ax, z, marks, sizes, levels,
-                          f"{METRIC_LABELS[metric]}: ΦIREMAN − {paper.METHOD_LABELS[other]} (pp)", vmax=lim)
+            im = _heatmap(
+                ax,
+                z,
+                marks,
+                sizes,
+                levels,
+                f"{METRIC_LABELS[metric]}: ΦIREMAN − {paper.METHOD_LABELS[other]} (pp)",
+                vmax=lim,
+            )
             fig.colorbar(im, ax=ax, shrink=0.8)
-        fig.suptitle(f"ΦIREMAN − {paper.METHOD_LABELS[other]}; * ΦIREMAN significantly higher, "
-                     f"° significantly lower (one-tailed t-test, p < 0.05)", fontsize=9)
+        fig.suptitle(
+            f"ΦIREMAN − {paper.METHOD_LABELS[other]}; * ΦIREMAN significantly higher, "
+            f"° significantly lower (one-tailed t-test, p < 0.05)",
+            fontsize=9,
+        )
         paths.append(_save(fig, out / f"fig3_phireman_minus_{other}.png"))
 
     # The paper's Fig. 3: ΦIREMAN minus the better baseline, ours against the paper's.
     def ours(metric):
         def fn(c: Cell):
             a = c.samples.get("phireman")
-            base = [b for b in (c.samples.get(m) for m in ("dccrs", "mccst")) if b is not None and b.n]
+            base = [
+                b for b in (c.samples.get(m) for m in ("dccrs", "mccst")) if b is not None and b.n
+            ]
             if a is None or not a.n or not base:
                 return np.nan, ""
             v = c.unpaired[metric]
-            mark = "*" if (v.significant and v.best == "phireman") else ("°" if v.significant else "")
+            mark = (
+                "*" if (v.significant and v.best == "phireman") else ("°" if v.significant else "")
+            )
             return a.mean(metric) - max(b.mean(metric) for b in base), mark
+
         return fn
 
     def theirs(metric):
         def fn(c: Cell):
-            vals = {m: paper.paper_value(c.size, c.attrition, m, metric) for m in paper.PAPER_METHODS}
+            vals = {
+                m: paper.paper_value(c.size, c.attrition, m, metric) for m in paper.PAPER_METHODS
+            }
             if any(v is None for v in vals.values()):
                 return np.nan, ""
             bold = paper.paper_bold(c.size, c.attrition, metric)
             mark = "*" if bold == "phireman" else ("°" if bold else "")
             return vals["phireman"][0] - max(vals["dccrs"][0], vals["mccst"][0]), mark  # type: ignore[index]  # none is None (above)
+
         return fn
 
     fig = Figure(figsize=(10, 8), layout="constrained")
     axes = fig.subplots(2, 2)
-    panels = {(row, col): _grid_of(cells, fn(metric))
-              for row, (who, fn) in enumerate((("ours", ours), ("paper", theirs)))
-              for col, metric in enumerate(paper.METRICS)}
+    panels = {
+        (row, col): _grid_of(cells, fn(metric))
+        for row, (who, fn) in enumerate((("ours", ours), ("paper", theirs)))
+        for col, metric in enumerate(paper.METRICS)
+    }
     lim = _common_limit(z for z, *_ in panels.values())  # compared panels share one colour scale
     for (row, col), (z, marks, sizes, levels) in panels.items():
         who, metric = ("ours", "paper")[row], paper.METRICS[col]
-        im = _heatmap(axes[row, col], z, marks, sizes, levels,
-                      f"{who}: {METRIC_LABELS[metric]}, ΦIREMAN − max(DCCRS, MCCST) (pp)", vmax=lim)
+        im = _heatmap(
+            axes[row, col],
+            z,
+            marks,
+            sizes,
+            levels,
+            f"{who}: {METRIC_LABELS[metric]}, ΦIREMAN − max(DCCRS, MCCST) (pp)",
+            vmax=lim,
+        )
         fig.colorbar(im, ax=axes[row, col], shrink=0.8)
-    fig.suptitle("Fig. 3 style: * ΦIREMAN beats both baselines, ° a baseline beats both others "
-                 "(p < 0.05; paper: its bold cells)", fontsize=9)
+    fig.suptitle(
+        "Fig. 3 style: * ΦIREMAN beats both baselines, ° a baseline beats both others "
+        "(p < 0.05; paper: its bold cells)",
+        fontsize=9,
+    )
     paths.append(_save(fig, out / "fig3_phireman_minus_best_baseline.png"))
 
     # Ours minus the paper, per method: where the reproduction deviates.
@@ -694,15 +887,24 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
     panels = {}
     for row, m in enumerate(paper.PAPER_METHODS):
         for col, metric in enumerate(paper.METRICS):
+
             def fn(c: Cell, m=m, metric=metric):
                 d = c.delta(m, metric)
                 return d, ("" if math.isnan(d) or c.within(m, metric) else "!")
+
             panels[(row, col)] = _grid_of(cells, fn)
     lim = _common_limit(z for z, *_ in panels.values())
     for (row, col), (z, marks, sizes, levels) in panels.items():
         m, metric = paper.PAPER_METHODS[row], paper.METRICS[col]
-        im = _heatmap(axes[row, col], z, marks, sizes, levels,
-                      f"{paper.METHOD_LABELS[m]} {METRIC_LABELS[metric]}: ours − paper (pp)", vmax=lim)
+        im = _heatmap(
+            axes[row, col],
+            z,
+            marks,
+            sizes,
+            levels,
+            f"{paper.METHOD_LABELS[m]} {METRIC_LABELS[metric]}: ours − paper (pp)",
+            vmax=lim,
+        )
         fig.colorbar(im, ax=axes[row, col], shrink=0.8)
     fig.suptitle("Ours − paper; ! outside the tolerance (ΦIREMAN 3 pp, baselines 5 pp)", fontsize=9)
     paths.append(_save(fig, out / "delta_vs_paper.png"))
@@ -713,18 +915,28 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
 # Other configurations, ranking (tune), CSV
 # ----------------------------------------------------------------------------------------------
 
+
 def _spec_from_row(r: dict) -> ConfigSpec:
     d = json.loads(r["spec_json"])
-    return ConfigSpec(d["size"], d["attrition"], d["method"], d["reading"], d.get("params", {}),
-                      d.get("problem_overrides", {}), r.get("label") or "")
+    return ConfigSpec(
+        d["size"],
+        d["attrition"],
+        d["method"],
+        d["reading"],
+        d.get("params", {}),
+        d.get("problem_overrides", {}),
+        r.get("label") or "",
+    )
 
 
 def rank_samples(samples: list[Sample]) -> list[Sample]:
     """Best first: by TU1 mean, then TU2 mean (configurations without ok runs last)."""
+
     def key(s: Sample):
         if s.n == 0:
             return (1, 0.0, 0.0)
         return (0, -s.mean("tu1"), -s.mean("tu2"))
+
     return sorted(samples, key=key)
 
 
@@ -733,34 +945,72 @@ def _overrides_text(spec: ConfigSpec) -> str:
     return ", ".join(f"{k}={v}" for k, v in items.items()) or "—"
 
 
-CSV_FIELDS = ["spec_key", "label", "size", "attrition", "reading", "method", "overrides", "n_ok", "n_error",
-              "tu1_mean_pct", "tu1_ci95_pct", "tu2_mean_pct", "tu2_ci95_pct", "paper_tu1_pct", "paper_tu1_ci95_pct",
-              "paper_tu2_pct", "paper_tu2_ci95_pct", "delta_tu1_pp", "delta_tu2_pp", "within_tolerance",
-              "code_versions"]
+CSV_FIELDS = [
+    "spec_key",
+    "label",
+    "size",
+    "attrition",
+    "reading",
+    "method",
+    "overrides",
+    "n_ok",
+    "n_error",
+    "tu1_mean_pct",
+    "tu1_ci95_pct",
+    "tu2_mean_pct",
+    "tu2_ci95_pct",
+    "paper_tu1_pct",
+    "paper_tu1_ci95_pct",
+    "paper_tu2_pct",
+    "paper_tu2_ci95_pct",
+    "delta_tu1_pp",
+    "delta_tu2_pp",
+    "within_tolerance",
+    "code_versions",
+]
 
 
 def _csv_row(s: Sample, in_table: bool) -> dict:
     spec = s.spec
     t1, c1 = s.mean_ci("tu1")
     t2, c2 = s.mean_ci("tu2")
-    row = {"spec_key": spec.spec_key, "label": spec.label, "size": spec.size, "attrition": spec.attrition,
-           "reading": spec.reading, "method": spec.method, "overrides": _overrides_text(spec), "n_ok": s.n,
-           "n_error": s.n_error, "tu1_mean_pct": t1, "tu1_ci95_pct": c1, "tu2_mean_pct": t2, "tu2_ci95_pct": c2,
-           "code_versions": "; ".join(f"{v} ({n})" for v, n in s.code_versions.items())}
+    row = {
+        "spec_key": spec.spec_key,
+        "label": spec.label,
+        "size": spec.size,
+        "attrition": spec.attrition,
+        "reading": spec.reading,
+        "method": spec.method,
+        "overrides": _overrides_text(spec),
+        "n_ok": s.n,
+        "n_error": s.n_error,
+        "tu1_mean_pct": t1,
+        "tu1_ci95_pct": c1,
+        "tu2_mean_pct": t2,
+        "tu2_ci95_pct": c2,
+        "code_versions": "; ".join(f"{v} ({n})" for v, n in s.code_versions.items()),
+    }
     p1 = paper.paper_value(spec.size, spec.attrition, spec.method, "tu1") if in_table else None
     p2 = paper.paper_value(spec.size, spec.attrition, spec.method, "tu2") if in_table else None
     if p1 and p2 and s.n:
         d1, d2 = t1 - p1[0], t2 - p2[0]
         tol = paper.TOLERANCE_PP.get(spec.method, 5.0)
-        row.update(paper_tu1_pct=p1[0], paper_tu1_ci95_pct=p1[1], paper_tu2_pct=p2[0], paper_tu2_ci95_pct=p2[1],
-                   delta_tu1_pp=round(d1, 4), delta_tu2_pp=round(d2, 4),
-                   within_tolerance=abs(d1) <= tol and abs(d2) <= tol)
+        row.update(
+            paper_tu1_pct=p1[0],
+            paper_tu1_ci95_pct=p1[1],
+            paper_tu2_pct=p2[0],
+            paper_tu2_ci95_pct=p2[1],
+            delta_tu1_pp=round(d1, 4),
+            delta_tu2_pp=round(d2, 4),
+            within_tolerance=abs(d1) <= tol and abs(d2) <= tol,
+        )
     return {k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
 
 
 # ----------------------------------------------------------------------------------------------
 # The report
 # ----------------------------------------------------------------------------------------------
+
 
 @dataclass
 class ReportResult:
@@ -778,8 +1028,11 @@ def _differs_from_paper(problem_overrides: dict, params: dict, reading: str) -> 
     ref = problem_preset("S", 0.01, reading)
     for k, v in problem_overrides.items():
         was = getattr(ref, k, None)
-        why.append(f"{k}={v} (the paper's: {was:g})" if isinstance(was, (int, float)) and not isinstance(was, bool)
-                   else f"{k}={v}")
+        why.append(
+            f"{k}={v} (the paper's: {was:g})"
+            if isinstance(was, (int, float)) and not isinstance(was, bool)
+            else f"{k}={v}"
+        )
     why += [f"{k}={v} (planner parameter)" for k, v in params.items()]
     return why
 
@@ -789,16 +1042,51 @@ def _your_configurations(samples: list[tuple[Sample, str]]) -> str:
     rows_md = []
     for s, ref in samples:
         spec = s.spec
-        rows_md.append([spec.size, _pct(spec.attrition), spec.method, spec.label or "—", _overrides_text(spec),
-                        spec.reading, str(s.n), str(s.n_error), _fmt(*s.mean_ci("tu1")), _fmt(*s.mean_ci("tu2")), ref])
-    return _md_table(["size", "p (%)", "method", "label", "overrides", "reading", "n", "errors", "TU1 (%)",
-                      "TU2 (%)", "paper TU1 / TU2"], rows_md, "lrllllrrrrl")
+        rows_md.append(
+            [
+                spec.size,
+                _pct(spec.attrition),
+                spec.method,
+                spec.label or "—",
+                _overrides_text(spec),
+                spec.reading,
+                str(s.n),
+                str(s.n_error),
+                _fmt(*s.mean_ci("tu1")),
+                _fmt(*s.mean_ci("tu2")),
+                ref,
+            ]
+        )
+    return _md_table(
+        [
+            "size",
+            "p (%)",
+            "method",
+            "label",
+            "overrides",
+            "reading",
+            "n",
+            "errors",
+            "TU1 (%)",
+            "TU2 (%)",
+            "paper TU1 / TU2",
+        ],
+        rows_md,
+        "lrllllrrrrl",
+    )
 
 
-def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, reading: str = "scaled",
-                 params: dict | None = None, problem_overrides: dict | None = None,
-                 notes: str | None = None, figures: bool = True,
-                 extra_methods: tuple[str, ...] = (), progress=None) -> ReportResult:
+def build_report(
+    store_path: str | pathlib.Path,
+    out: str | pathlib.Path,
+    reading: str = "scaled",
+    params: dict | None = None,
+    problem_overrides: dict | None = None,
+    notes: str | None = None,
+    figures: bool = True,
+    extra_methods: tuple[str, ...] = (),
+    progress=None,
+) -> ReportResult:
     """Write ``report.md``, ``configs.csv`` and the heatmap PNGs for a results store into ``out``.
 
     ``params`` / ``problem_overrides`` must equal the ``--set`` overrides the sweeps used (normally
@@ -821,24 +1109,42 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
         sweeps = store.sweeps()
     tick("read the store")
     selector = Selector(rows)
-    methods = tuple(paper.PAPER_METHODS) + tuple(m for m in extra_methods if m not in paper.PAPER_METHODS)
+    methods = tuple(paper.PAPER_METHODS) + tuple(
+        m for m in extra_methods if m not in paper.PAPER_METHODS
+    )
     all_cells = analyse_table(selector, reading, params, problem_overrides, methods)
     # Only configurations with data are shown: a custom grid of 4 cells is not 25 rows of '–'.
     cells = [c for c in all_cells if any(s is not None and s.n for s in c.samples.values())]
     pm = paper.PAPER_METHODS
     table_samples = [s for c in all_cells for s in c.samples.values() if s is not None]
     ablation_text, ablation_samples = _ablations(selector, reading, params, problem_overrides)
-    has_ablations = any(s is not None and s.n and s.spec.label != "default" for s in ablation_samples)
+    has_ablations = any(
+        s is not None and s.n and s.spec.label != "default" for s in ablation_samples
+    )
     not_paper = _differs_from_paper(problem_overrides, params, reading)
     comparable = not not_paper
     summary_text, agree_stats = _agreement_summary(cells, pm)
-    central_cells = analyse_table(selector, reading, params, problem_overrides, ("phireman-central",))
-    central = _central_vs_async(cells, [c for c in central_cells if (c.size, c.attrition) in
-                                        {(k.size, k.attrition) for k in cells}]) if cells else None
+    central_cells = analyse_table(
+        selector, reading, params, problem_overrides, ("phireman-central",)
+    )
+    central = (
+        _central_vs_async(
+            cells,
+            [
+                c
+                for c in central_cells
+                if (c.size, c.attrition) in {(k.size, k.attrition) for k in cells}
+            ],
+        )
+        if cells
+        else None
+    )
     if central is not None and comparable:
-        summary_text += (f"\n- **ΦIREMAN planned centrally** (same seeds, the ground station's "
-                         f"model) within 3 pp at 0–2 %: **{central[1]['central']} of "
-                         f"{central[1]['configs']}** configurations (see the table below)")
+        summary_text += (
+            f"\n- **ΦIREMAN planned centrally** (same seeds, the ground station's "
+            f"model) within 3 pp at 0–2 %: **{central[1]['central']} of "
+            f"{central[1]['configs']}** configurations (see the table below)"
+        )
     bold_text, bold_stats = _bold_agreement(cells)
     tick("analysed Table II")
 
@@ -847,7 +1153,9 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
     for r in rows:
         if r["run_key"] not in selector.used and r["spec_key"] not in other_specs:
             other_specs[r["spec_key"]] = _spec_from_row(r)
-    other_samples = [s for s in (selector.sample(spec) for spec in other_specs.values()) if s is not None]
+    other_samples = [
+        s for s in (selector.sample(spec) for spec in other_specs.values()) if s is not None
+    ]
     tick("collected the other configurations")
 
     used_versions = Counter(r["code_version"] for r in rows if r["run_key"] in selector.used)
@@ -861,80 +1169,142 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
     show_paper = bool(cells)
 
     md = [f"# Evaluation report: {pathlib.Path(store_path).name}", ""]
-    md += [f"- generated: {utc_now()} from `{store_path}` ({len(rows)} runs: {n_ok} ok, "
-           f"{len(rows) - n_ok} errors)",
-           f"- reading: **{reading}**" + (" (every length × field half-width / 5; docs/design/model.md §6.4)"
-                                           if reading == "scaled" else " (lengths as printed)")
-           + "; readings in the store: " + ", ".join(f"{k} ({v})" for k, v in readings.items()),
-           "- code version(s) of the rows in the paper tables: "
-           + ("; ".join(f"`{v}` ({n} runs)" for v, n in used_versions.items()) or "none"),
-           f"- the paper's Table II configurations: {len(cells)} of {len(all_cells)} have data "
-           f"({have_table} of {expected_table} (configuration, method) cells, {have_runs} ok runs)",
-           f"- paper values: {paper.SOURCE}",
-           "- DCCRS is a **reconstruction** (docs/design/model.md §3.3): the original paper was not identified."]
+    md += [
+        f"- generated: {utc_now()} from `{store_path}` ({len(rows)} runs: {n_ok} ok, "
+        f"{len(rows) - n_ok} errors)",
+        f"- reading: **{reading}**"
+        + (
+            " (every length × field half-width / 5; docs/design/model.md §6.4)"
+            if reading == "scaled"
+            else " (lengths as printed)"
+        )
+        + "; readings in the store: "
+        + ", ".join(f"{k} ({v})" for k, v in readings.items()),
+        "- code version(s) of the rows in the paper tables: "
+        + ("; ".join(f"`{v}` ({n} runs)" for v, n in used_versions.items()) or "none"),
+        f"- the paper's Table II configurations: {len(cells)} of {len(all_cells)} have data "
+        f"({have_table} of {expected_table} (configuration, method) cells, {have_runs} ok runs)",
+        f"- paper values: {paper.SOURCE}",
+        "- DCCRS is a **reconstruction** (docs/design/model.md §3.3): the original paper was not identified.",
+    ]
     if params or problem_overrides:
-        md.append(f"- overrides applied to every configuration: "
-                  f"{', '.join(f'{k}={v}' for k, v in {**problem_overrides, **params}.items())}")
+        md.append(
+            f"- overrides applied to every configuration: "
+            f"{', '.join(f'{k}={v}' for k, v in {**problem_overrides, **params}.items())}"
+        )
     if not comparable:
-        md.append(f"- **not compared with the paper**: these configurations differ from the paper's "
-                  f"({'; '.join(not_paper)}), so the paper's numbers do not apply to them")
+        md.append(
+            f"- **not compared with the paper**: these configurations differ from the paper's "
+            f"({'; '.join(not_paper)}), so the paper's numbers do not apply to them"
+        )
     if sweeps:
         total_wall = sum(s["wall_s"] or 0.0 for s in sweeps)
-        md.append(f"- sweeps: {len(sweeps)} invocations, {total_wall / 60:.1f} min wall in total "
-                  f"({sum(s['completed'] for s in sweeps)} runs completed by them)")
+        md.append(
+            f"- sweeps: {len(sweeps)} invocations, {total_wall / 60:.1f} min wall in total "
+            f"({sum(s['completed'] for s in sweeps)} runs completed by them)"
+        )
     md.append("")
 
     yours = []
     if lead_with_yours:
-        for s in sorted(other_samples, key=lambda s: (s.spec.size, s.spec.attrition, s.spec.method, s.spec.label)):
+        for s in sorted(
+            other_samples,
+            key=lambda s: (s.spec.size, s.spec.attrition, s.spec.method, s.spec.label),
+        ):
             yours.append((s, "— (not a paper configuration)"))
         for c in cells:
             for m, smp in c.samples.items():
                 if smp is None or not smp.n:
                     continue
                 ref = [paper.paper_value(c.size, c.attrition, m, k) for k in paper.METRICS]
-                yours.append((smp, f"{ref[0][0]:.2f} / {ref[1][0]:.2f}" if comparable and all(ref)  # type: ignore[index]  # all(ref)
-                              else "— (differs from the paper)" if all(ref) else "—"))
-        md += ["## Your configurations", "",
-               f"{len(yours)} configurations with data, TU1 and TU2 in % (mean ± half-width of the 95 % CI "
-               f"over seeds; clipped to [0, 100] when it reaches past). The paper's numbers are shown only "
-               f"for configurations that are the paper's own.", "", _your_configurations(yours), ""]
+                yours.append(
+                    (
+                        smp,
+                        f"{ref[0][0]:.2f} / {ref[1][0]:.2f}"  # type: ignore[index]  # all(ref)
+                        if comparable and all(ref)
+                        else "— (differs from the paper)"
+                        if all(ref)
+                        else "—",
+                    )
+                )
+        md += [
+            "## Your configurations",
+            "",
+            f"{len(yours)} configurations with data, TU1 and TU2 in % (mean ± half-width of the 95 % CI "
+            f"over seeds; clipped to [0, 100] when it reaches past). The paper's numbers are shown only "
+            f"for configurations that are the paper's own.",
+            "",
+            _your_configurations(yours),
+            "",
+        ]
 
     if show_paper:
-        md += ["## Summary (the paper's configurations in this store)" if lead_with_yours else "## Summary", ""]
+        md += [
+            "## Summary (the paper's configurations in this store)"
+            if lead_with_yours
+            else "## Summary",
+            "",
+        ]
         if comparable:
             md += [summary_text]
         else:
-            md += ["Not graded against the paper: the overrides make these configurations differ from it."]
+            md += [
+                "Not graded against the paper: the overrides make these configurations differ from it."
+            ]
         if comparable:
-            md += [f"- Significance pattern: {bold_stats['agree_unpaired']} of {bold_stats['cells']} cells match "
-                   f"the paper's bolding (unpaired), {bold_stats['agree_paired']} with the paired test."]
+            md += [
+                f"- Significance pattern: {bold_stats['agree_unpaired']} of {bold_stats['cells']} cells match "
+                f"the paper's bolding (unpaired), {bold_stats['agree_paired']} with the paired test."
+            ]
         md += [""]
 
-        md += ["## Table II (ours)", "",
-               "TU1 and TU2 in %, mean ± half-width of the 95 % Student-t CI over seeds. **Bold**: the best "
-               "method beats both others by a one-tailed unpaired Student's t-test (scipy `ttest_ind`, equal "
-               "variances, `alternative='greater'`) at p < 0.05, the paper's test. *paired*: the same criterion "
-               "with `ttest_rel` on the seeds both methods share (the scenarios are common random numbers); "
-               "it shows the winning method and the larger of its two p-values. n = ok runs per method. "
-               + ("† 5 % column: see below. " if any(c.attrition >= 0.05 for c in cells) else "")
-               + "Only configurations with data are listed.", "",
-               _table_ii(cells, methods), ""]
+        md += [
+            "## Table II (ours)",
+            "",
+            "TU1 and TU2 in %, mean ± half-width of the 95 % Student-t CI over seeds. **Bold**: the best "
+            "method beats both others by a one-tailed unpaired Student's t-test (scipy `ttest_ind`, equal "
+            "variances, `alternative='greater'`) at p < 0.05, the paper's test. *paired*: the same criterion "
+            "with `ttest_rel` on the seeds both methods share (the scenarios are common random numbers); "
+            "it shows the winning method and the larger of its two p-values. n = ok runs per method. "
+            + ("† 5 % column: see below. " if any(c.attrition >= 0.05 for c in cells) else "")
+            + "Only configurations with data are listed.",
+            "",
+            _table_ii(cells, methods),
+            "",
+        ]
         if comparable:
-            md += ["## Ours against the paper", "",
-                   "Each cell: ours vs paper (Δ = ours − paper, pp). ✓ when |Δ| ≤ 3 pp for ΦIREMAN, ≤ 5 pp for the "
-                   "baselines.", "", _vs_paper(cells, pm), ""]
+            md += [
+                "## Ours against the paper",
+                "",
+                "Each cell: ours vs paper (Δ = ours − paper, pp). ✓ when |Δ| ≤ 3 pp for ΦIREMAN, ≤ 5 pp for the "
+                "baselines.",
+                "",
+                _vs_paper(cells, pm),
+                "",
+            ]
             if central is not None:
-                md += ["## ΦIREMAN: asynchronous and central information against the paper", "",
-                       "The paper's ΦIREMAN passes messages between drones (asynchronous, reconstructed: "
-                       "docs/design/model.md §5.4); `phireman-central` is the same planner given every networked "
-                       "drone's current position, as the ground station has it. Same scenarios and "
-                       "attrition draws (seeds). ✓: |Δ| ≤ 3 pp.", "", central[0], ""]
+                md += [
+                    "## ΦIREMAN: asynchronous and central information against the paper",
+                    "",
+                    "The paper's ΦIREMAN passes messages between drones (asynchronous, reconstructed: "
+                    "docs/design/model.md §5.4); `phireman-central` is the same planner given every networked "
+                    "drone's current position, as the ground station has it. Same scenarios and "
+                    "attrition draws (seeds). ✓: |Δ| ≤ 3 pp.",
+                    "",
+                    central[0],
+                    "",
+                ]
             if any(c.attrition <= 0.02 + 1e-12 for c in cells):
-                md += ["## Configurations that miss (0–2 % attrition)", "",
-                       "With an automatic diagnosis: whether the gap is within the combined confidence intervals, "
-                       "and whether the other methods move the same way (a shared-model difference) or not "
-                       "(planner-specific).", "", _misses(cells, pm), ""]
+                md += [
+                    "## Configurations that miss (0–2 % attrition)",
+                    "",
+                    "With an automatic diagnosis: whether the gap is within the combined confidence intervals, "
+                    "and whether the other methods move the same way (a shared-model difference) or not "
+                    "(planner-specific).",
+                    "",
+                    _misses(cells, pm),
+                    "",
+                ]
             if any(c.attrition >= 0.05 - 1e-12 for c in cells):
                 md += ["## The 5 % column", "", _five_percent(cells, pm), ""]
             md += ["## Significance against the paper's bolding", "", bold_text, ""]
@@ -947,30 +1317,75 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
         figs = heatmaps(all_cells, out)
         md += ["## Figures", ""]
         md += [f"![{p.stem}]({p.name})" for p in figs]
-        md += ["", "Diverging colour maps centred at 0 (blue: ΦIREMAN higher), one colour scale per figure so "
-               "compared panels read alike. * ΦIREMAN significantly higher, ° significantly lower (one-tailed "
-               "unpaired t-test, p < 0.05); grey: no data.", ""]
+        md += [
+            "",
+            "Diverging colour maps centred at 0 (blue: ΦIREMAN higher), one colour scale per figure so "
+            "compared panels read alike. * ΦIREMAN significantly higher, ° significantly lower (one-tailed "
+            "unpaired t-test, p < 0.05); grey: no data.",
+            "",
+        ]
     tick("drew the figures")
 
     if other_samples and not lead_with_yours:
         rows_md = []
-        for s in sorted(other_samples, key=lambda s: (s.spec.method, s.spec.size, s.spec.attrition, s.spec.label)):
-            rows_md.append([s.spec.label or "—", s.spec.size, _pct(s.spec.attrition), s.spec.reading, s.spec.method,
-                            _overrides_text(s.spec), str(s.n), str(s.n_error), _fmt(*s.mean_ci("tu1")),
-                            _fmt(*s.mean_ci("tu2"))])
-        md += ["## Other configurations in the store", "",
-               _md_table(["label", "size", "p (%)", "reading", "method", "overrides", "n", "errors", "TU1", "TU2"],
-                         rows_md, "llrlllrrrr"), ""]
+        for s in sorted(
+            other_samples,
+            key=lambda s: (s.spec.method, s.spec.size, s.spec.attrition, s.spec.label),
+        ):
+            rows_md.append(
+                [
+                    s.spec.label or "—",
+                    s.spec.size,
+                    _pct(s.spec.attrition),
+                    s.spec.reading,
+                    s.spec.method,
+                    _overrides_text(s.spec),
+                    str(s.n),
+                    str(s.n_error),
+                    _fmt(*s.mean_ci("tu1")),
+                    _fmt(*s.mean_ci("tu2")),
+                ]
+            )
+        md += [
+            "## Other configurations in the store",
+            "",
+            _md_table(
+                [
+                    "label",
+                    "size",
+                    "p (%)",
+                    "reading",
+                    "method",
+                    "overrides",
+                    "n",
+                    "errors",
+                    "TU1",
+                    "TU2",
+                ],
+                rows_md,
+                "llrlllrrrr",
+            ),
+            "",
+        ]
 
     errors: Counter[tuple[str, str]] = Counter()
     for r in rows:
         if r["status"] == "error":
             errors[(r["method"], (r["error"] or "?").splitlines()[0][:200])] += 1
     if errors:
-        md += ["## Failed runs", "", _md_table(["method", "error", "runs"],
-                                               [[m, e.replace("|", "\\|"), str(n)] for (m, e), n in errors.most_common()],
-                                               "llr"), ""]
-    notes_sample = [n for s in table_samples + [a for a in ablation_samples if a is not None] for n in s.notes]
+        md += [
+            "## Failed runs",
+            "",
+            _md_table(
+                ["method", "error", "runs"],
+                [[m, e.replace("|", "\\|"), str(n)] for (m, e), n in errors.most_common()],
+                "llr",
+            ),
+            "",
+        ]
+    notes_sample = [
+        n for s in table_samples + [a for a in ablation_samples if a is not None] for n in s.notes
+    ]
     if notes_sample:
         md += ["## Data notes", ""] + [f"- {n}" for n in sorted(set(notes_sample))] + [""]
     if notes:
@@ -986,12 +1401,19 @@ def build_report(store_path: str | pathlib.Path, out: str | pathlib.Path, readin
             w.writerow(_csv_row(s, comparable))
         for s in [a for a in ablation_samples if a is not None] + other_samples:
             w.writerow(_csv_row(s, False))
-    summary = {"agreement": agree_stats if comparable else {}, "bold": bold_stats, "runs": len(rows), "ok": n_ok,
-               "central_vs_async": None if central is None or not comparable else central[1],
-               "table_cells_with_data": have_table, "paper_configs_with_data": len(cells),
-               "your_configurations": len(yours) if lead_with_yours else len(other_samples),
-               "leads_with_yours": lead_with_yours,
-               "compared_with_paper": comparable and show_paper, "code_versions": dict(used_versions)}
+    summary = {
+        "agreement": agree_stats if comparable else {},
+        "bold": bold_stats,
+        "runs": len(rows),
+        "ok": n_ok,
+        "central_vs_async": None if central is None or not comparable else central[1],
+        "table_cells_with_data": have_table,
+        "paper_configs_with_data": len(cells),
+        "your_configurations": len(yours) if lead_with_yours else len(other_samples),
+        "leads_with_yours": lead_with_yours,
+        "compared_with_paper": comparable and show_paper,
+        "code_versions": dict(used_versions),
+    }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, ensure_ascii=False))
     return ReportResult(md_path, csv_path, figs, summary)
 

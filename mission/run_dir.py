@@ -45,10 +45,12 @@ class Records:
         from mission.load import dump_mission
 
         self.dir = run_dir
-        (run_dir / "mission.yaml").write_text(dump_mission(mission, "resolved mission of this run"),
-                                              encoding="utf-8")
-        (run_dir / "run.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n",
-                                          encoding="utf-8")
+        (run_dir / "mission.yaml").write_text(
+            dump_mission(mission, "resolved mission of this run"), encoding="utf-8"
+        )
+        (run_dir / "run.json").write_text(
+            json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8"
+        )
         self.tlog = TlogWriter(run_dir / "flight.tlog")
         self.events = EventLog(run_dir / "events.jsonl")
         self.metrics = MetricsWriter(run_dir / "metrics.csv")
@@ -62,45 +64,78 @@ class Records:
             w.close()
 
 
-
-def summary(mission: Mission, op: Operator, seed: int, kind: str, wall_s: float,
-             speedup: float, report: dict | None, run_dir: Path, now_s: float) -> dict:
+def summary(
+    mission: Mission,
+    op: Operator,
+    seed: int,
+    kind: str,
+    wall_s: float,
+    speedup: float,
+    report: dict | None,
+    run_dir: Path,
+    now_s: float,
+) -> dict:
     """``summary.json``: the station's view of the flight, plus the emulator's truth if any."""
     tu1, tu2 = op.station_tu()
     recs = op.records
     sim_s = (recs[-1].t_mission_s + mission.run.control_period_s) if recs else 0.0
     s = {
-        "mission": mission.name, "backend": kind, "seed": seed, "phase": op.phase,
+        "mission": mission.name,
+        "backend": kind,
+        "seed": seed,
+        "phase": op.phase,
         "station": {"tu1": tu1, "tu2": tu2, "ticks": len(recs)},
-        "duration_s": op.config.duration_s, "mission_s_flown": sim_s,
-        "wall_s": wall_s, "speedup_requested": speedup, "station_cpu_s": time.process_time(),
+        "duration_s": op.config.duration_s,
+        "mission_s_flown": sim_s,
+        "wall_s": wall_s,
+        "speedup_requested": speedup,
+        "station_cpu_s": time.process_time(),
         "speedup_achieved": (now_s - op.t_start_s) / wall_s if wall_s > 0 else None,
         "mission_t0_s": op.mission_t0_s,
         "vehicles_discovered": len(op.fleet),
         "refusal": op.refusal,
-        "live_tasks": None if op.live_tasks is None else {
-            "sysids": list(op.live_tasks.sysids), "never_heard": list(op.live_tasks.waiting_for())},
-        "reclaimed": len(op.reclaimed), "counters": op.counters,
-        "interrupted": op.interrupted, "end_status": op.end_status,
-        "interrupt_report": None if op.interrupted is None else [
+        "live_tasks": None
+        if op.live_tasks is None
+        else {
+            "sysids": list(op.live_tasks.sysids),
+            "never_heard": list(op.live_tasks.waiting_for()),
+        },
+        "reclaimed": len(op.reclaimed),
+        "counters": op.counters,
+        "interrupted": op.interrupted,
+        "end_status": op.end_status,
+        "interrupt_report": None
+        if op.interrupted is None
+        else [
             {"link_id": v[0], "sysid": v[1], "state": text, "confirmed": ok}
-            for v, text, ok in op.interrupt_report(now_s)],
-        "param_changes": op.param_changes, "limit_warnings": op.limit_warnings,
+            for v, text, ok in op.interrupt_report(now_s)
+        ],
+        "param_changes": op.param_changes,
+        "limit_warnings": op.limit_warnings,
         "operator_actions": [dataclasses.asdict(a) for a in op.actions],
-        "links": [{"link_id": l.link_id, "frames_out": l.stats.frames_out,
-                   "frames_in": l.stats.decode.frames, "bad_data": l.stats.decode.bad_data,
-                   "raw_frames": l.stats.decode.raw_frames,
-                   "signature_rejected": l.stats.decode.signature_rejected,
-                   "stream_fallbacks": l.stats.data_stream_fallbacks,
-                   "refused_sysids": l.stats.refused_sysids,
-                   "refused_by_sysid": dict(l.stats.refused_by_sysid),
-                   "inconsistent_frames": l.stats.inconsistent_frames,
-                   "messages_disabled": l.stats.messages_disabled}
-                  for l in op.station.links],
-        "audit": None if op.audit_report is None else {
+        "links": [
+            {
+                "link_id": l.link_id,
+                "frames_out": l.stats.frames_out,
+                "frames_in": l.stats.decode.frames,
+                "bad_data": l.stats.decode.bad_data,
+                "raw_frames": l.stats.decode.raw_frames,
+                "signature_rejected": l.stats.decode.signature_rejected,
+                "stream_fallbacks": l.stats.data_stream_fallbacks,
+                "refused_sysids": l.stats.refused_sysids,
+                "refused_by_sysid": dict(l.stats.refused_by_sysid),
+                "inconsistent_frames": l.stats.inconsistent_frames,
+                "messages_disabled": l.stats.messages_disabled,
+            }
+            for l in op.station.links
+        ],
+        "audit": None
+        if op.audit_report is None
+        else {
             "cleared_to_fly": op.audit_report.cleared_to_fly,
             "overridden": op.audit_report.overridden,
-            "unsafe": [[a.link_id, a.sysid] for a in op.audit_report.unsafe]},
+            "unsafe": [[a.link_id, a.sysid] for a in op.audit_report.unsafe],
+        },
         "run_dir": str(run_dir),
     }
     if recs:
@@ -111,11 +146,21 @@ def summary(mission: Mission, op: Operator, seed: int, kind: str, wall_s: float,
     return s
 
 
-def run_meta(mission: Mission, opts: FlyOptions, seed: int, kind: str, speedup: float,
-          connections) -> dict:
+def run_meta(
+    mission: Mission, opts: FlyOptions, seed: int, kind: str, speedup: float, connections
+) -> dict:
     """``run.json``: seed, code version, backend, links and the options of this run."""
-    return {"seed": seed, "code_version": code_version(), "backend": kind, "speedup": speedup,
-            "connections": list(connections), "python": sys.version.split()[0],
-            "options": {f.name: getattr(opts, f.name) for f in dataclasses.fields(opts)
-                        if f.name not in ("status", "on_operator", "on_live")},
-            "started_unix_s": time.time()}
+    return {
+        "seed": seed,
+        "code_version": code_version(),
+        "backend": kind,
+        "speedup": speedup,
+        "connections": list(connections),
+        "python": sys.version.split()[0],
+        "options": {
+            f.name: getattr(opts, f.name)
+            for f in dataclasses.fields(opts)
+            if f.name not in ("status", "on_operator", "on_live")
+        },
+        "started_unix_s": time.time(),
+    }

@@ -42,27 +42,58 @@ from gcs.operations import Operator
 from gcs.records import write_summary
 from mavedge.clock import Clock, PacedReader, RealClock
 from mission.emulator_host import (
-    PACE_SLACK_S, EmulatorProcess, InProcessEmulator, build_world, emulator_clock, paced_values,
+    PACE_SLACK_S,
+    EmulatorProcess,
+    InProcessEmulator,
+    build_world,
+    emulator_clock,
+    paced_values,
 )
 from mission.ether import LockstepEther, station_for_swarm
 from mission.fly_options import FlyOptions, RunnerError
 from mission.mission_world import (
-    FENCE_MARGIN_M, POSITION_LOOP_TAU_S, MissionScenario, build_swarm, control_config,
+    FENCE_MARGIN_M,
+    POSITION_LOOP_TAU_S,
+    MissionScenario,
+    build_swarm,
+    control_config,
     mission_scenario,
 )
 from mission.run_dir import Records, new_run_dir, run_meta, summary as run_summary
 from mission.schema import Mission
 from mission.station_loop import (
-    INTERRUPT_SETTLE_S, PLAN_SILENCE_S, live_task_columns, live_task_connections, run_station,
+    INTERRUPT_SETTLE_S,
+    PLAN_SILENCE_S,
+    live_task_columns,
+    live_task_connections,
+    run_station,
 )
 from vehicle_emu.swarm import Swarm
 
-__all__ = ["FlyOptions", "FlyResult", "MissionScenario", "mission_scenario", "control_config",
-           "build_swarm", "fly_emulated", "fly_real", "fly", "LockstepEther", "FENCE_MARGIN_M",
-           "RunnerError", "station_for_swarm", "fly_emulated_async", "fly_real_async",
-           # re-exported from the modules this one was cut into (importers of mission.runners)
-           "live_task_columns", "live_task_connections", "PLAN_SILENCE_S", "INTERRUPT_SETTLE_S",
-           "POSITION_LOOP_TAU_S", "PACE_SLACK_S"]
+__all__ = [
+    "FlyOptions",
+    "FlyResult",
+    "MissionScenario",
+    "mission_scenario",
+    "control_config",
+    "build_swarm",
+    "fly_emulated",
+    "fly_real",
+    "fly",
+    "LockstepEther",
+    "FENCE_MARGIN_M",
+    "RunnerError",
+    "station_for_swarm",
+    "fly_emulated_async",
+    "fly_real_async",
+    # re-exported from the modules this one was cut into (importers of mission.runners)
+    "live_task_columns",
+    "live_task_connections",
+    "PLAN_SILENCE_S",
+    "INTERRUPT_SETTLE_S",
+    "POSITION_LOOP_TAU_S",
+    "PACE_SLACK_S",
+]
 
 
 @dataclass
@@ -93,11 +124,16 @@ def _resolve(mission: Mission, opts: FlyOptions, *, real: bool = False) -> tuple
 async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     seed, speedup = _resolve(mission, opts)
     if opts.duration_s:
-        mission = dataclasses.replace(mission, run=dataclasses.replace(
-            mission.run, duration_s=max(opts.duration_s, mission.run.control_period_s)))
+        mission = dataclasses.replace(
+            mission,
+            run=dataclasses.replace(
+                mission.run, duration_s=max(opts.duration_s, mission.run.control_period_s)
+            ),
+        )
     if mission.vehicles.emulated is None:
-        raise RunnerError("the mission flies real vehicles (vehicles.real); use --connect or an "
-                          "emulated mission")
+        raise RunnerError(
+            "the mission flies real vehicles (vehicles.real); use --connect or an emulated mission"
+        )
     scenario = mission_scenario(mission, seed)
     # Lock-step pacing (ArduPilot SITL's lock-step idea: "changing SIM_SPEEDUP must not change
     # the flight"). Emulator and station run in two processes on a loaded machine; with a clock
@@ -116,25 +152,47 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     emu: InProcessEmulator | EmulatorProcess
     if opts.emulator_in_process:
         emu_clock = emulator_clock(speedup, sim, ack)
-        emu = InProcessEmulator(build_world(mission, seed, opts.personality, emu_clock,
-                                              opts.emulator_params), emu_clock)
+        emu = InProcessEmulator(
+            build_world(mission, seed, opts.personality, emu_clock, opts.emulator_params), emu_clock
+        )
     else:
-        emu = EmulatorProcess(mission, seed, opts.personality, speedup, sim, ack,
-                               opts.emulator_params)
+        emu = EmulatorProcess(
+            mission, seed, opts.personality, speedup, sim, ack, opts.emulator_params
+        )
     addresses = await emu.start()
     connections = [f"udpout:{h}:{p}" for h, p in addresses]
     run_dir = new_run_dir(mission, opts, seed, "emulated")
-    records = Records(run_dir, mission, run_meta(mission, opts, seed, "emulated", speedup,
-                                               connections))
+    records = Records(
+        run_dir, mission, run_meta(mission, opts, seed, "emulated", speedup, connections)
+    )
     wall0 = time.monotonic()
     try:
-        op = await run_station(mission, scenario, connections, opts, records, clock=clock.now,
-                                speedup=speedup, expected=mission.vehicles.count, seed=seed,
-                                world=emu, max_sleep_s=PACE_SLACK_S / 4,
-                                ack=clock.acknowledge)
+        op = await run_station(
+            mission,
+            scenario,
+            connections,
+            opts,
+            records,
+            clock=clock.now,
+            speedup=speedup,
+            expected=mission.vehicles.count,
+            seed=seed,
+            world=emu,
+            max_sleep_s=PACE_SLACK_S / 4,
+            ack=clock.acknowledge,
+        )
         report = emu.finish(op.config.duration_s)
-        summary = run_summary(mission, op, seed, "emulated", time.monotonic() - wall0, speedup,
-                           report, run_dir, clock.now())
+        summary = run_summary(
+            mission,
+            op,
+            seed,
+            "emulated",
+            time.monotonic() - wall0,
+            speedup,
+            report,
+            run_dir,
+            clock.now(),
+        )
         arrays = report.pop("arrays")
         np.savez_compressed(run_dir / "truth.npz", **arrays)
         write_summary(run_dir / "summary.json", summary)
@@ -155,10 +213,15 @@ def _expected_real(mission: Mission, opts: FlyOptions) -> int | None:
 async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     seed, speedup = _resolve(mission, opts, real=True)
     if opts.duration_s:
-        mission = dataclasses.replace(mission, run=dataclasses.replace(
-            mission.run, duration_s=max(opts.duration_s, mission.run.control_period_s)))
+        mission = dataclasses.replace(
+            mission,
+            run=dataclasses.replace(
+                mission.run, duration_s=max(opts.duration_s, mission.run.control_period_s)
+            ),
+        )
     connections = list(opts.connections) or (
-        list(mission.vehicles.real.connections) if mission.vehicles.real else [])
+        list(mission.vehicles.real.connections) if mission.vehicles.real else []
+    )
     if not connections:
         raise RunnerError("no links: give --connect URL or a mission with vehicles.real")
     connections += live_task_connections(mission, connections)
@@ -172,11 +235,20 @@ async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     records = Records(run_dir, mission, run_meta(mission, opts, seed, "real", speedup, connections))
     wall0 = time.monotonic()
     try:
-        op = await run_station(mission, scenario, connections, opts, records, clock=clock.now,
-                                speedup=speedup, expected=_expected_real(mission, opts),
-                                seed=seed)
-        summary = run_summary(mission, op, seed, "real", time.monotonic() - wall0, speedup, None,
-                           run_dir, clock.now())
+        op = await run_station(
+            mission,
+            scenario,
+            connections,
+            opts,
+            records,
+            clock=clock.now,
+            speedup=speedup,
+            expected=_expected_real(mission, opts),
+            seed=seed,
+        )
+        summary = run_summary(
+            mission, op, seed, "real", time.monotonic() - wall0, speedup, None, run_dir, clock.now()
+        )
         write_summary(run_dir / "summary.json", summary)
     finally:
         records.close()

@@ -31,9 +31,19 @@ from gcs.control import ControlConfig, Geofence
 from mission.schema import Attrition, HazardZone, Mission
 from vehicle_emu.world import RunStreams, spawn_streams, walk_tasks
 
-__all__ = ["MissionScenario", "build_scenario", "spawn_positions", "task_track_m",
-           "task_position_fn", "track_at", "zone_mask", "loss_probability", "control_config",
-           "FENCE_MARGIN_M", "POSITION_LOOP_TAU_S"]
+__all__ = [
+    "MissionScenario",
+    "build_scenario",
+    "spawn_positions",
+    "task_track_m",
+    "task_position_fn",
+    "track_at",
+    "zone_mask",
+    "loss_probability",
+    "control_config",
+    "FENCE_MARGIN_M",
+    "POSITION_LOOP_TAU_S",
+]
 
 #: Without a mission geofence, the fence is the task field plus this margin, metres.
 FENCE_MARGIN_M = 100.0
@@ -95,8 +105,9 @@ def spawn_positions(mission: Mission, rng: np.random.Generator) -> np.ndarray:
     return pts[:n]
 
 
-def task_track_m(mission: Mission, rng: np.random.Generator, n_steps: int, *,
-                 live: str = "refuse") -> tuple[np.ndarray, list[str]]:
+def task_track_m(
+    mission: Mission, rng: np.random.Generator, n_steps: int, *, live: str = "refuse"
+) -> tuple[np.ndarray, list[str]]:
     """(n_steps + 1, M, 2) task positions at every control step, and the task names.
 
     Tasks are drawn in file order from ``rng`` (the scenario stream). A live MAVLink task has no
@@ -141,10 +152,11 @@ def task_track_m(mission: Mission, rng: np.random.Generator, n_steps: int, *,
             names.append(label)
         else:
             assert task.mavlink is not None
-            raise ValueError(f"tasks[{i}]: a live MAVLink task (sysid {task.mavlink.sysid}) has no "
-                             "track to simulate; fly it against real links (--connect) instead")
+            raise ValueError(
+                f"tasks[{i}]: a live MAVLink task (sysid {task.mavlink.sysid}) has no "
+                "track to simulate; fly it against real links (--connect) instead"
+            )
     return np.concatenate(columns, axis=1), names
-
 
 
 def track_at(track_m: np.ndarray, dt_s: float, t_s: float) -> np.ndarray:
@@ -163,8 +175,9 @@ def task_position_fn(track_m: np.ndarray, dt_s: float) -> Callable[[float], np.n
     return lambda t_s: track_at(track_m, dt_s, t_s)
 
 
-def build_scenario(mission: Mission, seed: int | None = None, *,
-                   live_tasks: bool = False) -> MissionScenario:
+def build_scenario(
+    mission: Mission, seed: int | None = None, *, live_tasks: bool = False
+) -> MissionScenario:
     """Draw a mission's scenario from ``seed`` (default: ``mission.run.seed``).
 
     Order of the draws: the scenario stream gives the ring noise, then each task entry in file
@@ -177,16 +190,20 @@ def build_scenario(mission: Mission, seed: int | None = None, *,
     n_steps = mission.run.n_steps
     dt = mission.run.control_period_s
     pos0 = spawn_positions(mission, streams.scenario)
-    track, names = task_track_m(mission, streams.scenario, n_steps,
-                                live="nan" if live_tasks else "refuse")
+    track, names = task_track_m(
+        mission, streams.scenario, n_steps, live="nan" if live_tasks else "refuse"
+    )
     n = len(pos0)
     scripted = np.full(n, -1, dtype=np.int64)
     for loss in mission.attrition.scripted:
         if loss.vehicle < n:
             step = int(math.floor(loss.t_s / dt + 1e-9))
-            scripted[loss.vehicle] = step if scripted[loss.vehicle] < 0 else min(scripted[loss.vehicle], step)
-    return MissionScenario(pos0, track, dt, names, streams.attrition.random((n_steps, n)), scripted,
-                           mission.attrition)
+            scripted[loss.vehicle] = (
+                step if scripted[loss.vehicle] < 0 else min(scripted[loss.vehicle], step)
+            )
+    return MissionScenario(
+        pos0, track, dt, names, streams.attrition.random((n_steps, n)), scripted, mission.attrition
+    )
 
 
 def zone_mask(zone: HazardZone, pos_m: np.ndarray) -> np.ndarray:
@@ -194,7 +211,9 @@ def zone_mask(zone: HazardZone, pos_m: np.ndarray) -> np.ndarray:
     return np.asarray(zone.contains_ne(pos_m), dtype=bool)
 
 
-def _loss_probability(attrition: Attrition, dt_s: float, t_s: float, pos_m: np.ndarray) -> np.ndarray:
+def _loss_probability(
+    attrition: Attrition, dt_s: float, t_s: float, pos_m: np.ndarray
+) -> np.ndarray:
     rate = np.full(len(pos_m), attrition.rate_per_s)
     for zone in attrition.hazard_zones:
         if zone.active(t_s):
@@ -213,11 +232,20 @@ def control_config(mission: Mission, scenario: MissionScenario | None = None) ->
     lim = mission.vehicles.limits
     half = mission.problem_config().field_half_width_m
     if scenario is not None:
-        half = max(half, float(np.abs(scenario.task_track_m).max(initial=0.0)),
-                   float(np.abs(scenario.spawn_ne_m).max(initial=0.0)))
+        half = max(
+            half,
+            float(np.abs(scenario.task_track_m).max(initial=0.0)),
+            float(np.abs(scenario.spawn_ne_m).max(initial=0.0)),
+        )
     fence = mission.geofence
-    geofence = Geofence.square(fence.half_width_m if fence.half_width_m is not None else half + FENCE_MARGIN_M,
-                               fence.max_alt_m if fence.max_alt_m is not None else math.inf)
-    return ControlConfig(cruise_alt_m=lim.cruise_alt_m, layer_spacing_m=lim.layer_spacing_m,
-                         n_layers=lim.n_layers, geofence=geofence,
-                         lead=1.0 + POSITION_LOOP_TAU_S / mission.run.control_period_s)
+    geofence = Geofence.square(
+        fence.half_width_m if fence.half_width_m is not None else half + FENCE_MARGIN_M,
+        fence.max_alt_m if fence.max_alt_m is not None else math.inf,
+    )
+    return ControlConfig(
+        cruise_alt_m=lim.cruise_alt_m,
+        layer_spacing_m=lim.layer_spacing_m,
+        n_layers=lim.n_layers,
+        geofence=geofence,
+        lead=1.0 + POSITION_LOOP_TAU_S / mission.run.control_period_s,
+    )

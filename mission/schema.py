@@ -56,13 +56,37 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 __all__ = [
-    "Mission", "Origin", "Position", "LocalPoint", "TrackPoint",
-    "Vehicles", "FlightLimits", "EmulatedVehicles", "RealVehicles", "Spawn", "SpawnRing",
-    "Task", "RandomWalk", "MavlinkSource", "RandomTasks",
-    "Radio", "Attrition", "ScriptedLoss", "HazardZone", "Circle",
-    "PlannerSpec", "RunSpec", "OutputSpec",
-    "PERSONALITIES", "BORDERS", "INFO_MODES", "MAX_DISTANCE_FROM_ORIGIN_M",
-    "rate_from_per_step", "per_step_from_rate", "paper_length_unit_m", "paper_mission",
+    "Mission",
+    "Origin",
+    "Position",
+    "LocalPoint",
+    "TrackPoint",
+    "Vehicles",
+    "FlightLimits",
+    "EmulatedVehicles",
+    "RealVehicles",
+    "Spawn",
+    "SpawnRing",
+    "Task",
+    "RandomWalk",
+    "MavlinkSource",
+    "RandomTasks",
+    "Radio",
+    "Attrition",
+    "ScriptedLoss",
+    "HazardZone",
+    "Circle",
+    "PlannerSpec",
+    "RunSpec",
+    "OutputSpec",
+    "PERSONALITIES",
+    "BORDERS",
+    "INFO_MODES",
+    "MAX_DISTANCE_FROM_ORIGIN_M",
+    "rate_from_per_step",
+    "per_step_from_rate",
+    "paper_length_unit_m",
+    "paper_mission",
 ]
 
 Personality = Literal["ardupilot", "px4", "mixed"]
@@ -182,21 +206,29 @@ class Origin(_Section):
         """Longitude, radians."""
         return math.radians(self.lon_deg)
 
-    def to_local_m(self, lat_deg: float, lon_deg: float, alt_m: float | None = None
-                   ) -> tuple[float, float]:
+    def to_local_m(
+        self, lat_deg: float, lon_deg: float, alt_m: float | None = None
+    ) -> tuple[float, float]:
         """(north_m, east_m) of a WGS84 point in this origin's local frame, metres."""
         import pymap3d  # lazy: only runners converting geographic tasks pay for it
 
-        n, e, _d = pymap3d.geodetic2ned(lat_deg, lon_deg, self.alt_amsl_m if alt_m is None else alt_m,
-                                        self.lat_deg, self.lon_deg, self.alt_amsl_m)
+        n, e, _d = pymap3d.geodetic2ned(
+            lat_deg,
+            lon_deg,
+            self.alt_amsl_m if alt_m is None else alt_m,
+            self.lat_deg,
+            self.lon_deg,
+            self.alt_amsl_m,
+        )
         return float(n), float(e)
 
     def to_geo_deg(self, north_m: float, east_m: float) -> tuple[float, float]:
         """(lat_deg, lon_deg) of a local point at the origin's altitude."""
         import pymap3d
 
-        lat, lon, _h = pymap3d.ned2geodetic(north_m, east_m, 0.0, self.lat_deg, self.lon_deg,
-                                            self.alt_amsl_m)
+        lat, lon, _h = pymap3d.ned2geodetic(
+            north_m, east_m, 0.0, self.lat_deg, self.lon_deg, self.alt_amsl_m
+        )
         return float(lat), float(lon)
 
 
@@ -303,7 +335,12 @@ class FlightLimits(_Section):
 
     def validate(self) -> list[tuple[str, str]]:
         if self.n_layers > 1 and self.layer_spacing_m <= 0:
-            return [("layer_spacing_m", f"must be > 0 when n_layers > 1, got {_fmt(self.layer_spacing_m)}")]
+            return [
+                (
+                    "layer_spacing_m",
+                    f"must be > 0 when n_layers > 1, got {_fmt(self.layer_spacing_m)}",
+                )
+            ]
         return []
 
     def layer_alt_m(self, index: int) -> float:
@@ -327,9 +364,13 @@ class EmulatedVehicles(FlightLimits):
     def validate(self) -> list[tuple[str, str]]:
         problems = super().validate()
         if self.spawn.positions is not None and len(self.spawn.positions) != self.count:
-            problems.append(("spawn.positions",
-                             f"{len(self.spawn.positions)} positions for count {self.count}; "
-                             "give one per drone"))
+            problems.append(
+                (
+                    "spawn.positions",
+                    f"{len(self.spawn.positions)} positions for count {self.count}; "
+                    "give one per drone",
+                )
+            )
         return problems
 
 
@@ -375,8 +416,12 @@ class RealVehicles(FlightLimits):
         key = self.signing_key_hex
         if key is not None:
             if len(key) != 64:
-                problems.append(("signing_key_hex",
-                                 f"must be 64 hex digits (32 bytes), got {len(key)} characters"))
+                problems.append(
+                    (
+                        "signing_key_hex",
+                        f"must be 64 hex digits (32 bytes), got {len(key)} characters",
+                    )
+                )
             elif any(c not in "0123456789abcdefABCDEF" for c in key):
                 problems.append(("signing_key_hex", "must contain only hex digits 0-9 a-f"))
         return problems
@@ -498,8 +543,9 @@ class Task(_Section):
             for i in range(1, len(self.track)):
                 a, b = self.track[i - 1].t_s, self.track[i].t_s
                 if not b > a:
-                    problems.append((f"track[{i}].t_s",
-                                     f"times must increase (got {_fmt(b)} after {_fmt(a)})"))
+                    problems.append(
+                        (f"track[{i}].t_s", f"times must increase (got {_fmt(b)} after {_fmt(a)})")
+                    )
         return problems
 
     def track_position_m(self, t_s: float, origin: Origin) -> tuple[float, float]:
@@ -582,9 +628,18 @@ class HazardZone(_Section):
     def validate(self) -> list[tuple[str, str]]:
         problems = super().validate()
         if self.end_s is not None and not self.end_s > self.start_s:
-            problems.append(("", f"end_s must be after start_s (got end_s {_fmt(self.end_s)}, "
-                                 f"start_s {_fmt(self.start_s)})"))
-        if self.polygon is not None and len(self.polygon) >= 3 and _polygon_area_m2(self.polygon) <= 0:
+            problems.append(
+                (
+                    "",
+                    f"end_s must be after start_s (got end_s {_fmt(self.end_s)}, "
+                    f"start_s {_fmt(self.start_s)})",
+                )
+            )
+        if (
+            self.polygon is not None
+            and len(self.polygon) >= 3
+            and _polygon_area_m2(self.polygon) <= 0
+        ):
             problems.append(("polygon", "has zero area (vertices are collinear)"))
         return problems
 
@@ -665,14 +720,26 @@ class PlannerSpec(_Section):
 
             close = difflib.get_close_matches(self.method, list(METHODS), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
-            return [("method", f"unknown planner method {self.method!r}{hint}; valid methods: "
-                               f"{', '.join(METHODS)}")]
+            return [
+                (
+                    "method",
+                    f"unknown planner method {self.method!r}{hint}; valid methods: "
+                    f"{', '.join(METHODS)}",
+                )
+            ]
         problems = []
         if self.info not in INFO_OF[self.method]:
-            problems.append(("info", f"{self.method} plans with {' or '.join(INFO_OF[self.method])} "
-                                     f"information only, got {self.info!r}"))
+            problems.append(
+                (
+                    "info",
+                    f"{self.method} plans with {' or '.join(INFO_OF[self.method])} "
+                    f"information only, got {self.info!r}",
+                )
+            )
         if "info" in self.params:
-            problems.append(("params", "the information model is planner.info, not a planner parameter"))
+            problems.append(
+                ("params", "the information model is planner.info, not a planner parameter")
+            )
         return problems
 
     def run_params(self) -> dict[str, Any]:
@@ -701,8 +768,13 @@ class RunSpec(_Section):
 
     def validate(self) -> list[tuple[str, str]]:
         if self.duration_s < self.control_period_s:
-            return [("duration_s", f"must be at least control_period_s ({_fmt(self.control_period_s)}), "
-                                   f"got {_fmt(self.duration_s)}")]
+            return [
+                (
+                    "duration_s",
+                    f"must be at least control_period_s ({_fmt(self.control_period_s)}), "
+                    f"got {_fmt(self.duration_s)}",
+                )
+            ]
         return []
 
     @property
@@ -787,8 +859,12 @@ class Mission(_Section):
         n = self.vehicles.count
         for i, loss in enumerate(self.attrition.scripted):
             if n and loss.vehicle >= n:
-                problems.append((f"attrition.scripted[{i}].vehicle",
-                                 f"no vehicle {loss.vehicle}: there are {n} (indices 0..{n - 1})"))
+                problems.append(
+                    (
+                        f"attrition.scripted[{i}].vehicle",
+                        f"no vehicle {loss.vehicle}: there are {n} (indices 0..{n - 1})",
+                    )
+                )
         for i, task in enumerate(self.tasks):
             pts: list[tuple[str, Position]] = []
             if task.track is not None:
@@ -796,20 +872,33 @@ class Mission(_Section):
             elif task.random_walk is not None:
                 pts = [(f"tasks[{i}].random_walk.start", task.random_walk.start)]
             for where, p in pts:
-                n_m, e_m = (_approx_local_m(self.origin, p.lat_deg, p.lon_deg) if p.is_geo  # type: ignore[arg-type]  # is_geo: lat/lon set
-                            else (p.north_m, p.east_m))
+                n_m, e_m = (
+                    _approx_local_m(self.origin, p.lat_deg, p.lon_deg)  # type: ignore[arg-type]
+                    if p.is_geo  # is_geo: lat/lon set
+                    else (p.north_m, p.east_m)
+                )
                 d = math.hypot(n_m, e_m)  # type: ignore[arg-type]  # north/east set unless is_geo
                 if d > MAX_DISTANCE_FROM_ORIGIN_M:
-                    problems.append((where, f"is {d / 1000:.0f} km from the origin (limit "
-                                            f"{MAX_DISTANCE_FROM_ORIGIN_M / 1000:.0f} km); "
-                                            "swapped lat/lon or wrong origin?"))
+                    problems.append(
+                        (
+                            where,
+                            f"is {d / 1000:.0f} km from the origin (limit "
+                            f"{MAX_DISTANCE_FROM_ORIGIN_M / 1000:.0f} km); "
+                            "swapped lat/lon or wrong origin?",
+                        )
+                    )
         if self.n_tasks > 10_000:
             problems.append(("tasks", f"{self.n_tasks} tasks in total; at most 10000"))
         lim, fence = self.vehicles.limits, self.geofence
         top_m = lim.cruise_alt_m + (lim.n_layers - 1) * lim.layer_spacing_m
         if fence.max_alt_m is not None and fence.max_alt_m < top_m:
-            problems.append(("geofence.max_alt_m", f"{_fmt(fence.max_alt_m)} m is below the highest "
-                                                   f"cruise layer ({_fmt(top_m)} m)"))
+            problems.append(
+                (
+                    "geofence.max_alt_m",
+                    f"{_fmt(fence.max_alt_m)} m is below the highest "
+                    f"cruise layer ({_fmt(top_m)} m)",
+                )
+            )
         return problems
 
     def problem_config(self):
@@ -823,11 +912,16 @@ class Mission(_Section):
 
         dt = self.run.control_period_s
         fields = [t.random.field_half_width_m for t in self.tasks if t.random is not None]
-        fields += [t.random_walk.field_half_width_m for t in self.tasks
-                   if t.random_walk is not None and t.random_walk.field_half_width_m is not None]
+        fields += [
+            t.random_walk.field_half_width_m
+            for t in self.tasks
+            if t.random_walk is not None and t.random_walk.field_half_width_m is not None
+        ]
         unit = paper_length_unit_m(self.radio.range_m)
         sigmas = [t.random.sigma_m_per_sqrt_s for t in self.tasks if t.random is not None]
-        sigmas += [t.random_walk.sigma_m_per_sqrt_s for t in self.tasks if t.random_walk is not None]
+        sigmas += [
+            t.random_walk.sigma_m_per_sqrt_s for t in self.tasks if t.random_walk is not None
+        ]
         borders = [t.random.border for t in self.tasks if t.random is not None]
         emu = self.vehicles.emulated
         ring = emu.spawn.ring if emu is not None else None
@@ -868,21 +962,29 @@ class Mission(_Section):
             extra.append(f"{len(att.scripted)} scripted losses")
         if att.hazard_zones:
             extra.append(f"{len(att.hazard_zones)} hazard zones")
-        return (f"{self.name}: {fleet}, {self.n_tasks} tasks ({tasks}), radio {_fmt(self.radio.range_m)} m, "
-                f"attrition {att.rate_per_s:.4g}/s"
-                + (f" + {', '.join(extra)}" if extra else "")
-                + f", planner {self.planner.method} ({self.planner.info}), "
-                f"{_fmt(self.run.duration_s)} s at {_fmt(self.run.control_period_s)} s/step, "
-                f"seed {self.run.seed}, origin {self.origin.lat_deg:.5f}, {self.origin.lon_deg:.5f}")
+        return (
+            f"{self.name}: {fleet}, {self.n_tasks} tasks ({tasks}), radio {_fmt(self.radio.range_m)} m, "
+            f"attrition {att.rate_per_s:.4g}/s"
+            + (f" + {', '.join(extra)}" if extra else "")
+            + f", planner {self.planner.method} ({self.planner.info}), "
+            f"{_fmt(self.run.duration_s)} s at {_fmt(self.run.control_period_s)} s/step, "
+            f"seed {self.run.seed}, origin {self.origin.lat_deg:.5f}, {self.origin.lon_deg:.5f}"
+        )
 
 
 # --------------------------------------------------------------------------------------------
 # The paper's configurations
 
 
-def paper_mission(size: str = "S", attrition_per_step: float = 0.01, unit_m: float = 50.0,
-                  reading: str = "scaled", step_s: float = 1.0, seed: int = 0,
-                  origin: Origin | None = None) -> Mission:
+def paper_mission(
+    size: str = "S",
+    attrition_per_step: float = 0.01,
+    unit_m: float = 50.0,
+    reading: str = "scaled",
+    step_s: float = 1.0,
+    seed: int = 0,
+    origin: Origin | None = None,
+) -> Mission:
     """The paper's configuration (Table III, §5.5) as a mission in SI units.
 
     Parameters
@@ -914,23 +1016,33 @@ def paper_mission(size: str = "S", attrition_per_step: float = 0.01, unit_m: flo
     L = unit_m
     return Mission(
         name=f"paper-{cfg.size}-{reading}-p{attrition_per_step * 100:g}pct",
-        description=(f"RTNUA paper configuration {cfg.size} ({reading} reading), attrition "
-                     f"{attrition_per_step * 100:g} % per step; 1 paper unit = {_fmt(float(unit_m))} m, "
-                     f"1 step = {_fmt(float(step_s))} s."),
+        description=(
+            f"RTNUA paper configuration {cfg.size} ({reading} reading), attrition "
+            f"{attrition_per_step * 100:g} % per step; 1 paper unit = {_fmt(float(unit_m))} m, "
+            f"1 step = {_fmt(float(step_s))} s."
+        ),
         origin=origin or Origin(),
-        vehicles=Vehicles(emulated=EmulatedVehicles(
-            count=cfg.n_drones,
-            personality="ardupilot",
-            spawn=Spawn(ring=SpawnRing(radius_m=cfg.ring_radius_m * L, noise_m=cfg.ring_noise_m * L)),
-            max_speed_m_s=cfg.max_speed_m_s * L / step_s,
-            radio_range_m=cfg.radio_range_m * L,
-        )),
-        tasks=(Task(random=RandomTasks(
-            count=cfg.n_tasks,
-            field_half_width_m=cfg.field_half_width_m * L,
-            sigma_m_per_sqrt_s=cfg.task_walk_sigma_m * L / math.sqrt(step_s),
-            border=cfg.task_border,  # type: ignore[arg-type]  # checked against BORDER_POLICIES
-        )),),
+        vehicles=Vehicles(
+            emulated=EmulatedVehicles(
+                count=cfg.n_drones,
+                personality="ardupilot",
+                spawn=Spawn(
+                    ring=SpawnRing(radius_m=cfg.ring_radius_m * L, noise_m=cfg.ring_noise_m * L)
+                ),
+                max_speed_m_s=cfg.max_speed_m_s * L / step_s,
+                radio_range_m=cfg.radio_range_m * L,
+            )
+        ),
+        tasks=(
+            Task(
+                random=RandomTasks(
+                    count=cfg.n_tasks,
+                    field_half_width_m=cfg.field_half_width_m * L,
+                    sigma_m_per_sqrt_s=cfg.task_walk_sigma_m * L / math.sqrt(step_s),
+                    border=cfg.task_border,  # type: ignore[arg-type]  # checked against BORDER_POLICIES
+                )
+            ),
+        ),
         radio=Radio(range_m=cfg.radio_range_m * L, base_range_m=cfg.base_range_m * L),
         attrition=Attrition(rate_per_s=rate_from_per_step(attrition_per_step, step_s)),
         planner=PlannerSpec(method="phireman", info="async"),

@@ -25,7 +25,14 @@ from planner.metrics import UptimeSeries, uptime_series
 from planner.problem import ProblemConfig
 from vehicle_emu.world import World, draw_scenario, spawn_streams
 
-__all__ = ["EpisodeRecord", "EpisodeResult", "run_episode", "run_many", "mean_ci95", "format_pct_ci"]
+__all__ = [
+    "EpisodeRecord",
+    "EpisodeResult",
+    "run_episode",
+    "run_many",
+    "mean_ci95",
+    "format_pct_ci",
+]
 
 log = logging.getLogger(__name__)
 
@@ -49,20 +56,32 @@ class EpisodeResult:
     tu1: float
     tu2: float
     series: UptimeSeries
-    alive_count: np.ndarray      # (tau,) alive drones at each measured step
-    active_count: np.ndarray     # (tau,) alive and active drones
+    alive_count: np.ndarray  # (tau,) alive drones at each measured step
+    active_count: np.ndarray  # (tau,) alive and active drones
     wall_s: float
     record: EpisodeRecord | None = None
 
     def row(self) -> dict:
-        return {"seed": self.seed, "method": self.method, "tu1": self.tu1, "tu2": self.tu2,
-                "wall_s": self.wall_s, "final_alive": int(self.alive_count[-1]),
-                "final_active": int(self.active_count[-1])}
+        return {
+            "seed": self.seed,
+            "method": self.method,
+            "tu1": self.tu1,
+            "tu2": self.tu2,
+            "wall_s": self.wall_s,
+            "final_alive": int(self.alive_count[-1]),
+            "final_active": int(self.active_count[-1]),
+        }
 
 
-def run_episode(problem: ProblemConfig, method: str, params: dict | None, seed: int,
-                record: bool = False, frames: Iterable[int] = (),
-                loss_prob_fn: Callable[[int, np.ndarray], np.ndarray] | None = None) -> EpisodeResult:
+def run_episode(
+    problem: ProblemConfig,
+    method: str,
+    params: dict | None,
+    seed: int,
+    record: bool = False,
+    frames: Iterable[int] = (),
+    loss_prob_fn: Callable[[int, np.ndarray], np.ndarray] | None = None,
+) -> EpisodeResult:
     """Simulate one episode and score it.
 
     Parameters
@@ -81,12 +100,27 @@ def run_episode(problem: ProblemConfig, method: str, params: dict | None, seed: 
     scenario = draw_scenario(problem, streams)
     world = World.from_scenario(problem, scenario)
     planner = make_planner(method, problem, params, streams.algorithm)
-    run = run_world(world, planner, problem.n_steps,
-                    problem.attrition_per_step if loss_prob_fn is None else loss_prob_fn,
-                    scenario.attrition_u, record=record, frames=set(frames))
-    series = uptime_series(run.connected[:problem.n_steps])
-    return EpisodeResult(seed, method, series.tu1, series.tu2, series, run.alive_count,
-                         run.active_count, time.perf_counter() - t0, run.record)
+    run = run_world(
+        world,
+        planner,
+        problem.n_steps,
+        problem.attrition_per_step if loss_prob_fn is None else loss_prob_fn,
+        scenario.attrition_u,
+        record=record,
+        frames=set(frames),
+    )
+    series = uptime_series(run.connected[: problem.n_steps])
+    return EpisodeResult(
+        seed,
+        method,
+        series.tu1,
+        series.tu2,
+        series,
+        run.alive_count,
+        run.active_count,
+        time.perf_counter() - t0,
+        run.record,
+    )
 
 
 def _run_chunk(args) -> list[dict]:
@@ -110,8 +144,14 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def run_many(problem: ProblemConfig, method: str, params: dict | None, seeds: list[int],
-             workers: int | None = None, progress: Callable[[int], None] | None = None) -> list[dict]:
+def run_many(
+    problem: ProblemConfig,
+    method: str,
+    params: dict | None,
+    seeds: list[int],
+    workers: int | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> list[dict]:
     """Run many seeds, in worker processes when ``workers`` > 1; results sorted by seed.
 
     Each chunk of seeds is independent; the result does not depend on ``workers``. On Ctrl-C the
@@ -128,7 +168,7 @@ def run_many(problem: ProblemConfig, method: str, params: dict | None, seeds: li
     from concurrent.futures import as_completed
 
     chunk = max(1, min(10, len(seeds) // (workers * 4) or 1))
-    chunks = [seeds[i:i + chunk] for i in range(0, len(seeds), chunk)]
+    chunks = [seeds[i : i + chunk] for i in range(0, len(seeds), chunk)]
     rows = []
     pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_sigint)
     try:
@@ -170,7 +210,10 @@ def format_pct_ci(mean: float, half: float, lo: float = 0.0, hi: float = 100.0) 
     if np.isnan(half):
         return f"{mean:.2f} (1 run, no CI)", False
     if mean - half < lo - 1e-9 or mean + half > hi + 1e-9:
-        return f"{mean:.2f} (CI {max(lo, mean - half):.2f}–{min(hi, mean + half):.2f} clipped)", True
+        return (
+            f"{mean:.2f} (CI {max(lo, mean - half):.2f}–{min(hi, mean + half):.2f} clipped)",
+            True,
+        )
     return f"{mean:.2f} ± {half:.2f}", False
 
 

@@ -48,8 +48,15 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["SitlError", "SitlSpec", "SitlSwarm", "FIRMWARES", "find_binary", "home_positions",
-           "DEFAULT_HOMES"]
+__all__ = [
+    "SitlError",
+    "SitlSpec",
+    "SitlSwarm",
+    "FIRMWARES",
+    "find_binary",
+    "home_positions",
+    "DEFAULT_HOMES",
+]
 
 log = logging.getLogger(__name__)
 
@@ -57,8 +64,7 @@ FIRMWARES = ("ardupilot", "px4")
 
 #: Each firmware's own default SITL home (lat, lon, alt AMSL m): ArduPilot's CMAC
 #: (Tools/autotest/locations.txt), PX4 SIH's SIH_LOC_LAT0/LON0/H0 (Zurich).
-DEFAULT_HOMES = {"ardupilot": (-35.363261, 149.165230, 584.0),
-                 "px4": (47.397742, 8.545594, 489.4)}
+DEFAULT_HOMES = {"ardupilot": (-35.363261, 149.165230, 584.0), "px4": (47.397742, 8.545594, 489.4)}
 
 _ENV = {"ardupilot": "PHIREMAN_ARDUCOPTER", "px4": "PHIREMAN_PX4"}
 
@@ -79,20 +85,25 @@ def find_binary(firmware: str, binary: str | None = None) -> Path:
         raise SitlError(f"unknown firmware {firmware!r}; valid: {', '.join(FIRMWARES)}")
     text = binary or os.environ.get(_ENV[firmware])
     if not text:
-        what = ("your ArduCopter SITL binary (build/sitl/bin/arducopter in an ArduPilot tree, "
-                "see ArduPilot's SITL documentation)" if firmware == "ardupilot" else
-                "your PX4 SITL binary (build/px4_sitl_default/bin/px4 in a PX4-Autopilot tree, "
-                "see PX4's simulation documentation)")
-        raise SitlError(f"no {firmware} SITL binary: pass --binary PATH or set {_ENV[firmware]} "
-                        f"to {what}")
+        what = (
+            "your ArduCopter SITL binary (build/sitl/bin/arducopter in an ArduPilot tree, "
+            "see ArduPilot's SITL documentation)"
+            if firmware == "ardupilot"
+            else "your PX4 SITL binary (build/px4_sitl_default/bin/px4 in a PX4-Autopilot tree, "
+            "see PX4's simulation documentation)"
+        )
+        raise SitlError(
+            f"no {firmware} SITL binary: pass --binary PATH or set {_ENV[firmware]} to {what}"
+        )
     path = Path(text).expanduser()
     if not path.is_file() or not os.access(path, os.X_OK):
         raise SitlError(f"{firmware} SITL binary {str(path)!r} is not an executable file")
     return path.resolve()
 
 
-def home_positions(n: int, origin: tuple[float, float, float], spacing_m: float = 5.0
-                   ) -> list[tuple[float, float, float]]:
+def home_positions(
+    n: int, origin: tuple[float, float, float], spacing_m: float = 5.0
+) -> list[tuple[float, float, float]]:
     """Homes of ``n`` vehicles on a row through ``origin``, west to east, ``spacing_m`` apart
     (lat, lon, alt AMSL): close enough for one base station, far enough not to collide."""
     lat0, lon0, alt0 = origin
@@ -197,41 +208,69 @@ class SitlSwarm:
         lat, lon, alt = self.homes[k]
         env = dict(os.environ)
         if spec.firmware == "ardupilot":
-            defaults = spec.defaults or (Path(os.environ["PHIREMAN_ARDUCOPTER_DEFAULTS"])
-                                         if os.environ.get("PHIREMAN_ARDUCOPTER_DEFAULTS")
-                                         else spec.binary.parent / "copter.parm")
+            defaults = spec.defaults or (
+                Path(os.environ["PHIREMAN_ARDUCOPTER_DEFAULTS"])
+                if os.environ.get("PHIREMAN_ARDUCOPTER_DEFAULTS")
+                else spec.binary.parent / "copter.parm"
+            )
             files = [str(defaults)] if defaults.is_file() else []
             if spec.params:
                 extra = cwd / "phireman.parm"
                 extra.write_text("".join(f"{n} {v:g}\n" for n, v in spec.params.items()))
                 files.append(str(extra))
-            cmd = [str(spec.binary), "--model", "quad", "--speedup", f"{spec.speedup:g}",
-                   "-I", str(i), "--sysid", str(i + 1),
-                   "--home", f"{lat:.7f},{lon:.7f},{alt:.2f},0", "-w",
-                   # Without it SERIAL0 is "tcp:0:wait": the firmware would not boot (GPS,
-                   # EKF) until a ground station connects (libraries/AP_HAL_SITL/SITL_cmdline.cpp).
-                   "--serial0", "tcp:0"]
+            cmd = [
+                str(spec.binary),
+                "--model",
+                "quad",
+                "--speedup",
+                f"{spec.speedup:g}",
+                "-I",
+                str(i),
+                "--sysid",
+                str(i + 1),
+                "--home",
+                f"{lat:.7f},{lon:.7f},{alt:.2f},0",
+                "-w",
+                # Without it SERIAL0 is "tcp:0:wait": the firmware would not boot (GPS,
+                # EKF) until a ground station connects (libraries/AP_HAL_SITL/SITL_cmdline.cpp).
+                "--serial0",
+                "tcp:0",
+            ]
             if files:
                 cmd += ["--defaults", ",".join(files)]
         else:
-            etc = spec.px4_etc or (Path(os.environ["PHIREMAN_PX4_ETC"])
-                                   if os.environ.get("PHIREMAN_PX4_ETC")
-                                   else spec.binary.parent.parent / "etc")
+            etc = spec.px4_etc or (
+                Path(os.environ["PHIREMAN_PX4_ETC"])
+                if os.environ.get("PHIREMAN_PX4_ETC")
+                else spec.binary.parent.parent / "etc"
+            )
             if not etc.is_dir():
-                raise SitlError(f"PX4 ROMFS etc directory {str(etc)!r} not found: set "
-                                "PHIREMAN_PX4_ETC to build/px4_sitl_default/etc")
+                raise SitlError(
+                    f"PX4 ROMFS etc directory {str(etc)!r} not found: set "
+                    "PHIREMAN_PX4_ETC to build/px4_sitl_default/etc"
+                )
             for stale in (f"/tmp/px4-sock-{i}", f"/tmp/px4_lock-{i}"):
                 _remove_if_stale(stale)
-            env.update(PX4_SIM_MODEL="sihsim_quadx", PX4_SIMULATOR="sihsim",
-                       PX4_SYS_AUTOSTART="10040")
+            env.update(
+                PX4_SIM_MODEL="sihsim_quadx", PX4_SIMULATOR="sihsim", PX4_SYS_AUTOSTART="10040"
+            )
             boot = {"SIH_LOC_LAT0": lat, "SIH_LOC_LON0": lon, "SIH_LOC_H0": alt, **spec.params}
             for name, value in boot.items():
-                env[f"PX4_PARAM_{name}"] = f"{value:.7f}" if isinstance(value, float) else str(value)
+                env[f"PX4_PARAM_{name}"] = (
+                    f"{value:.7f}" if isinstance(value, float) else str(value)
+                )
             cmd = [str(spec.binary), "-i", str(i), "-d", str(etc)]
         log_path = cwd / "console.log"
         with open(log_path, "ab") as out:
-            proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=out,
-                                    stderr=subprocess.STDOUT, start_new_session=True)
+            proc = subprocess.Popen(
+                cmd,
+                cwd=cwd,
+                env=env,
+                stdin=subprocess.DEVNULL,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
         log.info("started %s instance %d (pid %d): %s", spec.firmware, i, proc.pid, " ".join(cmd))
         return proc
 
@@ -286,8 +325,10 @@ def _remove_if_stale(path: str) -> None:
     try:
         out = subprocess.run(["fuser", str(p)], capture_output=True, text=True, timeout=5)
         if out.stdout.strip():
-            raise SitlError(f"{path} is in use: another PX4 SITL instance with this number is "
-                            "running (stop it, or choose --first-instance)")
+            raise SitlError(
+                f"{path} is in use: another PX4 SITL instance with this number is "
+                "running (stop it, or choose --first-instance)"
+            )
     except (OSError, subprocess.SubprocessError):
         pass
     try:

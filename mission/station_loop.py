@@ -40,8 +40,14 @@ from vehicle_emu.world import spawn_streams
 if TYPE_CHECKING:
     from mission.emulator_host import EmulatorProcess, InProcessEmulator
 
-__all__ = ["run_station", "make_operator", "live_task_columns", "live_task_connections",
-           "INTERRUPT_SETTLE_S", "PLAN_SILENCE_S"]
+__all__ = [
+    "run_station",
+    "make_operator",
+    "live_task_columns",
+    "live_task_connections",
+    "INTERRUPT_SETTLE_S",
+    "PLAN_SILENCE_S",
+]
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +57,7 @@ INTERRUPT_SETTLE_S = 5.0
 
 #: A vehicle silent this long (simulated seconds) is out of the planned network D'(t).
 PLAN_SILENCE_S = 2.0
+
 
 def live_task_columns(mission: Mission) -> dict[int, int]:
     """Task column -> tracker sysid of every live MAVLink task (columns as in task_track_m)."""
@@ -82,24 +89,41 @@ def _station_config(mission: Mission, max_vehicles: int | None = None) -> Statio
     allowed = frozenset(real.sysids) if real is not None and real.sysids else None
     # Fleet-scale telemetry (docs/design/mavlink.md §2, Skybrush): position at 2 Hz is all the plan uses;
     # every other stream costs decode time at 50+ vehicles x speed-up.
-    return StationConfig(signing_key=key, command_timeout_s=1.0, param_timeout_s=2.0,
-                         allowed_sysids=allowed, max_vehicles=max_vehicles,
-                         param_retries=4, task_sysids=tuple(live_task_columns(mission).values()),
-                         stream_rates_hz=((mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 2.0),
-                                          (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 0.2)))
+    return StationConfig(
+        signing_key=key,
+        command_timeout_s=1.0,
+        param_timeout_s=2.0,
+        allowed_sysids=allowed,
+        max_vehicles=max_vehicles,
+        param_retries=4,
+        task_sysids=tuple(live_task_columns(mission).values()),
+        stream_rates_hz=(
+            (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 2.0),
+            (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 0.2),
+        ),
+    )
 
 
-def _operations_config(mission: Mission, opts: FlyOptions, expected: int | None) -> OperationsConfig:
+def _operations_config(
+    mission: Mission, opts: FlyOptions, expected: int | None
+) -> OperationsConfig:
     lim = mission.vehicles.limits
     return OperationsConfig(
-        max_speed_m_s=lim.max_speed_m_s, climb_rate_m_s=lim.climb_rate_m_s,
-        set_limits=opts.set_limits, restore_params=opts.restore_params,
-        expected_vehicles=expected, discover_timeout_s=opts.discover_timeout_s,
-        override_audit=opts.override_audit, apply_failsafes=opts.apply_failsafes,
+        max_speed_m_s=lim.max_speed_m_s,
+        climb_rate_m_s=lim.climb_rate_m_s,
+        set_limits=opts.set_limits,
+        restore_params=opts.restore_params,
+        expected_vehicles=expected,
+        discover_timeout_s=opts.discover_timeout_s,
+        override_audit=opts.override_audit,
+        apply_failsafes=opts.apply_failsafes,
         wave_size=opts.wave_size,
         control_period_s=mission.run.control_period_s,
-        duration_s=opts.duration_s or mission.run.duration_s, end=opts.end,
-        radio_range_m=mission.radio.range_m, poll_period_s=0.5)
+        duration_s=opts.duration_s or mission.run.duration_s,
+        end=opts.end,
+        radio_range_m=mission.radio.range_m,
+        poll_period_s=0.5,
+    )
 
 
 def _planner_spec(mission: Mission) -> tuple[str, ProblemConfig, dict]:
@@ -123,15 +147,23 @@ def _warm_up_planner(method: str, problem, params: dict, scenario: MissionScenar
     n = 8
     pos = rng.uniform(-half / 4, half / 4, size=(n, 2))
     # A fleet of n (phireman-resilient's rally bookkeeping is sized by the problem's drones).
-    throwaway = make_planner(method, dataclasses.replace(problem, n_drones=n), dict(params),
-                             np.random.default_rng(0))
+    throwaway = make_planner(
+        method, dataclasses.replace(problem, n_drones=n), dict(params), np.random.default_rng(0)
+    )
     for t_step in range(2):
         throwaway.plan(TickInput(t_step, pos, np.ones(n, bool), np.ones(n, bool), tasks))
     log.info("planner %s warmed up in %.2f s", method, time.monotonic() - t0)
 
 
-def make_operator(mission: Mission, scenario: MissionScenario, station: Station,
-                  opts: FlyOptions, expected: int | None, now_s: float, seed: int) -> Operator:
+def make_operator(
+    mission: Mission,
+    scenario: MissionScenario,
+    station: Station,
+    opts: FlyOptions,
+    expected: int | None,
+    now_s: float,
+    seed: int,
+) -> Operator:
     """The operator that flies ``mission`` with ``station``: its fleet view (D'(t)), the
     mission's planner on the run's algorithm stream, the control and operations configuration
     and, for live MAVLink tasks, their trackers. ``expected``: vehicles to wait for (None: until
@@ -141,15 +173,24 @@ def make_operator(mission: Mission, scenario: MissionScenario, station: Station,
     # been silent for 2 s has missed four reports: plan without it (the link still declares it
     # lost only after its own vehicle_timeout_s). With the 5 s link timeout, a drone that died
     # stayed a planned relay for 5 s (about 2.5 drones at any time at 1 %/s attrition).
-    fleet = FleetView(MissionOrigin(o.lat_deg, o.lon_deg, o.alt_amsl_m),
-                      timeout_s=min(PLAN_SILENCE_S, station.links[0].config.vehicle_timeout_s))
+    fleet = FleetView(
+        MissionOrigin(o.lat_deg, o.lon_deg, o.alt_amsl_m),
+        timeout_s=min(PLAN_SILENCE_S, station.links[0].config.vehicle_timeout_s),
+    )
     method, problem, params = _planner_spec(mission)
     planner = make_planner(method, problem, params, spawn_streams(seed).algorithm)
     live = live_task_columns(mission)
-    return Operator(station, fleet, planner, scenario.task_pos_m, control_config(mission, scenario),
-                    _operations_config(mission, opts, expected), now_s=now_s,
-                    live_tasks=LiveTasks(fleet.origin, live) if live else None,
-                    rally=_rally_keeper(mission, params))
+    return Operator(
+        station,
+        fleet,
+        planner,
+        scenario.task_pos_m,
+        control_config(mission, scenario),
+        _operations_config(mission, opts, expected),
+        now_s=now_s,
+        live_tasks=LiveTasks(fleet.origin, live) if live else None,
+        rally=_rally_keeper(mission, params),
+    )
 
 
 def _rally_keeper(mission: Mission, params: dict) -> RallyKeeper | None:
@@ -158,8 +199,9 @@ def _rally_keeper(mission: Mission, params: dict) -> RallyKeeper | None:
     if mission.planner.method != "phireman-resilient" or not params.get("rally", False):
         return None
     o = mission.origin
-    return RallyKeeper(o.lat_deg, o.lon_deg,
-                       RallyConfig(alt_above_home_m=mission.vehicles.limits.cruise_alt_m))
+    return RallyKeeper(
+        o.lat_deg, o.lon_deg, RallyConfig(alt_above_home_m=mission.vehicles.limits.cruise_alt_m)
+    )
 
 
 def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> dict:
@@ -169,29 +211,47 @@ def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> d
         key = "LOST" if lost else m
         modes[key] = modes.get(key, 0) + 1
     last = op.records[-1] if op.records else None
-    d = {"phase": op.phase, "t_s": now_s, "t_mission_s": op.t_mission_s(now_s),
-         "duration_s": op.config.duration_s, "fleet": snap.n_vehicles,
-         "networked": int(snap.networked.sum()), "returning": int(snap.returning.sum()),
-         "lost": int(snap.lost.sum()), "modes": modes,
-         "tasks_covered": last.tasks_covered if last else 0,
-         "n_tasks": last.n_tasks if last else 0,
-         "tu1": last.tu1_so_far if last else None, "tu2": last.tu2_so_far if last else None,
-         "command_failures": op.counters["command_failures"], "end_t0_s": op.end_t0_s,
-         "failsafes": len(op.failsafe_texts),
-         "last_failsafe": op.failsafe_texts[-1] if op.failsafe_texts else None,
-         "reclaims": len(op.reclaimed),
-         "wall_s": time.monotonic()}
+    d = {
+        "phase": op.phase,
+        "t_s": now_s,
+        "t_mission_s": op.t_mission_s(now_s),
+        "duration_s": op.config.duration_s,
+        "fleet": snap.n_vehicles,
+        "networked": int(snap.networked.sum()),
+        "returning": int(snap.returning.sum()),
+        "lost": int(snap.lost.sum()),
+        "modes": modes,
+        "tasks_covered": last.tasks_covered if last else 0,
+        "n_tasks": last.n_tasks if last else 0,
+        "tu1": last.tu1_so_far if last else None,
+        "tu2": last.tu2_so_far if last else None,
+        "command_failures": op.counters["command_failures"],
+        "end_t0_s": op.end_t0_s,
+        "failsafes": len(op.failsafe_texts),
+        "last_failsafe": op.failsafe_texts[-1] if op.failsafe_texts else None,
+        "reclaims": len(op.reclaimed),
+        "wall_s": time.monotonic(),
+    }
     if world is not None and getattr(world, "swarm", None) is not None:
         d["truth_alive"] = int(world.swarm.alive.sum())
     return d
 
 
-async def run_station(mission: Mission, scenario: MissionScenario, connections: list[str],
-                       opts: FlyOptions, records: Records, *, clock: Callable[[], float],
-                       speedup: float, expected: int | None, seed: int,
-                       world: InProcessEmulator | EmulatorProcess | None = None,
-                       max_sleep_s: float = math.inf,
-                       ack: Callable[[float], None] | None = None) -> Operator:
+async def run_station(
+    mission: Mission,
+    scenario: MissionScenario,
+    connections: list[str],
+    opts: FlyOptions,
+    records: Records,
+    *,
+    clock: Callable[[], float],
+    speedup: float,
+    expected: int | None,
+    seed: int,
+    world: InProcessEmulator | EmulatorProcess | None = None,
+    max_sleep_s: float = math.inf,
+    ack: Callable[[float], None] | None = None,
+) -> Operator:
     """The station's loop. ``max_sleep_s`` (simulated seconds): wake at least this often even
     when idle, so a paced emulator is never starved of clock acknowledgements."""
     # Before any link is open (a stall now costs nothing; in flight it trips failsafes).
@@ -219,10 +279,18 @@ async def run_station(mission: Mission, scenario: MissionScenario, connections: 
             # A link down at start (a vehicle not booted yet, a radio not plugged in) is
             # retried in the background and reported (LinkDown / LinkUp in events.jsonl),
             # never fatal while others work; only a mistake waiting cannot fix raises.
-            adapters.append(await StationAdapter(conn, cfg, link_id=i, clock=clock,
-                                                 tlog=records.tlog, on_event=on_event,
-                                                 time_scale=speedup,
-                                                 on_link_event=records.events.write).start())
+            adapters.append(
+                await StationAdapter(
+                    conn,
+                    cfg,
+                    link_id=i,
+                    clock=clock,
+                    tlog=records.tlog,
+                    on_event=on_event,
+                    time_scale=speedup,
+                    on_link_event=records.events.write,
+                ).start()
+            )
     except (OSError, ValueError) as exc:
         for a in adapters:
             a.close()
@@ -238,8 +306,15 @@ async def run_station(mission: Mission, scenario: MissionScenario, connections: 
         from mission.live import attach
 
         try:
-            extras = await attach(op, adapters, mission=mission, opts=opts, clock=clock,
-                                  records=records, listeners=holder.setdefault("listeners", []))
+            extras = await attach(
+                op,
+                adapters,
+                mission=mission,
+                opts=opts,
+                clock=clock,
+                records=records,
+                listeners=holder.setdefault("listeners", []),
+            )
         except (OSError, ValueError) as exc:
             for a in adapters:
                 a.close()
@@ -285,8 +360,9 @@ async def run_station(mission: Mission, scenario: MissionScenario, connections: 
                     last_status = wall
                     d = _status_dict(op, now, rec, world)
                     d["speedup"] = speedup
-                    d["links_down"] = [(a.link_id, a.spec.text, a.down_reason)
-                                       for a in adapters if not a.connected]
+                    d["links_down"] = [
+                        (a.link_id, a.spec.text, a.down_reason) for a in adapters if not a.connected
+                    ]
                     opts.status(d)
                 delay = max(0.0, min(op.next_poll_s(now) - clock(), max_sleep_s) / speedup)
                 await asyncio.sleep(delay)

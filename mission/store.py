@@ -51,9 +51,28 @@ SCHEMA_VERSION = 1
 
 #: Columns a run row carries (besides the autoincrement id).
 ROW_FIELDS: tuple[str, ...] = (
-    "run_key", "config_key", "spec_key", "grid", "label", "size", "attrition", "reading", "method",
-    "spec_json", "config_json", "seed", "status", "error", "tu1", "tu2", "wall_s", "final_alive",
-    "final_active", "code_version", "host", "created_utc",
+    "run_key",
+    "config_key",
+    "spec_key",
+    "grid",
+    "label",
+    "size",
+    "attrition",
+    "reading",
+    "method",
+    "spec_json",
+    "config_json",
+    "seed",
+    "status",
+    "error",
+    "tu1",
+    "tu2",
+    "wall_s",
+    "final_alive",
+    "final_active",
+    "code_version",
+    "host",
+    "created_utc",
 )
 
 _SCHEMA = """
@@ -127,8 +146,10 @@ class ResultStore:
     def __init__(self, path: str | pathlib.Path, readonly: bool = False) -> None:
         self.path = pathlib.Path(path)
         if self.path.is_dir():
-            raise StoreError(f"{self.path} is a directory; a results store is one SQLite file, "
-                             f"e.g. {self.path / 'results.sqlite'}")
+            raise StoreError(
+                f"{self.path} is a directory; a results store is one SQLite file, "
+                f"e.g. {self.path / 'results.sqlite'}"
+            )
         if readonly and not self.path.exists():
             raise FileNotFoundError(f"no results store at {self.path}")
         try:
@@ -145,19 +166,27 @@ class ResultStore:
         except sqlite3.DatabaseError as exc:
             msg = str(exc)
             if "not a database" in msg:
-                raise StoreError(f"{self.path} is not a phireman results store (not an SQLite file); "
-                                 f"give the .sqlite file written by 'phireman sweep --store'") from None
+                raise StoreError(
+                    f"{self.path} is not a phireman results store (not an SQLite file); "
+                    f"give the .sqlite file written by 'phireman sweep --store'"
+                ) from None
             raise StoreError(f"{self.path}: cannot open the results store: {msg}") from None
         except OSError as exc:
-            raise StoreError(f"{self.path}: cannot create the results store: {exc.strerror or exc}") from None
+            raise StoreError(
+                f"{self.path}: cannot create the results store: {exc.strerror or exc}"
+            ) from None
 
     def _check_schema(self, readonly: bool) -> None:
-        tables = {r[0] for r in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        tables = {
+            r[0] for r in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'")
+        }
         if "meta" in tables:
             row = self.db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
             if row is None or int(row[0]) != SCHEMA_VERSION:
-                raise StoreError(f"{self.path}: results store schema {row[0] if row else '?'}, "
-                                 f"this code reads schema {SCHEMA_VERSION}")
+                raise StoreError(
+                    f"{self.path}: results store schema {row[0] if row else '?'}, "
+                    f"this code reads schema {SCHEMA_VERSION}"
+                )
             return
         if tables:
             raise StoreError(f"{self.path} is an SQLite database but not a phireman results store")
@@ -165,8 +194,9 @@ class ResultStore:
             raise StoreError(f"{self.path} is empty, not a phireman results store")
         with self.db:
             self.db.executescript(_SCHEMA)
-            self.db.execute("INSERT INTO meta (key, value) VALUES ('schema_version', ?)",
-                            (str(SCHEMA_VERSION),))
+            self.db.execute(
+                "INSERT INTO meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
+            )
 
     # -- context manager -------------------------------------------------------------------------
     def close(self) -> None:
@@ -206,8 +236,10 @@ class ResultStore:
         with self.db:
             before = self.db.total_changes
             for i in range(0, len(keys), 500):
-                part = keys[i:i + 500]
-                self.db.execute(f"DELETE FROM runs WHERE run_key IN ({','.join('?' * len(part))})", part)
+                part = keys[i : i + 500]
+                self.db.execute(
+                    f"DELETE FROM runs WHERE run_key IN ({','.join('?' * len(part))})", part
+                )
             return self.db.total_changes - before
 
     def runs(self, where: str = "", params: tuple = ()) -> list[dict]:
@@ -222,12 +254,18 @@ class ResultStore:
     def count(self, status: str | None = None) -> int:
         if status is None:
             return self.db.execute("SELECT COUNT(*) FROM runs").fetchone()[0]
-        return self.db.execute("SELECT COUNT(*) FROM runs WHERE status = ?", (status,)).fetchone()[0]
+        return self.db.execute("SELECT COUNT(*) FROM runs WHERE status = ?", (status,)).fetchone()[
+            0
+        ]
 
     def code_versions(self) -> dict[str, int]:
         """code_version -> number of rows."""
-        return {r[0]: r[1] for r in self.db.execute(
-            "SELECT code_version, COUNT(*) FROM runs GROUP BY code_version ORDER BY MIN(id)")}
+        return {
+            r[0]: r[1]
+            for r in self.db.execute(
+                "SELECT code_version, COUNT(*) FROM runs GROUP BY code_version ORDER BY MIN(id)"
+            )
+        }
 
     def code_versions_of(self, keys: Iterable[str]) -> dict[str, int]:
         """code_version -> number of rows, over the given run keys."""
@@ -239,22 +277,43 @@ class ResultStore:
         return out
 
     # -- sweep log ------------------------------------------------------------------------------
-    def start_sweep(self, grid: str, argv: list[str], executor: str, workers: int | None,
-                    code_version: str, planned: int, present: int) -> int:
+    def start_sweep(
+        self,
+        grid: str,
+        argv: list[str],
+        executor: str,
+        workers: int | None,
+        code_version: str,
+        planned: int,
+        present: int,
+    ) -> int:
         with self.db:
             cur = self.db.execute(
                 "INSERT INTO sweeps (started_utc, grid, argv, executor, workers, code_version, planned, "
                 "present) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                (utc_now(), grid, json.dumps(argv), executor, workers, code_version, planned, present))
+                (
+                    utc_now(),
+                    grid,
+                    json.dumps(argv),
+                    executor,
+                    workers,
+                    code_version,
+                    planned,
+                    present,
+                ),
+            )
             assert cur.lastrowid is not None  # set by the INSERT
             return int(cur.lastrowid)
 
-    def finish_sweep(self, sweep_id: int, completed: int, errors: int, interrupted: bool,
-                     wall_s: float) -> None:
+    def finish_sweep(
+        self, sweep_id: int, completed: int, errors: int, interrupted: bool, wall_s: float
+    ) -> None:
         with self.db:
             self.db.execute(
                 "UPDATE sweeps SET finished_utc = ?, completed = ?, errors = ?, interrupted = ?, wall_s = ? "
-                "WHERE id = ?", (utc_now(), completed, errors, int(interrupted), wall_s, sweep_id))
+                "WHERE id = ?",
+                (utc_now(), completed, errors, int(interrupted), wall_s, sweep_id),
+            )
 
     def sweeps(self) -> list[dict]:
         return [dict(r) for r in self.db.execute("SELECT * FROM sweeps ORDER BY id")]

@@ -48,11 +48,28 @@ if TYPE_CHECKING:
     from concurrent.futures import ProcessPoolExecutor
 
 __all__ = [
-    "ConfigSpec", "Grid", "ResolvedConfig", "Chunk", "SweepSummary",
-    "paper_table_grid", "paper_ablations_grid", "custom_grid", "product_grid", "ABLATION_VARIANTS",
-    "resolve", "plan_chunks", "run_chunk", "run_sweep", "code_version", "canonical_json", "estimate_run_s",
-    "measured_costs", "MEASURED_RUN_S",
-    "LocalExecutor", "DaskExecutor", "EXECUTORS",
+    "ConfigSpec",
+    "Grid",
+    "ResolvedConfig",
+    "Chunk",
+    "SweepSummary",
+    "paper_table_grid",
+    "paper_ablations_grid",
+    "custom_grid",
+    "product_grid",
+    "ABLATION_VARIANTS",
+    "resolve",
+    "plan_chunks",
+    "run_chunk",
+    "run_sweep",
+    "code_version",
+    "canonical_json",
+    "estimate_run_s",
+    "measured_costs",
+    "MEASURED_RUN_S",
+    "LocalExecutor",
+    "DaskExecutor",
+    "EXECUTORS",
 ]
 
 log = logging.getLogger(__name__)
@@ -63,6 +80,7 @@ EXECUTORS = ("local", "dask")
 # ----------------------------------------------------------------------------------------------
 # Configurations and grids
 # ----------------------------------------------------------------------------------------------
+
 
 def _json_default(obj: Any) -> Any:
     try:
@@ -82,8 +100,9 @@ def _json_default(obj: Any) -> Any:
 
 def canonical_json(obj: Any) -> str:
     """Deterministic JSON (sorted keys, no spaces): the input of every hash in the store."""
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=_json_default,
-                      ensure_ascii=False)
+    return json.dumps(
+        obj, sort_keys=True, separators=(",", ":"), default=_json_default, ensure_ascii=False
+    )
 
 
 def _hash(text: str) -> str:
@@ -109,9 +128,14 @@ class ConfigSpec:
 
     def spec_dict(self) -> dict:
         """What identifies the request (the label and the grid name do not)."""
-        return {"size": self.size.upper(), "attrition": float(self.attrition), "reading": self.reading,
-                "method": self.method, "params": dict(self.params),
-                "problem_overrides": dict(self.problem_overrides)}
+        return {
+            "size": self.size.upper(),
+            "attrition": float(self.attrition),
+            "reading": self.reading,
+            "method": self.method,
+            "params": dict(self.params),
+            "problem_overrides": dict(self.problem_overrides),
+        }
 
     @property
     def spec_key(self) -> str:
@@ -121,7 +145,9 @@ class ConfigSpec:
         """The resolved :class:`ProblemConfig` (raises ValueError for a bad size or override)."""
         from planner.problem import problem_preset
 
-        return problem_preset(self.size, float(self.attrition), self.reading, **self.problem_overrides)
+        return problem_preset(
+            self.size, float(self.attrition), self.reading, **self.problem_overrides
+        )
 
 
 @dataclass
@@ -143,10 +169,15 @@ def _norm_attrition(levels: Iterable[float] | None) -> list[float]:
     return [float(p) for p in (ATTRITION_LEVELS if levels is None else levels)]
 
 
-def paper_table_grid(seeds: Iterable[int] = range(100), sizes: Iterable[str] | None = None,
-                     attrition: Iterable[float] | None = None, methods: Iterable[str] | None = None,
-                     reading: str = "scaled", params: dict | None = None,
-                     problem_overrides: dict | None = None) -> Grid:
+def paper_table_grid(
+    seeds: Iterable[int] = range(100),
+    sizes: Iterable[str] | None = None,
+    attrition: Iterable[float] | None = None,
+    methods: Iterable[str] | None = None,
+    reading: str = "scaled",
+    params: dict | None = None,
+    problem_overrides: dict | None = None,
+) -> Grid:
     """Table II: 5 sizes × 5 attrition levels × (phireman, dccrs, mccst) × seeds (7,500 runs at 100).
 
     ``sizes``, ``attrition`` and ``methods`` select a subset; ``params`` / ``problem_overrides``
@@ -157,8 +188,12 @@ def paper_table_grid(seeds: Iterable[int] = range(100), sizes: Iterable[str] | N
 
     sizes = [s.upper() for s in (SIZES if sizes is None else sizes)]
     methods = list(PAPER_METHODS if methods is None else methods)
-    configs = [ConfigSpec(size, p, method, reading, dict(params or {}), dict(problem_overrides or {}))
-               for size in sizes for p in _norm_attrition(attrition) for method in methods]
+    configs = [
+        ConfigSpec(size, p, method, reading, dict(params or {}), dict(problem_overrides or {}))
+        for size in sizes
+        for p in _norm_attrition(attrition)
+        for method in methods
+    ]
     return Grid("paper-table", configs, list(seeds))
 
 
@@ -176,9 +211,14 @@ ABLATION_VARIANTS: tuple[tuple[str, str, dict], ...] = (
 )
 
 
-def paper_ablations_grid(seeds: Iterable[int] = range(100), reading: str = "scaled",
-                         size: str = "S", attrition: float = 0.01, params: dict | None = None,
-                         problem_overrides: dict | None = None) -> Grid:
+def paper_ablations_grid(
+    seeds: Iterable[int] = range(100),
+    reading: str = "scaled",
+    size: str = "S",
+    attrition: float = 0.01,
+    params: dict | None = None,
+    problem_overrides: dict | None = None,
+) -> Grid:
     """The ablation table: default, Þ = 0, nodes only, v = 0.1 / 0.2, σ = 0 / 0.2 at S / 1 %."""
     from planner.problem import problem_preset
 
@@ -187,23 +227,46 @@ def paper_ablations_grid(seeds: Iterable[int] = range(100), reading: str = "scal
     for label, method, paper_units in ABLATION_VARIANTS:
         over = dict(problem_overrides or {})
         over.update({k: v * unit_m for k, v in paper_units.items()})
-        configs.append(ConfigSpec(size, float(attrition), method, reading, dict(params or {}), over, label))
+        configs.append(
+            ConfigSpec(size, float(attrition), method, reading, dict(params or {}), over, label)
+        )
     return Grid("paper-ablations", configs, list(seeds))
 
 
-def custom_grid(sizes: Iterable[str], attrition: Iterable[float], methods: Iterable[str],
-                seeds: Iterable[int], reading: str = "scaled", params: dict | None = None,
-                problem_overrides: dict | None = None, name: str = "custom") -> Grid:
+def custom_grid(
+    sizes: Iterable[str],
+    attrition: Iterable[float],
+    methods: Iterable[str],
+    seeds: Iterable[int],
+    reading: str = "scaled",
+    params: dict | None = None,
+    problem_overrides: dict | None = None,
+    name: str = "custom",
+) -> Grid:
     """Any product of sizes × attrition levels × methods, with common overrides."""
-    configs = [ConfigSpec(size.upper(), p, method, reading, dict(params or {}), dict(problem_overrides or {}))
-               for size in sizes for p in _norm_attrition(attrition) for method in methods]
+    configs = [
+        ConfigSpec(
+            size.upper(), p, method, reading, dict(params or {}), dict(problem_overrides or {})
+        )
+        for size in sizes
+        for p in _norm_attrition(attrition)
+        for method in methods
+    ]
     return Grid(name, configs, list(seeds))
 
 
-def product_grid(method: str, axes: dict[str, list], seeds: Iterable[int], size: str = "S",
-                 attrition: float = 0.01, reading: str = "scaled", params: dict | None = None,
-                 problem_overrides: dict | None = None, include_defaults: bool = True,
-                 name: str = "tune") -> Grid:
+def product_grid(
+    method: str,
+    axes: dict[str, list],
+    seeds: Iterable[int],
+    size: str = "S",
+    attrition: float = 0.01,
+    reading: str = "scaled",
+    params: dict | None = None,
+    problem_overrides: dict | None = None,
+    include_defaults: bool = True,
+    name: str = "tune",
+) -> Grid:
     """A hyper-parameter grid: every combination of ``axes`` (key -> values) for one method.
 
     Keys that are :class:`ProblemConfig` fields become problem overrides, the others planner
@@ -218,8 +281,17 @@ def product_grid(method: str, axes: dict[str, list], seeds: Iterable[int], size:
     keys = list(axes)
     configs = []
     if include_defaults:
-        configs.append(ConfigSpec(size.upper(), float(attrition), method, reading, dict(params or {}),
-                                  dict(problem_overrides or {}), "(defaults)"))
+        configs.append(
+            ConfigSpec(
+                size.upper(),
+                float(attrition),
+                method,
+                reading,
+                dict(params or {}),
+                dict(problem_overrides or {}),
+                "(defaults)",
+            )
+        )
     for values in itertools.product(*(axes[k] for k in keys)):
         prm, over = dict(params or {}), dict(problem_overrides or {})
         for k, v in zip(keys, values):
@@ -235,6 +307,7 @@ def product_grid(method: str, axes: dict[str, list], seeds: Iterable[int], size:
 # ----------------------------------------------------------------------------------------------
 # Resolution and keys
 # ----------------------------------------------------------------------------------------------
+
 
 @dataclass
 class ResolvedConfig:
@@ -273,10 +346,16 @@ def resolve(spec: ConfigSpec) -> ResolvedConfig:
             params = json.loads(canonical_json(dataclasses.asdict(prm)))
         elif isinstance(prm, dict):
             params = json.loads(canonical_json(prm))
-    except Exception as exc:  # recorded: every run of this config will fail and be stored as an error
+    except (
+        Exception
+    ) as exc:  # recorded: every run of this config will fail and be stored as an error
         error = f"{type(exc).__name__}: {exc}"
-    config = {"problem": dataclasses.asdict(problem), "method": spec.method, "params": params,
-              "params_resolved": error is None}
+    config = {
+        "problem": dataclasses.asdict(problem),
+        "method": spec.method,
+        "params": params,
+        "params_resolved": error is None,
+    }
     config = json.loads(canonical_json(config))
     return ResolvedConfig(spec, problem, config, _hash(canonical_json(config)), error)
 
@@ -284,6 +363,7 @@ def resolve(spec: ConfigSpec) -> ResolvedConfig:
 # ----------------------------------------------------------------------------------------------
 # Chunks and the worker function
 # ----------------------------------------------------------------------------------------------
+
 
 @dataclass
 class Chunk:
@@ -303,15 +383,41 @@ class Chunk:
 #: (async), 200 steps, scaled reading: mean over 100 seeds of the paper-table sweep of
 #: docs/results/paper_table (its store's ``wall_s``). (size, attrition per step) -> seconds.
 MEASURED_RUN_S: dict[tuple[str, float], float] = {
-    ("XS", 0.0): 0.35, ("XS", 0.005): 0.34, ("XS", 0.01): 0.31, ("XS", 0.02): 0.26, ("XS", 0.05): 0.13,
-    ("S", 0.0): 0.51, ("S", 0.005): 0.46, ("S", 0.01): 0.39, ("S", 0.02): 0.33, ("S", 0.05): 0.20,
-    ("M", 0.0): 0.77, ("M", 0.005): 0.57, ("M", 0.01): 0.54, ("M", 0.02): 0.47, ("M", 0.05): 0.25,
-    ("L", 0.0): 1.53, ("L", 0.005): 1.11, ("L", 0.01): 0.93, ("L", 0.02): 0.67, ("L", 0.05): 0.46,
-    ("XL", 0.0): 5.32, ("XL", 0.005): 3.68, ("XL", 0.01): 2.87, ("XL", 0.02): 2.05, ("XL", 0.05): 1.23,
+    ("XS", 0.0): 0.35,
+    ("XS", 0.005): 0.34,
+    ("XS", 0.01): 0.31,
+    ("XS", 0.02): 0.26,
+    ("XS", 0.05): 0.13,
+    ("S", 0.0): 0.51,
+    ("S", 0.005): 0.46,
+    ("S", 0.01): 0.39,
+    ("S", 0.02): 0.33,
+    ("S", 0.05): 0.20,
+    ("M", 0.0): 0.77,
+    ("M", 0.005): 0.57,
+    ("M", 0.01): 0.54,
+    ("M", 0.02): 0.47,
+    ("M", 0.05): 0.25,
+    ("L", 0.0): 1.53,
+    ("L", 0.005): 1.11,
+    ("L", 0.01): 0.93,
+    ("L", 0.02): 0.67,
+    ("L", 0.05): 0.46,
+    ("XL", 0.0): 5.32,
+    ("XL", 0.005): 3.68,
+    ("XL", 0.01): 2.87,
+    ("XL", 0.02): 2.05,
+    ("XL", 0.05): 1.23,
 }
 #: Cost of a method relative to ΦIREMAN (async), same store, all sizes together.
-METHOD_COST_FACTOR: dict[str, float] = {"phireman": 1.0, "dccrs": 0.9, "mccst": 0.68, "phireman-central": 0.8,
-                                        "phireman-no-task": 0.75, "phireman-nodes-only": 0.95}
+METHOD_COST_FACTOR: dict[str, float] = {
+    "phireman": 1.0,
+    "dccrs": 0.9,
+    "mccst": 0.68,
+    "phireman-central": 0.8,
+    "phireman-no-task": 0.75,
+    "phireman-nodes-only": 0.95,
+}
 
 
 def estimate_run_s(problem, method: str = "phireman", measured: dict | None = None) -> float:
@@ -335,7 +441,11 @@ def estimate_run_s(problem, method: str = "phireman", measured: dict | None = No
     by_n = {s: problem_preset(s, 0.0).n_drones for s in sizes}
     nearest = min(sizes, key=lambda s: abs(by_n[s] - problem.n_drones))
     levels = sorted(p for s, p in MEASURED_RUN_S if s == nearest)
-    base = float(np.interp(problem.attrition_per_step, levels, [MEASURED_RUN_S[(nearest, p)] for p in levels]))
+    base = float(
+        np.interp(
+            problem.attrition_per_step, levels, [MEASURED_RUN_S[(nearest, p)] for p in levels]
+        )
+    )
     scale = (problem.n_drones / by_n[nearest]) ** 2 if problem.n_drones > by_n[nearest] else 1.0
     return steps * base * scale * METHOD_COST_FACTOR.get(method, 1.0)
 
@@ -354,8 +464,9 @@ def measured_costs(rows) -> dict[tuple[str, str], float]:
     return {k: sum(v) / len(v) for k, v in sums.items() if len(v) >= 3}
 
 
-def plan_chunks(todo: list[tuple[ResolvedConfig, list[int]]], chunk: int | None = None,
-                target_s: float = 8.0) -> list[Chunk]:
+def plan_chunks(
+    todo: list[tuple[ResolvedConfig, list[int]]], chunk: int | None = None, target_s: float = 8.0
+) -> list[Chunk]:
     """Split the pending seeds of each configuration into chunks, most expensive chunks first.
 
     With ``chunk=None`` the size is chosen so a chunk takes about ``target_s`` (1 to 10 seeds):
@@ -367,9 +478,18 @@ def plan_chunks(todo: list[tuple[ResolvedConfig, list[int]]], chunk: int | None 
         per_run = estimate_run_s(rc.problem, rc.spec.method)
         size = chunk or max(1, min(10, int(target_s / max(per_run, 1e-6))))
         for i in range(0, len(seeds), size):
-            part = seeds[i:i + size]
-            chunks.append(Chunk(len(chunks), rc.problem, rc.spec.method, dict(rc.spec.params), part,
-                                [rc.run_key(s) for s in part], per_run * len(part)))
+            part = seeds[i : i + size]
+            chunks.append(
+                Chunk(
+                    len(chunks),
+                    rc.problem,
+                    rc.spec.method,
+                    dict(rc.spec.params),
+                    part,
+                    [rc.run_key(s) for s in part],
+                    per_run * len(part),
+                )
+            )
     # Largest per-run cost first (then larger chunks), stable for equal costs.
     chunks.sort(key=lambda c: (-c.cost_s / len(c.seeds), -len(c.seeds), c.id))
     return chunks
@@ -390,13 +510,28 @@ def run_chunk(chunk: Chunk) -> list[dict]:
         row = {"run_key": key, "seed": int(seed)}
         try:
             r = run_episode(chunk.problem, chunk.method, chunk.params, int(seed)).row()
-            row.update(status="ok", error=None, tu1=float(r["tu1"]), tu2=float(r["tu2"]),
-                       wall_s=float(r["wall_s"]), final_alive=int(r["final_alive"]),
-                       final_active=int(r["final_active"]))
-        except Exception as exc:  # one failed run is data, the sweep goes on (docs/design/architecture.md §7)
+            row.update(
+                status="ok",
+                error=None,
+                tu1=float(r["tu1"]),
+                tu2=float(r["tu2"]),
+                wall_s=float(r["wall_s"]),
+                final_alive=int(r["final_alive"]),
+                final_active=int(r["final_active"]),
+            )
+        except (
+            Exception
+        ) as exc:  # one failed run is data, the sweep goes on (docs/design/architecture.md §7)
             log.debug("run %s seed %s failed", chunk.method, seed, exc_info=True)
-            row.update(status="error", error=f"{type(exc).__name__}: {exc}"[:4000], tu1=None, tu2=None,
-                       wall_s=time.perf_counter() - t0, final_alive=None, final_active=None)
+            row.update(
+                status="error",
+                error=f"{type(exc).__name__}: {exc}"[:4000],
+                tu1=None,
+                tu2=None,
+                wall_s=time.perf_counter() - t0,
+                final_alive=None,
+                final_active=None,
+            )
         row.update(code_version=version, host=host, created_utc=utc_now())
         rows.append(row)
     return rows
@@ -405,6 +540,7 @@ def run_chunk(chunk: Chunk) -> list[dict]:
 # ----------------------------------------------------------------------------------------------
 # Executors
 # ----------------------------------------------------------------------------------------------
+
 
 def _worker_init() -> None:
     """Pool worker: leave Ctrl-C to the parent, and exit if the parent disappears (kill -9)."""
@@ -444,8 +580,9 @@ class LocalExecutor:
         # forkserver: workers do not inherit the parent's SQLite handle, threads or tqdm state.
         ctx = multiprocessing.get_context("forkserver")
         ctx.set_forkserver_preload(["mission.sweep", "mission.sim"])
-        self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx,
-                                         initializer=_worker_init)
+        self._pool = ProcessPoolExecutor(
+            max_workers=self.workers, mp_context=ctx, initializer=_worker_init
+        )
         pending = {self._pool.submit(run_chunk, c): c for c in chunks}
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
@@ -480,7 +617,9 @@ class DaskExecutor:
         try:
             from dask.distributed import Client, LocalCluster
         except ImportError as exc:  # pragma: no cover - optional dependency
-            raise RuntimeError("the dask executor needs dask[distributed] (pip install 'phireman[dask]')") from exc
+            raise RuntimeError(
+                "the dask executor needs dask[distributed] (pip install 'phireman[dask]')"
+            ) from exc
         self.cluster = None
         if logging.getLogger().getEffectiveLevel() >= logging.WARNING:
             # distributed configures its own INFO logging; keep the progress bar readable unless -v
@@ -488,8 +627,13 @@ class DaskExecutor:
         if scheduler:
             self.client = Client(scheduler, timeout=30)
         else:
-            self.cluster = LocalCluster(n_workers=max(1, int(workers)), threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=logging.ERROR)
+            self.cluster = LocalCluster(
+                n_workers=max(1, int(workers)),
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
             self.client = Client(self.cluster)
         self.workers = len(self.client.scheduler_info().get("workers", {})) or workers
         self._futures: list = []
@@ -501,8 +645,14 @@ class DaskExecutor:
         by_key = {}
         n = len(chunks)
         for i, c in enumerate(chunks):
-            fut = self.client.submit(run_chunk, c, key=f"phireman-chunk-{token}-{c.id}", pure=False,
-                                     priority=n - i, retries=1)
+            fut = self.client.submit(
+                run_chunk,
+                c,
+                key=f"phireman-chunk-{token}-{c.id}",
+                pure=False,
+                priority=n - i,
+                retries=1,
+            )
             by_key[fut.key] = c
             self._futures.append(fut)
         for fut in as_completed(self._futures):
@@ -529,6 +679,7 @@ class DaskExecutor:
 # ----------------------------------------------------------------------------------------------
 # The sweep
 # ----------------------------------------------------------------------------------------------
+
 
 @dataclass
 class SweepSummary:
@@ -559,13 +710,26 @@ class SweepSummary:
 
 def _fmt_s(s: float) -> str:
     s = int(max(0, s))
-    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60:02d}:{s % 60:02d}"
+    return (
+        f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+        if s >= 3600
+        else f"{s // 60:02d}:{s % 60:02d}"
+    )
 
 
-def run_sweep(grid: Grid, store: ResultStore, executor: str = "local", workers: int = 1,
-              scheduler: str | None = None, chunk: int | None = None, progress: bool = True,
-              retry_errors: bool = False, rerun_other_code: bool = False, argv: list[str] | None = None,
-              on_rows: Callable[[list[dict]], None] | None = None) -> SweepSummary:
+def run_sweep(
+    grid: Grid,
+    store: ResultStore,
+    executor: str = "local",
+    workers: int = 1,
+    scheduler: str | None = None,
+    chunk: int | None = None,
+    progress: bool = True,
+    retry_errors: bool = False,
+    rerun_other_code: bool = False,
+    argv: list[str] | None = None,
+    on_rows: Callable[[list[dict]], None] | None = None,
+) -> SweepSummary:
     """Run every run of ``grid`` that ``store`` does not hold yet; return what happened.
 
     Ctrl-C (and SIGTERM) stop the sweep cleanly: the executor is cancelled, everything completed is
@@ -606,12 +770,18 @@ def run_sweep(grid: Grid, store: ResultStore, executor: str = "local", workers: 
         if n:
             log.info("deleted %d error rows to retry them", n)
     if rerun_other_code:
-        stale = [r["run_key"] for r in store.runs("code_version != ?", (version,)) if r["run_key"] in grid_keys]
+        stale = [
+            r["run_key"]
+            for r in store.runs("code_version != ?", (version,))
+            if r["run_key"] in grid_keys
+        ]
         if stale:
             log.info("deleted %d rows made by other code versions", store.delete_runs(stale))
     present = grid_keys & store.keys()
     other = {v: n for v, n in store.code_versions_of(present).items() if v != version}
-    summary = SweepSummary(grid.name, len(grid_keys), len(present), other_code=other, keys=grid_keys)
+    summary = SweepSummary(
+        grid.name, len(grid_keys), len(present), other_code=other, keys=grid_keys
+    )
     for rc in resolved:
         if rc.resolve_error:
             summary.resolve_errors[rc.spec.label or rc.spec.method] = rc.resolve_error
@@ -624,8 +794,15 @@ def run_sweep(grid: Grid, store: ResultStore, executor: str = "local", workers: 
         if seeds:
             todo.append((rc, seeds))
     chunks = plan_chunks(todo, chunk)
-    sweep_id = store.start_sweep(grid.name, list(argv or []), executor if not scheduler else f"dask {scheduler}",
-                                 workers, version, summary.planned, summary.present)
+    sweep_id = store.start_sweep(
+        grid.name,
+        list(argv or []),
+        executor if not scheduler else f"dask {scheduler}",
+        workers,
+        version,
+        summary.planned,
+        summary.present,
+    )
     if not chunks:
         store.finish_sweep(sweep_id, 0, 0, False, time.perf_counter() - t0)
         summary.wall_s = time.perf_counter() - t0
@@ -637,13 +814,21 @@ def run_sweep(grid: Grid, store: ResultStore, executor: str = "local", workers: 
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=summary.planned, initial=summary.present, unit="run", dynamic_ncols=True,
-                   desc=grid.name, smoothing=0.05)
+        bar = tqdm(
+            total=summary.planned,
+            initial=summary.present,
+            unit="run",
+            dynamic_ncols=True,
+            desc=grid.name,
+            smoothing=0.05,
+        )
 
     old_term = None
     if threading.current_thread() is threading.main_thread():
+
         def _term(signum, frame):
             raise KeyboardInterrupt
+
         old_term = signal.signal(signal.SIGTERM, _term)
 
     ex: DaskExecutor | LocalExecutor | None = None
@@ -658,22 +843,42 @@ def run_sweep(grid: Grid, store: ResultStore, executor: str = "local", workers: 
         for c, result in ex.run(chunks):
             if isinstance(result, BaseException):
                 summary.lost += len(c.seeds)
-                log.error("chunk of %d runs (%s, seeds %s..%s) lost to the executor: %s: %s", len(c.seeds),
-                          c.method, c.seeds[0], c.seeds[-1], type(result).__name__, result)
+                log.error(
+                    "chunk of %d runs (%s, seeds %s..%s) lost to the executor: %s: %s",
+                    len(c.seeds),
+                    c.method,
+                    c.seeds[0],
+                    c.seeds[-1],
+                    type(result).__name__,
+                    result,
+                )
             else:
                 rows = []
                 for r in result:
                     if r["code_version"] != version and not warned_code:
                         warned_code = True
-                        log.warning("a worker runs other code than this process (%s, here %s)",
-                                    r["code_version"], version)
+                        log.warning(
+                            "a worker runs other code than this process (%s, here %s)",
+                            r["code_version"],
+                            version,
+                        )
                     rc, gname = meta[r["run_key"]]
                     spec = rc.spec
-                    rows.append({**r, "config_key": rc.config_key, "spec_key": spec.spec_key, "grid": gname,
-                                 "label": spec.label, "size": spec.size.upper(),
-                                 "attrition": float(spec.attrition), "reading": spec.reading,
-                                 "method": spec.method, "spec_json": canonical_json(spec.spec_dict()),
-                                 "config_json": canonical_json(rc.config)})
+                    rows.append(
+                        {
+                            **r,
+                            "config_key": rc.config_key,
+                            "spec_key": spec.spec_key,
+                            "grid": gname,
+                            "label": spec.label,
+                            "size": spec.size.upper(),
+                            "attrition": float(spec.attrition),
+                            "reading": spec.reading,
+                            "method": spec.method,
+                            "spec_json": canonical_json(spec.spec_dict()),
+                            "config_json": canonical_json(rc.config),
+                        }
+                    )
                 store.insert_runs(rows)  # one transaction per chunk
                 summary.completed += len(rows)
                 summary.errors += sum(r["status"] == "error" for r in rows)
@@ -701,5 +906,7 @@ def run_sweep(grid: Grid, store: ResultStore, executor: str = "local", workers: 
         if old_term is not None:
             signal.signal(signal.SIGTERM, old_term)
         summary.wall_s = time.perf_counter() - t0
-        store.finish_sweep(sweep_id, summary.completed, summary.errors, summary.interrupted, summary.wall_s)
+        store.finish_sweep(
+            sweep_id, summary.completed, summary.errors, summary.interrupted, summary.wall_s
+        )
     return summary

@@ -50,14 +50,29 @@ def code_version() -> str:
         h.update(f.relative_to(_ROOT).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
     commit = "none"
     try:
-        out = subprocess.run(["git", "-C", str(_ROOT), "rev-parse", "--short=12", "HEAD"],
-                             capture_output=True, text=True, timeout=10)
+        out = subprocess.run(
+            ["git", "-C", str(_ROOT), "rev-parse", "--short=12", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
         if out.returncode == 0:
             commit = out.stdout.strip()
             dirty = subprocess.run(
-                ["git", "-C", str(_ROOT), "status", "--porcelain", "--", "planner",
-                 *_LOOSE_SOURCES],
-                capture_output=True, text=True, timeout=10)
+                [
+                    "git",
+                    "-C",
+                    str(_ROOT),
+                    "status",
+                    "--porcelain",
+                    "--",
+                    "planner",
+                    *_LOOSE_SOURCES,
+                ],
+                capture_output=True,
+                text=True,
+                timeout=10,
+            )
             if dirty.returncode == 0 and dirty.stdout.strip():
                 commit += "+dirty"
     except (OSError, subprocess.SubprocessError):

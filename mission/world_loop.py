@@ -33,8 +33,15 @@ from gcs.control import ControlConfig, tick as control_tick
 from planner.methods import PlanOutput, Planner, TickInput
 from vehicle_emu.world import World
 
-__all__ = ["EpisodeRecord", "ControlOutput", "Controller", "WorldRun", "direct_control",
-           "station_control", "run_world"]
+__all__ = [
+    "EpisodeRecord",
+    "ControlOutput",
+    "Controller",
+    "WorldRun",
+    "direct_control",
+    "station_control",
+    "run_world",
+]
 
 #: ``(t_step, pos_m) -> (N,) loss probability`` of one step, or one probability for every drone.
 LossProb = float | Callable[[int, np.ndarray], np.ndarray]
@@ -44,11 +51,11 @@ LossProb = float | Callable[[int, np.ndarray], np.ndarray]
 class EpisodeRecord:
     """Full trajectories of one episode (for plots and replay)."""
 
-    pos_m: np.ndarray        # (tau+1, N, 2)
-    alive: np.ndarray        # (tau+1, N) bool
-    active: np.ndarray       # (tau+1, N) bool
-    task_pos_m: np.ndarray   # (tau+1, M, 2)
-    connected: np.ndarray    # (tau+1, M) bool
+    pos_m: np.ndarray  # (tau+1, N, 2)
+    alive: np.ndarray  # (tau+1, N) bool
+    active: np.ndarray  # (tau+1, N) bool
+    task_pos_m: np.ndarray  # (tau+1, M, 2)
+    connected: np.ndarray  # (tau+1, M) bool
     trees: dict = field(default_factory=dict)  # step -> TaskTree (metres), at recorded frames
 
 
@@ -102,8 +109,9 @@ def station_control(config: ControlConfig) -> Controller:
     def control(planner: Planner, tick: TickInput) -> ControlOutput:
         keep = _Keep(planner)
         pos_ned_m = np.column_stack([tick.pos_m, np.zeros(len(tick.pos_m))])
-        res = control_tick(pos_ned_m, tick.networked, tick.alive, tick.task_pos_m, keep,
-                           tick.t_step, config)
+        res = control_tick(
+            pos_ned_m, tick.networked, tick.alive, tick.task_pos_m, keep, tick.t_step, config
+        )
         disp = np.zeros_like(tick.pos_m)
         disp[res.rows] = res.target_ned_m[:, :2] - tick.pos_m[res.rows]
         return ControlOutput(disp, keep.last.tree if keep.last is not None else None, None)
@@ -127,9 +135,17 @@ class WorldRun:
     """Trajectories, with ``record=True``."""
 
 
-def run_world(world: World, planner: Planner, n_steps: int, loss_prob: LossProb,
-              attrition_u: np.ndarray, *, controller: Controller | None = None,
-              record: bool = False, frames: Collection[int] | None = ()) -> WorldRun:
+def run_world(
+    world: World,
+    planner: Planner,
+    n_steps: int,
+    loss_prob: LossProb,
+    attrition_u: np.ndarray,
+    *,
+    controller: Controller | None = None,
+    record: bool = False,
+    frames: Collection[int] | None = (),
+) -> WorldRun:
     """Run ``world`` for ``n_steps`` steps under ``planner``.
 
     Parameters
@@ -155,9 +171,13 @@ def run_world(world: World, planner: Planner, n_steps: int, loss_prob: LossProb,
     losses: list[tuple[int, int]] = []
     rec = None
     if record:
-        rec = EpisodeRecord(np.zeros((tau + 1, n, 2)), np.zeros((tau + 1, n), bool),
-                            np.zeros((tau + 1, n), bool), world.task_track_m.copy(),
-                            connected)
+        rec = EpisodeRecord(
+            np.zeros((tau + 1, n, 2)),
+            np.zeros((tau + 1, n), bool),
+            np.zeros((tau + 1, n), bool),
+            world.task_track_m.copy(),
+            connected,
+        )
     keep_tree = (lambda t: True) if frames is None else set(frames).__contains__
     for t in range(tau + 1):
         active = world.active()
@@ -167,8 +187,9 @@ def run_world(world: World, planner: Planner, n_steps: int, loss_prob: LossProb,
         if t == tau:
             break
         alive_count[t], active_count[t] = world.alive.sum(), active.sum()
-        out = control(planner, TickInput(t, world.pos_m, world.alive, active, world.task_pos_m,
-                                         world.base_m))
+        out = control(
+            planner, TickInput(t, world.pos_m, world.alive, active, world.task_pos_m, world.base_m)
+        )
         if rec is not None and keep_tree(t):
             rec.trees[t] = out.tree
         p_loss = loss_prob(t, world.pos_m) if callable(loss_prob) else loss_prob

@@ -23,8 +23,16 @@ import numpy as np
 
 from planner import _kernels
 
-__all__ = ["mst_prim", "reach_from", "knn_pairs", "hop_bitsets", "edge_terms", "any_within",
-           "bounded_moves", "reaches_root"]
+__all__ = [
+    "mst_prim",
+    "reach_from",
+    "knn_pairs",
+    "hop_bitsets",
+    "edge_terms",
+    "any_within",
+    "bounded_moves",
+    "reaches_root",
+]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
@@ -39,7 +47,9 @@ def _jit(func: _F) -> _F:
     return cast(_F, njit(cache=True)(func))
 
 
-def _mst_prim(n_nodes: int, ei: np.ndarray, ej: np.ndarray, w: np.ndarray) -> tuple[bool, np.ndarray]:
+def _mst_prim(
+    n_nodes: int, ei: np.ndarray, ej: np.ndarray, w: np.ndarray
+) -> tuple[bool, np.ndarray]:
     n_edges = len(ei)
     for e in range(n_edges):
         if math.isnan(w[e]):
@@ -117,14 +127,26 @@ def mst_prim(n_nodes: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray
     """
     if not (_kernels.NUMBA and _kernels.ENABLED) or n_nodes > MST_PRIM_MAX_NODES:
         return None
-    ok, tree = _mst_prim_jit(int(n_nodes), np.ascontiguousarray(edges[:, 0], dtype=np.int64),
-                             np.ascontiguousarray(edges[:, 1], dtype=np.int64),
-                             np.ascontiguousarray(weights, dtype=np.float64))
+    ok, tree = _mst_prim_jit(
+        int(n_nodes),
+        np.ascontiguousarray(edges[:, 0], dtype=np.int64),
+        np.ascontiguousarray(edges[:, 1], dtype=np.int64),
+        np.ascontiguousarray(weights, dtype=np.float64),
+    )
     return tree.astype(np.intp) if ok else None
 
 
-def _reach_from(x: np.ndarray, y: np.ndarray, reached: np.ndarray, range_m: float, cell: float,
-                x0: float, y0: float, nx: int, ny: int) -> np.ndarray:
+def _reach_from(
+    x: np.ndarray,
+    y: np.ndarray,
+    reached: np.ndarray,
+    range_m: float,
+    cell: float,
+    x0: float,
+    y0: float,
+    nx: int,
+    ny: int,
+) -> np.ndarray:
     n = len(x)
     cx = np.empty(n, dtype=np.int64)
     cy = np.empty(n, dtype=np.int64)
@@ -185,18 +207,35 @@ def reach_from(pos_m: np.ndarray, reached: np.ndarray, range_m: float) -> np.nda
         return None
     lo = pos_m.min(axis=0)
     hi = pos_m.max(axis=0)
-    cell = float(range_m) * (1 + 1e-6)      # > range: a link lies in the same or adjacent cells
+    cell = float(range_m) * (1 + 1e-6)  # > range: a link lies in the same or adjacent cells
     nx = int((hi[0] - lo[0]) // cell) + 1
     ny = int((hi[1] - lo[1]) // cell) + 1
     if nx * ny > 8 * n + 4096:
         return None
-    return _reach_from_jit(np.ascontiguousarray(pos_m[:, 0]), np.ascontiguousarray(pos_m[:, 1]),
-                           np.asarray(reached, dtype=np.bool_), float(range_m), cell, float(lo[0]), float(lo[1]),
-                           nx, ny)
+    return _reach_from_jit(
+        np.ascontiguousarray(pos_m[:, 0]),
+        np.ascontiguousarray(pos_m[:, 1]),
+        np.asarray(reached, dtype=np.bool_),
+        float(range_m),
+        cell,
+        float(lo[0]),
+        float(lo[1]),
+        nx,
+        ny,
+    )
 
 
-def _knn_pairs(x: np.ndarray, y: np.ndarray, reach: float, k: int, cell: float, x0: float, y0: float,
-               nx: int, ny: int) -> tuple[bool, np.ndarray]:
+def _knn_pairs(
+    x: np.ndarray,
+    y: np.ndarray,
+    reach: float,
+    k: int,
+    cell: float,
+    x0: float,
+    y0: float,
+    nx: int,
+    ny: int,
+) -> tuple[bool, np.ndarray]:
     n = len(x)
     cx = np.empty(n, dtype=np.int64)
     cy = np.empty(n, dtype=np.int64)
@@ -233,10 +272,14 @@ def _knn_pairs(x: np.ndarray, y: np.ndarray, reach: float, k: int, cell: float, 
                     if not d < reach:
                         continue
                     # insert (d, j) into the sorted list of the k best, order (distance, index)
-                    if nb == k and not (d < best_d[k - 1] or (d == best_d[k - 1] and j < best_j[k - 1])):
+                    if nb == k and not (
+                        d < best_d[k - 1] or (d == best_d[k - 1] and j < best_j[k - 1])
+                    ):
                         continue
                     p = nb if nb < k else k - 1
-                    while p > 0 and (d < best_d[p - 1] or (d == best_d[p - 1] and j < best_j[p - 1])):
+                    while p > 0 and (
+                        d < best_d[p - 1] or (d == best_d[p - 1] and j < best_j[p - 1])
+                    ):
                         if p < k:
                             best_d[p] = best_d[p - 1]
                             best_j[p] = best_j[p - 1]
@@ -305,8 +348,17 @@ def knn_pairs(x: np.ndarray, reach: float, k: int) -> np.ndarray | None:
     ny = int((hi[1] - lo[1]) // cell) + 1
     if nx * ny > 8 * n + 4096:
         return None
-    ok, key = _knn_pairs_jit(np.ascontiguousarray(x[:, 0]), np.ascontiguousarray(x[:, 1]), float(reach),
-                             int(k), cell, float(lo[0]), float(lo[1]), nx, ny)
+    ok, key = _knn_pairs_jit(
+        np.ascontiguousarray(x[:, 0]),
+        np.ascontiguousarray(x[:, 1]),
+        float(reach),
+        int(k),
+        cell,
+        float(lo[0]),
+        float(lo[1]),
+        nx,
+        ny,
+    )
     if not ok:
         return None
     return np.column_stack([key // n, key % n]).astype(np.intp)
@@ -320,9 +372,18 @@ for _b in range(64):
     _DEBRUIJN_INDEX[(((1 << _b) * _DEBRUIJN) & 0xFFFFFFFFFFFFFFFF) >> 58] = _b
 
 
-def _hop_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holders: int, n_cols: int,
-                 link_start: np.ndarray, link_src: np.ndarray, t_sent: int, max_level: int,
-                 debruijn_index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _hop_bitsets(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    stamps: np.ndarray,
+    n_holders: int,
+    n_cols: int,
+    link_start: np.ndarray,
+    link_src: np.ndarray,
+    t_sent: int,
+    max_level: int,
+    debruijn_index: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     levels = max_level + 1
     col_of = np.full(n_cols, -1, dtype=np.int64)
     for e in range(len(cols)):
@@ -366,7 +427,7 @@ def _hop_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holde
         for w in range(words):
             word = acc[top + w]
             while word:
-                low = word & (~word + one)                 # the lowest set bit
+                low = word & (~word + one)  # the lowest set bit
                 b = debruijn_index[(low * magic) >> shift]
                 word ^= low
                 count = 0
@@ -388,23 +449,47 @@ def _hop_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holde
 _hop_bitsets_jit = _jit(_hop_bitsets)
 
 
-def hop_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holders: int, n_cols: int,
-                link_start: np.ndarray, link_src: np.ndarray, t_sent: int,
-                max_level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def hop_bitsets(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    stamps: np.ndarray,
+    n_holders: int,
+    n_cols: int,
+    link_start: np.ndarray,
+    link_src: np.ndarray,
+    t_sent: int,
+    max_level: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The compiled twin of :func:`planner.knowledge._propagate_bitsets` (one hop of the recency
     rule on bit sets, one set per age level): holder i's sets are the OR of its sources' sets
     (``link_src[link_start[i]:link_start[i + 1]]``, its self-loop included), OR-ed source by source
     in place of the reference's gather of every link's row (which held links x columns / 8 bytes per
     level: ~370 MB at 2,000 packed drones). Integer results, so exactly the reference's entries, in
     the same row-major order. Every stamp must lie in [t_sent - max_level, t_sent]."""
-    return (_hop_bitsets_jit(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
-                                 np.asarray(stamps, np.int64), int(n_holders), int(n_cols),
-                                 np.asarray(link_start, np.int64), np.asarray(link_src, np.int64),
-                                 int(t_sent), int(max_level), _DEBRUIJN_INDEX))
+    return _hop_bitsets_jit(
+        np.asarray(rows, np.int64),
+        np.asarray(cols, np.int64),
+        np.asarray(stamps, np.int64),
+        int(n_holders),
+        int(n_cols),
+        np.asarray(link_start, np.int64),
+        np.asarray(link_src, np.int64),
+        int(t_sent),
+        int(max_level),
+        _DEBRUIJN_INDEX,
+    )
 
 
-def _edge_terms(x: np.ndarray, y: np.ndarray, ux: np.ndarray, uy: np.ndarray, ei: np.ndarray, ej: np.ndarray,
-                r_c: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _edge_terms(
+    x: np.ndarray,
+    y: np.ndarray,
+    ux: np.ndarray,
+    uy: np.ndarray,
+    ei: np.ndarray,
+    ej: np.ndarray,
+    r_c: np.ndarray,
+    group: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n_edges = len(ei)
     h = np.empty(n_edges)
     dot = np.empty(n_edges)
@@ -423,25 +508,30 @@ def _edge_terms(x: np.ndarray, y: np.ndarray, ux: np.ndarray, uy: np.ndarray, ei
 _edge_terms_jit = _jit(_edge_terms)
 
 
-def edge_terms(x: np.ndarray, u: np.ndarray, edges: np.ndarray, r_c: np.ndarray,
-               group: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def edge_terms(
+    x: np.ndarray, u: np.ndarray, edges: np.ndarray, r_c: np.ndarray, group: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Per edge (i, j): h = r_c^2 - |x_i - x_j|^2, (x_i - x_j) . (u_i - u_j) and whether i and j
     are in different groups, in one pass (:func:`planner.mccst.edge_slack` without its gathers).
     The same operations in the same order as the NumPy expressions there (``np.einsum`` over two
     components sums x then y, checked by tests), so the same bits. None without Numba."""
     if not (_kernels.NUMBA and _kernels.ENABLED) or x.ndim != 2 or x.shape[1] != 2:
         return None
-    return (_edge_terms_jit(np.ascontiguousarray(x[:, 0], dtype=np.float64),
-                                np.ascontiguousarray(x[:, 1], dtype=np.float64),
-                                np.ascontiguousarray(u[:, 0], dtype=np.float64),
-                                np.ascontiguousarray(u[:, 1], dtype=np.float64),
-                                np.ascontiguousarray(edges[:, 0], dtype=np.int64),
-                                np.ascontiguousarray(edges[:, 1], dtype=np.int64),
-                                np.ascontiguousarray(np.broadcast_to(r_c, (len(edges),)), dtype=np.float64),
-                                np.ascontiguousarray(group, dtype=np.int64)))
+    return _edge_terms_jit(
+        np.ascontiguousarray(x[:, 0], dtype=np.float64),
+        np.ascontiguousarray(x[:, 1], dtype=np.float64),
+        np.ascontiguousarray(u[:, 0], dtype=np.float64),
+        np.ascontiguousarray(u[:, 1], dtype=np.float64),
+        np.ascontiguousarray(edges[:, 0], dtype=np.int64),
+        np.ascontiguousarray(edges[:, 1], dtype=np.int64),
+        np.ascontiguousarray(np.broadcast_to(r_c, (len(edges),)), dtype=np.float64),
+        np.ascontiguousarray(group, dtype=np.int64),
+    )
 
 
-def _any_within(tx: np.ndarray, ty: np.ndarray, x: np.ndarray, y: np.ndarray, range_m: float) -> np.ndarray:
+def _any_within(
+    tx: np.ndarray, ty: np.ndarray, x: np.ndarray, y: np.ndarray, range_m: float
+) -> np.ndarray:
     out = np.zeros(len(tx), dtype=np.bool_)
     for t in range(len(tx)):
         for j in range(len(x)):
@@ -466,27 +556,42 @@ def any_within(task_pos_m: np.ndarray, pos_m: np.ndarray, range_m: float) -> np.
     mission (M x N below ``ANY_WITHIN_MAX_PAIRS``) cheaper than building a KD-tree every tick.
     None when it does not apply (no Numba, not 2-D, NaN or non-finite drones): the caller queries
     the KD-tree (:func:`planner.geometry.tasks_connected`)."""
-    if not (_kernels.NUMBA and _kernels.ENABLED) or len(task_pos_m) * len(pos_m) > ANY_WITHIN_MAX_PAIRS:
+    if (
+        not (_kernels.NUMBA and _kernels.ENABLED)
+        or len(task_pos_m) * len(pos_m) > ANY_WITHIN_MAX_PAIRS
+    ):
         return None
     if task_pos_m.ndim != 2 or task_pos_m.shape[1] != 2 or pos_m.ndim != 2 or pos_m.shape[1] != 2:
         return None
     if not np.all(np.isfinite(pos_m)) or np.any(np.isnan(task_pos_m)) or not np.isfinite(range_m):
         return None
-    return _any_within_jit(np.ascontiguousarray(task_pos_m[:, 0], dtype=np.float64),
-                           np.ascontiguousarray(task_pos_m[:, 1], dtype=np.float64),
-                           np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
-                           np.ascontiguousarray(pos_m[:, 1], dtype=np.float64), float(range_m))
+    return _any_within_jit(
+        np.ascontiguousarray(task_pos_m[:, 0], dtype=np.float64),
+        np.ascontiguousarray(task_pos_m[:, 1], dtype=np.float64),
+        np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
+        np.ascontiguousarray(pos_m[:, 1], dtype=np.float64),
+        float(range_m),
+    )
 
 
-def _bounded_moves(px: np.ndarray, py: np.ndarray, dx_in: np.ndarray, dy_in: np.ndarray, active: np.ndarray,
-                   alive: np.ndarray, hx: float, hy: float, vmax: float) -> np.ndarray:
+def _bounded_moves(
+    px: np.ndarray,
+    py: np.ndarray,
+    dx_in: np.ndarray,
+    dy_in: np.ndarray,
+    active: np.ndarray,
+    alive: np.ndarray,
+    hx: float,
+    hy: float,
+    vmax: float,
+) -> np.ndarray:
     n = len(px)
     out = np.empty((n, 2))
     for i in range(n):
         if active[i]:
             dx = dx_in[i]
             dy = dy_in[i]
-        else:                                   # planner.geometry.step_toward, row by row
+        else:  # planner.geometry.step_toward, row by row
             tx = hx - px[i]
             ty = hy - py[i]
             dist = math.sqrt(tx * tx + ty * ty)
@@ -504,8 +609,14 @@ def _bounded_moves(px: np.ndarray, py: np.ndarray, dx_in: np.ndarray, dy_in: np.
 _bounded_moves_jit = _jit(_bounded_moves)
 
 
-def bounded_moves(pos_m: np.ndarray, disp_m: np.ndarray, active: np.ndarray, alive: np.ndarray,
-                  home_m: np.ndarray, vmax: float) -> np.ndarray | None:
+def bounded_moves(
+    pos_m: np.ndarray,
+    disp_m: np.ndarray,
+    active: np.ndarray,
+    alive: np.ndarray,
+    home_m: np.ndarray,
+    vmax: float,
+) -> np.ndarray | None:
     """The motion of :meth:`vehicle_emu.world.World.step` for one home point, in one pass: active
     drones take ``disp_m``, the others head for ``home_m`` (never overshooting it), every
     displacement is scaled down to ``vmax``, and only ``alive`` drones move. The same operations
@@ -516,19 +627,26 @@ def bounded_moves(pos_m: np.ndarray, disp_m: np.ndarray, active: np.ndarray, ali
         return None
     if disp_m.shape != pos_m.shape or np.shape(home_m) != (2,) or not np.isfinite(vmax):
         return None
-    if not (np.all(np.isfinite(pos_m)) and np.all(np.isfinite(disp_m)) and np.all(np.isfinite(home_m))):
+    if not (
+        np.all(np.isfinite(pos_m)) and np.all(np.isfinite(disp_m)) and np.all(np.isfinite(home_m))
+    ):
         return None
-    return _bounded_moves_jit(np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
-                              np.ascontiguousarray(pos_m[:, 1], dtype=np.float64),
-                              np.ascontiguousarray(disp_m[:, 0], dtype=np.float64),
-                              np.ascontiguousarray(disp_m[:, 1], dtype=np.float64),
-                              np.asarray(active, dtype=np.bool_), np.asarray(alive, dtype=np.bool_),
-                              float(home_m[0]), float(home_m[1]), float(vmax))
+    return _bounded_moves_jit(
+        np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
+        np.ascontiguousarray(pos_m[:, 1], dtype=np.float64),
+        np.ascontiguousarray(disp_m[:, 0], dtype=np.float64),
+        np.ascontiguousarray(disp_m[:, 1], dtype=np.float64),
+        np.asarray(active, dtype=np.bool_),
+        np.asarray(alive, dtype=np.bool_),
+        float(home_m[0]),
+        float(home_m[1]),
+        float(vmax),
+    )
 
 
 def _reaches_root(parent: np.ndarray) -> bool:
     k = len(parent)
-    state = np.zeros(k, dtype=np.int8)         # 0 unseen, 1 on the current walk, 2 reaches node 0
+    state = np.zeros(k, dtype=np.int8)  # 0 unseen, 1 on the current walk, 2 reaches node 0
     state[0] = 2
     path = np.empty(k, dtype=np.int64)
     for v in range(k):

@@ -40,17 +40,25 @@ _F = TypeVar("_F", bound=Callable[..., Any])
 def njit(**options: Any) -> Callable[[_F], _F]:
     """``numba.njit(**options)`` that keeps the function's signature for the type checker (Numba's
     decorator is untyped); the plain function when Numba is missing."""
+
     def wrap(func: _F) -> _F:
         if not NUMBA:  # pragma: no cover
             return func
         return cast(_F, numba.njit(**options)(func))
+
     return wrap
+
 
 #: False: the callers run the NumPy reference paths instead (benchmarks and tests compare the two).
 ENABLED = True
 
-__all__ = ["NUMBA", "central_pair_gradient", "segment_gradient", "entries_pair_gradient",
-           "entries_segment_gradient"]
+__all__ = [
+    "NUMBA",
+    "central_pair_gradient",
+    "segment_gradient",
+    "entries_pair_gradient",
+    "entries_segment_gradient",
+]
 
 #: From this many drones the all-pairs kernel runs its rows on Numba's thread pool (the rows are
 #: independent and each is summed in a fixed order, so the result does not depend on the threads).
@@ -63,8 +71,17 @@ PARALLEL_MIN_DRONES = 1500
 _PAIR_FASTMATH = {"reassoc", "nsz", "contract"}
 
 
-def _central_pair_body_py(x: np.ndarray, y: np.ndarray, attraction: float, floor: float, repulsion: float, reach: float, pair_factor: float,
-                       out: np.ndarray, i: int) -> None:
+def _central_pair_body_py(
+    x: np.ndarray,
+    y: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+    out: np.ndarray,
+    i: int,
+) -> None:
     xi, yi = x[i], y[i]
     gx = 0.0
     gy = 0.0
@@ -86,12 +103,21 @@ def _central_pair_body_py(x: np.ndarray, y: np.ndarray, attraction: float, floor
     out[i, 1] = pair_factor * gy
 
 
-_central_pair_body = njit(cache=True, inline="always", fastmath=_PAIR_FASTMATH)(_central_pair_body_py)
+_central_pair_body = njit(cache=True, inline="always", fastmath=_PAIR_FASTMATH)(
+    _central_pair_body_py
+)
 
 
 @njit(cache=True, fastmath=_PAIR_FASTMATH)
-def _central_pair_serial(x: np.ndarray, y: np.ndarray, attraction: float, floor: float, repulsion: float, reach: float,
-                         pair_factor: float) -> np.ndarray:
+def _central_pair_serial(
+    x: np.ndarray,
+    y: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+) -> np.ndarray:
     out = np.empty((len(x), 2))
     for i in range(len(x)):
         _central_pair_body(x, y, attraction, floor, repulsion, reach, pair_factor, out, i)
@@ -99,16 +125,29 @@ def _central_pair_serial(x: np.ndarray, y: np.ndarray, attraction: float, floor:
 
 
 @njit(cache=True, parallel=True, fastmath=_PAIR_FASTMATH)
-def _central_pair_parallel(x: np.ndarray, y: np.ndarray, attraction: float, floor: float, repulsion: float, reach: float,
-                           pair_factor: float) -> np.ndarray:
+def _central_pair_parallel(
+    x: np.ndarray,
+    y: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+) -> np.ndarray:
     out = np.empty((len(x), 2))
     for i in prange(len(x)):
         _central_pair_body(x, y, attraction, floor, repulsion, reach, pair_factor, out, i)
     return out
 
 
-def central_pair_gradient(pos_u: np.ndarray, attraction: float, floor: float, repulsion: float,
-                          reach: float, pair_factor: float) -> np.ndarray:
+def central_pair_gradient(
+    pos_u: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+) -> np.ndarray:
     """All-pairs :func:`planner.phireman.pair_gradient` of the central view (every drone sees every
     other, mask = not self), O(n) memory.
 
@@ -128,11 +167,22 @@ def central_pair_gradient(pos_u: np.ndarray, attraction: float, floor: float, re
     x = np.ascontiguousarray(pos_u[:, 0])
     y = np.ascontiguousarray(pos_u[:, 1])
     kernel = _central_pair_parallel if len(x) >= PARALLEL_MIN_DRONES else _central_pair_serial
-    return kernel(x, y, float(attraction), float(floor), float(repulsion), float(reach), float(pair_factor))
+    return kernel(
+        x, y, float(attraction), float(floor), float(repulsion), float(reach), float(pair_factor)
+    )
 
 
 @njit(cache=True)
-def _segment_gradient(px: np.ndarray, py: np.ndarray, ax: np.ndarray, ay: np.ndarray, ex: np.ndarray, ey: np.ndarray, e2: np.ndarray, thorn: float) -> np.ndarray:
+def _segment_gradient(
+    px: np.ndarray,
+    py: np.ndarray,
+    ax: np.ndarray,
+    ay: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    e2: np.ndarray,
+    thorn: float,
+) -> np.ndarray:
     n = len(px)
     m = len(ax)
     out = np.empty((n, 2))
@@ -154,7 +204,11 @@ def _segment_gradient(px: np.ndarray, py: np.ndarray, ax: np.ndarray, ay: np.nda
         for s in range(1, m):
             if d2[s] < d2[best]:
                 best = s
-        t = (((xi - ax[best]) * ex[best] + (yi - ay[best]) * ey[best]) / e2[best]) if e2[best] > 0.0 else 0.0
+        t = (
+            (((xi - ax[best]) * ex[best] + (yi - ay[best]) * ey[best]) / e2[best])
+            if e2[best] > 0.0
+            else 0.0
+        )
         t = min(max(t, 0.0), 1.0)
         bx = xi - (ax[best] + t * ex[best])
         by = yi - (ay[best] + t * ey[best])
@@ -168,7 +222,9 @@ def _segment_gradient(px: np.ndarray, py: np.ndarray, ax: np.ndarray, ay: np.nda
     return out
 
 
-def segment_gradient(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, thorn: float) -> np.ndarray:
+def segment_gradient(
+    pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, thorn: float
+) -> np.ndarray:
     """∇ Þ h_T for drones sharing one tree given as segments: the fast twin of
     :func:`planner.phireman.task_gradient` (via :func:`planner.steiner.distance_to_tree`), same
     per-element formula and first-minimum rule, O(n) memory instead of (n, E).
@@ -183,13 +239,22 @@ def segment_gradient(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, th
     a = np.asarray(seg_a, dtype=np.float64)
     ab = np.asarray(seg_b, dtype=np.float64) - a
     e2 = ab[:, 0] * ab[:, 0] + ab[:, 1] * ab[:, 1]
-    return _segment_gradient(np.ascontiguousarray(pos_u[:, 0]), np.ascontiguousarray(pos_u[:, 1]),
-                             np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]),
-                             np.ascontiguousarray(ab[:, 0]), np.ascontiguousarray(ab[:, 1]), e2, float(thorn))
+    return _segment_gradient(
+        np.ascontiguousarray(pos_u[:, 0]),
+        np.ascontiguousarray(pos_u[:, 1]),
+        np.ascontiguousarray(a[:, 0]),
+        np.ascontiguousarray(a[:, 1]),
+        np.ascontiguousarray(ab[:, 0]),
+        np.ascontiguousarray(ab[:, 1]),
+        e2,
+        float(thorn),
+    )
 
 
 @njit(cache=True, inline="always")
-def _pair_coef(dx: float, dy: float, attraction: float, floor: float, repulsion: float, reach: float) -> float:
+def _pair_coef(
+    dx: float, dy: float, attraction: float, floor: float, repulsion: float, reach: float
+) -> float:
     """One entry's pair-gradient coefficient (gradient = (dx, dy) * coef):
     :func:`planner.phireman._pair_gradient_xy`'s element-wise operations in the same order."""
     d2 = dx * dx
@@ -219,8 +284,19 @@ def _limit_fraction(dx: float, dy: float, stx: float, sty: float, v2: float) -> 
 
 
 @njit(cache=True)
-def entries_pair_gradient(px: np.ndarray, py: np.ndarray, rows: np.ndarray, ox: np.ndarray, oy: np.ndarray, n: int, attraction: np.ndarray, floor: float,
-                          repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
+def entries_pair_gradient(
+    px: np.ndarray,
+    py: np.ndarray,
+    rows: np.ndarray,
+    ox: np.ndarray,
+    oy: np.ndarray,
+    n: int,
+    attraction: np.ndarray,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+) -> np.ndarray:
     """:func:`planner.phireman._pair_gradient_xy`, bit for bit: the same element-wise operations in
     the same order, summed per holder in entry order as ``np.bincount`` does.
 
@@ -245,7 +321,18 @@ def entries_pair_gradient(px: np.ndarray, py: np.ndarray, rows: np.ndarray, ox: 
 
 
 @njit(cache=True)
-def entries_segment_gradient(px: np.ndarray, py: np.ndarray, er: np.ndarray, ax: np.ndarray, ay: np.ndarray, ex: np.ndarray, ey: np.ndarray, e2: np.ndarray, n: int, thorn: float) -> np.ndarray:
+def entries_segment_gradient(
+    px: np.ndarray,
+    py: np.ndarray,
+    er: np.ndarray,
+    ax: np.ndarray,
+    ay: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    e2: np.ndarray,
+    n: int,
+    thorn: float,
+) -> np.ndarray:
     """:meth:`planner.phireman.TreeSegments._gradient_entries`, bit for bit: per entry (drone er[e],
     segment e) the same clamped projection, the first minimum per drone (entries of a drone are
     consecutive, in segment order). Every drone 0..n-1 has at least one entry."""
@@ -283,10 +370,29 @@ def entries_segment_gradient(px: np.ndarray, py: np.ndarray, er: np.ndarray, ax:
 
 
 @njit(cache=True)
-def descend_separable(px: np.ndarray, py: np.ndarray, pair_start: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg_start: np.ndarray, ax: np.ndarray, ay: np.ndarray, ex: np.ndarray, ey: np.ndarray,
-                      e2: np.ndarray, attraction: float, floor: float, repulsion: float, reach: float,
-                      pair_factor: float, thorn: float, step_size: float, tolerance: float, vmax: float,
-                      max_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def descend_separable(
+    px: np.ndarray,
+    py: np.ndarray,
+    pair_start: np.ndarray,
+    ox: np.ndarray,
+    oy: np.ndarray,
+    seg_start: np.ndarray,
+    ax: np.ndarray,
+    ay: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    e2: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+    thorn: float,
+    step_size: float,
+    tolerance: float,
+    vmax: float,
+    max_steps: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The async PhiIREMAN descent of one tick (:func:`planner.phireman.descend` with
     ``separable=True`` and the 'per_drone' speed rule), every drone in one compiled loop.
 
@@ -373,8 +479,18 @@ def descend_separable(px: np.ndarray, py: np.ndarray, pair_start: np.ndarray, ox
 
 
 @njit(cache=True)
-def prune_segments(px: np.ndarray, py: np.ndarray, version: np.ndarray, ax: np.ndarray, ay: np.ndarray, ex: np.ndarray, ey: np.ndarray, e2: np.ndarray, count: np.ndarray,
-                   margin: float) -> tuple[np.ndarray, np.ndarray]:
+def prune_segments(
+    px: np.ndarray,
+    py: np.ndarray,
+    version: np.ndarray,
+    ax: np.ndarray,
+    ay: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    e2: np.ndarray,
+    count: np.ndarray,
+    margin: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """The candidate segments of :class:`planner.phireman.TreeSegments` (``pos0`` given): for drone
     i holding tree ``version[i]``, the segments s < count[v] with D_s <= min_s D_s + margin +
     1e-9 (1 + min_s D_s), D_s the distance from (px[i], py[i]) computed as ``TreeSegments._d2``
@@ -416,8 +532,14 @@ def prune_segments(px: np.ndarray, py: np.ndarray, version: np.ndarray, ax: np.n
 
 
 @njit(cache=True)
-def propagate_max(start: np.ndarray, cols: np.ndarray, stamps: np.ndarray, link_start: np.ndarray, link_src: np.ndarray,
-                  n_cols: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def propagate_max(
+    start: np.ndarray,
+    cols: np.ndarray,
+    stamps: np.ndarray,
+    link_start: np.ndarray,
+    link_src: np.ndarray,
+    n_cols: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One hop of the recency rule on an entry list (:func:`planner.knowledge.propagate_entries`):
     new[i, k] = max over j in {i} U N(i) of sent[j, k], as a per-entry maximum over a CSR
     adjacency. Integer maxima, so exactly the bit-set / max-plus versions' result.
@@ -465,8 +587,17 @@ def propagate_max(start: np.ndarray, cols: np.ndarray, stamps: np.ndarray, link_
 
 
 @njit(cache=True)
-def grid_pairs(x: np.ndarray, y: np.ndarray, range_m: float, cell: float, x0: float, y0: float, nx: int,
-               ny: int, ordered: bool = True) -> np.ndarray:
+def grid_pairs(
+    x: np.ndarray,
+    y: np.ndarray,
+    range_m: float,
+    cell: float,
+    x0: float,
+    y0: float,
+    nx: int,
+    ny: int,
+    ordered: bool = True,
+) -> np.ndarray:
     """All pairs i < j with sqrt(dx^2 + dy^2) <= range_m (the distance as ``np.linalg.norm`` of
     the difference computes it), found through a uniform grid of ``cell``-sized cells (cell >=
     range_m, so a pair lies in the same or adjacent cells). Returns (P, 2) int64 sorted by (i, j)
@@ -509,7 +640,7 @@ def grid_pairs(x: np.ndarray, y: np.ndarray, range_m: float, cell: float, x0: fl
                         pj[m] = j
                         m += 1
     out = np.empty((m, 2), dtype=np.int64)
-    if not ordered:                     # the order in which the cells were scanned
+    if not ordered:  # the order in which the cells were scanned
         for q in range(m):
             out[q, 0] = pi[q]
             out[q, 1] = pj[q]
@@ -523,9 +654,21 @@ def grid_pairs(x: np.ndarray, y: np.ndarray, range_m: float, cell: float, x0: fl
 
 
 @njit(cache=True)
-def finish_knowledge_update(r: np.ndarray, c: np.ndarray, s: np.ndarray, alive: np.ndarray, t_step: int, age_cut: int, hist: np.ndarray, px: np.ndarray, py: np.ndarray,
-                            far2: float, radio2: float, forget: bool,
-                            t_sent: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def finish_knowledge_update(
+    r: np.ndarray,
+    c: np.ndarray,
+    s: np.ndarray,
+    alive: np.ndarray,
+    t_step: int,
+    age_cut: int,
+    hist: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    far2: float,
+    radio2: float,
+    forget: bool,
+    t_sent: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The end of :meth:`planner.knowledge.Knowledge.update` after the message hop, in one pass,
     with the NumPy version's integer rules and the same float arithmetic (bit for bit):
 
@@ -615,10 +758,28 @@ def finish_knowledge_update(r: np.ndarray, c: np.ndarray, s: np.ndarray, alive: 
 
 
 @njit(cache=True)
-def descend_separable_leader(px: np.ndarray, py: np.ndarray, pair_start: np.ndarray, ox: np.ndarray, oy: np.ndarray, aw: np.ndarray, lx: np.ndarray, ly: np.ndarray, gain: np.ndarray,
-                             exponent: float, r: float, lfloor: float, floor: float, repulsion: float,
-                             reach: float, pair_factor: float, step_size: float, tolerance: float,
-                             vmax: float, max_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def descend_separable_leader(
+    px: np.ndarray,
+    py: np.ndarray,
+    pair_start: np.ndarray,
+    ox: np.ndarray,
+    oy: np.ndarray,
+    aw: np.ndarray,
+    lx: np.ndarray,
+    ly: np.ndarray,
+    gain: np.ndarray,
+    exponent: float,
+    r: float,
+    lfloor: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+    step_size: float,
+    tolerance: float,
+    vmax: float,
+    max_steps: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """DCCRS's async descent (:meth:`planner.dccrs.DccrsPlanner._descend_entries`: ``descend``
     with ``separable=True``, 'per_drone'), every drone in one compiled loop: pair term with
     per-holder attraction aw[i] = ℳ w_i over the drone's entries + leader term
@@ -706,8 +867,15 @@ def _first_at(row: np.ndarray, add: np.ndarray, n: int, value: float) -> int:
 
 
 @njit(cache=True)
-def greedy_pick(direct: np.ndarray, split: np.ndarray, cb_path: np.ndarray, parent: np.ndarray, n_free: int, n: int,
-                with_path: bool) -> tuple[int, float, int, float]:
+def greedy_pick(
+    direct: np.ndarray,
+    split: np.ndarray,
+    cb_path: np.ndarray,
+    parent: np.ndarray,
+    n_free: int,
+    n: int,
+    with_path: bool,
+) -> tuple[int, float, int, float]:
     """One step's choice in :func:`planner.steiner._greedy_tree`: the first minimum (row-major, as
     ``np.argmin`` on the flattened array) of cost_a = direct[:n_free, :n] + cb_path[:n] and of
     cost_b = split[:n_free, :n] + cb_path[parent[:n]] (without ``with_path``: direct and split

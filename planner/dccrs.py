@@ -64,19 +64,42 @@ from typing import Any
 import numpy as np
 
 from planner import _kernels
-from planner.info import (CentralView, MessageView, check_info, check_speed_rule, information_model,
-                          resolve_speed_rule)
+from planner.info import (
+    CentralView,
+    MessageView,
+    check_info,
+    check_speed_rule,
+    information_model,
+    resolve_speed_rule,
+)
 from planner.methods import PlanOutput, TickInput
-from planner.phireman import (DescentResult, PhiremanParams, _descent_result, _EntriesByDrone, _pair_gradient_xy,
-                              descend, parse_params)
+from planner.phireman import (
+    DescentResult,
+    PhiremanParams,
+    _descent_result,
+    _EntriesByDrone,
+    _pair_gradient_xy,
+    descend,
+    parse_params,
+)
 from planner.problem import ProblemConfig
 from planner.units import PaperUnits
 
 __all__ = [
-    "LABEL", "DccrsParams", "DccrsPlanner", "make_dccrs",
-    "density_weight", "weighted_pair_gradient", "leader_gradient", "leader_gradient_reference",
-    "leader_energy", "believed_velocities", "velocity_match", "velocity_match_reference",
-    "weighted_pair_gradient_entries", "velocity_match_entries",
+    "LABEL",
+    "DccrsParams",
+    "DccrsPlanner",
+    "make_dccrs",
+    "density_weight",
+    "weighted_pair_gradient",
+    "leader_gradient",
+    "leader_gradient_reference",
+    "leader_energy",
+    "believed_velocities",
+    "velocity_match",
+    "velocity_match_reference",
+    "weighted_pair_gradient_entries",
+    "velocity_match_entries",
 ]
 
 LABEL = "DCCRS (reconstruction, docs/design/model.md §3.3; original paper not identified)"
@@ -153,38 +176,66 @@ class DccrsParams:
     def __post_init__(self) -> None:
         check_speed_rule(self.speed_rule)
         check_info(self.info)
-        for name in ("step_size", "tolerance", "repulsion_radius_ratio", "dist_max", "leader_floor",
-                     "density_weight_min"):
+        for name in (
+            "step_size",
+            "tolerance",
+            "repulsion_radius_ratio",
+            "dist_max",
+            "leader_floor",
+            "density_weight_min",
+        ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         for name in ("max_descent_steps", "age_max_steps", "tree_stale_steps"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if not self.density_weight_min <= self.density_weight_max:
-            raise ValueError("density_weight_min must be <= density_weight_max, got "
-                             f"{self.density_weight_min} > {self.density_weight_max}")
+            raise ValueError(
+                "density_weight_min must be <= density_weight_max, got "
+                f"{self.density_weight_min} > {self.density_weight_max}"
+            )
         if not 0.0 <= self.velocity_matching <= 1.0:
             raise ValueError(f"velocity_matching must be in [0, 1], got {self.velocity_matching}")
         if self.leader_exponent < -1.0:
-            raise ValueError(f"leader_exponent must be >= -1 (E^L must not decrease with distance), "
-                             f"got {self.leader_exponent}")
-        if self.density_target < 0 or self.density_exponent < 0 or self.leader_gain < 0 or self.leader_cap < 0:
-            raise ValueError("density_target, density_exponent, leader_gain and leader_cap must be >= 0")
+            raise ValueError(
+                f"leader_exponent must be >= -1 (E^L must not decrease with distance), "
+                f"got {self.leader_exponent}"
+            )
+        if (
+            self.density_target < 0
+            or self.density_exponent < 0
+            or self.leader_gain < 0
+            or self.leader_cap < 0
+        ):
+            raise ValueError(
+                "density_target, density_exponent, leader_gain and leader_cap must be >= 0"
+            )
 
 
 # --------------------------------------------------------------------------------------------
 # Kernels (paper units). All vectorised over drones; references loop, for tests.
 # --------------------------------------------------------------------------------------------
 
-def density_weight(rho: np.ndarray, target: float, exponent: float, w_min: float, w_max: float) -> np.ndarray:
+
+def density_weight(
+    rho: np.ndarray, target: float, exponent: float, w_min: float, w_max: float
+) -> np.ndarray:
     """w = clip((ρ* / max(ρ, 1))^β, w_min, w_max), per drone."""
     rho = np.maximum(np.asarray(rho, float), 1.0)
     return np.clip((target / rho) ** exponent, w_min, w_max)
 
 
-def weighted_pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, weight: np.ndarray,
-                           attraction: float, floor: float, repulsion: float, reach: float,
-                           pair_factor: float) -> np.ndarray:
+def weighted_pair_gradient(
+    pos_u: np.ndarray,
+    others_u: np.ndarray,
+    mask: np.ndarray,
+    weight: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+) -> np.ndarray:
     """:func:`planner.phireman.pair_gradient` with drone i's attraction scaled by ``weight[i]``.
 
     Returns (n, 2): c w_i ℳ Σ (x_i - x_j)/d^3 [d > d_min] - c P Σ (reach - d)(x_i - x_j)/d [d < reach].
@@ -201,9 +252,17 @@ def weighted_pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.nda
     return pair_factor * np.einsum("nk,nkc->nc", coef, diff)
 
 
-def weighted_pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e: np.ndarray,
-                                   weight: np.ndarray, attraction: float, floor: float, repulsion: float,
-                                   reach: float, pair_factor: float) -> np.ndarray:
+def weighted_pair_gradient_entries(
+    pos_u: np.ndarray,
+    rows: np.ndarray,
+    others_e: np.ndarray,
+    weight: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+) -> np.ndarray:
     """:func:`weighted_pair_gradient` from the interacting entries of the per-drone view only.
 
     Parameters
@@ -219,22 +278,38 @@ def weighted_pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e
     (x_i - y_k) is summed per drone by ``np.bincount``. Agrees with the dense kernel and the loops
     to rounding (not bit for bit: 1/d^3 is formed as (1/d)^3).
     """
-    return _pair_gradient_xy(pos_u, rows, others_e[:, 0], others_e[:, 1], attraction, floor, repulsion, reach,
-                             pair_factor, weight=weight)
+    return _pair_gradient_xy(
+        pos_u,
+        rows,
+        others_e[:, 0],
+        others_e[:, 1],
+        attraction,
+        floor,
+        repulsion,
+        reach,
+        pair_factor,
+        weight=weight,
+    )
 
 
 def _leader_distances(pos_u: np.ndarray, leaders_u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(n,) distance to the nearest leader (the first on ties) and (n, 2) the offset x - y to it;
     ``leaders_u`` (n, L, 2). The square root is taken of the nearest only."""
-    diff = pos_u[:, None, :] - leaders_u            # (n, L, 2)
+    diff = pos_u[:, None, :] - leaders_u  # (n, L, 2)
     d2 = np.einsum("nlc,nlc->nl", diff, diff)
     k = np.argmin(d2, axis=1)
     rows = np.arange(len(pos_u))
     return np.sqrt(d2[rows, k]), diff[rows, k]
 
 
-def leader_gradient(pos_u: np.ndarray, leaders_u: np.ndarray, gain: np.ndarray, exponent: float, r: float,
-                    floor: float) -> np.ndarray:
+def leader_gradient(
+    pos_u: np.ndarray,
+    leaders_u: np.ndarray,
+    gain: np.ndarray,
+    exponent: float,
+    r: float,
+    floor: float,
+) -> np.ndarray:
     """∇ of E^L = k_L (d/r)^γ d toward the nearest leader, d floored at ``floor`` in the weight.
 
     Parameters
@@ -257,8 +332,14 @@ def leader_gradient(pos_u: np.ndarray, leaders_u: np.ndarray, gain: np.ndarray, 
     return away * np.divide(mag, d, out=np.zeros_like(d), where=d > 0)[:, None]
 
 
-def leader_gradient_reference(pos_u: np.ndarray, leaders_u: np.ndarray, gain: np.ndarray, exponent: float,
-                              r: float, floor: float) -> np.ndarray:
+def leader_gradient_reference(
+    pos_u: np.ndarray,
+    leaders_u: np.ndarray,
+    gain: np.ndarray,
+    exponent: float,
+    r: float,
+    floor: float,
+) -> np.ndarray:
     """Loop version of :func:`leader_gradient` (for tests)."""
     pos_u = np.asarray(pos_u, float)
     n = len(pos_u)
@@ -278,8 +359,14 @@ def leader_gradient_reference(pos_u: np.ndarray, leaders_u: np.ndarray, gain: np
     return out
 
 
-def leader_energy(pos_u: np.ndarray, leaders_u: np.ndarray, gain: np.ndarray, exponent: float, r: float,
-                  floor: float) -> np.ndarray:
+def leader_energy(
+    pos_u: np.ndarray,
+    leaders_u: np.ndarray,
+    gain: np.ndarray,
+    exponent: float,
+    r: float,
+    floor: float,
+) -> np.ndarray:
     """(n,) E^L_i: k_L (d/r)^γ d for d >= f, continued linearly with the slope at f below it."""
     pos_u = np.asarray(pos_u, float)
     n = len(pos_u)
@@ -291,7 +378,9 @@ def leader_energy(pos_u: np.ndarray, leaders_u: np.ndarray, gain: np.ndarray, ex
     return np.where(d >= floor, above, above + below)
 
 
-def believed_velocities(stamp: np.ndarray, pos_hist: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
+def believed_velocities(
+    stamp: np.ndarray, pos_hist: np.ndarray, cols: np.ndarray | None = None
+) -> np.ndarray:
     """(n, K, 2): v_k as known to i, pos_hist[s, c_k] - pos_hist[s-1, c_k] with s = stamp[i, k].
 
     ``cols`` (K,) maps the columns of ``stamp`` to drone ids (default: column k is drone k). 0 where
@@ -303,8 +392,9 @@ def believed_velocities(stamp: np.ndarray, pos_hist: np.ndarray, cols: np.ndarra
     return np.where((stamp >= 1)[..., None], vel, 0.0)
 
 
-def velocity_match(disp_pot_u: np.ndarray, neighbours: np.ndarray, vel_u: np.ndarray, alpha: float,
-                   vmax: float) -> np.ndarray:
+def velocity_match(
+    disp_pot_u: np.ndarray, neighbours: np.ndarray, vel_u: np.ndarray, alpha: float, vmax: float
+) -> np.ndarray:
     """δx_i = (1-α) δx_i^pot + α mean_{j ∈ N_i} v_j (δx_i^pot if N_i is empty), clipped to |δx_i| <= v.
 
     Parameters
@@ -321,8 +411,9 @@ def velocity_match(disp_pot_u: np.ndarray, neighbours: np.ndarray, vel_u: np.nda
     return out * np.minimum(1.0, vmax / np.where(norm > 0, norm, 1.0))[:, None]
 
 
-def velocity_match_entries(disp_pot_u: np.ndarray, rows: np.ndarray, vel_e: np.ndarray, alpha: float,
-                           vmax: float) -> np.ndarray:
+def velocity_match_entries(
+    disp_pot_u: np.ndarray, rows: np.ndarray, vel_e: np.ndarray, alpha: float, vmax: float
+) -> np.ndarray:
     """:func:`velocity_match` with N_i given as entries: ``rows`` (E,) the holder of each neighbour
     entry (row-major order) and ``vel_e`` (E, 2) its velocity. Bit-identical to the dense kernel
     (the neighbour sum is accumulated in column order, as einsum does)."""
@@ -337,8 +428,9 @@ def velocity_match_entries(disp_pot_u: np.ndarray, rows: np.ndarray, vel_e: np.n
     return out * np.minimum(1.0, vmax / np.where(norm > 0, norm, 1.0))[:, None]
 
 
-def velocity_match_reference(disp_pot_u: np.ndarray, neighbours: np.ndarray, vel_u: np.ndarray, alpha: float,
-                             vmax: float) -> np.ndarray:
+def velocity_match_reference(
+    disp_pot_u: np.ndarray, neighbours: np.ndarray, vel_u: np.ndarray, alpha: float, vmax: float
+) -> np.ndarray:
     """Loop version of :func:`velocity_match` (for tests)."""
     n = len(disp_pot_u)
     out = np.zeros((n, 2))
@@ -356,6 +448,7 @@ def velocity_match_reference(disp_pot_u: np.ndarray, neighbours: np.ndarray, vel
 # The planner
 # --------------------------------------------------------------------------------------------
 
+
 class DccrsPlanner:
     """DCCRS baseline — reconstruction of docs/design/model.md §3.3 (original paper not identified).
 
@@ -363,12 +456,16 @@ class DccrsPlanner:
     toward the nearest task; no task tree. Same message layer and descent as PhiIREMAN.
     """
 
-    def __init__(self, problem: ProblemConfig, params: DccrsParams, rng: np.random.Generator) -> None:
+    def __init__(
+        self, problem: ProblemConfig, params: DccrsParams, rng: np.random.Generator
+    ) -> None:
         self.problem = problem
         self.rng = rng  # unused: deterministic given its inputs
         self.units = PaperUnits.of(problem)
         if params.speed_rule == "auto":  # as PhiIREMAN: one joint stop (central), per drone (async)
-            params = dataclasses.replace(params, speed_rule=resolve_speed_rule(params.speed_rule, params.info))
+            params = dataclasses.replace(
+                params, speed_rule=resolve_speed_rule(params.speed_rule, params.info)
+            )
         self.params = params
         self.r_u = self.units.radio_range_u
         self.vmax_u = self.units.max_step_u
@@ -383,8 +480,14 @@ class DccrsPlanner:
         base = np.broadcast_to(base_u, tasks_u.shape[:-2] + (1, 2))
         return np.concatenate([tasks_u, base], axis=-2)
 
-    def _descend(self, pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, leaders_u: np.ndarray,
-                 joint: bool) -> tuple[DescentResult, np.ndarray, np.ndarray]:
+    def _descend(
+        self,
+        pos_u: np.ndarray,
+        others_u: np.ndarray,
+        mask: np.ndarray,
+        leaders_u: np.ndarray,
+        joint: bool,
+    ) -> tuple[DescentResult, np.ndarray, np.ndarray]:
         """Density weights, leader gate and the potential descent; returns (result, N_i, weights).
 
         ``joint``: the others are the planned drones themselves and move with the iterate (central,
@@ -392,30 +495,54 @@ class DccrsPlanner:
         """
         p = self.params
         diff = pos_u[:, None, :] - others_u
-        near = mask & (np.einsum("nkc,nkc->nk", diff, diff) <= self.r_u ** 2)   # N_i
+        near = mask & (np.einsum("nkc,nkc->nk", diff, diff) <= self.r_u**2)  # N_i
         rho = near.sum(axis=1)
-        weight = density_weight(rho, p.density_target, p.density_exponent, p.density_weight_min,
-                                p.density_weight_max)
-        def claims(y: np.ndarray) -> np.ndarray:  # known neighbours within r of each drone's leader point y
+        weight = density_weight(
+            rho, p.density_target, p.density_exponent, p.density_weight_min, p.density_weight_max
+        )
+
+        def claims(
+            y: np.ndarray,
+        ) -> np.ndarray:  # known neighbours within r of each drone's leader point y
             dy = others_u - y[:, None, :]
-            return (mask & (np.einsum("nkc,nkc->nk", dy, dy) <= self.r_u ** 2)).sum(axis=1)
+            return (mask & (np.einsum("nkc,nkc->nk", dy, dy) <= self.r_u**2)).sum(axis=1)
+
         gain = self._leader_gain(pos_u, leaders_u, claims)
 
         def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
             if joint:  # central: every drone, the others move with the iterate
-                return (weighted_pair_gradient(x, x[None, :, :], mask, weight, p.attraction, p.attraction_floor,
-                                               p.repulsion, self.reach_u, p.pair_factor)
-                        + leader_gradient(x, leaders_u, gain, p.leader_exponent, self.r_u, p.leader_floor))
+                return weighted_pair_gradient(
+                    x,
+                    x[None, :, :],
+                    mask,
+                    weight,
+                    p.attraction,
+                    p.attraction_floor,
+                    p.repulsion,
+                    self.reach_u,
+                    p.pair_factor,
+                ) + leader_gradient(x, leaders_u, gain, p.leader_exponent, self.r_u, p.leader_floor)
             lead = leaders_u if leaders_u.ndim == 2 else leaders_u[rows]
-            return (weighted_pair_gradient(x[rows], others_u[rows], mask[rows], weight[rows], p.attraction,
-                                           p.attraction_floor, p.repulsion, self.reach_u, p.pair_factor)
-                    + leader_gradient(x[rows], lead, gain[rows], p.leader_exponent, self.r_u, p.leader_floor))
+            return weighted_pair_gradient(
+                x[rows],
+                others_u[rows],
+                mask[rows],
+                weight[rows],
+                p.attraction,
+                p.attraction_floor,
+                p.repulsion,
+                self.reach_u,
+                p.pair_factor,
+            ) + leader_gradient(
+                x[rows], lead, gain[rows], p.leader_exponent, self.r_u, p.leader_floor
+            )
 
         res = descend(pos_u, grad, self.vmax_u, p, separable=not joint)
         return res, near, weight
 
-    def _leader_gain(self, pos_u: np.ndarray, leaders_u: np.ndarray,
-                     claims: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    def _leader_gain(
+        self, pos_u: np.ndarray, leaders_u: np.ndarray, claims: Callable[[np.ndarray], np.ndarray]
+    ) -> np.ndarray:
         """(n,) leader-following gain: 0 for a drone farther than r from its leader whose leader
         point already has ``leader_cap`` known neighbours (``claims(y)`` counts them)."""
         p = self.params
@@ -424,47 +551,83 @@ class DccrsPlanner:
         if p.leader_cap > 0 and p.leader_gain > 0 and n:
             lead = np.broadcast_to(leaders_u, (n,) + leaders_u.shape[-2:])
             d, away = _leader_distances(pos_u, lead)
-            claim = claims(pos_u - away)                                  # each drone's leader
+            claim = claims(pos_u - away)  # each drone's leader
             gain[(d > self.r_u) & (claim >= p.leader_cap)] = 0.0
         return gain
 
-    def _descend_entries(self, pos_u: np.ndarray, er: np.ndarray, y_e: np.ndarray, leaders_u: np.ndarray
-                         ) -> tuple[DescentResult, np.ndarray, np.ndarray]:
+    def _descend_entries(
+        self, pos_u: np.ndarray, er: np.ndarray, y_e: np.ndarray, leaders_u: np.ndarray
+    ) -> tuple[DescentResult, np.ndarray, np.ndarray]:
         """:meth:`_descend` (async, fixed beliefs) from the known entries of the view: ``er`` (E,)
         holder rows in row-major order, ``y_e`` (E, 2) believed positions; leaders (n, L, 2).
         Returns (result, boolean over entries marking N_i, weights). Agrees with the dense one to rounding."""
         p = self.params
         n = len(pos_u)
         diff = pos_u[er] - y_e
-        near_e = np.einsum("ec,ec->e", diff, diff) <= self.r_u ** 2        # N_i, as entries
+        near_e = np.einsum("ec,ec->e", diff, diff) <= self.r_u**2  # N_i, as entries
         rho = np.bincount(er[near_e], minlength=n)
-        weight = density_weight(rho, p.density_target, p.density_exponent, p.density_weight_min,
-                                p.density_weight_max)
+        weight = density_weight(
+            rho, p.density_target, p.density_exponent, p.density_weight_min, p.density_weight_max
+        )
+
         def claims(y: np.ndarray) -> np.ndarray:  # the same count over the entries
             dy = y_e - y[er]
-            return np.bincount(er[np.einsum("ec,ec->e", dy, dy) <= self.r_u ** 2], minlength=n)
+            return np.bincount(er[np.einsum("ec,ec->e", dy, dy) <= self.r_u**2], minlength=n)
+
         gain = self._leader_gain(pos_u, leaders_u, claims)
 
         entries = _EntriesByDrone(er, y_e, n)
-        if _kernels.NUMBA and _kernels.ENABLED and p.speed_rule == "per_drone" and n and leaders_u.shape[-2] >= 1:
+        if (
+            _kernels.NUMBA
+            and _kernels.ENABLED
+            and p.speed_rule == "per_drone"
+            and n
+            and leaders_u.shape[-2] >= 1
+        ):
             # the whole descent compiled, bit for bit the NumPy one below (tests/planner/test_kernels.py)
             lead = np.broadcast_to(leaders_u, (n,) + leaders_u.shape[-2:])
             pos_u = np.asarray(pos_u, float)
             delta, stop, at_limit = _kernels.descend_separable_leader(
-                np.ascontiguousarray(pos_u[:, 0]), np.ascontiguousarray(pos_u[:, 1]), entries.start, entries.x,
-                entries.y, p.attraction * np.asarray(weight, float), np.ascontiguousarray(lead[..., 0]),
-                np.ascontiguousarray(lead[..., 1]), np.asarray(gain, float), float(p.leader_exponent), float(self.r_u),
-                float(p.leader_floor), float(p.attraction_floor), float(p.repulsion), float(self.reach_u),
-                float(p.pair_factor), float(p.step_size), float(p.tolerance), float(self.vmax_u),
-                int(p.max_descent_steps))
+                np.ascontiguousarray(pos_u[:, 0]),
+                np.ascontiguousarray(pos_u[:, 1]),
+                entries.start,
+                entries.x,
+                entries.y,
+                p.attraction * np.asarray(weight, float),
+                np.ascontiguousarray(lead[..., 0]),
+                np.ascontiguousarray(lead[..., 1]),
+                np.asarray(gain, float),
+                float(p.leader_exponent),
+                float(self.r_u),
+                float(p.leader_floor),
+                float(p.attraction_floor),
+                float(p.repulsion),
+                float(self.reach_u),
+                float(p.pair_factor),
+                float(p.step_size),
+                float(p.tolerance),
+                float(self.vmax_u),
+                int(p.max_descent_steps),
+            )
             return _descent_result(delta, stop, at_limit, p.max_descent_steps), near_e, weight
 
         def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
             lead = leaders_u if leaders_u.ndim == 2 else leaders_u[rows]
             r_e, ox, oy = entries.of(rows)
-            return (_pair_gradient_xy(x[rows], r_e, ox, oy, p.attraction, p.attraction_floor, p.repulsion,
-                                      self.reach_u, p.pair_factor, weight=weight[rows])
-                    + leader_gradient(x[rows], lead, gain[rows], p.leader_exponent, self.r_u, p.leader_floor))
+            return _pair_gradient_xy(
+                x[rows],
+                r_e,
+                ox,
+                oy,
+                p.attraction,
+                p.attraction_floor,
+                p.repulsion,
+                self.reach_u,
+                p.pair_factor,
+                weight=weight[rows],
+            ) + leader_gradient(
+                x[rows], lead, gain[rows], p.leader_exponent, self.r_u, p.leader_floor
+            )
 
         res = descend(pos_u, grad, self.vmax_u, p, separable=True)
         return res, near_e, weight
@@ -485,8 +648,9 @@ class DccrsPlanner:
         info["label"] = LABEL
         return PlanOutput(u.to_m(disp_u), tree=None, info=info)
 
-    def _plan_central(self, pos_u: np.ndarray, tasks_u: np.ndarray, base_u: np.ndarray, view: CentralView
-                      ) -> tuple[np.ndarray, dict[str, Any]]:
+    def _plan_central(
+        self, pos_u: np.ndarray, tasks_u: np.ndarray, base_u: np.ndarray, view: CentralView
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         p = self.params
         idx, disp_u = view.planned, view.disp_u
         if len(idx) == 0:
@@ -497,32 +661,51 @@ class DccrsPlanner:
         res, near, weight = self._descend(x, x[None, :, :], mask, leaders, joint=True)
         # true executed displacements t-1 -> t
         vel = (pos_u - view.prev_pos_u)[idx] if view.prev_pos_u is not None else np.zeros_like(x)
-        disp_u[idx] = velocity_match(res.disp_u, near, np.broadcast_to(vel, (len(idx),) + vel.shape),
-                                     p.velocity_matching, self.vmax_u)
-        return disp_u, {"iterations": res.iterations, "converged": res.converged,
-                        "mean_density_weight": float(weight.mean())}
+        disp_u[idx] = velocity_match(
+            res.disp_u,
+            near,
+            np.broadcast_to(vel, (len(idx),) + vel.shape),
+            p.velocity_matching,
+            self.vmax_u,
+        )
+        return disp_u, {
+            "iterations": res.iterations,
+            "converged": res.converged,
+            "mean_density_weight": float(weight.mean()),
+        }
 
-    def _plan_async(self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
-                    ) -> tuple[np.ndarray, dict[str, Any]]:
+    def _plan_async(
+        self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         p = self.params
-        idx, disp_u = view.planned, view.disp_u     # stale drones already head home
+        idx, disp_u = view.planned, view.disp_u  # stale drones already head home
         if len(idx) == 0:
             return disp_u, view.info()
         # Known entries of the view only (rows into idx, columns into the layer's columns, row-major).
         er, ek = view.rows_e, view.cols_e
-        floods, version_of = view.broadcasts()      # the task positions each drone last received
+        floods, version_of = view.broadcasts()  # the task positions each drone last received
         leaders = self._leaders(np.stack(floods)[version_of], base_u)
         res, near_e, weight = self._descend_entries(pos_u[idx], er, view.believed_u, leaders)
         nr = er[near_e]
         if p.velocity_matching > 0:
             vel = view.believed_displacement_u(idx[nr], ek[near_e])
-            disp_u[idx] = velocity_match_entries(res.disp_u, nr, vel, p.velocity_matching, self.vmax_u)
+            disp_u[idx] = velocity_match_entries(
+                res.disp_u, nr, vel, p.velocity_matching, self.vmax_u
+            )
         else:
-            disp_u[idx] = velocity_match_entries(res.disp_u, nr, np.zeros((len(nr), 2)), 0.0, self.vmax_u)
-        return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info(),
-                        "mean_density_weight": float(weight.mean())}
+            disp_u[idx] = velocity_match_entries(
+                res.disp_u, nr, np.zeros((len(nr), 2)), 0.0, self.vmax_u
+            )
+        return disp_u, {
+            "iterations": res.iterations,
+            "converged": res.converged,
+            **view.info(),
+            "mean_density_weight": float(weight.mean()),
+        }
 
 
-def make_dccrs(problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator) -> DccrsPlanner:
+def make_dccrs(
+    problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator
+) -> DccrsPlanner:
     """The DCCRS reconstruction (docs/design/model.md §3.3) with the parameters given (``info`` default 'async')."""
     return DccrsPlanner(problem, parse_params(params, DccrsParams), rng)

@@ -20,7 +20,9 @@ from planner import _graph_kernels, _kernels
 from planner._graph_kernels import bounded_moves
 
 __all__ = [
-    "NORTH", "EAST", "DOWN",
+    "NORTH",
+    "EAST",
+    "DOWN",
     "pairwise_distance_m",
     "neighbour_pairs",
     "radio_pairs",
@@ -85,24 +87,42 @@ def radio_pairs(pos_m: np.ndarray, range_m: float, ordered: bool = True) -> np.n
     """
     pos_m = np.asarray(pos_m, dtype=float)
     n = len(pos_m)
-    if n < 2 or not (_kernels.NUMBA and _kernels.ENABLED) or not np.isfinite(range_m) or range_m <= 0:
+    if (
+        n < 2
+        or not (_kernels.NUMBA and _kernels.ENABLED)
+        or not np.isfinite(range_m)
+        or range_m <= 0
+    ):
         return neighbour_pairs(pos_m, range_m)
     if pos_m.ndim != 2 or pos_m.shape[1] != 2 or not np.all(np.isfinite(pos_m)):
         return neighbour_pairs(pos_m, range_m)
     lo = pos_m.min(axis=0)
     hi = pos_m.max(axis=0)
-    cell = float(range_m) * (1 + 1e-6)      # > range: a pair within range lies in adjacent cells
+    cell = float(range_m) * (1 + 1e-6)  # > range: a pair within range lies in adjacent cells
     nx = int((hi[0] - lo[0]) // cell) + 1
     ny = int((hi[1] - lo[1]) // cell) + 1
-    if nx * ny > 8 * n + 4096:              # a sparse spread: the KD-tree is the better index
+    if nx * ny > 8 * n + 4096:  # a sparse spread: the KD-tree is the better index
         return neighbour_pairs(pos_m, range_m)
-    return _kernels.grid_pairs(np.ascontiguousarray(pos_m[:, 0]), np.ascontiguousarray(pos_m[:, 1]),
-                               float(range_m), cell, float(lo[0]), float(lo[1]), nx, ny,
-                               bool(ordered)).astype(np.intp, copy=False)
+    return _kernels.grid_pairs(
+        np.ascontiguousarray(pos_m[:, 0]),
+        np.ascontiguousarray(pos_m[:, 1]),
+        float(range_m),
+        cell,
+        float(lo[0]),
+        float(lo[1]),
+        nx,
+        ny,
+        bool(ordered),
+    ).astype(np.intp, copy=False)
 
 
-def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
-                base_range_m: float, base_m: np.ndarray | None = None) -> np.ndarray:
+def active_mask(
+    pos_m: np.ndarray,
+    alive: np.ndarray,
+    radio_range_m: float,
+    base_range_m: float,
+    base_m: np.ndarray | None = None,
+) -> np.ndarray:
     """Drones connected to the base through a chain of alive drones (the paper's a_i).
 
     a_i = alive_i and (|x_i - b| <= min(R, r) or exists active j with |x_i - x_j| <= r).
@@ -139,10 +159,10 @@ def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
     if not reached.any():
         return out
     fast = _graph_kernels.reach_from(p, reached, radio_range_m)
-    if fast is not None:            # a grid breadth-first search, no pair list (the same set)
+    if fast is not None:  # a grid breadth-first search, no pair list (the same set)
         out[idx] = fast
         return out
-    pairs = radio_pairs(p, radio_range_m)     # the order of the pairs does not matter here
+    pairs = radio_pairs(p, radio_range_m)  # the order of the pairs does not matter here
     if len(p) > _BFS_MAX_DRONES:
         k = len(p)  # node k is the base, linked to every drone within its reach
         at_base = np.flatnonzero(reached)
@@ -165,7 +185,9 @@ def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
             counts = stop[frontier] - start[frontier]
             if not counts.sum():
                 break
-            offsets = np.repeat(start[frontier] - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
+            offsets = np.repeat(start[frontier] - np.cumsum(counts) + counts, counts) + np.arange(
+                counts.sum()
+            )
             nbrs = dst[offsets]
             new = np.unique(nbrs[~reached[nbrs]])
             reached[new] = True
@@ -174,14 +196,22 @@ def active_mask(pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float,
     return out
 
 
-def active_mask_reference(pos_m: npt.ArrayLike, alive: np.ndarray, radio_range_m: float,
-                          base_range_m: float, base_m: npt.ArrayLike | None = None) -> np.ndarray:
+def active_mask_reference(
+    pos_m: npt.ArrayLike,
+    alive: np.ndarray,
+    radio_range_m: float,
+    base_range_m: float,
+    base_m: npt.ArrayLike | None = None,
+) -> np.ndarray:
     """Slow, obviously-correct fixed point of the paper's recursive definition (for tests)."""
     pos_m = np.asarray(pos_m, dtype=float)
     n = len(pos_m)
     base = np.zeros(pos_m.shape[1]) if base_m is None else np.asarray(base_m, dtype=float)
-    active = [bool(alive[i]) and float(np.linalg.norm(pos_m[i] - base)) <= min(base_range_m, radio_range_m)
-              for i in range(n)]
+    active = [
+        bool(alive[i])
+        and float(np.linalg.norm(pos_m[i] - base)) <= min(base_range_m, radio_range_m)
+        for i in range(n)
+    ]
     changed = True
     while changed:
         changed = False
@@ -195,8 +225,9 @@ def active_mask_reference(pos_m: npt.ArrayLike, alive: np.ndarray, radio_range_m
     return np.array(active, dtype=bool)
 
 
-def tasks_connected(task_pos_m: np.ndarray, drone_pos_m: np.ndarray, active: np.ndarray,
-                    radio_range_m: float) -> np.ndarray:
+def tasks_connected(
+    task_pos_m: np.ndarray, drone_pos_m: np.ndarray, active: np.ndarray, radio_range_m: float
+) -> np.ndarray:
     """A_i(t): task i has an active drone strictly within r.
 
     Parameters
@@ -215,7 +246,7 @@ def tasks_connected(task_pos_m: np.ndarray, drone_pos_m: np.ndarray, active: np.
     if len(act) == 0 or len(task_pos_m) == 0:
         return np.zeros(len(task_pos_m), dtype=bool)
     fast = _graph_kernels.any_within(task_pos_m, act, radio_range_m)
-    if fast is not None:        # brute force, compiled: the same distance, no KD-tree per tick
+    if fast is not None:  # brute force, compiled: the same distance, no KD-tree per tick
         return fast
     d, _ = cKDTree(act).query(task_pos_m, k=1)
     return d < radio_range_m
@@ -236,22 +267,35 @@ def step_toward(pos_m: np.ndarray, target_m: np.ndarray, max_step_m: float) -> n
     return to_target * (np.minimum(max_step_m, dist) / np.where(dist > 0, dist, 1.0))[..., None]
 
 
-def geodetic_to_ned_m(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike, alt_amsl_m: npt.ArrayLike,
-                      origin_lat_deg: float, origin_lon_deg: float,
-                      origin_alt_amsl_m: float) -> np.ndarray:
+def geodetic_to_ned_m(
+    lat_deg: npt.ArrayLike,
+    lon_deg: npt.ArrayLike,
+    alt_amsl_m: npt.ArrayLike,
+    origin_lat_deg: float,
+    origin_lon_deg: float,
+    origin_alt_amsl_m: float,
+) -> np.ndarray:
     """WGS-84 geodetic to local NED metres around an origin (pymap3d, exact ellipsoid).
 
     Returns an (..., 3) array (north, east, down).
     """
-    n, e, d = pymap3d.geodetic2ned(lat_deg, lon_deg, alt_amsl_m, origin_lat_deg, origin_lon_deg,
-                                   origin_alt_amsl_m)
+    n, e, d = pymap3d.geodetic2ned(
+        lat_deg, lon_deg, alt_amsl_m, origin_lat_deg, origin_lon_deg, origin_alt_amsl_m
+    )
     return np.stack(np.broadcast_arrays(n, e, d), axis=-1).astype(float)
 
 
-def ned_to_geodetic(ned_m: npt.ArrayLike, origin_lat_deg: float, origin_lon_deg: float,
-                    origin_alt_amsl_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ned_to_geodetic(
+    ned_m: npt.ArrayLike, origin_lat_deg: float, origin_lon_deg: float, origin_alt_amsl_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local NED metres around an origin to (lat_deg, lon_deg, alt_amsl_m)."""
     ned_m = np.asarray(ned_m, dtype=float)
-    lat, lon, alt = pymap3d.ned2geodetic(ned_m[..., NORTH], ned_m[..., EAST], ned_m[..., DOWN],
-                                         origin_lat_deg, origin_lon_deg, origin_alt_amsl_m)
+    lat, lon, alt = pymap3d.ned2geodetic(
+        ned_m[..., NORTH],
+        ned_m[..., EAST],
+        ned_m[..., DOWN],
+        origin_lat_deg,
+        origin_lon_deg,
+        origin_alt_amsl_m,
+    )
     return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float), np.asarray(alt, dtype=float)

@@ -43,9 +43,22 @@ if TYPE_CHECKING:  # the message layer (SciPy, Numba) is imported when a run fir
     # the names here (INFO_MODELS, ...) cost planner.methods and mission.schema nothing
     from planner.knowledge import MessageLayer
 
-__all__ = ["INFO_MODELS", "PAPER_INFO", "STATION_INFO", "SPEED_RULES", "check_info", "check_speed_rule",
-           "resolve_speed_rule", "MessageTiming", "CentralView", "MessageView", "CentralInfo",
-           "MessagePassingInfo", "InfoModel", "information_model"]
+__all__ = [
+    "INFO_MODELS",
+    "PAPER_INFO",
+    "STATION_INFO",
+    "SPEED_RULES",
+    "check_info",
+    "check_speed_rule",
+    "resolve_speed_rule",
+    "MessageTiming",
+    "CentralView",
+    "MessageView",
+    "CentralInfo",
+    "MessagePassingInfo",
+    "InfoModel",
+    "information_model",
+]
 
 #: The information models, by the name of the ``info`` parameter.
 INFO_MODELS = ("async", "central")
@@ -159,7 +172,9 @@ class MessageView:
         col_e = kn.cols[cols]
         stamp_e = kn.stamp[holders, col_e]
         s = np.where(stamp_e >= 1, stamp_e, 1)
-        return np.where((stamp_e >= 1)[:, None], kn.pos_hist_m[s, col_e] - kn.pos_hist_m[s - 1, col_e], 0.0)
+        return np.where(
+            (stamp_e >= 1)[:, None], kn.pos_hist_m[s, col_e] - kn.pos_hist_m[s - 1, col_e], 0.0
+        )
 
 
 class CentralInfo:
@@ -172,8 +187,15 @@ class CentralInfo:
         self._held_stamp: np.ndarray | None = None
         self._prev_pos_u: np.ndarray | None = None
 
-    def see(self, t_step: int, pos_u: np.ndarray, alive: np.ndarray, planning: np.ndarray,
-            base_u: np.ndarray, broadcast: object) -> CentralView:
+    def see(
+        self,
+        t_step: int,
+        pos_u: np.ndarray,
+        alive: np.ndarray,
+        planning: np.ndarray,
+        base_u: np.ndarray,
+        broadcast: object,
+    ) -> CentralView:
         """This tick's view: ``planning`` (N,) bool, the networked and alive drones; ``broadcast``
         (what the base sends, unused: every planned drone holds the current one)."""
         del alive, base_u, broadcast  # the central planner reads the truth directly
@@ -189,8 +211,12 @@ class CentralInfo:
         held[planned] = t_step
         prev = self._prev_pos_u
         self._prev_pos_u = pos_u
-        return CentralView(planned, np.zeros_like(pos_u), held,
-                           prev if prev is not None and len(prev) == n else None)
+        return CentralView(
+            planned,
+            np.zeros_like(pos_u),
+            held,
+            prev if prev is not None and len(prev) == n else None,
+        )
 
 
 class MessagePassingInfo:
@@ -205,34 +231,64 @@ class MessagePassingInfo:
         self.timing = timing
         self.layer: MessageLayer | None = None
 
-    def see(self, t_step: int, pos_u: np.ndarray, alive: np.ndarray, planning: np.ndarray,
-            base_u: np.ndarray, broadcast: object) -> MessageView:
+    def see(
+        self,
+        t_step: int,
+        pos_u: np.ndarray,
+        alive: np.ndarray,
+        planning: np.ndarray,
+        base_u: np.ndarray,
+        broadcast: object,
+    ) -> MessageView:
         """Deliver last tick's messages, record the base's ``broadcast`` (what each drone then
         plans from), send the stale drones home and return the planned drones' entries."""
         u = self.units
         if self.layer is None:
             from planner.knowledge import MessageLayer
 
-            self.layer = MessageLayer.from_params(len(pos_u), self.n_steps, u.radio_range_u, u.base_reach_u,
-                                                  self.timing)
+            self.layer = MessageLayer.from_params(
+                len(pos_u), self.n_steps, u.radio_range_u, u.base_reach_u, self.timing
+            )
         layer = self.layer
         # Stale broadcast: assume disconnection and fly to the known base location at full speed.
-        stale, disp_u = layer.step_or_home(t_step, pos_u, alive, base_u, broadcast, planning, u.max_step_u)
+        stale, disp_u = layer.step_or_home(
+            t_step, pos_u, alive, base_u, broadcast, planning, u.max_step_u
+        )
         planned = np.flatnonzero(planning & ~stale)
         n_stale = int(stale.sum())
         if len(planned) == 0:
             none = np.zeros(0, dtype=np.int64)
-            return MessageView(planned, disp_u, layer.knowledge.tree_stamp, n_stale, none, none,
-                               np.zeros((0, 2)), none, layer)
+            return MessageView(
+                planned,
+                disp_u,
+                layer.knowledge.tree_stamp,
+                n_stale,
+                none,
+                none,
+                np.zeros((0, 2)),
+                none,
+                layer,
+            )
         rows_e, cols_e, believed_u, stamps = layer.view_entries(planned)
-        return MessageView(planned, disp_u, layer.knowledge.tree_stamp, n_stale, rows_e, cols_e, believed_u,
-                           stamps, layer)
+        return MessageView(
+            planned,
+            disp_u,
+            layer.knowledge.tree_stamp,
+            n_stale,
+            rows_e,
+            cols_e,
+            believed_u,
+            stamps,
+            layer,
+        )
 
 
 InfoModel = CentralInfo | MessagePassingInfo
 
 
-def information_model(info: str, units: PaperUnits, n_steps: int, timing: MessageTiming) -> InfoModel:
+def information_model(
+    info: str, units: PaperUnits, n_steps: int, timing: MessageTiming
+) -> InfoModel:
     """The model named ``info`` for a planner over a run of ``n_steps`` ticks (the message layer's
     history grows if a run outlasts it) with the message timing of its parameters."""
     check_info(info)

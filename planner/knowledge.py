@@ -30,8 +30,17 @@ from scipy.sparse import csr_matrix
 from planner import _graph_kernels, _kernels
 from planner.geometry import neighbour_pairs, radio_pairs, step_toward
 
-__all__ = ["Knowledge", "KnowledgeDense", "MessageLayer", "StampTable", "propagate_entries", "propagate_stamps",
-           "propagate_stamps_dense", "propagate_stamps_reference", "UNKNOWN"]
+__all__ = [
+    "Knowledge",
+    "KnowledgeDense",
+    "MessageLayer",
+    "StampTable",
+    "propagate_entries",
+    "propagate_stamps",
+    "propagate_stamps_dense",
+    "propagate_stamps_reference",
+    "UNKNOWN",
+]
 
 UNKNOWN = -1
 
@@ -69,9 +78,16 @@ def _select(mask: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
     return tuple(a[take] for a in arrays)
 
 
-def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holders: int, n_cols: int,
-                      pairs: np.ndarray, t_sent: int, age_max_steps: int
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def propagate_entries(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    stamps: np.ndarray,
+    n_holders: int,
+    n_cols: int,
+    pairs: np.ndarray,
+    t_sent: int,
+    age_max_steps: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One hop of the recency rule on an entry list: what every holder holds after hearing its
     neighbours, from the entries that are still forwarded.
 
@@ -103,13 +119,15 @@ def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_
     exponent, the maximum per (row, col) is taken by sorting the candidates instead.
     """
     rows, cols, stamps = (np.asarray(a, dtype=np.int64) for a in (rows, cols, stamps))
-    rows, cols, stamps = _select(stamps >= max(int(t_sent) - int(age_max_steps), 0), rows, cols, stamps)
+    rows, cols, stamps = _select(
+        stamps >= max(int(t_sent) - int(age_max_steps), 0), rows, cols, stamps
+    )
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if len(rows) == 0 or len(pairs) == 0:
         return rows, cols, stamps
     max_level = int(age_max_steps)
     loops = np.arange(n_holders, dtype=np.int64)
-    src = np.concatenate([pairs[:, 1], pairs[:, 0], loops])       # j -> i, i -> j, i -> i
+    src = np.concatenate([pairs[:, 1], pairs[:, 0], loops])  # j -> i, i -> j, i -> i
     dst = np.concatenate([pairs[:, 0], pairs[:, 1], loops])
     if _kernels.NUMBA and _kernels.ENABLED and stamps.max() <= t_sent:
         # Per-entry maximum over a CSR adjacency (compiled) when its work, one random access per
@@ -124,34 +142,57 @@ def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_
         compiled_bits = n_holders > _COMPILED_BITSET_MIN_HOLDERS
         if compiled_bits:
             # the compiled bit sets' work: one OR per (link, level, word), one decode per (holder, level, word)
-            bit_cost = (max_level + 1) * ((n_k + 63) // 64) * (len(src) + n_holders) / _MAX_PER_BIT_WORD
+            bit_cost = (
+                (max_level + 1) * ((n_k + 63) // 64) * (len(src) + n_holders) / _MAX_PER_BIT_WORD
+            )
         else:
             # NumPy's bit sets: a gather of (links, words) per level and passes over the table
-            bit_cost = (max_level + 1) * (len(src) * ((n_k + 63) // 64) * 8 + 4 * n_holders * n_k) / 12
+            bit_cost = (
+                (max_level + 1) * (len(src) * ((n_k + 63) // 64) * 8 + 4 * n_holders * n_k) / 12
+            )
         order = np.argsort(dst, kind="stable")
         link_start = np.searchsorted(dst[order], np.arange(n_holders + 1))
         if max_level + 1 > _BITSET_MAX_LEVELS or work < bit_cost:
             if np.any(rows[1:] < rows[:-1]):
                 by_row = np.lexsort((cols, rows))
                 rows, cols, stamps = rows[by_row], cols[by_row], stamps[by_row]
-            return _kernels.propagate_max(np.concatenate([[0], np.cumsum(count)]), cols, stamps,
-                                          link_start, src[order], n_cols)
+            return _kernels.propagate_max(
+                np.concatenate([[0], np.cumsum(count)]),
+                cols,
+                stamps,
+                link_start,
+                src[order],
+                n_cols,
+            )
         if compiled_bits and stamps.min() >= t_sent - max_level:
-            return _graph_kernels.hop_bitsets(rows, cols, stamps, n_holders, n_cols, link_start,
-                                              src[order], int(t_sent), max_level)
+            return _graph_kernels.hop_bitsets(
+                rows,
+                cols,
+                stamps,
+                n_holders,
+                n_cols,
+                link_start,
+                src[order],
+                int(t_sent),
+                max_level,
+            )
     if max_level + 1 <= _BITSET_MAX_LEVELS and stamps.max() <= t_sent:
-        return _propagate_bitsets(rows, cols, stamps, n_holders, n_cols, src, dst, int(t_sent), max_level)
-    bits = int(np.ceil(np.log2(n_holders + 1))) + 1                 # 2^bits > n_holders >= deg + 1
+        return _propagate_bitsets(
+            rows, cols, stamps, n_holders, n_cols, src, dst, int(t_sent), max_level
+        )
+    bits = int(np.ceil(np.log2(n_holders + 1))) + 1  # 2^bits > n_holders >= deg + 1
     if bits * (max_level + 1) < 1000:
         level = max_level - np.minimum(t_sent - stamps, max_level)
         adj = csr_matrix((np.ones(len(src)), (dst, src)), shape=(n_holders, n_holders))
-        adj.data[:] = 1.0                                            # a repeated link counts once
+        adj.data[:] = 1.0  # a repeated link counts once
         held = np.bincount(cols, minlength=n_cols) > 0
         col_ids = np.flatnonzero(held)
         if len(rows) < _SPARSE_ENTRY_FRACTION * n_holders * len(col_ids):
             indptr = np.zeros(n_holders + 1, dtype=np.int64)
             np.cumsum(np.bincount(rows, minlength=n_holders), out=indptr[1:])
-            code = csr_matrix((np.ldexp(1.0, bits * level), cols, indptr), shape=(n_holders, n_cols))
+            code = csr_matrix(
+                (np.ldexp(1.0, bits * level), cols, indptr), shape=(n_holders, n_cols)
+            )
             total = adj @ code
             total.sort_indices()
             out_rows = np.repeat(np.arange(n_holders, dtype=np.int64), np.diff(total.indptr))
@@ -181,9 +222,17 @@ def propagate_entries(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_
     return key[last] // n_cols, key[last] % n_cols, val[last]
 
 
-def _propagate_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n_holders: int, n_cols: int,
-                       src: np.ndarray, dst: np.ndarray, t_sent: int, max_level: int
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _propagate_bitsets(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    stamps: np.ndarray,
+    n_holders: int,
+    n_cols: int,
+    src: np.ndarray,
+    dst: np.ndarray,
+    t_sent: int,
+    max_level: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`propagate_entries` for few age levels: for each level L, the set of drones a holder
     knows with age <= L is a bit row; a holder's new set is the OR of its neighbours' (and its own),
     so a level costs one gather of (links, columns / 64) words. The new age of an entry is the first
@@ -192,26 +241,32 @@ def _propagate_bitsets(rows: np.ndarray, cols: np.ndarray, stamps: np.ndarray, n
     col_ids = np.flatnonzero(held)
     n_k = len(col_ids)
     width = 64 * ((n_k + 63) // 64)
-    age: np.ndarray = np.full(n_holders * width, 127, dtype=np.int8)           # 127: not held (max_level < 16)
+    age: np.ndarray = np.full(
+        n_holders * width, 127, dtype=np.int8
+    )  # 127: not held (max_level < 16)
     age[rows * width + (np.cumsum(held) - 1)[cols]] = t_sent - stamps
     age = age.reshape(n_holders, width)
-    key = dst.astype(np.int16) if n_holders < 2 ** 15 else dst    # small keys: radix sort
+    key = dst.astype(np.int16) if n_holders < 2**15 else dst  # small keys: radix sort
     order = np.argsort(key, kind="stable")
     link_src = src[order]
-    starts = np.searchsorted(dst[order], np.arange(n_holders))      # every holder has its self-loop
-    count = np.zeros((n_holders, n_k), dtype=np.uint8)              # levels whose set holds (i, k)
+    starts = np.searchsorted(dst[order], np.arange(n_holders))  # every holder has its self-loop
+    count = np.zeros((n_holders, n_k), dtype=np.uint8)  # levels whose set holds (i, k)
     for level in range(max_level + 1):
-        sets = np.packbits(age <= level, axis=1, bitorder="little").view(np.uint64)   # (n, words)
+        sets = np.packbits(age <= level, axis=1, bitorder="little").view(np.uint64)  # (n, words)
         heard = np.bitwise_or.reduceat(sets[link_src], starts, axis=0).view(np.uint8)
         count += np.unpackbits(heard, axis=1, count=n_k, bitorder="little")
-    flat = np.flatnonzero(count)                                    # row-major
+    flat = np.flatnonzero(count)  # row-major
     # held at age a: the sets of levels a..max_level hold it, count = max_level + 1 - a
     new_stamp = t_sent - (max_level + 1 - count.ravel()[flat].astype(np.int64))
     return flat // n_k, col_ids[flat % n_k], new_stamp
 
 
-def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = None,
-                     age_max_steps: int | None = None) -> np.ndarray:
+def propagate_stamps(
+    stamp: np.ndarray,
+    pairs: np.ndarray,
+    t_sent: int | None = None,
+    age_max_steps: int | None = None,
+) -> np.ndarray:
     """One hop of the recency rule: new[i, k] = max(stamp[i, k], max_{j ~ i} stamp[j, k]).
 
     Parameters
@@ -244,8 +299,12 @@ def propagate_stamps(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = 
     return out
 
 
-def propagate_stamps_dense(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | None = None,
-                           age_max_steps: int | None = None) -> np.ndarray:
+def propagate_stamps_dense(
+    stamp: np.ndarray,
+    pairs: np.ndarray,
+    t_sent: int | None = None,
+    age_max_steps: int | None = None,
+) -> np.ndarray:
     """The previous (dense-table) implementation of :func:`propagate_stamps`, kept as a reference
     for tests and for :class:`KnowledgeDense`. One hop of the recency rule: new[i, k] = max(stamp[i, k], max_{j ~ i} stamp[j, k]).
 
@@ -281,11 +340,11 @@ def propagate_stamps_dense(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | N
         return out
     t_sent = int(stamp[valid].max()) if t_sent is None else int(t_sent)
     if age_max_steps is None:
-        max_level = t_sent - int(stamp[valid].min())            # the oldest valid age
+        max_level = t_sent - int(stamp[valid].min())  # the oldest valid age
         send = valid
     else:
         max_level = int(age_max_steps)
-        send = stamp >= max(t_sent - max_level, 0)               # valid, age <= max_level
+        send = stamp >= max(t_sent - max_level, 0)  # valid, age <= max_level
     bits = int(np.ceil(np.log2(n + 1))) + 1  # 2^bits > n - 1 >= any degree
     if bits * (max_level + 1) < 1000:
         code = np.zeros(stamp.shape)
@@ -295,9 +354,16 @@ def propagate_stamps_dense(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | N
             # sparse product costs O(links K) instead of O(n^2 K). The decoded level does not
             # depend on the summation order (the sum stays in its power-of-two bracket), so the
             # result is the same integer table as the dense product's.
-            adj = csr_matrix((np.ones(2 * len(pairs)), (np.concatenate([pairs[:, 0], pairs[:, 1]]),
-                                                         np.concatenate([pairs[:, 1], pairs[:, 0]]))),
-                             shape=(n, n))
+            adj = csr_matrix(
+                (
+                    np.ones(2 * len(pairs)),
+                    (
+                        np.concatenate([pairs[:, 0], pairs[:, 1]]),
+                        np.concatenate([pairs[:, 1], pairs[:, 0]]),
+                    ),
+                ),
+                shape=(n, n),
+            )
             total = adj @ code
         else:
             adj = np.zeros((n, n))
@@ -318,7 +384,9 @@ def propagate_stamps_dense(stamp: np.ndarray, pairs: np.ndarray, t_sent: int | N
         if len(rows) == 0:
             break
         cols = np.flatnonzero(unresolved[rows].any(axis=0))
-        hit = unresolved[np.ix_(rows, cols)] & ((adj[rows] @ (age[:, cols] == level).astype(np.float32)) > 0)
+        hit = unresolved[np.ix_(rows, cols)] & (
+            (adj[rows] @ (age[:, cols] == level).astype(np.float32)) > 0
+        )
         r_hit, c_hit = np.nonzero(hit)
         out[rows[r_hit], cols[c_hit]] = np.maximum(out[rows[r_hit], cols[c_hit]], t_sent - level)
         unresolved[rows[r_hit], cols[c_hit]] = False
@@ -336,9 +404,15 @@ def propagate_stamps_reference(stamp: np.ndarray, pairs: np.ndarray) -> np.ndarr
     return out
 
 
-def _flood_tree_stamp(tree_stamp: np.ndarray, idx: np.ndarray, pairs: np.ndarray,
-                      link_pos_m: np.ndarray, base_m: np.ndarray, base_reach_m: float,
-                      t_step: int) -> None:
+def _flood_tree_stamp(
+    tree_stamp: np.ndarray,
+    idx: np.ndarray,
+    pairs: np.ndarray,
+    link_pos_m: np.ndarray,
+    base_m: np.ndarray,
+    base_reach_m: float,
+    t_step: int,
+) -> None:
     """Deliver the task-tree stamps over one hop (in place on ``tree_stamp[idx]``).
 
     The stamp rides in the same messages as the reports but has its own staleness rule: every
@@ -372,7 +446,9 @@ class StampTable:
 
     def lookup(self, rows: Any, cols: Any) -> np.ndarray:
         """Stamps at (rows, cols), broadcast; -1 where the holder knows nothing of the drone."""
-        r, c = np.broadcast_arrays(np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64))
+        r, c = np.broadcast_arrays(
+            np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64)
+        )
         n = self.shape[0]
         if r.size and (r.min() < -n or r.max() >= n or c.min() < -n or c.max() >= n):
             raise IndexError(f"stamp index out of range for shape {self.shape}")
@@ -380,14 +456,20 @@ class StampTable:
         if len(self._rows) == 0:
             return np.full(want.shape, UNKNOWN, dtype=np.int64)
         if self._keys is None:
-            self._keys = self._rows * n + self._cols             # row-major: sorted
+            self._keys = self._rows * n + self._cols  # row-major: sorted
         at = np.minimum(np.searchsorted(self._keys, want), len(self._keys) - 1)
         return np.where(self._keys[at] == want, self._stamps[at], UNKNOWN)
 
     def __getitem__(self, key: Any) -> Any:
-        if isinstance(key, tuple) and len(key) == 2 and all(
-                isinstance(k, (int, np.integer)) or (isinstance(k, np.ndarray) and k.dtype.kind in "iu")
-                for k in key):
+        if (
+            isinstance(key, tuple)
+            and len(key) == 2
+            and all(
+                isinstance(k, (int, np.integer))
+                or (isinstance(k, np.ndarray) and k.dtype.kind in "iu")
+                for k in key
+            )
+        ):
             out = self.lookup(key[0], key[1])
             return out[()] if out.ndim == 0 else out
         return np.asarray(self)[key]
@@ -479,8 +561,11 @@ class Knowledge(_StampTables):
     @classmethod
     def empty(cls, n_drones: int, n_steps: int) -> Self:
         """Nothing known, no tree, room for ``n_steps`` + 1 steps of positions."""
-        return cls(np.full(n_drones, UNKNOWN, dtype=np.int64), np.zeros((n_steps + 1, n_drones, 2)),
-                   n_drones=n_drones)
+        return cls(
+            np.full(n_drones, UNKNOWN, dtype=np.int64),
+            np.zeros((n_steps + 1, n_drones, 2)),
+            n_drones=n_drones,
+        )
 
     @property
     def stamp(self) -> StampTable:
@@ -499,12 +584,13 @@ class Knowledge(_StampTables):
         return known
 
     @staticmethod
-    def _own(r: np.ndarray, c: np.ndarray, s: np.ndarray, alive: np.ndarray,
-             t_step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _own(
+        r: np.ndarray, c: np.ndarray, s: np.ndarray, alive: np.ndarray, t_step: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Drop the entries of dead holders; every alive holder's own entry is stamped ``t_step``."""
         r, c, s = _select(alive[r], r, c, s)
         own = r == c
-        if np.count_nonzero(own) == np.count_nonzero(alive):   # the usual case: all present
+        if np.count_nonzero(own) == np.count_nonzero(alive):  # the usual case: all present
             s = s.copy()
             s[own] = t_step
             return r, c, s
@@ -515,10 +601,22 @@ class Knowledge(_StampTables):
         order = np.argsort(r * len(alive) + c, kind="stable")
         return r[order], c[order], s[order]
 
-    def update(self, t_step: int, pos_prev_m: np.ndarray | None, alive_prev: np.ndarray | None,
-               pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float, base_reach_m: float,
-               age_max_steps: int, dist_max_m: float, base_m: np.ndarray, *,
-               after_move: bool = False, forget_unheard: bool = False) -> None:
+    def update(
+        self,
+        t_step: int,
+        pos_prev_m: np.ndarray | None,
+        alive_prev: np.ndarray | None,
+        pos_m: np.ndarray,
+        alive: np.ndarray,
+        radio_range_m: float,
+        base_reach_m: float,
+        age_max_steps: int,
+        dist_max_m: float,
+        base_m: np.ndarray,
+        *,
+        after_move: bool = False,
+        forget_unheard: bool = False,
+    ) -> None:
         """Deliver the messages broadcast during step t-1, then each drone records its own state at t.
 
         When a drone broadcasts within a step decides what a message carries:
@@ -548,31 +646,46 @@ class Knowledge(_StampTables):
         if pos_prev_m is not None:
             idx = np.flatnonzero(link_alive)
             # Unordered pairs: the hop and the tree flood take maxima over the links (any order).
-            pairs = (radio_pairs(link_pos_m[idx], radio_range_m, ordered=False) if len(idx) > 1
-                     else np.empty((0, 2), np.intp))
+            pairs = (
+                radio_pairs(link_pos_m[idx], radio_range_m, ordered=False)
+                if len(idx) > 1
+                else np.empty((0, 2), np.intp)
+            )
             # Holders outside ``idx`` have no links: they keep their forwarded entries (the others
             # are past the age cut-off below either way).
             r, c, s = propagate_entries(r, c, s, n, n, idx[pairs], t_sent, age_max_steps)
-            _flood_tree_stamp(self.tree_stamp, idx, pairs, link_pos_m[idx], base_m, base_reach_m, t_step)
+            _flood_tree_stamp(
+                self.tree_stamp, idx, pairs, link_pos_m[idx], base_m, base_reach_m, t_step
+            )
         # Own state is always fresh; dead drones hold nothing.
         self.tree_stamp[~alive] = UNKNOWN
         if _kernels.NUMBA and _kernels.ENABLED and self.pos_hist_m.flags.c_contiguous:
             # the lines below in one compiled pass, bit for bit (tests/planner/test_kernels.py)
             pos_m = np.asarray(pos_m, float)
             r, c, s, col_held, bx, by = _kernels.finish_knowledge_update(
-                np.asarray(r, np.int64), np.asarray(c, np.int64), np.asarray(s, np.int64), alive, int(t_step),
-                int(t_step - age_max_steps), self.pos_hist_m, np.ascontiguousarray(pos_m[:, 0]),
-                np.ascontiguousarray(pos_m[:, 1]), dist_max_m * dist_max_m, radio_range_m * radio_range_m,
-                bool(forget_unheard and pos_prev_m is not None), int(t_sent))
+                np.asarray(r, np.int64),
+                np.asarray(c, np.int64),
+                np.asarray(s, np.int64),
+                alive,
+                int(t_step),
+                int(t_step - age_max_steps),
+                self.pos_hist_m,
+                np.ascontiguousarray(pos_m[:, 0]),
+                np.ascontiguousarray(pos_m[:, 1]),
+                dist_max_m * dist_max_m,
+                radio_range_m * radio_range_m,
+                bool(forget_unheard and pos_prev_m is not None),
+                int(t_sent),
+            )
             self.held_rows, self.held_cols, self.held_stamps = r, c, s
             self._set_view(alive, col_held, r, c, bx, by)
             return
         r, c, s = self._own(r, c, s, alive, t_step)
         # Forget stale entries, then distant ones (measured from the holder's own position).
         r, c, s = _select(s >= t_step - age_max_steps, r, c, s)
-        col_held = np.bincount(c, minlength=n) > 0          # known to somebody before the distance cut
+        col_held = np.bincount(c, minlength=n) > 0  # known to somebody before the distance cut
         hist = self.pos_hist_m.reshape(-1, 2)
-        at = s * n + c                                      # pos_hist_m[s, c], one coordinate at a time
+        at = s * n + c  # pos_hist_m[s, c], one coordinate at a time
         bx, by = hist[:, 0][at], hist[:, 1][at]
         dx, dy = bx - pos_m[:, 0][r], by - pos_m[:, 1][r]
         d2 = dx * dx
@@ -586,8 +699,15 @@ class Knowledge(_StampTables):
         self.held_rows, self.held_cols, self.held_stamps = r, c, s
         self._set_view(alive, col_held, r, c, bx, by)
 
-    def _set_view(self, alive: np.ndarray, col_held: np.ndarray, r: np.ndarray, c: np.ndarray,
-                  bx: np.ndarray, by: np.ndarray) -> None:
+    def _set_view(
+        self,
+        alive: np.ndarray,
+        col_held: np.ndarray,
+        r: np.ndarray,
+        c: np.ndarray,
+        bx: np.ndarray,
+        by: np.ndarray,
+    ) -> None:
         """The view of every alive holder from the kept entries (self entries left out)."""
         er, ec, bx, by = _select(r != c, r, c, bx, by)
         row_of = np.cumsum(alive) - 1
@@ -622,16 +742,31 @@ class KnowledgeDense(_StampTables):
     @classmethod
     def empty(cls, n_drones: int, n_steps: int) -> Self:
         """Nothing known, no tree, room for ``n_steps`` + 1 steps of positions."""
-        return cls(np.full(n_drones, UNKNOWN, dtype=np.int64), np.zeros((n_steps + 1, n_drones, 2)),
-                   np.full((n_drones, n_drones), UNKNOWN, dtype=np.int64))
+        return cls(
+            np.full(n_drones, UNKNOWN, dtype=np.int64),
+            np.zeros((n_steps + 1, n_drones, 2)),
+            np.full((n_drones, n_drones), UNKNOWN, dtype=np.int64),
+        )
 
     def _stamp_array(self) -> np.ndarray:
         return self.stamp
 
-    def update(self, t_step: int, pos_prev_m: np.ndarray | None, alive_prev: np.ndarray | None,
-               pos_m: np.ndarray, alive: np.ndarray, radio_range_m: float, base_reach_m: float,
-               age_max_steps: int, dist_max_m: float, base_m: np.ndarray, *,
-               after_move: bool = False, forget_unheard: bool = False) -> None:
+    def update(
+        self,
+        t_step: int,
+        pos_prev_m: np.ndarray | None,
+        alive_prev: np.ndarray | None,
+        pos_m: np.ndarray,
+        alive: np.ndarray,
+        radio_range_m: float,
+        base_reach_m: float,
+        age_max_steps: int,
+        dist_max_m: float,
+        base_m: np.ndarray,
+        *,
+        after_move: bool = False,
+        forget_unheard: bool = False,
+    ) -> None:
         """The dense (N, N) version of :meth:`Knowledge.update` (same semantics; the test reference)."""
         self.pos_hist_m[t_step] = pos_m
         if after_move:
@@ -644,7 +779,11 @@ class KnowledgeDense(_StampTables):
             link_pos_m, link_alive, t_sent = pos_prev_m, alive_prev, t_step - 1  # type: ignore[assignment]  # read only if pos_prev_m is not None
         if pos_prev_m is not None:
             idx = np.flatnonzero(link_alive)
-            pairs = neighbour_pairs(link_pos_m[idx], radio_range_m) if len(idx) > 1 else np.empty((0, 2), np.intp)
+            pairs = (
+                neighbour_pairs(link_pos_m[idx], radio_range_m)
+                if len(idx) > 1
+                else np.empty((0, 2), np.intp)
+            )
             held = self.stamp[idx]
             # Columns nobody holds (lost drones, once forgotten) cannot change: hop the others only.
             ck = np.flatnonzero((held >= 0).any(axis=0))
@@ -653,19 +792,21 @@ class KnowledgeDense(_StampTables):
                 self.stamp[idx] = held
             else:
                 self.stamp[idx] = propagate_stamps_dense(held, pairs, t_sent, age_max_steps)
-            _flood_tree_stamp(self.tree_stamp, idx, pairs, link_pos_m[idx], base_m, base_reach_m, t_step)
+            _flood_tree_stamp(
+                self.tree_stamp, idx, pairs, link_pos_m[idx], base_m, base_reach_m, t_step
+            )
         # Own state is always fresh; dead drones hold nothing.
         self.stamp[~alive] = UNKNOWN
         self.tree_stamp[~alive] = UNKNOWN
         rows = np.flatnonzero(alive)
         self.stamp[rows, rows] = t_step
         # Forget stale entries, then distant ones (measured from the holder's own position).
-        self.stamp[self.stamp < t_step - age_max_steps] = UNKNOWN   # (UNKNOWN stays UNKNOWN)
+        self.stamp[self.stamp < t_step - age_max_steps] = UNKNOWN  # (UNKNOWN stays UNKNOWN)
         cols = np.flatnonzero((self.stamp[rows] != UNKNOWN).any(axis=0))
         sub = self.stamp[np.ix_(rows, cols)]
         # Only the known entries (a few dozen per holder once the swarm spreads) are gathered.
-        er, ek = np.nonzero(sub != UNKNOWN)                             # row-major
-        believed = self.pos_hist_m[sub[er, ek], cols[ek]]                # (E, 2)
+        er, ek = np.nonzero(sub != UNKNOWN)  # row-major
+        believed = self.pos_hist_m[sub[er, ek], cols[ek]]  # (E, 2)
         diff = believed - pos_m[rows][er]
         d2 = np.einsum("ec,ec->e", diff, diff)
         far = d2 > dist_max_m * dist_max_m
@@ -700,18 +841,34 @@ class MessageLayer:
     """
 
     @classmethod
-    def from_params(cls, n_drones: int, n_steps: int, radio_range_u: float, base_reach_u: float,
-                    p: Any) -> MessageLayer:
+    def from_params(
+        cls, n_drones: int, n_steps: int, radio_range_u: float, base_reach_u: float, p: Any
+    ) -> MessageLayer:
         """The layer with a planner's message timing (``age_max_steps``, ``dist_max``,
         ``tree_stale_steps``, ``broadcast_after_move``, ``forget_unheard`` of PhiremanParams,
         DccrsParams or ResilientParams)."""
-        return cls(n_drones, n_steps, radio_range_u, base_reach_u, p.age_max_steps, p.dist_max,
-                   p.tree_stale_steps, after_move=p.broadcast_after_move,
-                   forget_unheard=p.forget_unheard)
+        return cls(
+            n_drones,
+            n_steps,
+            radio_range_u,
+            base_reach_u,
+            p.age_max_steps,
+            p.dist_max,
+            p.tree_stale_steps,
+            after_move=p.broadcast_after_move,
+            forget_unheard=p.forget_unheard,
+        )
 
-    def step_or_home(self, t_step: int, pos_u: np.ndarray, alive: np.ndarray, base_u: np.ndarray,
-                     payload: Any, planning: np.ndarray, vmax_u: float
-                     ) -> tuple[np.ndarray, np.ndarray]:
+    def step_or_home(
+        self,
+        t_step: int,
+        pos_u: np.ndarray,
+        alive: np.ndarray,
+        base_u: np.ndarray,
+        payload: Any,
+        planning: np.ndarray,
+        vmax_u: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`step`, then the paper's rule for drones whose broadcast went stale: assume
         disconnection and fly to the known base location at full speed. Returns ``(stale,
         disp_u)``: the planning drones that are stale, and (N, 2) instructions (zero for the
@@ -721,9 +878,19 @@ class MessageLayer:
         disp_u[stale] = step_toward(pos_u[stale], base_u, vmax_u)
         return stale, disp_u
 
-    def __init__(self, n_drones: int, n_steps: int, radio_range_u: float, base_reach_u: float,
-                 age_max_steps: int, dist_max_u: float, stale_steps: int, *, after_move: bool,
-                 forget_unheard: bool) -> None:
+    def __init__(
+        self,
+        n_drones: int,
+        n_steps: int,
+        radio_range_u: float,
+        base_reach_u: float,
+        age_max_steps: int,
+        dist_max_u: float,
+        stale_steps: int,
+        *,
+        after_move: bool,
+        forget_unheard: bool,
+    ) -> None:
         self.knowledge = Knowledge.empty(n_drones, n_steps + 1)
         self.radio_range_u = radio_range_u
         self.base_reach_u = base_reach_u
@@ -735,17 +902,34 @@ class MessageLayer:
         self._prev: tuple[np.ndarray, np.ndarray] | None = None
         self._broadcasts: dict[int, Any] = {}  # whatever the planner broadcasts (a TaskTree)
 
-    def step(self, t_step: int, pos_u: np.ndarray, alive: np.ndarray, base_u: np.ndarray,
-             broadcast: object) -> np.ndarray:
+    def step(
+        self,
+        t_step: int,
+        pos_u: np.ndarray,
+        alive: np.ndarray,
+        base_u: np.ndarray,
+        broadcast: object,
+    ) -> np.ndarray:
         """Deliver last tick's messages, record this tick's base broadcast; return the (N,) mask
         of drones whose broadcast copy is stale (never received or older than ``stale_steps``)."""
         kn = self.knowledge
         if t_step >= len(kn.pos_hist_m):  # runs longer than the problem's horizon (live use)
             kn.pos_hist_m = np.concatenate([kn.pos_hist_m, np.zeros_like(kn.pos_hist_m)])
         prev_pos, prev_alive = self._prev if self._prev is not None else (None, None)
-        kn.update(t_step, prev_pos, prev_alive, pos_u, alive, self.radio_range_u, self.base_reach_u,
-                  self.age_max_steps, self.dist_max_u, base_u, after_move=self.after_move,
-                  forget_unheard=self.forget_unheard)
+        kn.update(
+            t_step,
+            prev_pos,
+            prev_alive,
+            pos_u,
+            alive,
+            self.radio_range_u,
+            self.base_reach_u,
+            self.age_max_steps,
+            self.dist_max_u,
+            base_u,
+            after_move=self.after_move,
+            forget_unheard=self.forget_unheard,
+        )
         self._prev = (pos_u, alive)
         self._broadcasts[t_step] = broadcast
         for old in [s for s in self._broadcasts if s < t_step - self.stale_steps - 1]:
@@ -769,7 +953,9 @@ class MessageLayer:
         known[er, ek] = True
         return dense, known, stamps
 
-    def view_entries(self, holders: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def view_entries(
+        self, holders: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The known entries of alive ``holders`` (sorted): rows (E,) into ``holders``, columns (E,)
         into ``knowledge.cols``, in row-major order; believed positions (E, 2); broadcast stamps (n,).
         When every alive drone is asked for, the columns and positions are the layer's own arrays

@@ -160,9 +160,14 @@ SPEED_BOUNDS = ("box", "clip", "none")
 #: Overrides that give the pre-calibration default: every networked drone tasked by a balanced
 #: assignment re-solved each tick, gamma = 1 (rescaled), kappa = 0.9, saturated k_p = 1. The CBF
 #: guarantee of the module docstring holds. Scores far above the paper's MCCST under attrition.
-BALANCED_PARAMS: dict[str, Any] = {"reassign_period": 1, "task_capacity": 0,
-                         "keep_task_when_disconnected": True, "gamma": 1.0, "kappa": 0.9,
-                         "k_p": 1.0}
+BALANCED_PARAMS: dict[str, Any] = {
+    "reassign_period": 1,
+    "task_capacity": 0,
+    "keep_task_when_disconnected": True,
+    "gamma": 1.0,
+    "kappa": 0.9,
+    "k_p": 1.0,
+}
 
 #: Overrides for the strongest variant found (best TU1 and TU2 on the calibration set): one drone
 #: per task, re-chosen every tick (an implicit attrition recovery), every other drone an untasked
@@ -263,8 +268,14 @@ class MccstParams:
 
     def __post_init__(self) -> None:
         problems = []
-        for name in ("gamma", "k_p", "slack_penalty", "collision_slack_penalty", "alpha",
-                     "solver_eps"):
+        for name in (
+            "gamma",
+            "k_p",
+            "slack_penalty",
+            "collision_slack_penalty",
+            "alpha",
+            "solver_eps",
+        ):
             if not getattr(self, name) > 0:
                 problems.append(f"{name} must be > 0, got {getattr(self, name)!r}")
         if not self.alpha <= 1:
@@ -278,7 +289,9 @@ class MccstParams:
         if not self.subgroup_factor >= 1:
             problems.append(f"subgroup_factor must be >= 1, got {self.subgroup_factor!r}")
         if self.assignment not in ASSIGNMENT_RULES:
-            problems.append(f"assignment must be one of {ASSIGNMENT_RULES}, got {self.assignment!r}")
+            problems.append(
+                f"assignment must be one of {ASSIGNMENT_RULES}, got {self.assignment!r}"
+            )
         if self.solver not in QP_SOLVERS:
             problems.append(f"solver must be one of {QP_SOLVERS}, got {self.solver!r}")
         if self.speed_bound not in SPEED_BOUNDS:
@@ -289,10 +302,13 @@ class MccstParams:
             problems.append(f"task_capacity must be an int >= 0, got {self.task_capacity!r}")
         if not (isinstance(self.reassign_period, (int, np.integer)) and self.reassign_period >= 0):
             problems.append(f"reassign_period must be an int >= 0, got {self.reassign_period!r}")
-        if not (isinstance(self.collision_neighbours, (int, np.integer))
-                and self.collision_neighbours >= 0):
-            problems.append("collision_neighbours must be an int >= 0, "
-                            f"got {self.collision_neighbours!r}")
+        if not (
+            isinstance(self.collision_neighbours, (int, np.integer))
+            and self.collision_neighbours >= 0
+        ):
+            problems.append(
+                f"collision_neighbours must be an int >= 0, got {self.collision_neighbours!r}"
+            )
         if problems:
             raise ValueError("MccstParams: " + "; ".join(problems))
 
@@ -310,8 +326,10 @@ class MccstParams:
 # One step of the method per function (each testable on its own).
 # --------------------------------------------------------------------------------------------
 
-def assign_tasks(pos: np.ndarray, task_pos: np.ndarray, rule: str = "balanced",
-                 capacity: int = 0) -> np.ndarray:
+
+def assign_tasks(
+    pos: np.ndarray, task_pos: np.ndarray, rule: str = "balanced", capacity: int = 0
+) -> np.ndarray:
     """Subgroups: the task index of every drone (-1: no task).
 
     Parameters
@@ -338,7 +356,9 @@ def assign_tasks(pos: np.ndarray, task_pos: np.ndarray, rule: str = "balanced",
     n, m = len(pos), len(task_pos)
     if n == 0:
         return np.zeros(0, dtype=np.intp)
-    dist = np.linalg.norm(pos[:, None, :] - task_pos[None, :, :], axis=2)  # (n,1,2)-(1,m,2) -> (n,m)
+    dist = np.linalg.norm(
+        pos[:, None, :] - task_pos[None, :, :], axis=2
+    )  # (n,1,2)-(1,m,2) -> (n,m)
     if rule == "nearest":
         return np.argmin(dist, axis=1).astype(np.intp)
     if rule != "balanced":
@@ -356,8 +376,9 @@ def assign_tasks(pos: np.ndarray, task_pos: np.ndarray, rule: str = "balanced",
     return out
 
 
-def nominal_controls(pos: np.ndarray, goal: np.ndarray, k_p: float, speed: float,
-                     hold: float = 0.0) -> np.ndarray:
+def nominal_controls(
+    pos: np.ndarray, goal: np.ndarray, k_p: float, speed: float, hold: float = 0.0
+) -> np.ndarray:
     """u_hat_i = sat_speed(k_p (1 - hold / d_i)_+ (goal_i - x_i)), d_i = |goal_i - x_i|.
 
     A proportional go-to-goal law, norm-saturated, that stops on the circle of radius ``hold``
@@ -381,8 +402,9 @@ def nominal_controls(pos: np.ndarray, goal: np.ndarray, k_p: float, speed: float
     return _clip_norm(k_p * offset, speed)
 
 
-def candidate_edges(pos_m: np.ndarray, base_m: np.ndarray, radio_range_m: float,
-                    base_range_m: float) -> np.ndarray:
+def candidate_edges(
+    pos_m: np.ndarray, base_m: np.ndarray, radio_range_m: float, base_range_m: float
+) -> np.ndarray:
     """Edges of the communication graph of the drones and the base.
 
     Parameters
@@ -431,7 +453,9 @@ def collision_candidates(x: np.ndarray, reach: float, max_neighbours: int = 0) -
     return _collision_candidates_reference(x, reach, max_neighbours)
 
 
-def _collision_candidates_reference(x: np.ndarray, reach: float, max_neighbours: int = 0) -> np.ndarray:
+def _collision_candidates_reference(
+    x: np.ndarray, reach: float, max_neighbours: int = 0
+) -> np.ndarray:
     """:func:`collision_candidates` by a KD-tree (the reference of the compiled grid search
     :func:`planner._graph_kernels.knn_pairs`, and the path without a cap)."""
     n = len(x)
@@ -441,14 +465,14 @@ def _collision_candidates_reference(x: np.ndarray, reach: float, max_neighbours:
     if max_neighbours <= 0:
         pairs = tree.query_pairs(reach, output_type="ndarray").reshape(-1, 2)
     else:
-        k = min(max_neighbours + 1, n)                 # +1: each drone is its own nearest point
+        k = min(max_neighbours + 1, n)  # +1: each drone is its own nearest point
         _, nbr = tree.query(x, k=k, distance_upper_bound=reach)
         nbr = np.asarray(nbr).reshape(n, k)
         owner = np.repeat(np.arange(n, dtype=np.int64), k)
         other = nbr.ravel().astype(np.int64)
-        keep = (other < n) & (other != owner)           # missing neighbours are reported as n
+        keep = (other < n) & (other != owner)  # missing neighbours are reported as n
         lo, hi = np.minimum(owner[keep], other[keep]), np.maximum(owner[keep], other[keep])
-        key = np.unique(lo * n + hi)                    # dedupe (i, j) / (j, i), sorted by (i, j)
+        key = np.unique(lo * n + hi)  # dedupe (i, j) / (j, i), sorted by (i, j)
         pairs = np.column_stack([key // n, key % n])
     pairs = pairs.astype(np.intp)
     if len(pairs) == 0:
@@ -460,11 +484,17 @@ def _collision_candidates_reference(x: np.ndarray, reach: float, max_neighbours:
 
 def _class_k(h: np.ndarray, params: MccstParams) -> np.ndarray:
     """The barrier's class-K function: gamma h^3 (continuous time) or alpha h (discrete time)."""
-    return params.alpha * h if params.discrete_time else params.gamma * h ** 3
+    return params.alpha * h if params.discrete_time else params.gamma * h**3
 
 
-def edge_slack(x: np.ndarray, u_hat: np.ndarray, edges: np.ndarray, r_c: np.ndarray,
-               subgroup: np.ndarray, params: MccstParams) -> np.ndarray:
+def edge_slack(
+    x: np.ndarray,
+    u_hat: np.ndarray,
+    edges: np.ndarray,
+    r_c: np.ndarray,
+    subgroup: np.ndarray,
+    params: MccstParams,
+) -> np.ndarray:
     """delta_ij: the connectivity barrier's slack under the nominal controls (larger = safer).
 
     Parameters
@@ -488,13 +518,13 @@ def edge_slack(x: np.ndarray, u_hat: np.ndarray, edges: np.ndarray, r_c: np.ndar
         ``subgroup_factor`` across subgroups. The MCCST edge weight is -delta.
     """
     fast = _graph_kernels.edge_terms(x, u_hat, edges, r_c, subgroup)
-    if fast is not None:                                  # the lines below without the gathers
+    if fast is not None:  # the lines below without the gathers
         h, dot, cross = fast
         delta = -2.0 * dot + _class_k(h, params)
         return np.where(cross, delta / params.subgroup_factor, delta)
     i, j = edges[:, 0], edges[:, 1]
     diff = x[i] - x[j]
-    h = r_c ** 2 - np.einsum("ek,ek->e", diff, diff)
+    h = r_c**2 - np.einsum("ek,ek->e", diff, diff)
     delta = -2.0 * np.einsum("ek,ek->e", diff, u_hat[i] - u_hat[j]) + _class_k(h, params)
     return np.where(subgroup[i] != subgroup[j], delta / params.subgroup_factor, delta)
 
@@ -588,9 +618,16 @@ class QpResult:
     """OSQP's adapted ADMM step size at the end of the solve (to start the next tick's from)."""
 
 
-def solve_cbf_qp(x: np.ndarray, u_hat: np.ndarray, tree: np.ndarray, r_c: np.ndarray,
-                 collision_pairs: np.ndarray, box: float, params: MccstParams,
-                 rho: float | None = None) -> QpResult:
+def solve_cbf_qp(
+    x: np.ndarray,
+    u_hat: np.ndarray,
+    tree: np.ndarray,
+    r_c: np.ndarray,
+    collision_pairs: np.ndarray,
+    box: float,
+    params: MccstParams,
+    rho: float | None = None,
+) -> QpResult:
     """Minimally modify the nominal controls so that the tree and collision barriers hold.
 
     Parameters
@@ -631,18 +668,22 @@ def solve_cbf_qp(x: np.ndarray, u_hat: np.ndarray, tree: np.ndarray, r_c: np.nda
     # collision: coef_i = -2 (x_i - x_j); coef_j = -coef_i. Base ends (j == n) get no u_j entries.
     i = np.concatenate([tree[:, 0], collision_pairs[:, 0]]).astype(np.intp)
     j = np.concatenate([tree[:, 1], collision_pairs[:, 1]]).astype(np.intp)
-    diff = x[i] - x[j]                                          # (rows, 2)
+    diff = x[i] - x[j]  # (rows, 2)
     d2 = np.einsum("ek,ek->e", diff, diff)
     sign = np.concatenate([np.ones(n_tree), -np.ones(n_col)])
-    coef = 2.0 * sign[:, None] * diff                           # (rows, 2)
-    rhs = np.concatenate([_class_k(r_c ** 2 - d2[:n_tree], params),
-                          _class_k(d2[n_tree:] - params.safety_radius ** 2, params)])
+    coef = 2.0 * sign[:, None] * diff  # (rows, 2)
+    rhs = np.concatenate(
+        [
+            _class_k(r_c**2 - d2[:n_tree], params),
+            _class_k(d2[n_tree:] - params.safety_radius**2, params),
+        ]
+    )
     # Under the box |u_ik| <= box a row's left side never exceeds sum |coef| * box, so capping the
     # right side there leaves the feasible set unchanged; it keeps inactive rows (gamma h^3 of a
     # short edge reaches ~30) from inflating OSQP's relative tolerance, which scales with |Ax|.
     reach = box * np.abs(coef).sum(axis=1) * np.where(j < n, 2.0, 1.0)
     rhs = np.minimum(rhs, reach + 1e-3)
-    slack_rows = np.flatnonzero(rhs < 0)                        # violated barriers only
+    slack_rows = np.flatnonzero(rhs < 0)  # violated barriers only
     slack_is_tree = slack_rows < n_tree
     if params.solver == "piqp":
         return _solve_piqp(i, j, coef, rhs, reach, slack_rows, slack_is_tree, u_hat, box, params)
@@ -658,24 +699,42 @@ def solve_cbf_qp(x: np.ndarray, u_hat: np.ndarray, tree: np.ndarray, r_c: np.nda
     # the control columns and then ADMM stalls whenever slacks are active: the three-link chain of
     # the tests hits 10,000 iterations with it and converges in ~200 without; the 500-drone dense
     # start needs ~250 instead of ~800. The rows are already well scaled (|coef| <= 2 r, |u| <= v).
-    solver.setup(p_mat, q_vec, a_mat, lower, upper, verbose=False, eps_abs=params.solver_eps,
-                 eps_rel=params.solver_eps, max_iter=params.solver_max_iter, polishing=False,
-                 scaling=0, **({} if rho is None else {"rho": float(rho)}))
+    solver.setup(
+        p_mat,
+        q_vec,
+        a_mat,
+        lower,
+        upper,
+        verbose=False,
+        eps_abs=params.solver_eps,
+        eps_rel=params.solver_eps,
+        max_iter=params.solver_max_iter,
+        polishing=False,
+        scaling=0,
+        **({} if rho is None else {"rho": float(rho)}),
+    )
     u_start = np.clip(u_hat, -box, box)
     solver.warm_start(x=np.concatenate([u_start.ravel(), -rhs[slack_rows]]))
     res = solver.solve(raise_error=False)
     status = str(res.info.status)
     if status in _ACCEPTED_STATUSES and res.x is not None and np.all(np.isfinite(res.x)):
-        u = np.clip(res.x[:n_u].reshape(n, 2), -box, box)       # absorb solver tolerance
+        u = np.clip(res.x[:n_u].reshape(n, 2), -box, box)  # absorb solver tolerance
         slack = np.maximum(res.x[n_u:], 0.0)
-        return QpResult(u, status, True, int(res.info.iter),
-                        float(slack[slack_is_tree].max(initial=0.0)),
-                        float(slack[~slack_is_tree].max(initial=0.0)), float(res.info.rho_estimate))
+        return QpResult(
+            u,
+            status,
+            True,
+            int(res.info.iter),
+            float(slack[slack_is_tree].max(initial=0.0)),
+            float(slack[~slack_is_tree].max(initial=0.0)),
+            float(res.info.rho_estimate),
+        )
     return QpResult(u_start, status, False, int(res.info.iter), float("nan"), float("nan"))
 
 
-def _qp_objective(u_hat: np.ndarray, slack_tree: np.ndarray, params: MccstParams
-                  ) -> tuple[csc_matrix, np.ndarray]:
+def _qp_objective(
+    u_hat: np.ndarray, slack_tree: np.ndarray, params: MccstParams
+) -> tuple[csc_matrix, np.ndarray]:
     """P (diagonal, CSC) and q of sum |u - u_hat|^2 + penalty sum s^2 = 1/2 z^T P z + q^T z + const,
     z = (u_0x, u_0y, ..., one slack per slacked row); ``slack_tree`` marks the tree rows' slacks."""
     n_u, n_slack = u_hat.size, len(slack_tree)
@@ -687,9 +746,18 @@ def _qp_objective(u_hat: np.ndarray, slack_tree: np.ndarray, params: MccstParams
     return p_mat, np.concatenate([-2.0 * u_hat.ravel(), np.zeros(n_slack)])
 
 
-def _solve_piqp(i: np.ndarray, j: np.ndarray, coef: np.ndarray, rhs: np.ndarray,
-                reach: np.ndarray, slack_rows: np.ndarray, slack_tree: np.ndarray,
-                u_hat: np.ndarray, box: float, params: MccstParams) -> QpResult:
+def _solve_piqp(
+    i: np.ndarray,
+    j: np.ndarray,
+    coef: np.ndarray,
+    rhs: np.ndarray,
+    reach: np.ndarray,
+    slack_rows: np.ndarray,
+    slack_tree: np.ndarray,
+    u_hat: np.ndarray,
+    box: float,
+    params: MccstParams,
+) -> QpResult:
     """The CBF-QP of :func:`solve_cbf_qp` solved by PIQP (``params.solver == 'piqp'``).
 
     PIQP (Schwan, Jiang, Kuhn, Jones, "PIQP: A Proximal Interior-Point Quadratic Programming
@@ -708,12 +776,12 @@ def _solve_piqp(i: np.ndarray, j: np.ndarray, coef: np.ndarray, rhs: np.ndarray,
     n = len(u_hat)
     n_u = 2 * n
     n_slack = len(slack_rows)
-    keep = rhs <= reach                          # the others are capped, hence never active
-    keep[slack_rows] = True                      # violated rows (rhs < 0) always bind
+    keep = rhs <= reach  # the others are capped, hence never active
+    keep[slack_rows] = True  # violated rows (rhs < 0) always bind
     rows = np.flatnonzero(keep)
-    new_row = np.cumsum(keep) - 1                # a kept row's index among the kept ones
+    new_row = np.cumsum(keep) - 1  # a kept row's index among the kept ones
     # The barrier rows of OSQP's matrix over the kept rows (its identity rows are PIQP's bounds).
-    g_mat = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n)[:len(rows)]
+    g_mat = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n)[: len(rows)]
     p_mat, q_vec = _qp_objective(u_hat, slack_tree, params)
     x_lo = np.concatenate([np.full(n_u, -box), np.zeros(n_slack)])
     x_hi = np.concatenate([np.full(n_u, box), np.full(n_slack, np.inf)])
@@ -723,8 +791,9 @@ def _solve_piqp(i: np.ndarray, j: np.ndarray, coef: np.ndarray, rhs: np.ndarray,
     solver.settings.eps_abs = params.solver_eps
     solver.settings.eps_rel = params.solver_eps
     solver.settings.max_iter = params.solver_max_iter
-    solver.setup(p_mat, q_vec, None, None, g_mat, np.full(len(rows), -np.inf), rhs[rows],
-                 x_lo, x_hi)
+    solver.setup(
+        p_mat, q_vec, None, None, g_mat, np.full(len(rows), -np.inf), rhs[rows], x_lo, x_hi
+    )
     status = solver.solve()
     z = solver.result.x
     u_start = np.clip(u_hat, -box, box)
@@ -732,13 +801,20 @@ def _solve_piqp(i: np.ndarray, j: np.ndarray, coef: np.ndarray, rhs: np.ndarray,
     if status == piqp.PIQP_SOLVED and np.all(np.isfinite(z)):
         u = np.clip(z[:n_u].reshape(n, 2), -box, box)
         slack = np.maximum(z[n_u:], 0.0)
-        return QpResult(u, "solved", True, iters, float(slack[slack_tree].max(initial=0.0)),
-                        float(slack[~slack_tree].max(initial=0.0)))
+        return QpResult(
+            u,
+            "solved",
+            True,
+            iters,
+            float(slack[slack_tree].max(initial=0.0)),
+            float(slack[~slack_tree].max(initial=0.0)),
+        )
     return QpResult(u_start, str(status), False, iters, float("nan"), float("nan"))
 
 
-def _constraint_matrix(i: np.ndarray, j: np.ndarray, coef: np.ndarray, slack_rows: np.ndarray,
-                       n: int) -> csc_matrix:
+def _constraint_matrix(
+    i: np.ndarray, j: np.ndarray, coef: np.ndarray, slack_rows: np.ndarray, n: int
+) -> csc_matrix:
     """The CBF-QP constraint matrix, assembled directly in CSC form (sorted rows, no duplicates).
 
     Rows 0..R-1 are the barriers (row r: ``coef[r] . u_i - coef[r] . u_j``, the u_j part only when
@@ -756,7 +832,7 @@ def _constraint_matrix(i: np.ndarray, j: np.ndarray, coef: np.ndarray, slack_row
     # a row, so within a drone the rows are distinct.
     node = np.concatenate([i, j[j_is_drone]])
     row = np.concatenate([rows, rows[j_is_drone]])
-    val = np.concatenate([coef, -coef[j_is_drone]])             # (entries, 2): x and y columns
+    val = np.concatenate([coef, -coef[j_is_drone]])  # (entries, 2): x and y columns
     order = np.argsort(node.astype(np.int64) * max(n_rows, 1) + row)
     node, row, val = node[order], row[order], val[order]
     per_drone = np.bincount(node, minlength=n)
@@ -767,24 +843,26 @@ def _constraint_matrix(i: np.ndarray, j: np.ndarray, coef: np.ndarray, slack_row
     indices = np.empty(indptr[-1], dtype=np.int64)
     data = np.empty(indptr[-1])
     rank = np.arange(len(node)) - (np.cumsum(per_drone) - per_drone)[node]
-    for k in range(2):                                          # the two axes, not drones
+    for k in range(2):  # the two axes, not drones
         at = indptr[2 * node + k] + rank
         indices[at] = row
         data[at] = val[:, k]
-    ctrl_end = indptr[1:n_u + 1] - 1                            # last entry of each drone column
+    ctrl_end = indptr[1 : n_u + 1] - 1  # last entry of each drone column
     indices[ctrl_end] = n_rows + np.arange(n_u)
     data[ctrl_end] = 1.0
     slack_start = indptr[n_u:n_var]
-    indices[slack_start] = slack_rows                           # -s on its violated row
+    indices[slack_start] = slack_rows  # -s on its violated row
     data[slack_start] = -1.0
     indices[slack_start + 1] = n_rows + n_u + np.arange(n_slack)
     data[slack_start + 1] = 1.0
-    return csc_matrix((data, indices.astype(np.int32), indptr.astype(np.int32)),
-                      shape=(n_rows + n_var, n_var))
+    return csc_matrix(
+        (data, indices.astype(np.int32), indptr.astype(np.int32)), shape=(n_rows + n_var, n_var)
+    )
 
 
-def _constraint_matrix_reference(i: np.ndarray, j: np.ndarray, coef: np.ndarray,
-                                 slack_rows: np.ndarray, n: int) -> csc_matrix:
+def _constraint_matrix_reference(
+    i: np.ndarray, j: np.ndarray, coef: np.ndarray, slack_rows: np.ndarray, n: int
+) -> csc_matrix:
     """COO-built twin of :func:`_constraint_matrix` (the pre-optimisation assembly; for tests)."""
     n_rows, n_slack = len(i), len(slack_rows)
     n_u = 2 * n
@@ -792,12 +870,25 @@ def _constraint_matrix_reference(i: np.ndarray, j: np.ndarray, coef: np.ndarray,
     xyz = np.arange(2)
     row_ids = np.arange(n_rows)
     j_is_drone = j < n
-    a_rows = np.concatenate([np.repeat(row_ids, 2), np.repeat(row_ids[j_is_drone], 2), slack_rows,
-                             n_rows + np.arange(n_var)])
-    a_cols = np.concatenate([(2 * i[:, None] + xyz).ravel(), (2 * j[j_is_drone][:, None] + xyz).ravel(),
-                             n_u + np.arange(n_slack), np.arange(n_var)])
-    a_vals = np.concatenate([coef.ravel(), -coef[j_is_drone].ravel(), -np.ones(n_slack),
-                             np.ones(n_var)])
+    a_rows = np.concatenate(
+        [
+            np.repeat(row_ids, 2),
+            np.repeat(row_ids[j_is_drone], 2),
+            slack_rows,
+            n_rows + np.arange(n_var),
+        ]
+    )
+    a_cols = np.concatenate(
+        [
+            (2 * i[:, None] + xyz).ravel(),
+            (2 * j[j_is_drone][:, None] + xyz).ravel(),
+            n_u + np.arange(n_slack),
+            np.arange(n_var),
+        ]
+    )
+    a_vals = np.concatenate(
+        [coef.ravel(), -coef[j_is_drone].ravel(), -np.ones(n_slack), np.ones(n_var)]
+    )
     return csc_matrix((a_vals, (a_rows, a_cols)), shape=(n_rows + n_var, n_var))
 
 
@@ -818,6 +909,7 @@ def _clip_norm(vec: np.ndarray, limit: float) -> np.ndarray:
 # The planner.
 # --------------------------------------------------------------------------------------------
 
+
 class MccstPlanner:
     """Centralised MCCST controller with perfect knowledge (see the module docstring).
 
@@ -830,20 +922,27 @@ class MccstPlanner:
         self.params = params
         unit = problem.length_unit_m
         self._unit_m = unit
-        self._radius = problem.radio_range_m / unit                       # r, paper units
+        self._radius = problem.radio_range_m / unit  # r, paper units
         self._base_radius = min(problem.base_range_m, problem.radio_range_m) / unit
-        self._speed = problem.max_speed_m_s * problem.dt_s / unit         # v, paper units / tick
+        self._speed = problem.max_speed_m_s * problem.dt_s / unit  # v, paper units / tick
         self._max_disp_m = problem.max_speed_m_s * problem.dt_s
-        per_axis = {"box": self._speed / np.sqrt(2.0), "clip": self._speed,
-                    "none": np.inf}[params.speed_bound]
+        per_axis = {"box": self._speed / np.sqrt(2.0), "clip": self._speed, "none": np.inf}[
+            params.speed_bound
+        ]
         self._box = float(per_axis)
-        self._held_task: np.ndarray | None = None   # (N,) task per drone, -1 = none (persistent)
+        self._held_task: np.ndarray | None = None  # (N,) task per drone, -1 = none (persistent)
         self._last_t_step = -1
-        self._rho: float | None = None               # carry_rho: last tick's adapted rho
+        self._rho: float | None = None  # carry_rho: last tick's adapted rho
         self._rho_t_step = -1
 
-    def _persistent_tasks(self, tick: TickInput, pos_m: np.ndarray, networked: np.ndarray,
-                          members: np.ndarray, task_x: np.ndarray) -> np.ndarray:
+    def _persistent_tasks(
+        self,
+        tick: TickInput,
+        pos_m: np.ndarray,
+        networked: np.ndarray,
+        members: np.ndarray,
+        task_x: np.ndarray,
+    ) -> np.ndarray:
         """Tasks of ``members`` when the assignment is not re-solved every tick.
 
         The state (one task per drone, -1 = none) is reset at a run's first tick (t_step 0, a
@@ -856,18 +955,24 @@ class MccstPlanner:
         n_all = len(pos_m)
         unit = self._unit_m
         held = self._held_task
-        fresh = (held is None or len(held) != n_all or tick.t_step == 0
-                 or tick.t_step <= self._last_t_step)
+        fresh = (
+            held is None
+            or len(held) != n_all
+            or tick.t_step == 0
+            or tick.t_step <= self._last_t_step
+        )
         self._last_t_step = tick.t_step
         if fresh or held is None:  # (held is None implies fresh: said for the type checker)
             held = np.full(n_all, -1, dtype=np.intp)
             alive = np.flatnonzero(np.asarray(tick.alive, dtype=bool))
-            held[alive] = assign_tasks(pos_m[alive] / unit, task_x, prm.assignment,
-                                       prm.task_capacity)
+            held[alive] = assign_tasks(
+                pos_m[alive] / unit, task_x, prm.assignment, prm.task_capacity
+            )
         elif prm.reassign_period > 1 and tick.t_step % prm.reassign_period == 0:
             held = np.full(n_all, -1, dtype=np.intp)
-            held[members] = assign_tasks(pos_m[members] / unit, task_x, prm.assignment,
-                                         prm.task_capacity)
+            held[members] = assign_tasks(
+                pos_m[members] / unit, task_x, prm.assignment, prm.task_capacity
+            )
         elif not prm.keep_task_when_disconnected:
             held = np.where(networked, held, -1)
         self._held_task = held
@@ -897,15 +1002,24 @@ class MccstPlanner:
         disp_m = np.zeros((n_all, 2))
         task_of = np.full(n_all, -1, dtype=np.intp)
         n = len(members)
-        info = {"status": "empty", "fallback": False, "iterations": 0, "n_networked": n,
-                "n_tree_edges": 0, "n_collision_rows": 0, "n_components": 0,
-                "max_tree_slack": 0.0, "max_collision_slack": 0.0,
-                "tree_edges": np.zeros((0, 2), dtype=np.intp), "task_of": task_of}
+        info = {
+            "status": "empty",
+            "fallback": False,
+            "iterations": 0,
+            "n_networked": n,
+            "n_tree_edges": 0,
+            "n_collision_rows": 0,
+            "n_components": 0,
+            "max_tree_slack": 0.0,
+            "max_collision_slack": 0.0,
+            "tree_edges": np.zeros((0, 2), dtype=np.intp),
+            "task_of": task_of,
+        }
         if n == 0:
             return PlanOutput(disp_m=disp_m, info=info)
         prm = self.params
         unit = self._unit_m
-        x = np.vstack([pos_m[members], base_m]) / unit              # (n+1, 2); row n is the base
+        x = np.vstack([pos_m[members], base_m]) / unit  # (n+1, 2); row n is the base
 
         # 1-2. Subgroups and nominal controls.
         speed_hat = self._speed if prm.saturate_nominal else np.inf
@@ -917,14 +1031,15 @@ class MccstPlanner:
                 task_local = assign_tasks(x[:n], task_m / unit, prm.assignment, prm.task_capacity)
             else:
                 task_local = self._persistent_tasks(tick, pos_m, networked, members, task_m / unit)
-            has_task = task_local >= 0                              # drones without one hold
+            has_task = task_local >= 0  # drones without one hold
             goal = np.where(has_task[:, None], task_m[np.maximum(task_local, 0)] / unit, x[:n])
         task_of[members] = task_local
         u_hat = nominal_controls(x[:n], goal, prm.k_p, speed_hat, prm.hold_distance)
 
         # 3. Candidate graph and MCCST.
-        edges = candidate_edges(pos_m[members], base_m, self.problem.radio_range_m,
-                                self.problem.base_range_m)
+        edges = candidate_edges(
+            pos_m[members], base_m, self.problem.radio_range_m, self.problem.base_range_m
+        )
         is_base_edge = edges[:, 1] == n
         r_c = prm.kappa * np.where(is_base_edge, self._base_radius, self._radius)
         # The base is its own subgroup (-1); drones without a task (-1 in task_local) form another.
@@ -934,8 +1049,9 @@ class MccstPlanner:
         tree = edges[in_tree]
 
         # 4. Collision pairs (drones only) and the CBF-QP.
-        collision_pairs = collision_candidates(x[:n], prm.safety_radius + 2.0 * self._speed,
-                                               prm.collision_neighbours)
+        collision_pairs = collision_candidates(
+            x[:n], prm.safety_radius + 2.0 * self._speed, prm.collision_neighbours
+        )
         rho = None
         if prm.carry_rho:
             # A run's first tick (t_step 0, or a t_step that does not increase) starts at OSQP's
@@ -945,18 +1061,29 @@ class MccstPlanner:
             self._rho_t_step = tick.t_step
         qp = solve_cbf_qp(x, u_hat, tree, r_c[in_tree], collision_pairs, self._box, prm, rho)
         if prm.carry_rho:
-            self._rho = qp.rho_estimate if qp.used_solution and np.isfinite(qp.rho_estimate) else None
+            self._rho = (
+                qp.rho_estimate if qp.used_solution and np.isfinite(qp.rho_estimate) else None
+            )
 
         disp_m[members] = _clip_norm(qp.u * unit, self._max_disp_m)
         tree_global = np.where(tree == n, -1, members[np.minimum(tree, n - 1)])
-        info.update(status=qp.status, fallback=not qp.used_solution, iterations=qp.iterations,
-                    n_tree_edges=len(tree), n_collision_rows=len(collision_pairs),
-                    n_components=n + 1 - len(tree), max_tree_slack=qp.max_tree_slack,
-                    max_collision_slack=qp.max_collision_slack, tree_edges=tree_global)
+        info.update(
+            status=qp.status,
+            fallback=not qp.used_solution,
+            iterations=qp.iterations,
+            n_tree_edges=len(tree),
+            n_collision_rows=len(collision_pairs),
+            n_components=n + 1 - len(tree),
+            max_tree_slack=qp.max_tree_slack,
+            max_collision_slack=qp.max_collision_slack,
+            tree_edges=tree_global,
+        )
         return PlanOutput(disp_m=disp_m, tree=None, info=info)
 
 
-def make_mccst(problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator) -> MccstPlanner:
+def make_mccst(
+    problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator
+) -> MccstPlanner:
     """Registry factory (``METHODS['mccst']``).
 
     Parameters

@@ -28,8 +28,18 @@ import numpy as np
 from planner.info import INFO_MODELS, check_info
 from planner.problem import ProblemConfig
 
-__all__ = ["TickInput", "PlanOutput", "Planner", "METHODS", "INFO_OF", "make_planner", "method_names",
-           "info_models", "params_with_info", "UnknownMethod"]
+__all__ = [
+    "TickInput",
+    "PlanOutput",
+    "Planner",
+    "METHODS",
+    "INFO_OF",
+    "make_planner",
+    "method_names",
+    "info_models",
+    "params_with_info",
+    "UnknownMethod",
+]
 
 
 @dataclass(frozen=True)
@@ -86,7 +96,7 @@ INFO_OF: dict[str, tuple[str, ...]] = {
     "phireman-no-task": INFO_MODELS,
     "phireman-nodes-only": INFO_MODELS,
     "dccrs": INFO_MODELS,
-    "mccst": ("central",),        # centralised, perfect knowledge (planner.mccst)
+    "mccst": ("central",),  # centralised, perfect knowledge (planner.mccst)
     "phireman-resilient": INFO_MODELS,
 }
 
@@ -103,7 +113,9 @@ def _target(name: str) -> str:
     try:
         return METHODS[name]
     except KeyError as exc:
-        raise UnknownMethod(f"unknown method {name!r}; valid methods: {', '.join(METHODS)}") from exc
+        raise UnknownMethod(
+            f"unknown method {name!r}; valid methods: {', '.join(METHODS)}"
+        ) from exc
 
 
 def info_models(name: str) -> tuple[str, ...]:
@@ -115,8 +127,10 @@ def info_models(name: str) -> tuple[str, ...]:
 def _check_info_of(name: str, info: Any) -> None:
     check_info(info)
     if info not in INFO_OF[name]:
-        raise ValueError(f"method {name!r} plans with {' or '.join(INFO_OF[name])} information only, "
-                         f"got info={info!r}")
+        raise ValueError(
+            f"method {name!r} plans with {' or '.join(INFO_OF[name])} information only, "
+            f"got info={info!r}"
+        )
 
 
 def params_with_info(name: str, params: Mapping[str, Any] | None, info: str) -> dict[str, Any]:
@@ -140,8 +154,12 @@ def params_with_info(name: str, params: Mapping[str, Any] | None, info: str) -> 
     return out
 
 
-def make_planner(name: str, problem: ProblemConfig, params: dict[str, Any] | None = None,
-                 rng: np.random.Generator | None = None) -> Planner:
+def make_planner(
+    name: str,
+    problem: ProblemConfig,
+    params: dict[str, Any] | None = None,
+    rng: np.random.Generator | None = None,
+) -> Planner:
     """Build the planner registered under ``name``.
 
     Raises

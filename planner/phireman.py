@@ -44,8 +44,15 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 import numpy as np
 
 from planner import _kernels
-from planner.info import (PAPER_INFO, CentralView, MessageView, check_info, check_speed_rule,
-                          information_model, resolve_speed_rule)
+from planner.info import (
+    PAPER_INFO,
+    CentralView,
+    MessageView,
+    check_info,
+    check_speed_rule,
+    information_model,
+    resolve_speed_rule,
+)
 from planner.methods import PlanOutput, TickInput
 from planner.problem import ProblemConfig
 from planner.steiner import TaskTree, distance_to_tree, maintain_task_tree
@@ -55,11 +62,24 @@ if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
 __all__ = [
-    "PhiremanParams", "PhiremanPlanner", "DescentResult",
-    "task_gradient", "task_gradient_batched", "padded_segments", "TreeSegments", "pair_gradient",
-    "pair_gradient_reference", "pair_gradient_entries", "descend", "descend_reference",
-    "energy", "parse_params",
-    "make_phireman", "make_phireman_central", "make_phireman_no_task", "make_phireman_nodes_only",
+    "PhiremanParams",
+    "PhiremanPlanner",
+    "DescentResult",
+    "task_gradient",
+    "task_gradient_batched",
+    "padded_segments",
+    "TreeSegments",
+    "pair_gradient",
+    "pair_gradient_reference",
+    "pair_gradient_entries",
+    "descend",
+    "descend_reference",
+    "energy",
+    "parse_params",
+    "make_phireman",
+    "make_phireman_central",
+    "make_phireman_no_task",
+    "make_phireman_nodes_only",
 ]
 
 #: A gradient for :func:`descend`: ``(x, rows) -> (len(rows), 2)``.
@@ -132,7 +152,13 @@ class PhiremanParams:
     def __post_init__(self) -> None:
         check_speed_rule(self.speed_rule)
         check_info(self.info)
-        for name in ("step_size", "tolerance", "repulsion_radius_ratio", "accept_ratio", "dist_max"):
+        for name in (
+            "step_size",
+            "tolerance",
+            "repulsion_radius_ratio",
+            "accept_ratio",
+            "dist_max",
+        ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         for name in ("max_descent_steps", "rebuild_period", "age_max_steps", "tree_stale_steps"):
@@ -150,7 +176,11 @@ def parse_params(params: Mapping[str, Any], cls: type[ParamsT], **forced: Any) -
     kwargs: dict[str, Any] = {}
     for key, value in {**params, **forced}.items():
         default = valid[key].default
-        kwargs[key] = type(default)(value) if isinstance(default, (bool, int, float)) and not isinstance(value, str) else value
+        kwargs[key] = (
+            type(default)(value)
+            if isinstance(default, (bool, int, float)) and not isinstance(value, str)
+            else value
+        )
         if isinstance(default, bool) and isinstance(value, str):
             kwargs[key] = value.lower() in ("1", "true", "yes", "on")
         elif isinstance(default, (int, float)) and isinstance(value, str):
@@ -162,7 +192,10 @@ def parse_params(params: Mapping[str, Any], cls: type[ParamsT], **forced: Any) -
 # Gradient terms (paper units). Each returns (n, 2).
 # --------------------------------------------------------------------------------------------
 
-def task_gradient(pos_u: np.ndarray, tree: TaskTree, thorn: float, nodes_only: bool = False) -> np.ndarray:
+
+def task_gradient(
+    pos_u: np.ndarray, tree: TaskTree, thorn: float, nodes_only: bool = False
+) -> np.ndarray:
     """∇ of Þ h_T(x): Þ times the unit vector from the nearest tree point to x (0 on the tree)."""
     if thorn == 0.0 or len(pos_u) == 0:
         return np.zeros_like(pos_u)
@@ -171,8 +204,9 @@ def task_gradient(pos_u: np.ndarray, tree: TaskTree, thorn: float, nodes_only: b
     return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
 
 
-def padded_segments(trees: list[TaskTree], nodes_only: bool = False
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def padded_segments(
+    trees: list[TaskTree], nodes_only: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stack the segments of several trees, padded: (V, E, 2) ends a and b and a (V, E) validity mask.
 
     With ``nodes_only`` (or a single-node tree) each node becomes a zero-length segment, so the
@@ -189,12 +223,18 @@ def padded_segments(trees: list[TaskTree], nodes_only: bool = False
     seg_b = np.zeros((len(parts), e_max, 2))
     valid = np.zeros((len(parts), e_max), dtype=bool)
     for v, (a, b) in enumerate(parts):  # loop over tree versions (a handful), not drones
-        seg_a[v, :len(a)], seg_b[v, :len(b)], valid[v, :len(a)] = a, b, True
+        seg_a[v, : len(a)], seg_b[v, : len(b)], valid[v, : len(a)] = a, b, True
     return seg_a, seg_b, valid
 
 
-def task_gradient_batched(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, valid: np.ndarray,
-                          version: np.ndarray, thorn: float) -> np.ndarray:
+def task_gradient_batched(
+    pos_u: np.ndarray,
+    seg_a: np.ndarray,
+    seg_b: np.ndarray,
+    valid: np.ndarray,
+    version: np.ndarray,
+    thorn: float,
+) -> np.ndarray:
     """:func:`task_gradient` for drones that hold different tree versions, in one pass.
 
     Parameters
@@ -206,11 +246,15 @@ def task_gradient_batched(pos_u: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarra
     """
     if thorn == 0.0 or len(pos_u) == 0:
         return np.zeros_like(pos_u)
-    a, b, ok = seg_a[version], seg_b[version], valid[version]    # (n,E,2), (n,E,2), (n,E)
+    a, b, ok = seg_a[version], seg_b[version], valid[version]  # (n,E,2), (n,E,2), (n,E)
     ab = b - a
     ab2 = np.einsum("nec,nec->ne", ab, ab)
-    ap = pos_u[:, None, :] - a                                    # (n,1,2) - (n,E,2) -> (n,E,2)
-    t = np.clip(np.divide(np.einsum("nec,nec->ne", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
+    ap = pos_u[:, None, :] - a  # (n,1,2) - (n,E,2) -> (n,E,2)
+    t = np.clip(
+        np.divide(np.einsum("nec,nec->ne", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0),
+        0,
+        1,
+    )
     foot = a + t[:, :, None] * ab
     off = pos_u[:, None, :] - foot
     d2 = np.where(ok, np.einsum("nec,nec->ne", off, off), np.inf)
@@ -244,8 +288,14 @@ class TreeSegments:
     radius : how far from ``pos0`` the queries may lie
     """
 
-    def __init__(self, trees: list[TaskTree], version: np.ndarray, nodes_only: bool = False,
-                 pos0: np.ndarray | None = None, radius: float = 0.0) -> None:
+    def __init__(
+        self,
+        trees: list[TaskTree],
+        version: np.ndarray,
+        nodes_only: bool = False,
+        pos0: np.ndarray | None = None,
+        radius: float = 0.0,
+    ) -> None:
         seg_a, seg_b, valid = padded_segments(trees, nodes_only)
         self.n = len(version)
         self.entries: _Arrays4 | None = None
@@ -259,10 +309,17 @@ class TreeSegments:
             ab2_v = np.einsum("vec,vec->ve", ab_v, ab_v)
             pos0 = np.asarray(pos0, float)
             r, s = _kernels.prune_segments(
-                np.ascontiguousarray(pos0[:, 0]), np.ascontiguousarray(pos0[:, 1]),
-                np.asarray(version, np.int64), np.ascontiguousarray(seg_a[..., 0]),
-                np.ascontiguousarray(seg_a[..., 1]), np.ascontiguousarray(ab_v[..., 0]),
-                np.ascontiguousarray(ab_v[..., 1]), ab2_v, valid.sum(axis=1), 2.0 * radius * (1 + 1e-9))
+                np.ascontiguousarray(pos0[:, 0]),
+                np.ascontiguousarray(pos0[:, 1]),
+                np.asarray(version, np.int64),
+                np.ascontiguousarray(seg_a[..., 0]),
+                np.ascontiguousarray(seg_a[..., 1]),
+                np.ascontiguousarray(ab_v[..., 0]),
+                np.ascontiguousarray(ab_v[..., 1]),
+                ab2_v,
+                valid.sum(axis=1),
+                2.0 * radius * (1 + 1e-9),
+            )
             v = np.asarray(version)[r]
             self.entries = (r, seg_a[v, s], ab_v[v, s], ab2_v[v, s])
             return
@@ -271,13 +328,15 @@ class TreeSegments:
             dist = np.sqrt(d2)
             # generous rounding margin: distances are computed to ~1e-15 relative
             bound = dist.min(axis=1) + 2.0 * radius * (1 + 1e-9) + 1e-9 * (1.0 + dist.min(axis=1))
-            r, s = np.nonzero(self.valid & (dist <= bound[:, None]))    # row-major: by drone, then segment
+            r, s = np.nonzero(
+                self.valid & (dist <= bound[:, None])
+            )  # row-major: by drone, then segment
             self.entries = (r, self.a[r, s], self.ab[r, s], self.ab2[r, s])
 
     def _dense_arrays(self) -> _Arrays4:
         if self._dense is None:
             seg_a, seg_b, valid, version = self._padded
-            a = seg_a[version]                                      # (n, E, 2)
+            a = seg_a[version]  # (n, E, 2)
             ab = seg_b[version] - a
             self._dense = (a, ab, np.einsum("nec,nec->ne", ab, ab), valid[version])
         return self._dense
@@ -303,10 +362,15 @@ class TreeSegments:
         return self._dense_arrays()[3]
 
     @staticmethod
-    def _d2(pos_u: np.ndarray, a: np.ndarray, ab: np.ndarray, ab2: np.ndarray, ok: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray]:
+    def _d2(
+        pos_u: np.ndarray, a: np.ndarray, ab: np.ndarray, ab2: np.ndarray, ok: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         ap = pos_u[:, None, :] - a
-        t = np.clip(np.divide(np.einsum("nec,nec->ne", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
+        t = np.clip(
+            np.divide(np.einsum("nec,nec->ne", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0),
+            0,
+            1,
+        )
         foot = a + t[:, :, None] * ab
         off = pos_u[:, None, :] - foot
         return off, np.where(ok, np.einsum("nec,nec->ne", off, off), np.inf)
@@ -340,28 +404,48 @@ class TreeSegments:
             # compiled twin of the NumPy lines below, bit for bit (tests/planner/test_kernels.py)
             cols: _Columns
             if self._columns is None or len(rows) != self.n:
-                cols = (np.asarray(er, np.int64), np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]),
-                        np.ascontiguousarray(ab[:, 0]), np.ascontiguousarray(ab[:, 1]), np.ascontiguousarray(ab2))
+                cols = (
+                    np.asarray(er, np.int64),
+                    np.ascontiguousarray(a[:, 0]),
+                    np.ascontiguousarray(a[:, 1]),
+                    np.ascontiguousarray(ab[:, 0]),
+                    np.ascontiguousarray(ab[:, 1]),
+                    np.ascontiguousarray(ab2),
+                )
                 if len(rows) == self.n:
                     self._columns = cols
             else:
                 cols = self._columns
             pos_u = np.asarray(pos_u, float)
-            return _kernels.entries_segment_gradient(np.ascontiguousarray(pos_u[:, 0]),
-                                                     np.ascontiguousarray(pos_u[:, 1]), *cols, len(pos_u),
-                                                     float(thorn))
+            return _kernels.entries_segment_gradient(
+                np.ascontiguousarray(pos_u[:, 0]),
+                np.ascontiguousarray(pos_u[:, 1]),
+                *cols,
+                len(pos_u),
+                float(thorn),
+            )
         return self._gradient_entries_numpy(pos_u, er, a, ab, ab2, thorn)
 
     @staticmethod
-    def _gradient_entries_numpy(pos_u: np.ndarray, er: np.ndarray, a: np.ndarray, ab: np.ndarray,
-                                ab2: np.ndarray, thorn: float) -> np.ndarray:
+    def _gradient_entries_numpy(
+        pos_u: np.ndarray,
+        er: np.ndarray,
+        a: np.ndarray,
+        ab: np.ndarray,
+        ab2: np.ndarray,
+        thorn: float,
+    ) -> np.ndarray:
         x = pos_u[er]
         ap = x - a
-        t = np.clip(np.divide(np.einsum("ec,ec->e", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0), 0, 1)
+        t = np.clip(
+            np.divide(np.einsum("ec,ec->e", ap, ab), ab2, out=np.zeros_like(ab2), where=ab2 > 0),
+            0,
+            1,
+        )
         foot = a + t[:, None] * ab
         off = x - foot
         d2 = np.einsum("ec,ec->e", off, off)
-        starts = np.flatnonzero(np.r_[True, er[1:] != er[:-1]])      # every drone has >= 1 entry
+        starts = np.flatnonzero(np.r_[True, er[1:] != er[:-1]])  # every drone has >= 1 entry
         low = np.minimum.reduceat(d2, starts)
         first = np.minimum.reduceat(np.where(d2 == low[er], np.arange(len(d2)), len(d2)), starts)
         away = off[first]
@@ -369,9 +453,17 @@ class TreeSegments:
         return thorn * away / np.where(dist > 1e-12, dist, np.inf)[:, None]
 
 
-def pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, attraction: float,
-                  floor: float, repulsion: float, reach: float, pair_factor: float,
-                  others_sq: np.ndarray | None = None) -> np.ndarray:
+def pair_gradient(
+    pos_u: np.ndarray,
+    others_u: np.ndarray,
+    mask: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+    others_sq: np.ndarray | None = None,
+) -> np.ndarray:
     """∇ of the attraction and repulsion terms of each drone w.r.t. its own position.
 
     Parameters
@@ -407,7 +499,7 @@ def pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, att
     np.maximum(d2, 0.0, out=d2)
     inv = np.zeros_like(d2)
     np.divide(1.0, np.sqrt(d2, out=np.empty_like(d2)), out=inv, where=mask & (d2 > 0))
-    d = d2 * inv                                   # distance where the pair interacts, else 0
+    d = d2 * inv  # distance where the pair interacts, else 0
     coef = np.where(d > floor, attraction * inv * inv * inv, 0.0)
     coef -= np.where((d < reach) & (inv > 0), repulsion * (reach * inv - 1.0), 0.0)
     if others_u.ndim == 2:
@@ -417,8 +509,16 @@ def pair_gradient(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, att
     return pair_factor * (pos_u * coef.sum(axis=1)[:, None] - weighted)
 
 
-def pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e: np.ndarray, attraction: float,
-                          floor: float, repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
+def pair_gradient_entries(
+    pos_u: np.ndarray,
+    rows: np.ndarray,
+    others_e: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+) -> np.ndarray:
     """:func:`pair_gradient` of the per-drone view from its interacting entries only.
 
     Parameters
@@ -436,8 +536,17 @@ def pair_gradient_entries(pos_u: np.ndarray, rows: np.ndarray, others_e: np.ndar
     :func:`pair_gradient_reference` to rounding (the summation order differs from the dense kernel's,
     so the last bits may too).
     """
-    return _pair_gradient_xy(pos_u, rows, others_e[:, 0], others_e[:, 1], attraction, floor, repulsion, reach,
-                             pair_factor)
+    return _pair_gradient_xy(
+        pos_u,
+        rows,
+        others_e[:, 0],
+        others_e[:, 1],
+        attraction,
+        floor,
+        repulsion,
+        reach,
+        pair_factor,
+    )
 
 
 class _EntriesByDrone:
@@ -449,7 +558,7 @@ class _EntriesByDrone:
         self.n = n
         self.rows_e = rows_e
         self.x, self.y = y_e[:, 0].copy(), y_e[:, 1].copy()
-        self.start = np.searchsorted(rows_e, np.arange(n + 1))   # drone i's: start[i]:start[i + 1]
+        self.start = np.searchsorted(rows_e, np.arange(n + 1))  # drone i's: start[i]:start[i + 1]
         self.count = np.diff(self.start)
 
     def of(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -462,28 +571,59 @@ class _EntriesByDrone:
         return r_e, self.x[take], self.y[take]
 
 
-def _pair_gradient_xy(pos_u: np.ndarray, rows: np.ndarray, others_x: np.ndarray, others_y: np.ndarray,
-                      attraction: float, floor: float, repulsion: float, reach: float, pair_factor: float,
-                      weight: np.ndarray | None = None) -> np.ndarray:
+def _pair_gradient_xy(
+    pos_u: np.ndarray,
+    rows: np.ndarray,
+    others_x: np.ndarray,
+    others_y: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+    weight: np.ndarray | None = None,
+) -> np.ndarray:
     """:func:`pair_gradient_entries` with the believed positions as two (E,) coordinate arrays;
     ``weight`` (n,), if given, scales each drone's attraction (DCCRS's density weighting).
 
     Runs the compiled :func:`planner._kernels.entries_pair_gradient` when available (bit for bit the same; :func:`_pair_gradient_xy_numpy` is its reference)."""
     if _kernels.NUMBA and _kernels.ENABLED:
         pos_u = np.asarray(pos_u, float)
-        aw = (np.full(len(pos_u), float(attraction)) if weight is None
-              else attraction * np.asarray(weight, float))       # the NumPy version's (ℳ w_i)
+        aw = (
+            np.full(len(pos_u), float(attraction))
+            if weight is None
+            else attraction * np.asarray(weight, float)
+        )  # the NumPy version's (ℳ w_i)
         return _kernels.entries_pair_gradient(
-            np.ascontiguousarray(pos_u[:, 0]), np.ascontiguousarray(pos_u[:, 1]),
-            np.asarray(rows, np.int64), np.asarray(others_x, float), np.asarray(others_y, float),
-            len(pos_u), aw, float(floor), float(repulsion), float(reach), float(pair_factor))
-    return _pair_gradient_xy_numpy(pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach,
-                                   pair_factor, weight)
+            np.ascontiguousarray(pos_u[:, 0]),
+            np.ascontiguousarray(pos_u[:, 1]),
+            np.asarray(rows, np.int64),
+            np.asarray(others_x, float),
+            np.asarray(others_y, float),
+            len(pos_u),
+            aw,
+            float(floor),
+            float(repulsion),
+            float(reach),
+            float(pair_factor),
+        )
+    return _pair_gradient_xy_numpy(
+        pos_u, rows, others_x, others_y, attraction, floor, repulsion, reach, pair_factor, weight
+    )
 
 
-def _pair_gradient_xy_numpy(pos_u: np.ndarray, rows: np.ndarray, others_x: np.ndarray, others_y: np.ndarray,
-                            attraction: float, floor: float, repulsion: float, reach: float,
-                            pair_factor: float, weight: np.ndarray | None = None) -> np.ndarray:
+def _pair_gradient_xy_numpy(
+    pos_u: np.ndarray,
+    rows: np.ndarray,
+    others_x: np.ndarray,
+    others_y: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+    weight: np.ndarray | None = None,
+) -> np.ndarray:
     """The NumPy version of :func:`_pair_gradient_xy` (the reference of its compiled kernel)."""
     n = len(pos_u)
     dx = pos_u[:, 0][rows] - others_x
@@ -494,9 +634,11 @@ def _pair_gradient_xy_numpy(pos_u: np.ndarray, rows: np.ndarray, others_x: np.nd
     inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)
     coef = inv * inv
     coef *= inv
-    coef *= attraction if weight is None else (attraction * np.asarray(weight, float))[rows]  # (w_i) ℳ / d^3, d > d_min ...
+    coef *= (
+        attraction if weight is None else (attraction * np.asarray(weight, float))[rows]
+    )  # (w_i) ℳ / d^3, d > d_min ...
     coef[d <= floor] = 0.0
-    push = np.flatnonzero(d < reach)                      # ... - P (reach - d) / d where 0 < d < reach
+    push = np.flatnonzero(d < reach)  # ... - P (reach - d) / d where 0 < d < reach
     push = push[d[push] > 0]
     coef[push] -= repulsion * (reach * inv[push] - 1.0)
     dx *= coef
@@ -508,8 +650,16 @@ def _pair_gradient_xy_numpy(pos_u: np.ndarray, rows: np.ndarray, others_x: np.nd
     return out
 
 
-def pair_gradient_reference(pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray, attraction: float,
-                            floor: float, repulsion: float, reach: float, pair_factor: float) -> np.ndarray:
+def pair_gradient_reference(
+    pos_u: np.ndarray,
+    others_u: np.ndarray,
+    mask: np.ndarray,
+    attraction: float,
+    floor: float,
+    repulsion: float,
+    reach: float,
+    pair_factor: float,
+) -> np.ndarray:
     """Loop-by-loop transcription of :func:`pair_gradient` (for tests)."""
     pos_u = np.asarray(pos_u, float)
     others_u = np.asarray(others_u, float)
@@ -526,7 +676,7 @@ def pair_gradient_reference(pos_u: np.ndarray, others_u: np.ndarray, mask: np.nd
             if d == 0:
                 continue
             if d > floor:
-                out[i] += pair_factor * attraction * dx / d ** 3
+                out[i] += pair_factor * attraction * dx / d**3
             if d < reach:
                 out[i] -= pair_factor * repulsion * (reach - d) * dx / d
     return out
@@ -550,6 +700,7 @@ def energy(pos_u: np.ndarray, tree: TaskTree | None, p: PhiremanParams, reach: f
 # Descent
 # --------------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class DescentResult:
     """Outcome of one tick's descent."""
@@ -568,7 +719,7 @@ def _scale_to_limit(delta: np.ndarray, step: np.ndarray, vmax: float) -> np.ndar
     """Per row, the α in [0, 1] with |delta + α step| = vmax (|delta| <= vmax assumed)."""
     a = np.einsum("nc,nc->n", step, step)
     b = np.einsum("nc,nc->n", delta, step)
-    c = np.einsum("nc,nc->n", delta, delta) - vmax ** 2
+    c = np.einsum("nc,nc->n", delta, delta) - vmax**2
     disc = np.sqrt(np.maximum(b * b - a * c, 0.0))
     alpha = np.where(a > 0, (-b + disc) / np.where(a > 0, a, 1.0), 1.0)
     return np.clip(alpha, 0.0, 1.0)
@@ -587,8 +738,9 @@ class DescentParams(Protocol):
     def max_descent_steps(self) -> int: ...
 
 
-def descend(pos_u: np.ndarray, gradient: Gradient, vmax: float, p: DescentParams,
-            separable: bool = False) -> DescentResult:
+def descend(
+    pos_u: np.ndarray, gradient: Gradient, vmax: float, p: DescentParams, separable: bool = False
+) -> DescentResult:
     """Multi-step gradient descent on the instructions with the paper's stopping rules.
 
     Parameters
@@ -643,7 +795,9 @@ def descend(pos_u: np.ndarray, gradient: Gradient, vmax: float, p: DescentParams
     return DescentResult(delta, p.max_descent_steps, False, hit)
 
 
-def descend_reference(pos_u: np.ndarray, gradient: Gradient, vmax: float, p: DescentParams) -> np.ndarray:
+def descend_reference(
+    pos_u: np.ndarray, gradient: Gradient, vmax: float, p: DescentParams
+) -> np.ndarray:
     """Per-drone loop version of :func:`descend` (instructions only; for tests)."""
     pos_u = np.asarray(pos_u, float)
     n = len(pos_u)
@@ -667,7 +821,10 @@ def descend_reference(pos_u: np.ndarray, gradient: Gradient, vmax: float, p: Des
             delta = new
             continue
         if p.speed_rule == "clip":
-            delta = [x * min(1.0, vmax / float(np.linalg.norm(x))) if np.linalg.norm(x) > 0 else x for x in new]
+            delta = [
+                x * min(1.0, vmax / float(np.linalg.norm(x))) if np.linalg.norm(x) > 0 else x
+                for x in new
+            ]
             continue
 
         def alpha(i: int) -> float:  # bisection: obviously correct, slow
@@ -695,6 +852,7 @@ def descend_reference(pos_u: np.ndarray, gradient: Gradient, vmax: float, p: Des
 # The planner
 # --------------------------------------------------------------------------------------------
 
+
 class PhiremanPlanner:
     """PhiIREMAN behind the registry interface (see planner.methods).
 
@@ -704,23 +862,41 @@ class PhiremanPlanner:
 
     params: PhiremanParams
 
-    def __init__(self, problem: ProblemConfig, params: PhiremanParams, rng: np.random.Generator) -> None:
+    def __init__(
+        self, problem: ProblemConfig, params: PhiremanParams, rng: np.random.Generator
+    ) -> None:
         self.problem = problem
         self.rng = rng  # unused: PhiIREMAN is deterministic given its inputs
         self.units = PaperUnits.of(problem)
         if params.speed_rule == "auto":
-            params = dataclasses.replace(params, speed_rule=resolve_speed_rule(params.speed_rule, params.info))
+            params = dataclasses.replace(
+                params, speed_rule=resolve_speed_rule(params.speed_rule, params.info)
+            )
         self.params = params
         self.reach_u = 2 * params.repulsion_radius_ratio * self.units.radio_range_u
         self.tree: TaskTree | None = None
         self.info_model = information_model(params.info, self.units, problem.n_steps, params)
 
     # -- helpers --------------------------------------------------------------------------
-    def _pair_grad(self, pos_u: np.ndarray, others_u: np.ndarray, mask: np.ndarray,
-                   others_sq: np.ndarray | None = None) -> np.ndarray:
+    def _pair_grad(
+        self,
+        pos_u: np.ndarray,
+        others_u: np.ndarray,
+        mask: np.ndarray,
+        others_sq: np.ndarray | None = None,
+    ) -> np.ndarray:
         p = self.params
-        return pair_gradient(pos_u, others_u, mask, p.attraction, p.attraction_floor, p.repulsion,
-                             self.reach_u, p.pair_factor, others_sq)
+        return pair_gradient(
+            pos_u,
+            others_u,
+            mask,
+            p.attraction,
+            p.attraction_floor,
+            p.repulsion,
+            self.reach_u,
+            p.pair_factor,
+            others_sq,
+        )
 
     # -- main entry -----------------------------------------------------------------------
     def plan(self, tick: TickInput) -> PlanOutput:
@@ -728,8 +904,15 @@ class PhiremanPlanner:
         pos_u = u.to_u(tick.pos_m)
         tasks_u = u.to_u(tick.task_pos_m)
         base_u = u.to_u(tick.base_m)
-        self.tree = tree = maintain_task_tree(self.tree, base_u, tasks_u, tick.t_step, base_weight=p.base_weight,
-                                              accept_ratio=p.accept_ratio, rebuild_period=p.rebuild_period)
+        self.tree = tree = maintain_task_tree(
+            self.tree,
+            base_u,
+            tasks_u,
+            tick.t_step,
+            base_weight=p.base_weight,
+            accept_ratio=p.accept_ratio,
+            rebuild_period=p.rebuild_period,
+        )
         planning = np.asarray(tick.networked, bool) & np.asarray(tick.alive, bool)
         view = self.info_model.see(tick.t_step, pos_u, tick.alive, planning, base_u, tree)
         if isinstance(view, CentralView):
@@ -738,8 +921,9 @@ class PhiremanPlanner:
             disp_u, info = self._plan_async(pos_u, base_u, view)
         return PlanOutput(u.to_m(disp_u), tree=u.tree_to_m(tree), info=info)
 
-    def _plan_central(self, pos_u: np.ndarray, tree: TaskTree, view: CentralView
-                      ) -> tuple[np.ndarray, dict[str, Any]]:
+    def _plan_central(
+        self, pos_u: np.ndarray, tree: TaskTree, view: CentralView
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         """The networked drones descend the total energy jointly."""
         p = self.params
         idx, disp_u = view.planned, view.disp_u
@@ -755,10 +939,14 @@ class PhiremanPlanner:
                 seg_a, seg_b = tree.segments()
 
             def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
-                task = (_kernels.segment_gradient(x, seg_a, seg_b, p.thorn) if p.thorn
-                        else np.zeros_like(x))
+                task = (
+                    _kernels.segment_gradient(x, seg_a, seg_b, p.thorn)
+                    if p.thorn
+                    else np.zeros_like(x)
+                )
                 return task + _kernels.central_pair_gradient(
-                    x, p.attraction, p.attraction_floor, p.repulsion, self.reach_u, p.pair_factor)
+                    x, p.attraction, p.attraction_floor, p.repulsion, self.reach_u, p.pair_factor
+                )
         else:
             mask = ~np.eye(len(idx), dtype=bool)
 
@@ -769,8 +957,9 @@ class PhiremanPlanner:
         disp_u[idx] = res.disp_u
         return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info()}
 
-    def _plan_async(self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
-                    ) -> tuple[np.ndarray, dict[str, Any]]:
+    def _plan_async(
+        self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         """Each fresh drone descends its own energy against its beliefs and its tree copy (the
         stale ones already head for ``base_u``)."""
         p = self.params
@@ -782,23 +971,45 @@ class PhiremanPlanner:
         trees, version_of = view.broadcasts()
         segments = TreeSegments(trees, version_of, p.nodes_only, pos_u[idx], vmax_u)
         entries = _EntriesByDrone(view.rows_e, view.believed_u, len(idx))
-        if _kernels.NUMBA and _kernels.ENABLED and p.speed_rule == "per_drone" and segments.entries is not None:
+        if (
+            _kernels.NUMBA
+            and _kernels.ENABLED
+            and p.speed_rule == "per_drone"
+            and segments.entries is not None
+        ):
             # The whole descent in one compiled call, bit for bit the NumPy one below.
-            res = _descend_separable_compiled(pos_u[idx], entries, segments, p, self.reach_u, vmax_u)
+            res = _descend_separable_compiled(
+                pos_u[idx], entries, segments, p, self.reach_u, vmax_u
+            )
         else:
+
             def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
                 er, ox, oy = entries.of(rows)
-                return (_pair_gradient_xy(x[rows], er, ox, oy, p.attraction, p.attraction_floor,
-                                          p.repulsion, self.reach_u, p.pair_factor)
-                        + segments.gradient(x[rows], rows, p.thorn))
+                return _pair_gradient_xy(
+                    x[rows],
+                    er,
+                    ox,
+                    oy,
+                    p.attraction,
+                    p.attraction_floor,
+                    p.repulsion,
+                    self.reach_u,
+                    p.pair_factor,
+                ) + segments.gradient(x[rows], rows, p.thorn)
 
             res = descend(pos_u[idx], grad, vmax_u, p, separable=True)
         disp_u[idx] = res.disp_u
         return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info()}
 
 
-def _descend_separable_compiled(pos_u: np.ndarray, entries: _EntriesByDrone, segments: TreeSegments,
-                                p: PhiremanParams, reach_u: float, vmax_u: float) -> DescentResult:
+def _descend_separable_compiled(
+    pos_u: np.ndarray,
+    entries: _EntriesByDrone,
+    segments: TreeSegments,
+    p: PhiremanParams,
+    reach_u: float,
+    vmax_u: float,
+) -> DescentResult:
     """:func:`descend` (``separable=True``, 'per_drone' rule) of the async planner's gradient (pair
     term over ``entries`` + task term over ``segments``' candidate entries), by
     :func:`planner._kernels.descend_separable`; same :class:`DescentResult` bit for bit."""
@@ -807,49 +1018,74 @@ def _descend_separable_compiled(pos_u: np.ndarray, entries: _EntriesByDrone, seg
     seg_start = np.searchsorted(er, np.arange(len(pos_u) + 1))
     pos_u = np.asarray(pos_u, float)
     delta, stop, at_limit = _kernels.descend_separable(
-        np.ascontiguousarray(pos_u[:, 0]), np.ascontiguousarray(pos_u[:, 1]), entries.start, entries.x, entries.y,
-        seg_start, np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]), np.ascontiguousarray(ab[:, 0]),
-        np.ascontiguousarray(ab[:, 1]), np.ascontiguousarray(ab2), float(p.attraction), float(p.attraction_floor),
-        float(p.repulsion), float(reach_u), float(p.pair_factor), float(p.thorn), float(p.step_size),
-        float(p.tolerance), float(vmax_u), int(p.max_descent_steps))
+        np.ascontiguousarray(pos_u[:, 0]),
+        np.ascontiguousarray(pos_u[:, 1]),
+        entries.start,
+        entries.x,
+        entries.y,
+        seg_start,
+        np.ascontiguousarray(a[:, 0]),
+        np.ascontiguousarray(a[:, 1]),
+        np.ascontiguousarray(ab[:, 0]),
+        np.ascontiguousarray(ab[:, 1]),
+        np.ascontiguousarray(ab2),
+        float(p.attraction),
+        float(p.attraction_floor),
+        float(p.repulsion),
+        float(reach_u),
+        float(p.pair_factor),
+        float(p.thorn),
+        float(p.step_size),
+        float(p.tolerance),
+        float(vmax_u),
+        int(p.max_descent_steps),
+    )
     return _descent_result(delta, stop, at_limit, p.max_descent_steps)
 
 
-def _descent_result(delta: np.ndarray, stop: np.ndarray, at_limit: np.ndarray, max_steps: int) -> DescentResult:
+def _descent_result(
+    delta: np.ndarray, stop: np.ndarray, at_limit: np.ndarray, max_steps: int
+) -> DescentResult:
     """The :class:`DescentResult` :func:`descend` (separable, 'per_drone') returns, from each drone's
     stopping step and cause as the compiled descents report them."""
     hit = bool(at_limit.any())
     last = int(stop.max())
-    if last > max_steps:                                  # some drone never stopped
+    if last > max_steps:  # some drone never stopped
         return DescentResult(delta, max_steps, False, hit)
     # descend returns at the first step after which nobody moves: converged iff no drone that
     # stopped at that step stopped at the speed limit (the equilibrium test comes first)
     return DescentResult(delta, last, not bool((at_limit & (stop == last)).any()), hit)
 
 
-def _make(problem: ProblemConfig, params: Mapping[str, Any], rng: np.random.Generator,
-          **forced: Any) -> PhiremanPlanner:
+def _make(
+    problem: ProblemConfig, params: Mapping[str, Any], rng: np.random.Generator, **forced: Any
+) -> PhiremanPlanner:
     return PhiremanPlanner(problem, parse_params(params, PhiremanParams, **forced), rng)
 
 
-def make_phireman(problem: ProblemConfig, params: Mapping[str, Any], rng: np.random.Generator) -> PhiremanPlanner:
+def make_phireman(
+    problem: ProblemConfig, params: Mapping[str, Any], rng: np.random.Generator
+) -> PhiremanPlanner:
     """PhiIREMAN with the parameters given (``info`` defaults to the paper's 'async')."""
     return _make(problem, params, rng)
 
 
-def make_phireman_central(problem: ProblemConfig, params: Mapping[str, Any],
-                          rng: np.random.Generator) -> PhiremanPlanner:
+def make_phireman_central(
+    problem: ProblemConfig, params: Mapping[str, Any], rng: np.random.Generator
+) -> PhiremanPlanner:
     """PhiIREMAN planned centrally from D'(t) (the ground station's information model)."""
     return _make(problem, params, rng, info="central")
 
 
-def make_phireman_no_task(problem: ProblemConfig, params: Mapping[str, Any],
-                          rng: np.random.Generator) -> PhiremanPlanner:
+def make_phireman_no_task(
+    problem: ProblemConfig, params: Mapping[str, Any], rng: np.random.Generator
+) -> PhiremanPlanner:
     """Ablation Þ = 0: no task-tree potential."""
     return _make(problem, params, rng, thorn=0.0)
 
 
-def make_phireman_nodes_only(problem: ProblemConfig, params: Mapping[str, Any],
-                             rng: np.random.Generator) -> PhiremanPlanner:
+def make_phireman_nodes_only(
+    problem: ProblemConfig, params: Mapping[str, Any], rng: np.random.Generator
+) -> PhiremanPlanner:
     """Ablation: the task potential is the distance to the nearest tree node."""
     return _make(problem, params, rng, nodes_only=True)

@@ -88,8 +88,14 @@ class ProblemConfig:
             problems.append(f"n_drones must be >= 1, got {self.n_drones}")
         if self.n_tasks < 1:
             problems.append(f"n_tasks must be >= 1, got {self.n_tasks}")
-        for name in ("field_half_width_m", "radio_range_m", "base_range_m", "max_speed_m_s", "dt_s",
-                     "length_unit_m"):
+        for name in (
+            "field_half_width_m",
+            "radio_range_m",
+            "base_range_m",
+            "max_speed_m_s",
+            "dt_s",
+            "length_unit_m",
+        ):
             if not getattr(self, name) > 0:
                 problems.append(f"{name} must be > 0, got {getattr(self, name)}")
         for name in ("ring_radius_m", "ring_noise_m", "task_walk_sigma_m"):
@@ -100,7 +106,9 @@ class ProblemConfig:
         if self.n_steps < 1:
             problems.append(f"n_steps must be >= 1, got {self.n_steps}")
         if self.task_border not in BORDER_POLICIES:
-            problems.append(f"task_border must be one of {BORDER_POLICIES}, got {self.task_border!r}")
+            problems.append(
+                f"task_border must be one of {BORDER_POLICIES}, got {self.task_border!r}"
+            )
         if problems:
             raise ValueError("; ".join(problems))
 
@@ -109,8 +117,9 @@ class ProblemConfig:
         return dataclasses.replace(self, **changes)
 
 
-def problem_preset(size: str = "S", attrition_per_step: float = 0.01, reading: str = "scaled",
-                   **overrides: Any) -> ProblemConfig:
+def problem_preset(
+    size: str = "S", attrition_per_step: float = 0.01, reading: str = "scaled", **overrides: Any
+) -> ProblemConfig:
     """The paper's configuration for ``size`` (Table III) at the given attrition rate.
 
     Parameters

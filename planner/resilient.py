@@ -49,14 +49,37 @@ from planner import _kernels
 from planner.geometry import tasks_connected
 from planner.info import CentralView, MessageView
 from planner.methods import PlanOutput, TickInput
-from planner.phireman import (PhiremanParams, PhiremanPlanner, TreeSegments, _descend_separable_compiled,
-                              _EntriesByDrone, _pair_gradient_xy, descend, parse_params, task_gradient)
+from planner.phireman import (
+    PhiremanParams,
+    PhiremanPlanner,
+    TreeSegments,
+    _descend_separable_compiled,
+    _EntriesByDrone,
+    _pair_gradient_xy,
+    descend,
+    parse_params,
+    task_gradient,
+)
 from planner.problem import ProblemConfig
 from planner.steiner import TaskTree, maintain_task_tree
 
-__all__ = ["ResilientParams", "ResilientPlanner", "task_paths", "select_tasks", "select_tasks_reference",
-           "prune_tree", "rally_points", "rally_points_reference", "nearest_rally", "claim_targets",
-           "claim_targets_reference", "claim_gradient", "tether_anchors", "tether", "make_resilient"]
+__all__ = [
+    "ResilientParams",
+    "ResilientPlanner",
+    "task_paths",
+    "select_tasks",
+    "select_tasks_reference",
+    "prune_tree",
+    "rally_points",
+    "rally_points_reference",
+    "nearest_rally",
+    "claim_targets",
+    "claim_targets_reference",
+    "claim_gradient",
+    "tether_anchors",
+    "tether",
+    "make_resilient",
+]
 
 
 @dataclass(frozen=True)
@@ -91,7 +114,13 @@ class ResilientParams(PhiremanParams):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name in ("triage_length_per_drone", "rally_dist", "predict_steps", "claim_gain", "claim_reach"):
+        for name in (
+            "triage_length_per_drone",
+            "rally_dist",
+            "predict_steps",
+            "claim_gain",
+            "claim_reach",
+        ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not 0.0 <= self.triage_keep_bonus < 1.0:
@@ -109,6 +138,7 @@ class ResilientParams(PhiremanParams):
 # --------------------------------------------------------------------------------------------
 # Triage: which tasks the drones can afford
 # --------------------------------------------------------------------------------------------
+
 
 def task_paths(tree: TaskTree) -> np.ndarray:
     """(M, K) bool: ``P[k, v]`` is True when node v lies on task k's tree path to the base (v != 0).
@@ -129,8 +159,9 @@ def task_paths(tree: TaskTree) -> np.ndarray:
     return paths
 
 
-def select_tasks(tree: TaskTree, budget: float, kept: np.ndarray | None = None,
-                 keep_bonus: float = 0.0) -> np.ndarray:
+def select_tasks(
+    tree: TaskTree, budget: float, kept: np.ndarray | None = None, keep_bonus: float = 0.0
+) -> np.ndarray:
     """Greedy triage: the tasks whose union of tree paths fits in ``budget`` (tree length).
 
     Repeatedly adds the task whose path adds the least new length to the part already kept (the
@@ -155,10 +186,10 @@ def select_tasks(tree: TaskTree, budget: float, kept: np.ndarray | None = None,
     edge = tree.edge_lengths_m()
     favour = np.ones(m) if kept is None else np.where(kept, 1.0 - keep_bonus, 1.0)
     chosen = np.zeros(m, dtype=bool)
-    uncovered = edge.copy()           # length of each node's parent edge not yet in the kept part
+    uncovered = edge.copy()  # length of each node's parent edge not yet in the kept part
     uncovered[0] = 0.0
     used = 0.0
-    for _ in range(m):                # loop over tasks added (<= M), vectorised over candidates
+    for _ in range(m):  # loop over tasks added (<= M), vectorised over candidates
         added = paths @ uncovered
         order = np.where(chosen, np.inf, added * favour)
         k = int(np.argmin(order))
@@ -172,8 +203,9 @@ def select_tasks(tree: TaskTree, budget: float, kept: np.ndarray | None = None,
     return chosen
 
 
-def select_tasks_reference(tree: TaskTree, budget: float, kept: np.ndarray | None = None,
-                           keep_bonus: float = 0.0) -> np.ndarray:
+def select_tasks_reference(
+    tree: TaskTree, budget: float, kept: np.ndarray | None = None, keep_bonus: float = 0.0
+) -> np.ndarray:
     """Loop-by-loop transcription of :func:`select_tasks` (walks parent pointers; for tests)."""
     m = tree.n_tasks
     edge = tree.edge_lengths_m()
@@ -250,6 +282,7 @@ def prune_tree(tree: TaskTree, keep: np.ndarray) -> TaskTree:
 # Rally points
 # --------------------------------------------------------------------------------------------
 
+
 def rally_points(tree: TaskTree, dist: float) -> np.ndarray:
     """(B, 2): one rally point per branch of the tree, at ``dist`` from the base along the branch.
 
@@ -262,15 +295,15 @@ def rally_points(tree: TaskTree, dist: float) -> np.ndarray:
     if len(branches) == 0:
         return np.zeros((0, 2))
     first_child = np.full(tree.n_nodes, -1, dtype=np.int64)
-    order = np.arange(tree.n_nodes - 1, 0, -1)          # reversed so the lowest child id wins
+    order = np.arange(tree.n_nodes - 1, 0, -1)  # reversed so the lowest child id wins
     first_child[parent[order]] = order
     edge = tree.edge_lengths_m()
     out = np.empty((len(branches), 2))
-    at = np.zeros(len(branches), dtype=np.int64)        # current node (start: base)
+    at = np.zeros(len(branches), dtype=np.int64)  # current node (start: base)
     nxt = branches.copy()
     left = np.full(len(branches), float(dist))
     done = np.zeros(len(branches), dtype=bool)
-    for _ in range(tree.n_nodes):                        # loop over path depth, vectorised over branches
+    for _ in range(tree.n_nodes):  # loop over path depth, vectorised over branches
         if done.all():
             break
         go = ~done & (nxt >= 0)
@@ -280,7 +313,7 @@ def rally_points(tree: TaskTree, dist: float) -> np.ndarray:
         a, b = nodes[at], nodes[np.maximum(nxt, 0)]
         out[inside] = (a + frac[:, None] * (b - a))[inside]
         done |= inside
-        end = ~done & (nxt < 0)                          # path ended before dist: its last node
+        end = ~done & (nxt < 0)  # path ended before dist: its last node
         out[end] = nodes[at][end]
         done |= end
         step = ~done
@@ -325,8 +358,15 @@ def nearest_rally(pos: np.ndarray, rally: np.ndarray) -> np.ndarray:
 # Coverage claims
 # --------------------------------------------------------------------------------------------
 
-def claim_targets(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, stamps: np.ndarray,
-                  open_by_stamp: dict[int, np.ndarray], reach: float) -> np.ndarray:
+
+def claim_targets(
+    pos_u: np.ndarray,
+    ent_r: np.ndarray,
+    ent_y: np.ndarray,
+    stamps: np.ndarray,
+    open_by_stamp: dict[int, np.ndarray],
+    reach: float,
+) -> np.ndarray:
     """(n, 2): the unconnected task each drone claims (NaN rows: none).
 
     Drone i looks at the nearest task of the open (unconnected) tasks in the broadcast it holds
@@ -339,7 +379,7 @@ def claim_targets(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, stamp
     n = len(pos_u)
     out = np.full((n, 2), np.nan)
     ent_r = np.asarray(ent_r)
-    cand = np.full(n, -1)                                     # index of the nearest open task
+    cand = np.full(n, -1)  # index of the nearest open task
     d_own = np.full(n, np.inf)
     task_of = np.zeros((n, 2))
     for s in np.unique(stamps):
@@ -347,7 +387,7 @@ def claim_targets(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, stamp
         if tasks is None or len(tasks) == 0:
             continue
         rows = np.flatnonzero(stamps == s)
-        d = np.sqrt(((pos_u[rows, None, :] - tasks[None]) ** 2).sum(-1))            # (r, T)
+        d = np.sqrt(((pos_u[rows, None, :] - tasks[None]) ** 2).sum(-1))  # (r, T)
         k = np.argmin(d, axis=1)
         near = d[np.arange(len(rows)), k]
         cand[rows] = k
@@ -365,8 +405,14 @@ def claim_targets(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, stamp
     return out
 
 
-def claim_targets_reference(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, stamps: np.ndarray,
-                            open_by_stamp: dict[int, np.ndarray], reach: float) -> np.ndarray:
+def claim_targets_reference(
+    pos_u: np.ndarray,
+    ent_r: np.ndarray,
+    ent_y: np.ndarray,
+    stamps: np.ndarray,
+    open_by_stamp: dict[int, np.ndarray],
+    reach: float,
+) -> np.ndarray:
     """Per-drone loop transcription of :func:`claim_targets` (for tests)."""
     n = len(pos_u)
     out = np.full((n, 2), np.nan)
@@ -386,8 +432,14 @@ def claim_targets_reference(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndar
     return out
 
 
-def tether_anchors(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, base_u: np.ndarray,
-                   r_u: float, base_reach_u: float) -> np.ndarray:
+def tether_anchors(
+    pos_u: np.ndarray,
+    ent_r: np.ndarray,
+    ent_y: np.ndarray,
+    base_u: np.ndarray,
+    r_u: float,
+    base_reach_u: float,
+) -> np.ndarray:
     """(n, 2): each drone's anchor toward the base: the base if the drone is within its reach,
     else the known drone within r of it (believed position) nearest the base, else NaN."""
     n = len(pos_u)
@@ -399,7 +451,7 @@ def tether_anchors(pos_u: np.ndarray, ent_r: np.ndarray, ent_y: np.ndarray, base
     np.minimum.at(best, ent_r, key)
     first = np.full(n, -1)
     hit = np.flatnonzero(ok & (key == best[ent_r]))
-    first[ent_r[hit[::-1]]] = hit[::-1]                  # the first entry reaching the minimum
+    first[ent_r[hit[::-1]]] = hit[::-1]  # the first entry reaching the minimum
     has = first >= 0
     out[has] = ent_y[first[has]]
     at_base = np.linalg.norm(pos_u - base_u, axis=1) <= base_reach_u
@@ -420,7 +472,7 @@ def tether(new_u: np.ndarray, anchor_u: np.ndarray, length: float) -> np.ndarray
 def claim_gradient(pos_u: np.ndarray, target: np.ndarray, gain: float) -> np.ndarray:
     """∇ of gain · |x - target| (0 where the target is NaN or reached)."""
     off = pos_u - target
-    d = np.sqrt((off ** 2).sum(-1))
+    d = np.sqrt((off**2).sum(-1))
     ok = np.isfinite(d) & (d > 1e-12)
     out = np.zeros_like(pos_u)
     out[ok] = gain * off[ok] / d[ok, None]
@@ -430,6 +482,7 @@ def claim_gradient(pos_u: np.ndarray, target: np.ndarray, gain: float) -> np.nda
 # --------------------------------------------------------------------------------------------
 # The planner
 # --------------------------------------------------------------------------------------------
+
 
 class ResilientPlanner(PhiremanPlanner):
     """PhiIREMAN with triage, rally points and task-motion prediction (see the module docstring).
@@ -452,10 +505,10 @@ class ResilientPlanner(PhiremanPlanner):
         self.recovery_target_m: np.ndarray | None = None
         self._task_prev_u: np.ndarray | None = None
         self._task_vel_u: np.ndarray | None = None
-        self._rally_by_stamp: dict[int, np.ndarray] = {}     # broadcast stamp -> rally points (units)
-        self._target_u: np.ndarray | None = None             # per-drone recovery target (NaN = none yet)
+        self._rally_by_stamp: dict[int, np.ndarray] = {}  # broadcast stamp -> rally points (units)
+        self._target_u: np.ndarray | None = None  # per-drone recovery target (NaN = none yet)
         self._waited = np.zeros(problem.n_drones, dtype=np.int64)
-        self._open_by_stamp: dict[int, np.ndarray] = {}      # broadcast stamp -> unconnected kept tasks
+        self._open_by_stamp: dict[int, np.ndarray] = {}  # broadcast stamp -> unconnected kept tasks
 
     # -- the base's side ---------------------------------------------------------------------
     def _predicted_tasks(self, tasks_u: np.ndarray) -> np.ndarray:
@@ -471,14 +524,26 @@ class ResilientPlanner(PhiremanPlanner):
             return tasks_u
         return tasks_u + p.predict_steps * self._task_vel_u
 
-    def _base_tree(self, tick: TickInput, tasks_u: np.ndarray, base_u: np.ndarray, n_networked: int) -> TaskTree:
+    def _base_tree(
+        self, tick: TickInput, tasks_u: np.ndarray, base_u: np.ndarray, n_networked: int
+    ) -> TaskTree:
         p = self.params
-        self.full_tree = maintain_task_tree(self.full_tree, base_u, self._predicted_tasks(tasks_u), tick.t_step,
-                                            base_weight=p.base_weight, accept_ratio=p.accept_ratio,
-                                            rebuild_period=p.rebuild_period)
+        self.full_tree = maintain_task_tree(
+            self.full_tree,
+            base_u,
+            self._predicted_tasks(tasks_u),
+            tick.t_step,
+            base_weight=p.base_weight,
+            accept_ratio=p.accept_ratio,
+            rebuild_period=p.rebuild_period,
+        )
         if p.triage_on and n_networked > 0:
-            kept = select_tasks(self.full_tree, p.triage_length_per_drone * n_networked,
-                                self.kept_tasks, p.triage_keep_bonus)
+            kept = select_tasks(
+                self.full_tree,
+                p.triage_length_per_drone * n_networked,
+                self.kept_tasks,
+                p.triage_keep_bonus,
+            )
         else:
             kept = np.ones(self.full_tree.n_tasks, dtype=bool)
         self.kept_tasks = kept
@@ -514,8 +579,9 @@ class ResilientPlanner(PhiremanPlanner):
             self._update_recovery(pos_u, base_u, alive, networked, view.held_stamp)
         return PlanOutput(u.to_m(disp_u), tree=u.tree_to_m(self.tree), info=info)
 
-    def _plan_central_numpy(self, pos_u: np.ndarray, tree: TaskTree, view: CentralView
-                            ) -> tuple[np.ndarray, dict[str, Any]]:
+    def _plan_central_numpy(
+        self, pos_u: np.ndarray, tree: TaskTree, view: CentralView
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         """PhiIREMAN's central descent on the pruned tree, by the NumPy gradient. Not
         ``PhiremanPlanner._plan_central``: its compiled gradient agrees with this one to ~1e-13 m
         per tick, not bit for bit, and this planner's recorded runs used the NumPy one."""
@@ -532,11 +598,12 @@ class ResilientPlanner(PhiremanPlanner):
         disp_u[idx] = res.disp_u
         return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info()}
 
-    def _plan_async(self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
-                    ) -> tuple[np.ndarray, dict[str, Any]]:
+    def _plan_async(
+        self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         """PhiIREMAN's asynchronous step (same code path) plus the coverage-claim pull."""
         p = self.params
-        idx, disp_u = view.planned, view.disp_u     # stale drones already head home
+        idx, disp_u = view.planned, view.disp_u  # stale drones already head home
         if len(idx) == 0:
             return disp_u, view.info()
         r_u, vmax_u = self.units.radio_range_u, self.units.max_step_u
@@ -546,26 +613,43 @@ class ResilientPlanner(PhiremanPlanner):
         entries = _EntriesByDrone(ent_r, ent_y, len(idx))
         claim = None
         if p.claim_gain > 0:
-            claim = claim_targets(pos_u[idx], ent_r, ent_y, stamps, self._open_by_stamp, p.claim_reach)
+            claim = claim_targets(
+                pos_u[idx], ent_r, ent_y, stamps, self._open_by_stamp, p.claim_reach
+            )
             has_claim = np.isfinite(claim).all(axis=1)
             if not has_claim.any():
                 claim = None
 
         def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
             er, ox, oy = entries.of(rows)
-            g = (_pair_gradient_xy(x[rows], er, ox, oy, p.attraction, p.attraction_floor,
-                                   p.repulsion, self.reach_u, p.pair_factor)
-                 + segments.gradient(x[rows], rows, p.thorn))
+            g = _pair_gradient_xy(
+                x[rows],
+                er,
+                ox,
+                oy,
+                p.attraction,
+                p.attraction_floor,
+                p.repulsion,
+                self.reach_u,
+                p.pair_factor,
+            ) + segments.gradient(x[rows], rows, p.thorn)
             if claim is not None:
                 g += claim_gradient(x[rows], claim[rows], p.claim_gain)
             return g
 
-        if _kernels.NUMBA and _kernels.ENABLED and p.speed_rule == "per_drone" and segments.entries is not None:
+        if (
+            _kernels.NUMBA
+            and _kernels.ENABLED
+            and p.speed_rule == "per_drone"
+            and segments.entries is not None
+        ):
             # The descent is separable (each drone against its fixed beliefs), so the drones without
             # a claim take PhiIREMAN's compiled descent (bit for bit the NumPy one) and only the
             # claimers run the NumPy descent with the claim term; same instructions as one NumPy
             # descent of everybody (tests/planner/test_resilient.py).
-            res = _descend_separable_compiled(pos_u[idx], entries, segments, p, self.reach_u, vmax_u)
+            res = _descend_separable_compiled(
+                pos_u[idx], entries, segments, p, self.reach_u, vmax_u
+            )
             disp_u[idx] = res.disp_u
             if claim is not None:
                 crow = np.flatnonzero(np.isfinite(claim).all(axis=1))
@@ -573,10 +657,21 @@ class ResilientPlanner(PhiremanPlanner):
                 def grad_claimers(xs: np.ndarray, rows: np.ndarray) -> np.ndarray:
                     full = crow[rows]
                     er, ox, oy = entries.of(full)
-                    return (_pair_gradient_xy(xs[rows], er, ox, oy, p.attraction, p.attraction_floor,
-                                              p.repulsion, self.reach_u, p.pair_factor)
-                            + segments.gradient(xs[rows], full, p.thorn)
-                            + claim_gradient(xs[rows], claim[full], p.claim_gain))
+                    return (
+                        _pair_gradient_xy(
+                            xs[rows],
+                            er,
+                            ox,
+                            oy,
+                            p.attraction,
+                            p.attraction_floor,
+                            p.repulsion,
+                            self.reach_u,
+                            p.pair_factor,
+                        )
+                        + segments.gradient(xs[rows], full, p.thorn)
+                        + claim_gradient(xs[rows], claim[full], p.claim_gain)
+                    )
 
                 sub = descend(pos_u[idx[crow]], grad_claimers, vmax_u, p, separable=True)
                 disp_u[idx[crow]] = sub.disp_u
@@ -590,15 +685,29 @@ class ResilientPlanner(PhiremanPlanner):
             new = tether(x0 + disp_u[idx][rows], anchor[rows], length)
             # Already beyond the tether (stale anchor): only moves that do not pull away further.
             outside = np.linalg.norm(x0 - anchor[rows], axis=1) > length
-            away = outside & (np.linalg.norm(x0 + disp_u[idx][rows] - anchor[rows], axis=1)
-                              > np.linalg.norm(x0 - anchor[rows], axis=1))
-            new[outside] = np.where(away[outside, None], x0[outside], (x0 + disp_u[idx][rows])[outside])
+            away = outside & (
+                np.linalg.norm(x0 + disp_u[idx][rows] - anchor[rows], axis=1)
+                > np.linalg.norm(x0 - anchor[rows], axis=1)
+            )
+            new[outside] = np.where(
+                away[outside, None], x0[outside], (x0 + disp_u[idx][rows])[outside]
+            )
             disp_u[idx[rows]] = new - x0
-        return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info(),
-                        "claims": 0 if claim is None else int(np.isfinite(claim).all(axis=1).sum())}
+        return disp_u, {
+            "iterations": res.iterations,
+            "converged": res.converged,
+            **view.info(),
+            "claims": 0 if claim is None else int(np.isfinite(claim).all(axis=1).sum()),
+        }
 
-    def _update_recovery(self, pos_u: np.ndarray, base_u: np.ndarray, alive: np.ndarray,
-                         networked: np.ndarray, stamps: np.ndarray) -> None:
+    def _update_recovery(
+        self,
+        pos_u: np.ndarray,
+        base_u: np.ndarray,
+        alive: np.ndarray,
+        networked: np.ndarray,
+        stamps: np.ndarray,
+    ) -> None:
         """Per-drone rally targets: chosen when a drone is first seen disconnected, from the tree
         copy it holds; kept until it reconnects; home after ``rally_wait_steps`` at the point."""
         p = self.params
@@ -617,7 +726,7 @@ class ResilientPlanner(PhiremanPlanner):
         self._waited[networked] = 0
         fresh = alive & ~networked & ~np.isfinite(target).all(axis=1)
         stamps = np.asarray(stamps)
-        for s in np.unique(stamps[fresh]):                # loop over tree versions held, not drones
+        for s in np.unique(stamps[fresh]):  # loop over tree versions held, not drones
             rows = np.flatnonzero(fresh & (stamps == s))
             pts = self._rally_by_stamp.get(int(s)) if s >= 0 else None
             target[rows] = nearest_rally(pos_u[rows], pts) if pts is not None else np.nan
@@ -630,11 +739,15 @@ class ResilientPlanner(PhiremanPlanner):
         target[give_up] = base_u
         # Forget rally sets no drone holds any more.
         held = set(np.unique(stamps[alive]).tolist())
-        for s in [s for s in self._rally_by_stamp if s not in held and s != max(self._rally_by_stamp)]:
+        for s in [
+            s for s in self._rally_by_stamp if s not in held and s != max(self._rally_by_stamp)
+        ]:
             del self._rally_by_stamp[s]
         self.recovery_target_m = self.units.to_m(target)
 
 
-def make_resilient(problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator) -> ResilientPlanner:
+def make_resilient(
+    problem: ProblemConfig, params: dict[str, Any], rng: np.random.Generator
+) -> ResilientPlanner:
     """ΦIREMAN-resilient with the parameters given (``info`` defaults to the paper's 'async')."""
     return ResilientPlanner(problem, parse_params(params, ResilientParams), rng)

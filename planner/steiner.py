@@ -186,8 +186,9 @@ def _root_path_lengths(parent: np.ndarray, edge_len_m: np.ndarray) -> np.ndarray
 # --------------------------------------------------------------------------------------------
 
 
-def _fermat_scalar(ax: float, ay: float, bx: float, by: float, cx: float,
-                   cy: float) -> tuple[float, float, int]:
+def _fermat_scalar(
+    ax: float, ay: float, bx: float, by: float, cx: float, cy: float
+) -> tuple[float, float, int]:
     """Fermat point of one triangle in plain floats: ``(x, y, vertex)``, vertex -1 if interior.
 
     Same formulas as :func:`_fermat_complex` (see :func:`fermat_points`); kept scalar because the
@@ -202,10 +203,10 @@ def _fermat_scalar(ax: float, ay: float, bx: float, by: float, cx: float,
         return ax, ay, 0
     # Work in units of the longest side at a, so the weights cannot overflow or underflow.
     abx, aby, acx, acy, bcx, bcy = (v / scale for v in (abx, aby, acx, acy, bcx, bcy))
-    cross = abs(abx * acy - aby * acx)                  # twice the area
-    den_a = cross + _SQRT3 * (abx * acx + aby * acy)    # 2|AB||AC| sin(A + 60°)
-    den_b = cross - _SQRT3 * (abx * bcx + aby * bcy)    # 2|BA||BC| sin(B + 60°)
-    den_c = cross + _SQRT3 * (acx * bcx + acy * bcy)    # 2|CA||CB| sin(C + 60°)
+    cross = abs(abx * acy - aby * acx)  # twice the area
+    den_a = cross + _SQRT3 * (abx * acx + aby * acy)  # 2|AB||AC| sin(A + 60°)
+    den_b = cross - _SQRT3 * (abx * bcx + aby * bcy)  # 2|BA||BC| sin(B + 60°)
+    den_c = cross + _SQRT3 * (acx * bcx + acy * bcy)  # 2|CA||CB| sin(C + 60°)
     if den_a <= 0.0:
         return ax, ay, 0
     if den_b <= 0.0:
@@ -244,8 +245,9 @@ def fermat_point(a_m: npt.ArrayLike, b_m: npt.ArrayLike, c_m: npt.ArrayLike) -> 
     return np.array([x, y], dtype=np.float64)
 
 
-def _fermat_complex(a: np.ndarray, b: np.ndarray, c: np.ndarray, exact_ab: bool = True
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _fermat_complex(
+    a: np.ndarray, b: np.ndarray, c: np.ndarray, exact_ab: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Vectorised Fermat points of triangles given as complex arrays ``x + 1j*y`` (broadcastable).
 
     Returns ``(z, at_a, at_b, at_c)``. ``at_X`` marks triangles whose angle at X is ≥ 120° (or X
@@ -266,9 +268,9 @@ def _fermat_complex(a: np.ndarray, b: np.ndarray, c: np.ndarray, exact_ab: bool 
     # Twice the area, from real products in separate calls: exactly 0 whenever two vertices
     # coincide (a fused complex multiply may leave a rounding residue there).
     cross = np.abs(ab.real * ac.imag - ab.imag * ac.real)
-    den_a = cross + _SQRT3 * (ab.conjugate() * ac).real     # 2|AB||AC| sin(A + 60°)
-    den_b = cross - _SQRT3 * (ab.conjugate() * bc).real     # 2|BA||BC| sin(B + 60°)
-    den_c = cross + _SQRT3 * (ac.conjugate() * bc).real     # 2|CA||CB| sin(C + 60°)
+    den_a = cross + _SQRT3 * (ab.conjugate() * ac).real  # 2|AB||AC| sin(A + 60°)
+    den_b = cross - _SQRT3 * (ab.conjugate() * bc).real  # 2|BA||BC| sin(B + 60°)
+    den_c = cross + _SQRT3 * (ac.conjugate() * bc).real  # 2|CA||CB| sin(C + 60°)
     at_a, at_b, at_c = den_a <= 0.0, den_b <= 0.0, den_c <= 0.0
     # Barycentric weights 1/den_a : 1/den_b : 1/den_c, written as products so that a tiny den
     # (near-coincident vertices) cannot overflow. A non-positive den (vertex answer, overwritten
@@ -277,7 +279,7 @@ def _fermat_complex(a: np.ndarray, b: np.ndarray, c: np.ndarray, exact_ab: bool 
     den_b = np.where(at_b, 1.0, den_b)
     den_c = np.where(at_c, 1.0, den_c)
     wa, wb, wc = den_b * den_c, den_a * den_c, den_a * den_b
-    total = wa + wb + wc                                    # > 0, possibly subnormal
+    total = wa + wb + wc  # > 0, possibly subnormal
     z = a + scale * ((wb / total) * ab + (wc / total) * ac)
     z = np.where(at_c, c, z)
     if exact_ab:
@@ -327,7 +329,9 @@ def fermat_points(a_m: npt.ArrayLike, b_m: npt.ArrayLike, c_m: npt.ArrayLike) ->
     return np.stack([z.real, z.imag], axis=1)
 
 
-def fermat_point_reference(a_m: npt.ArrayLike, b_m: npt.ArrayLike, c_m: npt.ArrayLike) -> np.ndarray:
+def fermat_point_reference(
+    a_m: npt.ArrayLike, b_m: npt.ArrayLike, c_m: npt.ArrayLike
+) -> np.ndarray:
     """Slow check of :func:`fermat_point` by direct minimisation (for tests).
 
     Minimises ``|x-a| + |x-b| + |x-c|`` with Nelder-Mead from the centroid at tight tolerances,
@@ -340,17 +344,27 @@ def fermat_point_reference(a_m: npt.ArrayLike, b_m: npt.ArrayLike, c_m: npt.Arra
         return float(np.sum(np.sqrt(np.sum((pts - x) ** 2, axis=1))))
 
     scale = max(1.0, float(np.max(np.abs(pts - pts.mean(axis=0)))))
-    res = minimize(objective, pts.mean(axis=0), method="Nelder-Mead",
-                   options={"xatol": 1e-13 * scale, "fatol": 1e-15 * scale, "maxiter": 20000,
-                            "maxfev": 40000, "initial_simplex": pts.mean(axis=0) + scale
-                            * np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.1]])})
+    res = minimize(
+        objective,
+        pts.mean(axis=0),
+        method="Nelder-Mead",
+        options={
+            "xatol": 1e-13 * scale,
+            "fatol": 1e-15 * scale,
+            "maxiter": 20000,
+            "maxfev": 40000,
+            "initial_simplex": pts.mean(axis=0)
+            + scale * np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.1]]),
+        },
+    )
     candidates = [res.x, *pts]
     values = [objective(x) for x in candidates]
     return np.array(candidates[int(np.argmin(values))], dtype=np.float64)
 
 
-def _geometric_median_scalar(xs: list[float], ys: list[float], x0: float,
-                             y0: float) -> tuple[float, float, int]:
+def _geometric_median_scalar(
+    xs: list[float], ys: list[float], x0: float, y0: float
+) -> tuple[float, float, int]:
     """Geometric median of a few points (Weiszfeld from ``(x0, y0)``): ``(x, y, vertex)``.
 
     ``vertex`` is the index of an input point that is itself the median (``|Σ unit vectors from it
@@ -418,7 +432,7 @@ def tree_cost(tree: TaskTree, base_weight: float = 1.0) -> tuple[float, float, f
     edge_len = tree.edge_lengths_m()
     path = _root_path_lengths(tree.parent, edge_len)
     l_edges = float(edge_len.sum())
-    l_base = float(path[1:1 + tree.n_tasks].sum())
+    l_base = float(path[1 : 1 + tree.n_tasks].sum())
     return l_edges + float(base_weight) * l_base, l_edges, l_base
 
 
@@ -427,15 +441,17 @@ def tree_cost(tree: TaskTree, base_weight: float = 1.0) -> tuple[float, float, f
 # --------------------------------------------------------------------------------------------
 
 
-def _check_inputs(base_m: npt.ArrayLike, task_pos_m: npt.ArrayLike,
-                  base_weight: float) -> tuple[np.ndarray, np.ndarray, float]:
+def _check_inputs(
+    base_m: npt.ArrayLike, task_pos_m: npt.ArrayLike, base_weight: float
+) -> tuple[np.ndarray, np.ndarray, float]:
     base = np.asarray(base_m, dtype=np.float64)
     tasks = np.asarray(task_pos_m, dtype=np.float64)
     if base.shape != (2,) or not np.all(np.isfinite(base)):
         raise ValueError(f"base_m must be finite (2,) float64 metres, got shape {base.shape}")
     if tasks.ndim != 2 or tasks.shape[1] != 2 or not np.all(np.isfinite(tasks)):
-        raise ValueError(f"task_pos_m must be finite (M, 2) float64 metres, got shape "
-                         f"{tasks.shape}")
+        raise ValueError(
+            f"task_pos_m must be finite (M, 2) float64 metres, got shape {tasks.shape}"
+        )
     cb = float(base_weight)
     if not (math.isfinite(cb) and cb >= 0.0):
         raise ValueError(f"base_weight (c_b) must be finite and >= 0, got {base_weight}")
@@ -470,27 +486,27 @@ def _greedy_tree(base: np.ndarray, tasks: np.ndarray, cb: float) -> tuple[np.nda
     m = len(tasks)
     kmax = 2 * m + 1
     task_z = _as_complex(tasks)
-    row_z = task_z.copy()                               # free tasks first
+    row_z = task_z.copy()  # free tasks first
     row_task = np.arange(m)
     pos = np.zeros(kmax, dtype=np.complex128)
     pos[0] = complex(base[0], base[1])
-    final_index = np.zeros(kmax, dtype=np.int64)       # internal (creation order) -> TaskTree order
-    parent = np.zeros(kmax, dtype=np.int64)            # parent[0] = 0 here; -1 in the output
+    final_index = np.zeros(kmax, dtype=np.int64)  # internal (creation order) -> TaskTree order
+    parent = np.zeros(kmax, dtype=np.int64)  # parent[0] = 0 here; -1 in the output
     path = np.zeros(kmax)
     n_below = np.zeros(kmax)
     anc = np.zeros((kmax, kmax), dtype=bool)
     anc[0, 0] = True
     # One block, so that retiring a task swaps a row of all three tables in one call.
     tables = np.stack([np.full((m, kmax), np.inf), np.full((m, kmax), np.inf), np.zeros((m, kmax))])
-    direct, split, stretch = tables                     # views; split column 0 (B) stays inf
+    direct, split, stretch = tables  # views; split column 0 (B) stays inf
 
     def add_node_columns(vs: list[int], n_free: int) -> None:
         # (F, 1) free tasks - (n,) new nodes -> (F, n)
         direct[:n_free, vs] = (1.0 + cb) * np.abs(row_z[:n_free, None] - pos[vs])
 
     def add_edge_columns(cs: list[int], n_free: int) -> None:
-        u, w = pos[parent[cs]], pos[cs]                     # (n,) edge tops and bottoms
-        y = row_z[:n_free, None]                            # (F, 1)
+        u, w = pos[parent[cs]], pos[cs]  # (n,) edge tops and bottoms
+        y = row_z[:n_free, None]  # (F, 1)
         s, at_u, at_w, _ = _fermat_complex(u, w, y, exact_ab=False)  # (F, n) triangles (u, w, y)
         us, sy = np.abs(s - u), np.abs(y - s)
         detour = us + np.abs(w - s) - np.abs(w - u)
@@ -528,8 +544,9 @@ def _greedy_tree(base: np.ndarray, tasks: np.ndarray, cb: float) -> tuple[np.nda
         n = n_nodes[0]
         if _kernels.NUMBA and _kernels.ENABLED:
             # the lines below without forming the (F, n) cost arrays, the same sums and first minima
-            ia, a_min, ib, b_min = _kernels.greedy_pick(direct, split, cb * path if cb != 0.0 else path, parent,
-                                                        n_free, n, cb != 0.0)
+            ia, a_min, ib, b_min = _kernels.greedy_pick(
+                direct, split, cb * path if cb != 0.0 else path, parent, n_free, n, cb != 0.0
+            )
             use_direct = a_min <= b_min
         else:
             if cb == 0.0:
@@ -537,8 +554,8 @@ def _greedy_tree(base: np.ndarray, tasks: np.ndarray, cb: float) -> tuple[np.nda
                 cost_b = split[:n_free, :n]
             else:
                 cb_path = cb * path[:n]
-                cost_a = direct[:n_free, :n] + cb_path                # (a), (F, n)
-                cost_b = split[:n_free, :n] + cb_path[parent[:n]]     # (b); column 0 (B) is inf
+                cost_a = direct[:n_free, :n] + cb_path  # (a), (F, n)
+                cost_b = split[:n_free, :n] + cb_path[parent[:n]]  # (b); column 0 (B) is inf
             ia = int(np.argmin(cost_a))
             ib = int(np.argmin(cost_b))
             use_direct = cost_a.flat[ia] <= cost_b.flat[ib]
@@ -547,8 +564,9 @@ def _greedy_tree(base: np.ndarray, tasks: np.ndarray, cb: float) -> tuple[np.nda
         y = complex(task_z[k])
         if not use_direct:
             c, u = col, int(parent[col])
-            sx, sy, vertex = _fermat_scalar(pos[u].real, pos[u].imag, pos[c].real, pos[c].imag,
-                                            y.real, y.imag)
+            sx, sy, vertex = _fermat_scalar(
+                pos[u].real, pos[u].imag, pos[c].real, pos[c].imag, y.real, y.imag
+            )
             if vertex in (0, 1):  # rounding put s on u or w after all: a direct edge
                 use_direct, col = True, (u if vertex == 0 else c)
         if use_direct:
@@ -594,8 +612,9 @@ def _greedy_tree(base: np.ndarray, tasks: np.ndarray, cb: float) -> tuple[np.nda
 # --------------------------------------------------------------------------------------------
 
 
-def _relax_steiner(nodes_m: np.ndarray, parent: np.ndarray, n_tasks: int,
-                   sweeps: int) -> tuple[np.ndarray, np.ndarray]:
+def _relax_steiner(
+    nodes_m: np.ndarray, parent: np.ndarray, n_tasks: int, sweeps: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Seidel sweeps over the Steiner nodes; splices degenerate ones; compacts indices.
 
     In index order, each live Steiner node s with neighbours N(s) (parent + children):
@@ -677,8 +696,12 @@ def _relax_steiner(nodes_m: np.ndarray, parent: np.ndarray, n_tasks: int,
 # --------------------------------------------------------------------------------------------
 
 
-def build_task_tree(base_m: npt.ArrayLike, task_pos_m: npt.ArrayLike, base_weight: float = 1.0,
-                    refine_sweeps: int = 3) -> TaskTree:
+def build_task_tree(
+    base_m: npt.ArrayLike,
+    task_pos_m: npt.ArrayLike,
+    base_weight: float = 1.0,
+    refine_sweeps: int = 3,
+) -> TaskTree:
     """Build a semi-Steiner task tree greedily (docs/design/model.md §5.3).
 
     Parameters
@@ -763,20 +786,27 @@ def update_task_positions(tree: TaskTree, task_pos_m: npt.ArrayLike, sweeps: int
     """
     tasks = np.asarray(task_pos_m, dtype=np.float64)
     if tasks.shape != (tree.n_tasks, 2) or not np.all(np.isfinite(tasks)):
-        raise ValueError(f"task_pos_m must be finite ({tree.n_tasks}, 2) float64 metres, got shape "
-                         f"{tasks.shape}")
+        raise ValueError(
+            f"task_pos_m must be finite ({tree.n_tasks}, 2) float64 metres, got shape {tasks.shape}"
+        )
     if sweeps < 0:
         raise ValueError(f"sweeps must be >= 0, got {sweeps}")
     nodes = np.array(tree.nodes_m)
-    nodes[1:1 + tree.n_tasks] = tasks
+    nodes[1 : 1 + tree.n_tasks] = tasks
     nodes, parent = _relax_steiner(nodes, np.array(tree.parent), tree.n_tasks, int(sweeps))
     return TaskTree(nodes, parent, tree.n_tasks)
 
 
-def maintain_task_tree(tree: TaskTree | None, base_m: npt.ArrayLike, task_pos_m: npt.ArrayLike,
-                       t_step: int,
-                       base_weight: float = 1.0, accept_ratio: float = 0.99,
-                       rebuild_period: int = 10, sweeps: int = 3) -> TaskTree:
+def maintain_task_tree(
+    tree: TaskTree | None,
+    base_m: npt.ArrayLike,
+    task_pos_m: npt.ArrayLike,
+    t_step: int,
+    base_weight: float = 1.0,
+    accept_ratio: float = 0.99,
+    rebuild_period: int = 10,
+    sweeps: int = 3,
+) -> TaskTree:
     """The per-tick tree policy of PhiIREMAN (docs/design/model.md §5.3, §7 #10).
 
     Parameters
@@ -837,8 +867,9 @@ def _check_points(points_m: npt.ArrayLike) -> np.ndarray:
     return pts
 
 
-def distance_to_tree(points_m: npt.ArrayLike, tree: TaskTree,
-                     nodes_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def distance_to_tree(
+    points_m: npt.ArrayLike, tree: TaskTree, nodes_only: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Distance from each point to the task tree, and the nearest point on it.
 
     Parameters
@@ -864,20 +895,20 @@ def distance_to_tree(points_m: npt.ArrayLike, tree: TaskTree,
     """
     pts = _check_points(points_m)
     if nodes_only or tree.n_nodes == 1:
-        diff = pts[:, None, :] - tree.nodes_m[None, :, :]          # (P,1,2) - (1,K,2) -> (P,K,2)
+        diff = pts[:, None, :] - tree.nodes_m[None, :, :]  # (P,1,2) - (1,K,2) -> (P,K,2)
         d2 = np.einsum("pkd,pkd->pk", diff, diff)
         nearest = tree.nodes_m[np.argmin(d2, axis=1)] if len(pts) else np.empty((0, 2))
     else:
-        a_m, b_m = tree.segments()                                  # (E,2) child end, parent end
+        a_m, b_m = tree.segments()  # (E,2) child end, parent end
         ab = b_m - a_m
         ab2 = np.einsum("ed,ed->e", ab, ab)
-        ap = pts[:, None, :] - a_m[None, :, :]                      # (P,1,2) - (1,E,2) -> (P,E,2)
+        ap = pts[:, None, :] - a_m[None, :, :]  # (P,1,2) - (1,E,2) -> (P,E,2)
         # Zero-length edges project to their end; near-zero ones may overflow to ±inf, which the
         # clamp turns into the right end.
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             t = np.where(ab2 > 0.0, np.einsum("ped,ed->pe", ap, ab) / ab2, 0.0)
         t = np.clip(t, 0.0, 1.0)
-        foot = a_m[None, :, :] + t[:, :, None] * ab[None, :, :]     # (P,E,2)
+        foot = a_m[None, :, :] + t[:, :, None] * ab[None, :, :]  # (P,E,2)
         off = pts[:, None, :] - foot
         d2 = np.einsum("ped,ped->pe", off, off)
         best = np.argmin(d2, axis=1) if len(pts) else np.empty(0, dtype=np.int64)
@@ -886,8 +917,9 @@ def distance_to_tree(points_m: npt.ArrayLike, tree: TaskTree,
     return np.sqrt(np.einsum("pd,pd->p", delta, delta)), nearest
 
 
-def distance_to_tree_reference(points_m: npt.ArrayLike, tree: TaskTree,
-                               nodes_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def distance_to_tree_reference(
+    points_m: npt.ArrayLike, tree: TaskTree, nodes_only: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Plain-loop version of :func:`distance_to_tree` (for tests)."""
     pts = _check_points(points_m)
     nodes = [(float(x), float(y)) for x, y in tree.nodes_m]

@@ -44,10 +44,12 @@ class PaperUnits:
     def of(cls, problem: ProblemConfig) -> PaperUnits:
         """The units of ``problem`` (its ``length_unit_m``, ranges and speed limit per tick)."""
         unit = problem.length_unit_m
-        return cls(unit_m=unit,
-                   radio_range_u=problem.radio_range_m / unit,
-                   base_reach_u=min(problem.base_range_m, problem.radio_range_m) / unit,
-                   max_step_u=problem.max_speed_m_s * problem.dt_s / unit)
+        return cls(
+            unit_m=unit,
+            radio_range_u=problem.radio_range_m / unit,
+            base_reach_u=min(problem.base_range_m, problem.radio_range_m) / unit,
+            max_step_u=problem.max_speed_m_s * problem.dt_s / unit,
+        )
 
     def to_u(self, x_m: ArrayLike) -> np.ndarray:
         """Positions or lengths in metres -> paper units (float64 array)."""

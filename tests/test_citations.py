@@ -85,7 +85,9 @@ def check_text(text: str, pages: dict[str, set[str]]) -> list[str]:
     for pattern in FORBIDDEN:
         for m in pattern.finditer(text):
             line = text.count("\n", 0, m.start()) + 1
-            problems.append(f"line {line}: reference to notes outside the repository: {m.group(0)!r}")
+            problems.append(
+                f"line {line}: reference to notes outside the repository: {m.group(0)!r}"
+            )
     return problems
 
 
@@ -114,24 +116,27 @@ def test_every_citation_resolves():
 PAGES = {"model": {"6", "6.1", "6.2", "9.2", "9.4", "7"}, "mavlink": {"1.4", "5.1"}}
 
 
-@pytest.mark.parametrize("text, n_problems", [
-    ("# see @/model.md §6.2", 0),
-    ("(@/model.md §5.5/§6.1)", 1),                 # 5.5 missing here
-    ("@/model.md §9.2–9.4", 0),
-    ("@/model.md §9.2–9.3", 1),
-    ("@/model.md §6.4 and §9.1", 2),
-    ("@/model.md §6.2 and 20 drones", 0),
-    ("@/model.md §7 #13", 0),
-    ("(@/model.md\n  §6.2)", 0),
-    ("@/model.md §6.3", 1),                        # no such heading
-    ("@/nosuch.md §1.1", 1),                       # no such page
-    ("@/mavlink.md §1.4, @/model.md §6.2", 0),
-    ("PAPER" + "_NOTES §6.2", 1),
-    ("see ../" + "shared/docs/x.md", 1),
-    ("MAVLINK" + "_NOTES §5", 1),
-    ("ARCHITECTURE" + " §4.3", 1),
-    ("SITL" + "_NOTES", 1),
-])
+@pytest.mark.parametrize(
+    "text, n_problems",
+    [
+        ("# see @/model.md §6.2", 0),
+        ("(@/model.md §5.5/§6.1)", 1),  # 5.5 missing here
+        ("@/model.md §9.2–9.4", 0),
+        ("@/model.md §9.2–9.3", 1),
+        ("@/model.md §6.4 and §9.1", 2),
+        ("@/model.md §6.2 and 20 drones", 0),
+        ("@/model.md §7 #13", 0),
+        ("(@/model.md\n  §6.2)", 0),
+        ("@/model.md §6.3", 1),  # no such heading
+        ("@/nosuch.md §1.1", 1),  # no such page
+        ("@/mavlink.md §1.4, @/model.md §6.2", 0),
+        ("PAPER" + "_NOTES §6.2", 1),
+        ("see ../" + "shared/docs/x.md", 1),
+        ("MAVLINK" + "_NOTES §5", 1),
+        ("ARCHITECTURE" + " §4.3", 1),
+        ("SITL" + "_NOTES", 1),
+    ],
+)
 def test_checker_catches_bad_citations(text, n_problems):
     # The cases write "@/" for the design folder so that this file's own scan stays clean.
     text = text.replace("@/", "docs/" + "design/")
@@ -140,6 +145,9 @@ def test_checker_catches_bad_citations(text, n_problems):
 
 def test_headings_are_read_from_markdown(tmp_path):
     page = tmp_path / "p.md"
-    page.write_text("# Title\n## 1 Intro\n### 1.2. Sub\n```\n## 9 in a fence\n```\n#### 4.4b Extra\n"
-                    "text ## 7 not a heading\n", encoding="utf-8")
+    page.write_text(
+        "# Title\n## 1 Intro\n### 1.2. Sub\n```\n## 9 in a fence\n```\n#### 4.4b Extra\n"
+        "text ## 7 not a heading\n",
+        encoding="utf-8",
+    )
     assert headings(page) == {"1", "1.2", "4.4b"}

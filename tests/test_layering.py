@@ -1,4 +1,5 @@
 """The dependency rules of docs/design/architecture.md §1.2, enforced on every run."""
+
 import ast
 import pathlib
 import subprocess
@@ -21,8 +22,12 @@ def _imports(path: pathlib.Path) -> set[str]:
 
 def test_pure_modules_do_no_io_and_read_no_clock():
     # The sans-I/O cores: the station's and the vehicle's link, and the modules they are cut into.
-    pure = (list((ROOT / "planner").glob("*.py")) + list(ROOT.glob("*/link.py"))
-            + list((ROOT / "gcs").glob("link_*.py")) + list((ROOT / "vehicle_emu").glob("core_*.py")))
+    pure = (
+        list((ROOT / "planner").glob("*.py"))
+        + list(ROOT.glob("*/link.py"))
+        + list((ROOT / "gcs").glob("link_*.py"))
+        + list((ROOT / "vehicle_emu").glob("core_*.py"))
+    )
     assert pure, "no pure modules found"
     for path in pure:
         bad = _imports(path) & FORBIDDEN_IN_PURE

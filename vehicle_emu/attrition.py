@@ -30,10 +30,12 @@ class Attrition:
         If true, only vehicles that are armed and off the ground can fail at random.
     """
 
-    def __init__(self, n_vehicles: int, hazard_per_s=0.0, kills=(), rng=None,
-                 airborne_only: bool = False) -> None:
-        self.hazard_per_s = np.broadcast_to(np.asarray(hazard_per_s, dtype=float),
-                                            (n_vehicles,)).copy()
+    def __init__(
+        self, n_vehicles: int, hazard_per_s=0.0, kills=(), rng=None, airborne_only: bool = False
+    ) -> None:
+        self.hazard_per_s = np.broadcast_to(
+            np.asarray(hazard_per_s, dtype=float), (n_vehicles,)
+        ).copy()
         if np.any(self.hazard_per_s < 0) or not np.all(np.isfinite(self.hazard_per_s)):
             raise ValueError("hazard_per_s must be finite and >= 0")
         self.kills = sorted((float(t), int(i)) for t, i in kills)
@@ -46,11 +48,12 @@ class Attrition:
 
     def add_kill(self, t_s: float, index: int) -> None:
         """Schedule one more scripted kill."""
-        pending = self.kills[self._next_kill:] + [(float(t_s), int(index))]
-        self.kills = self.kills[:self._next_kill] + sorted(pending)
+        pending = self.kills[self._next_kill :] + [(float(t_s), int(index))]
+        self.kills = self.kills[: self._next_kill] + sorted(pending)
 
-    def step(self, t0_s: float, t1_s: float, alive: np.ndarray,
-             airborne: np.ndarray | None = None) -> list[tuple[int, str]]:
+    def step(
+        self, t0_s: float, t1_s: float, alive: np.ndarray, airborne: np.ndarray | None = None
+    ) -> list[tuple[int, str]]:
         """Vehicles that die in (t0_s, t1_s]: list of (index, cause), cause 'scripted'/'hazard'."""
         dead: list[tuple[int, str]] = []
         seen = set()

@@ -12,7 +12,7 @@ import numpy as np
 
 from mavedge.clock import RealClock
 
-from .link import M_GLOBAL_POSITION_INT, M_LOCAL_POSITION_NED
+from .telemetry import M_GLOBAL_POSITION_INT, M_LOCAL_POSITION_NED
 from .radio import RadioConfig
 from .swarm import PEER_TIMEOUT_S, Swarm
 from .udp import EmulatorServer
@@ -42,7 +42,9 @@ def _home(text: str) -> tuple[float, float, float]:
     try:
         lat, lon, alt = (float(v) for v in text.split(","))
     except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"expected LAT,LON,ALT in degrees and metres, got {text!r}") from exc
+        raise argparse.ArgumentTypeError(
+            f"expected LAT,LON,ALT in degrees and metres, got {text!r}"
+        ) from exc
     if not (-90 <= lat <= 90 and -180 <= lon <= 180):
         raise argparse.ArgumentTypeError(f"latitude/longitude out of range: {text!r}")
     return lat, lon, alt
@@ -59,8 +61,10 @@ def _gcs(text: str) -> tuple[str, int]:
 
 def _rate(text: str) -> tuple[int, float]:
     name, _, hz = text.partition("=")
-    names = {"GLOBAL_POSITION_INT": M_GLOBAL_POSITION_INT,
-             "LOCAL_POSITION_NED": M_LOCAL_POSITION_NED}
+    names = {
+        "GLOBAL_POSITION_INT": M_GLOBAL_POSITION_INT,
+        "LOCAL_POSITION_NED": M_LOCAL_POSITION_NED,
+    }
     try:
         msg_id = names[name.upper()] if name.upper() in names else int(name)
         return msg_id, float(hz)
@@ -79,40 +83,108 @@ def _key(text: str) -> bytes:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--vehicles", type=int, required=True, metavar="N",
-                        help="number of vehicles (more than 254 use several MAVLink networks)")
+    parser.add_argument(
+        "--vehicles",
+        type=int,
+        required=True,
+        metavar="N",
+        help="number of vehicles (more than 254 use several MAVLink networks)",
+    )
     parser.add_argument("--personality", choices=("ardupilot", "px4"), default="ardupilot")
-    parser.add_argument("--home", type=_home, default=(47.397742, 8.545594, 488.0),
-                        metavar="LAT,LON,ALT", help="base station position (deg, deg, m AMSL)")
-    parser.add_argument("--base-port", type=int, default=14550, metavar="P",
-                        help="first UDP port (0 = ephemeral ports, printed at start)")
+    parser.add_argument(
+        "--home",
+        type=_home,
+        default=(47.397742, 8.545594, 488.0),
+        metavar="LAT,LON,ALT",
+        help="base station position (deg, deg, m AMSL)",
+    )
+    parser.add_argument(
+        "--base-port",
+        type=int,
+        default=14550,
+        metavar="P",
+        help="first UDP port (0 = ephemeral ports, printed at start)",
+    )
     parser.add_argument("--bind", default="127.0.0.1", help="bind address (default loopback)")
-    parser.add_argument("--mux", action="store_true",
-                        help="one port per MAVLink network instead of one per vehicle")
-    parser.add_argument("--speedup", type=float, default=1.0, metavar="K",
-                        help="simulation speed-up (SITL SIM_SPEEDUP)")
-    parser.add_argument("--radio-range-m", type=float, default=float("inf"), metavar="R",
-                        help="drone-drone and drone-base radio range (default unlimited)")
-    parser.add_argument("--base-range-m", type=float, default=None, metavar="R",
-                        help="drone-base range if different from --radio-range-m")
+    parser.add_argument(
+        "--mux", action="store_true", help="one port per MAVLink network instead of one per vehicle"
+    )
+    parser.add_argument(
+        "--speedup",
+        type=float,
+        default=1.0,
+        metavar="K",
+        help="simulation speed-up (SITL SIM_SPEEDUP)",
+    )
+    parser.add_argument(
+        "--radio-range-m",
+        type=float,
+        default=float("inf"),
+        metavar="R",
+        help="drone-drone and drone-base radio range (default unlimited)",
+    )
+    parser.add_argument(
+        "--base-range-m",
+        type=float,
+        default=None,
+        metavar="R",
+        help="drone-base range if different from --radio-range-m",
+    )
     parser.add_argument("--latency-per-hop-s", type=float, default=0.0)
     parser.add_argument("--loss-per-hop", type=float, default=0.0)
-    parser.add_argument("--attrition-per-s", type=float, default=0.0, metavar="LAMBDA",
-                        help="failure rate of each vehicle per second of vehicle time")
-    parser.add_argument("--kill", action="append", default=[], metavar="T:INDEX",
-                        help="scripted loss of vehicle INDEX at time T seconds (repeatable)")
-    parser.add_argument("--spacing-m", type=float, default=3.0,
-                        help="spawn grid spacing around the base")
-    parser.add_argument("--gcs", type=_gcs, action="append", default=[],
-                        metavar="udpout:HOST:PORT", help="always send to this address")
-    parser.add_argument("--rate", type=_rate, action="append", default=[], metavar="MSG=HZ",
-                        help="stream a message from boot, e.g. GLOBAL_POSITION_INT=10")
-    parser.add_argument("--signing-key", type=_key, default=None, metavar="HEX",
-                        help="MAVLink 2 signing key (64 hex digits)")
-    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                        help="parameter override for every vehicle (native units)")
-    parser.add_argument("--duration-s", type=float, default=None,
-                        help="stop after this much vehicle time (default: until Ctrl-C)")
+    parser.add_argument(
+        "--attrition-per-s",
+        type=float,
+        default=0.0,
+        metavar="LAMBDA",
+        help="failure rate of each vehicle per second of vehicle time",
+    )
+    parser.add_argument(
+        "--kill",
+        action="append",
+        default=[],
+        metavar="T:INDEX",
+        help="scripted loss of vehicle INDEX at time T seconds (repeatable)",
+    )
+    parser.add_argument(
+        "--spacing-m", type=float, default=3.0, help="spawn grid spacing around the base"
+    )
+    parser.add_argument(
+        "--gcs",
+        type=_gcs,
+        action="append",
+        default=[],
+        metavar="udpout:HOST:PORT",
+        help="always send to this address",
+    )
+    parser.add_argument(
+        "--rate",
+        type=_rate,
+        action="append",
+        default=[],
+        metavar="MSG=HZ",
+        help="stream a message from boot, e.g. GLOBAL_POSITION_INT=10",
+    )
+    parser.add_argument(
+        "--signing-key",
+        type=_key,
+        default=None,
+        metavar="HEX",
+        help="MAVLink 2 signing key (64 hex digits)",
+    )
+    parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="parameter override for every vehicle (native units)",
+    )
+    parser.add_argument(
+        "--duration-s",
+        type=float,
+        default=None,
+        help="stop after this much vehicle time (default: until Ctrl-C)",
+    )
     parser.add_argument("--seed", type=int, default=0)
 
 
@@ -142,16 +214,27 @@ def _build(args) -> tuple[Swarm, RealClock]:
             raise UserError(f"--param expects NAME=VALUE, got {p!r}") from exc
     clock = RealClock(args.speedup)
     try:
-        radio = RadioConfig(args.radio_range_m, args.base_range_m, args.latency_per_hop_s,
-                            args.loss_per_hop)
-        swarm = Swarm(args.vehicles, personality=args.personality, home_lla=args.home,
-                      spawn_spacing_m=args.spacing_m, radio=radio,
-                      hazard_per_s=args.attrition_per_s, kills=kills, mux=args.mux,
-                      gcs_addrs=args.gcs, signing_key=args.signing_key, params=params,
-                      stream_rates_hz=dict(args.rate), rng=np.random.default_rng(args.seed),
-                      unix_time_at_zero_s=clock.unix_time_at_zero_s,
-                      # a third-party GCS sends in wall time: forget it after 30 WALL seconds
-                      peer_timeout_s=PEER_TIMEOUT_S * max(1.0, args.speedup))
+        radio = RadioConfig(
+            args.radio_range_m, args.base_range_m, args.latency_per_hop_s, args.loss_per_hop
+        )
+        swarm = Swarm(
+            args.vehicles,
+            personality=args.personality,
+            home_lla=args.home,
+            spawn_spacing_m=args.spacing_m,
+            radio=radio,
+            hazard_per_s=args.attrition_per_s,
+            kills=kills,
+            mux=args.mux,
+            gcs_addrs=args.gcs,
+            signing_key=args.signing_key,
+            params=params,
+            stream_rates_hz=dict(args.rate),
+            rng=np.random.default_rng(args.seed),
+            unix_time_at_zero_s=clock.unix_time_at_zero_s,
+            # a third-party GCS sends in wall time: forget it after 30 WALL seconds
+            peer_timeout_s=PEER_TIMEOUT_S * max(1.0, args.speedup),
+        )
     except (ValueError, KeyError) as exc:
         raise UserError(str(exc)) from exc
     return swarm, clock
@@ -161,9 +244,16 @@ async def _serve(swarm: Swarm, clock: RealClock, args) -> None:
     server = EmulatorServer(swarm, clock, args.bind, args.base_port)
     await server.start()
     first, last = server.addresses[0], server.addresses[-1]
-    log.warning("emulating %d %s vehicle(s) in %d network(s) on udp %s:%d..%d (speed-up %g)",
-                swarm.n, args.personality, swarm.n_networks, first[0], first[1], last[1],
-                clock.speedup)
+    log.warning(
+        "emulating %d %s vehicle(s) in %d network(s) on udp %s:%d..%d (speed-up %g)",
+        swarm.n,
+        args.personality,
+        swarm.n_networks,
+        first[0],
+        first[1],
+        last[1],
+        clock.speedup,
+    )
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -181,8 +271,13 @@ async def _serve(swarm: Swarm, clock: RealClock, args) -> None:
                 pass
     finally:
         server.close()
-    log.warning("stopped at t=%.1f s: %d alive, %d active; %s", clock.now(),
-                int(swarm.alive.sum()), int(swarm.active.sum()), swarm.stats)
+    log.warning(
+        "stopped at t=%.1f s: %d alive, %d active; %s",
+        clock.now(),
+        int(swarm.alive.sum()),
+        int(swarm.active.sum()),
+        swarm.stats,
+    )
 
 
 def run(args) -> int:
@@ -202,13 +297,21 @@ def run(args) -> int:
     except OSError as exc:
         if exc.errno == errno.EADDRINUSE:
             last = args.base_port + (swarm.n_networks if args.mux else swarm.n) - 1
-            raise UsageError(f"UDP port in {args.bind}:{args.base_port}..{last} is already in use (another "
-                             f"emulator, SITL or ground station?); choose another --base-port, or "
-                             f"--base-port 0 for free ports") from None
+            raise UsageError(
+                f"UDP port in {args.bind}:{args.base_port}..{last} is already in use (another "
+                f"emulator, SITL or ground station?); choose another --base-port, or "
+                f"--base-port 0 for free ports"
+            ) from None
         if exc.errno in (errno.EACCES, errno.EPERM):
-            raise UsageError(f"not allowed to bind {args.bind}:{args.base_port} (ports below 1024 need "
-                             f"privileges); choose --base-port 1024 or above") from None
-        if exc.errno in (errno.EADDRNOTAVAIL, errno.EAFNOSUPPORT) or isinstance(exc, socket.gaierror):
-            raise UsageError(f"--bind {args.bind}: not an address of this machine ({exc.strerror or exc})") from None
+            raise UsageError(
+                f"not allowed to bind {args.bind}:{args.base_port} (ports below 1024 need "
+                f"privileges); choose --base-port 1024 or above"
+            ) from None
+        if exc.errno in (errno.EADDRNOTAVAIL, errno.EAFNOSUPPORT) or isinstance(
+            exc, socket.gaierror
+        ):
+            raise UsageError(
+                f"--bind {args.bind}: not an address of this machine ({exc.strerror or exc})"
+            ) from None
         raise
     return 0

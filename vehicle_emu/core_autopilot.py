@@ -138,8 +138,9 @@ class AutopilotRules(CoreState):
             self._rtl_phase = phase = "final"
         if phase == "final":
             if self._rtl_hover_alt_m is not None:
-                ph.command_position(i, (home[NORTH], home[EAST],
-                                        home[DOWN] - self._rtl_hover_alt_m))
+                ph.command_position(
+                    i, (home[NORTH], home[EAST], home[DOWN] - self._rtl_hover_alt_m)
+                )
                 self._rtl_phase = "hover"
             else:
                 ph.command_land(i)

@@ -35,8 +35,11 @@ class CommandHandlers(SetpointHandlers):
         self._command(m.command, params, m.frame, m, now_s)
 
     def _ack(self, command: int, result: int, m, now_s: float) -> None:
-        self._send(mavlink.MAVLink_command_ack_message(command, result, 0, 0, m.get_srcSystem(),
-                                                       m.get_srcComponent()))
+        self._send(
+            mavlink.MAVLink_command_ack_message(
+                command, result, 0, 0, m.get_srcSystem(), m.get_srcComponent()
+            )
+        )
         self._events.append(ev.CommandHandled(self.sysid, now_s, int(command), int(result)))
 
     def _command(self, cmd: int, p: tuple, frame, m, now_s: float) -> None:
@@ -56,12 +59,18 @@ class CommandHandlers(SetpointHandlers):
             return self._cmd_takeoff(p, now_s), None
         if cmd == C.MAV_CMD_NAV_LAND:
             key = self.pers.land_mode
-            return (C.MAV_RESULT_ACCEPTED if self._set_mode(key, now_s, "command")
-                    else C.MAV_RESULT_FAILED), None
+            return (
+                C.MAV_RESULT_ACCEPTED
+                if self._set_mode(key, now_s, "command")
+                else C.MAV_RESULT_FAILED
+            ), None
         if cmd == C.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             key = self.pers.rtl_mode
-            return (C.MAV_RESULT_ACCEPTED if self._set_mode(key, now_s, "command")
-                    else C.MAV_RESULT_FAILED), None
+            return (
+                C.MAV_RESULT_ACCEPTED
+                if self._set_mode(key, now_s, "command")
+                else C.MAV_RESULT_FAILED
+            ), None
         if cmd == C.MAV_CMD_SET_MESSAGE_INTERVAL:
             msg_id = int(p[0]) if math.isfinite(p[0]) else -1
             interval_us = p[1]

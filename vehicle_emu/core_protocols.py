@@ -53,16 +53,23 @@ class ProtocolHandlers(SetpointHandlers):
     def _on_mission_item(self, m, addr, now_s: float) -> None:
         if not self._for_me(m.target_system, m.target_component):
             return
-        if self.pers.guided_mission_items and m.current in (2, 3) and (
-                getattr(m, "mission_type", 0) == mavlink.MAV_MISSION_TYPE_MISSION):
+        if (
+            self.pers.guided_mission_items
+            and m.current in (2, 3)
+            and (getattr(m, "mission_type", 0) == mavlink.MAV_MISSION_TYPE_MISSION)
+        ):
             # ArduPilot GCS_Common.cpp handle_mission_item: current = 2 is a "guided mode"
             # waypoint (MAVProxy ``guided``, Mission Planner "Fly To Here"), current = 3 an
             # altitude change; answered with MISSION_ACK, ACCEPTED or ERROR.
             ok = self._guided_mission_item(m, now_s)
-            self._send(mavlink.MAVLink_mission_ack_message(
-                m.get_srcSystem(), m.get_srcComponent(),
-                mavlink.MAV_MISSION_ACCEPTED if ok else mavlink.MAV_MISSION_ERROR,
-                mavlink.MAV_MISSION_TYPE_MISSION))
+            self._send(
+                mavlink.MAVLink_mission_ack_message(
+                    m.get_srcSystem(),
+                    m.get_srcComponent(),
+                    mavlink.MAV_MISSION_ACCEPTED if ok else mavlink.MAV_MISSION_ERROR,
+                    mavlink.MAV_MISSION_TYPE_MISSION,
+                )
+            )
             return
         self._missions.on_item(m, now_s)
 
@@ -71,8 +78,11 @@ class ProtocolHandlers(SetpointHandlers):
         mode"; NAV_WAYPOINT -> ModeGuided::set_destination. current = 3:
         handle_change_alt_request (keep the horizontal target, change the altitude)."""
         ph, i = self.physics, self.index
-        if self._behaviour != "guided" or not self.armed or (
-                ph.landed[i] and self._takeoff_target_down_m is None):
+        if (
+            self._behaviour != "guided"
+            or not self.armed
+            or (ph.landed[i] and self._takeoff_target_down_m is None)
+        ):
             return False
         if m.get_type() == "MISSION_ITEM":
             lat_e7, lon_e7 = wire.lat_e7_from_deg(m.x), wire.lat_e7_from_deg(m.y)
@@ -103,9 +113,14 @@ class ProtocolHandlers(SetpointHandlers):
 
     def _send_param(self, name: str) -> None:
         ptype = self.params.param_type(name)
-        value = wire.param_to_wire_float(self.params[name], ptype, bytewise=self.pers.param_bytewise)
-        self._send(mavlink.MAVLink_param_value_message(
-            name.encode(), value, ptype, len(self.params), self.params.index_of(name)))
+        value = wire.param_to_wire_float(
+            self.params[name], ptype, bytewise=self.pers.param_bytewise
+        )
+        self._send(
+            mavlink.MAVLink_param_value_message(
+                name.encode(), value, ptype, len(self.params), self.params.index_of(name)
+            )
+        )
 
     def _on_param_request_list(self, m, addr, now_s: float) -> None:
         if not self._for_me(m.target_system, m.target_component):
@@ -128,7 +143,9 @@ class ProtocolHandlers(SetpointHandlers):
             return  # both firmwares stay silent on unknown names
         ptype = self.params.param_type(name)
         try:
-            value = wire.param_from_wire_float(m.param_value, ptype, bytewise=self.pers.param_bytewise)
+            value = wire.param_from_wire_float(
+                m.param_value, ptype, bytewise=self.pers.param_bytewise
+            )
         except ValueError:
             self.stats.bad_data += 1
             return
@@ -145,7 +162,8 @@ class ProtocolHandlers(SetpointHandlers):
         self.pers.apply_params()
         beh = getattr(self, "_behaviour", "hold")
         self.physics.max_speed_h_m_s[self.index] = (
-            self._guided_speed_m_s if beh == "guided" else self._auto_speed_m_s)
+            self._guided_speed_m_s if beh == "guided" else self._auto_speed_m_s
+        )
 
     # -- misc --------------------------------------------------------------------------------------
 
@@ -154,14 +172,20 @@ class ProtocolHandlers(SetpointHandlers):
         # tc1 is never 0 in a reply (ArduPilot uses micros64() * 1000, PX4 the hrt clock in
         # ns; a reply with tc1 == 0 would read as a new request): at least 1 ns.
         if m.tc1 == 0:
-            self._send(mavlink.MAVLink_timesync_message(
-                max(1, wire.time_ns_from_s(now_s - self._boot_s)), m.ts1))
+            self._send(
+                mavlink.MAVLink_timesync_message(
+                    max(1, wire.time_ns_from_s(now_s - self._boot_s)), m.ts1
+                )
+            )
 
     def _on_ping(self, m, addr, now_s: float) -> None:
         # PING request: target_system == 0; reply targets the requester (common.xml PING).
         if m.target_system == 0:
-            self._send(mavlink.MAVLink_ping_message(m.time_usec, m.seq, m.get_srcSystem(),
-                                                   m.get_srcComponent()))
+            self._send(
+                mavlink.MAVLink_ping_message(
+                    m.time_usec, m.seq, m.get_srcSystem(), m.get_srcComponent()
+                )
+            )
 
     def _on_setup_signing(self, m, addr, now_s: float) -> None:
         if m.target_system != self.sysid:
@@ -169,12 +193,22 @@ class ProtocolHandlers(SetpointHandlers):
             return
         if addr not in self.trusted_addrs or self.armed:
             self.stats.signing_rejected += 1
-            self._warn_limited(now_s, "setup_signing", "sysid %d: SETUP_SIGNING from untrusted "
-                               "link %s (or armed) refused", self.sysid, addr)
+            self._warn_limited(
+                now_s,
+                "setup_signing",
+                "sysid %d: SETUP_SIGNING from untrusted link %s (or armed) refused",
+                self.sysid,
+                addr,
+            )
             return
-        key = bytes(bytearray(m.secret_key)) if not isinstance(m.secret_key, bytes) else m.secret_key
+        key = (
+            bytes(bytearray(m.secret_key)) if not isinstance(m.secret_key, bytes) else m.secret_key
+        )
         self._codec.set_signing_key(key, initial_timestamp=m.initial_timestamp)
         enabled = self._codec.signing_enabled
-        log.info("sysid %d: signing %s via SETUP_SIGNING", self.sysid,
-                 "enabled" if enabled else "disabled")
+        log.info(
+            "sysid %d: signing %s via SETUP_SIGNING",
+            self.sysid,
+            "enabled" if enabled else "disabled",
+        )
         self._events.append(ev.SigningChanged(self.sysid, now_s, enabled))

@@ -50,9 +50,9 @@ class SetpointHandlers(AutopilotRules):
             if body:  # ArduCopter rotate_body_frame_to_NE
                 x, y = x * cy - y * sy, x * sy + y * cy
             if frame == mavlink.MAV_FRAME_LOCAL_NED:
-                pos = self.home_ned_m + (x, y, z)   # LOCAL_NED is relative to the EKF origin
+                pos = self.home_ned_m + (x, y, z)  # LOCAL_NED is relative to the EKF origin
             else:
-                pos = ph.pos_ned_m[i] + (x, y, z)   # offset and body frames: relative to vehicle
+                pos = ph.pos_ned_m[i] + (x, y, z)  # offset and body frames: relative to vehicle
         if not mask & _VEL_BITS:
             vx, vy = m.vx, m.vy
             if body:
@@ -82,7 +82,8 @@ class SetpointHandlers(AutopilotRules):
 
     def _accept_target(self, pos, vel, mask: int, now_s: float) -> None:
         if (pos is not None and not np.all(np.isfinite(pos))) or (
-                vel is not None and not np.all(np.isfinite(vel))):
+            vel is not None and not np.all(np.isfinite(vel))
+        ):
             self.stats.setpoints_ignored += 1
             return
         self.pers.accept_target((pos, vel, mask), now_s)

@@ -68,12 +68,13 @@ class RateLimitedLog:
     at ``max_keys`` anyway (oldest dropped).
     """
 
-    def __init__(self, logger: logging.Logger, interval_s: float = 10.0,
-                 max_keys: int = 256) -> None:
+    def __init__(
+        self, logger: logging.Logger, interval_s: float = 10.0, max_keys: int = 256
+    ) -> None:
         self.logger = logger
         self.interval_s = float(interval_s)
         self.max_keys = int(max_keys)
-        self._state: dict = {}   # key -> [last_logged_s, n_suppressed]
+        self._state: dict = {}  # key -> [last_logged_s, n_suppressed]
         self.n_logged = 0
         self.n_suppressed = 0
 
@@ -168,8 +169,9 @@ class CoreState:
     def _nop(self, msg, addr, now_s: float) -> None:
         return None
 
-    def _warn_limited(self, now_s: float, key: str, msg: str, *args,
-                      level: int = logging.WARNING, **kwargs) -> bool:
+    def _warn_limited(
+        self, now_s: float, key: str, msg: str, *args, level: int = logging.WARNING, **kwargs
+    ) -> bool:
         return self.log_limiter.log(now_s, key, level, msg, *args, **kwargs)
 
     def _for_me(self, target_system: int, target_component: int) -> bool:
@@ -177,4 +179,3 @@ class CoreState:
         if not ok:
             self.stats.not_for_us += 1
         return ok
-

@@ -12,8 +12,16 @@ import math
 from dataclasses import dataclass
 
 __all__ = [
-    "EmulatorEvent", "ModeChanged", "ArmingChanged", "CommandHandled", "FailsafeTriggered",
-    "GcsLinkRegained", "ParamChanged", "SigningChanged", "TakeoffStarted", "VehicleKilled",
+    "EmulatorEvent",
+    "ModeChanged",
+    "ArmingChanged",
+    "CommandHandled",
+    "FailsafeTriggered",
+    "GcsLinkRegained",
+    "ParamChanged",
+    "SigningChanged",
+    "TakeoffStarted",
+    "VehicleKilled",
 ]
 
 

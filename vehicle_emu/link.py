@@ -51,19 +51,27 @@ from .core_protocols import ProtocolHandlers
 from .core_state import CoreStats, RateLimitedLog
 from .missions import MissionServer
 from .params import ParamTable, defaults_for
-from .personality import (ARDUPILOT_MODES, PERSONALITIES, PX4_MODES, ap_check_latlng_e7,
-                          personality_for, px4_map_project)
+from .personality import (
+    ARDUPILOT_MODES,
+    PERSONALITIES,
+    PX4_MODES,
+    ap_check_latlng_e7,
+    personality_for,
+    px4_map_project,
+)
 from .physics import Physics
-from .telemetry import (M_ATTITUDE, M_AUTOPILOT_VERSION, M_EXTENDED_SYS_STATE,  # noqa: F401
-                        M_GLOBAL_POSITION_INT, M_GPS_GLOBAL_ORIGIN, M_GPS_RAW_INT, M_HEARTBEAT,
-                        M_HOME_POSITION, M_LOCAL_POSITION_NED, M_MISSION_CURRENT,
-                        M_POSITION_TARGET_GLOBAL_INT, M_POSITION_TARGET_LOCAL_NED, M_SYS_STATUS,
-                        M_VFR_HUD)
 from .wire import dialect as mavlink
 
 __all__ = [
-    "VehicleCore", "CoreStats", "RateLimitedLog", "ARDUPILOT_MODES", "PX4_MODES", "px4_custom_mode",
-    "PERSONALITIES", "ap_check_latlng_e7", "px4_map_project",
+    "VehicleCore",
+    "CoreStats",
+    "RateLimitedLog",
+    "ARDUPILOT_MODES",
+    "PX4_MODES",
+    "px4_custom_mode",
+    "PERSONALITIES",
+    "ap_check_latlng_e7",
+    "px4_map_project",
 ]
 
 log = logging.getLogger(__name__)
@@ -115,12 +123,23 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
     not flown (acceleration-only targets make ArduPilot hold, like its "invalid input" path).
     """
 
-    def __init__(self, sysid: int, personality: str = "ardupilot", *, now_s: float = 0.0,
-                 physics: Physics | None = None, index: int = 0,
-                 origin_lla: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                 params=None, signing_key: bytes | None = None, trusted_addrs=(),
-                 ekf_ready_after_s: float = 0.0, unix_time_at_zero_s: float = 1.7e9,
-                 network: int = 0, log_limiter: RateLimitedLog | None = None) -> None:
+    def __init__(
+        self,
+        sysid: int,
+        personality: str = "ardupilot",
+        *,
+        now_s: float = 0.0,
+        physics: Physics | None = None,
+        index: int = 0,
+        origin_lla: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        params=None,
+        signing_key: bytes | None = None,
+        trusted_addrs=(),
+        ekf_ready_after_s: float = 0.0,
+        unix_time_at_zero_s: float = 1.7e9,
+        network: int = 0,
+        log_limiter: RateLimitedLog | None = None,
+    ) -> None:
         if not 1 <= int(sysid) <= 254:
             raise ValueError(f"vehicle sysid must be 1..254, got {sysid}")
         self.sysid = int(sysid)
@@ -148,10 +167,12 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         overrides.setdefault(self.pers.sysid_param, self.sysid)
         self.params = ParamTable(spec, overrides)
 
-        allow_unsigned = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS,
-                                    mavlink.MAVLINK_MSG_ID_SETUP_SIGNING})
-        self._codec = wire.Codec(self.sysid, self.compid, signing_key=signing_key,
-                                 allow_unsigned_ids=allow_unsigned)
+        allow_unsigned = frozenset(
+            {mavlink.MAVLINK_MSG_ID_RADIO_STATUS, mavlink.MAVLINK_MSG_ID_SETUP_SIGNING}
+        )
+        self._codec = wire.Codec(
+            self.sysid, self.compid, signing_key=signing_key, allow_unsigned_ids=allow_unsigned
+        )
         self.stats = CoreStats()
         self._out: list[bytes] = []
         self._events: deque = deque()
@@ -164,8 +185,11 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         self.home_ned_m = physics.pos_ned_m[i].copy()
         if self._owns_physics:
             physics.update_geodetic()
-        self.home_lla = (float(physics.lat_deg[i]), float(physics.lon_deg[i]),
-                         float(physics.alt_amsl_m[i]))
+        self.home_lla = (
+            float(physics.lat_deg[i]),
+            float(physics.lon_deg[i]),
+            float(physics.alt_amsl_m[i]),
+        )
 
         # Autopilot state.
         self.armed = False
@@ -188,8 +212,9 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
 
         #: Streams: interval and next due time per message id (vehicle_emu.telemetry).
         self.streams = tm.StreamScheduler(self.pers.default_rates_hz, now_s)
-        self._missions = MissionServer(self._send, self.pers.mission_home_items == 0,
-                                       lambda: self.home_lla)
+        self._missions = MissionServer(
+            self._send, self.pers.mission_home_items == 0, lambda: self.home_lla
+        )
         nop = self._nop
         self._handlers = {
             "HEARTBEAT": self._on_heartbeat,
@@ -215,10 +240,18 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
             "MISSION_ACK": nop,  # end of a download: nothing to do (no state kept)
             # Explicit ignores (skybrush-style nop handlers): traffic a GCS legitimately sends
             # that this emulator has no use for.
-            "RADIO_STATUS": nop, "COMMAND_ACK": nop, "SYSTEM_TIME": nop, "PARAM_VALUE": nop,
-            "MANUAL_CONTROL": nop, "RC_CHANNELS_OVERRIDE": nop, "GPS_GLOBAL_ORIGIN": nop,
-            "STATUSTEXT": nop, "ATTITUDE": nop, "GLOBAL_POSITION_INT": nop,
-            "LOCAL_POSITION_NED": nop, "SYS_STATUS": nop,
+            "RADIO_STATUS": nop,
+            "COMMAND_ACK": nop,
+            "SYSTEM_TIME": nop,
+            "PARAM_VALUE": nop,
+            "MANUAL_CONTROL": nop,
+            "RC_CHANNELS_OVERRIDE": nop,
+            "GPS_GLOBAL_ORIGIN": nop,
+            "STATUSTEXT": nop,
+            "ATTITUDE": nop,
+            "GLOBAL_POSITION_INT": nop,
+            "LOCAL_POSITION_NED": nop,
+            "SYS_STATUS": nop,
         }
         self._apply_params()
 
@@ -239,13 +272,28 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         st.truncated_bytes += res.n_truncated_bytes
         if res.n_signature_rejected:
             st.signing_rejected += res.n_signature_rejected
-            self._warn_limited(now_s, "signing", "sysid %d: rejected %d frame(s) failing "
-                               "MAVLink signing from %s", self.sysid,
-                               res.n_signature_rejected, addr, level=logging.INFO)
+            self._warn_limited(
+                now_s,
+                "signing",
+                "sysid %d: rejected %d frame(s) failing MAVLink signing from %s",
+                self.sysid,
+                res.n_signature_rejected,
+                addr,
+                level=logging.INFO,
+            )
         if res.n_bad or res.n_unknown:
-            self._warn_limited(now_s, "bad_data", "sysid %d: %d bad frame(s), %d unknown "
-                               "message id(s) from %s (totals: %d bad, %d unknown)", self.sysid,
-                               res.n_bad, res.n_unknown, addr, st.bad_data, st.unknown_msg_ids)
+            self._warn_limited(
+                now_s,
+                "bad_data",
+                "sysid %d: %d bad frame(s), %d unknown "
+                "message id(s) from %s (totals: %d bad, %d unknown)",
+                self.sysid,
+                res.n_bad,
+                res.n_unknown,
+                addr,
+                st.bad_data,
+                st.unknown_msg_ids,
+            )
         for msg in res.messages:
             self.receive_message(msg, addr, now_s)
 
@@ -265,8 +313,15 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
             handler(msg, addr, now_s)
         except Exception:  # noqa: BLE001 - a handler bug must not kill the adapter loop
             st.handler_errors += 1
-            self._warn_limited(now_s, f"handler:{mtype}", "sysid %d: handler for %s failed",
-                               self.sysid, mtype, level=logging.ERROR, exc_info=True)
+            self._warn_limited(
+                now_s,
+                f"handler:{mtype}",
+                "sysid %d: handler for %s failed",
+                self.sysid,
+                mtype,
+                level=logging.ERROR,
+                exc_info=True,
+            )
 
     def handle_timer(self, now_s: float) -> None:
         """Run timers: (own physics), autopilot rules, due telemetry."""
@@ -349,16 +404,22 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
             return
         if self._codec.signing_enabled:
             self._codec.advance_signing_timestamp(
-                wire.signing_timestamp_from_s(self._unix_time_at_zero_s + now_s))
+                wire.signing_timestamp_from_s(self._unix_time_at_zero_s + now_s)
+            )
         builders = tm.BUILDERS
         for msg_id in self.streams.due(now_s):
             try:
                 self._send(builders[msg_id](self, now_s))
             except Exception:  # noqa: BLE001 - a bad value must not stop the other streams
                 self.stats.telemetry_errors += 1
-                self._warn_limited(now_s, f"telemetry:{msg_id}",
-                                   "sysid %d: building message %d failed", self.sysid,
-                                   msg_id, exc_info=True)
+                self._warn_limited(
+                    now_s,
+                    f"telemetry:{msg_id}",
+                    "sysid %d: building message %d failed",
+                    self.sysid,
+                    msg_id,
+                    exc_info=True,
+                )
 
     # =========================================================================================
     # Inbound handlers: the GCS heartbeat here; commands (core_commands), setpoints
@@ -376,8 +437,6 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
 
     # -- setpoints ----------------------------------------------------------------------------
 
-
     # -- mission protocol (vehicle_emu.missions) ---------------------------------------------
-
 
     # -- parameters ---------------------------------------------------------------------------

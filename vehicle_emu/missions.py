@@ -41,13 +41,19 @@ _TYPES = (T_MISSION, T_FENCE, T_RALLY)
 _FENCE_CMDS = frozenset(range(5000, 5005))  # MAV_CMD_NAV_FENCE_RETURN_POINT .. CIRCLE_EXCLUSION
 _RALLY_CMDS = frozenset({mavlink.MAV_CMD_NAV_RALLY_POINT})
 #: Frames whose x / y are latitude / longitude (degE7 in *_INT messages, degrees in MISSION_ITEM).
-_GLOBAL_FRAMES = frozenset({
-    mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-    mavlink.MAV_FRAME_GLOBAL_INT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT})
+_GLOBAL_FRAMES = frozenset(
+    {
+        mavlink.MAV_FRAME_GLOBAL,
+        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+        mavlink.MAV_FRAME_GLOBAL_INT,
+        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+        mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+        mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+    }
+)
 
-RESEND_S = 1.0           # ArduPilot MissionItemProtocol::update: 1000 ms + stream slowdown
-UPLOAD_TIMEOUT_S = 8.0   # ArduPilot MissionItemProtocol.h upload_timeout_ms = 8000
+RESEND_S = 1.0  # ArduPilot MissionItemProtocol::update: 1000 ms + stream slowdown
+UPLOAD_TIMEOUT_S = 8.0  # ArduPilot MissionItemProtocol.h upload_timeout_ms = 8000
 
 
 @dataclass(frozen=True)
@@ -72,9 +78,16 @@ class MissionItem:
                 x, y = wire.lat_e7_from_deg(x), wire.lat_e7_from_deg(y)
             else:
                 x, y = int(round(x * 1e4)), int(round(y * 1e4))  # local: metres * 1e4
-        return cls(int(m.frame), int(m.command), int(m.current), int(m.autocontinue),
-                   (float(m.param1), float(m.param2), float(m.param3), float(m.param4)),
-                   int(x), int(y), float(m.z))
+        return cls(
+            int(m.frame),
+            int(m.command),
+            int(m.current),
+            int(m.autocontinue),
+            (float(m.param1), float(m.param2), float(m.param3), float(m.param4)),
+            int(x),
+            int(y),
+            float(m.z),
+        )
 
 
 @dataclass
@@ -129,9 +142,16 @@ class MissionServer:
             return None
         if mission_type == T_MISSION and not self.px4 and seq == 0:
             lat, lon, alt = self._home_fn()
-            return MissionItem(mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, 0, 1,
-                               (0.0, 0.0, 0.0, 0.0), wire.lat_e7_from_deg(lat),
-                               wire.lat_e7_from_deg(lon), float(alt))
+            return MissionItem(
+                mavlink.MAV_FRAME_GLOBAL,
+                mavlink.MAV_CMD_NAV_WAYPOINT,
+                0,
+                1,
+                (0.0, 0.0, 0.0, 0.0),
+                wire.lat_e7_from_deg(lat),
+                wire.lat_e7_from_deg(lon),
+                float(alt),
+            )
         return self.items[mission_type][seq]
 
     # -- inbound --------------------------------------------------------------------------
@@ -175,17 +195,43 @@ class MissionServer:
             self._ack(src, comp, mavlink.MAV_MISSION_INVALID_SEQUENCE, t)
             return
         if as_int:
-            self._send(mavlink.MAVLink_mission_item_int_message(
-                src, comp, m.seq, it.frame, it.command, it.current, it.autocontinue, *it.params,
-                it.x, it.y, it.z, t))
+            self._send(
+                mavlink.MAVLink_mission_item_int_message(
+                    src,
+                    comp,
+                    m.seq,
+                    it.frame,
+                    it.command,
+                    it.current,
+                    it.autocontinue,
+                    *it.params,
+                    it.x,
+                    it.y,
+                    it.z,
+                    t,
+                )
+            )
         else:
             if it.frame in _GLOBAL_FRAMES:
                 x, y = wire.deg_from_lat_e7(it.x), wire.deg_from_lat_e7(it.y)
             else:
                 x, y = it.x * 1e-4, it.y * 1e-4
-            self._send(mavlink.MAVLink_mission_item_message(
-                src, comp, m.seq, it.frame, it.command, it.current, it.autocontinue, *it.params,
-                x, y, it.z, t))
+            self._send(
+                mavlink.MAVLink_mission_item_message(
+                    src,
+                    comp,
+                    m.seq,
+                    it.frame,
+                    it.command,
+                    it.current,
+                    it.autocontinue,
+                    *it.params,
+                    x,
+                    y,
+                    it.z,
+                    t,
+                )
+            )
 
     def on_count(self, m, now_s: float) -> None:
         if not self._type_ok(m):
@@ -258,8 +304,11 @@ class MissionServer:
         up = self._upload
         assert up is not None  # requests are sent during an upload only
         up.last_request_s = now_s
-        cls = (mavlink.MAVLink_mission_request_int_message if self.px4 and self._int_mode
-               else mavlink.MAVLink_mission_request_message)
+        cls = (
+            mavlink.MAVLink_mission_request_int_message
+            if self.px4 and self._int_mode
+            else mavlink.MAVLink_mission_request_message
+        )
         self._send(cls(up.sysid, up.compid, up.next_seq, up.mission_type))
 
     def update(self, now_s: float) -> None:
@@ -268,7 +317,6 @@ class MissionServer:
             return
         if now_s - up.last_rx_s > UPLOAD_TIMEOUT_S:
             self._upload = None
-            self._ack(up.sysid, up.compid, mavlink.MAV_MISSION_OPERATION_CANCELLED,
-                      up.mission_type)
+            self._ack(up.sysid, up.compid, mavlink.MAV_MISSION_OPERATION_CANCELLED, up.mission_type)
         elif now_s - up.last_request_s > RESEND_S:
             self._request(now_s)

@@ -51,18 +51,18 @@ class ParamSpec:
 ARDUPILOT_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("SYSID_THISMAV", 1, _I16, 1, 255),
     ParamSpec("SYSID_MYGCS", 255, _I16, 1, 255),
-    ParamSpec("FS_GCS_ENABLE", 1, _I8, 0, 7),      # emulator default (firmware: 0)
+    ParamSpec("FS_GCS_ENABLE", 1, _I8, 0, 7),  # emulator default (firmware: 0)
     ParamSpec("FS_GCS_TIMEOUT", 5.0, _F, 2, 120),  # s
     ParamSpec("FS_OPTIONS", 16, _I32, 0, 2**31 - 1),  # bit 4: continue pilot modes on GCS failsafe
-    ParamSpec("GUID_TIMEOUT", 3.0, _F, 0.1, 5),    # s
+    ParamSpec("GUID_TIMEOUT", 3.0, _F, 0.1, 5),  # s
     ParamSpec("WPNAV_SPEED", 1000.0, _F, 10, 2000),  # cm/s
     ParamSpec("WPNAV_SPEED_UP", 250.0, _F, 10, 1000),  # cm/s
     ParamSpec("WPNAV_SPEED_DN", 150.0, _F, 10, 500),  # cm/s
-    ParamSpec("LAND_SPEED", 50.0, _F, 30, 200),    # cm/s
+    ParamSpec("LAND_SPEED", 50.0, _F, 30, 200),  # cm/s
     ParamSpec("RTL_ALT", 1500.0, _F, 200, 300000),  # cm above home
     ParamSpec("RTL_ALT_FINAL", 0.0, _F, 0, 1000),  # cm; 0 = land at home
-    ParamSpec("RTL_SPEED", 0.0, _F, 0, 2000),      # cm/s; 0 = WPNAV_SPEED
-    ParamSpec("DISARM_DELAY", 10, _I8, 0, 127),    # s
+    ParamSpec("RTL_SPEED", 0.0, _F, 0, 2000),  # cm/s; 0 = WPNAV_SPEED
+    ParamSpec("DISARM_DELAY", 10, _I8, 0, 127),  # s
     # libraries/AP_Rally/AP_Rally.cpp, Copter defaults (RTL to the nearest rally point or home).
     ParamSpec("RALLY_LIMIT_KM", 0.3, _F, 0, 1000),  # km; 0 = no limit
     ParamSpec("RALLY_INCL_HOME", 1, _I8, 0, 1),
@@ -72,17 +72,19 @@ ARDUPILOT_PARAMS: tuple[ParamSpec, ...] = (
 # src/modules/mc_pos_control/multicopter_*_params.c, src/modules/navigator/rtl_params.c.
 PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("MAV_SYS_ID", 1, _I32, 1, 250),
-    ParamSpec("COM_OF_LOSS_T", 1.0, _F, 0, 60),    # s
-    ParamSpec("COM_OBL_RC_ACT", 0, _I32, 0, 7),    # 0 Position, 1 Altitude, 2 Manual, 3 RTL, 4 Land, 5 Hold
-    ParamSpec("NAV_RCL_ACT", 2, _I32, 0, 7),       # 2 Return (offboard-loss action without RC)
-    ParamSpec("NAV_DLL_ACT", 2, _I32, 0, 7),       # emulator default (firmware: 0 disabled)
+    ParamSpec("COM_OF_LOSS_T", 1.0, _F, 0, 60),  # s
+    ParamSpec(
+        "COM_OBL_RC_ACT", 0, _I32, 0, 7
+    ),  # 0 Position, 1 Altitude, 2 Manual, 3 RTL, 4 Land, 5 Hold
+    ParamSpec("NAV_RCL_ACT", 2, _I32, 0, 7),  # 2 Return (offboard-loss action without RC)
+    ParamSpec("NAV_DLL_ACT", 2, _I32, 0, 7),  # emulator default (firmware: 0 disabled)
     ParamSpec("COM_DL_LOSS_T", 10, _I32, 5, 300),  # s
-    ParamSpec("COM_RC_IN_MODE", 3, _I32, 0, 8),    # 3 RC or MAVLink, keep first
-    ParamSpec("COM_RCL_EXCEPT", 0, _I32, 0, 31),   # bitmask; 0 no exceptions
-    ParamSpec("COM_DLL_EXCEPT", 0, _I32, 0, 31),   # bitmask; 0 no exceptions
-    ParamSpec("COM_FAIL_ACT_T", 0.0, _F, 0, 25),   # s in Hold before a failsafe action
+    ParamSpec("COM_RC_IN_MODE", 3, _I32, 0, 8),  # 3 RC or MAVLink, keep first
+    ParamSpec("COM_RCL_EXCEPT", 0, _I32, 0, 31),  # bitmask; 0 no exceptions
+    ParamSpec("COM_DLL_EXCEPT", 0, _I32, 0, 31),  # bitmask; 0 no exceptions
+    ParamSpec("COM_FAIL_ACT_T", 0.0, _F, 0, 25),  # s in Hold before a failsafe action
     ParamSpec("COM_DISARM_PRFLT", 10.0, _F, -1, 20),  # s
-    ParamSpec("MPC_XY_CRUISE", 5.0, _F, 3, 20),    # m/s (auto modes)
+    ParamSpec("MPC_XY_CRUISE", 5.0, _F, 3, 20),  # m/s (auto modes)
     ParamSpec("MPC_XY_VEL_MAX", 12.0, _F, 0, 20),  # m/s (offboard / position limit)
     ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, _F, 0.5, 8),  # m/s
     ParamSpec("MPC_Z_VEL_MAX_DN", 1.5, _F, 0.5, 4),  # m/s
@@ -91,7 +93,7 @@ PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("RTL_RETURN_ALT", 60.0, _F, 0, 150),  # m above home
     ParamSpec("RTL_DESCEND_ALT", 30.0, _F, 2, 100),  # m (used as hover height if RTL_LAND_DELAY<0)
     ParamSpec("RTL_LAND_DELAY", 0.0, _F, -1, 300),  # s; -1 = hover at RTL_DESCEND_ALT
-    ParamSpec("RTL_TYPE", 0, _I32, 0, 5),          # 0 closest of home / rally points (rtl_params.c)
+    ParamSpec("RTL_TYPE", 0, _I32, 0, 5),  # 0 closest of home / rally points (rtl_params.c)
 )
 
 

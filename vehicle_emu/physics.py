@@ -49,9 +49,16 @@ class Physics:
         Time constant of the velocity lag.
     """
 
-    def __init__(self, pos_ned_m, max_speed_h_m_s: float = 10.0, climb_rate_m_s: float = 2.5,
-                 descent_rate_m_s: float = 1.5, tau_pos_s: float = 1.0, tau_vel_s: float = 0.3,
-                 origin_lla: tuple[float, float, float] = (0.0, 0.0, 0.0)):
+    def __init__(
+        self,
+        pos_ned_m,
+        max_speed_h_m_s: float = 10.0,
+        climb_rate_m_s: float = 2.5,
+        descent_rate_m_s: float = 1.5,
+        tau_pos_s: float = 1.0,
+        tau_vel_s: float = 0.3,
+        origin_lla: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ):
         pos = np.array(pos_ned_m, dtype=float).reshape(-1, 3)
         self.origin_lla = tuple(float(v) for v in origin_lla)
         """World origin (lat_deg, lon_deg, alt_amsl_m): the base station / swarm home."""
@@ -88,7 +95,8 @@ class Physics:
         """Recompute ``lat_deg``, ``lon_deg``, ``alt_amsl_m`` (N,) for all vehicles (one call)."""
         if self.n:
             self.lat_deg, self.lon_deg, self.alt_amsl_m = ned_to_geodetic(
-                self.pos_ned_m, *self.origin_lla)
+                self.pos_ned_m, *self.origin_lla
+            )
 
     # -- commands (called by the vehicle cores; index = array row) -----------------------------
 
@@ -127,8 +135,8 @@ class Physics:
             self.battery_frac = np.maximum(0.0, self.battery_frac - drain)
 
     def _commanded_velocity(self) -> np.ndarray:
-        pos_err = self.target_pos_ned_m - self.pos_ned_m                  # (N,3)
-        v_cmd = pos_err / self.tau_pos_s + self.target_vel_ned_m_s          # CTRL_POS
+        pos_err = self.target_pos_ned_m - self.pos_ned_m  # (N,3)
+        v_cmd = pos_err / self.tau_pos_s + self.target_vel_ned_m_s  # CTRL_POS
         is_vel = self.ctrl == CTRL_VEL
         v_cmd[is_vel] = self.target_vel_ned_m_s[is_vel]
         is_land = self.ctrl == CTRL_LAND
@@ -146,8 +154,9 @@ class Physics:
         moving = self.armed & self.alive
         v_cmd = self._commanded_velocity()
         is_land = self.ctrl == CTRL_LAND
-        descent_limit = np.where(is_land, np.maximum(self.descent_rate_m_s, self.land_speed_m_s),
-                                 self.descent_rate_m_s)
+        descent_limit = np.where(
+            is_land, np.maximum(self.descent_rate_m_s, self.land_speed_m_s), self.descent_rate_m_s
+        )
         self._saturate_inplace(v_cmd, descent_limit)
         on_ground = self.pos_ned_m[:, DOWN] >= self.ground_down_m - GROUND_EPS_M
         # Landed vehicles do not slide: only a climb command gets them off the ground.
@@ -166,8 +175,9 @@ class Physics:
         pos[dropped, DOWN] = self.ground_down_m[dropped]
         self.pos_ned_m = pos
         self.vel_ned_m_s = vel
-        self.landed = ((pos[:, DOWN] >= self.ground_down_m - GROUND_EPS_M)
-                       & ((v_cmd[:, DOWN] >= 0) | ~moving))
+        self.landed = (pos[:, DOWN] >= self.ground_down_m - GROUND_EPS_M) & (
+            (v_cmd[:, DOWN] >= 0) | ~moving
+        )
         speed_h = np.hypot(vel[:, NORTH], vel[:, EAST])
         turning = speed_h > 0.5
         self.yaw_rad = np.where(turning, np.arctan2(vel[:, EAST], vel[:, NORTH]), self.yaw_rad)

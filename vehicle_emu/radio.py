@@ -110,8 +110,9 @@ class Radio:
         p = pos[idx]
         k = len(idx)
         pairs = neighbour_pairs(p, self.config.radio_range_m)
-        at_base = np.flatnonzero(np.linalg.norm(p - base, axis=1)
-                                 <= min(base_range, self.config.radio_range_m))
+        at_base = np.flatnonzero(
+            np.linalg.norm(p - base, axis=1) <= min(base_range, self.config.radio_range_m)
+        )
         rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.full(len(at_base), k), at_base])
         cols = np.concatenate([pairs[:, 1], pairs[:, 0], at_base, np.full(len(at_base), k)])
         graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(k + 1, k + 1)).tocsr()

@@ -50,8 +50,14 @@ from .physics import Physics
 from .radio import Radio, RadioConfig
 from .telemetry_batch import BatchTelemetry
 
-__all__ = ["Swarm", "TruthLog", "VEHICLES_PER_NETWORK", "identity_of_index", "PEER_TIMEOUT_S",
-           "MAX_PEERS"]
+__all__ = [
+    "Swarm",
+    "TruthLog",
+    "VEHICLES_PER_NETWORK",
+    "identity_of_index",
+    "PEER_TIMEOUT_S",
+    "MAX_PEERS",
+]
 
 log = logging.getLogger(__name__)
 
@@ -95,8 +101,12 @@ class TruthLog:
     """Per sample: (M,) bool — A_i(t), only if a ``task_pos_fn`` was given."""
 
     def arrays(self) -> dict[str, np.ndarray]:
-        out = {"t_s": np.asarray(self.t_s), "pos_ned_m": np.asarray(self.pos_ned_m),
-               "alive": np.asarray(self.alive), "active": np.asarray(self.active)}
+        out = {
+            "t_s": np.asarray(self.t_s),
+            "pos_ned_m": np.asarray(self.pos_ned_m),
+            "alive": np.asarray(self.alive),
+            "active": np.asarray(self.active),
+        }
         if self.task_connected:
             out["task_connected"] = np.asarray(self.task_connected)
         return out
@@ -157,37 +167,61 @@ class Swarm:
         own messages with pymavlink (the slower path the batch is tested against byte for byte).
     """
 
-    def __init__(self, n_vehicles: int, *, personality="ardupilot",
-                 home_lla=(47.397742, 8.545594, 488.0), spawn_ned_m=None,
-                 spawn_spacing_m: float = 3.0, radio: RadioConfig | None = None,
-                 hazard_per_s=0.0, kills=(), airborne_only_attrition: bool = False,
-                 task_pos_fn=None, mux: bool = False, gcs_addrs=(),
-                 signing_key: bytes | None = None, trusted_addrs=(), params=None,
-                 per_vehicle_params=None, stream_rates_hz=None,
-                 rng: np.random.Generator | None = None, now_s: float = 0.0,
-                 tick_s: float = TICK_S, truth_period_s: float = 1.0,
-                 ekf_ready_after_s: float = 0.0, unix_time_at_zero_s: float = 1.7e9,
-                 max_speed_h_m_s: float = 10.0, tau_pos_s: float = 1.0,
-                 radio_period_s: float = 0.1, peer_timeout_s: float = PEER_TIMEOUT_S,
-                 max_peers: int = MAX_PEERS, telemetry: str = "batch") -> None:
+    def __init__(
+        self,
+        n_vehicles: int,
+        *,
+        personality="ardupilot",
+        home_lla=(47.397742, 8.545594, 488.0),
+        spawn_ned_m=None,
+        spawn_spacing_m: float = 3.0,
+        radio: RadioConfig | None = None,
+        hazard_per_s=0.0,
+        kills=(),
+        airborne_only_attrition: bool = False,
+        task_pos_fn=None,
+        mux: bool = False,
+        gcs_addrs=(),
+        signing_key: bytes | None = None,
+        trusted_addrs=(),
+        params=None,
+        per_vehicle_params=None,
+        stream_rates_hz=None,
+        rng: np.random.Generator | None = None,
+        now_s: float = 0.0,
+        tick_s: float = TICK_S,
+        truth_period_s: float = 1.0,
+        ekf_ready_after_s: float = 0.0,
+        unix_time_at_zero_s: float = 1.7e9,
+        max_speed_h_m_s: float = 10.0,
+        tau_pos_s: float = 1.0,
+        radio_period_s: float = 0.1,
+        peer_timeout_s: float = PEER_TIMEOUT_S,
+        max_peers: int = MAX_PEERS,
+        telemetry: str = "batch",
+    ) -> None:
         if n_vehicles < 1:
             raise ValueError(f"n_vehicles must be >= 1, got {n_vehicles}")
         n = int(n_vehicles)
         self.n = n
-        personalities = ([personality] * n if isinstance(personality, str)
-                         else list(personality))
+        personalities = [personality] * n if isinstance(personality, str) else list(personality)
         if len(personalities) != n:
             raise ValueError("personality sequence must have one entry per vehicle")
         rng = rng if rng is not None else np.random.default_rng(0)
         radio_rng, attrition_rng = rng.spawn(2)
         self.home_lla = cast(tuple[float, float, float], tuple(float(v) for v in home_lla))
-        spawn = (grid_spawn_ned_m(n, spawn_spacing_m) if spawn_ned_m is None
-                 else np.asarray(spawn_ned_m, dtype=float).reshape(n, 3))
-        self.physics = Physics(spawn, origin_lla=self.home_lla, max_speed_h_m_s=max_speed_h_m_s,
-                               tau_pos_s=tau_pos_s)
+        spawn = (
+            grid_spawn_ned_m(n, spawn_spacing_m)
+            if spawn_ned_m is None
+            else np.asarray(spawn_ned_m, dtype=float).reshape(n, 3)
+        )
+        self.physics = Physics(
+            spawn, origin_lla=self.home_lla, max_speed_h_m_s=max_speed_h_m_s, tau_pos_s=tau_pos_s
+        )
         self.radio = Radio(radio or RadioConfig(), np.zeros(3), radio_rng)
-        self.attrition = Attrition(n, hazard_per_s, kills, attrition_rng,
-                                   airborne_only=airborne_only_attrition)
+        self.attrition = Attrition(
+            n, hazard_per_s, kills, attrition_rng, airborne_only=airborne_only_attrition
+        )
         self.task_pos_fn = task_pos_fn
         self.tick_s = float(tick_s)
         self.truth_period_s = float(truth_period_s)
@@ -197,8 +231,9 @@ class Swarm:
         self.network_of_index = np.arange(n) // VEHICLES_PER_NETWORK
         self.sysid_of_index = np.arange(n) % VEHICLES_PER_NETWORK + 1
         self.n_networks = int(self.network_of_index[-1]) + 1
-        self._index_of = {(int(self.network_of_index[i]), int(self.sysid_of_index[i])): i
-                          for i in range(n)}
+        self._index_of = {
+            (int(self.network_of_index[i]), int(self.sysid_of_index[i])): i for i in range(n)
+        }
         per_vehicle_params = per_vehicle_params or {}
         #: Rate limits for warnings caused by remote input (one shared by all cores).
         self.log_limiter = RateLimitedLog(log)
@@ -207,13 +242,20 @@ class Swarm:
         for i in range(n):
             p = dict(params or {})
             p.update(per_vehicle_params.get(i, {}))
-            core = VehicleCore(int(self.sysid_of_index[i]), personalities[i], now_s=now_s,
-                               physics=self.physics, index=i, params=p,
-                               signing_key=signing_key, trusted_addrs=trusted_addrs,
-                               ekf_ready_after_s=ekf_ready_after_s,
-                               unix_time_at_zero_s=unix_time_at_zero_s,
-                               network=int(self.network_of_index[i]),
-                               log_limiter=core_limiter)
+            core = VehicleCore(
+                int(self.sysid_of_index[i]),
+                personalities[i],
+                now_s=now_s,
+                physics=self.physics,
+                index=i,
+                params=p,
+                signing_key=signing_key,
+                trusted_addrs=trusted_addrs,
+                ekf_ready_after_s=ekf_ready_after_s,
+                unix_time_at_zero_s=unix_time_at_zero_s,
+                network=int(self.network_of_index[i]),
+                log_limiter=core_limiter,
+            )
             for msg_id, hz in (stream_rates_hz or {}).items():
                 core.set_stream_rate(int(msg_id), float(hz), now_s)
             self.cores.append(core)
@@ -232,8 +274,9 @@ class Swarm:
         self._next_peer_sweep_s = float(now_s) + _PEER_SWEEP_PERIOD_S
         #: Per endpoint: every destination (static then learned); rebuilt when peers change.
         self.peers: list[list] = [list(p) for p in self._static_peers]
-        self._members = [np.flatnonzero(self.network_of_index == k).tolist()
-                         for k in range(self.n_networks)]
+        self._members = [
+            np.flatnonzero(self.network_of_index == k).tolist() for k in range(self.n_networks)
+        ]
 
         self._t_s = float(now_s)
         self._next_truth_s = float(now_s) + self.truth_period_s
@@ -241,10 +284,18 @@ class Swarm:
         self._delay_seq = 0
         self._events: deque = deque(maxlen=_MAX_EVENTS)
         self.truth = TruthLog([], [], [], [], [])
-        self.stats = {"datagrams_in": 0, "datagrams_out": 0,
-                      "dropped_radio_in": 0, "dropped_radio_out": 0, "dropped_dead": 0,
-                      "unroutable": 0, "ticks": 0, "peers_learned": 0, "peers_expired": 0,
-                      "peers_evicted": 0}
+        self.stats = {
+            "datagrams_in": 0,
+            "datagrams_out": 0,
+            "dropped_radio_in": 0,
+            "dropped_radio_out": 0,
+            "dropped_dead": 0,
+            "unroutable": 0,
+            "ticks": 0,
+            "peers_learned": 0,
+            "peers_expired": 0,
+            "peers_evicted": 0,
+        }
         self._radio_dirty = False
         if telemetry not in ("batch", "reference"):
             raise ValueError(f"telemetry must be 'batch' or 'reference', got {telemetry!r}")
@@ -289,20 +340,28 @@ class Swarm:
             return
         learned = self._learned[endpoint]
         if addr in learned:
-            del learned[addr]          # re-insert at the end: most recently heard
+            del learned[addr]  # re-insert at the end: most recently heard
             learned[addr] = now_s
             return
         if len(learned) >= self.max_peers:
             old = next(iter(learned))  # least recently heard
             del learned[old]
             self.stats["peers_evicted"] += 1
-            self.log_limiter.log(now_s, "peer_evicted", logging.WARNING,
-                                 "endpoint %d: more than %d peers, dropped %s for %s", endpoint,
-                                 self.max_peers, old, addr)
+            self.log_limiter.log(
+                now_s,
+                "peer_evicted",
+                logging.WARNING,
+                "endpoint %d: more than %d peers, dropped %s for %s",
+                endpoint,
+                self.max_peers,
+                old,
+                addr,
+            )
         learned[addr] = now_s
         self.stats["peers_learned"] += 1
-        self.log_limiter.log(now_s, "peer_new", logging.INFO, "endpoint %d: new peer %s",
-                             endpoint, addr)
+        self.log_limiter.log(
+            now_s, "peer_new", logging.INFO, "endpoint %d: new peer %s", endpoint, addr
+        )
         self._rebuild_peers(endpoint)
 
     def expire_peers(self, now_s: float) -> int:
@@ -311,7 +370,7 @@ class Swarm:
         for endpoint in list(self._endpoints_learned):
             learned = self._learned[endpoint]
             stale = []
-            for addr, t in learned.items():   # least recently heard first
+            for addr, t in learned.items():  # least recently heard first
                 if now_s - t <= self.peer_timeout_s:
                     break
                 stale.append(addr)
@@ -322,9 +381,14 @@ class Swarm:
                 self._rebuild_peers(endpoint)
         if n:
             self.stats["peers_expired"] += n
-            self.log_limiter.log(now_s, "peer_expired", logging.INFO,
-                                 "forgot %d peer(s) silent for more than %.0f s", n,
-                                 self.peer_timeout_s)
+            self.log_limiter.log(
+                now_s,
+                "peer_expired",
+                logging.INFO,
+                "forgot %d peer(s) silent for more than %.0f s",
+                n,
+                self.peer_timeout_s,
+            )
         return n
 
     # ------------------------------------------------------------------ sans-I/O surface
@@ -347,9 +411,15 @@ class Swarm:
         frames = wire.split_frames(data)
         if not frames and data:
             self.stats["unroutable"] += 1
-            self.log_limiter.log(now_s, "unroutable", logging.WARNING,
-                                 "endpoint %d: no MAVLink frame in a datagram from %s (%d so far)",
-                                 endpoint, addr, self.stats["unroutable"])
+            self.log_limiter.log(
+                now_s,
+                "unroutable",
+                logging.WARNING,
+                "endpoint %d: no MAVLink frame in a datagram from %s (%d so far)",
+                endpoint,
+                addr,
+                self.stats["unroutable"],
+            )
             return
         for frame in frames:
             target = wire.frame_target_system(frame)
@@ -357,9 +427,15 @@ class Swarm:
                 i = self._index_of.get((endpoint, target))
                 if i is None:
                     self.stats["unroutable"] += 1
-                    self.log_limiter.log(now_s, "no_target", logging.WARNING,
-                                         "endpoint %d: frame for unknown sysid %d from %s",
-                                         endpoint, target, addr)
+                    self.log_limiter.log(
+                        now_s,
+                        "no_target",
+                        logging.WARNING,
+                        "endpoint %d: frame for unknown sysid %d from %s",
+                        endpoint,
+                        target,
+                        addr,
+                    )
                     continue
                 self._radio_to_vehicle(i, frame, addr, now_s)
             else:
@@ -495,8 +571,14 @@ class Swarm:
         self.radio.active[index] = False  # silent at once; relays recomputed next tick
         self._radio_dirty = True
         net, sysid = self.identity(index)
-        log.info("vehicle %d (network %d, sysid %d) lost at t=%.2f s (%s)", index, net, sysid,
-                 now_s, cause)
+        log.info(
+            "vehicle %d (network %d, sysid %d) lost at t=%.2f s (%s)",
+            index,
+            net,
+            sysid,
+            now_s,
+            cause,
+        )
         self._events.append(ev.VehicleKilled(sysid, now_s, net, index, cause))
 
     def sample_truth_from(self, t_s: float) -> None:
@@ -520,7 +602,8 @@ class Swarm:
             task_pos = np.asarray(self.task_pos_fn(now_s), dtype=float).reshape(-1, 2)
             r = self.radio.config.radio_range_m
             tr.task_connected.append(
-                tasks_connected(task_pos, ph.pos_ned_m[:, :2], self.radio.active, r))
+                tasks_connected(task_pos, ph.pos_ned_m[:, :2], self.radio.active, r)
+            )
 
     def task_uptime(self, zero_over_zero: str = "zero") -> tuple[float, float]:
         """Ground-truth (TU1, TU2) over the recorded samples (fractions)."""

@@ -15,18 +15,36 @@ from typing import Any, SupportsFloat
 import numpy as np
 
 from mavedge import mavlink
-from mavedge.units import (deg_to_e7, m_s_to_cm_s, m_to_mm, s_to_time_boot_ms, s_to_time_usec,
-                           yaw_rad_to_hdg_cdeg)
+from mavedge.units import (
+    deg_to_e7,
+    m_s_to_cm_s,
+    m_to_mm,
+    s_to_time_boot_ms,
+    s_to_time_usec,
+    yaw_rad_to_hdg_cdeg,
+)
 from planner.geometry import DOWN, EAST, NORTH, ned_to_geodetic
 
 from .physics import CTRL_VEL
 
 __all__ = [
-    "StreamScheduler", "BUILDERS", "f32",
-    "M_HEARTBEAT", "M_SYS_STATUS", "M_GPS_RAW_INT", "M_LOCAL_POSITION_NED",
-    "M_GLOBAL_POSITION_INT", "M_GPS_GLOBAL_ORIGIN", "M_POSITION_TARGET_LOCAL_NED",
-    "M_POSITION_TARGET_GLOBAL_INT", "M_AUTOPILOT_VERSION", "M_HOME_POSITION",
-    "M_EXTENDED_SYS_STATE", "M_MISSION_CURRENT", "M_ATTITUDE", "M_VFR_HUD",
+    "StreamScheduler",
+    "BUILDERS",
+    "f32",
+    "M_HEARTBEAT",
+    "M_SYS_STATUS",
+    "M_GPS_RAW_INT",
+    "M_LOCAL_POSITION_NED",
+    "M_GLOBAL_POSITION_INT",
+    "M_GPS_GLOBAL_ORIGIN",
+    "M_POSITION_TARGET_LOCAL_NED",
+    "M_POSITION_TARGET_GLOBAL_INT",
+    "M_AUTOPILOT_VERSION",
+    "M_HOME_POSITION",
+    "M_EXTENDED_SYS_STATE",
+    "M_MISSION_CURRENT",
+    "M_ATTITUDE",
+    "M_VFR_HUD",
 ]
 
 M_HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
@@ -113,6 +131,7 @@ class StreamScheduler:
 # Builders: (core, now_s) -> pymavlink message
 # --------------------------------------------------------------------------------------------
 
+
 def _boot_ms(core, now_s: float) -> int:
     return s_to_time_boot_ms(now_s - core._boot_s)
 
@@ -127,15 +146,18 @@ def heartbeat(core, now_s: float):
         status = mavlink.MAV_STATE_CRITICAL
     else:
         status = mavlink.MAV_STATE_ACTIVE if core.armed else mavlink.MAV_STATE_STANDBY
-    return mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, core.pers.autopilot,
-                                             base, core._mode_key, status, 3)
+    return mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_QUADROTOR, core.pers.autopilot, base, core._mode_key, status, 3
+    )
 
 
-SYS_STATUS_SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
-                      | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-                      | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
-                      | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
-                      | mavlink.MAV_SYS_STATUS_SENSOR_GPS)
+SYS_STATUS_SENSORS = (
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | mavlink.MAV_SYS_STATUS_SENSOR_GPS
+)
 
 
 def sys_status(core, now_s: float):
@@ -143,8 +165,20 @@ def sys_status(core, now_s: float):
     batt = float(core.physics.battery_frac[core.index])
     health = sensors | core.pers.sys_status_health_extra
     return mavlink.MAVLink_sys_status_message(
-        sensors, sensors, health, 100, int(10500 + 2100 * batt), -1, int(round(batt * 100)),
-        0, 0, 0, 0, 0, 0)
+        sensors,
+        sensors,
+        health,
+        100,
+        int(10500 + 2100 * batt),
+        -1,
+        int(round(batt * 100)),
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+    )
 
 
 def global_position_int(core, now_s: float):
@@ -152,9 +186,16 @@ def global_position_int(core, now_s: float):
     vel = ph.vel_ned_m_s[i]
     alt = float(ph.alt_amsl_m[i])
     return mavlink.MAVLink_global_position_int_message(
-        _boot_ms(core, now_s), deg_to_e7(ph.lat_deg[i]), deg_to_e7(ph.lon_deg[i]), m_to_mm(alt),
-        m_to_mm(alt - core.home_lla[2]), m_s_to_cm_s(vel[NORTH]), m_s_to_cm_s(vel[EAST]),
-        m_s_to_cm_s(vel[DOWN]), yaw_rad_to_hdg_cdeg(ph.yaw_rad[i]))
+        _boot_ms(core, now_s),
+        deg_to_e7(ph.lat_deg[i]),
+        deg_to_e7(ph.lon_deg[i]),
+        m_to_mm(alt),
+        m_to_mm(alt - core.home_lla[2]),
+        m_s_to_cm_s(vel[NORTH]),
+        m_s_to_cm_s(vel[EAST]),
+        m_s_to_cm_s(vel[DOWN]),
+        yaw_rad_to_hdg_cdeg(ph.yaw_rad[i]),
+    )
 
 
 def local_position_ned(core, now_s: float):
@@ -162,8 +203,9 @@ def local_position_ned(core, now_s: float):
     p = ph.pos_ned_m[i] - core.home_ned_m
     v = ph.vel_ned_m_s[i]
     return mavlink.MAVLink_local_position_ned_message(
-        _boot_ms(core, now_s), *(f32(c) for c in (p[NORTH], p[EAST], p[DOWN], v[NORTH],
-                                                  v[EAST], v[DOWN])))
+        _boot_ms(core, now_s),
+        *(f32(c) for c in (p[NORTH], p[EAST], p[DOWN], v[NORTH], v[EAST], v[DOWN])),
+    )
 
 
 def gps_raw_int(core, now_s: float):
@@ -172,22 +214,41 @@ def gps_raw_int(core, now_s: float):
     speed = math.hypot(v[NORTH], v[EAST])
     cog = yaw_rad_to_hdg_cdeg(math.atan2(v[EAST], v[NORTH])) if speed > 0.1 else 65535
     return mavlink.MAVLink_gps_raw_int_message(
-        s_to_time_usec(now_s - core._boot_s), mavlink.GPS_FIX_TYPE_3D_FIX,
-        deg_to_e7(ph.lat_deg[i]), deg_to_e7(ph.lon_deg[i]), m_to_mm(ph.alt_amsl_m[i]), 80, 120,
-        min(65534, int(round(speed * 100))), cog, 12)
+        s_to_time_usec(now_s - core._boot_s),
+        mavlink.GPS_FIX_TYPE_3D_FIX,
+        deg_to_e7(ph.lat_deg[i]),
+        deg_to_e7(ph.lon_deg[i]),
+        m_to_mm(ph.alt_amsl_m[i]),
+        80,
+        120,
+        min(65534, int(round(speed * 100))),
+        cog,
+        12,
+    )
 
 
 def home_position(core, now_s: float):
     lat, lon, alt = core.home_lla
     return mavlink.MAVLink_home_position_message(
-        deg_to_e7(lat), deg_to_e7(lon), m_to_mm(alt), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0],
-        0.0, 0.0, 0.0, s_to_time_usec(now_s - core._boot_s))
+        deg_to_e7(lat),
+        deg_to_e7(lon),
+        m_to_mm(alt),
+        0.0,
+        0.0,
+        0.0,
+        [1.0, 0.0, 0.0, 0.0],
+        0.0,
+        0.0,
+        0.0,
+        s_to_time_usec(now_s - core._boot_s),
+    )
 
 
 def gps_global_origin(core, now_s: float):
     lat, lon, alt = core.home_lla
     return mavlink.MAVLink_gps_global_origin_message(
-        deg_to_e7(lat), deg_to_e7(lon), m_to_mm(alt), s_to_time_usec(now_s - core._boot_s))
+        deg_to_e7(lat), deg_to_e7(lon), m_to_mm(alt), s_to_time_usec(now_s - core._boot_s)
+    )
 
 
 def attitude(core, now_s: float):
@@ -205,16 +266,16 @@ def vfr_hud(core, now_s: float):
     speed = math.hypot(v[NORTH], v[EAST])
     heading = yaw_rad_to_hdg_cdeg(ph.yaw_rad[i]) // 100
     throttle = 0 if ph.landed[i] or not core.armed else 50
-    return mavlink.MAVLink_vfr_hud_message(speed, speed, heading, throttle,
-                                           float(ph.alt_amsl_m[i]), float(-v[DOWN]))
+    return mavlink.MAVLink_vfr_hud_message(
+        speed, speed, heading, throttle, float(ph.alt_amsl_m[i]), float(-v[DOWN])
+    )
 
 
 def mission_current(core, now_s: float):
     """MISSION_CURRENT: no item is ever active (AUTO is not flown). ``total`` excludes
     ArduPilot's home item (common.xml MISSION_CURRENT.total)."""
     total = core._missions.count(mavlink.MAV_MISSION_TYPE_MISSION) - core.pers.mission_home_items
-    state = (mavlink.MISSION_STATE_NOT_STARTED if total > 0
-             else mavlink.MISSION_STATE_NO_MISSION)
+    state = mavlink.MISSION_STATE_NOT_STARTED if total > 0 else mavlink.MISSION_STATE_NO_MISSION
     return mavlink.MAVLink_mission_current_message(0, total, state, 0)
 
 
@@ -241,8 +302,16 @@ def _target_local(core):
 def position_target_local_ned(core, now_s: float):
     p, v, mask = _target_local(core)
     return mavlink.MAVLink_position_target_local_ned_message(
-        _boot_ms(core, now_s), mavlink.MAV_FRAME_LOCAL_NED, mask,
-        *(f32(c) for c in (p[0], p[1], p[2], v[0], v[1], v[2])), 0.0, 0.0, 0.0, 0.0, 0.0)
+        _boot_ms(core, now_s),
+        mavlink.MAV_FRAME_LOCAL_NED,
+        mask,
+        *(f32(c) for c in (p[0], p[1], p[2], v[0], v[1], v[2])),
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+    )
 
 
 def position_target_global_int(core, now_s: float):
@@ -251,26 +320,42 @@ def position_target_global_int(core, now_s: float):
     with np.errstate(all="ignore"):
         lat, lon, alt = ned_to_geodetic(ph.target_pos_ned_m[i], *ph.origin_lla)
     return mavlink.MAVLink_position_target_global_int_message(
-        _boot_ms(core, now_s), mavlink.MAV_FRAME_GLOBAL_INT, mask, deg_to_e7(lat), deg_to_e7(lon),
-        *(f32(c) for c in (alt, v[0], v[1], v[2])), 0.0, 0.0, 0.0, 0.0, 0.0)
+        _boot_ms(core, now_s),
+        mavlink.MAV_FRAME_GLOBAL_INT,
+        mask,
+        deg_to_e7(lat),
+        deg_to_e7(lon),
+        *(f32(c) for c in (alt, v[0], v[1], v[2])),
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+    )
 
 
 def autopilot_version(core, now_s: float):
     # Capabilities and version per personality (vehicle_emu.personality.*).
     uid = (core.network << 16) | core.sysid
     return mavlink.MAVLink_autopilot_version_message(
-        core.pers.capabilities, core.pers.sw_version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
-        uid)
+        core.pers.capabilities, core.pers.sw_version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid
+    )
 
 
 #: msg id -> builder(core, now_s).
 BUILDERS = {
-    M_HEARTBEAT: heartbeat, M_SYS_STATUS: sys_status, M_GPS_RAW_INT: gps_raw_int,
-    M_LOCAL_POSITION_NED: local_position_ned, M_GLOBAL_POSITION_INT: global_position_int,
+    M_HEARTBEAT: heartbeat,
+    M_SYS_STATUS: sys_status,
+    M_GPS_RAW_INT: gps_raw_int,
+    M_LOCAL_POSITION_NED: local_position_ned,
+    M_GLOBAL_POSITION_INT: global_position_int,
     M_GPS_GLOBAL_ORIGIN: gps_global_origin,
     M_POSITION_TARGET_LOCAL_NED: position_target_local_ned,
     M_POSITION_TARGET_GLOBAL_INT: position_target_global_int,
-    M_AUTOPILOT_VERSION: autopilot_version, M_HOME_POSITION: home_position,
-    M_EXTENDED_SYS_STATE: extended_sys_state, M_MISSION_CURRENT: mission_current,
-    M_ATTITUDE: attitude, M_VFR_HUD: vfr_hud,
+    M_AUTOPILOT_VERSION: autopilot_version,
+    M_HOME_POSITION: home_position,
+    M_EXTENDED_SYS_STATE: extended_sys_state,
+    M_MISSION_CURRENT: mission_current,
+    M_ATTITUDE: attitude,
+    M_VFR_HUD: vfr_hud,
 }

@@ -33,8 +33,7 @@ import re
 import numpy as np
 
 from mavedge import mavlink
-from mavedge.units import (INT32_MAX, INT32_MIN, UINT16_MAX, deg_to_e7, m_to_mm,
-                           yaw_rad_to_hdg_cdeg)
+from mavedge.units import INT32_MAX, INT32_MIN, UINT16_MAX, deg_to_e7, m_to_mm, yaw_rad_to_hdg_cdeg
 from planner.geometry import DOWN, EAST, NORTH, ned_to_geodetic
 
 from . import telemetry as tm
@@ -57,8 +56,19 @@ def _crc_table() -> np.ndarray:
 
 
 _CRC_TABLE = _crc_table()
-_CODES = {"f": "<f4", "d": "<f8", "B": "u1", "b": "i1", "H": "<u2", "h": "<i2", "I": "<u4",
-          "i": "<i4", "Q": "<u8", "q": "<i8", "c": "S1"}
+_CODES = {
+    "f": "<f4",
+    "d": "<f8",
+    "B": "u1",
+    "b": "i1",
+    "H": "<u2",
+    "h": "<i2",
+    "I": "<u4",
+    "i": "<i4",
+    "Q": "<u8",
+    "q": "<i8",
+    "c": "S1",
+}
 
 
 class _Layout:
@@ -126,7 +136,7 @@ def pack_frames(cls, fields: dict, seq, sysid, compid) -> list[bytes]:
     m[:, 7] = lay.msgid & 0xFF
     m[:, 8] = (lay.msgid >> 8) & 0xFF
     m[:, 9] = (lay.msgid >> 16) & 0xFF
-    m[:, 10:10 + plen] = pay
+    m[:, 10 : 10 + plen] = pay
     crc = np.full(k, 0xFFFF, dtype=np.int64)
     table = _CRC_TABLE
     end = 10 + length
@@ -141,12 +151,13 @@ def pack_frames(cls, fields: dict, seq, sysid, compid) -> list[bytes]:
     m[rows, end] = crc & 0xFF
     m[rows, end + 1] = crc >> 8
     buf = m.tobytes()
-    return [buf[r * width:r * width + 12 + n] for r, n in enumerate(length.tolist())]
+    return [buf[r * width : r * width + 12 + n] for r, n in enumerate(length.tolist())]
 
 
 # --------------------------------------------------------------------------------------------
 # Vectorised fields, the same arithmetic as the scalar builders of vehicle_emu.telemetry
 # --------------------------------------------------------------------------------------------
+
 
 def _e7(deg: np.ndarray) -> np.ndarray:
     """mavedge.units.deg_to_e7 over an array: round half-even, clamp to int32, non-finite ->
@@ -189,50 +200,77 @@ def _heartbeat(b, cores, rows, now_s):
             f |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
         if c.armed:
             f |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-            status.append(mavlink.MAV_STATE_CRITICAL if c.gcs_failsafe else
-                          mavlink.MAV_STATE_ACTIVE)
+            status.append(
+                mavlink.MAV_STATE_CRITICAL if c.gcs_failsafe else mavlink.MAV_STATE_ACTIVE
+            )
         else:
             status.append(mavlink.MAV_STATE_STANDBY)
         base.append(f)
         modes.append(c._mode_key)
-    return {"type": mavlink.MAV_TYPE_QUADROTOR, "autopilot": b.autopilot[rows],
-            "base_mode": base, "custom_mode": modes, "system_status": status,
-            "mavlink_version": 3}
+    return {
+        "type": mavlink.MAV_TYPE_QUADROTOR,
+        "autopilot": b.autopilot[rows],
+        "base_mode": base,
+        "custom_mode": modes,
+        "system_status": status,
+        "mavlink_version": 3,
+    }
 
 
 def _sys_status(b, cores, rows, now_s):
     batt = b.ph.battery_frac[rows]
     s = tm.SYS_STATUS_SENSORS
-    return {"onboard_control_sensors_present": s, "onboard_control_sensors_enabled": s,
-            "onboard_control_sensors_health": s | b.health_extra[rows], "load": 100,
-            "voltage_battery": np.trunc(10500 + 2100 * batt).astype(np.int64),
-            "current_battery": -1, "battery_remaining": np.round(batt * 100).astype(np.int64)}
+    return {
+        "onboard_control_sensors_present": s,
+        "onboard_control_sensors_enabled": s,
+        "onboard_control_sensors_health": s | b.health_extra[rows],
+        "load": 100,
+        "voltage_battery": np.trunc(10500 + 2100 * batt).astype(np.int64),
+        "current_battery": -1,
+        "battery_remaining": np.round(batt * 100).astype(np.int64),
+    }
 
 
 def _global_position_int(b, cores, rows, now_s):
     ph = b.ph
     vel = ph.vel_ned_m_s[rows]
     alt = ph.alt_amsl_m[rows]
-    return {"time_boot_ms": _boot_ms(b, rows, now_s), "lat": _e7(ph.lat_deg[rows]),
-            "lon": _e7(ph.lon_deg[rows]), "alt": _mm(alt),
-            "relative_alt": _mm(alt - b.home_alt_m[rows]), "vx": _cm_s(vel[:, NORTH]),
-            "vy": _cm_s(vel[:, EAST]), "vz": _cm_s(vel[:, DOWN]), "hdg": _hdg(ph.yaw_rad[rows])}
+    return {
+        "time_boot_ms": _boot_ms(b, rows, now_s),
+        "lat": _e7(ph.lat_deg[rows]),
+        "lon": _e7(ph.lon_deg[rows]),
+        "alt": _mm(alt),
+        "relative_alt": _mm(alt - b.home_alt_m[rows]),
+        "vx": _cm_s(vel[:, NORTH]),
+        "vy": _cm_s(vel[:, EAST]),
+        "vz": _cm_s(vel[:, DOWN]),
+        "hdg": _hdg(ph.yaw_rad[rows]),
+    }
 
 
 def _local_position_ned(b, cores, rows, now_s):
     ph = b.ph
     p = _f32(ph.pos_ned_m[rows] - b.home_ned_m[rows])
     v = _f32(ph.vel_ned_m_s[rows])
-    return {"time_boot_ms": _boot_ms(b, rows, now_s), "x": p[:, 0], "y": p[:, 1], "z": p[:, 2],
-            "vx": v[:, 0], "vy": v[:, 1], "vz": v[:, 2]}
+    return {
+        "time_boot_ms": _boot_ms(b, rows, now_s),
+        "x": p[:, 0],
+        "y": p[:, 1],
+        "z": p[:, 2],
+        "vx": v[:, 0],
+        "vy": v[:, 1],
+        "vz": v[:, 2],
+    }
 
 
 def _speed_cog(vn: np.ndarray, ve: np.ndarray):
     # math.hypot / math.atan2 row by row: the scalar builder's exact functions (CPython's
     # hypot is not libm's, and the 0.1 m/s threshold must fall the same way).
     speed = [math.hypot(a, c) for a, c in zip(vn.tolist(), ve.tolist())]
-    cog = [yaw_rad_to_hdg_cdeg(math.atan2(c, a)) if s > 0.1 else UINT16_MAX
-           for a, c, s in zip(vn.tolist(), ve.tolist(), speed)]
+    cog = [
+        yaw_rad_to_hdg_cdeg(math.atan2(c, a)) if s > 0.1 else UINT16_MAX
+        for a, c, s in zip(vn.tolist(), ve.tolist(), speed)
+    ]
     return speed, cog
 
 
@@ -240,17 +278,28 @@ def _gps_raw_int(b, cores, rows, now_s):
     ph = b.ph
     v = ph.vel_ned_m_s[rows]
     speed, cog = _speed_cog(v[:, NORTH], v[:, EAST])
-    return {"time_usec": _usec(b, rows, now_s), "fix_type": mavlink.GPS_FIX_TYPE_3D_FIX,
-            "lat": _e7(ph.lat_deg[rows]), "lon": _e7(ph.lon_deg[rows]),
-            "alt": _mm(ph.alt_amsl_m[rows]), "eph": 80, "epv": 120,
-            "vel": [min(65534, int(round(s * 100))) for s in speed], "cog": cog,
-            "satellites_visible": 12}
+    return {
+        "time_usec": _usec(b, rows, now_s),
+        "fix_type": mavlink.GPS_FIX_TYPE_3D_FIX,
+        "lat": _e7(ph.lat_deg[rows]),
+        "lon": _e7(ph.lon_deg[rows]),
+        "alt": _mm(ph.alt_amsl_m[rows]),
+        "eph": 80,
+        "epv": 120,
+        "vel": [min(65534, int(round(s * 100))) for s in speed],
+        "cog": cog,
+        "satellites_visible": 12,
+    }
 
 
 def _home_position(b, cores, rows, now_s):
-    return {"latitude": b.home_e7[rows, 0], "longitude": b.home_e7[rows, 1],
-            "altitude": b.home_e7[rows, 2], "q": (1.0, 0.0, 0.0, 0.0),
-            "time_usec": _usec(b, rows, now_s)}
+    return {
+        "latitude": b.home_e7[rows, 0],
+        "longitude": b.home_e7[rows, 1],
+        "altitude": b.home_e7[rows, 2],
+        "q": (1.0, 0.0, 0.0, 0.0),
+        "time_usec": _usec(b, rows, now_s),
+    }
 
 
 def _targets(b, rows):
@@ -264,10 +313,17 @@ def _targets(b, rows):
 def _position_target_local_ned(b, cores, rows, now_s):
     p, v, mask = _targets(b, rows)
     p, v = _f32(p), _f32(v)
-    return {"time_boot_ms": _boot_ms(b, rows, now_s),
-            "coordinate_frame": mavlink.MAV_FRAME_LOCAL_NED, "type_mask": mask,
-            "x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "vx": v[:, 0], "vy": v[:, 1],
-            "vz": v[:, 2]}
+    return {
+        "time_boot_ms": _boot_ms(b, rows, now_s),
+        "coordinate_frame": mavlink.MAV_FRAME_LOCAL_NED,
+        "type_mask": mask,
+        "x": p[:, 0],
+        "y": p[:, 1],
+        "z": p[:, 2],
+        "vx": v[:, 0],
+        "vy": v[:, 1],
+        "vz": v[:, 2],
+    }
 
 
 def _position_target_global_int(b, cores, rows, now_s):
@@ -276,10 +332,17 @@ def _position_target_global_int(b, cores, rows, now_s):
     with np.errstate(all="ignore"):
         lat, lon, alt = ned_to_geodetic(ph.target_pos_ned_m[rows], *ph.origin_lla)
     v = _f32(v)
-    return {"time_boot_ms": _boot_ms(b, rows, now_s),
-            "coordinate_frame": mavlink.MAV_FRAME_GLOBAL_INT, "type_mask": mask,
-            "lat_int": _e7(np.asarray(lat)), "lon_int": _e7(np.asarray(lon)),
-            "alt": _f32(np.asarray(alt)), "vx": v[:, 0], "vy": v[:, 1], "vz": v[:, 2]}
+    return {
+        "time_boot_ms": _boot_ms(b, rows, now_s),
+        "coordinate_frame": mavlink.MAV_FRAME_GLOBAL_INT,
+        "type_mask": mask,
+        "lat_int": _e7(np.asarray(lat)),
+        "lon_int": _e7(np.asarray(lon)),
+        "alt": _f32(np.asarray(alt)),
+        "vx": v[:, 0],
+        "vy": v[:, 1],
+        "vz": v[:, 2],
+    }
 
 
 def _extended_sys_state(b, cores, rows, now_s):
@@ -310,8 +373,14 @@ def _vfr_hud(b, cores, rows, now_s):
     speed = [math.hypot(a, c) for a, c in zip(v[:, NORTH].tolist(), v[:, EAST].tolist())]
     landed = ph.landed[rows].tolist()
     throttle = [0 if lnd or not c.armed else 50 for c, lnd in zip(cores, landed)]
-    return {"airspeed": speed, "groundspeed": speed, "heading": _hdg(ph.yaw_rad[rows]) // 100,
-            "throttle": throttle, "alt": ph.alt_amsl_m[rows], "climb": -v[:, DOWN]}
+    return {
+        "airspeed": speed,
+        "groundspeed": speed,
+        "heading": _hdg(ph.yaw_rad[rows]) // 100,
+        "throttle": throttle,
+        "alt": ph.alt_amsl_m[rows],
+        "climb": -v[:, DOWN],
+    }
 
 
 _M = mavlink
@@ -323,10 +392,14 @@ BATCHED_TYPES = {
     tm.M_LOCAL_POSITION_NED: (_M.MAVLink_local_position_ned_message, _local_position_ned),
     tm.M_GPS_RAW_INT: (_M.MAVLink_gps_raw_int_message, _gps_raw_int),
     tm.M_HOME_POSITION: (_M.MAVLink_home_position_message, _home_position),
-    tm.M_POSITION_TARGET_LOCAL_NED: (_M.MAVLink_position_target_local_ned_message,
-                                     _position_target_local_ned),
-    tm.M_POSITION_TARGET_GLOBAL_INT: (_M.MAVLink_position_target_global_int_message,
-                                      _position_target_global_int),
+    tm.M_POSITION_TARGET_LOCAL_NED: (
+        _M.MAVLink_position_target_local_ned_message,
+        _position_target_local_ned,
+    ),
+    tm.M_POSITION_TARGET_GLOBAL_INT: (
+        _M.MAVLink_position_target_global_int_message,
+        _position_target_global_int,
+    ),
     tm.M_EXTENDED_SYS_STATE: (_M.MAVLink_extended_sys_state_message, _extended_sys_state),
     tm.M_ATTITUDE: (_M.MAVLink_attitude_message, _attitude),
     tm.M_VFR_HUD: (_M.MAVLink_vfr_hud_message, _vfr_hud),
@@ -348,13 +421,17 @@ class BatchTelemetry:
         self.boot_s = np.array([c._boot_s for c in self.cores])
         self.home_ned_m = np.array([c.home_ned_m for c in self.cores]).reshape(-1, 3)
         self.home_alt_m = np.array([c.home_lla[2] for c in self.cores])
-        self.home_e7 = np.array([[deg_to_e7(c.home_lla[0]),
-                                  deg_to_e7(c.home_lla[1]),
-                                  m_to_mm(c.home_lla[2])] for c in self.cores],
-                                dtype=np.int64).reshape(-1, 3)
+        self.home_e7 = np.array(
+            [
+                [deg_to_e7(c.home_lla[0]), deg_to_e7(c.home_lla[1]), m_to_mm(c.home_lla[2])]
+                for c in self.cores
+            ],
+            dtype=np.int64,
+        ).reshape(-1, 3)
         self.autopilot = np.array([c.pers.autopilot for c in self.cores], dtype=np.int64)
-        self.health_extra = np.array([c.pers.sys_status_health_extra for c in self.cores],
-                                     dtype=np.int64)
+        self.health_extra = np.array(
+            [c.pers.sys_status_health_extra for c in self.cores], dtype=np.int64
+        )
         self.sysid = np.array([c.sysid for c in self.cores], dtype=np.int64)
         self.compid = np.array([c.compid for c in self.cores], dtype=np.int64)
         #: Earliest due time per vehicle, mirrored by each core's StreamScheduler, so that a
@@ -370,15 +447,20 @@ class BatchTelemetry:
     def _sane_rows(self) -> np.ndarray:
         ph = self.ph
         with np.errstate(invalid="ignore"):
-            ok = (np.isfinite(ph.pos_ned_m).all(axis=1) & np.isfinite(ph.vel_ned_m_s).all(axis=1)
-                  & np.isfinite(ph.target_pos_ned_m).all(axis=1)
-                  & np.isfinite(ph.target_vel_ned_m_s).all(axis=1)
-                  & np.isfinite(ph.lat_deg) & np.isfinite(ph.lon_deg)
-                  & np.isfinite(ph.alt_amsl_m) & np.isfinite(ph.yaw_rad)
-                  & np.isfinite(ph.battery_frac)
-                  & (np.abs(ph.yaw_rad) < _SANE)
-                  & (np.abs(ph.vel_ned_m_s) < _SANE).all(axis=1)
-                  & (np.abs(ph.alt_amsl_m) < _SANE))
+            ok = (
+                np.isfinite(ph.pos_ned_m).all(axis=1)
+                & np.isfinite(ph.vel_ned_m_s).all(axis=1)
+                & np.isfinite(ph.target_pos_ned_m).all(axis=1)
+                & np.isfinite(ph.target_vel_ned_m_s).all(axis=1)
+                & np.isfinite(ph.lat_deg)
+                & np.isfinite(ph.lon_deg)
+                & np.isfinite(ph.alt_amsl_m)
+                & np.isfinite(ph.yaw_rad)
+                & np.isfinite(ph.battery_frac)
+                & (np.abs(ph.yaw_rad) < _SANE)
+                & (np.abs(ph.vel_ned_m_s) < _SANE).all(axis=1)
+                & (np.abs(ph.alt_amsl_m) < _SANE)
+            )
         return ok
 
     @staticmethod
@@ -431,20 +513,31 @@ class BatchTelemetry:
                     core._send(builders[msg_id](core, now_s))
                 except Exception:  # noqa: BLE001 - as VehicleCore.emit_telemetry
                     core.stats.telemetry_errors += 1
-                    core._warn_limited(now_s, f"telemetry:{msg_id}",
-                                       "sysid %d: building message %d failed", core.sysid,
-                                       msg_id, exc_info=True)
+                    core._warn_limited(
+                        now_s,
+                        f"telemetry:{msg_id}",
+                        "sysid %d: building message %d failed",
+                        core.sysid,
+                        msg_id,
+                        exc_info=True,
+                    )
         for msg_id, job in jobs.items():
             cls, fields_fn = batched[msg_id]
             cores = [j[0] for j in job]
             rows = np.fromiter((c.index for c in cores), dtype=np.intp, count=len(cores))
             seq = np.fromiter((j[2] for j in job), dtype=np.int64, count=len(job))
             try:
-                frames = pack_frames(cls, fields_fn(self, cores, rows, now_s), seq,
-                                     self.sysid[rows], self.compid[rows])
+                frames = pack_frames(
+                    cls,
+                    fields_fn(self, cores, rows, now_s),
+                    seq,
+                    self.sysid[rows],
+                    self.compid[rows],
+                )
             except Exception:  # noqa: BLE001 - never lose a tick: pack these the slow way
-                log.exception("batched %s failed; packing %d frames one by one", cls.msgname,
-                              len(job))
+                log.exception(
+                    "batched %s failed; packing %d frames one by one", cls.msgname, len(job)
+                )
                 frames = [self._one(core, msg_id, s, now_s) for core, _, s in job]
             for (core, slot, _), frame in zip(job, frames):
                 core._out[slot] = frame

@@ -57,8 +57,9 @@ class EmulatorServer:
         Endpoint ``e`` binds ``base_port + e``; 0 = ephemeral ports.
     """
 
-    def __init__(self, swarm: Swarm, clock: Clock, host: str = "127.0.0.1",
-                 base_port: int = 0) -> None:
+    def __init__(
+        self, swarm: Swarm, clock: Clock, host: str = "127.0.0.1", base_port: int = 0
+    ) -> None:
         self.swarm = swarm
         self.clock = clock
         self.host = host
@@ -80,11 +81,18 @@ class EmulatorServer:
         for e in range(self.swarm.n_endpoints):
             port = self.base_port + e if self.base_port else 0
             transport, _ = await loop.create_datagram_endpoint(
-                functools.partial(_EndpointProtocol, self, e), local_addr=(self.host, port))
+                functools.partial(_EndpointProtocol, self, e), local_addr=(self.host, port)
+            )
             self.transports.append(transport)
             self.addresses.append(transport.get_extra_info("sockname")[:2])
-        log.info("emulating %d vehicles on %d endpoint(s) %s:%d..%d", self.swarm.n,
-                 len(self.addresses), self.host, self.addresses[0][1], self.addresses[-1][1])
+        log.info(
+            "emulating %d vehicles on %d endpoint(s) %s:%d..%d",
+            self.swarm.n,
+            len(self.addresses),
+            self.host,
+            self.addresses[0][1],
+            self.addresses[-1][1],
+        )
         self._on_timer()
 
     def _on_datagram(self, endpoint: int, data: bytes, addr) -> None:
@@ -96,9 +104,15 @@ class EmulatorServer:
         try:
             self.swarm.receive_datagram(endpoint, data, addr, now)
         except Exception:  # noqa: BLE001 - never let one packet kill the loop
-            self.log_limiter.log(now, "receive", logging.ERROR,
-                                 "endpoint %d: error handling a datagram from %s", endpoint,
-                                 addr, exc_info=True)
+            self.log_limiter.log(
+                now,
+                "receive",
+                logging.ERROR,
+                "endpoint %d: error handling a datagram from %s",
+                endpoint,
+                addr,
+                exc_info=True,
+            )
 
     def _drain(self, now: float, limit: int = 4096) -> None:
         """Read every datagram already queued on the sockets before time moves on.
@@ -138,8 +152,9 @@ class EmulatorServer:
                 transports[endpoint].sendto(data, addr)  # type: ignore[arg-type]  # (host, port) or None
             except (OSError, ValueError, TypeError) as exc:
                 self.n_socket_errors += 1
-                self.log_limiter.log(now, "sendto", logging.DEBUG, "sendto %s failed: %s",
-                                     addr, exc)
+                self.log_limiter.log(
+                    now, "sendto", logging.DEBUG, "sendto %s failed: %s", addr, exc
+                )
         ev = self.swarm.next_event()
         while ev is not None:
             self.n_events += 1
@@ -156,8 +171,9 @@ class EmulatorServer:
         try:
             self.swarm.handle_timer(now)
         except Exception:  # noqa: BLE001
-            self.log_limiter.log(now, "tick", logging.ERROR, "swarm tick failed at t=%.3f", now,
-                                 exc_info=True)
+            self.log_limiter.log(
+                now, "tick", logging.ERROR, "swarm tick failed at t=%.3f", now, exc_info=True
+            )
         self._flush(now)
         delay = self.clock.wall_delay_s(self.swarm.next_timer_s() - self.clock.now())
         if paced is not None:
@@ -186,8 +202,14 @@ class ThreadedEmulator:
     emulator thread (the swarm must only be touched there) and returns its result.
     """
 
-    def __init__(self, swarm: Swarm, speedup: float = 1.0, host: str = "127.0.0.1",
-                 base_port: int = 0, start_timeout_s: float = 10.0) -> None:
+    def __init__(
+        self,
+        swarm: Swarm,
+        speedup: float = 1.0,
+        host: str = "127.0.0.1",
+        base_port: int = 0,
+        start_timeout_s: float = 10.0,
+    ) -> None:
         self.swarm = swarm
         self.loop = asyncio.new_event_loop()
         self.clock = RealClock(speedup, time_fn=time.monotonic)

@@ -38,8 +38,9 @@ class RunStreams:
 def spawn_streams(seed: int) -> RunStreams:
     """Split ``seed`` into the scenario / attrition / algorithm streams (fixed order, stable)."""
     s_scn, s_att, s_alg = np.random.SeedSequence(int(seed)).spawn(3)
-    return RunStreams(np.random.default_rng(s_scn), np.random.default_rng(s_att),
-                      np.random.default_rng(s_alg))
+    return RunStreams(
+        np.random.default_rng(s_scn), np.random.default_rng(s_att), np.random.default_rng(s_alg)
+    )
 
 
 @dataclass(frozen=True)
@@ -54,8 +55,9 @@ class Scenario:
     """(tau, N) uniforms in [0, 1): drone i is lost at step t iff u[t, i] < p."""
 
 
-def walk_tasks(start_m: np.ndarray, increments_m: np.ndarray, half_width_m: float,
-               border: str) -> np.ndarray:
+def walk_tasks(
+    start_m: np.ndarray, increments_m: np.ndarray, half_width_m: float, border: str
+) -> np.ndarray:
     """Integrate a Gaussian random walk with a border policy.
 
     Parameters
@@ -119,8 +121,12 @@ class World:
 
     @classmethod
     def from_scenario(cls, problem: ProblemConfig, scenario: Scenario) -> World:
-        return cls(problem, scenario.drone_pos0_m.copy(), np.ones(len(scenario.drone_pos0_m), bool),
-                   scenario.task_track_m)
+        return cls(
+            problem,
+            scenario.drone_pos0_m.copy(),
+            np.ones(len(scenario.drone_pos0_m), bool),
+            scenario.task_track_m,
+        )
 
     @property
     def task_pos_m(self) -> np.ndarray:
@@ -135,8 +141,14 @@ class World:
         """(M,) bool: an active drone strictly within r of each task."""
         return tasks_connected(self.task_pos_m, self.pos_m, active, self.problem.radio_range_m)
 
-    def step(self, disp_m: np.ndarray, active: np.ndarray, loss_prob: np.ndarray | float,
-             attrition_u: np.ndarray, recovery_target_m: np.ndarray | None = None) -> np.ndarray:
+    def step(
+        self,
+        disp_m: np.ndarray,
+        active: np.ndarray,
+        loss_prob: np.ndarray | float,
+        attrition_u: np.ndarray,
+        recovery_target_m: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Advance one step (docs/design/model.md §7 #2: plan -> attrition -> execute -> tasks walk).
 
         Parameters
@@ -162,8 +174,9 @@ class World:
             # Compiled when available: the lines below in one pass, bit for bit
             # (tests/planner/test_graph_kernels.py).
             lost = self.alive & (attrition_u < loss_prob)
-            moved = bounded_moves(self.pos_m, np.asarray(disp_m, dtype=float), active, self.alive & ~lost,
-                                  home, vmax)
+            moved = bounded_moves(
+                self.pos_m, np.asarray(disp_m, dtype=float), active, self.alive & ~lost, home, vmax
+            )
             if moved is not None:
                 self.alive = self.alive & ~lost
                 self.pos_m = moved

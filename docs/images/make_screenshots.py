@@ -28,20 +28,30 @@ def browser():
     from selenium.webdriver.chrome.service import Service
 
     o = webdriver.ChromeOptions()
-    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-              "--disable-component-update", "--disable-sync", "--no-first-run",
-              "--window-size=1600,1000", "--hide-scrollbars",
-              f"--user-data-dir={tempfile.mkdtemp(prefix='phireman-shot-')}"):
+    for a in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--window-size=1600,1000",
+        "--hide-scrollbars",
+        f"--user-data-dir={tempfile.mkdtemp(prefix='phireman-shot-')}",
+    ):
         o.add_argument(a)
     o.binary_location = shutil.which("chromium")
     return webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=o)
 
 
 def post(info, action, vehicle):
-    req = urllib.request.Request(info["url"] + "api/action", method="POST",
-                                 data=json.dumps({"action": action, "vehicle": vehicle}).encode(),
-                                 headers={"Content-Type": "application/json",
-                                          "X-Operator-Key": info["key"]})
+    req = urllib.request.Request(
+        info["url"] + "api/action",
+        method="POST",
+        data=json.dumps({"action": action, "vehicle": vehicle}).encode(),
+        headers={"Content-Type": "application/json", "X-Operator-Key": info["key"]},
+    )
     return json.loads(urllib.request.urlopen(req, timeout=10).read())
 
 
@@ -59,9 +69,18 @@ def live_shot(out_dir: Path) -> Path:
             op.phase = "done"
 
     def run():
-        asyncio.run(fly_emulated_async(mission, FlyOptions(
-            speedup=10.0, out_dir=str(out_dir), serve="127.0.0.1:0", on_live=info.update,
-            on_operator=hook)))
+        asyncio.run(
+            fly_emulated_async(
+                mission,
+                FlyOptions(
+                    speedup=10.0,
+                    out_dir=str(out_dir),
+                    serve="127.0.0.1:0",
+                    on_live=info.update,
+                    on_operator=hook,
+                ),
+            )
+        )
 
     th = threading.Thread(target=run, daemon=True)
     th.start()
@@ -72,8 +91,10 @@ def live_shot(out_dir: Path) -> Path:
         drv.get(f"{info['url']}#key={info['key']}")
 
         def t_mission():
-            return drv.execute_script("return window.phiremanFrame && "
-                                      "window.phiremanFrame.t_mission_s")
+            return drv.execute_script(
+                "return window.phiremanFrame && window.phiremanFrame.t_mission_s"
+            )
+
         while (t_mission() or 0) < 50:
             time.sleep(0.5)
         post(info, "rtl", "0:12")
@@ -98,8 +119,10 @@ def replay_shot(out_dir: Path) -> Path:
     from mission.load import load_mission
     from mission.runners import FlyOptions, fly_emulated
 
-    res = fly_emulated(load_mission(example_path("hazard_zone")),
-                       FlyOptions(speedup=20.0, out_dir=str(out_dir), end_wait=False))
+    res = fly_emulated(
+        load_mission(example_path("hazard_zone")),
+        FlyOptions(speedup=20.0, out_dir=str(out_dir), end_wait=False),
+    )
     src = ReplaySource(res.run_dir)
     box, ready = {}, threading.Event()
 
@@ -110,6 +133,7 @@ def replay_shot(out_dir: Path) -> Path:
             ready.set()
             await box["stop"].wait()
             await server.aclose()
+
         asyncio.run(main())
 
     threading.Thread(target=serve, daemon=True).start()
@@ -119,8 +143,11 @@ def replay_shot(out_dir: Path) -> Path:
         drv.get(box["url"])
         time.sleep(3)
         i = src.index_at(120.0)
-        drv.execute_script("const s = document.getElementById('slider'); s.value = arguments[0];"
-                           "s.dispatchEvent(new Event('input'));", i)
+        drv.execute_script(
+            "const s = document.getElementById('slider'); s.value = arguments[0];"
+            "s.dispatchEvent(new Event('input'));",
+            i,
+        )
         time.sleep(2)
         path = HERE / "replay_hazard.png"
         drv.save_screenshot(str(path))

@@ -58,5 +58,15 @@ from gcs.operations.config import OPERATOR_ACTIONS, OperationsConfig, OperatorAc
 from gcs.operations.operator import Operator
 from gcs.operations.phases import PHASES, TRANSITIONS, IllegalTransition, Phase, Trigger
 
-__all__ = ["OperationsConfig", "Operator", "PHASES", "TickRecord", "OperatorAction",
-           "OPERATOR_ACTIONS", "Phase", "Trigger", "TRANSITIONS", "IllegalTransition"]
+__all__ = [
+    "OperationsConfig",
+    "Operator",
+    "PHASES",
+    "TickRecord",
+    "OperatorAction",
+    "OPERATOR_ACTIONS",
+    "Phase",
+    "Trigger",
+    "TRANSITIONS",
+    "IllegalTransition",
+]

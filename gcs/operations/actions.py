@@ -30,8 +30,9 @@ _NOTHING_LAUNCHED = frozenset({Phase.DISCOVER, Phase.AUDIT, Phase.REFUSED})
 class OperatorActions(OperatorState):
     """What an operator may ask of :class:`gcs.operations.Operator` (see the module docstring)."""
 
-    def operator_command(self, action: str, vid: tuple[int, int] | None, now_s: float,
-                         source: str = "") -> list[OperatorAction]:
+    def operator_command(
+        self, action: str, vid: tuple[int, int] | None, now_s: float, source: str = ""
+    ) -> list[OperatorAction]:
         """An operator's request for one vehicle ``(link_id, sysid)`` or, with ``vid=None``, for
         every vehicle heard. Goes through the station's normal command path (acks, retries,
         events, .tlog); returns what was done, one :class:`OperatorAction` per vehicle."""
@@ -56,8 +57,9 @@ class OperatorActions(OperatorState):
             out.append(rec)
         return out
 
-    def _operator_act(self, action: str, snap: FleetSnapshot, i: int, vid: tuple[int, int],
-                      now_s: float) -> str:
+    def _operator_act(
+        self, action: str, snap: FleetSnapshot, i: int, vid: tuple[int, int], now_s: float
+    ) -> str:
         if action == "rejoin":
             if self.released.pop(vid, None) is None:
                 return "was not released"
@@ -105,17 +107,33 @@ class OperatorActions(OperatorState):
             if action == "end":
                 action = self.config.end  # the mission's end action: "rtl" or "land"
             if snap.lost[i]:
-                out.append((vid, f"not heard (lost or out of range; last mode {mode}): its own "
-                                 "link-loss failsafe decides", False))
+                out.append(
+                    (
+                        vid,
+                        f"not heard (lost or out of range; last mode {mode}): its own "
+                        "link-loss failsafe decides",
+                        False,
+                    )
+                )
                 continue
             if not armed:
                 out.append((vid, f"on the ground ({mode})", True))
                 continue
-            want = {"rtl": (adapter.rtl_mode, adapter.land_mode), "land": (adapter.land_mode,),
-                    "hold": (adapter.guided_mode,)}.get(action, ())
+            want = {
+                "rtl": (adapter.rtl_mode, adapter.land_mode),
+                "land": (adapter.land_mode,),
+                "hold": (adapter.guided_mode,),
+            }.get(action, ())
             ok = mode in want
             told = {"rtl": "RTL", "land": "LAND", "hold": "HOLD where it is"}.get(action, action)
-            out.append((vid, f"told {told}; now {mode}" if ok else
-                        f"told {told}; no confirmation yet (mode {mode}): if the station is "
-                        "gone, its link-loss failsafe acts", ok))
+            out.append(
+                (
+                    vid,
+                    f"told {told}; now {mode}"
+                    if ok
+                    else f"told {told}; no confirmation yet (mode {mode}): if the station is "
+                    "gone, its link-loss failsafe acts",
+                    ok,
+                )
+            )
         return out

@@ -60,17 +60,23 @@ class AuditStep(OperatorState):
     def _on_param_timed_out(self, event: ParamTimedOut, key: tuple[int, int]) -> None:
         self._params_pending.discard((*key, event.name))
 
-    def _on_param_set(self, event: ParamSetConfirmed | ParamSetFailed,
-                      key: tuple[int, int]) -> None:
+    def _on_param_set(
+        self, event: ParamSetConfirmed | ParamSetFailed, key: tuple[int, int]
+    ) -> None:
         """A write's outcome (confirmed by its echo, or failed): recorded in ``param_changes``."""
         if (*key, event.name) not in self._sets_pending:
             return
         self._sets_pending.discard((*key, event.name))
         ok = isinstance(event, ParamSetConfirmed)
-        change = {"link_id": key[0], "sysid": key[1], "name": event.name,
-                  "previous": event.previous if isinstance(event, ParamSetConfirmed) else None,
-                  "value": event.value, "ok": ok,
-                  "reason": event.reason if isinstance(event, ParamSetFailed) else ""}
+        change = {
+            "link_id": key[0],
+            "sysid": key[1],
+            "name": event.name,
+            "previous": event.previous if isinstance(event, ParamSetConfirmed) else None,
+            "value": event.value,
+            "ok": ok,
+            "reason": event.reason if isinstance(event, ParamSetFailed) else "",
+        }
         if isinstance(event, ParamSetFailed):
             change["requested"] = event.requested
         for c in reversed(self.param_changes):  # the latest write of this name
@@ -79,8 +85,11 @@ class AuditStep(OperatorState):
                 c.update(change)
                 break
         (log.info if ok else log.warning)(
-            "link %d sysid %d: %s %s", *key, event.name,
-            f"set to {event.value:g}" if ok else f"NOT set: {change['reason']}")
+            "link %d sysid %d: %s %s",
+            *key,
+            event.name,
+            f"set to {event.value:g}" if ok else f"NOT set: {change['reason']}",
+        )
 
     # ------------------------------------------------------------------ the audit phase
 
@@ -96,11 +105,17 @@ class AuditStep(OperatorState):
             vid = self._vid(snap, i)
             names = list(audit_mod.params_still_needed(int(snap.autopilot[i]), {}))
             if self._limits_wanted():
-                names += [n for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
-                          if n not in names]
+                names += [
+                    n
+                    for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
+                    if n not in names
+                ]
             if self.rally is not None:  # the settings that make RTL use rally points
-                names += [n for n in rally_mod.RALLY_PARAMS.get(int(snap.autopilot[i]), ())
-                          if n not in names]
+                names += [
+                    n
+                    for n in rally_mod.RALLY_PARAMS.get(int(snap.autopilot[i]), ())
+                    if n not in names
+                ]
             for name in names:
                 self._params_pending.add((*vid, name))
                 self.station.request_param(vid, name, now_s)
@@ -131,14 +146,23 @@ class AuditStep(OperatorState):
             for i in range(snap.n_vehicles):
                 vid = self._vid(snap, i)
                 got = self._params.get(vid, {})
-                names = [n for n in audit_mod.params_still_needed(int(snap.autopilot[i]), got)
-                         if n not in audit_mod.OPTIONAL_PARAMS]
+                names = [
+                    n
+                    for n in audit_mod.params_still_needed(int(snap.autopilot[i]), got)
+                    if n not in audit_mod.OPTIONAL_PARAMS
+                ]
                 if self._limits_wanted():  # vehicles discovered late, reads lost: the limits too
-                    names += [n for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
-                              if n not in got and n not in names]
+                    names += [
+                        n
+                        for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
+                        if n not in got and n not in names
+                    ]
                 if self.rally is not None:
-                    names += [n for n in rally_mod.RALLY_PARAMS.get(int(snap.autopilot[i]), ())
-                              if n not in got and n not in names]
+                    names += [
+                        n
+                        for n in rally_mod.RALLY_PARAMS.get(int(snap.autopilot[i]), ())
+                        if n not in got and n not in names
+                    ]
                 if snap.lost[i]:
                     continue
                 for name in names:
@@ -146,18 +170,19 @@ class AuditStep(OperatorState):
                     self.station.request_param(vid, name, now_s)
             if self._params_pending:
                 return
-        vehicles = {self._vid(snap, i): (int(snap.autopilot[i]),
-                                         self._params.get(self._vid(snap, i), {}))
-                    for i in range(snap.n_vehicles)}
+        vehicles = {
+            self._vid(snap, i): (int(snap.autopilot[i]), self._params.get(self._vid(snap, i), {}))
+            for i in range(snap.n_vehicles)
+        }
         if self.config.apply_failsafes:
             if self._fixes_sent_s is None:
                 if self._send_fixes(vehicles, now_s):
                     return
-            elif self._sets_pending \
-                    and now_s - self._fixes_sent_s < self.config.audit_timeout_s:
+            elif self._sets_pending and now_s - self._fixes_sent_s < self.config.audit_timeout_s:
                 return  # the link ends every set with Confirmed or Failed; this is a backstop
-        report = audit_mod.audit_fleet(vehicles, self.gcs_sysid,
-                                       override=self.config.override_audit)
+        report = audit_mod.audit_fleet(
+            vehicles, self.gcs_sysid, override=self.config.override_audit
+        )
         self.audit_report = report
         if not report.cleared_to_fly:
             log.warning("pre-flight audit refused the flight:\n%s", report.summary())
@@ -170,15 +195,16 @@ class AuditStep(OperatorState):
             if self._limits_sent_s is None:
                 if self._send_limits(vehicles, now_s):
                     return
-            elif self._sets_pending \
-                    and now_s - self._limits_sent_s < self.config.audit_timeout_s:
+            elif self._sets_pending and now_s - self._limits_sent_s < self.config.audit_timeout_s:
                 return
         if self.rally is not None:
             if self._rally_params_sent_s is None:
                 if self._send_rally_params(vehicles, now_s):
                     return
-            elif self._sets_pending \
-                    and now_s - self._rally_params_sent_s < self.config.audit_timeout_s:
+            elif (
+                self._sets_pending
+                and now_s - self._rally_params_sent_s < self.config.audit_timeout_s
+            ):
                 return
         self._start_launch(snap, now_s, Trigger.CLEARED)
 
@@ -198,13 +224,18 @@ class AuditStep(OperatorState):
             if missing:
                 self.limit_warnings.append(
                     f"link {vid[0]} sysid {vid[1]}: could not read {', '.join(missing)}: the "
-                    "mission's speed limits are not enforced by this vehicle")
+                    "mission's speed limits are not enforced by this vehicle"
+                )
                 log.warning("%s", self.limit_warnings[-1])
             if not math.isfinite(climb):
-                params = {k: v for k, v in params.items() if k != "WPNAV_SPEED_UP"
-                          and k != "MPC_Z_VEL_MAX_UP"}
-            for name, value in limits_mod.limit_writes(autopilot, params, cfg.max_speed_m_s,
-                                                       climb if math.isfinite(climb) else 1.0):
+                params = {
+                    k: v
+                    for k, v in params.items()
+                    if k != "WPNAV_SPEED_UP" and k != "MPC_Z_VEL_MAX_UP"
+                }
+            for name, value in limits_mod.limit_writes(
+                autopilot, params, cfg.max_speed_m_s, climb if math.isfinite(climb) else 1.0
+            ):
                 self._set_param(vid, name, value, params.get(name), "limit", now_s)
         return bool(self._sets_pending)
 
@@ -217,8 +248,15 @@ class AuditStep(OperatorState):
                 self._set_param(vid, name, value, params.get(name), "rally", now_s)
         return bool(self._sets_pending)
 
-    def _set_param(self, vid: tuple[int, int], name: str, value: float, previous: float | None,
-                   purpose: str, now_s: float) -> bool:
+    def _set_param(
+        self,
+        vid: tuple[int, int],
+        name: str,
+        value: float,
+        previous: float | None,
+        purpose: str,
+        now_s: float,
+    ) -> bool:
         ptype = self._param_types.get(vid, {}).get(name)
         if ptype is None:
             return False
@@ -228,11 +266,26 @@ class AuditStep(OperatorState):
             log.warning("link %d sysid %d: cannot set %s: %s", *vid, name, exc)
             return False
         self._sets_pending.add((*vid, name))
-        self.param_changes.append({"link_id": vid[0], "sysid": vid[1], "name": name,
-                                   "previous": previous, "value": value, "ok": None,
-                                   "reason": "pending", "purpose": purpose})
-        log.info("link %d sysid %d: setting %s %g -> %g (%s)", *vid, name,
-                 math.nan if previous is None else previous, value, purpose)
+        self.param_changes.append(
+            {
+                "link_id": vid[0],
+                "sysid": vid[1],
+                "name": name,
+                "previous": previous,
+                "value": value,
+                "ok": None,
+                "reason": "pending",
+                "purpose": purpose,
+            }
+        )
+        log.info(
+            "link %d sysid %d: setting %s %g -> %g (%s)",
+            *vid,
+            name,
+            math.nan if previous is None else previous,
+            value,
+            purpose,
+        )
         return True
 
     def _send_fixes(self, vehicles: _Vehicles, now_s: float) -> bool:

@@ -161,4 +161,3 @@ class _Row:
     climb_sent: bool = False
     """The last attempt climbed it by a position target (a take-off stopped short); the next one
     sends NAV_TAKEOFF again, so a vehicle whose altitude reads high on the ground is not stuck."""
-

@@ -46,12 +46,17 @@ class EndStep(OperatorState):
             done: set[tuple[int, int, str]] = set()
             for c in list(reversed(self.param_changes)):
                 key = (c["link_id"], c["sysid"], c["name"])
-                if key in done or c.get("purpose") == "restore" or not c.get("ok") \
-                        or c.get("previous") is None:
+                if (
+                    key in done
+                    or c.get("purpose") == "restore"
+                    or not c.get("ok")
+                    or c.get("previous") is None
+                ):
                     continue
                 done.add(key)
-                self._set_param(key[:2], key[2], float(c["previous"]), float(c["value"]),
-                                "restore", now_s)
+                self._set_param(
+                    key[:2], key[2], float(c["previous"]), float(c["value"]), "restore", now_s
+                )
         return bool(self._sets_pending) and now_s - self._restore_sent_s < 10.0
 
     def _poll_end(self, snap: FleetSnapshot, now_s: float) -> None:
@@ -68,8 +73,10 @@ class EndStep(OperatorState):
             vid = self._vid(snap, i)
             # Obeying (or already coming down on its own, e.g. a battery failsafe LAND), or an
             # operator sent it home / down: the vehicle finishes on its own.
-            if mode in (adapter.rtl_mode, adapter.land_mode) \
-                    or self.released.get(vid) in ("rtl", "land"):
+            if mode in (adapter.rtl_mode, adapter.land_mode) or self.released.get(vid) in (
+                "rtl",
+                "land",
+            ):
                 continue
             row = self._rows.setdefault(i, _Row())
             if now_s < row.next_action_s:
@@ -86,12 +93,18 @@ class EndStep(OperatorState):
             except (LinkUsageError, UnknownVehicle, ValueError) as exc:
                 log.info("link %d sysid %d: %s", *vid, exc)
         heard = int((~snap.lost).sum())
-        self.end_status = {"on_ground": heard - airborne, "in_air": airborne,
-                           "not_heard": int(snap.lost.sum())}
+        self.end_status = {
+            "on_ground": heard - airborne,
+            "in_air": airborne,
+            "not_heard": int(snap.lost.sum()),
+        }
         if airborne == 0 or now_s - self._phase_since_s >= self.config.end_timeout_s:
             if self.config.restore_params and self._restore(now_s):
                 return  # wait for the echoes (or restore_timeout_s)
             if airborne:
-                log.info("end: %d vehicle(s) still in the air after %.0f s (returning on "
-                         "their own)", airborne, now_s - self._phase_since_s)
+                log.info(
+                    "end: %d vehicle(s) still in the air after %.0f s (returning on their own)",
+                    airborne,
+                    now_s - self._phase_since_s,
+                )
             self._enter(Trigger.END_TIMEOUT if airborne else Trigger.LANDED, now_s)

@@ -31,8 +31,11 @@ __all__ = ["LaunchStep"]
 log = logging.getLogger(__name__)
 
 #: COMMAND_ACK results of an arm command that mean "not ready yet" (retried at a steady pace).
-_NOT_READY = (mavlink.MAV_RESULT_FAILED, mavlink.MAV_RESULT_TEMPORARILY_REJECTED,
-              mavlink.MAV_RESULT_DENIED)
+_NOT_READY = (
+    mavlink.MAV_RESULT_FAILED,
+    mavlink.MAV_RESULT_TEMPORARILY_REJECTED,
+    mavlink.MAV_RESULT_DENIED,
+)
 
 
 class LaunchStep(OperatorState):
@@ -41,14 +44,17 @@ class LaunchStep(OperatorState):
 
     # ------------------------------------------------------------------ events
 
-    def _on_command_failed(self, event: CommandFailed | CommandTimedOut,
-                           key: tuple[int, int]) -> None:
+    def _on_command_failed(
+        self, event: CommandFailed | CommandTimedOut, key: tuple[int, int]
+    ) -> None:
         """A command that failed or timed out: back off, or (an arm refused) retry steadily."""
         self.counters["command_failures"] += 1
         row = self._rows.get(self.fleet.index_of(*key)) if key in self._known else None
-        refused_arm = (isinstance(event, CommandFailed)
-                       and event.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM
-                       and event.result in _NOT_READY)
+        refused_arm = (
+            isinstance(event, CommandFailed)
+            and event.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+            and event.result in _NOT_READY
+        )
         if row is not None:
             if refused_arm:
                 # Not ready (EKF/GPS converging): ask again at a steady pace, no back-off
@@ -64,12 +70,18 @@ class LaunchStep(OperatorState):
                 row.failed_attempt = row.attempt
                 row.failures += 1
                 # Back off: the next attempt waits action_retry_s x 2^(failures-1), capped.
-                backoff = min(self.config.action_retry_s * 2 ** (row.failures - 1),
-                              self.config.max_backoff_s)
+                backoff = min(
+                    self.config.action_retry_s * 2 ** (row.failures - 1), self.config.max_backoff_s
+                )
                 row.next_action_s = max(row.next_action_s, event.t_s + backoff)
             row.takeoff_s = -math.inf  # the take-off is not under way: the back-off rules
-        log.info("link %d sysid %d: command %d %s", event.link_id, event.sysid,
-                 event.command, type(event).__name__)
+        log.info(
+            "link %d sysid %d: command %d %s",
+            event.link_id,
+            event.sysid,
+            event.command,
+            type(event).__name__,
+        )
 
     # ------------------------------------------------------------------ the launch phase
 
@@ -91,7 +103,7 @@ class LaunchStep(OperatorState):
         self._launch_since_s = now_s
         rows = list(range(snap.n_vehicles))
         k = self.config.wave_size
-        self._waves = [rows[j:j + k] for j in range(0, len(rows), k)]
+        self._waves = [rows[j : j + k] for j in range(0, len(rows), k)]
         self._wave = 0
         self._wave_since_s = now_s
 
@@ -112,23 +124,32 @@ class LaunchStep(OperatorState):
             wave = [i for i in self._waves[self._wave] if i < snap.n_vehicles]
             live = int(heard[wave].sum()) if wave else 0
             up = int(airborne[wave].sum()) if wave else 0
-            if up >= cfg.wave_airborne_frac * max(1, live) \
-                    or now_s - self._wave_since_s >= cfg.wave_timeout_s:
-                log.info("wave %d/%d: %d/%d airborne at t=%.1f s", self._wave + 1,
-                         len(self._waves), up, len(wave), now_s)
+            if (
+                up >= cfg.wave_airborne_frac * max(1, live)
+                or now_s - self._wave_since_s >= cfg.wave_timeout_s
+            ):
+                log.info(
+                    "wave %d/%d: %d/%d airborne at t=%.1f s",
+                    self._wave + 1,
+                    len(self._waves),
+                    up,
+                    len(wave),
+                    now_s,
+                )
                 self._wave += 1
                 self._wave_since_s = now_s
         # Every started wave (and late discoveries): launch / keep flying.
         in_plan = self._in_plan(snap)
-        for w in self._waves[:self._wave + 1]:
+        for w in self._waves[: self._wave + 1]:
             for i in w:
                 if i < snap.n_vehicles and heard[i] and in_plan[i]:
                     self._drive(snap, i, alt, now_s)
         if self._wave >= len(self._waves):
             rows = np.flatnonzero(heard)
             target = layer_alt_m(rows, self.control)
-            climbed = fin[rows] & (np.where(fin[rows], alt[rows], 0.0)
-                                   >= cfg.climbed_alt_frac * target)
+            climbed = fin[rows] & (
+                np.where(fin[rows], alt[rows], 0.0) >= cfg.climbed_alt_frac * target
+            )
             waiting = self.not_ready(snap, now_s)
             in_time = now_s - self._launch_since_s < cfg.launch_timeout_s
             if waiting and in_time:
@@ -137,14 +158,25 @@ class LaunchStep(OperatorState):
                 self._wave_since_s = now_s
             elif waiting and not self._launch_gave_up:
                 self._launch_gave_up = True
-                log.warning("launch: %d vehicle(s) still not ready to arm after %.0f s: %s",
-                            len(waiting), cfg.launch_timeout_s,
-                            "; ".join(f"link {l} sysid {s}: {self.prearm.get((l, s), (0, '?'))[1]}"
-                                      for l, s in waiting))
-            if climbed.sum() >= cfg.wave_climbed_frac * max(1, len(rows)) \
-                    or now_s - self._wave_since_s >= cfg.wave_timeout_s:
-                log.info("launch complete at t=%.1f s: %d/%d climbed", now_s,
-                         int(climbed.sum()), len(rows))
+                log.warning(
+                    "launch: %d vehicle(s) still not ready to arm after %.0f s: %s",
+                    len(waiting),
+                    cfg.launch_timeout_s,
+                    "; ".join(
+                        f"link {l} sysid {s}: {self.prearm.get((l, s), (0, '?'))[1]}"
+                        for l, s in waiting
+                    ),
+                )
+            if (
+                climbed.sum() >= cfg.wave_climbed_frac * max(1, len(rows))
+                or now_s - self._wave_since_s >= cfg.wave_timeout_s
+            ):
+                log.info(
+                    "launch complete at t=%.1f s: %d/%d climbed",
+                    now_s,
+                    int(climbed.sum()),
+                    len(rows),
+                )
                 self._start_run(now_s)
 
     def _start_run(self, now_s: float) -> None:
@@ -153,8 +185,14 @@ class LaunchStep(OperatorState):
         self._next_tick_s = now_s
         self._t_step = 0
 
-    def _drive(self, snap: FleetSnapshot, i: int, alt: np.ndarray, now_s: float,
-               hold_position: bool = False) -> bool:
+    def _drive(
+        self,
+        snap: FleetSnapshot,
+        i: int,
+        alt: np.ndarray,
+        now_s: float,
+        hold_position: bool = False,
+    ) -> bool:
         """Bring vehicle ``i`` to "armed, airborne, guided"; returns True if it already is."""
         row = self._rows.setdefault(i, _Row())
         adapter = adapter_for(int(snap.autopilot[i]))
@@ -180,9 +218,15 @@ class LaunchStep(OperatorState):
         # takeoff_grace_s after the command, and again after it was first seen armed (PX4 arms
         # only after more than a second of setpoint streaming, then ramps the climb up over
         # MPC_TKO_RAMP_T: its 2 m can take longer than the grace counted from the command).
-        if not airborne and (now_s - row.takeoff_s < self.config.takeoff_grace_s
-                             or (armed and guided and row.armed_seen_s >= row.takeoff_s
-                                 and now_s - row.armed_seen_s < self.config.takeoff_grace_s)):
+        if not airborne and (
+            now_s - row.takeoff_s < self.config.takeoff_grace_s
+            or (
+                armed
+                and guided
+                and row.armed_seen_s >= row.takeoff_s
+                and now_s - row.armed_seen_s < self.config.takeoff_grace_s
+            )
+        ):
             return False
         vid = self._vid(snap, i)
         target_alt = float(layer_alt_m([i], self.control)[0])
@@ -198,9 +242,16 @@ class LaunchStep(OperatorState):
                 row.reclaiming = True
                 log.info("reclaiming link %d sysid %d from %s", *vid, snap.mode[i])
                 return False
-            climb = (armed and guided and not adapter.takeoff_by_offboard_climb and row.launched
-                     and not row.climb_sent and bool(snap.has_position[i])
-                     and bool(np.isfinite(alt[i])) and float(alt[i]) > self.config.liftoff_alt_m)
+            climb = (
+                armed
+                and guided
+                and not adapter.takeoff_by_offboard_climb
+                and row.launched
+                and not row.climb_sent
+                and bool(snap.has_position[i])
+                and bool(np.isfinite(alt[i]))
+                and float(alt[i]) > self.config.liftoff_alt_m
+            )
             row.climb_sent = climb
             if climb:
                 # Off the ground but short of airborne (a take-off stopped short): ArduCopter
@@ -210,8 +261,11 @@ class LaunchStep(OperatorState):
                 # (GUIDED flies position targets in the air).
                 self._hold(snap, [i], now_s)
                 self.counters["takeoff_climbs"] += 1
-                log.info("link %d sysid %d: off the ground at %.1f m, climbing by position target",
-                         *vid, float(alt[i]))
+                log.info(
+                    "link %d sysid %d: off the ground at %.1f m, climbing by position target",
+                    *vid,
+                    float(alt[i]),
+                )
                 return False
             if row.flew:
                 self.counters["relaunches"] += 1  # it flew, landed (e.g. RTL) and goes again
@@ -239,8 +293,9 @@ class LaunchStep(OperatorState):
         target = np.column_stack([snap.pos_ned_m[rows, :2], -layer_alt_m(rows, self.control)])
         self._send_targets(snap, rows, target, now_s)
 
-    def _send_targets(self, snap: FleetSnapshot, rows: np.ndarray, target_ned_m: np.ndarray,
-                      now_s: float) -> int:
+    def _send_targets(
+        self, snap: FleetSnapshot, rows: np.ndarray, target_ned_m: np.ndarray, now_s: float
+    ) -> int:
         if len(rows) == 0:
             return 0
         lat, lon, alt_rel = self.fleet.targets_to_global(rows, target_ned_m)
@@ -248,8 +303,9 @@ class LaunchStep(OperatorState):
         for k, i in enumerate(rows.tolist()):  # the codec edge: one frame per vehicle
             if not math.isfinite(alt_rel[k]):
                 continue
-            self.station.set_position_target(self._vid(snap, i), float(lat[k]), float(lon[k]),
-                                             float(alt_rel[k]), now_s)
+            self.station.set_position_target(
+                self._vid(snap, i), float(lat[k]), float(lon[k]), float(alt_rel[k]), now_s
+            )
             sent += 1
         return sent
 

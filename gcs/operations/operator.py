@@ -31,8 +31,17 @@ from gcs import audit as audit_mod
 from gcs.autopilot import adapter_for
 from gcs.control import ControlConfig, tick
 from gcs.events import (
-    CommandFailed, CommandTimedOut, Event, ParamReceived, ParamSetConfirmed, ParamSetFailed,
-    ParamTimedOut, StatusText, TaskPositionReceived, VehicleDiscovered, VehicleLost,
+    CommandFailed,
+    CommandTimedOut,
+    Event,
+    ParamReceived,
+    ParamSetConfirmed,
+    ParamSetFailed,
+    ParamTimedOut,
+    StatusText,
+    TaskPositionReceived,
+    VehicleDiscovered,
+    VehicleLost,
     VehicleRecovered,
 )
 from gcs.fleet import FleetSnapshot, FleetView
@@ -80,18 +89,28 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
     rally : keeps the planner's rally points on the vehicles (gcs.operations.rally); None: off
     """
 
-    def __init__(self, station: Station, fleet: FleetView, planner: Planner,
-                 task_pos_fn: Callable[[float], np.ndarray], control: ControlConfig,
-                 config: OperationsConfig = OperationsConfig(), *, now_s: float = 0.0,
-                 gcs_sysid: int = 255, live_tasks: LiveTasks | None = None,
-                 rally: RallyKeeper | None = None) -> None:
+    def __init__(
+        self,
+        station: Station,
+        fleet: FleetView,
+        planner: Planner,
+        task_pos_fn: Callable[[float], np.ndarray],
+        control: ControlConfig,
+        config: OperationsConfig = OperationsConfig(),
+        *,
+        now_s: float = 0.0,
+        gcs_sysid: int = 255,
+        live_tasks: LiveTasks | None = None,
+        rally: RallyKeeper | None = None,
+    ) -> None:
         self.station = station
         self.fleet = fleet
         self.planner = planner
         self.live_tasks = live_tasks
         self.rally = rally
-        self.task_pos_fn = task_pos_fn if live_tasks is None else (
-            lambda t_s: live_tasks.fill(task_pos_fn(t_s)))
+        self.task_pos_fn = (
+            task_pos_fn if live_tasks is None else (lambda t_s: live_tasks.fill(task_pos_fn(t_s)))
+        )
         self.refusal: str | None = None
         """Why the flight was refused (phase 'refused'), for people."""
         self.control = control
@@ -138,8 +157,14 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
         """(t_s, link_id, sysid) of every airborne vehicle seen back in the guided mode after the
         station switched it from another mode (a failsafe RTL, or found flying by a restarted
         station)."""
-        self.counters = {"reclaim_attempts": 0, "relaunches": 0, "command_failures": 0,
-                         "lost": 0, "recovered": 0, "takeoff_climbs": 0}
+        self.counters = {
+            "reclaim_attempts": 0,
+            "relaunches": 0,
+            "command_failures": 0,
+            "lost": 0,
+            "recovered": 0,
+            "takeoff_climbs": 0,
+        }
         self.released: dict[tuple[int, int], str] = {}
         """Vehicles an operator took out of the plan -> the action that did it (hold, rtl, land,
         release). The operator never plans, reclaims, relaunches or end-commands them."""
@@ -276,16 +301,22 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
         cfg = self.config
         n = snap.n_vehicles
         waited = now_s - self._phase_since_s
-        if n and ((cfg.expected_vehicles is not None and n >= cfg.expected_vehicles)
-                  or (cfg.expected_vehicles is None
-                      and now_s - self._last_discovery_s >= cfg.discover_settle_s)
-                  or waited >= cfg.discover_timeout_s):
+        if n and (
+            (cfg.expected_vehicles is not None and n >= cfg.expected_vehicles)
+            or (
+                cfg.expected_vehicles is None
+                and now_s - self._last_discovery_s >= cfg.discover_settle_s
+            )
+            or waited >= cfg.discover_timeout_s
+        ):
             waiting = self.live_tasks.waiting_for() if self.live_tasks is not None else ()
             if not waiting:
                 self._start_audit(snap, now_s)
             elif waited >= cfg.discover_timeout_s + cfg.task_wait_timeout_s:
-                self.refusal = ("no position from live task tracker(s) sysid "
-                                f"{', '.join(map(str, waiting))} after {waited:.0f} s")
+                self.refusal = (
+                    "no position from live task tracker(s) sysid "
+                    f"{', '.join(map(str, waiting))} after {waited:.0f} s"
+                )
                 log.warning("refusing to launch: %s", self.refusal)
                 self._enter(Trigger.TASKS_UNSEEN, now_s)
 
@@ -332,7 +363,6 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
                 ok[i] = self._vid(snap, i) not in self.released
         return ok
 
-
     # ------------------------------------------------------------------ run
 
     def _control_tick(self, snap: FleetSnapshot, now_s: float) -> TickRecord:
@@ -342,23 +372,35 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
         airborne &= self._in_plan(snap)  # released vehicles are neither planned nor relays
         t_m = self.t_mission_s(now_s)
         task_pos = np.asarray(self.task_pos_fn(t_m), dtype=float).reshape(-1, 2)
-        result = tick(snap.pos_ned_m, airborne, heard, task_pos, self.planner, self._t_step,
-                      self.control)
+        result = tick(
+            snap.pos_ned_m, airborne, heard, task_pos, self.planner, self._t_step, self.control
+        )
         self._send_targets(snap, result.rows, result.target_ned_m, now_s)
         self._rally_after_tick(now_s)
         ne = np.where(snap.has_position[:, None], snap.pos_ned_m[:, :2], np.inf)
-        covered = tasks_connected(task_pos, ne, heard & snap.has_position,
-                                  self.config.radio_range_m)
+        covered = tasks_connected(
+            task_pos, ne, heard & snap.has_position, self.config.radio_range_m
+        )
         self._connected.append(covered)
         series = uptime_series(np.asarray(self._connected))
         adapters = [adapter_for(int(a)) for a in snap.autopilot]
         guided = sum(ad.is_guided(int(m)) for ad, m in zip(adapters, snap.custom_mode))
         rec = TickRecord(
-            t_s=now_s, t_mission_s=t_m, t_step=self._t_step, fleet=snap.n_vehicles,
-            networked=int(snap.networked.sum()), planned=len(result.rows),
-            lost=int(snap.lost.sum()), returning=int(snap.returning.sum()), guided=int(guided),
-            tasks_covered=int(covered.sum()), n_tasks=len(task_pos), tu1_so_far=series.tu1,
-            tu2_so_far=series.tu2, plan_iterations=result.info.get("iterations"))
+            t_s=now_s,
+            t_mission_s=t_m,
+            t_step=self._t_step,
+            fleet=snap.n_vehicles,
+            networked=int(snap.networked.sum()),
+            planned=len(result.rows),
+            lost=int(snap.lost.sum()),
+            returning=int(snap.returning.sum()),
+            guided=int(guided),
+            tasks_covered=int(covered.sum()),
+            n_tasks=len(task_pos),
+            tu1_so_far=series.tu1,
+            tu2_so_far=series.tu2,
+            plan_iterations=result.info.get("iterations"),
+        )
         self.records.append(rec)
         self._t_step += 1
         return rec

@@ -114,6 +114,7 @@ def next_phase(phase: Phase, trigger: Trigger) -> Phase:
     try:
         return TRANSITIONS[phase][trigger]
     except KeyError:
-        raise IllegalTransition(f"phase {phase!s} does not accept {trigger!s}; it accepts "
-                                f"{', '.join(map(str, TRANSITIONS.get(phase, {}))) or 'nothing'}"
-                                ) from None
+        raise IllegalTransition(
+            f"phase {phase!s} does not accept {trigger!s}; it accepts "
+            f"{', '.join(map(str, TRANSITIONS.get(phase, {}))) or 'nothing'}"
+        ) from None

@@ -73,8 +73,11 @@ class RallyStep(OperatorState):
     def _rally_clear_at_end(self, now_s: float) -> None:
         """In the end phase the set is empty (adopted at once, whatever the rate limit)."""
         assert self.rally is not None
-        if self._phase == Phase.END and self.rally.points_ne_m is not None \
-                and len(self.rally.points_ne_m):
+        if (
+            self._phase == Phase.END
+            and self.rally.points_ne_m is not None
+            and len(self.rally.points_ne_m)
+        ):
             self.rally.publish(np.zeros((0, 2)), now_s, force=True)
 
     def _rally_holds_end(self, vid: tuple[int, int], now_s: float) -> bool:

@@ -20,7 +20,9 @@ MISSION may also be the name of a shipped example ('phireman mission list'), e.g
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("mission", metavar="MISSION", help="mission YAML file or shipped example name")
+    parser.add_argument(
+        "mission", metavar="MISSION", help="mission YAML file or shipped example name"
+    )
 
 
 def resolve_mission_path(text: str) -> Path:
@@ -67,15 +69,23 @@ def mission_notes(path: Path, mission) -> list[str]:
     n_random = sum(t.count for t in mission.tasks if t.kind == "random")
     if "tasks" not in raw:
         w = next((t.random.field_half_width_m for t in mission.tasks if t.random is not None), None)
-        notes.append(f"the file has no 'tasks:', so the default applies: {n_random} tasks placed at random "
-                     f"(uniform within ±{w:g} m of the base, random-walking) from seed {mission.run.seed}; "
-                     f"add 'tasks:' with tracks or random_walk starts to place your crews")
+        notes.append(
+            f"the file has no 'tasks:', so the default applies: {n_random} tasks placed at random "
+            f"(uniform within ±{w:g} m of the base, random-walking) from seed {mission.run.seed}; "
+            f"add 'tasks:' with tracks or random_walk starts to place your crews"
+        )
     elif n_random:
-        notes.append(f"{n_random} of the {mission.n_tasks} tasks are generated at random from seed "
-                     f"{mission.run.seed} (tasks: random); they move with the seed")
+        notes.append(
+            f"{n_random} of the {mission.n_tasks} tasks are generated at random from seed "
+            f"{mission.run.seed} (tasks: random); they move with the seed"
+        )
     if "vehicles" not in raw:
-        notes.append(f"the file has no 'vehicles:', so the default applies: {mission.vehicles.count} emulated drones")
+        notes.append(
+            f"the file has no 'vehicles:', so the default applies: {mission.vehicles.count} emulated drones"
+        )
     if "origin" not in raw:
-        notes.append(f"the file has no 'origin:', so the default applies ({mission.origin.lat_deg:.5f}, "
-                     f"{mission.origin.lon_deg:.5f}, the autopilots' SITL home); set it for real flights")
+        notes.append(
+            f"the file has no 'origin:', so the default applies ({mission.origin.lat_deg:.5f}, "
+            f"{mission.origin.lon_deg:.5f}, the autopilots' SITL home); set it for real flights"
+        )
     return notes

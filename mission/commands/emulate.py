@@ -1,4 +1,5 @@
 """``phireman emulate``: see :mod:`vehicle_emu.cli` (its body); bad input becomes a one-line error."""
+
 from vehicle_emu.cli import DESCRIPTION, HELP, UsageError, add_arguments
 from vehicle_emu.cli import run as _run
 

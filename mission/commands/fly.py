@@ -6,8 +6,7 @@ import argparse
 import math
 import sys
 
-__all__ = ["HELP", "DESCRIPTION", "add_arguments", "run", "format_status",
-           "format_param_changes"]
+__all__ = ["HELP", "DESCRIPTION", "add_arguments", "run", "format_status", "format_param_changes"]
 
 HELP = "fly a mission with the ground station (built-in emulator by default, or --connect)"
 DESCRIPTION = """\
@@ -31,50 +30,105 @@ Examples:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("mission", nargs="?", default="wildfire", metavar="MISSION",
-                   help="mission file or shipped example name (default: wildfire)")
-    p.add_argument("--connect", action="append", default=[], metavar="URL",
-                   help="fly real links instead of the emulator (udpin:H:P, udpout:H:P, tcp:H:P, "
-                        "DEVICE,BAUD); repeat for several MAVLink networks")
-    p.add_argument("--personality", choices=("ardupilot", "px4", "mixed"), default=None,
-                   help="emulated autopilot (default: the mission's)")
-    p.add_argument("--speedup", type=float, default=None, metavar="K",
-                   help="simulated time / wall time. Emulated: default the mission's "
-                        "run.speedup. Real links (--connect or vehicles.real): default 1, the "
-                        "vehicles' own clock; give K only for vehicles that run K times faster "
-                        "(SITL --speedup K)")
+    p.add_argument(
+        "mission",
+        nargs="?",
+        default="wildfire",
+        metavar="MISSION",
+        help="mission file or shipped example name (default: wildfire)",
+    )
+    p.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="fly real links instead of the emulator (udpin:H:P, udpout:H:P, tcp:H:P, "
+        "DEVICE,BAUD); repeat for several MAVLink networks",
+    )
+    p.add_argument(
+        "--personality",
+        choices=("ardupilot", "px4", "mixed"),
+        default=None,
+        help="emulated autopilot (default: the mission's)",
+    )
+    p.add_argument(
+        "--speedup",
+        type=float,
+        default=None,
+        metavar="K",
+        help="simulated time / wall time. Emulated: default the mission's "
+        "run.speedup. Real links (--connect or vehicles.real): default 1, the "
+        "vehicles' own clock; give K only for vehicles that run K times faster "
+        "(SITL --speedup K)",
+    )
     p.add_argument("--seed", type=int, default=None, help="run seed (default: the mission's)")
-    p.add_argument("--out", default=None, metavar="DIR",
-                   help="parent directory of the run directory (default: the mission's output.dir)")
-    p.add_argument("--end", choices=("rtl", "land"), default="rtl",
-                   help="what the vehicles do at the end (default rtl)")
-    p.add_argument("--override-audit", action="store_true",
-                   help="fly even if the pre-flight audit finds unsafe lost-link settings")
-    p.add_argument("--apply-failsafes", action="store_true",
-                   help="during the audit, write the safe lost-link parameters it asks for "
-                        "(ArduPilot FS_GCS_ENABLE=1 RTL and MAV_GCS_SYSID/SYSID_MYGCS = our "
-                        "sysid; PX4 NAV_DLL_ACT=2 and NAV_RCL_ACT=2 Return, COM_OBL_RC_ACT=3 "
-                        "Return, the offboard bit of COM_DLL_EXCEPT cleared), each confirmed by "
-                        "the vehicle's echo; without this flag no failsafe parameter is written")
-    p.add_argument("--duration-s", type=float, default=None,
-                   help="mission length in seconds (default: the mission's run.duration_s)")
-    p.add_argument("--vehicles", type=int, default=None, metavar="N",
-                   help="with --connect: start as soon as N vehicles are heard")
+    p.add_argument(
+        "--out",
+        default=None,
+        metavar="DIR",
+        help="parent directory of the run directory (default: the mission's output.dir)",
+    )
+    p.add_argument(
+        "--end",
+        choices=("rtl", "land"),
+        default="rtl",
+        help="what the vehicles do at the end (default rtl)",
+    )
+    p.add_argument(
+        "--override-audit",
+        action="store_true",
+        help="fly even if the pre-flight audit finds unsafe lost-link settings",
+    )
+    p.add_argument(
+        "--apply-failsafes",
+        action="store_true",
+        help="during the audit, write the safe lost-link parameters it asks for "
+        "(ArduPilot FS_GCS_ENABLE=1 RTL and MAV_GCS_SYSID/SYSID_MYGCS = our "
+        "sysid; PX4 NAV_DLL_ACT=2 and NAV_RCL_ACT=2 Return, COM_OBL_RC_ACT=3 "
+        "Return, the offboard bit of COM_DLL_EXCEPT cleared), each confirmed by "
+        "the vehicle's echo; without this flag no failsafe parameter is written",
+    )
+    p.add_argument(
+        "--duration-s",
+        type=float,
+        default=None,
+        help="mission length in seconds (default: the mission's run.duration_s)",
+    )
+    p.add_argument(
+        "--vehicles",
+        type=int,
+        default=None,
+        metavar="N",
+        help="with --connect: start as soon as N vehicles are heard",
+    )
     p.add_argument("--wave-size", type=int, default=25, help="vehicles per take-off wave")
-    p.add_argument("--no-wait", action="store_true",
-                   help="do not wait for the vehicles to land after the end command")
-    p.add_argument("--on-interrupt", choices=("end", "hold", "rtl", "land"), default="end",
-                   help="what Ctrl-C tells every vehicle the station reaches: 'end' (default) "
-                        "the --end action, 'hold' hover where it is (still under the station's "
-                        "link failsafes), 'rtl' or 'land'; the records are closed either way")
-    p.add_argument("--keep-firmware-limits", action="store_true",
-                   help="do not write the mission's speed and climb limits into the vehicles "
-                        "(ArduPilot WPNAV_SPEED / WPNAV_SPEED_UP, PX4 MPC_XY_VEL_MAX / "
-                        "MPC_XY_CRUISE / MPC_Z_VEL_MAX_UP); by default they are set at launch "
-                        "and confirmed by the vehicle")
-    p.add_argument("--restore-params", action="store_true",
-                   help="after landing, write back every parameter the station changed "
-                        "(speed limits, failsafes)")
+    p.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="do not wait for the vehicles to land after the end command",
+    )
+    p.add_argument(
+        "--on-interrupt",
+        choices=("end", "hold", "rtl", "land"),
+        default="end",
+        help="what Ctrl-C tells every vehicle the station reaches: 'end' (default) "
+        "the --end action, 'hold' hover where it is (still under the station's "
+        "link failsafes), 'rtl' or 'land'; the records are closed either way",
+    )
+    p.add_argument(
+        "--keep-firmware-limits",
+        action="store_true",
+        help="do not write the mission's speed and climb limits into the vehicles "
+        "(ArduPilot WPNAV_SPEED / WPNAV_SPEED_UP, PX4 MPC_XY_VEL_MAX / "
+        "MPC_XY_CRUISE / MPC_Z_VEL_MAX_UP); by default they are set at launch "
+        "and confirmed by the vehicle",
+    )
+    p.add_argument(
+        "--restore-params",
+        action="store_true",
+        help="after landing, write back every parameter the station changed "
+        "(speed limits, failsafes)",
+    )
 
     from mission.live.cli import add_fly_arguments
 
@@ -94,8 +148,10 @@ def _load(spec: str):
         try:
             path = example_path(spec)
         except KeyError:
-            raise UserError(f"{spec!r} is neither a mission file nor a shipped example "
-                            f"({', '.join(list_examples())})") from None
+            raise UserError(
+                f"{spec!r} is neither a mission file nor a shipped example "
+                f"({', '.join(list_examples())})"
+            ) from None
     try:
         return load_mission(path)
     except MissionError as exc:
@@ -110,8 +166,15 @@ def _pct0(x) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.0f}%"
 
 
-_PHASE_WORDS = {"discover": "finding", "audit": "checking", "launch": "take-off", "run": "flying",
-                "end": "landing", "done": "done", "refused": "refused"}
+_PHASE_WORDS = {
+    "discover": "finding",
+    "audit": "checking",
+    "launch": "take-off",
+    "run": "flying",
+    "end": "landing",
+    "done": "done",
+    "refused": "refused",
+}
 
 
 def format_status(d: dict, width: int = 80) -> str:
@@ -140,7 +203,7 @@ def format_status(d: dict, width: int = 80) -> str:
             extra.append(modes)
         if extra:
             line += " | " + ", ".join(extra)
-    return line[:max(40, width - 1)]
+    return line[: max(40, width - 1)]
 
 
 def format_param_changes(changes) -> list[str]:
@@ -153,8 +216,10 @@ def format_param_changes(changes) -> list[str]:
             out.append(f"set {who}: {c['name']} {prev} -> {c['value']:g} (confirmed)")
         else:
             want = c.get("requested", c.get("value"))
-            out.append(f"FAILED to set {who}: {c['name']} {prev} -> {want:g}: "
-                       f"{c.get('reason') or 'no answer'}")
+            out.append(
+                f"FAILED to set {who}: {c['name']} {prev} -> {want:g}: "
+                f"{c.get('reason') or 'no answer'}"
+            )
     return out
 
 
@@ -188,14 +253,20 @@ class _Status:
         # Links going down / up are logged by gcs.aio (one line per change).
         n = d.get("command_failures", 0)
         if n >= max(5, 2 * self._failures_warned) and n > self._failures_warned:
-            self._warn(f"{n} commands failed or went unanswered so far (a vehicle refusing, or "
-                       "a lossy link; -v shows which)")
+            self._warn(
+                f"{n} commands failed or went unanswered so far (a vehicle refusing, or "
+                "a lossy link; -v shows which)"
+            )
             self._failures_warned = n
         k = d.get("failsafes", 0)
         if k > self._failsafes_warned and d.get("last_failsafe"):
             t_s, (link_id, sysid), text = d["last_failsafe"]
-            more = f" (+{k - self._failsafes_warned - 1} more)" if k - self._failsafes_warned > 1 else ""
-            self._warn(f"link {link_id} sysid {sysid} reports \"{text}\"{more}")
+            more = (
+                f" (+{k - self._failsafes_warned - 1} more)"
+                if k - self._failsafes_warned > 1
+                else ""
+            )
+            self._warn(f'link {link_id} sysid {sysid} reports "{text}"{more}')
             self._failsafes_warned = k
         want = d.get("speedup")
         if want and want > 1 and not self._slow_warned and d["phase"] == "run":
@@ -205,9 +276,11 @@ class _Status:
             if d["wall_s"] - w0 >= 5.0:
                 got = (d["t_s"] - t0) / (d["wall_s"] - w0)
                 if got < 0.5 * want:
-                    self._warn(f"running at {got:.1f}x instead of {want:g}x (this machine is "
-                               "too busy or the fleet too large; timings stay correct, the "
-                               "flight just takes longer)")
+                    self._warn(
+                        f"running at {got:.1f}x instead of {want:g}x (this machine is "
+                        "too busy or the fleet too large; timings stay correct, the "
+                        "flight just takes longer)"
+                    )
                     self._slow_warned = True
 
     def __call__(self, d: dict) -> None:
@@ -237,23 +310,27 @@ def _header(mission, args, real: bool) -> str:
     v = mission.vehicles
     if real:
         links = list(args.connect) or list(v.real.connections if v.real else [])
-        fleet = (f"real vehicles on {len(links)} link(s)"
-                 + (f", starting with the first {args.vehicles} heard" if args.vehicles else ""))
-        speed = (f"vehicle clock x{args.speedup:g} (SITL)" if args.speedup else
-                 "vehicle clock (1x)")
+        fleet = f"real vehicles on {len(links)} link(s)" + (
+            f", starting with the first {args.vehicles} heard" if args.vehicles else ""
+        )
+        speed = f"vehicle clock x{args.speedup:g} (SITL)" if args.speedup else "vehicle clock (1x)"
     else:
         pers = args.personality or v.emulated.personality
         fleet = f"{v.emulated.count} emulated {pers} drones"
         speed = f"{args.speedup or mission.run.speedup:g}x real time"
     duration = args.duration_s or mission.run.duration_s
-    return (f"{mission.name}: {fleet}; {mission.n_tasks} crews/tasks; planner "
-            f"{mission.planner.method}; {duration:g} s of mission at {speed}")
+    return (
+        f"{mission.name}: {fleet}; {mission.n_tasks} crews/tasks; planner "
+        f"{mission.planner.method}; {duration:g} s of mission at {speed}"
+    )
 
 
-_EXPLAIN = ("TU1: the share of crews connected to the base through the drones, averaged over "
-            "the mission.\nTU2: the same, counting at each moment only the crews the swarm had "
-            "already reached once\n     (so the time to first reach a crew is not held against "
-            "it). 100 % = always connected.")
+_EXPLAIN = (
+    "TU1: the share of crews connected to the base through the drones, averaged over "
+    "the mission.\nTU2: the same, counting at each moment only the crews the swarm had "
+    "already reached once\n     (so the time to first reach a crew is not held against "
+    "it). 100 % = always connected."
+)
 
 
 def _group_report(items: list[dict], per_line: int = 12) -> list[str]:
@@ -263,13 +340,19 @@ def _group_report(items: list[dict], per_line: int = 12) -> list[str]:
         return [f"link {i['link_id']} sysid {i['sysid']}: {i['state']}" for i in items]
     groups: dict[str, list[str]] = {}
     for i in items:
-        kind = (i["state"].split("; last mode")[0] + ")" if "; last mode" in i["state"] else
-                i["state"].split(" (mode")[0] if not i["confirmed"] else i["state"])
+        kind = (
+            i["state"].split("; last mode")[0] + ")"
+            if "; last mode" in i["state"]
+            else i["state"].split(" (mode")[0]
+            if not i["confirmed"]
+            else i["state"]
+        )
         groups.setdefault(kind, []).append(f"{i['link_id']}:{i['sysid']}")
     out = []
     for kind, who in groups.items():
-        shown = ", ".join(who[:per_line]) + (f" +{len(who) - per_line} more" if len(who) > per_line
-                                             else "")
+        shown = ", ".join(who[:per_line]) + (
+            f" +{len(who) - per_line} more" if len(who) > per_line else ""
+        )
         out.append(f"{len(who)} vehicle(s) {kind} [link:sysid {shown}]")
     return out
 
@@ -287,11 +370,15 @@ def run(args) -> int:
         raise UserError("--wave-size must be >= 1")
     real = bool(args.connect) or mission.vehicles.real is not None
     if real and args.personality:
-        raise UserError("--personality applies to emulated vehicles only; real vehicles "
-                        "report their own autopilot")
+        raise UserError(
+            "--personality applies to emulated vehicles only; real vehicles "
+            "report their own autopilot"
+        )
     if not real and args.vehicles is not None:
-        raise UserError("--vehicles applies to real links (--connect); the emulated fleet size "
-                        "is the mission's vehicles.emulated.count")
+        raise UserError(
+            "--vehicles applies to real links (--connect); the emulated fleet size "
+            "is the mission's vehicles.emulated.count"
+        )
     if args.vehicles is not None and args.vehicles < 1:
         raise UserError(f"--vehicles must be >= 1, got {args.vehicles}")
     if args.connect:
@@ -303,14 +390,24 @@ def run(args) -> int:
             except ValueError as exc:
                 raise UserError(f"--connect {c!r}: {exc}") from None
     status = _Status()
-    opts = FlyOptions(seed=args.seed, personality=args.personality, speedup=args.speedup,
-                      duration_s=args.duration_s, out_dir=args.out, end=args.end,
-                      override_audit=args.override_audit,
-                      apply_failsafes=args.apply_failsafes, connections=tuple(args.connect),
-                      wave_size=args.wave_size, status=status,
-                      expected_vehicles=args.vehicles, end_wait=not args.no_wait,
-                      set_limits=not args.keep_firmware_limits,
-                      restore_params=args.restore_params, on_interrupt=args.on_interrupt)
+    opts = FlyOptions(
+        seed=args.seed,
+        personality=args.personality,
+        speedup=args.speedup,
+        duration_s=args.duration_s,
+        out_dir=args.out,
+        end=args.end,
+        override_audit=args.override_audit,
+        apply_failsafes=args.apply_failsafes,
+        connections=tuple(args.connect),
+        wave_size=args.wave_size,
+        status=status,
+        expected_vehicles=args.vehicles,
+        end_wait=not args.no_wait,
+        set_limits=not args.keep_firmware_limits,
+        restore_params=args.restore_params,
+        on_interrupt=args.on_interrupt,
+    )
     from mission.live.cli import fly_options
 
     opts = fly_options(opts, args)  # --serve / --forward (mission.live)
@@ -328,38 +425,47 @@ def run(args) -> int:
     for line in op.limit_warnings:
         print(f"warning: {line}", file=sys.stderr)
     if op.prearm:
-        print(f"{len(op.prearm)} vehicle(s) refused to arm at first (not ready); last reason:",
-              file=sys.stderr)
+        print(
+            f"{len(op.prearm)} vehicle(s) refused to arm at first (not ready); last reason:",
+            file=sys.stderr,
+        )
         for (link_id, sysid), (t_s, text) in sorted(op.prearm.items()):
             print(f"  link {link_id} sysid {sysid} at t={t_s:.0f} s: {text}", file=sys.stderr)
     if s["phase"] == "refused":
         if op.audit_report is not None and not op.audit_report.cleared_to_fly:
             print(op.audit_report.summary(), file=sys.stderr)
-            hint = ("" if args.apply_failsafes else
-                    " (--apply-failsafes writes the fixable ones)")
-            print(f"phireman fly: the pre-flight audit refused the flight (see above); fix the "
-                  f"parameters{hint} or pass --override-audit. Run directory: {result.run_dir}",
-                  file=sys.stderr)
+            hint = "" if args.apply_failsafes else " (--apply-failsafes writes the fixable ones)"
+            print(
+                f"phireman fly: the pre-flight audit refused the flight (see above); fix the "
+                f"parameters{hint} or pass --override-audit. Run directory: {result.run_dir}",
+                file=sys.stderr,
+            )
         else:
-            print(f"phireman fly: refused to launch: {op.refusal or 'unknown reason'}. "
-                  f"Run directory: {result.run_dir}", file=sys.stderr)
+            print(
+                f"phireman fly: refused to launch: {op.refusal or 'unknown reason'}. "
+                f"Run directory: {result.run_dir}",
+                file=sys.stderr,
+            )
         return 1
     st = s["station"]
     if op.interrupted is not None and not s.get("interrupt_report"):
-        print("interrupted before any vehicle was heard: nothing was commanded",
-              file=sys.stderr)
+        print("interrupted before any vehicle was heard: nothing was commanded", file=sys.stderr)
     elif op.interrupted is not None:
-        print(f"interrupted: every vehicle the station reached was told to "
-              f"{op.interrupted if op.interrupted != 'end' else args.end.upper()}:",
-              file=sys.stderr)
+        print(
+            f"interrupted: every vehicle the station reached was told to "
+            f"{op.interrupted if op.interrupted != 'end' else args.end.upper()}:",
+            file=sys.stderr,
+        )
         for line in _group_report(s.get("interrupt_report") or []):
             print(f"  {line}", file=sys.stderr)
     print(f"run directory: {result.run_dir}")
     n_rec = s["reclaimed"]
-    print(f"flown {s['mission_s_flown']:.0f} s of mission in {s['wall_s']:.1f} s wall "
-          f"(speed-up {s['speedup_achieved']:.1f}x); {s['vehicles_discovered']} vehicles; "
-          f"{n_rec} reclaim{'s' if n_rec != 1 else ''} (a vehicle back from its own "
-          "failsafe, taken into the plan again)")
+    print(
+        f"flown {s['mission_s_flown']:.0f} s of mission in {s['wall_s']:.1f} s wall "
+        f"(speed-up {s['speedup_achieved']:.1f}x); {s['vehicles_discovered']} vehicles; "
+        f"{n_rec} reclaim{'s' if n_rec != 1 else ''} (a vehicle back from its own "
+        "failsafe, taken into the plan again)"
+    )
     refused: dict[int, int] = {}
     for link in s.get("links", []):
         for sysid, n in (link.get("refused_by_sysid") or {}).items():
@@ -367,19 +473,25 @@ def run(args) -> int:
     if refused:
         who = ", ".join(f"{k} ({v})" for k, v in sorted(refused.items())[:8])
         more = f" and {len(refused) - 8} more" if len(refused) > 8 else ""
-        print(f"ignored {sum(refused.values())} frame(s) from {len(refused)} system(s) that are "
-              f"not this mission's vehicles: sysid (frames) {who}{more}")
+        print(
+            f"ignored {sum(refused.values())} frame(s) from {len(refused)} system(s) that are "
+            f"not this mission's vehicles: sysid (frames) {who}{more}"
+        )
     bad = sum(link.get("bad_data", 0) for link in s.get("links", []))
     if bad:
         print(f"{bad} corrupt or unsigned frame(s) were dropped")
     end = s.get("end_status")
     if end and end.get("in_air"):
-        print(f"{end['in_air']} vehicle(s) still in the air when the station stopped "
-              "(returning on their own)")
+        print(
+            f"{end['in_air']} vehicle(s) still in the air when the station stopped "
+            "(returning on their own)"
+        )
     print(f"TU1/TU2 as the station saw them:     {_pct(st['tu1'])} / {_pct(st['tu2'])}")
     if "truth" in s:
         tr = s["truth"]
-        print(f"TU1/TU2 from the emulator's truth:   {_pct(tr['tu1'])} / {_pct(tr['tu2'])}"
-              f"   ({tr['alive_end']} vehicles alive at the end)")
+        print(
+            f"TU1/TU2 from the emulator's truth:   {_pct(tr['tu1'])} / {_pct(tr['tu2'])}"
+            f"   ({tr['alive_end']} vehicles alive at the end)"
+        )
     print(_EXPLAIN)
     return 130 if op.interrupted is not None else 0

@@ -26,25 +26,53 @@ SIZES = ("XS", "S", "M", "L", "XL")
 
 def add_arguments(parser) -> None:
     sub = parser.add_subparsers(dest="mission_command", metavar="SUBCOMMAND")
-    new = sub.add_parser("new", help="write a paper configuration as a mission",
-                         description="Write the paper's configuration as a mission in SI units.")
-    new.add_argument("--preset", default="S", type=str.upper, choices=SIZES,
-                     help="problem size from Table III (default: S)")
-    new.add_argument("--attrition", default="0.01", metavar="P",
-                     help="per-drone, per-step loss probability in [0, 1), 0.01 or 1%% (default: 0.01 = 1 %%)")
-    new.add_argument("--unit-m", type=float, default=50.0, metavar="M",
-                     help="metres per paper length unit (default: 50)")
-    new.add_argument("--reading", choices=("scaled", "literal"), default="scaled",
-                     help="scaled: every length x half-width/5 (default); literal: lengths as printed")
-    new.add_argument("--step-s", type=float, default=1.0, metavar="S",
-                     help="seconds per paper step = control period (default: 1)")
+    new = sub.add_parser(
+        "new",
+        help="write a paper configuration as a mission",
+        description="Write the paper's configuration as a mission in SI units.",
+    )
+    new.add_argument(
+        "--preset",
+        default="S",
+        type=str.upper,
+        choices=SIZES,
+        help="problem size from Table III (default: S)",
+    )
+    new.add_argument(
+        "--attrition",
+        default="0.01",
+        metavar="P",
+        help="per-drone, per-step loss probability in [0, 1), 0.01 or 1%% (default: 0.01 = 1 %%)",
+    )
+    new.add_argument(
+        "--unit-m",
+        type=float,
+        default=50.0,
+        metavar="M",
+        help="metres per paper length unit (default: 50)",
+    )
+    new.add_argument(
+        "--reading",
+        choices=("scaled", "literal"),
+        default="scaled",
+        help="scaled: every length x half-width/5 (default); literal: lengths as printed",
+    )
+    new.add_argument(
+        "--step-s",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="seconds per paper step = control period (default: 1)",
+    )
     new.add_argument("--seed", type=int, default=0, help="run seed (default: 0)")
     new.add_argument("--out", metavar="FILE", help="write here instead of stdout")
     new.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     new.set_defaults(_mission_run=_run_new)
 
     show = sub.add_parser("show", help="print a mission with every default filled in")
-    show.add_argument("mission", metavar="MISSION", help="mission YAML file or shipped example name")
+    show.add_argument(
+        "mission", metavar="MISSION", help="mission YAML file or shipped example name"
+    )
     show.set_defaults(_mission_run=_run_show)
 
     lst = sub.add_parser("list", help="list the shipped example missions")
@@ -54,7 +82,9 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     handler = getattr(args, "_mission_run", None)
     if handler is None:
-        raise UserError("missing subcommand: one of new, show, list (see 'phireman mission --help')")
+        raise UserError(
+            "missing subcommand: one of new, show, list (see 'phireman mission --help')"
+        )
     return handler(args)
 
 
@@ -68,31 +98,54 @@ def header_for(args, size: str, half_width_units: float) -> str:
     scale = half_width_units / 5.0 if args.reading == "scaled" else 1.0
     u = L * scale  # metres per printed paper unit, after the scaled reading
     rate = -math.log1p(-p) / dt
-    cmd = (f"phireman mission new --preset {size} --attrition {_fmt(p)} --unit-m {_fmt(L)} "
-           f"--reading {args.reading} --step-s {_fmt(dt)} --seed {args.seed}")
+    cmd = (
+        f"phireman mission new --preset {size} --attrition {_fmt(p)} --unit-m {_fmt(L)} "
+        f"--reading {args.reading} --step-s {_fmt(dt)} --seed {args.seed}"
+    )
     hw = _fmt(half_width_units)
     rows = [
-        ("1 paper length unit", f"= {_fmt(L)} m" + (f" x {_fmt(scale)} (scaled reading: half-width {hw} / 5)"
-                                                     f" = {_fmt(u)} m" if scale != 1 else "")),
+        (
+            "1 paper length unit",
+            f"= {_fmt(L)} m"
+            + (
+                f" x {_fmt(scale)} (scaled reading: half-width {hw} / 5) = {_fmt(u)} m"
+                if scale != 1
+                else ""
+            ),
+        ),
         ("1 paper step", f"= {_fmt(dt)} s = run.control_period_s"),
         ("200 steps", f"-> run.duration_s = {_fmt(200 * dt)}"),
         ("radio r = 2, R = 2", f"-> radio.range_m = radio.base_range_m = {_fmt(2 * u)}"),
-        ("speed v = 0.15/step", f"-> vehicles.emulated.max_speed_m_s = 0.15 x {_fmt(u)} / {_fmt(dt)}"
-                                f" = {_fmt(0.15 * u / dt)}"),
+        (
+            "speed v = 0.15/step",
+            f"-> vehicles.emulated.max_speed_m_s = 0.15 x {_fmt(u)} / {_fmt(dt)}"
+            f" = {_fmt(0.15 * u / dt)}",
+        ),
         ("ring 1, noise 0.2", f"-> spawn.ring.radius_m = {_fmt(u)}, noise_m = {_fmt(0.2 * u)}"),
-        (f"field [-{hw}, {hw}]^2", f"-> tasks[0].random.field_half_width_m = {_fmt(half_width_units * L)}"),
-        ("walk sigma 0.1/step", f"-> sigma_m_per_sqrt_s = 0.1 x {_fmt(u)} / sqrt({_fmt(dt)})"
-                                f" = {_fmt(0.1 * u / math.sqrt(dt))}, border clip"),
-        (f"attrition p = {_fmt(p)}", f"-> attrition.rate_per_s = -ln(1 - p) / control_period_s = {rate:.6g}"),
+        (
+            f"field [-{hw}, {hw}]^2",
+            f"-> tasks[0].random.field_half_width_m = {_fmt(half_width_units * L)}",
+        ),
+        (
+            "walk sigma 0.1/step",
+            f"-> sigma_m_per_sqrt_s = 0.1 x {_fmt(u)} / sqrt({_fmt(dt)})"
+            f" = {_fmt(0.1 * u / math.sqrt(dt))}, border clip",
+        ),
+        (
+            f"attrition p = {_fmt(p)}",
+            f"-> attrition.rate_per_s = -ln(1 - p) / control_period_s = {rate:.6g}",
+        ),
     ]
     table = "\n".join(f"  {left:<22}{right}" for left, right in rows)
-    return (f"PhiIREMAN / RTNUA paper configuration {size} (Table III), {args.reading} reading, "
-            f"attrition {_fmt(p * 100)} % per step.\n"
-            f"Generated by: {cmd}\n\n"
-            "How the paper's dimensionless model maps to this file (SI units):\n"
-            f"{table}\n"
-            "Not in the paper's 2-D model: flight layers (cruise_alt_m, layer_spacing_m), climb rate,\n"
-            "radio latency and loss (0 here), and the origin (the ArduPilot SITL home by default).\n")
+    return (
+        f"PhiIREMAN / RTNUA paper configuration {size} (Table III), {args.reading} reading, "
+        f"attrition {_fmt(p * 100)} % per step.\n"
+        f"Generated by: {cmd}\n\n"
+        "How the paper's dimensionless model maps to this file (SI units):\n"
+        f"{table}\n"
+        "Not in the paper's 2-D model: flight layers (cruise_alt_m, layer_spacing_m), climb rate,\n"
+        "radio latency and loss (0 here), and the origin (the ArduPilot SITL home by default).\n"
+    )
 
 
 def _run_new(args) -> int:
@@ -103,7 +156,9 @@ def _run_new(args) -> int:
 
     args.attrition = parse_rate(args.attrition)
     if not 0.0 <= args.attrition < 1.0:
-        raise UserError(f"--attrition must be a per-step probability in [0, 1), got {args.attrition}")
+        raise UserError(
+            f"--attrition must be a per-step probability in [0, 1), got {args.attrition}"
+        )
     if not (args.unit_m > 0 and math.isfinite(args.unit_m)):
         raise UserError(f"--unit-m must be a positive number of metres, got {args.unit_m}")
     if not (args.step_s > 0 and math.isfinite(args.step_s)):
@@ -111,8 +166,11 @@ def _run_new(args) -> int:
     if args.seed < 0:
         raise UserError(f"--seed must be >= 0, got {args.seed}")
     try:
-        mission = validate_mission(paper_mission(args.preset, args.attrition, args.unit_m, args.reading,
-                                                 args.step_s, args.seed))
+        mission = validate_mission(
+            paper_mission(
+                args.preset, args.attrition, args.unit_m, args.reading, args.step_s, args.seed
+            )
+        )
     except (ValueError, MissionError) as exc:
         raise UserError(f"cannot build this configuration: {exc}") from None
     text = dump_mission(mission, header=header_for(args, args.preset, PAPER_SIZES[args.preset][2]))
@@ -141,7 +199,9 @@ def _run_show(args) -> int:
         for line in exc.errors:
             print(f"{path}: {line}" if not line.startswith(f"{path}:") else line, file=sys.stderr)
         return 2
-    sys.stdout.write(dump_mission(mission, header=f"{path} with every default filled in\n{mission.summary()}"))
+    sys.stdout.write(
+        dump_mission(mission, header=f"{path} with every default filled in\n{mission.summary()}")
+    )
     return 0
 
 

@@ -1,4 +1,5 @@
 """phireman replay RUN_DIR: plots and an animation of a recorded run."""
+
 from __future__ import annotations
 
 import argparse
@@ -27,11 +28,23 @@ examples:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from mission.cli import positive_int
 
-    p.add_argument("run_dir", type=pathlib.Path,
-                   help="a run directory (holds truth.npz), or a directory of run directories (the newest is used)")
-    p.add_argument("--out", type=pathlib.Path, default=None, help="where to write (default: the run directory)")
-    p.add_argument("--animation", choices=["gif", "mp4", "none"], default="gif", help="animation format (default gif)")
-    p.add_argument("--max-frames", type=positive_int, default=100, help="animation frames (default 100)")
+    p.add_argument(
+        "run_dir",
+        type=pathlib.Path,
+        help="a run directory (holds truth.npz), or a directory of run directories (the newest is used)",
+    )
+    p.add_argument(
+        "--out", type=pathlib.Path, default=None, help="where to write (default: the run directory)"
+    )
+    p.add_argument(
+        "--animation",
+        choices=["gif", "mp4", "none"],
+        default="gif",
+        help="animation format (default gif)",
+    )
+    p.add_argument(
+        "--max-frames", type=positive_int, default=100, help="animation frames (default 100)"
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     from mission.live.cli import add_replay_arguments
 
@@ -53,9 +66,13 @@ def run(args) -> int:
 
     bar = None
     if args.animation != "none" and not args.no_progress:
-        bar = tqdm(total=args.max_frames, unit="frame", file=sys.stderr, leave=False, desc="animation")
+        bar = tqdm(
+            total=args.max_frames, unit="frame", file=sys.stderr, leave=False, desc="animation"
+        )
     try:
-        files = replay(run_dir, args.out, args.animation, args.max_frames, progress=bar.update if bar else None)
+        files = replay(
+            run_dir, args.out, args.animation, args.max_frames, progress=bar.update if bar else None
+        )
     except (FileNotFoundError, ValueError) as exc:
         raise UserError(str(exc)) from None
     finally:

@@ -6,7 +6,9 @@ import argparse
 import pathlib
 import sys
 
-HELP = "turn a results store into Table II, ablations, Fig. 3 heatmaps and a comparison with the paper"
+HELP = (
+    "turn a results store into Table II, ablations, Fig. 3 heatmaps and a comparison with the paper"
+)
 DESCRIPTION = """\
 Read a results store written by 'phireman sweep' and write into --out:
 
@@ -33,17 +35,39 @@ examples:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("store", type=pathlib.Path, help="results store (SQLite) written by 'phireman sweep'")
+    p.add_argument(
+        "store", type=pathlib.Path, help="results store (SQLite) written by 'phireman sweep'"
+    )
     p.add_argument("--out", type=pathlib.Path, required=True, help="output directory")
-    p.add_argument("--reading", choices=["scaled", "literal"], default="scaled",
-                   help="which reading's configurations to report (default scaled)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="the --set overrides the sweeps used (repeatable)")
-    p.add_argument("--notes", type=pathlib.Path, default=None,
-                   help="a Markdown file appended as the report's 'Notes' section (e.g. why configurations miss)")
-    p.add_argument("--method", "--methods", dest="methods", nargs="+", default=[], metavar="NAME",
-                   help="extra Table II columns besides phireman, dccrs, mccst: your own planner, swept on "
-                        "the paper-table configurations (e.g. --grid paper-table --methods mine)")
+    p.add_argument(
+        "--reading",
+        choices=["scaled", "literal"],
+        default="scaled",
+        help="which reading's configurations to report (default scaled)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="the --set overrides the sweeps used (repeatable)",
+    )
+    p.add_argument(
+        "--notes",
+        type=pathlib.Path,
+        default=None,
+        help="a Markdown file appended as the report's 'Notes' section (e.g. why configurations miss)",
+    )
+    p.add_argument(
+        "--method",
+        "--methods",
+        dest="methods",
+        nargs="+",
+        default=[],
+        metavar="NAME",
+        help="extra Table II columns besides phireman, dccrs, mccst: your own planner, swept on "
+        "the paper-table configurations (e.g. --grid paper-table --methods mine)",
+    )
     p.add_argument("--no-figures", action="store_true", help="skip the PNG heatmaps")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -69,10 +93,17 @@ def run(args) -> int:
 
         bar = tqdm(total=5, unit="stage", file=sys.stderr, leave=False, desc="report")
     try:
-        result = build_report(args.store, args.out, reading=args.reading, params=params,
-                              problem_overrides=problem, notes=notes, figures=not args.no_figures,
-                              extra_methods=tuple(split_list(args.methods) or ()),
-                              progress=(lambda name: (bar.set_postfix_str(name), bar.update(1))) if bar else None)
+        result = build_report(
+            args.store,
+            args.out,
+            reading=args.reading,
+            params=params,
+            problem_overrides=problem,
+            notes=notes,
+            figures=not args.no_figures,
+            extra_methods=tuple(split_list(args.methods) or ()),
+            progress=(lambda name: (bar.set_postfix_str(name), bar.update(1))) if bar else None,
+        )
     except (StoreError, FileNotFoundError) as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:
@@ -83,14 +114,22 @@ def run(args) -> int:
     s = result.summary
     print(f"wrote {result.markdown}, {result.csv.name} and {len(result.figures)} figures")
     if s["leads_with_yours"]:
-        print(f"report.md leads with your {s['your_configurations']} configurations; "
-              f"{s['paper_configs_with_data']} of the paper's 25 Table II configurations have data")
+        print(
+            f"report.md leads with your {s['your_configurations']} configurations; "
+            f"{s['paper_configs_with_data']} of the paper's 25 Table II configurations have data"
+        )
     elif s["your_configurations"]:
-        print(f"{s['your_configurations']} configurations besides the paper's: 'Other configurations' in report.md")
+        print(
+            f"{s['your_configurations']} configurations besides the paper's: 'Other configurations' in report.md"
+        )
     a = s["agreement"].get("phireman", {})
     if a and a["with_data"]:
-        print(f"PhiIREMAN within 3 pp of the paper at 0-2 %: {a['within_both']} of {a['with_data']} "
-              f"paper configurations with data (the paper's table has {a['configs'] if a['configs'] >= 20 else 20})")
+        print(
+            f"PhiIREMAN within 3 pp of the paper at 0-2 %: {a['within_both']} of {a['with_data']} "
+            f"paper configurations with data (the paper's table has {a['configs'] if a['configs'] >= 20 else 20})"
+        )
     elif s["paper_configs_with_data"] and not s["compared_with_paper"]:
-        print("not compared with the paper: the --set overrides make the configurations differ from it")
+        print(
+            "not compared with the paper: the --set overrides make the configurations differ from it"
+        )
     return 0

@@ -38,11 +38,17 @@ Confidence intervals reaching past 0 or 100 % (few seeds) are printed clipped to
 #: Options that describe a paper preset; a mission file fixes these itself.
 _PRESET_ONLY = {
     "size": ("--size", "the mission's vehicles.count and tasks set the size"),
-    "attrition": ("--attrition", "the mission sets attrition (attrition.rate_per_s, hazard zones, scripted losses)"),
+    "attrition": (
+        "--attrition",
+        "the mission sets attrition (attrition.rate_per_s, hazard zones, scripted losses)",
+    ),
     "method": ("--method", "the mission names its planner (planner.method)"),
     "info": ("--info", "the mission sets the information model (planner.info)"),
     "reading": ("--reading", "a mission is already in metres; readings apply to the paper's units"),
-    "set": ("--set", "the mission sets its problem and planner parameters (planner.params, radio, vehicles)"),
+    "set": (
+        "--set",
+        "the mission sets its problem and planner parameters (planner.params, radio, vehicles)",
+    ),
     "workers": ("--workers", "mission runs are played one after another in this process"),
 }
 
@@ -51,34 +57,69 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from mission.cli import add_seed_arguments, add_workers_argument, rate_arg
     from planner.problem import SIZES
 
-    p.add_argument("--size", default=None, type=str.upper, choices=list(SIZES), help="problem size (default S)")
-    p.add_argument("--attrition", default=None, type=rate_arg, metavar="P",
-                   help="per-drone, per-step loss probability, a fraction (0.01) or a percent (1%%); default 0.01")
+    p.add_argument(
+        "--size", default=None, type=str.upper, choices=list(SIZES), help="problem size (default S)"
+    )
+    p.add_argument(
+        "--attrition",
+        default=None,
+        type=rate_arg,
+        metavar="P",
+        help="per-drone, per-step loss probability, a fraction (0.01) or a percent (1%%); default 0.01",
+    )
     add_seed_arguments(p, None, "number of seeded scenarios (default 100; with --mission 1)")
-    p.add_argument("--method", default=None, help="planner name (default phireman); see --list-methods")
-    p.add_argument("--list-methods", action="store_true", help="list the registered planners and exit")
-    p.add_argument("--info", choices=["async", "central"], default=None,
-                   help="PhiIREMAN/DCCRS information model (default: the method's own, async for phireman)")
-    p.add_argument("--reading", choices=["scaled", "literal"], default=None, help="length reading (default scaled)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a problem field (e.g. max_speed_m_s=0.2, task_border=none) or a planner "
-                        "parameter (e.g. step_size=0.3); repeatable")
+    p.add_argument(
+        "--method", default=None, help="planner name (default phireman); see --list-methods"
+    )
+    p.add_argument(
+        "--list-methods", action="store_true", help="list the registered planners and exit"
+    )
+    p.add_argument(
+        "--info",
+        choices=["async", "central"],
+        default=None,
+        help="PhiIREMAN/DCCRS information model (default: the method's own, async for phireman)",
+    )
+    p.add_argument(
+        "--reading",
+        choices=["scaled", "literal"],
+        default=None,
+        help="length reading (default scaled)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a problem field (e.g. max_speed_m_s=0.2, task_border=none) or a planner "
+        "parameter (e.g. step_size=0.3); repeatable",
+    )
     add_workers_argument(p)
-    p.add_argument("--out", type=pathlib.Path, default=None,
-                   help="write runs.csv, summary.json, fig2_timeseries.png and frames.png here")
+    p.add_argument(
+        "--out",
+        type=pathlib.Path,
+        default=None,
+        help="write runs.csv, summary.json, fig2_timeseries.png and frames.png here",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--mission", default=None, metavar="MISSION",
-                   help="play a mission file (or shipped example name) in-process instead of a paper preset; "
-                        "--seed replaces the mission's seed, --seeds N plays N seeds from it (default 1); "
-                        "--out writes a run directory. --size/--attrition/--method/--info/--reading/--set/"
-                        "--workers do not apply (the mission sets them)")
+    p.add_argument(
+        "--mission",
+        default=None,
+        metavar="MISSION",
+        help="play a mission file (or shipped example name) in-process instead of a paper preset; "
+        "--seed replaces the mission's seed, --seeds N plays N seeds from it (default 1); "
+        "--out writes a run directory. --size/--attrition/--method/--info/--reading/--set/"
+        "--workers do not apply (the mission sets them)",
+    )
 
 
 def ci_note(n: int, clipped: bool) -> str | None:
     """A line for people when the confidence interval is not meaningful or was clipped."""
     if n < 3:
-        return (f"note: {n} run(s): too few for a useful 95 % CI; intervals wider than the 0-100 % range "
-                f"are shown clipped to [0, 100] (use --seeds 3 or more; 30+ for tight intervals)")
+        return (
+            f"note: {n} run(s): too few for a useful 95 % CI; intervals wider than the 0-100 % range "
+            f"are shown clipped to [0, 100] (use --seeds 3 or more; 30+ for tight intervals)"
+        )
     if clipped:
         return "note: intervals reaching past 0 or 100 % are shown clipped to [0, 100]"
     return None
@@ -109,7 +150,9 @@ def run(args) -> int:
     except (ValueError, TypeError) as exc:
         raise UserError(str(exc)) from None
     if args.method not in method_names():
-        raise UserError(f"--method: unknown planner {args.method!r}; valid methods: {', '.join(method_names())}")
+        raise UserError(
+            f"--method: unknown planner {args.method!r}; valid methods: {', '.join(method_names())}"
+        )
     check_overrides([args.method], problem, params)
     try:
         if args.info is not None:  # one rule for which methods take which model (planner.methods)
@@ -122,22 +165,29 @@ def run(args) -> int:
 
     seeds = list(range(seed0, seed0 + n_seeds))
     workers = resolve_workers(args.workers)
-    label = (f"{args.method}{'/' + params['info'] if 'info' in params else ''} | size {problem.size} "
-             f"({problem.n_drones} drones, {problem.n_tasks} tasks) | attrition {100 * args.attrition:g} %/step "
-             f"| {args.reading} reading | {len(seeds)} seeds")
+    label = (
+        f"{args.method}{'/' + params['info'] if 'info' in params else ''} | size {problem.size} "
+        f"({problem.n_drones} drones, {problem.n_tasks} tasks) | attrition {100 * args.attrition:g} %/step "
+        f"| {args.reading} reading | {len(seeds)} seeds"
+    )
     print(label, file=sys.stderr)
     t0 = time.perf_counter()
     bar = None
     if not args.no_progress:
         from tqdm import tqdm
+
         bar = tqdm(total=len(seeds), unit="run", file=sys.stderr, leave=False)
     try:
-        rows = run_many(problem, args.method, params, seeds, workers, progress=bar.update if bar else None)
+        rows = run_many(
+            problem, args.method, params, seeds, workers, progress=bar.update if bar else None
+        )
     except KeyboardInterrupt:
         done = bar.n if bar else 0
         if bar:
             bar.close()
-        print(f"interrupted after {done} of {len(seeds)} runs; nothing was written", file=sys.stderr)
+        print(
+            f"interrupted after {done} of {len(seeds)} runs; nothing was written", file=sys.stderr
+        )
         raise
     if bar:
         bar.close()
@@ -152,7 +202,9 @@ def run(args) -> int:
     note = ci_note(len(rows), c1 or c2)
     if note:
         print(note, file=sys.stderr)
-    print(f"{len(rows)} runs in {wall:.1f} s wall ({per_run:.3f} s per run per core, {workers} workers)")
+    print(
+        f"{len(rows)} runs in {wall:.1f} s wall ({per_run:.3f} s per run per core, {workers} workers)"
+    )
 
     if args.out is not None:
         out = args.out
@@ -161,24 +213,59 @@ def run(args) -> int:
         except OSError as exc:
             raise UserError(f"--out {out}: {exc.strerror or exc}") from None
         with open(out / "runs.csv", "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=["seed", "method", "tu1", "tu2", "wall_s", "final_alive", "final_active"])
+            w = csv.DictWriter(
+                fh,
+                fieldnames=[
+                    "seed",
+                    "method",
+                    "tu1",
+                    "tu2",
+                    "wall_s",
+                    "final_alive",
+                    "final_active",
+                ],
+            )
             w.writeheader()
             for r in rows:
                 w.writerow({k: r[k] for k in w.fieldnames})
-        summary = {"method": args.method, "params": params, "problem": dataclasses.asdict(problem),
-                   "seeds": seeds, "tu1_pct": tu1, "tu1_ci95_pct": tu1_ci, "tu2_pct": tu2,
-                   "tu2_ci95_pct": tu2_ci, "wall_s": wall, "s_per_run": per_run}
+        summary = {
+            "method": args.method,
+            "params": params,
+            "problem": dataclasses.asdict(problem),
+            "seeds": seeds,
+            "tu1_pct": tu1,
+            "tu1_ci95_pct": tu1_ci,
+            "tu2_pct": tu2,
+            "tu2_ci95_pct": tu2_ci,
+            "wall_s": wall,
+            "s_per_run": per_run,
+        }
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
         from mission.plots import plot_frame_strip, plot_time_series
 
-        title = (f"{args.method}, size {problem.size}, {100 * args.attrition:g} %/step attrition, "
-                 f"{len(seeds)} seeds: TU1 {t1_txt} %, TU2 {t2_txt} %")
-        plot_time_series(rows, problem.n_drones, problem.n_tasks, title, out / "fig2_timeseries.png")
-        frames = [0, problem.n_steps // 8, problem.n_steps // 3, problem.n_steps * 2 // 3, problem.n_steps]
+        title = (
+            f"{args.method}, size {problem.size}, {100 * args.attrition:g} %/step attrition, "
+            f"{len(seeds)} seeds: TU1 {t1_txt} %, TU2 {t2_txt} %"
+        )
+        plot_time_series(
+            rows, problem.n_drones, problem.n_tasks, title, out / "fig2_timeseries.png"
+        )
+        frames = [
+            0,
+            problem.n_steps // 8,
+            problem.n_steps // 3,
+            problem.n_steps * 2 // 3,
+            problem.n_steps,
+        ]
         ep = run_episode(problem, args.method, params, seeds[0], record=True, frames=frames)
-        plot_frame_strip(ep.record, frames, problem,
-                         f"{args.method}, size {problem.size}, {100 * args.attrition:g} %/step, seed {seeds[0]}: "
-                         f"TU1 {100 * ep.tu1:.1f} %, TU2 {100 * ep.tu2:.1f} %", out / "frames.png")
+        plot_frame_strip(
+            ep.record,
+            frames,
+            problem,
+            f"{args.method}, size {problem.size}, {100 * args.attrition:g} %/step, seed {seeds[0]}: "
+            f"TU1 {100 * ep.tu1:.1f} %, TU2 {100 * ep.tu2:.1f} %",
+            out / "frames.png",
+        )
         print(f"wrote {out}/runs.csv, summary.json, fig2_timeseries.png, frames.png")
     return 0
 
@@ -186,16 +273,21 @@ def run(args) -> int:
 def _refuse_preset_flags(args) -> None:
     from mission.cli import UserError
 
-    given = [(flag, why) for attr, (flag, why) in _PRESET_ONLY.items()
-             if getattr(args, attr, None) not in (None, [])]
+    given = [
+        (flag, why)
+        for attr, (flag, why) in _PRESET_ONLY.items()
+        if getattr(args, attr, None) not in (None, [])
+    ]
     if not given:
         return
     flags = " and ".join(f for f, _ in given)
     reasons = "; ".join(f"{f}: {why}" for f, why in given)
-    raise UserError(f"{flags} {'does' if len(given) == 1 else 'do'} not apply with --mission ({reasons}). "
-                    f"Edit a copy of the mission (phireman mission show {args.mission} > my.yaml; "
-                    f"phireman mission new --preset S --attrition 2% writes a paper configuration), "
-                    f"or drop --mission to simulate the paper's preset")
+    raise UserError(
+        f"{flags} {'does' if len(given) == 1 else 'do'} not apply with --mission ({reasons}). "
+        f"Edit a copy of the mission (phireman mission show {args.mission} > my.yaml; "
+        f"phireman mission new --preset S --attrition 2% writes a paper configuration), "
+        f"or drop --mission to simulate the paper's preset"
+    )
 
 
 def _run_mission(args) -> int:
@@ -211,8 +303,10 @@ def _run_mission(args) -> int:
         try:
             path = example_path(args.mission)
         except (KeyError, ValueError, FileNotFoundError):
-            raise UserError(f"--mission {args.mission}: no such file or shipped example "
-                            f"({', '.join(list_examples())})") from None
+            raise UserError(
+                f"--mission {args.mission}: no such file or shipped example "
+                f"({', '.join(list_examples())})"
+            ) from None
     try:
         mission = load_mission(path)
     except MissionError as exc:
@@ -225,6 +319,7 @@ def _run_mission(args) -> int:
     bar = None
     if n > 1 and not args.no_progress:
         from tqdm import tqdm
+
         bar = tqdm(total=n, unit="run", file=sys.stderr, leave=False)
     try:
         for seed in seeds:
@@ -233,8 +328,10 @@ def _run_mission(args) -> int:
             except ValueError as exc:
                 raise UserError(str(exc)) from None
             results.append(r)
-            line = (f"seed {seed}: TU1 = {100 * r.tu1:.2f} %, TU2 = {100 * r.tu2:.2f} %, {len(r.losses)} losses, "
-                    f"{r.wall_s:.2f} s")
+            line = (
+                f"seed {seed}: TU1 = {100 * r.tu1:.2f} %, TU2 = {100 * r.tu2:.2f} %, {len(r.losses)} losses, "
+                f"{r.wall_s:.2f} s"
+            )
             (bar.write(line) if bar else print(line))
             if bar:
                 bar.update(1)
@@ -253,5 +350,7 @@ def _run_mission(args) -> int:
             write_run_dir(mission, results[0], args.out)
         except OSError as exc:
             raise UserError(f"--out {args.out}: {exc.strerror or exc}") from None
-        print(f"wrote run directory {args.out} (seed {results[0].seed}); see it with: phireman replay {args.out}")
+        print(
+            f"wrote run directory {args.out} (seed {results[0].seed}); see it with: phireman replay {args.out}"
+        )
     return 0

@@ -34,24 +34,50 @@ Examples:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("firmware", choices=("ardupilot", "px4"), help="which firmware to start")
-    p.add_argument("--vehicles", type=int, default=3, metavar="N",
-                   help="number of instances (default 3)")
-    p.add_argument("--binary", default=None, metavar="PATH",
-                   help="the SITL binary (default: $PHIREMAN_ARDUCOPTER or $PHIREMAN_PX4)")
-    p.add_argument("--mission", default=None, metavar="MISSION",
-                   help="place the vehicles around this mission's origin (file or shipped "
-                        "example; default: the firmware's own SITL home)")
-    p.add_argument("--speedup", type=float, default=1.0, metavar="K",
-                   help="ArduCopter only: run the vehicles' clock K times faster (fly with the "
-                        "same --speedup K)")
+    p.add_argument(
+        "--vehicles", type=int, default=3, metavar="N", help="number of instances (default 3)"
+    )
+    p.add_argument(
+        "--binary",
+        default=None,
+        metavar="PATH",
+        help="the SITL binary (default: $PHIREMAN_ARDUCOPTER or $PHIREMAN_PX4)",
+    )
+    p.add_argument(
+        "--mission",
+        default=None,
+        metavar="MISSION",
+        help="place the vehicles around this mission's origin (file or shipped "
+        "example; default: the firmware's own SITL home)",
+    )
+    p.add_argument(
+        "--speedup",
+        type=float,
+        default=1.0,
+        metavar="K",
+        help="ArduCopter only: run the vehicles' clock K times faster (fly with the "
+        "same --speedup K)",
+    )
     p.add_argument("--spacing-m", type=float, default=5.0, help="distance between homes (5 m)")
-    p.add_argument("--first-instance", type=int, default=0, metavar="I",
-                   help="instance number of the first vehicle (ports and sysids shift with it)")
-    p.add_argument("--workdir", default=None, metavar="DIR",
-                   help="keep each instance's working directory (logs, eeprom) under DIR "
-                        "(default: a temporary directory removed at the end)")
-    p.add_argument("--print-fly", action="store_true",
-                   help="print the whole 'phireman fly' command to run against them")
+    p.add_argument(
+        "--first-instance",
+        type=int,
+        default=0,
+        metavar="I",
+        help="instance number of the first vehicle (ports and sysids shift with it)",
+    )
+    p.add_argument(
+        "--workdir",
+        default=None,
+        metavar="DIR",
+        help="keep each instance's working directory (logs, eeprom) under DIR "
+        "(default: a temporary directory removed at the end)",
+    )
+    p.add_argument(
+        "--print-fly",
+        action="store_true",
+        help="print the whole 'phireman fly' command to run against them",
+    )
 
 
 def run(args) -> int:
@@ -74,10 +100,16 @@ def run(args) -> int:
         origin = (o.lat_deg, o.lon_deg, o.alt_amsl_m)
         mission_name = args.mission
     try:
-        spec = SitlSpec(args.firmware, args.vehicles, find_binary(args.firmware, args.binary),
-                        origin, speedup=args.speedup,
-                        workdir=Path(args.workdir) if args.workdir else None,
-                        first_instance=args.first_instance, spacing_m=args.spacing_m)
+        spec = SitlSpec(
+            args.firmware,
+            args.vehicles,
+            find_binary(args.firmware, args.binary),
+            origin,
+            speedup=args.speedup,
+            workdir=Path(args.workdir) if args.workdir else None,
+            first_instance=args.first_instance,
+            spacing_m=args.spacing_m,
+        )
         swarm = SitlSwarm(spec).start()
     except SitlError as exc:
         raise UserError(str(exc)) from None
@@ -91,26 +123,35 @@ def run(args) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _stop)
     try:
-        print(f"started {args.vehicles} {args.firmware} SITL vehicle(s) around "
-              f"{origin[0]:.6f}, {origin[1]:.6f} ({origin[2]:g} m); working directories under "
-              f"{swarm.workdir}")
+        print(
+            f"started {args.vehicles} {args.firmware} SITL vehicle(s) around "
+            f"{origin[0]:.6f}, {origin[1]:.6f} ({origin[2]:g} m); working directories under "
+            f"{swarm.workdir}"
+        )
         for k in range(args.vehicles):
             print(f"  vehicle {k}: sysid {swarm.sysid(k)}  {swarm.connection(k)}")
         connects = " ".join(f"--connect {c}" for c in swarm.connections())
         speed = f" --speedup {args.speedup:g}" if args.speedup != 1.0 else ""
-        hint = (f"phireman fly {mission_name or 'MISSION'} {connects}{speed} --apply-failsafes")
+        hint = f"phireman fly {mission_name or 'MISSION'} {connects}{speed} --apply-failsafes"
         print(("fly them with:\n  " if args.print_fly else "e.g.: ") + hint)
         if args.firmware == "ardupilot":
-            print("(ArduCopter arms about 40 s after start, once its EKF uses GPS; PX4 SIH "
-                  "after a few seconds)" if args.speedup == 1.0 else "")
+            print(
+                "(ArduCopter arms about 40 s after start, once its EKF uses GPS; PX4 SIH "
+                "after a few seconds)"
+                if args.speedup == 1.0
+                else ""
+            )
         print("Ctrl-C stops them.")
         sys.stdout.flush()
         while True:
             time.sleep(1.0)
             dead = [k for k, ok in enumerate(swarm.alive()) if not ok]
             if dead and len(dead) == len(swarm.procs):
-                print("every SITL instance has exited; see console.log in its working "
-                      f"directory under {swarm.workdir}", file=sys.stderr)
+                print(
+                    "every SITL instance has exited; see console.log in its working "
+                    f"directory under {swarm.workdir}",
+                    file=sys.stderr,
+                )
                 return 1
     except KeyboardInterrupt:
         print("stopping the SITL vehicles", file=sys.stderr)

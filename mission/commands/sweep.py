@@ -45,43 +45,100 @@ examples:
 GRIDS = ("paper-table", "paper-ablations", "custom")
 
 
-def add_common_arguments(p: argparse.ArgumentParser, seeds_default: int = 100,
-                         store_default: str = "results.sqlite") -> None:
+def add_common_arguments(
+    p: argparse.ArgumentParser, seeds_default: int = 100, store_default: str = "results.sqlite"
+) -> None:
     """Options shared by sweep and tune: seeds, reading, overrides, executor, store."""
     from mission.cli import add_seed_arguments, add_workers_argument
 
-    p.add_argument("--store", type=pathlib.Path, default=pathlib.Path(store_default),
-                   help=f"SQLite results store file (created if missing; default {store_default})")
-    add_seed_arguments(p, seeds_default, f"seeded scenarios per configuration (default {seeds_default})")
-    p.add_argument("--reading", choices=["scaled", "literal"], default="scaled",
-                   help="length reading (default scaled, docs/design/model.md §6.4)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a problem field (metres, e.g. n_steps=50) or a planner parameter "
-                        "(e.g. step_size=0.3) in every configuration; repeatable")
-    p.add_argument("--executor", choices=["local", "dask"], default="local",
-                   help="local process pool (default) or dask")
+    p.add_argument(
+        "--store",
+        type=pathlib.Path,
+        default=pathlib.Path(store_default),
+        help=f"SQLite results store file (created if missing; default {store_default})",
+    )
+    add_seed_arguments(
+        p, seeds_default, f"seeded scenarios per configuration (default {seeds_default})"
+    )
+    p.add_argument(
+        "--reading",
+        choices=["scaled", "literal"],
+        default="scaled",
+        help="length reading (default scaled, docs/design/model.md §6.4)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a problem field (metres, e.g. n_steps=50) or a planner parameter "
+        "(e.g. step_size=0.3) in every configuration; repeatable",
+    )
+    p.add_argument(
+        "--executor",
+        choices=["local", "dask"],
+        default="local",
+        help="local process pool (default) or dask",
+    )
     add_workers_argument(p, "worker processes for the local pool or a Dask LocalCluster")
-    p.add_argument("--scheduler", default=None, metavar="ADDR",
-                   help="existing Dask scheduler, e.g. tcp://host:8786 (implies --executor dask)")
-    p.add_argument("--chunk", type=int, default=None, metavar="N",
-                   help="seeds per worker task (default: about 8 s of work, 1-10 seeds)")
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDR",
+        help="existing Dask scheduler, e.g. tcp://host:8786 (implies --executor dask)",
+    )
+    p.add_argument(
+        "--chunk",
+        type=int,
+        default=None,
+        metavar="N",
+        help="seeds per worker task (default: about 8 s of work, 1-10 seeds)",
+    )
     p.add_argument("--retry-errors", action="store_true", help="run this grid's error rows again")
-    p.add_argument("--rerun-other-code", action="store_true",
-                   help="run again this grid's rows that were made by another code version")
+    p.add_argument(
+        "--rerun-other-code",
+        action="store_true",
+        help="run again this grid's rows that were made by another code version",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--grid", choices=GRIDS, default="paper-table", help="which grid (default paper-table)")
-    p.add_argument("--size", "--sizes", dest="sizes", nargs="+", default=None, metavar="SIZE",
-                   help="sizes (XS S M L XL; space- or comma-separated; default all; alias --sizes)")
-    p.add_argument("--attrition", nargs="+", default=None, metavar="P",
-                   help="per-step attrition levels as fractions (0.01) or percents (1%%); default the paper's 5")
-    p.add_argument("--method", "--methods", dest="methods", nargs="+", default=None, metavar="NAME",
-                   help="planner names (default phireman dccrs mccst; alias --methods); "
-                        "see 'phireman sim --list-methods'")
+    p.add_argument(
+        "--grid", choices=GRIDS, default="paper-table", help="which grid (default paper-table)"
+    )
+    p.add_argument(
+        "--size",
+        "--sizes",
+        dest="sizes",
+        nargs="+",
+        default=None,
+        metavar="SIZE",
+        help="sizes (XS S M L XL; space- or comma-separated; default all; alias --sizes)",
+    )
+    p.add_argument(
+        "--attrition",
+        nargs="+",
+        default=None,
+        metavar="P",
+        help="per-step attrition levels as fractions (0.01) or percents (1%%); default the paper's 5",
+    )
+    p.add_argument(
+        "--method",
+        "--methods",
+        dest="methods",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help="planner names (default phireman dccrs mccst; alias --methods); "
+        "see 'phireman sim --list-methods'",
+    )
     add_common_arguments(p)
-    p.add_argument("--dry-run", action="store_true", help="print the plan (runs, present, to do, time estimate) and exit")
+    p.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print the plan (runs, present, to do, time estimate) and exit",
+    )
 
 
 def split_list(values: list[str] | None) -> list[str] | None:
@@ -145,8 +202,10 @@ def validate_methods(methods: list[str] | None, option: str = "--method") -> Non
 
     for m in methods or []:
         if m not in method_names():
-            raise UserError(f"{option}: unknown planner {m!r}{did_you_mean(m, method_names())}; "
-                            f"valid methods: {', '.join(method_names())}")
+            raise UserError(
+                f"{option}: unknown planner {m!r}{did_you_mean(m, method_names())}; "
+                f"valid methods: {', '.join(method_names())}"
+            )
 
 
 def planner_parameter_names(method: str, problem) -> list[str] | None:
@@ -181,9 +240,15 @@ def check_overrides(methods, problem, params: dict, option: str = "--set") -> No
                 continue
             hint = did_you_mean(key, taken + problem_fields)
             takers = [m for m in methods if m != method and key in (names[m] or [])]
-            where = (f"; only {', '.join(takers)} take(s) it, so run {method} separately" if takers else "")
-            raise UserError(f"{option} {key}: not a parameter of {method} nor a problem field{hint}{where}. "
-                            f"{method} takes: {', '.join(taken)}")
+            where = (
+                f"; only {', '.join(takers)} take(s) it, so run {method} separately"
+                if takers
+                else ""
+            )
+            raise UserError(
+                f"{option} {key}: not a parameter of {method} nor a problem field{hint}{where}. "
+                f"{method} takes: {', '.join(taken)}"
+            )
 
 
 def execute(grid, args, argv: list[str]) -> int:
@@ -202,33 +267,57 @@ def execute(grid, args, argv: list[str]) -> int:
     except StoreError as exc:
         raise UserError(str(exc)) from None
     with store:
-        print(f"{grid.name}: {len(grid.configs)} configurations x {len(grid.seeds)} seeds = "
-              f"{grid.n_runs} runs -> {args.store} ({code_version()})", file=sys.stderr)
+        print(
+            f"{grid.name}: {len(grid.configs)} configurations x {len(grid.seeds)} seeds = "
+            f"{grid.n_runs} runs -> {args.store} ({code_version()})",
+            file=sys.stderr,
+        )
         try:
-            summary = run_sweep(grid, store, executor=args.executor, workers=args.workers,
-                                scheduler=args.scheduler, chunk=args.chunk, progress=not args.no_progress,
-                                retry_errors=args.retry_errors, rerun_other_code=args.rerun_other_code,
-                                argv=argv)
+            summary = run_sweep(
+                grid,
+                store,
+                executor=args.executor,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                chunk=args.chunk,
+                progress=not args.no_progress,
+                retry_errors=args.retry_errors,
+                rerun_other_code=args.rerun_other_code,
+                argv=argv,
+            )
         except ValueError as exc:
             raise UserError(str(exc)) from None
         for where, msg in summary.resolve_errors.items():
             print(f"warning: {where}: {msg} (its runs are stored as errors)", file=sys.stderr)
         if summary.other_code:
             versions = "; ".join(f"{n} rows by {v}" for v, n in summary.other_code.items())
-            print(f"warning: runs already present were made by other code ({versions}); they were kept. "
-                  f"Use a new store or --rerun-other-code to redo them.", file=sys.stderr)
+            print(
+                f"warning: runs already present were made by other code ({versions}); they were kept. "
+                f"Use a new store or --rerun-other-code to redo them.",
+                file=sys.stderr,
+            )
         errors_in_grid = len(summary.keys & store.keys("error"))
-    print(f"{summary.present} present, {summary.completed} completed now ({summary.errors} errors), "
-          f"{summary.remaining} remaining, in {summary.wall_s:.1f} s wall")
+    print(
+        f"{summary.present} present, {summary.completed} completed now ({summary.errors} errors), "
+        f"{summary.remaining} remaining, in {summary.wall_s:.1f} s wall"
+    )
     if summary.lost:
-        print(f"{summary.lost} runs lost to executor failures; rerun the same command to retry them",
-              file=sys.stderr)
+        print(
+            f"{summary.lost} runs lost to executor failures; rerun the same command to retry them",
+            file=sys.stderr,
+        )
     if summary.interrupted:
-        print("interrupted: every completed run is stored; rerun the same command to finish", file=sys.stderr)
+        print(
+            "interrupted: every completed run is stored; rerun the same command to finish",
+            file=sys.stderr,
+        )
         return 130
     if errors_in_grid:
-        print(f"{errors_in_grid} runs of this grid are error rows (see 'phireman report'; "
-              f"--retry-errors runs them again)", file=sys.stderr)
+        print(
+            f"{errors_in_grid} runs of this grid are error rows (see 'phireman report'; "
+            f"--retry-errors runs them again)",
+            file=sys.stderr,
+        )
         return 1
     return 0
 
@@ -254,8 +343,10 @@ def build_grid(args):
         grid = paper_table_grid(seeds, sizes, attrition, methods, args.reading, params, problem)
     elif args.grid == "paper-ablations":
         if sizes or attrition or methods:
-            raise UserError("paper-ablations is fixed at S / 1 % with its own variants; "
-                            "--size/--attrition/--method do not apply (use --grid custom)")
+            raise UserError(
+                "paper-ablations is fixed at S / 1 % with its own variants; "
+                "--size/--attrition/--method do not apply (use --grid custom)"
+            )
         grid = paper_ablations_grid(seeds, args.reading, params=params, problem_overrides=problem)
     else:
         if not (sizes and attrition is not None and methods):
@@ -322,12 +413,20 @@ def _dry_run(grid, args) -> int:
         todo_s += missing * estimate_run_s(rc.problem, spec.method, measured)
         from_store += missing * ((spec.size.upper(), spec.method) in measured)
         note = f"  [{rc.resolve_error}]" if rc.resolve_error else ""
-        print(f"{spec.size:>2} {100 * spec.attrition:4g} % {spec.method:<20} {spec.label:<12} "
-              f"{missing:4d}/{len(grid.seeds)} to run{note}")
-    basis = ("this store's recorded run times" if from_store == todo and todo else
-             "run times measured on a 2-core machine (docs/results/paper_table)" if not from_store else
-             "this store's run times where it has the size and method, else times measured on a 2-core machine")
-    print(f"{grid.n_runs} runs, {grid.n_runs - todo} present, {todo} to run: about "
-          f"{_fmt_duration(todo_s / workers)} on {workers} workers (from {basis}; "
-          f"slower if the cores are shared)")
+        print(
+            f"{spec.size:>2} {100 * spec.attrition:4g} % {spec.method:<20} {spec.label:<12} "
+            f"{missing:4d}/{len(grid.seeds)} to run{note}"
+        )
+    basis = (
+        "this store's recorded run times"
+        if from_store == todo and todo
+        else "run times measured on a 2-core machine (docs/results/paper_table)"
+        if not from_store
+        else "this store's run times where it has the size and method, else times measured on a 2-core machine"
+    )
+    print(
+        f"{grid.n_runs} runs, {grid.n_runs - todo} present, {todo} to run: about "
+        f"{_fmt_duration(todo_s / workers)} on {workers} workers (from {basis}; "
+        f"slower if the cores are shared)"
+    )
     return 0

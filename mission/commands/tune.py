@@ -31,18 +31,48 @@ examples:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from mission.commands.sweep import add_common_arguments
 
-    p.add_argument("--method", "--methods", dest="method", required=True,
-                   help="planner name (phireman, dccrs, mccst, ...)")
-    p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
-                   help="a parameter and its candidate values; repeatable (the search is their product)")
-    p.add_argument("--size", "--sizes", dest="size", default="S", type=str.upper,
-                   help="problem size (default S, as the paper)")
-    p.add_argument("--attrition", default="0.01", metavar="P",
-                   help="per-step attrition as a fraction or percent, 0.01 or 1%% (default 0.01, as the paper)")
+    p.add_argument(
+        "--method",
+        "--methods",
+        dest="method",
+        required=True,
+        help="planner name (phireman, dccrs, mccst, ...)",
+    )
+    p.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2,...",
+        help="a parameter and its candidate values; repeatable (the search is their product)",
+    )
+    p.add_argument(
+        "--size",
+        "--sizes",
+        dest="size",
+        default="S",
+        type=str.upper,
+        help="problem size (default S, as the paper)",
+    )
+    p.add_argument(
+        "--attrition",
+        default="0.01",
+        metavar="P",
+        help="per-step attrition as a fraction or percent, 0.01 or 1%% (default 0.01, as the paper)",
+    )
     add_common_arguments(p, seeds_default=30, store_default="tune.sqlite")
-    p.add_argument("--out", type=pathlib.Path, default=None,
-                   help="directory (or .md file) for the Markdown record of the search")
-    p.add_argument("--top", type=int, default=0, metavar="N", help="print only the N best settings (default all)")
+    p.add_argument(
+        "--out",
+        type=pathlib.Path,
+        default=None,
+        help="directory (or .md file) for the Markdown record of the search",
+    )
+    p.add_argument(
+        "--top",
+        type=int,
+        default=0,
+        metavar="N",
+        help="print only the N best settings (default all)",
+    )
 
 
 def _parse_axes(items: list[str]) -> dict[str, list]:
@@ -94,7 +124,13 @@ def reproduce_command(args) -> str:
 
 def run(args) -> int:
     from mission.cli import UserError
-    from mission.commands.sweep import check_grid, execute, parse_attrition, split_overrides, validate_methods
+    from mission.commands.sweep import (
+        check_grid,
+        execute,
+        parse_attrition,
+        split_overrides,
+        validate_methods,
+    )
     from mission.report import ALPHA, Selector, _fmt, _fmt_p, p_greater_paired, rank_samples
     from mission.store import ResultStore
     from mission.sweep import code_version, product_grid
@@ -113,7 +149,9 @@ def run(args) -> int:
     problem, params = split_overrides(args.set)
     seed0 = args.seed or 0
     seeds = range(seed0, seed0 + args.seeds)
-    grid = product_grid(args.method, axes, seeds, args.size, attrition[0], args.reading, params, problem)
+    grid = product_grid(
+        args.method, axes, seeds, args.size, attrition[0], args.reading, params, problem
+    )
     check_grid(grid, "--grid/--set")
     command = reproduce_command(args)
     status = execute(grid, args, shlex.split(command))
@@ -133,36 +171,64 @@ def run(args) -> int:
         else:
             p = p_greater_paired(best, s, "tu1")
             p_txt = _fmt_p(p) + ("" if p < ALPHA else " (n.s.)")
-        rows.append([str(i), s.spec.label or "(defaults)", _fmt(*s.mean_ci("tu1")), _fmt(*s.mean_ci("tu2")),
-                     str(s.n), str(s.n_error), p_txt])
+        rows.append(
+            [
+                str(i),
+                s.spec.label or "(defaults)",
+                _fmt(*s.mean_ci("tu1")),
+                _fmt(*s.mean_ci("tu2")),
+                str(s.n),
+                str(s.n_error),
+                p_txt,
+            ]
+        )
     shown = rows[: args.top] if args.top > 0 else rows
     widths = [max(len(r[k]) for r in [header] + shown) for k in range(len(header))]
     print("  ".join(h.ljust(w) for h, w in zip(header, widths)))
     for r in shown:
         print("  ".join(c.ljust(w) for c, w in zip(r, widths)))
     if best is not None:
-        print(f"best: {best.spec.label or '(defaults)'}  TU1 {_fmt(*best.mean_ci('tu1'))} %, "
-              f"TU2 {_fmt(*best.mean_ci('tu2'))} %")
+        print(
+            f"best: {best.spec.label or '(defaults)'}  TU1 {_fmt(*best.mean_ci('tu1'))} %, "
+            f"TU2 {_fmt(*best.mean_ci('tu2'))} %"
+        )
 
     if args.out is not None:
         pct = f"{100 * attrition[0]:g}".replace(".", "p")
-        path = args.out if args.out.suffix == ".md" else args.out / f"{args.method}_{args.size}_{pct}pct.md"
+        path = (
+            args.out
+            if args.out.suffix == ".md"
+            else args.out / f"{args.method}_{args.size}_{pct}pct.md"
+        )
         path.parent.mkdir(parents=True, exist_ok=True)
-        md = [f"# Tuning {args.method} at {args.size} / {100 * attrition[0]:g} %/step", "",
-              "Reproduce with:", "", "```sh", command, "```", "",
-              f"- code: `{code_version()}`",
-              f"- reading: {args.reading}; seeds {seed0}..{seed0 + args.seeds - 1} "
-              f"(the same for every setting)",
-              "- search: " + "; ".join(f"`{k}` ∈ {{{', '.join(map(str, v))}}}" for k, v in axes.items()),
-              f"- common overrides: {', '.join(args.set) or 'none'}",
-              f"- ranked by mean TU1, then TU2; last column: one-tailed paired t-test that the best setting "
-              f"beats this one on TU1 (n.s. = not significant at p < {ALPHA})", ""]
+        md = [
+            f"# Tuning {args.method} at {args.size} / {100 * attrition[0]:g} %/step",
+            "",
+            "Reproduce with:",
+            "",
+            "```sh",
+            command,
+            "```",
+            "",
+            f"- code: `{code_version()}`",
+            f"- reading: {args.reading}; seeds {seed0}..{seed0 + args.seeds - 1} "
+            f"(the same for every setting)",
+            "- search: "
+            + "; ".join(f"`{k}` ∈ {{{', '.join(map(str, v))}}}" for k, v in axes.items()),
+            f"- common overrides: {', '.join(args.set) or 'none'}",
+            f"- ranked by mean TU1, then TU2; last column: one-tailed paired t-test that the best setting "
+            f"beats this one on TU1 (n.s. = not significant at p < {ALPHA})",
+            "",
+        ]
         md.append("| " + " | ".join(header) + " |")
         md.append("| " + " | ".join(["---:", "---", "---:", "---:", "---:", "---:", "---"]) + " |")
         md += ["| " + " | ".join(r) + " |" for r in rows]
         if best is not None:
-            md += ["", f"**Best:** {best.spec.label or '(defaults)'} — TU1 {_fmt(*best.mean_ci('tu1'))} %, "
-                   f"TU2 {_fmt(*best.mean_ci('tu2'))} %."]
+            md += [
+                "",
+                f"**Best:** {best.spec.label or '(defaults)'} — TU1 {_fmt(*best.mean_ci('tu1'))} %, "
+                f"TU2 {_fmt(*best.mean_ci('tu2'))} %.",
+            ]
         path.write_text("\n".join(md) + "\n")
         print(f"wrote {path}", file=sys.stderr)
     return status

@@ -31,8 +31,16 @@ class _Closer:
                 await r
 
 
-async def attach(op, adapters, *, mission, opts, clock: Callable[[], float], records=None,
-                 listeners: list | None = None) -> list:
+async def attach(
+    op,
+    adapters,
+    *,
+    mission,
+    opts,
+    clock: Callable[[], float],
+    records=None,
+    listeners: list | None = None,
+) -> list:
     """Start what ``opts`` asks for (serve, forward) around a running station.
 
     Returns objects with ``async aclose()``, to close before the links. ``opts.on_live``, if set,
@@ -53,8 +61,11 @@ async def attach(op, adapters, *, mission, opts, clock: Callable[[], float], rec
         out.append(_Closer(fwd.close))
         info["forward"] = list(fwd.addresses)
         info["forwarder"] = fwd
-        log.info("forwarding MAVLink to %s%s", ", ".join(opts.forward),
-                 " (read-only)" if opts.forward_readonly else "")
+        log.info(
+            "forwarding MAVLink to %s%s",
+            ", ".join(opts.forward),
+            " (read-only)" if opts.forward_readonly else "",
+        )
     if getattr(opts, "serve", None):
         from mission.live.server import LiveServer, parse_serve, tiles_meta
         from mission.live.station import LiveStation

@@ -9,37 +9,58 @@ import sys
 
 __all__ = ["add_fly_arguments", "fly_options", "add_replay_arguments", "run_replay"]
 
-_SERVE_HELP = ("serve the operator's live web view at [HOST:]PORT (default host 127.0.0.1, "
-               "this machine only; to let other machines in, give the address to listen on, "
-               "e.g. --serve 0.0.0.0:8080 - actions still need the operator key)")
+_SERVE_HELP = (
+    "serve the operator's live web view at [HOST:]PORT (default host 127.0.0.1, "
+    "this machine only; to let other machines in, give the address to listen on, "
+    "e.g. --serve 0.0.0.0:8080 - actions still need the operator key)"
+)
 
 
 def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("live view and MAVLink forwarding (docs/live_view.md)")
     g.add_argument("--serve", default=None, metavar="[HOST:]PORT", help=_SERVE_HELP)
-    g.add_argument("--serve-actions", choices=("on", "off"), default="on",
-                   help="per-vehicle and fleet actions on the page (hold, RTL, land, release, "
-                        "back to plan), behind a confirmation and the operator key printed at "
-                        "start (default on; off: read-only page)")
-    g.add_argument("--tiles", default=None, metavar="DIR_OR_URL",
-                   help="imagery under the live map: a folder of XYZ tiles (Z/X/Y.png) or a URL "
-                        "template with {z}/{x}/{y} (fetched by the browser); default: an offline "
-                        "metric grid around the mission origin")
-    g.add_argument("--forward", action="append", default=[], metavar="URL",
-                   help="forward every vehicle's MAVLink to another GCS, as MAVProxy --out: "
-                        "udpout:H:P (e.g. QGroundControl on udpout:127.0.0.1:14550), udpin:H:P "
-                        "or tcpin:H:P; what it sends back goes to the addressed vehicle. "
-                        "Repeatable. The GCS must not use sysid 255 (the station's)")
-    g.add_argument("--forward-readonly", action="store_true",
-                   help="drop everything the --forward outputs send (they only watch)")
+    g.add_argument(
+        "--serve-actions",
+        choices=("on", "off"),
+        default="on",
+        help="per-vehicle and fleet actions on the page (hold, RTL, land, release, "
+        "back to plan), behind a confirmation and the operator key printed at "
+        "start (default on; off: read-only page)",
+    )
+    g.add_argument(
+        "--tiles",
+        default=None,
+        metavar="DIR_OR_URL",
+        help="imagery under the live map: a folder of XYZ tiles (Z/X/Y.png) or a URL "
+        "template with {z}/{x}/{y} (fetched by the browser); default: an offline "
+        "metric grid around the mission origin",
+    )
+    g.add_argument(
+        "--forward",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="forward every vehicle's MAVLink to another GCS, as MAVProxy --out: "
+        "udpout:H:P (e.g. QGroundControl on udpout:127.0.0.1:14550), udpin:H:P "
+        "or tcpin:H:P; what it sends back goes to the addressed vehicle. "
+        "Repeatable. The GCS must not use sysid 255 (the station's)",
+    )
+    g.add_argument(
+        "--forward-readonly",
+        action="store_true",
+        help="drop everything the --forward outputs send (they only watch)",
+    )
 
 
 def _announce(info: dict) -> None:
     if info.get("url"):
         url = info["url"]
         if info.get("key"):
-            print(f"\nlive view: {url}\n  operator key (actions): {info['key']}\n"
-                  f"  open with actions enabled: {url}#key={info['key']}", file=sys.stderr)
+            print(
+                f"\nlive view: {url}\n  operator key (actions): {info['key']}\n"
+                f"  open with actions enabled: {url}#key={info['key']}",
+                file=sys.stderr,
+            )
         else:
             print(f"\nlive view (read-only): {url}", file=sys.stderr)
     for a in info.get("forward") or []:
@@ -70,25 +91,49 @@ def fly_options(opts, args):
             raise UserError(f"--forward: {exc}") from None
     elif args.forward_readonly:
         raise UserError("--forward-readonly needs --forward")
-    return dataclasses.replace(opts, serve=args.serve, serve_actions=args.serve_actions == "on",
-                               tiles=args.tiles, forward=tuple(args.forward),
-                               forward_readonly=args.forward_readonly, on_live=_announce)
+    return dataclasses.replace(
+        opts,
+        serve=args.serve,
+        serve_actions=args.serve_actions == "on",
+        tiles=args.tiles,
+        forward=tuple(args.forward),
+        forward_readonly=args.forward_readonly,
+        on_live=_announce,
+    )
 
 
 def add_replay_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("live page and GIS export of a 'phireman fly' run (docs/live_view.md)")
-    g.add_argument("--serve", default=None, metavar="[HOST:]PORT",
-                   help="serve the run on the live page with a time slider, play/pause and "
-                        "speed (until Ctrl-C); host default 127.0.0.1")
-    g.add_argument("--tiles", default=None, metavar="DIR_OR_URL",
-                   help="imagery under the map (as phireman fly --tiles)")
-    g.add_argument("--export", choices=("geojson", "kml"), default=None,
-                   help="write tracks, crews, hazard zones, geofence, links and the task tree "
-                        "as GeoJSON or KML (export.geojson / export.kml in the run directory, "
-                        "or --out FILE)")
-    g.add_argument("--at", type=float, action="append", default=[], metavar="T",
-                   help="mission time (s) for the export's snapshot of vehicles, crews and "
-                        "links; repeatable (default: start, middle and end)")
+    g.add_argument(
+        "--serve",
+        default=None,
+        metavar="[HOST:]PORT",
+        help="serve the run on the live page with a time slider, play/pause and "
+        "speed (until Ctrl-C); host default 127.0.0.1",
+    )
+    g.add_argument(
+        "--tiles",
+        default=None,
+        metavar="DIR_OR_URL",
+        help="imagery under the map (as phireman fly --tiles)",
+    )
+    g.add_argument(
+        "--export",
+        choices=("geojson", "kml"),
+        default=None,
+        help="write tracks, crews, hazard zones, geofence, links and the task tree "
+        "as GeoJSON or KML (export.geojson / export.kml in the run directory, "
+        "or --out FILE)",
+    )
+    g.add_argument(
+        "--at",
+        type=float,
+        action="append",
+        default=[],
+        metavar="T",
+        help="mission time (s) for the export's snapshot of vehicles, crews and "
+        "links; repeatable (default: start, middle and end)",
+    )
 
 
 def run_replay(args) -> int | None:

@@ -22,15 +22,21 @@ __all__ = ["export_run", "features"]
 def _lonlat(src, ne) -> list:
     ne = np.asarray(ne, dtype=float).reshape(-1, 2)
     o = src.origin
-    lat, lon, _ = ned_to_geodetic(np.column_stack([ne, np.zeros(len(ne))]), o.lat_deg, o.lon_deg,
-                                  o.alt_amsl_m)
-    return [[round(float(a), 7), round(float(b), 7)] for a, b in
-            zip(np.atleast_1d(lon), np.atleast_1d(lat))]
+    lat, lon, _ = ned_to_geodetic(
+        np.column_stack([ne, np.zeros(len(ne))]), o.lat_deg, o.lon_deg, o.alt_amsl_m
+    )
+    return [
+        [round(float(a), 7), round(float(b), 7)]
+        for a, b in zip(np.atleast_1d(lon), np.atleast_1d(lat))
+    ]
 
 
 def _feature(geom_type: str, coords, **props) -> dict:
-    return {"type": "Feature", "geometry": {"type": geom_type, "coordinates": coords},
-            "properties": props}
+    return {
+        "type": "Feature",
+        "geometry": {"type": geom_type, "coordinates": coords},
+        "properties": props,
+    }
 
 
 def features(src, at_mission_s: list[float]) -> list[dict]:
@@ -39,9 +45,16 @@ def features(src, at_mission_s: list[float]) -> list[dict]:
     out = [_feature("Point", _lonlat(src, [0, 0])[0], kind="base", name="Base (command post)")]
     f = m["geofence"]
     if f and f["n_min"] is not None:
-        ring = _lonlat(src, [[f["n_min"], f["e_min"]], [f["n_min"], f["e_max"]],
-                             [f["n_max"], f["e_max"]], [f["n_max"], f["e_min"]],
-                             [f["n_min"], f["e_min"]]])
+        ring = _lonlat(
+            src,
+            [
+                [f["n_min"], f["e_min"]],
+                [f["n_min"], f["e_max"]],
+                [f["n_max"], f["e_max"]],
+                [f["n_max"], f["e_min"]],
+                [f["n_min"], f["e_min"]],
+            ],
+        )
         out.append(_feature("Polygon", [ring], kind="geofence", max_alt_m=f["max_alt_m"]))
     for z in m["hazard_zones"]:
         if z["kind"] == "circle":
@@ -49,19 +62,30 @@ def features(src, at_mission_s: list[float]) -> list[dict]:
             pts = np.column_stack([z["n"] + z["r"] * np.cos(a), z["e"] + z["r"] * np.sin(a)])
         else:
             pts = np.array(z["pts"] + z["pts"][:1], dtype=float)
-        out.append(_feature("Polygon", [_lonlat(src, pts)], kind="hazard_zone", name=z["label"],
-                            rate_per_s=z["rate_per_s"], start_s=z["start_s"], end_s=z["end_s"]))
+        out.append(
+            _feature(
+                "Polygon",
+                [_lonlat(src, pts)],
+                kind="hazard_zone",
+                name=z["label"],
+                rate_per_s=z["rate_per_s"],
+                start_s=z["start_s"],
+                end_s=z["end_s"],
+            )
+        )
     # whole-run tracks, station's belief
     tracks: dict[str, list] = {}
     for fr in src.frames:
         s = fr.snap
         for i in np.flatnonzero(s.has_position & ~s.lost).tolist():
             tracks.setdefault(f"{s.link_id[i]}:{s.sysid_of_index[i]}", []).append(
-                s.pos_ned_m[i, :2])
+                s.pos_ned_m[i, :2]
+            )
     for vid, track in tracks.items():
         if len(track) > 1:
-            out.append(_feature("LineString", _lonlat(src, track), kind="vehicle_track",
-                                vehicle=vid))
+            out.append(
+                _feature("LineString", _lonlat(src, track), kind="vehicle_track", vehicle=vid)
+            )
     t_end = max(0.0, src.t_mission(src.times_s[-1]) or 0.0)
     ts = np.arange(0.0, t_end + 1e-9, 2.0)
     if len(ts) > 1:
@@ -70,8 +94,7 @@ def features(src, at_mission_s: list[float]) -> list[dict]:
             pts = crews[:, k]
             pts = pts[np.isfinite(pts).all(axis=1)]
             if len(pts) > 1:
-                out.append(_feature("LineString", _lonlat(src, pts), kind="crew_track",
-                                    name=name))
+                out.append(_feature("LineString", _lonlat(src, pts), kind="crew_track", name=name))
     for t in at_mission_s:
         fr = src.frame(src.index_at(t))
         tm = fr["t_mission_s"]
@@ -81,46 +104,94 @@ def features(src, at_mission_s: list[float]) -> list[dict]:
             if v["n"][i] is None:
                 continue
             ne[i] = [v["n"][i], v["e"][i]]
-            out.append(_feature("Point", _lonlat(src, ne[i])[0] + [v["alt"][i] or 0.0],
-                                kind="vehicle", t_mission_s=tm, vehicle=vid, state=v["state"][i],
-                                mode=v["mode"][i], alt_m=v["alt"][i], heading_deg=v["hdg"][i]))
+            out.append(
+                _feature(
+                    "Point",
+                    _lonlat(src, ne[i])[0] + [v["alt"][i] or 0.0],
+                    kind="vehicle",
+                    t_mission_s=tm,
+                    vehicle=vid,
+                    state=v["state"][i],
+                    mode=v["mode"][i],
+                    alt_m=v["alt"][i],
+                    heading_deg=v["hdg"][i],
+                )
+            )
         cne = {}
         for k, name in enumerate(m["crews"]):
             if fr["crews"]["n"][k] is None:
                 continue
             cne[k] = [fr["crews"]["n"][k], fr["crews"]["e"][k]]
-            out.append(_feature("Point", _lonlat(src, cne[k])[0], kind="crew", name=name,
-                                t_mission_s=tm, connected=fr["crews"]["connected"][k]))
+            out.append(
+                _feature(
+                    "Point",
+                    _lonlat(src, cne[k])[0],
+                    kind="crew",
+                    name=name,
+                    t_mission_s=tm,
+                    connected=fr["crews"]["connected"][k],
+                )
+            )
         L = fr["links"]
         for a, b in zip(L["vv"][::2], L["vv"][1::2]):
-            out.append(_feature("LineString", _lonlat(src, [ne[a], ne[b]]), kind="link",
-                                link="vehicle-vehicle", t_mission_s=tm))
+            out.append(
+                _feature(
+                    "LineString",
+                    _lonlat(src, [ne[a], ne[b]]),
+                    kind="link",
+                    link="vehicle-vehicle",
+                    t_mission_s=tm,
+                )
+            )
         for a, k in zip(L["vc"][::2], L["vc"][1::2]):
-            out.append(_feature("LineString", _lonlat(src, [ne[a], cne[k]]), kind="link",
-                                link="vehicle-crew", crew=m["crews"][k], t_mission_s=tm))
+            out.append(
+                _feature(
+                    "LineString",
+                    _lonlat(src, [ne[a], cne[k]]),
+                    kind="link",
+                    link="vehicle-crew",
+                    crew=m["crews"][k],
+                    t_mission_s=tm,
+                )
+            )
         for a in L["vb"]:
-            out.append(_feature("LineString", _lonlat(src, [ne[a], [0, 0]]), kind="link",
-                                link="vehicle-base", t_mission_s=tm))
+            out.append(
+                _feature(
+                    "LineString",
+                    _lonlat(src, [ne[a], [0, 0]]),
+                    kind="link",
+                    link="vehicle-base",
+                    t_mission_s=tm,
+                )
+            )
         tree = fr["tree"]
         if tree:
             for j in range(1, len(tree["nodes"])):
                 p = tree["parent"][j]
                 if p >= 0:
-                    out.append(_feature("LineString",
-                                        _lonlat(src, [tree["nodes"][p], tree["nodes"][j]]),
-                                        kind="task_tree", t_mission_s=tm, source=tree["source"]))
+                    out.append(
+                        _feature(
+                            "LineString",
+                            _lonlat(src, [tree["nodes"][p], tree["nodes"][j]]),
+                            kind="task_tree",
+                            t_mission_s=tm,
+                            source=tree["source"],
+                        )
+                    )
     return out
 
 
 def _kml(feats: list[dict], name: str) -> str:
-    styles = {"hazard_zone": "<PolyStyle><color>55281ed6</color></PolyStyle>"
-                             "<LineStyle><color>ff281ed6</color><width>2</width></LineStyle>",
-              "geofence": "<PolyStyle><fill>0</fill></PolyStyle>"
-                          "<LineStyle><color>ff007ee6</color><width>2</width></LineStyle>",
-              "link": "<LineStyle><color>99e8b07f</color><width>1</width></LineStyle>",
-              "task_tree": "<LineStyle><color>ff5b18c2</color><width>3</width></LineStyle>",
-              "vehicle_track": "<LineStyle><color>88d16f1f</color><width>1</width></LineStyle>",
-              "crew_track": "<LineStyle><color>cc2ca02c</color><width>2</width></LineStyle>"}
+    styles = {
+        "hazard_zone": "<PolyStyle><color>55281ed6</color></PolyStyle>"
+        "<LineStyle><color>ff281ed6</color><width>2</width></LineStyle>",
+        "geofence": "<PolyStyle><fill>0</fill></PolyStyle>"
+        "<LineStyle><color>ff007ee6</color><width>2</width></LineStyle>",
+        "link": "<LineStyle><color>99e8b07f</color><width>1</width></LineStyle>",
+        "task_tree": "<LineStyle><color>ff5b18c2</color><width>3</width></LineStyle>",
+        "vehicle_track": "<LineStyle><color>88d16f1f</color><width>1</width></LineStyle>",
+        "crew_track": "<LineStyle><color>cc2ca02c</color><width>2</width></LineStyle>",
+    }
     folders: dict[str, list[str]] = {}
     for f in feats:
         p = f["properties"]
@@ -132,28 +203,39 @@ def _kml(feats: list[dict], name: str) -> str:
         if g["type"] == "Point":
             geom = f"<Point><coordinates>{','.join(map(str, c))}</coordinates></Point>"
         elif g["type"] == "LineString":
-            geom = ("<LineString><coordinates>" + " ".join(f"{a},{b}" for a, b in c)
-                    + "</coordinates></LineString>")
+            geom = (
+                "<LineString><coordinates>"
+                + " ".join(f"{a},{b}" for a, b in c)
+                + "</coordinates></LineString>"
+            )
         else:
-            geom = ("<Polygon><outerBoundaryIs><LinearRing><coordinates>"
-                    + " ".join(f"{a},{b}" for a, b in c[0])
-                    + "</coordinates></LinearRing></outerBoundaryIs></Polygon>")
+            geom = (
+                "<Polygon><outerBoundaryIs><LinearRing><coordinates>"
+                + " ".join(f"{a},{b}" for a, b in c[0])
+                + "</coordinates></LinearRing></outerBoundaryIs></Polygon>"
+            )
         title = p.get("name") or p.get("vehicle") or kind
         if kind == "vehicle":
             title = f"vehicle {p['vehicle']} ({p['state']})"
         elif kind == "crew":
             title = f"{p['name']} ({'connected' if p['connected'] else 'NOT connected'})"
-        data = "".join(f'<Data name="{escape(str(k))}"><value>{escape(str(v))}</value></Data>'
-                       for k, v in p.items())
+        data = "".join(
+            f'<Data name="{escape(str(k))}"><value>{escape(str(v))}</value></Data>'
+            for k, v in p.items()
+        )
         style = f"<styleUrl>#{kind}</styleUrl>" if kind in styles else ""
         folders.setdefault(folder, []).append(
             f"<Placemark><name>{escape(str(title))}</name>{style}"
-            f"<ExtendedData>{data}</ExtendedData>{geom}</Placemark>")
+            f"<ExtendedData>{data}</ExtendedData>{geom}</Placemark>"
+        )
     body = "".join(f'<Style id="{k}">{v}</Style>' for k, v in styles.items())
-    body += "".join(f"<Folder><name>{escape(k)}</name>{''.join(v)}</Folder>"
-                    for k, v in folders.items())
-    return ('<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="http://www.opengis.net/kml/2.2">'
-            f"<Document><name>{escape(name)}</name>{body}</Document></kml>\n")
+    body += "".join(
+        f"<Folder><name>{escape(k)}</name>{''.join(v)}</Folder>" for k, v in folders.items()
+    )
+    return (
+        '<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="http://www.opengis.net/kml/2.2">'
+        f"<Document><name>{escape(name)}</name>{body}</Document></kml>\n"
+    )
 
 
 def export_run(src, fmt: str, at_mission_s: list[float] | None, out: Path | None = None) -> Path:
@@ -168,8 +250,13 @@ def export_run(src, fmt: str, at_mission_s: list[float] | None, out: Path | None
     feats = features(src, list(at_mission_s))
     out = Path(out) if out else src.run_dir / f"export.{fmt}"
     if fmt == "geojson":
-        out.write_text(json.dumps({"type": "FeatureCollection", "name": src.mission.name,
-                                   "features": feats}, allow_nan=False) + "\n")
+        out.write_text(
+            json.dumps(
+                {"type": "FeatureCollection", "name": src.mission.name, "features": feats},
+                allow_nan=False,
+            )
+            + "\n"
+        )
     elif fmt == "kml":
         out.write_text(_kml(feats, f"{src.mission.name} ({src.run_dir.name})"))
     else:

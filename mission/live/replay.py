@@ -50,9 +50,11 @@ __all__ = ["ReplaySource", "load_replay"]
 log = logging.getLogger(__name__)
 
 _STAMP = struct.Struct(">Q")
-_POS, _TARGET, _HB = (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
-                      mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT,
-                      mavlink.MAVLINK_MSG_ID_HEARTBEAT)
+_POS, _TARGET, _HB = (
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT,
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT,
+)
 #: A target not re-sent for this long (core seconds) is no longer shown (ArduPilot 1 s re-send).
 TARGET_STALE_S = 3.0
 MAX_FRAMES = 1500
@@ -79,7 +81,7 @@ def read_tlog(path: Path, gcs_sysid: int = 255):
         else:  # not a frame start: the file is damaged; resynchronise on the next byte
             off += 1
             continue
-        frame = raw[i:i + total]
+        frame = raw[i : i + total]
         off = i + total
         if msgid not in (_POS, _TARGET, _HB) or len(frame) < total:
             continue
@@ -98,8 +100,9 @@ def _event_from_record(rec: dict):
     if cls is None or not isinstance(cls, type) or not issubclass(cls, gcs_events.Event):
         return None
     names = {f.name for f in dataclasses.fields(cls)}
-    kw: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in rec.items()
-                          if k in names}
+    kw: dict[str, Any] = {
+        k: (tuple(v) if isinstance(v, list) else v) for k, v in rec.items() if k in names
+    }
     try:
         return cls(**kw)
     except (TypeError, ValueError):
@@ -128,24 +131,34 @@ class ReplaySource:
         self.run_dir = run_dir = Path(run_dir)
         for need in ("mission.yaml", "events.jsonl", "flight.tlog"):
             if not (run_dir / need).is_file():
-                raise FileNotFoundError(f"{run_dir}: no {need} (a 'phireman fly' run directory "
-                                        "has mission.yaml, events.jsonl, flight.tlog, metrics.csv)")
+                raise FileNotFoundError(
+                    f"{run_dir}: no {need} (a 'phireman fly' run directory "
+                    "has mission.yaml, events.jsonl, flight.tlog, metrics.csv)"
+                )
         self.mission = mission = load_mission(run_dir / "mission.yaml")
-        meta = json.loads((run_dir / "run.json").read_text()) if (run_dir / "run.json").is_file() \
+        meta = (
+            json.loads((run_dir / "run.json").read_text())
+            if (run_dir / "run.json").is_file()
             else {}
+        )
         self.seed = int(meta.get("seed", mission.run.seed))
         self.scenario = mission_scenario(mission, self.seed, live_tasks=True)
         self.control = control_config(mission, self.scenario)
         self.live_cols = {sysid: col for col, sysid in live_task_columns(mission).items()}
         o = mission.origin
         self.origin = MissionOrigin(o.lat_deg, o.lon_deg, o.alt_amsl_m)
-        records = [json.loads(line) for line in
-                   (run_dir / "events.jsonl").read_text().splitlines() if line.strip()]
+        records = [
+            json.loads(line)
+            for line in (run_dir / "events.jsonl").read_text().splitlines()
+            if line.strip()
+        ]
         self.metrics = self._read_metrics(run_dir / "metrics.csv")
-        self.t0_s = (self.metrics[0]["t_s"] - self.metrics[0]["t_mission_s"]
-                     if self.metrics else None)
-        self.duration_s = (float(meta.get("options", {}).get("duration_s") or 0)
-                           or mission.run.duration_s)
+        self.t0_s = (
+            self.metrics[0]["t_s"] - self.metrics[0]["t_mission_s"] if self.metrics else None
+        )
+        self.duration_s = (
+            float(meta.get("options", {}).get("duration_s") or 0) or mission.run.duration_s
+        )
         tlog = read_tlog(run_dir / "flight.tlog")
         self._build(records, tlog, dt_s)
         self.truth = self._read_truth(run_dir / "truth.npz")
@@ -160,8 +173,9 @@ class ReplaySource:
         with open(path, newline="") as f:
             for r in csv.DictReader(f):
                 try:
-                    rows.append({k: (float(v) if v not in ("", None) else None)
-                                 for k, v in r.items()})
+                    rows.append(
+                        {k: (float(v) if v not in ("", None) else None) for k, v in r.items()}
+                    )
                 except ValueError:
                     continue
         return rows
@@ -189,8 +203,13 @@ class ReplaySource:
             evs.append(ev)
             if isinstance(ev, gcs_events.VehicleDiscovered):
                 if ev.sysid in link_of and link_of[ev.sysid] != ev.link_id:
-                    log.warning("replay: sysid %d on links %d and %d; positions go to link %d",
-                                ev.sysid, link_of[ev.sysid], ev.link_id, link_of[ev.sysid])
+                    log.warning(
+                        "replay: sysid %d on links %d and %d; positions go to link %d",
+                        ev.sysid,
+                        link_of[ev.sysid],
+                        ev.link_id,
+                        link_of[ev.sysid],
+                    )
                 link_of.setdefault(ev.sysid, ev.link_id)
                 first_disc.setdefault(ev.sysid, ev.t_s)
         # tlog stamp offset: first HEARTBEAT of a vehicle <-> its VehicleDiscovered event.
@@ -209,21 +228,38 @@ class ReplaySource:
                 if msg.lat == 0 and msg.lon == 0:
                     continue
                 try:
-                    tel.append(gcs_events.TelemetryReceived(
-                        link_of[sysid], sysid, t, lat_deg=msg.lat / 1e7, lon_deg=msg.lon / 1e7,
-                        alt_amsl_m=msg.alt / 1000.0, rel_alt_m=msg.relative_alt / 1000.0,
-                        vel_ned_m_s=(msg.vx / 100.0, msg.vy / 100.0, msg.vz / 100.0),
-                        yaw_rad=None if msg.hdg == 65535 else math.radians(msg.hdg / 100.0),
-                        time_boot_s=msg.time_boot_ms / 1000.0))
+                    tel.append(
+                        gcs_events.TelemetryReceived(
+                            link_of[sysid],
+                            sysid,
+                            t,
+                            lat_deg=msg.lat / 1e7,
+                            lon_deg=msg.lon / 1e7,
+                            alt_amsl_m=msg.alt / 1000.0,
+                            rel_alt_m=msg.relative_alt / 1000.0,
+                            vel_ned_m_s=(msg.vx / 100.0, msg.vy / 100.0, msg.vz / 100.0),
+                            yaw_rad=None if msg.hdg == 65535 else math.radians(msg.hdg / 100.0),
+                            time_boot_s=msg.time_boot_ms / 1000.0,
+                        )
+                    )
                 except ValueError:
                     continue
             elif mid == _TARGET:
                 targets.setdefault(msg.target_system, []).append(
-                    (t, msg.lat_int / 1e7, msg.lon_int / 1e7, float(msg.alt),
-                     int(msg.coordinate_frame)))
+                    (
+                        t,
+                        msg.lat_int / 1e7,
+                        msg.lon_int / 1e7,
+                        float(msg.alt),
+                        int(msg.coordinate_frame),
+                    )
+                )
         self._targets = {s: (np.array([x[0] for x in v]), v) for s, v in targets.items()}
-        stream = sorted([(e.t_s, 0, k, e) for k, e in enumerate(evs)]
-                        + [(e.t_s, 1, k, e) for k, e in enumerate(tel)], key=lambda x: x[:3])
+        stream = sorted(
+            [(e.t_s, 0, k, e) for k, e in enumerate(evs)]
+            + [(e.t_s, 1, k, e) for k, e in enumerate(tel)],
+            key=lambda x: x[:3],
+        )
         self.events = evs
         self.actions = actions
         t_first = stream[0][0] if stream else 0.0
@@ -233,8 +269,9 @@ class ReplaySource:
         # on the very instant a metrics row was taken, so the page shows what the station
         # believed then (a grid frame up to dt earlier can precede a change the tick saw).
         ticks = [r["t_s"] for r in self.metrics if r.get("t_s") is not None]
-        times = np.unique(np.concatenate([np.arange(t_first, t_last + dt, dt),
-                                          np.asarray(ticks, dtype=float)]))
+        times = np.unique(
+            np.concatenate([np.arange(t_first, t_last + dt, dt), np.asarray(ticks, dtype=float)])
+        )
         fleet = FleetView(self.origin, timeout_s=2.0)  # mission.runners.PLAN_SILENCE_S
         yaw: dict[tuple[int, int], float] = {}
         released: dict[tuple[int, int], str] = {}
@@ -266,8 +303,16 @@ class ReplaySource:
                 elif v in was_returning and snap.networked[i] and snap.armed[i]:
                     reclaimed.add(v)
             hdg = np.array([yaw.get(v, math.nan) for v in vids], dtype=float)
-            self.frames.append(_Frame(float(t), snap, hdg, self._targets_at(snap, float(t)),
-                                      dict(released), set(reclaimed)))
+            self.frames.append(
+                _Frame(
+                    float(t),
+                    snap,
+                    hdg,
+                    self._targets_at(snap, float(t)),
+                    dict(released),
+                    set(reclaimed),
+                )
+            )
         self.times_s = [f.t_s for f in self.frames]
 
     def _targets_at(self, snap, t: float) -> np.ndarray:
@@ -306,17 +351,28 @@ class ReplaySource:
                 if ev.t_s > t_s:
                     break
                 if isinstance(ev, gcs_events.TaskPositionReceived) and ev.sysid in self.live_cols:
-                    ned = geodetic_to_ned_m(ev.lat_deg, ev.lon_deg, o.alt_amsl_m, o.lat_deg,
-                                            o.lon_deg, o.alt_amsl_m)
+                    ned = geodetic_to_ned_m(
+                        ev.lat_deg, ev.lon_deg, o.alt_amsl_m, o.lat_deg, o.lon_deg, o.alt_amsl_m
+                    )
                     crews[self.live_cols[ev.sysid]] = ned[:2]
         return crews
 
     def meta(self) -> dict:
-        m = mission_meta(self.mission, self.control.geofence, mode="replay", actions=False,
-                         tiles=getattr(self, "tiles", None), duration_s=self.duration_s)
-        m["replay"] = {"t": [None if (tm := self.t_mission(t)) is None else round(tm, 2)
-                             for t in self.times_s],
-                       "run_dir": str(self.run_dir), "has_truth": self.truth is not None}
+        m = mission_meta(
+            self.mission,
+            self.control.geofence,
+            mode="replay",
+            actions=False,
+            tiles=getattr(self, "tiles", None),
+            duration_s=self.duration_s,
+        )
+        m["replay"] = {
+            "t": [
+                None if (tm := self.t_mission(t)) is None else round(tm, 2) for t in self.times_s
+            ],
+            "run_dir": str(self.run_dir),
+            "has_truth": self.truth is not None,
+        }
         # before the mission start the slider shows core time relative to the start
         if self.t0_s is not None:
             m["replay"]["t"] = [round(t - self.t0_s, 2) for t in self.times_s]
@@ -357,26 +413,41 @@ class ReplaySource:
         tree = mst_tree(np.zeros(2), crews, snap.pos_ned_m[relay, :2])
         upto = [r for r in self.metrics if r["t_s"] <= t + 1e-6]
         last = upto[-1] if upto else None
-        series = {"t": [round(r["t_mission_s"], 1) for r in self.metrics],
-                  "crews": [int(r["tasks_covered"]) for r in self.metrics],
-                  "networked": [int(r["networked"]) for r in self.metrics],
-                  "lost": [int(r["lost"]) for r in self.metrics]}
+        series = {
+            "t": [round(r["t_mission_s"], 1) for r in self.metrics],
+            "crews": [int(r["tasks_covered"]) for r in self.metrics],
+            "networked": [int(r["networked"]) for r in self.metrics],
+            "lost": [int(r["lost"]) for r in self.metrics],
+        }
         tm = self.t_mission(t)
         tracks = None
         if tm is not None and tm > 0:
             ts = np.arange(0.0, tm + 1e-9, 2.0)
             pts = np.array([self.scenario.task_pos_m(x) for x in ts])  # (K, M, 2)
-            tracks = [[[round(a, 1), round(b, 1)] for a, b in pts[:, k].tolist()
-                       if math.isfinite(a)] for k in range(pts.shape[1])]
+            tracks = [
+                [[round(a, 1), round(b, 1)] for a, b in pts[:, k].tolist() if math.isfinite(a)]
+                for k in range(pts.shape[1])
+            ]
         pic = Picture(
-            t_s=t, t_mission_s=tm, phase=self.phase_at(t), snap=snap, states=states,
-            heading_deg=fr.hdg_deg, target_ned_m=fr.target_ned_m,
+            t_s=t,
+            t_mission_s=tm,
+            phase=self.phase_at(t),
+            snap=snap,
+            states=states,
+            heading_deg=fr.hdg_deg,
+            target_ned_m=fr.target_ned_m,
             layer_alt_m=layer_alt_m(np.arange(n), self.control) if n else np.zeros(0),
-            n_layers=self.control.n_layers, crews_ne_m=crews, tree=tree,
+            n_layers=self.control.n_layers,
+            crews_ne_m=crews,
+            tree=tree,
             tu1=None if last is None else last["tu1_so_far"],
             tu2=None if last is None else last["tu2_so_far"],
-            series=series, events=self._events_until(t), crew_tracks=tracks,
-            truth=self._truth_at(t) if truth else None, released=fr.released)
+            series=series,
+            events=self._events_until(t),
+            crew_tracks=tracks,
+            truth=self._truth_at(t) if truth else None,
+            released=fr.released,
+        )
         return frame_dict(pic, self.mission.radio.range_m, self.mission.radio.base_range_m)
 
     def _events_until(self, t_s: float, limit: int = 60) -> list[dict]:
@@ -391,16 +462,29 @@ class ReplaySource:
                 out.append((ev.t_s, e[0], (ev.link_id, ev.sysid), e[1]))
         for r in self.actions:
             if r["t_s"] <= t_s:
-                out.append((r["t_s"], "action", (r["link_id"], r["sysid"]),
-                            f"operator {r['action'].upper()} from {r['source']}: {r['result']}"))
+                out.append(
+                    (
+                        r["t_s"],
+                        "action",
+                        (r["link_id"], r["sysid"]),
+                        f"operator {r['action'].upper()} from {r['source']}: {r['result']}",
+                    )
+                )
         out.sort(key=lambda x: x[0])
         res = []
         for k, (t, kind, vid, text) in enumerate(out[-limit:]):
             who = f"vehicle {vid[1]}" if vid[0] == 0 else f"vehicle {vid[0]}:{vid[1]}"
             tm = self.t_mission(t)
-            res.append({"seq": k, "t_s": round(t, 1),
-                        "t_mission_s": None if tm is None else round(tm, 1), "kind": kind,
-                        "vehicle": f"{vid[0]}:{vid[1]}", "text": f"{who} {text}"})
+            res.append(
+                {
+                    "seq": k,
+                    "t_s": round(t, 1),
+                    "t_mission_s": None if tm is None else round(tm, 1),
+                    "kind": kind,
+                    "vehicle": f"{vid[0]}:{vid[1]}",
+                    "text": f"{who} {text}",
+                }
+            )
         return res
 
     def _truth_at(self, t_s: float) -> dict | None:
@@ -409,8 +493,11 @@ class ReplaySource:
             return None
         j = int(np.clip(np.searchsorted(tr["t_s"], t_s), 0, len(tr["t_s"]) - 1))
         pos = tr["pos"][j]
-        return {"n": np.round(pos[:, 0], 1).tolist(), "e": np.round(pos[:, 1], 1).tolist(),
-                "alive": tr["alive"][j].astype(bool).tolist()}
+        return {
+            "n": np.round(pos[:, 0], 1).tolist(),
+            "e": np.round(pos[:, 1], 1).tolist(),
+            "alive": tr["alive"][j].astype(bool).tolist(),
+        }
 
 
 def load_replay(run_dir, **kw) -> ReplaySource:

@@ -54,8 +54,9 @@ def parse_serve(text: str | int) -> tuple[str, int]:
     s = str(text).strip()
     m = re.fullmatch(r"(?:\[(?P<h6>[^\]]+)\]:|(?P<h>[^:\[\]]*):)?(?P<p>\d+)", s)
     if not m:
-        raise ValueError(f"expected [HOST:]PORT, e.g. 8080, 127.0.0.1:8080 or 0.0.0.0:8080, "
-                         f"got {text!r}")
+        raise ValueError(
+            f"expected [HOST:]PORT, e.g. 8080, 127.0.0.1:8080 or 0.0.0.0:8080, got {text!r}"
+        )
     host = m.group("h6") or m.group("h") or "127.0.0.1"
     port = int(m.group("p"))
     if not 0 <= port <= 65535:
@@ -83,16 +84,22 @@ def tiles_meta(tiles: str | None) -> tuple[dict | None, Path | None]:
         return {"url": tiles, "source": "template"}, None
     folder = Path(tiles).expanduser()
     if not folder.is_dir():
-        raise ValueError(f"--tiles {tiles!r}: neither a folder of XYZ tiles (Z/X/Y.png) nor a "
-                         "URL template with {z}, {x} and {y}")
+        raise ValueError(
+            f"--tiles {tiles!r}: neither a folder of XYZ tiles (Z/X/Y.png) nor a "
+            "URL template with {z}, {x} and {y}"
+        )
     ext = "png"
     for f in folder.rglob("*"):
         if f.is_file() and f.suffix.lower() in (".png", ".jpg", ".jpeg", ".webp"):
             ext = f.suffix.lower()[1:]
             break
     zooms = sorted(int(p.name) for p in folder.iterdir() if p.is_dir() and p.name.isdigit())
-    return {"url": f"/tiles/{{z}}/{{x}}/{{y}}.{ext}", "source": "folder",
-            "min_zoom": zooms[0] if zooms else 0, "max_zoom": zooms[-1] if zooms else 19}, folder
+    return {
+        "url": f"/tiles/{{z}}/{{x}}/{{y}}.{ext}",
+        "source": "folder",
+        "min_zoom": zooms[0] if zooms else 0,
+        "max_zoom": zooms[-1] if zooms else 19,
+    }, folder
 
 
 class LiveServer:
@@ -101,8 +108,15 @@ class LiveServer:
     ``key``: the operator key for actions (None: read-only). Frames are pushed with
     :meth:`publish` (live); replay sources answer :meth:`Source.frame` per request."""
 
-    def __init__(self, source, host: str = "127.0.0.1", port: int = 0, *, key: str | None = None,
-                 tiles_dir: Path | None = None) -> None:
+    def __init__(
+        self,
+        source,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        *,
+        key: str | None = None,
+        tiles_dir: Path | None = None,
+    ) -> None:
         self.source = source
         self.host, self.port = host, int(port)
         self.key = key
@@ -118,8 +132,7 @@ class LiveServer:
         app.router.add_get("/api/frame", self._frame)
         app.router.add_get("/api/stream", self._stream)
         app.router.add_post("/api/action", self._action)
-        app.router.add_get(r"/tiles/{z:\d+}/{x:\d+}/{y:\d+}.{ext:(png|jpg|jpeg|webp)}",
-                           self._tile)
+        app.router.add_get(r"/tiles/{z:\d+}/{x:\d+}/{y:\d+}.{ext:(png|jpg|jpeg|webp)}", self._tile)
         app.router.add_static("/static", STATIC_DIR, follow_symlinks=False)
         self.app = app
 
@@ -138,9 +151,12 @@ class LiveServer:
         sock = site._server.sockets[0]  # type: ignore[union-attr]  # the bound port (0 -> ephemeral)
         self.port = sock.getsockname()[1]
         if not is_loopback(self.host):
-            log.warning("live view served on %s:%d: reachable from other machines%s", self.host,
-                        self.port, "" if self.key is None else
-                        " (actions still need the operator key)")
+            log.warning(
+                "live view served on %s:%d: reachable from other machines%s",
+                self.host,
+                self.port,
+                "" if self.key is None else " (actions still need the operator key)",
+            )
         return self
 
     async def aclose(self) -> None:
@@ -153,8 +169,11 @@ class LiveServer:
     # ------------------------------------------------------------------ live push
 
     def publish(self, frame: dict | bytes) -> None:
-        data = frame if isinstance(frame, bytes) else json.dumps(frame, allow_nan=False,
-                                                                 separators=(",", ":")).encode()
+        data = (
+            frame
+            if isinstance(frame, bytes)
+            else json.dumps(frame, allow_nan=False, separators=(",", ":")).encode()
+        )
         self._latest = (self._latest[0] + 1, data)
         ev, self._changed = self._changed, asyncio.Event()
         ev.set()
@@ -179,9 +198,13 @@ class LiveServer:
         return web.json_response(frame, dumps=lambda o: json.dumps(o, allow_nan=False))
 
     async def _stream(self, request: web.Request) -> web.StreamResponse:
-        resp = web.StreamResponse(headers={"Content-Type": "text/event-stream",
-                                           "Cache-Control": "no-cache",
-                                           "X-Accel-Buffering": "no"})
+        resp = web.StreamResponse(
+            headers={
+                "Content-Type": "text/event-stream",
+                "Cache-Control": "no-cache",
+                "X-Accel-Buffering": "no",
+            }
+        )
         await resp.prepare(request)
         self.clients += 1
         seen = -1
@@ -208,14 +231,15 @@ class LiveServer:
             raise web.HTTPForbidden(text="actions are off: this view is read-only")
         given = request.headers.get("X-Operator-Key", "")
         if not hmac.compare_digest(given.encode(), self.key.encode()):
-            log.warning("web action refused: wrong or missing operator key from %s",
-                        request.remote)
+            log.warning("web action refused: wrong or missing operator key from %s", request.remote)
             raise web.HTTPForbidden(text="wrong or missing operator key")
         try:
             body = await request.json()
             action, vehicle = str(body["action"]), str(body.get("vehicle", ""))
         except (ValueError, KeyError, TypeError):
-            raise web.HTTPBadRequest(text='expected {"action": ..., "vehicle": "L:S" | "all"}') from None
+            raise web.HTTPBadRequest(
+                text='expected {"action": ..., "vehicle": "L:S" | "all"}'
+            ) from None
         try:
             done = act(action, vehicle, f"web {request.remote}")
         except (ValueError, KeyError, LookupError) as exc:

@@ -34,8 +34,17 @@ from planner.geometry import tasks_connected
 if TYPE_CHECKING:
     from gcs.fleet import FleetSnapshot
 
-__all__ = ["STATES", "STATE_LABELS", "crew_names", "mission_meta", "classify", "Picture",
-           "frame_dict", "radio_links", "mst_tree"]
+__all__ = [
+    "STATES",
+    "STATE_LABELS",
+    "crew_names",
+    "mission_meta",
+    "classify",
+    "Picture",
+    "frame_dict",
+    "radio_links",
+    "mst_tree",
+]
 
 STATES = ("networked", "reclaimed", "held", "returning", "landed", "lost")
 STATE_LABELS = {
@@ -57,46 +66,86 @@ def crew_names(mission) -> list[str]:
     for i, task in enumerate(mission.tasks):
         label = task.name or f"Task {i + 1}"
         if task.kind == "random":
-            names += [f"{label} {k + 1}" if task.name else f"Task {i + 1}.{k + 1}"
-                      for k in range(task.count)]
+            names += [
+                f"{label} {k + 1}" if task.name else f"Task {i + 1}.{k + 1}"
+                for k in range(task.count)
+            ]
         else:
             names.append(label)
     return names
 
 
-def mission_meta(mission, geofence, *, mode: str, actions: bool, tiles: dict | None,
-                 duration_s: float | None = None) -> dict:
+def mission_meta(
+    mission,
+    geofence,
+    *,
+    mode: str,
+    actions: bool,
+    tiles: dict | None,
+    duration_s: float | None = None,
+) -> dict:
     """What does not change during a run: base, crews, hazard zones, geofence, ranges."""
     zones = []
     for k, z in enumerate(mission.attrition.hazard_zones):
-        when = (f"from t+{z.start_s:.0f} s" + (f" to t+{z.end_s:.0f} s" if z.end_s else "")
-                if (z.start_s or z.end_s) else "whole mission")
-        d = {"label": f"Hazard zone {k + 1}: +{100 * z.rate_per_s:.1f} % losses/s, {when}",
-             "start_s": z.start_s, "end_s": z.end_s, "rate_per_s": z.rate_per_s}
+        when = (
+            f"from t+{z.start_s:.0f} s" + (f" to t+{z.end_s:.0f} s" if z.end_s else "")
+            if (z.start_s or z.end_s)
+            else "whole mission"
+        )
+        d = {
+            "label": f"Hazard zone {k + 1}: +{100 * z.rate_per_s:.1f} % losses/s, {when}",
+            "start_s": z.start_s,
+            "end_s": z.end_s,
+            "rate_per_s": z.rate_per_s,
+        }
         if z.circle is not None:
-            d.update(kind="circle", n=z.circle.center.north_m, e=z.circle.center.east_m,
-                     r=z.circle.radius_m)
+            d.update(
+                kind="circle",
+                n=z.circle.center.north_m,
+                e=z.circle.center.east_m,
+                r=z.circle.radius_m,
+            )
         else:
             d.update(kind="polygon", pts=[[p.north_m, p.east_m] for p in z.polygon])
         zones.append(d)
     fence = None
     if geofence is not None:
         f = geofence
-        fence = {k: (None if not math.isfinite(v) else v) for k, v in
-                 (("n_min", f.north_min_m), ("n_max", f.north_max_m), ("e_min", f.east_min_m),
-                  ("e_max", f.east_max_m), ("max_alt_m", f.max_alt_m))}
+        fence = {
+            k: (None if not math.isfinite(v) else v)
+            for k, v in (
+                ("n_min", f.north_min_m),
+                ("n_max", f.north_max_m),
+                ("e_min", f.east_min_m),
+                ("e_max", f.east_max_m),
+                ("max_alt_m", f.max_alt_m),
+            )
+        }
     lim = mission.vehicles.limits
     return {
-        "mode": mode, "name": mission.name, "description": mission.description,
-        "origin": {"lat_deg": mission.origin.lat_deg, "lon_deg": mission.origin.lon_deg,
-                   "alt_amsl_m": mission.origin.alt_amsl_m},
-        "radio_range_m": mission.radio.range_m, "base_range_m": mission.radio.base_range_m,
-        "crews": crew_names(mission), "hazard_zones": zones, "geofence": fence,
-        "layers": {"n": lim.n_layers, "cruise_alt_m": lim.cruise_alt_m,
-                   "spacing_m": lim.layer_spacing_m},
+        "mode": mode,
+        "name": mission.name,
+        "description": mission.description,
+        "origin": {
+            "lat_deg": mission.origin.lat_deg,
+            "lon_deg": mission.origin.lon_deg,
+            "alt_amsl_m": mission.origin.alt_amsl_m,
+        },
+        "radio_range_m": mission.radio.range_m,
+        "base_range_m": mission.radio.base_range_m,
+        "crews": crew_names(mission),
+        "hazard_zones": zones,
+        "geofence": fence,
+        "layers": {
+            "n": lim.n_layers,
+            "cruise_alt_m": lim.cruise_alt_m,
+            "spacing_m": lim.layer_spacing_m,
+        },
         "duration_s": mission.run.duration_s if duration_s is None else duration_s,
         "vehicles_expected": mission.vehicles.count,
-        "actions": bool(actions), "tiles": tiles, "states": list(STATES),
+        "actions": bool(actions),
+        "tiles": tiles,
+        "states": list(STATES),
         "state_labels": STATE_LABELS,
     }
 
@@ -125,8 +174,9 @@ def classify(snap, released: dict | set, reclaimed: set) -> np.ndarray:
     return out
 
 
-def radio_links(ne_m: np.ndarray, ok: np.ndarray, range_m: float,
-                max_links: int = MAX_LINKS) -> tuple[np.ndarray, int]:
+def radio_links(
+    ne_m: np.ndarray, ok: np.ndarray, range_m: float, max_links: int = MAX_LINKS
+) -> tuple[np.ndarray, int]:
     """Vehicle pairs closer than ``range_m`` among rows ``ok``: ((K, 2) rows, shortest first,
     at most ``max_links``; the total number of pairs)."""
     rows = np.flatnonzero(ok)
@@ -162,10 +212,13 @@ def mst_tree(base_ne: np.ndarray, crews_ne: np.ndarray, relays_ne: np.ndarray) -
                 seen[v] = True
                 parent[v] = u
                 stack.append(v)
-    return {"nodes": np.round(nodes, 1).tolist(), "parent": parent.tolist(),
-            "n_tasks": int(len(crews_ne)),
-            "source": "MST of base, crews and networked vehicles (station's belief; "
-                      "the planner exposes no tree)"}
+    return {
+        "nodes": np.round(nodes, 1).tolist(),
+        "parent": parent.tolist(),
+        "n_tasks": int(len(crews_ne)),
+        "source": "MST of base, crews and networked vehicles (station's belief; "
+        "the planner exposes no tree)",
+    }
 
 
 def _col(a: np.ndarray, nd: int = 1) -> list:
@@ -213,44 +266,68 @@ def frame_dict(p: Picture, radio_range_m: float, base_range_m: float) -> dict:
     vc = []
     if heard_pos.any() and crew_ok.any():
         rows = np.flatnonzero(heard_pos)
-        near = cKDTree(ne[rows]).query_ball_point(np.where(crew_ok[:, None], crews, 1e12),
-                                                  radio_range_m)
+        near = cKDTree(ne[rows]).query_ball_point(
+            np.where(crew_ok[:, None], crews, 1e12), radio_range_m
+        )
         for k, lst in enumerate(near):
             for j in lst:
                 vc += [int(rows[j]), k]  # flat pairs (vehicle row, crew column)
-    vb = np.flatnonzero(heard_pos & (np.linalg.norm(ne_ok, axis=1) < base_range_m)).tolist() \
-        if n else []
-    connected = tasks_connected(np.where(crew_ok[:, None], crews, np.inf),
-                                np.where(heard_pos[:, None], ne, np.inf), heard_pos,
-                                radio_range_m) if len(crews) else np.zeros(0, bool)
+    vb = (
+        np.flatnonzero(heard_pos & (np.linalg.norm(ne_ok, axis=1) < base_range_m)).tolist()
+        if n
+        else []
+    )
+    connected = (
+        tasks_connected(
+            np.where(crew_ok[:, None], crews, np.inf),
+            np.where(heard_pos[:, None], ne, np.inf),
+            heard_pos,
+            radio_range_m,
+        )
+        if len(crews)
+        else np.zeros(0, bool)
+    )
     states = [str(s) for s in p.states]
     counts = {s: states.count(s) for s in STATES}
-    labels = [f"{s}" if int(l) == 0 else f"{l}:{s}"
-              for l, s in zip(snap.link_id.tolist(), snap.sysid_of_index.tolist())]
+    labels = [
+        f"{s}" if int(l) == 0 else f"{l}:{s}"
+        for l, s in zip(snap.link_id.tolist(), snap.sysid_of_index.tolist())
+    ]
     released = p.released or {}
     frame = {
         "t_s": round(float(p.t_s), 2),
         "t_mission_s": None if p.t_mission_s is None else round(float(p.t_mission_s), 2),
         "phase": p.phase,
         "v": {
-            "id": [f"{l}:{s}" for l, s in zip(snap.link_id.tolist(),
-                                               snap.sysid_of_index.tolist())],
-            "label": labels, "state": states, "mode": list(snap.mode),
-            "n": _col(pos[:, 0]), "e": _col(pos[:, 1]), "alt": _col(-pos[:, 2]),
+            "id": [f"{l}:{s}" for l, s in zip(snap.link_id.tolist(), snap.sysid_of_index.tolist())],
+            "label": labels,
+            "state": states,
+            "mode": list(snap.mode),
+            "n": _col(pos[:, 0]),
+            "e": _col(pos[:, 1]),
+            "alt": _col(-pos[:, 2]),
             "layer": (np.arange(n) % max(1, p.n_layers)).tolist(),
-            "layer_alt": _col(p.layer_alt_m, 0), "hdg": _col(p.heading_deg, 0),
-            "tn": _col(p.target_ned_m[:, 0]), "te": _col(p.target_ned_m[:, 1]),
+            "layer_alt": _col(p.layer_alt_m, 0),
+            "hdg": _col(p.heading_deg, 0),
+            "tn": _col(p.target_ned_m[:, 0]),
+            "te": _col(p.target_ned_m[:, 1]),
             "talt": _col(-p.target_ned_m[:, 2]),
-            "released": [released.get((int(l), int(s))) for l, s in
-                         zip(snap.link_id.tolist(), snap.sysid_of_index.tolist())],
+            "released": [
+                released.get((int(l), int(s)))
+                for l, s in zip(snap.link_id.tolist(), snap.sysid_of_index.tolist())
+            ],
         },
-        "crews": {"n": _col(crews[:, 0]), "e": _col(crews[:, 1]),
-                  "connected": [bool(c) for c in connected]},
+        "crews": {
+            "n": _col(crews[:, 0]),
+            "e": _col(crews[:, 1]),
+            "connected": [bool(c) for c in connected],
+        },
         "links": {"vv": vv.ravel().tolist(), "vv_total": int(total_vv), "vc": vc, "vb": vb},
         "tree": p.tree,
         "counts": counts,
         "crews_connected": int(np.sum(connected)),
-        "tu1": p.tu1, "tu2": p.tu2,
+        "tu1": p.tu1,
+        "tu2": p.tu2,
         "series": p.series,
         "events": p.events,
     }
@@ -268,10 +345,13 @@ def tree_from_planner(planner) -> dict | None:
         return None
     unit = float(getattr(planner, "unit_m", 1.0))
     nodes = np.asarray(tree.nodes_m, dtype=float) * unit
-    return {"nodes": np.round(nodes, 1).tolist(), "parent": np.asarray(tree.parent).tolist(),
-            "n_tasks": int(tree.n_tasks),
-            "source": f"the planner's task tree ({type(planner).__name__}: semi-Steiner tree "
-                      "over base and crews)"}
+    return {
+        "nodes": np.round(nodes, 1).tolist(),
+        "parent": np.asarray(tree.parent).tolist(),
+        "n_tasks": int(tree.n_tasks),
+        "source": f"the planner's task tree ({type(planner).__name__}: semi-Steiner tree "
+        "over base and crews)",
+    }
 
 
 def decimate(rows: list, max_points: int = 600) -> list:

@@ -20,13 +20,25 @@ import numpy as np
 
 from gcs.control import layer_alt_m
 from gcs.events import (
-    CommandFailed, CommandTimedOut, ModeChanged, StatusText, TelemetryReceived, VehicleDiscovered,
-    VehicleLost, VehicleRecovered,
+    CommandFailed,
+    CommandTimedOut,
+    ModeChanged,
+    StatusText,
+    TelemetryReceived,
+    VehicleDiscovered,
+    VehicleLost,
+    VehicleRecovered,
 )
 from gcs.operations import OPERATOR_ACTIONS
 from gcs.wire import mavlink
 from mission.live.state import (
-    Picture, classify, decimate, frame_dict, mission_meta, mst_tree, tree_from_planner,
+    Picture,
+    classify,
+    decimate,
+    frame_dict,
+    mission_meta,
+    mst_tree,
+    tree_from_planner,
 )
 from planner.geometry import geodetic_to_ned_m
 
@@ -77,8 +89,16 @@ class LiveStation:
     tiles : what the page needs for background imagery (``server.tiles_meta``)
     """
 
-    def __init__(self, op, mission, clock: Callable[[], float], adapters=(), *,
-                 actions: bool = True, tiles: dict | None = None) -> None:
+    def __init__(
+        self,
+        op,
+        mission,
+        clock: Callable[[], float],
+        adapters=(),
+        *,
+        actions: bool = True,
+        tiles: dict | None = None,
+    ) -> None:
         self.op = op
         self.mission = mission
         self.clock = clock
@@ -101,8 +121,12 @@ class LiveStation:
         def on_action(rec) -> None:
             if prev is not None:
                 prev(rec)
-            self._add(rec.t_s, "action", (rec.link_id, rec.sysid),
-                      f"operator {rec.action.upper()} from {rec.source}: {rec.result}")
+            self._add(
+                rec.t_s,
+                "action",
+                (rec.link_id, rec.sysid),
+                f"operator {rec.action.upper()} from {rec.source}: {rec.result}",
+            )
 
         op.on_action = on_action
 
@@ -142,19 +166,33 @@ class LiveStation:
         self._seq += 1
         op = self.op
         tm = None if op.mission_t0_s is None else t_s - op.mission_t0_s
-        who = "" if vid is None else (f"vehicle {vid[1]}" if vid[0] == 0
-                                      else f"vehicle {vid[0]}:{vid[1]}")
-        self.events.append({"seq": self._seq, "t_s": round(t_s, 1),
-                            "t_mission_s": None if tm is None else round(tm, 1), "kind": kind,
-                            "vehicle": None if vid is None else f"{vid[0]}:{vid[1]}",
-                            "text": f"{who} {text}".strip()})
+        who = (
+            ""
+            if vid is None
+            else (f"vehicle {vid[1]}" if vid[0] == 0 else f"vehicle {vid[0]}:{vid[1]}")
+        )
+        self.events.append(
+            {
+                "seq": self._seq,
+                "t_s": round(t_s, 1),
+                "t_mission_s": None if tm is None else round(tm, 1),
+                "kind": kind,
+                "vehicle": None if vid is None else f"{vid[0]}:{vid[1]}",
+                "text": f"{who} {text}".strip(),
+            }
+        )
 
     # ------------------------------------------------------------------ output
 
     def meta(self) -> dict:
-        return mission_meta(self.mission, self.op.control.geofence, mode="live",
-                            actions=self.actions_enabled, tiles=self.tiles,
-                            duration_s=self.op.config.duration_s)
+        return mission_meta(
+            self.mission,
+            self.op.control.geofence,
+            mode="live",
+            actions=self.actions_enabled,
+            tiles=self.tiles,
+            duration_s=self.op.config.duration_s,
+        )
 
     def frame(self, index: int | None = None) -> dict:
         op = self.op
@@ -173,8 +211,16 @@ class LiveStation:
         if rows:
             t = np.array([self._targets[vids[i]] for i in rows])
             o = op.fleet.origin
-            ned = np.atleast_2d(geodetic_to_ned_m(t[:, 0], t[:, 1], np.full(len(rows), o.alt_amsl_m),
-                                                  o.lat_deg, o.lon_deg, o.alt_amsl_m))
+            ned = np.atleast_2d(
+                geodetic_to_ned_m(
+                    t[:, 0],
+                    t[:, 1],
+                    np.full(len(rows), o.alt_amsl_m),
+                    o.lat_deg,
+                    o.lon_deg,
+                    o.alt_amsl_m,
+                )
+            )
             home_above_base = snap.home_amsl_m[rows] - o.alt_amsl_m
             ned[:, 2] = -(t[:, 2] + np.nan_to_num(home_above_base))
             target[rows] = ned
@@ -186,20 +232,34 @@ class LiveStation:
             relay = snap.networked & snap.has_position & (states == "networked")
             tree = mst_tree(np.zeros(2), crews, snap.pos_ned_m[relay, :2])
         recs = op.records
-        series = decimate([(round(r.t_mission_s, 1), r.tasks_covered, r.networked, r.lost)
-                           for r in recs])
+        series = decimate(
+            [(round(r.t_mission_s, 1), r.tasks_covered, r.networked, r.lost) for r in recs]
+        )
         last = recs[-1] if recs else None
         pic = Picture(
-            t_s=now, t_mission_s=t_m, phase=op.phase, snap=snap, states=states,
-            heading_deg=hdg, target_ned_m=target,
+            t_s=now,
+            t_mission_s=t_m,
+            phase=op.phase,
+            snap=snap,
+            states=states,
+            heading_deg=hdg,
+            target_ned_m=target,
             layer_alt_m=layer_alt_m(np.arange(n), op.control) if n else np.zeros(0),
-            n_layers=op.control.n_layers, crews_ne_m=crews, tree=tree,
+            n_layers=op.control.n_layers,
+            crews_ne_m=crews,
+            tree=tree,
             tu1=None if last is None else last.tu1_so_far,
             tu2=None if last is None else last.tu2_so_far,
-            series={"t": [s[0] for s in series], "crews": [s[1] for s in series],
-                    "networked": [s[2] for s in series], "lost": [s[3] for s in series]},
-            events=list(self.events)[-60:], crew_tracks=self._crew_tracks,
-            released=op.released)
+            series={
+                "t": [s[0] for s in series],
+                "crews": [s[1] for s in series],
+                "networked": [s[2] for s in series],
+                "lost": [s[3] for s in series],
+            },
+            events=list(self.events)[-60:],
+            crew_tracks=self._crew_tracks,
+            released=op.released,
+        )
         mission = self.mission
         return frame_dict(pic, mission.radio.range_m, mission.radio.base_range_m)
 
@@ -229,13 +289,17 @@ class LiveStation:
             try:
                 link, sysid = (int(x) for x in vehicle.split(":"))
             except ValueError:
-                raise ValueError(f"vehicle must be 'LINK:SYSID' or 'all', got {vehicle!r}") from None
+                raise ValueError(
+                    f"vehicle must be 'LINK:SYSID' or 'all', got {vehicle!r}"
+                ) from None
             vid = (link, sysid)
         done = self.op.operator_command(action, vid, self.clock(), source=source)
         for a in self.adapters:  # out now, not at the next poll
             a.transmit()
-        return [{"vehicle": f"{r.link_id}:{r.sysid}", "action": r.action, "result": r.result}
-                for r in done]
+        return [
+            {"vehicle": f"{r.link_id}:{r.sysid}", "action": r.action, "result": r.result}
+            for r in done
+        ]
 
     # ------------------------------------------------------------------ the sampler
 
@@ -246,14 +310,14 @@ class LiveStation:
         period = MIN_PERIOD_S
         while True:
             if self.op.phase != self._phase:
-                self._add(self.clock(), "phase", None,
-                          f"phase {self._phase} -> {self.op.phase}")
+                self._add(self.clock(), "phase", None, f"phase {self._phase} -> {self.op.phase}")
                 self._phase = self.op.phase
             if server.clients:
                 t0 = time.process_time()
                 try:
-                    server.publish(json.dumps(self.frame(), allow_nan=False,
-                                              separators=(",", ":")).encode())
+                    server.publish(
+                        json.dumps(self.frame(), allow_nan=False, separators=(",", ":")).encode()
+                    )
                 except Exception:  # noqa: BLE001 - the view must never stop the flight
                     log.exception("live view: building a frame failed")
                 cost = time.process_time() - t0

@@ -20,4 +20,5 @@ def station():
         # (HOME_POSITION) are off unless a test asks for them.
         kwargs.setdefault("request_home_position", False)
         return StationLink(StationConfig(**kwargs), link_id=link_id, now_s=now_s)
+
     return make

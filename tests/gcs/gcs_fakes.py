@@ -18,9 +18,14 @@ class _Null:
 class FakeAutopilot:
     """Encodes what a vehicle would send; decodes what the station sent it."""
 
-    def __init__(self, sysid: int = 1, autopilot: int = mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                 compid: int = 1, vehicle_type: int = mav.MAV_TYPE_QUADROTOR,
-                 signing_key: bytes | None = None) -> None:
+    def __init__(
+        self,
+        sysid: int = 1,
+        autopilot: int = mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
+        compid: int = 1,
+        vehicle_type: int = mav.MAV_TYPE_QUADROTOR,
+        signing_key: bytes | None = None,
+    ) -> None:
         self.sysid, self.autopilot, self.vehicle_type = sysid, autopilot, vehicle_type
         self.mav = mav.MAVLink(_Null(), sysid, compid)
         self.parser = mav.MAVLink(_Null(), 0, 0)
@@ -51,29 +56,68 @@ class FakeAutopilot:
         return self._pack(mav.MAVLink_local_position_ned_message(t_ms, 1.0, 2.0, -3.0, 0, 0, 0))
 
     def heartbeat(self, custom_mode: int = 0, armed: bool = False) -> bytes:
-        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
-        return self._pack(mav.MAVLink_heartbeat_message(
-            self.vehicle_type, self.autopilot, base, custom_mode, mav.MAV_STATE_ACTIVE, 3))
+        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (
+            mav.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0
+        )
+        return self._pack(
+            mav.MAVLink_heartbeat_message(
+                self.vehicle_type, self.autopilot, base, custom_mode, mav.MAV_STATE_ACTIVE, 3
+            )
+        )
 
-    def global_position(self, lat_deg: float, lon_deg: float, alt_amsl_m: float,
-                        rel_alt_m: float, vel_ned_m_s=(0.0, 0.0, 0.0), hdg_cdeg: int = 0,
-                        time_boot_ms: int = 1000) -> bytes:
-        return self._pack(mav.MAVLink_global_position_int_message(
-            time_boot_ms, round(lat_deg * 1e7), round(lon_deg * 1e7), round(alt_amsl_m * 1000),
-            round(rel_alt_m * 1000), *(round(v * 100) for v in vel_ned_m_s), hdg_cdeg))
+    def global_position(
+        self,
+        lat_deg: float,
+        lon_deg: float,
+        alt_amsl_m: float,
+        rel_alt_m: float,
+        vel_ned_m_s=(0.0, 0.0, 0.0),
+        hdg_cdeg: int = 0,
+        time_boot_ms: int = 1000,
+    ) -> bytes:
+        return self._pack(
+            mav.MAVLink_global_position_int_message(
+                time_boot_ms,
+                round(lat_deg * 1e7),
+                round(lon_deg * 1e7),
+                round(alt_amsl_m * 1000),
+                round(rel_alt_m * 1000),
+                *(round(v * 100) for v in vel_ned_m_s),
+                hdg_cdeg,
+            )
+        )
 
     def home_position(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> bytes:
-        return self._pack(mav.MAVLink_home_position_message(
-            round(lat_deg * 1e7), round(lon_deg * 1e7), round(alt_amsl_m * 1000), 0.0, 0.0, 0.0,
-            [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0))
+        return self._pack(
+            mav.MAVLink_home_position_message(
+                round(lat_deg * 1e7),
+                round(lon_deg * 1e7),
+                round(alt_amsl_m * 1000),
+                0.0,
+                0.0,
+                0.0,
+                [1.0, 0.0, 0.0, 0.0],
+                0.0,
+                0.0,
+                0.0,
+                0,
+            )
+        )
 
-    def ack(self, command: int, result: int = mav.MAV_RESULT_ACCEPTED, progress: int = 0,
-            target_system: int = 255) -> bytes:
-        return self._pack(mav.MAVLink_command_ack_message(command, result, progress, 0,
-                                                          target_system, 190))
+    def ack(
+        self,
+        command: int,
+        result: int = mav.MAV_RESULT_ACCEPTED,
+        progress: int = 0,
+        target_system: int = 255,
+    ) -> bytes:
+        return self._pack(
+            mav.MAVLink_command_ack_message(command, result, progress, 0, target_system, 190)
+        )
 
-    def param_value(self, name: str, value: float,
-                    param_type: int = mav.MAV_PARAM_TYPE_REAL32) -> bytes:
+    def param_value(
+        self, name: str, value: float, param_type: int = mav.MAV_PARAM_TYPE_REAL32
+    ) -> bytes:
         return self._pack(mav.MAVLink_param_value_message(name.encode(), value, param_type, 1, 0))
 
     def statustext(self, text: str, severity: int = mav.MAV_SEVERITY_INFO) -> bytes:

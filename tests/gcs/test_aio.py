@@ -38,6 +38,7 @@ async def _next(queue, kind, timeout_s=5.0):
             name = m.get_type() if hasattr(m, "get_type") else type(m).__name__
             if name == kind:
                 return item
+
     return await asyncio.wait_for(get(), timeout_s)
 
 
@@ -45,11 +46,11 @@ def test_udpout_station_discovers_commands_and_records(tmp_path):
     async def main():
         loop = asyncio.get_running_loop()
         transport, vehicle = await loop.create_datagram_endpoint(
-            _Vehicle, local_addr=("127.0.0.1", 0))
+            _Vehicle, local_addr=("127.0.0.1", 0)
+        )
         host, port = transport.get_extra_info("sockname")
         tlog = TlogWriter(tmp_path / "aio.tlog")
-        station = await StationAdapter(f"udpout:{host}:{port}",
-                                       _CFG, tlog=tlog).start()
+        station = await StationAdapter(f"udpout:{host}:{port}", _CFG, tlog=tlog).start()
         try:
             hb, gcs_addr = await _next(vehicle.inbox, "HEARTBEAT")  # udpout heartbeats first
             assert hb.type == 6 and hb.get_srcSystem() == 255
@@ -91,8 +92,7 @@ def test_tcp_client_stream_reassembles_split_frames():
 
         server = await asyncio.start_server(vehicle, "127.0.0.1", 0)
         host, port = server.sockets[0].getsockname()[:2]
-        station = await StationAdapter(f"tcp:{host}:{port}",
-                                       _CFG).start()
+        station = await StationAdapter(f"tcp:{host}:{port}", _CFG).start()
         try:
             ev = await _next(station.events, "VehicleDiscovered")
             assert (ev.sysid, ev.mode) == (2, "OFFBOARD")
@@ -111,6 +111,7 @@ def test_tcp_client_stream_reassembles_split_frames():
 def test_tcp_client_reconnects_when_the_server_restarts():
     """SITL restarted on its TCP port: the station reconnects, drops the old stream's partial
     frame and hears the vehicle again (events, no fixed sleeps: every wait has a deadline)."""
+
     async def main():
         ap = FakeAutopilot(sysid=3)
         sessions: asyncio.Queue = asyncio.Queue()
@@ -119,7 +120,7 @@ def test_tcp_client_reconnects_when_the_server_restarts():
             n = sessions.qsize()
             if n == 0:  # first life: a heartbeat, then half a frame, then the process dies
                 writer.write(ap.heartbeat(4) + ap.global_position(47.0, 8.0, 400.0, 5.0)[:9])
-            else:       # after the restart: a whole new stream
+            else:  # after the restart: a whole new stream
                 writer.write(ap.heartbeat(6) + ap.global_position(47.0, 8.0, 400.0, 5.0))
             await writer.drain()
             sessions.put_nowait(writer)
@@ -131,8 +132,7 @@ def test_tcp_client_reconnects_when_the_server_restarts():
 
         server = await asyncio.start_server(vehicle, "127.0.0.1", 0)
         host, port = server.sockets[0].getsockname()[:2]
-        station = await StationAdapter(f"tcp:{host}:{port}", _CFG,
-                                       reconnect_s=(0.05, 0.2)).start()
+        station = await StationAdapter(f"tcp:{host}:{port}", _CFG, reconnect_s=(0.05, 0.2)).start()
         try:
             ev = await _next(station.events, "VehicleDiscovered")
             assert (ev.sysid, ev.mode) == (3, "GUIDED")
@@ -163,13 +163,18 @@ async def _free_tcp_port() -> int:
 def test_tcp_server_not_up_at_start_is_retried_in_the_background():
     """SITL not started yet: start() succeeds with the link down (LinkDown, once), connects when
     the server comes up (LinkUp) and hears the vehicle; never fatal."""
+
     async def main():
         port = await _free_tcp_port()
         link_events: list = []
         station_events: list = []
-        station = await StationAdapter(f"tcp:127.0.0.1:{port}", _CFG, reconnect_s=(0.02, 0.05),
-                                       on_event=station_events.append,
-                                       on_link_event=link_events.append).start()
+        station = await StationAdapter(
+            f"tcp:127.0.0.1:{port}",
+            _CFG,
+            reconnect_s=(0.02, 0.05),
+            on_event=station_events.append,
+            on_link_event=link_events.append,
+        ).start()
         ap = FakeAutopilot(sysid=6)
         up = asyncio.Event()
         server = None
@@ -186,6 +191,7 @@ def test_tcp_server_not_up_at_start_is_retried_in_the_background():
                 while await reader.read(4096):
                     pass
                 writer.close()
+
             server = await asyncio.start_server(vehicle, "127.0.0.1", port)
             await asyncio.wait_for(up.wait(), 5.0)
             while not any(type(e).__name__ == "VehicleDiscovered" for e in station_events):
@@ -205,8 +211,9 @@ def test_tcp_server_not_up_at_start_is_retried_in_the_background():
 def test_udpin_address_in_use_is_a_one_line_error():
     async def main():
         loop = asyncio.get_running_loop()
-        taken, _ = await loop.create_datagram_endpoint(asyncio.DatagramProtocol,
-                                                       local_addr=("127.0.0.1", 0))
+        taken, _ = await loop.create_datagram_endpoint(
+            asyncio.DatagramProtocol, local_addr=("127.0.0.1", 0)
+        )
         port = taken.get_extra_info("sockname")[1]
         try:
             with pytest.raises(LinkOpenError) as info:
@@ -242,11 +249,11 @@ def test_steady_incoming_traffic_does_not_starve_the_station_timers():
     async def main():
         loop = asyncio.get_running_loop()
         transport, vehicle = await loop.create_datagram_endpoint(
-            _Vehicle, local_addr=("127.0.0.1", 0))
+            _Vehicle, local_addr=("127.0.0.1", 0)
+        )
         host, port = transport.get_extra_info("sockname")
         now = [0.0]
-        station = await StationAdapter(f"udpout:{host}:{port}", _CFG,
-                                       clock=lambda: now[0]).start()
+        station = await StationAdapter(f"udpout:{host}:{port}", _CFG, clock=lambda: now[0]).start()
         try:
             _, gcs_addr = await _next(vehicle.inbox, "HEARTBEAT")
             beats = 0
@@ -271,7 +278,8 @@ def test_station_on_a_clock_follows_its_time_and_unix_anchor():
     async def main():
         loop = asyncio.get_running_loop()
         transport, vehicle = await loop.create_datagram_endpoint(
-            _Vehicle, local_addr=("127.0.0.1", 0))
+            _Vehicle, local_addr=("127.0.0.1", 0)
+        )
         host, port = transport.get_extra_info("sockname")
         clock = VirtualClock(10.0, unix_time_at_zero_s=1.75e9)
         station = await StationAdapter(f"udpout:{host}:{port}", _CFG, clock=clock).start()

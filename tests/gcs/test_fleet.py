@@ -31,8 +31,13 @@ def test_two_vehicles_with_different_origins_land_in_one_mission_frame():
     aps = [FakeAutopilot(sysid=5), FakeAutopilot(sysid=9, autopilot=mav.MAV_AUTOPILOT_PX4)]
     for i, (ap, addr) in enumerate(zip(aps, (A1, A2))):
         fly(link, fleet, ap.heartbeat(4 if i == 0 else 393216), addr, 0.0)
-        fly(link, fleet, ap.global_position(lat[i], lon[i], alt[i], alt[i] - homes_amsl[i],
-                                            (1.0, -0.5, 0.2)), addr, 0.5)
+        fly(
+            link,
+            fleet,
+            ap.global_position(lat[i], lon[i], alt[i], alt[i] - homes_amsl[i], (1.0, -0.5, 0.2)),
+            addr,
+            0.5,
+        )
     snap = fleet.snapshot(1.0)
     assert list(snap.sysid_of_index) == [5, 9] and list(snap.link_id) == [0, 0]
     # Within the wire quantisation (1e-7 deg ~ 1.1 cm, 1 mm).
@@ -72,6 +77,7 @@ def test_rows_are_stable_and_states_classified():
     snap = fleet.snapshot(20.5)
     assert snap.returning.tolist() == [False, False]  # link still says lost: no recovery yet
     from gcs.events import VehicleRecovered
+
     fleet.apply(VehicleRecovered(1, 7, 20.0, silent_s=19.5, custom_mode=6, mode="RTL"))
     snap = fleet.snapshot(20.5)
     assert snap.returning.tolist() == [True, False] and snap.networked.tolist() == [False, False]
@@ -93,6 +99,7 @@ def test_vehicle_without_position_has_nan_rows():
 
 def test_link_state_events_make_no_rows():
     from gcs.events import LinkDown, LinkUp
+
     fleet = FleetView(ORIGIN)
     fleet.apply(LinkDown(0, 1.0, connection="tcp:127.0.0.1:5760", reason="refused"))
     fleet.apply(LinkUp(0, 2.0, connection="tcp:127.0.0.1:5760"))

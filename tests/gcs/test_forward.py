@@ -23,8 +23,9 @@ def _hb():
 
 
 def _cmd(target: int):
-    return mavlink.MAVLink_command_long_message(target, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
-                                                148, 0, 0, 0, 0, 0, 0)
+    return mavlink.MAVLink_command_long_message(
+        target, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0
+    )
 
 
 class _FakeLink:
@@ -97,14 +98,34 @@ def test_bad_output_kind_is_refused():
 
 
 def _small_mission(count=4):
-    from mission.schema import (EmulatedVehicles, Mission, Radio, RunSpec, Spawn, SpawnRing,
-                                Task, TrackPoint, Vehicles)
-    return Mission(name="fwd", vehicles=Vehicles(emulated=EmulatedVehicles(
-        count=count, radio_range_m=100.0, cruise_alt_m=20.0, climb_rate_m_s=5.0,
-        max_speed_m_s=10.0, spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)))),
+    from mission.schema import (
+        EmulatedVehicles,
+        Mission,
+        Radio,
+        RunSpec,
+        Spawn,
+        SpawnRing,
+        Task,
+        TrackPoint,
+        Vehicles,
+    )
+
+    return Mission(
+        name="fwd",
+        vehicles=Vehicles(
+            emulated=EmulatedVehicles(
+                count=count,
+                radio_range_m=100.0,
+                cruise_alt_m=20.0,
+                climb_rate_m_s=5.0,
+                max_speed_m_s=10.0,
+                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
+            )
+        ),
         tasks=(Task(name="Crew", track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),),
         radio=Radio(range_m=100.0, base_range_m=100.0, latency_s=0.01),
-        run=RunSpec(duration_s=600.0, seed=2, speedup=4.0))
+        run=RunSpec(duration_s=600.0, seed=2, speedup=4.0),
+    )
 
 
 class _Flight:
@@ -122,12 +143,18 @@ class _Flight:
             if self.stop.is_set():
                 op.phase = "done"
 
-        self.opts = FlyOptions(emulator_in_process=True, out_dir=str(tmp_path / "runs"),
-                               on_live=self.info.update, on_operator=hook, **opts)
+        self.opts = FlyOptions(
+            emulator_in_process=True,
+            out_dir=str(tmp_path / "runs"),
+            on_live=self.info.update,
+            on_operator=hook,
+            **opts,
+        )
         self.thread = threading.Thread(target=self._run, daemon=True)
 
     def _run(self) -> None:
         from mission.runners import fly_emulated_async
+
         try:
             self.result = asyncio.run(fly_emulated_async(_small_mission(), self.opts))
         except BaseException as exc:  # noqa: BLE001 - reported by the test
@@ -144,6 +171,7 @@ class _Flight:
 
 def _client():
     from pymavlink import mavutil
+
     conn = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=254, source_component=190)
     return conn, conn.port.getsockname()[1]
 
@@ -162,8 +190,9 @@ def _recv_until(conn, cond, timeout_s: float, what: str):
 def test_client_sees_every_vehicle_and_commands_reach_the_addressed_one(tmp_path, readonly):
     conn, port = _client()
     try:
-        with _Flight(tmp_path, forward=(f"udpout:127.0.0.1:{port}",),
-                     forward_readonly=readonly) as flight:
+        with _Flight(
+            tmp_path, forward=(f"udpout:127.0.0.1:{port}",), forward_readonly=readonly
+        ) as flight:
             seen = {"HEARTBEAT": set(), "GLOBAL_POSITION_INT": set()}
 
             def every_vehicle(m):
@@ -173,11 +202,17 @@ def test_client_sees_every_vehicle_and_commands_reach_the_addressed_one(tmp_path
 
             _recv_until(conn, every_vehicle, 90, "HEARTBEAT and GLOBAL_POSITION_INT of 4 vehicles")
             assert seen["HEARTBEAT"] == {1, 2, 3, 4}  # never the station's sysid 255
-            conn.mav.command_long_send(3, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 148,
-                                       0, 0, 0, 0, 0, 0)
-            acked = lambda m: (m.get_type() == "COMMAND_ACK"  # noqa: E731
-                               and m.command == mavlink.MAV_CMD_REQUEST_MESSAGE
-                               and m.target_system == 254)
+            conn.mav.command_long_send(
+                3, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0
+            )
+
+            def acked(m):
+                return (
+                    m.get_type() == "COMMAND_ACK"
+                    and m.command == mavlink.MAV_CMD_REQUEST_MESSAGE
+                    and m.target_system == 254
+                )
+
             if not readonly:
                 ack = _recv_until(conn, acked, 30, "the addressed vehicle's COMMAND_ACK")
                 assert ack.get_srcSystem() == 3

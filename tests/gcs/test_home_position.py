@@ -16,9 +16,12 @@ REQ, GET_HOME = mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_GET_HOME_POSITION
 
 
 def _home_requests(link, now_s):
-    return [m for m, _ in sent(link, now_s, "COMMAND_LONG")
-            if (m.command == REQ and m.param1 == mav.MAVLINK_MSG_ID_HOME_POSITION)
-            or m.command == GET_HOME]
+    return [
+        m
+        for m, _ in sent(link, now_s, "COMMAND_LONG")
+        if (m.command == REQ and m.param1 == mav.MAVLINK_MSG_ID_HOME_POSITION)
+        or m.command == GET_HOME
+    ]
 
 
 def _tick(link, t0_s, t_end_s, step_s=0.1, ap=None):
@@ -35,8 +38,13 @@ def _tick(link, t0_s, t_end_s, step_s=0.1, ap=None):
 
 
 def test_requested_on_discovery_until_it_arrives(station):
-    link = station(request_home_position=True, stream_rates_hz=(), command_timeout_s=0.5,
-                   command_retries=1, home_request_period_s=5.0)
+    link = station(
+        request_home_position=True,
+        stream_rates_hz=(),
+        command_timeout_s=0.5,
+        command_retries=1,
+        home_request_period_s=5.0,
+    )
     ap = FakeAutopilot(sysid=1)
     link.receive_datagram(ap.heartbeat(GUIDED), A1, 0.0)
     (first,) = _home_requests(link, 0.0)
@@ -85,13 +93,13 @@ def test_px4_setpoint_altitude_uses_home_position(station):
     link.receive_datagram(ap.global_position(47.5, 8.25, 500.0, 20.0), A1, 0.1)
     sent(link, 0.1)
     link.set_position_target(1, 47.5, 8.25, 10.0, 0.2)
-    (sp, _), = sent(link, 0.2, "SET_POSITION_TARGET_GLOBAL_INT")
+    ((sp, _),) = sent(link, 0.2, "SET_POSITION_TARGET_GLOBAL_INT")
     assert sp.coordinate_frame == mav.MAV_FRAME_GLOBAL_INT and sp.alt == pytest.approx(490.0)
     link.receive_datagram(ap.home_position(47.5, 8.25, 478.0), A1, 0.3)
     # In flight PX4's alt - relative_alt wanders; home does not, nor do the targets.
     link.receive_datagram(ap.global_position(47.5, 8.25, 502.5, 20.0), A1, 0.4)
     link.set_position_target(1, 47.5, 8.25, 10.0, 0.5)
-    (sp, _), = sent(link, 0.5, "SET_POSITION_TARGET_GLOBAL_INT")
+    ((sp, _),) = sent(link, 0.5, "SET_POSITION_TARGET_GLOBAL_INT")
     assert sp.alt == pytest.approx(488.0)
 
 
@@ -99,8 +107,7 @@ def test_fleet_view_prefers_home_position_and_never_drifts_once_known():
     fleet = FleetView(MissionOrigin(47.5, 8.25, 400.0))
 
     def tel(t, alt, rel):
-        return TelemetryReceived(0, 1, t, lat_deg=47.5, lon_deg=8.25, alt_amsl_m=alt,
-                                 rel_alt_m=rel)
+        return TelemetryReceived(0, 1, t, lat_deg=47.5, lon_deg=8.25, alt_amsl_m=alt, rel_alt_m=rel)
 
     fleet.apply(tel(0.0, 500.0, 20.0))
     snap = fleet.snapshot(0.0)

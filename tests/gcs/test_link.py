@@ -9,8 +9,18 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from gcs.events import (
-    ArmedChanged, CommandAcked, CommandFailed, CommandInProgress, CommandTimedOut, ModeChanged,
-    ParamReceived, ParamTimedOut, StatusText, TelemetryReceived, VehicleDiscovered, VehicleLost,
+    ArmedChanged,
+    CommandAcked,
+    CommandFailed,
+    CommandInProgress,
+    CommandTimedOut,
+    ModeChanged,
+    ParamReceived,
+    ParamTimedOut,
+    StatusText,
+    TelemetryReceived,
+    VehicleDiscovered,
+    VehicleLost,
     VehicleRecovered,
 )
 from gcs.link import LinkUsageError, StationConfig, StationLink, UnknownVehicle
@@ -40,6 +50,7 @@ def commands(frames, command):
 
 # ---------------------------------------------------------------------------- heartbeat
 
+
 def test_heartbeat_every_second_from_the_timer(station):
     link = station(static_peers=(A1,))
     assert link.next_timer_s() == 0.0
@@ -63,10 +74,12 @@ def test_late_timer_does_not_burst(station):
 
 # ---------------------------------------------------------------------------- discovery
 
+
 def test_discovery_only_from_autopilot_heartbeats(station):
     link = station()
-    other_gcs = FakeAutopilot(sysid=250, compid=190, vehicle_type=mav.MAV_TYPE_GCS,
-                              autopilot=mav.MAV_AUTOPILOT_INVALID)
+    other_gcs = FakeAutopilot(
+        sysid=250, compid=190, vehicle_type=mav.MAV_TYPE_GCS, autopilot=mav.MAV_AUTOPILOT_INVALID
+    )
     gimbal = FakeAutopilot(sysid=1, compid=mav.MAV_COMP_ID_GIMBAL, vehicle_type=mav.MAV_TYPE_GIMBAL)
     companion = FakeAutopilot(sysid=1, compid=1, vehicle_type=mav.MAV_TYPE_ONBOARD_CONTROLLER)
     for i, f in enumerate((other_gcs, gimbal, companion)):
@@ -123,6 +136,7 @@ def test_unknown_sysid_is_a_local_error(station):
 
 # ---------------------------------------------------------------------------- loss
 
+
 def test_lost_within_timeout_plus_one_tick_then_recovered(station):
     ap = FakeAutopilot(sysid=3)
     link = station(static_peers=(A1,))
@@ -155,6 +169,7 @@ def test_lost_within_timeout_plus_one_tick_then_recovered(station):
 
 # ---------------------------------------------------------------------------- commands
 
+
 def test_command_retried_then_timed_out_with_confirmation_incremented(station):
     ap = FakeAutopilot(sysid=1)
     link = discovered(station, ap, stream_rates_hz=())
@@ -175,7 +190,7 @@ def test_ack_stops_retries(station):
     ap = FakeAutopilot(sysid=1)
     link = discovered(station, ap, stream_rates_hz=())
     rid = link.set_mode(1, "GUIDED", 0.0)
-    (m, _), = sent(link, 0.0, "COMMAND_LONG")
+    ((m, _),) = sent(link, 0.0, "COMMAND_LONG")
     assert (m.command, m.param1, m.param2) == (mav.MAV_CMD_DO_SET_MODE, 1, 4)
     link.handle_timer(0.5)  # one retry
     assert len(sent(link, 0.5, "COMMAND_LONG")) == 1
@@ -189,7 +204,7 @@ def test_in_progress_keeps_waiting_without_resending(station):
     ap = FakeAutopilot(sysid=1)
     link = discovered(station, ap, stream_rates_hz=())
     rid = link.takeoff(1, 10.0, 0.0)
-    (m, _), = sent(link, 0.0, "COMMAND_LONG")
+    ((m, _),) = sent(link, 0.0, "COMMAND_LONG")
     assert (m.command, m.param7) == (mav.MAV_CMD_NAV_TAKEOFF, 10.0)
     link.receive_datagram(ap.ack(mav.MAV_CMD_NAV_TAKEOFF, mav.MAV_RESULT_IN_PROGRESS, 40), A1, 0.2)
     assert not commands(run_until(link, 4.0), mav.MAV_CMD_NAV_TAKEOFF)
@@ -222,13 +237,15 @@ def test_same_command_is_queued_behind_the_one_in_flight(station):
 
 # ---------------------------------------------------------------------------- streams
 
+
 def test_set_message_interval_unsupported_falls_back_to_request_data_stream(station):
     ap = FakeAutopilot(sysid=1)
     link = discovered(station, ap)
-    (first, _), = sent(link, 0.0, "COMMAND_LONG")  # one SET_MESSAGE_INTERVAL in flight
+    ((first, _),) = sent(link, 0.0, "COMMAND_LONG")  # one SET_MESSAGE_INTERVAL in flight
     assert first.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL
-    link.receive_datagram(ap.ack(mav.MAV_CMD_SET_MESSAGE_INTERVAL, mav.MAV_RESULT_UNSUPPORTED),
-                          A1, 0.1)
+    link.receive_datagram(
+        ap.ack(mav.MAV_CMD_SET_MESSAGE_INTERVAL, mav.MAV_RESULT_UNSUPPORTED), A1, 0.1
+    )
     out = sent(link, 0.1)
     streams = {m.req_stream_id: m for m, _ in out if m.get_type() == "REQUEST_DATA_STREAM"}
     assert set(streams) == {mav.MAV_DATA_STREAM_POSITION, mav.MAV_DATA_STREAM_EXTENDED_STATUS}
@@ -242,9 +259,9 @@ def test_set_message_interval_unsupported_falls_back_to_request_data_stream(stat
 def test_set_message_interval_accepted_in_turn_then_timeout_falls_back(station):
     ap = FakeAutopilot(sysid=1)
     link = discovered(station, ap)
-    (m, _), = sent(link, 0.0, "COMMAND_LONG")
+    ((m, _),) = sent(link, 0.0, "COMMAND_LONG")
     link.receive_datagram(ap.ack(511), A1, 0.05)
-    (m2, _), = sent(link, 0.05, "COMMAND_LONG")
+    ((m2, _),) = sent(link, 0.05, "COMMAND_LONG")
     assert m2.command == 511 and m2.param1 == mav.MAVLINK_MSG_ID_SYS_STATUS
     frames = run_until(link, 2.2)  # no more ACKs: 4 attempts, then fall back
     assert len(commands(frames, 511)) == 3
@@ -280,12 +297,14 @@ def test_stale_telemetry_is_re_requested(station):
 
 # ---------------------------------------------------------------------------- telemetry etc.
 
+
 def test_telemetry_params_and_statustext_become_events(station):
     ap = FakeAutopilot(sysid=1)
     link = discovered(station, ap, stream_rates_hz=())
     drain(link)
-    link.receive_datagram(ap.global_position(47.5, 8.25, 512.34, 12.34, (1.5, -2.0, 0.25), 9000),
-                          A1, 1.0)
+    link.receive_datagram(
+        ap.global_position(47.5, 8.25, 512.34, 12.34, (1.5, -2.0, 0.25), 9000), A1, 1.0
+    )
     link.receive_datagram(ap.statustext("EKF3 IMU0 is using GPS"), A1, 1.0)
     tel, txt = drain(link)
     assert isinstance(tel, TelemetryReceived)
@@ -296,21 +315,24 @@ def test_telemetry_params_and_statustext_become_events(station):
     assert drain(link) == [] and link.stats.invalid_telemetry == 1
 
     link.request_param(1, "FS_GCS_ENABLE", 2.0)
-    (m, a), = sent(link, 2.0, "PARAM_REQUEST_READ")
+    ((m, a),) = sent(link, 2.0, "PARAM_REQUEST_READ")
     assert (m.param_id, m.param_index, m.target_system, a) == ("FS_GCS_ENABLE", -1, 1, A1)
     link.handle_timer(3.0)
     assert len(sent(link, 3.0, "PARAM_REQUEST_READ")) == 1  # retried
     link.receive_datagram(ap.param_value("FS_GCS_ENABLE", 1.0), A1, 3.2)
-    assert drain(link) == [ParamReceived(0, 1, 3.2, "FS_GCS_ENABLE", 1.0,
-                                         mav.MAV_PARAM_TYPE_REAL32)]
+    assert drain(link) == [
+        ParamReceived(0, 1, 3.2, "FS_GCS_ENABLE", 1.0, mav.MAV_PARAM_TYPE_REAL32)
+    ]
     link.request_param(1, "GUID_TIMEOUT", 4.0)
     run_until(link, 10.0)
     assert [e for e in drain(link) if isinstance(e, ParamTimedOut)] == [
-        ParamTimedOut(0, 1, 8.0, "GUID_TIMEOUT", 4)]
+        ParamTimedOut(0, 1, 8.0, "GUID_TIMEOUT", 4)
+    ]
 
 
 def test_px4_integer_params_are_bytewise(station):
     import struct
+
     ap = FakeAutopilot(sysid=1, autopilot=mav.MAV_AUTOPILOT_PX4)
     link = discovered(station, ap, stream_rates_hz=())
     drain(link)
@@ -321,6 +343,7 @@ def test_px4_integer_params_are_bytewise(station):
 
 
 # ---------------------------------------------------------------------------- autopilots
+
 
 def test_px4_offboard_and_arm_only_after_prestreaming_setpoints(station):
     ap = FakeAutopilot(sysid=1, autopilot=mav.MAV_AUTOPILOT_PX4)
@@ -354,7 +377,7 @@ def test_px4_rtl_is_unpacked_and_modes_decode(station):
     link.receive_datagram(ap.heartbeat(393216, armed=True), A1, 0.0)
     assert link.vehicle(1).mode == "OFFBOARD"
     link.rtl(1, 0.0)
-    (m, _), = sent(link, 0.0, "COMMAND_LONG")
+    ((m, _),) = sent(link, 0.0, "COMMAND_LONG")
     assert (m.command, m.param1, m.param2, m.param3) == (176, 1, 4, 5)
     link.receive_datagram(ap.heartbeat(84148224, armed=True), A1, 1.0)
     assert [e.mode for e in drain(link) if isinstance(e, ModeChanged)] == ["AUTO.RTL"]
@@ -373,6 +396,7 @@ def test_ardupilot_setpoints_resent_every_second_even_if_unchanged(station):
 
 
 # ---------------------------------------------------------------------------- robustness
+
 
 @given(st.lists(st.binary(max_size=300), max_size=8))
 def test_arbitrary_bytes_never_raise_and_only_bump_counters(chunks):
@@ -407,7 +431,7 @@ def test_signing_signs_outgoing_frames(station):
     key = bytes(range(32))
     link = station(signing_key=key, static_peers=(A1,), unix_time_at_zero_s=1.7e9)
     link.handle_timer(0.0)
-    (data, _), = link.datagrams_to_send(0.0)
+    ((data, _),) = link.datagrams_to_send(0.0)
     assert data[0] == 0xFD and data[2] & mav.MAVLINK_IFLAG_SIGNED
     ap = FakeAutopilot(sysid=1, signing_key=key)
     ap.parser.signing.timestamp = int((1.7e9 - 1420070400) * 1e5)
@@ -420,8 +444,12 @@ def test_signing_signs_outgoing_frames(station):
 def test_one_refused_message_interval_does_not_force_the_fallback(station):
     ap = FakeAutopilot(sysid=1)
     link = discovered(station, ap)
-    for result in (mav.MAV_RESULT_ACCEPTED, mav.MAV_RESULT_FAILED, mav.MAV_RESULT_ACCEPTED,
-                   mav.MAV_RESULT_ACCEPTED):
-        (m, _), = sent(link, 0.0, "COMMAND_LONG")
+    for result in (
+        mav.MAV_RESULT_ACCEPTED,
+        mav.MAV_RESULT_FAILED,
+        mav.MAV_RESULT_ACCEPTED,
+        mav.MAV_RESULT_ACCEPTED,
+    ):
+        ((m, _),) = sent(link, 0.0, "COMMAND_LONG")
         link.receive_datagram(ap.ack(511, result), A1, 0.0)
     assert link.stats.data_stream_fallbacks == 0 and sent(link, 0.0) == []

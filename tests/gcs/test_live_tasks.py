@@ -18,8 +18,12 @@ ORIGIN = MissionOrigin(39.7596, -121.6219, 540.0)
 
 
 def _tracker(compid=1):
-    return FakeAutopilot(sysid=200, compid=compid, autopilot=mav.MAV_AUTOPILOT_INVALID,
-                         vehicle_type=mav.MAV_TYPE_GROUND_ROVER)
+    return FakeAutopilot(
+        sysid=200,
+        compid=compid,
+        autopilot=mav.MAV_AUTOPILOT_INVALID,
+        vehicle_type=mav.MAV_TYPE_GROUND_ROVER,
+    )
 
 
 def test_a_tracker_is_never_a_vehicle_and_is_asked_for_its_position(station):
@@ -31,7 +35,8 @@ def test_a_tracker_is_never_a_vehicle_and_is_asked_for_its_position(station):
     out = [m for m, a in sent(link, 0.0) if a == ADDR]  # (sent() drains the queue)
     cmds = [m for m in out if m.get_type() == "COMMAND_LONG"]
     assert [(c.command, c.target_system, int(c.param1)) for c in cmds] == [
-        (mav.MAV_CMD_SET_MESSAGE_INTERVAL, 200, mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT)]
+        (mav.MAV_CMD_SET_MESSAGE_INTERVAL, 200, mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT)
+    ]
     assert cmds[0].param2 == pytest.approx(1e6)  # 1 Hz
     streams = [m for m in out if m.get_type() == "REQUEST_DATA_STREAM"]
     assert len(streams) == 1 and streams[0].req_stream_id == mav.MAV_DATA_STREAM_POSITION
@@ -52,13 +57,17 @@ def test_tracker_position_becomes_a_task_event_from_any_component(station):
     [ev] = drain(link)
     assert isinstance(ev, TaskPositionReceived)
     assert (ev.sysid, ev.t_s) == (200, 1.0)
-    assert (ev.lat_deg, ev.lon_deg, ev.alt_amsl_m) == pytest.approx((39.7610, -121.6200, 545.0),
-                                                                     abs=1e-6)
+    assert (ev.lat_deg, ev.lon_deg, ev.alt_amsl_m) == pytest.approx(
+        (39.7610, -121.6200, 545.0), abs=1e-6
+    )
     # Nothing is ever commanded to it, and it never appears as a vehicle.
     link.handle_timer(10.0)
     assert link.vehicles() == []
-    assert [m for m, a in sent(link, 10.0, "COMMAND_LONG") if a == ADDR and
-            m.command != mav.MAV_CMD_SET_MESSAGE_INTERVAL] == []
+    assert [
+        m
+        for m, a in sent(link, 10.0, "COMMAND_LONG")
+        if a == ADDR and m.command != mav.MAV_CMD_SET_MESSAGE_INTERVAL
+    ] == []
 
 
 def test_a_vehicle_beside_a_tracker_is_still_discovered(station):
@@ -82,12 +91,15 @@ def test_live_tasks_fill_their_columns_in_the_mission_frame():
     out = live.fill(static)
     assert np.array_equal(out[[0, 2]], static[[0, 2]]) and np.isnan(out[[1, 3]]).all()
     assert live.waiting_for() == (200, 201)
-    assert live.apply(TaskPositionReceived(0, 201, 2.0, lat_deg=39.7610, lon_deg=-121.6200,
-                                           alt_amsl_m=545.0))
-    assert not live.apply(TaskPositionReceived(0, 202, 2.0, lat_deg=39.0, lon_deg=-121.0,
-                                               alt_amsl_m=0.0))  # not ours
-    want = geodetic_to_ned_m(39.7610, -121.6200, 545.0, ORIGIN.lat_deg, ORIGIN.lon_deg,
-                             ORIGIN.alt_amsl_m)[:2]
+    assert live.apply(
+        TaskPositionReceived(0, 201, 2.0, lat_deg=39.7610, lon_deg=-121.6200, alt_amsl_m=545.0)
+    )
+    assert not live.apply(
+        TaskPositionReceived(0, 202, 2.0, lat_deg=39.0, lon_deg=-121.0, alt_amsl_m=0.0)
+    )  # not ours
+    want = geodetic_to_ned_m(
+        39.7610, -121.6200, 545.0, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_amsl_m
+    )[:2]
     out = live.fill(static)
     assert out[3] == pytest.approx(want, abs=1e-6) and np.isnan(out[1]).all()
     assert 100 < want[0] < 200 and 100 < want[1] < 200  # about 156 m N, 163 m E

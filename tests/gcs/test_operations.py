@@ -19,14 +19,31 @@ from gcs import audit as audit_mod
 from gcs.autopilot import ARDUPILOT, PX4, adapter_for, px4_custom_mode
 from gcs.control import ControlConfig
 from gcs.events import (
-    ArmedChanged, CommandFailed, CommandTimedOut, HomePositionReceived, ModeChanged,
-    ParamReceived, ParamSetConfirmed, ParamSetFailed, ParamTimedOut, StatusText,
-    TaskPositionReceived, TelemetryReceived, VehicleDiscovered, VehicleLost, VehicleRecovered,
+    ArmedChanged,
+    CommandFailed,
+    CommandTimedOut,
+    HomePositionReceived,
+    ModeChanged,
+    ParamReceived,
+    ParamSetConfirmed,
+    ParamSetFailed,
+    ParamTimedOut,
+    StatusText,
+    TaskPositionReceived,
+    TelemetryReceived,
+    VehicleDiscovered,
+    VehicleLost,
+    VehicleRecovered,
 )
 from gcs.fleet import FleetView, MissionOrigin
 from gcs.link import LinkUsageError, UnknownVehicle
 from gcs.operations import (
-    OPERATOR_ACTIONS, PHASES, OperationsConfig, Operator, OperatorAction, TickRecord,
+    OPERATOR_ACTIONS,
+    PHASES,
+    OperationsConfig,
+    Operator,
+    OperatorAction,
+    TickRecord,
 )
 from gcs.tasks import LiveTasks
 from gcs.wire import mavlink
@@ -37,15 +54,23 @@ ORIGIN = MissionOrigin(45.0, 7.0, 100.0)
 STABILIZE, GUIDED, RTL, LAND = 0, 4, 6, 9
 OFFBOARD = px4_custom_mode(6, 0)
 PX4_POSCTL = px4_custom_mode(3, 0)
-ARM, TAKEOFF, SET_MODE = (mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_CMD_NAV_TAKEOFF,
-                          mavlink.MAV_CMD_DO_SET_MODE)
+ARM, TAKEOFF, SET_MODE = (
+    mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
+    mavlink.MAV_CMD_NAV_TAKEOFF,
+    mavlink.MAV_CMD_DO_SET_MODE,
+)
 FAILED, TEMP_REJECTED = mavlink.MAV_RESULT_FAILED, mavlink.MAV_RESULT_TEMPORARILY_REJECTED
 REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
 CONTROL = ControlConfig(cruise_alt_m=20.0, layer_spacing_m=5.0, n_layers=3)
 
 #: Safe ArduCopter lost-link parameters (gcs.audit: FS_GCS_ENABLE 1 = RTL, our GCS sysid).
-AP_SAFE = {"FS_GCS_ENABLE": 1.0, "FS_GCS_TIMEOUT": 5.0, "FS_OPTIONS": 0.0, "GUID_TIMEOUT": 3.0,
-           "SYSID_MYGCS": 255.0}
+AP_SAFE = {
+    "FS_GCS_ENABLE": 1.0,
+    "FS_GCS_TIMEOUT": 5.0,
+    "FS_OPTIONS": 0.0,
+    "GUID_TIMEOUT": 3.0,
+    "SYSID_MYGCS": 255.0,
+}
 
 
 # ------------------------------------------------------------------------------------ fakes
@@ -96,8 +121,7 @@ class FakeStation:
         return self._record("land", vid, now_s)
 
     def set_position_target(self, vid, lat_deg, lon_deg, alt_above_home_m, now_s):
-        return self._record("set_position_target", vid, lat_deg, lon_deg, alt_above_home_m,
-                            now_s)
+        return self._record("set_position_target", vid, lat_deg, lon_deg, alt_above_home_m, now_s)
 
     def clear_position_target(self, vid, now_s):
         return self._record("clear_position_target", vid, now_s)
@@ -117,8 +141,13 @@ class FakeStation:
 
     def of(self, name: str, vid=None, since_s: float = -math.inf) -> list[tuple]:
         """Calls of one kind (for one vehicle), made at or after ``since_s``."""
-        return [c for c in self.calls if c[0] == name and (vid is None or c[1] == tuple(vid))
-                and self.t_of(c) >= since_s - 1e-12]
+        return [
+            c
+            for c in self.calls
+            if c[0] == name
+            and (vid is None or c[1] == tuple(vid))
+            and self.t_of(c) >= since_s - 1e-12
+        ]
 
     def names(self, since_s: float = -math.inf) -> list[str]:
         return [c[0] for c in self.calls if self.t_of(c) >= since_s - 1e-12]
@@ -150,34 +179,61 @@ class Feed:
     def emit(self, event) -> None:
         self.op.handle_event(event)
 
-    def add(self, sysid: int, t_s: float, *, autopilot: int = ARDUPILOT, mode: int | None = None,
-            armed: bool = False, alt_m: float = 0.0, north_m: float | None = None,
-            link: int = 0) -> tuple[int, int]:
+    def add(
+        self,
+        sysid: int,
+        t_s: float,
+        *,
+        autopilot: int = ARDUPILOT,
+        mode: int | None = None,
+        armed: bool = False,
+        alt_m: float = 0.0,
+        north_m: float | None = None,
+        link: int = 0,
+    ) -> tuple[int, int]:
         vid = (link, sysid)
         if mode is None:
             mode = STABILIZE if autopilot == ARDUPILOT else PX4_POSCTL
-        self.v[vid] = {"autopilot": autopilot, "mode": mode, "armed": armed, "alt_m": alt_m,
-                       "north_m": 10.0 * len(self.v) if north_m is None else north_m,
-                       "east_m": 0.0}
-        self.emit(VehicleDiscovered(link, sysid, t_s, autopilot, 2, mode,
-                                    adapter_for(autopilot).mode_name(mode), armed))
+        self.v[vid] = {
+            "autopilot": autopilot,
+            "mode": mode,
+            "armed": armed,
+            "alt_m": alt_m,
+            "north_m": 10.0 * len(self.v) if north_m is None else north_m,
+            "east_m": 0.0,
+        }
+        self.emit(
+            VehicleDiscovered(
+                link, sysid, t_s, autopilot, 2, mode, adapter_for(autopilot).mode_name(mode), armed
+            )
+        )
         self.telemetry(vid, t_s)
         return vid
 
     def telemetry(self, vid, t_s: float) -> None:
         s = self.v[vid]
-        lat, lon, alt = ned_to_geodetic(np.array([[s["north_m"], s["east_m"], -s["alt_m"]]]),
-                                        ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_amsl_m)
-        self.emit(TelemetryReceived(vid[0], vid[1], t_s, float(lat[0]), float(lon[0]),
-                                    float(alt[0]), s["alt_m"]))
+        lat, lon, alt = ned_to_geodetic(
+            np.array([[s["north_m"], s["east_m"], -s["alt_m"]]]),
+            ORIGIN.lat_deg,
+            ORIGIN.lon_deg,
+            ORIGIN.alt_amsl_m,
+        )
+        self.emit(
+            TelemetryReceived(
+                vid[0], vid[1], t_s, float(lat[0]), float(lon[0]), float(alt[0]), s["alt_m"]
+            )
+        )
 
     def mode(self, vid, t_s: float, custom_mode: int) -> None:
         s = self.v[vid]
         old = s["mode"]
         s["mode"] = custom_mode
         ad = adapter_for(s["autopilot"])
-        self.emit(ModeChanged(vid[0], vid[1], t_s, custom_mode, ad.mode_name(custom_mode),
-                              ad.mode_name(old)))
+        self.emit(
+            ModeChanged(
+                vid[0], vid[1], t_s, custom_mode, ad.mode_name(custom_mode), ad.mode_name(old)
+            )
+        )
 
     def armed(self, vid, t_s: float, armed: bool) -> None:
         self.v[vid]["armed"] = armed
@@ -218,16 +274,30 @@ class Feed:
         return t - dt_s
 
 
-def make(n: int = 0, *, t_s: float = 0.0, autopilot: int = ARDUPILOT, live_tasks=None,
-         tasks=((1000.0, 0.0),), **cfg) -> tuple[Operator, FakeStation, Feed, list]:
+def make(
+    n: int = 0,
+    *,
+    t_s: float = 0.0,
+    autopilot: int = ARDUPILOT,
+    live_tasks=None,
+    tasks=((1000.0, 0.0),),
+    **cfg,
+) -> tuple[Operator, FakeStation, Feed, list]:
     """An operator (discover phase) and ``n`` vehicles discovered at ``t_s``."""
     cfg.setdefault("audit", False)
     if n:
         cfg.setdefault("expected_vehicles", n)
     station = FakeStation()
-    op = Operator(station, FleetView(ORIGIN, timeout_s=5.0), FakePlanner(),
-                  lambda t: np.array(tasks, dtype=float), CONTROL, OperationsConfig(**cfg),
-                  now_s=0.0, live_tasks=live_tasks)
+    op = Operator(
+        station,
+        FleetView(ORIGIN, timeout_s=5.0),
+        FakePlanner(),
+        lambda t: np.array(tasks, dtype=float),
+        CONTROL,
+        OperationsConfig(**cfg),
+        now_s=0.0,
+        live_tasks=live_tasks,
+    )
     feed = Feed(op)
     vids = [feed.add(k + 1, t_s, autopilot=autopilot) for k in range(n)]
     return op, station, feed, vids
@@ -245,8 +315,9 @@ def to_run(n: int = 2, **cfg):
     return op, station, feed, vids
 
 
-def answer_audit(feed: Feed, station: FakeStation, t_s: float, values=None, vid=None,
-                 ptype: int = REAL32) -> None:
+def answer_audit(
+    feed: Feed, station: FakeStation, t_s: float, values=None, vid=None, ptype: int = REAL32
+) -> None:
     """Answer every parameter read requested so far with ``values`` (names absent: no answer)."""
     values = AP_SAFE if values is None else values
     for c in list(station.of("request_param", vid)):
@@ -329,8 +400,9 @@ def test_no_audit_goes_straight_to_launch_and_reads_nothing():
 
 def test_a_live_task_never_heard_refuses_after_the_task_wait():
     tasks = LiveTasks(ORIGIN, {0: 50})
-    op, station, feed, _ = make(2, live_tasks=tasks, discover_timeout_s=10.0,
-                                task_wait_timeout_s=20.0)
+    op, station, feed, _ = make(
+        2, live_tasks=tasks, discover_timeout_s=10.0, task_wait_timeout_s=20.0
+    )
     t = feed.run(0.0, 60.0, 0.5, until=lambda op: op.phase != "discover")
     assert op.phase == "refused" and op.finished and t == pytest.approx(30.0)
     assert "50" in op.refusal
@@ -412,8 +484,12 @@ def test_audit_override_launches_unsafe_vehicles():
 def test_audit_rounds_ask_again_for_what_timed_out():
     op, station, feed, (v,) = make(1, audit=True, audit_rounds=3)
     feed.poll(0.0)
-    answer_audit(feed, station, 0.5, {k: x for k, x in AP_SAFE.items()
-                                      if k not in ("FS_GCS_ENABLE", "FS_OPTIONS")})
+    answer_audit(
+        feed,
+        station,
+        0.5,
+        {k: x for k, x in AP_SAFE.items() if k not in ("FS_GCS_ENABLE", "FS_OPTIONS")},
+    )
     feed.emit(ParamTimedOut(0, 1, 1.0, "FS_GCS_ENABLE", 3))
     feed.emit(ParamTimedOut(0, 1, 1.0, "FS_OPTIONS", 3))
     feed.poll(1.0)
@@ -451,14 +527,20 @@ def test_audit_timeout_audits_what_was_read():
 def test_apply_failsafes_writes_confirms_by_echo_and_reaudits():
     op, station, feed, (v,) = make(1, audit=True, apply_failsafes=True)
     feed.poll(0.0)
-    answer_audit(feed, station, 0.5, {**AP_SAFE, "FS_GCS_ENABLE": 0.0, "SYSID_MYGCS": 254.0},
-                 ptype=mavlink.MAV_PARAM_TYPE_INT8)
+    answer_audit(
+        feed,
+        station,
+        0.5,
+        {**AP_SAFE, "FS_GCS_ENABLE": 0.0, "SYSID_MYGCS": 254.0},
+        ptype=mavlink.MAV_PARAM_TYPE_INT8,
+    )
     feed.poll(0.75)
     assert op.phase == "audit"
     sets = station.of("set_param", v)
     assert [(c[2], c[3], c[4], c[6]) for c in sets] == [
         ("FS_GCS_ENABLE", 1.0, mavlink.MAV_PARAM_TYPE_INT8, 0.0),
-        ("SYSID_MYGCS", 255.0, mavlink.MAV_PARAM_TYPE_INT8, 254.0)]
+        ("SYSID_MYGCS", 255.0, mavlink.MAV_PARAM_TYPE_INT8, 254.0),
+    ]
     assert [c["ok"] for c in op.param_changes] == [None, None]
     assert [c["purpose"] for c in op.param_changes] == ["failsafe", "failsafe"]
     assert not op.initial_audit_report.cleared_to_fly
@@ -473,7 +555,9 @@ def test_apply_failsafes_writes_confirms_by_echo_and_reaudits():
     feed.poll(3.5)
     assert op.phase == "launch" and op.audit_report.cleared_to_fly
     assert [(c["name"], c["previous"], c["value"], c["ok"]) for c in op.param_changes] == [
-        ("FS_GCS_ENABLE", 0.0, 1.0, True), ("SYSID_MYGCS", 254.0, 255.0, True)]
+        ("FS_GCS_ENABLE", 0.0, 1.0, True),
+        ("SYSID_MYGCS", 254.0, 255.0, True),
+    ]
     assert len(station.of("set_param")) == 2  # no second write
 
 
@@ -509,7 +593,9 @@ def test_the_missions_limits_are_read_written_and_confirmed_before_launch():
     feed.poll(0.75)
     assert op.phase == "audit"
     assert [(c[2], c[3], c[6]) for c in station.of("set_param", v)] == [
-        ("WPNAV_SPEED", 1000.0, 500.0), ("WPNAV_SPEED_UP", 500.0, 250.0)]
+        ("WPNAV_SPEED", 1000.0, 500.0),
+        ("WPNAV_SPEED_UP", 500.0, 250.0),
+    ]
     assert {c["purpose"] for c in op.param_changes} == {"limit"}
     feed.emit(ParamSetConfirmed(0, 1, 1.0, "WPNAV_SPEED", 1000.0, 500.0, REAL32))
     feed.poll(1.0)
@@ -523,8 +609,9 @@ def test_the_missions_limits_are_read_written_and_confirmed_before_launch():
 def test_limits_already_right_write_nothing_and_unreadable_ones_warn():
     op, station, feed, vids = make(2, audit=True, max_speed_m_s=10.0)
     feed.poll(0.0)
-    answer_audit(feed, station, 0.5, {**AP_SAFE, "WPNAV_SPEED": 1000.0, "WPNAV_SPEED_UP": 250.0},
-                 vid=vids[0])
+    answer_audit(
+        feed, station, 0.5, {**AP_SAFE, "WPNAV_SPEED": 1000.0, "WPNAV_SPEED_UP": 250.0}, vid=vids[0]
+    )
     answer_audit(feed, station, 0.5, AP_SAFE, vid=vids[1])
     # Unreadable limits are asked again in each audit round (a vehicle booting, a lost read),
     # then reported.
@@ -577,8 +664,9 @@ def test_px4_without_a_position_is_not_sent_a_takeoff():
 
 
 def test_no_second_takeoff_while_climbing():
-    op, station, feed, (v,) = make(1, wave_timeout_s=1000.0, takeoff_grace_s=6.0,
-                                   action_retry_s=3.0)
+    op, station, feed, (v,) = make(
+        1, wave_timeout_s=1000.0, takeoff_grace_s=6.0, action_retry_s=3.0
+    )
     feed.poll(0.0)
     feed.mode(v, 0.5, GUIDED)
     feed.armed(v, 0.5, True)
@@ -605,8 +693,9 @@ def test_a_takeoff_stopped_short_is_climbed_by_a_position_target_not_a_second_ta
     # ArduCopter refuses NAV_TAKEOFF off the ground (Mode::do_user_takeoff); a vehicle hovering
     # at 1.4 m after an interrupted take-off must be climbed by a target, alternating with a
     # take-off in case its altitude reads high on the ground.
-    op, station, feed, (v,) = make(1, wave_timeout_s=1000.0, takeoff_grace_s=6.0,
-                                   action_retry_s=3.0)
+    op, station, feed, (v,) = make(
+        1, wave_timeout_s=1000.0, takeoff_grace_s=6.0, action_retry_s=3.0
+    )
     feed.poll(0.0)
     assert station.names(0.0) == ["engage_guided", "arm", "takeoff"]
     feed.mode(v, 0.5, GUIDED)
@@ -670,8 +759,9 @@ def test_a_wave_times_out():
 
 
 def test_the_run_starts_when_most_of_the_fleet_has_climbed():
-    op, station, feed, vids = make(2, wave_climbed_frac=0.8, climbed_alt_frac=0.7,
-                                   wave_timeout_s=1000.0)
+    op, station, feed, vids = make(
+        2, wave_climbed_frac=0.8, climbed_alt_frac=0.7, wave_timeout_s=1000.0
+    )
     feed.poll(0.0)
     for v in vids:
         feed.fly(v, 1.0, alt_m=15.0)  # row 0 needs 14 m, row 1 needs 17.5 m
@@ -694,19 +784,33 @@ def test_the_final_climb_times_out_into_the_run():
 
 
 def test_command_failures_back_off_exponentially():
-    op, station, feed, (v,) = make(1, wave_timeout_s=1000.0, action_retry_s=3.0,
-                                   max_backoff_s=24.0, takeoff_grace_s=6.0)
+    op, station, feed, (v,) = make(
+        1, wave_timeout_s=1000.0, action_retry_s=3.0, max_backoff_s=24.0, takeoff_grace_s=6.0
+    )
     t_fail, attempts = 0.0, [0.0]
     feed.poll(0.0)
     for _ in range(6):
         t_fail = attempts[-1] + 0.5
         # The whole attempt fails (GUIDED, arm, take-off): counted once.
         for cmd in (SET_MODE, ARM, TAKEOFF):
-            feed.emit(CommandTimedOut(0, 1, t_fail, cmd, 0, 3) if cmd == SET_MODE else
-                      CommandFailed(0, 1, t_fail, cmd, 0, mavlink.MAV_RESULT_DENIED
-                                    if cmd == TAKEOFF else mavlink.MAV_RESULT_UNSUPPORTED))
-        t = feed.run(t_fail, t_fail + 100.0, 0.25,
-                     until=lambda op: bool(station.of("takeoff", since_s=t_fail)))  # noqa: B023
+            feed.emit(
+                CommandTimedOut(0, 1, t_fail, cmd, 0, 3)
+                if cmd == SET_MODE
+                else CommandFailed(
+                    0,
+                    1,
+                    t_fail,
+                    cmd,
+                    0,
+                    mavlink.MAV_RESULT_DENIED if cmd == TAKEOFF else mavlink.MAV_RESULT_UNSUPPORTED,
+                )
+            )
+        t = feed.run(
+            t_fail,
+            t_fail + 100.0,
+            0.25,
+            until=lambda op, t_fail=t_fail: bool(station.of("takeoff", since_s=t_fail)),
+        )
         attempts.append(t)
     gaps = [b - a for a, b in zip(attempts, attempts[1:])]
     # First retry after the 3 s minimum (the failure came 0.5 s in: 0.5 + 3), then doubling,
@@ -722,7 +826,7 @@ def test_success_resets_the_back_off():
     feed.run(0.5, 3.5, until=lambda op: bool(station.of("takeoff", since_s=0.5)))
     feed.emit(CommandFailed(0, 1, 4.0, TAKEOFF, 0, mavlink.MAV_RESULT_DENIED))  # backoff 6
     feed.fly(v, 5.0, alt_m=10.0)
-    feed.poll(5.0)   # guided and airborne: failures forgotten
+    feed.poll(5.0)  # guided and airborne: failures forgotten
     feed.mode(v, 5.5, STABILIZE)
     feed.alt(v, 5.5, 10.0)
     t = feed.run(5.5, 30.0, until=lambda op: bool(station.of("engage_guided", since_s=5.5)))
@@ -733,8 +837,9 @@ def test_success_resets_the_back_off():
 
 
 def test_prearm_refusals_are_retried_at_a_steady_pace_and_the_launch_waits():
-    op, station, feed, (v,) = make(1, wave_timeout_s=10.0, launch_timeout_s=60.0,
-                                   prearm_retry_s=5.0, action_retry_s=3.0)
+    op, station, feed, (v,) = make(
+        1, wave_timeout_s=10.0, launch_timeout_s=60.0, prearm_retry_s=5.0, action_retry_s=3.0
+    )
     arms: list[float] = []
 
     def refuse(op):
@@ -775,8 +880,9 @@ def test_not_ready_lists_recent_refusals_and_px4_temporarily_rejected_counts():
 
 
 def test_a_takeoff_failure_then_an_arm_refusal_is_not_a_failure():
-    op, station, feed, (v,) = make(1, wave_timeout_s=1000.0, takeoff_grace_s=1.0,
-                                   prearm_retry_s=5.0)
+    op, station, feed, (v,) = make(
+        1, wave_timeout_s=1000.0, takeoff_grace_s=1.0, prearm_retry_s=5.0
+    )
     feed.poll(0.0)
     feed.emit(CommandFailed(0, 1, 0.5, TAKEOFF, 0, FAILED))
     feed.emit(CommandFailed(0, 1, 0.6, ARM, 0, FAILED))
@@ -809,10 +915,18 @@ def test_a_command_failure_for_an_unknown_vehicle_is_only_counted():
 
 
 def test_run_ticks_every_control_period_with_one_target_each():
-    op, station, feed, vids = to_run(2, control_period_s=1.0, radio_range_m=50.0,
-                                     tasks=((5.0, 0.0), (1000.0, 0.0)))
+    op, station, feed, vids = to_run(
+        2, control_period_s=1.0, radio_range_m=50.0, tasks=((5.0, 0.0), (1000.0, 0.0))
+    )
     rec = op.records[-1]
-    assert (rec.t_s, rec.t_step, rec.fleet, rec.planned, rec.guided, rec.lost) == (1.0, 0, 2, 2, 2, 0)
+    assert (rec.t_s, rec.t_step, rec.fleet, rec.planned, rec.guided, rec.lost) == (
+        1.0,
+        0,
+        2,
+        2,
+        2,
+        0,
+    )
     assert (rec.n_tasks, rec.tasks_covered, rec.plan_iterations) == (2, 1, 7)
     targets = station.of("set_position_target", since_s=1.0)
     assert [c[1] for c in targets] == vids
@@ -841,8 +955,12 @@ def test_run_lasts_duration_then_ends_with_rtl():
     assert op.phase == "run"
     feed.poll(6.0)
     assert op.phase == "end" and op.end_t0_s == 6.0
-    assert [c[0] for c in station.calls if c[-1] == 6.0 and c[0] != "set_position_target"] == \
-        ["clear_position_target", "rtl", "clear_position_target", "rtl"]
+    assert [c[0] for c in station.calls if c[-1] == 6.0 and c[0] != "set_position_target"] == [
+        "clear_position_target",
+        "rtl",
+        "clear_position_target",
+        "rtl",
+    ]
     assert op.records[-1].t_step == 5
 
 
@@ -862,8 +980,11 @@ def test_reclaim_in_flight_is_counted_when_seen_back_in_guided():
     feed.run(2.0, 2.75)
     assert not station.of("engage_guided", v, since_s=2.0)  # the launch's attempt: 3 s minimum
     feed.poll(3.0)
-    assert [c[0] for c in station.calls if c[1] == v and c[-1] == 3.0] == \
-        ["set_position_target", "set_position_target", "engage_guided"]  # tick, hold, GUIDED
+    assert [c[0] for c in station.calls if c[1] == v and c[-1] == 3.0] == [
+        "set_position_target",
+        "set_position_target",
+        "engage_guided",
+    ]  # tick, hold, GUIDED
     hold = station.of("set_position_target", v, since_s=3.0)[-1]
     assert hold[4] == pytest.approx(20.0, abs=0.01)
     assert op.counters["reclaim_attempts"] == 1 and op.reclaimed == []
@@ -885,8 +1006,11 @@ def test_a_restarted_station_reclaims_vehicles_found_flying():
     feed.poll(0.0)
     # Both are up: the launch is over at once, and the run's first tick targets both.
     assert op.phase == "run" and op.mission_t0_s == 0.0
-    assert [c[0] for c in station.calls if c[1] == v] == \
-        ["set_position_target", "engage_guided", "set_position_target"]  # hold, GUIDED, tick
+    assert [c[0] for c in station.calls if c[1] == v] == [
+        "set_position_target",
+        "engage_guided",
+        "set_position_target",
+    ]  # hold, GUIDED, tick
     assert [c[0] for c in station.calls if c[1] == w] == ["set_position_target"]  # the tick
     assert not station.of("arm") and not station.of("takeoff")
     assert op.counters["reclaim_attempts"] == 1 and op.reclaimed == []
@@ -904,8 +1028,11 @@ def test_a_landed_vehicle_is_launched_again():
     feed.run(3.0, 5.75)
     assert not station.of("takeoff", v, since_s=1.0)  # the launch's take-off grace (6 s)
     feed.poll(6.0)
-    assert [c[0] for c in station.calls if c[1] == v and c[-1] == 6.0] == \
-        ["engage_guided", "arm", "takeoff"]
+    assert [c[0] for c in station.calls if c[1] == v and c[-1] == 6.0] == [
+        "engage_guided",
+        "arm",
+        "takeoff",
+    ]
     assert op.counters["relaunches"] == 1 and op.counters["reclaim_attempts"] == 0
     feed.run(6.25, 11.75)
     assert len(station.of("takeoff", v)) == 2
@@ -1000,8 +1127,9 @@ def test_begin_end_is_ignored_once_ending_or_finished():
 
 
 def test_restore_params_after_landing():
-    op, station, feed, (v,) = make(1, audit=True, max_speed_m_s=10.0, climb_rate_m_s=5.0,
-                                   restore_params=True, duration_s=2.0)
+    op, station, feed, (v,) = make(
+        1, audit=True, max_speed_m_s=10.0, climb_rate_m_s=5.0, restore_params=True, duration_s=2.0
+    )
     feed.poll(0.0)
     answer_audit(feed, station, 0.5, {**AP_SAFE, "WPNAV_SPEED": 500.0, "WPNAV_SPEED_UP": 500.0})
     feed.poll(0.75)
@@ -1031,8 +1159,9 @@ def test_restore_params_after_landing():
 
 
 def test_restore_gives_up_after_ten_seconds():
-    op, station, feed, (v,) = make(1, audit=True, max_speed_m_s=10.0, restore_params=True,
-                                   duration_s=2.0)
+    op, station, feed, (v,) = make(
+        1, audit=True, max_speed_m_s=10.0, restore_params=True, duration_s=2.0
+    )
     feed.poll(0.0)
     answer_audit(feed, station, 0.5, {**AP_SAFE, "WPNAV_SPEED": 500.0, "WPNAV_SPEED_UP": 100.0})
     feed.poll(0.75)
@@ -1055,7 +1184,9 @@ def test_status_texts_failsafes_and_prearm():
     feed.emit(StatusText(0, 1, 1.2, 6, "  Arming denied: not ready  "))
     feed.emit(StatusText(0, 1, 1.3, 6, "Flight mode change"))
     assert [(t, vid, s) for t, vid, s in op.failsafe_texts] == [
-        (1.0, v, "GCS Failsafe"), (1.1, v, "Failsafe activated: Return")]
+        (1.0, v, "GCS Failsafe"),
+        (1.1, v, "Failsafe activated: Return"),
+    ]
     assert op.prearm[v] == (1.2, "Arming denied: not ready")
 
 
@@ -1070,8 +1201,9 @@ def test_home_position_moves_the_altitude_above_home():
     feed.poll(3.0)  # grace over, action_retry_s since the last attempt: sent again
     assert len(station.of("takeoff")) == 2
     # HOME_POSITION says home is 5 m lower: 5.5 m above it, airborne.
-    feed.emit(HomePositionReceived(0, 1, 3.1, ORIGIN.lat_deg, ORIGIN.lon_deg,
-                                   ORIGIN.alt_amsl_m - 5.0))
+    feed.emit(
+        HomePositionReceived(0, 1, 3.1, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_amsl_m - 5.0)
+    )
     feed.run(3.25, 12.0)
     assert len(station.of("takeoff")) == 2
 
@@ -1092,8 +1224,13 @@ def test_operator_actions_hold_rtl_land_release_rejoin():
     seen: list[OperatorAction] = []
     op.on_action = seen.append
     (a,) = op.operator_command("hold", v, 1.5, source="web 127.0.0.1")
-    assert (a.action, a.link_id, a.sysid, a.source, a.result) == \
-        ("hold", 0, 1, "web 127.0.0.1", "sent")
+    assert (a.action, a.link_id, a.sysid, a.source, a.result) == (
+        "hold",
+        0,
+        1,
+        "web 127.0.0.1",
+        "sent",
+    )
     hold = station.calls[-1]
     assert hold[0] == "set_position_target" and hold[1] == v
     assert hold[4] == pytest.approx(20.0, abs=0.01)
@@ -1110,8 +1247,14 @@ def test_operator_actions_hold_rtl_land_release_rejoin():
     assert e.result == "was not released"
     (f,) = op.operator_command("release", v, 2.0)
     assert f.result == "released" and op.released[v] == "release"
-    assert seen == op.actions and [x.action for x in seen] == \
-        ["hold", "rtl", "land", "rejoin", "rejoin", "release"]
+    assert seen == op.actions and [x.action for x in seen] == [
+        "hold",
+        "rtl",
+        "land",
+        "rejoin",
+        "rejoin",
+        "release",
+    ]
     with pytest.raises(ValueError):
         op.operator_command("fly away", v, 2.0)
     with pytest.raises(UnknownVehicle):
@@ -1160,8 +1303,7 @@ def test_an_operator_rtl_vehicle_is_left_alone_at_the_end():
 
 @pytest.mark.parametrize("phase", ["discover", "audit", "refused"])
 def test_interrupt_end_before_launch_is_done(phase):
-    op, station, feed, (v,) = make(1, audit=True, expected_vehicles=1 if phase != "discover"
-                                   else 2)
+    op, station, feed, (v,) = make(1, audit=True, expected_vehicles=1 if phase != "discover" else 2)
     feed.poll(0.0)
     if phase == "refused":
         answer_audit(feed, station, 0.5, {**AP_SAFE, "FS_GCS_ENABLE": 0.0})
@@ -1187,8 +1329,10 @@ def test_interrupt_tells_every_vehicle_and_reports(action):
     feed.run(1.25, 7.0)
     op.interrupt(action, 7.1)
     assert op.phase == "done" and op.interrupted == action
-    assert [(a.sysid, a.action, a.source) for a in op.actions] == \
-        [(1, action, "interrupt"), (2, action, "interrupt")]
+    assert [(a.sysid, a.action, a.source) for a in op.actions] == [
+        (1, action, "interrupt"),
+        (2, action, "interrupt"),
+    ]
     if action in ("rtl", "land"):
         assert len(station.of(action, since_s=7.1)) == 2
     else:
@@ -1204,8 +1348,11 @@ def test_interrupt_tells_every_vehicle_and_reports(action):
     assert rep[0][2] is True and rep[1][2] is False and rep[2][2] is False
     assert "not heard" in rep[2][1]
     feed.armed(v, 8.0, False)
-    assert op.interrupt_report(8.0)[0] == (v, f"on the ground ({op.fleet.snapshot(8).mode[0]})",
-                                           True)
+    assert op.interrupt_report(8.0)[0] == (
+        v,
+        f"on the ground ({op.fleet.snapshot(8).mode[0]})",
+        True,
+    )
 
 
 def test_interrupt_report_end_uses_the_missions_end_action():
@@ -1306,15 +1453,23 @@ def test_optional_parameters_a_firmware_lacks_do_not_hold_the_audit():
     # retries (a restarted station reclaimed its PX4 vehicles ~10 s late).
     from gcs.operations.audit import OPTIONAL_GRACE_S
 
-    safe = {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 3.0, "NAV_RCL_ACT": 2.0, "NAV_DLL_ACT": 2.0,
-            "COM_DL_LOSS_T": 10.0, "COM_RC_IN_MODE": 4.0, "COM_RCL_EXCEPT": 0.0,
-            "COM_DLL_EXCEPT": 0.0, "COM_FAIL_ACT_T": 0.0}
+    safe = {
+        "COM_OF_LOSS_T": 1.0,
+        "COM_OBL_RC_ACT": 3.0,
+        "NAV_RCL_ACT": 2.0,
+        "NAV_DLL_ACT": 2.0,
+        "COM_DL_LOSS_T": 10.0,
+        "COM_RC_IN_MODE": 4.0,
+        "COM_RCL_EXCEPT": 0.0,
+        "COM_DLL_EXCEPT": 0.0,
+        "COM_FAIL_ACT_T": 0.0,
+    }
     op, station, feed, (v,) = make(1, audit=True, autopilot=PX4)
     feed.poll(0.0)
     assert ("request_param", v, "COM_OBL_ACT") in [c[:3] for c in station.calls]
     answer_audit(feed, station, 0.5, safe)
     feed.poll(0.5 + OPTIONAL_GRACE_S / 2)
-    assert op.phase == "audit"                       # a late optional answer is still welcome
+    assert op.phase == "audit"  # a late optional answer is still welcome
     feed.poll(0.5 + OPTIONAL_GRACE_S + 0.1)
     assert op.phase == "launch"
     assert ("cancel_param", v, "COM_OBL_ACT") in [c[:3] for c in station.calls]

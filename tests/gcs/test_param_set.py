@@ -95,8 +95,9 @@ def test_param_error_fails_at_once(station):
     link, ap = _link(station)
     link.set_param(1, "FS_GCS_ENABLE", 1, INT8, 0.0)
     assert len(sent(link, 0.0, "PARAM_SET")) == 1
-    err = mav.MAVLink_param_error_message(255, 190, b"FS_GCS_ENABLE", -1,
-                                          mav.MAV_PARAM_ERROR_PERMISSION_DENIED)
+    err = mav.MAVLink_param_error_message(
+        255, 190, b"FS_GCS_ENABLE", -1, mav.MAV_PARAM_ERROR_PERMISSION_DENIED
+    )
     link.receive_datagram(ap._pack(err), A1, 0.1)
     (fail,) = drain(link)
     assert isinstance(fail, ParamSetFailed) and fail.reason == "MAV_PARAM_ERROR_PERMISSION_DENIED"
@@ -106,7 +107,7 @@ def test_param_error_fails_at_once(station):
 def test_set_param_validates_locally(station):
     link, _ = _link(station)
     with pytest.raises(ValueError):
-        link.set_param(1, "FS_GCS_ENABLE", 300, INT8, 0.0)   # does not fit INT8
+        link.set_param(1, "FS_GCS_ENABLE", 300, INT8, 0.0)  # does not fit INT8
     with pytest.raises(ValueError):
         link.set_param(1, "X" * 17, 1, INT8, 0.0)
     with pytest.raises(KeyError):
@@ -135,12 +136,18 @@ AP, PX4 = audit.ARDUPILOT, audit.PX4
 
 def test_failsafe_fixes_ardupilot():
     assert audit.failsafe_fixes(AP, {"FS_GCS_ENABLE": 0, "SYSID_MYGCS": 255}) == (
-        ("FS_GCS_ENABLE", 1.0),)
+        ("FS_GCS_ENABLE", 1.0),
+    )
     assert audit.failsafe_fixes(AP, {"FS_GCS_ENABLE": 3, "MAV_GCS_SYSID": 250}, 254) == (
-        ("MAV_GCS_SYSID", 254.0),)
+        ("MAV_GCS_SYSID", 254.0),
+    )
     # A range that already includes us, and a safe vehicle: nothing to write.
-    assert audit.failsafe_fixes(AP, {"FS_GCS_ENABLE": 1, "MAV_GCS_SYSID": 250,
-                                     "MAV_GCS_SYSID_HI": 255}) == ()
+    assert (
+        audit.failsafe_fixes(
+            AP, {"FS_GCS_ENABLE": 1, "MAV_GCS_SYSID": 250, "MAV_GCS_SYSID_HI": 255}
+        )
+        == ()
+    )
     # Unread parameters are never written (the vehicle may not have them).
     assert audit.failsafe_fixes(AP, {}) == ()
 
@@ -149,20 +156,23 @@ def test_failsafe_fixes_px4():
     for bad in (0, 1, 3, 5, 6, 7):
         assert audit.failsafe_fixes(PX4, {"NAV_DLL_ACT": bad}) == (("NAV_DLL_ACT", 2.0),)
     assert audit.failsafe_fixes(PX4, {"NAV_DLL_ACT": 3, "COM_OBL_RC_ACT": 6}) == (
-        ("NAV_DLL_ACT", 2.0), ("COM_OBL_RC_ACT", 3.0))
+        ("NAV_DLL_ACT", 2.0),
+        ("COM_OBL_RC_ACT", 3.0),
+    )
     # Offboard loss falling back to NAV_RCL_ACT (no RC): Return written there.
-    assert audit.failsafe_fixes(PX4, {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 0,
-                                      "NAV_RCL_ACT": 6}) == (("NAV_RCL_ACT", 2.0),)
+    assert audit.failsafe_fixes(PX4, {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 6}) == (
+        ("NAV_RCL_ACT", 2.0),
+    )
 
 
 def test_fixed_params_pass_the_audit():
-    for ap, params in ((AP, {"FS_GCS_ENABLE": 0, "SYSID_MYGCS": 7}),
-                       (AP, {"FS_GCS_ENABLE": 7, "MAV_GCS_SYSID": 7, "FS_OPTIONS": 18}),
-                       (PX4, {"NAV_DLL_ACT": 0, "COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 3}),
-                       (PX4, {"NAV_DLL_ACT": 6, "COM_OBL_RC_ACT": 7, "NAV_RCL_ACT": 0,
-                              "COM_DLL_EXCEPT": 6}),
-                       (PX4, {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 2,
-                              "COM_OBL_ACT": 0})):
+    for ap, params in (
+        (AP, {"FS_GCS_ENABLE": 0, "SYSID_MYGCS": 7}),
+        (AP, {"FS_GCS_ENABLE": 7, "MAV_GCS_SYSID": 7, "FS_OPTIONS": 18}),
+        (PX4, {"NAV_DLL_ACT": 0, "COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 3}),
+        (PX4, {"NAV_DLL_ACT": 6, "COM_OBL_RC_ACT": 7, "NAV_RCL_ACT": 0, "COM_DLL_EXCEPT": 6}),
+        (PX4, {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 2, "COM_OBL_ACT": 0}),
+    ):
         assert not audit.audit_vehicle(0, 1, ap, params).safe
         fixed = dict(params, **dict(audit.failsafe_fixes(ap, params)))
         assert audit.audit_vehicle(0, 1, ap, fixed).safe
@@ -171,8 +181,9 @@ def test_fixed_params_pass_the_audit():
 def test_heartbeat_with_our_sysid_is_never_a_vehicle_and_warns_once(station, caplog):
     # MAVProxy's own heartbeat (sysid 255, compid 230, MAV_TYPE_GCS), as sim_vehicle.py runs it.
     link = station()
-    mavproxy = FakeAutopilot(sysid=255, compid=230, vehicle_type=mav.MAV_TYPE_GCS,
-                             autopilot=mav.MAV_AUTOPILOT_INVALID)
+    mavproxy = FakeAutopilot(
+        sysid=255, compid=230, vehicle_type=mav.MAV_TYPE_GCS, autopilot=mav.MAV_AUTOPILOT_INVALID
+    )
     with caplog.at_level("WARNING", logger="gcs.link"):
         for t in (0.0, 1.0, 2.0):
             link.receive_datagram(mavproxy.heartbeat(), A1, t)

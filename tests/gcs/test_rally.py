@@ -8,9 +8,18 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from gcs.autopilot import ARDUPILOT, PX4
-from gcs.rally import (MISSION_PROTOCOL_MESSAGES, RallyConfig, RallyKeeper, RallyPoint, RallyUpload,
-                       UploadState, mission_event, planner_rally_points_m, rally_param_writes,
-                       set_moved)
+from gcs.rally import (
+    MISSION_PROTOCOL_MESSAGES,
+    RallyConfig,
+    RallyKeeper,
+    RallyPoint,
+    RallyUpload,
+    UploadState,
+    mission_event,
+    planner_rally_points_m,
+    rally_param_writes,
+    set_moved,
+)
 from vehicle_emu.link import VehicleCore
 
 
@@ -36,10 +45,14 @@ class FakeGcs:
             out += [m for m in (self.rx.parse_buffer(data) or []) if m.get_type() != "BAD_DATA"]
         return out
 
+
 T_RALLY = mavlink.MAV_MISSION_TYPE_RALLY
 ORIGIN = (39.7596, -121.6219, 540.0)
-POINTS = (RallyPoint(397605000, -1216210000, 40.0), RallyPoint(397590000, -1216230000, 40.0),
-          RallyPoint(397600000, -1216200000, 45.0))
+POINTS = (
+    RallyPoint(397605000, -1216210000, 40.0),
+    RallyPoint(397590000, -1216230000, 40.0),
+    RallyPoint(397600000, -1216200000, 45.0),
+)
 
 
 class Vehicles:
@@ -53,7 +66,7 @@ class Vehicles:
         self.cores = {s: VehicleCore(s, personality, origin_lla=ORIGIN) for s in range(1, n + 1)}
         self.gcs = FakeGcs()
         self.t = 0.0
-        self.seen: list[tuple[float, int, str, int]] = []   # (t, sysid, kind, seq or result)
+        self.seen: list[tuple[float, int, str, int]] = []  # (t, sysid, kind, seq or result)
         self.sent: list[tuple[float, int, str, int]] = []
         self.drop_up = lambda m: False
         self.drop_down = lambda m: False
@@ -69,8 +82,14 @@ class Vehicles:
         for sysid, core in self.cores.items():
             for m in self.gcs.decode(core.datagrams_to_send(self.t)):
                 if m.get_type() in MISSION_PROTOCOL_MESSAGES and not self.drop_down(m):
-                    self.seen.append((self.t, sysid, m.get_type(),
-                                      m.type if m.get_type() == "MISSION_ACK" else m.seq))
+                    self.seen.append(
+                        (
+                            self.t,
+                            sysid,
+                            m.get_type(),
+                            m.type if m.get_type() == "MISSION_ACK" else m.seq,
+                        )
+                    )
                     out.append(mission_event(0, sysid, m, self.t))
         return out
 
@@ -96,16 +115,18 @@ def run_upload(v: Vehicles, up: RallyUpload, until_s: float = 20.0) -> None:
         up.handle_timer(v.t)
 
 
-@pytest.mark.parametrize("personality, request_kind", [("ardupilot", "MISSION_REQUEST"),
-                                                       ("px4", "MISSION_REQUEST_INT")])
+@pytest.mark.parametrize(
+    "personality, request_kind", [("ardupilot", "MISSION_REQUEST"), ("px4", "MISSION_REQUEST_INT")]
+)
 def test_upload_happy_path(personality, request_kind):
     v = Vehicles(personality)
     up = RallyUpload(1, POINTS, v.t)
     run_upload(v, up)
     assert up.state == UploadState.DONE and up.result == mavlink.MAV_MISSION_ACCEPTED
     stored = v.rally()
-    assert [(it.x, it.y, it.z) for it in stored] == [(p.lat_e7, p.lon_e7, p.alt_above_home_m)
-                                                     for p in POINTS]
+    assert [(it.x, it.y, it.z) for it in stored] == [
+        (p.lat_e7, p.lon_e7, p.alt_above_home_m) for p in POINTS
+    ]
     assert {it.command for it in stored} == {mavlink.MAV_CMD_NAV_RALLY_POINT}
     assert {it.frame for it in stored} == {mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
     # ArduPilot asks with the legacy MISSION_REQUEST (queued_request_send), PX4 with _INT.
@@ -141,13 +162,13 @@ def test_lost_item_is_requested_again_and_resent(personality):
 
 def test_silent_vehicle_count_is_resent_then_upload_fails():
     v = Vehicles("ardupilot")
-    v.drop_up = lambda m: True                    # nothing reaches the vehicle
+    v.drop_up = lambda m: True  # nothing reaches the vehicle
     up = RallyUpload(1, POINTS, v.t, ack_timeout_s=1.5, retries=5)
     run_upload(v, up, until_s=30.0)
     counts = [t for t, _, k, _ in v.sent if k == "MISSION_COUNT"]
     assert counts == pytest.approx([0.0, 1.5, 3.0, 4.5, 6.0, 7.5], abs=0.051)
     assert up.state == UploadState.FAILED and "MISSION_COUNT" in up.reason
-    assert v.t == pytest.approx(9.0, abs=0.051)   # the last count's timeout
+    assert v.t == pytest.approx(9.0, abs=0.051)  # the last count's timeout
 
 
 def test_vehicle_gone_silent_mid_upload_fails_after_the_timeout():
@@ -165,8 +186,9 @@ def test_error_ack_fails_the_upload():
     """Another GCS is uploading: ArduPilot / PX4 answer DENIED (vehicle_emu/missions.py)."""
     v = Vehicles("ardupilot")
     other = FakeGcs(sysid=254)
-    v.cores[1].receive_datagram(other.frame(mavlink.MAVLink_mission_count_message(
-        1, 1, 2, T_RALLY)), GCS_ADDR, v.t)
+    v.cores[1].receive_datagram(
+        other.frame(mavlink.MAVLink_mission_count_message(1, 1, 2, T_RALLY)), GCS_ADDR, v.t
+    )
     v.cores[1].datagrams_to_send(v.t)
     up = RallyUpload(1, POINTS, v.t)
     run_upload(v, up)
@@ -190,24 +212,31 @@ def test_duplicate_item_invalid_sequence_ack_does_not_end_the_upload():
     v.send = send_twice
     run_upload(v, up)
     assert dup and up.state == UploadState.DONE and up.duplicates == 1
-    assert ("MISSION_ACK", mavlink.MAV_MISSION_INVALID_SEQUENCE) in [(k, s) for _, _, k, s in v.seen]
+    assert ("MISSION_ACK", mavlink.MAV_MISSION_INVALID_SEQUENCE) in [
+        (k, s) for _, _, k, s in v.seen
+    ]
 
 
 def test_replies_for_another_gcs_or_mission_type_are_ignored():
     up = RallyUpload(1, POINTS, 0.0)
     up.take_messages()
     other_gcs = mavlink.MAVLink_mission_request_message(254, 190, 0, T_RALLY)
-    other_type = mavlink.MAVLink_mission_request_message(255, 190, 0, mavlink.MAV_MISSION_TYPE_MISSION)
+    other_type = mavlink.MAVLink_mission_request_message(
+        255, 190, 0, mavlink.MAV_MISSION_TYPE_MISSION
+    )
     for m in (other_gcs, other_type):
         up.on_event(mission_event(0, 1, m, 0.1), 0.1)
     assert up.state == UploadState.COUNT_SENT and up.take_messages() == []
-    up.on_event(mission_event(0, 1, mavlink.MAVLink_mission_request_message(255, 190, 7, T_RALLY), 0.2), 0.2)
-    assert up.state == UploadState.FAILED   # a request outside the list
+    up.on_event(
+        mission_event(0, 1, mavlink.MAVLink_mission_request_message(255, 190, 7, T_RALLY), 0.2), 0.2
+    )
+    assert up.state == UploadState.FAILED  # a request outside the list
 
 
 # ------------------------------------------------------------------------------------------------
 # The keeper
 # ------------------------------------------------------------------------------------------------
+
 
 def pump(v: Vehicles, keeper: RallyKeeper, reachable, seconds: float) -> None:
     end = v.t + seconds
@@ -229,41 +258,44 @@ def test_keeper_same_set_for_every_vehicle_threshold_and_rate_limit():
     assert keeper.publish(pts, v.t)
     pump(v, keeper, vids, 2.0)
     assert all(keeper.up_to_date(vid) for vid in vids)
-    for s in v.cores:   # the same set everywhere, where it was published (mission frame)
+    for s in v.cores:  # the same set everywhere, where it was published (mission frame)
         np.testing.assert_allclose(v.cores[s].pers.rally_ne_m(), pts, atol=0.05)
     uploads = keeper.stats["uploads"]
-    assert not keeper.publish(pts + [[10.0, 0.0], [0.0, 0.0]], v.t)        # moved 10 m < 15 m
-    assert not keeper.publish(pts + [[20.0, 0.0], [0.0, 0.0]], v.t)        # 20 m, but 2 s after
+    assert not keeper.publish(pts + [[10.0, 0.0], [0.0, 0.0]], v.t)  # moved 10 m < 15 m
+    assert not keeper.publish(pts + [[20.0, 0.0], [0.0, 0.0]], v.t)  # 20 m, but 2 s after
     v.t = 10.0
-    assert not keeper.publish(pts + [[10.0, 5.0], [0.0, 0.0]], v.t)        # 11.2 m
-    assert keeper.publish(pts + [[20.0, 0.0], [0.0, 0.0]], v.t)            # 20 m, 10 s after
+    assert not keeper.publish(pts + [[10.0, 5.0], [0.0, 0.0]], v.t)  # 11.2 m
+    assert keeper.publish(pts + [[20.0, 0.0], [0.0, 0.0]], v.t)  # 20 m, 10 s after
     pump(v, keeper, vids, 2.0)
     assert keeper.stats["uploads"] == uploads + 3 and keeper.version == 2
     for s in v.cores:
-        np.testing.assert_allclose(v.cores[s].pers.rally_ne_m(), pts + [[20.0, 0.0], [0.0, 0.0]],
-                                   atol=0.05)
-    pump(v, keeper, vids, 5.0)                                            # nothing new: no traffic
+        np.testing.assert_allclose(
+            v.cores[s].pers.rally_ne_m(), pts + [[20.0, 0.0], [0.0, 0.0]], atol=0.05
+        )
+    pump(v, keeper, vids, 5.0)  # nothing new: no traffic
     assert keeper.stats["uploads"] == uploads + 3
 
 
 def test_keeper_retries_a_failed_vehicle_later_and_skips_unreachable_ones():
     v = Vehicles("ardupilot", n=2)
-    keeper = RallyKeeper(*ORIGIN[:2], RallyConfig(retry_after_s=5.0, retries=0, ack_timeout_s=1.0, inward_m=0.0))
+    keeper = RallyKeeper(
+        *ORIGIN[:2], RallyConfig(retry_after_s=5.0, retries=0, ack_timeout_s=1.0, inward_m=0.0)
+    )
     keeper.publish(np.array([[60.0, 60.0]]), v.t)
-    v.drop_up = lambda m: v.t < 3.0                # vehicle 2's link is down at first
+    v.drop_up = lambda m: v.t < 3.0  # vehicle 2's link is down at first
     pump(v, keeper, [(0, 2)], 8.0)
     assert keeper.stats["failed"] == 1 and keeper.failures[0][1] == (0, 2)
     assert keeper.failures[0][0] == pytest.approx(1.0, abs=0.051)
-    assert keeper.up_to_date((0, 2))               # retried at ~6 s, accepted
-    assert v.cores[1].pers.rally_ne_m().shape == (0, 2)   # not reachable: never sent to
+    assert keeper.up_to_date((0, 2))  # retried at ~6 s, accepted
+    assert v.cores[1].pers.rally_ne_m().shape == (0, 2)  # not reachable: never sent to
 
 
 def test_keeper_keeps_the_points_nearest_the_base_and_forced_empty_set():
     keeper = RallyKeeper(*ORIGIN[:2], RallyConfig(max_points=2, inward_m=0.0))
     assert keeper.publish(np.array([[300.0, 0.0], [50.0, 0.0], [0.0, 100.0]]), 0.0)
     np.testing.assert_allclose(keeper.points_ne_m, [[50.0, 0.0], [0.0, 100.0]])
-    assert not keeper.publish(np.zeros((0, 2)), 1.0)              # rate limit
-    assert keeper.publish(np.zeros((0, 2)), 1.0, force=True)      # the end: cleared at once
+    assert not keeper.publish(np.zeros((0, 2)), 1.0)  # rate limit
+    assert keeper.publish(np.zeros((0, 2)), 1.0, force=True)  # the end: cleared at once
     assert keeper.version == 2 and len(keeper.points_ne_m) == 0
     assert not keeper.publish(np.zeros((0, 2)), 1.0, force=True)  # already empty
 
@@ -277,17 +309,20 @@ def test_keeper_moves_points_inward_toward_the_base():
 def test_set_moved():
     a = np.array([[0.0, 0.0], [10.0, 0.0]])
     assert set_moved(None, a, 5.0) and set_moved(a, a[:1], 5.0)
-    assert not set_moved(a, a[::-1] + 1.0, 5.0)                    # order does not matter
+    assert not set_moved(a, a[::-1] + 1.0, 5.0)  # order does not matter
     assert set_moved(a, a + [[0.0, 0.0], [6.0, 0.0]], 5.0)
 
 
 def test_rally_param_writes():
     assert rally_param_writes(ARDUPILOT, {"RALLY_LIMIT_KM": 0.3, "RALLY_INCL_HOME": 1}) == [
-        ("RALLY_LIMIT_KM", 0.0)]
+        ("RALLY_LIMIT_KM", 0.0)
+    ]
     assert rally_param_writes(ARDUPILOT, {"RALLY_LIMIT_KM": 0.0}) == []
     assert rally_param_writes(ARDUPILOT, {}) == []
     assert rally_param_writes(PX4, {"RTL_TYPE": 2}) == [("RTL_TYPE", 0.0)]
-    assert rally_param_writes(PX4, {"RTL_TYPE": 0}) == [] == rally_param_writes(PX4, {"RTL_TYPE": 1})
+    assert (
+        rally_param_writes(PX4, {"RTL_TYPE": 0}) == [] == rally_param_writes(PX4, {"RTL_TYPE": 1})
+    )
 
 
 def test_planner_rally_points_are_the_resilient_planners():
@@ -295,18 +330,26 @@ def test_planner_rally_points_are_the_resilient_planners():
     from planner.problem import ProblemConfig
     from planner.resilient import rally_points
 
-    problem = ProblemConfig(n_drones=6, n_tasks=3, length_unit_m=50.0, radio_range_m=100.0,
-                            base_range_m=100.0, max_speed_m_s=7.5, field_half_width_m=250.0)
+    problem = ProblemConfig(
+        n_drones=6,
+        n_tasks=3,
+        length_unit_m=50.0,
+        radio_range_m=100.0,
+        base_range_m=100.0,
+        max_speed_m_s=7.5,
+        field_half_width_m=250.0,
+    )
     tasks = np.array([[200.0, 0.0], [0.0, -180.0], [150.0, 150.0]])
     pos = np.array([[10.0, 0.0], [0.0, 10.0], [-10.0, 0.0], [0.0, -10.0], [5.0, 5.0], [-5, -5.0]])
     tick = TickInput(0, pos, np.ones(6, bool), np.ones(6, bool), tasks)
-    res = make_planner("phireman-resilient", problem, {"rally": True, "info": "central"},
-                       np.random.default_rng(0))
+    res = make_planner(
+        "phireman-resilient", problem, {"rally": True, "info": "central"}, np.random.default_rng(0)
+    )
     res.plan(tick)
     pts = planner_rally_points_m(res)
     assert pts is not None and pts.shape[1] == 2 and len(pts) >= 1
     np.testing.assert_allclose(pts, rally_points(res.tree, res.params.rally_dist) * 50.0)
-    assert np.all(np.hypot(*pts.T) <= 100.0 + 1e-6)     # rally_dist = 2 units = r from the base
+    assert np.all(np.hypot(*pts.T) <= 100.0 + 1e-6)  # rally_dist = 2 units = r from the base
     off = make_planner("phireman-resilient", problem, {"info": "central"}, np.random.default_rng(0))
     off.plan(tick)
     assert planner_rally_points_m(off) is None

@@ -49,8 +49,14 @@ def test_event_log_metrics_and_summary(tmp_path):
     with EventLog(tmp_path / "events.jsonl") as log:
         log.write(VehicleLost(0, 3, 12.5, 7.5), run="a")
     (line,) = (tmp_path / "events.jsonl").read_text().splitlines()
-    assert json.loads(line) == {"type": "VehicleLost", "link_id": 0, "sysid": 3, "t_s": 12.5,
-                                "last_heartbeat_s": 7.5, "run": "a"}
+    assert json.loads(line) == {
+        "type": "VehicleLost",
+        "link_id": 0,
+        "sysid": 3,
+        "t_s": 12.5,
+        "last_heartbeat_s": 7.5,
+        "run": "a",
+    }
 
     with MetricsWriter(tmp_path / "m.csv") as m:
         m.write({"t_s": 0.0, "networked": 3, "tasks_covered": 2})
@@ -72,6 +78,7 @@ def test_event_log_metrics_and_summary(tmp_path):
 def _wait_for(predicate, timeout_s: float = 10.0) -> bool:
     """Wait on a condition (bounded), never assert on elapsed time."""
     import threading
+
     done = threading.Event()
     for _ in range(int(timeout_s / 0.01)):
         if predicate():
@@ -123,5 +130,5 @@ def test_order_is_kept_across_flushes(tmp_path):
             tlog.flush()  # flushes from this thread interleave with the background ones
     tlog.close()
     raw = path.read_bytes()
-    stamps = [int.from_bytes(raw[k:k + 8], "big") for k in range(0, len(raw), 8)]
+    stamps = [int.from_bytes(raw[k : k + 8], "big") for k in range(0, len(raw), 8)]
     assert stamps == [i * 1_000_000 for i in range(20000)]

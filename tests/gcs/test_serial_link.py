@@ -22,8 +22,10 @@ from gcs.link import StationConfig
 _CFG = StationConfig(stream_rates_hz=(), request_home_position=False)
 
 pytestmark = [
-    pytest.mark.skipif(not hasattr(os, "openpty") or os.name != "posix",
-                       reason="needs os.openpty (POSIX pseudo-terminals)"),
+    pytest.mark.skipif(
+        not hasattr(os, "openpty") or os.name != "posix",
+        reason="needs os.openpty (POSIX pseudo-terminals)",
+    ),
     pytest.mark.timeout(30),  # a regression to blocking I/O must fail, not hang the suite
 ]
 
@@ -55,7 +57,7 @@ class _Master:
     def send(self, data: bytes) -> None:
         view = memoryview(data)
         while view:  # small writes: the pty takes them whole
-            view = view[os.write(self.fd, view):]
+            view = view[os.write(self.fd, view) :]
 
 
 async def _next(queue: asyncio.Queue, kind: str, timeout_s: float = WAIT_S):
@@ -65,6 +67,7 @@ async def _next(queue: asyncio.Queue, kind: str, timeout_s: float = WAIT_S):
             name = item.get_type() if hasattr(item, "get_type") else type(item).__name__
             if name == kind:
                 return item
+
     return await asyncio.wait_for(get(), timeout_s)
 
 
@@ -84,8 +87,12 @@ def test_station_flies_a_serial_link_on_a_pty(pty):
     master_fd, path = pty
 
     async def main():
-        ap = FakeAutopilot(sysid=1, compid=1, autopilot=mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                           vehicle_type=mav.MAV_TYPE_QUADROTOR)
+        ap = FakeAutopilot(
+            sysid=1,
+            compid=1,
+            autopilot=mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
+            vehicle_type=mav.MAV_TYPE_QUADROTOR,
+        )
         master = _Master(master_fd, ap)
         # The CLI's path: connection string -> StationAdapter(...).start() (open_links here).
         [station] = await open_links([f"{path},57600"], _CFG)
@@ -95,6 +102,7 @@ def test_station_flies_a_serial_link_on_a_pty(pty):
         def spy(data, addr):  # observe each read the adapter makes
             chunks.put_nowait(len(data))
             receive(data, addr)
+
         station.receive = spy
         master.start()
         try:
@@ -116,7 +124,10 @@ def test_station_flies_a_serial_link_on_a_pty(pty):
 
             ev = await _next(station.events, "VehicleDiscovered")
             assert (ev.sysid, ev.autopilot, ev.vehicle_type) == (
-                1, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, mav.MAV_TYPE_QUADROTOR)
+                1,
+                mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                mav.MAV_TYPE_QUADROTOR,
+            )
             assert ev.mode == "GUIDED"
             tel = await _next(station.events, "TelemetryReceived")
             assert tel.sysid == 1
@@ -145,8 +156,12 @@ def test_hangup_closes_the_port_once_without_spinning(pty):
         errors = []
         loop.set_exception_handler(lambda _loop, ctx: errors.append(ctx))
         lost = loop.create_future()
-        port = _SerialPort.open(parse_connection(f"{path},115200"), loop, lambda data: None,
-                                on_lost=lambda why: lost.set_result(why))
+        port = _SerialPort.open(
+            parse_connection(f"{path},115200"),
+            loop,
+            lambda data: None,
+            on_lost=lambda why: lost.set_result(why),
+        )
         os.close(master_fd)  # the radio is unplugged
         why = await asyncio.wait_for(lost, WAIT_S)
         assert why
@@ -268,6 +283,7 @@ def test_a_regular_file_is_not_a_serial_port(tmp_path):
 
 def test_without_pyserial_the_error_is_clear_and_an_oserror(monkeypatch, tmp_path):
     import sys
+
     monkeypatch.setitem(sys.modules, "serial", None)  # import serial -> ImportError
 
     async def main():
@@ -278,15 +294,27 @@ def test_without_pyserial_the_error_is_clear_and_an_oserror(monkeypatch, tmp_pat
     asyncio.run(main())
 
 
-@pytest.mark.parametrize("text, device, baud", [
-    ("/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0-port0",
-     "/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0-port0", 115200),
-    ("/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0-port0,57600",
-     "/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0-port0", 57600),
-    ("/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0:921600",
-     "/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0", 921600),
-    ("/dev/ttyUSB0:57600", "/dev/ttyUSB0", 57600),
-])
+@pytest.mark.parametrize(
+    "text, device, baud",
+    [
+        (
+            "/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0-port0",
+            "/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0-port0",
+            115200,
+        ),
+        (
+            "/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0-port0,57600",
+            "/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0-port0",
+            57600,
+        ),
+        (
+            "/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0:921600",
+            "/dev/serial/by-path/pci-0000:00:14.0-usb-0:2:1.0",
+            921600,
+        ),
+        ("/dev/ttyUSB0:57600", "/dev/ttyUSB0", 57600),
+    ],
+)
 def test_device_paths_with_colons(text, device, baud):
     spec = parse_connection(text)
     assert (spec.kind, spec.device, spec.baud) == ("serial", device, baud)

@@ -16,7 +16,10 @@ def test_two_links_same_sysid_are_distinct_vehicles():
     st.link(0).receive_datagram(a.heartbeat(4), "net0", 0.0)
     st.link(1).receive_datagram(b.heartbeat(393216), "net1", 0.0)
     evs = st.events()
-    assert [(e.link_id, e.sysid) for e in evs if isinstance(e, VehicleDiscovered)] == [(0, 1), (1, 1)]
+    assert [(e.link_id, e.sysid) for e in evs if isinstance(e, VehicleDiscovered)] == [
+        (0, 1),
+        (1, 1),
+    ]
     assert sorted(st.networked()) == [(0, 1), (1, 1)]
     st.datagrams_to_send(0.0)
     st.arm((0, 1), 0.1)

@@ -31,7 +31,7 @@ def test_one_byte_at_a_time(station, fake):
     link = station(datagram=False, stream_rates_hz=())
     data = _stream(fake)
     for i in range(len(data)):
-        link.receive_datagram(data[i:i + 1], DEV, i * 1e-4)
+        link.receive_datagram(data[i : i + 1], DEV, i * 1e-4)
     tel = [e for e in drain(link) if isinstance(e, TelemetryReceived)]
     assert len(tel) == 1 and tel[0].sysid == 3
     assert tel[0].rel_alt_m == pytest.approx(12.34, abs=1e-3)
@@ -44,7 +44,7 @@ def test_line_noise_between_frames_resyncs(station, fake):
     hb, pos = ap.heartbeat(custom_mode=4), ap.global_position(47.5, 8.25, 512.5, 12.34)
     noisy = b"\x00\x11garbage" + hb + b"\x55junk\xaa" + pos  # noise without a start byte
     for i in range(0, len(noisy), 7):  # 7-byte reads, as a slow UART might deliver
-        link.receive_datagram(noisy[i:i + 7], DEV, 0.0)
+        link.receive_datagram(noisy[i : i + 7], DEV, 0.0)
     kinds = [type(e) for e in drain(link)]
     assert VehicleDiscovered in kinds and TelemetryReceived in kinds
 

@@ -17,8 +17,11 @@ GPI, SYS = mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mav.MAVLINK_MSG_ID_SYS_STATUS
 
 
 def _stops(link, now_s):
-    return [int(m.param1) for m, _ in sent(link, now_s, "COMMAND_LONG")
-            if m.command == SMI and m.param2 == -1]
+    return [
+        int(m.param1)
+        for m, _ in sent(link, now_s, "COMMAND_LONG")
+        if m.command == SMI and m.param2 == -1
+    ]
 
 
 def _px4(station, **cfg):
@@ -47,11 +50,20 @@ def test_unused_messages_are_stopped_one_at_a_time(station):
     link.receive_datagram(ap.ack(SMI), A1, 0.3)
     assert (link.stats.disable_requests, link.stats.messages_disabled) == (2, 2)
     # What the station reads, or its protocols need, is never stopped.
-    never = [ap.heartbeat(OFFBOARD), ap.global_position(47, 8, 500, 10), ap.statustext("hi"),
-             ap.home_position(47, 8, 490), ap.ack(400), ap.param_value("X", 1.0),
-             ap.pack(mav.MAVLink_autopilot_version_message(0, 0, 0, 0, 0, b"\0" * 8, b"\0" * 8,
-                                                           b"\0" * 8, 0, 0, 0)),
-             ap.pack(mav.MAVLink_timesync_message(0, 1))]
+    never = [
+        ap.heartbeat(OFFBOARD),
+        ap.global_position(47, 8, 500, 10),
+        ap.statustext("hi"),
+        ap.home_position(47, 8, 490),
+        ap.ack(400),
+        ap.param_value("X", 1.0),
+        ap.pack(
+            mav.MAVLink_autopilot_version_message(
+                0, 0, 0, 0, 0, b"\0" * 8, b"\0" * 8, b"\0" * 8, 0, 0, 0
+            )
+        ),
+        ap.pack(mav.MAVLink_timesync_message(0, 1)),
+    ]
     for i, frame in enumerate(never):
         link.receive_datagram(frame, A1, 0.4 + i * 0.01)
     link.handle_timer(0.5)
@@ -129,8 +141,12 @@ def test_reboot_resets_the_cap(station):
 def test_unused_frames_are_checked_but_not_unpacked():
     link = StationLink(StationConfig(record_frames=True, disable_unused_messages=False))
     ap = FakeAutopilot(sysid=1)
-    frames = [ap.heartbeat(4), ap.attitude(), ap.local_position(),
-              ap.global_position(47, 8, 500, 10)]
+    frames = [
+        ap.heartbeat(4),
+        ap.attitude(),
+        ap.local_position(),
+        ap.global_position(47, 8, 500, 10),
+    ]
     bad = bytearray(ap.attitude())
     bad[-1] ^= 0xFF  # CRC broken
     for f in frames + [bytes(bad)]:
@@ -144,8 +160,9 @@ def test_unused_frames_are_checked_but_not_unpacked():
 
 def test_raw_frames_obey_signing():
     key = bytes(range(32))
-    link = StationLink(StationConfig(signing_key=key, accept_unsigned=False,
-                                     unix_time_at_zero_s=1.7e9))
+    link = StationLink(
+        StationConfig(signing_key=key, accept_unsigned=False, unix_time_at_zero_s=1.7e9)
+    )
     signed, plain = FakeAutopilot(sysid=1), FakeAutopilot(sysid=1)
     signed.sign_outgoing(key, 1.7e9)
     link.receive_datagram(signed.heartbeat(4), A1, 0.0)
@@ -156,11 +173,14 @@ def test_raw_frames_obey_signing():
     assert (d.raw_frames, d.signature_rejected) == (1, 1)
 
 
-@pytest.mark.parametrize("msg", [
-    mav.MAVLink_attitude_message(1, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6),
-    mav.MAVLink_vfr_hud_message(1.0, 2.0, 90, 50, 3.0, 4.0),
-    mav.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3),
-])
+@pytest.mark.parametrize(
+    "msg",
+    [
+        mav.MAVLink_attitude_message(1, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6),
+        mav.MAVLink_vfr_hud_message(1.0, 2.0, 90, 50, 3.0, 4.0),
+        mav.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3),
+    ],
+)
 def test_raw_frame_header_matches_full_decode(msg):
     ap = FakeAutopilot(sysid=42, compid=7)
     data = ap.pack(msg)

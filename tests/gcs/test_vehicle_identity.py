@@ -7,7 +7,10 @@ from gcs_fakes import FakeAutopilot, drain, sent
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from gcs.events import (
-    ModeChanged, TelemetryReceived, VehicleDiscovered, VehicleRecovered,
+    ModeChanged,
+    TelemetryReceived,
+    VehicleDiscovered,
+    VehicleRecovered,
 )
 from gcs.link import StationConfig
 
@@ -39,8 +42,9 @@ def test_only_allowed_sysids_become_vehicles(station):
 
 def test_non_vehicle_heartbeats_are_not_refusals(station):
     link = station(allowed_sysids=frozenset({1}))
-    gcs = FakeAutopilot(sysid=250, compid=190, vehicle_type=mav.MAV_TYPE_GCS,
-                        autopilot=mav.MAV_AUTOPILOT_INVALID)
+    gcs = FakeAutopilot(
+        sysid=250, compid=190, vehicle_type=mav.MAV_TYPE_GCS, autopilot=mav.MAV_AUTOPILOT_INVALID
+    )
     link.receive_datagram(gcs.heartbeat(), A2, 0.0)
     assert link.stats.non_vehicle_heartbeats == 1 and link.stats.refused_sysids == 0
 
@@ -62,12 +66,19 @@ def test_changed_autopilot_or_type_while_live_is_dropped(station):
     real = FakeAutopilot(sysid=1)
     link.receive_datagram(real.heartbeat(GUIDED), A1, 0.0)
     drain(link)
-    for fake in (FakeAutopilot(sysid=1, autopilot=PX4),
-                 FakeAutopilot(sysid=1, vehicle_type=mav.MAV_TYPE_FIXED_WING)):
+    for fake in (
+        FakeAutopilot(sysid=1, autopilot=PX4),
+        FakeAutopilot(sysid=1, vehicle_type=mav.MAV_TYPE_FIXED_WING),
+    ):
         link.receive_datagram(fake.heartbeat(6, armed=True), A1, 0.5)  # same address, even
     v = link.vehicle(1)
     assert (v.autopilot, v.vehicle_type, v.adapter, v.mode, v.armed) == (
-        mav.MAV_AUTOPILOT_ARDUPILOTMEGA, mav.MAV_TYPE_QUADROTOR, "ardupilot", "GUIDED", False)
+        mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
+        mav.MAV_TYPE_QUADROTOR,
+        "ardupilot",
+        "GUIDED",
+        False,
+    )
     assert drain(link) == [] and link.stats.inconsistent_frames == 2
     # Silent for the whole timeout, then back as PX4: re-flashed, accepted.
     link.handle_timer(10.0)
@@ -107,17 +118,31 @@ def _random_frame(rng: random.Random, aps: dict) -> tuple[bytes, int, int, bool]
     """One valid frame from a random system: (bytes, sysid, compid, is a vehicle heartbeat)."""
     sysid = rng.randrange(1, 256)
     compid = 1 if rng.random() < 0.7 else rng.randrange(0, 256)
-    ap = aps.setdefault((sysid, compid), FakeAutopilot(
-        sysid=sysid, compid=compid, autopilot=rng.choice((3, 12, 0, 8)),
-        vehicle_type=rng.choice((2, 1, 6, 18, 26))))
+    ap = aps.setdefault(
+        (sysid, compid),
+        FakeAutopilot(
+            sysid=sysid,
+            compid=compid,
+            autopilot=rng.choice((3, 12, 0, 8)),
+            vehicle_type=rng.choice((2, 1, 6, 18, 26)),
+        ),
+    )
     kind = rng.randrange(5)
     if kind == 0:
         vehicle = compid == 1 and ap.vehicle_type not in (6, 18, 26)
-        return ap.heartbeat(rng.randrange(0, 1 << 20), armed=rng.random() < 0.5), sysid, compid, \
-            vehicle
+        return (
+            ap.heartbeat(rng.randrange(0, 1 << 20), armed=rng.random() < 0.5),
+            sysid,
+            compid,
+            vehicle,
+        )
     if kind == 1:
-        data = ap.global_position(rng.uniform(-80, 80), rng.uniform(-170, 170),
-                                  rng.uniform(0, 3000), rng.uniform(-100, 100))
+        data = ap.global_position(
+            rng.uniform(-80, 80),
+            rng.uniform(-170, 170),
+            rng.uniform(0, 3000),
+            rng.uniform(-100, 100),
+        )
     elif kind == 2:
         data = ap.ack(rng.choice((400, 176, 511)), rng.randrange(0, 6))
     elif kind == 3:
@@ -150,7 +175,7 @@ def test_fuzz_random_bytes_and_frames_create_no_vehicle_and_are_counted(station)
             link.receive_datagram(rng.randbytes(rng.randrange(1, 300)), addr, t)
         elif r < 0.5:  # garbage around a frame, or a cut frame
             data, *_ = _random_frame(rng, aps)
-            link.receive_datagram(rng.randbytes(5) + data[:rng.randrange(1, len(data))], addr, t)
+            link.receive_datagram(rng.randbytes(5) + data[: rng.randrange(1, len(data))], addr, t)
         else:
             data, sysid, compid, vehicle_hb = _random_frame(rng, aps)
             if sysid == 255:
@@ -174,7 +199,8 @@ def test_fuzz_random_bytes_and_frames_create_no_vehicle_and_are_counted(station)
         assert not v.lost and not v.armed
     assert not [e for e in events if isinstance(e, (ModeChanged, VehicleRecovered))]
     assert {(e.lat_deg, e.lon_deg) for e in events if isinstance(e, TelemetryReceived)} == {
-        (47.0, 8.0)}
+        (47.0, 8.0)
+    }
     st = link.stats
     assert st.refused_sysids == expect_refused > 1000
     assert sum(st.refused_by_sysid.values()) == st.refused_sysids

@@ -10,8 +10,14 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from gcs import wire
 from gcs.autopilot import (
-    PX4_MODES, ArduCopterAdapter, PX4Adapter, UnsupportedCommand, adapter_for, mode_name,
-    px4_custom_mode, px4_main_sub,
+    PX4_MODES,
+    ArduCopterAdapter,
+    PX4Adapter,
+    UnsupportedCommand,
+    adapter_for,
+    mode_name,
+    px4_custom_mode,
+    px4_main_sub,
 )
 
 
@@ -34,22 +40,27 @@ def test_type_mask_constants():
     assert wire.TYPE_MASK_ACCELERATION_GLOBAL == 3128
     assert wire.TYPE_MASK_POSITION_VELOCITY_ACCELERATION == 3072
     assert wire.TYPE_MASK_YAW == 2559 and wire.TYPE_MASK_YAW_RATE == 1535
-    for mask in (wire.TYPE_MASK_POSITION, wire.TYPE_MASK_POSITION_VELOCITY,
-                 wire.TYPE_MASK_POSITION_YAW):
+    for mask in (
+        wire.TYPE_MASK_POSITION,
+        wire.TYPE_MASK_POSITION_VELOCITY,
+        wire.TYPE_MASK_POSITION_YAW,
+    ):
         assert mask & 0b111 == 0  # never mask Z (or X, Y) on a position target
 
 
 def test_position_target_global_int_bytes():
     codec = wire.Codec(255, 190)
-    msg = wire.position_target_global_int(target_system=7, lat_deg=47.5, lon_deg=8.25,
-                                          alt_m=12.34, time_boot_s=1.5)
+    msg = wire.position_target_global_int(
+        target_system=7, lat_deg=47.5, lon_deg=8.25, alt_m=12.34, time_boot_s=1.5
+    )
     frame = codec.encode(msg)
     (m,) = FakeAutopilot().decode(frame)
     assert (m.target_system, m.target_component, m.coordinate_frame, m.type_mask) == (7, 1, 6, 3576)
     assert (m.lat_int, m.lon_int, m.time_boot_ms) == (475000000, 82500000, 1500)
     assert m.alt == pytest.approx(12.34, abs=1e-5)
-    with_vel = wire.position_target_global_int(target_system=7, lat_deg=1, lon_deg=2, alt_m=3,
-                                               vel_ned_m_s=(1, 2, 3))
+    with_vel = wire.position_target_global_int(
+        target_system=7, lat_deg=1, lon_deg=2, alt_m=3, vel_ned_m_s=(1, 2, 3)
+    )
     assert with_vel.type_mask == 3520 and with_vel.vz == 3
     assert wire.position_target_local_ned(target_system=1, pos_ned_m=(1, 2, -3)).type_mask == 3576
     with pytest.raises(ValueError):
@@ -80,6 +91,7 @@ def test_round_trip_within_quantisation(lat, lon, alt):
 
 def test_param_value_decoding():
     import struct
+
     as_float = struct.unpack("<f", struct.pack("<i", 300))[0]
     assert wire.decode_param_value(as_float, mav.MAV_PARAM_TYPE_INT32, bytewise=True) == 300
     assert wire.decode_param_value(3.0, mav.MAV_PARAM_TYPE_INT8, bytewise=False) == 3.0

@@ -70,8 +70,11 @@ class _Client:
     def command(self, cmd, *params, deadline_s=5.0):
         p = list(params) + [0.0] * (7 - len(params))
         self.send(mavlink.MAVLink_command_long_message(1, 1, cmd, 0, *p))
-        ack = self.wait_for(lambda m: m.get_type() == "COMMAND_ACK" and m.command == cmd,
-                            deadline_s, f"ACK of {cmd}")
+        ack = self.wait_for(
+            lambda m: m.get_type() == "COMMAND_ACK" and m.command == cmd,
+            deadline_s,
+            f"ACK of {cmd}",
+        )
         return ack.result
 
 
@@ -85,15 +88,21 @@ def test_pymavlink_guided_takeoff_goto_ardupilot():
             assert hb.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
             # ArduPilot streams only HEARTBEAT until asked: request 10 Hz LOCAL_POSITION_NED.
             assert c.command(511, 32, 100_000) == 0
-            assert c.command(176, 1, 4) == 0                      # GUIDED
+            assert c.command(176, 1, 4) == 0  # GUIDED
             c.wait_for(lambda m: m.get_type() == "HEARTBEAT" and m.custom_mode == 4, 5, "GUIDED")
-            assert c.command(400, 1) == 0                         # arm
-            assert c.command(22, 0, 0, 0, 0, 0, 0, 10.0) == 0     # takeoff to 10 m
-            c.wait_for(lambda m: m.get_type() == "LOCAL_POSITION_NED" and m.z < -9.5, 20,
-                       "takeoff altitude")
+            assert c.command(400, 1) == 0  # arm
+            assert c.command(22, 0, 0, 0, 0, 0, 0, 10.0) == 0  # takeoff to 10 m
+            c.wait_for(
+                lambda m: m.get_type() == "LOCAL_POSITION_NED" and m.z < -9.5,
+                20,
+                "takeoff altitude",
+            )
             target = (40.0, 30.0, -10.0)
-            c.send(mavlink.MAVLink_set_position_target_local_ned_message(
-                0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, *target, 0, 0, 0, 0, 0, 0, 0, 0))
+            c.send(
+                mavlink.MAVLink_set_position_target_local_ned_message(
+                    0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, *target, 0, 0, 0, 0, 0, 0, 0, 0
+                )
+            )
             limit = swarm.cores[0].params["WPNAV_SPEED"] / 100.0
             speeds, dists = [], []
 
@@ -103,11 +112,12 @@ def test_pymavlink_guided_takeoff_goto_ardupilot():
                 speeds.append(math.hypot(m.vx, m.vy))
                 dists.append(math.dist((m.x, m.y, m.z), target))
                 return dists[-1] < 0.5
+
             c.wait_for(arrived, 30, "arrival at the target")
             assert max(speeds) <= limit + 1e-3
-            assert max(speeds) > 0.5 * limit            # it really flew, at speed
-            assert dists[0] > 40                         # and it started far away
-            assert np.all(np.diff(dists[::5]) < 0.5)     # monotonic approach (coarsely)
+            assert max(speeds) > 0.5 * limit  # it really flew, at speed
+            assert dists[0] > 40  # and it started far away
+            assert np.all(np.diff(dists[::5]) < 0.5)  # monotonic approach (coarsely)
         finally:
             c.sock.close()
 

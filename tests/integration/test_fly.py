@@ -22,22 +22,41 @@ PHIREMAN = [str(Path(sys.executable).with_name("phireman"))]
 
 
 def _mission_file(tmp_path, count=6, duration_s=40.0, speedup=20.0):
-    from mission.schema import (EmulatedVehicles, Mission, Radio, RunSpec, Spawn, SpawnRing,
-                                Task, TrackPoint, Vehicles)
-    m = Mission(name="udp", vehicles=Vehicles(emulated=EmulatedVehicles(
-        count=count, radio_range_m=100.0, cruise_alt_m=20.0, climb_rate_m_s=5.0,
-        max_speed_m_s=10.0, spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)))),
+    from mission.schema import (
+        EmulatedVehicles,
+        Mission,
+        Radio,
+        RunSpec,
+        Spawn,
+        SpawnRing,
+        Task,
+        TrackPoint,
+        Vehicles,
+    )
+
+    m = Mission(
+        name="udp",
+        vehicles=Vehicles(
+            emulated=EmulatedVehicles(
+                count=count,
+                radio_range_m=100.0,
+                cruise_alt_m=20.0,
+                climb_rate_m_s=5.0,
+                max_speed_m_s=10.0,
+                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
+            )
+        ),
         tasks=(Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),),
         radio=Radio(range_m=100.0, base_range_m=100.0, latency_s=0.01),
-        run=RunSpec(duration_s=duration_s, seed=2, speedup=speedup))
+        run=RunSpec(duration_s=duration_s, seed=2, speedup=speedup),
+    )
     path = tmp_path / "m.yaml"
     path.write_text(dump_mission(m))
     return path
 
 
 def _phireman(*args, **kw):
-    return subprocess.run([*PHIREMAN, *args], capture_output=True,
-                          text=True, cwd=ROOT, **kw)
+    return subprocess.run([*PHIREMAN, *args], capture_output=True, text=True, cwd=ROOT, **kw)
 
 
 def test_fly_cli_emulated_and_tlog_reads_back(tmp_path):
@@ -52,6 +71,7 @@ def test_fly_cli_emulated_and_tlog_reads_back(tmp_path):
         assert (run / name).stat().st_size > 0
     # The .tlog reads back with pymavlink, message for message.
     from pymavlink import mavutil
+
     raw = (run / "flight.tlog").read_bytes()
     n_frames, off = 0, 0
     while off < len(raw):
@@ -66,6 +86,7 @@ def test_fly_cli_emulated_and_tlog_reads_back(tmp_path):
     assert n == n_frames and n > 1000
     # The run directory replays: emulator truth (mission interval only) drawn as PNGs.
     from mission.replay import load_run, replay
+
     data = load_run(run)
     assert 0.0 <= data.t_s[0] < 1.0 and data.pos_m.shape[2] == 2
     files = replay(run, tmp_path / "plots", animation="none")
@@ -99,32 +120,62 @@ def test_station_sigkilled_and_restarted_reclaims_every_live_vehicle(tmp_path):
     swarm = build_swarm(mission, mission_scenario(mission, 2), seed=2)
     emu = run_in_thread(swarm, speedup=speedup)
     try:
-        (host, port), = emu.addresses
-        args = ["fly", str(path), "--connect", f"udpout:{host}:{port}", "--vehicles", "4",
-                "--speedup", str(speedup), "--out", str(tmp_path / "runs")]
+        ((host, port),) = emu.addresses
+        args = [
+            "fly",
+            str(path),
+            "--connect",
+            f"udpout:{host}:{port}",
+            "--vehicles",
+            "4",
+            "--speedup",
+            str(speedup),
+            "--out",
+            str(tmp_path / "runs"),
+        ]
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        first = subprocess.Popen([*PHIREMAN, *args], cwd=ROOT,
-                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
-        guided = lambda: emu.call(lambda: all(c.custom_mode == 4 and c.armed  # noqa: E731
-                                              for c in swarm.cores))
+        first = subprocess.Popen(
+            [*PHIREMAN, *args],
+            cwd=ROOT,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=env,
+        )
+
+        def guided():
+            return emu.call(lambda: all(c.custom_mode == 4 and c.armed for c in swarm.cores))
+
         _wait(guided, 90, "first station to fly all 4 vehicles")
         first.send_signal(signal.SIGKILL)
         first.wait(10)
         # FS_GCS_TIMEOUT (5 s of vehicle time): every vehicle fails safe to RTL.
-        _wait(lambda: emu.call(lambda: all(c.custom_mode == 6 for c in swarm.cores)), 30,
-              "vehicles to fail safe (RTL)")
+        _wait(
+            lambda: emu.call(lambda: all(c.custom_mode == 6 for c in swarm.cores)),
+            30,
+            "vehicles to fail safe (RTL)",
+        )
         t_restart = time.monotonic()
-        second = subprocess.Popen([*PHIREMAN, *args], cwd=ROOT,
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+        second = subprocess.Popen(
+            [*PHIREMAN, *args],
+            cwd=ROOT,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=env,
+        )
         try:
             _wait(guided, 90, "restarted station to reclaim every vehicle")
             wall = time.monotonic() - t_restart
-            print(f"\nrestart -> every live vehicle reclaimed: {wall:.1f} s wall "
-                  f"({wall * speedup:.0f} s vehicle time)")
+            print(
+                f"\nrestart -> every live vehicle reclaimed: {wall:.1f} s wall "
+                f"({wall * speedup:.0f} s vehicle time)"
+            )
             # The plan resumes: the vehicles receive fresh position targets.
             n0 = emu.call(lambda: sum(c.stats.setpoints for c in swarm.cores))
-            _wait(lambda: emu.call(lambda: sum(c.stats.setpoints for c in swarm.cores)) > n0 + 8,
-                  30, "setpoints after the restart")
+            _wait(
+                lambda: emu.call(lambda: sum(c.stats.setpoints for c in swarm.cores)) > n0 + 8,
+                30,
+                "setpoints after the restart",
+            )
         finally:
             second.send_signal(signal.SIGKILL)
             second.wait(10)
@@ -139,13 +190,20 @@ def test_ctrl_c_ends_the_flight_deliberately_and_the_run_replays(tmp_path):
     # traceback (the emulator child ignores SIGINT: the station ends the flight).
     path = _mission_file(tmp_path, count=4, duration_s=400.0, speedup=10.0)
     out_dir = tmp_path / "runs"
-    proc = subprocess.Popen([*PHIREMAN, "fly", str(path), "--out", str(out_dir)], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    proc = subprocess.Popen(
+        [*PHIREMAN, "fly", str(path), "--out", str(out_dir)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
     try:
+
         def flying():
             runs = list(out_dir.glob("*/metrics.csv"))
             return bool(runs) and len(runs[0].read_text().splitlines()) >= 4
+
         _wait(flying, 120, "the mission to start")
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=120)

@@ -12,7 +12,15 @@ from mission.fly_options import FlyOptions
 from mission.mission_world import build_swarm, mission_scenario
 from mission.station_loop import live_task_columns, make_operator
 from mission.schema import (
-    EmulatedVehicles, MavlinkSource, Mission, Radio, RunSpec, Spawn, SpawnRing, Task, TrackPoint,
+    EmulatedVehicles,
+    MavlinkSource,
+    Mission,
+    Radio,
+    RunSpec,
+    Spawn,
+    SpawnRing,
+    Task,
+    TrackPoint,
     Vehicles,
 )
 from planner.geometry import ned_to_geodetic
@@ -36,26 +44,53 @@ class _Tracker:
         return data
 
     def heartbeat(self) -> bytes:
-        return self._pack(mavlink.MAVLink_heartbeat_message(
-            mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
-            mavlink.MAV_STATE_ACTIVE, 3))
+        return self._pack(
+            mavlink.MAVLink_heartbeat_message(
+                mavlink.MAV_TYPE_GROUND_ROVER,
+                mavlink.MAV_AUTOPILOT_INVALID,
+                0,
+                0,
+                mavlink.MAV_STATE_ACTIVE,
+                3,
+            )
+        )
 
     def global_position(self, lat_deg, lon_deg, alt_amsl_m, rel_alt_m) -> bytes:
-        return self._pack(mavlink.MAVLink_global_position_int_message(
-            1000, round(lat_deg * 1e7), round(lon_deg * 1e7), round(alt_amsl_m * 1000),
-            round(rel_alt_m * 1000), 0, 0, 0, 0))
+        return self._pack(
+            mavlink.MAVLink_global_position_int_message(
+                1000,
+                round(lat_deg * 1e7),
+                round(lon_deg * 1e7),
+                round(alt_amsl_m * 1000),
+                round(rel_alt_m * 1000),
+                0,
+                0,
+                0,
+                0,
+            )
+        )
 
 
 def _mission(duration_s=40.0):
     return Mission(
         name="live",
-        vehicles=Vehicles(emulated=EmulatedVehicles(
-            count=6, radio_range_m=100.0, cruise_alt_m=20.0, climb_rate_m_s=5.0,
-            max_speed_m_s=10.0, spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)))),
-        tasks=(Task(track=(TrackPoint(t_s=0.0, north_m=-40.0, east_m=-30.0),)),
-               Task(name="crew", mavlink=MavlinkSource(sysid=TRACKER))),
+        vehicles=Vehicles(
+            emulated=EmulatedVehicles(
+                count=6,
+                radio_range_m=100.0,
+                cruise_alt_m=20.0,
+                climb_rate_m_s=5.0,
+                max_speed_m_s=10.0,
+                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
+            )
+        ),
+        tasks=(
+            Task(track=(TrackPoint(t_s=0.0, north_m=-40.0, east_m=-30.0),)),
+            Task(name="crew", mavlink=MavlinkSource(sysid=TRACKER)),
+        ),
         radio=Radio(range_m=100.0, base_range_m=100.0),
-        run=RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3))
+        run=RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3),
+    )
 
 
 class _Flight:
@@ -63,23 +98,30 @@ class _Flight:
         self.mission = mission
         scenario = mission_scenario(mission, 3, live_tasks=True)
         swarm = build_swarm(mission, scenario, seed=3)
-        self.station = station_for_swarm(swarm, task_sysids=tuple(live_task_columns(mission).values()))
-        self.op = make_operator(mission, scenario, self.station, FlyOptions(wave_size=10),
-                                6, 0.0, 3)
+        self.station = station_for_swarm(
+            swarm, task_sysids=tuple(live_task_columns(mission).values())
+        )
+        self.op = make_operator(
+            mission, scenario, self.station, FlyOptions(wave_size=10), 6, 0.0, 3
+        )
         self.ether = LockstepEther(swarm, self.station, np.random.default_rng(3))
         self.ether.on_event = self.op.handle_event
         self.tracker = _Tracker()
         o = mission.origin
-        lat, lon, alt = ned_to_geodetic(np.array([*crew_ne_m, 0.0]), o.lat_deg, o.lon_deg,
-                                        o.alt_amsl_m)
+        lat, lon, alt = ned_to_geodetic(
+            np.array([*crew_ne_m, 0.0]), o.lat_deg, o.lon_deg, o.alt_amsl_m
+        )
         self.fix = (float(lat), float(lon), float(alt))
         self.tracker_from_s, self.silent_after_s = tracker_from_s, silent_after_s
         self._next_fix_s = 0.0
 
     def _poll(self, now):
-        if (self.tracker_from_s is not None and now >= self.tracker_from_s
-                and (self.silent_after_s is None or now < self.silent_after_s)
-                and now >= self._next_fix_s):
+        if (
+            self.tracker_from_s is not None
+            and now >= self.tracker_from_s
+            and (self.silent_after_s is None or now < self.silent_after_s)
+            and now >= self._next_fix_s
+        ):
             self._next_fix_s = now + 1.0
             link = self.station.links[0]
             link.receive_datagram(self.tracker.heartbeat(), ("tracker", 0), now)
@@ -88,8 +130,9 @@ class _Flight:
 
     def run_until(self, t_s):
         while self.ether.now_s < t_s and not self.op.finished:
-            self.ether.advance_to(min(t_s, self.ether.now_s + 1.0), poll=self._poll,
-                                  poll_period_s=0.5)
+            self.ether.advance_to(
+                min(t_s, self.ether.now_s + 1.0), poll=self._poll, poll_period_s=0.5
+            )
 
 
 def test_launch_waits_for_the_tracker_then_serves_the_crew():

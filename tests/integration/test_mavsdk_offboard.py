@@ -64,7 +64,7 @@ def test_mavsdk_offboard_start_without_retry_px4():
                     break
             await action.arm()
             await offboard.set_position_ned(PositionNedYaw(0.0, 0.0, -5.0, 0.0))
-            await offboard.start()          # no retry: must succeed the first time
+            await offboard.start()  # no retry: must succeed the first time
             mode = emu.call(lambda: core.mode_name)
             async for pv in telemetry.subscribe_position_velocity_ned():
                 if pv.position.down_m < -4.5:
@@ -76,4 +76,4 @@ def test_mavsdk_offboard_start_without_retry_px4():
     with run_in_thread(swarm, speedup=SPEEDUP) as emu:
         down_m, mode = asyncio.run(asyncio.wait_for(scenario(), 60))
     assert mode == "OFFBOARD"
-    assert down_m < -4.5 and math.isfinite(down_m)   # it climbed towards the 5 m setpoint
+    assert down_m < -4.5 and math.isfinite(down_m)  # it climbed towards the 5 m setpoint

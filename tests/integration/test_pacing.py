@@ -49,14 +49,34 @@ def test_paced_clock_never_outruns_the_station_nor_jumps():
 
 
 def _mission(tmp_path, speedup):
-    from mission.schema import (EmulatedVehicles, Mission, Radio, RunSpec, Spawn, SpawnRing,
-                                Task, TrackPoint, Vehicles)
-    return Mission(name="pacing", vehicles=Vehicles(emulated=EmulatedVehicles(
-        count=4, radio_range_m=100.0, cruise_alt_m=20.0, climb_rate_m_s=5.0,
-        max_speed_m_s=10.0, spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)))),
+    from mission.schema import (
+        EmulatedVehicles,
+        Mission,
+        Radio,
+        RunSpec,
+        Spawn,
+        SpawnRing,
+        Task,
+        TrackPoint,
+        Vehicles,
+    )
+
+    return Mission(
+        name="pacing",
+        vehicles=Vehicles(
+            emulated=EmulatedVehicles(
+                count=4,
+                radio_range_m=100.0,
+                cruise_alt_m=20.0,
+                climb_rate_m_s=5.0,
+                max_speed_m_s=10.0,
+                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
+            )
+        ),
         tasks=(Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),),
         radio=Radio(range_m=100.0, base_range_m=100.0, latency_s=0.01),
-        run=RunSpec(duration_s=30.0, seed=2, speedup=speedup))
+        run=RunSpec(duration_s=30.0, seed=2, speedup=speedup),
+    )
 
 
 @pytest.mark.udp
@@ -68,22 +88,27 @@ def test_a_stalled_station_does_not_trip_the_gcs_failsafe(tmp_path):
     stalled = {}
 
     def stall(op, world):
-        if op.phase == "run" and op.t_mission_s(op.records[-1].t_s if op.records else 0) >= 5 \
-                and not stalled:
+        if (
+            op.phase == "run"
+            and op.t_mission_s(op.records[-1].t_s if op.records else 0) >= 5
+            and not stalled
+        ):
             t = time.monotonic()
             time.sleep(10 * fs_gcs_timeout_s / speedup)  # blocks the station's whole process
             stalled["wall_s"] = time.monotonic() - t
 
-    res = fly_emulated(_mission(tmp_path, speedup),
-                       FlyOptions(speedup=speedup, out_dir=str(tmp_path), end_wait=False,
-                                  on_operator=stall))
+    res = fly_emulated(
+        _mission(tmp_path, speedup),
+        FlyOptions(speedup=speedup, out_dir=str(tmp_path), end_wait=False, on_operator=stall),
+    )
     assert stalled["wall_s"] >= 10 * fs_gcs_timeout_s / speedup
     s = res.summary
     assert s["phase"] == "done" and s["counters"]["lost"] == 0
     events = [json.loads(line) for line in open(res.run_dir / "events.jsonl")]
     end_t = res.operator.end_t0_s
-    rtl = [e for e in events if e["type"] == "ModeChanged" and e["mode"] == "RTL"
-           and e["t_s"] < end_t]
+    rtl = [
+        e for e in events if e["type"] == "ModeChanged" and e["mode"] == "RTL" and e["t_s"] < end_t
+    ]
     assert not rtl, rtl
     assert not [e for e in events if e["type"] == "StatusText" and "Failsafe" in e["text"]]
     assert s["truth"]["tu1"] > 0.8

@@ -14,7 +14,11 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from gcs.events import (
-    ArmedChanged, CommandTimedOut, ParamSetConfirmed, VehicleDiscovered, VehicleLost,
+    ArmedChanged,
+    CommandTimedOut,
+    ParamSetConfirmed,
+    VehicleDiscovered,
+    VehicleLost,
 )
 from gcs.control import layer_alt_m
 from mission.ether import LockstepEther, station_for_swarm
@@ -22,8 +26,17 @@ from mission.fly_options import FlyOptions
 from mission.mission_world import MissionWorld, build_swarm, mission_scenario
 from mission.station_loop import make_operator
 from mission.schema import (
-    Attrition, EmulatedVehicles, Mission, Radio, RunSpec, ScriptedLoss, Spawn,
-    SpawnRing, Task, TrackPoint, Vehicles,
+    Attrition,
+    EmulatedVehicles,
+    Mission,
+    Radio,
+    RunSpec,
+    ScriptedLoss,
+    Spawn,
+    SpawnRing,
+    Task,
+    TrackPoint,
+    Vehicles,
 )
 from vehicle_emu.swarm import Swarm
 
@@ -94,13 +107,16 @@ def test_px4_offboard_engaged_only_after_prestreaming():
     ether.advance_to(ether.now_s + 6.0)
     frames = _frames_out(station, {"SET_POSITION_TARGET_GLOBAL_INT", "COMMAND_LONG"})
     first_sp = min(t for t, m in frames if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT")
-    mode_cmds = [(t, m) for t, m in frames if m.get_type() == "COMMAND_LONG"
-                 and m.command in (mavlink.MAV_CMD_DO_SET_MODE,
-                                   mavlink.MAV_CMD_COMPONENT_ARM_DISARM)]
+    mode_cmds = [
+        (t, m)
+        for t, m in frames
+        if m.get_type() == "COMMAND_LONG"
+        and m.command in (mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+    ]
     assert mode_cmds, "OFFBOARD / arm never sent"
     assert min(t for t, _ in mode_cmds) >= first_sp + 1.0  # PX4: > 1 s of setpoints first
     sp_times = sorted(t for t, m in frames if m.get_type() == "SET_POSITION_TARGET_GLOBAL_INT")
-    assert np.max(np.diff(sp_times)) < 0.5                   # streamed at > 2 Hz
+    assert np.max(np.diff(sp_times)) < 0.5  # streamed at > 2 Hz
     info = station.links[0].vehicle(1)
     assert info.mode == "OFFBOARD" and info.armed
 
@@ -109,24 +125,36 @@ def test_px4_offboard_engaged_only_after_prestreaming():
 
 
 def _mission(n=6, personality="ardupilot", duration_s=60.0, kills=(), tasks=None, radio=100.0):
-    tasks = tasks or (Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
-                      Task(track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),)))
+    tasks = tasks or (
+        Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
+        Task(track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),)),
+    )
     return Mission(
         name="pair",
-        vehicles=Vehicles(emulated=EmulatedVehicles(
-            count=n, personality=personality, radio_range_m=radio, cruise_alt_m=20.0,
-            climb_rate_m_s=5.0, max_speed_m_s=10.0,
-            spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)))),
-        tasks=tasks, radio=Radio(range_m=radio, base_range_m=radio),
+        vehicles=Vehicles(
+            emulated=EmulatedVehicles(
+                count=n,
+                personality=personality,
+                radio_range_m=radio,
+                cruise_alt_m=20.0,
+                climb_rate_m_s=5.0,
+                max_speed_m_s=10.0,
+                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
+            )
+        ),
+        tasks=tasks,
+        radio=Radio(range_m=radio, base_range_m=radio),
         attrition=Attrition(scripted=tuple(ScriptedLoss(vehicle=i, t_s=t) for t, i in kills)),
-        run=RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3))
+        run=RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3),
+    )
 
 
 class _InMemoryFlight:
     """Operator + station + swarm over the ether, on a virtual clock."""
 
-    def __init__(self, mission, loss=0.0, params=None, seed=3, record=False, ekf_ready_s=None,
-                 **opts):
+    def __init__(
+        self, mission, loss=0.0, params=None, seed=3, record=False, ekf_ready_s=None, **opts
+    ):
         scenario = mission_scenario(mission, seed)
         self.swarm = build_swarm(mission, scenario, seed=seed, params=params)
         if ekf_ready_s is not None:
@@ -136,11 +164,16 @@ class _InMemoryFlight:
                 core._ekf_ready_s = float(ekf_ready_s)
         self.world = MissionWorld(mission, scenario, self.swarm)
         self.station = station_for_swarm(self.swarm, record_frames=record)
-        self.op = make_operator(mission, scenario, self.station,
-                                FlyOptions(wave_size=10, **opts), mission.vehicles.count, 0.0,
-                                seed)
-        self.ether = LockstepEther(self.swarm, self.station, np.random.default_rng(seed),
-                                   loss=loss)
+        self.op = make_operator(
+            mission,
+            scenario,
+            self.station,
+            FlyOptions(wave_size=10, **opts),
+            mission.vehicles.count,
+            0.0,
+            seed,
+        )
+        self.ether = LockstepEther(self.swarm, self.station, np.random.default_rng(seed), loss=loss)
         self.events = []
         self.ether.on_event = self._on_event
         self.started = False
@@ -201,21 +234,26 @@ def _sent_messages(f):
 
 
 def test_apply_failsafes_fixes_ardupilot_and_launches():
-    f = _InMemoryFlight(_mission(n=2, duration_s=10.0), params={"FS_GCS_ENABLE": 0},
-                        apply_failsafes=True)
+    f = _InMemoryFlight(
+        _mission(n=2, duration_s=10.0), params={"FS_GCS_ENABLE": 0}, apply_failsafes=True
+    )
     f.run_until_phase("run", limit_s=150.0)
     assert [c.params["FS_GCS_ENABLE"] for c in f.swarm.cores] == [1, 1]
     assert f.op.initial_audit_report is not None and not f.op.initial_audit_report.cleared_to_fly
     assert f.op.audit_report.cleared_to_fly and not f.op.audit_report.overridden
-    ok = sorted((c["sysid"], c["name"], c["previous"], c["value"], c["ok"])
-                for c in f.op.param_changes)
+    ok = sorted(
+        (c["sysid"], c["name"], c["previous"], c["value"], c["ok"]) for c in f.op.param_changes
+    )
     assert ok == [(1, "FS_GCS_ENABLE", 0, 1, True), (2, "FS_GCS_ENABLE", 0, 1, True)]
     assert {e.sysid for e in f.events if isinstance(e, ParamSetConfirmed)} == {1, 2}
 
 
 def test_apply_failsafes_sets_the_gcs_sysid_the_vehicle_has():
-    f = _InMemoryFlight(_mission(n=1, duration_s=10.0),
-                        params={"FS_GCS_ENABLE": 0, "SYSID_MYGCS": 200}, apply_failsafes=True)
+    f = _InMemoryFlight(
+        _mission(n=1, duration_s=10.0),
+        params={"FS_GCS_ENABLE": 0, "SYSID_MYGCS": 200},
+        apply_failsafes=True,
+    )
     f.run_until_phase("run", limit_s=150.0)
     core = f.swarm.cores[0]
     assert (core.params["FS_GCS_ENABLE"], core.params["SYSID_MYGCS"]) == (1, 255)
@@ -223,8 +261,12 @@ def test_apply_failsafes_sets_the_gcs_sysid_the_vehicle_has():
 
 
 def test_apply_failsafes_fixes_px4_nav_dll_act_bytewise():
-    f = _InMemoryFlight(_mission(n=2, personality="px4", duration_s=10.0),
-                        params={"NAV_DLL_ACT": 0}, apply_failsafes=True, record=True)
+    f = _InMemoryFlight(
+        _mission(n=2, personality="px4", duration_s=10.0),
+        params={"NAV_DLL_ACT": 0},
+        apply_failsafes=True,
+        record=True,
+    )
     f.run_until_phase("run", limit_s=150.0)
     assert [c.params["NAV_DLL_ACT"] for c in f.swarm.cores] == [2, 2]
     sets = [m for m in _sent_messages(f) if m.get_type() == "PARAM_SET"]
@@ -238,8 +280,11 @@ def test_apply_failsafes_fixes_px4_nav_dll_act_bytewise():
 def test_apply_failsafes_fixes_a_disarming_offboard_loss_action():
     # COM_OBL_RC_ACT 6 (terminate on offboard loss) and NAV_DLL_ACT 0 are both written to
     # Return (gcs/audit.py failsafe_fixes), confirmed by the echo, and the flight is cleared.
-    f = _InMemoryFlight(_mission(n=1, personality="px4"),
-                        params={"NAV_DLL_ACT": 0, "COM_OBL_RC_ACT": 6}, apply_failsafes=True)
+    f = _InMemoryFlight(
+        _mission(n=1, personality="px4"),
+        params={"NAV_DLL_ACT": 0, "COM_OBL_RC_ACT": 6},
+        apply_failsafes=True,
+    )
     f.run_until_phase("launch", limit_s=120.0)
     core = f.swarm.cores[0]
     assert core.params["NAV_DLL_ACT"] == 2 and core.params["COM_OBL_RC_ACT"] == 3
@@ -248,14 +293,16 @@ def test_apply_failsafes_fixes_a_disarming_offboard_loss_action():
     assert {"NAV_DLL_ACT", "COM_OBL_RC_ACT"} <= written
 
 
-@pytest.mark.parametrize("personality,ready_s", [("ardupilot", 40.0), ("ardupilot", 70.0),
-                                                  ("px4", 70.0)])
+@pytest.mark.parametrize(
+    "personality,ready_s", [("ardupilot", 40.0), ("ardupilot", 70.0), ("px4", 70.0)]
+)
 def test_launch_waits_for_vehicles_that_are_not_ready_to_arm(personality, ready_s):
     # Every vehicle refuses to arm until its EKF is ready (SITL: ~40 s after boot). The launch
     # keeps asking at a steady pace (no runaway back-off), reports the PreArm text, and starts
     # the run only once the fleet has climbed.
-    f = _InMemoryFlight(_mission(n=4, personality=personality, duration_s=10.0),
-                        ekf_ready_s=ready_s)
+    f = _InMemoryFlight(
+        _mission(n=4, personality=personality, duration_s=10.0), ekf_ready_s=ready_s
+    )
     f.run_until_phase("run", limit_s=ready_s + 120.0)
     armed = {}
     for e in f.events:
@@ -279,8 +326,8 @@ def test_reclaim_after_gcs_failsafe():
     f = _InMemoryFlight(_mission(n=3, duration_s=120.0))
     f.run_until_phase("run")
     f.run_until(f.ether.now_s + 5.0)
-    f.ether.cut_links.add(0)                 # the station goes deaf and mute
-    f.run_until(f.ether.now_s + 8.0)         # FS_GCS_TIMEOUT 5 s: every vehicle in RTL
+    f.ether.cut_links.add(0)  # the station goes deaf and mute
+    f.run_until(f.ether.now_s + 8.0)  # FS_GCS_TIMEOUT 5 s: every vehicle in RTL
     assert all(c.custom_mode == 6 for c in f.swarm.cores)  # ArduCopter RTL
     f.ether.cut_links.clear()
     t_back = f.ether.now_s
@@ -334,22 +381,36 @@ def test_relay_loss_cuts_a_branch_whose_vehicles_return_and_are_reclaimed():
 
 def _with_speed(mission, max_speed_m_s):
     emu = dataclasses.replace(mission.vehicles.emulated, max_speed_m_s=max_speed_m_s)
-    return dataclasses.replace(mission, vehicles=dataclasses.replace(mission.vehicles,
-                                                                     emulated=emu))
+    return dataclasses.replace(
+        mission, vehicles=dataclasses.replace(mission.vehicles, emulated=emu)
+    )
 
 
-@pytest.mark.parametrize("personality,firmware_defaults,expect", [
-    ("ardupilot", {"WPNAV_SPEED": 1000.0, "WPNAV_SPEED_UP": 250.0},
-     {"WPNAV_SPEED": 400.0, "WPNAV_SPEED_UP": 500.0}),
-    ("px4", {"MPC_XY_VEL_MAX": 12.0, "MPC_XY_CRUISE": 5.0, "MPC_Z_VEL_MAX_UP": 3.0},
-     {"MPC_XY_VEL_MAX": 4.0, "MPC_XY_CRUISE": 4.0, "MPC_Z_VEL_MAX_UP": 5.0}),
-])
+@pytest.mark.parametrize(
+    "personality,firmware_defaults,expect",
+    [
+        (
+            "ardupilot",
+            {"WPNAV_SPEED": 1000.0, "WPNAV_SPEED_UP": 250.0},
+            {"WPNAV_SPEED": 400.0, "WPNAV_SPEED_UP": 500.0},
+        ),
+        (
+            "px4",
+            {"MPC_XY_VEL_MAX": 12.0, "MPC_XY_CRUISE": 5.0, "MPC_Z_VEL_MAX_UP": 3.0},
+            {"MPC_XY_VEL_MAX": 4.0, "MPC_XY_CRUISE": 4.0, "MPC_Z_VEL_MAX_UP": 5.0},
+        ),
+    ],
+)
 def test_the_missions_limits_are_written_into_the_firmware_and_restored(
-        personality, firmware_defaults, expect):
+    personality, firmware_defaults, expect
+):
     # The firmware's own defaults (faster than the mission) are replaced by the mission's limits
     # at launch (gcs/limits.py), each confirmed by its echo, and written back after landing.
-    f = _InMemoryFlight(_with_speed(_mission(n=2, personality=personality, duration_s=5.0), 4.0),
-                        params=firmware_defaults, restore_params=True)
+    f = _InMemoryFlight(
+        _with_speed(_mission(n=2, personality=personality, duration_s=5.0), 4.0),
+        params=firmware_defaults,
+        restore_params=True,
+    )
     f.run_until_phase("run", limit_s=120.0)
     for core in f.swarm.cores:
         assert {k: core.params[k] for k in expect} == pytest.approx(expect)
@@ -362,8 +423,9 @@ def test_the_missions_limits_are_written_into_the_firmware_and_restored(
 
 
 def test_keep_firmware_limits_writes_nothing():
-    f = _InMemoryFlight(_with_speed(_mission(n=2), 4.0), params={"WPNAV_SPEED": 1000.0},
-                        set_limits=False)
+    f = _InMemoryFlight(
+        _with_speed(_mission(n=2), 4.0), params={"WPNAV_SPEED": 1000.0}, set_limits=False
+    )
     f.run_until_phase("run", limit_s=120.0)
     assert f.op.param_changes == []
     assert all(core.params["WPNAV_SPEED"] == 1000.0 for core in f.swarm.cores)

@@ -21,8 +21,18 @@ import pytest
 from mission.ether import LockstepEther, station_for_swarm
 from mission.fly_options import FlyOptions
 from mission.mission_world import MissionWorld, build_swarm, mission_scenario
-from mission.schema import (EmulatedVehicles, Mission, PlannerSpec, Radio, RunSpec, Spawn,
-                            SpawnRing, Task, TrackPoint, Vehicles)
+from mission.schema import (
+    EmulatedVehicles,
+    Mission,
+    PlannerSpec,
+    Radio,
+    RunSpec,
+    Spawn,
+    SpawnRing,
+    Task,
+    TrackPoint,
+    Vehicles,
+)
 from mission.station_loop import make_operator
 
 SEED = 3
@@ -31,14 +41,22 @@ SEED = 3
 def _mission(personality: str, rally: bool) -> Mission:
     return Mission(
         name="rally",
-        vehicles=Vehicles(emulated=EmulatedVehicles(
-            count=6, personality=personality, radio_range_m=100.0, cruise_alt_m=20.0,
-            climb_rate_m_s=5.0, max_speed_m_s=10.0,
-            spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)))),
+        vehicles=Vehicles(
+            emulated=EmulatedVehicles(
+                count=6,
+                personality=personality,
+                radio_range_m=100.0,
+                cruise_alt_m=20.0,
+                climb_rate_m_s=5.0,
+                max_speed_m_s=10.0,
+                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
+            )
+        ),
         tasks=(Task(track=(TrackPoint(t_s=0.0, north_m=240.0, east_m=0.0),)),),
         radio=Radio(range_m=100.0, base_range_m=100.0),
         planner=PlannerSpec(method="phireman-resilient", params={"rally": rally}),
-        run=RunSpec(duration_s=150.0, control_period_s=1.0, seed=SEED))
+        run=RunSpec(duration_s=150.0, control_period_s=1.0, seed=SEED),
+    )
 
 
 class Flight:
@@ -47,8 +65,15 @@ class Flight:
         self.swarm = build_swarm(mission, scenario, seed=SEED, params=params)
         self.world = MissionWorld(mission, scenario, self.swarm)
         self.station = station_for_swarm(self.swarm)
-        self.op = make_operator(mission, scenario, self.station, FlyOptions(wave_size=10),
-                                mission.vehicles.count, 0.0, SEED)
+        self.op = make_operator(
+            mission,
+            scenario,
+            self.station,
+            FlyOptions(wave_size=10),
+            mission.vehicles.count,
+            0.0,
+            SEED,
+        )
         self.ether = LockstepEther(self.swarm, self.station, np.random.default_rng(SEED))
         self.ether.on_event = self.op.handle_event
         self.started = False
@@ -61,8 +86,9 @@ class Flight:
 
     def run_until(self, t_s: float, every=None) -> None:
         while self.ether.now_s < t_s - 1e-9:
-            self.ether.advance_to(min(t_s, self.ether.now_s + 0.5), poll=self._poll,
-                                  poll_period_s=0.5)
+            self.ether.advance_to(
+                min(t_s, self.ether.now_s + 0.5), poll=self._poll, poll_period_s=0.5
+            )
             if every is not None:
                 every()
 
@@ -84,14 +110,14 @@ def test_cut_branch_returns_to_the_rally_point_and_is_reclaimed(personality):
     np.testing.assert_allclose(keeper.points_ne_m, [[90.0, 0.0]], atol=5.0)
     rally = keeper.points_ne_m[0]
     ids = [(0, int(s)) for s in f.swarm.sysid_of_index]
-    assert all(keeper.up_to_date(vid) for vid in ids)          # every vehicle holds the set
-    for core in f.swarm.cores:                                 # as the firmware stores it
+    assert all(keeper.up_to_date(vid) for vid in ids)  # every vehicle holds the set
+    for core in f.swarm.cores:  # as the firmware stores it
         np.testing.assert_allclose(core.pers.rally_ne_m(), [rally], atol=0.5)
 
     pos = f.swarm.physics.pos_ned_m[:, :2]
     inner = np.flatnonzero(np.hypot(*pos.T) < 130.0)
     outer = np.flatnonzero(np.hypot(*pos.T) >= 130.0)
-    assert len(outer) >= 1 and len(inner) >= 1, np.hypot(*pos.T)   # the chain stands
+    assert len(outer) >= 1 and len(inner) >= 1, np.hypot(*pos.T)  # the chain stands
     now = f.ether.now_s
     for i in inner.tolist():
         f.swarm.attrition.add_kill(now, i)
@@ -131,30 +157,36 @@ def test_without_rally_points_the_cut_drones_head_home():
     for i in outer.tolist():
         core = f.swarm.cores[i]
         assert core.mode_name == "RTL" or (0, int(f.swarm.sysid_of_index[i])) in {
-            (lid, s) for _, lid, s in f.op.reclaimed}
+            (lid, s) for _, lid, s in f.op.reclaimed
+        }
         np.testing.assert_allclose(core._rtl_dest_ned_m, core.home_ned_m)
 
 
 def test_the_end_clears_the_rally_points_before_the_rtl_so_it_goes_home():
-    mission = dataclasses.replace(_mission("ardupilot", rally=True),
-                                  run=RunSpec(duration_s=40.0, control_period_s=1.0, seed=SEED))
+    mission = dataclasses.replace(
+        _mission("ardupilot", rally=True),
+        run=RunSpec(duration_s=40.0, control_period_s=1.0, seed=SEED),
+    )
     f = Flight(mission)
     f.run_until_phase("run")
     f.run_until(f.op.mission_t0_s + 30.0)
     assert all(len(core.pers.rally_ne_m()) == 1 for core in f.swarm.cores)
     f.run_until_phase("done", limit_s=400.0)
     rtl = [core for core in f.swarm.cores if core.mode_name == "RTL"]
-    assert len(rtl) == len(f.swarm.cores)                     # the end command: RTL
+    assert len(rtl) == len(f.swarm.cores)  # the end command: RTL
     for core in rtl:
-        assert core.pers.rally_ne_m().shape == (0, 2)         # cleared first ...
-        np.testing.assert_allclose(core._rtl_dest_ned_m, core.home_ned_m)   # ... so: home
+        assert core.pers.rally_ne_m().shape == (0, 2)  # cleared first ...
+        np.testing.assert_allclose(core._rtl_dest_ned_m, core.home_ned_m)  # ... so: home
         assert core.landed and not core.armed
 
 
-@pytest.mark.parametrize("personality, boot, name, want", [
-    ("ardupilot", {}, "RALLY_LIMIT_KM", 0.0),             # Copter default 0.3 km -> no limit
-    ("px4", {"RTL_TYPE": 2}, "RTL_TYPE", 0.0),             # 2 ignores rally points -> 0
-])
+@pytest.mark.parametrize(
+    "personality, boot, name, want",
+    [
+        ("ardupilot", {}, "RALLY_LIMIT_KM", 0.0),  # Copter default 0.3 km -> no limit
+        ("px4", {"RTL_TYPE": 2}, "RTL_TYPE", 0.0),  # 2 ignores rally points -> 0
+    ],
+)
 def test_the_audit_makes_the_firmware_use_rally_points(personality, boot, name, want):
     f = Flight(_mission(personality, rally=True), params=boot)
     f.run_until_phase("run")

@@ -52,8 +52,7 @@ def _wait(cond, timeout_s: float, what: str, procs=()):
             return
         for p in procs:
             if p.poll() is not None:
-                raise AssertionError(f"station exited (rc {p.returncode}) while waiting for "
-                                     f"{what}")
+                raise AssertionError(f"station exited (rc {p.returncode}) while waiting for {what}")
         time.sleep(0.2)
     raise AssertionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
 
@@ -94,42 +93,83 @@ def _tlog_speeds(run_dir: Path) -> dict[int, list[tuple[float, float, float]]]:
             break
         v = math.hypot(m.vx, m.vy) / 100.0
         out.setdefault(m.get_srcSystem(), []).append(
-            (getattr(m, "_timestamp", 0.0), v, m.relative_alt / 1000.0))
+            (getattr(m, "_timestamp", 0.0), v, m.relative_alt / 1000.0)
+        )
     return out
 
 
 def _fly(mission: str, connects: list[str], out: Path, *extra: str) -> subprocess.Popen:
-    args = [*PHIREMAN, "fly", mission, *sum((["--connect", c] for c in connects), []),
-            "--apply-failsafes", "--out", str(out), *extra]
+    args = [
+        *PHIREMAN,
+        "fly",
+        mission,
+        *sum((["--connect", c] for c in connects), []),
+        "--apply-failsafes",
+        "--out",
+        str(out),
+        *extra,
+    ]
     log = open(out.parent / f"{out.name}.log", "w")
-    return subprocess.Popen(args, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
-                            env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    return subprocess.Popen(
+        args,
+        cwd=ROOT,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
 
 
 def _timeline(events: list[dict], t0: float) -> list[str]:
     """Lines 't+  12.3 s  sysid 2  ModeChanged GUIDED' of the notable events."""
-    keep = {"VehicleDiscovered", "ModeChanged", "ArmedChanged", "VehicleLost",
-            "VehicleRecovered", "ParamSetConfirmed", "LinkDown", "LinkUp", "StatusText"}
+    keep = {
+        "VehicleDiscovered",
+        "ModeChanged",
+        "ArmedChanged",
+        "VehicleLost",
+        "VehicleRecovered",
+        "ParamSetConfirmed",
+        "LinkDown",
+        "LinkUp",
+        "StatusText",
+    }
     out = []
     for e in events:
         if e.get("type") not in keep:
             continue
-        what = e.get("mode") or e.get("name") or e.get("text") or (
-            "armed" if e.get("armed") else "disarmed" if "armed" in e else "")
-        out.append(f"t+{e.get('t_s', 0) - t0:7.1f} s  sysid {e.get('sysid', '-')}  "
-                   f"{e['type']} {what}")
+        what = (
+            e.get("mode")
+            or e.get("name")
+            or e.get("text")
+            or ("armed" if e.get("armed") else "disarmed" if "armed" in e else "")
+        )
+        out.append(
+            f"t+{e.get('t_s', 0) - t0:7.1f} s  sysid {e.get('sysid', '-')}  {e['type']} {what}"
+        )
     return out
 
 
-def _life_cycle(tmp_path: Path, firmware: str, mission: str, speedup: float,
-                guided_mode: str, fs_modes: tuple[str, ...]) -> None:
+def _life_cycle(
+    tmp_path: Path,
+    firmware: str,
+    mission: str,
+    speedup: float,
+    guided_mode: str,
+    fs_modes: tuple[str, ...],
+) -> None:
     from mission.commands.fly import _load
 
     binary = _binary_or_skip(firmware)
     m = _load(mission)
     o = m.origin
-    spec = SitlSpec(firmware, 3, binary, (o.lat_deg, o.lon_deg, o.alt_amsl_m), speedup=speedup,
-                    workdir=tmp_path / "sitl", first_instance=0)
+    spec = SitlSpec(
+        firmware,
+        3,
+        binary,
+        (o.lat_deg, o.lon_deg, o.alt_amsl_m),
+        speedup=speedup,
+        workdir=tmp_path / "sitl",
+        first_instance=0,
+    )
     speed = ["--speedup", f"{speedup:g}"] if speedup != 1.0 else []
     with SitlSwarm(spec) as sitl:
         conns = sitl.connections()
@@ -137,20 +177,27 @@ def _life_cycle(tmp_path: Path, firmware: str, mission: str, speedup: float,
         runs1 = tmp_path / "station1"
         st1 = _fly(mission, conns, runs1, "--duration-s", "600", *speed)
         try:
-            _wait(lambda: len(_metrics(_run_dir(runs1))) >= 5, 240,
-                  "the first station to launch all vehicles and plan", [st1])
+            _wait(
+                lambda: len(_metrics(_run_dir(runs1))) >= 5,
+                240,
+                "the first station to launch all vehicles and plan",
+                [st1],
+            )
             ev1 = _events(_run_dir(runs1))
             armed = {e["sysid"] for e in ev1 if e["type"] == "ArmedChanged" and e["armed"]}
-            guided = {e["sysid"] for e in ev1 if e["type"] == "ModeChanged"
-                      and e["mode"] == guided_mode}
+            guided = {
+                e["sysid"] for e in ev1 if e["type"] == "ModeChanged" and e["mode"] == guided_mode
+            }
             assert armed == {1, 2, 3} and guided == {1, 2, 3}
             sets = {(e["sysid"], e["name"]) for e in ev1 if e["type"] == "ParamSetConfirmed"}
             print(f"\n[{firmware}] first station: parameters written {sorted(sets)}")
             t1 = ev1[0]["t_s"]
             run_start = float(_metrics(_run_dir(runs1))[0]["t_s"]) - t1
-            print(f"[{firmware}] first station timeline (plan running, layers reached, at "
-                  f"t+{run_start:.1f} s):\n  " + "\n  ".join(
-                      line for line in _timeline(ev1, t1) if "StatusText" not in line))
+            print(
+                f"[{firmware}] first station timeline (plan running, layers reached, at "
+                f"t+{run_start:.1f} s):\n  "
+                + "\n  ".join(line for line in _timeline(ev1, t1) if "StatusText" not in line)
+            )
         finally:
             # 2. The station dies (SIGKILL: no goodbye).
             st1.send_signal(signal.SIGKILL)
@@ -165,23 +212,40 @@ def _life_cycle(tmp_path: Path, firmware: str, mission: str, speedup: float,
         runs2 = tmp_path / "station2"
         st2 = _fly(mission, conns, runs2, "--duration-s", "60", "--vehicles", "2", *speed)
         try:
+
             def modes_seen():
                 ev = _events(_run_dir(runs2))
                 return {e["sysid"]: e["mode"] for e in ev if e["type"] == "VehicleDiscovered"}
-            _wait(lambda: len(modes_seen()) >= 2, 120, "the restarted station to hear 2 vehicles",
-                  [st2])
+
+            _wait(
+                lambda: len(modes_seen()) >= 2,
+                120,
+                "the restarted station to hear 2 vehicles",
+                [st2],
+            )
             found = modes_seen()
-            print(f"[{firmware}] restarted station found {found} "
-                  f"{time.monotonic() - t_kill:.1f} s wall after the SIGKILL")
+            print(
+                f"[{firmware}] restarted station found {found} "
+                f"{time.monotonic() - t_kill:.1f} s wall after the SIGKILL"
+            )
             assert all(found[s] in fs_modes for s in (1, 2)), found
             # 5. Reclaimed and planned again.
-            _wait(lambda: len(_metrics(_run_dir(runs2))) >= 5, 240,
-                  "the restarted station to reclaim and plan", [st2])
+            _wait(
+                lambda: len(_metrics(_run_dir(runs2))) >= 5,
+                240,
+                "the restarted station to reclaim and plan",
+                [st2],
+            )
             # 6. A vehicle killed in flight: lost, the plan goes on with the other.
             sitl.kill(1)
-            _wait(lambda: any(e["type"] == "VehicleLost" and e["sysid"] == 2
-                              for e in _events(_run_dir(runs2))), 60, "VehicleLost for sysid 2",
-                  [st2])
+            _wait(
+                lambda: any(
+                    e["type"] == "VehicleLost" and e["sysid"] == 2 for e in _events(_run_dir(runs2))
+                ),
+                60,
+                "VehicleLost for sysid 2",
+                [st2],
+            )
             # 7. The end: the last vehicle lands, the station says so and exits 0.
             rc = st2.wait(600)
         finally:
@@ -206,57 +270,96 @@ def _life_cycle(tmp_path: Path, firmware: str, mission: str, speedup: float,
         # the vehicles are under the station's control.
         limit = m.vehicles.limits.max_speed_m_s
         speeds = _tlog_speeds(run2)
-        worst = max((v for rows in speeds.values() for _, v, alt in rows if alt > 3.0),
-                    default=0.0)
+        worst = max((v for rows in speeds.values() for _, v, alt in rows if alt > 3.0), default=0.0)
         t0 = ev2[0]["t_s"] if ev2 else 0.0
-        print(f"[{firmware}] timeline of the restarted station:\n  "
-              + "\n  ".join(_timeline(ev2, t0)))
-        print(f"[{firmware}] TU1/TU2 as the station saw them: {summary['station']['tu1']:.3f} / "
-              f"{summary['station']['tu2']:.3f}; max horizontal speed {worst:.2f} m/s "
-              f"(mission limit {limit:g})")
+        print(
+            f"[{firmware}] timeline of the restarted station:\n  " + "\n  ".join(_timeline(ev2, t0))
+        )
+        print(
+            f"[{firmware}] TU1/TU2 as the station saw them: {summary['station']['tu1']:.3f} / "
+            f"{summary['station']['tu2']:.3f}; max horizontal speed {worst:.2f} m/s "
+            f"(mission limit {limit:g})"
+        )
         assert worst <= 1.1 * limit, worst
 
 
 def test_ardupilot_sitl_life_cycle(tmp_path):
-    _life_cycle(tmp_path, "ardupilot", "sitl_ardupilot", speedup=5.0, guided_mode="GUIDED",
-                fs_modes=("RTL", "LAND"))
+    _life_cycle(
+        tmp_path,
+        "ardupilot",
+        "sitl_ardupilot",
+        speedup=5.0,
+        guided_mode="GUIDED",
+        fs_modes=("RTL", "LAND"),
+    )
 
 
 def test_px4_sitl_life_cycle(tmp_path):
-    _life_cycle(tmp_path, "px4", "sitl_px4", speedup=1.0, guided_mode="OFFBOARD",
-                fs_modes=("AUTO.RTL", "AUTO.LAND", "AUTO.LOITER"))
+    _life_cycle(
+        tmp_path,
+        "px4",
+        "sitl_px4",
+        speedup=1.0,
+        guided_mode="OFFBOARD",
+        fs_modes=("AUTO.RTL", "AUTO.LAND", "AUTO.LOITER"),
+    )
 
 
 # ------------------------------------------------------------------ the audit on real firmware
 
 _REFUSALS = [
     # (firmware, boot parameters, parameter the audit must name, what it must say)
-    ("ardupilot", {}, "FS_GCS_ENABLE", "disabled"),                        # copter default 0
+    ("ardupilot", {}, "FS_GCS_ENABLE", "disabled"),  # copter default 0
     ("ardupilot", {"FS_GCS_ENABLE": 5}, "FS_GCS_ENABLE", "Land"),
     ("ardupilot", {"FS_GCS_ENABLE": 1, "MAV_GCS_SYSID": 200}, "SYSID", "does not include"),
-    ("px4", {"NAV_DLL_ACT": 0}, "NAV_DLL_ACT", "disabled"),                # PX4 default
+    ("px4", {"NAV_DLL_ACT": 0}, "NAV_DLL_ACT", "disabled"),  # PX4 default
     ("px4", {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 6}, "NAV_RCL_ACT", "isarm"),
     ("px4", {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 4}, "COM_OBL_RC_ACT", "Land"),
 ]
 
 
-@pytest.mark.parametrize("firmware,params,name,words", _REFUSALS,
-                         ids=[f"{f}-{n}-{'-'.join(f'{k}{v}' for k, v in p.items()) or 'defaults'}"
-                              for f, p, n, _ in _REFUSALS])
-def test_the_audit_refuses_unsafe_lost_link_settings_on_real_firmware(tmp_path, firmware, params,
-                                                                      name, words):
+@pytest.mark.parametrize(
+    "firmware,params,name,words",
+    _REFUSALS,
+    ids=[
+        f"{f}-{n}-{'-'.join(f'{k}{v}' for k, v in p.items()) or 'defaults'}"
+        for f, p, n, _ in _REFUSALS
+    ],
+)
+def test_the_audit_refuses_unsafe_lost_link_settings_on_real_firmware(
+    tmp_path, firmware, params, name, words
+):
     """Each unsafe setting, booted into the real firmware, makes `phireman fly` (without
     --apply-failsafes) refuse before anything is armed, naming the parameter."""
     binary = _binary_or_skip(firmware)
     from mission.sitl import DEFAULT_HOMES
 
     mission = "sitl_ardupilot" if firmware == "ardupilot" else "sitl_px4"
-    spec = SitlSpec(firmware, 1, binary, DEFAULT_HOMES[firmware], params=dict(params),
-                    workdir=tmp_path / "sitl", first_instance=0)
+    spec = SitlSpec(
+        firmware,
+        1,
+        binary,
+        DEFAULT_HOMES[firmware],
+        params=dict(params),
+        workdir=tmp_path / "sitl",
+        first_instance=0,
+    )
     with SitlSwarm(spec) as sitl:
-        out = subprocess.run([*PHIREMAN, "fly", mission, "--connect", sitl.connection(0),
-                              "--out", str(tmp_path / "runs")], cwd=ROOT, capture_output=True,
-                             text=True, timeout=300)
+        out = subprocess.run(
+            [
+                *PHIREMAN,
+                "fly",
+                mission,
+                "--connect",
+                sitl.connection(0),
+                "--out",
+                str(tmp_path / "runs"),
+            ],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
     text = out.stdout + out.stderr
     assert out.returncode == 1, text[-3000:]
     assert "refused the flight" in text

@@ -23,8 +23,10 @@ T_RALLY = mavlink.MAV_MISSION_TYPE_RALLY
 
 def _points(firmware: str) -> tuple[RallyPoint, ...]:
     lat, lon, _ = DEFAULT_HOMES[firmware]
-    return (RallyPoint(deg_to_e7(lat + 0.0008), deg_to_e7(lon), 40.0),
-            RallyPoint(deg_to_e7(lat), deg_to_e7(lon - 0.0011), 35.0))
+    return (
+        RallyPoint(deg_to_e7(lat + 0.0008), deg_to_e7(lon), 40.0),
+        RallyPoint(deg_to_e7(lat), deg_to_e7(lon - 0.0011), 35.0),
+    )
 
 
 def _recv(conn, kinds, timeout_s: float):
@@ -40,22 +42,31 @@ def test_rally_upload_is_accepted_by_real_firmware(tmp_path, firmware):
         binary = find_binary(firmware)
     except SitlError as exc:
         pytest.skip(f"real-firmware test skipped: {exc}")
-    spec = SitlSpec(firmware, 1, binary, DEFAULT_HOMES[firmware], workdir=tmp_path / "sitl",
-                    first_instance=7 if firmware == "ardupilot" else 0)
+    spec = SitlSpec(
+        firmware,
+        1,
+        binary,
+        DEFAULT_HOMES[firmware],
+        workdir=tmp_path / "sitl",
+        first_instance=7 if firmware == "ardupilot" else 0,
+    )
     with SitlSwarm(spec) as sitl:
-        conn = mavutil.mavlink_connection(sitl.connection(0), source_system=255,
-                                          source_component=190, dialect="ardupilotmega")
+        conn = mavutil.mavlink_connection(
+            sitl.connection(0), source_system=255, source_component=190, dialect="ardupilotmega"
+        )
         try:
             hb = None
             end = time.monotonic() + 120
             while time.monotonic() < end and hb is None:
-                conn.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 4)
+                conn.mav.heartbeat_send(
+                    mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 4
+                )
                 m = _recv(conn, ["HEARTBEAT"], 1.0)
                 if m is not None and m.get_srcComponent() == 1 and m.type != mavlink.MAV_TYPE_GCS:
                     hb = m
             assert hb is not None, "no heartbeat from the vehicle"
             sysid = hb.get_srcSystem()
-            time.sleep(5.0)          # let the firmware finish booting its mission storage
+            time.sleep(5.0)  # let the firmware finish booting its mission storage
             points = _points(firmware)
             up = RallyUpload(sysid, points, time.monotonic())
             seen = []
@@ -123,11 +134,20 @@ def test_real_firmware_rtl_flies_to_the_uploaded_rally_point(tmp_path, firmware)
     home = DEFAULT_HOMES[firmware]
     params = {"RALLY_LIMIT_KM": 0.0} if firmware == "ardupilot" else {"NAV_DLL_ACT": 0}
     speedup = 4.0 if firmware == "ardupilot" else 1.0
-    spec = SitlSpec(firmware, 1, binary, home, workdir=tmp_path / "sitl", params=params,
-                    first_instance=8 if firmware == "ardupilot" else 0, speedup=speedup)
+    spec = SitlSpec(
+        firmware,
+        1,
+        binary,
+        home,
+        workdir=tmp_path / "sitl",
+        params=params,
+        first_instance=8 if firmware == "ardupilot" else 0,
+        speedup=speedup,
+    )
     with SitlSwarm(spec) as sitl:
-        conn = mavutil.mavlink_connection(sitl.connection(0), source_system=255,
-                                          source_component=190, dialect="ardupilotmega")
+        conn = mavutil.mavlink_connection(
+            sitl.connection(0), source_system=255, source_component=190, dialect="ardupilotmega"
+        )
         pos: dict[str, float] = {}
 
         def pump(seconds: float, until=None) -> bool:
@@ -135,18 +155,23 @@ def test_real_firmware_rtl_flies_to_the_uploaded_rally_point(tmp_path, firmware)
             last_hb = 0.0
             while time.monotonic() < end:
                 if time.monotonic() - last_hb > 0.5:
-                    conn.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID,
-                                            0, 0, 4)
+                    conn.mav.heartbeat_send(
+                        mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 4
+                    )
                     last_hb = time.monotonic()
                 m = conn.recv_match(blocking=True, timeout=0.2)
                 if m is None:
                     continue
                 if m.get_type() == "GLOBAL_POSITION_INT" and m.get_srcComponent() == 1:
                     pos.update(lat=m.lat * 1e-7, lon=m.lon * 1e-7, rel=m.relative_alt * 1e-3)
-                if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1 \
-                        and m.type != mavlink.MAV_TYPE_GCS:
-                    pos.update(sysid=m.get_srcSystem(), armed=bool(m.base_mode & 128),
-                               mode=m.custom_mode)
+                if (
+                    m.get_type() == "HEARTBEAT"
+                    and m.get_srcComponent() == 1
+                    and m.type != mavlink.MAV_TYPE_GCS
+                ):
+                    pos.update(
+                        sysid=m.get_srcSystem(), armed=bool(m.base_mode & 128), mode=m.custom_mode
+                    )
                 if until is not None and until():
                     return True
             return until is None
@@ -154,55 +179,90 @@ def test_real_firmware_rtl_flies_to_the_uploaded_rally_point(tmp_path, firmware)
         try:
             assert pump(120, lambda: "sysid" in pos), "no heartbeat"
             sysid = int(pos["sysid"])
-            conn.mav.command_long_send(sysid, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                                       mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 200_000,
-                                       0, 0, 0, 0, 0)
+            conn.mav.command_long_send(
+                sysid,
+                1,
+                mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                0,
+                mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                200_000,
+                0,
+                0,
+                0,
+                0,
+                0,
+            )
             assert pump(60, lambda: "lat" in pos), "no position"
             rally_lat = home[0] + 70.0 / 111_320.0
             up = _upload(conn, sysid, (RallyPoint(deg_to_e7(rally_lat), deg_to_e7(home[1]), 20.0),))
             assert up.state == UploadState.DONE, up.reason
             # Arm and take off (retried until the estimator is ready).
-            guided = ((1, 4, 0) if firmware == "ardupilot" else None)
+            guided = (1, 4, 0) if firmware == "ardupilot" else None
             end = time.monotonic() + 240
             while not pos.get("armed") and time.monotonic() < end:
                 if guided is not None:
-                    conn.mav.command_long_send(sysid, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
-                                               *guided, 0, 0, 0, 0)
-                conn.mav.command_long_send(sysid, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0,
-                                           1, 0, 0, 0, 0, 0, 0)
+                    conn.mav.command_long_send(
+                        sysid, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, *guided, 0, 0, 0, 0
+                    )
+                conn.mav.command_long_send(
+                    sysid, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0
+                )
                 pump(2.0)
             assert pos.get("armed"), "never armed"
             takeoff_alt = 20.0 if firmware == "ardupilot" else home[2] + 20.0
-            conn.mav.command_long_send(sysid, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0,
-                                       float("nan"), 0, 0, takeoff_alt)
+            conn.mav.command_long_send(
+                sysid, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, float("nan"), 0, 0, takeoff_alt
+            )
             assert pump(120, lambda: pos.get("rel", 0) > 15.0), "no take-off"
             # Out 150 m north (PX4's navigator takes DO_REPOSITION's altitude as AMSL).
-            frame, alt = ((mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 20.0) if firmware == "ardupilot"
-                          else (mavlink.MAV_FRAME_GLOBAL_INT, home[2] + 20.0))
+            frame, alt = (
+                (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 20.0)
+                if firmware == "ardupilot"
+                else (mavlink.MAV_FRAME_GLOBAL_INT, home[2] + 20.0)
+            )
             out_lat = home[0] + 150.0 / 111_320.0
             end = time.monotonic() + 240
             while time.monotonic() < end and _ne_m(pos["lat"], pos["lon"], home)[0] < 145.0:
-                conn.mav.command_int_send(sysid, 1, frame, mavlink.MAV_CMD_DO_REPOSITION, 0, 0,
-                                          -1, 1, 0, float("nan"), deg_to_e7(out_lat),
-                                          deg_to_e7(home[1]), alt)
+                conn.mav.command_int_send(
+                    sysid,
+                    1,
+                    frame,
+                    mavlink.MAV_CMD_DO_REPOSITION,
+                    0,
+                    0,
+                    -1,
+                    1,
+                    0,
+                    float("nan"),
+                    deg_to_e7(out_lat),
+                    deg_to_e7(home[1]),
+                    alt,
+                )
                 pump(3.0)
             assert _ne_m(pos["lat"], pos["lon"], home)[0] >= 145.0, pos
             # RTL: to the rally point, 80 m back, not to home, 150 m back.
-            conn.mav.command_long_send(sysid, 1, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0,
-                                       0, 0, 0, 0, 0, 0, 0)
-            track: list[tuple[float, float, float]] = []   # (wall s, north m, east m)
+            conn.mav.command_long_send(
+                sysid, 1, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0
+            )
+            track: list[tuple[float, float, float]] = []  # (wall s, north m, east m)
 
             def settled() -> bool:
                 now = time.monotonic()
                 track.append((now, *_ne_m(pos["lat"], pos["lon"], home)))
                 recent = [n for t, n, _ in track if t >= now - 8.0]
-                return (now - track[0][0] > 10.0 and track[-1][1] < 120.0
-                        and max(recent) - min(recent) < 0.5)     # 8 s without moving north
+                return (
+                    now - track[0][0] > 10.0
+                    and track[-1][1] < 120.0
+                    and max(recent) - min(recent) < 0.5
+                )  # 8 s without moving north
+
             pump(400, settled)
             _, north, east = track[-1]
-            print(f"\n[{firmware}] after RTL: {north:.1f} m north, {east:.1f} m east of home; "
-                  f"closest to home {min(n for _, n, _ in track):.1f} m north")
+            print(
+                f"\n[{firmware}] after RTL: {north:.1f} m north, {east:.1f} m east of home; "
+                f"closest to home {min(n for _, n, _ in track):.1f} m north"
+            )
             assert north == pytest.approx(70.0, abs=6.0) and abs(east) < 6.0, track[-1]
-            assert min(n for _, n, _ in track) > 60.0     # it never came home
+            assert min(n for _, n, _ in track) > 60.0  # it never came home
         finally:
             conn.close()

@@ -27,9 +27,12 @@ UNIX_S = 1.75e9
 
 def test_every_clock_is_a_clock():
     sim, ack = _Value(), _Value()
-    clocks = [VirtualClock(), RealClock(2.0, _Wall(), unix_time_fn=lambda: UNIX_S),
-              PacedClock(2.0, sim, ack, time_fn=_Wall(), unix_time_fn=lambda: UNIX_S),
-              PacedReader(2.0, sim, ack, unix_time_fn=lambda: UNIX_S)]
+    clocks = [
+        VirtualClock(),
+        RealClock(2.0, _Wall(), unix_time_fn=lambda: UNIX_S),
+        PacedClock(2.0, sim, ack, time_fn=_Wall(), unix_time_fn=lambda: UNIX_S),
+        PacedReader(2.0, sim, ack, unix_time_fn=lambda: UNIX_S),
+    ]
     for clock in clocks:
         assert isinstance(clock, Clock)
     assert not isinstance(lambda: 0.0, Clock)  # a bare now() is not a Clock
@@ -76,8 +79,9 @@ def test_real_clocks_given_one_anchor_read_one_time():
 
 def test_paced_clock_is_held_back_by_the_station_and_never_jumps():
     sim, ack, wall = _Value(), _Value(), _Wall()
-    emu = PacedClock(10.0, sim, ack, max_step_s=0.2, slack_s=0.5, time_fn=wall,
-                     unix_time_fn=lambda: UNIX_S)
+    emu = PacedClock(
+        10.0, sim, ack, max_step_s=0.2, slack_s=0.5, time_fn=wall, unix_time_fn=lambda: UNIX_S
+    )
     station = PacedReader(10.0, sim, ack, unix_time_fn=lambda: UNIX_S)
     assert emu.unix_time_at_zero_s == station.unix_time_at_zero_s == UNIX_S
     wall.t += 0.01

@@ -60,18 +60,30 @@ def test_e7_round_trip_within_half_unit(deg):
 def test_converters_fit_the_pymavlink_fields():
     # Saturated values must pack without struct.error in the int16 / int32 fields.
     m = mav.MAVLink_global_position_int_message(
-        0, units.deg_to_e7(1e12), units.deg_to_e7(-1e12), units.m_to_mm(1e12),
-        units.m_to_mm(-1e12), units.m_s_to_cm_s(1e9), units.m_s_to_cm_s(-1e9),
-        units.m_s_to_cm_s(float("1e300")), units.yaw_rad_to_hdg_cdeg(math.inf))
+        0,
+        units.deg_to_e7(1e12),
+        units.deg_to_e7(-1e12),
+        units.m_to_mm(1e12),
+        units.m_to_mm(-1e12),
+        units.m_s_to_cm_s(1e9),
+        units.m_s_to_cm_s(-1e9),
+        units.m_s_to_cm_s(float("1e300")),
+        units.yaw_rad_to_hdg_cdeg(math.inf),
+    )
     _pymavlink().decode(bytearray(m.pack(_pymavlink())))
 
 
 # ------------------------------------------------------------------ parameters
 
-I8, U8, I16, U16, I32, U32, R32 = (mav.MAV_PARAM_TYPE_INT8, mav.MAV_PARAM_TYPE_UINT8,
-                                   mav.MAV_PARAM_TYPE_INT16, mav.MAV_PARAM_TYPE_UINT16,
-                                   mav.MAV_PARAM_TYPE_INT32, mav.MAV_PARAM_TYPE_UINT32,
-                                   mav.MAV_PARAM_TYPE_REAL32)
+I8, U8, I16, U16, I32, U32, R32 = (
+    mav.MAV_PARAM_TYPE_INT8,
+    mav.MAV_PARAM_TYPE_UINT8,
+    mav.MAV_PARAM_TYPE_INT16,
+    mav.MAV_PARAM_TYPE_UINT16,
+    mav.MAV_PARAM_TYPE_INT32,
+    mav.MAV_PARAM_TYPE_UINT32,
+    mav.MAV_PARAM_TYPE_REAL32,
+)
 
 
 def _bytes(f):
@@ -86,8 +98,9 @@ def test_bytewise_is_the_c_union_per_type():
     assert _bytes(params.encode_param_value(300, I32, bytewise=True)) == struct.pack("<i", 300)
     assert _bytes(params.encode_param_value(-3, I32, bytewise=True)) == struct.pack("<i", -3)
     # UINT32 above 2**31 keeps its unsigned pattern (int32 packing raised here)
-    assert _bytes(params.encode_param_value(3_000_000_000, U32, bytewise=True)) == \
-        struct.pack("<I", 3_000_000_000)
+    assert _bytes(params.encode_param_value(3_000_000_000, U32, bytewise=True)) == struct.pack(
+        "<I", 3_000_000_000
+    )
     # C-cast: the value as a float; REAL32 untouched either way
     assert params.encode_param_value(-1, I8, bytewise=False) == -1.0
     assert params.encode_param_value(2.5, R32, bytewise=True) == 2.5
@@ -97,9 +110,17 @@ def test_bytewise_is_the_c_union_per_type():
         params.encode_param_value(math.nan, I32, bytewise=False)
 
 
-@pytest.mark.parametrize("ptype,lo,hi", [(I8, -128, 127), (U8, 0, 255), (I16, -32768, 32767),
-                                         (U16, 0, 65535), (I32, -(2**31), 2**31 - 1),
-                                         (U32, 0, 2**32 - 1)])
+@pytest.mark.parametrize(
+    "ptype,lo,hi",
+    [
+        (I8, -128, 127),
+        (U8, 0, 255),
+        (I16, -32768, 32767),
+        (U16, 0, 65535),
+        (I32, -(2**31), 2**31 - 1),
+        (U32, 0, 2**32 - 1),
+    ],
+)
 @pytest.mark.parametrize("bytewise", [False, True])
 def test_param_round_trip_every_type(ptype, lo, hi, bytewise):
     for v in {lo, hi, 0, 1, (lo + hi) // 2}:
@@ -141,11 +162,16 @@ def test_mode_tables():
 
 
 def test_type_masks_from_pymavlink_enum():
-    assert (setpoints.TYPE_MASK_POSITION, setpoints.TYPE_MASK_VELOCITY,
-            setpoints.TYPE_MASK_POSITION_VELOCITY, setpoints.TYPE_MASK_ACCELERATION_LOCAL,
-            setpoints.TYPE_MASK_POSITION_VELOCITY_ACCELERATION, setpoints.TYPE_MASK_YAW,
-            setpoints.TYPE_MASK_YAW_RATE, setpoints.TYPE_MASK_POSITION_YAW) == (
-        3576, 3527, 3520, 3135, 3072, 2559, 1535, 2552)
+    assert (
+        setpoints.TYPE_MASK_POSITION,
+        setpoints.TYPE_MASK_VELOCITY,
+        setpoints.TYPE_MASK_POSITION_VELOCITY,
+        setpoints.TYPE_MASK_ACCELERATION_LOCAL,
+        setpoints.TYPE_MASK_POSITION_VELOCITY_ACCELERATION,
+        setpoints.TYPE_MASK_YAW,
+        setpoints.TYPE_MASK_YAW_RATE,
+        setpoints.TYPE_MASK_POSITION_YAW,
+    ) == (3576, 3527, 3520, 3135, 3072, 2559, 1535, 2552)
     assert setpoints.POS_BITS == 0b111 and setpoints.VEL_BITS == 0b111 << 3
     assert setpoints.ACC_BITS == 0b111 << 6
 
@@ -154,8 +180,9 @@ def test_type_masks_from_pymavlink_enum():
 
 
 def _hb():
-    return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, 81,
-                                         393216, mav.MAV_STATE_ACTIVE, 3)
+    return mav.MAVLink_heartbeat_message(
+        mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, 81, 393216, mav.MAV_STATE_ACTIVE, 3
+    )
 
 
 def test_golden_frames_match_pymavlink():
@@ -167,8 +194,9 @@ def test_golden_frames_match_pymavlink():
         ref.seq = (ref.seq + 1) % 256
     station = codec.Codec(255, 190)
     ref = _pymavlink(255, 190)
-    sp = setpoints.position_target_global_int(target_system=3, lat_deg=47.5, lon_deg=8.25,
-                                              alt_m=20.0)
+    sp = setpoints.position_target_global_int(
+        target_system=3, lat_deg=47.5, lon_deg=8.25, alt_m=20.0
+    )
     assert station.encode(sp) == bytes(sp.pack(ref))
     signed = codec.VehicleCodec(7, 1, signing_key=KEY)
     signed.advance_signing_timestamp(1000)
@@ -177,8 +205,7 @@ def test_golden_frames_match_pymavlink():
 
 
 def test_golden_bytes_heartbeat_literal():
-    frame = codec.VehicleCodec(1, 1).encode(
-        mav.MAVLink_heartbeat_message(2, 3, 81, 4, 4, 3))
+    frame = codec.VehicleCodec(1, 1).encode(mav.MAVLink_heartbeat_message(2, 3, 81, 4, 4, 3))
     # fd len incompat compat seq sys comp msgid(3) | payload | crc
     assert frame[:10] == bytes([0xFD, 9, 0, 0, 0, 1, 1, 0, 0, 0])
     assert frame[10:19] == struct.pack("<IBBBBB", 4, 2, 3, 81, 4, 3)
@@ -210,8 +237,8 @@ def test_forged_future_timestamp_does_not_silence_the_stream(side):
         accepted = lambda data: len(dec.feed(data))  # noqa: E731
     assert accepted(_signed_frame(1000)) == 1
     assert accepted(_forge(10**12)) == 0
-    assert accepted(_signed_frame(2000)) == 1     # the genuine stream carries on
-    assert accepted(_signed_frame(2000)) == 0     # a replay is still refused
+    assert accepted(_signed_frame(2000)) == 1  # the genuine stream carries on
+    assert accepted(_signed_frame(2000)) == 0  # a replay is still refused
 
 
 def test_pymavlink_stock_check_would_be_poisoned():
@@ -226,8 +253,10 @@ def test_pymavlink_stock_check_would_be_poisoned():
 
 
 def test_one_signature_check():
-    assert codec.Decoder(codec.DecodeStats())._mav.check_signature.__func__ is \
-        codec.VehicleCodec(1)._mav.check_signature.__func__
+    assert (
+        codec.Decoder(codec.DecodeStats())._mav.check_signature.__func__
+        is codec.VehicleCodec(1)._mav.check_signature.__func__
+    )
     assert hashlib.sha256  # the check is sha256 over key + frame (mavlink.io message_signing)
 
 
@@ -242,8 +271,7 @@ def _messages_with_target():
         mav.MAVLink_set_mode_message(200, 1, 4),
         mav.MAVLink_mission_request_int_message(9, 1, 3, 0),
         setpoints.position_target_local_ned(target_system=254, pos_ned_m=(1.0, 2.0, -3.0)),
-        setpoints.position_target_global_int(target_system=5, lat_deg=1.0, lon_deg=2.0,
-                                              alt_m=3.0),
+        setpoints.position_target_global_int(target_system=5, lat_deg=1.0, lon_deg=2.0, alt_m=3.0),
         mav.MAVLink_request_data_stream_message(77, 0, 6, 4, 1),
         mav.MAVLink_setup_signing_message(3, 1, KEY, 5),
     ]
@@ -259,12 +287,14 @@ def test_frame_target_system_matches_a_full_parse(key):
     rx = _pymavlink(1, 1)
     for f, m in zip(frames, msgs):
         parsed = rx.decode(bytearray(f))
-        assert codec.frame_target_system(f) == getattr(parsed, "target_system", 0) \
+        assert (
+            codec.frame_target_system(f)
+            == getattr(parsed, "target_system", 0)
             == getattr(m, "target_system", 0)
+        )
 
 
 def test_frame_target_system_truncated_payload_is_zero():
     # MAVLink 2 trims trailing zeros: a broadcast COMMAND_LONG ends before target_system.
-    f = bytes(mav.MAVLink_command_long_message(0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
-              .pack(_pymavlink()))
+    f = bytes(mav.MAVLink_command_long_message(0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0).pack(_pymavlink()))
     assert f[1] < 30 and codec.frame_target_system(f) == 0

@@ -79,8 +79,9 @@ def _fly_in_memory(mission, seed: int) -> tuple[np.ndarray, np.ndarray]:
     swarm = build_swarm(mission, scenario, seed=seed)
     world = MissionWorld(mission, scenario, swarm)
     station = station_for_swarm(swarm)
-    op = make_operator(mission, scenario, station, FlyOptions(wave_size=10),
-                       mission.vehicles.count, 0.0, seed)
+    op = make_operator(
+        mission, scenario, station, FlyOptions(wave_size=10), mission.vehicles.count, 0.0, seed
+    )
     ether = LockstepEther(swarm, station, np.random.default_rng(seed))
     ether.on_event = op.handle_event
 
@@ -90,8 +91,9 @@ def _fly_in_memory(mission, seed: int) -> tuple[np.ndarray, np.ndarray]:
             world.start(op.mission_t0_s)
         world.poll(now_s)
 
-    while (world.t0_s is None or ether.now_s < world.t0_s + DURATION_S + 1.0) \
-            and ether.now_s < 300.0:
+    while (
+        world.t0_s is None or ether.now_s < world.t0_s + DURATION_S + 1.0
+    ) and ether.now_s < 300.0:
         ether.advance_to(ether.now_s + 1.0, poll=poll, poll_period_s=0.5)
     assert world.t0_s is not None, f"the mission never started (phase {op.phase})"
     t = np.asarray(swarm.truth.t_s) - world.t0_s
@@ -115,7 +117,7 @@ def runs():
         mission = _mission(seed)
         rec = run_inprocess(mission, seed).record
         emu, emu_start_ne_m = _fly_in_memory(mission, seed)
-        out[seed] = (rec.connected[:mission.run.n_steps], emu, rec.pos_m[0], emu_start_ne_m)
+        out[seed] = (rec.connected[: mission.run.n_steps], emu, rec.pos_m[0], emu_start_ne_m)
     return out
 
 

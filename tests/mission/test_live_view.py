@@ -26,30 +26,63 @@ CREWS = ("Engine 7", "Hand crew Alpha")
 
 
 def _mission():
-    from mission.schema import (EmulatedVehicles, Mission, Radio, RunSpec, Spawn, SpawnRing,
-                                Task, TrackPoint, Vehicles)
-    return Mission(name="browser", vehicles=Vehicles(emulated=EmulatedVehicles(
-        count=6, radio_range_m=100.0, cruise_alt_m=20.0, climb_rate_m_s=5.0,
-        max_speed_m_s=10.0, spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)))),
-        tasks=(Task(name=CREWS[0], track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
-               Task(name=CREWS[1], track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),))),
+    from mission.schema import (
+        EmulatedVehicles,
+        Mission,
+        Radio,
+        RunSpec,
+        Spawn,
+        SpawnRing,
+        Task,
+        TrackPoint,
+        Vehicles,
+    )
+
+    return Mission(
+        name="browser",
+        vehicles=Vehicles(
+            emulated=EmulatedVehicles(
+                count=6,
+                radio_range_m=100.0,
+                cruise_alt_m=20.0,
+                climb_rate_m_s=5.0,
+                max_speed_m_s=10.0,
+                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
+            )
+        ),
+        tasks=(
+            Task(name=CREWS[0], track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
+            Task(name=CREWS[1], track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),)),
+        ),
         radio=Radio(range_m=100.0, base_range_m=100.0, latency_s=0.01),
-        run=RunSpec(duration_s=900.0, seed=4, speedup=3.0))
+        run=RunSpec(duration_s=900.0, seed=4, speedup=3.0),
+    )
 
 
 @pytest.fixture(scope="module")
 def browser(tmp_path_factory):
     if not (CHROMIUM and CHROMEDRIVER):
-        pytest.skip("BROWSER TEST SKIPPED: chromium / chromedriver not installed "
-                    "(apt-get install -y chromium chromium-driver)")
-    webdriver = pytest.importorskip("selenium.webdriver", reason="BROWSER TEST SKIPPED: no selenium")
+        pytest.skip(
+            "BROWSER TEST SKIPPED: chromium / chromedriver not installed "
+            "(apt-get install -y chromium chromium-driver)"
+        )
+    webdriver = pytest.importorskip(
+        "selenium.webdriver", reason="BROWSER TEST SKIPPED: no selenium"
+    )
     from selenium.webdriver.chrome.service import Service
 
     opts = webdriver.ChromeOptions()
-    for a in ("--headless=new", "--no-sandbox", "--disable-gpu",
-              "--disable-background-networking", "--disable-component-update", "--disable-sync",
-              "--no-first-run", "--window-size=1400,900",
-              f"--user-data-dir={tmp_path_factory.mktemp('chrome-profile')}"):
+    for a in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--window-size=1400,900",
+        f"--user-data-dir={tmp_path_factory.mktemp('chrome-profile')}",
+    ):
         opts.add_argument(a)
     opts.binary_location = CHROMIUM
     drv = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
@@ -91,8 +124,13 @@ def live_run(browser, tmp_path_factory):
         if stop.is_set():
             op.phase = "done"
 
-    opts = FlyOptions(emulator_in_process=True, out_dir=str(tmp), serve="127.0.0.1:0",
-                      on_live=info.update, on_operator=hook)
+    opts = FlyOptions(
+        emulator_in_process=True,
+        out_dir=str(tmp),
+        serve="127.0.0.1:0",
+        on_live=info.update,
+        on_operator=hook,
+    )
 
     def run():
         try:
@@ -109,20 +147,31 @@ def live_run(browser, tmp_path_factory):
         # Every vehicle networked, crews by name.
         _wait(lambda: _count(drv, "networked") == 6, 120, "6 networked vehicles on the page")
         # The crew list is redrawn with every frame: read it in one script (no stale elements).
-        names = drv.execute_script("return Array.from(document.querySelectorAll('#crew-list li'),"
-                                   " li => li.getAttribute('data-name'))")
+        names = drv.execute_script(
+            "return Array.from(document.querySelectorAll('#crew-list li'),"
+            " li => li.getAttribute('data-name'))"
+        )
         assert names == list(CREWS)
         assert drv.execute_script("return window.phiremanFrame.v.id.length") == 6
         # A vehicle dies: the page shows it lost.
         kill.set()
-        _wait(lambda: _count(drv, "lost") == 1 and _count(drv, "networked") == 5, 60,
-              "1 lost, 5 networked after the kill")
-        _wait(lambda: f"vehicle {box['killed']} lost" in drv.find_element("id", "events").text,
-              60, "the loss in the events feed")
+        _wait(
+            lambda: _count(drv, "lost") == 1 and _count(drv, "networked") == 5,
+            60,
+            "1 lost, 5 networked after the kill",
+        )
+        _wait(
+            lambda: f"vehicle {box['killed']} lost" in drv.find_element("id", "events").text,
+            60,
+            "the loss in the events feed",
+        )
         # An action without the key is refused.
-        req = urllib.request.Request(info["url"] + "api/action", method="POST",
-                                     data=b'{"action": "rtl", "vehicle": "all"}',
-                                     headers={"Content-Type": "application/json"})
+        req = urllib.request.Request(
+            info["url"] + "api/action",
+            method="POST",
+            data=b'{"action": "rtl", "vehicle": "all"}',
+            headers={"Content-Type": "application/json"},
+        )
         with pytest.raises(urllib.error.HTTPError) as err:
             urllib.request.urlopen(req, timeout=10)
         assert err.value.code == 403
@@ -131,10 +180,15 @@ def live_run(browser, tmp_path_factory):
         # The table and the vehicle card are redrawn with every frame: find and click at once.
         # Found and clicked in one script: between a WebDriver find and its click the redraw can
         # replace the element (StaleElementReference on a loaded machine).
-        click_js = ("const e = document.querySelector(arguments[0]);"
-                    "if (!e || e.disabled) return false; e.click(); return true;")
-        _wait(lambda: drv.execute_script(click_js, f'#vtable tr[data-vid="0:{target}"]'), 30,
-              "a click on the vehicle's row")
+        click_js = (
+            "const e = document.querySelector(arguments[0]);"
+            "if (!e || e.disabled) return false; e.click(); return true;"
+        )
+        _wait(
+            lambda: drv.execute_script(click_js, f'#vtable tr[data-vid="0:{target}"]'),
+            30,
+            "a click on the vehicle's row",
+        )
 
         def click_rtl():
             return drv.execute_script(click_js, 'button[data-act="rtl"]')
@@ -142,11 +196,17 @@ def live_run(browser, tmp_path_factory):
         _wait(click_rtl, 30, "a click on the enabled RTL button (key given)")
         assert drv.find_element("id", "modal").is_displayed()
         drv.find_element("id", "confirm").click()
-        _wait(lambda: drv.find_element("id", "selected-state").get_attribute("data-state")
-              == "returning", 60, "the vehicle shown returning")
+        _wait(
+            lambda: (
+                drv.find_element("id", "selected-state").get_attribute("data-state") == "returning"
+            ),
+            60,
+            "the vehicle shown returning",
+        )
         box["rtl_sysid"] = target
         # The emulator's vehicle itself is in RTL (ArduCopter custom_mode 6).
         from mission import runners  # noqa: F401  (the swarm comes back with the result)
+
         box["rtl_seen_page"] = True
     finally:
         stop.set()
@@ -158,8 +218,9 @@ def live_run(browser, tmp_path_factory):
     assert core.custom_mode == 6, f"vehicle {box['rtl_sysid']} mode {core.custom_mode}, not RTL"
     events = [json.loads(x) for x in (res.run_dir / "events.jsonl").read_text().splitlines()]
     acts = [e for e in events if e["type"] == "OperatorAction"]
-    assert [(a["action"], a["sysid"], a["source"]) for a in acts] == \
-        [("rtl", box["rtl_sysid"], "web 127.0.0.1")]
+    assert [(a["action"], a["sysid"], a["source"]) for a in acts] == [
+        ("rtl", box["rtl_sysid"], "web 127.0.0.1")
+    ]
     return res.run_dir
 
 
@@ -169,8 +230,9 @@ def test_live_page_counts_kill_and_rtl(live_run):
 
 def _metrics(run_dir):
     with open(run_dir / "metrics.csv", newline="") as f:
-        return [{k: float(v) for k, v in r.items() if v not in ("", None)}
-                for r in csv.DictReader(f)]
+        return [
+            {k: float(v) for k, v in r.items() if v not in ("", None)} for r in csv.DictReader(f)
+        ]
 
 
 @pytest.fixture(scope="module")
@@ -189,6 +251,7 @@ def replay_server(live_run):
             ready.set()
             await box["stop"].wait()
             await server.aclose()
+
         asyncio.run(main())
 
     th = threading.Thread(target=run, daemon=True)
@@ -235,27 +298,48 @@ def test_replay_slider_matches_the_records(browser, replay_server):
         # the page must show what the station believed when it wrote this row.
         i = src.index_at(rows[k]["t_mission_s"])
         assert src.times_s[i] == rows[k]["t_s"] and src.tick_index(k) == i
-        drv.execute_script("const s = document.getElementById('slider'); s.value = arguments[0];"
-                           "s.dispatchEvent(new Event('input'));", i)
+        drv.execute_script(
+            "const s = document.getElementById('slider'); s.value = arguments[0];"
+            "s.dispatchEvent(new Event('input'));",
+            i,
+        )
         want_t = src.frame(i)["t_mission_s"]
         # The frame and the counts drawn from it, read in one script (one rendered frame).
-        page = _wait(lambda: (lambda p: p if p["t"] == want_t else None)(  # noqa: B023
-            drv.execute_script(_PAGE_JS)), 30, f"the page at the slider's time t+{want_t} s")
+        page = _wait(
+            lambda: (lambda p: p if p["t"] == want_t else None)(  # noqa: B023
+                drv.execute_script(_PAGE_JS)
+            ),
+            30,
+            f"the page at the slider's time t+{want_t} s",
+        )
         states = dict(zip(page["id"], page["state"]))
-        counts = {s: int(page["counts"][s]) for s in ("networked", "reclaimed", "held",
-                                                      "returning", "landed", "lost")}
+        counts = {
+            s: int(page["counts"][s])
+            for s in ("networked", "reclaimed", "held", "returning", "landed", "lost")
+        }
         # metrics.csv's networked counts every vehicle heard and not back from a loss in a
         # failsafe (D'(t)), also one an operator took out of the plan (an RTL, a hold); the page
         # shows those as held / returning / landed.
-        out = {vid for vid in _out_of_plan(src.run_dir, rows[k]["t_s"])
-               if states.get(vid) not in (None, "lost")}
+        out = {
+            vid
+            for vid in _out_of_plan(src.run_dir, rows[k]["t_s"])
+            if states.get(vid) not in (None, "lost")
+        }
         assert all(states[vid] in ("held", "returning", "landed") for vid in out), (out, states)
-        want = {"net": int(rows[k]["networked"]) - len(out), "lost": int(rows[k]["lost"]),
-                "heard": int(rows[k]["networked"] + rows[k]["returning"])}
-        got = {"net": counts["networked"] + counts["reclaimed"], "lost": counts["lost"],
-               "heard": sum(counts.values()) - counts["lost"]}
-        assert got == want, (f"t+{rows[k]['t_mission_s']:.1f} s: page {counts} vs metrics.csv "
-                             f"row {rows[k]} (out of the plan: {sorted(out)})")
+        want = {
+            "net": int(rows[k]["networked"]) - len(out),
+            "lost": int(rows[k]["lost"]),
+            "heard": int(rows[k]["networked"] + rows[k]["returning"]),
+        }
+        got = {
+            "net": counts["networked"] + counts["reclaimed"],
+            "lost": counts["lost"],
+            "heard": sum(counts.values()) - counts["lost"],
+        }
+        assert got == want, (
+            f"t+{rows[k]['t_mission_s']:.1f} s: page {counts} vs metrics.csv "
+            f"row {rows[k]} (out of the plan: {sorted(out)})"
+        )
         assert int(slider.get_attribute("value")) == i
         checked += 1
     assert checked == 3
@@ -275,9 +359,14 @@ def test_geojson_and_kml_export(live_run, tmp_path):
     feats = json.loads(path.read_text())["features"]
     kinds = {f["properties"]["kind"] for f in feats}
     assert {"base", "geofence", "vehicle_track", "crew_track", "vehicle", "crew", "link"} <= kinds
-    assert {f["properties"]["name"] for f in feats if f["properties"]["kind"] == "crew"} == set(CREWS)
+    assert {f["properties"]["name"] for f in feats if f["properties"]["kind"] == "crew"} == set(
+        CREWS
+    )
     assert len([f for f in feats if f["properties"]["kind"] == "vehicle_track"]) == 6
     lon, lat = feats[0]["geometry"]["coordinates"][:2]
-    assert abs(lat - src.mission.origin.lat_deg) < 1e-6 and abs(lon - src.mission.origin.lon_deg) < 1e-6
+    assert (
+        abs(lat - src.mission.origin.lat_deg) < 1e-6
+        and abs(lon - src.mission.origin.lon_deg) < 1e-6
+    )
     kml = export_run(src, "kml", [10.0], tmp_path / "x.kml").read_text()
     assert kml.count("<Placemark>") == len(feats) and CREWS[1] in kml

@@ -10,89 +10,164 @@ from mission.cli import main
 
 # (id, YAML document, text that must appear in the error output)
 MALFORMED = [
-    ("lat-out-of-range", "origin: {lat_deg: 95, lon_deg: 10}",
-     "origin.lat_deg: must be within [-90, 90], got 95"),
-    ("lon-out-of-range", "origin: {lon_deg: -200}",
-     "origin.lon_deg: must be within [-180, 180], got -200"),
-    ("t_s-not-a-number", "tasks:\n  - track: [{t_s: abc, north_m: 0, east_m: 0}]",
-     "tasks[0].track[0].t_s: expected a number, got 'abc'"),
-    ("negative-rate", "attrition: {rate_per_s: -1}",
-     "attrition.rate_per_s: must be >= 0, got -1"),
-    ("times-not-increasing",
-     "tasks:\n  - random: {count: 2}\n  - track:\n"
-     "    - {t_s: 0, north_m: 0, east_m: 0}\n    - {t_s: 7, north_m: 1, east_m: 0}\n"
-     "    - {t_s: 5, north_m: 2, east_m: 0}",
-     "tasks[1].track[2].t_s: times must increase (got 5 after 7)"),
-    ("hazard-window-reversed",
-     "attrition:\n  hazard_zones:\n    - circle: {center: {north_m: 0, east_m: 0}, radius_m: 10}\n"
-     "      start_s: 50\n      end_s: 20",
-     "attrition.hazard_zones[0]: end_s must be after start_s"),
-    ("unknown-key", "vehicles:\n  emulated: {count: 5, colour: red}",
-     "vehicles.emulated.colour: unknown key; valid keys: count, personality, spawn"),
-    ("unknown-key-suggestion", "radio: {range: 100}",
-     "radio.range: unknown key (did you mean 'range_m'?)"),
-    ("task-with-two-kinds",
-     "tasks:\n  - track: [{t_s: 0, north_m: 0, east_m: 0}]\n    mavlink: {sysid: 3}",
-     "tasks[0]: must have exactly one of track, random_walk, mavlink, random; got track, mavlink"),
-    ("task-with-no-kind", "tasks:\n  - name: lonely",
-     "tasks[0]: must have exactly one of track, random_walk, mavlink, random; got none"),
-    ("unknown-planner", "planner: {method: phiremen}",
-     "planner.method: unknown planner method 'phiremen' (did you mean 'phireman'?); valid methods: "
-     "phireman"),
-    ("unknown-personality", "vehicles:\n  emulated: {personality: arducopter}",
-     "vehicles.emulated.personality: must be one of ardupilot, px4, mixed; got 'arducopter' "
-     "(did you mean 'ardupilot'?)"),
-    ("both-vehicle-kinds",
-     "vehicles:\n  emulated: {count: 3}\n  real: {connections: ['udpin:0.0.0.0:14550']}",
-     "vehicles: must have exactly one of emulated, real; got emulated, real"),
-    ("bad-connection", "vehicles:\n  real: {connections: ['udpin:0.0.0.0:99999']}",
-     "vehicles.real.connections[0]: bad connection string"),
-    ("short-signing-key",
-     "vehicles:\n  real: {connections: ['udpin:0.0.0.0:14550'], signing_key_hex: abcd}",
-     "vehicles.real.signing_key_hex: must be 64 hex digits (32 bytes), got 4 characters"),
-    ("spawn-count-mismatch",
-     "vehicles:\n  emulated:\n    count: 3\n    spawn:\n      positions:\n"
-     "        - {north_m: 0, east_m: 0}\n        - {north_m: 5, east_m: 0}",
-     "vehicles.emulated.spawn.positions: 2 positions for count 3"),
-    ("positional-coordinates",
-     "vehicles:\n  emulated:\n    count: 1\n    spawn: {positions: [[1, 2]]}",
-     "vehicles.emulated.spawn.positions[0]: expected a mapping, got a list"),
-    ("scripted-vehicle-out-of-range", "attrition:\n  scripted: [{vehicle: 60, t_s: 5}]",
-     "attrition.scripted[0].vehicle: no vehicle 60: there are 50 (indices 0..49)"),
-    ("loss-prob-above-one", "radio: {loss_prob: 1.5}",
-     "radio.loss_prob: must be <= 1, got 1.5"),
-    ("count-not-integer", "vehicles:\n  emulated: {count: 2.5}",
-     "vehicles.emulated.count: expected an integer, got 2.5"),
-    ("count-is-boolean", "vehicles:\n  emulated: {count: yes}",
-     "vehicles.emulated.count: expected an integer, got true"),
+    (
+        "lat-out-of-range",
+        "origin: {lat_deg: 95, lon_deg: 10}",
+        "origin.lat_deg: must be within [-90, 90], got 95",
+    ),
+    (
+        "lon-out-of-range",
+        "origin: {lon_deg: -200}",
+        "origin.lon_deg: must be within [-180, 180], got -200",
+    ),
+    (
+        "t_s-not-a-number",
+        "tasks:\n  - track: [{t_s: abc, north_m: 0, east_m: 0}]",
+        "tasks[0].track[0].t_s: expected a number, got 'abc'",
+    ),
+    ("negative-rate", "attrition: {rate_per_s: -1}", "attrition.rate_per_s: must be >= 0, got -1"),
+    (
+        "times-not-increasing",
+        "tasks:\n  - random: {count: 2}\n  - track:\n"
+        "    - {t_s: 0, north_m: 0, east_m: 0}\n    - {t_s: 7, north_m: 1, east_m: 0}\n"
+        "    - {t_s: 5, north_m: 2, east_m: 0}",
+        "tasks[1].track[2].t_s: times must increase (got 5 after 7)",
+    ),
+    (
+        "hazard-window-reversed",
+        "attrition:\n  hazard_zones:\n    - circle: {center: {north_m: 0, east_m: 0}, radius_m: 10}\n"
+        "      start_s: 50\n      end_s: 20",
+        "attrition.hazard_zones[0]: end_s must be after start_s",
+    ),
+    (
+        "unknown-key",
+        "vehicles:\n  emulated: {count: 5, colour: red}",
+        "vehicles.emulated.colour: unknown key; valid keys: count, personality, spawn",
+    ),
+    (
+        "unknown-key-suggestion",
+        "radio: {range: 100}",
+        "radio.range: unknown key (did you mean 'range_m'?)",
+    ),
+    (
+        "task-with-two-kinds",
+        "tasks:\n  - track: [{t_s: 0, north_m: 0, east_m: 0}]\n    mavlink: {sysid: 3}",
+        "tasks[0]: must have exactly one of track, random_walk, mavlink, random; got track, mavlink",
+    ),
+    (
+        "task-with-no-kind",
+        "tasks:\n  - name: lonely",
+        "tasks[0]: must have exactly one of track, random_walk, mavlink, random; got none",
+    ),
+    (
+        "unknown-planner",
+        "planner: {method: phiremen}",
+        "planner.method: unknown planner method 'phiremen' (did you mean 'phireman'?); valid methods: "
+        "phireman",
+    ),
+    (
+        "unknown-personality",
+        "vehicles:\n  emulated: {personality: arducopter}",
+        "vehicles.emulated.personality: must be one of ardupilot, px4, mixed; got 'arducopter' "
+        "(did you mean 'ardupilot'?)",
+    ),
+    (
+        "both-vehicle-kinds",
+        "vehicles:\n  emulated: {count: 3}\n  real: {connections: ['udpin:0.0.0.0:14550']}",
+        "vehicles: must have exactly one of emulated, real; got emulated, real",
+    ),
+    (
+        "bad-connection",
+        "vehicles:\n  real: {connections: ['udpin:0.0.0.0:99999']}",
+        "vehicles.real.connections[0]: bad connection string",
+    ),
+    (
+        "short-signing-key",
+        "vehicles:\n  real: {connections: ['udpin:0.0.0.0:14550'], signing_key_hex: abcd}",
+        "vehicles.real.signing_key_hex: must be 64 hex digits (32 bytes), got 4 characters",
+    ),
+    (
+        "spawn-count-mismatch",
+        "vehicles:\n  emulated:\n    count: 3\n    spawn:\n      positions:\n"
+        "        - {north_m: 0, east_m: 0}\n        - {north_m: 5, east_m: 0}",
+        "vehicles.emulated.spawn.positions: 2 positions for count 3",
+    ),
+    (
+        "positional-coordinates",
+        "vehicles:\n  emulated:\n    count: 1\n    spawn: {positions: [[1, 2]]}",
+        "vehicles.emulated.spawn.positions[0]: expected a mapping, got a list",
+    ),
+    (
+        "scripted-vehicle-out-of-range",
+        "attrition:\n  scripted: [{vehicle: 60, t_s: 5}]",
+        "attrition.scripted[0].vehicle: no vehicle 60: there are 50 (indices 0..49)",
+    ),
+    ("loss-prob-above-one", "radio: {loss_prob: 1.5}", "radio.loss_prob: must be <= 1, got 1.5"),
+    (
+        "count-not-integer",
+        "vehicles:\n  emulated: {count: 2.5}",
+        "vehicles.emulated.count: expected an integer, got 2.5",
+    ),
+    (
+        "count-is-boolean",
+        "vehicles:\n  emulated: {count: yes}",
+        "vehicles.emulated.count: expected an integer, got true",
+    ),
     ("no-tasks", "tasks: []", "tasks: needs at least 1 item, got 0"),
-    ("walk-border-needs-field",
-     "tasks:\n  - random_walk: {start: {north_m: 0, east_m: 0}, border: clip}",
-     "tasks[0].random_walk.field_half_width_m: required when border is 'clip'"),
-    ("local-and-geo-position",
-     "tasks:\n  - track: [{t_s: 0, north_m: 0, east_m: 0, lat_deg: 1, lon_deg: 2}]",
-     "tasks[0].track[0]: give either north_m/east_m or lat_deg/lon_deg, not both"),
-    ("half-a-position", "tasks:\n  - track: [{t_s: 0, north_m: 3}]",
-     "tasks[0].track[0]: missing east_m"),
-    ("polygon-too-small",
-     "attrition:\n  hazard_zones:\n    - polygon: [{north_m: 0, east_m: 0}, {north_m: 1, east_m: 0}]",
-     "attrition.hazard_zones[0].polygon: needs at least 3 items, got 2"),
-    ("zone-two-shapes",
-     "attrition:\n  hazard_zones:\n    - circle: {center: {north_m: 0, east_m: 0}, radius_m: 10}\n"
-     "      polygon: [{north_m: 0, east_m: 0}, {north_m: 1, east_m: 0}, {north_m: 0, east_m: 1}]",
-     "attrition.hazard_zones[0]: must have exactly one of circle, polygon; got circle, polygon"),
-    ("sysid-zero", "tasks:\n  - mavlink: {sysid: 0}", "tasks[0].mavlink.sysid: must be >= 1, got 0"),
+    (
+        "walk-border-needs-field",
+        "tasks:\n  - random_walk: {start: {north_m: 0, east_m: 0}, border: clip}",
+        "tasks[0].random_walk.field_half_width_m: required when border is 'clip'",
+    ),
+    (
+        "local-and-geo-position",
+        "tasks:\n  - track: [{t_s: 0, north_m: 0, east_m: 0, lat_deg: 1, lon_deg: 2}]",
+        "tasks[0].track[0]: give either north_m/east_m or lat_deg/lon_deg, not both",
+    ),
+    (
+        "half-a-position",
+        "tasks:\n  - track: [{t_s: 0, north_m: 3}]",
+        "tasks[0].track[0]: missing east_m",
+    ),
+    (
+        "polygon-too-small",
+        "attrition:\n  hazard_zones:\n    - polygon: [{north_m: 0, east_m: 0}, {north_m: 1, east_m: 0}]",
+        "attrition.hazard_zones[0].polygon: needs at least 3 items, got 2",
+    ),
+    (
+        "zone-two-shapes",
+        "attrition:\n  hazard_zones:\n    - circle: {center: {north_m: 0, east_m: 0}, radius_m: 10}\n"
+        "      polygon: [{north_m: 0, east_m: 0}, {north_m: 1, east_m: 0}, {north_m: 0, east_m: 1}]",
+        "attrition.hazard_zones[0]: must have exactly one of circle, polygon; got circle, polygon",
+    ),
+    (
+        "sysid-zero",
+        "tasks:\n  - mavlink: {sysid: 0}",
+        "tasks[0].mavlink.sysid: must be >= 1, got 0",
+    ),
     ("sysid-missing", "tasks:\n  - mavlink: {}", "tasks[0].mavlink.sysid: required key missing"),
-    ("duration-below-period", "run: {duration_s: 0.5, control_period_s: 1}",
-     "run.duration_s: must be at least control_period_s (1), got 0.5"),
+    (
+        "duration-below-period",
+        "run: {duration_s: 0.5, control_period_s: 1}",
+        "run.duration_s: must be at least control_period_s (1), got 0.5",
+    ),
     ("negative-seed", "run: {seed: -3}", "run.seed: must be >= 0, got -3"),
     ("nan-rate", "attrition: {rate_per_s: .nan}", "attrition.rate_per_s: must be a finite number"),
-    ("non-scalar-param", "planner: {params: {eta: [1, 2]}}",
-     "planner.params.eta: expected a number, boolean or string, got a list"),
-    ("swapped-lat-lon", "tasks:\n  - track: [{t_s: 0, lat_deg: 149.16, lon_deg: -35.36}]",
-     "tasks[0].track[0].lat_deg: must be within [-90, 90], got 149.16"),
-    ("far-from-origin", "tasks:\n  - track: [{t_s: 0, lat_deg: 48.85, lon_deg: 2.35}]",
-     "km from the origin (limit 100 km); swapped lat/lon or wrong origin?"),
+    (
+        "non-scalar-param",
+        "planner: {params: {eta: [1, 2]}}",
+        "planner.params.eta: expected a number, boolean or string, got a list",
+    ),
+    (
+        "swapped-lat-lon",
+        "tasks:\n  - track: [{t_s: 0, lat_deg: 149.16, lon_deg: -35.36}]",
+        "tasks[0].track[0].lat_deg: must be within [-90, 90], got 149.16",
+    ),
+    (
+        "far-from-origin",
+        "tasks:\n  - track: [{t_s: 0, lat_deg: 48.85, lon_deg: 2.35}]",
+        "km from the origin (limit 100 km); swapped lat/lon or wrong origin?",
+    ),
     ("root-is-a-list", "- just\n- a list", "<top level>: expected a mapping, got a list"),
     ("section-is-a-string", "radio: loud", "radio: expected a mapping, got 'loud'"),
     ("duplicate-key", "radio: {range_m: 100}\nradio: {range_m: 200}", "duplicate key 'radio'"),
@@ -116,7 +191,9 @@ def test_corpus_is_large_enough():
     assert len({case[0] for case in MALFORMED}) == len(MALFORMED)
 
 
-@pytest.mark.parametrize("text, expected", [c[1:] for c in MALFORMED], ids=[c[0] for c in MALFORMED])
+@pytest.mark.parametrize(
+    "text, expected", [c[1:] for c in MALFORMED], ids=[c[0] for c in MALFORMED]
+)
 def test_malformed_mission_is_rejected_with_its_path(tmp_path, capsys, text, expected):
     rc, out, err, path = _check(tmp_path, text, capsys)
     assert rc == 2
@@ -195,7 +272,9 @@ def test_billion_laughs_is_refused_quickly(tmp_path, capsys):
 @pytest.mark.timeout(60)  # a bomb that expands hangs here; no wall-clock bound
 def test_alias_bomb_under_the_alias_limit_is_refused_by_expanded_size(tmp_path, capsys):
     # 4 levels of 20 aliases (80 aliases, under the limit) expand to 20**4 = 160,000 leaves x 4.
-    lines = ['a0: &a0 ["x","x","x","x","x","x","x","x","x","x","x","x","x","x","x","x","x","x","x","x"]']
+    lines = [
+        'a0: &a0 ["x","x","x","x","x","x","x","x","x","x","x","x","x","x","x","x","x","x","x","x"]'
+    ]
     for level in range(1, 5):
         lines.append(f"a{level}: &a{level} [" + ",".join([f"*a{level - 1}"] * 20) + "]")
     rc, _, err, _ = _check(tmp_path, "\n".join(lines) + "\n", capsys)
@@ -231,13 +310,18 @@ def test_valid_mission_prints_ok_summary(tmp_path, capsys):
     assert out.startswith("OK: tiny: 4 emulated ardupilot drones, 10 tasks")
 
 
-@pytest.mark.timeout(30)  # a guard that did not bite would run away; no wall-clock assertion (CONTRIBUTING)
-@pytest.mark.parametrize("text, expected", [
-    (BILLION_LAUGHS, "alias"),
-    ("name: " + "[" * 5000 + "]" * 5000, "nested deeper"),
-    ("origin: !!python/object/apply:os.getcwd []", "unsupported YAML tag"),
-    ("radio: {}\nradio: {}", "duplicate key 'radio'"),
-])
+@pytest.mark.timeout(
+    30
+)  # a guard that did not bite would run away; no wall-clock assertion (CONTRIBUTING)
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        (BILLION_LAUGHS, "alias"),
+        ("name: " + "[" * 5000 + "]" * 5000, "nested deeper"),
+        ("origin: !!python/object/apply:os.getcwd []", "unsupported YAML tag"),
+        ("radio: {}\nradio: {}", "duplicate key 'radio'"),
+    ],
+)
 def test_pure_python_loader_has_the_same_guards(monkeypatch, text, expected):
     """The libyaml-accelerated loader is optional; the fallback must be just as strict."""
     import mission.load as load

@@ -15,17 +15,43 @@ from hypothesis import strategies as st
 from mission import schema
 from mission.cli import main
 from mission.examples import example_path, example_text, list_examples
-from mission.load import (MissionError, dump_mission, load_mission, loads_mission, resolved_dict,
-                          validate_mission)
-from mission.schema import (Attrition, Circle, HazardZone, LocalPoint, Mission, Origin, Position,
-                            Task, TrackPoint, paper_mission, per_step_from_rate, rate_from_per_step)
+from mission.load import (
+    MissionError,
+    dump_mission,
+    load_mission,
+    loads_mission,
+    resolved_dict,
+    validate_mission,
+)
+from mission.schema import (
+    Attrition,
+    Circle,
+    HazardZone,
+    LocalPoint,
+    Mission,
+    Origin,
+    Position,
+    Task,
+    TrackPoint,
+    paper_mission,
+    per_step_from_rate,
+    rate_from_per_step,
+)
 
-EXAMPLES = ["hazard_zone", "paper_S", "real_links_template", "scripted_losses", "sitl_ardupilot",
-            "sitl_px4", "wildfire"]
+EXAMPLES = [
+    "hazard_zone",
+    "paper_S",
+    "real_links_template",
+    "scripted_losses",
+    "sitl_ardupilot",
+    "sitl_px4",
+    "wildfire",
+]
 SIZES = ["XS", "S", "M", "L", "XL"]
 
 
 # ------------------------------------------------------------------ shipped examples
+
 
 def test_examples_are_shipped():
     assert list_examples() == EXAMPLES
@@ -74,13 +100,28 @@ def test_paper_S_example_is_what_mission_new_writes(capsys):
 
 # ------------------------------------------------------------------ mission new
 
+
 @pytest.mark.parametrize("reading", ["scaled", "literal"])
 @pytest.mark.parametrize("size", SIZES)
 def test_mission_new_reloads_for_every_size(size, reading, capsys):
     from planner.problem import SIZES as TABLE
 
-    rc = main(["mission", "new", "--preset", size, "--attrition", "0.02", "--unit-m", "50",
-               "--reading", reading, "--seed", "9"])
+    rc = main(
+        [
+            "mission",
+            "new",
+            "--preset",
+            size,
+            "--attrition",
+            "0.02",
+            "--unit-m",
+            "50",
+            "--reading",
+            reading,
+            "--seed",
+            "9",
+        ]
+    )
     out, err = capsys.readouterr()
     assert rc == 0, err
     assert out.startswith("# PhiIREMAN / RTNUA paper configuration")
@@ -119,12 +160,15 @@ def test_mission_new_out_file(tmp_path, capsys):
     assert main(["mission", "new", "--out", str(out), "--force"]) == 0
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--attrition", "1.0"], "--attrition"),
-    (["--attrition", "-0.1"], "--attrition"),
-    (["--unit-m", "0"], "--unit-m"),
-    (["--step-s", "-1"], "--step-s"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--attrition", "1.0"], "--attrition"),
+        (["--attrition", "-0.1"], "--attrition"),
+        (["--unit-m", "0"], "--unit-m"),
+        (["--step-s", "-1"], "--step-s"),
+    ],
+)
 def test_mission_new_bad_arguments(args, message, capsys):
     assert main(["mission", "new", *args]) == 2
     assert message in capsys.readouterr()[1]
@@ -139,6 +183,7 @@ def test_mission_without_subcommand_and_show(capsys):
 
 
 # ------------------------------------------------------------------ unit conversions
+
 
 def test_per_step_attrition_to_rate():
     assert rate_from_per_step(0.01, 1.0) == pytest.approx(0.010050335853501)
@@ -172,6 +217,7 @@ def test_default_mission_is_paper_S_without_attrition():
 
 # ------------------------------------------------------------------ dump / load
 
+
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_dump_load_round_trip_examples(name):
     m = load_mission(example_path(name))
@@ -183,12 +229,28 @@ def test_dump_load_round_trip_examples(name):
 
 def test_dump_load_round_trip_built_mission():
     m = Mission(
-        name="built", origin=Origin(lat_deg=10.0, lon_deg=20.0, alt_amsl_m=5.0),
-        tasks=(Task(name="a", track=(TrackPoint(t_s=0.0, north_m=1.0, east_m=2.0),
-                                     TrackPoint(t_s=3.5, lat_deg=10.001, lon_deg=20.001))),),
-        attrition=Attrition(rate_per_s=0.1, hazard_zones=(
-            HazardZone(circle=Circle(center=LocalPoint(north_m=1.0, east_m=2.0), radius_m=3.0),
-                       rate_per_s=0.2, start_s=1.0, end_s=2.0),)),
+        name="built",
+        origin=Origin(lat_deg=10.0, lon_deg=20.0, alt_amsl_m=5.0),
+        tasks=(
+            Task(
+                name="a",
+                track=(
+                    TrackPoint(t_s=0.0, north_m=1.0, east_m=2.0),
+                    TrackPoint(t_s=3.5, lat_deg=10.001, lon_deg=20.001),
+                ),
+            ),
+        ),
+        attrition=Attrition(
+            rate_per_s=0.1,
+            hazard_zones=(
+                HazardZone(
+                    circle=Circle(center=LocalPoint(north_m=1.0, east_m=2.0), radius_m=3.0),
+                    rate_per_s=0.2,
+                    start_s=1.0,
+                    end_s=2.0,
+                ),
+            ),
+        ),
     )
     resolved = validate_mission(m)
     assert resolved.vehicles.emulated.radio_range_m == resolved.radio.range_m  # filled in
@@ -208,10 +270,15 @@ def test_validate_mission_rejects_bad_built_mission():
 
 # ------------------------------------------------------------------ schema helpers and rules
 
+
 def test_track_is_piecewise_linear_and_holds_at_the_ends():
     origin = Origin()
-    task = Task(track=(TrackPoint(t_s=10.0, north_m=0.0, east_m=0.0),
-                       TrackPoint(t_s=20.0, north_m=100.0, east_m=-50.0)))
+    task = Task(
+        track=(
+            TrackPoint(t_s=10.0, north_m=0.0, east_m=0.0),
+            TrackPoint(t_s=20.0, north_m=100.0, east_m=-50.0),
+        )
+    )
     assert task.track_position_m(0.0, origin) == (0.0, 0.0)
     assert task.track_position_m(15.0, origin) == pytest.approx((50.0, -25.0))
     assert task.track_position_m(99.0, origin) == (100.0, -50.0)
@@ -222,13 +289,19 @@ def test_geo_positions_convert_near_the_origin():
     lat, lon = origin.to_geo_deg(150.0, -200.0)
     n, e = Position(lat_deg=lat, lon_deg=lon).local_m(origin)
     assert (n, e) == pytest.approx((150.0, -200.0), abs=0.01)
-    assert schema._approx_local_m(origin, lat, lon) == pytest.approx((150.0, -200.0), rel=0.01)  # spherical
+    assert schema._approx_local_m(origin, lat, lon) == pytest.approx(
+        (150.0, -200.0), rel=0.01
+    )  # spherical
 
 
 def test_hazard_zone_geometry_and_window():
-    square = HazardZone(polygon=tuple(LocalPoint(north_m=n, east_m=e)
-                                      for n, e in [(0, 0), (0, 10), (10, 10), (10, 0)]),
-                        start_s=5.0, end_s=10.0)
+    square = HazardZone(
+        polygon=tuple(
+            LocalPoint(north_m=n, east_m=e) for n, e in [(0, 0), (0, 10), (10, 10), (10, 0)]
+        ),
+        start_s=5.0,
+        end_s=10.0,
+    )
     assert square.contains(5.0, 5.0) and not square.contains(15.0, 5.0)
     assert not square.active(4.9) and square.active(5.0) and not square.active(10.0)
     disc = HazardZone(circle=Circle(center=LocalPoint(north_m=0.0, east_m=0.0), radius_m=2.0))
@@ -236,8 +309,11 @@ def test_hazard_zone_geometry_and_window():
 
 
 def _schema_classes():
-    return [c for _, c in inspect.getmembers(schema, inspect.isclass)
-            if dataclasses.is_dataclass(c) and c.__module__ == schema.__name__]
+    return [
+        c
+        for _, c in inspect.getmembers(schema, inspect.isclass)
+        if dataclasses.is_dataclass(c) and c.__module__ == schema.__name__
+    ]
 
 
 @pytest.mark.parametrize("cls", _schema_classes(), ids=lambda c: c.__name__)
@@ -248,8 +324,9 @@ def test_every_schema_field_has_a_docstring_and_a_frozen_class(cls):
     for i, node in enumerate(body):
         if isinstance(node, ast.AnnAssign):
             after = body[i + 1] if i + 1 < len(body) else None
-            assert isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant), \
+            assert isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant), (
                 f"{cls.__name__}.{node.target.id} has no attribute docstring"
+            )
 
 
 def test_numeric_keys_carry_units():
@@ -258,8 +335,9 @@ def test_numeric_keys_carry_units():
         for f in dataclasses.fields(cls):
             hint = str(f.type)
             if "float" in hint and "str" not in hint and f.name not in allowed_unitless:
-                assert f.name.endswith(("_m", "_s", "_deg", "_per_s", "_m_s", "_per_sqrt_s")), \
+                assert f.name.endswith(("_m", "_s", "_deg", "_per_s", "_m_s", "_per_sqrt_s")), (
                     f"{cls.__name__}.{f.name} has no unit suffix"
+                )
 
 
 @pytest.mark.parametrize("size", SIZES)
@@ -273,8 +351,14 @@ def test_problem_config_of_a_paper_mission_matches_the_preset(size):
         assert cfg.attrition_per_step == pytest.approx(0.02)
         assert cfg.dt_s == step_s
         assert cfg.length_unit_m == pytest.approx(ref.length_unit_m)
-        for name in ("field_half_width_m", "radio_range_m", "base_range_m", "ring_radius_m",
-                     "ring_noise_m", "task_walk_sigma_m"):
+        for name in (
+            "field_half_width_m",
+            "radio_range_m",
+            "base_range_m",
+            "ring_radius_m",
+            "ring_noise_m",
+            "task_walk_sigma_m",
+        ):
             assert getattr(cfg, name) == pytest.approx(getattr(ref, name)), name
         assert cfg.max_speed_m_s * step_s == pytest.approx(ref.max_speed_m_s)  # metres per step
         assert cfg.task_border == "clip"

@@ -1,6 +1,7 @@
 """Issue 14: every command as a newcomer meets it. No silent surprises (every flag honoured or
 refused with the reason), no tracebacks (one-line cause and fix, exit 2 for bad input, 130 for
 Ctrl-C), one vocabulary for the options commands share."""
+
 from __future__ import annotations
 
 import os
@@ -27,13 +28,17 @@ def _err(capsys) -> str:
 
 # -- sim --mission: flags that describe a paper preset are refused, not ignored ------------------
 
-@pytest.mark.parametrize("flags, named", [
-    (["--attrition", "0.05", "--method", "mccst"], ["--attrition", "--method"]),
-    (["--size", "XL"], ["--size"]),
-    (["--set", "nonsense=1"], ["--set"]),
-    (["--reading", "literal"], ["--reading"]),
-    (["--workers", "2"], ["--workers"]),
-])
+
+@pytest.mark.parametrize(
+    "flags, named",
+    [
+        (["--attrition", "0.05", "--method", "mccst"], ["--attrition", "--method"]),
+        (["--size", "XL"], ["--size"]),
+        (["--set", "nonsense=1"], ["--set"]),
+        (["--reading", "literal"], ["--reading"]),
+        (["--workers", "2"], ["--workers"]),
+    ],
+)
 def test_sim_mission_refuses_preset_flags(flags, named, capsys):
     assert main(["sim", "--mission", "wildfire", *flags]) == 2
     err = _err(capsys)
@@ -45,12 +50,15 @@ def test_sim_mission_refuses_preset_flags(flags, named, capsys):
 
 
 def test_sim_mission_honours_seed_and_seeds(capsys):
-    assert main(["sim", "--mission", "wildfire", "--seed", "5", "--seeds", "2", "--no-progress"]) == 0
+    assert (
+        main(["sim", "--mission", "wildfire", "--seed", "5", "--seeds", "2", "--no-progress"]) == 0
+    )
     out = capsys.readouterr().out
     assert "seed 5:" in out and "seed 6:" in out and "seed 1:" not in out
 
 
 # -- one parser for rates, one meaning for --seed, one --workers ------------------------------------
+
 
 def test_parse_rate_accepts_fractions_and_percents():
     assert parse_rate("0.01") == pytest.approx(0.01)
@@ -69,13 +77,15 @@ def test_sim_accepts_percent_attrition_and_seed_alias(capsys, tmp_path):
     assert main(common + ["--attrition", "0.02", "--seed-start", "7", "--out", str(b)]) == 0
     out = capsys.readouterr().out
     assert "TU1 = " in out
-    assert (a / "runs.csv").read_text() .splitlines()[1].startswith("7,")
+    assert (a / "runs.csv").read_text().splitlines()[1].startswith("7,")
     strip = lambda p: [line.split(",")[:4] for line in (p / "runs.csv").read_text().splitlines()]  # noqa: E731
     assert strip(a) == strip(b)
 
 
-@pytest.mark.parametrize("cmd", [["sim"], ["sweep", "--dry-run"], ["tune", "--method", "phireman",
-                                                                    "--grid", "step_size=0.1"]])
+@pytest.mark.parametrize(
+    "cmd",
+    [["sim"], ["sweep", "--dry-run"], ["tune", "--method", "phireman", "--grid", "step_size=0.1"]],
+)
 def test_workers_zero_is_refused_everywhere(cmd, capsys):
     with pytest.raises(SystemExit) as exc:
         main([*cmd, "--workers", "0"])
@@ -97,7 +107,18 @@ def test_workers_default_is_one_place():
 
 def test_sweep_accepts_both_spellings(tmp_path, capsys):
     store = tmp_path / "s.sqlite"
-    base = ["sweep", "--grid", "custom", "--attrition", "1%", "--seeds", "1", "--dry-run", "--store", str(store)]
+    base = [
+        "sweep",
+        "--grid",
+        "custom",
+        "--attrition",
+        "1%",
+        "--seeds",
+        "1",
+        "--dry-run",
+        "--store",
+        str(store),
+    ]
     assert main(base + ["--size", "XS", "S", "--method", "phireman", "mccst"]) == 0
     new = capsys.readouterr().out
     assert main(base + ["--sizes", "XS", "S", "--methods", "phireman", "mccst"]) == 0
@@ -113,9 +134,30 @@ def test_version(capsys):
 
 # -- tracebacks become one-line causes with the fix ------------------------------------------------
 
+
 def test_sweep_store_that_is_a_directory(tmp_path, capsys):
-    assert main(["sweep", "--grid", "custom", "--size", "XS", "--attrition", "0", "--method", "phireman",
-                 "--seeds", "1", "--store", str(tmp_path), "--no-progress", *FAST]) == 2
+    assert (
+        main(
+            [
+                "sweep",
+                "--grid",
+                "custom",
+                "--size",
+                "XS",
+                "--attrition",
+                "0",
+                "--method",
+                "phireman",
+                "--seeds",
+                "1",
+                "--store",
+                str(tmp_path),
+                "--no-progress",
+                *FAST,
+            ]
+        )
+        == 2
+    )
     err = _err(capsys)
     assert "is a directory" in err and "results.sqlite" in err
 
@@ -145,7 +187,10 @@ def test_emulate_port_in_use(capsys):
     s.bind(("127.0.0.1", 0))
     try:
         port = s.getsockname()[1]
-        assert main(["emulate", "--vehicles", "1", "--base-port", str(port), "--duration-s", "0.1"]) == 2
+        assert (
+            main(["emulate", "--vehicles", "1", "--base-port", str(port), "--duration-s", "0.1"])
+            == 2
+        )
     finally:
         s.close()
     err = _err(capsys)
@@ -154,32 +199,91 @@ def test_emulate_port_in_use(capsys):
 
 # -- unknown --set parameters are refused before anything runs -------------------------------------
 
+
 def test_sweep_unknown_parameter_refused_with_suggestion(tmp_path, capsys):
     store = tmp_path / "s.sqlite"
-    assert main(["sweep", "--grid", "custom", "--size", "XS", "--attrition", "0", "--method", "phireman",
-                 "--seeds", "1", "--set", "step_sise=0.2", "--store", str(store), "--no-progress"]) == 2
+    assert (
+        main(
+            [
+                "sweep",
+                "--grid",
+                "custom",
+                "--size",
+                "XS",
+                "--attrition",
+                "0",
+                "--method",
+                "phireman",
+                "--seeds",
+                "1",
+                "--set",
+                "step_sise=0.2",
+                "--store",
+                str(store),
+                "--no-progress",
+            ]
+        )
+        == 2
+    )
     err = _err(capsys)
     assert "step_sise" in err and "did you mean step_size?" in err
     assert not store.exists()  # nothing ran, nothing stored
 
 
 def test_sweep_parameter_of_one_method_only(tmp_path, capsys):
-    assert main(["sweep", "--grid", "custom", "--size", "XS", "--attrition", "0", "--method", "phireman",
-                 "mccst", "--seeds", "1", "--set", "thorn=0.5", "--dry-run",
-                 "--store", str(tmp_path / "s.sqlite")]) == 2
+    assert (
+        main(
+            [
+                "sweep",
+                "--grid",
+                "custom",
+                "--size",
+                "XS",
+                "--attrition",
+                "0",
+                "--method",
+                "phireman",
+                "mccst",
+                "--seeds",
+                "1",
+                "--set",
+                "thorn=0.5",
+                "--dry-run",
+                "--store",
+                str(tmp_path / "s.sqlite"),
+            ]
+        )
+        == 2
+    )
     err = _err(capsys)
     assert "not a parameter of mccst" in err and "only phireman" in err
 
 
 def test_tune_unknown_grid_key_refused(tmp_path, capsys):
     store = tmp_path / "t.sqlite"
-    assert main(["tune", "--method", "phireman", "--grid", "stepsize=0.1,0.2", "--seeds", "2",
-                 "--store", str(store), "--no-progress"]) == 2
+    assert (
+        main(
+            [
+                "tune",
+                "--method",
+                "phireman",
+                "--grid",
+                "stepsize=0.1,0.2",
+                "--seeds",
+                "2",
+                "--store",
+                str(store),
+                "--no-progress",
+            ]
+        )
+        == 2
+    )
     assert "did you mean step_size?" in _err(capsys)
     assert not store.exists()
 
 
 # -- the time estimate comes from measured costs ---------------------------------------------------
+
 
 def test_dry_run_estimate_uses_measured_costs_and_the_store(tmp_path, capsys):
     from mission.sweep import estimate_run_s, measured_costs
@@ -189,20 +293,41 @@ def test_dry_run_estimate_uses_measured_costs_and_the_store(tmp_path, capsys):
     assert estimate_run_s(xl) > 5 * estimate_run_s(xs)
     assert estimate_run_s(xl, "mccst") < estimate_run_s(xl, "phireman")
     # the paper table: 7,500 runs measured at about 56 min on 2 workers
-    assert main(["sweep", "--grid", "paper-table", "--dry-run", "--workers", "2",
-                 "--store", str(tmp_path / "none.sqlite")]) == 0
+    assert (
+        main(
+            [
+                "sweep",
+                "--grid",
+                "paper-table",
+                "--dry-run",
+                "--workers",
+                "2",
+                "--store",
+                str(tmp_path / "none.sqlite"),
+            ]
+        )
+        == 0
+    )
     last = capsys.readouterr().out.strip().splitlines()[-1]
     minutes = int(last.split("about ")[1].split(" min")[0])
     assert 35 <= minutes <= 90, last
     # the store's own durations win when it has the size and method
-    rows = [{"status": "ok", "wall_s": 10.0, "size": "XS", "method": "phireman",
-             "config_json": '{"problem": {"n_steps": 100}}'}] * 3
+    rows = [
+        {
+            "status": "ok",
+            "wall_s": 10.0,
+            "size": "XS",
+            "method": "phireman",
+            "config_json": '{"problem": {"n_steps": 100}}',
+        }
+    ] * 3
     measured = measured_costs(rows)
     assert measured[("XS", "phireman")] == pytest.approx(20.0)
     assert estimate_run_s(xs, "phireman", measured) == pytest.approx(20.0)
 
 
 # -- confidence intervals stay inside [0, 100] -----------------------------------------------------
+
 
 def test_ci_wider_than_the_range_is_clipped_and_explained():
     from mission.report import _fmt
@@ -217,12 +342,15 @@ def test_ci_wider_than_the_range_is_clipped_and_explained():
 
 
 def test_sim_notes_too_few_seeds(capsys):
-    assert main(["sim", "--size", "XS", "--seeds", "2", "--workers", "1", "--no-progress", *FAST]) == 0
+    assert (
+        main(["sim", "--size", "XS", "--seeds", "2", "--workers", "1", "--no-progress", *FAST]) == 0
+    )
     err = _err(capsys)
     assert "2 run(s): too few" in err
 
 
 # -- check says what it invented -------------------------------------------------------------------
+
 
 def test_check_notes_invented_tasks(tmp_path, capsys):
     f = tmp_path / "bare.yaml"
@@ -236,9 +364,16 @@ def test_check_notes_invented_tasks(tmp_path, capsys):
 
 # -- Ctrl-C: exit 130, no traceback from the workers, the sweep keeps what it stored ---------------
 
+
 def _interrupt(args, ready, timeout=90):
-    proc = subprocess.Popen(PHIREMAN + args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc = subprocess.Popen(
+        PHIREMAN + args,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     try:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline and proc.poll() is None and not ready():
@@ -266,8 +401,27 @@ def test_ctrl_c_during_sim_exits_130_without_tracebacks():
 
 def test_ctrl_c_during_sweep_keeps_what_it_stored(tmp_path):
     store = tmp_path / "s.sqlite"
-    args = ["sweep", "--grid", "custom", "--size", "XS", "--attrition", "0", "1%", "--method", "phireman",
-            "--seeds", "60", "--chunk", "1", "--workers", "2", "--no-progress", "--store", str(store)]
+    args = [
+        "sweep",
+        "--grid",
+        "custom",
+        "--size",
+        "XS",
+        "--attrition",
+        "0",
+        "1%",
+        "--method",
+        "phireman",
+        "--seeds",
+        "60",
+        "--chunk",
+        "1",
+        "--workers",
+        "2",
+        "--no-progress",
+        "--store",
+        str(store),
+    ]
 
     def some_rows():
         try:
@@ -291,12 +445,37 @@ def test_ctrl_c_during_sweep_keeps_what_it_stored(tmp_path):
 
 # -- report leads with the user's own configurations and grades only the paper's ------------------
 
+
 @pytest.fixture(scope="module")
 def custom_store(tmp_path_factory):
     path = tmp_path_factory.mktemp("custom") / "custom.sqlite"
-    assert main(["sweep", "--grid", "custom", "--size", "XS", "--attrition", "0", "1%", "--method", "phireman",
-                 "mccst", "--seeds", "3", "--set", "n_steps=20", "--workers", "1", "--no-progress",
-                 "--store", str(path)]) == 0
+    assert (
+        main(
+            [
+                "sweep",
+                "--grid",
+                "custom",
+                "--size",
+                "XS",
+                "--attrition",
+                "0",
+                "1%",
+                "--method",
+                "phireman",
+                "mccst",
+                "--seeds",
+                "3",
+                "--set",
+                "n_steps=20",
+                "--workers",
+                "1",
+                "--no-progress",
+                "--store",
+                str(path),
+            ]
+        )
+        == 0
+    )
     return path
 
 
@@ -316,8 +495,20 @@ def test_report_on_a_custom_store_leads_with_it(custom_store, tmp_path, capsys):
 
 def test_report_with_overrides_does_not_grade_against_the_paper(custom_store, tmp_path, capsys):
     capsys.readouterr()
-    assert main(["report", str(custom_store), "--out", str(tmp_path / "r"), "--set", "n_steps=20",
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "report",
+                str(custom_store),
+                "--out",
+                str(tmp_path / "r"),
+                "--set",
+                "n_steps=20",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "not compared with the paper" in out and "within 3 pp" not in out
     md = (tmp_path / "r" / "report.md").read_text()
@@ -347,10 +538,13 @@ def test_compared_heatmap_panels_share_one_colour_scale(monkeypatch, tmp_path):
         cell.unpaired[metric] = report.best_of(cell.samples, metric)
     report.heatmaps([cell], tmp_path)
     fig3 = [v for t, v in calls if "max(DCCRS, MCCST)" in t]
-    assert len(fig3) == 4 and len(set(fig3)) == 1 and fig3[0] >= 29  # ours (+29) and paper (+2.6) alike
+    assert (
+        len(fig3) == 4 and len(set(fig3)) == 1 and fig3[0] >= 29
+    )  # ours (+29) and paper (+2.6) alike
 
 
 # -- replay: parent directories, hints, encoders checked up front, pictures that explain themselves
+
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
@@ -403,12 +597,25 @@ def test_replay_mp4_without_ffmpeg_fails_up_front(run_dir, tmp_path, monkeypatch
 def test_legend_is_complete():
     from mission.plots import Scene, legend_handles
 
-    labels = [h.get_label() for h in legend_handles(Scene(100, 80, 300, [lambda ax: None], unit="m"))]
-    for needle in ("base station", "base radio range (80 m)", "radio link", "drone lost", "cut off",
-                   "drone serving a crew", "task tree", "Steiner", "hazard zone"):
+    labels = [
+        h.get_label() for h in legend_handles(Scene(100, 80, 300, [lambda ax: None], unit="m"))
+    ]
+    for needle in (
+        "base station",
+        "base radio range (80 m)",
+        "radio link",
+        "drone lost",
+        "cut off",
+        "drone serving a crew",
+        "task tree",
+        "Steiner",
+        "hazard zone",
+    ):
         assert any(needle in label for label in labels), needle
     paper = [h.get_label() for h in legend_handles(Scene(2, 2, 5, unit="paper length units"))]
-    assert not any("hazard" in label for label in paper) and any("paper length units" in label for label in paper)
+    assert not any("hazard" in label for label in paper) and any(
+        "paper length units" in label for label in paper
+    )
 
 
 def test_frame_shows_names_links_and_a_tree_without_recorded_trees(run_dir):
@@ -428,9 +635,19 @@ def test_frame_shows_names_links_and_a_tree_without_recorded_trees(run_dir):
         assert scene.tree_recomputed and scene.hazard_zones and scene.task_names
         fig, ax = plt.subplots()
         view = FrameView(ax, scene, clock=True)
-        view.update(run.pos_m[k], run.alive[k], run.active[k], run.task_pos_m[k], run.connected[k], tree, "t = 1 s")
+        view.update(
+            run.pos_m[k],
+            run.alive[k],
+            run.active[k],
+            run.task_pos_m[k],
+            run.connected[k],
+            tree,
+            "t = 1 s",
+        )
         assert len(view.tree.get_segments()) == len(tree.nodes_m) - 1
-        assert len(view.crew.get_segments()) == run.connected[k].sum()  # one serving drone per connected crew
+        assert (
+            len(view.crew.get_segments()) == run.connected[k].sum()
+        )  # one serving drone per connected crew
         assert [t.get_text() for t in view.labels] == [n.split(" (")[0] for n in scene.task_names]
         assert ax.get_xlabel() == "east (m)" and ax.get_ylabel() == "north (m)"
         assert view.clock.get_text() == "t = 1 s"

@@ -1,4 +1,5 @@
 """In-process playback of mission files: determinism, scripted losses, hazard zones, replay."""
+
 import json
 
 import numpy as np
@@ -29,10 +30,13 @@ def test_same_seed_same_results_every_time():
 
 
 def test_scripted_losses_happen_at_their_times():
-    m = loads_mission(BASE + """
+    m = loads_mission(
+        BASE
+        + """
 attrition:
   scripted: [{vehicle: 2, t_s: 5}, {vehicle: 7, t_s: 12.5}, {vehicle: 11, t_s: 30}]
-""")
+"""
+    )
     r = run_inprocess(m)
     got = {e["index"]: e["t_s"] for e in r.losses}
     # a loss scripted at t dies during the step that starts at floor(t / dt): gone from t_s = step + 1
@@ -44,41 +48,50 @@ attrition:
 
 
 def test_zone_mask_circle_and_polygon():
-    m = loads_mission(BASE + """
+    m = loads_mission(
+        BASE
+        + """
 attrition:
   hazard_zones:
     - circle: {center: {north_m: 0, east_m: 100}, radius_m: 50}
     - polygon: [{north_m: 0, east_m: 0}, {north_m: 0, east_m: 10}, {north_m: 10, east_m: 10}, {north_m: 10, east_m: 0}]
       start_s: 10
       end_s: 20
-""")
+"""
+    )
     pts = np.array([[0, 100], [0, 160], [5, 5], [15, 5]], dtype=float)
     circle, square = m.attrition.hazard_zones
     assert zone_mask(circle, pts).tolist() == [True, False, False, False]
     assert zone_mask(square, pts).tolist() == [False, False, True, False]
     assert [square.contains(*p) for p in pts] == [False, False, True, False]
     # a concave (L-shaped) zone: the notch is outside
-    ell = loads_mission(BASE + """
+    ell = loads_mission(
+        BASE
+        + """
 attrition:
   hazard_zones:
     - polygon: [{north_m: 0, east_m: 0}, {north_m: 0, east_m: 20}, {north_m: 10, east_m: 20},
                 {north_m: 10, east_m: 10}, {north_m: 20, east_m: 10}, {north_m: 20, east_m: 0}]
-""").attrition.hazard_zones[0]
+"""
+    ).attrition.hazard_zones[0]
     probe = np.array([[5, 5], [5, 15], [15, 5], [15, 15], [-1, 5], [25, 5]], dtype=float)
     assert zone_mask(ell, probe).tolist() == [True, True, True, False, False, False]
-    assert loss_probability(m, 0.0, pts)[2] == 0.0          # window not open yet
+    assert loss_probability(m, 0.0, pts)[2] == 0.0  # window not open yet
     assert loss_probability(m, 15.0, pts)[2] > 0.0
-    assert loss_probability(m, 20.0, pts)[2] == 0.0          # end_s is exclusive
+    assert loss_probability(m, 20.0, pts)[2] == 0.0  # end_s is exclusive
 
 
 def test_losses_are_higher_inside_a_hazard_zone_than_outside():
-    m = loads_mission(BASE + """
+    m = loads_mission(
+        BASE
+        + """
 attrition:
   rate_per_s: 0.002
   hazard_zones:
     - circle: {center: {north_m: 0, east_m: 0}, radius_m: 120}
       rate_per_s: 0.03
-""")
+"""
+    )
     zone = m.attrition.hazard_zones[0]
     inside_exp = outside_exp = inside_loss = outside_loss = 0
     for seed in range(8):
@@ -129,7 +142,9 @@ def test_geofence_section_is_validated_and_reaches_the_station_config():
     assert (fence.north_max_m, fence.east_min_m, fence.max_alt_m) == (300.0, -300.0, 120.0)
     with pytest.raises(MissionError) as exc:
         loads_mission(BASE + "geofence: {half_width_m: 300, max_alt_m: 20}\n")
-    assert any(e.startswith("geofence.max_alt_m:") and "cruise layer" in e for e in exc.value.errors)
+    assert any(
+        e.startswith("geofence.max_alt_m:") and "cruise layer" in e for e in exc.value.errors
+    )
 
 
 def test_in_process_drones_stay_inside_the_geofence():

@@ -26,27 +26,62 @@ def _sample(method: str, tu1, tu2=None) -> Sample:
     return s
 
 
-def _rows(spec: ConfigSpec, tu1_pct, tu2_pct, grid: str = "paper-table", errors: int = 0) -> list[dict]:
+def _rows(
+    spec: ConfigSpec, tu1_pct, tu2_pct, grid: str = "paper-table", errors: int = 0
+) -> list[dict]:
     """Store rows for a spec as a sweep would write them (config key faked: one per spec)."""
     rows = []
-    base = {"config_key": "cfg-" + spec.spec_key, "spec_key": spec.spec_key, "grid": grid, "label": spec.label,
-            "size": spec.size, "attrition": spec.attrition, "reading": spec.reading, "method": spec.method,
-            "spec_json": canonical_json(spec.spec_dict()), "config_json": "{}", "wall_s": 0.1,
-            "final_alive": 5, "final_active": 4, "code_version": "phireman test src 0", "host": "h",
-            "created_utc": utc_now()}
+    base = {
+        "config_key": "cfg-" + spec.spec_key,
+        "spec_key": spec.spec_key,
+        "grid": grid,
+        "label": spec.label,
+        "size": spec.size,
+        "attrition": spec.attrition,
+        "reading": spec.reading,
+        "method": spec.method,
+        "spec_json": canonical_json(spec.spec_dict()),
+        "config_json": "{}",
+        "wall_s": 0.1,
+        "final_alive": 5,
+        "final_active": 4,
+        "code_version": "phireman test src 0",
+        "host": "h",
+        "created_utc": utc_now(),
+    }
     for seed, (a, b) in enumerate(zip(tu1_pct, tu2_pct)):
-        rows.append({**base, "run_key": f"{spec.spec_key}-{seed}", "seed": seed, "status": "ok", "error": None,
-                     "tu1": a / 100, "tu2": b / 100})
+        rows.append(
+            {
+                **base,
+                "run_key": f"{spec.spec_key}-{seed}",
+                "seed": seed,
+                "status": "ok",
+                "error": None,
+                "tu1": a / 100,
+                "tu2": b / 100,
+            }
+        )
     for k in range(errors):
-        rows.append({**base, "run_key": f"{spec.spec_key}-e{k}", "seed": 1000 + k, "status": "error",
-                     "error": "ValueError: boom", "tu1": None, "tu2": None, "final_alive": None,
-                     "final_active": None})
+        rows.append(
+            {
+                **base,
+                "run_key": f"{spec.spec_key}-e{k}",
+                "seed": 1000 + k,
+                "status": "error",
+                "error": "ValueError: boom",
+                "tu1": None,
+                "tu2": None,
+                "final_alive": None,
+                "final_active": None,
+            }
+        )
     return rows
 
 
 # ----------------------------------------------------------------------------------------------
 # Statistics
 # ----------------------------------------------------------------------------------------------
+
 
 def test_bold_needs_the_best_to_beat_both_others(rng):
     a = _sample("phireman", 80 + rng.normal(0, 3, N_SEEDS))
@@ -85,13 +120,18 @@ def test_paper_data_matches_the_papers_caption():
     assert {b for b in bold if b[3] != "phireman"} == {("M", 0.05, "tu2", "mccst")}
     assert paper.paper_value("S", 0.01, "phireman", "tu1") == (80.83, 1.63)
     assert paper.paper_value("XL", 0.05, "mccst", "tu2") == (42.96, 0.57)
-    assert paper.paper_bold("M", 0.05, "tu2") == "mccst" and paper.paper_bold("S", 0.0, "tu1") is None
-    assert [r.label for r in paper.ABLATIONS] == [v.label for v in paper_ablations_grid(seeds=[]).configs]
+    assert (
+        paper.paper_bold("M", 0.05, "tu2") == "mccst" and paper.paper_bold("S", 0.0, "tu1") is None
+    )
+    assert [r.label for r in paper.ABLATIONS] == [
+        v.label for v in paper_ablations_grid(seeds=[]).configs
+    ]
 
 
 # ----------------------------------------------------------------------------------------------
 # The rendered report on a synthetic store
 # ----------------------------------------------------------------------------------------------
+
 
 @pytest.fixture
 def synthetic_store(tmp_path, rng):
@@ -109,14 +149,21 @@ def synthetic_store(tmp_path, rng):
     # S / 0.5 %: a small consistent gain hidden in shared variance: paired-only significance.
     scenario = 93 + rng.normal(0, 4, N_SEEDS)
     rows += _rows(table[("S", 0.005, "phireman")], scenario + 0.8, scenario + 0.8)
-    rows += _rows(table[("S", 0.005, "dccrs")], scenario + rng.normal(0, 0.2, N_SEEDS),
-                  scenario + rng.normal(0, 0.2, N_SEEDS))
+    rows += _rows(
+        table[("S", 0.005, "dccrs")],
+        scenario + rng.normal(0, 0.2, N_SEEDS),
+        scenario + rng.normal(0, 0.2, N_SEEDS),
+    )
     rows += _rows(table[("S", 0.005, "mccst")], scenario - 15, scenario - 10)
     # XS / 0 %: ΦIREMAN 10 pp below the paper (a miss), baselines on the paper; two failed runs.
     for method, shift in (("phireman", -10.0), ("dccrs", 0.0), ("mccst", 0.0)):
         (t1, _), (t2, _) = (paper.paper_value("XS", 0.0, method, m) for m in paper.METRICS)
-        rows += _rows(table[("XS", 0.0, method)], t1 + shift + rng.normal(0, 1, N_SEEDS),
-                      t2 + shift + rng.normal(0, 0.5, N_SEEDS), errors=2 if method == "mccst" else 0)
+        rows += _rows(
+            table[("XS", 0.0, method)],
+            t1 + shift + rng.normal(0, 1, N_SEEDS),
+            t2 + shift + rng.normal(0, 0.5, N_SEEDS),
+            errors=2 if method == "mccst" else 0,
+        )
     # Ablations: Þ = 0 clearly below the default, v = 0.2 the same as the default.
     abl = {c.label: c for c in paper_ablations_grid(seeds=[]).configs}
     default = [r for r in rows if r["spec_key"] == abl["default"].spec_key]
@@ -124,8 +171,12 @@ def synthetic_store(tmp_path, rng):
     d1 = np.array([r["tu1"] * 100 for r in default])
     d2 = np.array([r["tu2"] * 100 for r in default])
     rows += _rows(abl["Þ = 0"], d1 - 6, d2 - 6, grid="paper-ablations")
-    rows += _rows(abl["v = 0.2"], d1 + rng.normal(0, 0.1, N_SEEDS), d2 + rng.normal(0, 0.1, N_SEEDS),
-                  grid="paper-ablations")
+    rows += _rows(
+        abl["v = 0.2"],
+        d1 + rng.normal(0, 0.1, N_SEEDS),
+        d2 + rng.normal(0, 0.1, N_SEEDS),
+        grid="paper-ablations",
+    )
     # Something from a tuning run.
     tuned = ConfigSpec("S", 0.01, "phireman", params={"step_size": 0.3}, label="step_size=0.3")
     rows += _rows(tuned, 70 + rng.normal(0, 1, 5), 75 + rng.normal(0, 1, 5), grid="tune")
@@ -182,16 +233,28 @@ def test_report_on_a_synthetic_store(synthetic_store, tmp_path):
 
     # Heatmaps exist and are PNGs; the CSV holds every configuration.
     assert {p.name for p in result.figures} == {
-        "fig3_phireman_minus_dccrs.png", "fig3_phireman_minus_mccst.png",
-        "fig3_phireman_minus_best_baseline.png", "delta_vs_paper.png"}
+        "fig3_phireman_minus_dccrs.png",
+        "fig3_phireman_minus_mccst.png",
+        "fig3_phireman_minus_best_baseline.png",
+        "delta_vs_paper.png",
+    }
     for p in result.figures:
         data = p.read_bytes()
         assert len(data) > 10_000 and data[:8] == b"\x89PNG\r\n\x1a\n"
     with open(result.csv) as fh:
         rows = list(csv.DictReader(fh))
-    s1_phi = next(r for r in rows if (r["size"], r["attrition"], r["method"], r["label"]) == ("S", "0.01", "phireman", ""))
-    assert float(s1_phi["delta_tu1_pp"]) == pytest.approx(1.0, abs=1e-6) and s1_phi["within_tolerance"] == "True"
-    xs_m = next(r for r in rows if (r["size"], r["attrition"], r["method"]) == ("XS", "0.0", "mccst"))
+    s1_phi = next(
+        r
+        for r in rows
+        if (r["size"], r["attrition"], r["method"], r["label"]) == ("S", "0.01", "phireman", "")
+    )
+    assert (
+        float(s1_phi["delta_tu1_pp"]) == pytest.approx(1.0, abs=1e-6)
+        and s1_phi["within_tolerance"] == "True"
+    )
+    xs_m = next(
+        r for r in rows if (r["size"], r["attrition"], r["method"]) == ("XS", "0.0", "mccst")
+    )
     assert xs_m["n_ok"] == str(N_SEEDS) and xs_m["n_error"] == "2"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["agreement"]["phireman"]["within_both"] == 1
@@ -201,8 +264,24 @@ def test_report_command(synthetic_store, tmp_path, capsys):
     out = tmp_path / "cli"
     notes = tmp_path / "notes.md"
     notes.write_text("XS / 0 % misses because of a synthetic shift.")
-    assert main(["report", str(synthetic_store), "--out", str(out), "--notes", str(notes), "--no-figures"]) == 0
-    assert "within 3 pp of the paper at 0-2 %: 1 of 3 paper configurations with data" in capsys.readouterr().out
+    assert (
+        main(
+            [
+                "report",
+                str(synthetic_store),
+                "--out",
+                str(out),
+                "--notes",
+                str(notes),
+                "--no-figures",
+            ]
+        )
+        == 0
+    )
+    assert (
+        "within 3 pp of the paper at 0-2 %: 1 of 3 paper configurations with data"
+        in capsys.readouterr().out
+    )
     md = (out / "report.md").read_text()
     assert md.rstrip().endswith("XS / 0 % misses because of a synthetic shift.")
     assert not list(out.glob("*.png"))
@@ -214,16 +293,19 @@ def test_central_information_section(tmp_path, rng):
     information models with the paper; without them the section is absent."""
     path = tmp_path / "central.sqlite"
     table = {(c.size, c.attrition, c.method): c for c in paper_table_grid(seeds=[]).configs}
-    central = {(c.size, c.attrition): c for c in paper_table_grid(seeds=[], methods=("phireman-central",)).configs}
+    central = {
+        (c.size, c.attrition): c
+        for c in paper_table_grid(seeds=[], methods=("phireman-central",)).configs
+    }
     (t1, _), (t2, _) = (paper.paper_value("M", 0.02, "phireman", m) for m in paper.METRICS)
     noise = rng.normal(0, 1, N_SEEDS)
     noise -= noise.mean()
-    rows = _rows(table[("M", 0.02, "phireman")], t1 - 4.0 + noise, t2 - 4.0 + noise)   # a miss
+    rows = _rows(table[("M", 0.02, "phireman")], t1 - 4.0 + noise, t2 - 4.0 + noise)  # a miss
     with ResultStore(path) as store:
         store.insert_runs(rows)
     md = build_report(path, tmp_path / "a", figures=False).markdown.read_text()
     assert "asynchronous and central" not in md
-    rows = _rows(central[("M", 0.02)], t1 - 0.5 + noise, t2 + 0.5 + noise)           # within 3
+    rows = _rows(central[("M", 0.02)], t1 - 0.5 + noise, t2 + 0.5 + noise)  # within 3
     with ResultStore(path) as store:
         store.insert_runs(rows)
     result = build_report(path, tmp_path / "b", figures=False)
@@ -240,15 +322,27 @@ def test_per_baseline_split_of_the_paper_bolds(rng):
     MCCST, and no bold."""
     from mission.report import Cell, _phireman_vs_each
 
-    bolded = [(size, att) for (size, att) in paper.TABLE_II if paper.paper_bold(size, att, "tu1") == "phireman"
-              and paper.paper_bold(size, att, "tu2") == "phireman"][:3]
+    bolded = [
+        (size, att)
+        for (size, att) in paper.TABLE_II
+        if paper.paper_bold(size, att, "tu1") == "phireman"
+        and paper.paper_bold(size, att, "tu2") == "phireman"
+    ][:3]
     assert bolded, "the paper bolds ΦIREMAN on both metrics somewhere"
     cells = []
     for size, att in bolded:
         noise = rng.normal(0, 3, N_SEEDS)
-        cells.append(Cell(size, att, {"phireman": _sample("phireman", 80 + noise),
-                                      "dccrs": _sample("dccrs", 80 + noise[::-1]),
-                                      "mccst": _sample("mccst", 60 + rng.normal(0, 3, N_SEEDS))}))
+        cells.append(
+            Cell(
+                size,
+                att,
+                {
+                    "phireman": _sample("phireman", 80 + noise),
+                    "dccrs": _sample("dccrs", 80 + noise[::-1]),
+                    "mccst": _sample("mccst", 60 + rng.normal(0, 3, N_SEEDS)),
+                },
+            )
+        )
     text, stats = _phireman_vs_each(cells)
     assert stats["paper_bolds_phireman"] == 2 * len(bolded)
     assert stats["above_mccst"] == stats["above_mccst_paired"] == 2 * len(bolded)

@@ -72,8 +72,14 @@ def test_run_world_reports_every_loss_once_in_order():
     scenario = draw_scenario(problem, streams)
     world = World.from_scenario(problem, scenario)
     planner = make_planner("phireman", problem, {}, streams.algorithm)
-    run = run_world(world, planner, problem.n_steps, problem.attrition_per_step,
-                    scenario.attrition_u, record=True)
+    run = run_world(
+        world,
+        planner,
+        problem.n_steps,
+        problem.attrition_per_step,
+        scenario.attrition_u,
+        record=True,
+    )
     rec = run.record
     assert run.losses, "5 % per step over the horizon: some drone is lost"
     assert [t for t, _ in run.losses] == sorted(t for t, _ in run.losses)

@@ -1,4 +1,5 @@
 """Same seed, same numbers: on every run and with any number of worker processes."""
+
 import numpy as np
 
 from mission.sim import run_episode, run_many

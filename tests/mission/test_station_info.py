@@ -18,24 +18,50 @@ from mission.ether import LockstepEther, station_for_swarm
 from mission.fly_options import FlyOptions
 from mission.load import validate_mission
 from mission.mission_world import MissionWorld, build_swarm, mission_scenario
-from mission.schema import (INFO_MODES, EmulatedVehicles, Mission, PlannerSpec, Radio, RunSpec, Spawn,
-                            SpawnRing, Task, TrackPoint, Vehicles)
+from mission.schema import (
+    INFO_MODES,
+    EmulatedVehicles,
+    Mission,
+    PlannerSpec,
+    Radio,
+    RunSpec,
+    Spawn,
+    SpawnRing,
+    Task,
+    TrackPoint,
+    Vehicles,
+)
 from mission.station_loop import make_operator
 from planner.info import INFO_MODELS, STATION_INFO, CentralInfo, MessagePassingInfo
 
 
 def _mission(method="phireman", info=None, n=4, duration_s=12.0, **params):
-    planner = PlannerSpec(method=method, params=params) if info is None else \
-        PlannerSpec(method=method, info=info, params=params)
-    tasks = (Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
-             Task(track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),)))
+    planner = (
+        PlannerSpec(method=method, params=params)
+        if info is None
+        else PlannerSpec(method=method, info=info, params=params)
+    )
+    tasks = (
+        Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
+        Task(track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),)),
+    )
     return Mission(
         name="info",
-        vehicles=Vehicles(emulated=EmulatedVehicles(
-            count=n, radio_range_m=100.0, cruise_alt_m=20.0, climb_rate_m_s=5.0, max_speed_m_s=10.0,
-            spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)))),
-        tasks=tasks, radio=Radio(range_m=100.0, base_range_m=100.0), planner=planner,
-        run=RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3))
+        vehicles=Vehicles(
+            emulated=EmulatedVehicles(
+                count=n,
+                radio_range_m=100.0,
+                cruise_alt_m=20.0,
+                climb_rate_m_s=5.0,
+                max_speed_m_s=10.0,
+                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
+            )
+        ),
+        tasks=tasks,
+        radio=Radio(range_m=100.0, base_range_m=100.0),
+        planner=planner,
+        run=RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3),
+    )
 
 
 def _fly(mission, seed=3, limit_s=200.0):
@@ -44,7 +70,9 @@ def _fly(mission, seed=3, limit_s=200.0):
     swarm = build_swarm(mission, scenario, seed=seed)
     world = MissionWorld(mission, scenario, swarm)
     station = station_for_swarm(swarm)
-    op = make_operator(mission, scenario, station, FlyOptions(wave_size=10), mission.vehicles.count, 0.0, seed)
+    op = make_operator(
+        mission, scenario, station, FlyOptions(wave_size=10), mission.vehicles.count, 0.0, seed
+    )
     ether = LockstepEther(swarm, station, np.random.default_rng(seed))
     ether.on_event = op.handle_event
     started = False
@@ -77,7 +105,9 @@ def test_station_flies_with_message_passing_when_the_mission_says_async(method):
     assert model.layer is not None
     planned = [r for r in op.records if r.planned]
     assert len(planned) >= 10
-    assert model.layer.knowledge.entry_rows is not None and len(model.layer.knowledge.entry_rows) > 0
+    assert (
+        model.layer.knowledge.entry_rows is not None and len(model.layer.knowledge.entry_rows) > 0
+    )
     assert (model.layer.knowledge.tree_stamp >= 0).all()
 
 
@@ -86,7 +116,9 @@ def test_station_plans_centrally_by_default(method):
     m = _mission(method)
     assert m.planner.info == "central"
     scenario = mission_scenario(m, 3)
-    op = make_operator(m, scenario, station_for_swarm(build_swarm(m, scenario, seed=3)), FlyOptions(), 4, 0.0, 3)
+    op = make_operator(
+        m, scenario, station_for_swarm(build_swarm(m, scenario, seed=3)), FlyOptions(), 4, 0.0, 3
+    )
     assert isinstance(op.planner.info_model, CentralInfo) and op.planner.params.info == "central"
 
 
@@ -96,9 +128,17 @@ def test_station_flies_central_dccrs_by_default():
     assert sum(1 for r in op.records if r.planned) >= 10
 
 
-@pytest.mark.parametrize("method,info", [("phireman", "async"), ("phireman", "central"), ("dccrs", "async"),
-                                         ("dccrs", "central"), ("mccst", "central"),
-                                         ("phireman-resilient", "async")])
+@pytest.mark.parametrize(
+    "method,info",
+    [
+        ("phireman", "async"),
+        ("phireman", "central"),
+        ("dccrs", "async"),
+        ("dccrs", "central"),
+        ("mccst", "central"),
+        ("phireman-resilient", "async"),
+    ],
+)
 def test_station_and_playback_build_the_same_planner(monkeypatch, method, info):
     """One decision: the station and the in-process playback pass make_planner the same params."""
     m = _mission(method, info, duration_s=3.0)
@@ -110,12 +150,15 @@ def test_station_and_playback_build_the_same_planner(monkeypatch, method, info):
         def make(name, problem, params=None, rng=None):
             seen.setdefault(where.__name__, []).append((name, dict(params or {})))
             return real(name, problem, params, rng)
+
         return make
 
     monkeypatch.setattr(station_loop, "make_planner", spy(station_loop))
     monkeypatch.setattr(playback, "make_planner", spy(playback))
     scenario = mission_scenario(m, 3)
-    make_operator(m, scenario, station_for_swarm(build_swarm(m, scenario, seed=3)), FlyOptions(), 4, 0.0, 3)
+    make_operator(
+        m, scenario, station_for_swarm(build_swarm(m, scenario, seed=3)), FlyOptions(), 4, 0.0, 3
+    )
     playback.run_inprocess(m, seed=3)
     expected = m.planner.run_params()
     assert seen["mission.station_loop"] == [(method, expected)]
@@ -127,5 +170,7 @@ def test_a_mission_cannot_ask_a_central_only_method_for_async_nor_set_info_twice
     with pytest.raises(Exception, match="central information only"):
         validate_mission(_mission("mccst", "async"))
     with pytest.raises(Exception, match="planner.info"):
-        validate_mission(dataclasses.replace(_mission("phireman"), planner=PlannerSpec(params={"info": "async"})))
+        validate_mission(
+            dataclasses.replace(_mission("phireman"), planner=PlannerSpec(params={"info": "async"}))
+        )
     assert validate_mission(_mission("mccst")).planner.run_params() == {}

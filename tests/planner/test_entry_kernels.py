@@ -4,14 +4,26 @@ The gradient kernels must agree with the dense kernels and the loops to rounding
 the summation order may differ, so the last bits may too). The message layer works on integer
 stamps: there the entry version must give *identical* tables to the dense one.
 """
+
 import numpy as np
 import pytest
 
-from planner.dccrs import (velocity_match, velocity_match_entries, velocity_match_reference,
-                           weighted_pair_gradient, weighted_pair_gradient_entries)
+from planner.dccrs import (
+    velocity_match,
+    velocity_match_entries,
+    velocity_match_reference,
+    weighted_pair_gradient,
+    weighted_pair_gradient_entries,
+)
 from planner.knowledge import MessageLayer, propagate_stamps, propagate_stamps_reference
-from planner.phireman import (TreeSegments, padded_segments, pair_gradient, pair_gradient_entries,
-                              pair_gradient_reference, task_gradient_batched)
+from planner.phireman import (
+    TreeSegments,
+    padded_segments,
+    pair_gradient,
+    pair_gradient_entries,
+    pair_gradient_reference,
+    task_gradient_batched,
+)
 from planner.steiner import build_task_tree
 
 KW = dict(attraction=0.05, floor=0.5, repulsion=0.3, reach=2.0, pair_factor=2.0)
@@ -32,23 +44,52 @@ def _close(got, want, tol=1e-12):
     return np.allclose(got, want, rtol=tol, atol=tol * scale)
 
 
-@pytest.mark.parametrize("n,k,density", [(1, 1, 1.0), (3, 5, 0.5), (40, 60, 0.3), (200, 500, 0.12),
-                                         (500, 500, 0.85), (7, 300, 0.02), (20, 20, 0.0)])
+@pytest.mark.parametrize(
+    "n,k,density",
+    [
+        (1, 1, 1.0),
+        (3, 5, 0.5),
+        (40, 60, 0.3),
+        (200, 500, 0.12),
+        (500, 500, 0.85),
+        (7, 300, 0.02),
+        (20, 20, 0.0),
+    ],
+)
 def test_pair_gradient_entries_match_dense_and_reference(rng, n, k, density):
     x, beliefs, mask = _view(rng, n, k, density)
     sq = np.einsum("nkc,nkc->nk", beliefs, beliefs)
     dense = pair_gradient(x, beliefs, mask, others_sq=sq, **KW)
     r, c = np.nonzero(mask)
-    got = pair_gradient_entries(x, r, beliefs[r, c], KW["attraction"], KW["floor"], KW["repulsion"],
-                                KW["reach"], KW["pair_factor"])
+    got = pair_gradient_entries(
+        x,
+        r,
+        beliefs[r, c],
+        KW["attraction"],
+        KW["floor"],
+        KW["repulsion"],
+        KW["reach"],
+        KW["pair_factor"],
+    )
     # the dense kernel expands d^2 = |x|^2 + |y|^2 - 2 x.y (about |x|^2 eps lost): close, not exact
     assert _close(got, dense, 1e-10)
     if n * k <= 100_000:
         assert _close(got, pair_gradient_reference(x, beliefs, mask, **KW))
     # the entries may come in any order (the sum per drone is the same to rounding)
     perm = rng.permutation(len(r))
-    assert _close(pair_gradient_entries(x, r[perm], beliefs[r[perm], c[perm]], KW["attraction"], KW["floor"],
-                                        KW["repulsion"], KW["reach"], KW["pair_factor"]), got)
+    assert _close(
+        pair_gradient_entries(
+            x,
+            r[perm],
+            beliefs[r[perm], c[perm]],
+            KW["attraction"],
+            KW["floor"],
+            KW["repulsion"],
+            KW["reach"],
+            KW["pair_factor"],
+        ),
+        got,
+    )
 
 
 def _weighted_reference(x, beliefs, mask, w):
@@ -60,21 +101,41 @@ def _weighted_reference(x, beliefs, mask, w):
             dx = x[i] - beliefs[i, k]
             d = float(np.hypot(*dx))
             if d > KW["floor"]:
-                out[i] += KW["pair_factor"] * w[i] * KW["attraction"] * dx / d ** 3
+                out[i] += KW["pair_factor"] * w[i] * KW["attraction"] * dx / d**3
             if 0 < d < KW["reach"]:
                 out[i] -= KW["pair_factor"] * KW["repulsion"] * (KW["reach"] - d) * dx / d
     return out
 
 
-@pytest.mark.parametrize("n,k,density", [(1, 1, 1.0), (40, 60, 0.3), (200, 500, 0.12), (500, 500, 0.85)])
+@pytest.mark.parametrize(
+    "n,k,density", [(1, 1, 1.0), (40, 60, 0.3), (200, 500, 0.12), (500, 500, 0.85)]
+)
 def test_weighted_pair_gradient_entries_match_dense_and_reference(rng, n, k, density):
     x, beliefs, mask = _view(rng, n, k, density)
     w = rng.uniform(0.5, 2.0, n)
-    dense = weighted_pair_gradient(x, beliefs, mask, w, KW["attraction"], KW["floor"], KW["repulsion"],
-                                   KW["reach"], KW["pair_factor"])
+    dense = weighted_pair_gradient(
+        x,
+        beliefs,
+        mask,
+        w,
+        KW["attraction"],
+        KW["floor"],
+        KW["repulsion"],
+        KW["reach"],
+        KW["pair_factor"],
+    )
     r, c = np.nonzero(mask)
-    got = weighted_pair_gradient_entries(x, r, beliefs[r, c], w, KW["attraction"], KW["floor"],
-                                         KW["repulsion"], KW["reach"], KW["pair_factor"])
+    got = weighted_pair_gradient_entries(
+        x,
+        r,
+        beliefs[r, c],
+        w,
+        KW["attraction"],
+        KW["floor"],
+        KW["repulsion"],
+        KW["reach"],
+        KW["pair_factor"],
+    )
     assert _close(got, dense)
     if n * k <= 100_000:
         assert _close(got, _weighted_reference(x, beliefs, mask, w))
@@ -94,7 +155,10 @@ def test_velocity_match_entries_bit_identical_to_dense(rng, n, k, density):
 
 
 def test_tree_segments_bit_identical_to_batched(rng):
-    trees = [build_task_tree(np.zeros(2), rng.uniform(-5, 5, (int(rng.integers(1, 12)), 2))) for _ in range(5)]
+    trees = [
+        build_task_tree(np.zeros(2), rng.uniform(-5, 5, (int(rng.integers(1, 12)), 2)))
+        for _ in range(5)
+    ]
     x = rng.uniform(-6, 6, (300, 2))
     version = rng.integers(0, 5, 300)
     for nodes_only in (False, True):
@@ -102,9 +166,12 @@ def test_tree_segments_bit_identical_to_batched(rng):
         full = task_gradient_batched(x, *padded_segments(trees, nodes_only), version, 0.05)
         assert np.array_equal(seg.gradient(x, np.arange(300), 0.05), full)
         rows = np.flatnonzero(rng.random(300) < 0.3)
-        assert np.array_equal(seg.gradient(x[rows], rows, 0.05),
-                              task_gradient_batched(x[rows], *padded_segments(trees, nodes_only),
-                                                    version[rows], 0.05))
+        assert np.array_equal(
+            seg.gradient(x[rows], rows, 0.05),
+            task_gradient_batched(
+                x[rows], *padded_segments(trees, nodes_only), version[rows], 0.05
+            ),
+        )
 
 
 def test_sparse_propagation_matches_reference(rng):
@@ -150,20 +217,27 @@ def test_view_entries_are_the_known_entries_of_the_dense_view(rng):
 
 def test_tree_segments_pruned_to_candidates_bit_identical(rng):
     """Keeping only the segments that can be nearest within ``radius`` of the tick's start."""
-    trees = [build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(1, 30)), 2))) for _ in range(4)]
+    trees = [
+        build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(1, 30)), 2)))
+        for _ in range(4)
+    ]
     n = 400
     x0 = rng.uniform(-9, 9, (n, 2))
     version = rng.integers(0, 4, n)
     for nodes_only in (False, True):
         seg = TreeSegments(trees, version, nodes_only, x0, 0.15)
         padded = padded_segments(trees, nodes_only)
-        assert len(seg.entries[0]) < n * padded[0].shape[1] / 3          # the pruning does prune
+        assert len(seg.entries[0]) < n * padded[0].shape[1] / 3  # the pruning does prune
         for _ in range(5):
             step = rng.normal(size=(n, 2))
             step *= (0.15 * rng.random(n) / np.linalg.norm(step, axis=1))[:, None]
             x = x0 + step
-            assert np.array_equal(seg.gradient(x, np.arange(n), 0.05),
-                                  task_gradient_batched(x, *padded, version, 0.05))
+            assert np.array_equal(
+                seg.gradient(x, np.arange(n), 0.05),
+                task_gradient_batched(x, *padded, version, 0.05),
+            )
             rows = np.flatnonzero(rng.random(n) < 0.4)
-            assert np.array_equal(seg.gradient(x[rows], rows, 0.05),
-                                  task_gradient_batched(x[rows], *padded, version[rows], 0.05))
+            assert np.array_equal(
+                seg.gradient(x[rows], rows, 0.05),
+                task_gradient_batched(x[rows], *padded, version[rows], 0.05),
+            )

@@ -5,6 +5,7 @@ reference's exactly, including on ties (equal weights, equal distances), where i
 them the reference's way (the spanning tree: weight, then index) or declines (the collision pairs:
 None, the caller runs the KD-tree).
 """
+
 import numpy as np
 import pytest
 
@@ -18,8 +19,10 @@ pytestmark = pytest.mark.skipif(not _kernels.NUMBA, reason="numba not installed"
 @pytest.fixture
 def reference_paths():
     """Run the reference paths inside the block."""
+
     def switch(on: bool) -> None:
         _kernels.ENABLED = not on
+
     yield switch
     _kernels.ENABLED = True
 
@@ -37,11 +40,11 @@ def test_prim_spanning_tree_is_the_reference_tree(rng):
         edges = mccst.candidate_edges(x[:-1], x[-1], 2.0, 3.0)
         w = rng.normal(size=len(edges))
         if trial % 3 == 0:
-            w = np.round(w, 1)                   # many equal weights: ties broken by index
+            w = np.round(w, 1)  # many equal weights: ties broken by index
             ties += len(np.unique(w)) < len(w)
         if trial % 7 == 0:
-            w[: len(w) // 2] = -0.0               # -0 and +0 tie as well
-            w[len(w) // 2:] = 0.0
+            w[: len(w) // 2] = -0.0  # -0 and +0 tie as well
+            w[len(w) // 2 :] = 0.0
         got = _graph_kernels.mst_prim(n, edges, w)
         assert got is not None
         assert np.array_equal(got, mccst._spanning_tree_reference(n, edges, w)), trial
@@ -55,7 +58,9 @@ def test_prim_declines_nan_and_the_planner_falls_back(rng):
     w = rng.normal(size=len(edges))
     w[3] = np.nan
     assert _graph_kernels.mst_prim(30, edges, w) is None
-    assert np.array_equal(mccst.spanning_tree_edges(30, edges, w), mccst._spanning_tree_reference(30, edges, w))
+    assert np.array_equal(
+        mccst.spanning_tree_edges(30, edges, w), mccst._spanning_tree_reference(30, edges, w)
+    )
 
 
 def test_reach_from_is_the_active_mask(rng, reference_paths):
@@ -93,7 +98,7 @@ def test_knn_pairs_are_the_kd_tree_pairs_or_decline(rng):
             else:
                 assert np.array_equal(got, want), (trial, k)
             assert np.array_equal(mccst.collision_candidates(x, 0.8, k), want)
-    assert declined > 0            # the rounded swarms have ties at the k-th distance
+    assert declined > 0  # the rounded swarms have ties at the k-th distance
 
 
 def test_hop_bitsets_is_the_numpy_bitset_hop(rng):
@@ -103,8 +108,11 @@ def test_hop_bitsets_is_the_numpy_bitset_hop(rng):
         x = rng.uniform(0, rng.uniform(1, 10), (n, 2))
         pairs = radio_pairs(x, 1.5)
         lo = max(t_sent - age_max, 0)
-        stamp = np.where(rng.random((n, n + 3)) < rng.uniform(0.02, 0.9),
-                         rng.integers(lo, t_sent + 1, (n, n + 3)), -1)
+        stamp = np.where(
+            rng.random((n, n + 3)) < rng.uniform(0.02, 0.9),
+            rng.integers(lo, t_sent + 1, (n, n + 3)),
+            -1,
+        )
         r, c = np.nonzero(stamp >= 0)
         if len(r) == 0:
             continue
@@ -113,7 +121,9 @@ def test_hop_bitsets_is_the_numpy_bitset_hop(rng):
         dst = np.concatenate([pairs[:, 0], pairs[:, 1], loops])
         order = np.argsort(dst, kind="stable")
         start = np.searchsorted(dst[order], np.arange(n + 1))
-        got = _graph_kernels.hop_bitsets(r, c, stamp[r, c], n, n + 3, start, src[order], t_sent, age_max)
+        got = _graph_kernels.hop_bitsets(
+            r, c, stamp[r, c], n, n + 3, start, src[order], t_sent, age_max
+        )
         want = knowledge._propagate_bitsets(r, c, stamp[r, c], n, n + 3, src, dst, t_sent, age_max)
         for a, b in zip(got, want):
             assert np.array_equal(a, b), trial
@@ -121,7 +131,9 @@ def test_hop_bitsets_is_the_numpy_bitset_hop(rng):
 
 @pytest.mark.parametrize("max_per_bit", [1e-9, 1e9])
 @pytest.mark.parametrize("compiled_from", [0, 10_000])
-def test_propagate_entries_same_whichever_compiled_hop(rng, monkeypatch, max_per_bit, compiled_from):
+def test_propagate_entries_same_whichever_compiled_hop(
+    rng, monkeypatch, max_per_bit, compiled_from
+):
     """The cost model picks the per-entry maximum, the compiled or NumPy's bit sets: same entries."""
     monkeypatch.setattr(knowledge, "_MAX_PER_BIT_WORD", max_per_bit)
     monkeypatch.setattr(knowledge, "_COMPILED_BITSET_MIN_HOLDERS", compiled_from)
@@ -157,6 +169,7 @@ def test_stamp_table_lookup_is_the_dense_table(rng):
 
 def test_any_within_is_the_kd_tree_coverage(rng, reference_paths):
     from planner.geometry import tasks_connected
+
     for trial in range(300):
         n, m, w = int(rng.integers(1, 200)), int(rng.integers(1, 40)), rng.uniform(1, 20)
         x, tasks = rng.uniform(-w, w, (n, 2)), rng.uniform(-w, w, (m, 2))
@@ -164,7 +177,7 @@ def test_any_within_is_the_kd_tree_coverage(rng, reference_paths):
         if trial % 5 == 0:
             x, tasks = np.round(x, 1), np.round(tasks, 1)
         if trial % 7 == 0:
-            tasks[0] = x[0] + [2.0, 0.0]          # exactly at r: not covered (strict)
+            tasks[0] = x[0] + [2.0, 0.0]  # exactly at r: not covered (strict)
             active[0] = True
         got = tasks_connected(tasks, x, active, 2.0)
         reference_paths(True)
@@ -180,6 +193,7 @@ def test_world_step_compiled_is_the_numpy_step(rng, reference_paths):
     from mission.sim import draw_scenario, spawn_streams
     from planner.problem import problem_preset
     from vehicle_emu.world import World
+
     for size, seed in (("XS", 0), ("S", 1), ("M", 2)):
         problem = replace(problem_preset(size, 0.02))
         scenario = draw_scenario(problem, spawn_streams(seed))
@@ -187,22 +201,27 @@ def test_world_step_compiled_is_the_numpy_step(rng, reference_paths):
         vmax = problem.max_speed_m_s * problem.dt_s
         for t in range(60):
             active = worlds[0].active()
-            disp = rng.normal(0, vmax, (problem.n_drones, 2)) * rng.choice([0.0, 0.5, 3.0], (problem.n_drones, 1))
+            disp = rng.normal(0, vmax, (problem.n_drones, 2)) * rng.choice(
+                [0.0, 0.5, 3.0], (problem.n_drones, 1)
+            )
             for k, world in enumerate(worlds):
                 reference_paths(k == 1)
                 lost = world.step(disp, active, problem.attrition_per_step, scenario.attrition_u[t])
             reference_paths(False)
-            assert np.array_equal(worlds[0].pos_m, worlds[1].pos_m) and np.array_equal(worlds[0].alive, worlds[1].alive)
+            assert np.array_equal(worlds[0].pos_m, worlds[1].pos_m) and np.array_equal(
+                worlds[0].alive, worlds[1].alive
+            )
             assert lost.dtype == bool
 
 
 def test_reaches_root_is_the_pointer_jumping_check(rng):
     from planner.steiner import _edge_lengths, _root_path_lengths
+
     for _ in range(500):
         k = int(rng.integers(1, 30))
-        parent = rng.integers(0, k, k)              # TaskTree checks the range before the cycles
+        parent = rng.integers(0, k, k)  # TaskTree checks the range before the cycles
         parent[0] = -1
-        if rng.random() < 0.5:                      # a proper tree: parents earlier in a shuffle
+        if rng.random() < 0.5:  # a proper tree: parents earlier in a shuffle
             order = rng.permutation(np.arange(1, k))
             chain = np.concatenate([[0], order])
             for pos in range(1, k):

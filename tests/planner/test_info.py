@@ -6,8 +6,17 @@ import numpy as np
 import pytest
 
 from planner.dccrs import DccrsPlanner
-from planner.info import (INFO_MODELS, PAPER_INFO, STATION_INFO, CentralInfo, CentralView, MessagePassingInfo,
-                          MessageView, check_info, resolve_speed_rule)
+from planner.info import (
+    INFO_MODELS,
+    PAPER_INFO,
+    STATION_INFO,
+    CentralInfo,
+    CentralView,
+    MessagePassingInfo,
+    MessageView,
+    check_info,
+    resolve_speed_rule,
+)
 from planner.knowledge import MessageLayer
 from planner.methods import INFO_OF, METHODS, TickInput, info_models, make_planner, params_with_info
 from planner.mccst import MccstPlanner
@@ -57,7 +66,10 @@ def test_central_only_methods_accept_central_and_refuse_async():
 
 
 def test_params_with_info_sets_the_model_or_checks_it():
-    assert params_with_info("dccrs", {"leader_gain": 0.1}, "async") == {"leader_gain": 0.1, "info": "async"}
+    assert params_with_info("dccrs", {"leader_gain": 0.1}, "async") == {
+        "leader_gain": 0.1,
+        "info": "async",
+    }
     assert params_with_info("phireman", None, "central") == {"info": "central"}
     assert params_with_info("mccst", {"k_p": 1.0}, "central") == {"k_p": 1.0}
     assert params_with_info("phireman-central", {}, "central") == {}
@@ -80,7 +92,9 @@ def test_speed_rule_and_info_checks():
 
 @pytest.mark.parametrize("size", ["XS", "M", "XL"])
 def test_paper_units_are_the_planners_earlier_arithmetic(size):
-    problem = problem_preset(size, 0.01).replace(base_range_m=1.5 * problem_preset(size).length_unit_m)
+    problem = problem_preset(size, 0.01).replace(
+        base_range_m=1.5 * problem_preset(size).length_unit_m
+    )
     u = PaperUnits.of(problem)
     unit = problem.length_unit_m
     assert u.unit_m == unit
@@ -122,7 +136,7 @@ def test_message_view_is_the_message_layer():
     ref = MessageLayer.from_params(6, problem.n_steps, units.radio_range_u, units.base_reach_u, p)
     rng = np.random.default_rng(1)
     pos = rng.uniform(-1.5, 1.5, (6, 2))
-    pos[5] = (30.0, 30.0)                                   # never hears anybody
+    pos[5] = (30.0, 30.0)  # never hears anybody
     alive = np.ones(6, bool)
     planning = np.ones(6, bool)
     base = np.zeros(2)
@@ -143,11 +157,17 @@ def test_message_view_is_the_message_layer():
             held, which = view.broadcasts()
             assert [held[k] for k in which] == [ref.broadcast(s) for s in stamps]
         pos = pos + 0.05
-    assert 5 not in view.planned and np.linalg.norm(view.disp_u[5]) > 0   # stale: heading home
+    assert 5 not in view.planned and np.linalg.norm(view.disp_u[5]) > 0  # stale: heading home
 
 
-@pytest.mark.parametrize("cls,name", [(PhiremanPlanner, "phireman"), (DccrsPlanner, "dccrs"),
-                                      (ResilientPlanner, "phireman-resilient")])
+@pytest.mark.parametrize(
+    "cls,name",
+    [
+        (PhiremanPlanner, "phireman"),
+        (DccrsPlanner, "dccrs"),
+        (ResilientPlanner, "phireman-resilient"),
+    ],
+)
 def test_planners_report_the_async_model_and_plan_nothing_for_the_unplanned(cls, name):
     problem = problem_preset("XS", 0.0)
     rng = np.random.default_rng(3)
@@ -160,6 +180,8 @@ def test_planners_report_the_async_model_and_plan_nothing_for_the_unplanned(cls,
         planner = make_planner(name, problem, {"info": info})
         assert isinstance(planner, cls)
         out = planner.plan(TickInput(0, pos, alive, networked, tasks))
-        assert ("stale_tree" in out.info) == (info == "async")     # the message layer ran
+        assert ("stale_tree" in out.info) == (info == "async")  # the message layer ran
         np.testing.assert_array_equal(out.disp_m[:3], 0.0)
-        assert np.all(np.linalg.norm(out.disp_m, axis=1) <= problem.max_speed_m_s * problem.dt_s * (1 + 1e-12))
+        assert np.all(
+            np.linalg.norm(out.disp_m, axis=1) <= problem.max_speed_m_s * problem.dt_s * (1 + 1e-12)
+        )

@@ -4,12 +4,21 @@ Where the kernel repeats the NumPy arithmetic in the same order, the results mus
 for bit (that is what keeps per-seed results unchanged); the all-pairs central kernel sums in
 another order and must agree to rounding.
 """
+
 import numpy as np
 import pytest
 
 from planner import _kernels
-from planner.phireman import (PhiremanParams, PhiremanPlanner, TreeSegments, _pair_gradient_xy,
-                              _pair_gradient_xy_numpy, pair_gradient, pair_gradient_reference, task_gradient)
+from planner.phireman import (
+    PhiremanParams,
+    PhiremanPlanner,
+    TreeSegments,
+    _pair_gradient_xy,
+    _pair_gradient_xy_numpy,
+    pair_gradient,
+    pair_gradient_reference,
+    task_gradient,
+)
 from planner.methods import TickInput
 from planner.problem import problem_preset
 from planner.steiner import TaskTree, build_task_tree
@@ -22,8 +31,10 @@ KW = dict(attraction=0.05, floor=0.5, repulsion=0.3, reach=2.0, pair_factor=2.0)
 @pytest.fixture
 def numpy_only():
     """Run the NumPy reference paths inside the block."""
+
     def switch(on: bool):
         _kernels.ENABLED = not on
+
     yield switch
     _kernels.ENABLED = True
 
@@ -34,28 +45,38 @@ def test_central_pair_gradient_matches_dense_and_loops(rng, n):
     mask = ~np.eye(n, dtype=bool)
     dense = pair_gradient(x, x, mask, **KW)
     scale = max(np.abs(dense).max(initial=0.0), 1e-300)
-    assert np.allclose(_kernels.central_pair_gradient(x, **KW), dense, rtol=1e-10, atol=1e-10 * scale)
+    assert np.allclose(
+        _kernels.central_pair_gradient(x, **KW), dense, rtol=1e-10, atol=1e-10 * scale
+    )
     if n <= 150:
         if n > 2:
             # coincident drones contribute nothing to each other (the dense kernel's d^2 expansion
             # cancels badly there, so only the loops are the reference for these)
             x[1] = x[0]
-            x[2] = x[0] + [0.3, 0.0]     # inside the attraction floor and the repulsion reach
+            x[2] = x[0] + [0.3, 0.0]  # inside the attraction floor and the repulsion reach
         ref = pair_gradient_reference(x, x, mask, **KW)
-        assert np.allclose(_kernels.central_pair_gradient(x, **KW), ref, rtol=1e-12,
-                           atol=1e-12 * max(np.abs(ref).max(initial=0.0), 1e-300))
+        assert np.allclose(
+            _kernels.central_pair_gradient(x, **KW),
+            ref,
+            rtol=1e-12,
+            atol=1e-12 * max(np.abs(ref).max(initial=0.0), 1e-300),
+        )
 
 
-@pytest.mark.parametrize("n_tasks,nodes_only", [(0, False), (1, False), (9, False), (60, False), (9, True)])
+@pytest.mark.parametrize(
+    "n_tasks,nodes_only", [(0, False), (1, False), (9, False), (60, False), (9, True)]
+)
 def test_segment_gradient_bit_identical_to_task_gradient(rng, n_tasks, nodes_only):
     tree = build_task_tree(np.zeros(2), rng.uniform(-8, 8, (n_tasks, 2)))
     x = rng.uniform(-9, 9, (400, 2))
-    x[:3] = tree.nodes_m[:3] if tree.n_nodes >= 3 else x[:3]      # on the tree: gradient 0
+    x[:3] = tree.nodes_m[:3] if tree.n_nodes >= 3 else x[:3]  # on the tree: gradient 0
     if nodes_only or tree.n_nodes == 1:
         a = b = tree.nodes_m
     else:
         a, b = tree.segments()
-    assert np.array_equal(_kernels.segment_gradient(x, a, b, 0.05), task_gradient(x, tree, 0.05, nodes_only))
+    assert np.array_equal(
+        _kernels.segment_gradient(x, a, b, 0.05), task_gradient(x, tree, 0.05, nodes_only)
+    )
 
 
 def test_segment_gradient_zero_length_edge(rng):
@@ -67,28 +88,44 @@ def test_segment_gradient_zero_length_edge(rng):
 
 
 @pytest.mark.parametrize("weighted", [False, True])
-@pytest.mark.parametrize("n,k,density", [(1, 1, 1.0), (40, 60, 0.3), (300, 300, 0.2), (20, 20, 0.0)])
+@pytest.mark.parametrize(
+    "n,k,density", [(1, 1, 1.0), (40, 60, 0.3), (300, 300, 0.2), (20, 20, 0.0)]
+)
 def test_entries_pair_gradient_bit_identical(rng, n, k, density, weighted):
     x = rng.uniform(-6, 6, (n, 2))
     beliefs = rng.uniform(-6, 6, (n, k, 2))
     if k >= n:
-        beliefs[np.arange(n), np.arange(n)] = x                  # d = 0 entries
-    beliefs[:, :2] = x[:, None, :] + [0.2, -0.1]                  # inside floor and reach
+        beliefs[np.arange(n), np.arange(n)] = x  # d = 0 entries
+    beliefs[:, :2] = x[:, None, :] + [0.2, -0.1]  # inside floor and reach
     mask = rng.random((n, k)) < density
     r, c = np.nonzero(mask)
     w = rng.uniform(0.5, 2.0, n) if weighted else None
-    args = (x, r, beliefs[r, c, 0].copy(), beliefs[r, c, 1].copy(), KW["attraction"], KW["floor"],
-            KW["repulsion"], KW["reach"], KW["pair_factor"])
+    args = (
+        x,
+        r,
+        beliefs[r, c, 0].copy(),
+        beliefs[r, c, 1].copy(),
+        KW["attraction"],
+        KW["floor"],
+        KW["repulsion"],
+        KW["reach"],
+        KW["pair_factor"],
+    )
     got = _pair_gradient_xy(*args, weight=w)
     want = _pair_gradient_xy_numpy(*args, weight=w)
     assert np.array_equal(got, want)
     if not weighted and n * k <= 20_000:
         ref = pair_gradient_reference(x, beliefs, mask, **KW)
-        assert np.allclose(got, ref, rtol=1e-12, atol=1e-12 * max(np.abs(ref).max(initial=0.0), 1e-300))
+        assert np.allclose(
+            got, ref, rtol=1e-12, atol=1e-12 * max(np.abs(ref).max(initial=0.0), 1e-300)
+        )
 
 
 def test_tree_segments_entries_kernel_bit_identical(rng, numpy_only):
-    trees = [build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(1, 30)), 2))) for _ in range(4)]
+    trees = [
+        build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(1, 30)), 2)))
+        for _ in range(4)
+    ]
     n = 400
     x0 = rng.uniform(-9, 9, (n, 2))
     version = rng.integers(0, 4, n)
@@ -114,7 +151,9 @@ def test_planner_with_and_without_kernels(rng, info, numpy_only):
         numpy_only(numpy_path)
         planner = PhiremanPlanner(prob, PhiremanParams(info=info), np.random.default_rng(0))
         r = np.random.default_rng(5)
-        pos = r.uniform(-prob.field_half_width_m / 3, prob.field_half_width_m / 3, (prob.n_drones, 2))
+        pos = r.uniform(
+            -prob.field_half_width_m / 3, prob.field_half_width_m / 3, (prob.n_drones, 2)
+        )
         tasks = r.uniform(-prob.field_half_width_m, prob.field_half_width_m, (prob.n_tasks, 2))
         alive = np.ones(prob.n_drones, bool)
         disp = []
@@ -133,9 +172,13 @@ def test_planner_with_and_without_kernels(rng, info, numpy_only):
 def test_compiled_async_descent_bit_identical(rng, thorn, max_steps):
     """descend_separable against descend(separable=True, per_drone) on the same entries, including
     the iterations / converged / hit_speed_limit diagnostics."""
-    from planner.phireman import (_descend_separable_compiled, _EntriesByDrone, descend)
+    from planner.phireman import _descend_separable_compiled, _EntriesByDrone, descend
+
     n = 300
-    trees = [build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(1, 20)), 2))) for _ in range(3)]
+    trees = [
+        build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(1, 20)), 2)))
+        for _ in range(3)
+    ]
     x0 = rng.uniform(-9, 9, (n, 2))
     version = rng.integers(0, 3, n)
     p = PhiremanParams(thorn=thorn, max_descent_steps=max_steps, speed_rule="per_drone")
@@ -149,17 +192,42 @@ def test_compiled_async_descent_bit_identical(rng, thorn, max_steps):
 
     def grad(x, rows):
         er, ox, oy = ent.of(rows)
-        return (_pair_gradient_xy_numpy(x[rows], er, ox, oy, p.attraction, p.attraction_floor, p.repulsion,
-                                        reach, p.pair_factor)
-                + segs._gradient_entries_numpy(x[rows], *_sub_entries(segs, rows), p.thorn)
-                if p.thorn else _pair_gradient_xy_numpy(x[rows], er, ox, oy, p.attraction, p.attraction_floor,
-                                                        p.repulsion, reach, p.pair_factor) + np.zeros((len(rows), 2)))
+        return (
+            _pair_gradient_xy_numpy(
+                x[rows],
+                er,
+                ox,
+                oy,
+                p.attraction,
+                p.attraction_floor,
+                p.repulsion,
+                reach,
+                p.pair_factor,
+            )
+            + segs._gradient_entries_numpy(x[rows], *_sub_entries(segs, rows), p.thorn)
+            if p.thorn
+            else _pair_gradient_xy_numpy(
+                x[rows],
+                er,
+                ox,
+                oy,
+                p.attraction,
+                p.attraction_floor,
+                p.repulsion,
+                reach,
+                p.pair_factor,
+            )
+            + np.zeros((len(rows), 2))
+        )
 
     want = descend(x0, grad, vmax, p, separable=True)
     got = _descend_separable_compiled(x0, ent, segs, p, reach, vmax)
     assert np.array_equal(got.disp_u, want.disp_u)
-    assert (got.iterations, got.converged, got.hit_speed_limit) == (want.iterations, want.converged,
-                                                                    want.hit_speed_limit)
+    assert (got.iterations, got.converged, got.hit_speed_limit) == (
+        want.iterations,
+        want.converged,
+        want.hit_speed_limit,
+    )
 
 
 def _sub_entries(segs, rows):
@@ -172,10 +240,13 @@ def _sub_entries(segs, rows):
 
 @pytest.mark.parametrize("nodes_only", [False, True])
 def test_tree_segments_compiled_pruning_identical(rng, numpy_only, nodes_only):
-    trees = [build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(0, 40)), 2))) for _ in range(5)]
+    trees = [
+        build_task_tree(np.zeros(2), rng.uniform(-8, 8, (int(rng.integers(0, 40)), 2)))
+        for _ in range(5)
+    ]
     n = 500
     x0 = rng.uniform(-9, 9, (n, 2))
-    x0[:5] = trees[0].nodes_m[0]                                    # on a node: distance 0
+    x0[:5] = trees[0].nodes_m[0]  # on a node: distance 0
     version = rng.integers(0, 5, n)
     for radius in (0.0, 0.15, 3.0):
         fast = TreeSegments(trees, version, nodes_only, x0, radius)
@@ -184,16 +255,20 @@ def test_tree_segments_compiled_pruning_identical(rng, numpy_only, nodes_only):
         numpy_only(False)
         for got, want in zip(fast.entries, slow.entries):
             assert got.dtype == want.dtype and np.array_equal(got, want)
-        for name in ("a", "ab", "ab2", "valid"):                      # the dense arrays, on request
+        for name in ("a", "ab", "ab2", "valid"):  # the dense arrays, on request
             assert np.array_equal(getattr(fast, name), getattr(slow, name))
 
 
-@pytest.mark.parametrize("n,radius,age_max", [(60, 100.0, 3), (300, 4.0, 3), (520, 2.5, 3), (200, 5.0, 20),
-                                              (50, 5.0, 0)])
+@pytest.mark.parametrize(
+    "n,radius,age_max", [(60, 100.0, 3), (300, 4.0, 3), (520, 2.5, 3), (200, 5.0, 20), (50, 5.0, 0)]
+)
 def test_propagate_entries_compiled_identical(rng, numpy_only, n, radius, age_max):
     from planner.knowledge import propagate_entries, propagate_stamps_reference
+
     t_sent = 30
-    stamp = np.where(rng.random((n, n)) < 0.3, rng.integers(t_sent - age_max - 2, t_sent + 1, (n, n)), -1)
+    stamp = np.where(
+        rng.random((n, n)) < 0.3, rng.integers(t_sent - age_max - 2, t_sent + 1, (n, n)), -1
+    )
     pos = rng.uniform(0, 40, (n, 2))
     d = np.linalg.norm(pos[:, None] - pos[None], axis=2)
     i, j = np.nonzero(np.triu(d <= radius, 1))
@@ -214,6 +289,7 @@ def test_propagate_entries_compiled_identical(rng, numpy_only, n, radius, age_ma
 def test_propagate_max_kernel_directly(rng):
     """The kernel itself (whatever the cost rule in propagate_entries picks) on a small case."""
     from planner.knowledge import propagate_stamps_reference
+
     n = 40
     stamp = np.where(rng.random((n, n)) < 0.4, rng.integers(0, 9, (n, n)), -1)
     pos = rng.uniform(0, 10, (n, 2))
@@ -224,21 +300,37 @@ def test_propagate_max_kernel_directly(rng):
     order = np.argsort(dst, kind="stable")
     r, c = np.nonzero(stamp >= 0)
     start = np.searchsorted(r, np.arange(n + 1))
-    nr, nc, ns = _kernels.propagate_max(start, c.astype(np.int64), stamp[r, c].astype(np.int64),
-                                        np.searchsorted(dst[order], np.arange(n + 1)), src[order].astype(np.int64), n)
-    assert np.all(np.diff(nr * n + nc) > 0)                             # row-major, no duplicates
+    nr, nc, ns = _kernels.propagate_max(
+        start,
+        c.astype(np.int64),
+        stamp[r, c].astype(np.int64),
+        np.searchsorted(dst[order], np.arange(n + 1)),
+        src[order].astype(np.int64),
+        n,
+    )
+    assert np.all(np.diff(nr * n + nc) > 0)  # row-major, no duplicates
     table = np.full((n, n), -1)
     table[nr, nc] = ns
     assert np.array_equal(table, propagate_stamps_reference(stamp, np.column_stack([i, j])))
 
 
-@pytest.mark.parametrize("n,spread,r", [(2, 1.0, 2.0), (50, 5.0, 2.0), (500, 50.0, 2.0), (3000, 150.0, 2.0),
-                                        (400, 1000.0, 2.0), (300, 3.0, 0.7)])
+@pytest.mark.parametrize(
+    "n,spread,r",
+    [
+        (2, 1.0, 2.0),
+        (50, 5.0, 2.0),
+        (500, 50.0, 2.0),
+        (3000, 150.0, 2.0),
+        (400, 1000.0, 2.0),
+        (300, 3.0, 0.7),
+    ],
+)
 def test_radio_pairs_same_set_as_neighbour_pairs(rng, n, spread, r):
     from planner.geometry import neighbour_pairs, radio_pairs
+
     x = rng.uniform(-spread, spread, (n, 2))
-    x[: n // 4] = np.round(x[: n // 4] / r) * r            # lattice points: pairs at exactly r
-    x[-1] = x[0]                                             # coincident
+    x[: n // 4] = np.round(x[: n // 4] / r) * r  # lattice points: pairs at exactly r
+    x[-1] = x[0]  # coincident
     got = radio_pairs(x, r)
     want = neighbour_pairs(x, r)
     assert np.array_equal(got, want[np.lexsort((want[:, 1], want[:, 0]))])
@@ -250,6 +342,7 @@ def test_radio_pairs_same_set_as_neighbour_pairs(rng, n, spread, r):
 
 def test_radio_pairs_falls_back_outside_two_dimensions(rng):
     from planner.geometry import neighbour_pairs, radio_pairs
+
     x = rng.uniform(-3, 3, (60, 3))
     assert np.array_equal(radio_pairs(x, 1.0), neighbour_pairs(x, 1.0))
 
@@ -259,9 +352,12 @@ def test_knowledge_update_compiled_identical(rng, numpy_only, after_move, forget
     """A run of the message layer with the compiled end of update and without: same tables, same
     entries, same views, every step (with losses, so dead holders and missing own entries occur)."""
     from planner.knowledge import MessageLayer
+
     n, steps = 120, 25
-    layers = [MessageLayer(n, steps, 2.0, 2.0, 3, 6.0, 15, after_move=after_move, forget_unheard=forget)
-              for _ in range(2)]
+    layers = [
+        MessageLayer(n, steps, 2.0, 2.0, 3, 6.0, 15, after_move=after_move, forget_unheard=forget)
+        for _ in range(2)
+    ]
     pos = rng.uniform(-3, 3, (n, 2))
     alive = np.ones(n, bool)
     for t in range(steps):
@@ -271,25 +367,44 @@ def test_knowledge_update_compiled_identical(rng, numpy_only, after_move, forget
         numpy_only(False)
         a, b = layers[0].knowledge, layers[1].knowledge
         assert np.array_equal(a.stamp, b.stamp) and np.array_equal(a.tree_stamp, b.tree_stamp)
-        for name in ("held_rows", "held_cols", "held_stamps", "rows", "cols", "entry_rows", "entry_cols",
-                     "entry_believed_m"):
+        for name in (
+            "held_rows",
+            "held_cols",
+            "held_stamps",
+            "rows",
+            "cols",
+            "entry_rows",
+            "entry_cols",
+            "entry_believed_m",
+        ):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
         pos = pos + rng.normal(0, 0.4, (n, 2))
         alive &= rng.random(n) > 0.03
 
 
-@pytest.mark.parametrize("params", [{}, {"leader_exponent": 2.0}, {"leader_cap": 2}, {"max_descent_steps": 2},
-                                    {"leader_exponent": -1.0}])
+@pytest.mark.parametrize(
+    "params",
+    [
+        {},
+        {"leader_exponent": 2.0},
+        {"leader_cap": 2},
+        {"max_descent_steps": 2},
+        {"leader_exponent": -1.0},
+    ],
+)
 def test_dccrs_compiled_descent_identical(numpy_only, params):
     """DCCRS ticks with the compiled descent and with the NumPy one: same instructions and info."""
     from planner.methods import make_planner
+
     prob = problem_preset("M", 0.01)
     outs = []
     for numpy_path in (False, True):
         numpy_only(numpy_path)
         planner = make_planner("dccrs", prob, dict(params), np.random.default_rng(0))
         r = np.random.default_rng(7)
-        pos = r.uniform(-prob.field_half_width_m / 3, prob.field_half_width_m / 3, (prob.n_drones, 2))
+        pos = r.uniform(
+            -prob.field_half_width_m / 3, prob.field_half_width_m / 3, (prob.n_drones, 2)
+        )
         tasks = r.uniform(-prob.field_half_width_m, prob.field_half_width_m, (prob.n_tasks, 2))
         alive = np.ones(prob.n_drones, bool)
         run = []
@@ -307,8 +422,8 @@ def test_dccrs_compiled_descent_identical(numpy_only, params):
 def test_greedy_tree_compiled_pick_identical(rng, numpy_only, m, cb):
     tasks = rng.uniform(-20, 20, (m, 2))
     if m >= 5:
-        tasks[1] = tasks[0]                                  # duplicate tasks: exact ties
-        tasks[2:5] = [[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]]     # collinear
+        tasks[1] = tasks[0]  # duplicate tasks: exact ties
+        tasks[2:5] = [[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]]  # collinear
     fast = build_task_tree(np.array([0.5, -0.5]), tasks, cb)
     numpy_only(True)
     slow = build_task_tree(np.array([0.5, -0.5]), tasks, cb)

@@ -1,11 +1,19 @@
 """The asynchronous message layer: the vectorised hop against loops, and its semantics."""
+
 import numpy as np
 
 import pytest
 
 from planner import knowledge
-from planner.knowledge import (Knowledge, KnowledgeDense, MessageLayer, propagate_entries, propagate_stamps,
-                               propagate_stamps_dense, propagate_stamps_reference)
+from planner.knowledge import (
+    Knowledge,
+    KnowledgeDense,
+    MessageLayer,
+    propagate_entries,
+    propagate_stamps,
+    propagate_stamps_dense,
+    propagate_stamps_reference,
+)
 
 
 def test_propagation_matches_reference(rng):
@@ -28,7 +36,9 @@ def test_level_by_level_fallback_for_very_old_ages(rng):
     stamp = rng.integers(-1, 300, (n, n))
     pairs = rng.integers(0, n, (200, 2))
     pairs = pairs[pairs[:, 0] != pairs[:, 1]]
-    assert (propagate_stamps(stamp, pairs, 300, 299) == propagate_stamps_reference(stamp, pairs)).all()
+    assert (
+        propagate_stamps(stamp, pairs, 300, 299) == propagate_stamps_reference(stamp, pairs)
+    ).all()
 
 
 def _chain(n, spacing):
@@ -50,7 +60,18 @@ def test_reports_travel_one_hop_per_step_and_tree_floods_from_base():
     k = Knowledge.empty(n, 20)
     prev = None
     for t in range(6):
-        k.update(t, prev, alive if prev is not None else None, pos, alive, 2.0, 2.0, 10, 100.0, np.zeros(2))
+        k.update(
+            t,
+            prev,
+            alive if prev is not None else None,
+            pos,
+            alive,
+            2.0,
+            2.0,
+            10,
+            100.0,
+            np.zeros(2),
+        )
         prev = pos
         if t == 0:
             assert (k.stamp == np.where(np.eye(n, dtype=bool), 0, -1)).all()
@@ -88,8 +109,19 @@ def test_broadcast_after_move_shows_direct_neighbours_where_they_are_now():
     k = Knowledge.empty(n, 20)
     prev = None
     for t in range(6):
-        k.update(t, prev, alive if prev is not None else None, pos, alive, 2.0, 2.0, 10, 100.0, np.zeros(2),
-                 after_move=True)
+        k.update(
+            t,
+            prev,
+            alive if prev is not None else None,
+            pos,
+            alive,
+            2.0,
+            2.0,
+            10,
+            100.0,
+            np.zeros(2),
+            after_move=True,
+        )
         prev = pos
         if t == 0:  # nothing has been broadcast before the first step
             assert (k.stamp == np.where(np.eye(n, dtype=bool), 0, -1)).all()
@@ -106,16 +138,16 @@ def test_after_move_links_use_the_positions_at_the_current_step():
     pos0 = np.array([[0.5, 0.0], [5.0, 0.0], [2.0, 0.0]])
     pos1 = np.array([[0.5, 0.0], [2.3, 0.0], [2.0, 0.0]])
     alive0 = np.ones(3, bool)
-    alive1 = np.array([True, True, False])   # drone 2 lost during step 0
+    alive1 = np.array([True, True, False])  # drone 2 lost during step 0
     k = Knowledge.empty(3, 5)
     k.update(0, None, None, pos0, alive0, 2.0, 2.0, 10, 100.0, np.zeros(2), after_move=True)
     k.update(1, pos0, alive0, pos1, alive1, 2.0, 2.0, 10, 100.0, np.zeros(2), after_move=True)
-    assert k.stamp[0, 1] == 1          # 1.8 apart at step 1: heard, where it is now
-    assert k.stamp[0, 2] == -1         # it was 1.5 away at step 0, but the lost send nothing
+    assert k.stamp[0, 1] == 1  # 1.8 apart at step 1: heard, where it is now
+    assert k.stamp[0, 2] == -1  # it was 1.5 away at step 0, but the lost send nothing
     before = Knowledge.empty(3, 5)
     before.update(0, None, None, pos0, alive0, 2.0, 2.0, 10, 100.0, np.zeros(2))
     before.update(1, pos0, alive0, pos1, alive1, 2.0, 2.0, 10, 100.0, np.zeros(2))
-    assert before.stamp[0, 1] == -1 and before.stamp[0, 2] == 0   # links at step 0: the opposite
+    assert before.stamp[0, 1] == -1 and before.stamp[0, 2] == 0  # links at step 0: the opposite
 
 
 def test_forget_unheard_drops_lost_neighbours_at_once():
@@ -129,14 +161,26 @@ def test_forget_unheard_drops_lost_neighbours_at_once():
         if t >= 3:
             a[1] = False
         for k, forget in ((kept, False), (dropped, True)):
-            k.update(t, prev, alive if prev is not None else None, pos, a, 2.0, 2.0, 10, 100.0, np.zeros(2),
-                     after_move=True, forget_unheard=forget)
+            k.update(
+                t,
+                prev,
+                alive if prev is not None else None,
+                pos,
+                a,
+                2.0,
+                2.0,
+                10,
+                100.0,
+                np.zeros(2),
+                after_move=True,
+                forget_unheard=forget,
+            )
         prev = pos
     # drone 1 (1.5 from drone 0, within r = 2) was lost during step 2: heard last at step 2
     assert kept.stamp[0, 1] == 2
     assert dropped.stamp[0, 1] == -1
     # drone 2 is 3.0 from drone 0: out of radio range, so its relayed report is kept either way
-    assert kept.stamp[0, 2] == 1 and dropped.stamp[0, 2] == 1   # relayed by 1 at step 2
+    assert kept.stamp[0, 2] == 1 and dropped.stamp[0, 2] == 1  # relayed by 1 at step 2
 
 
 # bit sets (as shipped), or the exponent encoding with a dense / mixed / sparse x sparse product
@@ -151,13 +195,15 @@ def test_entry_propagation_gives_the_dense_tables(rng, monkeypatch, bit_levels, 
     for _ in range(200):
         n, k = int(rng.integers(1, 40)), int(rng.integers(1, 50))
         stamp = rng.integers(-1, 20, (n, k))
-        stamp[rng.random((n, k)) < rng.random()] = -1       # from nearly full to nearly empty
+        stamp[rng.random((n, k)) < rng.random()] = -1  # from nearly full to nearly empty
         pairs = rng.integers(0, n, (int(rng.integers(0, 120)), 2))
-        pairs = pairs[pairs[:, 0] != pairs[:, 1]]          # repeated links included
+        pairs = pairs[pairs[:, 0] != pairs[:, 1]]  # repeated links included
         assert (propagate_stamps(stamp, pairs) == propagate_stamps_dense(stamp, pairs)).all()
         t_sent, age_max = int(stamp.max()), int(rng.integers(0, 25))
-        assert (propagate_stamps(stamp, pairs, t_sent, age_max)
-                == propagate_stamps_dense(stamp, pairs, t_sent, age_max)).all()
+        assert (
+            propagate_stamps(stamp, pairs, t_sent, age_max)
+            == propagate_stamps_dense(stamp, pairs, t_sent, age_max)
+        ).all()
         # the entry kernel itself: forwarded entries only, row-major, one per (row, col)
         r, c = np.nonzero(stamp >= 0)
         nr, nc, ns = propagate_entries(r, c, stamp[r, c], n, k, pairs, t_sent, age_max)
@@ -186,8 +232,9 @@ def test_entry_propagation_sorting_fallback_for_very_old_ages(rng):
 @pytest.mark.parametrize("after_move", [False, True])
 @pytest.mark.parametrize("forget_unheard", [False, True])
 @pytest.mark.parametrize("bit_levels,sparse_below", KERNELS)
-def test_entry_knowledge_gives_the_dense_tables(rng, monkeypatch, after_move, forget_unheard, bit_levels,
-                                                sparse_below):
+def test_entry_knowledge_gives_the_dense_tables(
+    rng, monkeypatch, after_move, forget_unheard, bit_levels, sparse_below
+):
     """Whole episodes (moving swarm, losses, both broadcast timings, all cut-offs): the entry-list
     Knowledge and the previous dense one hold identical stamps, tree stamps and views."""
     monkeypatch.setattr(knowledge, "_BITSET_MAX_LEVELS", bit_levels)
@@ -203,8 +250,20 @@ def test_entry_knowledge_gives_the_dense_tables(rng, monkeypatch, after_move, fo
             pos_t = pos + rng.normal(0, 0.4, pos.shape)
             alive_t = alive & (rng.random(n) > 0.04)
             for k in (new, old):
-                k.update(t, prev[0], prev[1], pos_t, alive_t, 2.0, 2.5, age_max, dist_max, np.zeros(2),
-                         after_move=after_move, forget_unheard=forget_unheard)
+                k.update(
+                    t,
+                    prev[0],
+                    prev[1],
+                    pos_t,
+                    alive_t,
+                    2.0,
+                    2.5,
+                    age_max,
+                    dist_max,
+                    np.zeros(2),
+                    after_move=after_move,
+                    forget_unheard=forget_unheard,
+                )
             assert np.array_equal(new.stamp, old.stamp)
             assert np.array_equal(new.tree_stamp, old.tree_stamp)
             assert np.array_equal(new.rows, old.rows) and np.array_equal(new.cols, old.cols)
@@ -231,7 +290,19 @@ def test_message_layer_same_with_a_drone_coming_back(rng):
         if t in (3, 4):
             alive[5] = False
         layer.step(t, pos, alive, np.zeros(2), t)
-        ref.update(t, prev[0], prev[1], pos, alive, 2.0, 2.0, 3, 6.0, np.zeros(2), after_move=True,
-                   forget_unheard=True)
+        ref.update(
+            t,
+            prev[0],
+            prev[1],
+            pos,
+            alive,
+            2.0,
+            2.0,
+            3,
+            6.0,
+            np.zeros(2),
+            after_move=True,
+            forget_unheard=True,
+        )
         assert np.array_equal(layer.knowledge.stamp, ref.stamp)
         prev = (pos, alive)

@@ -32,8 +32,15 @@ from planner.problem import ProblemConfig
 
 R = 2.0
 V = 0.15
-PROBLEM = ProblemConfig(n_drones=20, n_tasks=5, field_half_width_m=6.0, radio_range_m=R,
-                        base_range_m=R, max_speed_m_s=V, attrition_per_step=0.0)
+PROBLEM = ProblemConfig(
+    n_drones=20,
+    n_tasks=5,
+    field_half_width_m=6.0,
+    radio_range_m=R,
+    base_range_m=R,
+    max_speed_m_s=V,
+    attrition_per_step=0.0,
+)
 
 
 def _tick(pos, tasks, alive=None, problem=PROBLEM, t_step=0):
@@ -59,8 +66,9 @@ def _expected_nominal(tick, task_of, params):
     """u_hat of the networked drones from the planner's reported tasks (-1: hold position)."""
     members = np.flatnonzero(tick.networked)
     task_local = task_of[members]
-    goal = np.where(task_local[:, None] >= 0, tick.task_pos_m[np.maximum(task_local, 0)],
-                    tick.pos_m[members])
+    goal = np.where(
+        task_local[:, None] >= 0, tick.task_pos_m[np.maximum(task_local, 0)], tick.pos_m[members]
+    )
     speed = V if params.saturate_nominal else np.inf
     return nominal_controls(tick.pos_m[members], goal, params.k_p, speed, params.hold_distance)
 
@@ -68,6 +76,7 @@ def _expected_nominal(tick, task_of, params):
 # ----------------------------------------------------------------------------------------------
 # Parameters and factory
 # ----------------------------------------------------------------------------------------------
+
 
 def test_unknown_param_raises_and_lists_valid_params():
     with pytest.raises(ValueError) as err:
@@ -78,10 +87,20 @@ def test_unknown_param_raises_and_lists_valid_params():
         assert field.name in message
 
 
-@pytest.mark.parametrize("bad", [{"assignment": "greedy"}, {"speed_bound": "cone"},
-                                 {"kappa": 1.5}, {"gamma": 0.0}, {"alpha": 2.0},
-                                 {"collision_neighbours": -1}, {"task_capacity": -1},
-                                 {"reassign_period": -1}, {"reassign_period": 0.5}])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"assignment": "greedy"},
+        {"speed_bound": "cone"},
+        {"kappa": 1.5},
+        {"gamma": 0.0},
+        {"alpha": 2.0},
+        {"collision_neighbours": -1},
+        {"task_capacity": -1},
+        {"reassign_period": -1},
+        {"reassign_period": 0.5},
+    ],
+)
 def test_invalid_param_values_raise(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         make_mccst(PROBLEM, bad, np.random.default_rng(0))
@@ -97,14 +116,28 @@ def test_registry_builds_mccst_with_overrides():
 # Speed limit, fallback, determinism, scale
 # ----------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("params", [{}, {"speed_bound": "clip"}, {"discrete_time": True},
-                                    {"gamma": 50.0, "safety_radius": 1.0}, BALANCED_PARAMS,
-                                    STRONG_PARAMS,
-                                    {"speed_bound": "none", "saturate_nominal": False}])
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        {},
+        {"speed_bound": "clip"},
+        {"discrete_time": True},
+        {"gamma": 50.0, "safety_radius": 1.0},
+        BALANCED_PARAMS,
+        STRONG_PARAMS,
+        {"speed_bound": "none", "saturate_nominal": False},
+    ],
+)
 @pytest.mark.parametrize("unit", [1.0, 10.0])
 def test_speed_limit_always_respected(rng, params, unit):
-    problem = PROBLEM.replace(radio_range_m=R * unit, base_range_m=R * unit,
-                              max_speed_m_s=V * unit, length_unit_m=unit, dt_s=1.0)
+    problem = PROBLEM.replace(
+        radio_range_m=R * unit,
+        base_range_m=R * unit,
+        max_speed_m_s=V * unit,
+        length_unit_m=unit,
+        dt_s=1.0,
+    )
     planner = make_mccst(problem, params, rng)
     limit = problem.max_speed_m_s * problem.dt_s
     for _ in range(15):
@@ -126,8 +159,11 @@ def test_solver_failure_falls_back_to_clipped_nominal(rng, solver):
     assert out.info["fallback"] is True
     assert out.info["status"] not in ("solved", "solved inaccurate")
     members = np.flatnonzero(tick.networked)
-    nominal = np.clip(_expected_nominal(tick, out.info["task_of"], planner.params),
-                      -V / np.sqrt(2), V / np.sqrt(2))
+    nominal = np.clip(
+        _expected_nominal(tick, out.info["task_of"], planner.params),
+        -V / np.sqrt(2),
+        V / np.sqrt(2),
+    )
     np.testing.assert_allclose(out.disp_m[members], nominal, atol=1e-12)
 
 
@@ -144,8 +180,9 @@ def test_deterministic(rng):
 def test_scale_free_defaults(rng):
     """Scaling every length by 10 (the scaled reading) scales the output by 10."""
     tick = _random_connected_tick(rng)
-    big = PROBLEM.replace(radio_range_m=10 * R, base_range_m=10 * R, max_speed_m_s=10 * V,
-                          length_unit_m=10.0)
+    big = PROBLEM.replace(
+        radio_range_m=10 * R, base_range_m=10 * R, max_speed_m_s=10 * V, length_unit_m=10.0
+    )
     small_out = make_mccst(PROBLEM, {}, rng).plan(tick)
     big_tick = dataclasses.replace(tick, pos_m=10 * tick.pos_m, task_pos_m=10 * tick.task_pos_m)
     big_out = make_mccst(big, {}, rng).plan(big_tick)
@@ -162,6 +199,7 @@ def test_empty_network_returns_zeros():
 # ----------------------------------------------------------------------------------------------
 # Assignment
 # ----------------------------------------------------------------------------------------------
+
 
 def _assignment_brute_force(pos, tasks):
     n, m = len(pos), len(tasks)
@@ -192,7 +230,8 @@ def test_balanced_assignment_capacity_and_nearest(rng):
         assert np.bincount(task_of, minlength=m).max() <= -(-n // m)
         nearest = assign_tasks(pos, tasks, "nearest")
         np.testing.assert_array_equal(
-            nearest, np.argmin(np.linalg.norm(pos[:, None] - tasks[None], axis=2), axis=1))
+            nearest, np.argmin(np.linalg.norm(pos[:, None] - tasks[None], axis=2), axis=1)
+        )
 
 
 def test_nominal_controls_saturate_and_hold():
@@ -208,6 +247,7 @@ def test_nominal_controls_saturate_and_hold():
 # Spanning tree
 # ----------------------------------------------------------------------------------------------
 
+
 def test_spanning_tree_matches_networkx(rng):
     for trial in range(40):
         n_nodes = int(rng.integers(2, 25))
@@ -217,7 +257,9 @@ def test_spanning_tree_matches_networkx(rng):
         if trial % 4 == 0:
             weights -= weights.max() + 1.0  # all negative, as MCCST weights usually are
         got = spanning_tree_edges(n_nodes, edges, weights)
-        assert {frozenset(e) for e in edges[got].tolist()} == _mst_reference(n_nodes, edges, weights)
+        assert {frozenset(e) for e in edges[got].tolist()} == _mst_reference(
+            n_nodes, edges, weights
+        )
 
 
 @pytest.mark.parametrize("overrides", [{}, BALANCED_PARAMS, STRONG_PARAMS])
@@ -245,13 +287,15 @@ def test_planner_tree_is_mccst_of_candidate_graph(rng, overrides):
 # CBF-QP: connectivity and feasibility
 # ----------------------------------------------------------------------------------------------
 
+
 def _tree_lengths(pos, tree_edges):
     ends = np.where(tree_edges[:, :, None] < 0, 0.0, pos[np.maximum(tree_edges, 0)])
     return np.linalg.norm(ends[:, 0] - ends[:, 1], axis=1)
 
 
-@pytest.mark.parametrize("params", [{}, {"discrete_time": True}, {"speed_bound": "clip"},
-                                    {"reassign_period": 0}])
+@pytest.mark.parametrize(
+    "params", [{}, {"discrete_time": True}, {"speed_bound": "clip"}, {"reassign_period": 0}]
+)
 def test_chain_kept_connected_when_nominal_pulls_away(params):
     # base -- d1 -- d2; d1's task is where d1 stands, d2's task is far to the east. The tree
     # guarantee of the module docstring needs gamma <= 1 and kappa = 0.9 (BALANCED_PARAMS); the
@@ -270,10 +314,10 @@ def test_chain_kept_connected_when_nominal_pulls_away(params):
         assert len(lengths) == 2 and np.all(lengths <= R), lengths
     np.testing.assert_array_equal(out.info["task_of"], [0, 1])
     assert active_mask(pos, np.ones(2, bool), R, R).all()
-    assert pos[1, 0] > start_d2[0] + 0.2                    # d2 moved towards its task...
-    assert np.linalg.norm(pos[1]) <= 2 * R                   # ...but was held by the tree,
-    assert np.linalg.norm(pos[1] - pos[0]) > 0.85 * R        # which is taut at r_c = 0.9 r
-    assert np.linalg.norm(pos[0]) > 1.5                      # and d1 was dragged along
+    assert pos[1, 0] > start_d2[0] + 0.2  # d2 moved towards its task...
+    assert np.linalg.norm(pos[1]) <= 2 * R  # ...but was held by the tree,
+    assert np.linalg.norm(pos[1] - pos[0]) > 0.85 * R  # which is taut at r_c = 0.9 r
+    assert np.linalg.norm(pos[0]) > 1.5  # and d1 was dragged along
 
 
 def test_qp_feasible_right_after_relay_loss():
@@ -292,9 +336,9 @@ def test_qp_feasible_right_after_relay_loss():
     np.testing.assert_array_equal(tick.networked, alive)
     out = planner.plan(tick)
     assert out.info["status"] == "solved" and not out.info["fallback"]
-    assert out.info["max_tree_slack"] > 1e-3                  # some barrier had to give
+    assert out.info["max_tree_slack"] > 1e-3  # some barrier had to give
     assert np.all(np.linalg.norm(out.disp_m, axis=1) <= V)
-    assert np.all(out.disp_m[:3, 0] < 0)                      # everyone pulls back to the base
+    assert np.all(out.disp_m[:3, 0] < 0)  # everyone pulls back to the base
     assert np.all(out.disp_m[3:] == 0.0)
 
 
@@ -316,6 +360,7 @@ def test_collision_candidates_cap(rng):
 # ----------------------------------------------------------------------------------------------
 # Closed loop without attrition
 # ----------------------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("params", [BALANCED_PARAMS, STRONG_PARAMS])
 def test_closed_loop_keeps_network_and_reaches_a_task(params):
@@ -348,6 +393,7 @@ def test_closed_loop_keeps_network_and_reaches_a_task(params):
 # Pre-tasking: capacity, static assignment, tasks lost on disconnection (calibration knobs)
 # ----------------------------------------------------------------------------------------------
 
+
 def _capacity_brute_force(pos, tasks, k):
     n, m = len(pos), len(tasks)
     dist = np.linalg.norm(pos[:, None] - tasks[None], axis=2)
@@ -377,8 +423,9 @@ def test_untasked_drones_hold_position():
     pos = np.array([[0.5, 0.0], [0.0, 0.5], [-0.5, 0.0]])
     tasks = np.array([[5.0, 0.0]])
     for period in (0, 1):
-        planner = make_mccst(PROBLEM, {"task_capacity": 1, "reassign_period": period},
-                             np.random.default_rng(0))
+        planner = make_mccst(
+            PROBLEM, {"task_capacity": 1, "reassign_period": period}, np.random.default_rng(0)
+        )
         out = planner.plan(_tick(pos, tasks))
         np.testing.assert_array_equal(out.info["task_of"], [0, -1, -1])
         assert out.disp_m[0, 0] > 0.5 * V / np.sqrt(2)
@@ -397,15 +444,17 @@ def test_static_assignment_is_kept_until_a_new_run(rng):
     per_tick = make_mccst(PROBLEM, {"reassign_period": 1, "task_capacity": 0}, rng)
     moved = _reversed_tasks(tick, 1)
     resolved = per_tick.plan(moved).info["task_of"]
-    assert np.any(resolved[members] != first[members])      # a per-tick solve would change it
+    assert np.any(resolved[members] != first[members])  # a per-tick solve would change it
     for t_step in (1, 2, 5):
-        np.testing.assert_array_equal(planner.plan(_reversed_tasks(tick, t_step)).info["task_of"],
-                                      first)
+        np.testing.assert_array_equal(
+            planner.plan(_reversed_tasks(tick, t_step)).info["task_of"], first
+        )
     # A lost drone gives up its task; the others keep theirs.
     alive = tick.alive.copy()
     alive[members[0]] = False
-    lost = dataclasses.replace(_reversed_tasks(tick, 6), alive=alive,
-                               networked=active_mask(tick.pos_m, alive, R, R))
+    lost = dataclasses.replace(
+        _reversed_tasks(tick, 6), alive=alive, networked=active_mask(tick.pos_m, alive, R, R)
+    )
     task_of = planner.plan(lost).info["task_of"]
     keep = np.flatnonzero(lost.networked)
     assert task_of[members[0]] == -1
@@ -422,18 +471,24 @@ def test_reassign_period_resolves_every_k_ticks(rng):
     per_tick = make_mccst(PROBLEM, {"reassign_period": 1, "task_capacity": 0}, rng)
     first = planner.plan(tick).info["task_of"]
     for t_step in (1, 2):
-        np.testing.assert_array_equal(planner.plan(_reversed_tasks(tick, t_step)).info["task_of"],
-                                      first)
-    np.testing.assert_array_equal(planner.plan(_reversed_tasks(tick, 3)).info["task_of"],
-                                  per_tick.plan(_reversed_tasks(tick, 3)).info["task_of"])
+        np.testing.assert_array_equal(
+            planner.plan(_reversed_tasks(tick, t_step)).info["task_of"], first
+        )
+    np.testing.assert_array_equal(
+        planner.plan(_reversed_tasks(tick, 3)).info["task_of"],
+        per_tick.plan(_reversed_tasks(tick, 3)).info["task_of"],
+    )
 
 
 @pytest.mark.parametrize("keep", [True, False])
 def test_task_after_leaving_and_rejoining_the_network(keep):
     tasks = np.array([[6.0, 0.0], [0.0, 6.0]])
     pos = np.array([[1.0, 0.0], [2.5, 0.0], [0.0, 1.0]])
-    planner = make_mccst(PROBLEM, {"reassign_period": 0, "task_capacity": 0,
-                                   "keep_task_when_disconnected": keep}, np.random.default_rng(0))
+    planner = make_mccst(
+        PROBLEM,
+        {"reassign_period": 0, "task_capacity": 0, "keep_task_when_disconnected": keep},
+        np.random.default_rng(0),
+    )
     task = planner.plan(_tick(pos, tasks, t_step=0)).info["task_of"][1]
     assert task >= 0
     away = pos.copy()
@@ -443,7 +498,7 @@ def test_task_after_leaving_and_rejoining_the_network(keep):
     back = planner.plan(_tick(pos, tasks, t_step=2))
     assert back.info["task_of"][1] == (task if keep else -1)
     if not keep:
-        assert np.abs(back.disp_m[1]).max() < 1e-3           # an untasked relay holds position
+        assert np.abs(back.disp_m[1]).max() < 1e-3  # an untasked relay holds position
 
 
 def test_named_variants_are_valid_and_differ_from_the_default():
@@ -464,13 +519,13 @@ def test_carried_rho_starts_cold_at_a_run_start_and_solves(rng):
     carry = make_mccst(PROBLEM, {"solver": "osqp"}, rng)
     cold = make_mccst(PROBLEM, {"solver": "osqp", "carry_rho": False}, rng)
     first_c, first_k = carry.plan(tick0), cold.plan(tick0)
-    np.testing.assert_array_equal(first_c.disp_m, first_k.disp_m)   # t_step 0: no carried rho
+    np.testing.assert_array_equal(first_c.disp_m, first_k.disp_m)  # t_step 0: no carried rho
     assert carry._rho is not None and carry._rho != 0.1
     tick1 = _tick(tick0.pos_m + first_c.disp_m, tick0.task_pos_m, t_step=1)
     out_c, out_k = carry.plan(tick1), cold.plan(tick1)
     assert out_c.info["status"] == out_k.info["status"] == "solved"
     assert np.all(np.abs(out_c.disp_m) <= V / np.sqrt(2) + 1e-12)
-    again = carry.plan(tick1)                                        # same t_step: a new run
+    again = carry.plan(tick1)  # same t_step: a new run
     np.testing.assert_array_equal(again.disp_m, out_k.disp_m)
 
 
@@ -483,7 +538,7 @@ def test_direct_csc_constraint_matrix_equals_coo_reference(seed):
     n = 30
     for n_rows in (0, 1, 40, 200):
         i = rng.integers(0, n, n_rows)
-        j = (i + 1 + rng.integers(0, n, n_rows)) % (n + 1)     # may be the base (== n)
+        j = (i + 1 + rng.integers(0, n, n_rows)) % (n + 1)  # may be the base (== n)
         j = np.where(j == i, n, j)
         coef = rng.normal(size=(n_rows, 2))
         slack_rows = np.flatnonzero(rng.random(n_rows) < 0.3)
@@ -503,10 +558,9 @@ def test_fast_argsort_equals_stable_argsort(seed):
     otherwise: the permutation must equal ``kind='stable'`` in both cases."""
     rng = np.random.default_rng(seed)
     distinct = rng.normal(size=5000)
-    tied = np.round(rng.normal(size=5000), 1)                  # many equal values
+    tied = np.round(rng.normal(size=5000), 1)  # many equal values
     for values in (distinct, tied, np.zeros(0), np.ones(1), np.array([2.0, 1.0, 2.0, 1.0])):
-        np.testing.assert_array_equal(_argsort_stable(values),
-                                      np.argsort(values, kind="stable"))
+        np.testing.assert_array_equal(_argsort_stable(values), np.argsort(values, kind="stable"))
 
 
 def _random_qp(rng, n=12, n_tree=10, n_col=8):
@@ -517,7 +571,7 @@ def _random_qp(rng, n=12, n_tree=10, n_col=8):
     tree = np.column_stack([rng.integers(0, n, n_tree), rng.integers(0, n + 1, n_tree)])
     tree = tree[tree[:, 0] != tree[:, 1]]
     d = np.linalg.norm(x[tree[:, 0]] - x[tree[:, 1]], axis=1)
-    r_c = d * rng.uniform(0.97, 1.3, len(d))           # some violated, some with margin
+    r_c = d * rng.uniform(0.97, 1.3, len(d))  # some violated, some with margin
     col = np.column_stack([rng.integers(0, n, n_col), rng.integers(0, n, n_col)])
     col = col[col[:, 0] < col[:, 1]]
     return x, u_hat, tree, r_c, col
@@ -527,37 +581,53 @@ def _qp_reference(x, u_hat, tree, r_c, col, box, params):
     """The same CBF-QP written out row by row and solved by scipy's SLSQP over every row (no
     pruning), slow and independent of both solver paths."""
     from scipy.optimize import minimize
+
     n = len(u_hat)
-    rows = [(int(a), int(b), 1.0, params.gamma * (rc ** 2 - np.sum((x[a] - x[b]) ** 2)) ** 3, True)
-            for (a, b), rc in zip(tree, r_c)]
-    rows += [(int(a), int(b), -1.0, params.gamma * (np.sum((x[a] - x[b]) ** 2)
-                                                    - params.safety_radius ** 2) ** 3, False)
-             for a, b in col]
+    rows = [
+        (int(a), int(b), 1.0, params.gamma * (rc**2 - np.sum((x[a] - x[b]) ** 2)) ** 3, True)
+        for (a, b), rc in zip(tree, r_c)
+    ]
+    rows += [
+        (
+            int(a),
+            int(b),
+            -1.0,
+            params.gamma * (np.sum((x[a] - x[b]) ** 2) - params.safety_radius**2) ** 3,
+            False,
+        )
+        for a, b in col
+    ]
     slacked = [k for k, row in enumerate(rows) if row[3] < 0]
-    pen = np.array([params.slack_penalty if rows[k][4] else params.collision_slack_penalty
-                    for k in slacked])
+    pen = np.array(
+        [params.slack_penalty if rows[k][4] else params.collision_slack_penalty for k in slacked]
+    )
 
     def lhs(z, k):
         a, b, sign, _, _ = rows[k]
-        u = z[:2 * n].reshape(n, 2)
+        u = z[: 2 * n].reshape(n, 2)
         ub = u[b] if b < n else np.zeros(2)
         return 2 * sign * (x[a] - x[b]) @ (u[a] - ub)
 
     def cons(z):
         s = np.zeros(len(rows))
-        s[slacked] = z[2 * n:]
+        s[slacked] = z[2 * n :]
         return np.array([rows[k][3] + s[k] - lhs(z, k) for k in range(len(rows))])
 
     def cost(z):
-        return np.sum((z[:2 * n] - u_hat.ravel()) ** 2) + np.sum(pen * z[2 * n:] ** 2)
+        return np.sum((z[: 2 * n] - u_hat.ravel()) ** 2) + np.sum(pen * z[2 * n :] ** 2)
 
-    z0 = np.concatenate([np.zeros(2 * n), [-rows[k][3] for k in slacked]])   # feasible start
+    z0 = np.concatenate([np.zeros(2 * n), [-rows[k][3] for k in slacked]])  # feasible start
     bounds = [(-box, box)] * (2 * n) + [(0, None)] * len(slacked)
-    res = minimize(cost, z0, method="SLSQP", bounds=bounds,
-                   constraints=[{"type": "ineq", "fun": cons}],
-                   options={"ftol": 1e-14, "maxiter": 2000})
+    res = minimize(
+        cost,
+        z0,
+        method="SLSQP",
+        bounds=bounds,
+        constraints=[{"type": "ineq", "fun": cons}],
+        options={"ftol": 1e-14, "maxiter": 2000},
+    )
     assert res.success, res.message
-    return res.x[:2 * n].reshape(n, 2)
+    return res.x[: 2 * n].reshape(n, 2)
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -574,18 +644,19 @@ def test_piqp_optimum_equals_a_slow_reference_solve(seed):
     assert np.all(np.abs(got.u) <= box)
     ref = _qp_reference(x, u_hat, tree, r_c, col, box, params)
     np.testing.assert_allclose(got.u, ref, atol=1e-5)
-    osqp_u = solve_cbf_qp(x, u_hat, tree, r_c, col, box, dataclasses.replace(params, solver="osqp",
-                                                                            solver_eps=1e-4)).u
+    osqp_u = solve_cbf_qp(
+        x, u_hat, tree, r_c, col, box, dataclasses.replace(params, solver="osqp", solver_eps=1e-4)
+    ).u
     assert np.abs(osqp_u - ref).max() < 0.05
 
 
 def test_piqp_optimum_satisfies_kkt_by_brute_force():
     """Against an obviously-correct reference: for a 2-drone QP, the optimum over a fine grid of
     controls (slacks solved in closed form) is within the grid step of PIQP's."""
-    x = np.array([[1.0, 0.0], [2.6, 0.0], [0.0, 0.0]])          # base at the origin
-    u_hat = np.array([[0.1, 0.05], [0.1, -0.05]])                 # both pulled away east
+    x = np.array([[1.0, 0.0], [2.6, 0.0], [0.0, 0.0]])  # base at the origin
+    u_hat = np.array([[0.1, 0.05], [0.1, -0.05]])  # both pulled away east
     tree = np.array([[0, 2], [1, 0]])
-    r_c = np.array([1.05, 1.5])                                    # 1-0 violated, 0-base tight
+    r_c = np.array([1.05, 1.5])  # 1-0 violated, 0-base tight
     params = MccstParams(gamma=1.0, solver_eps=1e-9)
     box = V / np.sqrt(2)
     got = solve_cbf_qp(x, u_hat, tree, r_c, np.zeros((0, 2), dtype=int), box, params)
@@ -593,12 +664,12 @@ def test_piqp_optimum_satisfies_kkt_by_brute_force():
     u0x, u0y, u1x, u1y = np.meshgrid(grid, grid, grid, grid, indexing="ij")
     u = np.stack([u0x, u0y, u1x, u1y], axis=-1).reshape(-1, 2, 2)
     diff = x[tree[:, 0]] - x[tree[:, 1]]
-    rhs = params.gamma * (r_c ** 2 - (diff ** 2).sum(1)) ** 3
-    lhs0 = 2 * (diff[0] * u[:, 0]).sum(-1)                           # base end: u_0 only
+    rhs = params.gamma * (r_c**2 - (diff**2).sum(1)) ** 3
+    lhs0 = 2 * (diff[0] * u[:, 0]).sum(-1)  # base end: u_0 only
     lhs1 = 2 * (diff[1] * (u[:, 1] - u[:, 0])).sum(-1)
     slack0 = np.maximum(lhs0 - rhs[0], 0.0) if rhs[0] < 0 else np.where(lhs0 <= rhs[0], 0.0, np.inf)
     slack1 = np.maximum(lhs1 - rhs[1], 0.0) if rhs[1] < 0 else np.where(lhs1 <= rhs[1], 0.0, np.inf)
-    cost = (((u - u_hat) ** 2).sum((1, 2)) + params.slack_penalty * (slack0 ** 2 + slack1 ** 2))
+    cost = ((u - u_hat) ** 2).sum((1, 2)) + params.slack_penalty * (slack0**2 + slack1**2)
     best = u[np.argmin(cost)]
     assert np.isfinite(cost.min())
     np.testing.assert_allclose(got.u, best, atol=grid[1] - grid[0])

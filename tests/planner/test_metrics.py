@@ -1,4 +1,5 @@
 """TU1/TU2 on hand-built records whose values are computed by hand."""
+
 import numpy as np
 import pytest
 

@@ -1,10 +1,18 @@
 """PhiIREMAN kernels against their references, descent properties, and the planner contract."""
+
 import numpy as np
 import pytest
 
 from planner.methods import TickInput, UnknownMethod, make_planner
-from planner.phireman import (PhiremanParams, descend, descend_reference, energy, pair_gradient,
-                              pair_gradient_reference, task_gradient)
+from planner.phireman import (
+    PhiremanParams,
+    descend,
+    descend_reference,
+    energy,
+    pair_gradient,
+    pair_gradient_reference,
+    task_gradient,
+)
 from planner.problem import problem_preset
 from planner.steiner import build_task_tree
 
@@ -19,8 +27,11 @@ def test_pair_gradient_matches_reference_shared_and_per_drone_views(rng):
         shared = pair_gradient(x, x, mask, **KW)
         assert np.allclose(shared, pair_gradient_reference(x, x, mask, **KW), atol=1e-9)
         beliefs = x[None] + rng.normal(0, 0.1, (n, n, 2))  # each drone's own view of the others
-        assert np.allclose(pair_gradient(x, beliefs, mask, **KW),
-                           pair_gradient_reference(x, beliefs, mask, **KW), atol=1e-9)
+        assert np.allclose(
+            pair_gradient(x, beliefs, mask, **KW),
+            pair_gradient_reference(x, beliefs, mask, **KW),
+            atol=1e-9,
+        )
 
 
 def test_pair_gradient_is_the_gradient_of_the_energy(rng):
@@ -55,9 +66,17 @@ def test_descend_matches_reference_and_respects_the_speed_limit(rng, rule):
         x = rng.uniform(-3, 3, (int(rng.integers(2, 15)), 2))
         mask = ~np.eye(len(x), dtype=bool)
 
-        def grad(y, rows):
-            return task_gradient(y, tree, p.thorn) + pair_gradient(y, y, mask, p.attraction,  # noqa: B023
-                                                                   p.attraction_floor, p.repulsion, 2.0, 2.0)
+        def grad(y, rows, mask=mask):
+            return task_gradient(y, tree, p.thorn) + pair_gradient(
+                y,
+                y,
+                mask,
+                p.attraction,
+                p.attraction_floor,
+                p.repulsion,
+                2.0,
+                2.0,
+            )
 
         res = descend(x, grad, 0.15, p)
         assert np.allclose(res.disp_u, descend_reference(x, grad, 0.15, p), atol=1e-7)
@@ -87,20 +106,25 @@ def test_descent_does_not_increase_energy_for_small_steps(rng):
     mask = ~np.eye(10, dtype=bool)
 
     def grad(y, rows):
-        return task_gradient(y, tree, p.thorn) + pair_gradient(y, y, mask, p.attraction,
-                                                               p.attraction_floor, p.repulsion, 2.0, 2.0)
+        return task_gradient(y, tree, p.thorn) + pair_gradient(
+            y, y, mask, p.attraction, p.attraction_floor, p.repulsion, 2.0, 2.0
+        )
 
     res = descend(x, grad, 10.0, p)
     assert energy(x + res.disp_u, tree, p, 2.0) <= energy(x, tree, p, 2.0)
 
 
-@pytest.mark.parametrize("method", ["phireman", "phireman-central", "phireman-no-task", "phireman-nodes-only"])
+@pytest.mark.parametrize(
+    "method", ["phireman", "phireman-central", "phireman-no-task", "phireman-nodes-only"]
+)
 def test_planner_contract_speed_limit_and_determinism(method):
     prob = problem_preset("S", 0.01)
     rng = np.random.default_rng(3)
     pos = rng.normal(0, 1, (50, 2))
     alive = rng.random(50) < 0.9
-    tick = TickInput(0, pos, alive, alive & (np.linalg.norm(pos, axis=1) < 2), rng.uniform(-5, 5, (10, 2)))
+    tick = TickInput(
+        0, pos, alive, alive & (np.linalg.norm(pos, axis=1) < 2), rng.uniform(-5, 5, (10, 2))
+    )
     a = make_planner(method, prob, {}).plan(tick)
     b = make_planner(method, prob, {}).plan(tick)
     assert np.array_equal(a.disp_m, b.disp_m)
@@ -111,14 +135,19 @@ def test_scale_invariance_of_the_scaled_reading():
     """The scaled M problem is the S geometry in a different unit: plans scale with the unit."""
     s = problem_preset("S", 0.0).replace(n_drones=30)
     m = problem_preset("S", 0.0, length_unit_m=2.0).replace(
-        n_drones=30, radio_range_m=4.0, base_range_m=4.0, max_speed_m_s=0.3)
+        n_drones=30, radio_range_m=4.0, base_range_m=4.0, max_speed_m_s=0.3
+    )
     rng = np.random.default_rng(5)
     pos = rng.normal(0, 1, (30, 2))
     tasks = rng.uniform(-5, 5, (6, 2))
     net = np.linalg.norm(pos, axis=1) < 2
     for info in ("central", "async"):
-        a = make_planner("phireman", s, {"info": info}).plan(TickInput(0, pos, np.ones(30, bool), net, tasks))
-        b = make_planner("phireman", m, {"info": info}).plan(TickInput(0, 2 * pos, np.ones(30, bool), net, 2 * tasks))
+        a = make_planner("phireman", s, {"info": info}).plan(
+            TickInput(0, pos, np.ones(30, bool), net, tasks)
+        )
+        b = make_planner("phireman", m, {"info": info}).plan(
+            TickInput(0, 2 * pos, np.ones(30, bool), net, 2 * tasks)
+        )
         assert np.allclose(2 * a.disp_m, b.disp_m, atol=1e-9)
 
 
@@ -133,7 +162,10 @@ def test_unknown_method_and_parameter_are_reported_with_the_valid_names():
 def test_batched_task_gradient_matches_one_tree_at_a_time(rng):
     from planner.phireman import padded_segments, task_gradient_batched
 
-    trees = [build_task_tree(np.zeros(2), rng.uniform(-5, 5, (int(rng.integers(1, 8)), 2))) for _ in range(4)]
+    trees = [
+        build_task_tree(np.zeros(2), rng.uniform(-5, 5, (int(rng.integers(1, 8)), 2)))
+        for _ in range(4)
+    ]
     x = rng.uniform(-6, 6, (40, 2))
     version = rng.integers(0, 4, 40)
     for nodes_only in (False, True):

@@ -1,14 +1,25 @@
 """ΦIREMAN-resilient: each mechanism against a slow reference or a hand-built scenario, the world's
 rally rule, and the contract that every mechanism off is PhiIREMAN."""
+
 import numpy as np
 import pytest
 
 from mission.sim import run_episode
 from planner.methods import TickInput, make_planner
 from planner.problem import problem_preset
-from planner.resilient import (ResilientParams, claim_gradient, claim_targets, claim_targets_reference,
-                               nearest_rally, prune_tree, rally_points, rally_points_reference, select_tasks,
-                               select_tasks_reference, task_paths)
+from planner.resilient import (
+    ResilientParams,
+    claim_gradient,
+    claim_targets,
+    claim_targets_reference,
+    nearest_rally,
+    prune_tree,
+    rally_points,
+    rally_points_reference,
+    select_tasks,
+    select_tasks_reference,
+    task_paths,
+)
 from planner.steiner import TaskTree, build_task_tree
 from vehicle_emu.world import World
 
@@ -20,6 +31,7 @@ def _random_tree(rng, m):
 
 
 # -- triage ----------------------------------------------------------------------------------
+
 
 def test_task_paths_follow_parent_pointers(rng):
     for _ in range(10):
@@ -39,8 +51,10 @@ def test_select_tasks_matches_reference(rng):
         budget = float(rng.uniform(0, 40))
         kept = rng.random(tree.n_tasks) < 0.5
         for prev, bonus in ((None, 0.0), (kept, 0.3)):
-            assert np.array_equal(select_tasks(tree, budget, prev, bonus),
-                                  select_tasks_reference(tree, budget, prev, bonus))
+            assert np.array_equal(
+                select_tasks(tree, budget, prev, bonus),
+                select_tasks_reference(tree, budget, prev, bonus),
+            )
 
 
 def test_select_tasks_by_hand_keeps_the_cheap_cluster():
@@ -70,6 +84,7 @@ def test_prune_tree_keeps_paths_and_splices_lone_steiner_nodes():
 
 # -- rally points ----------------------------------------------------------------------------
 
+
 def test_rally_points_match_reference(rng):
     for _ in range(30):
         tree = _random_tree(rng, int(rng.integers(1, 12)))
@@ -83,8 +98,10 @@ def test_rally_points_by_hand():
     tree = TaskTree(nodes, np.array([-1, 2, 0]), 1)
     assert np.allclose(rally_points(tree, 2.0), [[1, 1]])
     assert np.allclose(rally_points(tree, 0.5), [[0.5, 0]])
-    assert np.allclose(rally_points(tree, 9.0), [[1, 3]])           # past the end: the task
-    assert np.allclose(nearest_rally(np.array([[5.0, 5.0]]), np.array([[0, 1.0], [4, 4]])), [[4, 4]])
+    assert np.allclose(rally_points(tree, 9.0), [[1, 3]])  # past the end: the task
+    assert np.allclose(
+        nearest_rally(np.array([[5.0, 5.0]]), np.array([[0, 1.0], [4, 4]])), [[4, 4]]
+    )
     assert np.isnan(nearest_rally(np.zeros((1, 2)), np.zeros((0, 2)))).all()
 
 
@@ -94,10 +111,10 @@ def test_world_rally_rule_only_when_targets_are_given():
     target = np.array([[6.0, 3.0], [np.nan, np.nan]])
     w = World(p, start.copy(), np.ones(2, bool), np.zeros((2, 1, 2)))
     w.step(np.zeros((2, 2)), np.zeros(2, bool), 0.0, np.ones(2), target)
-    assert np.allclose(w.pos_m, [[6.0, 0.15], [0.0, 5.85]])          # rally point; NaN row: home
+    assert np.allclose(w.pos_m, [[6.0, 0.15], [0.0, 5.85]])  # rally point; NaN row: home
     w2 = World(p, start.copy(), np.ones(2, bool), np.zeros((2, 1, 2)))
     w2.step(np.zeros((2, 2)), np.zeros(2, bool), 0.0, np.ones(2))
-    assert np.allclose(w2.pos_m, [[5.85, 0.0], [0.0, 5.85]])         # the paper's rule
+    assert np.allclose(w2.pos_m, [[5.85, 0.0], [0.0, 5.85]])  # the paper's rule
 
 
 def test_cut_branch_reaches_its_rally_point_and_reconnects():
@@ -105,7 +122,9 @@ def test_cut_branch_reaches_its_rally_point_and_reconnects():
     # rally point at distance 2 from the base: (2, 0). Drones at 0.9, 2.6 (links to base chain)
     # and a cut-off pair at (7, 1), (8, 1): no alive drone links them to the base chain.
     p = problem_preset("S", 0.0).replace(n_drones=4, n_tasks=1)
-    planner = make_planner("phireman-resilient", p, {**OFF, "rally": True, "rally_dist": 2.0, "info": "central"})
+    planner = make_planner(
+        "phireman-resilient", p, {**OFF, "rally": True, "rally_dist": 2.0, "info": "central"}
+    )
     pos = np.array([[0.9, 0.0], [2.6, 0.0], [7.0, 1.0], [8.0, 1.0]])
     alive = np.ones(4, bool)
     w = World(p, pos.copy(), alive.copy(), np.tile([[8.0, 0.0]], (60, 1, 1)))
@@ -118,13 +137,14 @@ def test_cut_branch_reaches_its_rally_point_and_reconnects():
         assert t > 1 or not active[2:].any()
         for i in (2, 3):
             if active[i] and i not in first_connected:
-                first_connected[i] = t - 1                              # steps flown since cut off
+                first_connected[i] = t - 1  # steps flown since cut off
         planner.plan(TickInput(t, w.pos_m, w.alive, active, w.task_pos_m))
         target = planner.recovery_target_m
         if t == 1:
-            assert np.allclose(target[2:], [[2.0, 0.0], [2.0, 0.0]])   # nearest (only) rally point
+            assert np.allclose(target[2:], [[2.0, 0.0], [2.0, 0.0]])  # nearest (only) rally point
         # Freeze the connected drones so that only the rule under test moves anything.
         w.step(np.zeros((4, 2)), active, 0.0, np.ones(4), target)
+
     # Drone 2 flies from (7, 1) straight at (2, 0) at 0.15 per step and reconnects at the first
     # step that brings it within r = 2 of drone 1 at (2.6, 0) (counted on the straight line).
     def steps_to_link(start, goal, anchor):
@@ -134,18 +154,22 @@ def test_cut_branch_reaches_its_rally_point_and_reconnects():
             x = x + d * min(1.0, 0.15 / np.linalg.norm(d))
             k += 1
         return k
+
     assert first_connected[2] == steps_to_link([7, 1], np.array([2.0, 0.0]), np.array([2.6, 0.0]))
     # Drone 3 reconnects through drone 2 (one hop behind it on the same line) no later than it
     # would through drone 1 alone.
     assert first_connected[3] <= steps_to_link([8, 1], np.array([2.0, 0.0]), np.array([2.6, 0.0]))
-    assert np.isnan(planner.recovery_target_m[2:]).all()                 # reclaimed: no target
+    assert np.isnan(planner.recovery_target_m[2:]).all()  # reclaimed: no target
 
 
 def test_rally_wait_then_home():
     # A lone drone whose rally point is itself cut off: waits rally_wait_steps, then flies home.
     p = problem_preset("S", 0.0).replace(n_drones=1, n_tasks=1)
-    planner = make_planner("phireman-resilient", p, {**OFF, "rally": True, "rally_dist": 6.0,
-                                                     "rally_wait_steps": 3, "info": "central"})
+    planner = make_planner(
+        "phireman-resilient",
+        p,
+        {**OFF, "rally": True, "rally_dist": 6.0, "rally_wait_steps": 3, "info": "central"},
+    )
     w = World(p, np.array([[6.3, 0.0]]), np.ones(1, bool), np.tile([[9.0, 0.0]], (40, 1, 1)))
     # tick 0: connected by hand so the drone holds the tree; then it is cut off.
     planner.plan(TickInput(0, w.pos_m, w.alive, np.ones(1, bool), w.task_pos_m))
@@ -163,6 +187,7 @@ def test_rally_wait_then_home():
 
 # -- coverage claims -------------------------------------------------------------------------
 
+
 def test_claim_targets_match_reference(rng):
     for _ in range(20):
         n = int(rng.integers(1, 12))
@@ -170,10 +195,16 @@ def test_claim_targets_match_reference(rng):
         ent_r = np.sort(rng.integers(0, n, int(rng.integers(0, 3 * n))))
         ent_y = rng.uniform(-4, 4, (len(ent_r), 2))
         stamps = rng.integers(0, 3, n)
-        open_by = {0: rng.uniform(-4, 4, (3, 2)), 1: np.zeros((0, 2)), 2: rng.uniform(-4, 4, (1, 2))}
+        open_by = {
+            0: rng.uniform(-4, 4, (3, 2)),
+            1: np.zeros((0, 2)),
+            2: rng.uniform(-4, 4, (1, 2)),
+        }
         a = claim_targets(pos, ent_r, ent_y, stamps, open_by, 3.0)
         b = claim_targets_reference(pos, ent_r, ent_y, stamps, open_by, 3.0)
-        assert np.array_equal(np.isnan(a), np.isnan(b)) and np.allclose(a[~np.isnan(a)], b[~np.isnan(b)])
+        assert np.array_equal(np.isnan(a), np.isnan(b)) and np.allclose(
+            a[~np.isnan(a)], b[~np.isnan(b)]
+        )
 
 
 def test_claim_by_hand_nearest_known_drone_claims():
@@ -184,11 +215,14 @@ def test_claim_by_hand_nearest_known_drone_claims():
     out = claim_targets(pos, ent_r, ent_y, np.zeros(2, int), task, 5.0)
     assert np.isnan(out[0]).all() and np.allclose(out[1], [3.0, 0.0])
     g = claim_gradient(pos, out, 0.1)
-    assert np.allclose(g, [[0, 0], [-0.1, 0]])                           # descent moves it east
-    assert np.isnan(claim_targets(pos, ent_r, ent_y, np.zeros(2, int), task, 0.5)).all()  # out of reach
+    assert np.allclose(g, [[0, 0], [-0.1, 0]])  # descent moves it east
+    assert np.isnan(
+        claim_targets(pos, ent_r, ent_y, np.zeros(2, int), task, 0.5)
+    ).all()  # out of reach
 
 
 # -- the planner contract --------------------------------------------------------------------
+
 
 def test_every_mechanism_off_is_phireman_bit_for_bit():
     p = problem_preset("S", 0.01).replace(n_steps=60)
@@ -216,22 +250,30 @@ def test_params_are_validated():
 
 def test_tether_by_hand():
     from planner.resilient import tether, tether_anchors
+
     pos = np.array([[0.5, 0.0], [3.0, 0.0], [9.0, 9.0]])
     # drone 1 knows drones at (1.5, 0) and (4, 0) (both within r = 2); drone 2 knows nobody near
     ent_r = np.array([1, 1, 2])
     ent_y = np.array([[1.5, 0.0], [4.0, 0.0], [0.0, 0.0]])
     anchor = tether_anchors(pos, ent_r, ent_y, np.zeros(2), 2.0, 2.0)
-    assert np.allclose(anchor[0], 0.0)                    # within the base's reach: the base
-    assert np.allclose(anchor[1], [1.5, 0.0])             # the known neighbour nearest the base
-    assert np.isnan(anchor[2]).all()                      # no anchor
+    assert np.allclose(anchor[0], 0.0)  # within the base's reach: the base
+    assert np.allclose(anchor[1], [1.5, 0.0])  # the known neighbour nearest the base
+    assert np.isnan(anchor[2]).all()  # no anchor
     out = tether(np.array([[0.0, 3.0], [2.5, 1.0], [9.5, 9.0]]), anchor, 1.8)
-    assert np.allclose(out[0], [0.0, 1.8]) and np.allclose(out[1], [2.5, 1.0]) and np.allclose(out[2], [9.5, 9.0])
+    assert (
+        np.allclose(out[0], [0.0, 1.8])
+        and np.allclose(out[1], [2.5, 1.0])
+        and np.allclose(out[2], [9.5, 9.0])
+    )
 
 
 def test_prediction_builds_the_tree_on_extrapolated_tasks():
     p = problem_preset("S", 0.0).replace(n_drones=3, n_tasks=2)
-    planner = make_planner("phireman-resilient", p, {**OFF, "predict_steps": 5.0, "predict_smoothing": 1.0,
-                                                     "info": "central"})
+    planner = make_planner(
+        "phireman-resilient",
+        p,
+        {**OFF, "predict_steps": 5.0, "predict_smoothing": 1.0, "info": "central"},
+    )
     pos = np.array([[0.5, 0.0], [0.0, 0.5], [-0.5, 0.0]])
     vel = np.array([[0.1, 0.0], [0.0, -0.2]])
     y0 = np.array([[3.0, 1.0], [-2.0, 3.0]])
@@ -247,8 +289,12 @@ def test_prediction_builds_the_tree_on_extrapolated_tasks():
 
 def test_planner_runs_with_every_mechanism_on():
     p = problem_preset("XS", 0.02).replace(n_steps=40)
-    r = run_episode(p, "phireman-resilient", {"claim_tether": 0.9, "rally": True, "triage_length_per_drone": 3.0,
-                                              "predict_steps": 5.0}, 2)
+    r = run_episode(
+        p,
+        "phireman-resilient",
+        {"claim_tether": 0.9, "rally": True, "triage_length_per_drone": 3.0, "predict_steps": 5.0},
+        2,
+    )
     assert 0.0 <= r.tu1 <= 1.0
 
 
@@ -257,7 +303,9 @@ def test_rally_planner_plans_for_the_fleet_it_is_given(info):
     # A station plans for the vehicles it has: 6 of the mission's 10 on real links, then more
     # rows as vehicles are discovered. The rally bookkeeping must follow the tick's size.
     p = problem_preset("XS", 0.0).replace(n_drones=10)
-    planner = make_planner("phireman-resilient", p, {"rally": True, "info": info}, np.random.default_rng(0))
+    planner = make_planner(
+        "phireman-resilient", p, {"rally": True, "info": info}, np.random.default_rng(0)
+    )
     rng = np.random.default_rng(1)
     tasks = rng.uniform(-200, 200, (p.n_tasks, 2))
     # (The message layer is sized at its first tick: with async information the fleet may be

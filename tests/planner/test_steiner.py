@@ -1,4 +1,5 @@
 """Tests of planner.steiner: Fermat points, the greedy semi-Steiner tree, maintenance and h^T."""
+
 import math
 
 import numpy as np
@@ -42,7 +43,7 @@ def _assert_spanning_tree(tree: TaskTree, base, tasks):
     assert tree.edges.shape == (k - 1, 2)
     assert tree.n_tasks == len(tasks)
     np.testing.assert_array_equal(tree.nodes_m[0], base)
-    np.testing.assert_array_equal(tree.nodes_m[1:1 + len(tasks)], tasks)
+    np.testing.assert_array_equal(tree.nodes_m[1 : 1 + len(tasks)], tasks)
     for v in range(k):
         seen, u = set(), v
         while u != 0:
@@ -62,8 +63,9 @@ def _assert_spanning_tree(tree: TaskTree, base, tasks):
 def test_fermat_equilateral_is_centroid():
     a, b, c = np.array([0.0, 0.0]), np.array([2.0, 0.0]), np.array([1.0, SQRT3])
     np.testing.assert_allclose(fermat_point(a, b, c), (a + b + c) / 3, atol=1e-14)
-    np.testing.assert_allclose(fermat_points(a[None], b[None], c[None])[0], (a + b + c) / 3,
-                               atol=1e-14)
+    np.testing.assert_allclose(
+        fermat_points(a[None], b[None], c[None])[0], (a + b + c) / 3, atol=1e-14
+    )
 
 
 def test_fermat_isosceles_by_hand():
@@ -125,8 +127,9 @@ def test_fermat_optimality_conditions(a, b, c):
     a, b, c = np.array(a), np.array(b), np.array(c)
     s = fermat_point(a, b, c)
     scale = 1.0 + max(np.linalg.norm(b - a), np.linalg.norm(c - a))
-    np.testing.assert_allclose(fermat_points(a[None], b[None], c[None])[0], s, rtol=0,
-                               atol=1e-12 * scale)
+    np.testing.assert_allclose(
+        fermat_points(a[None], b[None], c[None])[0], s, rtol=0, atol=1e-12 * scale
+    )
     # Never worse than the reference minimiser (and than every vertex).
     ref = fermat_point_reference(a, b, c)
     assert _objective(s, [a, b, c]) <= _objective(ref, [a, b, c]) + 1e-9 * scale
@@ -201,8 +204,9 @@ def test_empty_and_single_task():
     assert tree_cost(empty) == (0.0, 0.0, 0.0)
     one = build_task_tree(base, np.array([[4.0, 3.0]]), 1.0)
     np.testing.assert_array_equal(one.parent, [-1, 0])
-    assert tree_cost(one, 1.0) == pytest.approx((2 * math.hypot(3.0, 4.0), math.hypot(3.0, 4.0),
-                                                 math.hypot(3.0, 4.0)))
+    assert tree_cost(one, 1.0) == pytest.approx(
+        (2 * math.hypot(3.0, 4.0), math.hypot(3.0, 4.0), math.hypot(3.0, 4.0))
+    )
 
 
 @given(point, st.lists(point, min_size=0, max_size=20), st.sampled_from(BASE_WEIGHTS))
@@ -231,8 +235,9 @@ def test_random_fields_beat_the_star(rng, m, cb):
 
 def test_tree_cost_by_hand():
     # base -> S(0, 1) -> tasks (-1, 2) and (1, 2); edges 1 + √2 + √2; paths 1 + √2 each.
-    tree = TaskTree(np.array([[0.0, 0.0], [-1.0, 2.0], [1.0, 2.0], [0.0, 1.0]]),
-                    np.array([-1, 3, 3, 0]), 2)
+    tree = TaskTree(
+        np.array([[0.0, 0.0], [-1.0, 2.0], [1.0, 2.0], [0.0, 1.0]]), np.array([-1, 3, 3, 0]), 2
+    )
     l_total, l_edges, l_base = tree_cost(tree, 0.5)
     r2 = math.sqrt(2.0)
     assert l_edges == pytest.approx(1 + 2 * r2)
@@ -261,7 +266,8 @@ def test_frame_agnostic_translation_and_rotation(rng, cb):
     # Task order does not matter for the cost.
     perm = rng.permutation(len(tasks))
     assert tree_cost(build_task_tree(base, tasks[perm], cb), cb)[0] == pytest.approx(
-        tree_cost(tree, cb)[0], rel=1e-9)
+        tree_cost(tree, cb)[0], rel=1e-9
+    )
 
 
 def test_invalid_inputs_raise():
@@ -302,8 +308,7 @@ def test_update_keeps_topology_and_relaxes_to_fermat_points(rng):
         assert np.linalg.norm(units.sum(axis=0)) <= 1e-6
 
 
-@given(st.lists(point, min_size=1, max_size=15), st.sampled_from(BASE_WEIGHTS),
-       st.integers(0, 5))
+@given(st.lists(point, min_size=1, max_size=15), st.sampled_from(BASE_WEIGHTS), st.integers(0, 5))
 def test_update_never_lengthens_edges_at_fixed_tasks(tasks, cb, sweeps):
     tasks = np.array(tasks)
     tree = build_task_tree(np.zeros(2), tasks, cb, refine_sweeps=0)
@@ -331,8 +336,9 @@ def test_update_splices_steiner_node_onto_a_task():
 
 def test_update_removes_steiner_nodes_with_fewer_than_three_neighbours():
     # Node 2 is a Steiner node with one child (degree 2), node 3 a Steiner leaf.
-    tree = TaskTree(np.array([[0.0, 0.0], [2.0, 2.0], [1.0, 0.0], [5.0, 5.0]]),
-                    np.array([-1, 2, 0, 1]), 1)
+    tree = TaskTree(
+        np.array([[0.0, 0.0], [2.0, 2.0], [1.0, 0.0], [5.0, 5.0]]), np.array([-1, 2, 0, 1]), 1
+    )
     new = update_task_positions(tree, np.array([[2.0, 2.0]]), sweeps=1)
     np.testing.assert_array_equal(new.parent, [-1, 0])
     assert tree_cost(new, 0.0)[1] == pytest.approx(math.hypot(2.0, 2.0))
@@ -371,12 +377,13 @@ def test_maintain_builds_when_missing_and_applies_the_nu_rule():
     np.testing.assert_array_equal(first.parent, fresh.parent)
 
     star = TaskTree(np.vstack([base, tasks]), np.array([-1, 0, 0]), 2)
-    ratio = tree_cost(fresh, cb)[0] / tree_cost(star, cb)[0]    # ≈ 0.55: the rebuild is better
+    ratio = tree_cost(fresh, cb)[0] / tree_cost(star, cb)[0]  # ≈ 0.55: the rebuild is better
     assert ratio < 0.99
 
     def run(t_step, nu):
-        return maintain_task_tree(star, base, tasks, t_step, base_weight=cb, accept_ratio=nu,
-                                  rebuild_period=10)
+        return maintain_task_tree(
+            star, base, tasks, t_step, base_weight=cb, accept_ratio=nu, rebuild_period=10
+        )
 
     # Not a rebuild tick: the current topology is kept however good the alternative.
     np.testing.assert_array_equal(run(3, 0.99).parent, [-1, 0, 0])
@@ -439,8 +446,9 @@ def test_distance_matches_reference_on_random_trees(rng, nodes_only):
         np.testing.assert_allclose(near, near_ref, rtol=0, atol=1e-12)
 
 
-@given(st.lists(point, min_size=0, max_size=8), st.lists(point, min_size=1, max_size=10),
-       st.booleans())
+@given(
+    st.lists(point, min_size=0, max_size=8), st.lists(point, min_size=1, max_size=10), st.booleans()
+)
 def test_distance_matches_reference_property(tasks, pts, nodes_only):
     tree = build_task_tree(np.zeros(2), np.array(tasks, dtype=float).reshape(-1, 2), 0.3)
     pts = np.array(pts)
@@ -449,8 +457,9 @@ def test_distance_matches_reference_property(tasks, pts, nodes_only):
     np.testing.assert_allclose(d, d_ref, rtol=0, atol=1e-9)
     # The returned point is at that distance and lies on the tree (ties may pick another one).
     np.testing.assert_allclose(np.linalg.norm(pts - near, axis=1), d_ref, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(distance_to_tree_reference(near, tree, nodes_only)[0], 0.0,
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        distance_to_tree_reference(near, tree, nodes_only)[0], 0.0, atol=1e-9
+    )
 
 
 def test_nearest_point_gives_the_gradient_of_h(rng):
@@ -462,6 +471,7 @@ def test_nearest_point_gives_the_gradient_of_h(rng):
     for axis in (0, 1):
         step = np.zeros(2)
         step[axis] = h
-        numeric = (distance_to_tree(pts + step, tree)[0]
-                   - distance_to_tree(pts - step, tree)[0]) / (2 * h)
+        numeric = (
+            distance_to_tree(pts + step, tree)[0] - distance_to_tree(pts - step, tree)[0]
+        ) / (2 * h)
         np.testing.assert_allclose(numeric, grad[:, axis], atol=1e-5)

@@ -1,4 +1,5 @@
 """Helpers for vehicle emulator tests: a tiny in-memory GCS speaking pymavlink."""
+
 from __future__ import annotations
 
 
@@ -32,8 +33,11 @@ class FakeGcs:
         return self.frame(mavlink.MAVLink_command_long_message(target, 1, cmd, 0, *p))
 
     def local_target(self, x, y, z, mask=3576, frame=1, vx=0.0, vy=0.0, vz=0.0, target=1):
-        return self.frame(mavlink.MAVLink_set_position_target_local_ned_message(
-            0, target, 1, frame, mask, x, y, z, vx, vy, vz, 0, 0, 0, 0, 0))
+        return self.frame(
+            mavlink.MAVLink_set_position_target_local_ned_message(
+                0, target, 1, frame, mask, x, y, z, vx, vy, vz, 0, 0, 0, 0, 0
+            )
+        )
 
     def decode(self, datagrams) -> list:
         out = []
@@ -44,11 +48,12 @@ class FakeGcs:
 
 
 def acks(msgs, command=None):
-    return [m.result for m in msgs if m.get_type() == "COMMAND_ACK"
-            and (command is None or m.command == command)]
+    return [
+        m.result
+        for m in msgs
+        if m.get_type() == "COMMAND_ACK" and (command is None or m.command == command)
+    ]
 
 
 def of_type(msgs, mtype):
     return [m for m in msgs if m.get_type() == mtype]
-
-

@@ -28,9 +28,14 @@ def test_alt_roundtrip(alt):
     assert abs(wire.m_from_alt_mm(wire.alt_mm_from_m(alt)) - alt) <= 0.5e-3 + 1e-9
 
 
-@pytest.mark.parametrize("value,ptype", [(7, wire.dialect.MAV_PARAM_TYPE_INT32),
-                                         (-3, wire.dialect.MAV_PARAM_TYPE_INT32),
-                                         (2.5, wire.dialect.MAV_PARAM_TYPE_REAL32)])
+@pytest.mark.parametrize(
+    "value,ptype",
+    [
+        (7, wire.dialect.MAV_PARAM_TYPE_INT32),
+        (-3, wire.dialect.MAV_PARAM_TYPE_INT32),
+        (2.5, wire.dialect.MAV_PARAM_TYPE_REAL32),
+    ],
+)
 @pytest.mark.parametrize("bytewise", [False, True])
 def test_param_encoding_roundtrip(value, ptype, bytewise):
     w = wire.param_to_wire_float(value, ptype, bytewise)
@@ -39,8 +44,7 @@ def test_param_encoding_roundtrip(value, ptype, bytewise):
 
 def test_split_frames_and_decode_three_ways():
     tx = wire.Codec(7)
-    frames = [tx.encode(wire.dialect.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3))
-              for _ in range(3)]
+    frames = [tx.encode(wire.dialect.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3)) for _ in range(3)]
     rx = wire.Codec(1)
     # one frame per datagram
     assert sum(len(rx.decode_datagram(f).messages) for f in frames) == 3

@@ -5,6 +5,7 @@ Firmware references: ArduPilot libraries/GCS_MAVLink/GCS_Common.cpp, MissionItem
 ArduCopter/GCS_Mavlink.cpp; PX4 src/modules/mavlink/mavlink_receiver.cpp, mavlink_mission.cpp,
 mavlink_main.cpp (see vehicle_emu/missions.py and vehicle_emu/link.py).
 """
+
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -48,8 +49,11 @@ class Rig:
         assert counts[0].target_system == 255  # answered to the requester
         items = []
         for seq in range(counts[0].count):
-            req = (mavlink.MAVLink_mission_request_int_message if as_int
-                   else mavlink.MAVLink_mission_request_message)
+            req = (
+                mavlink.MAVLink_mission_request_int_message
+                if as_int
+                else mavlink.MAVLink_mission_request_message
+            )
             out = self.msg(req(1, 1, seq, mission_type))
             got = of_type(out, "MISSION_ITEM_INT" if as_int else "MISSION_ITEM")
             assert len(got) == 1 and got[0].seq == seq and got[0].mission_type == mission_type
@@ -71,8 +75,11 @@ class Rig:
             req_types.append(r.get_type())
             assert r.mission_type == mission_type and r.target_system == 255
             frame, cmd, x, y, z = items[r.seq]
-            out = self.msg(mavlink.MAVLink_mission_item_int_message(
-                1, 1, r.seq, frame, cmd, 0, 1, 0, 0, 0, 0, x, y, z, mission_type))
+            out = self.msg(
+                mavlink.MAVLink_mission_item_int_message(
+                    1, 1, r.seq, frame, cmd, 0, 1, 0, 0, 0, 0, x, y, z, mission_type
+                )
+            )
         return req_types, mission_acks
 
 
@@ -89,6 +96,7 @@ def rig(request, gcs):
 # QGroundControl / Mission Planner connect sequence
 # ---------------------------------------------------------------------------------------------
 
+
 def test_qgc_connect_handshake(rig, gcs):
     core = rig.core
     rig.send(gcs.heartbeat())
@@ -97,8 +105,15 @@ def test_qgc_connect_handshake(rig, gcs):
     assert [m.get_type() for m in out] == ["COMMAND_ACK", "AUTOPILOT_VERSION"]
     assert out[0].result == ACCEPTED and out[0].target_system == 255
     caps = out[1].capabilities
-    for bit in ("MAVLINK2", "MISSION_INT", "COMMAND_INT", "SET_POSITION_TARGET_GLOBAL_INT",
-                "SET_POSITION_TARGET_LOCAL_NED", "MISSION_FENCE", "MISSION_RALLY"):
+    for bit in (
+        "MAVLINK2",
+        "MISSION_INT",
+        "COMMAND_INT",
+        "SET_POSITION_TARGET_GLOBAL_INT",
+        "SET_POSITION_TARGET_LOCAL_NED",
+        "MISSION_FENCE",
+        "MISSION_RALLY",
+    ):
         assert caps & getattr(mavlink, "MAV_PROTOCOL_CAPABILITY_" + bit), bit
     bytewise = bool(caps & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE)
     c_cast = bool(caps & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
@@ -108,7 +123,8 @@ def test_qgc_connect_handshake(rig, gcs):
     # 2. PROTOCOL_VERSION (300): not in this emulator; the firmware rule for an unknown id
     #    (ArduPilot FAILED, PX4 DENIED) - an ACK either way, never silence.
     assert acks(rig.send(gcs.command(512, 300)), 512) == [
-        mavlink.MAV_RESULT_DENIED if rig.px4 else mavlink.MAV_RESULT_FAILED]
+        mavlink.MAV_RESULT_DENIED if rig.px4 else mavlink.MAV_RESULT_FAILED
+    ]
     # 3. Legacy REQUEST_AUTOPILOT_CAPABILITIES.
     out = rig.send(gcs.command(520, 1))
     assert acks(out, 520) == [ACCEPTED] and len(of_type(out, "AUTOPILOT_VERSION")) == 1
@@ -159,10 +175,13 @@ def test_qgc_connect_handshake(rig, gcs):
 def test_param_value_consistent_by_index_and_name(rig, gcs):
     names = rig.core.params.names()
     for i, name in enumerate(names):
-        by_idx = of_type(rig.msg(mavlink.MAVLink_param_request_read_message(1, 1, b"", i)),
-                         "PARAM_VALUE")
-        by_name = of_type(rig.msg(mavlink.MAVLink_param_request_read_message(
-            1, 1, name.encode(), -1)), "PARAM_VALUE")
+        by_idx = of_type(
+            rig.msg(mavlink.MAVLink_param_request_read_message(1, 1, b"", i)), "PARAM_VALUE"
+        )
+        by_name = of_type(
+            rig.msg(mavlink.MAVLink_param_request_read_message(1, 1, name.encode(), -1)),
+            "PARAM_VALUE",
+        )
         assert len(by_idx) == len(by_name) == 1
         for pv in (by_idx[0], by_name[0]):
             assert pv.param_id == name and pv.param_index == i
@@ -181,6 +200,7 @@ def test_ardupilot_sys_status_reports_geofence_healthy(gcs):
 # Mission protocol
 # ---------------------------------------------------------------------------------------------
 
+
 def test_ardupilot_empty_mission_is_home_only(gcs):
     rig = Rig(gcs, "ardupilot")
     items = rig.download(T_MISSION)
@@ -192,8 +212,7 @@ def test_ardupilot_empty_mission_is_home_only(gcs):
     legacy = rig.download(T_MISSION, as_int=False)
     assert legacy[0].x == pytest.approx(47.5) and legacy[0].y == pytest.approx(8.5)
     out = rig.msg(mavlink.MAVLink_mission_request_int_message(1, 1, 1, T_MISSION))
-    assert [a.type for a in of_type(out, "MISSION_ACK")] == [
-        mavlink.MAV_MISSION_INVALID_SEQUENCE]
+    assert [a.type for a in of_type(out, "MISSION_ACK")] == [mavlink.MAV_MISSION_INVALID_SEQUENCE]
 
 
 def test_px4_empty_mission_has_no_items(gcs):
@@ -212,7 +231,7 @@ def test_mission_upload_then_download(rig, gcs):
     assert [(a.type, a.mission_type) for a in mission_acks] == [(M_ACCEPTED, T_MISSION)]
     got = rig.download(T_MISSION)
     assert len(got) == len(items)
-    for it, (frame, cmd, x, y, z) in list(zip(got, items))[(0 if rig.px4 else 1):]:
+    for it, (frame, cmd, x, y, z) in list(zip(got, items))[(0 if rig.px4 else 1) :]:
         assert (it.frame, it.command, it.x, it.y) == (frame, cmd, x, y)
         assert it.z == pytest.approx(z)
     # MISSION_CURRENT.total counts the plan without ArduPilot's home.
@@ -241,36 +260,52 @@ def test_upload_request_resent_then_cancelled(rig, gcs):
     assert [a.type for a in of_type(out, "MISSION_ACK")] == [mavlink.MAV_MISSION_DENIED]
     out = rig.run(9.0)
     assert [a.type for a in of_type(out, "MISSION_ACK")] == [
-        mavlink.MAV_MISSION_OPERATION_CANCELLED]
+        mavlink.MAV_MISSION_OPERATION_CANCELLED
+    ]
     assert of_type(rig.run(12.0), "MISSION_ACK") == []
     assert len(rig.download(T_MISSION)) == (0 if rig.px4 else 1)  # nothing was stored
 
 
 def test_upload_wrong_seq_and_second_gcs(rig, gcs):
     from emu_helpers import FakeGcs
+
     rig.msg(mavlink.MAVLink_mission_count_message(1, 1, 1, T_MISSION))
-    out = rig.msg(mavlink.MAVLink_mission_item_int_message(
-        1, 1, 5, 6, 16, 0, 1, 0, 0, 0, 0, 475001000, 85001000, 10.0, T_MISSION))
+    out = rig.msg(
+        mavlink.MAVLink_mission_item_int_message(
+            1, 1, 5, 6, 16, 0, 1, 0, 0, 0, 0, 475001000, 85001000, 10.0, T_MISSION
+        )
+    )
     assert [a.type for a in of_type(out, "MISSION_ACK")] == [mavlink.MAV_MISSION_INVALID_SEQUENCE]
     other = FakeGcs(sysid=254)
-    rig.core.receive_datagram(other.frame(mavlink.MAVLink_mission_count_message(
-        1, 1, 3, T_MISSION)), GCS_ADDR, rig.t)
+    rig.core.receive_datagram(
+        other.frame(mavlink.MAVLink_mission_count_message(1, 1, 3, T_MISSION)), GCS_ADDR, rig.t
+    )
     out = gcs.decode(rig.core.datagrams_to_send(rig.t))
     assert [(a.type, a.target_system) for a in of_type(out, "MISSION_ACK")] == [
-        (mavlink.MAV_MISSION_DENIED, 254)]
-    out = rig.msg(mavlink.MAVLink_mission_item_int_message(
-        1, 1, 0, 6, 16, 0, 1, 0, 0, 0, 0, 475001000, 85001000, 10.0, T_MISSION))
+        (mavlink.MAV_MISSION_DENIED, 254)
+    ]
+    out = rig.msg(
+        mavlink.MAVLink_mission_item_int_message(
+            1, 1, 0, 6, 16, 0, 1, 0, 0, 0, 0, 475001000, 85001000, 10.0, T_MISSION
+        )
+    )
     assert [a.type for a in of_type(out, "MISSION_ACK")] == [M_ACCEPTED]
     # An item outside any upload is an error, not silence.
-    out = rig.msg(mavlink.MAVLink_mission_item_int_message(
-        1, 1, 0, 6, 16, 0, 1, 0, 0, 0, 0, 475001000, 85001000, 10.0, T_MISSION))
+    out = rig.msg(
+        mavlink.MAVLink_mission_item_int_message(
+            1, 1, 0, 6, 16, 0, 1, 0, 0, 0, 0, 475001000, 85001000, 10.0, T_MISSION
+        )
+    )
     assert [a.type for a in of_type(out, "MISSION_ACK")] == [mavlink.MAV_MISSION_ERROR]
 
 
 def test_fence_and_rally_upload_download_clear(rig, gcs):
     poly = mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION
-    fence = [_wp(47.49, 8.49, 0, cmd=poly, frame=5), _wp(47.51, 8.49, 0, cmd=poly, frame=5),
-             _wp(47.51, 8.51, 0, cmd=poly, frame=5)]
+    fence = [
+        _wp(47.49, 8.49, 0, cmd=poly, frame=5),
+        _wp(47.51, 8.49, 0, cmd=poly, frame=5),
+        _wp(47.51, 8.51, 0, cmd=poly, frame=5),
+    ]
     _, mission_acks = rig.upload(T_FENCE, fence)
     assert [(a.type, a.mission_type) for a in mission_acks] == [(M_ACCEPTED, T_FENCE)]
     rally = [_wp(47.5005, 8.5005, 15.0, cmd=mavlink.MAV_CMD_NAV_RALLY_POINT)]
@@ -291,16 +326,18 @@ def test_fence_and_rally_upload_download_clear(rig, gcs):
 # AUTO is refused, loudly; ArduPilot guided waypoints via MISSION_ITEM current=2
 # ---------------------------------------------------------------------------------------------
 
+
 def _texts(msgs):
     return [m.text for m in of_type(msgs, "STATUSTEXT")]
 
 
 def test_auto_mode_refused_with_statustext(rig, gcs):
     mode0 = rig.core.custom_mode
-    set_auto = (gcs.command(176, 1, 4, 4) if rig.px4 else gcs.command(176, 1, 3))
+    set_auto = gcs.command(176, 1, 4, 4) if rig.px4 else gcs.command(176, 1, 3)
     out = rig.send(set_auto)
-    assert acks(out, 176) == [mavlink.MAV_RESULT_TEMPORARILY_REJECTED if rig.px4
-                              else mavlink.MAV_RESULT_FAILED]
+    assert acks(out, 176) == [
+        mavlink.MAV_RESULT_TEMPORARILY_REJECTED if rig.px4 else mavlink.MAV_RESULT_FAILED
+    ]
     assert _texts(out) and rig.core.custom_mode == mode0
     home = [_wp(*HOME, frame=0)] if not rig.px4 else []
     rig.upload(T_MISSION, home + [_wp(47.5001, 8.5001, 20.0)])
@@ -316,7 +353,8 @@ def test_auto_mode_refused_with_statustext(rig, gcs):
 def test_ardupilot_guided_mission_item_current2(gcs):
     rig = Rig(gcs, "ardupilot")
     item = mavlink.MAVLink_mission_item_int_message(
-        1, 1, 0, 3, 16, 2, 0, 0, 0, 0, 0, 475004500, 85000000, 20.0, T_MISSION)
+        1, 1, 0, 3, 16, 2, 0, 0, 0, 0, 0, 475004500, 85000000, 20.0, T_MISSION
+    )
     out = rig.msg(item)  # STABILIZE, disarmed: refused
     assert [a.type for a in of_type(out, "MISSION_ACK")] == [mavlink.MAV_MISSION_ERROR]
     assert acks(rig.send(gcs.command(176, 1, 4)), 176) == [ACCEPTED]
@@ -331,7 +369,8 @@ def test_ardupilot_guided_mission_item_current2(gcs):
     assert down == pytest.approx(-20.0, abs=0.5)
     # current = 3: altitude change only.
     alt = mavlink.MAVLink_mission_item_int_message(
-        1, 1, 0, 3, 16, 3, 0, 0, 0, 0, 0, 0, 0, 12.0, T_MISSION)
+        1, 1, 0, 3, 16, 3, 0, 0, 0, 0, 0, 0, 0, 12.0, T_MISSION
+    )
     assert [a.type for a in of_type(rig.msg(alt), "MISSION_ACK")] == [M_ACCEPTED]
     rig.run(35.0)
     assert rig.core.local_pos_ned_m == pytest.approx([50.0, 0.0, -12.0], abs=1.0)

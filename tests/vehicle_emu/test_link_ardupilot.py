@@ -68,11 +68,16 @@ def test_only_heartbeat_until_streams_requested(gcs):
 
 def test_set_message_interval_and_request_data_stream(gcs):
     rig = Rig(gcs)
-    assert acks(rig.send(gcs.command(511, 33, 200_000)), 511) == [ACCEPTED]   # 5 Hz
+    assert acks(rig.send(gcs.command(511, 33, 200_000)), 511) == [ACCEPTED]  # 5 Hz
     msgs = rig.run(2.0)
     assert 9 <= len(of_type(msgs, "GLOBAL_POSITION_INT")) <= 11
-    rig.send(gcs.frame(mavlink.MAVLink_request_data_stream_message(
-        1, 1, mavlink.MAV_DATA_STREAM_EXTENDED_STATUS, 2, 1)))
+    rig.send(
+        gcs.frame(
+            mavlink.MAVLink_request_data_stream_message(
+                1, 1, mavlink.MAV_DATA_STREAM_EXTENDED_STATUS, 2, 1
+            )
+        )
+    )
     msgs = rig.run(4.0)
     assert 3 <= len(of_type(msgs, "SYS_STATUS")) <= 5
     assert 3 <= len(of_type(msgs, "GPS_RAW_INT")) <= 5
@@ -109,8 +114,11 @@ def test_mode_arm_takeoff_rules(gcs):
     assert acks(rig.send(gcs.command(22, 0, 0, 0, 0, 0, 0, -1)), 22) == [FAILED]
     assert acks(rig.send(gcs.command(22, 0, 0, 0, 0, 0, 0, 10)), 22) == [ACCEPTED]
     climb = []
-    rig.run(2.0, hb_period_s=1.0,
-            on_msg=lambda m: climb.append(m) if m.get_type() == "HEARTBEAT" else None)
+    rig.run(
+        2.0,
+        hb_period_s=1.0,
+        on_msg=lambda m: climb.append(m) if m.get_type() == "HEARTBEAT" else None,
+    )
     assert climb[-1].base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED and climb[-1].custom_mode == 4
     assert not rig.core.landed
     # a second takeoff while flying is refused ("can't takeoff again")
@@ -163,16 +171,47 @@ def test_global_int_frames(gcs):
     rig = Rig(gcs)
     rig.guided_armed_at(10.0)
     from planner.geometry import ned_to_geodetic
+
     lat, lon, _ = ned_to_geodetic(np.array([30.0, 20.0, 0.0]), 47.5, 8.5, 400.0)
     msg = mavlink.MAVLink_set_position_target_global_int_message(
-        0, 1, 1, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 3576, int(round(float(lat) * 1e7)),
-        int(round(float(lon) * 1e7)), 12.0, 0, 0, 0, 0, 0, 0, 0, 0)
+        0,
+        1,
+        1,
+        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+        3576,
+        int(round(float(lat) * 1e7)),
+        int(round(float(lon) * 1e7)),
+        12.0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+    )
     rig.send(gcs.frame(msg))
     rig.run(rig.t + 10, hb_period_s=1.0)
     assert np.allclose(rig.core.local_pos_ned_m, (30, 20, -12), atol=0.2)
     msg = mavlink.MAVLink_set_position_target_global_int_message(
-        0, 1, 1, mavlink.MAV_FRAME_GLOBAL_INT, 3576, int(round(float(lat) * 1e7)),
-        int(round(float(lon) * 1e7)), 420.0, 0, 0, 0, 0, 0, 0, 0, 0)  # AMSL
+        0,
+        1,
+        1,
+        mavlink.MAV_FRAME_GLOBAL_INT,
+        3576,
+        int(round(float(lat) * 1e7)),
+        int(round(float(lon) * 1e7)),
+        420.0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+    )  # AMSL
     rig.send(gcs.frame(msg))
     rig.run(rig.t + 6, hb_period_s=1.0)
     assert rig.core.local_pos_ned_m[2] == pytest.approx(-20, abs=0.2)
@@ -188,10 +227,10 @@ def test_velocity_target_stops_after_guid_timeout(gcs):
     rig.run(t_cmd + 2.9, hb_period_s=1.0)
     moving = rig.core.physics.vel_ned_m_s[0, 0]
     assert moving == pytest.approx(2.0, abs=0.05)
-    rig.run(t_cmd + 5.0, hb_period_s=1.0)   # GUID_TIMEOUT = 3 s
+    rig.run(t_cmd + 5.0, hb_period_s=1.0)  # GUID_TIMEOUT = 3 s
     assert abs(rig.core.physics.vel_ned_m_s[0, 0]) < 0.05
     moved = rig.core.local_pos_ned_m[0] - start[0]
-    assert 5.5 < moved < 7.0                   # ~3 s at 2 m/s, then stopped
+    assert 5.5 < moved < 7.0  # ~3 s at 2 m/s, then stopped
     pos = rig.core.local_pos_ned_m.copy()
     rig.run(rig.t + 5, hb_period_s=1.0)
     assert np.allclose(rig.core.local_pos_ned_m, pos, atol=0.05)
@@ -207,23 +246,23 @@ def test_gcs_failsafe_rtl_home_and_stays_in_rtl(gcs):
     rig.send(gcs.local_target(60, 0, -10))
     rig.run(rig.t + 10, hb_period_s=1.0)
     t_last_hb = rig.last_hb_t
-    rig.run(t_last_hb + 4.9)                      # heartbeats stop
+    rig.run(t_last_hb + 4.9)  # heartbeats stop
     assert rig.core.mode_name == "GUIDED"
     rig.run(t_last_hb + 5.2)
     assert rig.core.mode_name == "RTL" and rig.core.gcs_failsafe
     fs = [e for e in rig.events() if isinstance(e, ev.FailsafeTriggered)]
     assert fs and fs[0].action == "RTL" and 5.0 < fs[0].t_s - t_last_hb <= 5.1
     d0 = np.hypot(*rig.core.local_pos_ned_m[:2])
-    rig.run(rig.t + 6)     # climbs to RTL_ALT (15 m) first, then flies home at WPNAV_SPEED
+    rig.run(rig.t + 6)  # climbs to RTL_ALT (15 m) first, then flies home at WPNAV_SPEED
     assert rig.core.local_pos_ned_m[2] == pytest.approx(-15, abs=0.3)
     d1 = np.hypot(*rig.core.local_pos_ned_m[:2])
-    assert d1 < d0 - 10                          # heading home
+    assert d1 < d0 - 10  # heading home
     # GCS comes back: failsafe clears but the vehicle stays in RTL
     rig.run(rig.t + 2, hb_period_s=1.0)
     assert not rig.core.gcs_failsafe and rig.core.mode_name == "RTL"
     rig.run(rig.t + 40, hb_period_s=1.0)
     assert np.hypot(*rig.core.local_pos_ned_m[:2]) < 1.0
-    assert rig.core.landed and not rig.core.armed   # RTL_ALT_FINAL = 0: land and disarm
+    assert rig.core.landed and not rig.core.armed  # RTL_ALT_FINAL = 0: land and disarm
     # and a GCS can take it back
     assert acks(rig.send(gcs.command(176, 1, 4)), 176) == [ACCEPTED]
 
@@ -250,11 +289,18 @@ def _gcs_lost_in(gcs, mode: int, fs_options: int) -> Rig:
 # bit 4 (16) continues modes that are not ``is_autopilot()`` (mode.h: LOITER, ALT_HOLD, ...).
 # Bit 2 (4) is RC_CONTINUE_IF_GUIDED, the RC failsafe only: GUIDED gets the FS_GCS_ENABLE action
 # (1, RTL) whatever FS_OPTIONS says.
-@pytest.mark.parametrize("mode, fs_options, after", [
-    (4, 4, "RTL"), (4, 2 | 4 | 16, "RTL"),              # GUIDED: no bit keeps it
-    (5, 16, "LOITER"), (5, 0, "RTL"), (5, 4, "RTL"),    # LOITER: pilot-controlled, bit 4 only
-    (3, 2, "AUTO"), (3, 16, "RTL"),                     # AUTO: bit 1 only (is_autopilot)
-])
+@pytest.mark.parametrize(
+    "mode, fs_options, after",
+    [
+        (4, 4, "RTL"),
+        (4, 2 | 4 | 16, "RTL"),  # GUIDED: no bit keeps it
+        (5, 16, "LOITER"),
+        (5, 0, "RTL"),
+        (5, 4, "RTL"),  # LOITER: pilot-controlled, bit 4 only
+        (3, 2, "AUTO"),
+        (3, 16, "RTL"),  # AUTO: bit 1 only (is_autopilot)
+    ],
+)
 def test_gcs_failsafe_fs_options(gcs, mode, fs_options, after):
     rig = _gcs_lost_in(gcs, mode, fs_options)
     assert rig.core.mode_name == after
@@ -264,9 +310,10 @@ def test_gcs_failsafe_fs_options(gcs, mode, fs_options, after):
 
 def test_failsafe_ignores_heartbeats_from_other_sysids():
     from emu_helpers import FakeGcs
+
     rig = Rig(FakeGcs(sysid=254))
     rig.run(2.0, hb_period_s=1.0)
-    assert rig.core.stats.gcs_heartbeats == 0   # only SYSID_MYGCS (255) counts
+    assert rig.core.stats.gcs_heartbeats == 0  # only SYSID_MYGCS (255) counts
 
 
 def test_param_protocol(gcs):
@@ -274,11 +321,21 @@ def test_param_protocol(gcs):
     out = rig.send(gcs.frame(mavlink.MAVLink_param_request_list_message(1, 1)))
     pv = of_type(out, "PARAM_VALUE")
     names = [p.param_id for p in pv]
-    assert {"SYSID_THISMAV", "FS_GCS_ENABLE", "FS_GCS_TIMEOUT", "GUID_TIMEOUT",
-            "WPNAV_SPEED"} <= set(names)
+    assert {
+        "SYSID_THISMAV",
+        "FS_GCS_ENABLE",
+        "FS_GCS_TIMEOUT",
+        "GUID_TIMEOUT",
+        "WPNAV_SPEED",
+    } <= set(names)
     assert all(p.param_count == len(pv) for p in pv)
-    out = rig.send(gcs.frame(mavlink.MAVLink_param_set_message(
-        1, 1, b"WPNAV_SPEED", 300.0, mavlink.MAV_PARAM_TYPE_REAL32)))
+    out = rig.send(
+        gcs.frame(
+            mavlink.MAVLink_param_set_message(
+                1, 1, b"WPNAV_SPEED", 300.0, mavlink.MAV_PARAM_TYPE_REAL32
+            )
+        )
+    )
     assert of_type(out, "PARAM_VALUE")[0].param_value == 300.0
     out = rig.send(gcs.frame(mavlink.MAVLink_param_request_read_message(1, 1, b"GUID_TIMEOUT", -1)))
     assert of_type(out, "PARAM_VALUE")[0].param_value == pytest.approx(3.0)
@@ -286,8 +343,7 @@ def test_param_protocol(gcs):
     rig.guided_armed_at(10.0)
     rig.send(gcs.local_target(50, 0, -10))
     top = []
-    rig.run(rig.t + 5, hb_period_s=1.0,
-            on_msg=lambda m: None)
+    rig.run(rig.t + 5, hb_period_s=1.0, on_msg=lambda m: None)
     top.append(np.hypot(*rig.core.physics.vel_ned_m_s[0, :2]))
     assert max(top) <= 3.0 + 1e-9
 

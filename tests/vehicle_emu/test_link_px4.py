@@ -1,4 +1,5 @@
 """PX4 personality: packed custom_mode, unpacked DO_SET_MODE, offboard engage/loss, data link."""
+
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -45,7 +46,7 @@ def test_px4_heartbeat_and_default_streams(gcs):
     msgs = rig.run(2.0)
     hb = of_type(msgs, "HEARTBEAT")[0]
     assert hb.autopilot == mavlink.MAV_AUTOPILOT_PX4
-    assert hb.custom_mode == px4_custom_mode(4, 3) == 50593792   # AUTO.LOITER
+    assert hb.custom_mode == px4_custom_mode(4, 3) == 50593792  # AUTO.LOITER
     types = {m.get_type() for m in msgs}
     # PX4's mavlink module streams without being asked
     assert {"GLOBAL_POSITION_INT", "SYS_STATUS", "EXTENDED_SYS_STATE"} <= types
@@ -54,9 +55,9 @@ def test_px4_heartbeat_and_default_streams(gcs):
 
 def test_do_set_mode_uses_unpacked_main_sub(gcs):
     rig = Rig(gcs)
-    assert acks(rig.send(gcs.command(176, 1, 3, 0)), 176) == [ACCEPTED]       # POSCTL
+    assert acks(rig.send(gcs.command(176, 1, 3, 0)), 176) == [ACCEPTED]  # POSCTL
     assert rig.core.custom_mode == 196608
-    assert acks(rig.send(gcs.command(176, 1, 4, 5)), 176) == [ACCEPTED]       # AUTO.RTL
+    assert acks(rig.send(gcs.command(176, 1, 4, 5)), 176) == [ACCEPTED]  # AUTO.RTL
     assert rig.core.custom_mode == 84148224
     # the packed word in param2 is not a main mode: nothing changes
     assert acks(rig.send(gcs.command(176, 1, 196608, 0)), 176) == [REJECTED]
@@ -72,10 +73,10 @@ def test_offboard_needs_a_recent_setpoint_not_a_long_stream(gcs):
     handle_message_set_position_target_local_ned publishes that topic on every valid setpoint.
     So one setpoint is enough (MAVSDK's Offboard::start() sends one, then switches)."""
     rig = Rig(gcs)
-    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [REJECTED]          # no setpoint yet
+    assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [REJECTED]  # no setpoint yet
     rig.run(0.5)
-    rig.send(gcs.local_target(0, 0, -5))                                       # exactly one
-    rig.run(rig.t + 0.9)                                                       # 0.9 s < 1.0 s
+    rig.send(gcs.local_target(0, 0, -5))  # exactly one
+    rig.run(rig.t + 0.9)  # 0.9 s < 1.0 s
     assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [ACCEPTED]
     assert rig.core.custom_mode == OFFBOARD
     # arm in offboard while streaming: climbs to the setpoint
@@ -87,7 +88,7 @@ def test_offboard_needs_a_recent_setpoint_not_a_long_stream(gcs):
 def test_offboard_refused_when_the_last_setpoint_is_older_than_com_of_loss_t(gcs):
     rig = Rig(gcs, params={"COM_OF_LOSS_T": 1.0})
     rig.send(gcs.local_target(0, 0, -5))
-    rig.run(1.1)                                                               # 1.1 s > 1.0 s
+    rig.run(1.1)  # 1.1 s > 1.0 s
     assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [REJECTED]
     assert rig.core.mode_name == "AUTO.LOITER"
     # A slow stream (0.6 s period, < 2 Hz) keeps the signal: only its age counts.
@@ -95,8 +96,13 @@ def test_offboard_refused_when_the_last_setpoint_is_older_than_com_of_loss_t(gcs
     assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [ACCEPTED]
 
 
-@pytest.mark.parametrize("frame, mask", [(6, 3576),       # GLOBAL_RELATIVE_ALT: not a local frame
-                                         (1, 0b111111111)])  # pos, vel, acc all ignored
+@pytest.mark.parametrize(
+    "frame, mask",
+    [
+        (6, 3576),  # GLOBAL_RELATIVE_ALT: not a local frame
+        (1, 0b111111111),
+    ],
+)  # pos, vel, acc all ignored
 def test_px4_setpoints_that_publish_no_offboard_control_mode_do_not_count(gcs, frame, mask):
     """mavlink_receiver.cpp: an unsupported frame returns before publishing; a setpoint with no
     position, velocity or acceleration is "invalid" and publishes nothing."""
@@ -138,8 +144,11 @@ def _flying_offboard(gcs, sp=(0, 0, -5), **params) -> Rig:
 
 
 def _offboard_failsafes(rig) -> list:
-    return [(e.kind, e.action) for e in iter(rig.core.next_event, None)
-            if isinstance(e, ev.FailsafeTriggered)]
+    return [
+        (e.kind, e.action)
+        for e in iter(rig.core.next_event, None)
+        if isinstance(e, ev.FailsafeTriggered)
+    ]
 
 
 # failsafe.cpp Failsafe::fromOffboardLossActParam: 3 Return, 4 Land, 5 Hold act directly,
@@ -174,22 +183,28 @@ def test_offboard_loss_manual_fallback_with_nav_rcl_act_none_keeps_last_setpoint
     rig.send(gcs.command(176, 1, 6))
     rig.send(gcs.command(400, 1))
     rig.run(8.0, sp=(0, 0, -5))
-    rig.send(gcs.local_target(0, 0, 0, mask=0b110111000111, vx=2.0))    # velocity only
+    rig.send(gcs.local_target(0, 0, 0, mask=0b110111000111, vx=2.0))  # velocity only
     t_stop = rig.t
     north0 = rig.core.local_pos_ned_m[0]
     rig.run(t_stop + 4.0)
     assert rig.core.mode_name == "OFFBOARD" and rig.core.armed
-    assert rig.core.local_pos_ned_m[0] - north0 > 4.0            # still flying north
-    assert _offboard_failsafes(rig) == [("offboard", "NONE")]    # reported once per loss
+    assert rig.core.local_pos_ned_m[0] - north0 > 4.0  # still flying north
+    assert _offboard_failsafes(rig) == [("offboard", "NONE")]  # reported once per loss
     # A setpoint ends the loss; the next loss is a new one.
     rig.run(rig.t + 0.5, sp=(rig.core.local_pos_ned_m[0], 0, -5))
     rig.run(rig.t + 1.2)
     assert _offboard_failsafes(rig) == [("offboard", "NONE")]
 
 
-@pytest.mark.parametrize("params", [{"COM_OBL_RC_ACT": 6}, {"COM_OBL_RC_ACT": 7},
-                                    {"COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 5},
-                                    {"COM_OBL_RC_ACT": 1, "NAV_RCL_ACT": 6}])
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"COM_OBL_RC_ACT": 6},
+        {"COM_OBL_RC_ACT": 7},
+        {"COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 5},
+        {"COM_OBL_RC_ACT": 1, "NAV_RCL_ACT": 6},
+    ],
+)
 def test_offboard_loss_terminate_or_disarm_stops_the_motors_and_falls(gcs, params):
     """COM_OBL_RC_ACT 6 Terminate / 7 Disarm, or a manual fallback without RC whose NAV_RCL_ACT
     is 5 Terminate / 6 Disarm: motors off in the air, the vehicle falls."""
@@ -208,12 +223,12 @@ def test_datalink_loss_returns_home_with_emulator_default(gcs):
     rig.send(gcs.command(176, 1, 6))
     rig.send(gcs.command(400, 1))
     rig.run(8.0, sp=(40, 0, -10))
-    rig.send(gcs.command(176, 1, 4, 3))                          # Hold, no more offboard
+    rig.send(gcs.command(176, 1, 4, 3))  # Hold, no more offboard
     t0 = rig.t
     rig.run(t0 + 4.0, hb=False)
     assert rig.core.mode_name == "AUTO.LOITER"
     rig.run(t0 + 6.0, hb=False)
-    assert rig.core.mode_name == "AUTO.RTL"                    # NAV_DLL_ACT = 2
+    assert rig.core.mode_name == "AUTO.RTL"  # NAV_DLL_ACT = 2
 
 
 def test_px4_takeoff_and_param_bytewise(gcs):
@@ -223,23 +238,26 @@ def test_px4_takeoff_and_param_bytewise(gcs):
     assert acks(rig.send(gcs.command(22, 0, 0, 0, 0, 0, 0, float("nan"))), 22) == [ACCEPTED]
     assert rig.core.mode_name == "AUTO.TAKEOFF"
     rig.run(5.0)
-    assert rig.core.local_pos_ned_m[2] == pytest.approx(-2.5, abs=0.3)   # MIS_TAKEOFF_ALT
+    assert rig.core.local_pos_ned_m[2] == pytest.approx(-2.5, abs=0.3)  # MIS_TAKEOFF_ALT
     assert rig.core.mode_name == "AUTO.LOITER"
     out = rig.send(gcs.frame(mavlink.MAVLink_param_request_read_message(1, 1, b"NAV_DLL_ACT", -1)))
     pv = of_type(out, "PARAM_VALUE")[0]
     import struct
+
     assert struct.unpack("<i", struct.pack("<f", pv.param_value))[0] == 2
 
 
-@pytest.mark.parametrize("frame, flown", [(5, True), (6, True), (0, False), (3, False),
-                                          (10, False)])
+@pytest.mark.parametrize(
+    "frame, flown", [(5, True), (6, True), (0, False), (3, False), (10, False)]
+)
 def test_px4_global_targets_only_in_int_frames(gcs, frame, flown):
     """PX4 mavlink_receiver.cpp takes SET_POSITION_TARGET_GLOBAL_INT in frames 5, 6, 11 only."""
     rig = _flying_offboard(gcs)
     alt = 410.0 if frame in (0, 5) else 10.0  # AMSL (origin at 400 m) or above home
     lat, lon = 47.5 + 20 / 111_200, 8.5
     msg = mavlink.MAVLink_set_position_target_global_int_message(
-        0, 1, 1, frame, 3576, round(lat * 1e7), round(lon * 1e7), alt, 0, 0, 0, 0, 0, 0, 0, 0)
+        0, 1, 1, frame, 3576, round(lat * 1e7), round(lon * 1e7), alt, 0, 0, 0, 0, 0, 0, 0, 0
+    )
     ignored = rig.core.stats.setpoints_ignored
     for _ in range(60):  # 3 s of a 20 Hz stream of that one target
         rig.t = round(rig.t + 0.05, 6)

@@ -4,6 +4,7 @@ MAVProxy is not a test dependency: the test skips unless ``mavproxy.py`` is on P
 ``MAVPROXY`` environment variable names it (e.g. a separate venv's
 ``/tmp/mpvenv/bin/mavproxy.py``, see docs/results/interop.md).
 """
+
 import os
 import shutil
 import subprocess
@@ -49,11 +50,20 @@ def test_mavproxy_params_plans_and_takeoff(tmp_path):
     with run_in_thread(swarm) as emu:
         host, port = emu.addresses[0]
         proc = subprocess.Popen(
-            [MAVPROXY, f"--master=udpout:{host}:{port}", "--nowait",
-             "--default-modules=param,wp,fence,rally,mode,arm,cmdlong",
-             f"--state-basedir={tmp_path}"],
-            cwd=tmp_path, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT, text=True, bufsize=1)
+            [
+                MAVPROXY,
+                f"--master=udpout:{host}:{port}",
+                "--nowait",
+                "--default-modules=param,wp,fence,rally,mode,arm,cmdlong",
+                f"--state-basedir={tmp_path}",
+            ],
+            cwd=tmp_path,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            bufsize=1,
+        )
         out = _Lines(proc.stdout)
 
         def cmd(text):
@@ -63,12 +73,14 @@ def test_mavproxy_params_plans_and_takeoff(tmp_path):
         try:
             # MAVProxy's heartbeats make the emulator learn its address; the vehicle answers.
             assert out.wait_for("Received 14 parameters", deadline), out.lines
-            for command, reply in (("wp list", "Requesting 1 waypoints"),
-                                   ("fence list", "Requesting 0 fence items"),
-                                   ("rally list", "Requesting 0 rally items"),
-                                   ("mode GUIDED", "DO_SET_MODE: ACCEPTED"),
-                                   ("arm throttle", "COMPONENT_ARM_DISARM: ACCEPTED"),
-                                   ("takeoff 10", "NAV_TAKEOFF: ACCEPTED")):
+            for command, reply in (
+                ("wp list", "Requesting 1 waypoints"),
+                ("fence list", "Requesting 0 fence items"),
+                ("rally list", "Requesting 0 rally items"),
+                ("mode GUIDED", "DO_SET_MODE: ACCEPTED"),
+                ("arm throttle", "COMPONENT_ARM_DISARM: ACCEPTED"),
+                ("takeoff 10", "NAV_TAKEOFF: ACCEPTED"),
+            ):
                 cmd(command)
                 assert out.wait_for(reply, deadline), (command, out.lines)
             assert not any("fence breach" in ln for ln in out.lines)

@@ -5,6 +5,7 @@ latches one partner (src/modules/mavlink/mavlink_receiver.cpp, "partner IP"), MA
 ``udpin`` answers only its last sender; the emulator keeps a few peers (several GCS may share an
 endpoint) but forgets them after ``peer_timeout_s`` of silence and keeps at most ``max_peers``.
 """
+
 import logging
 
 import numpy as np
@@ -41,13 +42,13 @@ def test_one_off_senders_are_forgotten_and_capped(gcs):
     hb = gcs.heartbeat()
     for k in range(2000):
         swarm.receive_datagram(0, hb, (f"10.9.{k // 250}.{k % 250}", 40000 + k), 0.01)
-    assert len(swarm.peers[0]) == 4                      # the cap
+    assert len(swarm.peers[0]) == 4  # the cap
     assert swarm.stats["peers_evicted"] == 2000 - 4
     dests, n = _tick(swarm, 0.0, 5.0)
     assert len(dests) == 4
     per_peer_5s = n / 4
     dests, n = _tick(swarm, 5.0, 10.0)
-    assert len(dests) == 4                               # 10 s not yet exceeded
+    assert len(dests) == 4  # 10 s not yet exceeded
     dests, n = _tick(swarm, 10.0, 24.0)
     assert swarm.peers[0] == [] and swarm.stats["peers_expired"] == 4
     # only the ~1 s before the sweep noticed the silence still went out
@@ -59,11 +60,11 @@ def test_a_live_gcs_is_kept_and_a_configured_one_never_expires(gcs):
     swarm = _swarm(peer_timeout_s=10.0, gcs_addrs=[fixed])
     swarm.receive_datagram(0, gcs.heartbeat(), quiet, 0.0)
     t = 0.0
-    while t < 30.0:                                      # `live` sends a heartbeat every 1 s
+    while t < 30.0:  # `live` sends a heartbeat every 1 s
         swarm.receive_datagram(0, gcs.heartbeat(), live, t)
         _tick(swarm, t, t + 1.0)
         t += 1.0
-    assert swarm.peers[0] == [fixed, live]               # quiet expired after 10 s
+    assert swarm.peers[0] == [fixed, live]  # quiet expired after 10 s
     assert swarm.stats["peers_expired"] == 1
     # a returning peer is learned again
     swarm.receive_datagram(0, gcs.heartbeat(), quiet, t)
@@ -75,7 +76,7 @@ def test_eviction_drops_the_least_recently_heard(gcs):
     a, b, c = ("10.0.0.1", 1), ("10.0.0.2", 2), ("10.0.0.3", 3)
     swarm.receive_datagram(0, gcs.heartbeat(), a, 0.0)
     swarm.receive_datagram(0, gcs.heartbeat(), b, 1.0)
-    swarm.receive_datagram(0, gcs.heartbeat(), a, 2.0)   # a heard again: b is now the oldest
+    swarm.receive_datagram(0, gcs.heartbeat(), a, 2.0)  # a heard again: b is now the oldest
     swarm.receive_datagram(0, gcs.heartbeat(), c, 3.0)
     assert swarm.peers[0] == [a, c]
 
@@ -92,6 +93,7 @@ def test_peer_defaults_are_sane():
 # Rate-limited warnings
 # ---------------------------------------------------------------------------------------------
 
+
 def test_rate_limited_log_counts_what_it_suppressed(caplog):
     logger = logging.getLogger("test.ratelimit")
     rl = RateLimitedLog(logger, interval_s=10.0)
@@ -101,7 +103,8 @@ def test_rate_limited_log_counts_what_it_suppressed(caplog):
     assert [r.getMessage() for r in caplog.records] == [
         "bad frame 0",
         "bad frame 100 (99 more suppressed in the last 10 s)",
-        "bad frame 200 (99 more suppressed in the last 10 s)"]
+        "bad frame 200 (99 more suppressed in the last 10 s)",
+    ]
     assert sum(results) == 3 and rl.n_suppressed == 247
     # keys are independent and bounded
     rl2 = RateLimitedLog(logger, interval_s=10.0, max_keys=3)
@@ -114,13 +117,13 @@ def test_garbage_and_unknown_messages_log_once_per_interval(gcs, caplog):
     core = VehicleCore(1, "ardupilot")
     junk = bytes([0xFD, 9, 0, 0, 0, 255, 190, 0x39, 0x30, 0]) + b"\x00" * 11  # id 12345
     with caplog.at_level(logging.INFO, logger="vehicle_emu.link"):
-        for k in range(500):                      # 50 s of 10 Hz garbage
+        for k in range(500):  # 50 s of 10 Hz garbage
             t = k * 0.1
             core.receive_datagram(b"\xfe\x05garbage-garbage" + junk, GCS_ADDR, t)
     st = core.stats
-    assert st.bad_data + st.unknown_msg_ids >= 500     # every one counted ...
+    assert st.bad_data + st.unknown_msg_ids >= 500  # every one counted ...
     lines = [r for r in caplog.records if "bad frame" in r.getMessage()]
-    assert 4 <= len(lines) <= 6                        # ... but logged once per 10 s
+    assert 4 <= len(lines) <= 6  # ... but logged once per 10 s
     assert "suppressed" in lines[-1].getMessage()
 
 
@@ -134,4 +137,4 @@ def test_swarm_cores_share_one_limiter(gcs, caplog):
                 swarm.receive_datagram(0, f, GCS_ADDR, k * 0.05)
     refused = [r for r in caplog.records if "SETUP_SIGNING" in r.getMessage()]
     assert sum(c.stats.signing_rejected for c in swarm.cores) == 500
-    assert len(refused) == 1                           # 5 s < interval: one line for the fleet
+    assert len(refused) == 1  # 5 s < interval: one line for the fleet

@@ -1,4 +1,5 @@
 """Personalities (issue 13.2): firmware differences live in vehicle_emu/personality only."""
+
 import ast
 import pathlib
 
@@ -13,9 +14,13 @@ PKG = pathlib.Path(__file__).resolve().parents[2] / "vehicle_emu"
 
 
 def test_no_personality_branches_outside_the_personality_package():
-    offenders = [f"{p.relative_to(PKG)}:{i}" for p in PKG.rglob("*.py")
-                 if "personality" not in p.parts
-                 for i, line in enumerate(p.read_text().splitlines(), 1) if "is_px4" in line]
+    offenders = [
+        f"{p.relative_to(PKG)}:{i}"
+        for p in PKG.rglob("*.py")
+        if "personality" not in p.parts
+        for i, line in enumerate(p.read_text().splitlines(), 1)
+        if "is_px4" in line
+    ]
     assert offenders == []
 
 

@@ -19,9 +19,16 @@ ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
 
 def rally_item(north_m: float, east_m: float) -> MissionItem:
     lat, lon, _ = ned_to_geodetic(np.array([[north_m, east_m, 0.0]]), *ORIGIN)
-    return MissionItem(mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mavlink.MAV_CMD_NAV_RALLY_POINT,
-                       0, 1, (0.0, 0.0, 0.0, 0.0), deg_to_e7(float(lat[0])),
-                       deg_to_e7(float(lon[0])), 40.0)
+    return MissionItem(
+        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+        mavlink.MAV_CMD_NAV_RALLY_POINT,
+        0,
+        1,
+        (0.0, 0.0, 0.0, 0.0),
+        deg_to_e7(float(lat[0])),
+        deg_to_e7(float(lon[0])),
+        40.0,
+    )
 
 
 def destination(personality: str, at_ne_m, rally_ne_m, **params) -> np.ndarray:
@@ -30,42 +37,48 @@ def destination(personality: str, at_ne_m, rally_ne_m, **params) -> np.ndarray:
     core._missions.items[T_RALLY] = [rally_item(*p) for p in rally_ne_m]
     core.physics.pos_ned_m[0] = (at_ne_m[0], at_ne_m[1], -20.0)
     dest = core.pers.rtl_destination_ned_m()
-    assert dest[2] == core.home_ned_m[2]          # the return altitude stays the core's
+    assert dest[2] == core.home_ned_m[2]  # the return altitude stays the core's
     return np.round(dest[:2], 1)
 
 
 HOME = [0.0, 0.0]
 
 
-@pytest.mark.parametrize("at, points, params, expect", [
-    ((200, 0), [], {}, HOME),                                       # no rally point: home
-    ((200, 0), [(100, 0), (0, 100)], {}, [100, 0]),                 # the nearest point
-    ((10, 0), [(100, 0)], {}, HOME),                                # RALLY_INCL_HOME 1: home nearer
-    ((10, 0), [(100, 0)], {"RALLY_INCL_HOME": 0}, [100, 0]),        # ... not considered
-    ((500, 0), [(150, 0)], {}, HOME),                               # 350 m > RALLY_LIMIT_KM 0.3
-    ((500, 0), [(150, 0)], {"RALLY_LIMIT_KM": 0.0}, [150, 0]),      # no limit
-    ((51, 0), [(101, 0)], {}, [101, 0]),                            # 50 m < 51 m: strict, no margin
-    ((0, 200), [(0, 100), (0, 100)], {}, [0, 100]),                 # equal points: the first
-])
+@pytest.mark.parametrize(
+    "at, points, params, expect",
+    [
+        ((200, 0), [], {}, HOME),  # no rally point: home
+        ((200, 0), [(100, 0), (0, 100)], {}, [100, 0]),  # the nearest point
+        ((10, 0), [(100, 0)], {}, HOME),  # RALLY_INCL_HOME 1: home nearer
+        ((10, 0), [(100, 0)], {"RALLY_INCL_HOME": 0}, [100, 0]),  # ... not considered
+        ((500, 0), [(150, 0)], {}, HOME),  # 350 m > RALLY_LIMIT_KM 0.3
+        ((500, 0), [(150, 0)], {"RALLY_LIMIT_KM": 0.0}, [150, 0]),  # no limit
+        ((51, 0), [(101, 0)], {}, [101, 0]),  # 50 m < 51 m: strict, no margin
+        ((0, 200), [(0, 100), (0, 100)], {}, [0, 100]),  # equal points: the first
+    ],
+)
 def test_ardupilot_rtl_destination(at, points, params, expect):
     """AP_Rally::calc_best_rally_or_home_location / find_nearest_rally_point (Copter defaults
     RALLY_LIMIT_KM 0.3, RALLY_INCL_HOME 1)."""
     np.testing.assert_allclose(destination("ardupilot", at, points, **params), expect, atol=0.2)
 
 
-@pytest.mark.parametrize("at, points, params, expect", [
-    ((200, 0), [], {}, HOME),
-    ((200, 0), [(100, 0), (0, 100)], {}, [100, 0]),                 # RTL_TYPE 0: closest safe point
-    ((10, 0), [(100, 0)], {}, HOME),                                # home is closer
-    ((10, 0), [(100, 0)], {"RTL_TYPE": 1}, [100, 0]),               # 1: rally before home
-    ((200, 0), [(100, 0)], {"RTL_TYPE": 2}, HOME),                  # 2: rally points not considered
-    ((200, 0), [(100, 0)], {"RTL_TYPE": 3}, [100, 0]),
-    ((51, 0), [(101, 0)], {}, HOME),                                # 50 + 2 m margin is not < 51
-    ((200, 0), [(8, 0)], {"RTL_TYPE": 1}, HOME),                    # within 10 m of home: ignored
-    ((200, 0), [(8, 0)], {"RTL_TYPE": 5}, [8, 0]),                  # ... except RTL_TYPE 5
-    ((200, 30), [], {"RTL_TYPE": 5}, [200, 30]),                    # 5, none: where it is
-    ((500, 0), [(150, 0)], {}, [150, 0]),                           # no distance limit in PX4
-])
+@pytest.mark.parametrize(
+    "at, points, params, expect",
+    [
+        ((200, 0), [], {}, HOME),
+        ((200, 0), [(100, 0), (0, 100)], {}, [100, 0]),  # RTL_TYPE 0: closest safe point
+        ((10, 0), [(100, 0)], {}, HOME),  # home is closer
+        ((10, 0), [(100, 0)], {"RTL_TYPE": 1}, [100, 0]),  # 1: rally before home
+        ((200, 0), [(100, 0)], {"RTL_TYPE": 2}, HOME),  # 2: rally points not considered
+        ((200, 0), [(100, 0)], {"RTL_TYPE": 3}, [100, 0]),
+        ((51, 0), [(101, 0)], {}, HOME),  # 50 + 2 m margin is not < 51
+        ((200, 0), [(8, 0)], {"RTL_TYPE": 1}, HOME),  # within 10 m of home: ignored
+        ((200, 0), [(8, 0)], {"RTL_TYPE": 5}, [8, 0]),  # ... except RTL_TYPE 5
+        ((200, 30), [], {"RTL_TYPE": 5}, [200, 30]),  # 5, none: where it is
+        ((500, 0), [(150, 0)], {}, [150, 0]),  # no distance limit in PX4
+    ],
+)
 def test_px4_rtl_destination(at, points, params, expect):
     """RTL::findRtlDestination / findClosestSafePoint (src/modules/navigator/rtl.cpp)."""
     np.testing.assert_allclose(destination("px4", at, points, **params), expect, atol=0.2)
@@ -97,15 +110,35 @@ class Rig:
     def upload_rally(self, points_ne_m):
         """The MAVLink mission protocol, as a GCS runs it (count, requested items, ack)."""
         items = [rally_item(*p) for p in points_ne_m]
-        out = self.send(self.gcs.frame(mavlink.MAVLink_mission_count_message(1, 1, len(items), T_RALLY)))
+        out = self.send(
+            self.gcs.frame(mavlink.MAVLink_mission_count_message(1, 1, len(items), T_RALLY))
+        )
         while True:
             reqs = of_type(out, "MISSION_REQUEST") + of_type(out, "MISSION_REQUEST_INT")
             if not reqs:
                 return of_type(out, "MISSION_ACK")
             it = items[reqs[0].seq]
-            out = self.send(self.gcs.frame(mavlink.MAVLink_mission_item_int_message(
-                1, 1, reqs[0].seq, it.frame, it.command, 0, 1, 0, 0, 0, 0, it.x, it.y, it.z,
-                T_RALLY)))
+            out = self.send(
+                self.gcs.frame(
+                    mavlink.MAVLink_mission_item_int_message(
+                        1,
+                        1,
+                        reqs[0].seq,
+                        it.frame,
+                        it.command,
+                        0,
+                        1,
+                        0,
+                        0,
+                        0,
+                        0,
+                        it.x,
+                        it.y,
+                        it.z,
+                        T_RALLY,
+                    )
+                )
+            )
 
 
 @pytest.mark.parametrize("personality", ["ardupilot", "px4"])
@@ -115,18 +148,18 @@ def test_rtl_flies_to_the_rally_point_and_lands_there(gcs, personality):
     assert [a.type for a in acks_] == [mavlink.MAV_MISSION_ACCEPTED]
     out_at = (200.0, 20.0, -15.0)
     if personality == "ardupilot":
-        assert acks(rig.send(gcs.command(176, 1, 4)), 176) == [ACCEPTED]         # GUIDED
+        assert acks(rig.send(gcs.command(176, 1, 4)), 176) == [ACCEPTED]  # GUIDED
         assert acks(rig.send(gcs.command(400, 1)), 400) == [ACCEPTED]
         assert acks(rig.send(gcs.command(22, 0, 0, 0, 0, 0, 0, 15.0)), 22) == [ACCEPTED]
         rig.run(8.0)
     else:
         rig.run(1.0, sp=out_at)
-        assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [ACCEPTED]         # OFFBOARD
+        assert acks(rig.send(gcs.command(176, 1, 6)), 176) == [ACCEPTED]  # OFFBOARD
         assert acks(rig.send(gcs.command(400, 1)), 400) == [ACCEPTED]
     rig.run(rig.t + 40.0, sp=out_at)
     np.testing.assert_allclose(rig.core.local_pos_ned_m, out_at, atol=1.0)
     assert acks(rig.send(gcs.command(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)), 20) == [ACCEPTED]
-    rig.run(rig.t + 200.0)   # PX4: climb to RTL_RETURN_ALT 60 m, land at 0.7 m/s
+    rig.run(rig.t + 200.0)  # PX4: climb to RTL_RETURN_ALT 60 m, land at 0.7 m/s
     assert rig.core.landed and not rig.core.armed
     # Landed at the nearest rally point (about 102 m away), not at home (about 201 m away).
     np.testing.assert_allclose(rig.core.local_pos_ned_m[:2], (100.0, 0.0), atol=1.5)

@@ -4,6 +4,7 @@ Each test names the firmware line it follows (ArduPilot: AP_Math/location.cpp, A
 GCS_Mavlink.cpp; PX4: src/modules/mavlink/mavlink_receiver.cpp, src/lib/geo/geo.cpp,
 src/modules/navigator/navigator_main.cpp, src/modules/mc_pos_control). In memory, explicit time.
 """
+
 import math
 
 import numpy as np
@@ -63,14 +64,16 @@ class Flying:
         return out
 
     def reposition(self, lat_e7, lon_e7, alt_m=10.0):
-        msg = mavlink.MAVLink_command_int_message(1, 1, REL_INT, REPOSITION, 0, 0, -1, 1, 0,
-                                                  float("nan"), lat_e7, lon_e7, alt_m)
+        msg = mavlink.MAVLink_command_int_message(
+            1, 1, REL_INT, REPOSITION, 0, 0, -1, 1, 0, float("nan"), lat_e7, lon_e7, alt_m
+        )
         return acks(self.send(self.gcs.frame(msg)), REPOSITION)
 
 
 def _global_sp(lat_e7, lon_e7, alt_m=10.0):
     return mavlink.MAVLink_set_position_target_global_int_message(
-        0, 1, 1, REL_INT, 3576, lat_e7, lon_e7, alt_m, 0, 0, 0, 0, 0, 0, 0, 0)
+        0, 1, 1, REL_INT, 3576, lat_e7, lon_e7, alt_m, 0, 0, 0, 0, 0, 0, 0, 0
+    )
 
 
 @pytest.fixture(params=["ardupilot", "px4"])
@@ -82,6 +85,7 @@ def flying(request, gcs):
 # Latitude / longitude outside the globe
 # ---------------------------------------------------------------------------------------------
 
+
 def test_ardupilot_check_latlng_bounds_are_inclusive():
     """AP_Math/location.cpp: ``labs(lat) <= 90*1e7``, ``labs(lng) <= 180*1e7``."""
     assert ap_check_latlng_e7(900_000_000, -1_800_000_000)
@@ -90,9 +94,14 @@ def test_ardupilot_check_latlng_bounds_are_inclusive():
     assert not ap_check_latlng_e7(-(2**31), 0)
 
 
-@pytest.mark.parametrize("lat_e7, lon_e7", [(1_000_000_000, 85_000_000),     # lat 100 deg
-                                            (475_000_000, 1_810_000_000),    # lon 181 deg
-                                            (-(2**31), -(2**31))])
+@pytest.mark.parametrize(
+    "lat_e7, lon_e7",
+    [
+        (1_000_000_000, 85_000_000),  # lat 100 deg
+        (475_000_000, 1_810_000_000),  # lon 181 deg
+        (-(2**31), -(2**31)),
+    ],
+)
 def test_ardupilot_refuses_reposition_and_setpoints_off_the_globe(gcs, lat_e7, lon_e7):
     """ArduCopter/GCS_Mavlink.cpp handle_command_int_do_reposition: ``if (!check_latlng(
     packet.x, packet.y)) return MAV_RESULT_DENIED``; handle_message_set_position_target_global_int:
@@ -109,8 +118,8 @@ def test_ardupilot_refuses_reposition_and_setpoints_off_the_globe(gcs, lat_e7, l
     rig.send(rig.gcs.frame(_global_sp(lat_e7, lon_e7)))
     assert rig.core.stats.setpoints_ignored == ignored + 1
     rig.run(rig.t + 5.0)
-    assert abs(rig.core.local_pos_ned_m[0] - north_before) < 8.0   # braked, not off to 200 m
-    assert np.linalg.norm(rig.core.physics.vel_ned_m_s[0]) < 0.2    # and holding
+    assert abs(rig.core.local_pos_ned_m[0] - north_before) < 8.0  # braked, not off to 200 m
+    assert np.linalg.norm(rig.core.physics.vel_ned_m_s[0]) < 0.2  # and holding
     assert rig.core.stats.handler_errors == 0
 
 
@@ -127,9 +136,9 @@ def test_px4_projects_an_out_of_range_latitude_as_the_firmware_does(gcs):
     target = rig.core.physics.target_pos_ned_m[0] - rig.core.home_ned_m
     assert target[0] == pytest.approx(expected_north_m, rel=1e-6)
     assert target[1] == pytest.approx(0.0, abs=1.0)
-    assert target[2] == pytest.approx(-10.0, abs=1e-6)   # z = ref_alt - alt: flat frame
+    assert target[2] == pytest.approx(-10.0, abs=1e-6)  # z = ref_alt - alt: flat frame
     out = rig.run(rig.t + 2.0)
-    assert rig.core.local_pos_ned_m[0] > 5.0            # heading north, as PX4 would
+    assert rig.core.local_pos_ned_m[0] > 5.0  # heading north, as PX4 would
     assert rig.core.stats.handler_errors == 0 and of_type(out, "GLOBAL_POSITION_INT")
 
 
@@ -138,7 +147,8 @@ def test_px4_global_setpoint_off_the_globe_is_projected_too(gcs):
     ``global_local_proj_ref.project(lat, lon, ...)``): it is a valid offboard setpoint."""
     # the folding is the firmware's: lat 100 deg IS lat 80 deg on the far meridian for sin/cos
     assert px4_map_project(100.0, 8.5, *HOME[:2]) == pytest.approx(
-        px4_map_project(80.0, 8.5 - 180.0, *HOME[:2]), rel=1e-6, abs=1e-3)
+        px4_map_project(80.0, 8.5 - 180.0, *HOME[:2]), rel=1e-6, abs=1e-3
+    )
     rig = Flying(gcs, "px4")
     rig.run(rig.t + 0.5, sp_msg=_global_sp(1_000_000_000, 85_000_000))
     assert rig.core.mode_name == "OFFBOARD"
@@ -146,6 +156,7 @@ def test_px4_global_setpoint_off_the_globe_is_projected_too(gcs):
     assert target[0] == pytest.approx(math.radians(52.5) * 6371000.0, rel=1e-6)
     # back in range: the emulator's ellipsoid geodesy, as before (consistent with telemetry)
     from planner.geometry import ned_to_geodetic
+
     lat, lon, _ = ned_to_geodetic(np.array([800.0, -600.0, 0.0]), *HOME)
     sp = _global_sp(int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)))
     rig.run(rig.t + 0.2, sp_msg=sp)
@@ -169,8 +180,13 @@ def test_px4_reposition_int32_max_keeps_the_horizontal_target(gcs):
 # Finite but absurd local targets (float32 max is 3.4e38)
 # ---------------------------------------------------------------------------------------------
 
-HUGE_TARGETS = [(3e38, 0.0, -10.0), (3e38, 3e38, -10.0), (-3e38, 3e38, -3e38), (3.4e38, 0, 0),
-                (0.0, 0.0, -3e38)]
+HUGE_TARGETS = [
+    (3e38, 0.0, -10.0),
+    (3e38, 3e38, -10.0),
+    (-3e38, 3e38, -3e38),
+    (3.4e38, 0, 0),
+    (0.0, 0.0, -3e38),
+]
 
 
 @pytest.mark.parametrize("target", HUGE_TARGETS)
@@ -179,14 +195,19 @@ def test_huge_local_target_never_raises(flying, target):
     saturated) values and the vehicle state stays finite."""
     rig = flying
     sp = mavlink.MAVLink_set_position_target_local_ned_message(
-        0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, *target, 0, 0, 0, 0, 0, 0, 0, 0)
+        0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, *target, 0, 0, 0, 0, 0, 0, 0, 0
+    )
     out = rig.run(rig.t + 3.0, sp_msg=sp)
     st = rig.core.stats
     assert st.handler_errors == 0 and st.telemetry_errors == 0
-    for mtype in ("POSITION_TARGET_LOCAL_NED", "POSITION_TARGET_GLOBAL_INT",
-                  "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT"):
-        assert len(of_type(out, mtype)) >= 25, mtype        # 10 Hz for 3 s
-    assert len(of_type(out, "HEARTBEAT")) >= 3              # 1 Hz
+    for mtype in (
+        "POSITION_TARGET_LOCAL_NED",
+        "POSITION_TARGET_GLOBAL_INT",
+        "LOCAL_POSITION_NED",
+        "GLOBAL_POSITION_INT",
+    ):
+        assert len(of_type(out, mtype)) >= 25, mtype  # 10 Hz for 3 s
+    assert len(of_type(out, "HEARTBEAT")) >= 3  # 1 Hz
     assert np.all(np.isfinite(rig.core.physics.pos_ned_m))
     assert np.all(np.isfinite(rig.core.physics.vel_ned_m_s))
 
@@ -201,7 +222,7 @@ def test_ardupilot_ignores_targets_whose_cm_value_overflows(gcs):
     assert rig.core.stats.setpoints_ignored == ignored + 1
     rig.run(rig.t + 3.0)
     assert rig.core.local_pos_ned_m == pytest.approx((0, 0, -10), abs=0.3)
-    rig.send(gcs.local_target(3e30, 0, -10))           # fits in cm: accepted and flown
+    rig.send(gcs.local_target(3e30, 0, -10))  # fits in cm: accepted and flown
     assert rig.core.stats.setpoints_ignored == ignored + 1
     rig.run(rig.t + 2.0)
     assert rig.core.local_pos_ned_m[0] > 3.0
@@ -213,12 +234,14 @@ def test_px4_holds_north_east_when_the_float32_error_norm_overflows(gcs):
     channel is constrained separately and still flies (here: the 20 m altitude)."""
     rig = Flying(gcs, "px4")
     sp = mavlink.MAVLink_set_position_target_local_ned_message(
-        0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, 3e38, 3e38, -20.0, 0, 0, 0, 0, 0, 0, 0, 0)
+        0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, 3e38, 3e38, -20.0, 0, 0, 0, 0, 0, 0, 0, 0
+    )
     rig.run(rig.t + 10.0, sp_msg=sp)
     assert rig.core.mode_name == "OFFBOARD"
     assert rig.core.local_pos_ned_m == pytest.approx((0, 0, -20), abs=0.3)
     # 1e19 m: the float32 squared norm (2e38) is still finite -> PX4 flies towards it
     sp = mavlink.MAVLink_set_position_target_local_ned_message(
-        0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, 1e19, 0.0, -20.0, 0, 0, 0, 0, 0, 0, 0, 0)
+        0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, 1e19, 0.0, -20.0, 0, 0, 0, 0, 0, 0, 0, 0
+    )
     rig.run(rig.t + 2.0, sp_msg=sp)
     assert rig.core.local_pos_ned_m[0] > 3.0

@@ -1,4 +1,5 @@
 """Swarm: radio reachability, attrition, identities/networks, multiplexing, ground truth."""
+
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -31,8 +32,13 @@ def _run(swarm, gcs, t0, t1, hb=True):
 
 def chain_swarm(**kw):
     spawn = np.array([[80.0, 0, 0], [160.0, 0, 0], [240.0, 0, 0]])
-    return Swarm(3, spawn_ned_m=spawn, radio=RadioConfig(radio_range_m=100.0),
-                 rng=np.random.default_rng(3), **kw)
+    return Swarm(
+        3,
+        spawn_ned_m=spawn,
+        radio=RadioConfig(radio_range_m=100.0),
+        rng=np.random.default_rng(3),
+        **kw,
+    )
 
 
 def test_chain_relay_loss_cuts_both_directions():
@@ -46,19 +52,20 @@ def test_chain_relay_loss_cuts_both_directions():
     acked = gcs.decode([(d, a) for e, d, a in swarm.datagrams_to_send(t) if e == 2])
     assert acks(acked, 176) == [mavlink.MAV_RESULT_ACCEPTED]
 
-    swarm.kill(0, t)                                   # the first relay dies
+    swarm.kill(0, t)  # the first relay dies
     got, t = _run(swarm, gcs, t, t + 5.0)
     assert swarm.active.tolist() == [False, False, False]
-    assert got == {}                                   # no telemetry from anyone
+    assert got == {}  # no telemetry from anyone
     before = [c.stats.datagrams_in for c in swarm.cores]
     for e, sysid in ((1, 2), (2, 3)):
         swarm.receive_datagram(e, gcs.command(400, 1, target=sysid), GCS_ADDR, t)
-    assert [c.stats.datagrams_in for c in swarm.cores] == before   # never delivered
+    assert [c.stats.datagrams_in for c in swarm.cores] == before  # never delivered
     assert swarm.datagrams_to_send(t) == []
     assert not swarm.cores[1].armed and not swarm.cores[2].armed
     assert swarm.stats["dropped_radio_in"] >= 2 and swarm.stats["dropped_radio_out"] > 0
-    assert any(isinstance(e, ev.VehicleKilled) and e.index == 0
-               for e in iter(swarm.next_event, None))
+    assert any(
+        isinstance(e, ev.VehicleKilled) and e.index == 0 for e in iter(swarm.next_event, None)
+    )
 
 
 def test_killed_vehicle_heartbeat_stops_and_stays_stopped():
@@ -78,7 +85,11 @@ def test_killed_vehicle_heartbeat_stops_and_stays_stopped():
 def test_vehicle_dead_in_flight_freezes():
     swarm = Swarm(1, rng=np.random.default_rng(5))
     gcs = FakeGcs()
-    for data in (gcs.command(176, 1, 4), gcs.command(400, 1), gcs.command(22, 0, 0, 0, 0, 0, 0, 10)):
+    for data in (
+        gcs.command(176, 1, 4),
+        gcs.command(400, 1),
+        gcs.command(22, 0, 0, 0, 0, 0, 0, 10),
+    ):
         swarm.receive_datagram(0, data, GCS_ADDR, 0.0)
     _, t = _run(swarm, gcs, 0.0, 3.0)
     swarm.kill(0, t)
@@ -112,14 +123,20 @@ def test_mux_broadcast_heartbeat_reaches_all_members():
 
 def test_truth_log_and_task_uptime():
     # one vehicle flies out of range of a task and back; TU from the truth log
-    spawn = np.array([[80.0, 0, 0], [160.0, 0, 0]])   # base - v0 - v1 chain
+    spawn = np.array([[80.0, 0, 0], [160.0, 0, 0]])  # base - v0 - v1 chain
     tasks = np.array([[200.0, 0.0], [500.0, 0.0]])
-    swarm = Swarm(2, spawn_ned_m=spawn, radio=RadioConfig(radio_range_m=100.0),
-                  task_pos_fn=lambda t: tasks, rng=np.random.default_rng(8), kills=[(5.0, 0)])
+    swarm = Swarm(
+        2,
+        spawn_ned_m=spawn,
+        radio=RadioConfig(radio_range_m=100.0),
+        task_pos_fn=lambda t: tasks,
+        rng=np.random.default_rng(8),
+        kills=[(5.0, 0)],
+    )
     gcs = FakeGcs()
     _run(swarm, gcs, 0.0, 10.0)
     arr = swarm.truth.arrays()
-    assert arr["t_s"].tolist() == pytest.approx(list(range(11)))     # 1 Hz, t = 0 .. 10 s
+    assert arr["t_s"].tolist() == pytest.approx(list(range(11)))  # 1 Hz, t = 0 .. 10 s
     assert arr["task_connected"].shape == (11, 2)
     # task 0 connected until vehicle 0 (the only link to the base) dies at t=5
     assert arr["task_connected"][:, 0].tolist() == [True] * 5 + [False] * 6
@@ -133,7 +150,7 @@ def test_attrition_hazard_rate_statistics():
     rng = np.random.default_rng(9)
     att = Attrition(20_000, hazard_per_s=0.01, rng=rng)
     alive = np.ones(20_000, dtype=bool)
-    for k in range(100):       # 10 s in 0.1 s steps
+    for k in range(100):  # 10 s in 0.1 s steps
         for i, _ in att.step(k * 0.1, (k + 1) * 0.1, alive):
             alive[i] = False
     expected = 1 - np.exp(-0.1)
@@ -142,36 +159,44 @@ def test_attrition_hazard_rate_statistics():
 
 def test_radio_latency_and_loss_are_seeded():
     def run(seed):
-        swarm = Swarm(3, spawn_ned_m=[[50.0, 0, 0], [100.0, 0, 0], [150.0, 0, 0]],
-                      radio=RadioConfig(radio_range_m=60.0, latency_per_hop_s=0.1,
-                                        loss_per_hop=0.2),
-                      rng=np.random.default_rng(seed), stream_rates_hz={33: 10})
+        swarm = Swarm(
+            3,
+            spawn_ned_m=[[50.0, 0, 0], [100.0, 0, 0], [150.0, 0, 0]],
+            radio=RadioConfig(radio_range_m=60.0, latency_per_hop_s=0.1, loss_per_hop=0.2),
+            rng=np.random.default_rng(seed),
+            stream_rates_hz={33: 10},
+        )
         got, _ = _run(swarm, FakeGcs(), 0.0, 5.0)
         return {k: len(v) for k, v in got.items()}, swarm.radio.hops.tolist()
+
     a, hops = run(1)
     assert hops == [1, 2, 3]
     assert a == run(1)[0] and a != run(2)[0]
-    assert a[1] > a[2] > a[3]              # more hops, more loss
+    assert a[1] > a[2] > a[3]  # more hops, more loss
 
 
 def test_out_of_range_vehicle_failsafes_home_and_is_heard_again():
     """The paper's default: a disconnected drone flies home, and the GCS can take it back."""
     swarm = Swarm(1, radio=RadioConfig(radio_range_m=100.0), rng=np.random.default_rng(10))
     gcs = FakeGcs()
-    for data in (gcs.command(176, 1, 4), gcs.command(400, 1),
-                 gcs.command(22, 0, 0, 0, 0, 0, 0, 10), gcs.local_target(150, 0, -10)):
+    for data in (
+        gcs.command(176, 1, 4),
+        gcs.command(400, 1),
+        gcs.command(22, 0, 0, 0, 0, 0, 0, 10),
+        gcs.local_target(150, 0, -10),
+    ):
         swarm.receive_datagram(0, data, GCS_ADDR, 0.0)
     got, t = _run(swarm, gcs, 0.0, 12.0)
-    assert not swarm.active[0]                   # beyond 100 m: the GCS cannot hear it
+    assert not swarm.active[0]  # beyond 100 m: the GCS cannot hear it
     t_lost = next(tt for tt, a in zip(swarm.truth.t_s, swarm.truth.active) if not a[0])
     got, t = _run(swarm, gcs, t, t + 30.0)
     core = swarm.cores[0]
     assert core.mode_name == "RTL"
     fs = [e for e in iter(swarm.next_event, None) if isinstance(e, ev.FailsafeTriggered)]
     assert fs and t_lost <= fs[0].t_s <= t_lost + 5.0 + 1.5
-    assert swarm.active[0] and of_type(got[1], "HEARTBEAT")   # home again and heard
+    assert swarm.active[0] and of_type(got[1], "HEARTBEAT")  # home again and heard
     swarm.receive_datagram(0, gcs.command(176, 1, 4), GCS_ADDR, t)
-    assert core.mode_name == "GUIDED"             # the ground station takes it back
+    assert core.mode_name == "GUIDED"  # the ground station takes it back
 
 
 def test_mux_router_parses_each_frame_once(monkeypatch):

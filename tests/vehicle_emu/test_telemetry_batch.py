@@ -1,4 +1,5 @@
 """The batched telemetry path is byte-for-byte the reference (per-vehicle pymavlink) path."""
+
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -13,15 +14,23 @@ KEY = bytes(range(32))
 
 def _swarm(kind, n=40):
     pers = ["px4" if i % 3 else "ardupilot" for i in range(n)]
-    sw = Swarm(n, personality=pers, mux=True, spawn_spacing_m=25.0, gcs_addrs=[("gcs", 1)],
-               rng=np.random.default_rng(5), telemetry=kind)
+    sw = Swarm(
+        n,
+        personality=pers,
+        mux=True,
+        spawn_spacing_m=25.0,
+        gcs_addrs=[("gcs", 1)],
+        rng=np.random.default_rng(5),
+        telemetry=kind,
+    )
     rng = np.random.default_rng(11)
     ph = sw.physics
     ph.armed[:] = True
     for c in sw.cores:
         c.armed = True
-    ph.target_pos_ned_m[:] = np.column_stack([rng.uniform(-300, 300, (n, 2)),
-                                              rng.uniform(-60, -5, n)])
+    ph.target_pos_ned_m[:] = np.column_stack(
+        [rng.uniform(-300, 300, (n, 2)), rng.uniform(-60, -5, n)]
+    )
     ph.max_speed_h_m_s[:] = rng.uniform(2, 12, n)
     # velocity control on some (POSITION_TARGET mask and zero position), far targets on others
     for i in range(0, n, 7):
@@ -83,10 +92,24 @@ def test_pack_frames_match_pymavlink(msg_id):
             v = rng.uniform(-1e4, 1e4, k).astype(np.float32).astype(float)
             v[rng.random(k) < 0.3] = 0.0
             fields[name] = v
-        elif ftype in ("uint8_t", "int8_t", "uint16_t", "int16_t", "uint32_t", "int32_t",
-                       "uint64_t"):
-            hi = {"uint8_t": 255, "int8_t": 127, "uint16_t": 65535, "int16_t": 32767,
-                  "uint32_t": 2**32 - 1, "int32_t": 2**31 - 1, "uint64_t": 2**40}[ftype]
+        elif ftype in (
+            "uint8_t",
+            "int8_t",
+            "uint16_t",
+            "int16_t",
+            "uint32_t",
+            "int32_t",
+            "uint64_t",
+        ):
+            hi = {
+                "uint8_t": 255,
+                "int8_t": 127,
+                "uint16_t": 65535,
+                "int16_t": 32767,
+                "uint32_t": 2**32 - 1,
+                "int32_t": 2**31 - 1,
+                "uint64_t": 2**40,
+            }[ftype]
             lo = -hi - 1 if ftype.startswith("int") else 0
             v = rng.integers(lo, hi, k, endpoint=True)
             v[rng.random(k) < 0.3] = 0
@@ -99,8 +122,9 @@ def test_pack_frames_match_pymavlink(msg_id):
         kwargs = {}
         for name in cls.fieldnames:
             val = fields.get(name)
-            kwargs[name] = (list(val[r]) if np.ndim(val) == 2 else val[r].item()) \
-                if val is not None else 0
+            kwargs[name] = (
+                (list(val[r]) if np.ndim(val) == 2 else val[r].item()) if val is not None else 0
+            )
         msg = cls(**kwargs)
         assert frames[r] == bytes(msg.pack(mav)), (cls.msgname, r)
 
@@ -114,6 +138,7 @@ def test_a_failing_batch_falls_back_to_the_reference_frames(monkeypatch):
 
     def broken(*_a):
         raise RuntimeError("boom")
+
     monkeypatch.setitem(tb.BATCHED_TYPES, tm.M_GLOBAL_POSITION_INT, (cls, broken))
     t = 0.0
     for k in range(30):

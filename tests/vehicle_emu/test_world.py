@@ -1,4 +1,5 @@
 """The paper's world model: streams, attrition, motion rules."""
+
 import numpy as np
 import pytest
 
@@ -34,16 +35,18 @@ def test_border_policies_keep_tasks_in_the_field(rng, border):
 
 def test_step_rules_speed_home_and_attrition():
     p = problem_preset("S", 0.5).replace(n_drones=3)
-    w = World(p, np.array([[1.0, 0.0], [5.0, 0.0], [0.05, 0.0]]), np.ones(3, bool), np.zeros((2, 1, 2)))
+    w = World(
+        p, np.array([[1.0, 0.0], [5.0, 0.0], [0.05, 0.0]]), np.ones(3, bool), np.zeros((2, 1, 2))
+    )
     active = np.array([True, False, False])
     disp = np.array([[3.0, 0.0], [0.0, 3.0], [0.0, 0.0]])  # too fast; inactive row ignored
     lost = w.step(disp, active, 0.5, attrition_u=np.array([0.9, 0.9, 0.1]))
     assert lost.tolist() == [False, False, True]
-    assert np.allclose(w.pos_m[0], [1.15, 0.0])       # clipped to v = 0.15
-    assert np.allclose(w.pos_m[1], [4.85, 0.0])       # disconnected: straight home at v
-    assert np.allclose(w.pos_m[2], [0.05, 0.0])       # lost this step: does not move
+    assert np.allclose(w.pos_m[0], [1.15, 0.0])  # clipped to v = 0.15
+    assert np.allclose(w.pos_m[1], [4.85, 0.0])  # disconnected: straight home at v
+    assert np.allclose(w.pos_m[2], [0.05, 0.0])  # lost this step: does not move
     w.step(np.zeros((3, 2)), np.zeros(3, bool), 0.0, np.ones(3))
-    assert not w.alive[2]                             # irreversible
+    assert not w.alive[2]  # irreversible
     assert np.allclose(w.pos_m[2], [0.05, 0.0])
 
 

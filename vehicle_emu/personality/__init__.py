@@ -14,8 +14,17 @@ from .ardupilot import ARDUPILOT_MODES, ArduPilot
 from .base import Personality, ap_check_latlng_e7, px4_map_project
 from .px4 import PX4, PX4_MODES
 
-__all__ = ["PERSONALITIES", "Personality", "ArduPilot", "PX4", "personality_for",
-           "ARDUPILOT_MODES", "PX4_MODES", "ap_check_latlng_e7", "px4_map_project"]
+__all__ = [
+    "PERSONALITIES",
+    "Personality",
+    "ArduPilot",
+    "PX4",
+    "personality_for",
+    "ARDUPILOT_MODES",
+    "PX4_MODES",
+    "ap_check_latlng_e7",
+    "px4_map_project",
+]
 
 _CLASSES = {"ardupilot": ArduPilot, "px4": PX4}
 PERSONALITIES = tuple(_CLASSES)

@@ -10,11 +10,16 @@ from mavedge import mavlink
 from mavedge.modes import ARDUCOPTER_MODES
 from vehicle_emu.telemetry import M_HEARTBEAT
 
-from .base import (COMMON_CAPABILITIES, FLT_MAX, GLOBAL_AMSL, GLOBAL_REL, Personality,
-                   ap_check_latlng_e7)
+from .base import (
+    COMMON_CAPABILITIES,
+    FLT_MAX,
+    GLOBAL_AMSL,
+    GLOBAL_REL,
+    Personality,
+    ap_check_latlng_e7,
+)
 
-__all__ = ["ArduPilot", "ARDUPILOT_MODES", "AP_AUTO", "AP_GUIDED", "AP_LOITER", "AP_RTL",
-           "AP_LAND"]
+__all__ = ["ArduPilot", "ARDUPILOT_MODES", "AP_AUTO", "AP_GUIDED", "AP_LOITER", "AP_RTL", "AP_LAND"]
 
 _C = mavlink
 
@@ -22,12 +27,22 @@ _C = mavlink
 #: -> (name, behaviour). Modes that need a pilot (STABILIZE, ALT_HOLD, ...) hold position:
 #: there is no RC here.
 _BEHAVIOURS = {
-    "STABILIZE": "hold", "ACRO": "hold", "ALT_HOLD": "hold", "AUTO": "hold", "GUIDED": "guided",
-    "LOITER": "hold", "RTL": "rtl", "CIRCLE": "hold", "LAND": "land", "POSHOLD": "hold",
-    "BRAKE": "hold", "SMART_RTL": "rtl",
+    "STABILIZE": "hold",
+    "ACRO": "hold",
+    "ALT_HOLD": "hold",
+    "AUTO": "hold",
+    "GUIDED": "guided",
+    "LOITER": "hold",
+    "RTL": "rtl",
+    "CIRCLE": "hold",
+    "LAND": "land",
+    "POSHOLD": "hold",
+    "BRAKE": "hold",
+    "SMART_RTL": "rtl",
 }
 ARDUPILOT_MODES: dict[int, tuple[str, str]] = {
-    ARDUCOPTER_MODES[name]: (name, beh) for name, beh in _BEHAVIOURS.items()}
+    ARDUCOPTER_MODES[name]: (name, beh) for name, beh in _BEHAVIOURS.items()
+}
 AP_AUTO, AP_GUIDED, AP_LOITER, AP_RTL, AP_LAND = 3, 4, 5, 6, 9
 #: ArduCopter ``Mode::allows_arming`` is false for AUTO (without AUTO_OPTIONS), RTL, LAND,
 #: SMART_RTL, BRAKE, CIRCLE (ArduCopter/mode_*.h).
@@ -42,11 +57,17 @@ _M = mavlink
 #: POSITION_TARGET_LOCAL_NED are placed in EXTENDED_STATUS (approximation).
 AP_STREAM_GROUPS = {
     _M.MAV_DATA_STREAM_EXTENDED_STATUS: (
-        _M.MAVLINK_MSG_ID_SYS_STATUS, _M.MAVLINK_MSG_ID_GPS_RAW_INT,
-        _M.MAVLINK_MSG_ID_MISSION_CURRENT, _M.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT,
-        _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, _M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED),
-    _M.MAV_DATA_STREAM_POSITION: (_M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
-                                  _M.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
+        _M.MAVLINK_MSG_ID_SYS_STATUS,
+        _M.MAVLINK_MSG_ID_GPS_RAW_INT,
+        _M.MAVLINK_MSG_ID_MISSION_CURRENT,
+        _M.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT,
+        _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+        _M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED,
+    ),
+    _M.MAV_DATA_STREAM_POSITION: (
+        _M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+        _M.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    ),
     _M.MAV_DATA_STREAM_EXTRA1: (_M.MAVLINK_MSG_ID_ATTITUDE,),
     _M.MAV_DATA_STREAM_EXTRA2: (_M.MAVLINK_MSG_ID_VFR_HUD,),
 }
@@ -136,8 +157,11 @@ class ArduPilot(Personality):
         # mode_guided.cpp: ``if (millis() - update_time_ms > get_timeout_ms())`` zero the
         # velocity target). Position targets persist.
         core = self.core
-        if (behaviour == "guided" and core._vel_target_s is not None
-                and now_s - core._vel_target_s > core.params["GUID_TIMEOUT"]):
+        if (
+            behaviour == "guided"
+            and core._vel_target_s is not None
+            and now_s - core._vel_target_s > core.params["GUID_TIMEOUT"]
+        ):
             core._vel_target_s = None
             core.physics.command_velocity(core.index, (0.0, 0.0, 0.0))
 
@@ -230,7 +254,7 @@ class ArduPilot(Personality):
             return self._rally_or_home(None)
         pos = core.physics.pos_ned_m[core.index, :2]
         dist = np.hypot(*(pts - pos).T)
-        k = int(np.argmin(dist))                     # first of equal minima, as the strict loop
+        k = int(np.argmin(dist))  # first of equal minima, as the strict loop
         limit_km = float(core.params["RALLY_LIMIT_KM"])
         if limit_km > 0 and dist[k] > limit_km * 1000.0:
             return self._rally_or_home(None)
@@ -242,8 +266,11 @@ class ArduPilot(Personality):
     # -- streams and parameters -----------------------------------------------------------
 
     def on_request_data_stream(self, m, now_s: float) -> None:
-        groups = (list(AP_STREAM_GROUPS) if m.req_stream_id == _C.MAV_DATA_STREAM_ALL
-                  else [m.req_stream_id])
+        groups = (
+            list(AP_STREAM_GROUPS)
+            if m.req_stream_id == _C.MAV_DATA_STREAM_ALL
+            else [m.req_stream_id]
+        )
         on = m.start_stop != 0 and m.req_message_rate > 0
         for g in groups:
             for msg_id in AP_STREAM_GROUPS.get(g, ()):

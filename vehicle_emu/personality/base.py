@@ -19,27 +19,45 @@ from planner.geometry import geodetic_to_ned_m
 #: AUTOPILOT_VERSION.capabilities both firmwares announce and the emulator implements (each
 #: personality adds its parameter encoding); FTP, SET_ATTITUDE_TARGET, FLIGHT_TERMINATION,
 #: TERRAIN are left out on purpose: the emulator does not implement them and a GCS would try.
-COMMON_CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-                       | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-                       | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-                       | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                       | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
-                       | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-                       | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
-                       | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
+COMMON_CAPABILITIES = (
+    mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
+)
 
-__all__ = ["Personality", "ap_check_latlng_e7", "px4_map_project", "FLT_MAX", "LOCAL_FRAMES",
-           "GLOBAL_AMSL", "GLOBAL_REL", "TARGET_MASK_POSITION"]
+__all__ = [
+    "Personality",
+    "ap_check_latlng_e7",
+    "px4_map_project",
+    "FLT_MAX",
+    "LOCAL_FRAMES",
+    "GLOBAL_AMSL",
+    "GLOBAL_REL",
+    "TARGET_MASK_POSITION",
+]
 
 #: Largest finite float32: every float field on the wire (and every float in both firmwares'
 #: position paths) is single precision.
 FLT_MAX = float(np.finfo(np.float32).max)
 
-LOCAL_FRAMES = (mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_OFFSET_NED,
-                mavlink.MAV_FRAME_BODY_NED, mavlink.MAV_FRAME_BODY_OFFSET_NED)
+LOCAL_FRAMES = (
+    mavlink.MAV_FRAME_LOCAL_NED,
+    mavlink.MAV_FRAME_LOCAL_OFFSET_NED,
+    mavlink.MAV_FRAME_BODY_NED,
+    mavlink.MAV_FRAME_BODY_OFFSET_NED,
+)
 GLOBAL_AMSL = (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT)
-GLOBAL_REL = (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-              mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT)
+GLOBAL_REL = (
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+)
 #: type_mask of a position-only target (what POSITION_TARGET_* reports after a guided item).
 TARGET_MASK_POSITION = 0b110111111000
 
@@ -55,8 +73,9 @@ def ap_check_latlng_e7(lat_e7: int, lon_e7: int) -> bool:
     return abs(int(lat_e7)) <= _AP_LAT_E7_MAX and abs(int(lon_e7)) <= _AP_LON_E7_MAX
 
 
-def px4_map_project(lat_deg: float, lon_deg: float, ref_lat_deg: float,
-                    ref_lon_deg: float) -> tuple[float, float]:
+def px4_map_project(
+    lat_deg: float, lon_deg: float, ref_lat_deg: float, ref_lon_deg: float
+) -> tuple[float, float]:
     """PX4 lib/geo/geo.cpp ``MapProjection::project``: azimuthal equidistant projection on a
     sphere of radius CONSTANTS_RADIUS_OF_EARTH around the EKF origin; (north_m, east_m) as
     float32, like the firmware's ``float &x, float &y``.
@@ -142,8 +161,9 @@ class Personality:
         vehicle is flying a plan)."""
         core = self.core
         if core._missions.has_mission():
-            core._statustext(now_s, mavlink.MAV_SEVERITY_WARNING,
-                             "Emulator: AUTO missions are not flown")
+            core._statustext(
+                now_s, mavlink.MAV_SEVERITY_WARNING, "Emulator: AUTO missions are not flown"
+            )
         else:
             core._statustext(now_s, *self.no_mission_text)
         return result
@@ -225,8 +245,9 @@ class Personality:
         """Whether a global target passes the firmware's range check before its frame."""
         return True
 
-    def off_globe(self, lat_e7: int, lon_e7: int, lat_deg: float, lon_deg: float,
-                  alt_amsl_m: float):
+    def off_globe(
+        self, lat_e7: int, lon_e7: int, lat_deg: float, lon_deg: float, alt_amsl_m: float
+    ):
         """World NED (m) of an off-globe target the firmware still flies to, else None."""
         return None
 
@@ -277,8 +298,9 @@ class Personality:
         for it in core._missions.items.get(mavlink.MAV_MISSION_TYPE_RALLY, ()):
             if it.frame not in GLOBAL_AMSL + GLOBAL_REL or (it.x == 0 and it.y == 0):
                 continue
-            ned = geodetic_to_ned_m(e7_to_deg(it.x), e7_to_deg(it.y), core.home_lla[2],
-                                    *core.physics.origin_lla)
+            ned = geodetic_to_ned_m(
+                e7_to_deg(it.x), e7_to_deg(it.y), core.home_lla[2], *core.physics.origin_lla
+            )
             out.append((float(ned[0]), float(ned[1])))
         return np.array(out, dtype=float).reshape(-1, 2)
 

@@ -11,10 +11,17 @@ from mavedge.modes import PX4_NAMES, px4_custom_mode, px4_main_sub
 from mavedge.setpoints import ACC_BITS, POS_BITS, VEL_BITS
 from mavedge.units import INT32_MAX
 from vehicle_emu import events as ev
-from vehicle_emu.telemetry import (M_EXTENDED_SYS_STATE, M_GLOBAL_POSITION_INT, M_GPS_RAW_INT,
-                                   M_HEARTBEAT, M_HOME_POSITION, M_LOCAL_POSITION_NED,
-                                   M_POSITION_TARGET_GLOBAL_INT, M_POSITION_TARGET_LOCAL_NED,
-                                   M_SYS_STATUS)
+from vehicle_emu.telemetry import (
+    M_EXTENDED_SYS_STATE,
+    M_GLOBAL_POSITION_INT,
+    M_GPS_RAW_INT,
+    M_HEARTBEAT,
+    M_HOME_POSITION,
+    M_LOCAL_POSITION_NED,
+    M_POSITION_TARGET_GLOBAL_INT,
+    M_POSITION_TARGET_LOCAL_NED,
+    M_SYS_STATUS,
+)
 
 from .base import COMMON_CAPABILITIES, Personality, px4_map_project
 
@@ -24,12 +31,22 @@ _C = mavlink
 
 #: PX4 (main, sub) (px4_custom_mode.h, names from mavedge.modes) -> (name, behaviour).
 _BEHAVIOURS = {
-    (1, 0): "hold", (2, 0): "hold", (3, 0): "hold", (4, 1): "hold", (4, 2): "takeoff",
-    (4, 3): "hold", (4, 4): "hold", (4, 5): "rtl", (4, 6): "land", (5, 0): "hold",
-    (6, 0): "guided", (7, 0): "hold",
+    (1, 0): "hold",
+    (2, 0): "hold",
+    (3, 0): "hold",
+    (4, 1): "hold",
+    (4, 2): "takeoff",
+    (4, 3): "hold",
+    (4, 4): "hold",
+    (4, 5): "rtl",
+    (4, 6): "land",
+    (5, 0): "hold",
+    (6, 0): "guided",
+    (7, 0): "hold",
 }
 PX4_MODES: dict[tuple[int, int], tuple[str, str]] = {
-    pair: (PX4_NAMES[pair], beh) for pair, beh in _BEHAVIOURS.items()}
+    pair: (PX4_NAMES[pair], beh) for pair, beh in _BEHAVIOURS.items()
+}
 PX4_POSCTL, PX4_OFFBOARD = (3, 0), (6, 0)
 PX4_TAKEOFF, PX4_LOITER, PX4_MISSION, PX4_RTL, PX4_LAND = (4, 2), (4, 3), (4, 4), (4, 5), (4, 6)
 _PX4_NOT_ARMABLE = frozenset({PX4_RTL, PX4_LAND})
@@ -58,9 +75,15 @@ _PX4_NAV_STOP = frozenset({5, 6})
 #: PX4's mavlink module streams without being asked (``src/modules/mavlink/mavlink_main.cpp``,
 #: ``configure_streams_to_default``, MAVLINK_MODE_NORMAL/ONBOARD; rates approximate, Hz).
 PX4_DEFAULT_RATES_HZ = {
-    M_HEARTBEAT: 1.0, M_SYS_STATUS: 1.0, M_EXTENDED_SYS_STATE: 1.0, M_GLOBAL_POSITION_INT: 5.0,
-    M_LOCAL_POSITION_NED: 5.0, M_GPS_RAW_INT: 1.0, M_HOME_POSITION: 0.5,
-    M_POSITION_TARGET_LOCAL_NED: 1.5, M_POSITION_TARGET_GLOBAL_INT: 1.5,
+    M_HEARTBEAT: 1.0,
+    M_SYS_STATUS: 1.0,
+    M_EXTENDED_SYS_STATE: 1.0,
+    M_GLOBAL_POSITION_INT: 5.0,
+    M_LOCAL_POSITION_NED: 5.0,
+    M_GPS_RAW_INT: 1.0,
+    M_HOME_POSITION: 0.5,
+    M_POSITION_TARGET_LOCAL_NED: 1.5,
+    M_POSITION_TARGET_GLOBAL_INT: 1.5,
 }
 
 #: PX4 mavlink_receiver.cpp handle_message_command_int: x == y == INT32_MAX means "not given"
@@ -104,15 +127,21 @@ class PX4(Personality):
     no_such_message = _C.MAV_RESULT_DENIED
     param_bytewise = True
     # mavlink_main.cpp send_autopilot_capabilities, less what the emulator lacks (base.py).
-    capabilities = (COMMON_CAPABILITIES | _C.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
-                    | _C.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT)
+    capabilities = (
+        COMMON_CAPABILITIES
+        | _C.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+        | _C.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    )
     sw_version = (1 << 24) | (15 << 16) | (0 << 8) | 0xFF  # 1.15.0 release
     sys_status_health_extra = 0
     mission_home_items = 0
     # handle_message_set_position_target_global_int accepts only the _INT frames 5, 6, 11
     # ("invalid coordinate frame" otherwise).
-    global_frames = (_C.MAV_FRAME_GLOBAL_INT, _C.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-                     _C.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT)
+    global_frames = (
+        _C.MAV_FRAME_GLOBAL_INT,
+        _C.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+        _C.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+    )
     guided_mission_items = False
     no_mission_text = (_C.MAV_SEVERITY_CRITICAL, "Switching to Mission is currently not possible")
 
@@ -133,8 +162,10 @@ class PX4(Personality):
         ``data_is_recent = now < offboard_control_mode.timestamp + COM_OF_LOSS_T``; the mode
         requirement is only that, so ONE recent setpoint is enough to switch to OFFBOARD (the
         "stream for > 1 s at > 2 Hz" of the PX4 docs is advice, not a firmware check)."""
-        return (self.sp_last_s is not None
-                and now_s < self.sp_last_s + self.core.params["COM_OF_LOSS_T"])
+        return (
+            self.sp_last_s is not None
+            and now_s < self.sp_last_s + self.core.params["COM_OF_LOSS_T"]
+        )
 
     def note_setpoint_mask(self, mask: int, now_s: float) -> None:
         """mavlink_receiver.cpp handle_message_set_position_target_local_ned / _global_int
@@ -165,8 +196,9 @@ class PX4(Personality):
             return _C.MAV_RESULT_TEMPORARILY_REJECTED
         if (main, sub) == PX4_OFFBOARD and not self.offboard_signal_ok(now_s):
             # Commander: "Switching to Offboard is currently not available"
-            core._statustext(now_s, _C.MAV_SEVERITY_CRITICAL,
-                             "Switching to Offboard is currently not available")
+            core._statustext(
+                now_s, _C.MAV_SEVERITY_CRITICAL, "Switching to Offboard is currently not available"
+            )
             return _C.MAV_RESULT_TEMPORARILY_REJECTED
         if (main, sub) == PX4_TAKEOFF:
             return core._cmd_takeoff((0, 0, 0, 0, 0, 0, float("nan")), now_s)
@@ -191,8 +223,9 @@ class PX4(Personality):
 
     def arm_refusal(self, now_s: float) -> str | None:
         mode = self._pair()
-        if mode in _PX4_NOT_ARMABLE or (mode == PX4_OFFBOARD
-                                        and not self.offboard_signal_ok(now_s)):
+        if mode in _PX4_NOT_ARMABLE or (
+            mode == PX4_OFFBOARD and not self.offboard_signal_ok(now_s)
+        ):
             return "Arming denied: mode not armable"
         return None
 
@@ -265,8 +298,9 @@ class PX4(Personality):
         if stop:
             if not core.armed:
                 return "NONE"
-            core._statustext(now_s, _C.MAV_SEVERITY_CRITICAL,
-                             "Failsafe activated: No offboard signal")
+            core._statustext(
+                now_s, _C.MAV_SEVERITY_CRITICAL, "Failsafe activated: No offboard signal"
+            )
             core._disarm(now_s, "failsafe", force=True)
             return "DISARM"
         if target is None:
@@ -294,8 +328,11 @@ class PX4(Personality):
         if target is None:
             return "NONE"
         core._set_mode(_key(target), now_s, "failsafe")
-        core._statustext(now_s, _C.MAV_SEVERITY_CRITICAL,
-                         "Failsafe activated: No connection to ground control station")
+        core._statustext(
+            now_s,
+            _C.MAV_SEVERITY_CRITICAL,
+            "Failsafe activated: No connection to ground control station",
+        )
         return PX4_MODES[target][0]
 
     # -- setpoints ------------------------------------------------------------------------
@@ -331,8 +368,9 @@ class PX4(Personality):
             return hx, hy, True
         return x, y, False
 
-    def off_globe(self, lat_e7: int, lon_e7: int, lat_deg: float, lon_deg: float,
-                  alt_amsl_m: float):
+    def off_globe(
+        self, lat_e7: int, lon_e7: int, lat_deg: float, lon_deg: float, alt_amsl_m: float
+    ):
         core = self.core
         north, east = px4_map_project(lat_deg, lon_deg, *core.home_lla[:2])
         return core.home_ned_m + np.array((north, east, core.home_lla[2] - alt_amsl_m))
@@ -362,7 +400,7 @@ class PX4(Personality):
         home_ne = core.home_ned_m[:2]
         min_dist = math.inf if rtl_type in (1, 5) else float(np.hypot(*(home_ne - pos)))
         best = None
-        for pt in self.rally_ne_m():               # loop over a handful of stored points
+        for pt in self.rally_ne_m():  # loop over a handful of stored points
             if rtl_type != 5 and float(np.hypot(*(pt - home_ne))) <= _PX4_RALLY_NEAR_HOME_M:
                 continue
             dist = float(np.hypot(*(pt - pos)))
