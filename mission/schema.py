@@ -19,7 +19,7 @@ Rules (docs/design/architecture.md §5)
 * Numeric limits are declared next to the field (``metadata``: ``ge``, ``gt``, ``le``, ``lt``,
   ``min_len``, ``max_len``); the loader enforces them and cross-field rules come from the
   ``validate()`` methods, so the schema is the single description of a valid mission.
-* Length (about 900 lines, above the ~600 this code base aims for): the schema is one document
+* Length (over the ~600 lines this code base aims for): the schema is one document
   on purpose. Each dataclass sits next to its validation and its error messages, and the loader,
   the dumper and ``phireman mission new`` walk it as one tree; cut into files, a reader would
   have to assemble the one description of a valid mission from several.

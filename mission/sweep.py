@@ -20,7 +20,7 @@ Local pool workers are started with the ``forkserver`` method (they must not inh
 SQLite handle or threads), so a script calling :func:`run_sweep` with ``workers > 1`` needs the
 usual ``if __name__ == "__main__":`` guard; the ``phireman`` command has it.
 
-Length (about 700 lines): the grids, the run key, the two executors and cancellation stay in one
+Length (over the ~600 lines this code base aims for): the grids, the run key, the two executors and cancellation stay in one
 module because they share one contract (a run key is the hash of the resolved configuration and
 seed; a chunk's rows land in one transaction; a cancelled chunk leaves no row). Splitting them
 would spread that contract over files that must change together.
