@@ -98,33 +98,15 @@ def test_bad_output_kind_is_refused():
 
 
 def _small_mission(count=4):
-    from mission.schema import (
-        EmulatedVehicles,
-        Mission,
-        Radio,
-        RunSpec,
-        Spawn,
-        SpawnRing,
-        Task,
-        TrackPoint,
-        Vehicles,
-    )
+    from mission.schema import RunSpec
+    from small_mission import crew, small_mission
 
-    return Mission(
-        name="fwd",
-        vehicles=Vehicles(
-            emulated=EmulatedVehicles(
-                count=count,
-                radio_range_m=100.0,
-                cruise_alt_m=20.0,
-                climb_rate_m_s=5.0,
-                max_speed_m_s=10.0,
-                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
-            )
-        ),
-        tasks=(Task(name="Crew", track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),),
-        radio=Radio(range_m=100.0, base_range_m=100.0, latency_s=0.01),
-        run=RunSpec(duration_s=600.0, seed=2, speedup=4.0),
+    return small_mission(
+        "fwd",
+        RunSpec(duration_s=600.0, seed=2, speedup=4.0),
+        count=count,
+        tasks=(crew(60.0, 40.0, "Crew"),),
+        latency_s=0.01,
     )
 
 

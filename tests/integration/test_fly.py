@@ -22,33 +22,11 @@ PHIREMAN = [str(Path(sys.executable).with_name("phireman"))]
 
 
 def _mission_file(tmp_path, count=6, duration_s=40.0, speedup=20.0):
-    from mission.schema import (
-        EmulatedVehicles,
-        Mission,
-        Radio,
-        RunSpec,
-        Spawn,
-        SpawnRing,
-        Task,
-        TrackPoint,
-        Vehicles,
-    )
+    from mission.schema import RunSpec
+    from small_mission import small_mission
 
-    m = Mission(
-        name="udp",
-        vehicles=Vehicles(
-            emulated=EmulatedVehicles(
-                count=count,
-                radio_range_m=100.0,
-                cruise_alt_m=20.0,
-                climb_rate_m_s=5.0,
-                max_speed_m_s=10.0,
-                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
-            )
-        ),
-        tasks=(Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),),
-        radio=Radio(range_m=100.0, base_range_m=100.0, latency_s=0.01),
-        run=RunSpec(duration_s=duration_s, seed=2, speedup=speedup),
+    m = small_mission(
+        "udp", RunSpec(duration_s=duration_s, seed=2, speedup=speedup), count=count, latency_s=0.01
     )
     path = tmp_path / "m.yaml"
     path.write_text(dump_mission(m))

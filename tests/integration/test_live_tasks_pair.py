@@ -7,21 +7,15 @@ from __future__ import annotations
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from small_mission import crew, small_mission
 from mission.ether import LockstepEther, station_for_swarm
 from mission.fly_options import FlyOptions
 from mission.mission_world import build_swarm, mission_scenario
 from mission.station_loop import live_task_columns, make_operator
 from mission.schema import (
-    EmulatedVehicles,
     MavlinkSource,
-    Mission,
-    Radio,
     RunSpec,
-    Spawn,
-    SpawnRing,
     Task,
-    TrackPoint,
-    Vehicles,
 )
 from planner.geometry import ned_to_geodetic
 
@@ -72,24 +66,11 @@ class _Tracker:
 
 
 def _mission(duration_s=40.0):
-    return Mission(
-        name="live",
-        vehicles=Vehicles(
-            emulated=EmulatedVehicles(
-                count=6,
-                radio_range_m=100.0,
-                cruise_alt_m=20.0,
-                climb_rate_m_s=5.0,
-                max_speed_m_s=10.0,
-                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
-            )
-        ),
-        tasks=(
-            Task(track=(TrackPoint(t_s=0.0, north_m=-40.0, east_m=-30.0),)),
-            Task(name="crew", mavlink=MavlinkSource(sysid=TRACKER)),
-        ),
-        radio=Radio(range_m=100.0, base_range_m=100.0),
-        run=RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3),
+    return small_mission(
+        "live",
+        RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3),
+        count=6,
+        tasks=(crew(-40.0, -30.0), Task(name="crew", mavlink=MavlinkSource(sysid=TRACKER))),
     )
 
 

@@ -49,33 +49,11 @@ def test_paced_clock_never_outruns_the_station_nor_jumps():
 
 
 def _mission(tmp_path, speedup):
-    from mission.schema import (
-        EmulatedVehicles,
-        Mission,
-        Radio,
-        RunSpec,
-        Spawn,
-        SpawnRing,
-        Task,
-        TrackPoint,
-        Vehicles,
-    )
+    from mission.schema import RunSpec
+    from small_mission import small_mission
 
-    return Mission(
-        name="pacing",
-        vehicles=Vehicles(
-            emulated=EmulatedVehicles(
-                count=4,
-                radio_range_m=100.0,
-                cruise_alt_m=20.0,
-                climb_rate_m_s=5.0,
-                max_speed_m_s=10.0,
-                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
-            )
-        ),
-        tasks=(Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),),
-        radio=Radio(range_m=100.0, base_range_m=100.0, latency_s=0.01),
-        run=RunSpec(duration_s=30.0, seed=2, speedup=speedup),
+    return small_mission(
+        "pacing", RunSpec(duration_s=30.0, seed=2, speedup=speedup), latency_s=0.01
     )
 
 

@@ -21,22 +21,17 @@ from gcs.events import (
     VehicleLost,
 )
 from gcs.control import layer_alt_m
+from small_mission import crew, small_mission
 from mission.ether import LockstepEther, station_for_swarm
 from mission.fly_options import FlyOptions
 from mission.mission_world import MissionWorld, build_swarm, mission_scenario
 from mission.station_loop import make_operator
 from mission.schema import (
     Attrition,
-    EmulatedVehicles,
-    Mission,
-    Radio,
     RunSpec,
     ScriptedLoss,
-    Spawn,
-    SpawnRing,
     Task,
     TrackPoint,
-    Vehicles,
 )
 from vehicle_emu.swarm import Swarm
 
@@ -125,27 +120,14 @@ def test_px4_offboard_engaged_only_after_prestreaming():
 
 
 def _mission(n=6, personality="ardupilot", duration_s=60.0, kills=(), tasks=None, radio=100.0):
-    tasks = tasks or (
-        Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
-        Task(track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),)),
-    )
-    return Mission(
-        name="pair",
-        vehicles=Vehicles(
-            emulated=EmulatedVehicles(
-                count=n,
-                personality=personality,
-                radio_range_m=radio,
-                cruise_alt_m=20.0,
-                climb_rate_m_s=5.0,
-                max_speed_m_s=10.0,
-                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
-            )
-        ),
-        tasks=tasks,
-        radio=Radio(range_m=radio, base_range_m=radio),
+    return small_mission(
+        "pair",
+        RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3),
+        count=n,
+        personality=personality,
+        tasks=tasks or (crew(60.0, 40.0), crew(-50.0, -60.0)),
+        radio_m=radio,
         attrition=Attrition(scripted=tuple(ScriptedLoss(vehicle=i, t_s=t) for t, i in kills)),
-        run=RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3),
     )
 
 

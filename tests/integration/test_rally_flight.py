@@ -18,20 +18,14 @@ import dataclasses
 import numpy as np
 import pytest
 
+from small_mission import crew, small_mission
 from mission.ether import LockstepEther, station_for_swarm
 from mission.fly_options import FlyOptions
 from mission.mission_world import MissionWorld, build_swarm, mission_scenario
 from mission.schema import (
-    EmulatedVehicles,
     Mission,
     PlannerSpec,
-    Radio,
     RunSpec,
-    Spawn,
-    SpawnRing,
-    Task,
-    TrackPoint,
-    Vehicles,
 )
 from mission.station_loop import make_operator
 
@@ -39,23 +33,13 @@ SEED = 3
 
 
 def _mission(personality: str, rally: bool) -> Mission:
-    return Mission(
-        name="rally",
-        vehicles=Vehicles(
-            emulated=EmulatedVehicles(
-                count=6,
-                personality=personality,
-                radio_range_m=100.0,
-                cruise_alt_m=20.0,
-                climb_rate_m_s=5.0,
-                max_speed_m_s=10.0,
-                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
-            )
-        ),
-        tasks=(Task(track=(TrackPoint(t_s=0.0, north_m=240.0, east_m=0.0),)),),
-        radio=Radio(range_m=100.0, base_range_m=100.0),
+    return small_mission(
+        "rally",
+        RunSpec(duration_s=150.0, control_period_s=1.0, seed=SEED),
+        count=6,
+        personality=personality,
+        tasks=(crew(240.0, 0.0),),
         planner=PlannerSpec(method="phireman-resilient", params={"rally": rally}),
-        run=RunSpec(duration_s=150.0, control_period_s=1.0, seed=SEED),
     )
 
 

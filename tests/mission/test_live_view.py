@@ -26,36 +26,15 @@ CREWS = ("Engine 7", "Hand crew Alpha")
 
 
 def _mission():
-    from mission.schema import (
-        EmulatedVehicles,
-        Mission,
-        Radio,
-        RunSpec,
-        Spawn,
-        SpawnRing,
-        Task,
-        TrackPoint,
-        Vehicles,
-    )
+    from mission.schema import RunSpec
+    from small_mission import crew, small_mission
 
-    return Mission(
-        name="browser",
-        vehicles=Vehicles(
-            emulated=EmulatedVehicles(
-                count=6,
-                radio_range_m=100.0,
-                cruise_alt_m=20.0,
-                climb_rate_m_s=5.0,
-                max_speed_m_s=10.0,
-                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
-            )
-        ),
-        tasks=(
-            Task(name=CREWS[0], track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
-            Task(name=CREWS[1], track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),)),
-        ),
-        radio=Radio(range_m=100.0, base_range_m=100.0, latency_s=0.01),
-        run=RunSpec(duration_s=900.0, seed=4, speedup=3.0),
+    return small_mission(
+        "browser",
+        RunSpec(duration_s=900.0, seed=4, speedup=3.0),
+        count=6,
+        tasks=(crew(60.0, 40.0, CREWS[0]), crew(-50.0, -60.0, CREWS[1])),
+        latency_s=0.01,
     )
 
 

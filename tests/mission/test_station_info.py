@@ -14,22 +14,15 @@ import pytest
 
 import mission.playback as playback
 import mission.station_loop as station_loop
+from small_mission import crew, small_mission
 from mission.ether import LockstepEther, station_for_swarm
 from mission.fly_options import FlyOptions
 from mission.load import validate_mission
 from mission.mission_world import MissionWorld, build_swarm, mission_scenario
 from mission.schema import (
     INFO_MODES,
-    EmulatedVehicles,
-    Mission,
     PlannerSpec,
-    Radio,
     RunSpec,
-    Spawn,
-    SpawnRing,
-    Task,
-    TrackPoint,
-    Vehicles,
 )
 from mission.station_loop import make_operator
 from planner.info import INFO_MODELS, STATION_INFO, CentralInfo, MessagePassingInfo
@@ -41,26 +34,12 @@ def _mission(method="phireman", info=None, n=4, duration_s=12.0, **params):
         if info is None
         else PlannerSpec(method=method, info=info, params=params)
     )
-    tasks = (
-        Task(track=(TrackPoint(t_s=0.0, north_m=60.0, east_m=40.0),)),
-        Task(track=(TrackPoint(t_s=0.0, north_m=-50.0, east_m=-60.0),)),
-    )
-    return Mission(
-        name="info",
-        vehicles=Vehicles(
-            emulated=EmulatedVehicles(
-                count=n,
-                radio_range_m=100.0,
-                cruise_alt_m=20.0,
-                climb_rate_m_s=5.0,
-                max_speed_m_s=10.0,
-                spawn=Spawn(ring=SpawnRing(radius_m=15.0, noise_m=0.0)),
-            )
-        ),
-        tasks=tasks,
-        radio=Radio(range_m=100.0, base_range_m=100.0),
+    return small_mission(
+        "info",
+        RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3),
+        count=n,
+        tasks=(crew(60.0, 40.0), crew(-50.0, -60.0)),
         planner=planner,
-        run=RunSpec(duration_s=duration_s, control_period_s=1.0, seed=3),
     )
 
 
