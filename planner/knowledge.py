@@ -58,12 +58,12 @@ _SPARSE_ENTRY_FRACTION = 0.25
 #: OR per (link, level, 64 columns)), per unit of work; measured at 500 and 2,000 drones.
 _MAX_PER_BIT_WORD = 2.0
 
-#: Above this many holders the bit sets are OR-ed by the compiled kernel; below it NumPy's gather
-#: of every link's row is as fast (measured at 500 drones: ~20 ms either way on a dense tick) and
-#: the previous cost model is kept (so Table II's sizes, up to 500 drones, are unchanged). At
-#: 1,000 packed drones the compiled OR halves the tick (bench_tick_scaling: 266 -> 138 ms CPU p50)
-#: and at 2,000 it is ~10x faster (the gather holds ~370 MB per level there).
-_COMPILED_BITSET_MIN_HOLDERS = 700
+#: Above this many holders the bit sets are OR-ed by the compiled kernel (below it, NumPy's). The
+#: kernel sizes its output per holder and reads the bits word by word; measured on the captured
+#: one-hop calls of M / 1 %, L / 0 % and XL / 0 % runs it is 2-5x faster than NumPy's gather, and at
+#: 2,000 packed drones ~10x (the gather holds ~370 MB per level there). The result is the same set of
+#: entries in the same order whichever path runs (integer maxima), so this is a speed choice only.
+_COMPILED_BITSET_MIN_HOLDERS = 0
 
 #: Above this many holders the one-hop product uses a sparse adjacency matrix (below it the dense
 #: product is cheaper than scipy's per-call overhead).
