@@ -432,7 +432,7 @@ def _hop_bitsets(
                 if (word >> np.uint64(b)) & one:
                     count = 0  # levels whose set holds the column: max_level + 1 - age
                     for level in range(levels):
-                        count += np.int64((acc[level * words + w] >> np.uint64(b)) & one)
+                        count += int((acc[level * words + w] >> np.uint64(b)) & one)
                     out_r[m] = i
                     out_c[m] = col_ids[w * 64 + b]
                     out_s[m] = t_sent - (levels - count)
