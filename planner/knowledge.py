@@ -27,7 +27,7 @@ from typing import Any, Self
 import numpy as np
 from scipy.sparse import csr_matrix
 
-from planner import _graph_kernels, _kernels
+from planner import _graph_kernels, _kernels, _message_kernels
 from planner.geometry import neighbour_pairs, radio_pairs, step_toward
 
 __all__ = [
@@ -118,14 +118,37 @@ def propagate_entries(
     summation order, so the stamps are exactly those of the dense product either way. When b (A + 1) would overflow the float64
     exponent, the maximum per (row, col) is taken by sorting the candidates instead.
     """
+    max_level = int(age_max_steps)
+    cutoff = max(int(t_sent) - max_level, 0)
+    if (
+        _kernels.NUMBA
+        and _kernels.ENABLED
+        and max_level + 1 <= _BITSET_MAX_LEVELS
+        and n_holders > _COMPILED_BITSET_MIN_HOLDERS
+    ):
+        # The steps below (selection, adjacency, cost model) in one compiled pass, then the hop.
+        fr, fc, fs, entry_start, link_start, link_src, work, n_k, s_max, ordered = (
+            _message_kernels.hop_inputs(rows, cols, stamps, n_holders, n_cols, pairs, cutoff)
+        )
+        if len(fr) == 0 or len(pairs) == 0:
+            return fr, fc, fs
+        if s_max <= t_sent and ordered:
+            bit_cost = (
+                (max_level + 1)
+                * ((n_k + 63) // 64)
+                * (len(link_src) + n_holders)
+                / _MAX_PER_BIT_WORD
+            )
+            if work < bit_cost:
+                return _kernels.propagate_max(entry_start, fc, fs, link_start, link_src, n_cols)
+            return _graph_kernels.hop_bitsets(
+                fr, fc, fs, n_holders, n_cols, link_start, link_src, int(t_sent), max_level
+            )
     rows, cols, stamps = (np.asarray(a, dtype=np.int64) for a in (rows, cols, stamps))
-    rows, cols, stamps = _select(
-        stamps >= max(int(t_sent) - int(age_max_steps), 0), rows, cols, stamps
-    )
+    rows, cols, stamps = _select(stamps >= cutoff, rows, cols, stamps)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if len(rows) == 0 or len(pairs) == 0:
         return rows, cols, stamps
-    max_level = int(age_max_steps)
     loops = np.arange(n_holders, dtype=np.int64)
     src = np.concatenate([pairs[:, 1], pairs[:, 0], loops])  # j -> i, i -> j, i -> i
     dst = np.concatenate([pairs[:, 0], pairs[:, 1], loops])
@@ -709,6 +732,10 @@ class Knowledge(_StampTables):
         by: np.ndarray,
     ) -> None:
         """The view of every alive holder from the kept entries (self entries left out)."""
+        view = _message_kernels.entry_view(alive, col_held, r, c, bx, by)
+        if view is not None:  # the lines below in one compiled pass (the same arrays)
+            self.rows, self.cols, self.entry_rows, self.entry_cols, self.entry_believed_m = view
+            return
         er, ec, bx, by = _select(r != c, r, c, bx, by)
         row_of = np.cumsum(alive) - 1
         col_of = np.cumsum(col_held) - 1

@@ -378,6 +378,8 @@ def test_knowledge_update_compiled_identical(rng, numpy_only, after_move, forget
             "entry_believed_m",
         ):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
+            assert getattr(a, name).dtype == getattr(b, name).dtype, name
+        assert a.entry_believed_m.shape == b.entry_believed_m.shape
         pos = pos + rng.normal(0, 0.4, (n, 2))
         alive &= rng.random(n) > 0.03
 

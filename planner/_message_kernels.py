@@ -1,0 +1,208 @@
+"""Compiled glue of the message layer (Numba): the steps of :func:`planner.knowledge.propagate_entries`
+before the hop (forwarded entries, the links' CSR adjacency, the cost model's counts) and the view
+of :meth:`planner.knowledge.Knowledge._set_view`, each in one pass instead of a dozen NumPy calls.
+
+At Table II's sizes a tick of the async planners makes thousands of small NumPy calls; these two
+replace ~20 of them per tick (selections, concatenations, bincounts, an argsort, a searchsorted,
+a column_stack). The same rules as :mod:`planner._graph_kernels` hold: integer and copy results
+only (no arithmetic on floats), so the callers get exactly the NumPy path's arrays; the NumPy
+path stays the reference (``_kernels.ENABLED = False``) and ``tests/planner/test_knowledge.py``
+compares the two.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from planner import _kernels
+from planner._graph_kernels import _jit
+
+__all__ = ["hop_inputs", "entry_view"]
+
+
+def _hop_inputs(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    stamps: np.ndarray,
+    n_holders: int,
+    n_cols: int,
+    pairs: np.ndarray,
+    cutoff: int,
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int, int, bool
+]:
+    m = 0
+    for e in range(len(stamps)):
+        if stamps[e] >= cutoff:
+            m += 1
+    fr = np.empty(m, dtype=np.int64)
+    fc = np.empty(m, dtype=np.int64)
+    fs = np.empty(m, dtype=np.int64)
+    count = np.zeros(n_holders, dtype=np.int64)
+    held = np.zeros(n_cols, dtype=np.bool_)
+    q = 0
+    s_max = -(2**62)
+    ordered = True
+    for e in range(len(stamps)):
+        if stamps[e] >= cutoff:
+            fr[q] = rows[e]
+            fc[q] = cols[e]
+            fs[q] = stamps[e]
+            if q > 0 and fr[q] < fr[q - 1]:
+                ordered = False
+            count[rows[e]] += 1
+            held[cols[e]] = True
+            if stamps[e] > s_max:
+                s_max = stamps[e]
+            q += 1
+    n_k = 0
+    for k in range(n_cols):
+        if held[k]:
+            n_k += 1
+    # CSR of the links by destination: for holder i, its sources (the other end of each pair
+    # and itself). The order within a holder does not matter to the hop (maxima / ORs).
+    deg = np.ones(n_holders, dtype=np.int64)  # the self-loop
+    for p in range(len(pairs)):
+        deg[pairs[p, 0]] += 1
+        deg[pairs[p, 1]] += 1
+    link_start = np.zeros(n_holders + 1, dtype=np.int64)
+    for i in range(n_holders):
+        link_start[i + 1] = link_start[i] + deg[i]
+    fill = link_start[:-1].copy()
+    link_src = np.empty(link_start[n_holders], dtype=np.int64)
+    for i in range(n_holders):
+        link_src[fill[i]] = i
+        fill[i] += 1
+    for p in range(len(pairs)):
+        a = pairs[p, 0]
+        b = pairs[p, 1]
+        link_src[fill[a]] = b
+        fill[a] += 1
+        link_src[fill[b]] = a
+        fill[b] += 1
+    # the per-entry maximum's work: one (link, entry) pair per entry of every link's source
+    work = 0
+    for i in range(n_holders):
+        work += count[i] * deg[i]
+    entry_start = np.zeros(n_holders + 1, dtype=np.int64)
+    for i in range(n_holders):
+        entry_start[i + 1] = entry_start[i] + count[i]
+    return fr, fc, fs, entry_start, link_start, link_src, work, n_k, s_max, ordered
+
+
+_hop_inputs_jit = _jit(_hop_inputs)
+
+
+def hop_inputs(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    stamps: np.ndarray,
+    n_holders: int,
+    n_cols: int,
+    pairs: np.ndarray,
+    cutoff: int,
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int, int, bool
+]:
+    """The forwarded entries (stamp >= ``cutoff``, in their order), their CSR offsets by holder,
+    the links' CSR adjacency by destination (self-loops included), the per-entry maximum's work
+    (sum over holders of entries x (degree + 1)), the number of held columns, the largest stamp
+    and whether the entries' holders are ascending. Integers only (exactly NumPy's)."""
+    fr, fc, fs, entry_start, link_start, link_src, work, n_k, s_max, ordered = _hop_inputs_jit(
+        np.asarray(rows, np.int64),
+        np.asarray(cols, np.int64),
+        np.asarray(stamps, np.int64),
+        int(n_holders),
+        int(n_cols),
+        np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2),
+        int(cutoff),
+    )
+    return (
+        fr,
+        fc,
+        fs,
+        entry_start,
+        link_start,
+        link_src,
+        int(work),
+        int(n_k),
+        int(s_max),
+        bool(ordered),
+    )
+
+
+def _entry_view(
+    alive: np.ndarray,
+    col_held: np.ndarray,
+    r: np.ndarray,
+    c: np.ndarray,
+    bx: np.ndarray,
+    by: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    n_rows = 0
+    row_of = np.empty(len(alive), dtype=np.int64)
+    for i in range(len(alive)):
+        if alive[i]:
+            n_rows += 1
+        row_of[i] = n_rows - 1
+    n_cols = 0
+    col_of = np.empty(len(col_held), dtype=np.int64)
+    for k in range(len(col_held)):
+        if col_held[k]:
+            n_cols += 1
+        col_of[k] = n_cols - 1
+    view_rows = np.empty(n_rows, dtype=np.int64)
+    q = 0
+    for i in range(len(alive)):
+        if alive[i]:
+            view_rows[q] = i
+            q += 1
+    view_cols = np.empty(n_cols, dtype=np.int64)
+    q = 0
+    for k in range(len(col_held)):
+        if col_held[k]:
+            view_cols[q] = k
+            q += 1
+    m = 0
+    for e in range(len(r)):
+        if r[e] != c[e]:
+            m += 1
+    er = np.empty(m, dtype=np.int64)
+    ec = np.empty(m, dtype=np.int64)
+    believed = np.empty((m, 2))
+    q = 0
+    for e in range(len(r)):
+        if r[e] != c[e]:
+            er[q] = row_of[r[e]]
+            ec[q] = col_of[c[e]]
+            believed[q, 0] = bx[e]
+            believed[q, 1] = by[e]
+            q += 1
+    return view_rows, view_cols, er, ec, believed
+
+
+_entry_view_jit = _jit(_entry_view)
+
+
+def entry_view(
+    alive: np.ndarray,
+    col_held: np.ndarray,
+    r: np.ndarray,
+    c: np.ndarray,
+    bx: np.ndarray,
+    by: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """:meth:`planner.knowledge.Knowledge._set_view` in one pass: the view's rows (alive holders)
+    and columns (held drones), each non-self entry's view row and column and its believed position
+    (E, 2). Copies and integer counts only, so the NumPy version's arrays exactly. None without
+    Numba."""
+    if not (_kernels.NUMBA and _kernels.ENABLED):
+        return None
+    return _entry_view_jit(
+        np.asarray(alive, np.bool_),
+        np.asarray(col_held, np.bool_),
+        np.asarray(r, np.int64),
+        np.asarray(c, np.int64),
+        np.asarray(bx, np.float64),
+        np.asarray(by, np.float64),
+    )
