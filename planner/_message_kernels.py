@@ -4,7 +4,8 @@ of :meth:`planner.knowledge.Knowledge._set_view`, each in one pass instead of a 
 
 At Table II's sizes a tick of the async planners makes thousands of small NumPy calls; these two
 replace ~20 of them per tick (selections, concatenations, bincounts, an argsort, a searchsorted,
-a column_stack). The same rules as :mod:`planner._graph_kernels` hold: integer and copy results
+a column_stack). DCCRS's believed displacements (a stamp lookup and a difference of two
+positions per entry) are here too. The same rules as :mod:`planner._graph_kernels` hold: integer and copy results
 only (no arithmetic on floats), so the callers get exactly the NumPy path's arrays; the NumPy
 path stays the reference (``_kernels.ENABLED = False``) and ``tests/planner/test_knowledge.py``
 compares the two.
@@ -17,7 +18,7 @@ import numpy as np
 from planner import _kernels
 from planner._graph_kernels import _jit
 
-__all__ = ["hop_inputs", "entry_view"]
+__all__ = ["hop_inputs", "entry_view", "believed_displacement"]
 
 
 def _hop_inputs(
@@ -205,4 +206,68 @@ def entry_view(
         np.asarray(c, np.int64),
         np.asarray(bx, np.float64),
         np.asarray(by, np.float64),
+    )
+
+
+def _believed_displacement(
+    held_rows: np.ndarray,
+    held_cols: np.ndarray,
+    held_stamps: np.ndarray,
+    n: int,
+    holders: np.ndarray,
+    col_ids: np.ndarray,
+    pos_hist: np.ndarray,
+) -> np.ndarray:
+    out = np.empty((len(holders), 2))
+    m = len(held_rows)
+    for e in range(len(holders)):
+        want = holders[e] * n + col_ids[e]
+        lo = 0
+        hi = m
+        while lo < hi:  # the first entry whose key is >= want (row-major keys are sorted)
+            mid = (lo + hi) >> 1
+            if held_rows[mid] * n + held_cols[mid] < want:
+                lo = mid + 1
+            else:
+                hi = mid
+        s = -1
+        if lo < m and held_rows[lo] * n + held_cols[lo] == want:
+            s = held_stamps[lo]
+        k = col_ids[e]
+        if s >= 1:
+            out[e, 0] = pos_hist[s, k, 0] - pos_hist[s - 1, k, 0]
+            out[e, 1] = pos_hist[s, k, 1] - pos_hist[s - 1, k, 1]
+        else:
+            out[e, 0] = 0.0
+            out[e, 1] = 0.0
+    return out
+
+
+_believed_displacement_jit = _jit(_believed_displacement)
+
+
+def believed_displacement(
+    held_rows: np.ndarray,
+    held_cols: np.ndarray,
+    held_stamps: np.ndarray,
+    n_drones: int,
+    holders: np.ndarray,
+    col_ids: np.ndarray,
+    pos_hist_m: np.ndarray,
+) -> np.ndarray | None:
+    """(E, 2): pos_hist[s, k] - pos_hist[s - 1, k] for the stamp s that holder ``holders[e]``
+    holds of drone ``col_ids[e]`` (0 where s < 1 or unknown), the stamp found by binary search in
+    the row-major entries (:meth:`planner.knowledge.StampTable.lookup`) and the difference taken per
+    coordinate as NumPy does (one subtraction: the same bits). Ids must be in range. None without
+    Numba (:meth:`planner.info.MessagePassingView.believed_displacement_u` is the reference)."""
+    if not (_kernels.NUMBA and _kernels.ENABLED):
+        return None
+    return _believed_displacement_jit(
+        np.asarray(held_rows, np.int64),
+        np.asarray(held_cols, np.int64),
+        np.asarray(held_stamps, np.int64),
+        int(n_drones),
+        np.asarray(holders, np.int64),
+        np.asarray(col_ids, np.int64),
+        np.asarray(pos_hist_m, np.float64),
     )
