@@ -5,7 +5,7 @@ of :meth:`planner.knowledge.Knowledge._set_view`, each in one pass instead of a 
 At Table II's sizes a tick of the async planners makes thousands of small NumPy calls; these two
 replace ~20 of them per tick (selections, concatenations, bincounts, an argsort, a searchsorted,
 a column_stack). DCCRS's believed displacements (a stamp lookup and a difference of two
-positions per entry) are here too. The same rules as :mod:`planner._graph_kernels` hold: integer and copy results
+positions per entry) and its neighbour counts over the entries are here too. The same rules as :mod:`planner._graph_kernels` hold: integer and copy results
 only (no arithmetic on floats), so the callers get exactly the NumPy path's arrays; the NumPy
 path stays the reference (``_kernels.ENABLED = False``) and ``tests/planner/test_knowledge.py``
 compares the two.
@@ -18,7 +18,7 @@ import numpy as np
 from planner import _kernels
 from planner._graph_kernels import _jit
 
-__all__ = ["hop_inputs", "entry_view", "believed_displacement"]
+__all__ = ["hop_inputs", "entry_view", "believed_displacement", "near_counts"]
 
 
 def _hop_inputs(
@@ -270,4 +270,56 @@ def believed_displacement(
         np.asarray(holders, np.int64),
         np.asarray(col_ids, np.int64),
         np.asarray(pos_hist_m, np.float64),
+    )
+
+
+def _near_counts(
+    ax: np.ndarray,
+    ay: np.ndarray,
+    bx: np.ndarray,
+    by: np.ndarray,
+    er: np.ndarray,
+    holder_first: bool,
+    r2: float,
+    n: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    near = np.empty(len(er), dtype=np.bool_)
+    count = np.zeros(n, dtype=np.int64)
+    for e in range(len(er)):
+        i = er[e]
+        if holder_first:
+            dx = ax[i] - bx[e]
+            dy = ay[i] - by[e]
+        else:
+            dx = bx[e] - ax[i]
+            dy = by[e] - ay[i]
+        d2 = dx * dx
+        d2 += dy * dy
+        near[e] = d2 <= r2
+        if near[e]:
+            count[i] += 1
+    return near, count
+
+
+_near_counts_jit = _jit(_near_counts)
+
+
+def near_counts(
+    holder_u: np.ndarray, y_e: np.ndarray, er: np.ndarray, holder_first: bool, r2: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per entry e whether |d|^2 <= r2 with d = holder_u[er[e]] - y_e[e] (``holder_first``) or
+    y_e[e] - holder_u[er[e]], and per holder (len(holder_u),) how many entries are: DCCRS's
+    ``np.einsum("ec,ec->e", d, d) <= r2`` and ``np.bincount(er[near])`` (einsum over two components
+    sums x^2 then y^2 from zero, the same bits; tests/planner/test_kernels.py). None without Numba."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or holder_u.ndim != 2 or holder_u.shape[1] != 2:
+        return None
+    return _near_counts_jit(
+        np.ascontiguousarray(holder_u[:, 0], dtype=np.float64),
+        np.ascontiguousarray(holder_u[:, 1], dtype=np.float64),
+        np.ascontiguousarray(y_e[:, 0], dtype=np.float64),
+        np.ascontiguousarray(y_e[:, 1], dtype=np.float64),
+        np.asarray(er, np.int64),
+        bool(holder_first),
+        float(r2),
+        len(holder_u),
     )

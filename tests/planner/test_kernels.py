@@ -469,3 +469,27 @@ def test_believed_displacement_compiled_identical(rng, numpy_only):
         )
         is None
     )
+
+
+def test_near_counts_is_einsum_and_bincount(rng, numpy_only):
+    """DCCRS's neighbour test over entries: the compiled pass against einsum + bincount, both signs."""
+    from planner import _message_kernels
+
+    for scale in (0.01, 1.0, 300.0):
+        n, e = 60, 900
+        holder = rng.normal(0, scale, (n, 2))
+        er = np.sort(rng.integers(0, n, e))
+        y_e = holder[er] + rng.normal(0, scale, (e, 2))
+        r2 = float(np.median(np.einsum("ec,ec->e", holder[er] - y_e, holder[er] - y_e)))
+        y_e[::7] = holder[er[::7]] + np.sqrt(r2) * np.array([0.6, 0.8])  # on the boundary
+        for holder_first in (True, False):
+            d = holder[er] - y_e if holder_first else y_e - holder[er]
+            near = np.einsum("ec,ec->e", d, d) <= r2
+            got = _message_kernels.near_counts(holder, y_e, er, holder_first, r2)
+            assert got is not None
+            assert np.array_equal(got[0], near)
+            assert np.array_equal(got[1], np.bincount(er[near], minlength=n))
+            assert got[1].dtype == np.bincount(er[near], minlength=n).dtype
+            assert 0 < near.sum() < e
+    numpy_only(True)
+    assert _message_kernels.near_counts(holder, y_e, er, True, r2) is None
