@@ -5,6 +5,7 @@ Runs ``mission.sim.run_episode`` for every (method, size:attrition %, seed) in a
 tree, and compares the exact floats. Exit status 1 if any run differs.
 
     .venv/bin/python bench/bench_identity.py --baseline /tmp/base --cells S:1 M:1 XL:1 --seeds 0 1 2 3 4
+    .venv/bin/python bench/bench_identity.py --baseline /tmp/base --methods dccrs@central   # METHOD@INFO
     .venv/bin/python bench/bench_identity.py --baseline /tmp/base --table-cost --seeds 0 1   # every Table II cell
 
 Each tree runs in one process after a warm-up run (imports, JIT cache loading), so the CPU seconds
@@ -28,12 +29,15 @@ from mission.sim import run_episode
 from planner.problem import problem_preset
 out = []
 items = json.loads(sys.argv[1])
+def split(method):  # "dccrs@central": the method with params {"info": "central"}
+    name, _, info = method.partition("@")
+    return name, ({"info": info} if info else {})
 for method in sorted({it[0] for it in items}):
-    run_episode(problem_preset("XS", 0.01), method, {}, 10_000)   # warm-up: imports, JIT caches
+    run_episode(problem_preset("XS", 0.01), *split(method), 10_000)   # warm-up: imports, JIT caches
 for item in items:
     method, size, att, seed = item
     c0 = time.process_time()
-    r = run_episode(problem_preset(size, att), method, {}, seed)
+    r = run_episode(problem_preset(size, att), *split(method), seed)
     out.append([method, size, att, seed, r.tu1, r.tu2, time.process_time() - c0])
 print(json.dumps(out))
 """

@@ -63,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-from planner import _kernels
+from planner import _kernels, _message_kernels
 from planner.info import (
     CentralView,
     MessageView,
@@ -563,16 +563,24 @@ class DccrsPlanner:
         Returns (result, boolean over entries marking N_i, weights). Agrees with the dense one to rounding."""
         p = self.params
         n = len(pos_u)
-        diff = pos_u[er] - y_e
-        near_e = np.einsum("ec,ec->e", diff, diff) <= self.r_u**2  # N_i, as entries
-        rho = np.bincount(er[near_e], minlength=n)
+        r2 = self.r_u**2
+        fast = _message_kernels.near_counts(pos_u, y_e, er, True, r2)
+        if fast is not None:  # the two lines below in one compiled pass (the same bits)
+            near_e, rho = fast
+        else:
+            diff = pos_u[er] - y_e
+            near_e = np.einsum("ec,ec->e", diff, diff) <= r2  # N_i, as entries
+            rho = np.bincount(er[near_e], minlength=n)
         weight = density_weight(
             rho, p.density_target, p.density_exponent, p.density_weight_min, p.density_weight_max
         )
 
         def claims(y: np.ndarray) -> np.ndarray:  # the same count over the entries
+            counted = _message_kernels.near_counts(y, y_e, er, False, r2)
+            if counted is not None:
+                return counted[1]
             dy = y_e - y[er]
-            return np.bincount(er[np.einsum("ec,ec->e", dy, dy) <= self.r_u**2], minlength=n)
+            return np.bincount(er[np.einsum("ec,ec->e", dy, dy) <= r2], minlength=n)
 
         gain = self._leader_gain(pos_u, leaders_u, claims)
 

@@ -167,9 +167,24 @@ class MessageView:
         """(E, 2): the last executed displacement of drone ``cols[e]`` (into
         ``layer.knowledge.cols``) as known to drone ``holders[e]`` (a drone id): pos(s) - pos(s-1)
         for the holder's stamp s of it; 0 if s < 1 (planner.dccrs.believed_velocities, per entry)."""
+        from planner import _message_kernels  # imported with the message layer (see above)
+        from planner.knowledge import Knowledge
+
         kn = self.layer.knowledge
         assert kn.cols is not None  # set by the knowledge update
         col_e = kn.cols[cols]
+        if isinstance(kn, Knowledge) and kn.pos_hist_m.shape[1] == kn.n_drones:
+            fast = _message_kernels.believed_displacement(
+                kn.held_rows,
+                kn.held_cols,
+                kn.held_stamps,
+                kn.n_drones,
+                holders,
+                col_e,
+                kn.pos_hist_m,
+            )
+            if fast is not None:  # the lines below in one compiled pass (the same bits)
+                return fast
         stamp_e = kn.stamp[holders, col_e]
         s = np.where(stamp_e >= 1, stamp_e, 1)
         return np.where(

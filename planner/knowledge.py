@@ -14,9 +14,11 @@ exact and keeps the state small; each step costs time in proportion to the entri
 drone holds a few dozen entries once the swarm spreads), not N^2. :class:`KnowledgeDense` and
 :func:`propagate_stamps_dense` are the previous dense-table implementation, kept for tests.
 
-Size: ~780 lines, above the ~600 guideline, because the message layer and its two test
-references (the dense tables, :class:`KnowledgeDense` and :func:`propagate_stamps_dense`) belong
-together: the references are only meaningful next to the code they check.
+Size: ~1,000 lines, above the ~600 guideline, because the message layer, its NumPy paths (the
+references of the compiled kernels in :mod:`planner._kernels`, :mod:`planner._graph_kernels` and
+:mod:`planner._message_kernels`) and its two test references (the dense tables,
+:class:`KnowledgeDense` and :func:`propagate_stamps_dense`) belong together: the references are
+only meaningful next to the code they check.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from typing import Any, Self
 import numpy as np
 from scipy.sparse import csr_matrix
 
-from planner import _graph_kernels, _kernels
+from planner import _graph_kernels, _kernels, _message_kernels
 from planner.geometry import neighbour_pairs, radio_pairs, step_toward
 
 __all__ = [
@@ -58,12 +60,12 @@ _SPARSE_ENTRY_FRACTION = 0.25
 #: OR per (link, level, 64 columns)), per unit of work; measured at 500 and 2,000 drones.
 _MAX_PER_BIT_WORD = 2.0
 
-#: Above this many holders the bit sets are OR-ed by the compiled kernel; below it NumPy's gather
-#: of every link's row is as fast (measured at 500 drones: ~20 ms either way on a dense tick) and
-#: the previous cost model is kept (so Table II's sizes, up to 500 drones, are unchanged). At
-#: 1,000 packed drones the compiled OR halves the tick (bench_tick_scaling: 266 -> 138 ms CPU p50)
-#: and at 2,000 it is ~10x faster (the gather holds ~370 MB per level there).
-_COMPILED_BITSET_MIN_HOLDERS = 700
+#: Above this many holders the bit sets are OR-ed by the compiled kernel (below it, NumPy's). The
+#: kernel sizes its output per holder and reads the bits word by word; measured on the captured
+#: one-hop calls of M / 1 %, L / 0 % and XL / 0 % runs it is 2-5x faster than NumPy's gather, and at
+#: 2,000 packed drones ~10x (the gather holds ~370 MB per level there). The result is the same set of
+#: entries in the same order whichever path runs (integer maxima), so this is a speed choice only.
+_COMPILED_BITSET_MIN_HOLDERS = 0
 
 #: Above this many holders the one-hop product uses a sparse adjacency matrix (below it the dense
 #: product is cheaper than scipy's per-call overhead).
@@ -118,14 +120,37 @@ def propagate_entries(
     summation order, so the stamps are exactly those of the dense product either way. When b (A + 1) would overflow the float64
     exponent, the maximum per (row, col) is taken by sorting the candidates instead.
     """
+    max_level = int(age_max_steps)
+    cutoff = max(int(t_sent) - max_level, 0)
+    if (
+        _kernels.NUMBA
+        and _kernels.ENABLED
+        and max_level + 1 <= _BITSET_MAX_LEVELS
+        and n_holders > _COMPILED_BITSET_MIN_HOLDERS
+    ):
+        # The steps below (selection, adjacency, cost model) in one compiled pass, then the hop.
+        fr, fc, fs, entry_start, link_start, link_src, work, n_k, s_max, ordered = (
+            _message_kernels.hop_inputs(rows, cols, stamps, n_holders, n_cols, pairs, cutoff)
+        )
+        if len(fr) == 0 or len(pairs) == 0:
+            return fr, fc, fs
+        if s_max <= t_sent and ordered:
+            bit_cost = (
+                (max_level + 1)
+                * ((n_k + 63) // 64)
+                * (len(link_src) + n_holders)
+                / _MAX_PER_BIT_WORD
+            )
+            if work < bit_cost:
+                return _kernels.propagate_max(entry_start, fc, fs, link_start, link_src, n_cols)
+            return _graph_kernels.hop_bitsets(
+                fr, fc, fs, n_holders, n_cols, link_start, link_src, int(t_sent), max_level
+            )
     rows, cols, stamps = (np.asarray(a, dtype=np.int64) for a in (rows, cols, stamps))
-    rows, cols, stamps = _select(
-        stamps >= max(int(t_sent) - int(age_max_steps), 0), rows, cols, stamps
-    )
+    rows, cols, stamps = _select(stamps >= cutoff, rows, cols, stamps)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if len(rows) == 0 or len(pairs) == 0:
         return rows, cols, stamps
-    max_level = int(age_max_steps)
     loops = np.arange(n_holders, dtype=np.int64)
     src = np.concatenate([pairs[:, 1], pairs[:, 0], loops])  # j -> i, i -> j, i -> i
     dst = np.concatenate([pairs[:, 0], pairs[:, 1], loops])
@@ -709,6 +734,10 @@ class Knowledge(_StampTables):
         by: np.ndarray,
     ) -> None:
         """The view of every alive holder from the kept entries (self entries left out)."""
+        view = _message_kernels.entry_view(alive, col_held, r, c, bx, by)
+        if view is not None:  # the lines below in one compiled pass (the same arrays)
+            self.rows, self.cols, self.entry_rows, self.entry_cols, self.entry_believed_m = view
+            return
         er, ec, bx, by = _select(r != c, r, c, bx, by)
         row_of = np.cumsum(alive) - 1
         col_of = np.cumsum(col_held) - 1

@@ -378,6 +378,8 @@ def test_knowledge_update_compiled_identical(rng, numpy_only, after_move, forget
             "entry_believed_m",
         ):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
+            assert getattr(a, name).dtype == getattr(b, name).dtype, name
+        assert a.entry_believed_m.shape == b.entry_believed_m.shape
         pos = pos + rng.normal(0, 0.4, (n, 2))
         alive &= rng.random(n) > 0.03
 
@@ -429,3 +431,65 @@ def test_greedy_tree_compiled_pick_identical(rng, numpy_only, m, cb):
     slow = build_task_tree(np.array([0.5, -0.5]), tasks, cb)
     numpy_only(False)
     assert np.array_equal(fast.nodes_m, slow.nodes_m) and np.array_equal(fast.parent, slow.parent)
+
+
+def test_believed_displacement_compiled_identical(rng, numpy_only):
+    """DCCRS's believed displacements per entry: the compiled lookup + difference against the
+    StampTable lookup and NumPy's difference, bit for bit (unknown entries and stamp 0 give 0)."""
+    from planner import _message_kernels
+    from planner.knowledge import MessageLayer
+
+    n, steps = 90, 12
+    layer = MessageLayer(n, steps, 2.0, 2.0, 3, 6.0, 15, after_move=True, forget_unheard=True)
+    pos = rng.uniform(-3, 3, (n, 2))
+    alive = np.ones(n, bool)
+    seen: set[bool] = set()  # both known (stamp >= 1) and unknown entries were looked up
+    for t in range(steps):
+        layer.step(t, pos.copy(), alive.copy(), np.zeros(2), object())
+        kn = layer.knowledge
+        holders = rng.integers(0, n, 400)
+        cols = rng.integers(0, n, 400)
+        got = _message_kernels.believed_displacement(
+            kn.held_rows, kn.held_cols, kn.held_stamps, n, holders, cols, kn.pos_hist_m
+        )
+        stamp = kn.stamp[holders, cols]
+        s = np.where(stamp >= 1, stamp, 1)
+        want = np.where(
+            (stamp >= 1)[:, None], kn.pos_hist_m[s, cols] - kn.pos_hist_m[s - 1, cols], 0.0
+        )
+        assert got is not None and got.dtype == want.dtype
+        assert np.array_equal(got.view(np.int64), want.view(np.int64))  # bits, -0.0 included
+        seen |= {bool(v) for v in stamp >= 1}
+        pos = pos + rng.normal(0, 0.4, (n, 2))
+        alive &= rng.random(n) > 0.03
+    numpy_only(True)
+    assert (
+        _message_kernels.believed_displacement(
+            kn.held_rows, kn.held_cols, kn.held_stamps, n, holders, cols, kn.pos_hist_m
+        )
+        is None
+    )
+
+
+def test_near_counts_is_einsum_and_bincount(rng, numpy_only):
+    """DCCRS's neighbour test over entries: the compiled pass against einsum + bincount, both signs."""
+    from planner import _message_kernels
+
+    for scale in (0.01, 1.0, 300.0):
+        n, e = 60, 900
+        holder = rng.normal(0, scale, (n, 2))
+        er = np.sort(rng.integers(0, n, e))
+        y_e = holder[er] + rng.normal(0, scale, (e, 2))
+        r2 = float(np.median(np.einsum("ec,ec->e", holder[er] - y_e, holder[er] - y_e)))
+        y_e[::7] = holder[er[::7]] + np.sqrt(r2) * np.array([0.6, 0.8])  # on the boundary
+        for holder_first in (True, False):
+            d = holder[er] - y_e if holder_first else y_e - holder[er]
+            near = np.einsum("ec,ec->e", d, d) <= r2
+            got = _message_kernels.near_counts(holder, y_e, er, holder_first, r2)
+            assert got is not None
+            assert np.array_equal(got[0], near)
+            assert np.array_equal(got[1], np.bincount(er[near], minlength=n))
+            assert got[1].dtype == np.bincount(er[near], minlength=n).dtype
+            assert 0 < near.sum() < e
+    numpy_only(True)
+    assert _message_kernels.near_counts(holder, y_e, er, True, r2) is None

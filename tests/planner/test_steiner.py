@@ -475,3 +475,29 @@ def test_nearest_point_gives_the_gradient_of_h(rng):
             distance_to_tree(pts + step, tree)[0] - distance_to_tree(pts - step, tree)[0]
         ) / (2 * h)
         np.testing.assert_allclose(numeric, grad[:, axis], atol=1e-5)
+
+
+@pytest.mark.parametrize("sweeps", [1, 3, 6])
+def test_relaxation_shortcuts_give_the_same_bits(rng, monkeypatch, sweeps):
+    """Stopping after a sweep that changed nothing, and returning a fixed-point tree as it is when
+    its tasks are unchanged, give exactly the trees of running every sweep every tick."""
+    from planner import steiner
+
+    base = np.zeros(2)
+    shortcuts = 0
+    for trial in range(25):
+        m = int(rng.integers(2, 14))
+        tasks = rng.uniform(-10, 10, (m, 2))
+        tree = ref = build_task_tree(base, tasks)
+        for t in range(12):
+            if t % 4 == 3:  # the tasks move now and then; otherwise they stay put
+                tasks = tasks + rng.normal(0, 0.5, tasks.shape)
+            new = update_task_positions(tree, tasks, sweeps)
+            shortcuts += new is tree
+            monkeypatch.setattr(steiner, "RELAX_SHORTCUTS", False)
+            ref = update_task_positions(ref, tasks, sweeps)
+            monkeypatch.setattr(steiner, "RELAX_SHORTCUTS", True)
+            assert np.array_equal(new.nodes_m.view(np.int64), ref.nodes_m.view(np.int64)), trial
+            assert np.array_equal(new.parent, ref.parent), trial
+            tree = new
+    assert shortcuts > 0
