@@ -52,6 +52,10 @@ J. S. Kent, E. Stefani, B. Plancher, "Robust Geospatial Coordination of Multi-Ag
 Networks Under Attrition", IEEE RA-L 2026, arXiv:2512.02079 (the only source on DCCRS).
 C. W. Reynolds, "Flocks, herds and schools", SIGGRAPH 1987; R. Olfati-Saber, "Flocking for
 multi-agent dynamic systems", IEEE TAC 51(3), 2006 (building blocks, not DCCRS itself).
+
+Length (over the ~600 lines this code base aims for): the reconstruction is one algorithm whose
+every term (density weight, attraction, velocity matching) sits beside its loop reference, and
+its parameters and their documented provenance stay next to the code that uses them.
 """
 
 from __future__ import annotations
