@@ -63,13 +63,17 @@ def _sink(port_q: mp.Queue, result_q: mp.Queue, duration_s: float) -> None:
     frames: dict = {}
     end = time.monotonic() + duration_s + 5
     started = None
+    last = 0.0
     while time.monotonic() < end:
         try:
             data, addr = sock.recvfrom(65535)
         except TimeoutError:
-            if started is not None:
+            # Done after 2.5 s of silence (ArduPilot's default is one HEARTBEAT a second, in
+            # bursts: a shorter wait stopped counting after the first burst).
+            if started is not None and time.monotonic() - last > 2.5:
                 break
             continue
+        last = time.monotonic()
         started = started or time.monotonic()
         n += 1
         nbytes += len(data)

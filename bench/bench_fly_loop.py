@@ -1,32 +1,103 @@
 """Benchmark: the full loop (emulator process <-> station over loopback UDP) with many vehicles.
 
 500 emulated vehicles are split over 2 MAVLink networks (sysids are 8-bit), each its own UDP
-link; the station runs discovery, audit, launch and the PhiIREMAN loop. Reports the control
-tick rate sustained (ticks per wall second), the achieved speed-up and the CPU of both sides.
+link; the station runs discovery, audit, launch and the PhiIREMAN loop (central information).
+Reports, over the run phase only (first control tick to last):
 
-    .venv/bin/python bench/bench_fly_loop.py --vehicles 500 --duration-s 30 --speedup 1
+* ``ticks_per_wall_s``: control ticks per wall second (the control period is 1 s of vehicle
+  time, so at ``--speedup 10`` the goal is 10);
+* ``tick_latency_ms`` p50 / p95 / max: wall time of the station's poll that ran a control tick
+  (fleet snapshot, the planner's tick, setpoints queued), plus the sending of what it queued;
+* ``tick_period_s`` p50 / p95: vehicle seconds between ticks (1.0 when the station keeps up);
+* CPU seconds and share of one core of the station process and of the emulator process over
+  the same window (the emulator's from /proc), and the load average.
+
+``--baseline DIR`` (or ``--commit REV``, a ``git archive`` into a temp dir) runs the same flight
+with that code tree in a child process first, then this tree, and prints the ratios. The
+emulator process is spawned, so each tree's emulator runs its own code.
+
+    .venv/bin/python bench/bench_fly_loop.py --vehicles 500 --duration-s 40 --speedup 10
+    .venv/bin/python bench/bench_fly_loop.py --speedup 10 --commit 64a57d8 --repeat 2
+    .venv/bin/python bench/bench_fly_loop.py --speedup 10 --profile /tmp/loop   # cProfile both sides
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import logging
+import os
+import shutil
+import subprocess
+import sys
 import tempfile
+import time
 
 import numpy as np
 
-from mission.runners import FlyOptions, fly_emulated
-from mission.schema import paper_mission
-import dataclasses
+
+def _proc_cpu_s(pid: int) -> float:
+    """utime + stime of process ``pid`` (Linux /proc), seconds."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return float("nan")
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--vehicles", type=int, default=500)
-    ap.add_argument("--duration-s", type=float, default=30.0)
-    ap.add_argument("--speedup", type=float, default=1.0)
-    ap.add_argument("--personality", default="ardupilot")
-    args = ap.parse_args()
+def _profiled_emulator_main(*args) -> None:  # runs in the spawned emulator process
+    import cProfile
+
+    from mission import emulator_host
+
+    prof = cProfile.Profile()
+    prof.enable()
+    try:
+        emulator_host._emulator_process_main(*args)
+    finally:
+        prof.disable()
+        prof.dump_stats(os.environ["BENCH_FLY_LOOP_PROFILE"] + ".emulator.prof")
+
+
+def run_once(args) -> dict:
+    import multiprocessing as mp
+
+    import mission.emulator_host as emulator_host
+    from gcs.operations import Operator
+    from mission.runners import FlyOptions, fly_emulated
+    from mission.schema import paper_mission
+
+    logging.getLogger().setLevel(logging.ERROR)
+    ticks: list[tuple[float, float, float, float, float]] = []  # wall, latency, t_s, cpu, emu cpu
+    emu_pid: list[int] = []
+    orig_poll = Operator.poll
+
+    run_prof = None
+    if args.profile_run:
+        import cProfile
+
+        run_prof = cProfile.Profile()
+
+    def timed_poll(self, now_s):
+        w0 = time.perf_counter()
+        rec = orig_poll(self, now_s)
+        if rec is not None:
+            w1 = time.perf_counter()
+            if run_prof is not None and not ticks:
+                run_prof.enable()
+            if not emu_pid:
+                kids = [p.pid for p in mp.active_children() if p.name == "phireman-emulator"]
+                emu_pid.extend(kids[:1] or [0])
+            ticks.append((w1, w1 - w0, now_s, time.process_time(), _proc_cpu_s(emu_pid[0])))
+        return rec
+
+    Operator.poll = timed_poll  # type: ignore[method-assign]
+    if args.profile:
+        os.environ["BENCH_FLY_LOOP_PROFILE"] = args.profile
+        emulator_host._emulator_process_main = _profiled_emulator_main  # type: ignore[assignment]
+
     m = paper_mission("XL", 0.0, seed=0)
     emu = dataclasses.replace(m.vehicles.emulated, count=args.vehicles)
     m = dataclasses.replace(
@@ -34,6 +105,13 @@ def main() -> None:
         vehicles=dataclasses.replace(m.vehicles, emulated=emu),
         planner=dataclasses.replace(m.planner, info="central"),
     )
+    load0 = os.getloadavg()
+    prof = None
+    if args.profile:
+        import cProfile
+
+        prof = cProfile.Profile()
+        prof.enable()
     with tempfile.TemporaryDirectory() as out:
         r = fly_emulated(
             m,
@@ -45,32 +123,149 @@ def main() -> None:
                 wave_size=100,
                 end_wait=False,
                 override_audit=True,
+                emulator_in_process=args.in_process,
             ),
         )
-        s = r.summary
-        recs = r.operator.records
-        t = np.array([x.t_s for x in recs])
-        period = np.diff(t) if len(t) > 1 else np.array([np.nan])
-        print(
-            json.dumps(
-                {
-                    "vehicles": args.vehicles,
-                    "networks": len(s["links"]),
-                    "speedup": args.speedup,
-                    "ticks": len(recs),
-                    "mission_s": s["mission_s_flown"],
-                    "wall_s": round(s["wall_s"], 1),
-                    "speedup_achieved": round(s["speedup_achieved"], 2),
-                    "tick_period_p50_s": round(float(np.median(period)), 3),
-                    "tick_period_p95_s": round(float(np.percentile(period, 95)), 3),
-                    "ticks_per_wall_s": round(len(recs) / max(1e-9, s["wall_s"]), 2),
-                    "planned_last": recs[-1].planned if recs else 0,
-                    "station_cpu_s": round(s["station_cpu_s"], 1),
-                    "emulator_cpu_s": round(s["emulator"]["cpu_s"], 1),
-                    "frames_in": sum(l["frames_in"] for l in s["links"]),
-                }
-            )
+    if run_prof is not None:
+        run_prof.disable()
+        run_prof.dump_stats(args.profile_run)
+    if prof is not None:
+        prof.disable()
+        prof.dump_stats(args.profile + ".station.prof")
+    s = r.summary
+    recs = r.operator.records
+    arr = np.array(ticks) if ticks else np.full((1, 5), np.nan)
+    # The run phase: from the second tick (the first one waits on launch) to the last.
+    run = arr[1:] if len(arr) > 2 else arr
+    wall = float(run[-1, 0] - run[0, 0]) if len(run) > 1 else float("nan")
+    n_int = max(1, len(run) - 1)
+    period = np.diff(arr[:, 2]) if len(arr) > 1 else np.array([np.nan])
+    lat_ms = arr[:, 1] * 1e3
+    station_cpu = float(run[-1, 3] - run[0, 3])
+    emu_cpu = float(run[-1, 4] - run[0, 4])
+    return {
+        "vehicles": args.vehicles,
+        "networks": len(s["links"]),
+        "speedup": args.speedup,
+        "ticks": len(recs),
+        "ticks_per_wall_s": round(n_int / wall, 2),
+        "tick_latency_ms": {
+            "p50": round(float(np.median(lat_ms)), 1),
+            "p95": round(float(np.percentile(lat_ms, 95)), 1),
+            "max": round(float(lat_ms.max()), 1),
+        },
+        "tick_period_s": {
+            "p50": round(float(np.median(period)), 3),
+            "p95": round(float(np.percentile(period, 95)), 3),
+        },
+        "run_wall_s": round(wall, 2),
+        "station_cpu_share": round(station_cpu / wall, 2),
+        "emulator_cpu_share": round(emu_cpu / wall, 2),
+        "station_cpu_s_per_tick": round(station_cpu / n_int, 3),
+        "emulator_cpu_s_per_tick": round(emu_cpu / n_int, 3),
+        "planned_last": recs[-1].planned if recs else 0,
+        "whole_flight_wall_s": round(s["wall_s"], 1),
+        "station_cpu_s_total": round(s["station_cpu_s"], 1),
+        "emulator_cpu_s_total": round(s["emulator"]["cpu_s"], 1),
+        "frames_in": sum(x["frames_in"] for x in s["links"]),
+        "loadavg_before_after": [round(load0[0], 2), round(os.getloadavg()[0], 2)],
+    }
+
+
+def _child(tree: str, argv: list[str]) -> dict:
+    env = {**os.environ, "PYTHONPATH": tree}
+    out = subprocess.run(
+        [sys.executable, os.path.abspath(__file__), *argv, "--single"],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tree,
+    )
+    if out.returncode:
+        sys.exit(f"{tree}: {out.stderr[-3000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--vehicles", type=int, default=500)
+    ap.add_argument("--duration-s", type=float, default=40.0)
+    ap.add_argument("--speedup", type=float, default=10.0)
+    ap.add_argument("--personality", default="ardupilot")
+    ap.add_argument("--profile", help="write PREFIX.station.prof and PREFIX.emulator.prof")
+    ap.add_argument(
+        "--profile-run", help="cProfile the station process from the first tick to the end"
+    )
+    ap.add_argument("--in-process", action="store_true", help="the emulator on the station's loop")
+    ap.add_argument("--baseline", help="root of the previous code tree")
+    ap.add_argument("--commit", help="git archive this revision as the baseline")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per tree, alternated")
+    ap.add_argument("--single", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.single or not (args.baseline or args.commit):
+        for _ in range(1 if args.single else args.repeat):
+            print(json.dumps(run_once(args)), flush=True)
+        return
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    tmp = None
+    base = args.baseline
+    if base is None:
+        tmp = tempfile.mkdtemp(prefix="bench_fly_loop_")
+        subprocess.run(
+            f"git -C {here} archive {args.commit} | tar -x -C {tmp}", shell=True, check=True
         )
+        base = tmp
+    argv = [
+        f"--vehicles={args.vehicles}",
+        f"--duration-s={args.duration_s}",
+        f"--speedup={args.speedup}",
+        f"--personality={args.personality}",
+    ]
+    try:
+        res: dict[str, list[dict]] = {"old": [], "new": []}
+        for _ in range(args.repeat):
+            for name, tree in (("old", base), ("new", here)):
+                r = _child(tree, argv)
+                res[name].append(r)
+                print(name, json.dumps(r), flush=True)
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+    def med(name: str, key: str, sub: str | None = None) -> float:
+        v = [x[key][sub] if sub else x[key] for x in res[name]]
+        return float(np.median(v))
+
+    print(
+        json.dumps(
+            {
+                "old_over_new": {
+                    "ticks_per_wall_s (new/old)": round(
+                        med("new", "ticks_per_wall_s") / med("old", "ticks_per_wall_s"), 2
+                    ),
+                    "tick_latency_p50": round(
+                        med("old", "tick_latency_ms", "p50") / med("new", "tick_latency_ms", "p50"),
+                        2,
+                    ),
+                    "tick_latency_p95": round(
+                        med("old", "tick_latency_ms", "p95") / med("new", "tick_latency_ms", "p95"),
+                        2,
+                    ),
+                    "station_cpu_s_per_tick": round(
+                        med("old", "station_cpu_s_per_tick") / med("new", "station_cpu_s_per_tick"),
+                        2,
+                    ),
+                    "emulator_cpu_s_per_tick": round(
+                        med("old", "emulator_cpu_s_per_tick")
+                        / med("new", "emulator_cpu_s_per_tick"),
+                        2,
+                    ),
+                }
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

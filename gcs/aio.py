@@ -160,6 +160,8 @@ class StationAdapter:
         self._port: _SerialPort | None = None
         self._port_lost: asyncio.Event | None = None
         self._taps: list[Callable[[bytes, object], None]] = []
+        self.early_wakeups = 0
+        """Timer wake-ups before the core's next deadline (skipped without a scan)."""
         self._tap_peers: dict[Any, Any] = {}
 
     def now(self) -> float:
@@ -456,8 +458,16 @@ class StationAdapter:
 
     def _on_timer(self) -> None:
         self._timer = None
-        if self.core is not None:
-            self.core.handle_timer(self.now())
+        core = self.core
+        if core is not None:
+            due = core.next_timer_s()
+            if due is None or self.now() >= due:
+                core.handle_timer(self.now())
+            else:
+                # Early: the wall-time estimate ran ahead of the core's clock (a paced clock held
+                # back by lock-step). By next_timer_s's contract nothing is due before it, and
+                # handle_timer scans every vehicle: skip it and re-arm (transmit).
+                self.early_wakeups += 1
             self.transmit()
 
     def transmit(self) -> None:

@@ -111,16 +111,22 @@ class FleetView:
         self._index: dict[tuple[int, int], int] = {}
         self._link: list[int] = []
         self._sysid: list[int] = []
-        self._geo: list[tuple[float, float, float]] = []  # lat, lon, alt_amsl (NaN = none)
-        self._vel: list[tuple[float, float, float]] = []
-        self._home_amsl: list[float] = []
-        self._home_reported: list[bool] = []
-        self._last_heard: list[float] = []
-        self._link_lost: list[bool] = []
-        self._was_lost: list[bool] = []
-        self._armed: list[bool] = []
         self._custom_mode: list[int] = []
         self._autopilot: list[int] = []
+        # Numeric rows in preallocated arrays (capacity doubles): a snapshot slices them
+        # instead of converting lists of tuples (it runs on every poll of the operator).
+        self._cap = 0
+        self._geo = np.empty((0, 3))  # lat, lon, alt_amsl (NaN = none)
+        self._vel = np.empty((0, 3))
+        self._home_amsl = np.empty(0)
+        self._home_reported = np.empty(0, dtype=bool)
+        self._last_heard = np.empty(0)
+        self._link_lost = np.empty(0, dtype=bool)
+        self._was_lost = np.empty(0, dtype=bool)
+        self._armed = np.empty(0, dtype=bool)
+        #: (autopilot, custom_mode) -> (mode name, failsafe mode?): a fleet shows few modes, and
+        #: the adapters' answers depend on these two numbers alone.
+        self._mode_info: dict[tuple[int, int], tuple[str, bool]] = {}
 
     # ------------------------------------------------------------------ rows
 
@@ -134,20 +140,38 @@ class FleetView:
         if idx is not None:
             return idx
         idx = self._index[key] = len(self._sysid)
-        nan3 = (math.nan, math.nan, math.nan)
+        if idx >= self._cap:
+            self._grow(max(16, 2 * self._cap))
         self._link.append(link_id)
         self._sysid.append(sysid)
-        self._geo.append(nan3)
-        self._vel.append(nan3)
-        self._home_amsl.append(math.nan)
-        self._home_reported.append(False)
-        self._last_heard.append(-math.inf)
-        self._link_lost.append(False)
-        self._was_lost.append(False)
-        self._armed.append(False)
         self._custom_mode.append(0)
         self._autopilot.append(0)
+        self._geo[idx] = math.nan
+        self._vel[idx] = math.nan
+        self._home_amsl[idx] = math.nan
+        self._home_reported[idx] = False
+        self._last_heard[idx] = -math.inf
+        self._link_lost[idx] = False
+        self._was_lost[idx] = False
+        self._armed[idx] = False
         return idx
+
+    def _grow(self, cap: int) -> None:
+        for name in (
+            "_geo",
+            "_vel",
+            "_home_amsl",
+            "_home_reported",
+            "_last_heard",
+            "_link_lost",
+            "_was_lost",
+            "_armed",
+        ):
+            old = getattr(self, name)
+            new = np.empty((cap, *old.shape[1:]), dtype=old.dtype)
+            new[: len(old)] = old
+            setattr(self, name, new)
+        self._cap = cap
 
     def index_of(self, link_id: int, sysid: int) -> int:
         try:
@@ -170,13 +194,14 @@ class FleetView:
         if not isinstance(event, Event):
             return  # link state (LinkUp / LinkDown): no vehicle row
         i = self.register(event.link_id, event.sysid)
-        if event.t_s - self._last_heard[i] > self.timeout_s and math.isfinite(self._last_heard[i]):
+        last = float(self._last_heard[i])
+        if event.t_s - last > self.timeout_s and math.isfinite(last):
             self._was_lost[i] = True  # silent past the timeout, whatever the link said
         if isinstance(event, VehicleLost):
             self._link_lost[i] = True
             self._was_lost[i] = True
             return  # a loss is not hearing from it
-        self._last_heard[i] = max(self._last_heard[i], event.t_s)
+        self._last_heard[i] = max(last, event.t_s)
         if isinstance(event, TelemetryReceived):
             self._geo[i] = (event.lat_deg, event.lon_deg, event.alt_amsl_m)
             self._vel[i] = event.vel_ned_m_s
@@ -206,7 +231,8 @@ class FleetView:
 
     def _settle(self, i: int) -> None:
         # Heard and not in a failsafe mode: reclaimed (or never left); a normal member again.
-        if not adapter_for(self._autopilot[i]).is_failsafe_mode(self._custom_mode[i]):
+        key = (self._autopilot[i], self._custom_mode[i])
+        if not (self._mode_info.get(key) or self._new_mode_info(key))[1]:
             self._was_lost[i] = False
 
     # ------------------------------------------------------------------ reading
@@ -214,7 +240,7 @@ class FleetView:
     def snapshot(self, now_s: float) -> FleetSnapshot:
         """The fleet as believed at ``now_s`` (vectorised geodetic -> mission NED)."""
         n = len(self._sysid)
-        geo = np.array(self._geo, dtype=float).reshape(n, 3)
+        geo: np.ndarray = self._geo[:n]
         has_pos = np.isfinite(geo).all(axis=1)
         pos = np.full((n, 3), np.nan)
         if has_pos.any():
@@ -227,16 +253,15 @@ class FleetView:
                 o.lon_deg,
                 o.alt_amsl_m,
             )
-        last = np.array(self._last_heard, dtype=float)
-        heard = (now_s - last <= self.timeout_s) & ~np.array(self._link_lost, dtype=bool)
-        failsafe = np.array(
-            [
-                adapter_for(a).is_failsafe_mode(m)
-                for a, m in zip(self._autopilot, self._custom_mode)
-            ],
-            dtype=bool,
-        )
-        returning = heard & np.array(self._was_lost, dtype=bool) & failsafe
+        last = self._last_heard[:n].copy()
+        heard = (now_s - last <= self.timeout_s) & ~self._link_lost[:n]
+        cache = self._mode_info
+        infos = [
+            cache.get(key) or self._new_mode_info(key)
+            for key in zip(self._autopilot, self._custom_mode)
+        ]
+        failsafe = np.fromiter((f for _, f in infos), dtype=bool, count=n)
+        returning = heard & self._was_lost[:n] & failsafe
         autopilot = np.array(self._autopilot, dtype=int)
         custom = np.array(self._custom_mode, dtype=np.int64)
         return FleetSnapshot(
@@ -244,21 +269,24 @@ class FleetView:
             link_id=self.link_of_index,
             sysid_of_index=self.sysid_of_index,
             pos_ned_m=pos,
-            vel_ned_m_s=np.array(self._vel, dtype=float).reshape(n, 3),
+            vel_ned_m_s=self._vel[:n].copy(),
             has_position=has_pos,
-            home_amsl_m=np.array(self._home_amsl, dtype=float),
+            home_amsl_m=self._home_amsl[:n].copy(),
             last_heard_s=last,
             networked=heard & ~returning,
             lost=~heard,
             returning=returning,
-            armed=np.array(self._armed, dtype=bool),
+            armed=self._armed[:n].copy(),
             custom_mode=custom,
             autopilot=autopilot,
-            mode=tuple(
-                adapter_for(a).mode_name(m) for a, m in zip(self._autopilot, self._custom_mode)
-            ),
-            home_reported=np.array(self._home_reported, dtype=bool),
+            mode=tuple(name for name, _ in infos),
+            home_reported=self._home_reported[:n].copy(),
         )
+
+    def _new_mode_info(self, key: tuple[int, int]) -> tuple[str, bool]:
+        adapter = adapter_for(key[0])
+        info = self._mode_info[key] = (adapter.mode_name(key[1]), adapter.is_failsafe_mode(key[1]))
+        return info
 
     def targets_to_global(
         self, indices: npt.ArrayLike, target_ned_m: npt.ArrayLike
@@ -280,5 +308,5 @@ class FleetView:
         tgt = np.asarray(target_ned_m, dtype=float).reshape(len(idx), 3)
         o = self.origin
         lat, lon, alt_amsl = ned_to_geodetic(tgt, o.lat_deg, o.lon_deg, o.alt_amsl_m)
-        home = np.array(self._home_amsl, dtype=float)[idx] if len(idx) else np.empty(0)
+        home = self._home_amsl[: len(self)][idx] if len(idx) else np.empty(0)
         return (np.atleast_1d(lat), np.atleast_1d(lon), np.atleast_1d(alt_amsl - home))

@@ -261,12 +261,21 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
 
     def receive_datagram(self, data: bytes, addr, now_s: float) -> None:
         """Feed one datagram (any number of frames, possibly garbage or truncated)."""
+        if not self.alive:
+            self.stats.datagrams_in += 1
+            self.stats.dropped_dead += 1
+            return
+        self.receive_decoded(self._codec.decode_datagram(data), addr, now_s)
+
+    def receive_decoded(self, res: wire.DecodeResult, addr, now_s: float) -> None:
+        """Handle one datagram already decoded (:meth:`receive_datagram`; the swarm decodes a
+        broadcast frame once for every core without a signing key, whose decode depends on the
+        bytes alone). ``res`` and its messages may be shared between cores: read only."""
         st = self.stats
         st.datagrams_in += 1
         if not self.alive:
             st.dropped_dead += 1
             return
-        res = self._codec.decode_datagram(data)
         st.bad_data += res.n_bad
         st.unknown_msg_ids += res.n_unknown
         st.truncated_bytes += res.n_truncated_bytes

@@ -26,6 +26,9 @@ telemetry without bound. The radio decides what gets through (:mod:`vehicle_emu.
 
 One tick (:meth:`Swarm.handle_timer`): attrition -> autopilot rules of every core ->
 vectorised physics step -> geodetic update -> radio update -> ground-truth record -> telemetry.
+
+Longer than ~600 lines on purpose: the router, the peers, the tick and the ground truth all
+work on the swarm's shared per-vehicle state; split, each part would reach into the others.
 """
 
 from __future__ import annotations
@@ -277,6 +280,8 @@ class Swarm:
         self._members = [
             np.flatnonzero(self.network_of_index == k).tolist() for k in range(self.n_networks)
         ]
+        #: Decodes a broadcast frame once for every member without a signing key.
+        self._broadcast_codec = wire.Codec(1)
 
         self._t_s = float(now_s)
         self._next_truth_s = float(now_s) + self.truth_period_s
@@ -439,8 +444,33 @@ class Swarm:
                     continue
                 self._radio_to_vehicle(i, frame, addr, now_s)
             else:
-                for i in self._members[endpoint]:
-                    self._radio_to_vehicle(i, frame, addr, now_s)
+                self._broadcast_to_members(endpoint, frame, addr, now_s)
+
+    def _broadcast_to_members(self, endpoint: int, frame: bytes, addr, now_s: float) -> None:
+        """A frame for every vehicle of a network (target 0: the GCS heartbeat, ...): decoded
+        once for all the cores without a signing key ("decode once, deliver many": a decode
+        without a key depends on the bytes alone), by its own codec for a core with a key; the
+        radio, the dead and delayed delivery as in :meth:`_radio_to_vehicle`, in member order."""
+        shared = None
+        cores = self.cores
+        radio = self.radio
+        for i in self._members[endpoint]:
+            core = cores[i]
+            if not core.alive:
+                self.stats["dropped_dead"] += 1
+                continue
+            delay = radio.transit(i)
+            if delay is None:
+                self.stats["dropped_radio_in"] += 1
+                continue
+            if delay > 0:
+                self._push_delayed(now_s + delay, ("in", i, frame, addr))
+            elif core.signing_enabled:
+                core.receive_datagram(frame, addr, now_s)
+            else:
+                if shared is None:
+                    shared = self._broadcast_codec.decode_datagram(frame)
+                core.receive_decoded(shared, addr, now_s)
 
     def _radio_to_vehicle(self, i: int, data: bytes, addr, now_s: float) -> None:
         core = self.cores[i]

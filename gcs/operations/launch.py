@@ -313,5 +313,25 @@ class LaunchStep(OperatorState):
         """Drive every heard vehicle still in the plan to "armed, airborne, guided" (the run's
         reclaim and relaunch)."""
         alt = self._alt_above_home_m(snap)
+        # A row already armed, airborne, guided and settled is a no-op for _drive (it would
+        # only set flew, failures and not_ready_s to what they are): skip it without the
+        # per-row adapter calls (this runs on every poll, for every vehicle of the fleet).
+        airborne = snap.armed & np.isfinite(alt) & (alt > self.config.airborne_alt_m)
+        guided_name = {a: adapter_for(a).guided_mode for a in set(snap.autopilot.tolist())}
+        autopilot, mode, rows = snap.autopilot.tolist(), snap.mode, self._rows
+        flying = airborne.tolist()
         for i in np.flatnonzero(~snap.lost & self._in_plan(snap)).tolist():
+            row = rows.get(i)
+            gm = guided_name[autopilot[i]]
+            if (
+                flying[i]
+                and row is not None
+                and gm
+                and mode[i] == gm
+                and row.flew
+                and not row.reclaiming
+                and row.failures == 0
+                and row.not_ready_s == -math.inf
+            ):
+                continue
             self._drive(snap, i, alt, now_s)

@@ -305,3 +305,29 @@ def test_station_on_a_clock_follows_its_time_and_unix_anchor():
 def test_a_clock_brings_its_own_speedup():
     with pytest.raises(ValueError, match="time_scale"):
         StationAdapter("udpout:127.0.0.1:14550", _CFG, clock=VirtualClock(), time_scale=10.0)
+
+
+def test_a_timer_wakeup_before_the_cores_deadline_skips_the_scan():
+    # A paced clock can lag the wall-time estimate the timer was armed with: a wake-up before
+    # the core's next_timer_s() re-arms without handle_timer (nothing is due by its contract);
+    # one at or after it runs handle_timer.
+    async def main():
+        clock = VirtualClock(5.0)
+        station = await StationAdapter("udpout:127.0.0.1:9", _CFG, clock=clock).start()
+        calls = []
+        orig = station.core.handle_timer
+        station.core.handle_timer = lambda now_s: (calls.append(now_s), orig(now_s))
+        try:
+            station._on_timer()  # the first heartbeat is due at start
+            assert calls == [5.0] and station.early_wakeups == 0
+            due = station.core.next_timer_s()
+            assert due is not None and due > clock.now()
+            station._on_timer()  # early: the clock did not reach the deadline
+            assert calls == [5.0] and station.early_wakeups == 1
+            clock.advance(due - clock.now())
+            station._on_timer()
+            assert calls == [5.0, due] and station.early_wakeups == 1
+        finally:
+            station.close()
+
+    asyncio.run(main())

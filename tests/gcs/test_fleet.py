@@ -104,3 +104,24 @@ def test_link_state_events_make_no_rows():
     fleet.apply(LinkDown(0, 1.0, connection="tcp:127.0.0.1:5760", reason="refused"))
     fleet.apply(LinkUp(0, 2.0, connection="tcp:127.0.0.1:5760"))
     assert len(fleet) == 0 and fleet.snapshot(2.0).n_vehicles == 0
+
+
+def test_rows_survive_growth_and_snapshots_are_copies():
+    # Rows live in arrays that grow by doubling: values written before a growth are kept, and
+    # a snapshot does not change when the fleet does afterwards.
+    fleet = FleetView(ORIGIN, timeout_s=5.0)
+    for k in range(40):
+        fleet.apply(VehicleDiscovered(0, k + 1, 0.0, autopilot=3, custom_mode=4, mode="GUIDED"))
+        fleet.apply(
+            TelemetryReceived(
+                0, k + 1, 0.5, lat_deg=47.3977, lon_deg=8.5456, alt_amsl_m=500.0 + k, rel_alt_m=k
+            )
+        )
+    snap = fleet.snapshot(1.0)
+    assert snap.n_vehicles == 40 and snap.mode == ("GUIDED",) * 40
+    assert np.allclose(snap.home_amsl_m, 500.0) and snap.networked.all()
+    fleet.apply(ModeChanged(0, 1, 2.0, custom_mode=6, mode="RTL", previous_mode="GUIDED"))
+    fleet.apply(VehicleLost(0, 2, 2.0, 0.5))
+    assert snap.mode[0] == "GUIDED" and snap.networked[1]
+    later = fleet.snapshot(2.0)
+    assert later.mode[0] == "RTL" and later.lost[1] and not later.returning.any()

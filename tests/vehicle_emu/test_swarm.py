@@ -214,11 +214,38 @@ def test_mux_router_parses_each_frame_once(monkeypatch):
 
     monkeypatch.setattr(mavlink.MAVLink, "decode", counting)
     swarm.receive_datagram(0, data, GCS_ADDR, 0.0)
-    # one decode for the addressed COMMAND_LONG, one per member for the broadcast HEARTBEAT
-    assert len(calls) == 1 + 5
+    # one decode for the addressed COMMAND_LONG, one for the broadcast HEARTBEAT (shared by
+    # every member without a signing key: "decode once, deliver many")
+    assert len(calls) == 1 + 1
     assert [c.stats.commands for c in swarm.cores] == [0, 0, 1, 0, 0]
     assert [c.stats.gcs_heartbeats for c in swarm.cores] == [1] * 5
+    assert [c.stats.datagrams_in for c in swarm.cores] == [1, 1, 2, 1, 1]
     # a frame for a sysid nobody has is unroutable, and so is a datagram without a frame
     swarm.receive_datagram(0, gcs.command(400, 1, target=99), GCS_ADDR, 0.0)
     swarm.receive_datagram(0, b"\x01\x02\x03", GCS_ADDR, 0.0)
     assert swarm.stats["unroutable"] == 2
+
+
+def test_broadcast_decoded_once_but_signed_cores_check_their_own(monkeypatch):
+    """A broadcast frame is decoded once for the cores without a key; a core with a signing
+    key decodes it itself and refuses it unsigned; a dead core counts it as dropped."""
+    key = bytes(range(32))
+    swarm = Swarm(4, rng=np.random.default_rng(7), mux=True, per_vehicle_params={})
+    swarm.cores[1]._codec.set_signing_key(key)
+    swarm.kill(3, 0.0)
+    calls = []
+    orig = mavlink.MAVLink.decode
+
+    def counting(self, msgbuf):
+        calls.append(1)
+        return orig(self, msgbuf)
+
+    monkeypatch.setattr(mavlink.MAVLink, "decode", counting)
+    swarm.receive_datagram(0, FakeGcs().heartbeat(), GCS_ADDR, 0.0)
+    assert len(calls) == 2  # the shared decode and the signed core's own
+    assert [c.stats.gcs_heartbeats for c in swarm.cores] == [1, 0, 1, 0]
+    assert swarm.cores[1].stats.signing_rejected == 1
+    assert swarm.stats["dropped_dead"] == 1
+    # a signed heartbeat reaches every live core (pymavlink accepts it without a key)
+    swarm.receive_datagram(0, FakeGcs(signing_key=key).heartbeat(), GCS_ADDR, 0.1)
+    assert [c.stats.gcs_heartbeats for c in swarm.cores] == [2, 1, 2, 0]
