@@ -29,6 +29,11 @@ vectorised physics step -> geodetic update -> radio update -> ground-truth recor
 
 Longer than ~600 lines on purpose: the router, the peers, the tick and the ground truth all
 work on the swarm's shared per-vehicle state; split, each part would reach into the others.
+
+Length (a little over the ~600 lines this code base aims for): the swarm is the one place where
+frames meet vehicles (routing by sysid, one decode per broadcast frame, batched telemetry, the
+radio between vehicles); cut further, the router and the batch path would share private state
+across files.
 """
 
 from __future__ import annotations
