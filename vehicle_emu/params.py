@@ -106,7 +106,7 @@ def defaults_for(personality: str) -> tuple[ParamSpec, ...]:
 
 
 class ParamTable:
-    """Ordered parameter table with typed, range-checked values.
+    """Ordered parameter table with typed values (integer ones held in their range).
 
     Parameters
     ----------
@@ -126,8 +126,14 @@ class ParamTable:
 
     @staticmethod
     def _coerce(spec: ParamSpec, value: float) -> float:
-        if spec.param_type != _F:
-            value = float(int(round(value)))
+        # A float parameter is stored as written: the ranges are GCS metadata, not checks made by
+        # the firmware (ArduPilot GCS_Param.cpp handle_param_set refuses only NaN / inf and
+        # read-only names, then vp->set_float; PX4 param_set in src/lib/parameters does not
+        # compare with the metadata's min / max). Integer parameters are rounded and held in
+        # their range, standing in for the firmware's conversion to its integer type.
+        if spec.param_type == _F:
+            return value
+        value = float(int(round(value)))
         return min(max(value, spec.min_value), spec.max_value)
 
     def __len__(self) -> int:
@@ -152,7 +158,7 @@ class ParamTable:
         return self._specs[name].param_type
 
     def set(self, name: str, value: float) -> float:
-        """Set (clamped to range, rounded for integer types); return the stored value."""
+        """Set (integer types rounded and held in their range); return the stored value."""
         stored = self._coerce(self._specs[name], float(value))
         self._values[name] = stored
         return stored

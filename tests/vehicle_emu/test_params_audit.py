@@ -26,3 +26,14 @@ def test_emulator_defaults_pass_the_audit():
     for personality, autopilot in (("ardupilot", ARDUPILOT), ("px4", PX4)):
         audit = audit_vehicle(0, 1, autopilot, _read(personality, autopilot))
         assert audit.safe, audit
+
+
+def test_float_params_are_stored_as_written_integers_held_in_range():
+    # The firmware stores a float beyond its documented range (the range is GCS metadata:
+    # ArduPilot handle_param_set -> set_float): a mission flying 25 m/s gets WPNAV_SPEED 2500.
+    ap = ParamTable(defaults_for("ardupilot"))
+    assert ap.set("WPNAV_SPEED", 2500.0) == 2500.0 and ap["WPNAV_SPEED"] == 2500.0
+    assert ap.set("FS_GCS_ENABLE", 9) == 7.0  # an integer: rounded and held in its range
+    px4 = ParamTable(defaults_for("px4"))
+    name = next(n for n in px4.names() if n == "MPC_XY_VEL_MAX")
+    assert px4.set(name, 40.0) == 40.0
