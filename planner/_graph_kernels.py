@@ -140,17 +140,12 @@ def mst_prim(n_nodes: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray
     return tree.astype(np.intp) if ok else None
 
 
-def _reach_from(
-    x: np.ndarray,
-    y: np.ndarray,
-    reached: np.ndarray,
-    range_m: float,
-    cell: float,
-    x0: float,
-    y0: float,
-    nx: int,
-    ny: int,
-) -> np.ndarray:
+def _grid_buckets(
+    x: np.ndarray, y: np.ndarray, cell: float, x0: float, y0: float, nx: int, ny: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's cell (cx, cy) in an ``nx`` x ``ny`` grid of ``cell``-sized cells from (x0, y0),
+    clamped to the grid, and the points by cell: ``members[head[c]:head[c + 1]]`` are the points of
+    cell ``c = cx * ny + cy`` in ascending index (a counting sort)."""
     n = len(x)
     cx = np.empty(n, dtype=np.int64)
     cy = np.empty(n, dtype=np.int64)
@@ -168,6 +163,28 @@ def _reach_from(
         c = cx[i] * ny + cy[i]
         members[fill[c]] = i
         fill[c] += 1
+    return cx, cy, head, members
+
+
+if _kernels.NUMBA:
+    from numba import njit as _njit_inline
+
+    _grid_buckets = _njit_inline(cache=True, inline="always")(_grid_buckets)
+
+
+def _reach_from(
+    x: np.ndarray,
+    y: np.ndarray,
+    reached: np.ndarray,
+    range_m: float,
+    cell: float,
+    x0: float,
+    y0: float,
+    nx: int,
+    ny: int,
+) -> np.ndarray:
+    n = len(x)
+    cx, cy, head, members = _grid_buckets(x, y, cell, x0, y0, nx, ny)
     out = reached.copy()
     queue = np.empty(n, dtype=np.int64)
     tail = 0
@@ -241,22 +258,7 @@ def _knn_pairs(
     ny: int,
 ) -> tuple[bool, np.ndarray]:
     n = len(x)
-    cx = np.empty(n, dtype=np.int64)
-    cy = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        cx[i] = min(max(int((x[i] - x0) / cell), 0), nx - 1)
-        cy[i] = min(max(int((y[i] - y0) / cell), 0), ny - 1)
-    head = np.zeros(nx * ny + 1, dtype=np.int64)
-    for i in range(n):
-        head[cx[i] * ny + cy[i] + 1] += 1
-    for c in range(nx * ny):
-        head[c + 1] += head[c]
-    fill = head[:-1].copy()
-    members = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        c = cx[i] * ny + cy[i]
-        members[fill[c]] = i
-        fill[c] += 1
+    cx, cy, head, members = _grid_buckets(x, y, cell, x0, y0, nx, ny)
     best_d = np.empty(k)
     best_j = np.empty(k, dtype=np.int64)
     keys = np.empty(n * k, dtype=np.int64)
