@@ -922,15 +922,17 @@ class PhiremanPlanner:
         return PlanOutput(u.to_m(disp_u), tree=u.tree_to_m(tree), info=info)
 
     def _plan_central(
-        self, pos_u: np.ndarray, tree: TaskTree, view: CentralView
+        self, pos_u: np.ndarray, tree: TaskTree, view: CentralView, *, compiled: bool = True
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """The networked drones descend the total energy jointly."""
+        """The networked drones descend the total energy jointly. ``compiled=False``: by the NumPy
+        gradient even when the compiled one is available (it agrees to ~1e-13 m per tick, not bit
+        for bit; the resilient planner's recorded runs used the NumPy one)."""
         p = self.params
         idx, disp_u = view.planned, view.disp_u
         if len(idx) == 0:
             return disp_u, view.info()
         grad: Gradient
-        if _kernels.NUMBA and _kernels.ENABLED:
+        if compiled and _kernels.NUMBA and _kernels.ENABLED:
             # O(n) memory, compiled: the all-pairs sum without the (n, n) arrays, the tree
             # distance without the (n, E) ones (the NumPy branch below is the reference).
             if p.nodes_only or tree.n_nodes == 1:

@@ -58,7 +58,6 @@ from planner.phireman import (
     _pair_gradient_xy,
     descend,
     parse_params,
-    task_gradient,
 )
 from planner.problem import ProblemConfig
 from planner.steiner import TaskTree, maintain_task_tree
@@ -571,32 +570,15 @@ class ResilientPlanner(PhiremanPlanner):
         info: dict[str, Any] = {"kept_tasks": int(self.kept_tasks.sum())}
         view = self.info_model.see(tick.t_step, pos_u, tick.alive, networked, base_u, self.tree)
         if isinstance(view, CentralView):
-            disp_u, more = self._plan_central_numpy(pos_u, self.tree, view)
+            # PhiIREMAN's central descent on the pruned tree, by the NumPy gradient (bit for bit with
+            # this planner's recorded runs; PhiremanPlanner._plan_central).
+            disp_u, more = self._plan_central(pos_u, self.tree, view, compiled=False)
         else:
             disp_u, more = self._plan_async(pos_u, base_u, view)
         info.update(more)
         if p.rally:
             self._update_recovery(pos_u, base_u, alive, networked, view.held_stamp)
         return PlanOutput(u.to_m(disp_u), tree=u.tree_to_m(self.tree), info=info)
-
-    def _plan_central_numpy(
-        self, pos_u: np.ndarray, tree: TaskTree, view: CentralView
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        """PhiIREMAN's central descent on the pruned tree, by the NumPy gradient. Not
-        ``PhiremanPlanner._plan_central``: its compiled gradient agrees with this one to ~1e-13 m
-        per tick, not bit for bit, and this planner's recorded runs used the NumPy one."""
-        p = self.params
-        idx, disp_u = view.planned, view.disp_u
-        if len(idx) == 0:
-            return disp_u, view.info()
-        mask = ~np.eye(len(idx), dtype=bool)
-
-        def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
-            return task_gradient(x, tree, p.thorn, p.nodes_only) + self._pair_grad(x, x, mask)
-
-        res = descend(pos_u[idx], grad, self.units.max_step_u, p)
-        disp_u[idx] = res.disp_u
-        return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info()}
 
     def _plan_async(
         self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
