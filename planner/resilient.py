@@ -58,8 +58,10 @@ from planner.phireman import (
     _pair_gradient_xy,
     descend,
     parse_params,
+    task_gradient,
 )
 from planner.problem import ProblemConfig
+from planner.redundancy import RedundancyBook, backbone, critical_counts, mesh_graph
 from planner.steiner import TaskTree, maintain_task_tree
 
 __all__ = [
@@ -75,6 +77,8 @@ __all__ = [
     "claim_targets",
     "claim_targets_reference",
     "claim_gradient",
+    "claim_targets_central",
+    "held_targets",
     "tether_anchors",
     "tether",
     "make_resilient",
@@ -110,6 +114,13 @@ class ResilientParams(PhiremanParams):
     """Task-motion prediction: the tree is built on tasks extrapolated this many steps (0 = off)."""
     predict_smoothing: float = 0.3
     """Weight of the newest observed displacement in the smoothed task velocity."""
+    redundancy_gain: float = 0.0
+    """Redundancy: pull (a force, like Þ) of a spare drone toward the critical relay it is paired
+    with (planner/redundancy.py); 0 = off."""
+    redundancy_reach: float = 4.0
+    """Redundancy: a spare is paired only with a critical relay within this distance, paper units."""
+    redundancy_min_cut: int = 1
+    """Redundancy: only relays whose loss alone would cut at least this many tasks get a spare."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -119,6 +130,8 @@ class ResilientParams(PhiremanParams):
             "predict_steps",
             "claim_gain",
             "claim_reach",
+            "redundancy_gain",
+            "redundancy_reach",
         ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -128,6 +141,8 @@ class ResilientParams(PhiremanParams):
             raise ValueError(f"predict_smoothing must be in (0, 1], got {self.predict_smoothing}")
         if self.rally_wait_steps < 0:
             raise ValueError(f"rally_wait_steps must be >= 0, got {self.rally_wait_steps}")
+        if self.redundancy_min_cut < 1:
+            raise ValueError(f"redundancy_min_cut must be >= 1, got {self.redundancy_min_cut}")
 
     @property
     def triage_on(self) -> bool:
@@ -478,6 +493,39 @@ def claim_gradient(pos_u: np.ndarray, target: np.ndarray, gain: float) -> np.nda
     return out
 
 
+def claim_targets_central(
+    pos_u: np.ndarray, open_tasks: np.ndarray | None, reach: float
+) -> np.ndarray:
+    """(n, 2): :func:`claim_targets` when every drone knows every other's position: drone i claims
+    its nearest open task if it lies within ``reach`` and no drone is nearer to it."""
+    n = len(pos_u)
+    out = np.full((n, 2), np.nan)
+    if open_tasks is None or len(open_tasks) == 0 or n == 0:
+        return out
+    d = np.sqrt(((pos_u[:, None, :] - open_tasks[None]) ** 2).sum(-1))  # (n, T)
+    k = np.argmin(d, axis=1)
+    d_own = d[np.arange(n), k]
+    mine = (d_own < reach) & (d_own <= d.min(axis=0)[k])
+    out[mine] = open_tasks[k[mine]]
+    return out
+
+
+def held_targets(
+    idx: np.ndarray, stamps: np.ndarray, by_stamp: dict[int, np.ndarray]
+) -> np.ndarray:
+    """(n, 2): row ``idx[j]`` of the per-drone target table of the broadcast drone j holds
+    (``by_stamp[stamps[j]]``; NaN rows when that broadcast is gone or has no target for it)."""
+    out = np.full((len(idx), 2), np.nan)
+    for s in np.unique(stamps):  # loop over broadcast versions held (a handful)
+        table = by_stamp.get(int(s))
+        if table is None:
+            continue
+        rows = np.flatnonzero(stamps == s)
+        ok = idx[rows] < len(table)
+        out[rows[ok]] = table[idx[rows[ok]]]
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # The planner
 # --------------------------------------------------------------------------------------------
@@ -508,6 +556,8 @@ class ResilientPlanner(PhiremanPlanner):
         self._target_u: np.ndarray | None = None  # per-drone recovery target (NaN = none yet)
         self._waited = np.zeros(problem.n_drones, dtype=np.int64)
         self._open_by_stamp: dict[int, np.ndarray] = {}  # broadcast stamp -> unconnected kept tasks
+        self._spare_by_stamp: dict[int, np.ndarray] = {}  # broadcast stamp -> (N, 2) spare targets
+        self._book = RedundancyBook()
 
     # -- the base's side ---------------------------------------------------------------------
     def _predicted_tasks(self, tasks_u: np.ndarray) -> np.ndarray:
@@ -568,11 +618,16 @@ class ResilientPlanner(PhiremanPlanner):
             for old in [s for s in self._open_by_stamp if s < tick.t_step - p.tree_stale_steps - 1]:
                 del self._open_by_stamp[old]
         info: dict[str, Any] = {"kept_tasks": int(self.kept_tasks.sum())}
+        if p.redundancy_gain > 0:
+            info["spares"] = self._pair_spares(tick.t_step, pos_u, networked, tasks_u, base_u)
         view = self.info_model.see(tick.t_step, pos_u, tick.alive, networked, base_u, self.tree)
         if isinstance(view, CentralView):
-            # PhiIREMAN's central descent on the pruned tree, by the NumPy gradient (bit for bit with
-            # this planner's recorded runs; PhiremanPlanner._plan_central).
-            disp_u, more = self._plan_central(pos_u, self.tree, view, compiled=False)
+            if p.claim_gain > 0 or p.redundancy_gain > 0:
+                disp_u, more = self._plan_central_pulled(pos_u, tick.t_step, view)
+            else:
+                # PhiIREMAN's central descent on the pruned tree, by the NumPy gradient (bit for bit
+                # with this planner's recorded runs; PhiremanPlanner._plan_central).
+                disp_u, more = self._plan_central(pos_u, self.tree, view, compiled=False)
         else:
             disp_u, more = self._plan_async(pos_u, base_u, view)
         info.update(more)
@@ -601,6 +656,13 @@ class ResilientPlanner(PhiremanPlanner):
             has_claim = np.isfinite(claim).all(axis=1)
             if not has_claim.any():
                 claim = None
+        spare = None
+        if p.redundancy_gain > 0:
+            spare = held_targets(idx, stamps, self._spare_by_stamp)
+            if claim is not None:  # covering an open task comes first
+                spare[np.isfinite(claim).all(axis=1)] = np.nan
+            if not np.isfinite(spare).all(axis=1).any():
+                spare = None
 
         def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
             er, ox, oy = entries.of(rows)
@@ -617,6 +679,8 @@ class ResilientPlanner(PhiremanPlanner):
             ) + segments.gradient(x[rows], rows, p.thorn)
             if claim is not None:
                 g += claim_gradient(x[rows], claim[rows], p.claim_gain)
+            if spare is not None:
+                g += claim_gradient(x[rows], spare[rows], p.redundancy_gain)
             return g
 
         if (
@@ -633,27 +697,32 @@ class ResilientPlanner(PhiremanPlanner):
                 pos_u[idx], entries, segments, p, self.reach_u, vmax_u
             )
             disp_u[idx] = res.disp_u
-            if claim is not None:
-                crow = np.flatnonzero(np.isfinite(claim).all(axis=1))
+            if claim is not None or spare is not None:
+                pulled = np.zeros(len(idx), dtype=bool)
+                for tgt in (claim, spare):
+                    if tgt is not None:
+                        pulled |= np.isfinite(tgt).all(axis=1)
+                crow = np.flatnonzero(pulled)
 
                 def grad_claimers(xs: np.ndarray, rows: np.ndarray) -> np.ndarray:
                     full = crow[rows]
                     er, ox, oy = entries.of(full)
-                    return (
-                        _pair_gradient_xy(
-                            xs[rows],
-                            er,
-                            ox,
-                            oy,
-                            p.attraction,
-                            p.attraction_floor,
-                            p.repulsion,
-                            self.reach_u,
-                            p.pair_factor,
-                        )
-                        + segments.gradient(xs[rows], full, p.thorn)
-                        + claim_gradient(xs[rows], claim[full], p.claim_gain)
-                    )
+                    g = _pair_gradient_xy(
+                        xs[rows],
+                        er,
+                        ox,
+                        oy,
+                        p.attraction,
+                        p.attraction_floor,
+                        p.repulsion,
+                        self.reach_u,
+                        p.pair_factor,
+                    ) + segments.gradient(xs[rows], full, p.thorn)
+                    if claim is not None:
+                        g = g + claim_gradient(xs[rows], claim[full], p.claim_gain)
+                    if spare is not None:
+                        g = g + claim_gradient(xs[rows], spare[full], p.redundancy_gain)
+                    return g
 
                 sub = descend(pos_u[idx[crow]], grad_claimers, vmax_u, p, separable=True)
                 disp_u[idx[crow]] = sub.disp_u
@@ -680,6 +749,69 @@ class ResilientPlanner(PhiremanPlanner):
             "converged": res.converged,
             **view.info(),
             "claims": 0 if claim is None else int(np.isfinite(claim).all(axis=1).sum()),
+            "spare_pulls": 0 if spare is None else int(np.isfinite(spare).all(axis=1).sum()),
+        }
+
+    def _pair_spares(
+        self,
+        t_step: int,
+        pos_u: np.ndarray,
+        networked: np.ndarray,
+        tasks_u: np.ndarray,
+        base_u: np.ndarray,
+    ) -> int:
+        """The base pairs spares with critical relays (planner/redundancy.py) and files the targets
+        under this tick's broadcast stamp; returns the number of pairs."""
+        p, u = self.params, self.units
+        graph = mesh_graph(pos_u, networked, tasks_u, base_u, u.radio_range_u, u.base_reach_u)
+        crit = critical_counts(graph, len(pos_u))
+        on = backbone(graph, len(pos_u))
+        target = self._book.assign(
+            pos_u, networked, crit, on, p.redundancy_reach, p.redundancy_min_cut
+        )
+        self._spare_by_stamp[t_step] = target
+        for old in [s for s in self._spare_by_stamp if s < t_step - p.tree_stale_steps - 1]:
+            del self._spare_by_stamp[old]
+        return len(self._book.pair_of)
+
+    def _plan_central_pulled(
+        self, pos_u: np.ndarray, t_step: int, view: CentralView
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Central information with the claim and spare pulls: PhiIREMAN's joint NumPy descent
+        (PhiremanPlanner._plan_central) plus the pull terms, every drone knowing every other."""
+        p = self.params
+        idx, disp_u = view.planned, view.disp_u
+        if len(idx) == 0:
+            return disp_u, view.info()
+        x0 = pos_u[idx]
+        claim = None
+        if p.claim_gain > 0:
+            claim = claim_targets_central(x0, self._open_by_stamp.get(t_step), p.claim_reach)
+        spare = None
+        if p.redundancy_gain > 0 and t_step in self._spare_by_stamp:
+            spare = self._spare_by_stamp[t_step][idx].copy()
+            if claim is not None:
+                spare[np.isfinite(claim).all(axis=1)] = np.nan
+        mask = ~np.eye(len(idx), dtype=bool)
+        tree = self.tree
+        assert tree is not None  # set by plan()
+
+        def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+            g = task_gradient(x, tree, p.thorn, p.nodes_only) + self._pair_grad(x, x, mask)
+            if claim is not None:
+                g = g + claim_gradient(x, claim, p.claim_gain)
+            if spare is not None:
+                g = g + claim_gradient(x, spare, p.redundancy_gain)
+            return g
+
+        res = descend(x0, grad, self.units.max_step_u, p)
+        disp_u[idx] = res.disp_u
+        return disp_u, {
+            "iterations": res.iterations,
+            "converged": res.converged,
+            **view.info(),
+            "claims": 0 if claim is None else int(np.isfinite(claim).all(axis=1).sum()),
+            "spare_pulls": 0 if spare is None else int(np.isfinite(spare).all(axis=1).sum()),
         }
 
     def _update_recovery(
