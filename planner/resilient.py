@@ -40,6 +40,7 @@ slow reference and its parameter sit together so that an ablation switches one t
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,6 +48,7 @@ import numpy as np
 
 from planner import _kernels
 from planner.geometry import tasks_connected
+from planner.hazard import HazardMap, push_gradient, route_tree, signed_depth
 from planner.info import CentralView, MessageView
 from planner.methods import PlanOutput, TickInput
 from planner.phireman import (
@@ -58,6 +60,7 @@ from planner.phireman import (
     _pair_gradient_xy,
     descend,
     parse_params,
+    task_gradient,
 )
 from planner.problem import ProblemConfig
 from planner.steiner import TaskTree, maintain_task_tree
@@ -110,6 +113,20 @@ class ResilientParams(PhiremanParams):
     """Task-motion prediction: the tree is built on tasks extrapolated this many steps (0 = off)."""
     predict_smoothing: float = 0.3
     """Weight of the newest observed displacement in the smoothed task velocity."""
+    # -- hazard awareness (planner/hazard.py; zones from ``TickInput.hazards``) --------------
+    hazard_avoid: bool = False
+    """Hazard awareness: the broadcast tree is routed around the active hazard zones (each edge
+    crossing a zone, both ends outside, takes the shortest way around when it is at most
+    ``hazard_detour_cap`` times the edge; planner.hazard.route_tree)."""
+    hazard_push_gain: float = 0.0
+    """Hazard awareness: a drone inside an active zone (or within ``hazard_margin`` of it) is
+    pushed toward its nearest boundary with force gain x rate_per_s x dt_s (the zone's per-step
+    loss hazard); no push within r of a task inside the zone. 0 = off."""
+    hazard_margin: float = 0.5
+    """Hazard awareness: clearance of the detours and reach of the push outside a zone, paper
+    units."""
+    hazard_detour_cap: float = 1.5
+    """Hazard awareness: longest detour accepted, as a multiple of the edge it replaces."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -128,6 +145,11 @@ class ResilientParams(PhiremanParams):
             raise ValueError(f"predict_smoothing must be in (0, 1], got {self.predict_smoothing}")
         if self.rally_wait_steps < 0:
             raise ValueError(f"rally_wait_steps must be >= 0, got {self.rally_wait_steps}")
+        for name in ("hazard_push_gain", "hazard_margin"):  # hazard awareness
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not self.hazard_detour_cap >= 1.0:
+            raise ValueError(f"hazard_detour_cap must be >= 1, got {self.hazard_detour_cap}")
 
     @property
     def triage_on(self) -> bool:
@@ -508,6 +530,7 @@ class ResilientPlanner(PhiremanPlanner):
         self._target_u: np.ndarray | None = None  # per-drone recovery target (NaN = none yet)
         self._waited = np.zeros(problem.n_drones, dtype=np.int64)
         self._open_by_stamp: dict[int, np.ndarray] = {}  # broadcast stamp -> unconnected kept tasks
+        self._hazards: HazardMap | None = None  # hazard awareness: the zones active this tick
 
     # -- the base's side ---------------------------------------------------------------------
     def _predicted_tasks(self, tasks_u: np.ndarray) -> np.ndarray:
@@ -546,7 +569,7 @@ class ResilientPlanner(PhiremanPlanner):
         else:
             kept = np.ones(self.full_tree.n_tasks, dtype=bool)
         self.kept_tasks = kept
-        return prune_tree(self.full_tree, kept)
+        return self._hazard_route(prune_tree(self.full_tree, kept))
 
     # -- main entry --------------------------------------------------------------------------
     def plan(self, tick: TickInput) -> PlanOutput:
@@ -556,6 +579,7 @@ class ResilientPlanner(PhiremanPlanner):
         base_u = u.to_u(tick.base_m)
         alive = np.asarray(tick.alive, bool)
         networked = np.asarray(tick.networked, bool) & alive
+        self._hazards = _active_hazards(tick, self.problem.dt_s, p)
         self.tree = self._base_tree(tick, tasks_u, base_u, int(networked.sum()))
         assert self.kept_tasks is not None  # set by _base_tree
         if p.rally:
@@ -572,7 +596,11 @@ class ResilientPlanner(PhiremanPlanner):
         if isinstance(view, CentralView):
             # PhiIREMAN's central descent on the pruned tree, by the NumPy gradient (bit for bit with
             # this planner's recorded runs; PhiremanPlanner._plan_central).
-            disp_u, more = self._plan_central(pos_u, self.tree, view, compiled=False)
+            hz = self._hazard_term(pos_u[view.planned], [self.tree], np.zeros(len(view.planned)))
+            if hz is None:
+                disp_u, more = self._plan_central(pos_u, self.tree, view, compiled=False)
+            else:
+                disp_u, more = self._plan_central_hazard(pos_u, self.tree, view, hz)
         else:
             disp_u, more = self._plan_async(pos_u, base_u, view)
         info.update(more)
@@ -601,6 +629,7 @@ class ResilientPlanner(PhiremanPlanner):
             has_claim = np.isfinite(claim).all(axis=1)
             if not has_claim.any():
                 claim = None
+        hz = self._hazard_term(pos_u[idx], trees, version_of)
 
         def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
             er, ox, oy = entries.of(rows)
@@ -617,6 +646,8 @@ class ResilientPlanner(PhiremanPlanner):
             ) + segments.gradient(x[rows], rows, p.thorn)
             if claim is not None:
                 g += claim_gradient(x[rows], claim[rows], p.claim_gain)
+            if hz is not None:
+                g += hz.gradient(x[rows], rows)
             return g
 
         if (
@@ -633,27 +664,33 @@ class ResilientPlanner(PhiremanPlanner):
                 pos_u[idx], entries, segments, p, self.reach_u, vmax_u
             )
             disp_u[idx] = res.disp_u
+            extra = np.zeros(len(idx), dtype=bool)  # drones whose energy has a term more
             if claim is not None:
-                crow = np.flatnonzero(np.isfinite(claim).all(axis=1))
+                extra |= np.isfinite(claim).all(axis=1)
+            if hz is not None:
+                extra |= hz.near
+            if extra.any():
+                crow = np.flatnonzero(extra)
 
                 def grad_claimers(xs: np.ndarray, rows: np.ndarray) -> np.ndarray:
                     full = crow[rows]
                     er, ox, oy = entries.of(full)
-                    return (
-                        _pair_gradient_xy(
-                            xs[rows],
-                            er,
-                            ox,
-                            oy,
-                            p.attraction,
-                            p.attraction_floor,
-                            p.repulsion,
-                            self.reach_u,
-                            p.pair_factor,
-                        )
-                        + segments.gradient(xs[rows], full, p.thorn)
-                        + claim_gradient(xs[rows], claim[full], p.claim_gain)
-                    )
+                    g = _pair_gradient_xy(
+                        xs[rows],
+                        er,
+                        ox,
+                        oy,
+                        p.attraction,
+                        p.attraction_floor,
+                        p.repulsion,
+                        self.reach_u,
+                        p.pair_factor,
+                    ) + segments.gradient(xs[rows], full, p.thorn)
+                    if claim is not None:
+                        g += claim_gradient(xs[rows], claim[full], p.claim_gain)
+                    if hz is not None:
+                        g += hz.gradient(xs[rows], full)
+                    return g
 
                 sub = descend(pos_u[idx[crow]], grad_claimers, vmax_u, p, separable=True)
                 disp_u[idx[crow]] = sub.disp_u
@@ -681,6 +718,75 @@ class ResilientPlanner(PhiremanPlanner):
             **view.info(),
             "claims": 0 if claim is None else int(np.isfinite(claim).all(axis=1).sum()),
         }
+
+    # -- hazard awareness (planner/hazard.py) --------------------------------------------------
+    def _hazard_route(self, tree: TaskTree) -> TaskTree:
+        """The tree routed around the active zones (``hazard_avoid``), in paper units."""
+        p, u = self.params, self.units
+        if not p.hazard_avoid or self._hazards is None:
+            return tree
+        tree_m = u.tree_to_m(tree)
+        assert tree_m is not None  # a tree in, a tree out
+        routed, _ = route_tree(
+            tree_m, self._hazards, p.hazard_margin * u.unit_m, p.hazard_detour_cap
+        )
+        return dataclasses.replace(routed, nodes_m=u.to_u(routed.nodes_m))
+
+    def _hazard_term(
+        self, pos_u: np.ndarray, trees: list[Any], version_of: np.ndarray
+    ) -> _HazardPush | None:
+        """The push of the planned drones (rows of ``pos_u``) out of the active zones, or None.
+
+        Each drone's weight on zone z is ``hazard_push_gain`` x rate_z x dt_s, 0 if a task inside
+        z (of the tree copy the drone holds, ``trees[version_of[i]]``) is within r of it: that
+        drone may be the one serving it."""
+        p, u = self.params, self.units
+        if p.hazard_push_gain <= 0 or self._hazards is None or len(pos_u) == 0:
+            return None
+        hm = self._hazards
+        pos_m = u.to_m(pos_u)
+        depth, _ = signed_depth(hm, pos_m)
+        margin_m = p.hazard_margin * u.unit_m
+        near = np.asarray((depth > -(margin_m + u.max_step_u * u.unit_m)).any(axis=1))
+        if not near.any():
+            return None
+        rates = np.array([z.rate_per_s for z in hm.zones]) * self.problem.dt_s
+        weight = np.broadcast_to(p.hazard_push_gain * rates, depth.shape).copy()
+        r_m = u.radio_range_u * u.unit_m
+        for v, tree in enumerate(trees):  # loop over tree versions held (few)
+            rows = np.flatnonzero((version_of == v) & near)
+            if tree is None or len(rows) == 0 or tree.n_tasks == 0:
+                continue
+            tasks_m = u.to_m(tree.nodes_m[1 : tree.n_tasks + 1])
+            task_in = signed_depth(hm, tasks_m)[0] > 0  # (M, Z)
+            if not task_in.any():
+                continue
+            d = np.linalg.norm(pos_m[rows, None, :] - tasks_m[None, :, :], axis=2)  # (n, M)
+            serving = (d <= r_m).astype(float) @ task_in.astype(float) > 0  # (n, Z)
+            weight[rows] = np.where(serving, 0.0, weight[rows])
+        near &= (weight > 0).any(axis=1)
+        if not near.any():
+            return None
+        return _HazardPush(hm, weight, margin_m, u.unit_m, near)
+
+    def _plan_central_hazard(
+        self, pos_u: np.ndarray, tree: TaskTree, view: CentralView, hz: _HazardPush
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """PhiremanPlanner._plan_central's NumPy descent with the hazard push added."""
+        p = self.params
+        idx, disp_u = view.planned, view.disp_u
+        mask = ~np.eye(len(idx), dtype=bool)
+
+        def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+            return (
+                task_gradient(x, tree, p.thorn, p.nodes_only)
+                + self._pair_grad(x, x, mask)
+                + hz.gradient(x[rows], rows)
+            )
+
+        res = descend(pos_u[idx], grad, self.units.max_step_u, p)
+        disp_u[idx] = res.disp_u
+        return disp_u, {"iterations": res.iterations, "converged": res.converged, **view.info()}
 
     def _update_recovery(
         self,
@@ -726,6 +832,28 @@ class ResilientPlanner(PhiremanPlanner):
         ]:
             del self._rally_by_stamp[s]
         self.recovery_target_m = self.units.to_m(target)
+
+
+@dataclass(frozen=True)
+class _HazardPush:
+    """The hazard push of one tick: :func:`planner.hazard.push_gradient` in paper units."""
+
+    hazards: HazardMap
+    weight: np.ndarray  # (n, Z) per planned drone and zone
+    margin_m: float
+    unit_m: float
+    near: np.ndarray  # (n,) bool: drones the push may reach this tick
+
+    def gradient(self, x_u: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        return push_gradient(self.hazards, x_u * self.unit_m, self.weight[rows], self.margin_m)
+
+
+def _active_hazards(tick: TickInput, dt_s: float, p: ResilientParams) -> HazardMap | None:
+    """The zones active at this tick (mission time t_step x dt_s) when hazard awareness is on."""
+    if tick.hazards is None or not (p.hazard_avoid or p.hazard_push_gain > 0):
+        return None
+    active = tick.hazards.active(tick.t_step * dt_s)
+    return active if len(active) else None
 
 
 def make_resilient(
