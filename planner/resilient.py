@@ -30,6 +30,11 @@ energy, descent, message layer and task tree) with switchable mechanisms, each a
   given (ArduPilot "RTL to the nearest rally point", PX4 "return to the closest safe point").
 * **Task-motion prediction** (``predict_steps``). The base builds the tree on the tasks'
   positions extrapolated ``predict_steps`` ahead with an exponentially smoothed velocity.
+* **Hazard awareness** (``hazard_avoid``, ``hazard_push_gain``; planner/hazard.py). With the
+  mission's zones in ``TickInput.hazards`` (known to the station from the mission file), the
+  broadcast tree is routed around the active zones (:func:`planner.hazard.route_tree`) and drones
+  inside a zone are pushed toward its nearest boundary, except within r of a task inside it.
+  :func:`planner.hazard.hazard_rate_per_s` gives the local loss rate at any position.
 
 Units: as PhiIREMAN, every length parameter is in paper units (1 unit = r / 2); instructions and
 ``recovery_target_m`` are metres.
