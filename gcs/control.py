@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from planner.hazard import HazardMap
 from planner.methods import Planner, TickInput
 
 __all__ = ["ControlConfig", "Geofence", "TickResult", "layer_alt_m", "tick"]
@@ -80,6 +81,9 @@ class ControlConfig:
     time constant tau reaches 1 - exp(-dt / tau) of it); a lead of 1 + tau / dt puts the target
     ahead ("carrot") so the vehicle moves the planned distance per tick, at most at its speed
     limit. 1 = target exactly at the planned point."""
+    hazards: HazardMap | None = None
+    """The mission's hazard zones, passed to the planner each tick (``TickInput.hazards``); None:
+    no zones (planners that do not use them ignore them)."""
 
     def __post_init__(self) -> None:
         if not self.cruise_alt_m > 0:
@@ -147,6 +151,7 @@ def tick(
             np.asarray(alive, bool) & has_pos,
             planned,
             np.asarray(task_pos_m, dtype=float).reshape(-1, 2),
+            hazards=config.hazards,
         )
     )
     rows = np.flatnonzero(planned)

@@ -29,6 +29,7 @@ import numpy as np
 
 from gcs.control import ControlConfig, Geofence
 from mission.schema import Attrition, HazardZone, Mission
+from planner.hazard import HazardMap, HazardZone as PlannerHazardZone
 from vehicle_emu.world import RunStreams, spawn_streams, walk_tasks
 
 __all__ = [
@@ -41,6 +42,7 @@ __all__ = [
     "zone_mask",
     "loss_probability",
     "control_config",
+    "hazard_map",
     "FENCE_MARGIN_M",
     "POSITION_LOOP_TAU_S",
 ]
@@ -226,9 +228,40 @@ def loss_probability(mission: Mission, t_s: float, pos_m: np.ndarray) -> np.ndar
     return _loss_probability(mission.attrition, mission.run.control_period_s, t_s, pos_m)
 
 
+def hazard_map(attrition: Attrition) -> HazardMap | None:
+    """The mission's hazard zones as the planner sees them (planner.hazard), None without zones:
+    the one conversion from the mission schema (metres, mission frame, mission clock)."""
+    zones = []
+    for z in attrition.hazard_zones:
+        end_s = math.inf if z.end_s is None else z.end_s
+        if z.circle is not None:
+            c = z.circle.center
+            zones.append(
+                PlannerHazardZone(
+                    z.rate_per_s,
+                    center_m=(c.north_m, c.east_m),
+                    radius_m=z.circle.radius_m,
+                    start_s=z.start_s,
+                    end_s=end_s,
+                )
+            )
+        else:
+            assert z.polygon is not None  # a circle or a polygon (the schema)
+            zones.append(
+                PlannerHazardZone(
+                    z.rate_per_s,
+                    polygon_m=tuple((v.north_m, v.east_m) for v in z.polygon),
+                    start_s=z.start_s,
+                    end_s=end_s,
+                )
+            )
+    return HazardMap(tuple(zones)) if zones else None
+
+
 def control_config(mission: Mission, scenario: MissionScenario | None = None) -> ControlConfig:
     """Altitude layers from the mission's flight limits; the mission's geofence, or by default the
-    task field plus :data:`FENCE_MARGIN_M` (wide enough for the scenario's tracks and spawn)."""
+    task field plus :data:`FENCE_MARGIN_M` (wide enough for the scenario's tracks and spawn); the
+    mission's hazard zones for the planner (:func:`hazard_map`)."""
     lim = mission.vehicles.limits
     half = mission.problem_config().field_half_width_m
     if scenario is not None:
@@ -248,4 +281,5 @@ def control_config(mission: Mission, scenario: MissionScenario | None = None) ->
         n_layers=lim.n_layers,
         geofence=geofence,
         lead=1.0 + POSITION_LOOP_TAU_S / mission.run.control_period_s,
+        hazards=hazard_map(mission.attrition),
     )

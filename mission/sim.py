@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mission.world_loop import EpisodeRecord, run_world
+from planner.hazard import HazardMap
 from planner.methods import make_planner
 from planner.metrics import UptimeSeries, uptime_series
 from planner.problem import ProblemConfig
@@ -81,6 +82,7 @@ def run_episode(
     record: bool = False,
     frames: Iterable[int] = (),
     loss_prob_fn: Callable[[int, np.ndarray], np.ndarray] | None = None,
+    hazards: HazardMap | None = None,
 ) -> EpisodeResult:
     """Simulate one episode and score it.
 
@@ -94,6 +96,8 @@ def run_episode(
     frames : steps at which to keep the task tree (with ``record``)
     loss_prob_fn : optional ``(t_step, pos_m) -> (N,) loss probability`` replacing the uniform
         per-step attrition (hazard zones, scripted losses)
+    hazards : the hazard zones the planner is told about (``TickInput.hazards``; None: none, as
+        the paper's presets)
     """
     t0 = time.perf_counter()
     streams = spawn_streams(seed)
@@ -108,6 +112,7 @@ def run_episode(
         scenario.attrition_u,
         record=record,
         frames=set(frames),
+        hazards=hazards,
     )
     series = uptime_series(run.connected[: problem.n_steps])
     return EpisodeResult(

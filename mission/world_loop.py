@@ -30,6 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from gcs.control import ControlConfig, tick as control_tick
+from planner.hazard import HazardMap
 from planner.methods import PlanOutput, Planner, TickInput
 from vehicle_emu.world import World
 
@@ -145,6 +146,7 @@ def run_world(
     controller: Controller | None = None,
     record: bool = False,
     frames: Collection[int] | None = (),
+    hazards: HazardMap | None = None,
 ) -> WorldRun:
     """Run ``world`` for ``n_steps`` steps under ``planner``.
 
@@ -159,6 +161,8 @@ def run_world(
     controller : the step's control (:func:`direct_control` when None)
     record : keep trajectories in ``WorldRun.record``
     frames : steps at which to keep the task tree (with ``record``); None keeps every step
+    hazards : the mission's hazard zones, given to the planner in every ``TickInput`` (None: no
+        zones, the paper's world); :func:`station_control` passes its ``ControlConfig.hazards``
     """
     control = direct_control if controller is None else controller
     tau = int(n_steps)
@@ -188,7 +192,8 @@ def run_world(
             break
         alive_count[t], active_count[t] = world.alive.sum(), active.sum()
         out = control(
-            planner, TickInput(t, world.pos_m, world.alive, active, world.task_pos_m, world.base_m)
+            planner,
+            TickInput(t, world.pos_m, world.alive, active, world.task_pos_m, world.base_m, hazards),
         )
         if rec is not None and keep_tree(t):
             rec.trees[t] = out.tree

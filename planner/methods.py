@@ -21,12 +21,15 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass, field
 from collections.abc import Callable, Mapping
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from planner.info import INFO_MODELS, check_info
 from planner.problem import ProblemConfig
+
+if TYPE_CHECKING:  # for the annotation only: the registry stays light (no tree code imported)
+    from planner.hazard import HazardMap
 
 __all__ = [
     "TickInput",
@@ -58,6 +61,10 @@ class TickInput:
     """(M, 2) float64: task positions, metres."""
     base_m: np.ndarray = field(default_factory=lambda: np.zeros(2))
     """(2,) float64: base-station position, metres."""
+    hazards: HazardMap | None = None
+    """The mission's hazard zones (planner.hazard), with their activity windows on the mission
+    clock (t = t_step x ProblemConfig.dt_s), or None (the paper's world: no zones). Known to the
+    station from the mission file; planners that do not use them ignore them."""
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,11 @@ energy, descent, message layer and task tree) with switchable mechanisms, each a
   given (ArduPilot "RTL to the nearest rally point", PX4 "return to the closest safe point").
 * **Task-motion prediction** (``predict_steps``). The base builds the tree on the tasks'
   positions extrapolated ``predict_steps`` ahead with an exponentially smoothed velocity.
+* **Hazard awareness** (``hazard_avoid``, ``hazard_push_gain``; planner/hazard.py). With the
+  mission's zones in ``TickInput.hazards`` (known to the station from the mission file), the
+  broadcast tree is routed around the active zones (:func:`planner.hazard.route_tree`) and drones
+  inside a zone are pushed toward its nearest boundary, except within r of a task inside it.
+  :func:`planner.hazard.hazard_rate_per_s` gives the local loss rate at any position.
 
 Units: as PhiIREMAN, every length parameter is in paper units (1 unit = r / 2); instructions and
 ``recovery_target_m`` are metres.
@@ -40,6 +45,7 @@ slow reference and its parameter sit together so that an ablation switches one t
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,6 +53,7 @@ import numpy as np
 
 from planner import _kernels
 from planner.geometry import tasks_connected
+from planner.hazard import HazardMap, push_gradient, route_tree, signed_depth
 from planner.info import CentralView, MessageView
 from planner.methods import PlanOutput, TickInput
 from planner.phireman import (
@@ -121,6 +128,20 @@ class ResilientParams(PhiremanParams):
     """Redundancy: a spare is paired only with a critical relay within this distance, paper units."""
     redundancy_min_cut: int = 1
     """Redundancy: only relays whose loss alone would cut at least this many tasks get a spare."""
+    # -- hazard awareness (planner/hazard.py; zones from ``TickInput.hazards``) --------------
+    hazard_avoid: bool = False
+    """Hazard awareness: the broadcast tree is routed around the active hazard zones (each edge
+    crossing a zone, both ends outside, takes the shortest way around when it is at most
+    ``hazard_detour_cap`` times the edge; planner.hazard.route_tree)."""
+    hazard_push_gain: float = 0.0
+    """Hazard awareness: a drone inside an active zone (or within ``hazard_margin`` of it) is
+    pushed toward its nearest boundary with force gain x rate_per_s x dt_s (the zone's per-step
+    loss hazard); no push within r of a task inside the zone. 0 = off."""
+    hazard_margin: float = 0.5
+    """Hazard awareness: clearance of the detours and reach of the push outside a zone, paper
+    units."""
+    hazard_detour_cap: float = 1.5
+    """Hazard awareness: longest detour accepted, as a multiple of the edge it replaces."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -143,6 +164,11 @@ class ResilientParams(PhiremanParams):
             raise ValueError(f"rally_wait_steps must be >= 0, got {self.rally_wait_steps}")
         if self.redundancy_min_cut < 1:
             raise ValueError(f"redundancy_min_cut must be >= 1, got {self.redundancy_min_cut}")
+        for name in ("hazard_push_gain", "hazard_margin"):  # hazard awareness
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not self.hazard_detour_cap >= 1.0:
+            raise ValueError(f"hazard_detour_cap must be >= 1, got {self.hazard_detour_cap}")
 
     @property
     def triage_on(self) -> bool:
@@ -558,6 +584,7 @@ class ResilientPlanner(PhiremanPlanner):
         self._open_by_stamp: dict[int, np.ndarray] = {}  # broadcast stamp -> unconnected kept tasks
         self._spare_by_stamp: dict[int, np.ndarray] = {}  # broadcast stamp -> (N, 2) spare targets
         self._book = RedundancyBook()
+        self._hazards: HazardMap | None = None  # hazard awareness: the zones active this tick
 
     # -- the base's side ---------------------------------------------------------------------
     def _predicted_tasks(self, tasks_u: np.ndarray) -> np.ndarray:
@@ -596,7 +623,7 @@ class ResilientPlanner(PhiremanPlanner):
         else:
             kept = np.ones(self.full_tree.n_tasks, dtype=bool)
         self.kept_tasks = kept
-        return prune_tree(self.full_tree, kept)
+        return self._hazard_route(prune_tree(self.full_tree, kept))
 
     # -- main entry --------------------------------------------------------------------------
     def plan(self, tick: TickInput) -> PlanOutput:
@@ -606,6 +633,7 @@ class ResilientPlanner(PhiremanPlanner):
         base_u = u.to_u(tick.base_m)
         alive = np.asarray(tick.alive, bool)
         networked = np.asarray(tick.networked, bool) & alive
+        self._hazards = _active_hazards(tick, self.problem.dt_s, p)
         self.tree = self._base_tree(tick, tasks_u, base_u, int(networked.sum()))
         assert self.kept_tasks is not None  # set by _base_tree
         if p.rally:
@@ -622,8 +650,9 @@ class ResilientPlanner(PhiremanPlanner):
             info["spares"] = self._pair_spares(tick.t_step, pos_u, networked, tasks_u, base_u)
         view = self.info_model.see(tick.t_step, pos_u, tick.alive, networked, base_u, self.tree)
         if isinstance(view, CentralView):
-            if p.claim_gain > 0 or p.redundancy_gain > 0:
-                disp_u, more = self._plan_central_pulled(pos_u, tick.t_step, view)
+            hz = self._hazard_term(pos_u[view.planned], [self.tree], np.zeros(len(view.planned)))
+            if p.claim_gain > 0 or p.redundancy_gain > 0 or hz is not None:
+                disp_u, more = self._plan_central_pulled(pos_u, tick.t_step, view, hz)
             else:
                 # PhiIREMAN's central descent on the pruned tree, by the NumPy gradient (bit for bit
                 # with this planner's recorded runs; PhiremanPlanner._plan_central).
@@ -663,6 +692,7 @@ class ResilientPlanner(PhiremanPlanner):
                 spare[np.isfinite(claim).all(axis=1)] = np.nan
             if not np.isfinite(spare).all(axis=1).any():
                 spare = None
+        hz = self._hazard_term(pos_u[idx], trees, version_of)
 
         def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
             er, ox, oy = entries.of(rows)
@@ -681,6 +711,8 @@ class ResilientPlanner(PhiremanPlanner):
                 g += claim_gradient(x[rows], claim[rows], p.claim_gain)
             if spare is not None:
                 g += claim_gradient(x[rows], spare[rows], p.redundancy_gain)
+            if hz is not None:
+                g += hz.gradient(x[rows], rows)
             return g
 
         if (
@@ -697,12 +729,14 @@ class ResilientPlanner(PhiremanPlanner):
                 pos_u[idx], entries, segments, p, self.reach_u, vmax_u
             )
             disp_u[idx] = res.disp_u
-            if claim is not None or spare is not None:
-                pulled = np.zeros(len(idx), dtype=bool)
-                for tgt in (claim, spare):
-                    if tgt is not None:
-                        pulled |= np.isfinite(tgt).all(axis=1)
-                crow = np.flatnonzero(pulled)
+            extra = np.zeros(len(idx), dtype=bool)  # drones whose energy has a term more
+            for tgt in (claim, spare):
+                if tgt is not None:
+                    extra |= np.isfinite(tgt).all(axis=1)
+            if hz is not None:
+                extra |= hz.near
+            if extra.any():
+                crow = np.flatnonzero(extra)
 
                 def grad_claimers(xs: np.ndarray, rows: np.ndarray) -> np.ndarray:
                     full = crow[rows]
@@ -719,9 +753,11 @@ class ResilientPlanner(PhiremanPlanner):
                         p.pair_factor,
                     ) + segments.gradient(xs[rows], full, p.thorn)
                     if claim is not None:
-                        g = g + claim_gradient(xs[rows], claim[full], p.claim_gain)
+                        g += claim_gradient(xs[rows], claim[full], p.claim_gain)
                     if spare is not None:
-                        g = g + claim_gradient(xs[rows], spare[full], p.redundancy_gain)
+                        g += claim_gradient(xs[rows], spare[full], p.redundancy_gain)
+                    if hz is not None:
+                        g += hz.gradient(xs[rows], full)
                     return g
 
                 sub = descend(pos_u[idx[crow]], grad_claimers, vmax_u, p, separable=True)
@@ -775,10 +811,11 @@ class ResilientPlanner(PhiremanPlanner):
         return len(self._book.pair_of)
 
     def _plan_central_pulled(
-        self, pos_u: np.ndarray, t_step: int, view: CentralView
+        self, pos_u: np.ndarray, t_step: int, view: CentralView, hz: _HazardPush | None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Central information with the claim and spare pulls: PhiIREMAN's joint NumPy descent
-        (PhiremanPlanner._plan_central) plus the pull terms, every drone knowing every other."""
+        """Central information with the claim and spare pulls and the hazard push: PhiIREMAN's
+        joint NumPy descent (PhiremanPlanner._plan_central) plus those terms, every drone knowing
+        every other."""
         p = self.params
         idx, disp_u = view.planned, view.disp_u
         if len(idx) == 0:
@@ -802,6 +839,8 @@ class ResilientPlanner(PhiremanPlanner):
                 g = g + claim_gradient(x, claim, p.claim_gain)
             if spare is not None:
                 g = g + claim_gradient(x, spare, p.redundancy_gain)
+            if hz is not None:
+                g = g + hz.gradient(x[rows], rows)
             return g
 
         res = descend(x0, grad, self.units.max_step_u, p)
@@ -813,6 +852,56 @@ class ResilientPlanner(PhiremanPlanner):
             "claims": 0 if claim is None else int(np.isfinite(claim).all(axis=1).sum()),
             "spare_pulls": 0 if spare is None else int(np.isfinite(spare).all(axis=1).sum()),
         }
+
+    # -- hazard awareness (planner/hazard.py) --------------------------------------------------
+    def _hazard_route(self, tree: TaskTree) -> TaskTree:
+        """The tree routed around the active zones (``hazard_avoid``), in paper units."""
+        p, u = self.params, self.units
+        if not p.hazard_avoid or self._hazards is None:
+            return tree
+        tree_m = u.tree_to_m(tree)
+        assert tree_m is not None  # a tree in, a tree out
+        routed, _ = route_tree(
+            tree_m, self._hazards, p.hazard_margin * u.unit_m, p.hazard_detour_cap
+        )
+        return dataclasses.replace(routed, nodes_m=u.to_u(routed.nodes_m))
+
+    def _hazard_term(
+        self, pos_u: np.ndarray, trees: list[Any], version_of: np.ndarray
+    ) -> _HazardPush | None:
+        """The push of the planned drones (rows of ``pos_u``) out of the active zones, or None.
+
+        Each drone's weight on zone z is ``hazard_push_gain`` x rate_z x dt_s, 0 if a task inside
+        z (of the tree copy the drone holds, ``trees[version_of[i]]``) is within r of it: that
+        drone may be the one serving it."""
+        p, u = self.params, self.units
+        if p.hazard_push_gain <= 0 or self._hazards is None or len(pos_u) == 0:
+            return None
+        hm = self._hazards
+        pos_m = u.to_m(pos_u)
+        depth, _ = signed_depth(hm, pos_m)
+        margin_m = p.hazard_margin * u.unit_m
+        near = np.asarray((depth > -(margin_m + u.max_step_u * u.unit_m)).any(axis=1))
+        if not near.any():
+            return None
+        rates = np.array([z.rate_per_s for z in hm.zones]) * self.problem.dt_s
+        weight = np.broadcast_to(p.hazard_push_gain * rates, depth.shape).copy()
+        r_m = u.radio_range_u * u.unit_m
+        for v, tree in enumerate(trees):  # loop over tree versions held (few)
+            rows = np.flatnonzero((version_of == v) & near)
+            if tree is None or len(rows) == 0 or tree.n_tasks == 0:
+                continue
+            tasks_m = u.to_m(tree.nodes_m[1 : tree.n_tasks + 1])
+            task_in = signed_depth(hm, tasks_m)[0] > 0  # (M, Z)
+            if not task_in.any():
+                continue
+            d = np.linalg.norm(pos_m[rows, None, :] - tasks_m[None, :, :], axis=2)  # (n, M)
+            serving = (d <= r_m).astype(float) @ task_in.astype(float) > 0  # (n, Z)
+            weight[rows] = np.where(serving, 0.0, weight[rows])
+        near &= (weight > 0).any(axis=1)
+        if not near.any():
+            return None
+        return _HazardPush(hm, weight, margin_m, u.unit_m, near)
 
     def _update_recovery(
         self,
@@ -858,6 +947,28 @@ class ResilientPlanner(PhiremanPlanner):
         ]:
             del self._rally_by_stamp[s]
         self.recovery_target_m = self.units.to_m(target)
+
+
+@dataclass(frozen=True)
+class _HazardPush:
+    """The hazard push of one tick: :func:`planner.hazard.push_gradient` in paper units."""
+
+    hazards: HazardMap
+    weight: np.ndarray  # (n, Z) per planned drone and zone
+    margin_m: float
+    unit_m: float
+    near: np.ndarray  # (n,) bool: drones the push may reach this tick
+
+    def gradient(self, x_u: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        return push_gradient(self.hazards, x_u * self.unit_m, self.weight[rows], self.margin_m)
+
+
+def _active_hazards(tick: TickInput, dt_s: float, p: ResilientParams) -> HazardMap | None:
+    """The zones active at this tick (mission time t_step x dt_s) when hazard awareness is on."""
+    if tick.hazards is None or not (p.hazard_avoid or p.hazard_push_gain > 0):
+        return None
+    active = tick.hazards.active(tick.t_step * dt_s)
+    return active if len(active) else None
 
 
 def make_resilient(
