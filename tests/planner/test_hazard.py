@@ -271,6 +271,8 @@ def test_drones_spend_less_time_inside_the_zone_with_hazard_awareness():
             total += int(((rate > 0) & rec.alive).sum())
         return total
 
-    off = inside_s({})
-    on = inside_s({"hazard_avoid": True, "hazard_push_gain": 1.0})
+    # The other pulls off, so that only the hazard mechanism differs.
+    alone = {"claim_gain": 0.0, "redundancy_gain": 0.0}
+    off = inside_s(alone)
+    on = inside_s({**alone, "hazard_avoid": True, "hazard_push_gain": 1.0})
     assert off > 0 and on < 0.5 * off, (off, on)  # measured: 86 and 24 drone-steps
