@@ -121,19 +121,20 @@ class ResilientParams(PhiremanParams):
     """Task-motion prediction: the tree is built on tasks extrapolated this many steps (0 = off)."""
     predict_smoothing: float = 0.3
     """Weight of the newest observed displacement in the smoothed task velocity."""
-    redundancy_gain: float = 0.0
+    redundancy_gain: float = 0.3
     """Redundancy: pull (a force, like Þ) of a spare drone toward the critical relay it is paired
-    with (planner/redundancy.py); 0 = off."""
-    redundancy_reach: float = 4.0
+    with (planner/redundancy.py); 0 = off. Chosen at S / 1 % (seeds 1000-1099) and M / 2 % (seeds
+    1000-1049), docs/tuning/resilient.md."""
+    redundancy_reach: float = 8.0
     """Redundancy: a spare is paired only with a critical relay within this distance, paper units."""
     redundancy_min_cut: int = 1
     """Redundancy: only relays whose loss alone would cut at least this many tasks get a spare."""
     # -- hazard awareness (planner/hazard.py; zones from ``TickInput.hazards``) --------------
-    hazard_avoid: bool = False
+    hazard_avoid: bool = True
     """Hazard awareness: the broadcast tree is routed around the active hazard zones (each edge
     crossing a zone, both ends outside, takes the shortest way around when it is at most
     ``hazard_detour_cap`` times the edge; planner.hazard.route_tree)."""
-    hazard_push_gain: float = 0.0
+    hazard_push_gain: float = 1.0
     """Hazard awareness: a drone inside an active zone (or within ``hazard_margin`` of it) is
     pushed toward its nearest boundary with force gain x rate_per_s x dt_s (the zone's per-step
     loss hazard); no push within r of a task inside the zone. 0 = off."""

@@ -116,10 +116,13 @@ def test_waypoints_are_outside_every_zone():
 # -- the tree routed around a disc (hand-built) -----------------------------------------------
 
 
+HAZARD_OFF = {"hazard_avoid": False, "hazard_push_gain": 0.0}  # the defaults have it on
+
+
 def _planner(info="central", **params):
     # S geometry: r = 2 paper units; length unit 1 m, so the task sits 10 units (10 m) north.
     p = problem_preset("S", 0.0).replace(n_drones=4, n_tasks=1)
-    return make_planner("phireman-resilient", p, {"info": info, **params})
+    return make_planner("phireman-resilient", p, {"info": info, **HAZARD_OFF, **params})
 
 
 def _path_to_base(tree: TaskTree, node: int) -> np.ndarray:
@@ -273,6 +276,6 @@ def test_drones_spend_less_time_inside_the_zone_with_hazard_awareness():
 
     # The other pulls off, so that only the hazard mechanism differs.
     alone = {"claim_gain": 0.0, "redundancy_gain": 0.0}
-    off = inside_s(alone)
+    off = inside_s({**alone, **HAZARD_OFF})
     on = inside_s({**alone, "hazard_avoid": True, "hazard_push_gain": 1.0})
     assert off > 0 and on < 0.5 * off, (off, on)  # measured: 86 and 24 drone-steps

@@ -23,7 +23,15 @@ from planner.resilient import (
 from planner.steiner import TaskTree, build_task_tree
 from vehicle_emu.world import World
 
-OFF = dict(triage_length_per_drone=0.0, rally=False, claim_gain=0.0, predict_steps=0.0)
+OFF = dict(
+    triage_length_per_drone=0.0,
+    rally=False,
+    claim_gain=0.0,
+    predict_steps=0.0,
+    redundancy_gain=0.0,
+    hazard_avoid=False,
+    hazard_push_gain=0.0,
+)
 
 
 def _random_tree(rng, m):
