@@ -31,6 +31,7 @@ from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import breadth_first_order
 from scipy.spatial import cKDTree
 
+from planner._graph_kernels import _jit
 from planner.geometry import active_mask_reference, tasks_connected
 
 __all__ = [
@@ -107,86 +108,126 @@ def mesh_graph(
     return MeshGraph(rows, adj.indptr, adj.indices, task_nodes)
 
 
-def _low_points(g: MeshGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Iterative Tarjan DFS from the base: (disc, low, parent, depth); disc = -1 if unreached."""
-    n = g.n_nodes
+def _cut_counts(
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    root: int,
+    task_ptr: np.ndarray,
+    task_att: np.ndarray,
+) -> np.ndarray:
+    """Per node, the tasks its loss alone cuts (Numba-compatible: arrays and loops only).
+
+    Tarjan's depth-first search from ``root`` (iterative, explicit stack) gives each node its
+    discovery time, low point, parent and depth; then one walk per task: the lowest common
+    ancestor of its reached attachments, the check at that ancestor, and the climb to the root.
+    """
+    n = len(indptr) - 1
     disc = np.full(n, -1, np.int64)
     low = np.zeros(n, np.int64)
     parent = np.full(n, -1, np.int64)
     depth = np.zeros(n, np.int64)
-    indptr, indices = g.indptr, g.indices
-    root = g.base
-    disc[root] = low[root] = 0
+    stack_v = np.empty(n, np.int64)
+    stack_i = np.empty(n, np.int64)
+    disc[root] = 0
+    low[root] = 0
     counter = 1
-    stack = [(root, int(indptr[root]))]
-    while stack:  # loop over DFS steps (each edge twice), Python: the mesh is sparse
-        v, i = stack[-1]
+    stack_v[0] = root
+    stack_i[0] = indptr[root]
+    sp = 1
+    while sp > 0:  # each edge is looked at twice
+        v = stack_v[sp - 1]
+        i = stack_i[sp - 1]
         if i < indptr[v + 1]:
-            stack[-1] = (v, i + 1)
-            w = int(indices[i])
+            stack_i[sp - 1] = i + 1
+            w = indices[i]
             if disc[w] < 0:
                 parent[w] = v
                 depth[w] = depth[v] + 1
-                disc[w] = low[w] = counter
+                disc[w] = counter
+                low[w] = counter
                 counter += 1
-                stack.append((w, int(indptr[w])))
+                stack_v[sp] = w
+                stack_i[sp] = indptr[w]
+                sp += 1
             elif w != parent[v] and disc[w] < low[v]:
                 low[v] = disc[w]
         else:
-            stack.pop()
-            if stack:
-                u = stack[-1][0]
+            sp -= 1
+            if sp > 0:
+                u = stack_v[sp - 1]
                 if low[v] < low[u]:
                     low[u] = low[v]
-    return disc, low, parent, depth
+    count = np.zeros(n, np.int64)
+    for t in range(len(task_ptr) - 1):
+        lca = -1
+        for j in range(task_ptr[t], task_ptr[t + 1]):
+            a = task_att[j]
+            if disc[a] < 0:
+                continue
+            if lca < 0:
+                lca = a
+                continue
+            while depth[a] > depth[lca]:
+                a = parent[a]
+            while depth[lca] > depth[a]:
+                lca = parent[lca]
+            while a != lca:
+                a = parent[a]
+                lca = parent[lca]
+        if lca < 0:
+            continue  # not connected now
+        if lca != root:
+            ok = True
+            for j in range(task_ptr[t], task_ptr[t + 1]):
+                a = task_att[j]
+                if disc[a] < 0 or a == lca:
+                    continue
+                c = a
+                while parent[c] != lca:
+                    c = parent[c]
+                if low[c] < disc[lca]:
+                    ok = False
+                    break
+            if ok:
+                count[lca] += 1
+        c = lca
+        while c != root:
+            v = parent[c]
+            if v == root:
+                break
+            if low[c] >= disc[v]:
+                count[v] += 1
+            c = v
+    return count
 
 
-def critical_counts(g: MeshGraph, n_drones: int) -> np.ndarray:
+_cut_counts_compiled = _jit(_cut_counts)
+
+
+def critical_counts(g: MeshGraph, n_drones: int, compiled: bool = True) -> np.ndarray:
     """(N,) int: for each drone, the number of tasks connected now that its loss alone would cut.
 
     Only drones of the base's component count (others and non-networked drones: 0). A task is
     cut by losing v exactly when v separates every drone the task is attached to from the base:
     v is an ancestor-or-self of the attachments' lowest common ancestor in the search tree and,
     for each attachment other than v, the subtree hanging below v toward it has no back edge
-    above v (low point >= disc[v]).
+    above v (low point >= disc[v]). ``compiled``: the Numba build of the same function (the
+    plain one when Numba is missing); tests compare both with :func:`critical_counts_reference`.
     """
     out = np.zeros(n_drones, np.int64)
     if len(g.rows) == 0:
         return out
-    disc, low, parent, depth = _low_points(g)
-    root = g.base
-    count = np.zeros(g.n_nodes, np.int64)
-
-    def child_toward(v: int, a: int) -> int:
-        while parent[a] != v:
-            a = int(parent[a])
-        return a
-
-    for att in g.task_nodes:  # loop over tasks, each walks the search tree's depth
-        att = att[disc[att] >= 0]
-        if len(att) == 0:
-            continue
-        lca = int(att[0])
-        for a in att[1:]:
-            a = int(a)
-            while depth[a] > depth[lca]:
-                a = int(parent[a])
-            while depth[lca] > depth[a]:
-                lca = int(parent[lca])
-            while a != lca:
-                a, lca = int(parent[a]), int(parent[lca])
-        if lca != root and all(
-            a == lca or low[child_toward(lca, int(a))] >= disc[lca] for a in att
-        ):
-            count[lca] += 1
-        c = lca
-        while c != root:
-            v = int(parent[c])
-            if v == root:
-                break
-            if low[c] >= disc[v]:
-                count[v] += 1
-            c = v
+    sizes = np.array([len(a) for a in g.task_nodes], dtype=np.int64)
+    task_ptr = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    task_att = (
+        np.concatenate(g.task_nodes).astype(np.int64)
+        if len(g.task_nodes)
+        else np.zeros(0, np.int64)
+    )
+    kernel = _cut_counts_compiled if compiled else _cut_counts
+    count = kernel(
+        g.indptr.astype(np.int64), g.indices.astype(np.int64), g.base, task_ptr, task_att
+    )
     out[g.rows] = count[: len(g.rows)]
     return out
 

@@ -29,7 +29,9 @@ def test_critical_counts_match_removing_each_drone(rng):
         pos, tasks = rng.uniform(-w, w, (n, 2)), rng.uniform(-w, w, (m, 2))
         net = active_mask(pos, rng.random(n) < 0.9, 2.0, 2.0)
         expect = critical_counts_reference(pos, net, tasks, BASE, 2.0, 2.0)
-        assert np.array_equal(_crit(pos, net, tasks), expect)
+        assert np.array_equal(_crit(pos, net, tasks), expect)  # compiled (Numba)
+        g = mesh_graph(pos, net, tasks, BASE, 2.0, 2.0)
+        assert np.array_equal(critical_counts(g, n, compiled=False), expect)  # plain Python
 
 
 def test_chain_by_hand():
