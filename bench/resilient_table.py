@@ -16,6 +16,9 @@ match the code.
 
 usage:
   python bench/resilient_table.py --baseline paper.sqlite --store resilient.sqlite [--ablations]
+  # planned centrally (the station's case), against ΦIREMAN planned centrally
+  python bench/resilient_table.py --baseline central.sqlite --base-method phireman-central \
+      --store central.sqlite --new-set info=central
 """
 
 from __future__ import annotations
@@ -89,9 +92,11 @@ def _verdict(d: float, p: float) -> str:
     return "**better**" if d > 0 else "*worse*"
 
 
-def main_table(baseline: dict, new: dict) -> tuple[str, dict]:
+def main_table(
+    baseline: dict, new: dict, base_label: str = BASE, new_label: str = NEW
+) -> tuple[str, dict]:
     lines = [
-        "| Size | p (%) | paper Φ TU1 / TU2 | ours `phireman` TU1 / TU2 | `phireman-resilient` TU1 / TU2 "
+        f"| Size | p (%) | paper Φ TU1 / TU2 | ours `{base_label}` TU1 / TU2 | `{new_label}` TU1 / TU2 "
         "| Δ TU1 (p) | Δ TU2 (p) | verdict | n |",
         "| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: |",
     ]
@@ -206,10 +211,25 @@ def main(argv=None) -> int:
         metavar="SIZE:PCT",
         help="ablation cells, e.g. S:1 M:2 (default when given without values: S:1 M:2)",
     )
+    ap.add_argument(
+        "--base-method", default=BASE, help=f"method of the baseline rows (default {BASE})"
+    )
+    ap.add_argument(
+        "--new-set",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="parameter overrides of the new rows (e.g. info=central: the station's central planning)",
+    )
     args = ap.parse_args(argv)
-    base = load(args.baseline, BASE)
-    new = load(args.store, NEW)
-    table, counts = main_table(base, new)
+    new_params = {}
+    for item in args.new_set:
+        key, _, value = item.partition("=")
+        new_params[key] = json.loads(value) if value[:1] in "0123456789-[{tf" else value
+    base = load(args.baseline, args.base_method)
+    new = load(args.store, NEW, new_params or None)
+    label = NEW + (f" ({', '.join(args.new_set)})" if args.new_set else "")
+    table, counts = main_table(base, new, args.base_method, label)
     print(table)
     print()
     print(
