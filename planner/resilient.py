@@ -53,7 +53,13 @@ import numpy as np
 
 from planner import _kernels
 from planner.geometry import tasks_connected
-from planner.hazard import HazardMap, push_gradient, route_tree, signed_depth
+from planner.hazard import (
+    HazardMap,
+    hazard_rate_per_s,
+    push_gradient,
+    route_tree,
+    signed_depth,
+)
 from planner.info import CentralView, MessageView
 from planner.methods import PlanOutput, TickInput
 from planner.phireman import (
@@ -804,7 +810,13 @@ class ResilientPlanner(PhiremanPlanner):
         crit = critical_counts(graph, len(pos_u))
         on = backbone(graph, len(pos_u))
         target = self._book.assign(
-            pos_u, networked, crit, on, p.redundancy_reach, p.redundancy_min_cut
+            pos_u,
+            networked,
+            crit,
+            on,
+            p.redundancy_reach,
+            p.redundancy_min_cut,
+            self._relay_priority(pos_u, crit, t_step * self.problem.dt_s),
         )
         self._spare_by_stamp[t_step] = target
         for old in [s for s in self._spare_by_stamp if s < t_step - p.tree_stale_steps - 1]:
@@ -853,6 +865,15 @@ class ResilientPlanner(PhiremanPlanner):
             "claims": 0 if claim is None else int(np.isfinite(claim).all(axis=1).sum()),
             "spare_pulls": 0 if spare is None else int(np.isfinite(spare).all(axis=1).sum()),
         }
+
+    def _relay_priority(self, pos_u: np.ndarray, crit: np.ndarray, t_s: float) -> np.ndarray | None:
+        """Order in which critical relays get a spare: hazard awareness puts the relays inside an
+        active zone first (the issue's "double them when [a path around] does not [exist]"),
+        each group by the tasks its loss would cut; None (by cut count alone) without zones."""
+        if self._hazards is None:
+            return None
+        in_zone = hazard_rate_per_s(self._hazards, self.units.to_m(pos_u), t_s) > 0
+        return crit + (int(crit.max(initial=0)) + 1) * in_zone
 
     # -- hazard awareness (planner/hazard.py) --------------------------------------------------
     def _hazard_route(self, tree: TaskTree) -> TaskTree:

@@ -92,3 +92,22 @@ def test_spares_double_the_critical_relays_of_a_chain(info):
     assert sum(off[-20:]) > 0
     assert sum(on[-20:]) < sum(off[-20:])
     assert min(on[-20:]) == 0  # at times no single loss cuts the task (central: for good)
+
+
+def test_relays_inside_a_hazard_zone_get_a_spare_first():
+    """Two relays each holding one crew, one spare within reach of both: by cut count alone the
+    lower row wins; with the second relay inside an active zone, the spare goes to it."""
+    from planner.hazard import HazardMap, HazardZone
+
+    problem = problem_preset("S", 0.0, n_drones=3, n_tasks=2)
+    pos = np.array([[1.8, 0.0], [-1.8, 0.0], [0.0, 1.0]])  # relay A, relay B, spare
+    tasks = np.array([[3.3, 0.0], [-3.3, 0.0]])
+    zone = HazardMap((HazardZone(0.05, center_m=(-1.8, 0.0), radius_m=0.5),))
+
+    def paired(hazards):
+        planner = make_planner("phireman-resilient", problem, {"info": "central"})
+        planner.plan(TickInput(0, pos, np.ones(3, bool), np.ones(3, bool), tasks, hazards=hazards))
+        return planner._book.pair_of
+
+    assert paired(None) == {2: 0}
+    assert paired(zone) == {2: 1}
