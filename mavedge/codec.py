@@ -26,11 +26,14 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import operator
 import re
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
+from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from .units import signing_timestamp_from_s
@@ -91,22 +94,92 @@ class RawFrame:
         return f"RawFrame({self._name}, sysid={self._sysid}, compid={self._compid})"
 
 
+class _FastSpec(NamedTuple):
+    """What :meth:`_MAVLink._decode_fast` needs of one message type."""
+
+    cls: Any
+    crc_extra: bytes
+    size: int
+    unpack: Callable[[bytes | bytearray], tuple[Any, ...]]
+    order: Callable[[tuple[Any, ...]], tuple[Any, ...]]
+
+
+def _fast_specs() -> dict[int, _FastSpec]:
+    """The message types whose pymavlink decode is a plain unpack and reorder: no arrays and
+    no strings (those need pymavlink's list building and NUL stripping; they keep its path)."""
+    out = {}
+    for msgid, cls in mavlink.mavlink_map.items():
+        fmt = cls.unpacker.format
+        if sum(cls.lengths) != len(cls.lengths) or "s" in fmt or "c" in fmt:
+            continue
+        orders = tuple(cls.orders)
+        order = (
+            operator.itemgetter(*orders) if len(orders) > 1 else (lambda t, _i=orders[0]: (t[_i],))
+        )
+        out[msgid] = _FastSpec(
+            cls, bytes((cls.crc_extra,)), cls.unpacker.size, cls.unpacker.unpack, order
+        )
+    return out
+
+
+_FAST = _fast_specs()
+_mcrf4xx = crc16.mcrf4xx  # CRC-16/MCRF4XX, the X.25 CRC pymavlink's x25crc computes with it
+
+
 class _MAVLink(mavlink.MAVLink):  # type: ignore[misc]  # pymavlink is untyped
-    """pymavlink's parser with the C library's signature check and optional raw frames."""
+    """pymavlink's parser with the C library's signature check, optional raw frames and a
+    fast path for well-formed unsigned frames (:meth:`_decode_fast`, :func:`_parse_datagram`)."""
 
     full_msgids: frozenset[int] | None = None
     """Message ids decoded into pymavlink objects; the others become RawFrame (None: all)."""
 
     def decode(self, msgbuf: bytearray) -> Any:
         full = self.full_msgids
-        if full is not None and len(msgbuf) >= 10:
+        if len(msgbuf) >= 10:
             if msgbuf[0] == mavlink.PROTOCOL_MARKER_V2:
                 msgid = msgbuf[7] | (msgbuf[8] << 8) | (msgbuf[9] << 16)
             else:
                 msgid = msgbuf[5]
-            if msgid not in full and msgid in mavlink.mavlink_map:
+            if full is not None and msgid not in full and msgid in mavlink.mavlink_map:
                 return self._decode_raw(msgbuf, msgid)
+            if msgbuf[0] == mavlink.PROTOCOL_MARKER_V2 and not msgbuf[2]:
+                m = self._decode_fast(msgbuf, msgid)
+                if m is not None:
+                    return m
         return super().decode(msgbuf)
+
+    def _decode_fast(self, msgbuf: bytearray, msgid: int) -> Any:
+        """pymavlink ``MAVLink.decode`` of an unsigned MAVLink 2 frame (incompat flags 0) of a
+        :func:`_fast_specs` type, when its length and CRC are good and no signing key is set:
+        the same message object, attribute for attribute (tests/mavedge/test_fast_decode.py),
+        without the generic header, list and order handling. ``None`` for everything else
+        (signing on, other types, bad length or CRC): pymavlink decodes it, or refuses it
+        with its own reason."""
+        spec = _FAST.get(msgid)
+        if spec is None or self.signing.secret_key is not None:
+            return None
+        mlen = msgbuf[1]
+        if mlen != len(msgbuf) - 12:
+            return None
+        crc = msgbuf[-2] | (msgbuf[-1] << 8)
+        if _mcrf4xx(spec.crc_extra, _mcrf4xx(memoryview(msgbuf)[1:-2])) != crc:
+            return None
+        size = spec.size
+        if mlen == size:
+            payload = msgbuf[10:-2]
+        elif mlen < size:  # MAVLink 2 trailing-zero truncation: pad back, as pymavlink does
+            payload = msgbuf[10:-2] + bytes(size - mlen)
+        else:  # longer than this dialect knows (newer extension fields): cut
+            payload = msgbuf[10 : 10 + size]
+        m = spec.cls(*spec.order(spec.unpack(payload)))
+        m._signed = False
+        m._msgbuf = msgbuf
+        m._payload = msgbuf[6:-2]
+        m._crc = crc
+        m._header = mavlink.MAVLink_header(
+            msgid, 0, msgbuf[3], mlen, msgbuf[4], msgbuf[5], msgbuf[6]
+        )
+        return m
 
     def _decode_raw(self, msgbuf: bytearray, msgid: int) -> RawFrame:
         """pymavlink ``MAVLink.decode`` up to and including the signature check, without the
@@ -158,6 +231,47 @@ class _MAVLink(mavlink.MAVLink):  # type: ignore[misc]  # pymavlink is untyped
         signing.stream_timestamps[stream_key] = timestamp
         signing.timestamp = max(signing.timestamp, timestamp)
         return True
+
+
+def _parse_datagram(mav: _MAVLink, data: bytes) -> list[Any] | None:
+    """What ``mav.parse_buffer(data)`` returns (decoded messages and ``MAVLink_bad_data``, in
+    order) for a datagram made of complete MAVLink 2 / 1 frames from its first byte to its
+    last, with the parser empty; ``None`` (nothing done) for anything else: bytes before or
+    between frames, a truncated tail, a parser holding bytes; the caller then runs
+    ``parse_buffer``. Each frame is cut by the length the parser would read and decoded by
+    ``mav.decode`` (its fast path for the common case), a refused one becoming the parser's
+    BAD_DATA with the same reason. Exceptions other than ``MAVError`` propagate, as from
+    ``parse_buffer``. pymavlink's own byte and packet counters are not advanced."""
+    if len(mav.buf) != mav.buf_index:
+        return None
+    n = len(data)
+    bounds = []
+    i = 0
+    while i < n:
+        magic = data[i]
+        if magic == 0xFD:
+            if i + 3 > n or data[i + 2] & ~mavlink.MAVLINK_IFLAG_SIGNED:
+                return None  # the parser's "invalid incompat_flags" (rare): its path
+            size = 12 + data[i + 1] + (13 if data[i + 2] & mavlink.MAVLINK_IFLAG_SIGNED else 0)
+        elif magic == 0xFE:
+            if i + 3 > n:
+                return None
+            size = 8 + data[i + 1]
+        else:
+            return None
+        if i + size > n:
+            return None
+        bounds.append((i, i + size))
+        i += size
+    out = []
+    decode = mav.decode
+    for a, b in bounds:
+        frame = bytearray(data[a:b])
+        try:
+            out.append(decode(frame))
+        except mavlink.MAVError as reason:
+            out.append(mavlink.MAVLink_bad_data(frame, reason.message))
+    return out
 
 
 def _reset_parser(mav: mavlink.MAVLink) -> None:
@@ -224,7 +338,9 @@ class Decoder:
         self._stats.bytes_in += len(data)
         out: list[Any] = []
         try:
-            msgs = self._mav.parse_buffer(data) or []
+            msgs = _parse_datagram(self._mav, data) if datagram else None
+            if msgs is None:
+                msgs = self._mav.parse_buffer(data) or []
         except Exception:  # pymavlink bug or exotic input: count it, reset, carry on
             log.debug("decoder exception on %d bytes", len(data), exc_info=True)
             self._stats.decoder_errors += 1
@@ -419,7 +535,9 @@ class VehicleCodec:
         res = DecodeResult()
         mav = self._mav
         try:
-            msgs = mav.parse_buffer(data) or []
+            msgs = _parse_datagram(mav, data)
+            if msgs is None:
+                msgs = mav.parse_buffer(data) or []
         except Exception:  # noqa: BLE001 - remote bytes must never raise across the adapter
             log.debug("pymavlink raised on a datagram of %d bytes", len(data), exc_info=True)
             msgs = []
