@@ -551,9 +551,10 @@ class Swarm:
         radio = self.radio
         mux = self.mux
         net = self.network_of_index
-        for i, core in enumerate(self.cores):
-            if not core._out:
-                continue
+        cores = self.cores
+        # called after every datagram received: find the few cores with output in one pass
+        for i in [i for i, core in enumerate(cores) if core._out]:
+            core = cores[i]
             dgrams = core.datagrams_to_send(now_s)
             if not core.alive:
                 continue

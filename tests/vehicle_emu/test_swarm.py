@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from mavedge import codec
 from vehicle_emu import events as ev
 from vehicle_emu.attrition import Attrition
 from vehicle_emu.radio import RadioConfig
@@ -201,18 +202,18 @@ def test_out_of_range_vehicle_failsafes_home_and_is_heard_again():
 
 def test_mux_router_parses_each_frame_once(monkeypatch):
     """The router reads target_system from the header bytes; only the addressed core decodes
-    (CRC, signature, unpack): one pymavlink decode per frame, not two (issue 13.1)."""
+    (CRC, signature, unpack): one decode per frame, not two (issue 13.1)."""
     swarm = Swarm(5, rng=np.random.default_rng(7), mux=True)
     gcs = FakeGcs()
     data = gcs.command(400, 1, target=3) + gcs.heartbeat()
     calls = []
-    orig = mavlink.MAVLink.decode
+    orig = codec._MAVLink.decode  # every frame's decode, its fast path or pymavlink's
 
     def counting(self, msgbuf):
         calls.append(1)
         return orig(self, msgbuf)
 
-    monkeypatch.setattr(mavlink.MAVLink, "decode", counting)
+    monkeypatch.setattr(codec._MAVLink, "decode", counting)
     swarm.receive_datagram(0, data, GCS_ADDR, 0.0)
     # one decode for the addressed COMMAND_LONG, one for the broadcast HEARTBEAT (shared by
     # every member without a signing key: "decode once, deliver many")
@@ -234,13 +235,13 @@ def test_broadcast_decoded_once_but_signed_cores_check_their_own(monkeypatch):
     swarm.cores[1]._codec.set_signing_key(key)
     swarm.kill(3, 0.0)
     calls = []
-    orig = mavlink.MAVLink.decode
+    orig = codec._MAVLink.decode  # every frame's decode, its fast path or pymavlink's
 
     def counting(self, msgbuf):
         calls.append(1)
         return orig(self, msgbuf)
 
-    monkeypatch.setattr(mavlink.MAVLink, "decode", counting)
+    monkeypatch.setattr(codec._MAVLink, "decode", counting)
     swarm.receive_datagram(0, FakeGcs().heartbeat(), GCS_ADDR, 0.0)
     assert len(calls) == 2  # the shared decode and the signed core's own
     assert [c.stats.gcs_heartbeats for c in swarm.cores] == [1, 0, 1, 0]
