@@ -102,6 +102,9 @@ class _FastSpec(NamedTuple):
     size: int
     unpack: Callable[[bytes | bytearray], tuple[Any, ...]]
     order: Callable[[tuple[Any, ...]], tuple[Any, ...]]
+    pack: Callable[..., bytes]
+    wire_fields: Callable[[Any], tuple[Any, ...]]
+    """The field values of a message in wire order (``ordered_fieldnames``), for ``pack``."""
 
 
 def _fast_specs() -> dict[int, _FastSpec]:
@@ -116,8 +119,20 @@ def _fast_specs() -> dict[int, _FastSpec]:
         order = (
             operator.itemgetter(*orders) if len(orders) > 1 else (lambda t, _i=orders[0]: (t[_i],))
         )
+        names = tuple(cls.ordered_fieldnames)
+        wire_fields = (
+            operator.attrgetter(*names)
+            if len(names) > 1
+            else (lambda m, _n=names[0]: (getattr(m, _n),))
+        )
         out[msgid] = _FastSpec(
-            cls, bytes((cls.crc_extra,)), cls.unpacker.size, cls.unpacker.unpack, order
+            cls,
+            bytes((cls.crc_extra,)),
+            cls.unpacker.size,
+            cls.unpacker.unpack,
+            order,
+            cls.unpacker.pack,
+            wire_fields,
         )
     return out
 
@@ -231,6 +246,40 @@ class _MAVLink(mavlink.MAVLink):  # type: ignore[misc]  # pymavlink is untyped
         signing.stream_timestamps[stream_key] = timestamp
         signing.timestamp = max(signing.timestamp, timestamp)
         return True
+
+
+_HEADER_V2 = struct.Struct("<BBBBBBBHB")
+
+
+def _encode_fast(mav: mavlink.MAVLink, msg: Any) -> bytes | None:
+    """pymavlink ``msg.pack(mav)`` (unsigned MAVLink 2) for a message of a :func:`_fast_specs`
+    type: the same bytes (tests/mavedge/test_fast_decode.py), without building the header
+    object and bytearrays pymavlink leaves on the message (nobody reads them on a message we
+    send). ``None`` when signing or for other types: the caller packs with pymavlink."""
+    spec = _FAST.get(msg.id)
+    if spec is None or type(msg) is not spec.cls or mav.signing.sign_outgoing:
+        return None
+    payload = spec.pack(*spec.wire_fields(msg))
+    # MAVLink 2 payload truncation (pymavlink MAVLink_message._pack): trailing zeros dropped,
+    # at least one byte kept.
+    payload = payload.rstrip(b"\0") or payload[:1]
+    msgid = msg.id
+    frame = (
+        _HEADER_V2.pack(
+            253,
+            len(payload),
+            0,
+            0,
+            mav.seq,
+            mav.srcSystem,
+            mav.srcComponent,
+            msgid & 0xFFFF,
+            msgid >> 16,
+        )
+        + payload
+    )
+    crc = _mcrf4xx(spec.crc_extra, _mcrf4xx(memoryview(frame)[1:]))
+    return frame + crc.to_bytes(2, "little")
 
 
 def _parse_datagram(mav: _MAVLink, data: bytes) -> list[Any] | None:
@@ -402,7 +451,9 @@ class Codec:
 
     def encode(self, msg: Any) -> bytes:
         """Pack one message as a MAVLink 2 frame with our ids and the next sequence number."""
-        buf = msg.pack(self._mav)
+        buf = _encode_fast(self._mav, msg)
+        if buf is None:
+            buf = msg.pack(self._mav)
         self._mav.seq = (self._mav.seq + 1) % 256
         return bytes(buf)
 
@@ -510,7 +561,9 @@ class VehicleCodec:
     def encode(self, msg: Any) -> bytes:
         """Pack one message with our seq and (if enabled) signature; advance seq."""
         mav = self._mav
-        buf = msg.pack(mav)
+        buf = _encode_fast(mav, msg)
+        if buf is None:
+            buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) & 0xFF
         self.n_sent += 1
         return buf

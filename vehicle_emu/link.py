@@ -175,6 +175,8 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         )
         self.stats = CoreStats()
         self._out: list[bytes] = []
+        #: A swarm's set of the ``index`` of cores whose ``_out`` got frames (None: standalone).
+        self._out_dirty: set[int] | None = None
         self._events: deque = deque()
         self._logged_types: set[str] = set()
         #: Warnings caused by remote input go through this (shared by a Swarm's cores).

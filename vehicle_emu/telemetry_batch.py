@@ -497,6 +497,8 @@ class BatchTelemetry:
                         job = jobs[msg_id] = []
                     job.append((core, len(out), codec.take_seq(1)))
                     out.append(None)
+                    if core._out_dirty is not None:
+                        core._out_dirty.add(core.index)
                     continue
                 try:
                     core._send(builders[msg_id](core, now_s))

@@ -250,3 +250,37 @@ def test_broadcast_decoded_once_but_signed_cores_check_their_own(monkeypatch):
     # a signed heartbeat reaches every live core (pymavlink accepts it without a key)
     swarm.receive_datagram(0, FakeGcs(signing_key=key).heartbeat(), GCS_ADDR, 0.1)
     assert [c.stats.gcs_heartbeats for c in swarm.cores] == [2, 1, 2, 0]
+
+
+def test_cores_with_output_are_always_marked():
+    """datagrams_to_send visits the cores in ``_out_dirty``: every core with queued frames must
+    be there (the scan of every core it replaces would have found them), through ticks with
+    batched and per-vehicle telemetry, commands, broadcasts, a kill and a datagram loss."""
+    swarm = Swarm(
+        6,
+        rng=np.random.default_rng(5),
+        mux=True,
+        radio=RadioConfig(loss_per_hop=0.2, latency_per_hop_s=0.02),
+    )
+    gcs = FakeGcs()
+    swarm.cores[2]._codec.set_signing_key(bytes(range(32)))  # per-vehicle telemetry path
+    marked = 0
+    t = 0.0
+    for step in range(200):
+        t = round(t + 0.05, 6)
+        if step % 20 == 0:
+            swarm.receive_datagram(0, gcs.heartbeat(), GCS_ADDR, t)
+        if step % 7 == 0:
+            swarm.receive_datagram(0, gcs.command(400, 1, target=1 + step % 6), GCS_ADDR, t)
+        if step == 100:
+            swarm.kill(4, t)
+        with_out = {i for i, c in enumerate(swarm.cores) if c._out}
+        assert with_out <= swarm._out_dirty
+        marked += len(with_out)
+        swarm.handle_timer(t)
+        with_out = {i for i, c in enumerate(swarm.cores) if c._out}
+        assert with_out <= swarm._out_dirty
+        marked += len(with_out)
+        swarm.datagrams_to_send(t)
+        assert not any(c._out for c in swarm.cores if c.alive)
+    assert marked > 50
