@@ -29,9 +29,9 @@ import logging
 import operator
 import re
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -47,6 +47,8 @@ __all__ = [
     "VehicleCodec",
     "split_frames",
     "frame_target_system",
+    "coalesce_datagrams",
+    "MAX_DATAGRAM_BYTES",
 ]
 
 log = logging.getLogger(__name__)
@@ -643,6 +645,49 @@ def split_frames(data: bytes) -> list[bytes]:
             break
         out.append(data[i : i + size])
         i += size
+    return out
+
+
+MAX_DATAGRAM_BYTES = 1200
+"""Largest UDP datagram either side builds from several frames (below a 1,500-byte Ethernet MTU
+with room for IP/UDP headers and tunnels)."""
+
+
+_Dest = TypeVar("_Dest", bound=Hashable)
+
+
+def coalesce_datagrams(
+    datagrams: Iterable[tuple[_Dest, bytes]], max_bytes: int = MAX_DATAGRAM_BYTES
+) -> list[tuple[_Dest, bytes]]:
+    """``(destination, datagram)`` pairs with the datagrams of each destination joined into as
+    few as fit in ``max_bytes`` (a datagram already larger goes alone).
+
+    Every datagram holds whole MAVLink frames, so each joined one does too, and a receiver that
+    splits datagrams into frames (both sides here, ArduPilot, PX4) sees the same frames in the
+    same order from each destination's point of view; only the datagram boundaries change.
+    Destinations come out in the order of their first datagram.
+    """
+    by_dest: dict[_Dest, list[bytes]] = {}
+    for dest, data in datagrams:
+        parts = by_dest.get(dest)
+        if parts is None:
+            by_dest[dest] = [data]
+        else:
+            parts.append(data)
+    out: list[tuple[_Dest, bytes]] = []
+    for dest, parts in by_dest.items():
+        if len(parts) == 1:
+            out.append((dest, parts[0]))
+            continue
+        cur: list[bytes] = []
+        size = 0
+        for data in parts:
+            if cur and size + len(data) > max_bytes:
+                out.append((dest, b"".join(cur)))
+                cur, size = [], 0
+            cur.append(data)
+            size += len(data)
+        out.append((dest, b"".join(cur)))
     return out
 
 

@@ -42,6 +42,7 @@ from collections import deque
 
 import numpy as np
 
+from mavedge.codec import MAX_DATAGRAM_BYTES
 from mavedge.modes import px4_custom_mode
 
 from . import telemetry as tm
@@ -77,7 +78,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 _GCS_HEARTBEAT_TYPE = mavlink.MAV_TYPE_GCS
-MAX_DATAGRAM_BYTES = 1200
 TICK_S = 0.05
 
 
