@@ -33,19 +33,22 @@ class NedOrigin:
         self._a, self._b = a, b
         self._a2 = a**2
         self._ratio2 = (b / a) ** 2
-        self._x0, self._y0, self._z0 = pymap3d.geodetic2ecef(lat0_deg, lon0_deg, alt0_amsl_m, ell)
+        x0, y0, z0 = pymap3d.geodetic2ecef(lat0_deg, lon0_deg, alt0_amsl_m, ell)
+        self._x0, self._y0, self._z0 = float(x0), float(y0), float(z0)
         lat0, lon0 = radians(lat0_deg), radians(lon0_deg)
-        self._cla, self._sla = cos(lat0), sin(lat0)
-        self._clo, self._slo = cos(lon0), sin(lon0)
+        self._cla, self._sla = float(cos(lat0)), float(sin(lat0))
+        self._clo, self._slo = float(cos(lon0)), float(sin(lon0))
 
     def ned_m(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> np.ndarray:
         """(3,) north, east, down (m): :func:`planner.geometry.geodetic_to_ned_m` of one point."""
-        lat, lon = radians(lat_deg), radians(lon_deg)
-        clat, slat = cos(lat), sin(lat)
+        # NumPy's functions as pymap3d calls them, their results as Python floats (the same
+        # IEEE doubles; + - * / on them round as on NumPy scalars, only faster)
+        lat, lon = float(radians(lat_deg)), float(radians(lon_deg))
+        clat, slat = float(cos(lat)), float(sin(lat))
         # geodetic2ecef
-        n_m = self._a2 / hypot(self._a * clat, self._b * slat)
-        x = (n_m + alt_amsl_m) * clat * cos(lon)
-        y = (n_m + alt_amsl_m) * clat * sin(lon)
+        n_m = self._a2 / float(hypot(self._a * clat, self._b * slat))
+        x = (n_m + alt_amsl_m) * clat * float(cos(lon))
+        y = (n_m + alt_amsl_m) * clat * float(sin(lon))
         z = (n_m * self._ratio2 + alt_amsl_m) * slat
         # geodetic2enu -> uvw2enu
         u, v, w = x - self._x0, y - self._y0, z - self._z0
