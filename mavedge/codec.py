@@ -518,6 +518,9 @@ class VehicleCodec:
         self._allow_unsigned_ids = frozenset(allow_unsigned_ids)
         self._mav.signing.link_id = link_id
         self.n_sent = 0
+        #: A signing key is installed (kept by :meth:`set_signing_key`, the only way to set one;
+        #: read for every vehicle on every telemetry tick, hence an attribute).
+        self.signing_enabled = False
         self.set_signing_key(signing_key)
 
     @property
@@ -533,10 +536,6 @@ class VehicleCodec:
         """Sequence number of the next frame we send."""
         return self._mav.seq
 
-    @property
-    def signing_enabled(self) -> bool:
-        return self._mav.signing.secret_key is not None
-
     def set_signing_key(self, key: bytes | None, initial_timestamp: int = 0) -> None:
         """Install (or with ``None``/all-zero key remove) the signing secret."""
         signing = self._mav.signing
@@ -545,6 +544,7 @@ class VehicleCodec:
             signing.secret_key = None
             signing.sign_outgoing = False
             signing.allow_unsigned_callback = None
+            self.signing_enabled = False
             return
         key = bytes(key)
         if len(key) != 32:
@@ -554,6 +554,7 @@ class VehicleCodec:
         allowed = self._allow_unsigned_ids
         signing.allow_unsigned_callback = lambda _mav, msg_id: msg_id in allowed
         signing.timestamp = max(signing.timestamp, int(initial_timestamp))
+        self.signing_enabled = True
 
     def advance_signing_timestamp(self, timestamp: int) -> None:
         """Keep our signing timestamp at least ``timestamp`` (never goes backwards)."""
