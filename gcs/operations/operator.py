@@ -298,8 +298,10 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
     def poll(self, now_s: float) -> TickRecord | None:
         """Advance the phases; returns the metrics of a control tick if one ran."""
         snap = self.fleet.snapshot(now_s)
-        for i in range(snap.n_vehicles):
-            self._rows.setdefault(i, _Row())
+        rows = self._rows
+        for i in range(snap.n_vehicles):  # a row for every vehicle (built only when missing)
+            if i not in rows:
+                rows[i] = _Row()
         record = None
         polled: set[Phase] = set()
         while self._phase not in polled:  # a phase entered during this poll is polled too
