@@ -38,6 +38,7 @@ from gcs.link import StationConfig, StationLink
 from gcs.records import TlogWriter
 from gcs.serial_port import SerialLinkError, _serial_open_reason, _SerialPort
 from mavedge.clock import Clock
+from mavedge.codec import coalesce_datagrams
 
 __all__ = ["StationAdapter", "SerialLinkError", "LinkOpenError", "open_links"]
 
@@ -109,7 +110,13 @@ class StationAdapter:
 
     ``clock``: a :class:`~mavedge.clock.Clock`, or a bare ``now()`` callable whose wall speed
     is ``time_scale`` and whose Unix anchor is read from ``wall_clock`` (a Clock carries both:
-    leave ``time_scale`` and ``wall_clock`` alone). Default: the running loop's clock."""
+    leave ``time_scale`` and ``wall_clock`` alone). Default: the running loop's clock.
+
+    ``coalesce``: what one :meth:`transmit` sends to one address goes in datagrams of up to
+    :data:`mavedge.codec.MAX_DATAGRAM_BYTES` (:func:`mavedge.codec.coalesce_datagrams`) rather
+    than one per frame (the core queues one frame per datagram): the same frames in the same
+    order per address, fewer datagrams (a control tick's setpoints to a network of vehicles
+    behind one address). ``False``: one frame per datagram, as the core queues them."""
 
     def __init__(
         self,
@@ -124,8 +131,10 @@ class StationAdapter:
         time_scale: float = 1.0,
         reconnect_s: tuple[float, float] = (1.0, 8.0),
         on_link_event: Callable[[LinkEvent], None] | None = None,
+        coalesce: bool = True,
     ) -> None:
         self.spec = parse_connection(connection) if isinstance(connection, str) else connection
+        self.coalesce = bool(coalesce)
         self.link_id = link_id
         self._config = config or StationConfig()
         if not time_scale > 0:
@@ -482,7 +491,10 @@ class StationAdapter:
                 self._on_event(event)
             except Exception:
                 log.exception("link %d: event handler failed on %r", self.link_id, event)
-        for data, addr in core.datagrams_to_send(self.now()):
+        out = core.datagrams_to_send(self.now())
+        if self.coalesce and len(out) > 1:
+            out = [(data, addr) for addr, data in coalesce_datagrams((a, d) for d, a in out)]
+        for data, addr in out:
             try:
                 self._send(data, addr)
             except OSError as exc:  # unreachable peer: the link layer copes with loss

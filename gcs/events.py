@@ -40,6 +40,16 @@ def _finite(name: str, value: float) -> None:
         raise ValueError(f"{name} must be a finite number, got {value!r}")
 
 
+def _all_finite(*values: object) -> bool:
+    """Would :func:`_finite` accept every value? (One call for the common case; the caller
+    then runs its :func:`_finite` checks, in their order, only to raise the right error.)"""
+    isfinite = math.isfinite
+    for value in values:
+        if not isinstance(value, (int, float)) or not isfinite(value):
+            return False
+    return True
+
+
 @dataclass(frozen=True)
 class Event:
     link_id: int
@@ -115,14 +125,19 @@ class TelemetryReceived(Event):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name in ("lat_deg", "lon_deg", "alt_amsl_m", "rel_alt_m", "time_boot_s"):
-            _finite(name, getattr(self, name))
+        # One GLOBAL_POSITION_INT each: the finite checks at once, one by one only to fail.
+        if not _all_finite(
+            self.lat_deg, self.lon_deg, self.alt_amsl_m, self.rel_alt_m, self.time_boot_s
+        ):
+            for name in ("lat_deg", "lon_deg", "alt_amsl_m", "rel_alt_m", "time_boot_s"):
+                _finite(name, getattr(self, name))
         if not -90.0 <= self.lat_deg <= 90.0 or not -180.0 <= self.lon_deg <= 180.0:
             raise ValueError(f"lat/lon out of range: {self.lat_deg}, {self.lon_deg}")
         if len(self.vel_ned_m_s) != 3:
             raise ValueError("vel_ned_m_s must have 3 components")
-        for v in self.vel_ned_m_s:
-            _finite("vel_ned_m_s", v)
+        if not _all_finite(*self.vel_ned_m_s):
+            for v in self.vel_ned_m_s:
+                _finite("vel_ned_m_s", v)
         if self.yaw_rad is not None:
             _finite("yaw_rad", self.yaw_rad)
 

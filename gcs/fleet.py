@@ -127,6 +127,16 @@ class FleetView:
         #: (autopilot, custom_mode) -> (mode name, failsafe mode?): a fleet shows few modes, and
         #: the adapters' answers depend on these two numbers alone.
         self._mode_info: dict[tuple[int, int], tuple[str, bool]] = {}
+        # What snapshot() derives from rows that change rarely, kept between polls (the
+        # operator polls ~16 times per vehicle second): the mission-NED position of each row,
+        # converted again only for the rows whose geodetic position changed since (the
+        # conversion is element-wise: a row's bits do not depend on which rows are converted
+        # with it, tests/gcs/test_fleet.py), and the per-row mode facts, dropped whenever an
+        # autopilot or custom_mode changes.
+        self._pos = np.empty((0, 3))
+        self._pos_stale: set[int] = set()
+        self._pos_origin: MissionOrigin | None = None
+        self._modes: tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ rows
 
@@ -146,7 +156,9 @@ class FleetView:
         self._sysid.append(sysid)
         self._custom_mode.append(0)
         self._autopilot.append(0)
+        self._modes = None
         self._geo[idx] = math.nan
+        self._pos_stale.add(idx)
         self._vel[idx] = math.nan
         self._home_amsl[idx] = math.nan
         self._home_reported[idx] = False
@@ -159,6 +171,7 @@ class FleetView:
     def _grow(self, cap: int) -> None:
         for name in (
             "_geo",
+            "_pos",
             "_vel",
             "_home_amsl",
             "_home_reported",
@@ -204,6 +217,7 @@ class FleetView:
         self._last_heard[i] = max(last, event.t_s)
         if isinstance(event, TelemetryReceived):
             self._geo[i] = (event.lat_deg, event.lon_deg, event.alt_amsl_m)
+            self._pos_stale.add(i)
             self._vel[i] = event.vel_ned_m_s
             if not self._home_reported[i]:
                 # A stand-in until HOME_POSITION: on PX4 alt and relative_alt come from different
@@ -216,15 +230,18 @@ class FleetView:
         elif isinstance(event, VehicleDiscovered):
             self._autopilot[i] = event.autopilot
             self._custom_mode[i] = event.custom_mode
+            self._modes = None
             self._armed[i] = event.armed
             self._link_lost[i] = False
         elif isinstance(event, VehicleRecovered):
             self._link_lost[i] = False
             self._was_lost[i] = True
             self._custom_mode[i] = event.custom_mode
+            self._modes = None
             self._settle(i)
         elif isinstance(event, ModeChanged):
             self._custom_mode[i] = event.custom_mode
+            self._modes = None
             self._settle(i)
         elif isinstance(event, ArmedChanged):
             self._armed[i] = event.armed
@@ -242,28 +259,23 @@ class FleetView:
         n = len(self._sysid)
         geo: np.ndarray = self._geo[:n]
         has_pos = np.isfinite(geo).all(axis=1)
-        pos = np.full((n, 3), np.nan)
-        if has_pos.any():
-            o = self.origin
-            pos[has_pos] = geodetic_to_ned_m(
-                geo[has_pos, 0],
-                geo[has_pos, 1],
-                geo[has_pos, 2],
-                o.lat_deg,
-                o.lon_deg,
-                o.alt_amsl_m,
-            )
+        pos = self._positions(n, has_pos)
         last = self._last_heard[:n].copy()
         heard = (now_s - last <= self.timeout_s) & ~self._link_lost[:n]
-        cache = self._mode_info
-        infos = [
-            cache.get(key) or self._new_mode_info(key)
-            for key in zip(self._autopilot, self._custom_mode)
-        ]
-        failsafe = np.fromiter((f for _, f in infos), dtype=bool, count=n)
+        if self._modes is None:
+            cache = self._mode_info
+            infos = [
+                cache.get(key) or self._new_mode_info(key)
+                for key in zip(self._autopilot, self._custom_mode)
+            ]
+            self._modes = (
+                tuple(name for name, _ in infos),
+                np.fromiter((f for _, f in infos), dtype=bool, count=n),
+                np.array(self._autopilot, dtype=int),
+                np.array(self._custom_mode, dtype=np.int64),
+            )
+        modes, failsafe, autopilot, custom = self._modes
         returning = heard & self._was_lost[:n] & failsafe
-        autopilot = np.array(self._autopilot, dtype=int)
-        custom = np.array(self._custom_mode, dtype=np.int64)
         return FleetSnapshot(
             t_s=now_s,
             link_id=self.link_of_index,
@@ -277,11 +289,46 @@ class FleetView:
             lost=~heard,
             returning=returning,
             armed=self._armed[:n].copy(),
-            custom_mode=custom,
-            autopilot=autopilot,
-            mode=tuple(name for name, _ in infos),
+            custom_mode=custom.copy(),
+            autopilot=autopilot.copy(),
+            mode=modes,
             home_reported=self._home_reported[:n].copy(),
         )
+
+    def _positions(self, n: int, has_pos: np.ndarray) -> np.ndarray:
+        """(n, 3) mission-NED positions (NaN without one): ``geodetic_to_ned_m`` of every row
+        with a position, converting only the rows changed since the last call."""
+        if self._pos_origin != self.origin:
+            self._pos_origin = self.origin
+            self._pos_stale.update(range(n))
+        if self._pos_stale:
+            rows = np.array(sorted(self._pos_stale), dtype=np.intp)
+            self._pos_stale.clear()
+            self._pos[rows] = np.nan
+            rows = rows[has_pos[rows]]
+            if len(rows):
+                geo, o = self._geo, self.origin
+                self._pos[rows] = geodetic_to_ned_m(
+                    geo[rows, 0], geo[rows, 1], geo[rows, 2], o.lat_deg, o.lon_deg, o.alt_amsl_m
+                )
+        return self._pos[:n].copy()
+
+    def _positions_reference(self, n: int) -> np.ndarray:
+        """The slow, obviously-correct :meth:`_positions`: every row converted now."""
+        geo: np.ndarray = self._geo[:n]
+        has_pos = np.isfinite(geo).all(axis=1)
+        pos = np.full((n, 3), np.nan)
+        if has_pos.any():
+            o = self.origin
+            pos[has_pos] = geodetic_to_ned_m(
+                geo[has_pos, 0],
+                geo[has_pos, 1],
+                geo[has_pos, 2],
+                o.lat_deg,
+                o.lon_deg,
+                o.alt_amsl_m,
+            )
+        return pos
 
     def _new_mode_info(self, key: tuple[int, int]) -> tuple[str, bool]:
         adapter = adapter_for(key[0])

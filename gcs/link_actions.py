@@ -6,6 +6,7 @@ re-sending (SET_POSITION_TARGET_GLOBAL_INT).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from gcs import wire
 from gcs.events import CommandFailed
@@ -93,14 +94,21 @@ class VehicleActions(CommandTracker):
         fr = v.adapter.setpoint_frame if frame is None else frame
         if frame is None and fr == mavlink.MAV_FRAME_GLOBAL_INT:
             alt_m = float(alt_m) + self._home_alt_amsl_m(v)
-        # Validate now (a local error) rather than at the next resend.
-        wire.position_target_global_int(
-            target_system=sysid, lat_deg=lat_deg, lon_deg=lon_deg, alt_m=alt_m, frame=fr
+        # Validate now (a local error) rather than at the next resend: build the message.
+        msg = wire.position_target_global_int(
+            target_system=sysid,
+            lat_deg=lat_deg,
+            lon_deg=lon_deg,
+            alt_m=alt_m,
+            frame=fr,
+            time_boot_s=now_s - self._t0_s,
         )
         if v.setpoint is None:
             v.setpoint_since_s = now_s
         v.setpoint = (float(lat_deg), float(lon_deg), float(alt_m), fr)
-        self._send_setpoint(v, now_s)
+        if not (type(lat_deg) is float and type(lon_deg) is float and type(alt_m) is float):
+            msg = None  # built from other number types: _send_setpoint's own, from v.setpoint
+        self._send_setpoint(v, now_s, msg)
 
     def _home_alt_amsl_m(self, v: _Vehicle) -> float:
         """HOME_POSITION's altitude; until it arrives, GLOBAL_POSITION_INT ``alt -
@@ -130,17 +138,20 @@ class VehicleActions(CommandTracker):
             )
         v.deferred = []
 
-    def _send_setpoint(self, v: _Vehicle, now_s: float) -> None:
+    def _send_setpoint(self, v: _Vehicle, now_s: float, msg: Any = None) -> None:
+        """Send ``v.setpoint`` (``msg``: that very message, already built from the same floats
+        at ``now_s``) and schedule the next re-send."""
         assert v.setpoint is not None
-        lat, lon, alt, frame = v.setpoint
-        msg = wire.position_target_global_int(
-            target_system=v.sysid,
-            lat_deg=lat,
-            lon_deg=lon,
-            alt_m=alt,
-            frame=frame,
-            time_boot_s=now_s - self._t0_s,
-        )
+        if msg is None:
+            lat, lon, alt, frame = v.setpoint
+            msg = wire.position_target_global_int(
+                target_system=v.sysid,
+                lat_deg=lat,
+                lon_deg=lon,
+                alt_m=alt,
+                frame=frame,
+                time_boot_s=now_s - self._t0_s,
+            )
         self._send(msg, v.addr, now_s)
         v.setpoint_next_s = now_s + v.adapter.setpoint_period_s
         self._wake(v.setpoint_next_s)

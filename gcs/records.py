@@ -138,7 +138,11 @@ class TlogWriter:
         if not frames:
             return
         pack = _TLOG_STAMP.pack
-        self._file.write(b"".join(pack(int(t * 1e6)) + bytes(frame) for t, _out, frame in frames))
+        parts = []
+        for t, _out, frame in frames:
+            parts.append(pack(int(t * 1e6)))
+            parts.append(frame)
+        self._file.write(b"".join(parts))
         self.frames += len(frames)
 
     def flush(self) -> None:

@@ -26,11 +26,14 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import operator
 import re
 import struct
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple, TypeVar
 
+from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from .units import signing_timestamp_from_s
@@ -44,6 +47,8 @@ __all__ = [
     "VehicleCodec",
     "split_frames",
     "frame_target_system",
+    "coalesce_datagrams",
+    "MAX_DATAGRAM_BYTES",
 ]
 
 log = logging.getLogger(__name__)
@@ -91,22 +96,107 @@ class RawFrame:
         return f"RawFrame({self._name}, sysid={self._sysid}, compid={self._compid})"
 
 
+class _FastSpec(NamedTuple):
+    """What :meth:`_MAVLink._decode_fast` needs of one message type."""
+
+    cls: Any
+    crc_extra: bytes
+    size: int
+    unpack: Callable[[bytes | bytearray], tuple[Any, ...]]
+    order: Callable[[tuple[Any, ...]], tuple[Any, ...]]
+    pack: Callable[..., bytes]
+    wire_fields: Callable[[Any], tuple[Any, ...]]
+    """The field values of a message in wire order (``ordered_fieldnames``), for ``pack``."""
+
+
+def _fast_specs() -> dict[int, _FastSpec]:
+    """The message types whose pymavlink decode is a plain unpack and reorder: no arrays and
+    no strings (those need pymavlink's list building and NUL stripping; they keep its path)."""
+    out = {}
+    for msgid, cls in mavlink.mavlink_map.items():
+        fmt = cls.unpacker.format
+        if sum(cls.lengths) != len(cls.lengths) or "s" in fmt or "c" in fmt:
+            continue
+        orders = tuple(cls.orders)
+        order = (
+            operator.itemgetter(*orders) if len(orders) > 1 else (lambda t, _i=orders[0]: (t[_i],))
+        )
+        names = tuple(cls.ordered_fieldnames)
+        wire_fields = (
+            operator.attrgetter(*names)
+            if len(names) > 1
+            else (lambda m, _n=names[0]: (getattr(m, _n),))
+        )
+        out[msgid] = _FastSpec(
+            cls,
+            bytes((cls.crc_extra,)),
+            cls.unpacker.size,
+            cls.unpacker.unpack,
+            order,
+            cls.unpacker.pack,
+            wire_fields,
+        )
+    return out
+
+
+_FAST = _fast_specs()
+_mcrf4xx = crc16.mcrf4xx  # CRC-16/MCRF4XX, the X.25 CRC pymavlink's x25crc computes with it
+
+
 class _MAVLink(mavlink.MAVLink):  # type: ignore[misc]  # pymavlink is untyped
-    """pymavlink's parser with the C library's signature check and optional raw frames."""
+    """pymavlink's parser with the C library's signature check, optional raw frames and a
+    fast path for well-formed unsigned frames (:meth:`_decode_fast`, :func:`_parse_datagram`)."""
 
     full_msgids: frozenset[int] | None = None
     """Message ids decoded into pymavlink objects; the others become RawFrame (None: all)."""
 
     def decode(self, msgbuf: bytearray) -> Any:
         full = self.full_msgids
-        if full is not None and len(msgbuf) >= 10:
+        if len(msgbuf) >= 10:
             if msgbuf[0] == mavlink.PROTOCOL_MARKER_V2:
                 msgid = msgbuf[7] | (msgbuf[8] << 8) | (msgbuf[9] << 16)
             else:
                 msgid = msgbuf[5]
-            if msgid not in full and msgid in mavlink.mavlink_map:
+            if full is not None and msgid not in full and msgid in mavlink.mavlink_map:
                 return self._decode_raw(msgbuf, msgid)
+            if msgbuf[0] == mavlink.PROTOCOL_MARKER_V2 and not msgbuf[2]:
+                m = self._decode_fast(msgbuf, msgid)
+                if m is not None:
+                    return m
         return super().decode(msgbuf)
+
+    def _decode_fast(self, msgbuf: bytearray, msgid: int) -> Any:
+        """pymavlink ``MAVLink.decode`` of an unsigned MAVLink 2 frame (incompat flags 0) of a
+        :func:`_fast_specs` type, when its length and CRC are good and no signing key is set:
+        the same message object, attribute for attribute (tests/mavedge/test_fast_decode.py),
+        without the generic header, list and order handling. ``None`` for everything else
+        (signing on, other types, bad length or CRC): pymavlink decodes it, or refuses it
+        with its own reason."""
+        spec = _FAST.get(msgid)
+        if spec is None or self.signing.secret_key is not None:
+            return None
+        mlen = msgbuf[1]
+        if mlen != len(msgbuf) - 12:
+            return None
+        crc = msgbuf[-2] | (msgbuf[-1] << 8)
+        if _mcrf4xx(spec.crc_extra, _mcrf4xx(memoryview(msgbuf)[1:-2])) != crc:
+            return None
+        size = spec.size
+        if mlen == size:
+            payload = msgbuf[10:-2]
+        elif mlen < size:  # MAVLink 2 trailing-zero truncation: pad back, as pymavlink does
+            payload = msgbuf[10:-2] + bytes(size - mlen)
+        else:  # longer than this dialect knows (newer extension fields): cut
+            payload = msgbuf[10 : 10 + size]
+        m = spec.cls(*spec.order(spec.unpack(payload)))
+        m._signed = False
+        m._msgbuf = msgbuf
+        m._payload = msgbuf[6:-2]
+        m._crc = crc
+        m._header = mavlink.MAVLink_header(
+            msgid, 0, msgbuf[3], mlen, msgbuf[4], msgbuf[5], msgbuf[6]
+        )
+        return m
 
     def _decode_raw(self, msgbuf: bytearray, msgid: int) -> RawFrame:
         """pymavlink ``MAVLink.decode`` up to and including the signature check, without the
@@ -158,6 +248,81 @@ class _MAVLink(mavlink.MAVLink):  # type: ignore[misc]  # pymavlink is untyped
         signing.stream_timestamps[stream_key] = timestamp
         signing.timestamp = max(signing.timestamp, timestamp)
         return True
+
+
+_HEADER_V2 = struct.Struct("<BBBBBBBHB")
+
+
+def _encode_fast(mav: mavlink.MAVLink, msg: Any) -> bytes | None:
+    """pymavlink ``msg.pack(mav)`` (unsigned MAVLink 2) for a message of a :func:`_fast_specs`
+    type: the same bytes (tests/mavedge/test_fast_decode.py), without building the header
+    object and bytearrays pymavlink leaves on the message (nobody reads them on a message we
+    send). ``None`` when signing or for other types: the caller packs with pymavlink."""
+    spec = _FAST.get(msg.id)
+    if spec is None or type(msg) is not spec.cls or mav.signing.sign_outgoing:
+        return None
+    payload = spec.pack(*spec.wire_fields(msg))
+    # MAVLink 2 payload truncation (pymavlink MAVLink_message._pack): trailing zeros dropped,
+    # at least one byte kept.
+    payload = payload.rstrip(b"\0") or payload[:1]
+    msgid = msg.id
+    frame = (
+        _HEADER_V2.pack(
+            253,
+            len(payload),
+            0,
+            0,
+            mav.seq,
+            mav.srcSystem,
+            mav.srcComponent,
+            msgid & 0xFFFF,
+            msgid >> 16,
+        )
+        + payload
+    )
+    crc = _mcrf4xx(spec.crc_extra, _mcrf4xx(memoryview(frame)[1:]))
+    return frame + crc.to_bytes(2, "little")
+
+
+def _parse_datagram(mav: _MAVLink, data: bytes) -> list[Any] | None:
+    """What ``mav.parse_buffer(data)`` returns (decoded messages and ``MAVLink_bad_data``, in
+    order) for a datagram made of complete MAVLink 2 / 1 frames from its first byte to its
+    last, with the parser empty; ``None`` (nothing done) for anything else: bytes before or
+    between frames, a truncated tail, a parser holding bytes; the caller then runs
+    ``parse_buffer``. Each frame is cut by the length the parser would read and decoded by
+    ``mav.decode`` (its fast path for the common case), a refused one becoming the parser's
+    BAD_DATA with the same reason. Exceptions other than ``MAVError`` propagate, as from
+    ``parse_buffer``. pymavlink's own byte and packet counters are not advanced."""
+    if len(mav.buf) != mav.buf_index:
+        return None
+    n = len(data)
+    bounds = []
+    i = 0
+    while i < n:
+        magic = data[i]
+        if magic == 0xFD:
+            if i + 3 > n or data[i + 2] & ~mavlink.MAVLINK_IFLAG_SIGNED:
+                return None  # the parser's "invalid incompat_flags" (rare): its path
+            size = 12 + data[i + 1] + (13 if data[i + 2] & mavlink.MAVLINK_IFLAG_SIGNED else 0)
+        elif magic == 0xFE:
+            if i + 3 > n:
+                return None
+            size = 8 + data[i + 1]
+        else:
+            return None
+        if i + size > n:
+            return None
+        bounds.append((i, i + size))
+        i += size
+    out = []
+    decode = mav.decode
+    for a, b in bounds:
+        frame = bytearray(data[a:b])
+        try:
+            out.append(decode(frame))
+        except mavlink.MAVError as reason:
+            out.append(mavlink.MAVLink_bad_data(frame, reason.message))
+    return out
 
 
 def _reset_parser(mav: mavlink.MAVLink) -> None:
@@ -224,7 +389,9 @@ class Decoder:
         self._stats.bytes_in += len(data)
         out: list[Any] = []
         try:
-            msgs = self._mav.parse_buffer(data) or []
+            msgs = _parse_datagram(self._mav, data) if datagram else None
+            if msgs is None:
+                msgs = self._mav.parse_buffer(data) or []
         except Exception:  # pymavlink bug or exotic input: count it, reset, carry on
             log.debug("decoder exception on %d bytes", len(data), exc_info=True)
             self._stats.decoder_errors += 1
@@ -286,7 +453,9 @@ class Codec:
 
     def encode(self, msg: Any) -> bytes:
         """Pack one message as a MAVLink 2 frame with our ids and the next sequence number."""
-        buf = msg.pack(self._mav)
+        buf = _encode_fast(self._mav, msg)
+        if buf is None:
+            buf = msg.pack(self._mav)
         self._mav.seq = (self._mav.seq + 1) % 256
         return bytes(buf)
 
@@ -349,6 +518,9 @@ class VehicleCodec:
         self._allow_unsigned_ids = frozenset(allow_unsigned_ids)
         self._mav.signing.link_id = link_id
         self.n_sent = 0
+        #: A signing key is installed (kept by :meth:`set_signing_key`, the only way to set one;
+        #: read for every vehicle on every telemetry tick, hence an attribute).
+        self.signing_enabled = False
         self.set_signing_key(signing_key)
 
     @property
@@ -364,10 +536,6 @@ class VehicleCodec:
         """Sequence number of the next frame we send."""
         return self._mav.seq
 
-    @property
-    def signing_enabled(self) -> bool:
-        return self._mav.signing.secret_key is not None
-
     def set_signing_key(self, key: bytes | None, initial_timestamp: int = 0) -> None:
         """Install (or with ``None``/all-zero key remove) the signing secret."""
         signing = self._mav.signing
@@ -376,6 +544,7 @@ class VehicleCodec:
             signing.secret_key = None
             signing.sign_outgoing = False
             signing.allow_unsigned_callback = None
+            self.signing_enabled = False
             return
         key = bytes(key)
         if len(key) != 32:
@@ -385,6 +554,7 @@ class VehicleCodec:
         allowed = self._allow_unsigned_ids
         signing.allow_unsigned_callback = lambda _mav, msg_id: msg_id in allowed
         signing.timestamp = max(signing.timestamp, int(initial_timestamp))
+        self.signing_enabled = True
 
     def advance_signing_timestamp(self, timestamp: int) -> None:
         """Keep our signing timestamp at least ``timestamp`` (never goes backwards)."""
@@ -394,7 +564,9 @@ class VehicleCodec:
     def encode(self, msg: Any) -> bytes:
         """Pack one message with our seq and (if enabled) signature; advance seq."""
         mav = self._mav
-        buf = msg.pack(mav)
+        buf = _encode_fast(mav, msg)
+        if buf is None:
+            buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) & 0xFF
         self.n_sent += 1
         return buf
@@ -419,7 +591,9 @@ class VehicleCodec:
         res = DecodeResult()
         mav = self._mav
         try:
-            msgs = mav.parse_buffer(data) or []
+            msgs = _parse_datagram(mav, data)
+            if msgs is None:
+                msgs = mav.parse_buffer(data) or []
         except Exception:  # noqa: BLE001 - remote bytes must never raise across the adapter
             log.debug("pymavlink raised on a datagram of %d bytes", len(data), exc_info=True)
             msgs = []
@@ -472,6 +646,49 @@ def split_frames(data: bytes) -> list[bytes]:
             break
         out.append(data[i : i + size])
         i += size
+    return out
+
+
+MAX_DATAGRAM_BYTES = 1200
+"""Largest UDP datagram either side builds from several frames (below a 1,500-byte Ethernet MTU
+with room for IP/UDP headers and tunnels)."""
+
+
+_Dest = TypeVar("_Dest", bound=Hashable)
+
+
+def coalesce_datagrams(
+    datagrams: Iterable[tuple[_Dest, bytes]], max_bytes: int = MAX_DATAGRAM_BYTES
+) -> list[tuple[_Dest, bytes]]:
+    """``(destination, datagram)`` pairs with the datagrams of each destination joined into as
+    few as fit in ``max_bytes`` (a datagram already larger goes alone).
+
+    Every datagram holds whole MAVLink frames, so each joined one does too, and a receiver that
+    splits datagrams into frames (both sides here, ArduPilot, PX4) sees the same frames in the
+    same order from each destination's point of view; only the datagram boundaries change.
+    Destinations come out in the order of their first datagram.
+    """
+    by_dest: dict[_Dest, list[bytes]] = {}
+    for dest, data in datagrams:
+        parts = by_dest.get(dest)
+        if parts is None:
+            by_dest[dest] = [data]
+        else:
+            parts.append(data)
+    out: list[tuple[_Dest, bytes]] = []
+    for dest, parts in by_dest.items():
+        if len(parts) == 1:
+            out.append((dest, parts[0]))
+            continue
+        cur: list[bytes] = []
+        size = 0
+        for data in parts:
+            if cur and size + len(data) > max_bytes:
+                out.append((dest, b"".join(cur)))
+                cur, size = [], 0
+            cur.append(data)
+            size += len(data)
+        out.append((dest, b"".join(cur)))
     return out
 
 

@@ -81,9 +81,10 @@ class SetpointHandlers(AutopilotRules):
         self._accept_target(pos, vel, mask, now_s)
 
     def _accept_target(self, pos, vel, mask: int, now_s: float) -> None:
-        if (pos is not None and not np.all(np.isfinite(pos))) or (
-            vel is not None and not np.all(np.isfinite(vel))
-        ):
+        isfinite = math.isfinite  # on the (3,) vectors: np.all(np.isfinite(...)), per element
+        if (
+            pos is not None and not (isfinite(pos[0]) and isfinite(pos[1]) and isfinite(pos[2]))
+        ) or (vel is not None and not (isfinite(vel[0]) and isfinite(vel[1]) and isfinite(vel[2]))):
             self.stats.setpoints_ignored += 1
             return
         self.pers.accept_target((pos, vel, mask), now_s)

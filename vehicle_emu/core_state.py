@@ -111,6 +111,7 @@ class CoreState:
     _codec: wire.Codec
     stats: CoreStats
     _out: list[bytes]
+    _out_dirty: set[int] | None
     _events: deque
     _logged_types: set[str]
     log_limiter: RateLimitedLog
@@ -157,6 +158,8 @@ class CoreState:
     def _send(self, msg) -> None:
         buf = self._codec.encode(msg)
         self._out.append(buf)
+        if self._out_dirty is not None:
+            self._out_dirty.add(self.index)
         self.stats.messages_out += 1
         self.stats.bytes_out += len(buf)
 

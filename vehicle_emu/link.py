@@ -42,6 +42,7 @@ from collections import deque
 
 import numpy as np
 
+from mavedge.codec import MAX_DATAGRAM_BYTES
 from mavedge.modes import px4_custom_mode
 
 from . import telemetry as tm
@@ -77,7 +78,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 _GCS_HEARTBEAT_TYPE = mavlink.MAV_TYPE_GCS
-MAX_DATAGRAM_BYTES = 1200
 TICK_S = 0.05
 
 
@@ -175,6 +175,8 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         )
         self.stats = CoreStats()
         self._out: list[bytes] = []
+        #: A swarm's set of the ``index`` of cores whose ``_out`` got frames (None: standalone).
+        self._out_dirty: set[int] | None = None
         self._events: deque = deque()
         self._logged_types: set[str] = set()
         #: Warnings caused by remote input go through this (shared by a Swarm's cores).

@@ -267,6 +267,11 @@ class Swarm:
             for msg_id, hz in (stream_rates_hz or {}).items():
                 core.set_stream_rate(int(msg_id), float(hz), now_s)
             self.cores.append(core)
+        #: Indices of the cores that queued frames since datagrams_to_send last looked (each
+        #: core adds its own): the flush after every datagram received visits those, not all.
+        self._out_dirty: set[int] = {i for i, core in enumerate(self.cores) if core._out}
+        for core in self.cores:
+            core._out_dirty = self._out_dirty
 
         self.mux = bool(mux)
         self.n_endpoints = self.n_networks if self.mux else n
@@ -551,9 +556,13 @@ class Swarm:
         radio = self.radio
         mux = self.mux
         net = self.network_of_index
-        for i, core in enumerate(self.cores):
-            if not core._out:
-                continue
+        cores = self.cores
+        # Every core with frames queued, in index order (as a scan of all of them would find).
+        dirty = self._out_dirty
+        todo = sorted(i for i in dirty if cores[i]._out)
+        dirty.clear()
+        for i in todo:
+            core = cores[i]
             dgrams = core.datagrams_to_send(now_s)
             if not core.alive:
                 continue

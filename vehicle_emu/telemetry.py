@@ -118,12 +118,21 @@ class StreamScheduler:
         out = []
         due = self.next_due_s
         intervals = self.interval_s
+        # min(next_due_s.values(), default=inf) after the update, in the same pass (the same
+        # comparisons as min: the first value, replaced by any later one that is smaller)
+        nxt_any = None
         for msg_id, t_due in due.items():
             if now_s + 1e-9 >= t_due:
                 nxt = t_due + intervals[msg_id]
-                due[msg_id] = nxt if nxt > now_s else now_s + intervals[msg_id]
+                t_due = due[msg_id] = nxt if nxt > now_s else now_s + intervals[msg_id]
                 out.append(msg_id)
-        self._update_next_any()
+            if nxt_any is None or t_due < nxt_any:
+                nxt_any = t_due
+        if nxt_any is None:
+            nxt_any = math.inf
+        self.next_any_s = nxt_any
+        if self._mirror is not None:
+            self._mirror[0][self._mirror[1]] = nxt_any
         return out
 
 

@@ -31,6 +31,7 @@ import math
 import re
 
 import numpy as np
+from fastcrc import crc16
 
 from mavedge import mavlink
 from mavedge.units import INT32_MAX, INT32_MIN, UINT16_MAX, deg_to_e7, m_to_mm, yaw_rad_to_hdg_cdeg
@@ -47,15 +48,7 @@ _FLT_MAX = float(np.finfo(np.float32).max)
 _BASE_FLAGS = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
 
 
-def _crc_table() -> np.ndarray:
-    """x25 (CRC-16/MCRF4XX) byte table, the same recurrence as pymavlink ``x25crc.accumulate``:
-    tmp = b ^ (crc & 0xff); tmp ^= tmp << 4; crc = (crc >> 8) ^ tmp << 8 ^ tmp << 3 ^ tmp >> 4."""
-    t = np.arange(256, dtype=np.int64)
-    t = (t ^ (t << 4)) & 0xFF
-    return ((t << 8) ^ (t << 3) ^ (t >> 4)) & 0xFFFF
-
-
-_CRC_TABLE = _crc_table()
+_mcrf4xx = crc16.mcrf4xx  # X.25 CRC (CRC-16/MCRF4XX), as pymavlink's x25crc computes it
 _CODES = {
     "f": "<f4",
     "d": "<f8",
@@ -137,21 +130,17 @@ def pack_frames(cls, fields: dict, seq, sysid, compid) -> list[bytes]:
     m[:, 8] = (lay.msgid >> 8) & 0xFF
     m[:, 9] = (lay.msgid >> 16) & 0xFF
     m[:, 10 : 10 + plen] = pay
-    crc = np.full(k, 0xFFFF, dtype=np.int64)
-    table = _CRC_TABLE
-    end = 10 + length
-    always = 10 + int(length.min())
-    for j in range(1, always):
-        crc = (crc >> 8) ^ table[(crc ^ m[:, j]) & 0xFF]
-    for j in range(always, 10 + plen):
-        nxt = (crc >> 8) ^ table[(crc ^ m[:, j]) & 0xFF]
-        crc = np.where(j < end, nxt, crc)
-    crc = (crc >> 8) ^ table[(crc ^ lay.crc_extra) & 0xFF]
-    rows = np.arange(k)
-    m[rows, end] = crc & 0xFF
-    m[rows, end + 1] = crc >> 8
+    # The X.25 CRC of each frame (header after the magic byte, payload, crc_extra), by
+    # fastcrc (pymavlink's own x25crc uses it), one C call per frame.
     buf = m.tobytes()
-    return [buf[r * width : r * width + 12 + n] for r, n in enumerate(length.tolist())]
+    view = memoryview(buf)
+    extra = bytes((lay.crc_extra,))
+    out = []
+    for r, n in enumerate(length.tolist()):
+        start = r * width
+        crc = _mcrf4xx(extra, _mcrf4xx(view[start + 1 : start + 10 + n]))
+        out.append(buf[start : start + 10 + n] + crc.to_bytes(2, "little"))
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -508,6 +497,8 @@ class BatchTelemetry:
                         job = jobs[msg_id] = []
                     job.append((core, len(out), codec.take_seq(1)))
                     out.append(None)
+                    if core._out_dirty is not None:
+                        core._out_dirty.add(core.index)
                     continue
                 try:
                     core._send(builders[msg_id](core, now_s))

@@ -19,6 +19,7 @@ import threading
 import time
 
 from mavedge.clock import Clock, PacedClock, RealClock
+from mavedge.codec import coalesce_datagrams
 
 from .link import RateLimitedLog
 from .swarm import Swarm
@@ -55,12 +56,26 @@ class EmulatorServer:
         Bind address (loopback by default).
     base_port : int
         Endpoint ``e`` binds ``base_port + e``; 0 = ephemeral ports.
+    coalesce : bool
+        Join what one flush sends to one address from one endpoint into datagrams of up to
+        :data:`mavedge.codec.MAX_DATAGRAM_BYTES` (:func:`mavedge.codec.coalesce_datagrams`),
+        as a radio modem or router packs frames: the receiver gets the same frames in the same
+        order, in fewer datagrams (with ``Swarm(mux=True)`` a network's vehicles share an
+        endpoint: a burst of telemetry from hundreds of them is a few datagrams, not one each).
+        The radio model has already decided each vehicle datagram's fate (``Swarm.datagrams_to_send``).
     """
 
     def __init__(
-        self, swarm: Swarm, clock: Clock, host: str = "127.0.0.1", base_port: int = 0
+        self,
+        swarm: Swarm,
+        clock: Clock,
+        host: str = "127.0.0.1",
+        base_port: int = 0,
+        *,
+        coalesce: bool = True,
     ) -> None:
         self.swarm = swarm
+        self.coalesce = bool(coalesce)
         self.clock = clock
         self.host = host
         self.base_port = int(base_port)
@@ -147,7 +162,15 @@ class EmulatorServer:
 
     def _flush(self, now: float) -> None:
         transports = self.transports
-        for endpoint, data, addr in self.swarm.datagrams_to_send(now):
+        out = self.swarm.datagrams_to_send(now)
+        if self.coalesce and len(out) > 1:
+            out = [
+                (endpoint, data, addr)
+                for (endpoint, addr), data in coalesce_datagrams(
+                    ((endpoint, addr), data) for endpoint, data, addr in out
+                )
+            ]
+        for endpoint, data, addr in out:
             try:
                 transports[endpoint].sendto(data, addr)  # type: ignore[arg-type]  # (host, port) or None
             except (OSError, ValueError, TypeError) as exc:

@@ -318,20 +318,24 @@ class LaunchStep(OperatorState):
         # per-row adapter calls (this runs on every poll, for every vehicle of the fleet).
         airborne = snap.armed & np.isfinite(alt) & (alt > self.config.airborne_alt_m)
         guided_name = {a: adapter_for(a).guided_mode for a in set(snap.autopilot.tolist())}
-        autopilot, mode, rows = snap.autopilot.tolist(), snap.mode, self._rows
+        autopilot, mode, get = snap.autopilot.tolist(), snap.mode, self._rows.get
         flying = airborne.tolist()
-        for i in np.flatnonzero(~snap.lost & self._in_plan(snap)).tolist():
-            row = rows.get(i)
-            gm = guided_name[autopilot[i]]
-            if (
+        never = -math.inf
+        # The rows to drive, in order, found in one pass (_drive(i) changes row i alone, so
+        # deciding every row first is deciding each just before its turn).
+        todo = [
+            i
+            for i in np.flatnonzero(~snap.lost & self._in_plan(snap)).tolist()
+            if not (
                 flying[i]
-                and row is not None
-                and gm
+                and (row := get(i)) is not None
+                and (gm := guided_name[autopilot[i]])
                 and mode[i] == gm
                 and row.flew
                 and not row.reclaiming
                 and row.failures == 0
-                and row.not_ready_s == -math.inf
-            ):
-                continue
+                and row.not_ready_s == never
+            )
+        ]
+        for i in todo:
             self._drive(snap, i, alt, now_s)

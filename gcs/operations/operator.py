@@ -65,12 +65,27 @@ log = logging.getLogger(__name__)
 
 
 def _lookup(table: Mapping[Any, Callable[..., None]], cls: type) -> Callable[..., None] | None:
-    """``table``'s entry for ``cls`` or its nearest listed base class (None if none)."""
+    """``table``'s entry for ``cls`` or its nearest listed base class (None if none).
+
+    Memoised per (table, class): the tables are the class-level constants below, and the
+    operator looks up every event it folds (a GLOBAL_POSITION_INT per vehicle and second)."""
+    key = (id(table), cls)
+    hit = _LOOKUPS.get(key)
+    if hit is not None and hit[0] is table:  # the same table object (its id is not reused)
+        return hit[1]
+    found = None
     for base in cls.__mro__:
         handler = table.get(base)
         if handler is not None:
-            return handler
-    return None
+            found = handler
+            break
+    _LOOKUPS[key] = (table, found)
+    return found
+
+
+_LOOKUPS: dict[
+    tuple[int, type], tuple[Mapping[Any, Callable[..., None]], Callable[..., None] | None]
+] = {}
 
 
 class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
@@ -283,8 +298,10 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
     def poll(self, now_s: float) -> TickRecord | None:
         """Advance the phases; returns the metrics of a control tick if one ran."""
         snap = self.fleet.snapshot(now_s)
-        for i in range(snap.n_vehicles):
-            self._rows.setdefault(i, _Row())
+        rows = self._rows
+        for i in range(snap.n_vehicles):  # a row for every vehicle (built only when missing)
+            if i not in rows:
+                rows[i] = _Row()
         record = None
         polled: set[Phase] = set()
         while self._phase not in polled:  # a phase entered during this poll is polled too

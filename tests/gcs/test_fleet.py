@@ -125,3 +125,59 @@ def test_rows_survive_growth_and_snapshots_are_copies():
     assert snap.mode[0] == "GUIDED" and snap.networked[1]
     later = fleet.snapshot(2.0)
     assert later.mode[0] == "RTL" and later.lost[1] and not later.returning.any()
+
+
+def test_cached_positions_and_modes_match_a_fresh_computation():
+    """snapshot() keeps positions and mode facts between polls (converting only changed rows);
+    after random events (rows added past a growth, positions, modes, a vehicle without a fix,
+    an origin replaced) every snapshot equals a full recomputation, to the bit."""
+    from gcs.events import VehicleRecovered
+
+    rng = np.random.default_rng(4)
+    fleet = FleetView(ORIGIN)
+    n_checked = 0
+    for step in range(300):
+        t = step * 0.1
+        link, sysid = int(rng.integers(0, 2)), int(rng.integers(1, 40))
+        kind = rng.random()
+        if kind < 0.6:
+            fleet.apply(
+                TelemetryReceived(
+                    link,
+                    sysid,
+                    t,
+                    lat_deg=ORIGIN.lat_deg + rng.normal() * 1e-3,
+                    lon_deg=ORIGIN.lon_deg + rng.normal() * 1e-3,
+                    alt_amsl_m=500.0 + rng.normal(),
+                    rel_alt_m=12.0,
+                )
+            )
+        elif kind < 0.7:
+            fleet.apply(
+                VehicleDiscovered(
+                    link, sysid, t, autopilot=int(rng.choice([3, 12])), custom_mode=4, armed=True
+                )
+            )
+        elif kind < 0.8:
+            fleet.apply(ModeChanged(link, sysid, t, custom_mode=int(rng.choice([4, 6, 9]))))
+        elif kind < 0.85:
+            fleet.apply(VehicleRecovered(link, sysid, t, custom_mode=6))
+        elif kind < 0.9:
+            fleet.apply(VehicleLost(link, sysid, t))
+        if step == 150:
+            fleet.origin = MissionOrigin(47.0, 8.0, 400.0)
+        if step % 3 == 0:
+            snap = fleet.snapshot(t)
+            n = snap.n_vehicles
+            ref = fleet._positions_reference(n)
+            assert snap.pos_ned_m.tobytes() == ref.tobytes()
+            infos = [fleet._new_mode_info(k) for k in zip(fleet._autopilot, fleet._custom_mode)]
+            assert snap.mode == tuple(name for name, _ in infos)
+            assert snap.autopilot.tolist() == fleet._autopilot
+            assert snap.custom_mode.tolist() == fleet._custom_mode
+            failsafe = np.array([f for _, f in infos], dtype=bool)
+            assert np.array_equal(
+                snap.returning, snap.lost.__invert__() & fleet._was_lost[:n] & failsafe
+            )
+            n_checked += n
+    assert n_checked > 1000

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from mavedge import codec
 from vehicle_emu import events as ev
 from vehicle_emu.attrition import Attrition
 from vehicle_emu.radio import RadioConfig
@@ -201,18 +202,18 @@ def test_out_of_range_vehicle_failsafes_home_and_is_heard_again():
 
 def test_mux_router_parses_each_frame_once(monkeypatch):
     """The router reads target_system from the header bytes; only the addressed core decodes
-    (CRC, signature, unpack): one pymavlink decode per frame, not two (issue 13.1)."""
+    (CRC, signature, unpack): one decode per frame, not two (issue 13.1)."""
     swarm = Swarm(5, rng=np.random.default_rng(7), mux=True)
     gcs = FakeGcs()
     data = gcs.command(400, 1, target=3) + gcs.heartbeat()
     calls = []
-    orig = mavlink.MAVLink.decode
+    orig = codec._MAVLink.decode  # every frame's decode, its fast path or pymavlink's
 
     def counting(self, msgbuf):
         calls.append(1)
         return orig(self, msgbuf)
 
-    monkeypatch.setattr(mavlink.MAVLink, "decode", counting)
+    monkeypatch.setattr(codec._MAVLink, "decode", counting)
     swarm.receive_datagram(0, data, GCS_ADDR, 0.0)
     # one decode for the addressed COMMAND_LONG, one for the broadcast HEARTBEAT (shared by
     # every member without a signing key: "decode once, deliver many")
@@ -234,13 +235,13 @@ def test_broadcast_decoded_once_but_signed_cores_check_their_own(monkeypatch):
     swarm.cores[1]._codec.set_signing_key(key)
     swarm.kill(3, 0.0)
     calls = []
-    orig = mavlink.MAVLink.decode
+    orig = codec._MAVLink.decode  # every frame's decode, its fast path or pymavlink's
 
     def counting(self, msgbuf):
         calls.append(1)
         return orig(self, msgbuf)
 
-    monkeypatch.setattr(mavlink.MAVLink, "decode", counting)
+    monkeypatch.setattr(codec._MAVLink, "decode", counting)
     swarm.receive_datagram(0, FakeGcs().heartbeat(), GCS_ADDR, 0.0)
     assert len(calls) == 2  # the shared decode and the signed core's own
     assert [c.stats.gcs_heartbeats for c in swarm.cores] == [1, 0, 1, 0]
@@ -249,3 +250,37 @@ def test_broadcast_decoded_once_but_signed_cores_check_their_own(monkeypatch):
     # a signed heartbeat reaches every live core (pymavlink accepts it without a key)
     swarm.receive_datagram(0, FakeGcs(signing_key=key).heartbeat(), GCS_ADDR, 0.1)
     assert [c.stats.gcs_heartbeats for c in swarm.cores] == [2, 1, 2, 0]
+
+
+def test_cores_with_output_are_always_marked():
+    """datagrams_to_send visits the cores in ``_out_dirty``: every core with queued frames must
+    be there (the scan of every core it replaces would have found them), through ticks with
+    batched and per-vehicle telemetry, commands, broadcasts, a kill and a datagram loss."""
+    swarm = Swarm(
+        6,
+        rng=np.random.default_rng(5),
+        mux=True,
+        radio=RadioConfig(loss_per_hop=0.2, latency_per_hop_s=0.02),
+    )
+    gcs = FakeGcs()
+    swarm.cores[2]._codec.set_signing_key(bytes(range(32)))  # per-vehicle telemetry path
+    marked = 0
+    t = 0.0
+    for step in range(200):
+        t = round(t + 0.05, 6)
+        if step % 20 == 0:
+            swarm.receive_datagram(0, gcs.heartbeat(), GCS_ADDR, t)
+        if step % 7 == 0:
+            swarm.receive_datagram(0, gcs.command(400, 1, target=1 + step % 6), GCS_ADDR, t)
+        if step == 100:
+            swarm.kill(4, t)
+        with_out = {i for i, c in enumerate(swarm.cores) if c._out}
+        assert with_out <= swarm._out_dirty
+        marked += len(with_out)
+        swarm.handle_timer(t)
+        with_out = {i for i, c in enumerate(swarm.cores) if c._out}
+        assert with_out <= swarm._out_dirty
+        marked += len(with_out)
+        swarm.datagrams_to_send(t)
+        assert not any(c._out for c in swarm.cores if c.alive)
+    assert marked > 50

@@ -16,6 +16,8 @@ from mavedge import mavlink
 from mavedge.units import deg_to_e7, e7_to_deg
 from planner.geometry import geodetic_to_ned_m
 
+from ..geodesy import ned_origin
+
 #: AUTOPILOT_VERSION.capabilities both firmwares announce and the emulator implements (each
 #: personality adds its parameter encoding); FTP, SET_ATTITUDE_TARGET, FLIGHT_TERMINATION,
 #: TERRAIN are left out on purpose: the emulator does not implement them and a GCS would try.
@@ -278,7 +280,8 @@ class Personality:
             pos = self.off_globe(lat_e7, lon_e7, lat_deg, lon_deg, alt_amsl)
             if pos is not None:
                 return pos
-        return geodetic_to_ned_m(lat_deg, lon_deg, alt_amsl, *core.physics.origin_lla)
+        # geodetic_to_ned_m to the bit, without its per-call origin work (vehicle_emu/geodesy.py)
+        return ned_origin(*core.physics.origin_lla).ned_m(lat_deg, lon_deg, alt_amsl)
 
     def home_e7(self) -> tuple[int, int]:
         return deg_to_e7(self.core.home_lla[0]), deg_to_e7(self.core.home_lla[1])
