@@ -209,10 +209,21 @@ def test_real_firmware_rtl_flies_to_the_uploaded_rally_point(tmp_path, firmware)
                 )
                 pump(2.0)
             assert pos.get("armed"), "never armed"
-            takeoff_alt = 20.0 if firmware == "ardupilot" else home[2] + 20.0
-            conn.mav.command_long_send(
-                sysid, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, float("nan"), 0, 0, takeoff_alt
-            )
+            # NAV_TAKEOFF: ArduCopter takes param7 above home and only uses the altitude. PX4 takes
+            # param7 as AMSL and params 5/6 as the take-off latitude/longitude, and only
+            # non-finite values mean "here" (PX4 src/modules/navigator/navigator_main.cpp,
+            # Navigator::run, VEHICLE_CMD_NAV_TAKEOFF: PX4_ISFINITE(cmd.param5) &&
+            # PX4_ISFINITE(cmd.param6)); takeoff.cpp Takeoff::set_takeoff_position passes them on.
+            # With 0, 0 the target is 0 N 0 E: PX4 main 2025-07 accepts the command and enters
+            # AUTO.TAKEOFF but never lifts off (the trajectory towards a point thousands of km
+            # away climbs too slowly for the want-takeoff test in
+            # src/modules/flight_mode_manager/tasks/Auto/FlightTaskAuto.cpp, FlightTaskAuto::update,
+            # unsmoothed vz < -0.3 m/s) and auto-disarms. So NaN, NaN, as QGroundControl sends.
+            if firmware == "ardupilot":
+                takeoff = (float("nan"), 0.0, 0.0, 20.0)
+            else:
+                takeoff = (float("nan"), float("nan"), float("nan"), home[2] + 20.0)
+            conn.mav.command_long_send(sysid, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, *takeoff)
             assert pump(120, lambda: pos.get("rel", 0) > 15.0), "no take-off"
             # Out 150 m north (PX4's navigator takes DO_REPOSITION's altitude as AMSL).
             frame, alt = (
