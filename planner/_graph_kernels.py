@@ -33,6 +33,7 @@ __all__ = [
     "knn_pairs",
     "hop_bitsets",
     "edge_terms",
+    "pairs_within",
     "any_within",
     "bounded_moves",
     "reaches_root",
@@ -529,6 +530,44 @@ def edge_terms(
         np.ascontiguousarray(edges[:, 1], dtype=np.int64),
         np.ascontiguousarray(np.broadcast_to(r_c, (len(edges),)), dtype=np.float64),
         np.ascontiguousarray(group, dtype=np.int64),
+    )
+
+
+def _pairs_within(x: np.ndarray, y: np.ndarray, pairs: np.ndarray, range_m: float) -> np.ndarray:
+    n_pairs = pairs.shape[0]
+    out = np.empty((n_pairs, 2), dtype=np.int64)
+    k = 0
+    for p in range(n_pairs):
+        i = pairs[p, 0]
+        j = pairs[p, 1]
+        dx = x[i] - x[j]
+        dy = y[i] - y[j]
+        if math.sqrt(dx * dx + dy * dy) <= range_m:
+            out[k, 0] = i
+            out[k, 1] = j
+            k += 1
+    return out[:k].copy()
+
+
+_pairs_within_jit = _jit(_pairs_within)
+
+
+def pairs_within(pos_m: np.ndarray, pairs: np.ndarray, range_m: float) -> np.ndarray | None:
+    """The rows (i, j) of ``pairs`` with ``|x_i - x_j| <= range_m``, in their order, as (K, 2)
+    int64: :func:`planner.geometry.neighbour_pairs`'s exact re-check of the KD-tree's candidates
+    (``np.linalg.norm(pos[i] - pos[j], axis=1) <= range_m``) without its gathers and temporaries.
+    ``np.linalg.norm`` over two components is sqrt(x^2 + y^2) (the squares, then one addition:
+    two terms have one sum), so the same distance bits (tests/planner/test_graph_kernels.py).
+    None without Numba or for other than 2-D positions / (P, 2) pairs: the caller runs NumPy."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or pos_m.ndim != 2 or pos_m.shape[1] != 2:
+        return None
+    if pairs.ndim != 2 or pairs.shape[1] != 2:
+        return None
+    return _pairs_within_jit(
+        np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
+        np.ascontiguousarray(pos_m[:, 1], dtype=np.float64),
+        np.ascontiguousarray(pairs, dtype=np.int64),
+        float(range_m),
     )
 
 

@@ -73,6 +73,15 @@ def neighbour_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
     pairs = cKDTree(pos_m).query_pairs(range_m * (1 + _KD_SLACK) + _KD_SLACK, output_type="ndarray")
     if len(pairs) == 0:
         return np.empty((0, 2), dtype=np.intp)
+    fast = _graph_kernels.pairs_within(pos_m, pairs, range_m)
+    if fast is not None:  # the two lines below in one compiled pass, the same bits
+        return fast.astype(np.intp, copy=False)
+    return _recheck_pairs(pos_m, pairs, range_m)
+
+
+def _recheck_pairs(pos_m: np.ndarray, pairs: np.ndarray, range_m: float) -> np.ndarray:
+    """The pairs within ``range_m`` by NumPy (the reference of
+    :func:`planner._graph_kernels.pairs_within`)."""
     d = np.linalg.norm(pos_m[pairs[:, 0]] - pos_m[pairs[:, 1]], axis=1)
     return pairs[d <= range_m].astype(np.intp)
 

@@ -35,7 +35,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import minimize
 
-from planner import _graph_kernels, _kernels
+from planner import _graph_kernels, _kernels, _steiner_kernels
 
 __all__ = [
     "TaskTree",
@@ -631,6 +631,19 @@ def _same_bits(a: float, b: float) -> bool:
 
 
 def _relax_steiner(
+    nodes_m: np.ndarray, parent: np.ndarray, n_tasks: int, sweeps: int
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """:func:`_relax_steiner_python`, compiled when Numba is there
+    (:func:`planner._steiner_kernels.relax_steiner`: the same bits, the same fixed-point flag)."""
+    fast = _steiner_kernels.relax_steiner(
+        nodes_m, parent, n_tasks, sweeps, RELAX_SHORTCUTS, _COINCIDE_RTOL, _WEISZFELD_MAX_ITER
+    )
+    if fast is not None:
+        return fast
+    return _relax_steiner_python(nodes_m, parent, n_tasks, sweeps)
+
+
+def _relax_steiner_python(
     nodes_m: np.ndarray, parent: np.ndarray, n_tasks: int, sweeps: int
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """Gauss-Seidel sweeps over the Steiner nodes; splices degenerate ones; compacts indices.

@@ -232,3 +232,40 @@ def test_reaches_root_is_the_pointer_jumping_check(rng):
         except ValueError:
             want = False
         assert _graph_kernels.reaches_root(parent) is want
+
+
+def test_pairs_within_is_the_numpy_recheck(rng):
+    """neighbour_pairs' compiled re-check keeps exactly NumPy's pairs, in the KD-tree's order,
+    also on distances at the range (rounded coordinates, pairs placed exactly at r) and on
+    distances that differ from r by one ulp."""
+    from scipy.spatial import cKDTree
+
+    from planner.geometry import _recheck_pairs
+
+    boundary = 0
+    for trial in range(300):
+        n, w, r = int(rng.integers(2, 300)), rng.uniform(1, 30), rng.uniform(0.5, 5)
+        x = rng.uniform(-w, w, (n, 2))
+        if trial % 3 == 0:
+            x, r = np.round(x, 1), round(r, 1)
+        if trial % 4 == 0:
+            x[1] = x[0] + [r, 0.0]  # exactly at r: kept (inclusive)
+            x[2] = x[0] + [0.0, np.nextafter(r, np.inf)]
+        pairs = cKDTree(x).query_pairs(r * 1.01, output_type="ndarray")
+        if len(pairs) == 0:
+            continue
+        got = _graph_kernels.pairs_within(x, pairs, r)
+        want = _recheck_pairs(x, pairs, r)
+        assert got is not None and np.array_equal(got, want), trial
+        d = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1)
+        boundary += int(np.sum(d == r))
+    assert boundary > 0
+    # The distance itself, on many random pairs: the kept set at r = each pair's own distance
+    # (kept) and at the next float below it (dropped) is NumPy's.
+    x = rng.normal(0, 1e3, (2000, 2)) * rng.uniform(1e-6, 1, (2000, 1))
+    pairs = np.column_stack([np.arange(0, 2000, 2), np.arange(1, 2000, 2)])
+    d = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1)
+    for k in range(0, len(pairs), 50):
+        for r in (d[k], np.nextafter(d[k], -np.inf)):
+            got = _graph_kernels.pairs_within(x, pairs, r)
+            assert np.array_equal(got, _recheck_pairs(x, pairs, r)), k
