@@ -494,6 +494,73 @@ def _central_vs_async(cells: list[Cell], central: list[Cell]) -> tuple[str, dict
     return "\n".join(text), within
 
 
+def _paired_vs_phireman(cells: list[Cell], method: str) -> tuple[str, dict] | None:
+    """Your planner (``--method``) against our ΦIREMAN, cell by cell, paired by seed (two-sided
+    ``ttest_rel`` on the seeds both share: common random numbers). None without its runs."""
+    from scipy import stats
+
+    rows, counts = [], {"cells": 0, "below95": 0, "better_both": 0, "better_below95": 0, "worse": 0}
+    for c in cells:
+        a, b = c.samples.get(method), c.samples.get("phireman")
+        if a is None or b is None or not a.n or not b.n:
+            continue
+        ref = paper.paper_value(c.size, c.attrition, "phireman", "tu1")
+        below = ref is not None and ref[0] < 95.0
+        row = [c.size, _pct(c.attrition) + (" ‡" if below else ""), "", ""]
+        verdicts, n = [], 0
+        for k in paper.METRICS:
+            common = sorted(set(a.by_seed[k]) & set(b.by_seed[k]))
+            n = len(common)
+            x = np.array([a.by_seed[k][s] for s in common])
+            y = np.array([b.by_seed[k][s] for s in common])
+            if n < 2:
+                row.append("–")
+                verdicts.append(0)
+                continue
+            pv = 1.0 if np.all(x == y) else _quiet(stats.ttest_rel, x, y)
+            d = float((x - y).mean())
+            row.append(f"{_signed(d)} ({_fmt_p(pv)})")
+            verdicts.append(0 if pv >= ALPHA else (1 if d > 0 else -1))
+        row[2] = " / ".join(f"{b.mean(k):.2f}" for k in paper.METRICS)
+        row[3] = " / ".join(f"{a.mean(k):.2f}" for k in paper.METRICS)
+        better, worse = all(v == 1 for v in verdicts), any(v == -1 for v in verdicts)
+        row += ["better (both)" if better else ("worse" if worse else "n.s."), str(n)]
+        rows.append(row)
+        counts["cells"] += 1
+        counts["below95"] += below
+        counts["better_both"] += better
+        counts["better_below95"] += better and below
+        counts["worse"] += worse
+    if not rows:
+        return None
+    table = _md_table(
+        [
+            "Size",
+            "p (%)",
+            "`phireman` TU1 / TU2",
+            f"`{method}` TU1 / TU2",
+            "Δ TU1 (p)",
+            "Δ TU2 (p)",
+            "verdict",
+            "n",
+        ],
+        rows,
+        "lrllllll",
+    )
+    text = [
+        f"Δ = `{method}` − `phireman` on the seeds both ran (pp); p: two-sided paired t-test "
+        '(`ttest_rel`); "better (both)": Δ > 0 with p < 0.05 on TU1 and on TU2. ‡: the paper\'s '
+        "ΦIREMAN is below 95 % TU1.",
+        "",
+        table,
+        "",
+        f"- significantly better on both TU1 and TU2 in **{counts['better_both']} of {counts['cells']}** "
+        f"configurations ({counts['better_below95']} of the {counts['below95']} ‡ ones); significantly "
+        f"worse on either in **{counts['worse']}**.",
+    ]
+    return "\n".join(text), counts
+
+
 def _misses(cells: list[Cell], methods) -> str:
     out = []
     for m in methods:
@@ -1277,6 +1344,12 @@ def build_report(
             _table_ii(cells, methods),
             "",
         ]
+        for m in methods:
+            if m in paper.PAPER_METHODS:
+                continue
+            vs = _paired_vs_phireman(cells, m)
+            if vs is not None:
+                md += [f"## `{m}` against ΦIREMAN, paired by seed", "", vs[0], ""]
         if comparable:
             md += [
                 "## Ours against the paper",

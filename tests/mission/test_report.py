@@ -348,3 +348,33 @@ def test_per_baseline_split_of_the_paper_bolds(rng):
     assert stats["above_mccst"] == stats["above_mccst_paired"] == 2 * len(bolded)
     assert stats["above_dccrs"] == 0 and stats["bold_both"] == 0
     assert f"above MCCST in **{2 * len(bolded)}**" in text and "above DCCRS in **0**" in text
+
+
+def test_extra_method_is_paired_against_phireman(synthetic_store, tmp_path):
+    """--method mine: a planner run on the paper's configurations gets a column in Table II and a
+    paired comparison with ΦIREMAN (two-sided ttest_rel on the shared seeds)."""
+    table = {(c.size, c.attrition, c.method): c for c in paper_table_grid(seeds=[]).configs}
+    with ResultStore(synthetic_store, readonly=True) as store:
+        base = {
+            (r["size"], r["attrition"], r["seed"]): (r["tu1"] * 100, r["tu2"] * 100)
+            for r in store.runs()
+            if r["method"] == "phireman" and r["grid"] == "paper-table"
+        }
+    rows = []
+    for size, att, shift in (("S", 0.01, 0.5), ("S", 0.005, 0.0)):
+        spec = table[(size, att, "phireman")]
+        mine = ConfigSpec(spec.size, spec.attrition, "mine")
+        t1 = np.array([base[(size, att, s)][0] for s in range(N_SEEDS)])
+        t2 = np.array([base[(size, att, s)][1] for s in range(N_SEEDS)])
+        gain = shift * (1 + 0.1 * np.cos(np.arange(N_SEEDS)))  # S / 1 %: about +0.5; S / 0.5 %: 0
+        rows += _rows(mine, t1 + gain, t2 + gain)
+    with ResultStore(synthetic_store) as store:
+        store.insert_runs(rows)
+    md = build_report(synthetic_store, tmp_path / "r", extra_methods=("mine",), figures=False)
+    text = md.markdown.read_text()
+    part = text.split("## `mine` against ΦIREMAN, paired by seed")[1].split("\n## ")[0]
+    s1 = next(line for line in part.splitlines() if line.startswith("| S | 1 ‡ |"))
+    assert "+0.50 (" in s1 and s1.rstrip(" |").endswith(f"better (both) | {N_SEEDS}")
+    s05 = next(line for line in part.splitlines() if line.startswith("| S | 0.5 ‡ |"))
+    assert "+0.00 (1.000)" in s05 and "n.s." in s05
+    assert "better on both TU1 and TU2 in **1 of 2**" in part
