@@ -34,13 +34,24 @@ energy, descent, message layer and task tree) with switchable mechanisms, each a
   mission's zones in ``TickInput.hazards`` (known to the station from the mission file), the
   broadcast tree is routed around the active zones (:func:`planner.hazard.route_tree`) and drones
   inside a zone are pushed toward its nearest boundary, except within r of a task inside it.
-  :func:`planner.hazard.hazard_rate_per_s` gives the local loss rate at any position.
+  Relays inside an active zone get a spare first (redundancy, below): "double them" where no
+  way around exists.
+* **Redundancy** (``redundancy_gain``, ``redundancy_reach``, ``redundancy_min_cut``;
+  planner/redundancy.py). The base finds the networked drones whose loss alone would cut
+  connected tasks (Tarjan low points on the mesh) and pulls the nearest spare (a drone on no
+  task's fewest-hop path) onto each, most critical first; pairs persist while they make sense.
+  The targets travel with the tree broadcast, like the open tasks of the claims.
+
+Frozen defaults (docs/tuning/resilient.md): claims 0.03 / 4, redundancy 0.3 / 8, hazard
+awareness on; triage, rally points and prediction off. Central information (the station) runs
+the same pulls in the joint descent (:meth:`ResilientPlanner._plan_central_pulled`).
 
 Units: as PhiIREMAN, every length parameter is in paper units (1 unit = r / 2); instructions and
 ``recovery_target_m`` are metres.
 
-Length (about 630 lines, above the ~600 this code base aims for): each mechanism's kernel, its
-slow reference and its parameter sit together so that an ablation switches one thing in one file.
+Length (about 1,000 lines, above the ~600 this code base aims for): each mechanism's kernel, its
+slow reference and its parameter sit together so that an ablation switches one thing in one
+file; the redundancy's graph work and the hazard geometry live in their own modules.
 """
 
 from __future__ import annotations
@@ -565,7 +576,8 @@ def held_targets(
 
 
 class ResilientPlanner(PhiremanPlanner):
-    """PhiIREMAN with triage, rally points and task-motion prediction (see the module docstring).
+    """PhiIREMAN with claims, redundancy, hazard awareness, triage, rally points and task-motion
+    prediction (see the module docstring).
 
     Attributes
     ----------
