@@ -47,6 +47,26 @@ def fly(mission: Path, seed: int, out: Path) -> tuple[float, float]:
     return 100 * truth["tu1"], 100 * truth["tu2"]
 
 
+HEADER = (
+    "| mission | `phireman` TU1 / TU2 | `phireman-resilient` TU1 / TU2 | Δ TU1 (sd, p) | "
+    "Δ TU2 (sd, p) | n |\n| --- | ---: | ---: | ---: | ---: | ---: |"
+)
+
+
+def paired_row(name: str, a: np.ndarray, b: np.ndarray) -> str:
+    """One Markdown row: means of ``a`` (phireman) and ``b`` (resilient), (n, 2) TU1/TU2 in %
+    paired by seed, and Δ = b - a with the sd of the differences and the two-sided paired p."""
+    d = b - a
+    cells = [
+        f"{d[:, k].mean():+.2f} ({d[:, k].std(ddof=1):.2f}, {ttest_rel(b[:, k], a[:, k]).pvalue:.2g})"
+        for k in (0, 1)
+    ]
+    return (
+        f"| {name} | {a[:, 0].mean():.2f} / {a[:, 1].mean():.2f} | {b[:, 0].mean():.2f} / "
+        f"{b[:, 1].mean():.2f} | {cells[0]} | {cells[1]} | {len(a)} |"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=Path, required=True, help="directory of run directories")
@@ -62,24 +82,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     seeds = _seeds(args.seeds)
     args.runs.mkdir(parents=True, exist_ok=True)
-    print(
-        "| mission | `phireman` TU1 / TU2 | `phireman-resilient` TU1 / TU2 | Δ TU1 (sd, p) | Δ TU2 (sd, p) | n |"
-    )
-    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    print(HEADER)
     for name, *pairs in args.mission:
         files = dict(p.split("=", 1) for p in pairs)
         res = {m: np.array([fly(Path(f), s, args.runs) for s in seeds]) for m, f in files.items()}
-        a, b = res["phireman"], res["phireman-resilient"]
-        d = b - a
-        cells = []
-        for k in (0, 1):
-            p = ttest_rel(b[:, k], a[:, k]).pvalue
-            cells.append(f"{d[:, k].mean():+.2f} ({d[:, k].std(ddof=1):.2f}, {p:.2g})")
-        print(
-            f"| {name} | {a[:, 0].mean():.2f} / {a[:, 1].mean():.2f} | "
-            f"{b[:, 0].mean():.2f} / {b[:, 1].mean():.2f} | {cells[0]} | {cells[1]} | {len(seeds)} |",
-            flush=True,
-        )
+        print(paired_row(name, res["phireman"], res["phireman-resilient"]), flush=True)
     return 0
 
 

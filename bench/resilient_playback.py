@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from scipy.stats import ttest_rel
+from resilient_flights import HEADER, paired_row  # bench/ is on sys.path when run as a script
 
 from mission.load import load_mission
 from mission.playback import run_inprocess
@@ -35,10 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     lo, _, hi = args.seeds.partition("-")
     seeds = range(int(lo), int(hi or lo) + 1)
-    print(
-        "| mission | `phireman` TU1 / TU2 | `phireman-resilient` TU1 / TU2 | Δ TU1 (sd, p) | Δ TU2 (sd, p) | n |"
-    )
-    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    print(HEADER)
     for name, *files in args.mission:
         arms = []
         for path in files:
@@ -48,17 +45,7 @@ def main(argv: list[str] | None = None) -> int:
                 r = run_inprocess(mission, s)
                 rows.append((100 * r.tu1, 100 * r.tu2))
             arms.append(np.array(rows))
-        a, b = arms
-        d = b - a
-        cells = [
-            f"{d[:, k].mean():+.2f} ({d[:, k].std(ddof=1):.2f}, {ttest_rel(b[:, k], a[:, k]).pvalue:.2g})"
-            for k in (0, 1)
-        ]
-        print(
-            f"| {name} | {a[:, 0].mean():.2f} / {a[:, 1].mean():.2f} | {b[:, 0].mean():.2f} / "
-            f"{b[:, 1].mean():.2f} | {cells[0]} | {cells[1]} | {len(seeds)} |",
-            flush=True,
-        )
+        print(paired_row(name, *arms), flush=True)
     return 0
 
 

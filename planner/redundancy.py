@@ -88,17 +88,18 @@ def mesh_graph(
     rows = np.flatnonzero(np.asarray(networked, bool))
     p = np.asarray(pos, float)[rows]
     k = len(rows)
-    pairs = (
-        cKDTree(p).query_pairs(r, output_type="ndarray") if k > 1 else np.zeros((0, 2), np.int64)
-    )
+    kd = cKDTree(p) if k else None
+    pairs = kd.query_pairs(r, output_type="ndarray") if kd is not None and k > 1 else None
+    if pairs is None:
+        pairs = np.zeros((0, 2), np.int64)
     at_base = np.flatnonzero(np.linalg.norm(p - base, axis=1) <= base_reach)
     src = np.concatenate([pairs[:, 0], pairs[:, 1], at_base, np.full(len(at_base), k)])
     dst = np.concatenate([pairs[:, 1], pairs[:, 0], np.full(len(at_base), k), at_base])
     adj = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(k + 1, k + 1)).tocsr()
     adj.sort_indices()
     task_nodes: list[np.ndarray] = []
-    if k and len(tasks):
-        near = cKDTree(p).query_ball_point(np.asarray(tasks, float), r)
+    if kd is not None and len(tasks):
+        near = kd.query_ball_point(np.asarray(tasks, float), r)
         for t, cand in enumerate(near):
             cand = np.asarray(cand, dtype=np.int64)
             d = np.linalg.norm(p[cand] - tasks[t], axis=1) if len(cand) else np.zeros(0)

@@ -713,10 +713,12 @@ class ResilientPlanner(PhiremanPlanner):
                 spare = None
         hz = self._hazard_term(pos_u[idx], trees, version_of)
 
-        def grad(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
-            er, ox, oy = entries.of(rows)
+        def energy_grad(xs: np.ndarray, full: np.ndarray) -> np.ndarray:
+            """∇ of drone ``full``'s energy at ``xs`` (its rows of x): PhiIREMAN's terms plus the
+            claim and spare pulls and the hazard push."""
+            er, ox, oy = entries.of(full)
             g = _pair_gradient_xy(
-                x[rows],
+                xs,
                 er,
                 ox,
                 oy,
@@ -725,13 +727,13 @@ class ResilientPlanner(PhiremanPlanner):
                 p.repulsion,
                 self.reach_u,
                 p.pair_factor,
-            ) + segments.gradient(x[rows], rows, p.thorn)
+            ) + segments.gradient(xs, full, p.thorn)
             if claim is not None:
-                g += claim_gradient(x[rows], claim[rows], p.claim_gain)
+                g += claim_gradient(xs, claim[full], p.claim_gain)
             if spare is not None:
-                g += claim_gradient(x[rows], spare[rows], p.redundancy_gain)
+                g += claim_gradient(xs, spare[full], p.redundancy_gain)
             if hz is not None:
-                g += hz.gradient(x[rows], rows)
+                g += hz.gradient(xs, full)
             return g
 
         if (
@@ -740,10 +742,11 @@ class ResilientPlanner(PhiremanPlanner):
             and p.speed_rule == "per_drone"
             and segments.entries is not None
         ):
-            # The descent is separable (each drone against its fixed beliefs), so the drones without
-            # a claim take PhiIREMAN's compiled descent (bit for bit the NumPy one) and only the
-            # claimers run the NumPy descent with the claim term; same instructions as one NumPy
-            # descent of everybody (tests/planner/test_resilient.py).
+            # The descent is separable (each drone against its fixed beliefs), so the drones with no
+            # extra term take PhiIREMAN's compiled descent (bit for bit the NumPy one) and only those
+            # with a claim, a spare pull or a hazard push run the NumPy descent of their whole
+            # energy; same instructions as one NumPy descent of everybody (tests/planner/
+            # test_resilient.py, tests/planner/test_hazard.py).
             res = _descend_separable_compiled(
                 pos_u[idx], entries, segments, p, self.reach_u, vmax_u
             )
@@ -758,31 +761,14 @@ class ResilientPlanner(PhiremanPlanner):
                 crow = np.flatnonzero(extra)
 
                 def grad_claimers(xs: np.ndarray, rows: np.ndarray) -> np.ndarray:
-                    full = crow[rows]
-                    er, ox, oy = entries.of(full)
-                    g = _pair_gradient_xy(
-                        xs[rows],
-                        er,
-                        ox,
-                        oy,
-                        p.attraction,
-                        p.attraction_floor,
-                        p.repulsion,
-                        self.reach_u,
-                        p.pair_factor,
-                    ) + segments.gradient(xs[rows], full, p.thorn)
-                    if claim is not None:
-                        g += claim_gradient(xs[rows], claim[full], p.claim_gain)
-                    if spare is not None:
-                        g += claim_gradient(xs[rows], spare[full], p.redundancy_gain)
-                    if hz is not None:
-                        g += hz.gradient(xs[rows], full)
-                    return g
+                    return energy_grad(xs[rows], crow[rows])
 
                 sub = descend(pos_u[idx[crow]], grad_claimers, vmax_u, p, separable=True)
                 disp_u[idx[crow]] = sub.disp_u
         else:
-            res = descend(pos_u[idx], grad, vmax_u, p, separable=True)
+            res = descend(
+                pos_u[idx], lambda x, rows: energy_grad(x[rows], rows), vmax_u, p, separable=True
+            )
             disp_u[idx] = res.disp_u
         if claim is not None and p.claim_tether > 0:
             rows = np.flatnonzero(np.isfinite(claim).all(axis=1))
