@@ -168,6 +168,10 @@ def run_once(args) -> dict:
         "station_cpu_s_total": round(s["station_cpu_s"], 1),
         "emulator_cpu_s_total": round(s["emulator"]["cpu_s"], 1),
         "frames_in": sum(x["frames_in"] for x in s["links"]),
+        # The emulator's paced clock over the whole flight: iterations that moved simulated
+        # time, and how often the station's acknowledgement (lock-step) or the per-iteration
+        # step limit held it back (mavedge.clock.PacedClock.stats).
+        "pacing": s["emulator"].get("pacing", {}),
         "loadavg_before_after": [round(load0[0], 2), round(os.getloadavg()[0], 2)],
     }
 

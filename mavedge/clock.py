@@ -176,7 +176,16 @@ class PacedClock:
         self._time_fn = time_fn
         self._last_wall = time_fn()
         self.unix_time_at_zero_s = unix_time_fn() - float(sim.value) / self.speedup
-        self.stats = {"advances": 0, "capped_by_step": 0, "capped_by_ack": 0}
+        #: Counts of iterations, and the simulated seconds each limit withheld (``held_*_s``:
+        #: wall time x speedup that did not become simulated time; their sum over a run is
+        #: how far the simulation fell behind ``speedup``).
+        self.stats: dict[str, float] = {
+            "advances": 0,
+            "capped_by_step": 0,
+            "capped_by_ack": 0,
+            "held_by_step_s": 0.0,
+            "held_by_ack_s": 0.0,
+        }
 
     def now(self) -> float:
         return float(self.sim.value)
@@ -190,10 +199,12 @@ class PacedClock:
         t = t0 + min(dt, self.max_step_s)
         if dt > self.max_step_s:
             self.stats["capped_by_step"] += 1
+            self.stats["held_by_step_s"] += dt - self.max_step_s
         limit = self.ack.value + self.slack_s
         if t > limit:
-            t = limit
             self.stats["capped_by_ack"] += 1
+            self.stats["held_by_ack_s"] += t - max(limit, t0)
+            t = limit
         if t > t0:
             self.sim.value = t
             self.stats["advances"] += 1

@@ -320,6 +320,7 @@ async def run_station(
                 a.close()
             raise RunnerError(f"cannot serve / forward: {exc}") from exc
     last_status = -math.inf
+    due_s = -math.inf  # the operator's next deadline (simulated s), as of the last poll
     started = ended = False
     interrupted_wall: float | None = None
     try:
@@ -334,9 +335,17 @@ async def run_station(
                 break
             try:
                 now = clock()
+                if ack is not None:
+                    # Lock-step (see PacedReader): before this poll, everything due before the
+                    # operator's next deadline is done (the links' timers run on their own), so
+                    # the emulator may go on while a control tick is computed. Acknowledging only
+                    # after each poll left it stale by the last poll plus the sleep: at 500
+                    # vehicles and 10x every control tick held the emulator back
+                    # (docs/results/scale.md).
+                    ack(min(now, due_s))
                 rec = op.poll(now)
                 if ack is not None:
-                    ack(now)  # lock-step: everything due up to `now` is done (see PacedReader)
+                    ack(now)  # everything due up to `now` is done
                 if world is not None:
                     if not started and op.mission_t0_s is not None:
                         started = True
@@ -364,7 +373,8 @@ async def run_station(
                         (a.link_id, a.spec.text, a.down_reason) for a in adapters if not a.connected
                     ]
                     opts.status(d)
-                delay = max(0.0, min(op.next_poll_s(now) - clock(), max_sleep_s) / speedup)
+                due_s = op.next_poll_s(now)
+                delay = max(0.0, min(due_s - clock(), max_sleep_s) / speedup)
                 await asyncio.sleep(delay)
             except asyncio.CancelledError:
                 # Ctrl-C (asyncio.run cancels the main task on the first SIGINT; a second one

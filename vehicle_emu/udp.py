@@ -188,6 +188,8 @@ class EmulatorServer:
         if self._closed:
             return
         paced = self.clock if isinstance(self.clock, PacedClock) else None
+        assert self._loop is not None  # set by start()
+        woke_wall_s = self._loop.time()
         if paced is not None:  # lock-step: deliver what the station sent, then move time
             self._drain(paced.now())
         now = paced.advance() if paced is not None else self.clock.now()
@@ -198,12 +200,18 @@ class EmulatorServer:
                 now, "tick", logging.ERROR, "swarm tick failed at t=%.3f", now, exc_info=True
             )
         self._flush(now)
-        delay = self.clock.wall_delay_s(self.swarm.next_timer_s() - self.clock.now())
-        if paced is not None:
-            # A paced clock may be held back by the station: look again within one tick.
-            delay = min(delay, self.clock.wall_delay_s(self.swarm.tick_s))
-        assert self._loop is not None  # set by start()
-        self._timer = self._loop.call_later(delay, self._on_timer)
+        if paced is None:
+            delay = self.clock.wall_delay_s(self.swarm.next_timer_s() - self.clock.now())
+            self._timer = self._loop.call_later(delay, self._on_timer)
+            return
+        # A paced clock stands still while this iteration works, so the next wake-up is timed
+        # from when this one woke, not from now: timed from now, every period was the tick plus
+        # the iteration's own work, and at 10x with 500 vehicles the iterations that came more
+        # than max_step_s apart lost simulated time (PacedClock.stats "held_by_step_s",
+        # docs/results/scale.md). A paced clock may also be held back by the station: look
+        # again within one tick.
+        delay = self.clock.wall_delay_s(min(self.swarm.next_timer_s() - now, self.swarm.tick_s))
+        self._timer = self._loop.call_at(woke_wall_s + delay, self._on_timer)
 
     def close(self) -> None:
         self._closed = True

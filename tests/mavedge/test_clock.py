@@ -93,12 +93,15 @@ def test_paced_clock_is_held_back_by_the_station_and_never_jumps():
         emu.advance()
     assert emu.now() == pytest.approx(0.5)
     assert emu.stats["capped_by_ack"] > 0
+    # 10 simulated seconds of wall time passed, 0.4 became simulated time: 9.6 held back.
+    assert emu.stats["held_by_ack_s"] == pytest.approx(9.6)
     # The station acknowledges; a 10 s wall stall of the emulator moves by max_step_s only.
     station.acknowledge(station.now())
     assert ack.value == pytest.approx(0.5)
     wall.t += 10.0
     assert emu.advance() == pytest.approx(0.7)
     assert emu.stats["capped_by_step"] == 1
+    assert emu.stats["held_by_step_s"] == pytest.approx(100.0 - 0.2)
     # Wall time going backwards never moves simulated time back.
     wall.t -= 5.0
     assert emu.advance() == pytest.approx(0.7)
