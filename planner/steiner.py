@@ -35,7 +35,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import minimize
 
-from planner import _graph_kernels, _kernels, _steiner_kernels
+from planner import _graph_kernels, _greedy_kernels, _kernels, _steiner_kernels
 
 __all__ = [
     "TaskTree",
@@ -462,7 +462,37 @@ def _check_inputs(
     return base, tasks, cb
 
 
+def _direct_costs(y: np.ndarray, p: np.ndarray, cb: float) -> np.ndarray:
+    """(F, n) option (a) costs (1 + c_b)|y - p| of the free tasks y (F, 1) to the nodes p (n,)."""
+    return (1.0 + cb) * np.abs(y - p)
+
+
+def _split_costs(
+    u: np.ndarray, w: np.ndarray, y: np.ndarray, n_below: np.ndarray, cb: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(F, n) ``(split, stretch)`` of the edges u -> w (n,) for the free tasks y (F, 1), with
+    ``n_below`` (n,) tasks below each edge; see :func:`_greedy_tree_python`."""
+    s, at_u, at_w, _ = _fermat_complex(u, w, y, exact_ab=False)  # (F, n) triangles (u, w, y)
+    us, sy = np.abs(s - u), np.abs(y - s)
+    detour = us + np.abs(w - s) - np.abs(w - u)
+    cost = (detour + sy) + cb * ((us + sy) + n_below * detour)
+    # s at u or w is just a direct edge, which option (a) already prices identically.
+    return np.where(at_u | at_w, np.inf, cost), cb * detour
+
+
 def _greedy_tree(base: np.ndarray, tasks: np.ndarray, cb: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_greedy_tree_python`, compiled when Numba is there and NumPy on this machine
+    evaluates as the kernel emulates (:func:`planner._greedy_kernels.greedy_tree`: the same
+    bits)."""
+    fast = _greedy_kernels.greedy_tree(base, tasks, cb, _GREEDY_REFERENCE)
+    if fast is not None:
+        return fast
+    return _greedy_tree_python(base, tasks, cb)
+
+
+def _greedy_tree_python(
+    base: np.ndarray, tasks: np.ndarray, cb: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Greedy semi-Steiner insertion; returns ``(nodes_m, parent)`` in :class:`TaskTree` order.
 
     Layout, chosen so that each step is a handful of NumPy calls on contiguous blocks:
@@ -506,18 +536,13 @@ def _greedy_tree(base: np.ndarray, tasks: np.ndarray, cb: float) -> tuple[np.nda
 
     def add_node_columns(vs: list[int], n_free: int) -> None:
         # (F, 1) free tasks - (n,) new nodes -> (F, n)
-        direct[:n_free, vs] = (1.0 + cb) * np.abs(row_z[:n_free, None] - pos[vs])
+        direct[:n_free, vs] = _direct_costs(row_z[:n_free, None], pos[vs], cb)
 
     def add_edge_columns(cs: list[int], n_free: int) -> None:
-        u, w = pos[parent[cs]], pos[cs]  # (n,) edge tops and bottoms
-        y = row_z[:n_free, None]  # (F, 1)
-        s, at_u, at_w, _ = _fermat_complex(u, w, y, exact_ab=False)  # (F, n) triangles (u, w, y)
-        us, sy = np.abs(s - u), np.abs(y - s)
-        detour = us + np.abs(w - s) - np.abs(w - u)
-        cost = (detour + sy) + cb * ((us + sy) + n_below[cs] * detour)
-        # s at u or w is just a direct edge, which option (a) already prices identically.
-        split[:n_free, cs] = np.where(at_u | at_w, np.inf, cost)
-        stretch[:n_free, cs] = cb * detour
+        # (n,) edge tops and bottoms, (F, 1) free tasks -> (F, n)
+        split[:n_free, cs], stretch[:n_free, cs] = _split_costs(
+            pos[parent[cs]], pos[cs], row_z[:n_free, None], n_below[cs], cb
+        )
 
     def new_node(z: complex, final: int, under: int) -> int:
         """Create a leaf at ``z`` under node ``under``; return its internal index."""
@@ -609,6 +634,12 @@ def _greedy_tree(base: np.ndarray, tasks: np.ndarray, cb: float) -> tuple[np.nda
     parent_out = np.full(n, -1, dtype=np.int64)
     parent_out[final_index[1:n]] = final_index[parent[1:n]]
     return nodes_out, parent_out
+
+
+#: What :func:`planner._greedy_kernels.greedy_tree` reproduces (and checks itself against).
+_GREEDY_REFERENCE = _greedy_kernels.Reference(
+    _as_complex, _direct_costs, _split_costs, _fermat_scalar
+)
 
 
 # --------------------------------------------------------------------------------------------
