@@ -18,14 +18,18 @@ NumPy evaluates the few operations that are not a single correctly rounded IEEE 
 * ``math.hypot`` of plain floats in ``_fermat_scalar``: CPython's own algorithm, reproduced by
   :func:`planner._steiner_kernels.py_hypot` (CPython 3.11 only, as there).
 
-The first two depend on the CPU and the NumPy build (another build may take the scalar loop, or a
-CPU without FMA a plain multiply-add), so before its first use the kernel checks them
-(:func:`matches_numpy`): on a fixed probe set, with the shapes and broadcasts of the build, the
-compiled element formulas must give NumPy's bits (``_split_costs``, ``_direct_costs``), libm's
-``hypot`` NumPy's scalar ``abs``, and the compiled Fermat point ``_fermat_scalar``'s. Otherwise the
-kernel declines (returns None) for the rest of the process and the NumPy version runs. It also
-declines on inputs outside the range it was checked for: non-finite values, coordinates or c_b
-above 1e100 (no overflow anywhere), or a subnormal largest side in a scalar Fermat point (as
+(Measured with NumPy 2.4 on an AVX-512 CPU.) NumPy picks its loop by the operands' shapes and
+strides: a complex product broadcast without a cast whose result has one element, say, takes its
+scalar loop, unfused; the build has no such product (its complex-by-complex products have equal
+shapes, the others a float cast to complex). The first two depend on the CPU and the NumPy build
+(another build may take the scalar loop, or a CPU without FMA a plain multiply-add), so before its
+first use the kernel checks them (:func:`matches_numpy`, ~70 ms once a process): on a fixed probe
+set, at every shape of a build up to 17 free tasks and a few larger ones, the compiled element
+formulas must give NumPy's bits (``_split_costs``, ``_direct_costs``), libm's ``hypot`` NumPy's
+scalar ``abs``, and the compiled Fermat point ``_fermat_scalar``'s. Otherwise the kernel declines
+(returns None) for the rest of the process and the NumPy version runs. It also declines on inputs
+outside the range it was checked for: non-finite values, coordinates or c_b above 1e100 (no
+overflow anywhere), or a subnormal largest side in a scalar Fermat point (as
 :func:`planner._steiner_kernels.relax_steiner` does).
 
 No ``fastmath`` (LLVM then neither reorders nor contracts); the fused multiply-adds are explicit
