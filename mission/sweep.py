@@ -380,43 +380,45 @@ class Chunk:
 
 
 #: Measured wall seconds per run in a pool worker (2 workers on a 2-core machine) for ΦIREMAN
-#: (async), 200 steps, scaled reading: mean over 100 seeds of the paper-table sweep of
-#: docs/results/paper_table (its store's ``wall_s``). (size, attrition per step) -> seconds.
+#: (async), 200 steps, scaled reading: mean over 100 seeds of a fresh paper-table sweep at main
+#: ``019776d`` (its store's ``wall_s``; the whole table took 23.0 min, docs/results/benchmarks.md,
+#: fifth pass). (size, attrition per step) -> seconds.
 MEASURED_RUN_S: dict[tuple[str, float], float] = {
-    ("XS", 0.0): 0.35,
-    ("XS", 0.005): 0.34,
-    ("XS", 0.01): 0.31,
-    ("XS", 0.02): 0.26,
-    ("XS", 0.05): 0.13,
-    ("S", 0.0): 0.51,
-    ("S", 0.005): 0.46,
-    ("S", 0.01): 0.39,
-    ("S", 0.02): 0.33,
-    ("S", 0.05): 0.20,
-    ("M", 0.0): 0.77,
-    ("M", 0.005): 0.57,
-    ("M", 0.01): 0.54,
-    ("M", 0.02): 0.47,
-    ("M", 0.05): 0.25,
-    ("L", 0.0): 1.53,
-    ("L", 0.005): 1.11,
-    ("L", 0.01): 0.93,
-    ("L", 0.02): 0.67,
-    ("L", 0.05): 0.46,
-    ("XL", 0.0): 5.32,
-    ("XL", 0.005): 3.68,
-    ("XL", 0.01): 2.87,
-    ("XL", 0.02): 2.05,
-    ("XL", 0.05): 1.23,
+    ("XS", 0.0): 0.098,
+    ("XS", 0.005): 0.077,
+    ("XS", 0.01): 0.076,
+    ("XS", 0.02): 0.075,
+    ("XS", 0.05): 0.068,
+    ("S", 0.0): 0.126,
+    ("S", 0.005): 0.103,
+    ("S", 0.01): 0.113,
+    ("S", 0.02): 0.079,
+    ("S", 0.05): 0.054,
+    ("M", 0.0): 0.206,
+    ("M", 0.005): 0.138,
+    ("M", 0.01): 0.120,
+    ("M", 0.02): 0.107,
+    ("M", 0.05): 0.075,
+    ("L", 0.0): 0.466,
+    ("L", 0.005): 0.323,
+    ("L", 0.01): 0.243,
+    ("L", 0.02): 0.185,
+    ("L", 0.05): 0.131,
+    ("XL", 0.0): 1.948,
+    ("XL", 0.005): 1.223,
+    ("XL", 0.01): 0.997,
+    ("XL", 0.02): 0.614,
+    ("XL", 0.05): 0.330,
 }
-#: Cost of a method relative to ΦIREMAN (async), same store, all sizes together.
+#: Cost of a method relative to ΦIREMAN (async), same store (the ablations' variants at S / 1 %;
+#: phireman-central from the earlier store of docs/results/paper_table), all sizes together.
 METHOD_COST_FACTOR: dict[str, float] = {
     "phireman": 1.0,
-    "dccrs": 0.9,
-    "mccst": 0.68,
+    "dccrs": 1.11,
+    "mccst": 1.34,
     "phireman-central": 0.8,
-    "phireman-no-task": 0.75,
-    "phireman-nodes-only": 0.95,
+    "phireman-no-task": 0.98,
+    "phireman-nodes-only": 1.13,
 }
 
 

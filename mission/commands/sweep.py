@@ -420,7 +420,7 @@ def _dry_run(grid, args) -> int:
     basis = (
         "this store's recorded run times"
         if from_store == todo and todo
-        else "run times measured on a 2-core machine (docs/results/paper_table)"
+        else "run times measured on a 2-core machine (mission.sweep.MEASURED_RUN_S)"
         if not from_store
         else "this store's run times where it has the size and method, else times measured on a 2-core machine"
     )
