@@ -211,20 +211,17 @@ def _split_costs_arrays(
     return split, stretch
 
 
+def _re_im(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Contiguous real and imaginary parts of a complex array (the kernels' inputs)."""
+    return np.ascontiguousarray(z.real), np.ascontiguousarray(z.imag)
+
+
 def split_costs(
     u: np.ndarray, w: np.ndarray, y: np.ndarray, n_below: np.ndarray, cb: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`planner.steiner._split_costs` element by element: u, w (n,) complex, y (F, 1)."""
-    yy = np.ascontiguousarray(y[:, 0])
     return _split_costs_arrays(
-        np.ascontiguousarray(u.real),
-        np.ascontiguousarray(u.imag),
-        np.ascontiguousarray(w.real),
-        np.ascontiguousarray(w.imag),
-        np.ascontiguousarray(yy.real),
-        np.ascontiguousarray(yy.imag),
-        np.asarray(n_below, dtype=np.float64),
-        float(cb),
+        *_re_im(u), *_re_im(w), *_re_im(y[:, 0]), np.asarray(n_below, dtype=np.float64), float(cb)
     )
 
 
@@ -299,14 +296,7 @@ def _direct_costs_arrays(
 
 def direct_costs(y: np.ndarray, p: np.ndarray, cb: float) -> np.ndarray:
     """:func:`planner.steiner._direct_costs` element by element: y (F, 1), p (n,) complex."""
-    yy = np.ascontiguousarray(y[:, 0])
-    return _direct_costs_arrays(
-        np.ascontiguousarray(yy.real),
-        np.ascontiguousarray(yy.imag),
-        np.ascontiguousarray(p.real),
-        np.ascontiguousarray(p.imag),
-        float(cb),
-    )
+    return _direct_costs_arrays(*_re_im(y[:, 0]), *_re_im(p), float(cb))
 
 
 # --------------------------------------------------------------------------------------------
