@@ -35,6 +35,10 @@ from typing import Protocol, runtime_checkable
 
 __all__ = ["Clock", "SharedValue", "VirtualClock", "RealClock", "PacedClock", "PacedReader"]
 
+#: How much wall time a :class:`PacedClock` catches up after slow iterations (ArduPilot SITL's
+#: clamp on its frame-time debt, libraries/SITL/SIM_Aircraft.cpp ``Aircraft::sync_frame_time``).
+CATCH_UP_WALL_S = 0.1
+
 #: Default Unix anchor of a virtual clock (a fixed, recent instant: runs are reproducible).
 VIRTUAL_UNIX_TIME_AT_ZERO_S = 1.7e9
 
@@ -146,6 +150,12 @@ class PacedClock:
 
     * by wall time x ``speedup`` since the previous call, but by at most ``max_step_s``, so a
       stalled emulator (descheduled, swapping) slows the simulation instead of jumping it;
+    * what the step limit cut off is caught up by the following iterations (each still at most
+      ``max_step_s``), up to ``catch_up_wall_s`` of wall time; beyond that it is lost. This is
+      ArduPilot SITL's rule (libraries/SITL/SIM_Aircraft.cpp, ``Aircraft::sync_frame_time``:
+      frames that ran late are made up by not sleeping, with the debt clamped at 0.1 s of wall
+      time), so one slow iteration (a control tick's setpoint burst) costs no simulated time,
+      while a long stall still slows the simulation;
     * never beyond ``ack.value + slack_s``, where ``ack`` is the simulated time the station last
       acknowledged (:meth:`PacedReader.acknowledge`), so a stalled station cannot miss its own
       heartbeat or setpoint deadlines in *simulated* time: the vehicles wait for it.
@@ -163,16 +173,20 @@ class PacedClock:
         *,
         max_step_s: float = 0.2,
         slack_s: float = 0.5,
+        catch_up_wall_s: float = CATCH_UP_WALL_S,
         time_fn: Callable[[], float] = time.monotonic,
         unix_time_fn: Callable[[], float] = time.time,
     ) -> None:
         self.speedup = _check_speedup(speedup)
-        if not (max_step_s > 0 and slack_s > 0):
-            raise ValueError("max_step_s and slack_s must be > 0")
+        if not (max_step_s > 0 and slack_s > 0 and catch_up_wall_s >= 0):
+            raise ValueError("max_step_s and slack_s must be > 0, catch_up_wall_s >= 0")
         self.sim = sim
         self.ack = ack
         self.max_step_s = float(max_step_s)
         self.slack_s = float(slack_s)
+        #: The most simulated time the step limit may defer to later iterations.
+        self.max_debt_s = float(catch_up_wall_s) * self.speedup
+        self._debt_s = 0.0
         self._time_fn = time_fn
         self._last_wall = time_fn()
         self.unix_time_at_zero_s = unix_time_fn() - float(sim.value) / self.speedup
@@ -193,17 +207,21 @@ class PacedClock:
     def advance(self) -> float:
         """Move simulated time forward (see the class docstring); returns the new time."""
         wall = self._time_fn()
-        dt = max(0.0, wall - self._last_wall) * self.speedup
+        dt = max(0.0, wall - self._last_wall) * self.speedup + self._debt_s
         self._last_wall = wall
         t0 = self.sim.value
-        t = t0 + min(dt, self.max_step_s)
-        if dt > self.max_step_s:
+        step = min(dt, self.max_step_s)
+        self._debt_s = min(dt - step, self.max_debt_s)
+        if dt - step > self.max_debt_s:
             self.stats["capped_by_step"] += 1
-            self.stats["held_by_step_s"] += dt - self.max_step_s
+            self.stats["held_by_step_s"] += dt - step - self.max_debt_s
+        t = t0 + step
         limit = self.ack.value + self.slack_s
         if t > limit:
+            # Time the station withheld is not caught up later: the vehicles waited for it.
             self.stats["capped_by_ack"] += 1
-            self.stats["held_by_ack_s"] += t - max(limit, t0)
+            self.stats["held_by_ack_s"] += t - max(limit, t0) + self._debt_s
+            self._debt_s = 0.0
             t = limit
         if t > t0:
             self.sim.value = t

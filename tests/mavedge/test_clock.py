@@ -80,7 +80,14 @@ def test_real_clocks_given_one_anchor_read_one_time():
 def test_paced_clock_is_held_back_by_the_station_and_never_jumps():
     sim, ack, wall = _Value(), _Value(), _Wall()
     emu = PacedClock(
-        10.0, sim, ack, max_step_s=0.2, slack_s=0.5, time_fn=wall, unix_time_fn=lambda: UNIX_S
+        10.0,
+        sim,
+        ack,
+        max_step_s=0.2,
+        slack_s=0.5,
+        catch_up_wall_s=0.0,
+        time_fn=wall,
+        unix_time_fn=lambda: UNIX_S,
     )
     station = PacedReader(10.0, sim, ack, unix_time_fn=lambda: UNIX_S)
     assert emu.unix_time_at_zero_s == station.unix_time_at_zero_s == UNIX_S
@@ -106,6 +113,48 @@ def test_paced_clock_is_held_back_by_the_station_and_never_jumps():
     wall.t -= 5.0
     assert emu.advance() == pytest.approx(0.7)
     assert emu.wall_delay_s(1.0) == station.wall_delay_s(1.0) == pytest.approx(0.1)
+
+
+def test_paced_clock_catches_up_a_slow_iteration_but_not_a_stall():
+    # 10x, 0.1 s steps every 10 ms of wall time; the station keeps acknowledging.
+    sim, ack, wall = _Value(), _Value(), _Wall()
+    emu = PacedClock(
+        10.0, sim, ack, max_step_s=0.25, slack_s=0.25, catch_up_wall_s=0.1, time_fn=wall
+    )
+    assert emu.max_debt_s == pytest.approx(1.0)
+
+    def iteration(wall_s: float) -> float:
+        wall.t += wall_s
+        t = emu.advance()
+        ack.value = t  # a station that keeps up
+        return t
+
+    assert iteration(0.01) == pytest.approx(0.1)
+    # One 40 ms iteration (0.4 s of simulated time): one step of 0.25 s now, the rest (0.15 s)
+    # in the next iterations, each still at most max_step_s.
+    assert iteration(0.04) == pytest.approx(0.35)
+    assert iteration(0.001) == pytest.approx(0.51)
+    assert iteration(0.01) == pytest.approx(0.61)
+    assert emu.stats["held_by_step_s"] == 0.0
+    # A 10 s stall: 100 s of simulated time; 0.25 now, 1.0 caught up later, the rest lost.
+    assert iteration(10.0) == pytest.approx(0.86)
+    assert emu.stats["capped_by_step"] == 1
+    assert emu.stats["held_by_step_s"] == pytest.approx(100.0 - 0.25 - 1.0)
+    for _ in range(4):
+        iteration(0.0)
+    assert emu.now() == pytest.approx(0.86 + 1.0)
+    assert iteration(0.0) == pytest.approx(1.86)  # the debt is paid: no more steps
+    # Time the station withholds is not caught up: a silent station caps the clock at
+    # ack + slack, and what it held is counted there, debt included.
+    wall.t += 0.04
+    t = emu.advance()
+    assert t == pytest.approx(1.86 + 0.25)
+    ack_limit = ack.value + 0.25
+    wall.t += 0.04
+    assert emu.advance() == pytest.approx(ack_limit)
+    ack.value = emu.now()
+    assert iteration(0.0) == pytest.approx(ack_limit)  # nothing deferred
+    assert emu.stats["held_by_ack_s"] == pytest.approx(0.8 - 0.25)
 
 
 def test_paced_reader_acknowledges_only_forward():
