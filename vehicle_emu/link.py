@@ -209,6 +209,8 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         self._vel_target_s: float | None = None
         self._target_mask = 0b110111111000  # what POSITION_TARGET_* reports
         self._last_gcs_hb_s: float | None = None
+        self._gcs_fs_config = (False, 0.0)
+        self._gcs_fs_stamp = 0  # no table has stamp 0: read at the first check
         self.gcs_failsafe = False
         self.offboard_failsafe = False
 

@@ -199,14 +199,16 @@ class Personality:
     # -- failsafes ------------------------------------------------------------------------
 
     def guided_watchdog(self, now_s: float, behaviour: str) -> None:
-        """Per-tick check of the guided mode's input (velocity timeout, offboard signal)."""
+        """Per-tick check of the guided mode's input (velocity timeout, offboard signal); the
+        core calls it only while ``behaviour == 'guided'`` (it does nothing in other modes)."""
 
     def accepts_gcs_heartbeat(self, src_sysid: int) -> bool:
         """Whether a MAV_TYPE_GCS heartbeat from ``src_sysid`` keeps the link alive."""
         raise NotImplementedError
 
     def gcs_failsafe_config(self) -> tuple[bool, float]:
-        """(enabled, timeout_s) of the GCS-loss failsafe."""
+        """(enabled, timeout_s) of the GCS-loss failsafe: a function of ``core.params`` alone
+        (the core keeps it until the table's ``stamp`` changes)."""
         raise NotImplementedError
 
     def gcs_failsafe_action(self, now_s: float) -> str:
