@@ -127,6 +127,21 @@ class Radio:
         hops[idx] = depth[:k]
         return hops
 
+    def transit_many(self, indices: list[int]) -> list[float | None]:
+        """``[transit(i) for i in indices]``: the same fates, counters and random draws, in
+        order; without hop counts (no latency, no loss) one array lookup for all."""
+        if self._needs_hops:
+            return [self.transit(i) for i in indices]
+        if not indices:
+            return []
+        idx = np.asarray(indices, dtype=np.intp)
+        active = self.active
+        ok = np.zeros(len(idx), dtype=bool)
+        inside = idx < len(active)
+        ok[inside] = active[idx[inside]]
+        self.n_dropped_inactive += len(idx) - int(np.count_nonzero(ok))
+        return [0.0 if o else None for o in ok.tolist()]
+
     def transit(self, index: int) -> float | None:
         """Fate of one packet between vehicle ``index`` and the GCS (either direction).
 
