@@ -394,6 +394,8 @@ BATCHED_TYPES = {
     tm.M_VFR_HUD: (_M.MAVLink_vfr_hud_message, _vfr_hud),
 }
 
+_BATCHED_IDS = frozenset(BATCHED_TYPES)
+
 #: Beyond this a value is "absurd" for the vectorised integer paths (yaw in radians, speeds):
 #: such vehicles take the reference path, which handles any finite value.
 _SANE = 1e9
@@ -483,7 +485,7 @@ class BatchTelemetry:
                 continue
             streams = core.streams
             if sane is None:
-                sane = self._sane_rows()
+                sane = self._sane_rows().tolist()
             codec = core._codec
             if codec.signing_enabled or not sane[core.index]:
                 n0 = core.stats.messages_out
@@ -494,7 +496,7 @@ class BatchTelemetry:
             if not due:
                 continue
             out = core._out
-            if all(msg_id in batched for msg_id in due):
+            if _BATCHED_IDS.issuperset(due):
                 # Every frame packed below: a slot and a sequence number each, in due order
                 # (take_seq(n) reserves what n take_seq(1) would, one after the other).
                 slot = len(out)
@@ -555,9 +557,7 @@ class BatchTelemetry:
                 log.exception(
                     "batched %s failed; packing %d frames one by one", cls.msgname, len(cores)
                 )
-                frames = [
-                    self._one(core, msg_id, s, now_s) for core, s in zip(cores, seq_list)
-                ]
+                frames = [self._one(core, msg_id, s, now_s) for core, s in zip(cores, seq_list)]
             for core, slot, frame in zip(cores, slots, frames):
                 core._out[slot] = frame
                 st = core.stats
