@@ -17,6 +17,15 @@ Without ``--px4`` / ``--ardupilot`` the older form still works (``--vehicles N -
 with GLOBAL_POSITION_INT at ``--rate-hz``). ``--default-rates`` keeps each firmware's own
 streams (PX4: 17.5 messages/s, ArduPilot: HEARTBEAT only, vehicle_emu.personality).
 
+``--gcs-hb-hz`` / ``--setpoint-hz`` (tick measurement only) add a station's traffic: GCS
+HEARTBEATs per network and a global position setpoint per vehicle, the vehicles in their guided
+mode; ``--tick-s 0.1`` is the emulator tick at a 10x speed-up (mission/emulator_host.py). The
+``fingerprint`` hashes every datagram and event of the measured ticks: two code trees that
+behave the same print the same one (compare with ``PYTHONPATH=<tree>``).
+
+    PYTHONPATH=. .venv/bin/python bench/bench_emulator.py --vehicles 500 --no-realtime \
+        --telemetry batch --tick-s 0.1 --gcs-hb-hz 5 --setpoint-hz 2
+
 Measured 2026-12-02 (2 cores shared with firmware builds, load average 5.5-7, run under
 ``nice``; ``--duration-s 10 --ticks 100``), default rates, all vehicles flying:
 
