@@ -17,6 +17,15 @@ Without ``--px4`` / ``--ardupilot`` the older form still works (``--vehicles N -
 with GLOBAL_POSITION_INT at ``--rate-hz``). ``--default-rates`` keeps each firmware's own
 streams (PX4: 17.5 messages/s, ArduPilot: HEARTBEAT only, vehicle_emu.personality).
 
+``--gcs-hb-hz`` / ``--setpoint-hz`` (tick measurement only) add a station's traffic: GCS
+HEARTBEATs per network and a global position setpoint per vehicle, the vehicles in their guided
+mode; ``--tick-s 0.1`` is the emulator tick at a 10x speed-up (mission/emulator_host.py). The
+``fingerprint`` hashes every datagram and event of the measured ticks: two code trees that
+behave the same print the same one (compare with ``PYTHONPATH=<tree>``).
+
+    PYTHONPATH=. .venv/bin/python bench/bench_emulator.py --vehicles 500 --no-realtime \
+        --telemetry batch --tick-s 0.1 --gcs-hb-hz 5 --setpoint-hz 2
+
 Measured 2026-12-02 (2 cores shared with firmware builds, load average 5.5-7, run under
 ``nice``; ``--duration-s 10 --ticks 100``), default rates, all vehicles flying:
 
@@ -38,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import hashlib
 import json
 import multiprocessing as mp
 import socket
@@ -85,6 +95,59 @@ def _sink(port_q: mp.Queue, result_q: mp.Queue, duration_s: float) -> None:
     result_q.put((n, nbytes, frames))
 
 
+class _GcsTraffic:
+    """What a station sends (``--gcs-hb-hz``, ``--setpoint-hz``): a GCS HEARTBEAT broadcast on
+    every network and a SET_POSITION_TARGET_GLOBAL_INT (position, relative altitude) to every
+    vehicle, frames coalesced into datagrams per network as the station does; fed to
+    :meth:`Swarm.receive_datagram` before each tick (virtual clock only). Vehicles are switched
+    to their guided mode (GUIDED / OFFBOARD) after the first round of setpoints."""
+
+    def __init__(self, swarm: Swarm, hb_hz: float, sp_hz: float, rng) -> None:
+        from mavedge.codec import VehicleCodec, coalesce_datagrams
+        from mavedge.setpoints import position_target_global_int
+        from vehicle_emu.wire import dialect as mavlink
+
+        self.swarm, self.hb_hz, self.sp_hz = swarm, hb_hz, sp_hz
+        self._coalesce = coalesce_datagrams
+        codec = VehicleCodec(255, mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        hb = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+        )
+        self._hb = [codec.encode(hb) for _ in range(swarm.n_networks)]
+        lat0, lon0, _ = swarm.home_lla
+        off = rng.uniform(-0.003, 0.003, (swarm.n, 2))
+        self._sp = [
+            codec.encode(
+                position_target_global_int(
+                    target_system=int(swarm.sysid_of_index[i]),
+                    lat_deg=lat0 + off[i, 0],
+                    lon_deg=lon0 + off[i, 1],
+                    alt_m=20.0,
+                )
+            )
+            for i in range(swarm.n)
+        ]
+        self._next_hb_s = self._next_sp_s = -1.0
+
+    def send(self, t_s: float) -> None:
+        swarm = self.swarm
+        out = []
+        if self.hb_hz > 0 and t_s >= self._next_hb_s - 1e-9:
+            out += [(k, self._hb[k]) for k in range(swarm.n_networks)]
+            self._next_hb_s = t_s + 1.0 / self.hb_hz
+        if self.sp_hz > 0 and t_s >= self._next_sp_s - 1e-9:
+            net = swarm.network_of_index
+            out += [(int(net[i]), self._sp[i]) for i in range(swarm.n)]
+            self._next_sp_s = t_s + 1.0 / self.sp_hz
+        for endpoint, data in self._coalesce(out):
+            swarm.receive_datagram(endpoint, data, ("127.0.0.1", 14550), t_s)
+
+    def enter_guided(self, t_s: float) -> None:
+        for core in self.swarm.cores:
+            key = next(k for k, (_, beh) in core.pers.modes.items() if beh == "guided")
+            core._set_mode(key, t_s, "command")
+
+
 def _make_swarm(args, kind: str, sink_port: int | None) -> Swarm:
     rng = np.random.default_rng(0)
     if args.px4 or args.ardupilot:
@@ -106,6 +169,7 @@ def _make_swarm(args, kind: str, sink_port: int | None) -> Swarm:
         stream_rates_hz=rates,
         rng=rng,
         telemetry=kind,
+        **({"tick_s": args.tick_s} if args.tick_s else {}),
     )
     # Everyone airborne and flying to random points: physics and radio do real work.
     ph = swarm.physics
@@ -121,21 +185,34 @@ def _make_swarm(args, kind: str, sink_port: int | None) -> Swarm:
 def _tick_cpu(args, kind: str) -> dict:
     """CPU per tick on a virtual clock (no sockets): median of 5 blocks of ``--ticks`` / 5."""
     swarm = _make_swarm(args, kind, None)
+    gcs = None
+    if args.gcs_hb_hz > 0 or args.setpoint_hz > 0:
+        gcs = _GcsTraffic(swarm, args.gcs_hb_hz, args.setpoint_hz, np.random.default_rng(1))
+        gcs.send(0.0)
+        gcs.enter_guided(0.0)
     t = 0.0
     for _ in range(20):  # warm-up: every stream has fired once
         t = round(t + swarm.tick_s, 6)
+        if gcs is not None:
+            gcs.send(t)
         swarm.handle_timer(t)
         swarm.datagrams_to_send(t)
     blocks = []
+    digest = hashlib.sha1()  # what the vehicles said and did: equal across equivalent trees
     m0 = swarm.core_stats()["messages_out"]
     per = max(1, args.ticks // 5)
     for _ in range(5):
         c0 = time.process_time()
         for _ in range(per):
             t = round(t + swarm.tick_s, 6)
+            if gcs is not None:
+                gcs.send(t)
             swarm.handle_timer(t)
-            swarm.datagrams_to_send(t)
+            for endpoint, data, _ in swarm.datagrams_to_send(t):
+                digest.update(endpoint.to_bytes(4, "little") + data)
         blocks.append((time.process_time() - c0) / per)
+        while (e := swarm.next_event()) is not None:
+            digest.update(repr(e).encode())
     msgs = swarm.core_stats()["messages_out"] - m0
     sim_s = 5 * per * swarm.tick_s
     cpu_tick = float(np.median(blocks))
@@ -143,6 +220,7 @@ def _tick_cpu(args, kind: str) -> dict:
         "cpu_per_tick_ms": round(cpu_tick * 1e3, 2),
         "cpu_share_at_real_time": round(cpu_tick / swarm.tick_s, 3),
         "messages_per_sim_s": round(msgs / sim_s),
+        "fingerprint": digest.hexdigest()[:16],
     }
 
 
@@ -244,6 +322,13 @@ def main() -> None:
     p.add_argument("--per-vehicle-ports", action="store_true", help="SITL-style, one socket each")
     p.add_argument("--radio-range-m", type=float, default=100.0)
     p.add_argument("--telemetry", choices=("both", "batch", "reference"), default="both")
+    p.add_argument("--tick-s", type=float, default=None, help="swarm tick (default TICK_S)")
+    p.add_argument(
+        "--gcs-hb-hz", type=float, default=0.0, help="tick: GCS HEARTBEATs per network and s"
+    )
+    p.add_argument(
+        "--setpoint-hz", type=float, default=0.0, help="tick: global setpoints per vehicle and s"
+    )
     p.add_argument("--no-realtime", action="store_true", help="only the virtual-clock tick cost")
     args = p.parse_args()
     if args.px4 or args.ardupilot:

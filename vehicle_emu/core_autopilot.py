@@ -27,7 +27,12 @@ class AutopilotRules(CoreState):
     # -- timers (before the physics step) ----------------------------------------------------------
 
     def update_autopilot(self, now_s: float) -> None:
-        """Mode state machines, timeouts and failsafes, before the physics step."""
+        """Mode state machines, timeouts and failsafes, before the physics step.
+
+        Called for every vehicle on every tick, and most ticks find nothing to do: each check
+        below reads the state it needs first and writes only what changes (a write of the value
+        already there is skipped), with the outcome of the straightforward sequence of checks.
+        """
         if not self.alive:
             return
         ph, i = self.physics, self.index
@@ -42,9 +47,9 @@ class AutopilotRules(CoreState):
             delay = self.pers.auto_disarm_delay_s()
             if delay > 0 and now_s - self._landed_armed_since_s >= delay:
                 self._disarm(now_s, "auto_disarm")
-        else:
+        elif self._landed_armed_since_s is not None:
             self._landed_armed_since_s = None
-        if self.armed and not landed:
+        if not landed and self.armed:
             self._has_taken_off = True
 
         beh = self._behaviour
@@ -56,18 +61,28 @@ class AutopilotRules(CoreState):
             elif not self.armed:
                 self._takeoff_target_down_m = None
 
-        if beh == "rtl":
+        if beh == "guided":
+            # ArduPilot GUID_TIMEOUT on velocity targets; PX4 offboard signal loss.
+            self.pers.guided_watchdog(now_s, beh)
+        elif beh == "rtl":
             self._run_rtl(now_s)
         elif beh == "land":
             if landed and self.armed:
                 # ArduCopter land mode disarms on touchdown; PX4 AUTO.LAND likewise.
                 self._disarm(now_s, "landed")
 
-        # ArduPilot GUID_TIMEOUT on velocity targets; PX4 offboard signal loss.
-        self.pers.guided_watchdog(now_s, beh)
-
         self._missions.update(now_s)
-        self._check_gcs_link(now_s)
+        if self._last_gcs_hb_s is not None:
+            self._check_gcs_link(now_s)
+
+    def _gcs_failsafe_config(self) -> tuple[bool, float]:
+        """``pers.gcs_failsafe_config()``, kept until the parameter table changes (its stamp:
+        any PARAM_SET, any ``params.set``, another table)."""
+        stamp = self.params.stamp
+        if self._gcs_fs_stamp != stamp:
+            self._gcs_fs_config = self.pers.gcs_failsafe_config()
+            self._gcs_fs_stamp = stamp
+        return self._gcs_fs_config
 
     def _check_gcs_link(self, now_s: float) -> None:
         """GCS failsafe.
@@ -81,7 +96,7 @@ class AutopilotRules(CoreState):
         last = self._last_gcs_hb_s
         if last is None:
             return
-        enabled, timeout = self.pers.gcs_failsafe_config()
+        enabled, timeout = self._gcs_failsafe_config()
         if not enabled:
             self.gcs_failsafe = False
             return

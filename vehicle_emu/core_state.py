@@ -145,6 +145,9 @@ class CoreState:
     _vel_target_s: float | None
     _target_mask: int
     _last_gcs_hb_s: float | None
+    _gcs_fs_config: tuple[bool, float]
+    """``pers.gcs_failsafe_config()`` as of the parameter table's ``_gcs_fs_stamp``."""
+    _gcs_fs_stamp: int
     gcs_failsafe: bool
     offboard_failsafe: bool
     streams: tm.StreamScheduler

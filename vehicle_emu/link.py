@@ -209,6 +209,8 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         self._vel_target_s: float | None = None
         self._target_mask = 0b110111111000  # what POSITION_TARGET_* reports
         self._last_gcs_hb_s: float | None = None
+        self._gcs_fs_config = (False, 0.0)
+        self._gcs_fs_stamp = 0  # no table has stamp 0: read at the first check
         self.gcs_failsafe = False
         self.offboard_failsafe = False
 
@@ -278,6 +280,15 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         if not self.alive:
             st.dropped_dead += 1
             return
+        if res.n_bad or res.n_unknown or res.n_truncated_bytes or res.n_signature_rejected:
+            self._count_decode_faults(res, addr, now_s)
+        for msg in res.messages:
+            self.receive_message(msg, addr, now_s)
+
+    def _count_decode_faults(self, res: wire.DecodeResult, addr, now_s: float) -> None:
+        """The stats and rate-limited warnings of a datagram with bad, unknown, truncated or
+        unsigned frames (:meth:`receive_decoded`)."""
+        st = self.stats
         st.bad_data += res.n_bad
         st.unknown_msg_ids += res.n_unknown
         st.truncated_bytes += res.n_truncated_bytes
@@ -305,8 +316,6 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
                 st.bad_data,
                 st.unknown_msg_ids,
             )
-        for msg in res.messages:
-            self.receive_message(msg, addr, now_s)
 
     def receive_message(self, msg, addr, now_s: float) -> None:
         """Handle one decoded message (used by :meth:`receive_datagram`)."""

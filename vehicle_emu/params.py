@@ -20,6 +20,7 @@ Every default can be overridden per vehicle (``Swarm(params=...)`` or PARAM_SET 
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 from .wire import dialect
@@ -105,6 +106,10 @@ def defaults_for(personality: str) -> tuple[ParamSpec, ...]:
     raise ValueError(f"personality must be 'ardupilot' or 'px4', got {personality!r}")
 
 
+#: Stamps of table contents, unique across every table of the process (see ParamTable.stamp).
+_STAMPS = itertools.count(1)
+
+
 class ParamTable:
     """Ordered parameter table with typed values (integer ones held in their range).
 
@@ -123,6 +128,9 @@ class ParamTable:
             if name not in self._specs:
                 raise KeyError(f"unknown parameter {name!r}; valid: {', '.join(self._names)}")
             self._values[name] = self._coerce(self._specs[name], float(value))
+        self.stamp = next(_STAMPS)
+        """Changes on every :meth:`set`, and differs from any other table's: a value derived
+        from the table (the core's GCS failsafe config) is still valid while this is equal."""
 
     @staticmethod
     def _coerce(spec: ParamSpec, value: float) -> float:
@@ -161,4 +169,5 @@ class ParamTable:
         """Set (integer types rounded and held in their range); return the stored value."""
         stored = self._coerce(self._specs[name], float(value))
         self._values[name] = stored
+        self.stamp = next(_STAMPS)
         return stored

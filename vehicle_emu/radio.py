@@ -68,7 +68,10 @@ class Radio:
     """
 
     def __init__(self, config: RadioConfig, base_ned_m, rng: np.random.Generator) -> None:
-        self.config = config
+        self._config = config
+        #: Hop counts are kept (latency or loss per hop); without them a packet's fate is
+        #: just ``active`` (config is fixed at construction, so is this).
+        self._needs_hops = config.latency_per_hop_s > 0 or config.loss_per_hop > 0
         self.base_ned_m = np.asarray(base_ned_m, dtype=float)
         self.rng = rng
         self.active = np.zeros(0, dtype=bool)
@@ -79,8 +82,9 @@ class Radio:
         self.n_dropped_loss = 0
 
     @property
-    def _needs_hops(self) -> bool:
-        return self.config.latency_per_hop_s > 0 or self.config.loss_per_hop > 0
+    def config(self) -> RadioConfig:
+        """The radio model (fixed at construction)."""
+        return self._config
 
     def update(self, pos_ned_m: np.ndarray, alive: np.ndarray) -> np.ndarray:
         """Recompute ``active`` (and hop counts) from positions and the alive mask."""
@@ -122,6 +126,21 @@ class Radio:
             depth[node] = depth[pred[node]] + 1
         hops[idx] = depth[:k]
         return hops
+
+    def transit_many(self, indices: list[int]) -> list[float | None]:
+        """``[transit(i) for i in indices]``: the same fates, counters and random draws, in
+        order; without hop counts (no latency, no loss) one array lookup for all."""
+        if self._needs_hops:
+            return [self.transit(i) for i in indices]
+        if not indices:
+            return []
+        idx = np.asarray(indices, dtype=np.intp)
+        active = self.active
+        ok = np.zeros(len(idx), dtype=bool)
+        inside = idx < len(active)
+        ok[inside] = active[idx[inside]]
+        self.n_dropped_inactive += len(idx) - int(np.count_nonzero(ok))
+        return [0.0 if o else None for o in ok.tolist()]
 
     def transit(self, index: int) -> float | None:
         """Fate of one packet between vehicle ``index`` and the GCS (either direction).

@@ -463,19 +463,20 @@ class Swarm:
         radio, the dead and delayed delivery as in :meth:`_radio_to_vehicle`, in member order."""
         shared = None
         cores = self.cores
-        radio = self.radio
-        for i in self._members[endpoint]:
+        members = self._members[endpoint]
+        # Who is alive and what the radio does to each, first: delivering a frame to one core
+        # changes neither another's life nor the radio (Radio.transit_many: the same fates as
+        # one transit per member, in member order).
+        alive = [i for i in members if cores[i].alive]
+        self.stats["dropped_dead"] += len(members) - len(alive)
+        for i, delay in zip(alive, self.radio.transit_many(alive)):
             core = cores[i]
-            if not core.alive:
-                self.stats["dropped_dead"] += 1
-                continue
-            delay = radio.transit(i)
             if delay is None:
                 self.stats["dropped_radio_in"] += 1
                 continue
             if delay > 0:
                 self._push_delayed(now_s + delay, ("in", i, frame, addr))
-            elif core.signing_enabled:
+            elif core._codec.signing_enabled:
                 core.receive_datagram(frame, addr, now_s)
             else:
                 if shared is None:

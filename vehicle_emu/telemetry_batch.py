@@ -394,6 +394,8 @@ BATCHED_TYPES = {
     tm.M_VFR_HUD: (_M.MAVLink_vfr_hud_message, _vfr_hud),
 }
 
+_BATCHED_IDS = frozenset(BATCHED_TYPES)
+
 #: Beyond this a value is "absurd" for the vectorised integer paths (yaw in radians, speeds):
 #: such vehicles take the reference path, which handles any finite value.
 _SANE = 1e9
@@ -471,7 +473,8 @@ class BatchTelemetry:
     def emit(self, now_s: float) -> None:
         """Everything due at ``now_s``, for every live core (their ``emit_telemetry``)."""
         sane = None
-        jobs: dict[int, list] = {}
+        #: msg id -> (cores, rows, output slots, sequence numbers), in reservation order.
+        jobs: dict[int, tuple[list, list, list, list]] = {}
         batched = BATCHED_TYPES
         builders = tm.BUILDERS
         cores_all = self.cores
@@ -482,20 +485,46 @@ class BatchTelemetry:
                 continue
             streams = core.streams
             if sane is None:
-                sane = self._sane_rows()
+                sane = self._sane_rows().tolist()
             codec = core._codec
             if codec.signing_enabled or not sane[core.index]:
                 n0 = core.stats.messages_out
                 core.emit_telemetry(now_s)
                 self.n_reference += core.stats.messages_out - n0
                 continue
+            due = streams.due(now_s)
+            if not due:
+                continue
             out = core._out
-            for msg_id in streams.due(now_s):
+            if _BATCHED_IDS.issuperset(due):
+                # Every frame packed below: a slot and a sequence number each, in due order
+                # (take_seq(n) reserves what n take_seq(1) would, one after the other).
+                slot = len(out)
+                seq = codec.take_seq(len(due))
+                row = core.index
+                for msg_id in due:
+                    job = jobs.get(msg_id)
+                    if job is None:
+                        job = jobs[msg_id] = ([], [], [], [])
+                    job[0].append(core)
+                    job[1].append(row)
+                    job[2].append(slot)
+                    job[3].append(seq)
+                    slot += 1
+                    seq = (seq + 1) & 0xFF
+                out.extend([None] * len(due))
+                if core._out_dirty is not None:
+                    core._out_dirty.add(row)
+                continue
+            for msg_id in due:
                 if msg_id in batched:
                     job = jobs.get(msg_id)
                     if job is None:
-                        job = jobs[msg_id] = []
-                    job.append((core, len(out), codec.take_seq(1)))
+                        job = jobs[msg_id] = ([], [], [], [])
+                    job[0].append(core)
+                    job[1].append(core.index)
+                    job[2].append(len(out))
+                    job[3].append(codec.take_seq(1))
                     out.append(None)
                     if core._out_dirty is not None:
                         core._out_dirty.add(core.index)
@@ -512,11 +541,10 @@ class BatchTelemetry:
                         msg_id,
                         exc_info=True,
                     )
-        for msg_id, job in jobs.items():
+        for msg_id, (cores, row_list, slots, seq_list) in jobs.items():
             cls, fields_fn = batched[msg_id]
-            cores = [j[0] for j in job]
-            rows = np.fromiter((c.index for c in cores), dtype=np.intp, count=len(cores))
-            seq = np.fromiter((j[2] for j in job), dtype=np.int64, count=len(job))
+            rows = np.array(row_list, dtype=np.intp)
+            seq = np.array(seq_list, dtype=np.int64)
             try:
                 frames = pack_frames(
                     cls,
@@ -527,10 +555,10 @@ class BatchTelemetry:
                 )
             except Exception:  # noqa: BLE001 - never lose a tick: pack these the slow way
                 log.exception(
-                    "batched %s failed; packing %d frames one by one", cls.msgname, len(job)
+                    "batched %s failed; packing %d frames one by one", cls.msgname, len(cores)
                 )
-                frames = [self._one(core, msg_id, s, now_s) for core, _, s in job]
-            for (core, slot, _), frame in zip(job, frames):
+                frames = [self._one(core, msg_id, s, now_s) for core, s in zip(cores, seq_list)]
+            for core, slot, frame in zip(cores, slots, frames):
                 core._out[slot] = frame
                 st = core.stats
                 st.messages_out += 1

@@ -380,3 +380,36 @@ def test_guided_again_during_the_takeoff_climb_changes_nothing(gcs):
     assert not any(type(e).__name__ == "ModeChanged" for e in rig.events())
     rig.run(rig.t + 10.0 / 2.5 + 4, hb_period_s=1.0)
     assert rig.core.local_pos_ned_m[2] == pytest.approx(-10.0, abs=0.2)
+
+
+def _param_set(gcs, name: bytes, value: float, ptype: int) -> bytes:
+    return gcs.frame(mavlink.MAVLink_param_set_message(1, 1, name, value, ptype))
+
+
+def test_param_set_of_the_gcs_failsafe_takes_effect_at_once(gcs):
+    """The core keeps ``gcs_failsafe_config`` between parameter changes: a PARAM_SET of
+    FS_GCS_TIMEOUT / FS_GCS_ENABLE (or a local ``params.set``) must be seen on the next check."""
+    rig = Rig(gcs)
+    rig.run(1.0, hb_period_s=1.0)
+    rig.guided_armed_at(10.0)
+    rig.run(rig.t + 1.0, hb_period_s=1.0)
+    rig.events()
+    t_hb = rig.last_hb_t
+    rig.run(t_hb + 3.0)  # 3 s of silence: within the default 5 s
+    assert not rig.core.gcs_failsafe
+    rig.send(_param_set(gcs, b"FS_GCS_TIMEOUT", 2.0, mavlink.MAV_PARAM_TYPE_REAL32))
+    rig.run(rig.t + 0.05)  # the next tick sees the 2 s timeout
+    assert rig.core.gcs_failsafe and rig.core.mode_name == "RTL"
+    # disabled: the failsafe flag drops at the next check (the mode stays)
+    rig.send(_param_set(gcs, b"FS_GCS_ENABLE", 0, mavlink.MAV_PARAM_TYPE_INT8))
+    rig.run(rig.t + 0.05)
+    assert not rig.core.gcs_failsafe
+    # a local change of the table counts as well
+    rig.core.params.set("FS_GCS_ENABLE", 1)
+    rig.run(rig.t + 0.05)
+    assert rig.core.gcs_failsafe
+    rig.core.params.set("FS_GCS_TIMEOUT", 100.0)
+    rig.run(rig.t + 0.05)
+    assert not rig.core.gcs_failsafe  # not lost any more under a 100 s timeout
+    kinds = [type(e).__name__ for e in rig.events()]
+    assert kinds.count("FailsafeTriggered") == 2 and kinds.count("GcsLinkRegained") == 1

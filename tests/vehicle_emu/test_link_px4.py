@@ -1,5 +1,7 @@
 """PX4 personality: packed custom_mode, unpacked DO_SET_MODE, offboard engage/loss, data link."""
 
+import struct
+
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -269,3 +271,39 @@ def test_px4_global_targets_only_in_int_frames(gcs, frame, flown):
     else:
         assert rig.core.stats.setpoints_ignored == ignored + 60
         assert abs(rig.core.local_pos_ned_m[0]) < 1.0  # holding; the stream then counts as lost
+
+
+def test_param_set_of_com_dl_loss_t_takes_effect_at_once(gcs):
+    """The core keeps ``gcs_failsafe_config`` between parameter changes: PARAM_SET of
+    COM_DL_LOSS_T / NAV_DLL_ACT is seen at the next check."""
+    rig = Rig(gcs)
+    rig.run(2.0)
+    t0 = rig.t
+    rig.run(t0 + 6.0, hb=False)  # 6 s of silence: within the default 10 s
+    assert not rig.core.gcs_failsafe
+    i32 = mavlink.MAV_PARAM_TYPE_INT32
+    as_f = lambda v: struct.unpack("<f", struct.pack("<i", v))[0]  # noqa: E731 (bytewise)
+    rig.send(gcs.frame(mavlink.MAVLink_param_set_message(1, 1, b"NAV_DLL_ACT", as_f(0), i32)))
+    rig.send(gcs.frame(mavlink.MAVLink_param_set_message(1, 1, b"COM_DL_LOSS_T", as_f(5), i32)))
+    rig.run(rig.t + 0.05, hb=False)
+    assert not rig.core.gcs_failsafe  # NAV_DLL_ACT = 0: disabled
+    rig.send(gcs.frame(mavlink.MAVLink_param_set_message(1, 1, b"NAV_DLL_ACT", as_f(2), i32)))
+    rig.run(rig.t + 0.05, hb=False)
+    assert rig.core.gcs_failsafe
+
+
+def test_f32_norm_overflow_fast_check_matches_the_float32_reference():
+    """personality.px4._f32_norm_overflows (Python floats below 1e18) against the float32
+    arithmetic it stands for, on magnitudes from metres to beyond FLT_MAX, NaN and inf."""
+    from vehicle_emu.personality.px4 import _f32_norm_overflows, _f32_norm_overflows_ref
+
+    rng = np.random.default_rng(3)
+    exps = rng.uniform(-3, 40, (4000, 2))
+    vals = np.sign(rng.uniform(-1, 1, (4000, 2))) * 10.0**exps
+    vals[::97, 0] = np.nan
+    vals[::89, 1] = np.inf
+    edge = [(1e18, 1e18), (1.3e19, 1.3e19), (1.9e19, 0.0), (-1.8e19, 1e3), (3.5e38, 0.0)]
+    cases = [tuple(v) for v in vals.tolist()] + edge
+    got = [_f32_norm_overflows(v) for v in cases]
+    assert got == [_f32_norm_overflows_ref(v) for v in cases]
+    assert any(got) and not all(got)

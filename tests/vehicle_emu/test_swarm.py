@@ -284,3 +284,35 @@ def test_cores_with_output_are_always_marked():
         swarm.datagrams_to_send(t)
         assert not any(c._out for c in swarm.cores if c.alive)
     assert marked > 50
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        RadioConfig(radio_range_m=60.0),
+        RadioConfig(radio_range_m=60.0, latency_per_hop_s=0.01),
+        RadioConfig(radio_range_m=60.0, loss_per_hop=0.3),
+        RadioConfig(),
+    ],
+)
+def test_radio_transit_many_is_transit_per_index(cfg):
+    """Radio.transit_many (one array lookup without hop counts) against transit in a loop: the
+    same fates, counters and random draws, indices out of range included."""
+    from vehicle_emu.radio import Radio
+
+    rng = np.random.default_rng(5)
+    pos = rng.uniform(-150, 150, (40, 3))
+    alive = rng.random(40) > 0.2
+    fast = Radio(cfg, np.zeros(3), np.random.default_rng(9))
+    slow = Radio(cfg, np.zeros(3), np.random.default_rng(9))
+    fast.update(pos, alive)
+    slow.update(pos, alive)
+    for _ in range(3):
+        idx = rng.integers(0, 45, 30).tolist()
+        assert fast.transit_many(idx) == [slow.transit(i) for i in idx]
+        assert (fast.n_dropped_inactive, fast.n_dropped_loss) == (
+            slow.n_dropped_inactive,
+            slow.n_dropped_loss,
+        )
+    assert fast.transit_many([]) == []
+    assert 0 < slow.n_dropped_inactive

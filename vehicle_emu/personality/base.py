@@ -16,7 +16,7 @@ from mavedge import mavlink
 from mavedge.units import deg_to_e7, e7_to_deg
 from planner.geometry import geodetic_to_ned_m
 
-from ..geodesy import ned_origin
+from ..geodesy import NedOrigin, ned_origin
 
 #: AUTOPILOT_VERSION.capabilities both firmwares announce and the emulator implements (each
 #: personality adds its parameter encoding); FTP, SET_ATTITUDE_TARGET, FLIGHT_TERMINATION,
@@ -138,6 +138,9 @@ class Personality:
 
     def __init__(self, core) -> None:
         self.core = core
+        self._ned_origin_of: tuple | None = None
+        """The ``physics.origin_lla`` tuple :attr:`_ned_origin` was made for."""
+        self._ned_origin: NedOrigin | None = None
 
     # -- modes ----------------------------------------------------------------------------
 
@@ -199,14 +202,16 @@ class Personality:
     # -- failsafes ------------------------------------------------------------------------
 
     def guided_watchdog(self, now_s: float, behaviour: str) -> None:
-        """Per-tick check of the guided mode's input (velocity timeout, offboard signal)."""
+        """Per-tick check of the guided mode's input (velocity timeout, offboard signal); the
+        core calls it only while ``behaviour == 'guided'`` (it does nothing in other modes)."""
 
     def accepts_gcs_heartbeat(self, src_sysid: int) -> bool:
         """Whether a MAV_TYPE_GCS heartbeat from ``src_sysid`` keeps the link alive."""
         raise NotImplementedError
 
     def gcs_failsafe_config(self) -> tuple[bool, float]:
-        """(enabled, timeout_s) of the GCS-loss failsafe."""
+        """(enabled, timeout_s) of the GCS-loss failsafe: a function of ``core.params`` alone
+        (the core keeps it until the table's ``stamp`` changes)."""
         raise NotImplementedError
 
     def gcs_failsafe_action(self, now_s: float) -> str:
@@ -281,7 +286,12 @@ class Personality:
             if pos is not None:
                 return pos
         # geodetic_to_ned_m to the bit, without its per-call origin work (vehicle_emu/geodesy.py)
-        return ned_origin(*core.physics.origin_lla).ned_m(lat_deg, lon_deg, alt_amsl)
+        origin_lla = core.physics.origin_lla
+        nedo = self._ned_origin
+        if nedo is None or origin_lla is not self._ned_origin_of:
+            nedo = self._ned_origin = ned_origin(*origin_lla)
+            self._ned_origin_of = origin_lla
+        return nedo.ned_m(lat_deg, lon_deg, alt_amsl)
 
     def home_e7(self) -> tuple[int, int]:
         return deg_to_e7(self.core.home_lla[0]), deg_to_e7(self.core.home_lla[1])

@@ -98,7 +98,23 @@ _PX4_RALLY_NEAR_HOME_M = 10.0
 _PX4_RALLY_MIN_DIST_M = 2.0
 
 
+#: Below this in every component a float32 norm of two or three components is finite:
+#: (1e18 (1 + 2**-24))**2 * 3 < FLT_MAX (3.4e38).
+_F32_NORM_SAFE = 1e18
+
+
 def _f32_norm_overflows(vec) -> bool:
+    """True when the float32 Euclidean norm of ``vec`` (2 or 3 components) is infinite (x*x
+    overflows, or a component is not finite); Python floats for the usual small offsets, the
+    float32 arithmetic (:func:`_f32_norm_overflows_ref`) otherwise."""
+    safe = _F32_NORM_SAFE
+    for c in vec:
+        if not abs(c) < safe:  # NaN too
+            return _f32_norm_overflows_ref(vec)
+    return False
+
+
+def _f32_norm_overflows_ref(vec) -> bool:
     """True when the float32 Euclidean norm of ``vec`` is infinite (x*x overflows)."""
     with np.errstate(over="ignore"):
         v = np.asarray(vec, dtype=np.float64).astype(np.float32)
@@ -349,7 +365,8 @@ class PX4(Personality):
 
     def limit_target_position(self, pos):
         ph, i = self.core.physics, self.core.index
-        if _f32_norm_overflows(pos[:2] - ph.pos_ned_m[i, :2]):
+        cur = ph.pos_ned_m[i]
+        if _f32_norm_overflows((float(pos[0]) - float(cur[0]), float(pos[1]) - float(cur[1]))):
             # PX4 mc_pos_control PositionControl::_positionControl: the horizontal velocity
             # setpoint is ControlMath::constrainXY(vel_sp_position.xy(), ..., lim), which for
             # ``v0.length() >= max`` returns ``v0.normalized() * max``; a float32 error whose
