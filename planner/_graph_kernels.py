@@ -80,6 +80,11 @@ def _mst_prim(
     in_tree = np.zeros(n_nodes, dtype=np.bool_)
     key_w = np.full(n_nodes, np.inf)
     key_e = np.full(n_nodes, -1, dtype=np.int64)
+    # The frontier: vertices outside the tree with an edge into it (key_e >= 0), unordered, and
+    # each one's slot in it; the next vertex is searched there only, not among all n.
+    front = np.empty(n_nodes, dtype=np.int64)
+    slot = np.full(n_nodes, -1, dtype=np.int64)
+    n_front = 0
     out = np.empty(max(n_nodes - 1, 0), dtype=np.int64)
     m = 0
     for root in range(n_nodes):
@@ -91,21 +96,29 @@ def _mst_prim(
             if key_e[v] >= 0:
                 out[m] = key_e[v]
                 m += 1
+                last = front[n_front - 1]  # swap-remove v from the frontier
+                front[slot[v]] = last
+                slot[last] = slot[v]
+                n_front -= 1
             for q in range(deg[v], deg[v + 1]):
                 u = adj_v[q]
                 if in_tree[u]:
                     continue
                 e = adj_e[q]
+                if key_e[u] < 0:
+                    front[n_front] = u
+                    slot[u] = n_front
+                    n_front += 1
                 if w[e] < key_w[u] or (w[e] == key_w[u] and (key_e[u] < 0 or e < key_e[u])):
                     key_w[u] = w[e]
                     key_e[u] = e
-            # the next vertex: the lightest edge (weight, then index) into the tree
+            # the next vertex: the lightest edge (weight, then index) into the tree; the keys of
+            # distinct frontier vertices are distinct edges, so the scan order does not matter
             v = -1
             bw = np.inf
             be = -1
-            for u in range(n_nodes):
-                if in_tree[u] or key_e[u] < 0:
-                    continue
+            for f in range(n_front):
+                u = front[f]
                 if key_w[u] < bw or (key_w[u] == bw and key_e[u] < be) or be < 0:
                     bw = key_w[u]
                     be = key_e[u]
@@ -128,7 +141,9 @@ def mst_prim(n_nodes: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray
     Under a strict total order the minimum spanning forest is unique, so this is exactly the edge
     set of :func:`planner.mccst.spanning_tree_edges`'s reference path (weights replaced by their
     ranks, ties by index, then scipy's ``minimum_spanning_tree``). Prim's algorithm on a CSR
-    adjacency with an O(n) scan for the next vertex: O(n^2 + E), no sort of the E weights.
+    adjacency with a scan of the frontier (the vertices with an edge into the tree) for the next
+    vertex: O(n^2 + E) at worst, no sort of the E weights. (A binary heap in place of the scan was
+    ~1.6x slower on the XL ticks: keys improve often, so it pushes ~E entries.)
     """
     if not (_kernels.NUMBA and _kernels.ENABLED) or n_nodes > MST_PRIM_MAX_NODES:
         return None
@@ -262,10 +277,13 @@ def _knn_pairs(
     cx, cy, head, members = _grid_buckets(x, y, cell, x0, y0, nx, ny)
     best_d = np.empty(k)
     best_j = np.empty(k, dtype=np.int64)
+    near_d = np.empty(n)  # every drone strictly within reach of i, for the tie check
+    near_j = np.empty(n, dtype=np.int64)
     keys = np.empty(n * k, dtype=np.int64)
     m = 0
     for i in range(n):
         nb = 0
+        n_near = 0
         for ax in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
             for ay in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
                 c = ax * ny + ay
@@ -276,8 +294,15 @@ def _knn_pairs(
                     dx = x[i] - x[j]
                     dy = y[i] - y[j]
                     d = math.sqrt(dx * dx + dy * dy)
+                    # A distance within rounding of ``reach``: the KD-tree reference's
+                    # squared-distance test decides; report it, the caller falls back.
+                    if abs(d - reach) <= 1e-9 * reach:
+                        return False, keys[:0]
                     if not d < reach:
                         continue
+                    near_d[n_near] = d
+                    near_j[n_near] = j
+                    n_near += 1
                     # insert (d, j) into the sorted list of the k best, order (distance, index)
                     if nb == k and not (
                         d < best_d[k - 1] or (d == best_d[k - 1] and j < best_j[k - 1])
@@ -295,23 +320,14 @@ def _knn_pairs(
                     best_j[p] = j
                     if nb < k:
                         nb += 1
-        # A tie at the k-th distance (or a distance within rounding of ``reach``) is broken by
-        # whatever order the KD-tree reference visits points in: report it, the caller falls back.
-        kth = best_d[k - 1] if nb == k else -1.0
-        for ax in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
-            for ay in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
-                c = ax * ny + ay
-                for q in range(head[c], head[c + 1]):
-                    j = members[q]
-                    if j == i:
-                        continue
-                    dx = x[i] - x[j]
-                    dy = y[i] - y[j]
-                    d = math.sqrt(dx * dx + dy * dy)
-                    if abs(d - reach) <= 1e-9 * reach:
-                        return False, keys[:0]
-                    if d == kth and not _in(best_j, nb, j):
-                        return False, keys[:0]
+        # A tie at the k-th distance is broken by whatever order the KD-tree reference visits
+        # points in: report it, the caller falls back. Such a drone is within reach (the k-th
+        # distance is), so the drones recorded in the pass above are all there is to check.
+        if nb == k:
+            kth = best_d[k - 1]
+            for q in range(n_near):
+                if near_d[q] == kth and not _in(best_j, nb, near_j[q]):
+                    return False, keys[:0]
         for q in range(nb):
             j = best_j[q]
             keys[m] = min(i, j) * n + max(i, j)

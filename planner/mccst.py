@@ -487,6 +487,25 @@ def _class_k(h: np.ndarray, params: MccstParams) -> np.ndarray:
     return params.alpha * h if params.discrete_time else params.gamma * h**3
 
 
+def _capped_class_k(h: np.ndarray, cap: np.ndarray, params: MccstParams) -> np.ndarray:
+    """``np.minimum(_class_k(h, params), cap)`` (cap > 0), with the class-K function evaluated only
+    where it may be below the cap.
+
+    NumPy's float power (gamma h^3) costs ~25 ns an element; a row whose cheap estimate
+    gamma (h h h) exceeds the cap by a relative 1e-9 (far beyond the few ulps between the two) is
+    capped whatever the exact value. The power is elementwise, so evaluating it on a subset gives
+    the same bits (tests/planner/test_mccst.py::test_capped_class_k_is_the_plain_minimum).
+    """
+    if params.discrete_time:
+        return np.minimum(_class_k(h, params), cap)
+    with np.errstate(over="ignore", invalid="ignore"):
+        surely_capped = params.gamma * (h * h * h) > cap * (1.0 + 1e-9)  # NaN: not surely
+    need = np.flatnonzero(~surely_capped)
+    out = np.array(cap, dtype=float, copy=True)
+    out[need] = np.minimum(_class_k(h[need], params), cap[need])
+    return out
+
+
 def edge_slack(
     x: np.ndarray,
     u_hat: np.ndarray,
@@ -672,17 +691,12 @@ def solve_cbf_qp(
     d2 = np.einsum("ek,ek->e", diff, diff)
     sign = np.concatenate([np.ones(n_tree), -np.ones(n_col)])
     coef = 2.0 * sign[:, None] * diff  # (rows, 2)
-    rhs = np.concatenate(
-        [
-            _class_k(r_c**2 - d2[:n_tree], params),
-            _class_k(d2[n_tree:] - params.safety_radius**2, params),
-        ]
-    )
+    h = np.concatenate([r_c**2 - d2[:n_tree], d2[n_tree:] - params.safety_radius**2])
     # Under the box |u_ik| <= box a row's left side never exceeds sum |coef| * box, so capping the
     # right side there leaves the feasible set unchanged; it keeps inactive rows (gamma h^3 of a
     # short edge reaches ~30) from inflating OSQP's relative tolerance, which scales with |Ax|.
     reach = box * np.abs(coef).sum(axis=1) * np.where(j < n, 2.0, 1.0)
-    rhs = np.minimum(rhs, reach + 1e-3)
+    rhs = _capped_class_k(h, reach + 1e-3, params)
     slack_rows = np.flatnonzero(rhs < 0)  # violated barriers only
     slack_is_tree = slack_rows < n_tree
     if params.solver == "piqp":
@@ -742,7 +756,7 @@ def _qp_objective(
     penalty = np.where(slack_tree, params.slack_penalty, params.collision_slack_penalty)
     p_diag = np.concatenate([np.full(n_u, 2.0), 2.0 * penalty])
     diag_idx = np.arange(n_var + 1, dtype=np.int32)
-    p_mat = csc_matrix((p_diag, diag_idx[:-1], diag_idx), shape=(n_var, n_var))
+    p_mat = _csc(p_diag, diag_idx[:-1], diag_idx, (n_var, n_var))
     return p_mat, np.concatenate([-2.0 * u_hat.ravel(), np.zeros(n_slack)])
 
 
@@ -781,7 +795,7 @@ def _solve_piqp(
     rows = np.flatnonzero(keep)
     new_row = np.cumsum(keep) - 1  # a kept row's index among the kept ones
     # The barrier rows of OSQP's matrix over the kept rows (its identity rows are PIQP's bounds).
-    g_mat = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n)[: len(rows)]
+    g_mat = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n, False)
     p_mat, q_vec = _qp_objective(u_hat, slack_tree, params)
     x_lo = np.concatenate([np.full(n_u, -box), np.zeros(n_slack)])
     x_hi = np.concatenate([np.full(n_u, box), np.full(n_slack, np.inf)])
@@ -813,19 +827,28 @@ def _solve_piqp(
 
 
 def _constraint_matrix(
-    i: np.ndarray, j: np.ndarray, coef: np.ndarray, slack_rows: np.ndarray, n: int
+    i: np.ndarray,
+    j: np.ndarray,
+    coef: np.ndarray,
+    slack_rows: np.ndarray,
+    n: int,
+    bound_rows: bool = True,
 ) -> csc_matrix:
     """The CBF-QP constraint matrix, assembled directly in CSC form (sorted rows, no duplicates).
 
     Rows 0..R-1 are the barriers (row r: ``coef[r] . u_i - coef[r] . u_j``, the u_j part only when
-    j < n, minus s on violated rows), then one identity row per variable (the bounds). Variables:
-    u_0x, u_0y, ..., u_(n-1)y, then one slack per entry of ``slack_rows`` (sorted). Equal, entry
-    for entry, to the COO-built :func:`_constraint_matrix_reference`, without scipy's COO-to-CSC
-    conversion and index sort (~0.25 ms of ~1 ms per tick at M).
+    j < n, minus s on violated rows), then, with ``bound_rows``, one identity row per variable (the
+    bounds: OSQP's form; PIQP takes the bounds natively and gets the R barrier rows only, the same
+    entries as the first R rows of the full matrix). Variables: u_0x, u_0y, ..., u_(n-1)y, then
+    one slack per entry of ``slack_rows`` (sorted). Equal, entry for entry, to the COO-built
+    :func:`_constraint_matrix_reference` (its first R rows without ``bound_rows``), without
+    scipy's COO-to-CSC conversion and index sort (~0.25 ms of ~1 ms per tick at M), nor its
+    validation of the result (:func:`_csc`).
     """
     n_rows, n_slack = len(i), len(slack_rows)
     n_u = 2 * n
     n_var = n_u + n_slack
+    extra = 1 if bound_rows else 0  # the identity entry closing each column
     j_is_drone = j < n
     rows = np.arange(n_rows)
     # Barrier entries of the drone columns, sorted by (drone, row): a node is never both ends of
@@ -836,8 +859,8 @@ def _constraint_matrix(
     order = np.argsort(node.astype(np.int64) * max(n_rows, 1) + row)
     node, row, val = node[order], row[order], val[order]
     per_drone = np.bincount(node, minlength=n)
-    # Column 2d + k holds drone d's barrier rows then its bound row n_rows + 2d + k.
-    nnz = np.concatenate([np.repeat(per_drone + 1, 2), np.full(n_slack, 2)])
+    # Column 2d + k holds drone d's barrier rows, then (bound_rows) its bound row n_rows + 2d + k.
+    nnz = np.concatenate([np.repeat(per_drone + extra, 2), np.full(n_slack, 1 + extra)])
     indptr = np.zeros(n_var + 1, dtype=np.int64)
     np.cumsum(nnz, out=indptr[1:])
     indices = np.empty(indptr[-1], dtype=np.int64)
@@ -847,17 +870,40 @@ def _constraint_matrix(
         at = indptr[2 * node + k] + rank
         indices[at] = row
         data[at] = val[:, k]
-    ctrl_end = indptr[1 : n_u + 1] - 1  # last entry of each drone column
-    indices[ctrl_end] = n_rows + np.arange(n_u)
-    data[ctrl_end] = 1.0
     slack_start = indptr[n_u:n_var]
     indices[slack_start] = slack_rows  # -s on its violated row
     data[slack_start] = -1.0
-    indices[slack_start + 1] = n_rows + n_u + np.arange(n_slack)
-    data[slack_start + 1] = 1.0
-    return csc_matrix(
-        (data, indices.astype(np.int32), indptr.astype(np.int32)), shape=(n_rows + n_var, n_var)
-    )
+    if bound_rows:
+        ctrl_end = indptr[1 : n_u + 1] - 1  # last entry of each drone column
+        indices[ctrl_end] = n_rows + np.arange(n_u)
+        data[ctrl_end] = 1.0
+        indices[slack_start + 1] = n_rows + n_u + np.arange(n_slack)
+        data[slack_start + 1] = 1.0
+    n_out = n_rows + n_var if bound_rows else n_rows
+    return _csc(data, indices.astype(np.int32), indptr.astype(np.int32), (n_out, n_var))
+
+
+def _csc(
+    data: np.ndarray, indices: np.ndarray, indptr: np.ndarray, shape: tuple[int, int]
+) -> csc_matrix:
+    """A ``csc_matrix`` around arrays that are valid by construction (float64 data, int32 sorted,
+    duplicate-free row indices, int32 indptr of length shape[1] + 1), without the constructor's
+    checks (dtype choice, index scans: ~40 us each, three times a tick). Equal, array for array,
+    to ``csc_matrix((data, indices, indptr), shape=shape)``
+    (tests/planner/test_mccst.py::test_unchecked_csc_is_the_checked_one)."""
+    if not (
+        data.dtype == np.float64
+        and indices.dtype == np.int32
+        and indptr.dtype == np.int32
+        and len(indptr) == shape[1] + 1
+        and len(indices) == len(data) == indptr[-1]
+    ):
+        return csc_matrix((data, indices, indptr), shape=shape)
+    mat = csc_matrix.__new__(csc_matrix)
+    mat.data, mat.indices, mat.indptr = data, indices, indptr
+    mat._shape = (int(shape[0]), int(shape[1]))
+    mat.maxprint = 50
+    return mat
 
 
 def _constraint_matrix_reference(

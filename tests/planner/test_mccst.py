@@ -15,8 +15,11 @@ from planner.mccst import (
     MccstParams,
     MccstPlanner,
     _argsort_stable,
+    _capped_class_k,
+    _class_k,
     _constraint_matrix,
     _constraint_matrix_reference,
+    _csc,
     _mst_reference,
     assign_tasks,
     candidate_edges,
@@ -550,6 +553,55 @@ def test_direct_csc_constraint_matrix_equals_coo_reference(seed):
         np.testing.assert_array_equal(fast.indptr, ref.indptr)
         np.testing.assert_array_equal(fast.indices, ref.indices)
         np.testing.assert_array_equal(fast.data, ref.data)
+        # PIQP's form: the barrier rows only, the same entries as the full matrix's first rows
+        barrier = _constraint_matrix(i, j, coef, slack_rows, n, bound_rows=False)
+        top = ref[:n_rows]
+        top.sort_indices()
+        assert barrier.shape == top.shape
+        np.testing.assert_array_equal(barrier.indptr, top.indptr)
+        np.testing.assert_array_equal(barrier.indices, top.indices)
+        np.testing.assert_array_equal(barrier.data, top.data)
+
+
+def test_unchecked_csc_is_the_checked_one():
+    """``_csc`` (no constructor checks) gives scipy's checked matrix: same arrays, shape, type,
+    products; arrays that are not of the expected dtypes go through the checked constructor."""
+    from scipy.sparse import csc_matrix
+
+    rng = np.random.default_rng(0)
+    dense = np.where(rng.random((7, 5)) < 0.4, rng.normal(size=(7, 5)), 0.0)
+    ref = csc_matrix(dense)
+    ref.sort_indices()
+    data, indices, indptr = ref.data, ref.indices.astype(np.int32), ref.indptr.astype(np.int32)
+    fast = _csc(data, indices, indptr, (7, 5))
+    assert type(fast) is csc_matrix and fast.shape == (7, 5) and fast.nnz == ref.nnz
+    np.testing.assert_array_equal(fast.toarray(), dense)
+    np.testing.assert_array_equal((fast.T @ fast).toarray(), (ref.T @ ref).toarray())
+    checked = csc_matrix((data, indices, indptr), shape=(7, 5))
+    for name in ("data", "indices", "indptr"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(checked, name))
+        assert getattr(fast, name).dtype == getattr(checked, name).dtype
+    wide = _csc(data, indices.astype(np.int64), indptr.astype(np.int64), (7, 5))
+    np.testing.assert_array_equal(wide.toarray(), dense)
+
+
+@pytest.mark.parametrize("discrete_time", [False, True])
+def test_capped_class_k_is_the_plain_minimum(discrete_time):
+    """The QP's right sides: the class-K function evaluated only where it may be below the cap
+    equals, bit for bit, the minimum of the function over every row (negative, tiny, huge and
+    non-finite h; caps of every size)."""
+    rng = np.random.default_rng(1)
+    params = MccstParams(discrete_time=discrete_time)
+    for trial in range(200):
+        n = int(rng.integers(0, 400))
+        h = rng.normal(size=n) * 10.0 ** rng.integers(-4, 3)
+        if trial % 10 == 0 and n > 3:
+            h[:3] = [np.inf, -np.inf, np.nan]
+        cap = rng.uniform(0, 2, n) * 10.0 ** rng.integers(-3, 3) + 1e-3
+        with np.errstate(over="ignore", invalid="ignore"):
+            want = np.minimum(_class_k(h, params), cap)
+            got = _capped_class_k(h, cap, params)
+        np.testing.assert_array_equal(got, want)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
