@@ -168,10 +168,15 @@ def test_planner_with_and_without_kernels(rng, info, numpy_only):
         assert np.allclose(outs[0], outs[1], rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("thorn,max_steps", [(0.05, 10), (0.0, 10), (0.05, 2), (0.5, 10)])
-def test_compiled_async_descent_bit_identical(rng, thorn, max_steps):
+@pytest.mark.parametrize(
+    "thorn,max_steps,density",
+    [(0.05, 10, 0.08), (0.0, 10, 0.08), (0.05, 2, 0.08), (0.5, 10, 0.08), (0.05, 10, 0.4)],
+)
+def test_compiled_async_descent_bit_identical(rng, thorn, max_steps, density):
     """descend_separable against descend(separable=True, per_drone) on the same entries, including
-    the iterations / converged / hit_speed_limit diagnostics."""
+    the iterations / converged / hit_speed_limit diagnostics. density 0.4: ~120 entries a drone,
+    several of the kernel's blocks (_kernels._PAIR_BLOCK) and a partial one; some believed
+    positions on the drone (d = 0), within the attraction floor and at the reach exactly."""
     from planner.phireman import _descend_separable_compiled, _EntriesByDrone, descend
 
     n = 300
@@ -183,10 +188,15 @@ def test_compiled_async_descent_bit_identical(rng, thorn, max_steps):
     version = rng.integers(0, 3, n)
     p = PhiremanParams(thorn=thorn, max_descent_steps=max_steps, speed_rule="per_drone")
     vmax, reach = 0.3, 2.0
-    mask = rng.random((n, n)) < 0.08
+    mask = rng.random((n, n)) < density
     mask[np.arange(n), np.arange(n)] = False
     r, c = np.nonzero(mask)
     y = x0[c] + rng.normal(0, 0.05, (len(r), 2))
+    if density > 0.2:
+        special = rng.choice(len(r), 60, replace=False)
+        y[special[:20]] = x0[r[special[:20]]]  # on the drone: d = 0 at the first step
+        y[special[20:40]] = x0[r[special[20:40]]] + [0.3, 0.0]  # within the floor
+        y[special[40:]] = x0[r[special[40:]]] + [0.0, reach]  # at the reach exactly
     segs = TreeSegments(trees, version, False, x0, vmax)
     ent = _EntriesByDrone(r, y, n)
 
