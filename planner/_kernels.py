@@ -577,27 +577,29 @@ def prune_segments(
     m = 0
     for i in range(n):
         v = version[i]
-        low = np.inf
-        for s in range(count[v]):
-            qx = px[i] - ax[v, s]
-            qy = py[i] - ay[v, s]
+        xi = px[i]
+        yi = py[i]
+        for s in range(count[v]):  # branch-free: vectorised
+            qx = xi - ax[v, s]
+            qy = yi - ay[v, s]
             t = (qx * ex[v, s] + qy * ey[v, s]) / e2[v, s] if e2[v, s] > 0 else 0.0
             t = min(max(t, 0.0), 1.0)
-            ox = px[i] - (ax[v, s] + t * ex[v, s])
-            oy = py[i] - (ay[v, s] + t * ey[v, s])
-            d = math.sqrt(ox * ox + oy * oy)
-            dist[s] = d
-            if d < low:
-                low = d
-        bound = low + margin + 1e-9 * (1.0 + low)
+            ox = xi - (ax[v, s] + t * ex[v, s])
+            oy = yi - (ay[v, s] + t * ey[v, s])
+            dist[s] = math.sqrt(ox * ox + oy * oy)
+        low = np.inf
         for s in range(count[v]):
-            if dist[s] <= bound:
-                if m == len(keep_r):
-                    keep_r = np.concatenate((keep_r, np.empty(len(keep_r), dtype=np.int64)))
-                    keep_s = np.concatenate((keep_s, np.empty(len(keep_s), dtype=np.int64)))
-                keep_r[m] = i
-                keep_s[m] = s
-                m += 1
+            if dist[s] < low:
+                low = dist[s]
+        bound = low + margin + 1e-9 * (1.0 + low)
+        if m + count[v] > len(keep_r):  # grown here, not in the loop below (that keeps it tight)
+            grow = len(keep_r) + count[v]
+            keep_r = np.concatenate((keep_r, np.empty(grow, dtype=np.int64)))
+            keep_s = np.concatenate((keep_s, np.empty(grow, dtype=np.int64)))
+        for s in range(count[v]):  # branch-free: written always, kept by advancing m
+            keep_r[m] = i
+            keep_s[m] = s
+            m += dist[s] <= bound
     return keep_r[:m], keep_s[:m]
 
 
