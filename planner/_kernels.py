@@ -676,41 +676,57 @@ def grid_pairs(
     (``ordered``; else in the order found, i ascending, which saves the sort of P keys).
     """
     n = len(x)
+    n_cells = nx * ny
+    cid = np.empty(n, dtype=np.int64)
     cx = np.empty(n, dtype=np.int64)
     cy = np.empty(n, dtype=np.int64)
+    head = np.zeros(n_cells + 1, dtype=np.int64)
     for i in range(n):
         cx[i] = min(max(int((x[i] - x0) / cell), 0), nx - 1)
         cy[i] = min(max(int((y[i] - y0) / cell), 0), ny - 1)
-    cid = cx * ny + cy
-    order = np.argsort(cid, kind="mergesort")
-    head = np.zeros(nx * ny + 1, dtype=np.int64)
-    for i in range(n):
+        cid[i] = cx[i] * ny + cy[i]
         head[cid[i] + 1] += 1
-    for c in range(nx * ny):
+    for c in range(n_cells):
         head[c + 1] += head[c]
+    # counting sort by cell, stable (index order within a cell, as a stable argsort), with the
+    # coordinates gathered in that order so the scan below reads them contiguously
+    fill = head[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    xs = np.empty(n)
+    ys = np.empty(n)
+    for i in range(n):
+        q = fill[cid[i]]
+        fill[cid[i]] = q + 1
+        order[q] = i
+        xs[q] = x[i]
+        ys[q] = y[i]
     cap = 4 * n + 16
     pi = np.empty(cap, dtype=np.int64)
     pj = np.empty(cap, dtype=np.int64)
+    near = np.empty(n, dtype=np.bool_)
     m = 0
     r2 = range_m
     for i in range(n):
+        xi = x[i]
+        yi = y[i]
+        ay0 = max(cy[i] - 1, 0)
+        ay1 = min(cy[i] + 2, ny)
         for ax in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
-            for ay in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
-                c = ax * ny + ay
-                for q in range(head[c], head[c + 1]):
-                    j = order[q]
-                    if j <= i:
-                        continue
-                    dx = x[i] - x[j]
-                    dy = y[i] - y[j]
-                    if math.sqrt(dx * dx + dy * dy) <= r2:
-                        if m == cap:
-                            cap *= 2
-                            pi = np.concatenate((pi, np.empty(cap - len(pi), dtype=np.int64)))
-                            pj = np.concatenate((pj, np.empty(cap - len(pj), dtype=np.int64)))
-                        pi[m] = i
-                        pj[m] = j
-                        m += 1
+            # cells (ax, ay0..ay1-1) are consecutive in the sorted order: one range
+            q0 = head[ax * ny + ay0]
+            q1 = head[ax * ny + ay1]
+            for q in range(q0, q1):  # branch-free tests first (vectorised) ...
+                dx = xi - xs[q]
+                dy = yi - ys[q]
+                near[q - q0] = (order[q] > i) & (math.sqrt(dx * dx + dy * dy) <= r2)
+            if m + (q1 - q0) > cap:
+                cap = 2 * cap + (q1 - q0)
+                pi = np.concatenate((pi, np.empty(cap - len(pi), dtype=np.int64)))
+                pj = np.concatenate((pj, np.empty(cap - len(pj), dtype=np.int64)))
+            for q in range(q0, q1):  # ... then the pairs, in cell order: written, kept by m
+                pi[m] = i
+                pj[m] = order[q]
+                m += near[q - q0]
     out = np.empty((m, 2), dtype=np.int64)
     if not ordered:  # the order in which the cells were scanned
         for q in range(m):

@@ -503,3 +503,37 @@ def test_near_counts_is_einsum_and_bincount(rng, numpy_only):
             assert 0 < near.sum() < e
     numpy_only(True)
     assert _message_kernels.near_counts(holder, y_e, er, True, r2) is None
+
+
+def _grid_scan_reference(x, y, r, cell, x0, y0, nx, ny):
+    """The pairs of grid_pairs(ordered=False) in its documented order, by plain loops: i ascending,
+    the 3 x 3 cells around i's in (x, y) order, the drones of a cell ascending, j > i kept."""
+    cx = [min(max(int((x[i] - x0) / cell), 0), nx - 1) for i in range(len(x))]
+    cy = [min(max(int((y[i] - y0) / cell), 0), ny - 1) for i in range(len(x))]
+    out = []
+    for i in range(len(x)):
+        for ax in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
+            for ay in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
+                for j in range(len(x)):
+                    if (cx[j], cy[j]) == (ax, ay) and j > i:
+                        if np.linalg.norm([x[i] - x[j], y[i] - y[j]]) <= r:
+                            out.append((i, j))
+    return np.array(out, dtype=np.int64).reshape(-1, 2)
+
+
+@pytest.mark.parametrize("n,spread,r", [(1, 1.0, 2.0), (60, 5.0, 2.0), (300, 3.0, 0.7)])
+def test_grid_pairs_unordered_in_scan_order(rng, n, spread, r):
+    """grid_pairs' unordered pairs in the order of the plain scan (cells counting-sorted, coincident
+    and on-the-range pairs included, the output grown past its first capacity at (300, 3, 0.7))."""
+    x = rng.uniform(-spread, spread, (n, 2))
+    x[: n // 4] = np.round(x[: n // 4] / r) * r
+    x[-1] = x[0]
+    lo = x.min(axis=0)
+    cell = r * (1 + 1e-6)
+    nx, ny = (int(v) for v in (x.max(axis=0) - lo) // cell + 1)
+    args = (x[:, 0].copy(), x[:, 1].copy(), r, cell, float(lo[0]), float(lo[1]), nx, ny)
+    want = _grid_scan_reference(*args)
+    got = _kernels.grid_pairs(*args, False)
+    assert got.dtype == np.int64 and np.array_equal(got, want)
+    ordered = _kernels.grid_pairs(*args, True)
+    assert np.array_equal(ordered, want[np.lexsort((want[:, 1], want[:, 0]))])
