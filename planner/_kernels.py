@@ -13,7 +13,14 @@ NumPy version gives the same bits, and a sum accumulated in the same order as ``
 order) gives the same bits as well. Where NumPy sums in another order (BLAS products, pairwise
 sums), the kernel's docstring says so.
 
-Size: ~730 lines, above the ~600 guideline: the planners' compiled kernels in one place (one
+Speed without reordering. Hot loops are written branch-free (``a if c else b`` selects, a kept list
+advanced by ``m += test``) and sums are split from the element-wise work (a block of terms computed,
+then added in entry order), so LLVM vectorises the element-wise part: SIMD square roots and
+divisions are correctly rounded like the scalar ones (the same bits), and no data-dependent branch
+is mispredicted. Arrays that may grow (``np.concatenate``) are grown outside the innermost loop: a
+reassignment inside it keeps the array's reference counting in the loop (~4x slower).
+
+Size: ~1000 lines, above the ~600 guideline: the planners' compiled kernels in one place (one
 import, one Numba cache); the graph and geometry kernels live in :mod:`planner._graph_kernels`.
 """
 
