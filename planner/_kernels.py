@@ -852,6 +852,17 @@ def finish_knowledge_update(
     return rr, cc, ss, col_held, xx, yy
 
 
+@njit(cache=True, fastmath={"nnan", "nsz"})
+def _min_no_nan(values: np.ndarray, n: int) -> float:
+    """min(values[:n], inf), vectorised: nnan / nsz let LLVM reorder the comparisons, which gives
+    the same minimum when no value is NaN (the caller's condition; -0 and +0 do not occur: squares)."""
+    m = np.inf
+    for q in range(n):
+        v = values[q]
+        m = v if v < m else m
+    return m
+
+
 @njit(cache=True)
 def descend_separable_leader(
     px: np.ndarray,
@@ -917,21 +928,34 @@ def descend_separable_leader(
             gx = sx * pair_factor
             gy = sy * pair_factor
             if exponent != -1.0:
-                # nearest leader, first on ties: the squared distances vectorised, then a scan
+                # nearest leader, first on ties: the squared distances vectorised, their minimum
+                # vectorised (_min_no_nan, if none is NaN), then the first index at it
+                nan = False
                 for q in range(n_lead):
                     ax = xi - lx[i, q]
                     ay = yi - ly[i, q]
-                    lead_d2[q] = ax * ax + ay * ay
+                    dd = ax * ax + ay * ay
+                    lead_d2[q] = dd
+                    nan |= dd != dd
                 best = np.inf
                 near = -1
-                for q in range(n_lead):
-                    if lead_d2[q] < best:
-                        best = lead_d2[q]
-                        near = q
+                if nan:  # the scan's rule: NaN is never below
+                    for q in range(n_lead):
+                        if lead_d2[q] < best:
+                            best = lead_d2[q]
+                            near = q
+                else:
+                    best = _min_no_nan(lead_d2, n_lead)
+                    if best < np.inf:
+                        near = 0
+                        while lead_d2[near] != best:
+                            near += 1
                 bx = xi - lx[i, near] if near >= 0 else 0.0
                 by = yi - ly[i, near] if near >= 0 else 0.0
                 d = math.sqrt(best)
-                mag = gain[i] * one_plus * (max(d, lfloor) / r) ** exponent
+                ratio = max(d, lfloor) / r
+                # ** 1.0 is the ratio itself (NumPy's power takes that fast path too): no pow call
+                mag = gain[i] * one_plus * (ratio if exponent == 1.0 else ratio**exponent)
                 f = mag / d if d > 0 else 0.0
                 gx = gx + bx * f
                 gy = gy + by * f

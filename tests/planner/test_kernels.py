@@ -537,3 +537,49 @@ def test_grid_pairs_unordered_in_scan_order(rng, n, spread, r):
     assert got.dtype == np.int64 and np.array_equal(got, want)
     ordered = _kernels.grid_pairs(*args, True)
     assert np.array_equal(ordered, want[np.lexsort((want[:, 1], want[:, 0]))])
+
+
+@pytest.mark.parametrize("exponent", [1.0, 2.0, 0.5])
+def test_leader_descent_step_nearest_leader_rule(rng, exponent):
+    """descend_separable_leader's leader term (one step, no pair entries) against
+    dccrs.leader_gradient: 37 leaders a drone (a partial SIMD block), exact ties (the first wins),
+    a leader on the drone (no pull), and NaN leaders, which the kernel skips (compared with the
+    gradient of the same leaders without them)."""
+    from planner.dccrs import leader_gradient
+
+    n, n_lead, eta, r, lfloor = 60, 37, 0.2, 2.0, 0.5
+    pos = np.round(rng.uniform(-9, 9, (n, 2)) * 64) / 64  # dyadic: the ties below are exact
+    lead = rng.uniform(-9, 9, (n, n_lead, 2))
+    lead[:10, 4] = pos[:10] + [1 / 64, 0.0]  # ties at the same distance: the first (column 4) wins
+    lead[:10, 20] = pos[:10] - [1 / 64, 0.0]
+    lead[10:15, 7] = pos[10:15]  # on the drone: d = 0
+    lead[20:30, 3:11:2, 0] = np.nan  # every other one of a SIMD block
+    gain = rng.uniform(0.5, 2.0, n)
+    delta, _, _ = _kernels.descend_separable_leader(
+        *(np.ascontiguousarray(pos[:, c]) for c in (0, 1)),
+        np.zeros(n + 1, np.int64),
+        np.empty(0),
+        np.empty(0),
+        np.ones(n),
+        *(np.ascontiguousarray(lead[..., c]) for c in (0, 1)),
+        gain,
+        exponent,
+        r,
+        lfloor,
+        0.5,
+        0.3,
+        2.0,
+        2.0,
+        eta,
+        0.0,  # tolerance
+        1e9,  # vmax: never at the limit
+        1,
+    )
+    clean = np.delete(lead, [3, 5, 7, 9], axis=1)
+    want = np.where(
+        (np.arange(n) >= 20)[:, None] & (np.arange(n) < 30)[:, None],
+        leader_gradient(pos, clean, gain, exponent, r, lfloor),
+        leader_gradient(pos, np.where(np.isnan(lead), 0.0, lead), gain, exponent, r, lfloor),
+    )
+    assert np.array_equal(delta, -eta * want)  # == on floats: 0.0 and -0.0 are equal
+    assert np.all(delta[10:15] == 0) and np.all(delta[:10, 0] > 0)  # ties: toward column 4
