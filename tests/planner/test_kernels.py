@@ -168,10 +168,15 @@ def test_planner_with_and_without_kernels(rng, info, numpy_only):
         assert np.allclose(outs[0], outs[1], rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("thorn,max_steps", [(0.05, 10), (0.0, 10), (0.05, 2), (0.5, 10)])
-def test_compiled_async_descent_bit_identical(rng, thorn, max_steps):
+@pytest.mark.parametrize(
+    "thorn,max_steps,density",
+    [(0.05, 10, 0.08), (0.0, 10, 0.08), (0.05, 2, 0.08), (0.5, 10, 0.08), (0.05, 10, 0.4)],
+)
+def test_compiled_async_descent_bit_identical(rng, thorn, max_steps, density):
     """descend_separable against descend(separable=True, per_drone) on the same entries, including
-    the iterations / converged / hit_speed_limit diagnostics."""
+    the iterations / converged / hit_speed_limit diagnostics. density 0.4: ~120 entries a drone,
+    several of the kernel's blocks (_kernels._PAIR_BLOCK) and a partial one; some believed
+    positions on the drone (d = 0), within the attraction floor and at the reach exactly."""
     from planner.phireman import _descend_separable_compiled, _EntriesByDrone, descend
 
     n = 300
@@ -183,10 +188,15 @@ def test_compiled_async_descent_bit_identical(rng, thorn, max_steps):
     version = rng.integers(0, 3, n)
     p = PhiremanParams(thorn=thorn, max_descent_steps=max_steps, speed_rule="per_drone")
     vmax, reach = 0.3, 2.0
-    mask = rng.random((n, n)) < 0.08
+    mask = rng.random((n, n)) < density
     mask[np.arange(n), np.arange(n)] = False
     r, c = np.nonzero(mask)
     y = x0[c] + rng.normal(0, 0.05, (len(r), 2))
+    if density > 0.2:
+        special = rng.choice(len(r), 60, replace=False)
+        y[special[:20]] = x0[r[special[:20]]]  # on the drone: d = 0 at the first step
+        y[special[20:40]] = x0[r[special[20:40]]] + [0.3, 0.0]  # within the floor
+        y[special[40:]] = x0[r[special[40:]]] + [0.0, reach]  # at the reach exactly
     segs = TreeSegments(trees, version, False, x0, vmax)
     ent = _EntriesByDrone(r, y, n)
 
@@ -493,3 +503,83 @@ def test_near_counts_is_einsum_and_bincount(rng, numpy_only):
             assert 0 < near.sum() < e
     numpy_only(True)
     assert _message_kernels.near_counts(holder, y_e, er, True, r2) is None
+
+
+def _grid_scan_reference(x, y, r, cell, x0, y0, nx, ny):
+    """The pairs of grid_pairs(ordered=False) in its documented order, by plain loops: i ascending,
+    the 3 x 3 cells around i's in (x, y) order, the drones of a cell ascending, j > i kept."""
+    cx = [min(max(int((x[i] - x0) / cell), 0), nx - 1) for i in range(len(x))]
+    cy = [min(max(int((y[i] - y0) / cell), 0), ny - 1) for i in range(len(x))]
+    out = []
+    for i in range(len(x)):
+        for ax in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
+            for ay in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
+                for j in range(len(x)):
+                    if (cx[j], cy[j]) == (ax, ay) and j > i:
+                        if np.linalg.norm([x[i] - x[j], y[i] - y[j]]) <= r:
+                            out.append((i, j))
+    return np.array(out, dtype=np.int64).reshape(-1, 2)
+
+
+@pytest.mark.parametrize("n,spread,r", [(1, 1.0, 2.0), (60, 5.0, 2.0), (300, 3.0, 0.7)])
+def test_grid_pairs_unordered_in_scan_order(rng, n, spread, r):
+    """grid_pairs' unordered pairs in the order of the plain scan (cells counting-sorted, coincident
+    and on-the-range pairs included, the output grown past its first capacity at (300, 3, 0.7))."""
+    x = rng.uniform(-spread, spread, (n, 2))
+    x[: n // 4] = np.round(x[: n // 4] / r) * r
+    x[-1] = x[0]
+    lo = x.min(axis=0)
+    cell = r * (1 + 1e-6)
+    nx, ny = (int(v) for v in (x.max(axis=0) - lo) // cell + 1)
+    args = (x[:, 0].copy(), x[:, 1].copy(), r, cell, float(lo[0]), float(lo[1]), nx, ny)
+    want = _grid_scan_reference(*args)
+    got = _kernels.grid_pairs(*args, False)
+    assert got.dtype == np.int64 and np.array_equal(got, want)
+    ordered = _kernels.grid_pairs(*args, True)
+    assert np.array_equal(ordered, want[np.lexsort((want[:, 1], want[:, 0]))])
+
+
+@pytest.mark.parametrize("exponent", [1.0, 2.0, 0.5])
+def test_leader_descent_step_nearest_leader_rule(rng, exponent):
+    """descend_separable_leader's leader term (one step, no pair entries) against
+    dccrs.leader_gradient: 37 leaders a drone (a partial SIMD block), exact ties (the first wins),
+    a leader on the drone (no pull), and NaN leaders, which the kernel skips (compared with the
+    gradient of the same leaders without them)."""
+    from planner.dccrs import leader_gradient
+
+    n, n_lead, eta, r, lfloor = 60, 37, 0.2, 2.0, 0.5
+    pos = np.round(rng.uniform(-9, 9, (n, 2)) * 64) / 64  # dyadic: the ties below are exact
+    lead = rng.uniform(-9, 9, (n, n_lead, 2))
+    lead[:10, 4] = pos[:10] + [1 / 64, 0.0]  # ties at the same distance: the first (column 4) wins
+    lead[:10, 20] = pos[:10] - [1 / 64, 0.0]
+    lead[10:15, 7] = pos[10:15]  # on the drone: d = 0
+    lead[20:30, 3:11:2, 0] = np.nan  # every other one of a SIMD block
+    gain = rng.uniform(0.5, 2.0, n)
+    delta, _, _ = _kernels.descend_separable_leader(
+        *(np.ascontiguousarray(pos[:, c]) for c in (0, 1)),
+        np.zeros(n + 1, np.int64),
+        np.empty(0),
+        np.empty(0),
+        np.ones(n),
+        *(np.ascontiguousarray(lead[..., c]) for c in (0, 1)),
+        gain,
+        exponent,
+        r,
+        lfloor,
+        0.5,
+        0.3,
+        2.0,
+        2.0,
+        eta,
+        0.0,  # tolerance
+        1e9,  # vmax: never at the limit
+        1,
+    )
+    clean = np.delete(lead, [3, 5, 7, 9], axis=1)
+    want = np.where(
+        (np.arange(n) >= 20)[:, None] & (np.arange(n) < 30)[:, None],
+        leader_gradient(pos, clean, gain, exponent, r, lfloor),
+        leader_gradient(pos, np.where(np.isnan(lead), 0.0, lead), gain, exponent, r, lfloor),
+    )
+    assert np.array_equal(delta, -eta * want)  # == on floats: 0.0 and -0.0 are equal
+    assert np.all(delta[10:15] == 0) and np.all(delta[:10, 0] > 0)  # ties: toward column 4
