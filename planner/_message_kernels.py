@@ -403,18 +403,18 @@ def _knowledge_step(
             for f in range(e0, e):
                 fc[q] = c[f]
                 fs[q] = s[f]
-                q += np.int64(s[f] >= lo)
+                q += int(s[f] >= lo)
         elif alive[i]:
             q0 = q
             below = 0  # kept entries left of the own column
             for f in range(e0, e):
                 k = c[f]
-                gt = np.int64(k > i)
+                gt = int(k > i)
                 fc[q + gt] = k
                 fs[q + gt] = s[f]
-                keep = np.int64(s[f] >= lo) & np.int64(k != i)
+                keep = int(s[f] >= lo) & int(k != i)
                 q += keep
-                below += keep & np.int64(k < i)
+                below += keep & int(k < i)
             fc[q0 + below] = i
             fs[q0 + below] = t_step
             q += 1
@@ -544,7 +544,7 @@ def _knowledge_step(
                         0  # the levels below the first that holds the column (the sets are nested)
                     )
                     for level in range(levels - 1):
-                        age += np.int64((acc[level * words + w] & low) == 0)
+                        age += int((acc[level * words + w] & low) == 0)
                     row_k[nt] = col_ids[w * 64 + low_bit[(low * db) >> np.uint64(58)]]
                     row_s[nt] = t_sent - age
                     nt += 1
@@ -553,12 +553,12 @@ def _knowledge_step(
         below = 0
         for f in range(nt):
             k = row_k[f]
-            gt = np.int64(k > i)
+            gt = int(k > i)
             cand_k[nc + gt] = k
             cand_s[nc + gt] = row_s[f]
-            keep = np.int64(row_s[f] >= age_cut) & np.int64(k != i)
+            keep = int(row_s[f] >= age_cut) & int(k != i)
             nc += keep
-            below += keep & np.int64(k < i)
+            below += keep & int(k < i)
         cand_k[below] = i
         cand_s[below] = t_step
         nc += 1
@@ -580,11 +580,11 @@ def _knowledge_step(
             d2 = dx * dx
             d2 += dy * dy
             far = (d2 > far2) | (forget & (d2 <= radio2) & (st < t_sent))
-            keep = 1 - np.int64(far)
+            keep = 1 - int(far)
             kept_k[m] = k
             kept_s[m] = st
             m += keep
-            v += keep & np.int64(k != i)
+            v += keep & int(k != i)
         kept_start[i + 1] = m
     # 4. the view (alive holders, columns somebody holds) and the outputs, each written once
     view_rows = np.empty(row_i + 1, dtype=np.int64)
@@ -613,8 +613,8 @@ def _knowledge_step(
     for row in range(len(view_rows)):
         i = view_rows[row]
         for f in range(kept_start[i], kept_start[i + 1]):
-            k = np.int64(kept_k[f])
-            st = np.int64(kept_s[f])
+            k = int(kept_k[f])
+            st = int(kept_s[f])
             rr[f] = i
             cc[f] = k
             ss[f] = st
