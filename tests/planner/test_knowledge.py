@@ -314,7 +314,7 @@ def test_message_layer_same_with_a_drone_coming_back(rng):
 def test_fused_update_is_the_unfused_one(rng, monkeypatch, after_move, forget_unheard, max_per_bit):
     """The compiled update (own entries, hop, cut-offs and view in one pass,
     :func:`planner._message_kernels.knowledge_step`) against the unfused path it replaces, with the
-    cost model forced to the per-entry maximum (1e9), to the bit sets (1e-9) or left as shipped:
+    cost model forced to the bit sets (1e9), to the per-entry maximum (1e-9) or left as shipped:
     identical arrays (values and dtypes), swarms large and small, losses, a drone coming back."""
     monkeypatch.setattr(knowledge, "_MAX_PER_BIT_WORD", max_per_bit)
     fused_step = _message_kernels.knowledge_step
