@@ -227,16 +227,30 @@ def _believed_displacement(
 ) -> np.ndarray:
     out = np.empty((len(holders), 2))
     m = len(held_rows)
+    base = 0
+    prev = -1
     for e in range(len(holders)):
         want = holders[e] * n + col_ids[e]
-        lo = 0
-        hi = m
-        while lo < hi:  # the first entry whose key is >= want (row-major keys are sorted)
+        if want < prev:  # the queries usually come in row-major order: search on from the last one
+            base = 0
+        prev = want
+        # the first entry whose key is >= want (row-major keys are sorted): gallop from base, then
+        # bisect (the same index as a bisection of the whole list)
+        lo = base
+        hi = base
+        step = 1
+        while hi < m and held_rows[hi] * n + held_cols[hi] < want:
+            lo = hi + 1
+            hi = lo + step
+            step *= 2
+        hi = min(hi, m)
+        while lo < hi:
             mid = (lo + hi) >> 1
             if held_rows[mid] * n + held_cols[mid] < want:
                 lo = mid + 1
             else:
                 hi = mid
+        base = lo
         s = -1
         if lo < m and held_rows[lo] * n + held_cols[lo] == want:
             s = held_stamps[lo]

@@ -449,17 +449,26 @@ def test_believed_displacement_compiled_identical(rng, numpy_only):
         kn = layer.knowledge
         holders = rng.integers(0, n, 400)
         cols = rng.integers(0, n, 400)
-        got = _message_kernels.believed_displacement(
-            kn.held_rows, kn.held_cols, kn.held_stamps, n, holders, cols, kn.pos_hist_m
-        )
-        stamp = kn.stamp[holders, cols]
-        s = np.where(stamp >= 1, stamp, 1)
-        want = np.where(
-            (stamp >= 1)[:, None], kn.pos_hist_m[s, cols] - kn.pos_hist_m[s - 1, cols], 0.0
-        )
-        assert got is not None and got.dtype == want.dtype
-        assert np.array_equal(got.view(np.int64), want.view(np.int64))  # bits, -0.0 included
-        seen |= {bool(v) for v in stamp >= 1}
+        by_key = np.lexsort((cols, holders))
+        some = np.sort(rng.choice(len(kn.held_rows), min(300, len(kn.held_rows)), replace=False))
+        queries = [
+            (holders, cols),  # any order
+            (holders[by_key], cols[by_key]),  # row-major, as DCCRS asks (the search gallops on)
+            (kn.held_rows[some], kn.held_cols[some]),  # held entries, row-major
+            (np.r_[holders[by_key], holders[by_key]], np.r_[cols[by_key], cols[by_key]]),
+        ]
+        for holders, cols in queries:
+            got = _message_kernels.believed_displacement(
+                kn.held_rows, kn.held_cols, kn.held_stamps, n, holders, cols, kn.pos_hist_m
+            )
+            stamp = kn.stamp[holders, cols]
+            s = np.where(stamp >= 1, stamp, 1)
+            want = np.where(
+                (stamp >= 1)[:, None], kn.pos_hist_m[s, cols] - kn.pos_hist_m[s - 1, cols], 0.0
+            )
+            assert got is not None and got.dtype == want.dtype
+            assert np.array_equal(got.view(np.int64), want.view(np.int64))  # bits, -0.0 included
+            seen |= {bool(v) for v in stamp >= 1}
         pos = pos + rng.normal(0, 0.4, (n, 2))
         alive &= rng.random(n) > 0.03
     numpy_only(True)
