@@ -295,30 +295,26 @@ def believed_displacement(
 
 
 def _near_counts(
-    ax: np.ndarray,
-    ay: np.ndarray,
-    bx: np.ndarray,
-    by: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
     er: np.ndarray,
     holder_first: bool,
     r2: float,
-    n: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     near = np.empty(len(er), dtype=np.bool_)
-    count = np.zeros(n, dtype=np.int64)
+    count = np.zeros(len(a), dtype=np.int64)
     for e in range(len(er)):
         i = er[e]
         if holder_first:
-            dx = ax[i] - bx[e]
-            dy = ay[i] - by[e]
+            dx = a[i, 0] - b[e, 0]
+            dy = a[i, 1] - b[e, 1]
         else:
-            dx = bx[e] - ax[i]
-            dy = by[e] - ay[i]
+            dx = b[e, 0] - a[i, 0]
+            dy = b[e, 1] - a[i, 1]
         d2 = dx * dx
         d2 += dy * dy
         near[e] = d2 <= r2
-        if near[e]:
-            count[i] += 1
+        count[i] += int(d2 <= r2)  # no branch on an unpredictable test
     return near, count
 
 
@@ -335,14 +331,11 @@ def near_counts(
     if not (_kernels.NUMBA and _kernels.ENABLED) or holder_u.ndim != 2 or holder_u.shape[1] != 2:
         return None
     return _near_counts_jit(
-        np.ascontiguousarray(holder_u[:, 0], dtype=np.float64),
-        np.ascontiguousarray(holder_u[:, 1], dtype=np.float64),
-        np.ascontiguousarray(y_e[:, 0], dtype=np.float64),
-        np.ascontiguousarray(y_e[:, 1], dtype=np.float64),
+        np.asarray(holder_u, dtype=np.float64),  # (n, 2) and (E, 2), any strides: read in place
+        np.asarray(y_e, dtype=np.float64),
         np.asarray(er, np.int64),
         bool(holder_first),
         float(r2),
-        len(holder_u),
     )
 
 

@@ -494,11 +494,14 @@ def test_near_counts_is_einsum_and_bincount(rng, numpy_only):
         for holder_first in (True, False):
             d = holder[er] - y_e if holder_first else y_e - holder[er]
             near = np.einsum("ec,ec->e", d, d) <= r2
-            got = _message_kernels.near_counts(holder, y_e, er, holder_first, r2)
-            assert got is not None
-            assert np.array_equal(got[0], near)
-            assert np.array_equal(got[1], np.bincount(er[near], minlength=n))
-            assert got[1].dtype == np.bincount(er[near], minlength=n).dtype
+            wide = np.zeros((n, 4))
+            wide[:, ::2] = holder  # strided input, read in place
+            for h in (holder, wide[:, ::2]):
+                got = _message_kernels.near_counts(h, y_e, er, holder_first, r2)
+                assert got is not None
+                assert np.array_equal(got[0], near)
+                assert np.array_equal(got[1], np.bincount(er[near], minlength=n))
+                assert got[1].dtype == np.bincount(er[near], minlength=n).dtype
             assert 0 < near.sum() < e
     numpy_only(True)
     assert _message_kernels.near_counts(holder, y_e, er, True, r2) is None
