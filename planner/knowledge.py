@@ -1030,6 +1030,10 @@ class MessageLayer:
         assert kn.rows is not None and kn.entry_rows is not None  # set by update()
         assert kn.entry_cols is not None and kn.entry_believed_m is not None
         holders = np.asarray(holders)
+        if len(holders) == len(kn.rows) and np.array_equal(holders, kn.rows):
+            # every alive drone (the usual tick): the view's own rows, no remapping
+            er = kn.entry_rows.astype(np.intp)  # a copy, as below
+            return er, kn.entry_cols, kn.entry_believed_m, kn.tree_stamp[holders]
         local = np.full(len(kn.rows), -1, dtype=np.intp)
         local[np.searchsorted(kn.rows, holders)] = np.arange(len(holders))  # holders are alive
         er = local[kn.entry_rows]
