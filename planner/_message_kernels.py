@@ -541,23 +541,26 @@ def _knowledge_step(
                 j = link_src[li] * block
                 for w in range(block):
                     acc[w] |= sets[j + w]
+        # own entry (in column order) and age cut, branch-free as in 1.
+        nc = 0
+        below = 0
+        if mode == 2:  # the set bits straight into the candidates
             for w in range(words):
                 x = acc[top + w]
                 while x:
                     rest = x & (x - one)
                     low = x ^ rest
                     x = rest
-                    age = (
-                        0  # the levels below the first that holds the column (the sets are nested)
-                    )
+                    age = 0  # the levels below the first that holds the column (nested sets)
                     for level in range(levels - 1):
                         age += int((acc[level * words + w] & low) == 0)
-                    row_k[nt] = col_ids[w * 64 + low_bit[(low * db) >> np.uint64(58)]]
-                    row_s[nt] = t_sent - age
-                    nt += 1
-        # own entry (in column order) and age cut, branch-free as in 1.
-        nc = 0
-        below = 0
+                    k = col_ids[w * 64 + low_bit[(low * db) >> np.uint64(58)]]
+                    gt = int(k > i)
+                    cand_k[nc + gt] = k
+                    cand_s[nc + gt] = t_sent - age
+                    keep = int(t_sent - age >= age_cut) & int(k != i)
+                    nc += keep
+                    below += keep & int(k < i)
         for f in range(nt):
             k = row_k[f]
             gt = int(k > i)
