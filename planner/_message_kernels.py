@@ -1,14 +1,19 @@
 """Compiled glue of the message layer (Numba): the steps of :func:`planner.knowledge.propagate_entries`
 before the hop (forwarded entries, the links' CSR adjacency, the cost model's counts) and the view
-of :meth:`planner.knowledge.Knowledge._set_view`, each in one pass instead of a dozen NumPy calls.
+of :meth:`planner.knowledge.Knowledge._set_view`, each in one pass instead of a dozen NumPy calls;
+and :func:`knowledge_step`, the whole entry update of a tick (own entries, the hop, the age and
+distance cut-offs, the view) in one pass, which the message layer runs when it can (the separate
+kernels and NumPy steps are its fallback and its reference).
 
-At Table II's sizes a tick of the async planners makes thousands of small NumPy calls; these two
+At Table II's sizes a tick of the async planners makes thousands of small NumPy calls; these
 replace ~20 of them per tick (selections, concatenations, bincounts, an argsort, a searchsorted,
 a column_stack). DCCRS's believed displacements (a stamp lookup and a difference of two
-positions per entry) and its neighbour counts over the entries are here too. The same rules as :mod:`planner._graph_kernels` hold: integer and copy results
-only (no arithmetic on floats), so the callers get exactly the NumPy path's arrays; the NumPy
-path stays the reference (``_kernels.ENABLED = False``) and ``tests/planner/test_knowledge.py``
-compares the two.
+positions per entry) and its neighbour counts over the entries are here too. The same rules as
+:mod:`planner._graph_kernels` hold: integer and copy results, and the little float arithmetic
+there is (the distance cut-off, the displacements, the neighbour test) in NumPy's operation order
+without ``fastmath``, so the callers get exactly the NumPy path's arrays; the NumPy path stays the
+reference (``_kernels.ENABLED = False``) and ``tests/planner/test_knowledge.py`` and
+``tests/planner/test_kernels.py`` compare the two.
 """
 
 from __future__ import annotations
