@@ -476,9 +476,8 @@ def _knowledge_step(
     levels = max_level + 1
     words = (n_k + 63) // 64
     block = levels * words
-    mode = (
-        0  # 0: no hop (each holder keeps its forwarded entries), 1: per-entry maximum, 2: bit sets
-    )
+    # 0: no hop (each holder keeps its forwarded entries), 1: per-entry maximum, 2: bit sets
+    mode = 0
     if hop and q > 0 and len(pairs) > 0:
         bit_cost = levels * words * (link_start[n] + n) / max_per_bit_word
         mode = 1 if work < bit_cost else 2
@@ -687,6 +686,9 @@ def knowledge_step(
     tick cost more in page faults than the pass itself (~1.7 us per 4 kB page measured here)."""
     if not (_kernels.NUMBA and _kernels.ENABLED) or not pos_hist_m.flags.c_contiguous:
         return None, scratch
+    n = len(alive)
+    if pos_hist_m.shape[1:] != (n, 2) or not 0 <= t_step < min(len(pos_hist_m), 2**31 - 1):
+        return None, scratch  # positions out of the history's range; stamps kept as int32 inside
     pos_m = np.asarray(pos_m, np.float64)
     ok, res, scratch = _knowledge_step_jit(
         np.asarray(rows, np.int64),

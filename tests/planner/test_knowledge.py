@@ -371,3 +371,45 @@ def test_fused_update_is_the_unfused_one(rng, monkeypatch, after_move, forget_un
                 assert a.dtype == b.dtype and np.array_equal(a, b), (trial, t, name)
             prev, pos, alive = (pos_t, alive_t), pos_t, alive_t
     assert calls["fused"] > 0 or not _kernels.NUMBA
+
+
+def test_fused_update_declines_what_it_cannot_read():
+    """Entries not row-major, a column out of range, a stamp past the sending step, a step past the
+    history: no result (the caller runs the unfused path)."""
+    n = 4
+    hist = np.zeros((6, n, 2))
+    alive = np.ones(n, bool)
+    pairs = np.array([[0, 1], [1, 2]])
+
+    def step(r, c, s, t_step=3, t_sent=3):  # type: ignore[no-untyped-def]
+        return _message_kernels.knowledge_step(
+            np.array(r),
+            np.array(c),
+            np.array(s),
+            alive,
+            False,
+            True,
+            np.arange(n),
+            pairs,
+            t_sent,
+            3,
+            2.0,
+            t_step,
+            hist,
+            np.zeros((n, 2)),
+            5.0,
+            1.0,
+            False,
+            _message_kernels.knowledge_scratch(),
+        )[0]
+
+    if not _kernels.NUMBA:
+        return
+    assert step([0, 1, 2], [1, 2, 3], [2, 2, 3]) is not None
+    assert step([1, 0], [0, 1], [2, 2]) is None  # rows not ascending
+    assert step([0, 0], [2, 1], [2, 2]) is None  # columns not ascending in a row
+    assert step([0, 0], [1, 1], [2, 2]) is None  # a repeated entry
+    assert step([0], [n], [2]) is None  # column out of range
+    assert step([n], [0], [2]) is None  # row out of range
+    assert step([0], [1], [3], t_sent=2) is None  # stamp past the sending step
+    assert step([0], [1], [2], t_step=6) is None  # past the history
