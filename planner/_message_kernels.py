@@ -1,14 +1,19 @@
 """Compiled glue of the message layer (Numba): the steps of :func:`planner.knowledge.propagate_entries`
 before the hop (forwarded entries, the links' CSR adjacency, the cost model's counts) and the view
-of :meth:`planner.knowledge.Knowledge._set_view`, each in one pass instead of a dozen NumPy calls.
+of :meth:`planner.knowledge.Knowledge._set_view`, each in one pass instead of a dozen NumPy calls;
+and :func:`knowledge_step`, the whole entry update of a tick (own entries, the hop, the age and
+distance cut-offs, the view) in one pass, which the message layer runs when it can (the separate
+kernels and NumPy steps are its fallback and its reference).
 
-At Table II's sizes a tick of the async planners makes thousands of small NumPy calls; these two
+At Table II's sizes a tick of the async planners makes thousands of small NumPy calls; these
 replace ~20 of them per tick (selections, concatenations, bincounts, an argsort, a searchsorted,
 a column_stack). DCCRS's believed displacements (a stamp lookup and a difference of two
-positions per entry) and its neighbour counts over the entries are here too. The same rules as :mod:`planner._graph_kernels` hold: integer and copy results
-only (no arithmetic on floats), so the callers get exactly the NumPy path's arrays; the NumPy
-path stays the reference (``_kernels.ENABLED = False``) and ``tests/planner/test_knowledge.py``
-compares the two.
+positions per entry) and its neighbour counts over the entries are here too. The same rules as
+:mod:`planner._graph_kernels` hold: integer and copy results, and the little float arithmetic
+there is (the distance cut-off, the displacements, the neighbour test) in NumPy's operation order
+without ``fastmath``, so the callers get exactly the NumPy path's arrays; the NumPy path stays the
+reference (``_kernels.ENABLED = False``) and ``tests/planner/test_knowledge.py`` and
+``tests/planner/test_kernels.py`` compare the two.
 """
 
 from __future__ import annotations
@@ -18,7 +23,14 @@ import numpy as np
 from planner import _kernels
 from planner._graph_kernels import _jit
 
-__all__ = ["hop_inputs", "entry_view", "believed_displacement", "near_counts"]
+__all__ = [
+    "hop_inputs",
+    "entry_view",
+    "knowledge_scratch",
+    "knowledge_step",
+    "believed_displacement",
+    "near_counts",
+]
 
 
 def _hop_inputs(
@@ -220,16 +232,30 @@ def _believed_displacement(
 ) -> np.ndarray:
     out = np.empty((len(holders), 2))
     m = len(held_rows)
+    base = 0
+    prev = -1
     for e in range(len(holders)):
         want = holders[e] * n + col_ids[e]
-        lo = 0
-        hi = m
-        while lo < hi:  # the first entry whose key is >= want (row-major keys are sorted)
+        if want < prev:  # the queries usually come in row-major order: search on from the last one
+            base = 0
+        prev = want
+        # the first entry whose key is >= want (row-major keys are sorted): gallop from base, then
+        # bisect (the same index as a bisection of the whole list)
+        lo = base
+        hi = base
+        step = 1
+        while hi < m and held_rows[hi] * n + held_cols[hi] < want:
+            lo = hi + 1
+            hi = lo + step
+            step *= 2
+        hi = min(hi, m)
+        while lo < hi:
             mid = (lo + hi) >> 1
             if held_rows[mid] * n + held_cols[mid] < want:
                 lo = mid + 1
             else:
                 hi = mid
+        base = lo
         s = -1
         if lo < m and held_rows[lo] * n + held_cols[lo] == want:
             s = held_stamps[lo]
@@ -274,30 +300,26 @@ def believed_displacement(
 
 
 def _near_counts(
-    ax: np.ndarray,
-    ay: np.ndarray,
-    bx: np.ndarray,
-    by: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
     er: np.ndarray,
     holder_first: bool,
     r2: float,
-    n: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     near = np.empty(len(er), dtype=np.bool_)
-    count = np.zeros(n, dtype=np.int64)
+    count = np.zeros(len(a), dtype=np.int64)
     for e in range(len(er)):
         i = er[e]
         if holder_first:
-            dx = ax[i] - bx[e]
-            dy = ay[i] - by[e]
+            dx = a[i, 0] - b[e, 0]
+            dy = a[i, 1] - b[e, 1]
         else:
-            dx = bx[e] - ax[i]
-            dy = by[e] - ay[i]
+            dx = b[e, 0] - a[i, 0]
+            dy = b[e, 1] - a[i, 1]
         d2 = dx * dx
         d2 += dy * dy
         near[e] = d2 <= r2
-        if near[e]:
-            count[i] += 1
+        count[i] += int(d2 <= r2)  # no branch on an unpredictable test
     return near, count
 
 
@@ -314,12 +336,382 @@ def near_counts(
     if not (_kernels.NUMBA and _kernels.ENABLED) or holder_u.ndim != 2 or holder_u.shape[1] != 2:
         return None
     return _near_counts_jit(
-        np.ascontiguousarray(holder_u[:, 0], dtype=np.float64),
-        np.ascontiguousarray(holder_u[:, 1], dtype=np.float64),
-        np.ascontiguousarray(y_e[:, 0], dtype=np.float64),
-        np.ascontiguousarray(y_e[:, 1], dtype=np.float64),
+        np.asarray(holder_u, dtype=np.float64),  # (n, 2) and (E, 2), any strides: read in place
+        np.asarray(y_e, dtype=np.float64),
         np.asarray(er, np.int64),
         bool(holder_first),
         float(r2),
-        len(holder_u),
     )
+
+
+#: De Bruijn multiplier and table: the index of a word's lowest set bit ``low`` (a power of two) is
+#: ``_LOW_BIT[(low * _DE_BRUIJN) >> 58]`` (mod 2^64), so the hop reads only the set bits of a word.
+_DE_BRUIJN = 0x03F79D71B4CB0A89
+_LOW_BIT = np.zeros(64, dtype=np.int64)
+for _b in range(64):
+    _LOW_BIT[((_DE_BRUIJN << _b) % 2**64) >> 58] = _b
+del _b
+
+
+def _room(a: np.ndarray, need: int) -> np.ndarray:
+    """``a`` if it holds ``need`` items and is not far larger (scratch reused tick to tick), else a
+    new int32 array with some slack. Its contents are not kept."""
+    if need <= len(a) <= 4 * need + 4096:
+        return a
+    return np.empty(need + need // 4 + 64, dtype=np.int32)
+
+
+_room_jit = _jit(_room)
+
+
+def _knowledge_step(
+    r: np.ndarray,
+    c: np.ndarray,
+    s: np.ndarray,
+    alive: np.ndarray,
+    own_first: bool,
+    hop: bool,
+    idx: np.ndarray,
+    pairs: np.ndarray,
+    cutoff: int,
+    t_sent: int,
+    max_level: int,
+    max_per_bit_word: float,
+    t_step: int,
+    age_cut: int,
+    hist: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    far2: float,
+    radio2: float,
+    forget: bool,
+    low_bit: np.ndarray,
+    scratch: tuple[np.ndarray, ...],
+) -> tuple[bool, tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+    n = len(alive)
+    m_in = len(r)
+    fc, fs, sets, kept_k, kept_s = scratch
+    empty = np.empty(0, dtype=np.int64)
+    fail = (empty, empty, empty, empty, empty, empty, empty, np.empty((0, 2)))
+    # 1. the forwarded entries (own entries first if ``own_first``), CSR by holder. Branch-free
+    # (the filters are unpredictable): every entry is written, the count advances if it is kept; an
+    # entry after the holder's own column goes one slot further, the own entry fills the gap.
+    lo = cutoff if hop else -(2**62)
+    fc = _room_jit(fc, m_in + n + 1)
+    fs = _room_jit(fs, m_in + n + 1)
+    start = np.zeros(n + 1, dtype=np.int64)
+    q = 0
+    e = 0
+    bad = False  # the entries must be row-major, one per (row, col), ids in range
+    for i in range(n):
+        e0 = e
+        while e < m_in and r[e] == i:
+            e += 1
+        prev = -1
+        for f in range(e0, e):
+            bad |= (c[f] <= prev) | (c[f] >= n)
+            prev = c[f]
+        if not own_first:
+            for f in range(e0, e):
+                fc[q] = c[f]
+                fs[q] = s[f]
+                q += int(s[f] >= lo)
+        elif alive[i]:
+            q0 = q
+            below = 0  # kept entries left of the own column
+            for f in range(e0, e):
+                k = c[f]
+                gt = int(k > i)
+                fc[q + gt] = k
+                fs[q + gt] = s[f]
+                keep = int(s[f] >= lo) & int(k != i)
+                q += keep
+                below += keep & int(k < i)
+            fc[q0 + below] = i
+            fs[q0 + below] = t_step
+            q += 1
+        start[i + 1] = q
+    if bad or e < m_in:
+        return False, fail, scratch
+    held = np.zeros(n, dtype=np.bool_)
+    s_max = -(2**62)
+    for f in range(q):
+        held[fc[f]] = True
+        s_max = max(s_max, fs[f])
+    if hop and q > 0 and s_max > t_sent:
+        return False, fail, scratch
+    # 2. the links' CSR adjacency by destination (self-loops included) and the hop's cost model
+    deg = np.ones(n, dtype=np.int64)
+    for p in range(len(pairs)):
+        deg[idx[pairs[p, 0]]] += 1
+        deg[idx[pairs[p, 1]]] += 1
+    link_start = np.zeros(n + 1, dtype=np.int64)
+    for i in range(n):
+        link_start[i + 1] = link_start[i] + deg[i]
+    fill = link_start[:-1].copy()
+    link_src = np.empty(link_start[n], dtype=np.int64)
+    for i in range(n):
+        link_src[fill[i]] = i
+        fill[i] += 1
+    for p in range(len(pairs)):
+        a = idx[pairs[p, 0]]
+        b = idx[pairs[p, 1]]
+        link_src[fill[a]] = b
+        fill[a] += 1
+        link_src[fill[b]] = a
+        fill[b] += 1
+    work = 0
+    for i in range(n):
+        work += (start[i + 1] - start[i]) * deg[i]
+    col_of = np.full(n, -1, dtype=np.int64)
+    n_k = 0
+    for k in range(n):
+        if held[k]:
+            col_of[k] = n_k
+            n_k += 1
+    col_ids = np.empty(n_k, dtype=np.int64)
+    for k in range(n):
+        if held[k]:
+            col_ids[col_of[k]] = k
+    levels = max_level + 1
+    words = (n_k + 63) // 64
+    block = levels * words
+    # 0: no hop (each holder keeps its forwarded entries), 1: per-entry maximum, 2: bit sets
+    mode = 0
+    if hop and q > 0 and len(pairs) > 0:
+        bit_cost = levels * words * (link_start[n] + n) / max_per_bit_word
+        mode = 1 if work < bit_cost else 2
+    one = np.uint64(1)
+    if mode == 2:
+        # sets[i * block + L * words + w]: the columns holder i forwards with age <= L, one bit each:
+        # each entry's bit at its own age, then OR-ed into the older levels
+        if not (n * block <= len(sets) <= 4 * n * block + 4096):
+            sets = np.empty(n * block + 64, dtype=np.uint64)
+        sets[: n * block] = 0
+        for i in range(n):
+            for f in range(start[i], start[i + 1]):
+                kk = col_of[fc[f]]
+                sets[i * block + (t_sent - fs[f]) * words + (kk >> 6)] |= one << np.uint64(kk & 63)
+            for w in range(i * block + words, (i + 1) * block):
+                sets[w] |= sets[w - words]
+    acc = np.zeros(block, dtype=np.uint64)
+    best = np.full(n if mode == 1 else 0, -1, dtype=np.int64)
+    row_k = np.empty(n + 1, dtype=np.int64)  # holder i's entries after the hop, columns ascending
+    row_s = np.empty(n + 1, dtype=np.int64)
+    cand_k = np.empty(n + 2, dtype=np.int64)  # its own entry and the entries past the age cut
+    cand_s = np.empty(n + 2, dtype=np.int64)
+    # 3. holder by holder: the hop, own entry, age cut, distance cut; the kept entries' columns and
+    # stamps (int32: the scratch is what this pass's memory traffic is made of), counts per holder
+    kept_k = _room_jit(kept_k, 2 * q + n + 16)
+    kept_s = _room_jit(kept_s, len(kept_k))
+    cap = min(len(kept_k), len(kept_s))
+    kept_start = np.zeros(n + 1, dtype=np.int64)
+    col_held = np.zeros(n, dtype=np.bool_)
+    m = 0
+    v = 0
+    row_i = -1
+    top = (levels - 1) * words
+    db = np.uint64(_DE_BRUIJN)
+    for i in range(n):
+        kept_start[i + 1] = m
+        if not alive[i]:
+            continue
+        row_i += 1
+        nt = 0
+        if mode == 0:
+            for f in range(start[i], start[i + 1]):
+                row_k[nt] = fc[f]
+                row_s[nt] = fs[f]
+                nt += 1
+        elif mode == 1:
+            for li in range(link_start[i], link_start[i + 1]):
+                j = link_src[li]
+                for f in range(start[j], start[j + 1]):
+                    k = fc[f]
+                    if best[k] < 0:
+                        row_k[nt] = k
+                        nt += 1
+                    if fs[f] > best[k]:
+                        best[k] = fs[f]
+            row_k[:nt].sort()
+            for f in range(nt):
+                row_s[f] = best[row_k[f]]
+                best[row_k[f]] = -1
+        else:
+            j = link_src[link_start[i]] * block
+            for w in range(block):
+                acc[w] = sets[j + w]
+            for li in range(link_start[i] + 1, link_start[i + 1]):
+                j = link_src[li] * block
+                for w in range(block):
+                    acc[w] |= sets[j + w]
+        # own entry (in column order) and age cut, branch-free as in 1.
+        nc = 0
+        below = 0
+        if mode == 2:  # the set bits straight into the candidates
+            for w in range(words):
+                x = acc[top + w]
+                while x:
+                    rest = x & (x - one)
+                    low = x ^ rest
+                    x = rest
+                    age = 0  # the levels below the first that holds the column (nested sets)
+                    for level in range(levels - 1):
+                        age += int((acc[level * words + w] & low) == 0)
+                    k = col_ids[w * 64 + low_bit[(low * db) >> np.uint64(58)]]
+                    gt = int(k > i)
+                    cand_k[nc + gt] = k
+                    cand_s[nc + gt] = t_sent - age
+                    keep = int(t_sent - age >= age_cut) & int(k != i)
+                    nc += keep
+                    below += keep & int(k < i)
+        for f in range(nt):
+            k = row_k[f]
+            gt = int(k > i)
+            cand_k[nc + gt] = k
+            cand_s[nc + gt] = row_s[f]
+            keep = int(row_s[f] >= age_cut) & int(k != i)
+            nc += keep
+            below += keep & int(k < i)
+        cand_k[below] = i
+        cand_s[below] = t_step
+        nc += 1
+        if m + nc > cap:
+            while m + nc > cap:
+                cap *= 2
+            kept_k = np.concatenate((kept_k[:m], np.empty(cap - m, dtype=np.int32)))
+            kept_s = np.concatenate((kept_s[:m], np.empty(cap - m, dtype=np.int32)))
+        pxi = px[i]
+        pyi = py[i]
+        for f in range(nc):  # written unconditionally, kept by advancing the counts
+            k = cand_k[f]
+            st = cand_s[f]
+            col_held[k] = True
+            x_m = hist[st, k, 0]
+            y_m = hist[st, k, 1]
+            dx = x_m - pxi
+            dy = y_m - pyi
+            d2 = dx * dx
+            d2 += dy * dy
+            far = (d2 > far2) | (forget & (d2 <= radio2) & (st < t_sent))
+            keep = 1 - int(far)
+            kept_k[m] = k
+            kept_s[m] = st
+            m += keep
+            v += keep & int(k != i)
+        kept_start[i + 1] = m
+    # 4. the view (alive holders, columns somebody holds) and the outputs, each written once
+    view_rows = np.empty(row_i + 1, dtype=np.int64)
+    q = 0
+    for i in range(n):
+        if alive[i]:
+            view_rows[q] = i
+            q += 1
+    n_view = 0
+    for k in range(n):
+        if col_held[k]:
+            col_of[k] = n_view
+            n_view += 1
+    view_cols = np.empty(n_view, dtype=np.int64)
+    for k in range(n):
+        if col_held[k]:
+            view_cols[col_of[k]] = k
+    rr = np.empty(m, dtype=np.int64)
+    cc = np.empty(m, dtype=np.int64)
+    ss = np.empty(m, dtype=np.int64)
+    er = np.empty(v, dtype=np.int64)
+    ec = np.empty(v, dtype=np.int64)
+    bel = np.empty((v, 2))
+    f = 0
+    v = 0
+    for row in range(len(view_rows)):
+        i = view_rows[row]
+        for f in range(kept_start[i], kept_start[i + 1]):
+            k = int(kept_k[f])
+            st = int(kept_s[f])
+            rr[f] = i
+            cc[f] = k
+            ss[f] = st
+            if k != i:
+                er[v] = row
+                ec[v] = col_of[k]
+                bel[v, 0] = hist[st, k, 0]
+                bel[v, 1] = hist[st, k, 1]
+                v += 1
+    return True, (rr, cc, ss, view_rows, view_cols, er, ec, bel), (fc, fs, sets, kept_k, kept_s)
+
+
+_knowledge_step_jit = _jit(_knowledge_step)
+
+
+def knowledge_scratch() -> tuple[np.ndarray, ...]:
+    """Empty scratch arrays for :func:`knowledge_step` (it grows them and hands them back)."""
+    e = np.empty(0, dtype=np.int32)
+    return (e, e, np.empty(0, dtype=np.uint64), e, e)
+
+
+def knowledge_step(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    stamps: np.ndarray,
+    alive: np.ndarray,
+    own_first: bool,
+    hop: bool,
+    idx: np.ndarray,
+    pairs: np.ndarray,
+    t_sent: int,
+    max_level: int,
+    max_per_bit_word: float,
+    t_step: int,
+    pos_hist_m: np.ndarray,
+    pos_m: np.ndarray,
+    dist_max_m: float,
+    radio_range_m: float,
+    forget: bool,
+    scratch: tuple[np.ndarray, ...],
+) -> tuple[tuple[np.ndarray, ...] | None, tuple[np.ndarray, ...]]:
+    """The entries' part of :meth:`planner.knowledge.Knowledge.update` in one compiled pass: own
+    entries (first if ``own_first``, the broadcast after the move), the hop of
+    :func:`planner.knowledge.propagate_entries` (if ``hop``; links ``idx[pairs]``; the same cost
+    model picks the per-entry maximum or the bit sets, here with the bits read through a de Bruijn
+    table), then per holder what :func:`planner._kernels.finish_knowledge_update` and
+    :func:`entry_view` do (own entry, age cut ``t_step - max_level``, distance cut, the view),
+    without their (E,) intermediate arrays.
+
+    Returns ``(result, scratch)``: result = (held rows, cols, stamps, view rows, view cols, entry
+    rows, entry cols, believed (E, 2)), integers and copies only, so exactly the arrays of the
+    unfused path; None without Numba, or when the entries are not row-major or the hop's inputs are
+    outside its range (the caller then runs the unfused path). ``scratch``
+    (:func:`knowledge_scratch` at first) is reused from call to call: fresh arrays of a few MB per
+    tick cost more in page faults than the pass itself (~1.7 us per 4 kB page measured here)."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or not pos_hist_m.flags.c_contiguous:
+        return None, scratch
+    n = len(alive)
+    if pos_hist_m.shape[1:] != (n, 2) or not 0 <= t_step < min(len(pos_hist_m), 2**31 - 1):
+        return None, scratch  # positions out of the history's range; stamps kept as int32 inside
+    pos_m = np.asarray(pos_m, np.float64)
+    ok, res, scratch = _knowledge_step_jit(
+        np.asarray(rows, np.int64),
+        np.asarray(cols, np.int64),
+        np.asarray(stamps, np.int64),
+        np.asarray(alive, np.bool_),
+        bool(own_first),
+        bool(hop),
+        np.asarray(idx, np.int64),
+        np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2),
+        max(int(t_sent) - int(max_level), 0),
+        int(t_sent),
+        int(max_level),
+        float(max_per_bit_word),
+        int(t_step),
+        int(t_step) - int(max_level),
+        pos_hist_m,
+        np.ascontiguousarray(pos_m[:, 0]),
+        np.ascontiguousarray(pos_m[:, 1]),
+        dist_max_m * dist_max_m,
+        radio_range_m * radio_range_m,
+        bool(forget),
+        _LOW_BIT,
+        scratch,
+    )
+    return (res if ok else None), scratch

@@ -582,6 +582,10 @@ class Knowledge(_StampTables):
     entry_cols: np.ndarray | None = None
     entry_believed_m: np.ndarray | None = None
     n_drones: int = 0
+    #: scratch arrays of the compiled update, reused from tick to tick (no state)
+    _scratch: tuple[np.ndarray, ...] = field(
+        default_factory=_message_kernels.knowledge_scratch, repr=False, compare=False
+    )
 
     @classmethod
     def empty(cls, n_drones: int, n_steps: int) -> Self:
@@ -661,29 +665,62 @@ class Knowledge(_StampTables):
         n = len(pos_m)
         alive = np.asarray(alive, dtype=bool)
         self.pos_hist_m[t_step] = pos_m
-        r, c, s = self.held_rows, self.held_cols, self.held_stamps
         if after_move:
             link_pos_m, link_alive, t_sent = pos_m, alive, t_step
             self.tree_stamp[~alive] = UNKNOWN
-            r, c, s = self._own(r, c, s, alive, t_step)
         else:
             link_pos_m, link_alive, t_sent = pos_prev_m, alive_prev, t_step - 1  # type: ignore[assignment]  # read only if pos_prev_m is not None
+        idx = np.empty(0, np.intp)
+        pairs = np.empty((0, 2), np.intp)
         if pos_prev_m is not None:
             idx = np.flatnonzero(link_alive)
             # Unordered pairs: the hop and the tree flood take maxima over the links (any order).
-            pairs = (
-                radio_pairs(link_pos_m[idx], radio_range_m, ordered=False)
-                if len(idx) > 1
-                else np.empty((0, 2), np.intp)
-            )
-            # Holders outside ``idx`` have no links: they keep their forwarded entries (the others
-            # are past the age cut-off below either way).
-            r, c, s = propagate_entries(r, c, s, n, n, idx[pairs], t_sent, age_max_steps)
+            if len(idx) > 1:
+                pairs = radio_pairs(link_pos_m[idx], radio_range_m, ordered=False)
             _flood_tree_stamp(
                 self.tree_stamp, idx, pairs, link_pos_m[idx], base_m, base_reach_m, t_step
             )
         # Own state is always fresh; dead drones hold nothing.
         self.tree_stamp[~alive] = UNKNOWN
+        if (
+            age_max_steps + 1 <= _BITSET_MAX_LEVELS
+            and n > _COMPILED_BITSET_MIN_HOLDERS
+            and len(self.held_rows) + n > 0
+        ):
+            # own entries, the hop and the lines at the end in one compiled pass, the same arrays
+            # (tests/planner/test_knowledge.py); None without Numba or outside its input range
+            fused, self._scratch = _message_kernels.knowledge_step(
+                self.held_rows,
+                self.held_cols,
+                self.held_stamps,
+                alive,
+                after_move,
+                pos_prev_m is not None,
+                idx,
+                pairs,
+                int(t_sent),
+                int(age_max_steps),
+                _MAX_PER_BIT_WORD,
+                int(t_step),
+                self.pos_hist_m,
+                pos_m,
+                dist_max_m,
+                radio_range_m,
+                bool(forget_unheard and pos_prev_m is not None),
+                self._scratch,
+            )
+            if fused is not None:
+                self.held_rows, self.held_cols, self.held_stamps = fused[:3]
+                self.rows, self.cols, self.entry_rows, self.entry_cols = fused[3:7]
+                self.entry_believed_m = fused[7]
+                return
+        r, c, s = self.held_rows, self.held_cols, self.held_stamps
+        if after_move:
+            r, c, s = self._own(r, c, s, alive, t_step)
+        if pos_prev_m is not None:
+            # Holders outside ``idx`` have no links: they keep their forwarded entries (the others
+            # are past the age cut-off below either way).
+            r, c, s = propagate_entries(r, c, s, n, n, idx[pairs], t_sent, age_max_steps)
         if _kernels.NUMBA and _kernels.ENABLED and self.pos_hist_m.flags.c_contiguous:
             # the lines below in one compiled pass, bit for bit (tests/planner/test_kernels.py)
             pos_m = np.asarray(pos_m, float)
@@ -993,6 +1030,10 @@ class MessageLayer:
         assert kn.rows is not None and kn.entry_rows is not None  # set by update()
         assert kn.entry_cols is not None and kn.entry_believed_m is not None
         holders = np.asarray(holders)
+        if len(holders) == len(kn.rows) and np.array_equal(holders, kn.rows):
+            # every alive drone (the usual tick): the view's own rows, no remapping
+            er = kn.entry_rows.astype(np.intp)  # a copy, as below
+            return er, kn.entry_cols, kn.entry_believed_m, kn.tree_stamp[holders]
         local = np.full(len(kn.rows), -1, dtype=np.intp)
         local[np.searchsorted(kn.rows, holders)] = np.arange(len(holders))  # holders are alive
         er = local[kn.entry_rows]

@@ -459,17 +459,26 @@ def test_believed_displacement_compiled_identical(rng, numpy_only):
         kn = layer.knowledge
         holders = rng.integers(0, n, 400)
         cols = rng.integers(0, n, 400)
-        got = _message_kernels.believed_displacement(
-            kn.held_rows, kn.held_cols, kn.held_stamps, n, holders, cols, kn.pos_hist_m
-        )
-        stamp = kn.stamp[holders, cols]
-        s = np.where(stamp >= 1, stamp, 1)
-        want = np.where(
-            (stamp >= 1)[:, None], kn.pos_hist_m[s, cols] - kn.pos_hist_m[s - 1, cols], 0.0
-        )
-        assert got is not None and got.dtype == want.dtype
-        assert np.array_equal(got.view(np.int64), want.view(np.int64))  # bits, -0.0 included
-        seen |= {bool(v) for v in stamp >= 1}
+        by_key = np.lexsort((cols, holders))
+        some = np.sort(rng.choice(len(kn.held_rows), min(300, len(kn.held_rows)), replace=False))
+        queries = [
+            (holders, cols),  # any order
+            (holders[by_key], cols[by_key]),  # row-major, as DCCRS asks (the search gallops on)
+            (kn.held_rows[some], kn.held_cols[some]),  # held entries, row-major
+            (np.r_[holders[by_key], holders[by_key]], np.r_[cols[by_key], cols[by_key]]),
+        ]
+        for holders, cols in queries:
+            got = _message_kernels.believed_displacement(
+                kn.held_rows, kn.held_cols, kn.held_stamps, n, holders, cols, kn.pos_hist_m
+            )
+            stamp = kn.stamp[holders, cols]
+            s = np.where(stamp >= 1, stamp, 1)
+            want = np.where(
+                (stamp >= 1)[:, None], kn.pos_hist_m[s, cols] - kn.pos_hist_m[s - 1, cols], 0.0
+            )
+            assert got is not None and got.dtype == want.dtype
+            assert np.array_equal(got.view(np.int64), want.view(np.int64))  # bits, -0.0 included
+            seen |= {bool(v) for v in stamp >= 1}
         pos = pos + rng.normal(0, 0.4, (n, 2))
         alive &= rng.random(n) > 0.03
     numpy_only(True)
@@ -495,11 +504,14 @@ def test_near_counts_is_einsum_and_bincount(rng, numpy_only):
         for holder_first in (True, False):
             d = holder[er] - y_e if holder_first else y_e - holder[er]
             near = np.einsum("ec,ec->e", d, d) <= r2
-            got = _message_kernels.near_counts(holder, y_e, er, holder_first, r2)
-            assert got is not None
-            assert np.array_equal(got[0], near)
-            assert np.array_equal(got[1], np.bincount(er[near], minlength=n))
-            assert got[1].dtype == np.bincount(er[near], minlength=n).dtype
+            wide = np.zeros((n, 4))
+            wide[:, ::2] = holder  # strided input, read in place
+            for h in (holder, wide[:, ::2]):
+                got = _message_kernels.near_counts(h, y_e, er, holder_first, r2)
+                assert got is not None
+                assert np.array_equal(got[0], near)
+                assert np.array_equal(got[1], np.bincount(er[near], minlength=n))
+                assert got[1].dtype == np.bincount(er[near], minlength=n).dtype
             assert 0 < near.sum() < e
     numpy_only(True)
     assert _message_kernels.near_counts(holder, y_e, er, True, r2) is None

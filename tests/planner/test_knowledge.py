@@ -4,7 +4,7 @@ import numpy as np
 
 import pytest
 
-from planner import knowledge
+from planner import _kernels, _message_kernels, knowledge
 from planner.knowledge import (
     Knowledge,
     KnowledgeDense,
@@ -306,3 +306,110 @@ def test_message_layer_same_with_a_drone_coming_back(rng):
         )
         assert np.array_equal(layer.knowledge.stamp, ref.stamp)
         prev = (pos, alive)
+
+
+@pytest.mark.parametrize("after_move", [False, True])
+@pytest.mark.parametrize("forget_unheard", [False, True])
+@pytest.mark.parametrize("max_per_bit", [1e-9, 2.0, 1e9])
+def test_fused_update_is_the_unfused_one(rng, monkeypatch, after_move, forget_unheard, max_per_bit):
+    """The compiled update (own entries, hop, cut-offs and view in one pass,
+    :func:`planner._message_kernels.knowledge_step`) against the unfused path it replaces, with the
+    cost model forced to the bit sets (1e9), to the per-entry maximum (1e-9) or left as shipped:
+    identical arrays (values and dtypes), swarms large and small, losses, a drone coming back."""
+    monkeypatch.setattr(knowledge, "_MAX_PER_BIT_WORD", max_per_bit)
+    fused_step = _message_kernels.knowledge_step
+    calls = {"fused": 0}
+
+    def counted(*args: object) -> object:
+        out = fused_step(*args)  # type: ignore[arg-type]
+        calls["fused"] += out[0] is not None
+        return out
+
+    def unfused(*args: object) -> object:
+        return None, args[-1]
+
+    for trial in range(8):
+        n, n_steps = int(rng.integers(2, 150)), 25
+        age_max, dist_max = int(rng.integers(0, 6)), float(rng.uniform(1.0, 8.0))
+        fused, ref = Knowledge.empty(n, n_steps), Knowledge.empty(n, n_steps)
+        pos = rng.uniform(-6, 6, (n, 2)) * rng.uniform(0.2, 2.0)
+        alive = np.ones(n, bool)
+        prev = (None, None)
+        for t in range(n_steps):
+            pos_t = pos + rng.normal(0, 0.4, pos.shape)
+            alive_t = alive & (rng.random(n) > 0.04)
+            if t == 12:
+                alive_t[0] = True  # back after a loss (live use)
+            for kn, step in ((fused, counted), (ref, unfused)):
+                monkeypatch.setattr(_message_kernels, "knowledge_step", step)
+                kn.update(
+                    t,
+                    prev[0],
+                    prev[1],
+                    pos_t,
+                    alive_t,
+                    2.0,
+                    2.5,
+                    age_max,
+                    dist_max,
+                    np.zeros(2),
+                    after_move=after_move,
+                    forget_unheard=forget_unheard,
+                )
+            for name in (
+                "held_rows",
+                "held_cols",
+                "held_stamps",
+                "tree_stamp",
+                "rows",
+                "cols",
+                "entry_rows",
+                "entry_cols",
+                "entry_believed_m",
+            ):
+                a, b = getattr(fused, name), getattr(ref, name)
+                assert a.dtype == b.dtype and np.array_equal(a, b), (trial, t, name)
+            prev, pos, alive = (pos_t, alive_t), pos_t, alive_t
+    assert calls["fused"] > 0 or not _kernels.NUMBA
+
+
+def test_fused_update_declines_what_it_cannot_read():
+    """Entries not row-major, a column out of range, a stamp past the sending step, a step past the
+    history: no result (the caller runs the unfused path)."""
+    n = 4
+    hist = np.zeros((6, n, 2))
+    alive = np.ones(n, bool)
+    pairs = np.array([[0, 1], [1, 2]])
+
+    def step(r, c, s, t_step=3, t_sent=3):  # type: ignore[no-untyped-def]
+        return _message_kernels.knowledge_step(
+            np.array(r),
+            np.array(c),
+            np.array(s),
+            alive,
+            False,
+            True,
+            np.arange(n),
+            pairs,
+            t_sent,
+            3,
+            2.0,
+            t_step,
+            hist,
+            np.zeros((n, 2)),
+            5.0,
+            1.0,
+            False,
+            _message_kernels.knowledge_scratch(),
+        )[0]
+
+    if not _kernels.NUMBA:
+        return
+    assert step([0, 1, 2], [1, 2, 3], [2, 2, 3]) is not None
+    assert step([1, 0], [0, 1], [2, 2]) is None  # rows not ascending
+    assert step([0, 0], [2, 1], [2, 2]) is None  # columns not ascending in a row
+    assert step([0, 0], [1, 1], [2, 2]) is None  # a repeated entry
+    assert step([0], [n], [2]) is None  # column out of range
+    assert step([n], [0], [2]) is None  # row out of range
+    assert step([0], [1], [3], t_sent=2) is None  # stamp past the sending step
+    assert step([0], [1], [2], t_step=6) is None  # past the history
