@@ -30,6 +30,7 @@ __all__ = [
     "knowledge_step",
     "believed_displacement",
     "near_counts",
+    "velocity_match_near",
 ]
 
 
@@ -344,6 +345,89 @@ def near_counts(
     )
 
 
+def _velocity_match_near(
+    disp_pot: np.ndarray,
+    er: np.ndarray,
+    near: np.ndarray,
+    stamps: np.ndarray,
+    view_cols: np.ndarray,
+    ec: np.ndarray,
+    pos_hist: np.ndarray,
+    alpha: float,
+    vmax: float,
+) -> np.ndarray:
+    n = len(disp_pot)
+    count = np.zeros(n, dtype=np.int64)
+    tx = np.zeros(n)
+    ty = np.zeros(n)
+    for e in range(len(er)):  # bincount's order: entry by entry
+        if near[e]:
+            i = er[e]
+            s = stamps[e]
+            k = view_cols[ec[e]]
+            dx = 0.0
+            dy = 0.0
+            if s >= 1:
+                dx = pos_hist[s, k, 0] - pos_hist[s - 1, k, 0]
+                dy = pos_hist[s, k, 1] - pos_hist[s - 1, k, 1]
+            count[i] += 1
+            tx[i] += dx
+            ty[i] += dy
+    out = np.empty((n, 2))
+    for i in range(n):
+        ox = disp_pot[i, 0]
+        oy = disp_pot[i, 1]
+        if count[i] > 0:
+            c = float(count[i])
+            ox = (1.0 - alpha) * ox + alpha * (tx[i] / c)
+            oy = (1.0 - alpha) * oy + alpha * (ty[i] / c)
+        norm2 = ox * ox
+        norm2 += oy * oy
+        norm = np.sqrt(norm2)
+        f = vmax / (norm if norm > 0 else 1.0)
+        if not f != f:  # np.minimum(1.0, f): NaN stays NaN
+            f = min(1.0, f)
+        out[i, 0] = ox * f
+        out[i, 1] = oy * f
+    return out
+
+
+_velocity_match_near_jit = _jit(_velocity_match_near)
+
+
+def velocity_match_near(
+    disp_pot_u: np.ndarray,
+    er: np.ndarray,
+    near_e: np.ndarray,
+    stamps_e: np.ndarray,
+    view_cols: np.ndarray,
+    ec: np.ndarray,
+    pos_hist_u: np.ndarray,
+    alpha: float,
+    vmax: float,
+) -> np.ndarray | None:
+    """DCCRS's velocity matching over the view's entries in one pass:
+    :func:`planner.dccrs.velocity_match_entries` of the ``near_e`` (E,) bool entries (holder rows
+    ``er``), each with the displacement pos_hist[s, k] - pos_hist[s - 1, k] (0 if s < 1) of its drone
+    k = ``view_cols[ec[e]]`` at its stamp s = ``stamps_e[e]`` (what
+    :meth:`planner.info.MessageView.believed_displacement_u` looks up), summed per holder in entry
+    order as bincount does, then the same mean, blend and clip, element by element in NumPy's
+    order (tests/planner/test_dccrs.py compares the two). None without Numba."""
+    if not (_kernels.NUMBA and _kernels.ENABLED):
+        return None
+    return _velocity_match_near_jit(
+        np.asarray(disp_pot_u, np.float64),
+        np.asarray(er, np.int64),
+        np.asarray(near_e, np.bool_),
+        np.asarray(stamps_e, np.int64),
+        np.asarray(view_cols, np.int64),
+        np.asarray(ec, np.int64),
+        np.asarray(pos_hist_u, np.float64),
+        float(alpha),
+        float(vmax),
+    )
+
+
 #: De Bruijn multiplier and table: the index of a word's lowest set bit ``low`` (a power of two) is
 #: ``_LOW_BIT[(low * _DE_BRUIJN) >> 58]`` (mod 2^64), so the hop reads only the set bits of a word.
 _DE_BRUIJN = 0x03F79D71B4CB0A89
@@ -392,7 +476,7 @@ def _knowledge_step(
     m_in = len(r)
     fc, fs, sets, kept_k, kept_s = scratch
     empty = np.empty(0, dtype=np.int64)
-    fail = (empty, empty, empty, empty, empty, empty, empty, np.empty((0, 2)))
+    fail = (empty, empty, empty, empty, empty, empty, empty, np.empty((0, 2)), empty)
     # 1. the forwarded entries (own entries first if ``own_first``), CSR by holder. Branch-free
     # (the filters are unpredictable): every entry is written, the count advances if it is kept; an
     # entry after the holder's own column goes one slot further, the own entry fills the gap.
@@ -621,6 +705,7 @@ def _knowledge_step(
     ss = np.empty(m, dtype=np.int64)
     er = np.empty(v, dtype=np.int64)
     ec = np.empty(v, dtype=np.int64)
+    es = np.empty(v, dtype=np.int64)
     bel = np.empty((v, 2))
     f = 0
     v = 0
@@ -635,10 +720,11 @@ def _knowledge_step(
             if k != i:
                 er[v] = row
                 ec[v] = col_of[k]
+                es[v] = st
                 bel[v, 0] = hist[st, k, 0]
                 bel[v, 1] = hist[st, k, 1]
                 v += 1
-    return True, (rr, cc, ss, view_rows, view_cols, er, ec, bel), (fc, fs, sets, kept_k, kept_s)
+    return True, (rr, cc, ss, view_rows, view_cols, er, ec, bel, es), (fc, fs, sets, kept_k, kept_s)
 
 
 _knowledge_step_jit = _jit(_knowledge_step)
@@ -679,7 +765,7 @@ def knowledge_step(
     without their (E,) intermediate arrays.
 
     Returns ``(result, scratch)``: result = (held rows, cols, stamps, view rows, view cols, entry
-    rows, entry cols, believed (E, 2)), integers and copies only, so exactly the arrays of the
+    rows, entry cols, believed (E, 2), entry stamps), integers and copies only, so exactly the arrays of the
     unfused path; None without Numba, or when the entries are not row-major or the hop's inputs are
     outside its range (the caller then runs the unfused path). ``scratch``
     (:func:`knowledge_scratch` at first) is reused from call to call: fresh arrays of a few MB per

@@ -689,31 +689,52 @@ class DccrsPlanner:
     def _plan_async(
         self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        p = self.params
         idx, disp_u = view.planned, view.disp_u  # stale drones already head home
         if len(idx) == 0:
             return disp_u, view.info()
         # Known entries of the view only (rows into idx, columns into the layer's columns, row-major).
-        er, ek = view.rows_e, view.cols_e
+        er = view.rows_e
         floods, version_of = view.broadcasts()  # the task positions each drone last received
         leaders = self._leaders(np.stack(floods)[version_of], base_u)
         res, near_e, weight = self._descend_entries(pos_u[idx], er, view.believed_u, leaders)
-        nr = er[near_e]
-        if p.velocity_matching > 0:
-            vel = view.believed_displacement_u(idx[nr], ek[near_e])
-            disp_u[idx] = velocity_match_entries(
-                res.disp_u, nr, vel, p.velocity_matching, self.vmax_u
-            )
-        else:
-            disp_u[idx] = velocity_match_entries(
-                res.disp_u, nr, np.zeros((len(nr), 2)), 0.0, self.vmax_u
-            )
+        disp_u[idx] = self._velocity_match(view, res.disp_u, near_e)
         return disp_u, {
             "iterations": res.iterations,
             "converged": res.converged,
             **view.info(),
             "mean_density_weight": float(weight.mean()),
         }
+
+    def _velocity_match(
+        self, view: MessageView, disp_pot_u: np.ndarray, near_e: np.ndarray
+    ) -> np.ndarray:
+        """:func:`velocity_match_entries` over the ``near_e`` entries of the view, each with the
+        last displacement its holder believes of its drone."""
+        p = self.params
+        er, ek = view.rows_e, view.cols_e
+        stamps_e = view.entry_stamps() if p.velocity_matching > 0 else None
+        kn = view.layer.knowledge
+        if stamps_e is not None and kn.cols is not None:
+            # the lines below in one compiled pass, the stamps read from the entries instead of
+            # searched, the same bits (tests/planner/test_dccrs.py); None without Numba
+            fast = _message_kernels.velocity_match_near(
+                disp_pot_u,
+                er,
+                near_e,
+                stamps_e,
+                kn.cols,
+                ek,
+                kn.pos_hist_m,
+                p.velocity_matching,
+                self.vmax_u,
+            )
+            if fast is not None:
+                return fast
+        nr = er[near_e]
+        if p.velocity_matching > 0:
+            vel = view.believed_displacement_u(view.planned[nr], ek[near_e])
+            return velocity_match_entries(disp_pot_u, nr, vel, p.velocity_matching, self.vmax_u)
+        return velocity_match_entries(disp_pot_u, nr, np.zeros((len(nr), 2)), 0.0, self.vmax_u)
 
 
 def make_dccrs(

@@ -152,10 +152,24 @@ class MessageView:
     """(n,) int: the broadcast stamp each planned drone holds."""
     layer: MessageLayer
     """The message layer (the tables behind the entries)."""
+    whole: bool = False
+    """The entries are the layer's whole view this tick (every alive drone planned): entry e is
+    the knowledge's view entry e."""
 
     def info(self) -> dict[str, Any]:
         """Diagnostics of the model for ``PlanOutput.info``."""
         return {"stale_tree": self.n_stale}
+
+    def entry_stamps(self) -> np.ndarray | None:
+        """(E,) the stamp each entry's holder holds of its drone (what
+        :meth:`believed_displacement_u` looks up), when the entries are the whole view of a
+        :class:`planner.knowledge.Knowledge`; else None."""
+        from planner.knowledge import Knowledge
+
+        kn = self.layer.knowledge
+        if not (self.whole and isinstance(kn, Knowledge)):
+            return None
+        return kn.view_entry_stamps()
 
     def broadcasts(self) -> tuple[list[Any], np.ndarray]:
         """The broadcast versions the planned drones hold, oldest first, and (n,) which one each
@@ -285,6 +299,7 @@ class MessagePassingInfo:
                 layer,
             )
         rows_e, cols_e, believed_u, stamps = layer.view_entries(planned)
+        kn_rows = layer.knowledge.rows
         return MessageView(
             planned,
             disp_u,
@@ -295,6 +310,9 @@ class MessagePassingInfo:
             believed_u,
             stamps,
             layer,
+            kn_rows is not None
+            and len(kn_rows) == len(planned)
+            and bool(np.array_equal(kn_rows, planned)),
         )
 
 

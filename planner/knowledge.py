@@ -571,6 +571,8 @@ class Knowledge(_StampTables):
         indices into ``rows`` and ``cols``, in row-major order
     entry_believed_m : (E, 2) believed position of each entry
     known_view : (len(rows), len(cols)) bool, the same entries as a mask (built on request)
+
+    :meth:`view_entry_stamps` gives each view entry's stamp.
     """
 
     held_rows: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
@@ -582,6 +584,9 @@ class Knowledge(_StampTables):
     entry_cols: np.ndarray | None = None
     entry_believed_m: np.ndarray | None = None
     n_drones: int = 0
+    #: (E,) the stamp of each view entry, set by the fused update (else built on request); cleared
+    #: by every update (it describes this tick's entries only)
+    _entry_stamps: np.ndarray | None = field(default=None, repr=False, compare=False)
     #: scratch arrays of the compiled update, reused from tick to tick (no state)
     _scratch: tuple[np.ndarray, ...] = field(
         default_factory=_message_kernels.knowledge_scratch, repr=False, compare=False
@@ -611,6 +616,15 @@ class Knowledge(_StampTables):
         known = np.zeros((len(self.rows), len(self.cols)), dtype=bool)
         known[self.entry_rows, self.entry_cols] = True
         return known
+
+    def view_entry_stamps(self) -> np.ndarray:
+        """(E,) int64: the stamp of each view entry (``stamp[rows[entry_rows], cols[entry_cols]]``,
+        what :meth:`StampTable.lookup` finds). The view entries are the held entries without the
+        self ones, in the same order (only alive drones hold entries), so no search is needed."""
+        if self._entry_stamps is None:
+            r, c, s = self.held_rows, self.held_cols, self.held_stamps
+            self._entry_stamps = s[r != c]
+        return self._entry_stamps
 
     @staticmethod
     def _own(
@@ -665,6 +679,7 @@ class Knowledge(_StampTables):
         n = len(pos_m)
         alive = np.asarray(alive, dtype=bool)
         self.pos_hist_m[t_step] = pos_m
+        self._entry_stamps = None  # last tick's
         if after_move:
             link_pos_m, link_alive, t_sent = pos_m, alive, t_step
             self.tree_stamp[~alive] = UNKNOWN
@@ -713,6 +728,7 @@ class Knowledge(_StampTables):
                 self.held_rows, self.held_cols, self.held_stamps = fused[:3]
                 self.rows, self.cols, self.entry_rows, self.entry_cols = fused[3:7]
                 self.entry_believed_m = fused[7]
+                self._entry_stamps = fused[8]
                 return
         r, c, s = self.held_rows, self.held_cols, self.held_stamps
         if after_move:

@@ -302,3 +302,64 @@ def test_short_simulation_gives_plausible_uptime():
         tu2 = 100 * np.mean([r.tu2 for r in res])
         assert 40 <= tu1 <= 95, (info, tu1)
         assert tu1 <= tu2 + 1e-9 <= 100 + 1e-9, (info, tu2)
+
+
+def test_velocity_matching_over_entries_compiled_is_the_numpy_one(rng):
+    """:func:`planner._message_kernels.velocity_match_near` (stamps read from the view entries)
+    against :func:`velocity_match_entries` of the displacements the stamp table gives, bit for bit:
+    random entries, stamps below 1, holders without neighbours, the clip acting and not."""
+    from planner import _kernels, _message_kernels
+    from planner.dccrs import velocity_match_entries
+
+    if not _kernels.NUMBA:
+        pytest.skip("needs Numba")
+    for trial in range(20):
+        n, n_cols, T = int(rng.integers(1, 40)), int(rng.integers(1, 60)), 8
+        hist = rng.normal(0, 0.1, (T, n_cols + 3, 2))
+        view_cols = np.sort(rng.choice(n_cols + 3, n_cols, replace=False))
+        per = rng.integers(0, 6, n)
+        er = np.repeat(np.arange(n), per)
+        ec = rng.integers(0, n_cols, len(er))
+        stamps = rng.integers(-1, T, len(er))
+        near = rng.random(len(er)) < 0.6
+        pot = rng.uniform(-0.2, 0.2, (n, 2)) * (trial % 2)  # zero instructions half the time
+        alpha = float(rng.choice([0.05, 0.3, 1.0]))
+        s = np.where(stamps >= 1, stamps, 1)
+        k = view_cols[ec]
+        vel = np.where((stamps >= 1)[:, None], hist[s, k] - hist[s - 1, k], 0.0)
+        want = velocity_match_entries(pot, er[near], vel[near], alpha, 0.15)
+        got = _message_kernels.velocity_match_near(
+            pot, er, near, stamps, view_cols, ec, hist, alpha, 0.15
+        )
+        assert got is not None and np.array_equal(got.view(np.int64), want.view(np.int64)), trial
+
+
+def test_async_velocity_matching_reads_the_entry_stamps(monkeypatch):
+    """An async DCCRS run plans the same bits with the entries' stamps (compiled) as with the
+    stamp search of :meth:`planner.info.MessageView.believed_displacement_u`."""
+    from planner.info import MessageView
+
+    prob = problem_preset("S", 0.05)
+    params = {"info": "async", "velocity_matching": 0.5}
+
+    def run() -> np.ndarray:
+        streams = spawn_streams(3)
+        world = World.from_scenario(prob, draw_scenario(prob, streams))
+        planner = make_planner("dccrs", prob, params)
+        plans = []
+        for t in range(40):
+            active = world.active()
+            out = planner.plan(
+                TickInput(t, world.pos_m, world.alive, active, world.task_pos_m, world.base_m)
+            )
+            plans.append(out.disp_m)
+            world.step(
+                out.disp_m, active, prob.attrition_per_step, streams.attrition.random(prob.n_drones)
+            )
+        return np.array(plans)
+
+    fast = run()
+    monkeypatch.setattr(MessageView, "entry_stamps", lambda self: None)
+    slow = run()
+    assert np.array_equal(fast.view(np.int64), slow.view(np.int64))
+    assert np.abs(fast).max() > 0

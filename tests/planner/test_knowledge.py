@@ -369,6 +369,14 @@ def test_fused_update_is_the_unfused_one(rng, monkeypatch, after_move, forget_un
             ):
                 a, b = getattr(fused, name), getattr(ref, name)
                 assert a.dtype == b.dtype and np.array_equal(a, b), (trial, t, name)
+            # each view entry's stamp (from the fused pass, or built on request and kept until the
+            # next update: asked every tick, so a stamp kept past an update would show here) is
+            # the stamp table's
+            table = np.asarray(ref.stamp)
+            want = table[ref.rows[ref.entry_rows], ref.cols[ref.entry_cols]]
+            for kn in (fused, ref):
+                got = kn.view_entry_stamps()
+                assert got.dtype == np.int64 and np.array_equal(got, want), (trial, t)
             prev, pos, alive = (pos_t, alive_t), pos_t, alive_t
     assert calls["fused"] > 0 or not _kernels.NUMBA
 
