@@ -148,6 +148,21 @@ class TaskTree:
         """
         return self.nodes_m[1:].copy(), self.nodes_m[self.parent[1:]]
 
+    def scaled(self, factor: float) -> TaskTree:
+        """This tree with its node positions times ``factor`` (paper units <-> metres): the
+        ``dataclasses.replace(tree, nodes_m=tree.nodes_m * factor)`` of
+        :meth:`planner.units.PaperUnits.tree_to_m`, the same arrays, without checking again the
+        parent pointers it shares (read-only, already checked); the positions must stay finite."""
+        nodes = np.asarray(self.nodes_m * float(factor), dtype=np.float64)
+        if not np.isfinite(nodes).all():
+            raise ValueError("nodes_m must be finite")
+        nodes.setflags(write=False)
+        out = object.__new__(TaskTree)
+        object.__setattr__(out, "nodes_m", nodes)
+        object.__setattr__(out, "parent", self.parent)
+        object.__setattr__(out, "n_tasks", self.n_tasks)
+        return out
+
     def edge_lengths_m(self) -> np.ndarray:
         """(K,) float64: length of the edge to each node's parent, metres (0 for the base)."""
         return _edge_lengths(self.nodes_m, self.parent)

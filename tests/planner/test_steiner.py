@@ -501,3 +501,27 @@ def test_relaxation_shortcuts_give_the_same_bits(rng, monkeypatch, sweeps):
             assert np.array_equal(new.parent, ref.parent), trial
             tree = new
     assert shortcuts > 0
+
+
+def test_scaled_tree_is_the_replaced_one(rng):
+    """TaskTree.scaled (what PhiIREMAN returns each tick, in metres) against the checked
+    construction of planner.units.PaperUnits.tree_to_m: the same arrays, read-only; a scale that
+    overflows is refused."""
+    import dataclasses
+
+    for m in (0, 1, 7, 30):
+        tree = build_task_tree(np.zeros(2), rng.uniform(-8, 8, (m, 2)))
+        for factor in (1.0, 0.37, 250.0):
+            got = tree.scaled(factor)
+            want = dataclasses.replace(tree, nodes_m=tree.nodes_m * factor)
+            assert type(got) is TaskTree and got.n_tasks == want.n_tasks
+            assert got.nodes_m.tobytes() == want.nodes_m.tobytes()
+            assert (
+                got.nodes_m.dtype == want.nodes_m.dtype and got.nodes_m.shape == want.nodes_m.shape
+            )
+            assert np.array_equal(got.parent, want.parent) and got.parent.dtype == np.int64
+            assert not got.nodes_m.flags.writeable and not got.parent.flags.writeable
+            assert got.path_to_base_m().tobytes() == want.path_to_base_m().tobytes()
+    far = TaskTree(np.array([[0.0, 0.0], [5.0, 0.0]]), np.array([-1, 0]), 1)
+    with pytest.raises(ValueError, match="finite"), np.errstate(over="ignore"):
+        far.scaled(1e308)  # 5e308 overflows
