@@ -476,7 +476,7 @@ def _knowledge_step(
     m_in = len(r)
     fc, fs, sets, kept_k, kept_s = scratch
     empty = np.empty(0, dtype=np.int64)
-    fail = (empty, empty, empty, empty, empty, empty, empty, np.empty((0, 2)), empty)
+    fail = (empty, empty, empty, empty, empty, empty, empty, np.empty((2, 0)).T, empty)
     # 1. the forwarded entries (own entries first if ``own_first``), CSR by holder. Branch-free
     # (the filters are unpredictable): every entry is written, the count advances if it is kept; an
     # entry after the holder's own column goes one slot further, the own entry fills the gap.
@@ -706,7 +706,7 @@ def _knowledge_step(
     er = np.empty(v, dtype=np.int64)
     ec = np.empty(v, dtype=np.int64)
     es = np.empty(v, dtype=np.int64)
-    bel = np.empty((v, 2))
+    bel = np.empty((2, v))  # returned as its (v, 2) transpose: each coordinate contiguous
     f = 0
     v = 0
     for row in range(len(view_rows)):
@@ -721,10 +721,14 @@ def _knowledge_step(
                 er[v] = row
                 ec[v] = col_of[k]
                 es[v] = st
-                bel[v, 0] = hist[st, k, 0]
-                bel[v, 1] = hist[st, k, 1]
+                bel[0, v] = hist[st, k, 0]
+                bel[1, v] = hist[st, k, 1]
                 v += 1
-    return True, (rr, cc, ss, view_rows, view_cols, er, ec, bel, es), (fc, fs, sets, kept_k, kept_s)
+    return (
+        True,
+        (rr, cc, ss, view_rows, view_cols, er, ec, bel.T, es),
+        (fc, fs, sets, kept_k, kept_s),
+    )
 
 
 _knowledge_step_jit = _jit(_knowledge_step)
@@ -765,7 +769,8 @@ def knowledge_step(
     without their (E,) intermediate arrays.
 
     Returns ``(result, scratch)``: result = (held rows, cols, stamps, view rows, view cols, entry
-    rows, entry cols, believed (E, 2), entry stamps), integers and copies only, so exactly the arrays of the
+    rows, entry cols, believed (E, 2) in column-major order (each coordinate contiguous, what the
+    descents read), entry stamps), integers and copies only, so exactly the arrays of the
     unfused path; None without Numba, or when the entries are not row-major or the hop's inputs are
     outside its range (the caller then runs the unfused path). ``scratch``
     (:func:`knowledge_scratch` at first) is reused from call to call: fresh arrays of a few MB per

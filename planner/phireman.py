@@ -557,7 +557,9 @@ class _EntriesByDrone:
     def __init__(self, rows_e: np.ndarray, y_e: np.ndarray, n: int) -> None:
         self.n = n
         self.rows_e = rows_e
-        self.x, self.y = y_e[:, 0].copy(), y_e[:, 1].copy()
+        # copies unless each coordinate is contiguous already (the fused knowledge update's view);
+        # read only either way
+        self.x, self.y = np.ascontiguousarray(y_e[:, 0]), np.ascontiguousarray(y_e[:, 1])
         self.start = np.searchsorted(rows_e, np.arange(n + 1))  # drone i's: start[i]:start[i + 1]
         self.count = np.diff(self.start)
 
