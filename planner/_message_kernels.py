@@ -31,6 +31,7 @@ __all__ = [
     "believed_displacement",
     "near_counts",
     "velocity_match_near",
+    "flood_tree_stamp",
 ]
 
 
@@ -425,6 +426,76 @@ def velocity_match_near(
         np.asarray(pos_hist_u, np.float64),
         float(alpha),
         float(vmax),
+    )
+
+
+def _flood_tree_stamp(
+    tree_stamp: np.ndarray,
+    idx: np.ndarray,
+    pairs: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    base_x: float,
+    base_y: float,
+    base_reach: float,
+    t_step: int,
+) -> bool:
+    n = len(idx)
+    ts = np.empty(n, dtype=np.int64)
+    for j in range(n):
+        if not 0 <= idx[j] < len(tree_stamp):
+            return False
+        ts[j] = tree_stamp[idx[j]]
+    best = ts.copy()
+    for p in range(len(pairs)):
+        a = pairs[p, 0]
+        b = pairs[p, 1]
+        if not (0 <= a < n and 0 <= b < n):
+            return False  # nothing written yet
+        best[a] = max(best[a], ts[b])
+        best[b] = max(best[b], ts[a])
+    for j in range(n):
+        dx = x[j] - base_x
+        dy = y[j] - base_y
+        if np.sqrt(dx * dx + dy * dy) <= base_reach:
+            best[j] = t_step - 1
+        tree_stamp[idx[j]] = best[j]
+    return True
+
+
+_flood_tree_stamp_jit = _jit(_flood_tree_stamp)
+
+
+def flood_tree_stamp(
+    tree_stamp: np.ndarray,
+    idx: np.ndarray,
+    pairs: np.ndarray,
+    link_pos: np.ndarray,
+    base: np.ndarray,
+    base_reach: float,
+    t_step: int,
+) -> bool:
+    """:func:`planner.knowledge._flood_tree_stamp` in one compiled pass (in place on
+    ``tree_stamp``, int64): maxima over the links in integers, the base test as
+    ``np.linalg.norm`` takes it (sqrt of x^2 + y^2, then <=), so the same stamps
+    (tests/planner/test_knowledge.py). False (nothing done) without Numba, for arrays it does not
+    take or for an index out of range."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or tree_stamp.dtype != np.int64:
+        return False
+    link_pos = np.asarray(link_pos, np.float64)
+    base = np.asarray(base, np.float64)
+    if link_pos.shape != (len(idx), 2) or base.shape != (2,):
+        return False
+    return _flood_tree_stamp_jit(
+        tree_stamp,
+        np.asarray(idx, np.int64),
+        np.asarray(pairs, np.int64).reshape(-1, 2),
+        link_pos[:, 0],
+        link_pos[:, 1],
+        float(base[0]),
+        float(base[1]),
+        float(base_reach),
+        int(t_step),
     )
 
 

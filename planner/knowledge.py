@@ -443,8 +443,14 @@ def _flood_tree_stamp(
     The stamp rides in the same messages as the reports but has its own staleness rule: every
     linked holder keeps the freshest stamp among itself and its neighbours (``pairs`` index
     ``idx``), and holders within ``base_reach_m`` of the base at ``link_pos_m`` (positions of
-    ``idx``) receive the tree the base computed at step t - 1.
+    ``idx``) receive the tree the base computed at step t - 1. Compiled when it can be
+    (:func:`planner._message_kernels.flood_tree_stamp`, the same stamps; these lines are its
+    reference).
     """
+    if _message_kernels.flood_tree_stamp(
+        tree_stamp, idx, pairs, link_pos_m, base_m, base_reach_m, t_step
+    ):
+        return
     ts = tree_stamp[idx]
     best = ts.copy()
     if len(pairs):

@@ -421,3 +421,34 @@ def test_fused_update_declines_what_it_cannot_read():
     assert step([n], [0], [2]) is None  # row out of range
     assert step([0], [1], [3], t_sent=2) is None  # stamp past the sending step
     assert step([0], [1], [2], t_step=6) is None  # past the history
+
+
+def test_tree_stamp_flood_compiled_is_the_numpy_one(rng, monkeypatch):
+    """_flood_tree_stamp compiled (planner._message_kernels.flood_tree_stamp) against its NumPy
+    lines: random stamps, links (repeated and empty), drones on the base-reach circle and past it;
+    an index out of range is declined with nothing written."""
+    from planner.knowledge import _flood_tree_stamp
+
+    if not _kernels.NUMBA:
+        pytest.skip("needs Numba")
+    for trial in range(30):
+        n_all = int(rng.integers(1, 60))
+        idx = np.sort(rng.choice(n_all, int(rng.integers(0, n_all + 1)), replace=False))
+        pos = rng.uniform(-4, 4, (len(idx), 2))
+        base = rng.uniform(-1, 1, 2)
+        reach = float(rng.uniform(0.5, 3.0))
+        if len(pos):
+            pos[0] = base + [reach, 0.0]  # on the circle: |d| <= reach by the same sqrt
+        n_pairs = int(rng.integers(0, 3 * len(idx) + 1)) if len(idx) > 1 else 0
+        pairs = rng.integers(0, max(len(idx), 1), (n_pairs, 2))
+        stamps = rng.integers(-1, 20, n_all).astype(np.int64)
+        fast, slow = stamps.copy(), stamps.copy()
+        _flood_tree_stamp(fast, idx, pairs, pos, base, reach, 21)
+        with monkeypatch.context() as mp:
+            mp.setattr(_message_kernels, "flood_tree_stamp", lambda *a: False)
+            _flood_tree_stamp(slow, idx, pairs, pos, base, reach, 21)
+        assert np.array_equal(fast, slow), trial
+    kept = stamps.copy()
+    bad = np.array([[0, len(idx) + 5]])
+    assert not _message_kernels.flood_tree_stamp(kept, idx, bad, pos, base, reach, 21)
+    assert np.array_equal(kept, stamps)
