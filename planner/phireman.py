@@ -921,8 +921,7 @@ class PhiremanPlanner:
             disp_u, info = self._plan_central(pos_u, tree, view)
         else:
             disp_u, info = self._plan_async(pos_u, base_u, view)
-        # u.tree_to_m(tree), the same tree, without checking its parent pointers again
-        return PlanOutput(u.to_m(disp_u), tree=tree.scaled(u.unit_m), info=info)
+        return PlanOutput(u.to_m(disp_u), tree=u.tree_to_m(tree), info=info)
 
     def _plan_central(
         self, pos_u: np.ndarray, tree: TaskTree, view: CentralView, *, compiled: bool = True

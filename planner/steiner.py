@@ -149,10 +149,10 @@ class TaskTree:
         return self.nodes_m[1:].copy(), self.nodes_m[self.parent[1:]]
 
     def scaled(self, factor: float) -> TaskTree:
-        """This tree with its node positions times ``factor`` (paper units <-> metres): the
-        ``dataclasses.replace(tree, nodes_m=tree.nodes_m * factor)`` of
-        :meth:`planner.units.PaperUnits.tree_to_m`, the same arrays, without checking again the
-        parent pointers it shares (read-only, already checked); the positions must stay finite."""
+        """This tree with its node positions times ``factor`` (paper units <-> metres, used by
+        :meth:`planner.units.PaperUnits.tree_to_m`): ``dataclasses.replace(tree, nodes_m=
+        tree.nodes_m * factor)`` without checking again the parent pointers it shares (read-only,
+        already checked); the positions must stay finite."""
         nodes = np.asarray(self.nodes_m * float(factor), dtype=np.float64)
         if not np.isfinite(nodes).all():
             raise ValueError("nodes_m must be finite")

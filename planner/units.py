@@ -13,7 +13,6 @@ The arithmetic is exactly the planners' earlier inline code (``x_m / unit``, ``x
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -63,4 +62,4 @@ class PaperUnits:
         """A task tree built in paper units, with its nodes in metres (None stays None)."""
         if tree is None:
             return None
-        return dataclasses.replace(tree, nodes_m=tree.nodes_m * self.unit_m)
+        return tree.scaled(self.unit_m)
