@@ -734,3 +734,180 @@ def reaches_root(parent: np.ndarray) -> bool | None:
     if not (_kernels.NUMBA and _kernels.ENABLED):
         return None
     return bool(_reaches_root_jit(np.asarray(parent, dtype=np.int64)))
+
+
+def _qp_rows(
+    x: np.ndarray,
+    y: np.ndarray,
+    ti: np.ndarray,
+    tj: np.ndarray,
+    ci: np.ndarray,
+    cj: np.ndarray,
+    r_c: np.ndarray,
+    safety_sq: float,
+    box: float,
+    n: int,
+    gamma: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    n_tree = len(ti)
+    n_rows = n_tree + len(ci)
+    i_out = np.empty(n_rows, dtype=np.int64)
+    j_out = np.empty(n_rows, dtype=np.int64)
+    coef = np.empty((n_rows, 2))
+    h = np.empty(n_rows)
+    reach = np.empty(n_rows)
+    cap = np.empty(n_rows)
+    need = np.empty(n_rows, dtype=np.int64)
+    n_need = 0
+    for r in range(n_rows):
+        if r < n_tree:
+            i = ti[r]
+            j = tj[r]
+        else:
+            i = ci[r - n_tree]
+            j = cj[r - n_tree]
+        dx = x[i] - x[j]
+        dy = y[i] - y[j]
+        d2 = dx * dx + dy * dy
+        if r < n_tree:
+            c0 = 2.0 * dx
+            c1 = 2.0 * dy
+            hr = r_c[r] * r_c[r] - d2
+        else:
+            c0 = -2.0 * dx
+            c1 = -2.0 * dy
+            hr = d2 - safety_sq
+        reach_r = box * (abs(c0) + abs(c1)) * (2.0 if j < n else 1.0)
+        cap_r = reach_r + 1e-3
+        i_out[r] = i
+        j_out[r] = j
+        coef[r, 0] = c0
+        coef[r, 1] = c1
+        h[r] = hr
+        reach[r] = reach_r
+        cap[r] = cap_r
+        if not gamma * (hr * hr * hr) > cap_r * (1.0 + 1e-9):  # NaN: not surely capped
+            need[n_need] = r
+            n_need += 1
+    return i_out, j_out, coef, h, reach, cap, need[:n_need].copy()
+
+
+_qp_rows_jit = _jit(_qp_rows)
+
+
+def qp_rows(
+    x: np.ndarray,
+    tree: np.ndarray,
+    r_c: np.ndarray,
+    collision_pairs: np.ndarray,
+    safety_radius: float,
+    box: float,
+    gamma: float,
+) -> (
+    tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+):
+    """The barrier rows of :func:`planner.mccst.solve_cbf_qp` in one pass: per row (the tree
+    edges, then the collision pairs) i, j, coef (R, 2), h, reach, cap = reach + 1e-3 and the rows
+    ``need`` whose cubic class-K value gamma h^3 may be below cap (the others are surely capped,
+    :func:`planner.mccst._capped_class_k`). The same operations in the same order as the NumPy
+    reference :func:`planner.mccst._barrier_rows` (2 sign diff is exact; |c0| + |c1| is the sum of
+    two terms; squares summed x then y), so the same bits (tests/planner/test_mccst.py). ``x``
+    is (n + 1, 2) with the base in row n. None without Numba."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or x.ndim != 2 or x.shape[1] != 2:
+        return None
+    return _qp_rows_jit(
+        np.ascontiguousarray(x[:, 0], dtype=np.float64),
+        np.ascontiguousarray(x[:, 1], dtype=np.float64),
+        np.ascontiguousarray(tree[:, 0], dtype=np.int64),
+        np.ascontiguousarray(tree[:, 1], dtype=np.int64),
+        np.ascontiguousarray(collision_pairs[:, 0], dtype=np.int64),
+        np.ascontiguousarray(collision_pairs[:, 1], dtype=np.int64),
+        np.ascontiguousarray(r_c, dtype=np.float64),
+        float(safety_radius) ** 2,
+        float(box),
+        len(x) - 1,
+        float(gamma),
+    )
+
+
+def _barrier_matrix(
+    i: np.ndarray, j: np.ndarray, coef: np.ndarray, rhs: np.ndarray, reach: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    n_rows = len(i)
+    new_row = np.empty(n_rows, dtype=np.int64)
+    rows = np.empty(n_rows, dtype=np.int64)
+    slack_rows = np.empty(n_rows, dtype=np.int64)
+    per_drone = np.zeros(n, dtype=np.int64)
+    n_kept = 0
+    n_slack = 0
+    for r in range(n_rows):
+        if rhs[r] <= reach[r] or rhs[r] < 0:
+            new_row[r] = n_kept
+            rows[n_kept] = r
+            n_kept += 1
+            per_drone[i[r]] += 1
+            if j[r] < n:
+                per_drone[j[r]] += 1
+            if rhs[r] < 0:
+                slack_rows[n_slack] = r
+                n_slack += 1
+    n_u = 2 * n
+    indptr = np.empty(n_u + n_slack + 1, dtype=np.int32)
+    indptr[0] = 0
+    for d in range(n):
+        indptr[2 * d + 1] = indptr[2 * d] + per_drone[d]
+        indptr[2 * d + 2] = indptr[2 * d + 1] + per_drone[d]
+    for s in range(n_slack):
+        indptr[n_u + s + 1] = indptr[n_u + s] + 1
+    nnz = indptr[n_u + n_slack]
+    indices = np.empty(nnz, dtype=np.int32)
+    data = np.empty(nnz)
+    fill = np.empty(n, dtype=np.int64)
+    for d in range(n):
+        fill[d] = 0
+    for q in range(n_kept):  # kept rows ascending: each drone's column fills in row order
+        r = rows[q]
+        a = i[r]
+        at = indptr[2 * a] + fill[a]
+        indices[at] = q
+        data[at] = coef[r, 0]
+        indices[at + per_drone[a]] = q
+        data[at + per_drone[a]] = coef[r, 1]
+        fill[a] += 1
+        b = j[r]
+        if b < n:
+            at = indptr[2 * b] + fill[b]
+            indices[at] = q
+            data[at] = -coef[r, 0]
+            indices[at + per_drone[b]] = q
+            data[at + per_drone[b]] = -coef[r, 1]
+            fill[b] += 1
+    for s in range(n_slack):
+        at = indptr[n_u + s]
+        indices[at] = new_row[slack_rows[s]]
+        data[at] = -1.0
+    return data, indices, indptr, rows[:n_kept].copy(), slack_rows[:n_slack].copy()
+
+
+_barrier_matrix_jit = _jit(_barrier_matrix)
+
+
+def barrier_matrix(
+    i: np.ndarray, j: np.ndarray, coef: np.ndarray, rhs: np.ndarray, reach: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """PIQP's barrier matrix of :func:`planner.mccst._solve_piqp` in one pass: the rows that may
+    bind (``rhs <= reach`` or violated, ``rhs < 0``), in order, as CSC arrays (data float64,
+    indices and indptr int32; columns u_0x, u_0y, ..., then one slack per violated row), plus
+    the kept rows' indices and the violated rows' indices. Entry for entry
+    :func:`planner.mccst._constraint_matrix` on the kept rows without bound rows (its reference;
+    tests/planner/test_mccst.py). None without Numba."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or coef.ndim != 2 or coef.shape[1] != 2:
+        return None
+    return _barrier_matrix_jit(
+        np.ascontiguousarray(i, dtype=np.int64),
+        np.ascontiguousarray(j, dtype=np.int64),
+        np.ascontiguousarray(coef, dtype=np.float64),
+        np.ascontiguousarray(rhs, dtype=np.float64),
+        np.ascontiguousarray(reach, dtype=np.float64),
+        int(n),
+    )

@@ -683,24 +683,22 @@ def solve_cbf_qp(
     n_tree, n_col = len(tree), len(collision_pairs)
     n_rows = n_tree + n_col
 
-    # Barrier rows: coef_i . u_i + coef_j . u_j (- s_row) <= rhs. Tree: coef_i = 2 (x_i - x_j);
-    # collision: coef_i = -2 (x_i - x_j); coef_j = -coef_i. Base ends (j == n) get no u_j entries.
-    i = np.concatenate([tree[:, 0], collision_pairs[:, 0]]).astype(np.intp)
-    j = np.concatenate([tree[:, 1], collision_pairs[:, 1]]).astype(np.intp)
-    diff = x[i] - x[j]  # (rows, 2)
-    d2 = np.einsum("ek,ek->e", diff, diff)
-    sign = np.concatenate([np.ones(n_tree), -np.ones(n_col)])
-    coef = 2.0 * sign[:, None] * diff  # (rows, 2)
-    h = np.concatenate([r_c**2 - d2[:n_tree], d2[n_tree:] - params.safety_radius**2])
-    # Under the box |u_ik| <= box a row's left side never exceeds sum |coef| * box, so capping the
-    # right side there leaves the feasible set unchanged; it keeps inactive rows (gamma h^3 of a
-    # short edge reaches ~30) from inflating OSQP's relative tolerance, which scales with |Ax|.
-    reach = box * np.abs(coef).sum(axis=1) * np.where(j < n, 2.0, 1.0)
-    rhs = _capped_class_k(h, reach + 1e-3, params)
+    fast = None
+    if not params.discrete_time:
+        fast = _graph_kernels.qp_rows(
+            x, tree, r_c, collision_pairs, params.safety_radius, box, params.gamma
+        )
+    if fast is not None:  # _barrier_rows and _capped_class_k in one pass, the same bits
+        i, j, coef, h, reach, cap, need = fast
+        rhs = cap.copy()
+        rhs[need] = np.minimum(_class_k(h[need], params), cap[need])
+    else:
+        i, j, coef, h, reach = _barrier_rows(x, tree, r_c, collision_pairs, box, params)
+        rhs = _capped_class_k(h, reach + 1e-3, params)
+    if params.solver == "piqp":
+        return _solve_piqp(i, j, coef, rhs, reach, n_tree, u_hat, box, params)
     slack_rows = np.flatnonzero(rhs < 0)  # violated barriers only
     slack_is_tree = slack_rows < n_tree
-    if params.solver == "piqp":
-        return _solve_piqp(i, j, coef, rhs, reach, slack_rows, slack_is_tree, u_hat, box, params)
 
     n_slack = len(slack_rows)
     a_mat = _constraint_matrix(i, j, coef, slack_rows, n)
@@ -746,6 +744,35 @@ def solve_cbf_qp(
     return QpResult(u_start, status, False, int(res.info.iter), float("nan"), float("nan"))
 
 
+def _barrier_rows(
+    x: np.ndarray,
+    tree: np.ndarray,
+    r_c: np.ndarray,
+    collision_pairs: np.ndarray,
+    box: float,
+    params: MccstParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The CBF-QP's barrier rows (the tree edges, then the collision pairs): their ends i, j,
+    coefficients coef (R, 2), barrier values h and reach (the largest left side inside the box).
+    The NumPy reference of :func:`planner._graph_kernels.qp_rows`."""
+    n = len(x) - 1
+    n_tree, n_col = len(tree), len(collision_pairs)
+    # Barrier rows: coef_i . u_i + coef_j . u_j (- s_row) <= rhs. Tree: coef_i = 2 (x_i - x_j);
+    # collision: coef_i = -2 (x_i - x_j); coef_j = -coef_i. Base ends (j == n) get no u_j entries.
+    i = np.concatenate([tree[:, 0], collision_pairs[:, 0]]).astype(np.intp)
+    j = np.concatenate([tree[:, 1], collision_pairs[:, 1]]).astype(np.intp)
+    diff = x[i] - x[j]  # (rows, 2)
+    d2 = np.einsum("ek,ek->e", diff, diff)
+    sign = np.concatenate([np.ones(n_tree), -np.ones(n_col)])
+    coef = 2.0 * sign[:, None] * diff  # (rows, 2)
+    h = np.concatenate([r_c**2 - d2[:n_tree], d2[n_tree:] - params.safety_radius**2])
+    # Under the box |u_ik| <= box a row's left side never exceeds sum |coef| * box, so capping the
+    # right side there leaves the feasible set unchanged; it keeps inactive rows (gamma h^3 of a
+    # short edge reaches ~30) from inflating OSQP's relative tolerance, which scales with |Ax|.
+    reach = box * np.abs(coef).sum(axis=1) * np.where(j < n, 2.0, 1.0)
+    return i, j, coef, h, reach
+
+
 def _qp_objective(
     u_hat: np.ndarray, slack_tree: np.ndarray, params: MccstParams
 ) -> tuple[csc_matrix, np.ndarray]:
@@ -766,8 +793,7 @@ def _solve_piqp(
     coef: np.ndarray,
     rhs: np.ndarray,
     reach: np.ndarray,
-    slack_rows: np.ndarray,
-    slack_tree: np.ndarray,
+    n_tree: int,
     u_hat: np.ndarray,
     box: float,
     params: MccstParams,
@@ -789,13 +815,20 @@ def _solve_piqp(
     """
     n = len(u_hat)
     n_u = 2 * n
+    fast = _graph_kernels.barrier_matrix(i, j, coef, rhs, reach, n)
+    if fast is not None:  # the lines below in one pass, entry for entry
+        data, indices, indptr, rows, slack_rows = fast
+        g_mat = _csc(data, indices, indptr, (len(rows), n_u + len(slack_rows)))
+    else:
+        slack_rows = np.flatnonzero(rhs < 0)  # violated barriers only
+        keep = rhs <= reach  # the others are capped, hence never active
+        keep[slack_rows] = True  # violated rows (rhs < 0) always bind
+        rows = np.flatnonzero(keep)
+        new_row = np.cumsum(keep) - 1  # a kept row's index among the kept ones
+        # The barrier rows of OSQP's matrix over the kept rows (its identity rows: PIQP's bounds).
+        g_mat = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n, False)
     n_slack = len(slack_rows)
-    keep = rhs <= reach  # the others are capped, hence never active
-    keep[slack_rows] = True  # violated rows (rhs < 0) always bind
-    rows = np.flatnonzero(keep)
-    new_row = np.cumsum(keep) - 1  # a kept row's index among the kept ones
-    # The barrier rows of OSQP's matrix over the kept rows (its identity rows are PIQP's bounds).
-    g_mat = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n, False)
+    slack_tree = slack_rows < n_tree
     p_mat, q_vec = _qp_objective(u_hat, slack_tree, params)
     x_lo = np.concatenate([np.full(n_u, -box), np.zeros(n_slack)])
     x_hi = np.concatenate([np.full(n_u, box), np.full(n_slack, np.inf)])
@@ -810,7 +843,6 @@ def _solve_piqp(
     )
     status = solver.solve()
     z = solver.result.x
-    u_start = np.clip(u_hat, -box, box)
     iters = int(solver.result.info.iter)
     if status == piqp.PIQP_SOLVED and np.all(np.isfinite(z)):
         u = np.clip(z[:n_u].reshape(n, 2), -box, box)
@@ -823,6 +855,7 @@ def _solve_piqp(
             float(slack[slack_tree].max(initial=0.0)),
             float(slack[~slack_tree].max(initial=0.0)),
         )
+    u_start = np.clip(u_hat, -box, box)
     return QpResult(u_start, str(status), False, iters, float("nan"), float("nan"))
 
 

@@ -8,6 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
+from planner import _graph_kernels, _kernels
 from planner.geometry import active_mask, neighbour_pairs, tasks_connected
 from planner.mccst import (
     BALANCED_PARAMS,
@@ -15,6 +16,7 @@ from planner.mccst import (
     MccstParams,
     MccstPlanner,
     _argsort_stable,
+    _barrier_rows,
     _capped_class_k,
     _class_k,
     _constraint_matrix,
@@ -725,3 +727,49 @@ def test_piqp_optimum_satisfies_kkt_by_brute_force():
     best = u[np.argmin(cost)]
     assert np.isfinite(cost.min())
     np.testing.assert_allclose(got.u, best, atol=grid[1] - grid[0])
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_qp_rows_and_barrier_matrix_are_the_numpy_ones(seed):
+    """The compiled QP assembly (rows, capped right sides, pruned PIQP matrix) equals, array for
+    array and bit for bit, the NumPy reference (:func:`_barrier_rows`, :func:`_capped_class_k`,
+    :func:`_constraint_matrix` on the kept rows), on random QPs with base edges, violated and
+    capped rows, and on the empty QP."""
+    rng = np.random.default_rng(seed)
+    params = MccstParams()
+    box = 0.106
+    for trial in range(60):
+        n = int(rng.integers(2, 40))
+        x, _, tree, r_c, col = _random_qp(
+            rng, n, int(rng.integers(0, 3 * n)), int(rng.integers(0, 2 * n))
+        )
+        if trial == 0:
+            tree, r_c, col = tree[:0], r_c[:0], col[:0]
+        i, j, coef, h, reach = _barrier_rows(x, tree, r_c, col, box, params)
+        rhs = _capped_class_k(h, reach + 1e-3, params)
+        fast = _graph_kernels.qp_rows(x, tree, r_c, col, params.safety_radius, box, params.gamma)
+        assert fast is not None
+        fi, fj, fcoef, fh, freach, fcap, need = fast
+        for got, want in ((fi, i), (fj, j), (fcoef, coef), (fh, h), (freach, reach)):
+            np.testing.assert_array_equal(got, want)
+            assert got.shape == want.shape
+        frhs = fcap.copy()
+        frhs[need] = np.minimum(_class_k(fh[need], params), fcap[need])
+        np.testing.assert_array_equal(frhs, rhs)
+        # The pruned matrix: kept rows, violated rows, and the CSC entries.
+        slack_rows = np.flatnonzero(rhs < 0)
+        keep = rhs <= reach
+        keep[slack_rows] = True
+        rows = np.flatnonzero(keep)
+        new_row = np.cumsum(keep) - 1
+        ref = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n, False)
+        mat = _graph_kernels.barrier_matrix(i, j, coef, rhs, reach, n)
+        assert mat is not None
+        data, indices, indptr, got_rows, got_slack = mat
+        np.testing.assert_array_equal(got_rows, rows)
+        np.testing.assert_array_equal(got_slack, slack_rows)
+        np.testing.assert_array_equal(data, ref.data)
+        np.testing.assert_array_equal(indices, ref.indices)
+        np.testing.assert_array_equal(indptr, ref.indptr)
+        assert indices.dtype == indptr.dtype == np.int32
