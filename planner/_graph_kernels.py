@@ -911,3 +911,55 @@ def barrier_matrix(
         np.ascontiguousarray(reach, dtype=np.float64),
         int(n),
     )
+
+
+def _link_edges(
+    pos: np.ndarray, pairs: np.ndarray, range_m: float, bx: float, by: float, base_reach: float
+) -> np.ndarray:
+    n = pos.shape[0]
+    n_pairs = pairs.shape[0]
+    out = np.empty((n_pairs + n, 2), dtype=np.int64)
+    k = 0
+    for p in range(n_pairs):
+        i = pairs[p, 0]
+        j = pairs[p, 1]
+        dx = pos[i, 0] - pos[j, 0]
+        dy = pos[i, 1] - pos[j, 1]
+        if math.sqrt(dx * dx + dy * dy) <= range_m:
+            out[k, 0] = i
+            out[k, 1] = j
+            k += 1
+    for i in range(n):
+        dx = pos[i, 0] - bx
+        dy = pos[i, 1] - by
+        if math.sqrt(dx * dx + dy * dy) <= base_reach:
+            out[k, 0] = i
+            out[k, 1] = n
+            k += 1
+    return out[:k].copy()
+
+
+_link_edges_jit = _jit(_link_edges)
+
+
+def link_edges(
+    pos_m: np.ndarray, pairs: np.ndarray, range_m: float, base_m: np.ndarray, base_reach_m: float
+) -> np.ndarray | None:
+    """:func:`planner.mccst.candidate_edges` from the KD-tree's candidate pairs
+    (:func:`planner.geometry.neighbour_candidates`) in one pass: the pairs with
+    ``|x_i - x_j| <= range_m``, in their order (:func:`pairs_within`), then (i, n) for each drone
+    i with ``|x_i - b| <= base_reach_m`` in ascending i, as (E, 2) int64. Distances as
+    ``np.linalg.norm`` of two components (the squares summed x then y, one square root), so the
+    same set (tests/planner/test_mccst.py). None without Numba or for other than 2-D positions."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or pos_m.ndim != 2 or pos_m.shape[1] != 2:
+        return None
+    if pairs.ndim != 2 or pairs.shape[1] != 2 or np.shape(base_m) != (2,):
+        return None
+    return _link_edges_jit(
+        np.ascontiguousarray(pos_m, dtype=np.float64),
+        np.ascontiguousarray(pairs, dtype=np.int64),
+        float(range_m),
+        float(base_m[0]),
+        float(base_m[1]),
+        float(base_reach_m),
+    )

@@ -134,7 +134,7 @@ from scipy.sparse.csgraph import minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from planner import _graph_kernels
-from planner.geometry import neighbour_pairs
+from planner.geometry import neighbour_candidates, neighbour_pairs
 from planner.methods import PlanOutput, TickInput
 from planner.problem import ProblemConfig
 
@@ -420,8 +420,13 @@ def candidate_edges(
         |x_i - b| <= min(R, r), in metres exactly as :func:`planner.geometry.active_mask` does.
     """
     n = len(pos_m)
-    pairs = neighbour_pairs(pos_m, radio_range_m)
     base_reach_m = min(base_range_m, radio_range_m)
+    if n >= 2:
+        raw = neighbour_candidates(pos_m, radio_range_m)
+        fast = _graph_kernels.link_edges(pos_m, raw, radio_range_m, base_m, base_reach_m)
+        if fast is not None:  # neighbour_pairs' re-check and the lines below in one pass
+            return fast.astype(np.intp, copy=False)
+    pairs = neighbour_pairs(pos_m, radio_range_m)
     at_base = np.flatnonzero(np.linalg.norm(pos_m - base_m, axis=1) <= base_reach_m)
     base_pairs = np.column_stack([at_base, np.full(len(at_base), n)])
     return np.concatenate([pairs.reshape(-1, 2), base_pairs]).astype(np.intp)

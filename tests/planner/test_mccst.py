@@ -773,3 +773,27 @@ def test_qp_rows_and_barrier_matrix_are_the_numpy_ones(seed):
         np.testing.assert_array_equal(indices, ref.indices)
         np.testing.assert_array_equal(indptr, ref.indptr)
         assert indices.dtype == indptr.dtype == np.int32
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+def test_candidate_edges_compiled_is_the_reference():
+    """:func:`candidate_edges` with the compiled re-check (:func:`_graph_kernels.link_edges`) gives
+    the reference's array, pair for pair in the KD-tree's order, on swarms with pairs and base
+    links at exactly the range (grid positions), at the base, and of one or two drones."""
+    rng = np.random.default_rng(3)
+    cases = []
+    for _ in range(40):
+        n = int(rng.integers(1, 120))
+        cases.append(rng.uniform(-60, 60, (n, 2)))
+        cases.append(rng.integers(-6, 7, (n, 2)) * 10.0)  # distances exactly 10, 20, ...
+    for pos_m in cases:
+        base_m = np.array([0.0, 0.0]) if rng.random() < 0.5 else rng.uniform(-5, 5, 2)
+        r, big_r = 20.0, float(rng.choice([10.0, 20.0, 30.0]))
+        got = candidate_edges(pos_m, base_m, r, big_r)
+        try:
+            _kernels.ENABLED = False
+            want = candidate_edges(pos_m, base_m, r, big_r)
+        finally:
+            _kernels.ENABLED = True
+        np.testing.assert_array_equal(got, want)
+        assert got.dtype == want.dtype and got.shape == want.shape
