@@ -52,25 +52,23 @@ def _jit(func: _F) -> _F:
     return cast(_F, njit(cache=True)(func))
 
 
-def _mst_prim(
-    n_nodes: int, ei: np.ndarray, ej: np.ndarray, w: np.ndarray
-) -> tuple[bool, np.ndarray]:
-    n_edges = len(ei)
+def _mst_prim(n_nodes: int, edges: np.ndarray, w: np.ndarray) -> tuple[bool, np.ndarray]:
+    n_edges = edges.shape[0]
     for e in range(n_edges):
         if math.isnan(w[e]):
             return False, np.zeros(0, dtype=np.int64)
     # CSR adjacency: each undirected edge listed at both ends (edge id, other end).
     deg = np.zeros(n_nodes + 1, dtype=np.int64)
     for e in range(n_edges):
-        deg[ei[e] + 1] += 1
-        deg[ej[e] + 1] += 1
+        deg[edges[e, 0] + 1] += 1
+        deg[edges[e, 1] + 1] += 1
     for v in range(n_nodes):
         deg[v + 1] += deg[v]
     fill = deg[:-1].copy()
     adj_e = np.empty(2 * n_edges, dtype=np.int64)
     adj_v = np.empty(2 * n_edges, dtype=np.int64)
     for e in range(n_edges):
-        a, b = ei[e], ej[e]
+        a, b = edges[e, 0], edges[e, 1]
         adj_e[fill[a]] = e
         adj_v[fill[a]] = b
         fill[a] += 1
@@ -149,8 +147,7 @@ def mst_prim(n_nodes: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray
         return None
     ok, tree = _mst_prim_jit(
         int(n_nodes),
-        np.ascontiguousarray(edges[:, 0], dtype=np.int64),
-        np.ascontiguousarray(edges[:, 1], dtype=np.int64),
+        np.ascontiguousarray(edges, dtype=np.int64),
         np.ascontiguousarray(weights, dtype=np.float64),
     )
     return tree.astype(np.intp) if ok else None
@@ -263,8 +260,7 @@ def reach_from(pos_m: np.ndarray, reached: np.ndarray, range_m: float) -> np.nda
 
 
 def _knn_pairs(
-    x: np.ndarray,
-    y: np.ndarray,
+    pos: np.ndarray,
     reach: float,
     k: int,
     cell: float,
@@ -273,7 +269,9 @@ def _knn_pairs(
     nx: int,
     ny: int,
 ) -> tuple[bool, np.ndarray]:
-    n = len(x)
+    n = pos.shape[0]
+    x = pos[:, 0]
+    y = pos[:, 1]
     cx, cy, head, members = _grid_buckets(x, y, cell, x0, y0, nx, ny)
     best_d = np.empty(k)
     best_j = np.empty(k, dtype=np.int64)
@@ -297,7 +295,7 @@ def _knn_pairs(
                     # A distance within rounding of ``reach``: the KD-tree reference's
                     # squared-distance test decides; report it, the caller falls back.
                     if abs(d - reach) <= 1e-9 * reach:
-                        return False, keys[:0]
+                        return False, np.zeros((0, 2), dtype=np.int64)
                     if not d < reach:
                         continue
                     near_d[n_near] = d
@@ -327,12 +325,17 @@ def _knn_pairs(
             kth = best_d[k - 1]
             for q in range(n_near):
                 if near_d[q] == kth and not _in(best_j, nb, near_j[q]):
-                    return False, keys[:0]
+                    return False, np.zeros((0, 2), dtype=np.int64)
         for q in range(nb):
             j = best_j[q]
             keys[m] = min(i, j) * n + max(i, j)
             m += 1
-    return True, np.unique(keys[:m])
+    key = np.unique(keys[:m])
+    out = np.empty((len(key), 2), dtype=np.int64)
+    for q in range(len(key)):
+        out[q, 0] = key[q] // n
+        out[q, 1] = key[q] % n
+    return True, out
 
 
 def _in(values: np.ndarray, count: int, v: int) -> bool:
@@ -371,9 +374,8 @@ def knn_pairs(x: np.ndarray, reach: float, k: int) -> np.ndarray | None:
     ny = int((hi[1] - lo[1]) // cell) + 1
     if nx * ny > 8 * n + 4096:
         return None
-    ok, key = _knn_pairs_jit(
-        np.ascontiguousarray(x[:, 0]),
-        np.ascontiguousarray(x[:, 1]),
+    ok, pairs = _knn_pairs_jit(
+        np.ascontiguousarray(x, dtype=np.float64),
         float(reach),
         int(k),
         cell,
@@ -384,7 +386,7 @@ def knn_pairs(x: np.ndarray, reach: float, k: int) -> np.ndarray | None:
     )
     if not ok:
         return None
-    return np.column_stack([key // n, key % n]).astype(np.intp)
+    return pairs.astype(np.intp, copy=False)
 
 
 def _hop_bitsets(
@@ -501,26 +503,19 @@ def hop_bitsets(
 
 
 def _edge_terms(
-    x: np.ndarray,
-    y: np.ndarray,
-    ux: np.ndarray,
-    uy: np.ndarray,
-    ei: np.ndarray,
-    ej: np.ndarray,
-    r_c: np.ndarray,
-    group: np.ndarray,
+    x: np.ndarray, u: np.ndarray, edges: np.ndarray, r_c: np.ndarray, group: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    n_edges = len(ei)
+    n_edges = edges.shape[0]
     h = np.empty(n_edges)
     dot = np.empty(n_edges)
     cross = np.empty(n_edges, dtype=np.bool_)
     for e in range(n_edges):
-        i = ei[e]
-        j = ej[e]
-        dx = x[i] - x[j]
-        dy = y[i] - y[j]
+        i = edges[e, 0]
+        j = edges[e, 1]
+        dx = x[i, 0] - x[j, 0]
+        dy = x[i, 1] - x[j, 1]
         h[e] = r_c[e] * r_c[e] - (dx * dx + dy * dy)
-        dot[e] = dx * (ux[i] - ux[j]) + dy * (uy[i] - uy[j])
+        dot[e] = dx * (u[i, 0] - u[j, 0]) + dy * (u[i, 1] - u[j, 1])
         cross[e] = group[i] != group[j]
     return h, dot, cross
 
@@ -537,14 +532,13 @@ def edge_terms(
     components sums x then y, checked by tests), so the same bits. None without Numba."""
     if not (_kernels.NUMBA and _kernels.ENABLED) or x.ndim != 2 or x.shape[1] != 2:
         return None
+    if np.ndim(r_c) != 1:
+        r_c = np.broadcast_to(r_c, (len(edges),))
     return _edge_terms_jit(
-        np.ascontiguousarray(x[:, 0], dtype=np.float64),
-        np.ascontiguousarray(x[:, 1], dtype=np.float64),
-        np.ascontiguousarray(u[:, 0], dtype=np.float64),
-        np.ascontiguousarray(u[:, 1], dtype=np.float64),
-        np.ascontiguousarray(edges[:, 0], dtype=np.int64),
-        np.ascontiguousarray(edges[:, 1], dtype=np.int64),
-        np.ascontiguousarray(np.broadcast_to(r_c, (len(edges),)), dtype=np.float64),
+        np.ascontiguousarray(x, dtype=np.float64),
+        np.ascontiguousarray(u, dtype=np.float64),
+        np.ascontiguousarray(edges, dtype=np.int64),
+        np.ascontiguousarray(r_c, dtype=np.float64),
         np.ascontiguousarray(group, dtype=np.int64),
     )
 
