@@ -957,3 +957,36 @@ def link_edges(
         float(base_m[1]),
         float(base_reach_m),
     )
+
+
+def _clip_norm(vec: np.ndarray, limit: float, shrink: float) -> np.ndarray:
+    n = vec.shape[0]
+    out = np.empty((n, 2))
+    for r in range(n):
+        a = vec[r, 0]
+        b = vec[r, 1]
+        norm = math.sqrt(a * a + b * b)
+        if norm > limit:
+            f = limit / norm
+            a = a * f
+            b = b * f
+            if math.sqrt(a * a + b * b) > limit:
+                a = a * shrink
+                b = b * shrink
+        out[r, 0] = a
+        out[r, 1] = b
+    return out
+
+
+_clip_norm_jit = _jit(_clip_norm)
+
+
+def clip_norm(vec: np.ndarray, limit: float) -> np.ndarray | None:
+    """:func:`planner.mccst._clip_norm` of an (n, 2) array in one pass (its reference): rows with
+    ``|row| > limit`` scaled by limit / |row|, then by 1 - 1e-12 if rounding left them above;
+    |row| = sqrt(x^2 + y^2) as ``np.linalg.norm`` of two components computes it (the squares,
+    one addition), so the same bits. A new float64 array; None without Numba or for other than
+    (n, 2) input."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or vec.ndim != 2 or vec.shape[1] != 2:
+        return None
+    return _clip_norm_jit(np.ascontiguousarray(vec, dtype=np.float64), float(limit), 1.0 - 1e-12)

@@ -977,7 +977,17 @@ def _constraint_matrix_reference(
 
 
 def _clip_norm(vec: np.ndarray, limit: float) -> np.ndarray:
-    """Rows scaled down so that |row| <= limit holds exactly in floating point (new array)."""
+    """Rows scaled down so that |row| <= limit holds exactly in floating point (new array).
+    Compiled for (n, 2) float arrays (:func:`planner._graph_kernels.clip_norm`, the same bits)."""
+    if np.ndim(vec) == 2 and np.shape(vec)[1] == 2 and np.result_type(vec) == np.float64:
+        fast = _graph_kernels.clip_norm(vec, limit)
+        if fast is not None:
+            return fast
+    return _clip_norm_reference(vec, limit)
+
+
+def _clip_norm_reference(vec: np.ndarray, limit: float) -> np.ndarray:
+    """:func:`_clip_norm` by NumPy (the reference of :func:`planner._graph_kernels.clip_norm`)."""
     norm = np.linalg.norm(vec, axis=1)
     over = norm > limit
     out = np.array(vec, dtype=float, copy=True)

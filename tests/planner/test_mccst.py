@@ -19,6 +19,8 @@ from planner.mccst import (
     _barrier_rows,
     _capped_class_k,
     _class_k,
+    _clip_norm,
+    _clip_norm_reference,
     _constraint_matrix,
     _constraint_matrix_reference,
     _csc,
@@ -797,3 +799,26 @@ def test_candidate_edges_compiled_is_the_reference():
             _kernels.ENABLED = True
         np.testing.assert_array_equal(got, want)
         assert got.dtype == want.dtype and got.shape == want.shape
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+def test_clip_norm_compiled_is_the_reference():
+    """The compiled norm clip equals the NumPy one bit for bit: rows below, at, just above and far
+    above the limit, zero, NaN and infinite rows, and an empty array."""
+    rng = np.random.default_rng(4)
+    for trial in range(200):
+        n = int(rng.integers(0, 300))
+        vec = rng.normal(size=(n, 2)) * 10.0 ** rng.integers(-3, 3)
+        limit = float(rng.uniform(0.01, 2.0))
+        if n > 6:
+            vec[0] = [limit, 0.0]
+            vec[1] = [0.0, -limit * (1 + 1e-16)]
+            vec[2] = np.array([3.0, 4.0]) * limit / 5.0
+            vec[3] = 0.0
+            if trial % 5 == 0:
+                vec[4] = [np.nan, 1.0]
+                vec[5] = [np.inf, 0.0]
+        got = _clip_norm(vec, limit)
+        want = _clip_norm_reference(vec, limit)
+        np.testing.assert_array_equal(got, want)
+        assert got.shape == want.shape and got is not vec
