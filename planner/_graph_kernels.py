@@ -237,7 +237,7 @@ def reach_from(pos_m: np.ndarray, reached: np.ndarray, range_m: float) -> np.nda
     if not (_kernels.NUMBA and _kernels.ENABLED) or not np.isfinite(range_m) or range_m <= 0:
         return None
     n = len(pos_m)
-    if n == 0 or pos_m.ndim != 2 or pos_m.shape[1] != 2 or not np.all(np.isfinite(pos_m)):
+    if n == 0 or pos_m.ndim != 2 or pos_m.shape[1] != 2 or not np.isfinite(pos_m).all():
         return None
     lo = pos_m.min(axis=0)
     hi = pos_m.max(axis=0)
@@ -365,7 +365,7 @@ def knn_pairs(x: np.ndarray, reach: float, k: int) -> np.ndarray | None:
     if not (_kernels.NUMBA and _kernels.ENABLED) or not np.isfinite(reach) or reach <= 0 or k <= 0:
         return None
     n = len(x)
-    if n < 2 or x.ndim != 2 or x.shape[1] != 2 or not np.all(np.isfinite(x)):
+    if n < 2 or x.ndim != 2 or x.shape[1] != 2 or not np.isfinite(x).all():
         return None
     lo = x.min(axis=0)
     hi = x.max(axis=0)
@@ -615,7 +615,7 @@ def any_within(task_pos_m: np.ndarray, pos_m: np.ndarray, range_m: float) -> np.
         return None
     if task_pos_m.ndim != 2 or task_pos_m.shape[1] != 2 or pos_m.ndim != 2 or pos_m.shape[1] != 2:
         return None
-    if not np.all(np.isfinite(pos_m)) or np.any(np.isnan(task_pos_m)) or not np.isfinite(range_m):
+    if not np.isfinite(pos_m).all() or np.isnan(task_pos_m).any() or not np.isfinite(range_m):
         return None
     return _any_within_jit(
         np.ascontiguousarray(task_pos_m[:, 0], dtype=np.float64),
@@ -679,9 +679,7 @@ def bounded_moves(
         return None
     if disp_m.shape != pos_m.shape or np.shape(home_m) != (2,) or not np.isfinite(vmax):
         return None
-    if not (
-        np.all(np.isfinite(pos_m)) and np.all(np.isfinite(disp_m)) and np.all(np.isfinite(home_m))
-    ):
+    if not (np.isfinite(pos_m).all() and np.isfinite(disp_m).all() and np.isfinite(home_m).all()):
         return None
     return _bounded_moves_jit(
         np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
@@ -990,3 +988,50 @@ def clip_norm(vec: np.ndarray, limit: float) -> np.ndarray | None:
     if not (_kernels.NUMBA and _kernels.ENABLED) or vec.ndim != 2 or vec.shape[1] != 2:
         return None
     return _clip_norm_jit(np.ascontiguousarray(vec, dtype=np.float64), float(limit), 1.0 - 1e-12)
+
+
+def _qp_vectors(
+    u_hat: np.ndarray, slack_tree: np.ndarray, pen_tree: float, pen_col: float, box: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    n_u = 2 * u_hat.shape[0]
+    n_var = n_u + len(slack_tree)
+    p_diag = np.empty(n_var)
+    q = np.empty(n_var)
+    lo = np.empty(n_var)
+    hi = np.empty(n_var)
+    for d in range(u_hat.shape[0]):
+        for k in range(2):
+            v = 2 * d + k
+            p_diag[v] = 2.0
+            q[v] = -2.0 * u_hat[d, k]
+            lo[v] = -box
+            hi[v] = box
+    for s in range(len(slack_tree)):
+        v = n_u + s
+        p_diag[v] = 2.0 * (pen_tree if slack_tree[s] else pen_col)
+        q[v] = 0.0
+        lo[v] = 0.0
+        hi[v] = np.inf
+    return p_diag, q, lo, hi
+
+
+_qp_vectors_jit = _jit(_qp_vectors)
+
+
+def qp_vectors(
+    u_hat: np.ndarray, slack_tree: np.ndarray, pen_tree: float, pen_col: float, box: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The CBF-QP's vectors over z = (u_0x, u_0y, ..., one slack per violated row): P's diagonal
+    (2 per control, 2 x the tree or collision penalty per slack), q (-2 u_hat, 0 per slack) and
+    the bounds (+-box per control, [0, inf) per slack), in one pass: the arrays
+    :func:`planner.mccst._qp_objective` and :func:`planner.mccst._solve_piqp` build by NumPy
+    (doubling is exact, so the same bits). None without Numba or for other than (n, 2) u_hat."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or u_hat.ndim != 2 or u_hat.shape[1] != 2:
+        return None
+    return _qp_vectors_jit(
+        np.ascontiguousarray(u_hat, dtype=np.float64),
+        np.ascontiguousarray(slack_tree, dtype=np.bool_),
+        float(pen_tree),
+        float(pen_col),
+        float(box),
+    )

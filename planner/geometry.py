@@ -110,7 +110,7 @@ def radio_pairs(pos_m: np.ndarray, range_m: float, ordered: bool = True) -> np.n
         or range_m <= 0
     ):
         return neighbour_pairs(pos_m, range_m)
-    if pos_m.ndim != 2 or pos_m.shape[1] != 2 or not np.all(np.isfinite(pos_m)):
+    if pos_m.ndim != 2 or pos_m.shape[1] != 2 or not np.isfinite(pos_m).all():
         return neighbour_pairs(pos_m, range_m)
     lo = pos_m.min(axis=0)
     hi = pos_m.max(axis=0)

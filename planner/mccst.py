@@ -734,7 +734,7 @@ def solve_cbf_qp(
     solver.warm_start(x=np.concatenate([u_start.ravel(), -rhs[slack_rows]]))
     res = solver.solve(raise_error=False)
     status = str(res.info.status)
-    if status in _ACCEPTED_STATUSES and res.x is not None and np.all(np.isfinite(res.x)):
+    if status in _ACCEPTED_STATUSES and res.x is not None and np.isfinite(res.x).all():
         u = np.clip(res.x[:n_u].reshape(n, 2), -box, box)  # absorb solver tolerance
         slack = np.maximum(res.x[n_u:], 0.0)
         return QpResult(
@@ -834,9 +834,17 @@ def _solve_piqp(
         g_mat = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n, False)
     n_slack = len(slack_rows)
     slack_tree = slack_rows < n_tree
-    p_mat, q_vec = _qp_objective(u_hat, slack_tree, params)
-    x_lo = np.concatenate([np.full(n_u, -box), np.zeros(n_slack)])
-    x_hi = np.concatenate([np.full(n_u, box), np.full(n_slack, np.inf)])
+    vec = _graph_kernels.qp_vectors(
+        u_hat, slack_tree, params.slack_penalty, params.collision_slack_penalty, box
+    )
+    if vec is not None:  # the lines below in one pass, the same arrays
+        p_diag, q_vec, x_lo, x_hi = vec
+        diag_idx = np.arange(n_u + n_slack + 1, dtype=np.int32)
+        p_mat = _csc(p_diag, diag_idx[:-1], diag_idx, (n_u + n_slack, n_u + n_slack))
+    else:
+        p_mat, q_vec = _qp_objective(u_hat, slack_tree, params)
+        x_lo = np.concatenate([np.full(n_u, -box), np.zeros(n_slack)])
+        x_hi = np.concatenate([np.full(n_u, box), np.full(n_slack, np.inf)])
 
     solver = piqp.SparseSolver()
     solver.settings.verbose = False
@@ -849,7 +857,7 @@ def _solve_piqp(
     status = solver.solve()
     z = solver.result.x
     iters = int(solver.result.info.iter)
-    if status == piqp.PIQP_SOLVED and np.all(np.isfinite(z)):
+    if status == piqp.PIQP_SOLVED and np.isfinite(z).all():
         u = np.clip(z[:n_u].reshape(n, 2), -box, box)
         slack = np.maximum(z[n_u:], 0.0)
         return QpResult(
@@ -1113,7 +1121,10 @@ class MccstPlanner:
             return PlanOutput(disp_m=disp_m, info=info)
         prm = self.params
         unit = self._unit_m
-        x = np.vstack([pos_m[members], base_m]) / unit  # (n+1, 2); row n is the base
+        x = np.empty((n + 1, 2))  # (n+1, 2); row n is the base
+        x[:n] = pos_m[members]
+        x[n] = base_m
+        x /= unit
 
         # 1-2. Subgroups and nominal controls.
         speed_hat = self._speed if prm.saturate_nominal else np.inf
@@ -1137,8 +1148,12 @@ class MccstPlanner:
         is_base_edge = edges[:, 1] == n
         r_c = prm.kappa * np.where(is_base_edge, self._base_radius, self._radius)
         # The base is its own subgroup (-1); drones without a task (-1 in task_local) form another.
-        subgroup = np.append(np.where(task_local >= 0, task_local, -2), -1)
-        delta = edge_slack(x, np.vstack([u_hat, np.zeros(2)]), edges, r_c, subgroup, prm)
+        subgroup = np.empty(n + 1, dtype=np.intp)
+        subgroup[:n] = np.where(task_local >= 0, task_local, -2)
+        subgroup[n] = -1
+        u_nodes = np.zeros((n + 1, 2))  # row n: the base does not move
+        u_nodes[:n] = u_hat
+        delta = edge_slack(x, u_nodes, edges, r_c, subgroup, prm)
         in_tree = spanning_tree_edges(n + 1, edges, -delta)
         tree = edges[in_tree]
 
