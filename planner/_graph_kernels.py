@@ -275,52 +275,75 @@ def _knn_pairs(
     cx, cy, head, members = _grid_buckets(x, y, cell, x0, y0, nx, ny)
     best_d = np.empty(k)
     best_j = np.empty(k, dtype=np.int64)
-    near_d = np.empty(n)  # every drone strictly within reach of i, for the tie check
+    near_d = np.empty(n)  # every drone strictly within reach of i seen, for the tie check
     near_j = np.empty(n, dtype=np.int64)
-    keys = np.empty(n * k, dtype=np.int64)
+    lo_end = np.empty(n * k, dtype=np.int64)
+    hi_end = np.empty(n * k, dtype=np.int64)
     m = 0
     for i in range(n):
         nb = 0
         n_near = 0
-        for ax in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
-            for ay in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
-                c = ax * ny + ay
-                for q in range(head[c], head[c + 1]):
-                    j = members[q]
-                    if j == i:
+        # Square rings of cells around i's cell, nearest first. A drone outside the rings
+        # 0..ring lies farther than ring * cell (less a rounding margin) from i: once the k-th
+        # best distance is below that, no unseen drone can enter (or tie) the k best; once it
+        # exceeds reach (plus the near-reach band), every drone within reach has been seen.
+        ring = 0
+        while True:
+            for ax in range(max(cx[i] - ring, 0), min(cx[i] + ring + 1, nx)):
+                edge_x = ax == cx[i] - ring or ax == cx[i] + ring
+                ay = max(cy[i] - ring, 0)
+                ay_stop = min(cy[i] + ring + 1, ny)
+                while ay < ay_stop:
+                    if not edge_x and ay != cy[i] - ring and ay != cy[i] + ring:
+                        ay = cy[i] + ring  # inner cells were seen in earlier rings
                         continue
-                    dx = x[i] - x[j]
-                    dy = y[i] - y[j]
-                    d = math.sqrt(dx * dx + dy * dy)
-                    # A distance within rounding of ``reach``: the KD-tree reference's
-                    # squared-distance test decides; report it, the caller falls back.
-                    if abs(d - reach) <= 1e-9 * reach:
-                        return False, np.zeros((0, 2), dtype=np.int64)
-                    if not d < reach:
-                        continue
-                    near_d[n_near] = d
-                    near_j[n_near] = j
-                    n_near += 1
-                    # insert (d, j) into the sorted list of the k best, order (distance, index)
-                    if nb == k and not (
-                        d < best_d[k - 1] or (d == best_d[k - 1] and j < best_j[k - 1])
-                    ):
-                        continue
-                    p = nb if nb < k else k - 1
-                    while p > 0 and (
-                        d < best_d[p - 1] or (d == best_d[p - 1] and j < best_j[p - 1])
-                    ):
-                        if p < k:
-                            best_d[p] = best_d[p - 1]
-                            best_j[p] = best_j[p - 1]
-                        p -= 1
-                    best_d[p] = d
-                    best_j[p] = j
-                    if nb < k:
-                        nb += 1
+                    c = ax * ny + ay
+                    ay += 1
+                    for q in range(head[c], head[c + 1]):
+                        j = members[q]
+                        if j == i:
+                            continue
+                        dx = x[i] - x[j]
+                        dy = y[i] - y[j]
+                        d = math.sqrt(dx * dx + dy * dy)
+                        # A distance within rounding of ``reach``: the KD-tree reference's
+                        # squared-distance test decides; report it, the caller falls back.
+                        if abs(d - reach) <= 1e-9 * reach:
+                            return False, np.zeros((0, 2), dtype=np.int64)
+                        if not d < reach:
+                            continue
+                        near_d[n_near] = d
+                        near_j[n_near] = j
+                        n_near += 1
+                        # insert (d, j) into the sorted list of the k best, order (distance, index)
+                        if nb == k and not (
+                            d < best_d[k - 1] or (d == best_d[k - 1] and j < best_j[k - 1])
+                        ):
+                            continue
+                        p = nb if nb < k else k - 1
+                        while p > 0 and (
+                            d < best_d[p - 1] or (d == best_d[p - 1] and j < best_j[p - 1])
+                        ):
+                            if p < k:
+                                best_d[p] = best_d[p - 1]
+                                best_j[p] = best_j[p - 1]
+                            p -= 1
+                        best_d[p] = d
+                        best_j[p] = j
+                        if nb < k:
+                            nb += 1
+            seen = (ring * cell) * (1.0 - 1e-6)  # every unseen drone is at least this far
+            if nb == k and best_d[k - 1] < seen:
+                break
+            if seen > reach * (1.0 + 1e-6):
+                break
+            if cx[i] - ring <= 0 and cx[i] + ring >= nx - 1 and cy[i] - ring <= 0:
+                if cy[i] + ring >= ny - 1:
+                    break  # the rings cover the whole grid
+            ring += 1
         # A tie at the k-th distance is broken by whatever order the KD-tree reference visits
-        # points in: report it, the caller falls back. Such a drone is within reach (the k-th
-        # distance is), so the drones recorded in the pass above are all there is to check.
+        # points in: report it, the caller falls back. Such a drone is no farther than the k-th
+        # distance, so it was seen: the drones recorded above are all there is to check.
         if nb == k:
             kth = best_d[k - 1]
             for q in range(n_near):
@@ -328,14 +351,39 @@ def _knn_pairs(
                     return False, np.zeros((0, 2), dtype=np.int64)
         for q in range(nb):
             j = best_j[q]
-            keys[m] = min(i, j) * n + max(i, j)
+            lo_end[m] = min(i, j)
+            hi_end[m] = max(i, j)
             m += 1
-    key = np.unique(keys[:m])
-    out = np.empty((len(key), 2), dtype=np.int64)
-    for q in range(len(key)):
-        out[q, 0] = key[q] // n
-        out[q, 1] = key[q] % n
-    return True, out
+    # The pairs sorted by (lo, hi), duplicates (j among i's k best and i among j's) dropped:
+    # a counting sort by lo, then an insertion sort of each lo's few partners.
+    start = np.zeros(n + 1, dtype=np.int64)
+    for q in range(m):
+        start[lo_end[q] + 1] += 1
+    for v in range(n):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    partner = np.empty(m, dtype=np.int64)
+    for q in range(m):
+        partner[fill[lo_end[q]]] = hi_end[q]
+        fill[lo_end[q]] += 1
+    out = np.empty((m, 2), dtype=np.int64)
+    n_out = 0
+    for v in range(n):
+        a = start[v]
+        b = start[v + 1]
+        for q in range(a + 1, b):
+            val = partner[q]
+            p = q
+            while p > a and partner[p - 1] > val:
+                partner[p] = partner[p - 1]
+                p -= 1
+            partner[p] = val
+        for q in range(a, b):
+            if q == a or partner[q] != partner[q - 1]:
+                out[n_out, 0] = v
+                out[n_out, 1] = partner[q]
+                n_out += 1
+    return True, out[:n_out].copy()
 
 
 def _in(values: np.ndarray, count: int, v: int) -> bool:
@@ -353,6 +401,9 @@ if _kernels.NUMBA:
 
 _knn_pairs_jit = _jit(_knn_pairs)
 
+#: Grid cells per ``reach`` of :func:`knn_pairs` (when the spread allows that many cells).
+KNN_CELLS_PER_REACH = 4
+
 
 def knn_pairs(x: np.ndarray, reach: float, k: int) -> np.ndarray | None:
     """Pairs (i, j), i < j, sorted, unique, such that j is among i's ``k`` nearest drones strictly
@@ -369,11 +420,17 @@ def knn_pairs(x: np.ndarray, reach: float, k: int) -> np.ndarray | None:
         return None
     lo = x.min(axis=0)
     hi = x.max(axis=0)
-    cell = float(reach) * (1 + 1e-6)
+    # Cells of a quarter of reach: the k nearest of a drone in a dense swarm lie much closer
+    # than reach, and the ring search stops at them. Whole-reach cells for sparse spreads.
+    cell = float(reach) * (1 + 1e-5) / KNN_CELLS_PER_REACH
     nx = int((hi[0] - lo[0]) // cell) + 1
     ny = int((hi[1] - lo[1]) // cell) + 1
     if nx * ny > 8 * n + 4096:
-        return None
+        cell = float(reach) * (1 + 1e-5)
+        nx = int((hi[0] - lo[0]) // cell) + 1
+        ny = int((hi[1] - lo[1]) // cell) + 1
+        if nx * ny > 8 * n + 4096:
+            return None
     ok, pairs = _knn_pairs_jit(
         np.ascontiguousarray(x, dtype=np.float64),
         float(reach),

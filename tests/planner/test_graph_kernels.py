@@ -269,3 +269,26 @@ def test_pairs_within_is_the_numpy_recheck(rng):
         for r in (d[k], np.nextafter(d[k], -np.inf)):
             got = _graph_kernels.pairs_within(x, pairs, r)
             assert np.array_equal(got, _recheck_pairs(x, pairs, r)), k
+
+
+def test_knn_pairs_ring_search_dense_and_sparse(rng):
+    """The ring search stops once the k-th best distance is inside the rings seen: dense clusters
+    (many drones within reach, the k nearest a fraction of it), sparse spreads (whole-reach cells)
+    and clusters plus outliers give the KD-tree reference's pairs, or decline."""
+    answered = 0
+    for trial in range(120):
+        n = int(rng.integers(2, 400))
+        side = float(rng.choice([0.3, 1.0, 3.0, 10.0, 200.0]))
+        x = rng.uniform(0, side, (n, 2))
+        if trial % 3 == 0:
+            x[: n // 4] += rng.uniform(-50, 50, 2)  # a second cluster far away
+        if trial % 7 == 0:
+            x = np.round(x, 1)  # exact ties
+        for k in (1, 3, 8):
+            got = _graph_kernels.knn_pairs(x, 0.8, k)
+            want = mccst._collision_candidates_reference(x, 0.8, k)
+            if got is not None:
+                answered += 1
+                assert np.array_equal(got, want), (trial, k)
+                assert got.dtype == want.dtype
+    assert answered > 200
