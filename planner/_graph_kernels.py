@@ -54,27 +54,33 @@ def _jit(func: _F) -> _F:
 
 def _mst_prim(n_nodes: int, edges: np.ndarray, w: np.ndarray) -> tuple[bool, np.ndarray]:
     n_edges = edges.shape[0]
+    # CSR adjacency: each undirected edge listed at both ends (edge id, other end, weight), int32
+    # ids and the weight stored inline: the relaxation reads it sequentially.
+    deg = np.zeros(n_nodes + 1, dtype=np.int64)
     for e in range(n_edges):
         if math.isnan(w[e]):
             return False, np.zeros(0, dtype=np.int64)
-    # CSR adjacency: each undirected edge listed at both ends (edge id, other end).
-    deg = np.zeros(n_nodes + 1, dtype=np.int64)
-    for e in range(n_edges):
         deg[edges[e, 0] + 1] += 1
         deg[edges[e, 1] + 1] += 1
     for v in range(n_nodes):
         deg[v + 1] += deg[v]
     fill = deg[:-1].copy()
-    adj_e = np.empty(2 * n_edges, dtype=np.int64)
-    adj_v = np.empty(2 * n_edges, dtype=np.int64)
+    adj_e = np.empty(2 * n_edges, dtype=np.int32)
+    adj_v = np.empty(2 * n_edges, dtype=np.int32)
+    adj_w = np.empty(2 * n_edges)
     for e in range(n_edges):
         a, b = edges[e, 0], edges[e, 1]
-        adj_e[fill[a]] = e
-        adj_v[fill[a]] = b
-        fill[a] += 1
-        adj_e[fill[b]] = e
-        adj_v[fill[b]] = a
-        fill[b] += 1
+        we = w[e]
+        fa = fill[a]
+        adj_e[fa] = e
+        adj_v[fa] = b
+        adj_w[fa] = we
+        fill[a] = fa + 1
+        fb = fill[b]
+        adj_e[fb] = e
+        adj_v[fb] = a
+        adj_w[fb] = we
+        fill[b] = fb + 1
     in_tree = np.zeros(n_nodes, dtype=np.bool_)
     key_w = np.full(n_nodes, np.inf)
     key_e = np.full(n_nodes, -1, dtype=np.int64)
@@ -102,14 +108,15 @@ def _mst_prim(n_nodes: int, edges: np.ndarray, w: np.ndarray) -> tuple[bool, np.
                 u = adj_v[q]
                 if in_tree[u]:
                     continue
-                e = adj_e[q]
+                eq = adj_e[q]
+                we = adj_w[q]
                 if key_e[u] < 0:
                     front[n_front] = u
                     slot[u] = n_front
                     n_front += 1
-                if w[e] < key_w[u] or (w[e] == key_w[u] and (key_e[u] < 0 or e < key_e[u])):
-                    key_w[u] = w[e]
-                    key_e[u] = e
+                if we < key_w[u] or (we == key_w[u] and (key_e[u] < 0 or eq < key_e[u])):
+                    key_w[u] = we
+                    key_e[u] = eq
             # the next vertex: the lightest edge (weight, then index) into the tree; the keys of
             # distinct frontier vertices are distinct edges, so the scan order does not matter
             v = -1
