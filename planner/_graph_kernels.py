@@ -975,13 +975,17 @@ def _link_edges(
     n = pos.shape[0]
     n_pairs = pairs.shape[0]
     out = np.empty((n_pairs + n, 2), dtype=np.int64)
+    # d^2 this far inside range^2 has sqrt(d^2) < range whatever the rounding (1e-9 relative
+    # against a few ulps): the square root is taken only near the boundary.
+    inner = range_m * range_m * (1.0 - 1e-9) if range_m > 0 else -1.0
     k = 0
     for p in range(n_pairs):
         i = pairs[p, 0]
         j = pairs[p, 1]
         dx = pos[i, 0] - pos[j, 0]
         dy = pos[i, 1] - pos[j, 1]
-        if math.sqrt(dx * dx + dy * dy) <= range_m:
+        d2 = dx * dx + dy * dy
+        if d2 <= inner or math.sqrt(d2) <= range_m:
             out[k, 0] = i
             out[k, 1] = j
             k += 1

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from planner import _graph_kernels, _kernels
-from planner.geometry import active_mask, neighbour_pairs, tasks_connected
+from planner.geometry import active_mask, neighbour_candidates, neighbour_pairs, tasks_connected
 from planner.mccst import (
     BALANCED_PARAMS,
     STRONG_PARAMS,
@@ -847,3 +847,23 @@ def test_qp_vectors_compiled_are_the_numpy_ones():
         for a, b in zip(got, (p_mat.diagonal(), q_vec, x_lo, x_hi)):
             np.testing.assert_array_equal(a, b)
             assert a.dtype == b.dtype
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+def test_link_edges_near_the_range_is_the_sqrt_test():
+    """Pairs a hair inside, at and a hair outside the range (the square root decides there, the
+    squared-distance shortcut only far inside) are kept exactly as the NumPy re-check keeps them."""
+    rng = np.random.default_rng(6)
+    r = 20.0
+    for _ in range(20):
+        n = 60
+        ang = rng.uniform(0, 2 * np.pi, n // 2)
+        rad = r * (1 + rng.choice([-1e-9, -3e-16, 0.0, 2e-16, 1e-9, -2e-9], n // 2))
+        a = rng.uniform(-5, 5, (n // 2, 2))
+        b = a + np.column_stack([rad * np.cos(ang), rad * np.sin(ang)])
+        pos_m = np.vstack([a, b])
+        pairs = neighbour_candidates(pos_m, r)
+        got = _graph_kernels.link_edges(pos_m, pairs, r, np.zeros(2), 0.0)
+        d = np.linalg.norm(pos_m[pairs[:, 0]] - pos_m[pairs[:, 1]], axis=1)
+        want = pairs[d <= r]
+        np.testing.assert_array_equal(got, want)
