@@ -192,6 +192,34 @@ if _kernels.NUMBA:
     _grid_buckets = _njit_inline(cache=True, inline="always")(_grid_buckets)
 
 
+def _bbox(pos: np.ndarray) -> tuple[bool, float, float, float, float]:
+    lo_x = np.inf
+    lo_y = np.inf
+    hi_x = -np.inf
+    hi_y = -np.inf
+    for i in range(pos.shape[0]):
+        a = pos[i, 0]
+        b = pos[i, 1]
+        if not (math.isfinite(a) and math.isfinite(b)):
+            return False, 0.0, 0.0, 0.0, 0.0
+        lo_x = min(lo_x, a)
+        lo_y = min(lo_y, b)
+        hi_x = max(hi_x, a)
+        hi_y = max(hi_y, b)
+    return True, lo_x, lo_y, hi_x, hi_y
+
+
+_bbox_jit = _jit(_bbox)
+
+
+def _finite_bbox(pos: np.ndarray) -> tuple[float, float, float, float] | None:
+    """(min x, min y, max x, max y) of an (n >= 1, 2) float64 array in one pass (the values of
+    ``pos.min(axis=0)`` / ``pos.max(axis=0)``: a minimum is exact), or None if some entry is not
+    finite (``not np.isfinite(pos).all()``)."""
+    ok, lo_x, lo_y, hi_x, hi_y = _bbox_jit(pos)
+    return (lo_x, lo_y, hi_x, hi_y) if ok else None
+
+
 def _reach_from(
     x: np.ndarray,
     y: np.ndarray,
@@ -244,13 +272,16 @@ def reach_from(pos_m: np.ndarray, reached: np.ndarray, range_m: float) -> np.nda
     if not (_kernels.NUMBA and _kernels.ENABLED) or not np.isfinite(range_m) or range_m <= 0:
         return None
     n = len(pos_m)
-    if n == 0 or pos_m.ndim != 2 or pos_m.shape[1] != 2 or not np.isfinite(pos_m).all():
+    if n == 0 or pos_m.ndim != 2 or pos_m.shape[1] != 2:
         return None
-    lo = pos_m.min(axis=0)
-    hi = pos_m.max(axis=0)
+    pos_m = np.ascontiguousarray(pos_m, dtype=np.float64)
+    box = _finite_bbox(pos_m)
+    if box is None:
+        return None
+    lo_x, lo_y, hi_x, hi_y = box
     cell = float(range_m) * (1 + 1e-6)  # > range: a link lies in the same or adjacent cells
-    nx = int((hi[0] - lo[0]) // cell) + 1
-    ny = int((hi[1] - lo[1]) // cell) + 1
+    nx = int((hi_x - lo_x) // cell) + 1
+    ny = int((hi_y - lo_y) // cell) + 1
     if nx * ny > 8 * n + 4096:
         return None
     return _reach_from_jit(
@@ -259,8 +290,8 @@ def reach_from(pos_m: np.ndarray, reached: np.ndarray, range_m: float) -> np.nda
         np.asarray(reached, dtype=np.bool_),
         float(range_m),
         cell,
-        float(lo[0]),
-        float(lo[1]),
+        lo_x,
+        lo_y,
         nx,
         ny,
     )
@@ -423,19 +454,22 @@ def knn_pairs(x: np.ndarray, reach: float, k: int) -> np.ndarray | None:
     if not (_kernels.NUMBA and _kernels.ENABLED) or not np.isfinite(reach) or reach <= 0 or k <= 0:
         return None
     n = len(x)
-    if n < 2 or x.ndim != 2 or x.shape[1] != 2 or not np.isfinite(x).all():
+    if n < 2 or x.ndim != 2 or x.shape[1] != 2:
         return None
-    lo = x.min(axis=0)
-    hi = x.max(axis=0)
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    box = _finite_bbox(x)
+    if box is None:
+        return None
+    lo_x, lo_y, hi_x, hi_y = box
     # Cells of a quarter of reach: the k nearest of a drone in a dense swarm lie much closer
     # than reach, and the ring search stops at them. Whole-reach cells for sparse spreads.
     cell = float(reach) * (1 + 1e-5) / KNN_CELLS_PER_REACH
-    nx = int((hi[0] - lo[0]) // cell) + 1
-    ny = int((hi[1] - lo[1]) // cell) + 1
+    nx = int((hi_x - lo_x) // cell) + 1
+    ny = int((hi_y - lo_y) // cell) + 1
     if nx * ny > 8 * n + 4096:
         cell = float(reach) * (1 + 1e-5)
-        nx = int((hi[0] - lo[0]) // cell) + 1
-        ny = int((hi[1] - lo[1]) // cell) + 1
+        nx = int((hi_x - lo_x) // cell) + 1
+        ny = int((hi_y - lo_y) // cell) + 1
         if nx * ny > 8 * n + 4096:
             return None
     ok, pairs = _knn_pairs_jit(
@@ -443,8 +477,8 @@ def knn_pairs(x: np.ndarray, reach: float, k: int) -> np.ndarray | None:
         float(reach),
         int(k),
         cell,
-        float(lo[0]),
-        float(lo[1]),
+        lo_x,
+        lo_y,
         nx,
         ny,
     )

@@ -292,3 +292,17 @@ def test_knn_pairs_ring_search_dense_and_sparse(rng):
                 assert np.array_equal(got, want), (trial, k)
                 assert got.dtype == want.dtype
     assert answered > 200
+
+
+def test_finite_bbox_is_numpy_min_max(rng):
+    """The one-pass bounding box equals ``min`` / ``max`` over axis 0, and is None exactly when
+    some entry is NaN or infinite."""
+    for trial in range(50):
+        x = rng.normal(size=(int(rng.integers(1, 200)), 2)) * 10.0 ** rng.integers(-3, 4)
+        if trial % 4 == 1:
+            x[rng.integers(len(x)), rng.integers(2)] = [np.nan, np.inf, -np.inf][trial % 3]
+        got = _graph_kernels._finite_bbox(np.ascontiguousarray(x))
+        if not np.isfinite(x).all():
+            assert got is None
+            continue
+        assert got == (*x.min(axis=0).tolist(), *x.max(axis=0).tolist())
