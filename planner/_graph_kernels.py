@@ -734,9 +734,19 @@ def _bounded_moves(
     hx: float,
     hy: float,
     vmax: float,
-) -> np.ndarray:
+) -> tuple[bool, np.ndarray]:
     n = len(px)
     out = np.empty((n, 2))
+    if not (math.isfinite(hx) and math.isfinite(hy)):
+        return False, out
+    for i in range(n):
+        if not (
+            math.isfinite(px[i])
+            and math.isfinite(py[i])
+            and math.isfinite(dx_in[i])
+            and math.isfinite(dy_in[i])
+        ):
+            return False, out
     for i in range(n):
         if active[i]:
             dx = dx_in[i]
@@ -753,7 +763,7 @@ def _bounded_moves(
         a = 1.0 if alive[i] else 0.0
         out[i, 0] = px[i] + dx * s * a
         out[i, 1] = py[i] + dy * s * a
-    return out
+    return True, out
 
 
 _bounded_moves_jit = _jit(_bounded_moves)
@@ -777,9 +787,7 @@ def bounded_moves(
         return None
     if disp_m.shape != pos_m.shape or np.shape(home_m) != (2,) or not np.isfinite(vmax):
         return None
-    if not (np.isfinite(pos_m).all() and np.isfinite(disp_m).all() and np.isfinite(home_m).all()):
-        return None
-    return _bounded_moves_jit(
+    ok, out = _bounded_moves_jit(
         np.ascontiguousarray(pos_m[:, 0], dtype=np.float64),
         np.ascontiguousarray(pos_m[:, 1], dtype=np.float64),
         np.ascontiguousarray(disp_m[:, 0], dtype=np.float64),
@@ -790,6 +798,7 @@ def bounded_moves(
         float(home_m[1]),
         float(vmax),
     )
+    return out if ok else None  # a non-finite entry (checked in the kernel): NumPy runs
 
 
 def _reaches_root(parent: np.ndarray) -> bool:

@@ -306,3 +306,16 @@ def test_finite_bbox_is_numpy_min_max(rng):
             assert got is None
             continue
         assert got == (*x.min(axis=0).tolist(), *x.max(axis=0).tolist())
+
+
+def test_bounded_moves_declines_non_finite_input():
+    """A NaN or infinite position, displacement or home declines (the world then runs NumPy)."""
+    pos = np.zeros((3, 2))
+    disp = np.full((3, 2), 0.1)
+    act, alive = np.ones(3, bool), np.ones(3, bool)
+    assert _graph_kernels.bounded_moves(pos, disp, act, alive, np.zeros(2), 1.0) is not None
+    for bad in (np.nan, np.inf, -np.inf):
+        for which in range(3):
+            p, d, h = pos.copy(), disp.copy(), np.zeros(2)
+            [p, d, h][which].flat[1] = bad
+            assert _graph_kernels.bounded_moves(p, d, act, alive, h, 1.0) is None
