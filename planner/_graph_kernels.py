@@ -1146,3 +1146,64 @@ def qp_vectors(
         float(pen_col),
         float(box),
     )
+
+
+def _toward_tasks(
+    x: np.ndarray,
+    task: np.ndarray,
+    task_of: np.ndarray,
+    unit: float,
+    k_p: float,
+    speed: float,
+    shrink: float,
+) -> np.ndarray:
+    n = len(task_of)
+    out = np.empty((n, 2))
+    for d in range(n):
+        t = task_of[d]
+        if t >= 0:
+            gx = task[t, 0] / unit
+            gy = task[t, 1] / unit
+        else:  # no task: the goal is where the drone is
+            gx = x[d, 0]
+            gy = x[d, 1]
+        a = k_p * (gx - x[d, 0])
+        b = k_p * (gy - x[d, 1])
+        norm = math.sqrt(a * a + b * b)
+        if norm > speed:  # _clip_norm
+            f = speed / norm
+            a = a * f
+            b = b * f
+            if math.sqrt(a * a + b * b) > speed:
+                a = a * shrink
+                b = b * shrink
+        out[d, 0] = a
+        out[d, 1] = b
+    return out
+
+
+_toward_tasks_jit = _jit(_toward_tasks)
+
+
+def toward_tasks(
+    x: np.ndarray, task_m: np.ndarray, task_of: np.ndarray, unit: float, k_p: float, speed: float
+) -> np.ndarray | None:
+    """MCCST's nominal controls toward the assigned tasks in one pass: goal_d = task_m[task_of[d]] /
+    unit (x_d when task_of[d] < 0), then :func:`planner.mccst.nominal_controls` with no hold
+    distance, sat_speed(k_p (goal - x)); the same operations in the same order as the NumPy lines
+    (the reference: ``planner.mccst.MccstPlanner.plan``'s goal and ``nominal_controls``), so the
+    same bits. ``x`` (n, 2) paper units, ``task_m`` (M, 2) metres. None without Numba or for
+    other than 2-D input."""
+    if not (_kernels.NUMBA and _kernels.ENABLED) or x.ndim != 2 or x.shape[1] != 2:
+        return None
+    if task_m.ndim != 2 or task_m.shape[1] != 2 or len(task_of) != len(x):
+        return None
+    return _toward_tasks_jit(
+        np.ascontiguousarray(x, dtype=np.float64),
+        np.ascontiguousarray(task_m, dtype=np.float64),
+        np.ascontiguousarray(task_of, dtype=np.int64),
+        float(unit),
+        float(k_p),
+        float(speed),
+        1.0 - 1e-12,
+    )

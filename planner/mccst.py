@@ -1128,6 +1128,7 @@ class MccstPlanner:
 
         # 1-2. Subgroups and nominal controls.
         speed_hat = self._speed if prm.saturate_nominal else np.inf
+        u_fast: np.ndarray | None = None
         if len(task_m) == 0:
             task_local = np.zeros(n, dtype=np.intp)
             goal = x[:n]
@@ -1136,10 +1137,18 @@ class MccstPlanner:
                 task_local = assign_tasks(x[:n], task_m / unit, prm.assignment, prm.task_capacity)
             else:
                 task_local = self._persistent_tasks(tick, pos_m, networked, members, task_m / unit)
-            has_task = task_local >= 0  # drones without one hold
-            goal = np.where(has_task[:, None], task_m[np.maximum(task_local, 0)] / unit, x[:n])
+            if prm.hold_distance == 0:  # goal and nominal controls in one compiled pass
+                u_fast = _graph_kernels.toward_tasks(
+                    x[:n], task_m, task_local, unit, prm.k_p, speed_hat
+                )
+            if u_fast is None:
+                has_task = task_local >= 0  # drones without one hold
+                goal = np.where(has_task[:, None], task_m[np.maximum(task_local, 0)] / unit, x[:n])
         task_of[members] = task_local
-        u_hat = nominal_controls(x[:n], goal, prm.k_p, speed_hat, prm.hold_distance)
+        if u_fast is None:
+            u_hat = nominal_controls(x[:n], goal, prm.k_p, speed_hat, prm.hold_distance)
+        else:
+            u_hat = u_fast
 
         # 3. Candidate graph and MCCST.
         edges = candidate_edges(
