@@ -847,18 +847,23 @@ def _solve_piqp(
         x_hi = np.concatenate([np.full(n_u, box), np.full(n_slack, np.inf)])
 
     solver = piqp.SparseSolver()
-    solver.settings.verbose = False
-    solver.settings.eps_abs = params.solver_eps
-    solver.settings.eps_rel = params.solver_eps
-    solver.settings.max_iter = params.solver_max_iter
+    settings = solver.settings
+    settings.verbose = False
+    settings.eps_abs = params.solver_eps
+    settings.eps_rel = params.solver_eps
+    settings.max_iter = params.solver_max_iter
     solver.setup(
         p_mat, q_vec, None, None, g_mat, np.full(len(rows), -np.inf), rhs[rows], x_lo, x_hi
     )
     status = solver.solve()
-    z = solver.result.x
-    iters = int(solver.result.info.iter)
+    result = solver.result
+    z = result.x
+    iters = int(result.info.iter)
     if status == piqp.PIQP_SOLVED and np.isfinite(z).all():
-        u = np.clip(z[:n_u].reshape(n, 2), -box, box)
+        # np.clip's value on finite entries, without its Python wrapper
+        u = np.minimum(np.maximum(z[:n_u].reshape(n, 2), -box), box)
+        if n_slack == 0:
+            return QpResult(u, "solved", True, iters, 0.0, 0.0)
         slack = np.maximum(z[n_u:], 0.0)
         return QpResult(
             u,
