@@ -1207,3 +1207,32 @@ def toward_tasks(
         float(speed),
         1.0 - 1e-12,
     )
+
+
+def _slack_combine(
+    dot: np.ndarray, class_k: np.ndarray, cross: np.ndarray, factor: float
+) -> np.ndarray:
+    out = np.empty(len(dot))
+    for e in range(len(dot)):
+        delta = -2.0 * dot[e] + class_k[e]
+        out[e] = delta / factor if cross[e] else delta
+    return out
+
+
+_slack_combine_jit = _jit(_slack_combine)
+
+
+def slack_combine(
+    dot: np.ndarray, class_k: np.ndarray, cross: np.ndarray, factor: float
+) -> np.ndarray | None:
+    """:func:`planner.mccst.edge_slack`'s last two lines in one pass: delta = -2 dot + K, divided
+    by ``factor`` where ``cross``; the same operations in the same order, so the same bits. None
+    without Numba."""
+    if not (_kernels.NUMBA and _kernels.ENABLED):
+        return None
+    return _slack_combine_jit(
+        np.ascontiguousarray(dot, dtype=np.float64),
+        np.ascontiguousarray(class_k, dtype=np.float64),
+        np.ascontiguousarray(cross, dtype=np.bool_),
+        float(factor),
+    )

@@ -544,7 +544,11 @@ def edge_slack(
     fast = _graph_kernels.edge_terms(x, u_hat, edges, r_c, subgroup)
     if fast is not None:  # the lines below without the gathers
         h, dot, cross = fast
-        delta = -2.0 * dot + _class_k(h, params)
+        class_k = _class_k(h, params)
+        combined = _graph_kernels.slack_combine(dot, class_k, cross, params.subgroup_factor)
+        if combined is not None:  # the two lines below in one pass
+            return combined
+        delta = -2.0 * dot + class_k
         return np.where(cross, delta / params.subgroup_factor, delta)
     i, j = edges[:, 0], edges[:, 1]
     diff = x[i] - x[j]
