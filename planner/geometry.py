@@ -70,13 +70,20 @@ def neighbour_pairs(pos_m: np.ndarray, range_m: float) -> np.ndarray:
     pos_m = np.asarray(pos_m, dtype=float)
     if len(pos_m) < 2:
         return np.empty((0, 2), dtype=np.intp)
-    pairs = cKDTree(pos_m).query_pairs(range_m * (1 + _KD_SLACK) + _KD_SLACK, output_type="ndarray")
+    pairs = neighbour_candidates(pos_m, range_m)
     if len(pairs) == 0:
         return np.empty((0, 2), dtype=np.intp)
     fast = _graph_kernels.pairs_within(pos_m, pairs, range_m)
     if fast is not None:  # the two lines below in one compiled pass, the same bits
         return fast.astype(np.intp, copy=False)
     return _recheck_pairs(pos_m, pairs, range_m)
+
+
+def neighbour_candidates(pos_m: np.ndarray, range_m: float) -> np.ndarray:
+    """The KD-tree's pairs (i < j) within ``range_m`` plus a relative and absolute 1e-9, in the
+    tree's order, as (P, 2) int: a superset of :func:`neighbour_pairs`, which keeps those with
+    ``|x_i - x_j| <= range_m`` exactly, in this order. ``pos_m``: (N, D) float64, N >= 2."""
+    return cKDTree(pos_m).query_pairs(range_m * (1 + _KD_SLACK) + _KD_SLACK, output_type="ndarray")
 
 
 def _recheck_pairs(pos_m: np.ndarray, pairs: np.ndarray, range_m: float) -> np.ndarray:
@@ -103,7 +110,7 @@ def radio_pairs(pos_m: np.ndarray, range_m: float, ordered: bool = True) -> np.n
         or range_m <= 0
     ):
         return neighbour_pairs(pos_m, range_m)
-    if pos_m.ndim != 2 or pos_m.shape[1] != 2 or not np.all(np.isfinite(pos_m)):
+    if pos_m.ndim != 2 or pos_m.shape[1] != 2 or not np.isfinite(pos_m).all():
         return neighbour_pairs(pos_m, range_m)
     lo = pos_m.min(axis=0)
     hi = pos_m.max(axis=0)

@@ -134,7 +134,7 @@ from scipy.sparse.csgraph import minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from planner import _graph_kernels
-from planner.geometry import neighbour_pairs
+from planner.geometry import neighbour_candidates, neighbour_pairs
 from planner.methods import PlanOutput, TickInput
 from planner.problem import ProblemConfig
 
@@ -420,8 +420,13 @@ def candidate_edges(
         |x_i - b| <= min(R, r), in metres exactly as :func:`planner.geometry.active_mask` does.
     """
     n = len(pos_m)
-    pairs = neighbour_pairs(pos_m, radio_range_m)
     base_reach_m = min(base_range_m, radio_range_m)
+    if n >= 2:
+        raw = neighbour_candidates(pos_m, radio_range_m)
+        fast = _graph_kernels.link_edges(pos_m, raw, radio_range_m, base_m, base_reach_m)
+        if fast is not None:  # neighbour_pairs' re-check and the lines below in one pass
+            return fast.astype(np.intp, copy=False)
+    pairs = neighbour_pairs(pos_m, radio_range_m)
     at_base = np.flatnonzero(np.linalg.norm(pos_m - base_m, axis=1) <= base_reach_m)
     base_pairs = np.column_stack([at_base, np.full(len(at_base), n)])
     return np.concatenate([pairs.reshape(-1, 2), base_pairs]).astype(np.intp)
@@ -539,7 +544,11 @@ def edge_slack(
     fast = _graph_kernels.edge_terms(x, u_hat, edges, r_c, subgroup)
     if fast is not None:  # the lines below without the gathers
         h, dot, cross = fast
-        delta = -2.0 * dot + _class_k(h, params)
+        class_k = _class_k(h, params)
+        combined = _graph_kernels.slack_combine(dot, class_k, cross, params.subgroup_factor)
+        if combined is not None:  # the two lines below in one pass
+            return combined
+        delta = -2.0 * dot + class_k
         return np.where(cross, delta / params.subgroup_factor, delta)
     i, j = edges[:, 0], edges[:, 1]
     diff = x[i] - x[j]
@@ -683,24 +692,22 @@ def solve_cbf_qp(
     n_tree, n_col = len(tree), len(collision_pairs)
     n_rows = n_tree + n_col
 
-    # Barrier rows: coef_i . u_i + coef_j . u_j (- s_row) <= rhs. Tree: coef_i = 2 (x_i - x_j);
-    # collision: coef_i = -2 (x_i - x_j); coef_j = -coef_i. Base ends (j == n) get no u_j entries.
-    i = np.concatenate([tree[:, 0], collision_pairs[:, 0]]).astype(np.intp)
-    j = np.concatenate([tree[:, 1], collision_pairs[:, 1]]).astype(np.intp)
-    diff = x[i] - x[j]  # (rows, 2)
-    d2 = np.einsum("ek,ek->e", diff, diff)
-    sign = np.concatenate([np.ones(n_tree), -np.ones(n_col)])
-    coef = 2.0 * sign[:, None] * diff  # (rows, 2)
-    h = np.concatenate([r_c**2 - d2[:n_tree], d2[n_tree:] - params.safety_radius**2])
-    # Under the box |u_ik| <= box a row's left side never exceeds sum |coef| * box, so capping the
-    # right side there leaves the feasible set unchanged; it keeps inactive rows (gamma h^3 of a
-    # short edge reaches ~30) from inflating OSQP's relative tolerance, which scales with |Ax|.
-    reach = box * np.abs(coef).sum(axis=1) * np.where(j < n, 2.0, 1.0)
-    rhs = _capped_class_k(h, reach + 1e-3, params)
+    fast = None
+    if not params.discrete_time:
+        fast = _graph_kernels.qp_rows(
+            x, tree, r_c, collision_pairs, params.safety_radius, box, params.gamma
+        )
+    if fast is not None:  # _barrier_rows and _capped_class_k in one pass, the same bits
+        i, j, coef, h, reach, cap, need = fast
+        rhs = cap.copy()
+        rhs[need] = np.minimum(_class_k(h[need], params), cap[need])
+    else:
+        i, j, coef, h, reach = _barrier_rows(x, tree, r_c, collision_pairs, box, params)
+        rhs = _capped_class_k(h, reach + 1e-3, params)
+    if params.solver == "piqp":
+        return _solve_piqp(i, j, coef, rhs, reach, n_tree, u_hat, box, params)
     slack_rows = np.flatnonzero(rhs < 0)  # violated barriers only
     slack_is_tree = slack_rows < n_tree
-    if params.solver == "piqp":
-        return _solve_piqp(i, j, coef, rhs, reach, slack_rows, slack_is_tree, u_hat, box, params)
 
     n_slack = len(slack_rows)
     a_mat = _constraint_matrix(i, j, coef, slack_rows, n)
@@ -731,7 +738,7 @@ def solve_cbf_qp(
     solver.warm_start(x=np.concatenate([u_start.ravel(), -rhs[slack_rows]]))
     res = solver.solve(raise_error=False)
     status = str(res.info.status)
-    if status in _ACCEPTED_STATUSES and res.x is not None and np.all(np.isfinite(res.x)):
+    if status in _ACCEPTED_STATUSES and res.x is not None and np.isfinite(res.x).all():
         u = np.clip(res.x[:n_u].reshape(n, 2), -box, box)  # absorb solver tolerance
         slack = np.maximum(res.x[n_u:], 0.0)
         return QpResult(
@@ -744,6 +751,35 @@ def solve_cbf_qp(
             float(res.info.rho_estimate),
         )
     return QpResult(u_start, status, False, int(res.info.iter), float("nan"), float("nan"))
+
+
+def _barrier_rows(
+    x: np.ndarray,
+    tree: np.ndarray,
+    r_c: np.ndarray,
+    collision_pairs: np.ndarray,
+    box: float,
+    params: MccstParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The CBF-QP's barrier rows (the tree edges, then the collision pairs): their ends i, j,
+    coefficients coef (R, 2), barrier values h and reach (the largest left side inside the box).
+    The NumPy reference of :func:`planner._graph_kernels.qp_rows`."""
+    n = len(x) - 1
+    n_tree, n_col = len(tree), len(collision_pairs)
+    # Barrier rows: coef_i . u_i + coef_j . u_j (- s_row) <= rhs. Tree: coef_i = 2 (x_i - x_j);
+    # collision: coef_i = -2 (x_i - x_j); coef_j = -coef_i. Base ends (j == n) get no u_j entries.
+    i = np.concatenate([tree[:, 0], collision_pairs[:, 0]]).astype(np.intp)
+    j = np.concatenate([tree[:, 1], collision_pairs[:, 1]]).astype(np.intp)
+    diff = x[i] - x[j]  # (rows, 2)
+    d2 = np.einsum("ek,ek->e", diff, diff)
+    sign = np.concatenate([np.ones(n_tree), -np.ones(n_col)])
+    coef = 2.0 * sign[:, None] * diff  # (rows, 2)
+    h = np.concatenate([r_c**2 - d2[:n_tree], d2[n_tree:] - params.safety_radius**2])
+    # Under the box |u_ik| <= box a row's left side never exceeds sum |coef| * box, so capping the
+    # right side there leaves the feasible set unchanged; it keeps inactive rows (gamma h^3 of a
+    # short edge reaches ~30) from inflating OSQP's relative tolerance, which scales with |Ax|.
+    reach = box * np.abs(coef).sum(axis=1) * np.where(j < n, 2.0, 1.0)
+    return i, j, coef, h, reach
 
 
 def _qp_objective(
@@ -766,8 +802,7 @@ def _solve_piqp(
     coef: np.ndarray,
     rhs: np.ndarray,
     reach: np.ndarray,
-    slack_rows: np.ndarray,
-    slack_tree: np.ndarray,
+    n_tree: int,
     u_hat: np.ndarray,
     box: float,
     params: MccstParams,
@@ -789,31 +824,50 @@ def _solve_piqp(
     """
     n = len(u_hat)
     n_u = 2 * n
+    fast = _graph_kernels.barrier_matrix(i, j, coef, rhs, reach, n)
+    if fast is not None:  # the lines below in one pass, entry for entry
+        data, indices, indptr, rows, slack_rows = fast
+        g_mat = _csc(data, indices, indptr, (len(rows), n_u + len(slack_rows)))
+    else:
+        slack_rows = np.flatnonzero(rhs < 0)  # violated barriers only
+        keep = rhs <= reach  # the others are capped, hence never active
+        keep[slack_rows] = True  # violated rows (rhs < 0) always bind
+        rows = np.flatnonzero(keep)
+        new_row = np.cumsum(keep) - 1  # a kept row's index among the kept ones
+        # The barrier rows of OSQP's matrix over the kept rows (its identity rows: PIQP's bounds).
+        g_mat = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n, False)
     n_slack = len(slack_rows)
-    keep = rhs <= reach  # the others are capped, hence never active
-    keep[slack_rows] = True  # violated rows (rhs < 0) always bind
-    rows = np.flatnonzero(keep)
-    new_row = np.cumsum(keep) - 1  # a kept row's index among the kept ones
-    # The barrier rows of OSQP's matrix over the kept rows (its identity rows are PIQP's bounds).
-    g_mat = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n, False)
-    p_mat, q_vec = _qp_objective(u_hat, slack_tree, params)
-    x_lo = np.concatenate([np.full(n_u, -box), np.zeros(n_slack)])
-    x_hi = np.concatenate([np.full(n_u, box), np.full(n_slack, np.inf)])
+    slack_tree = slack_rows < n_tree
+    vec = _graph_kernels.qp_vectors(
+        u_hat, slack_tree, params.slack_penalty, params.collision_slack_penalty, box
+    )
+    if vec is not None:  # the lines below in one pass, the same arrays
+        p_diag, q_vec, x_lo, x_hi = vec
+        diag_idx = np.arange(n_u + n_slack + 1, dtype=np.int32)
+        p_mat = _csc(p_diag, diag_idx[:-1], diag_idx, (n_u + n_slack, n_u + n_slack))
+    else:
+        p_mat, q_vec = _qp_objective(u_hat, slack_tree, params)
+        x_lo = np.concatenate([np.full(n_u, -box), np.zeros(n_slack)])
+        x_hi = np.concatenate([np.full(n_u, box), np.full(n_slack, np.inf)])
 
     solver = piqp.SparseSolver()
-    solver.settings.verbose = False
-    solver.settings.eps_abs = params.solver_eps
-    solver.settings.eps_rel = params.solver_eps
-    solver.settings.max_iter = params.solver_max_iter
+    settings = solver.settings
+    settings.verbose = False
+    settings.eps_abs = params.solver_eps
+    settings.eps_rel = params.solver_eps
+    settings.max_iter = params.solver_max_iter
     solver.setup(
         p_mat, q_vec, None, None, g_mat, np.full(len(rows), -np.inf), rhs[rows], x_lo, x_hi
     )
     status = solver.solve()
-    z = solver.result.x
-    u_start = np.clip(u_hat, -box, box)
-    iters = int(solver.result.info.iter)
-    if status == piqp.PIQP_SOLVED and np.all(np.isfinite(z)):
-        u = np.clip(z[:n_u].reshape(n, 2), -box, box)
+    result = solver.result
+    z = result.x
+    iters = int(result.info.iter)
+    if status == piqp.PIQP_SOLVED and np.isfinite(z).all():
+        # np.clip's value on finite entries, without its Python wrapper
+        u = np.minimum(np.maximum(z[:n_u].reshape(n, 2), -box), box)
+        if n_slack == 0:
+            return QpResult(u, "solved", True, iters, 0.0, 0.0)
         slack = np.maximum(z[n_u:], 0.0)
         return QpResult(
             u,
@@ -823,6 +877,7 @@ def _solve_piqp(
             float(slack[slack_tree].max(initial=0.0)),
             float(slack[~slack_tree].max(initial=0.0)),
         )
+    u_start = np.clip(u_hat, -box, box)
     return QpResult(u_start, str(status), False, iters, float("nan"), float("nan"))
 
 
@@ -939,7 +994,17 @@ def _constraint_matrix_reference(
 
 
 def _clip_norm(vec: np.ndarray, limit: float) -> np.ndarray:
-    """Rows scaled down so that |row| <= limit holds exactly in floating point (new array)."""
+    """Rows scaled down so that |row| <= limit holds exactly in floating point (new array).
+    Compiled for (n, 2) float arrays (:func:`planner._graph_kernels.clip_norm`, the same bits)."""
+    if np.ndim(vec) == 2 and np.shape(vec)[1] == 2 and np.result_type(vec) == np.float64:
+        fast = _graph_kernels.clip_norm(vec, limit)
+        if fast is not None:
+            return fast
+    return _clip_norm_reference(vec, limit)
+
+
+def _clip_norm_reference(vec: np.ndarray, limit: float) -> np.ndarray:
+    """:func:`_clip_norm` by NumPy (the reference of :func:`planner._graph_kernels.clip_norm`)."""
     norm = np.linalg.norm(vec, axis=1)
     over = norm > limit
     out = np.array(vec, dtype=float, copy=True)
@@ -1065,10 +1130,14 @@ class MccstPlanner:
             return PlanOutput(disp_m=disp_m, info=info)
         prm = self.params
         unit = self._unit_m
-        x = np.vstack([pos_m[members], base_m]) / unit  # (n+1, 2); row n is the base
+        x = np.empty((n + 1, 2))  # (n+1, 2); row n is the base
+        x[:n] = pos_m[members]
+        x[n] = base_m
+        x /= unit
 
         # 1-2. Subgroups and nominal controls.
         speed_hat = self._speed if prm.saturate_nominal else np.inf
+        u_fast: np.ndarray | None = None
         if len(task_m) == 0:
             task_local = np.zeros(n, dtype=np.intp)
             goal = x[:n]
@@ -1077,10 +1146,18 @@ class MccstPlanner:
                 task_local = assign_tasks(x[:n], task_m / unit, prm.assignment, prm.task_capacity)
             else:
                 task_local = self._persistent_tasks(tick, pos_m, networked, members, task_m / unit)
-            has_task = task_local >= 0  # drones without one hold
-            goal = np.where(has_task[:, None], task_m[np.maximum(task_local, 0)] / unit, x[:n])
+            if prm.hold_distance == 0:  # goal and nominal controls in one compiled pass
+                u_fast = _graph_kernels.toward_tasks(
+                    x[:n], task_m, task_local, unit, prm.k_p, speed_hat
+                )
+            if u_fast is None:
+                has_task = task_local >= 0  # drones without one hold
+                goal = np.where(has_task[:, None], task_m[np.maximum(task_local, 0)] / unit, x[:n])
         task_of[members] = task_local
-        u_hat = nominal_controls(x[:n], goal, prm.k_p, speed_hat, prm.hold_distance)
+        if u_fast is None:
+            u_hat = nominal_controls(x[:n], goal, prm.k_p, speed_hat, prm.hold_distance)
+        else:
+            u_hat = u_fast
 
         # 3. Candidate graph and MCCST.
         edges = candidate_edges(
@@ -1089,8 +1166,12 @@ class MccstPlanner:
         is_base_edge = edges[:, 1] == n
         r_c = prm.kappa * np.where(is_base_edge, self._base_radius, self._radius)
         # The base is its own subgroup (-1); drones without a task (-1 in task_local) form another.
-        subgroup = np.append(np.where(task_local >= 0, task_local, -2), -1)
-        delta = edge_slack(x, np.vstack([u_hat, np.zeros(2)]), edges, r_c, subgroup, prm)
+        subgroup = np.empty(n + 1, dtype=np.intp)
+        subgroup[:n] = np.where(task_local >= 0, task_local, -2)
+        subgroup[n] = -1
+        u_nodes = np.zeros((n + 1, 2))  # row n: the base does not move
+        u_nodes[:n] = u_hat
+        delta = edge_slack(x, u_nodes, edges, r_c, subgroup, prm)
         in_tree = spanning_tree_edges(n + 1, edges, -delta)
         tree = edges[in_tree]
 

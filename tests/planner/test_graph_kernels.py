@@ -269,3 +269,53 @@ def test_pairs_within_is_the_numpy_recheck(rng):
         for r in (d[k], np.nextafter(d[k], -np.inf)):
             got = _graph_kernels.pairs_within(x, pairs, r)
             assert np.array_equal(got, _recheck_pairs(x, pairs, r)), k
+
+
+def test_knn_pairs_ring_search_dense_and_sparse(rng):
+    """The ring search stops once the k-th best distance is inside the rings seen: dense clusters
+    (many drones within reach, the k nearest a fraction of it), sparse spreads (whole-reach cells)
+    and clusters plus outliers give the KD-tree reference's pairs, or decline."""
+    answered = 0
+    for trial in range(120):
+        n = int(rng.integers(2, 400))
+        side = float(rng.choice([0.3, 1.0, 3.0, 10.0, 200.0]))
+        x = rng.uniform(0, side, (n, 2))
+        if trial % 3 == 0:
+            x[: n // 4] += rng.uniform(-50, 50, 2)  # a second cluster far away
+        if trial % 7 == 0:
+            x = np.round(x, 1)  # exact ties
+        for k in (1, 3, 8):
+            got = _graph_kernels.knn_pairs(x, 0.8, k)
+            want = mccst._collision_candidates_reference(x, 0.8, k)
+            if got is not None:
+                answered += 1
+                assert np.array_equal(got, want), (trial, k)
+                assert got.dtype == want.dtype
+    assert answered > 200
+
+
+def test_finite_bbox_is_numpy_min_max(rng):
+    """The one-pass bounding box equals ``min`` / ``max`` over axis 0, and is None exactly when
+    some entry is NaN or infinite."""
+    for trial in range(50):
+        x = rng.normal(size=(int(rng.integers(1, 200)), 2)) * 10.0 ** rng.integers(-3, 4)
+        if trial % 4 == 1:
+            x[rng.integers(len(x)), rng.integers(2)] = [np.nan, np.inf, -np.inf][trial % 3]
+        got = _graph_kernels._finite_bbox(np.ascontiguousarray(x))
+        if not np.isfinite(x).all():
+            assert got is None
+            continue
+        assert got == (*x.min(axis=0).tolist(), *x.max(axis=0).tolist())
+
+
+def test_bounded_moves_declines_non_finite_input():
+    """A NaN or infinite position, displacement or home declines (the world then runs NumPy)."""
+    pos = np.zeros((3, 2))
+    disp = np.full((3, 2), 0.1)
+    act, alive = np.ones(3, bool), np.ones(3, bool)
+    assert _graph_kernels.bounded_moves(pos, disp, act, alive, np.zeros(2), 1.0) is not None
+    for bad in (np.nan, np.inf, -np.inf):
+        for which in range(3):
+            p, d, h = pos.copy(), disp.copy(), np.zeros(2)
+            [p, d, h][which].flat[1] = bad
+            assert _graph_kernels.bounded_moves(p, d, act, alive, h, 1.0) is None

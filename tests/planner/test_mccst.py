@@ -8,19 +8,24 @@ import itertools
 import numpy as np
 import pytest
 
-from planner.geometry import active_mask, neighbour_pairs, tasks_connected
+from planner import _graph_kernels, _kernels
+from planner.geometry import active_mask, neighbour_candidates, neighbour_pairs, tasks_connected
 from planner.mccst import (
     BALANCED_PARAMS,
     STRONG_PARAMS,
     MccstParams,
     MccstPlanner,
     _argsort_stable,
+    _barrier_rows,
     _capped_class_k,
     _class_k,
+    _clip_norm,
+    _clip_norm_reference,
     _constraint_matrix,
     _constraint_matrix_reference,
     _csc,
     _mst_reference,
+    _qp_objective,
     assign_tasks,
     candidate_edges,
     collision_candidates,
@@ -725,3 +730,183 @@ def test_piqp_optimum_satisfies_kkt_by_brute_force():
     best = u[np.argmin(cost)]
     assert np.isfinite(cost.min())
     np.testing.assert_allclose(got.u, best, atol=grid[1] - grid[0])
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_qp_rows_and_barrier_matrix_are_the_numpy_ones(seed):
+    """The compiled QP assembly (rows, capped right sides, pruned PIQP matrix) equals, array for
+    array and bit for bit, the NumPy reference (:func:`_barrier_rows`, :func:`_capped_class_k`,
+    :func:`_constraint_matrix` on the kept rows), on random QPs with base edges, violated and
+    capped rows, and on the empty QP."""
+    rng = np.random.default_rng(seed)
+    params = MccstParams()
+    box = 0.106
+    for trial in range(60):
+        n = int(rng.integers(2, 40))
+        x, _, tree, r_c, col = _random_qp(
+            rng, n, int(rng.integers(0, 3 * n)), int(rng.integers(0, 2 * n))
+        )
+        if trial == 0:
+            tree, r_c, col = tree[:0], r_c[:0], col[:0]
+        i, j, coef, h, reach = _barrier_rows(x, tree, r_c, col, box, params)
+        rhs = _capped_class_k(h, reach + 1e-3, params)
+        fast = _graph_kernels.qp_rows(x, tree, r_c, col, params.safety_radius, box, params.gamma)
+        assert fast is not None
+        fi, fj, fcoef, fh, freach, fcap, need = fast
+        for got, want in ((fi, i), (fj, j), (fcoef, coef), (fh, h), (freach, reach)):
+            np.testing.assert_array_equal(got, want)
+            assert got.shape == want.shape
+        frhs = fcap.copy()
+        frhs[need] = np.minimum(_class_k(fh[need], params), fcap[need])
+        np.testing.assert_array_equal(frhs, rhs)
+        # The pruned matrix: kept rows, violated rows, and the CSC entries.
+        slack_rows = np.flatnonzero(rhs < 0)
+        keep = rhs <= reach
+        keep[slack_rows] = True
+        rows = np.flatnonzero(keep)
+        new_row = np.cumsum(keep) - 1
+        ref = _constraint_matrix(i[rows], j[rows], coef[rows], new_row[slack_rows], n, False)
+        mat = _graph_kernels.barrier_matrix(i, j, coef, rhs, reach, n)
+        assert mat is not None
+        data, indices, indptr, got_rows, got_slack = mat
+        np.testing.assert_array_equal(got_rows, rows)
+        np.testing.assert_array_equal(got_slack, slack_rows)
+        np.testing.assert_array_equal(data, ref.data)
+        np.testing.assert_array_equal(indices, ref.indices)
+        np.testing.assert_array_equal(indptr, ref.indptr)
+        assert indices.dtype == indptr.dtype == np.int32
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+def test_candidate_edges_compiled_is_the_reference():
+    """:func:`candidate_edges` with the compiled re-check (:func:`_graph_kernels.link_edges`) gives
+    the reference's array, pair for pair in the KD-tree's order, on swarms with pairs and base
+    links at exactly the range (grid positions), at the base, and of one or two drones."""
+    rng = np.random.default_rng(3)
+    cases = []
+    for _ in range(40):
+        n = int(rng.integers(1, 120))
+        cases.append(rng.uniform(-60, 60, (n, 2)))
+        cases.append(rng.integers(-6, 7, (n, 2)) * 10.0)  # distances exactly 10, 20, ...
+    for pos_m in cases:
+        base_m = np.array([0.0, 0.0]) if rng.random() < 0.5 else rng.uniform(-5, 5, 2)
+        r, big_r = 20.0, float(rng.choice([10.0, 20.0, 30.0]))
+        got = candidate_edges(pos_m, base_m, r, big_r)
+        try:
+            _kernels.ENABLED = False
+            want = candidate_edges(pos_m, base_m, r, big_r)
+        finally:
+            _kernels.ENABLED = True
+        np.testing.assert_array_equal(got, want)
+        assert got.dtype == want.dtype and got.shape == want.shape
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+def test_clip_norm_compiled_is_the_reference():
+    """The compiled norm clip equals the NumPy one bit for bit: rows below, at, just above and far
+    above the limit, zero, NaN and infinite rows, and an empty array."""
+    rng = np.random.default_rng(4)
+    for trial in range(200):
+        n = int(rng.integers(0, 300))
+        vec = rng.normal(size=(n, 2)) * 10.0 ** rng.integers(-3, 3)
+        limit = float(rng.uniform(0.01, 2.0))
+        if n > 6:
+            vec[0] = [limit, 0.0]
+            vec[1] = [0.0, -limit * (1 + 1e-16)]
+            vec[2] = np.array([3.0, 4.0]) * limit / 5.0
+            vec[3] = 0.0
+            if trial % 5 == 0:
+                vec[4] = [np.nan, 1.0]
+                vec[5] = [np.inf, 0.0]
+        got = _clip_norm(vec, limit)
+        with np.errstate(invalid="ignore"):  # inf rows: inf * 0
+            want = _clip_norm_reference(vec, limit)
+        np.testing.assert_array_equal(got, want)
+        assert got.shape == want.shape and got is not vec
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+def test_qp_vectors_compiled_are_the_numpy_ones():
+    """P's diagonal, q and the variable bounds built in one compiled pass equal the NumPy ones
+    (:func:`_qp_objective` and the bounds of ``_solve_piqp``), with and without slacks."""
+    rng = np.random.default_rng(5)
+    params = MccstParams()
+    box = 0.106
+    for _ in range(50):
+        n = int(rng.integers(1, 60))
+        u_hat = rng.normal(size=(n, 2)) * 0.1
+        slack_tree = rng.random(int(rng.integers(0, 20))) < 0.5
+        p_mat, q_vec = _qp_objective(u_hat, slack_tree, params)
+        x_lo = np.concatenate([np.full(2 * n, -box), np.zeros(len(slack_tree))])
+        x_hi = np.concatenate([np.full(2 * n, box), np.full(len(slack_tree), np.inf)])
+        got = _graph_kernels.qp_vectors(
+            u_hat, slack_tree, params.slack_penalty, params.collision_slack_penalty, box
+        )
+        assert got is not None
+        for a, b in zip(got, (p_mat.diagonal(), q_vec, x_lo, x_hi)):
+            np.testing.assert_array_equal(a, b)
+            assert a.dtype == b.dtype
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+def test_link_edges_near_the_range_is_the_sqrt_test():
+    """Pairs a hair inside, at and a hair outside the range (the square root decides there, the
+    squared-distance shortcut only far inside) are kept exactly as the NumPy re-check keeps them."""
+    rng = np.random.default_rng(6)
+    r = 20.0
+    for _ in range(20):
+        n = 60
+        ang = rng.uniform(0, 2 * np.pi, n // 2)
+        rad = r * (1 + rng.choice([-1e-9, -3e-16, 0.0, 2e-16, 1e-9, -2e-9], n // 2))
+        a = rng.uniform(-5, 5, (n // 2, 2))
+        b = a + np.column_stack([rad * np.cos(ang), rad * np.sin(ang)])
+        pos_m = np.vstack([a, b])
+        pairs = neighbour_candidates(pos_m, r)
+        got = _graph_kernels.link_edges(pos_m, pairs, r, np.zeros(2), 0.0)
+        d = np.linalg.norm(pos_m[pairs[:, 0]] - pos_m[pairs[:, 1]], axis=1)
+        want = pairs[d <= r]
+        np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+def test_toward_tasks_compiled_is_the_numpy_nominal_control():
+    """The goal (the task in paper units, or the drone itself without one) and the saturated
+    nominal control in one compiled pass equal the NumPy lines of ``plan`` bit for bit."""
+    rng = np.random.default_rng(7)
+    for _ in range(100):
+        n, m = int(rng.integers(1, 80)), int(rng.integers(1, 10))
+        unit = float(rng.choice([1.0, 10.0, 37.5]))
+        x = rng.uniform(-5, 5, (n, 2))
+        task_m = rng.uniform(-50, 50, (m, 2))
+        task_local = rng.integers(-1, m, n)
+        speed = float(rng.choice([0.15, 0.5, np.inf]))
+        k_p = float(rng.choice([1.0, 0.3]))
+        goal = np.where((task_local >= 0)[:, None], task_m[np.maximum(task_local, 0)] / unit, x)
+        want = nominal_controls(x, goal, k_p, speed, 0.0)
+        got = _graph_kernels.toward_tasks(x, task_m, task_local, unit, k_p, speed)
+        assert got is not None
+        np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.skipif(not _kernels.NUMBA, reason="Numba missing")
+@pytest.mark.parametrize("discrete_time", [False, True])
+def test_edge_slack_compiled_is_the_numpy_one(discrete_time):
+    """The edge slacks with the compiled edge terms and combination equal the NumPy reference
+    path bit for bit (edges to the base, across and within subgroups, longer than r_c)."""
+    rng = np.random.default_rng(8)
+    params = MccstParams(discrete_time=discrete_time)
+    for _ in range(40):
+        n = int(rng.integers(2, 60))
+        x = np.vstack([rng.uniform(-3, 3, (n, 2)), np.zeros((1, 2))])
+        u = np.vstack([rng.uniform(-0.2, 0.2, (n, 2)), np.zeros((1, 2))])
+        edges = candidate_edges(x[:n], x[n], 2.0, 2.0)
+        r_c = 0.95 * np.where(edges[:, 1] == n, 2.0, 2.0 * rng.uniform(0.8, 1.1))
+        subgroup = np.append(rng.integers(-2, 4, n), -1)
+        got = edge_slack(x, u, edges, r_c, subgroup, params)
+        try:
+            _kernels.ENABLED = False
+            want = edge_slack(x, u, edges, r_c, subgroup, params)
+        finally:
+            _kernels.ENABLED = True
+        np.testing.assert_array_equal(got, want)
