@@ -1068,22 +1068,29 @@ def link_edges(
     )
 
 
+def _clip2(a: float, b: float, limit: float, shrink: float) -> tuple[float, float]:
+    """One row of :func:`planner.mccst._clip_norm`: (a, b) scaled to norm ``limit`` when longer,
+    then by ``shrink`` if rounding left it above."""
+    norm = math.sqrt(a * a + b * b)
+    if norm > limit:
+        f = limit / norm
+        a = a * f
+        b = b * f
+        if math.sqrt(a * a + b * b) > limit:
+            a = a * shrink
+            b = b * shrink
+    return a, b
+
+
+if _kernels.NUMBA:
+    _clip2 = _njit(cache=True, inline="always")(_clip2)
+
+
 def _clip_norm(vec: np.ndarray, limit: float, shrink: float) -> np.ndarray:
     n = vec.shape[0]
     out = np.empty((n, 2))
     for r in range(n):
-        a = vec[r, 0]
-        b = vec[r, 1]
-        norm = math.sqrt(a * a + b * b)
-        if norm > limit:
-            f = limit / norm
-            a = a * f
-            b = b * f
-            if math.sqrt(a * a + b * b) > limit:
-                a = a * shrink
-                b = b * shrink
-        out[r, 0] = a
-        out[r, 1] = b
+        out[r, 0], out[r, 1] = _clip2(vec[r, 0], vec[r, 1], limit, shrink)
     return out
 
 
@@ -1167,18 +1174,7 @@ def _toward_tasks(
         else:  # no task: the goal is where the drone is
             gx = x[d, 0]
             gy = x[d, 1]
-        a = k_p * (gx - x[d, 0])
-        b = k_p * (gy - x[d, 1])
-        norm = math.sqrt(a * a + b * b)
-        if norm > speed:  # _clip_norm
-            f = speed / norm
-            a = a * f
-            b = b * f
-            if math.sqrt(a * a + b * b) > speed:
-                a = a * shrink
-                b = b * shrink
-        out[d, 0] = a
-        out[d, 1] = b
+        out[d, 0], out[d, 1] = _clip2(k_p * (gx - x[d, 0]), k_p * (gy - x[d, 1]), speed, shrink)
     return out
 
 

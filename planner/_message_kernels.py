@@ -223,6 +223,20 @@ def entry_view(
     )
 
 
+def _step_displacement(pos_hist: np.ndarray, s: int, k: int) -> tuple[float, float]:
+    """Drone k's displacement over step s (position at s minus at s - 1); (0, 0) for s < 1 (no
+    earlier position, or no entry: s = -1)."""
+    if s >= 1:
+        return pos_hist[s, k, 0] - pos_hist[s - 1, k, 0], pos_hist[s, k, 1] - pos_hist[s - 1, k, 1]
+    return 0.0, 0.0
+
+
+if _kernels.NUMBA:
+    from numba import njit as _njit
+
+    _step_displacement = _njit(cache=True, inline="always")(_step_displacement)
+
+
 def _believed_displacement(
     held_rows: np.ndarray,
     held_cols: np.ndarray,
@@ -261,13 +275,7 @@ def _believed_displacement(
         s = -1
         if lo < m and held_rows[lo] * n + held_cols[lo] == want:
             s = held_stamps[lo]
-        k = col_ids[e]
-        if s >= 1:
-            out[e, 0] = pos_hist[s, k, 0] - pos_hist[s - 1, k, 0]
-            out[e, 1] = pos_hist[s, k, 1] - pos_hist[s - 1, k, 1]
-        else:
-            out[e, 0] = 0.0
-            out[e, 1] = 0.0
+        out[e, 0], out[e, 1] = _step_displacement(pos_hist, s, col_ids[e])
     return out
 
 
@@ -365,12 +373,7 @@ def _velocity_match_near(
         if near[e]:
             i = er[e]
             s = stamps[e]
-            k = view_cols[ec[e]]
-            dx = 0.0
-            dy = 0.0
-            if s >= 1:
-                dx = pos_hist[s, k, 0] - pos_hist[s - 1, k, 0]
-                dy = pos_hist[s, k, 1] - pos_hist[s - 1, k, 1]
+            dx, dy = _step_displacement(pos_hist, s, view_cols[ec[e]])
             count[i] += 1
             tx[i] += dx
             ty[i] += dy
