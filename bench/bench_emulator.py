@@ -19,7 +19,7 @@ streams (PX4: 17.5 messages/s, ArduPilot: HEARTBEAT only, vehicle_emu.personalit
 
 ``--gcs-hb-hz`` / ``--setpoint-hz`` (tick measurement only) add a station's traffic: GCS
 HEARTBEATs per network and a global position setpoint per vehicle, the vehicles in their guided
-mode; ``--tick-s 0.1`` is the emulator tick at a 10x speed-up (mission/emulator_host.py). The
+mode; ``--tick-s 0.1`` is the emulator tick at a 10x speed-up (mission/flight/emulator_host.py). The
 ``fingerprint`` hashes every datagram and event of the measured ticks: two code trees that
 behave the same print the same one (compare with ``PYTHONPATH=<tree>``).
 

@@ -1,7 +1,7 @@
 """How long after the station dies a real autopilot acts, and what it does (SITL, 1x).
 
 One vehicle of each firmware (your own builds, ``PHIREMAN_ARDUCOPTER`` / ``PHIREMAN_PX4``; see
-mission/sitl.py) is flown by ``phireman fly --apply-failsafes``; once the plan runs, the station
+mission/flight/sitl.py) is flown by ``phireman fly --apply-failsafes``; once the plan runs, the station
 is SIGKILLed, and a silent observer on a second MAVLink port of the vehicle (ArduCopter SERIAL1,
 TCP 5762; PX4's onboard link, UDP 14540) timestamps the mode change. The observer never sends a
 HEARTBEAT, so it cannot keep the GCS failsafe from firing. Then a new station is started and the
@@ -67,7 +67,7 @@ def _flying(out: Path) -> bool:
 
 def measure(firmware: str) -> None:
     from mission.commands.fly import _load
-    from mission.sitl import SitlSpec, SitlSwarm, find_binary
+    from mission.flight.sitl import SitlSpec, SitlSwarm, find_binary
 
     mission = "sitl_ardupilot" if firmware == "ardupilot" else "sitl_px4"
     guided = "GUIDED" if firmware == "ardupilot" else "OFFBOARD"

@@ -50,7 +50,7 @@ def _proc_cpu_s(pid: int) -> float:
 def _profiled_emulator_main(*args) -> None:  # runs in the spawned emulator process
     import cProfile
 
-    from mission import emulator_host
+    from mission.flight import emulator_host
 
     prof = cProfile.Profile()
     prof.enable()
@@ -64,10 +64,10 @@ def _profiled_emulator_main(*args) -> None:  # runs in the spawned emulator proc
 def run_once(args) -> dict:
     import multiprocessing as mp
 
-    import mission.emulator_host as emulator_host
+    import mission.flight.emulator_host as emulator_host
     from gcs.operations import Operator
-    from mission.runners import FlyOptions, fly_emulated
-    from mission.schema import paper_mission
+    from mission.flight.runners import FlyOptions, fly_emulated
+    from mission.format.schema import paper_mission
 
     logging.getLogger().setLevel(logging.ERROR)
     ticks: list[tuple[float, float, float, float, float]] = []  # wall, latency, t_s, cpu, emu cpu

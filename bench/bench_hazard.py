@@ -1,8 +1,8 @@
 """Hazard awareness on a mission with hazard zones (docs/results/hazard.md): per-seed TU1 / TU2 and
-the time drones spend inside active zones, played in process (mission.playback.run_inprocess, the
+the time drones spend inside active zones, played in process (mission.experiments.playback.run_inprocess, the
 station's tick), then the paired comparison against ``phireman``.
 
-    PYTHONPATH=$PWD .venv/bin/python bench/bench_hazard.py run mission/examples/hazard_zone.yaml \\
+    PYTHONPATH=$PWD .venv/bin/python bench/bench_hazard.py run mission/format/examples/hazard_zone.yaml \\
         --info central --seeds 0 10 \\
         --config phireman phireman '{}' \\
         --config avoid+push1 phireman-resilient '{"hazard_avoid": true, "hazard_push_gain": 1.0}' \\
@@ -26,9 +26,9 @@ import numpy as np
 
 
 def run(args: argparse.Namespace) -> None:
-    from mission.load import load_mission
-    from mission.playback import run_inprocess
-    from mission.scenario import hazard_map
+    from mission.format.load import load_mission
+    from mission.experiments.playback import run_inprocess
+    from mission.format.scenario import hazard_map
     from planner.hazard import hazard_rate_per_s
 
     m = load_mission(args.mission)

@@ -1,6 +1,6 @@
 """Issue 16: per-seed TU1 / TU2 of the in-process simulation, this tree against another code tree.
 
-Runs ``mission.sim.run_episode`` for every (method, size:attrition %, seed) in a subprocess whose
+Runs ``mission.experiments.sim.run_episode`` for every (method, size:attrition %, seed) in a subprocess whose
 ``PYTHONPATH`` is the given tree (e.g. ``git archive <commit> | tar -x -C /tmp/base``) and in this
 tree, and compares the exact floats. Exit status 1 if any run differs.
 
@@ -25,7 +25,7 @@ import sys
 
 CHILD = r"""
 import json, sys, time
-from mission.sim import run_episode
+from mission.experiments.sim import run_episode
 from planner.problem import problem_preset
 out = []
 items = json.loads(sys.argv[1])

@@ -1,6 +1,6 @@
 """Issue 16.4: the station's decisions and the emulator's flight unchanged, bit for bit.
 
-Flies three in-memory lock-step missions (``mission.ether.LockstepEther``, virtual clock, the
+Flies three in-memory lock-step missions (``mission.flight.ether.LockstepEther``, virtual clock, the
 helper of ``tests/integration/test_pair.py``) with this tree and with a previous one
 (``--commit REV``: a ``git archive`` into a temp dir, or ``--baseline DIR``), and compares a
 digest of every tick record, every link event, the vehicles' final positions, the emulator's

@@ -35,7 +35,7 @@ build, cells, seeds = sys.argv[1], json.loads(sys.argv[2]), int(sys.argv[3])
 import planner.mccst as mccst
 if build != "default":
     mccst.piqp = importlib.import_module("piqp." + build)   # the module PIQP would load on that CPU
-from mission.sim import run_episode
+from mission.experiments.sim import run_episode
 from planner.problem import problem_preset
 out = []
 for size, pct in cells:

@@ -12,7 +12,7 @@ splits one run's profiled time into
 
 and reports, per size and method, the CPU seconds per run (least of ``--seeds`` runs, one BLAS
 thread), Python function calls per tick, the two shares, and the upper bound on what batching
-saves of the paper's Table II: the size's share of the table's time (``mission.sweep``'s
+saves of the paper's Table II: the size's share of the table's time (``mission.experiments.sweep``'s
 measured run times) times its Python share, i.e. as if batching removed every Python call.
 cProfile adds its own cost to every call, so its Python share is an upper bound (used for the
 bound); ``python (est.)`` also subtracts the profiler's whole cost (the profiled run's CPU minus
@@ -35,8 +35,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from mission.sim import run_episode  # noqa: E402
-from mission.sweep import METHOD_COST_FACTOR, MEASURED_RUN_S  # noqa: E402
+from mission.experiments.sim import run_episode  # noqa: E402
+from mission.experiments.sweep import METHOD_COST_FACTOR, MEASURED_RUN_S  # noqa: E402
 from planner.problem import problem_preset  # noqa: E402
 
 SIZES = ("XS", "S", "M", "L", "XL")

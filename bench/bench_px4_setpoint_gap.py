@@ -4,7 +4,7 @@ PX4 leaves OFFBOARD (its offboard-loss failsafe) when no setpoint arrived for CO
 (1 s by default, src/modules/commander/HealthAndArmingChecks/checks/offboardCheck.cpp): the
 station's setpoint stream must stay well under that whatever else the host does. This flies the
 shipped ``sitl_px4`` mission with N PX4 SIH vehicles (your own build, ``PHIREMAN_PX4``; see
-mission/sitl.py) while ``--load`` busy processes compete for the CPU, then reports per vehicle:
+mission/flight/sitl.py) while ``--load`` busy processes compete for the CPU, then reports per vehicle:
 
 * from the station's own .tlog: the largest interval between two SET_POSITION_TARGET_GLOBAL_INT
   frames sent to the vehicle while it flew the plan;
@@ -85,7 +85,7 @@ def main() -> int:
     args = ap.parse_args()
 
     from mission.commands.fly import _load
-    from mission.sitl import SitlSpec, SitlSwarm, find_binary
+    from mission.flight.sitl import SitlSpec, SitlSwarm, find_binary
 
     m = _load("sitl_px4")
     o = m.origin

@@ -23,8 +23,9 @@ import time
 
 import numpy as np
 
-from mission.runners import FlyOptions, fly_emulated
-from mission.schema import paper_mission
+from mission.flight.runners import FlyOptions, fly_emulated
+from mission.view.live import attach
+from mission.format.schema import paper_mission
 
 
 _READER = r"""
@@ -85,6 +86,7 @@ def one_run(mission, args, serve: bool) -> dict:
                 override_audit=True,
                 on_operator=hook,
                 serve="127.0.0.1:0" if serve else None,
+                attach_view=attach,
                 on_live=info.update,
             ),
         )

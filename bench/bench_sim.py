@@ -22,7 +22,7 @@ import sys
 
 CHILD = r"""
 import json, resource, sys, time
-from mission.sim import run_episode
+from mission.experiments.sim import run_episode
 from planner.problem import problem_preset
 size, info, seeds, method, attrition = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4], float(sys.argv[5])
 if len(sys.argv) > 6 and sys.argv[6] == "numpy":

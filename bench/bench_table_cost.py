@@ -1,7 +1,7 @@
 """Issue 16: CPU seconds per run of the paper's Table II (+ ablations), this tree against a previous
 one, side by side in the same session, with the full sweep's time estimated from them.
 
-Runs the configurations of ``mission.sweep.paper_table_grid`` (5 sizes x 5 attrition levels x
+Runs the configurations of ``mission.experiments.sweep.paper_table_grid`` (5 sizes x 5 attrition levels x
 phireman / dccrs / mccst) and ``paper_ablations_grid`` (7 variants at S / 1 %) for a few seeds with
 the previous code tree and with this one, one child process per (tree, size) with one BLAS thread
 and a warm-up run per method (imports, Numba's cache), the two trees interleaved size by size (the
@@ -34,8 +34,8 @@ METHODS = ("phireman", "dccrs", "mccst")
 
 CHILD = r"""
 import json, sys, time
-from mission.sim import run_episode
-from mission.sweep import paper_ablations_grid, paper_table_grid
+from mission.experiments.sim import run_episode
+from mission.experiments.sweep import paper_ablations_grid, paper_table_grid
 from planner.problem import problem_preset
 req = json.loads(sys.argv[1])
 if req["grid"] == "table":

@@ -3,7 +3,7 @@
     .venv/bin/python bench/compare_backends.py [MISSION] [--seeds 1-10] [--personality ardupilot px4]
                                                [--speedup 20] [--out DIR]
 
-For each seed: ``mission.playback.run_inprocess`` (the world model) and ``phireman fly`` against
+For each seed: ``mission.experiments.playback.run_inprocess`` (the world model) and ``phireman fly`` against
 the emulator over loopback UDP (the station, lock-step paced, at ``--speedup``), same mission and
 seed (same spawn, task tracks and attrition draws). Prints one row per seed and personality, the
 mean difference (emulator - in-process, percentage points) and the achieved speed-up. Exit
@@ -44,8 +44,8 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.WARNING)
 
     from mission.commands.fly import _load
-    from mission.playback import run_inprocess
-    from mission.runners import FlyOptions, fly_emulated
+    from mission.experiments.playback import run_inprocess
+    from mission.flight.runners import FlyOptions, fly_emulated
 
     mission = _load(args.mission)
     out = args.out or tempfile.mkdtemp(prefix="compare-backends-")

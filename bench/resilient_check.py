@@ -1,6 +1,6 @@
 """Issue 15: do stored per-seed results still match the current code, bit for bit?
 
-Reruns a few (method, size, attrition, seed) runs with ``mission.sim.run_episode`` and compares
+Reruns a few (method, size, attrition, seed) runs with ``mission.experiments.sim.run_episode`` and compares
 TU1 / TU2 with the rows of a results store (the paper table's). Used to show that adding
 ``phireman-resilient`` (and the world's rally-point option) left ``phireman``, ``dccrs`` and
 ``mccst`` unchanged, and that the stored ``phireman`` rows can be paired against new runs.
@@ -18,7 +18,7 @@ import json
 import sqlite3
 import sys
 
-from mission.sim import run_episode
+from mission.experiments.sim import run_episode
 from planner.problem import problem_preset
 
 

@@ -1,5 +1,5 @@
 """Issue 15: the flights' missions played in process (the station's control tick on the world
-model, ``mission.playback.run_inprocess``), ``phireman`` vs ``phireman-resilient``, paired by seed.
+model, ``mission.experiments.playback.run_inprocess``), ``phireman`` vs ``phireman-resilient``, paired by seed.
 
 The same comparison as ``bench/resilient_flights.py`` without the MAVLink loop: deterministic for
 a seed, so the only difference between two arms is the planner, and cheap enough for 100 seeds.
@@ -18,8 +18,8 @@ import argparse
 import numpy as np
 from resilient_flights import HEADER, paired_row  # bench/ is on sys.path when run as a script
 
-from mission.load import load_mission
-from mission.playback import run_inprocess
+from mission.format.load import load_mission
+from mission.experiments.playback import run_inprocess
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -20,7 +20,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 from scipy.stats import ttest_rel
 
-from mission.sim import run_episode
+from mission.experiments.sim import run_episode
 from planner.problem import problem_preset
 
 

@@ -31,7 +31,7 @@ import sys
 import numpy as np
 from scipy import stats
 
-from mission.paper import paper_value
+from mission.experiments.paper import paper_value
 from planner.problem import ATTRITION_LEVELS, SIZES
 
 NEW = "phireman-resilient"

@@ -87,7 +87,7 @@ def _open_reason(spec: ConnectionSpec, exc: BaseException) -> str:
 
 class _NowFnClock:
     """A bare ``now()`` callable, a speed-up and a Unix clock as a :class:`Clock` (the form
-    ``mission.station_loop`` passes; the default is the loop's own clock). The Unix anchor is
+    ``mission.flight.station_loop`` passes; the default is the loop's own clock). The Unix anchor is
     read when asked: the core is built at :meth:`StationAdapter.start`."""
 
     def __init__(

@@ -138,9 +138,9 @@ def did_you_mean(word: str, choices) -> str:
 
 
 def version_string() -> str:
-    """The code version (:func:`mission.version.code_version`, as store rows and run directories
+    """The code version (:func:`mission.format.version.code_version`, as store rows and run directories
     record it): 'phireman 0.1.0 git 29588b621a73[+dirty] src 484d1b5b63d6'."""
-    from mission.version import code_version
+    from mission.format.version import code_version
 
     return code_version()
 

@@ -1,9 +1,9 @@
 """Hazard zones as the planner sees them: where, how dangerous, when (beyond the paper, issue 15).
 
 The paper treats uniform attrition only and names "geographically localized attrition" as future
-work; a mission's ``attrition.hazard_zones`` (mission/schema.py ``HazardZone``) raise the loss
+work; a mission's ``attrition.hazard_zones`` (mission/format/schema.py ``HazardZone``) raise the loss
 rate of drones inside them. This module is the planner-side mirror of those zones (the planner
-imports nothing of ours; :func:`mission.scenario.hazard_map` converts) and the geometry the
+imports nothing of ours; :func:`mission.format.scenario.hazard_map` converts) and the geometry the
 hazard-aware planner (planner/resilient.py, ``hazard_*`` parameters) needs:
 
 * :func:`hazard_rate_per_s` - the extra loss rate at each position (the rate field);
@@ -56,7 +56,7 @@ _CROSS_RTOL = 1e-9
 @dataclass(frozen=True)
 class HazardZone:
     """One zone: a disc (``center_m``, ``radius_m``) or a simple polygon (``polygon_m``), an extra
-    loss rate and an activity window [start_s, end_s). Mirrors mission/schema.py ``HazardZone``."""
+    loss rate and an activity window [start_s, end_s). Mirrors mission/format/schema.py ``HazardZone``."""
 
     rate_per_s: float
     """Extra loss rate of a drone inside the zone, 1/s."""
@@ -157,7 +157,7 @@ class HazardMap:
 
 def _inside(hmap: HazardMap, pos_m: np.ndarray) -> np.ndarray:
     """(N, Z) bool: point n inside zone z (discs: closed; polygons: even-odd ray casting, as
-    mission/schema.py ``HazardZone.contains_ne``)."""
+    mission/format/schema.py ``HazardZone.contains_ne``)."""
     pk = hmap._packed
     pos = np.asarray(pos_m, float).reshape(-1, 2)
     n, nz = len(pos), len(hmap)

@@ -40,7 +40,7 @@ import numpy as np
 from planner.units import PaperUnits
 
 if TYPE_CHECKING:  # the message layer (SciPy, Numba) is imported when a run first uses it, so that
-    # the names here (INFO_MODELS, ...) cost planner.methods and mission.schema nothing
+    # the names here (INFO_MODELS, ...) cost planner.methods and mission.format.schema nothing
     from planner.knowledge import MessageLayer
 
 __all__ = [

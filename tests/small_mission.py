@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from mission.schema import (
+from mission.format.schema import (
     EmulatedVehicles,
     Mission,
     Radio,

@@ -56,9 +56,9 @@ def post(info, action, vehicle):
 
 
 def live_shot(out_dir: Path) -> Path:
-    from mission.examples import example_path
-    from mission.load import load_mission
-    from mission.runners import FlyOptions, fly_emulated_async
+    from mission.format.examples import example_path
+    from mission.format.load import load_mission
+    from mission.flight.runners import FlyOptions, fly_emulated_async
 
     mission = load_mission(example_path("wildfire"))
     info, state = {}, {"t": None, "stop": False}
@@ -113,11 +113,11 @@ def live_shot(out_dir: Path) -> Path:
 
 
 def replay_shot(out_dir: Path) -> Path:
-    from mission.examples import example_path
-    from mission.live.replay import ReplaySource
-    from mission.live.server import LiveServer
-    from mission.load import load_mission
-    from mission.runners import FlyOptions, fly_emulated
+    from mission.format.examples import example_path
+    from mission.view.live.replay import ReplaySource
+    from mission.view.live.server import LiveServer
+    from mission.format.load import load_mission
+    from mission.flight.runners import FlyOptions, fly_emulated
 
     res = fly_emulated(
         load_mission(example_path("hazard_zone")),

@@ -96,7 +96,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
     station : Station - the links (sans-I/O cores)
     fleet : FleetView - in the mission frame
     planner : the mission's planner (central information unless the mission's ``planner.info``
-        says async; see ``mission.schema.PlannerSpec.run_params``)
+        says async; see ``mission.format.schema.PlannerSpec.run_params``)
     task_pos_fn : callable ``t_mission_s -> (M, 2)`` task positions, metres
     control : altitudes and geofence
     config : sequencing

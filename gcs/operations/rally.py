@@ -1,7 +1,7 @@
 """The rally step: the planner's rally points kept on every vehicle while the mission runs.
 
 A mixin of :class:`gcs.operations.Operator`, active only when the operator was given a
-:class:`gcs.rally.RallyKeeper` (``Operator(rally=...)``; :mod:`mission.station_loop` gives one
+:class:`gcs.rally.RallyKeeper` (``Operator(rally=...)``; :mod:`mission.flight.station_loop` gives one
 when the planner publishes rally points: ``phireman-resilient`` with ``rally`` on):
 
 * after every control tick the planner's points (:func:`gcs.rally.planner_rally_points_m`) are

@@ -30,7 +30,7 @@ def resolve_mission_path(text: str) -> Path:
     path = Path(text)
     if path.exists() or "/" in text or "\\" in text:
         return path
-    from mission.examples import example_path
+    from mission.format.examples import example_path
 
     try:
         return example_path(text)
@@ -39,7 +39,7 @@ def resolve_mission_path(text: str) -> Path:
 
 
 def run(args) -> int:
-    from mission.load import MissionError, load_mission
+    from mission.format.load import MissionError, load_mission
 
     path = resolve_mission_path(args.mission)
     try:

@@ -130,7 +130,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(speed limits, failsafes)",
     )
 
-    from mission.live.cli import add_fly_arguments
+    from mission.commands.live_view import add_fly_arguments
 
     add_fly_arguments(p)  # --serve, --serve-actions, --tiles, --forward, --forward-readonly
 
@@ -139,11 +139,11 @@ def _load(spec: str):
     from pathlib import Path
 
     from mission.cli import UserError
-    from mission.load import MissionError, load_mission
+    from mission.format.load import MissionError, load_mission
 
     path = Path(spec)
     if not path.exists():
-        from mission.examples import example_path, list_examples
+        from mission.format.examples import example_path, list_examples
 
         try:
             path = example_path(spec)
@@ -359,7 +359,7 @@ def _group_report(items: list[dict], per_line: int = 12) -> list[str]:
 
 def run(args) -> int:
     from mission.cli import UserError
-    from mission.runners import FlyOptions, RunnerError, fly
+    from mission.flight.runners import FlyOptions, RunnerError, fly
 
     mission = _load(args.mission)
     if args.speedup is not None and not args.speedup > 0:
@@ -408,9 +408,9 @@ def run(args) -> int:
         restore_params=args.restore_params,
         on_interrupt=args.on_interrupt,
     )
-    from mission.live.cli import fly_options
+    from mission.commands.live_view import fly_options
 
-    opts = fly_options(opts, args)  # --serve / --forward (mission.live)
+    opts = fly_options(opts, args)  # --serve / --forward (mission.view.live)
     print(_header(mission, args, real), file=sys.stderr)
     try:
         result = fly(mission, opts)

@@ -151,8 +151,8 @@ def header_for(args, size: str, half_width_units: float) -> str:
 def _run_new(args) -> int:
     from planner.problem import SIZES as PAPER_SIZES
 
-    from mission.load import MissionError, dump_mission, validate_mission
-    from mission.schema import paper_mission
+    from mission.format.load import MissionError, dump_mission, validate_mission
+    from mission.format.schema import paper_mission
 
     args.attrition = parse_rate(args.attrition)
     if not 0.0 <= args.attrition < 1.0:
@@ -190,7 +190,7 @@ def _run_new(args) -> int:
 
 def _run_show(args) -> int:
     from mission.commands.check import resolve_mission_path
-    from mission.load import MissionError, dump_mission, load_mission
+    from mission.format.load import MissionError, dump_mission, load_mission
 
     path = resolve_mission_path(args.mission)
     try:
@@ -206,8 +206,8 @@ def _run_show(args) -> int:
 
 
 def _run_list(args) -> int:
-    from mission.examples import example_path, list_examples
-    from mission.load import load_mission
+    from mission.format.examples import example_path, list_examples
+    from mission.format.load import load_mission
 
     for name in list_examples():
         try:

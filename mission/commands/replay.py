@@ -46,14 +46,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--max-frames", type=positive_int, default=100, help="animation frames (default 100)"
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    from mission.live.cli import add_replay_arguments
+    from mission.commands.live_view import add_replay_arguments
 
     add_replay_arguments(p)  # --serve, --tiles, --export, --at
 
 
 def run(args) -> int:
     from mission.cli import UserError
-    from mission.replay import check_animation_writer, find_run_dir, replay
+    from mission.view.replay import check_animation_writer, find_run_dir, replay
 
     try:
         check_animation_writer(args.animation)

@@ -75,8 +75,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     from mission.cli import UserError
     from mission.commands.sweep import split_list, split_overrides
-    from mission.report import build_report
-    from mission.store import StoreError
+    from mission.experiments.report import build_report
+    from mission.experiments.store import StoreError
 
     if not args.store.exists():
         raise UserError(f"no results store at {args.store}")

@@ -127,7 +127,7 @@ def ci_note(n: int, clipped: bool) -> str | None:
 
 def run(args) -> int:
     from mission.cli import UserError, resolve_workers
-    from mission.sim import format_pct_ci, mean_ci95, run_episode, run_many
+    from mission.experiments.sim import format_pct_ci, mean_ci95, run_episode, run_many
     from planner.methods import UnknownMethod, make_planner, method_names, params_with_info
     from planner.problem import problem_preset
 
@@ -241,7 +241,7 @@ def run(args) -> int:
             "s_per_run": per_run,
         }
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
-        from mission.plots import plot_frame_strip, plot_time_series
+        from mission.view.plots import plot_frame_strip, plot_time_series
 
         title = (
             f"{args.method}, size {problem.size}, {100 * args.attrition:g} %/step attrition, "
@@ -292,10 +292,10 @@ def _refuse_preset_flags(args) -> None:
 
 def _run_mission(args) -> int:
     from mission.cli import UserError
-    from mission.examples import example_path, list_examples
-    from mission.load import MissionError, load_mission
-    from mission.playback import run_inprocess, write_run_dir
-    from mission.sim import format_pct_ci, mean_ci95
+    from mission.format.examples import example_path, list_examples
+    from mission.format.load import MissionError, load_mission
+    from mission.experiments.playback import run_inprocess, write_run_dir
+    from mission.experiments.sim import format_pct_ci, mean_ci95
 
     _refuse_preset_flags(args)
     path = pathlib.Path(args.mission)

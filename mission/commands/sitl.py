@@ -84,7 +84,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from mission.cli import UserError
-    from mission.sitl import DEFAULT_HOMES, SitlError, SitlSpec, SitlSwarm, find_binary
+    from mission.flight.sitl import DEFAULT_HOMES, SitlError, SitlSpec, SitlSwarm, find_binary
 
     if args.spacing_m <= 0:
         raise UserError(f"--spacing-m must be > 0, got {args.spacing_m}")

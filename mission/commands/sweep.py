@@ -10,7 +10,7 @@ import sys
 
 HELP = "run a grid of seeded simulations (e.g. the paper's Table II) into a resumable results store"
 DESCRIPTION = """\
-Run every (configuration, seed) of a grid with mission.sim and store one row per run in an SQLite
+Run every (configuration, seed) of a grid with mission.experiments.sim and store one row per run in an SQLite
 results store: the full resolved configuration, the seed, the code version, TU1/TU2, wall time and
 status. Runs already in the store are skipped, so killing a sweep at any moment (Ctrl-C, kill -9,
 a lost node) and rerunning the same command finishes it with nothing lost or duplicated. A run that
@@ -254,8 +254,8 @@ def check_overrides(methods, problem, params: dict, option: str = "--set") -> No
 def execute(grid, args, argv: list[str]) -> int:
     """Run ``grid`` with the common options; print a summary; return the exit status."""
     from mission.cli import UserError
-    from mission.store import ResultStore, StoreError
-    from mission.sweep import code_version, run_sweep
+    from mission.experiments.store import ResultStore, StoreError
+    from mission.experiments.sweep import code_version, run_sweep
 
     from mission.cli import resolve_workers
 
@@ -324,7 +324,7 @@ def execute(grid, args, argv: list[str]) -> int:
 
 def build_grid(args):
     from mission.cli import UserError
-    from mission.sweep import custom_grid, paper_ablations_grid, paper_table_grid
+    from mission.experiments.sweep import custom_grid, paper_ablations_grid, paper_table_grid
     from planner.problem import SIZES
 
     sizes = split_list(args.sizes)
@@ -390,8 +390,8 @@ def _fmt_duration(seconds: float) -> str:
 
 def _dry_run(grid, args) -> int:
     from mission.cli import UserError, resolve_workers
-    from mission.store import ResultStore, StoreError
-    from mission.sweep import estimate_run_s, measured_costs, resolve
+    from mission.experiments.store import ResultStore, StoreError
+    from mission.experiments.sweep import estimate_run_s, measured_costs, resolve
 
     workers = resolve_workers(args.workers)
     present = set()
@@ -420,7 +420,7 @@ def _dry_run(grid, args) -> int:
     basis = (
         "this store's recorded run times"
         if from_store == todo and todo
-        else "run times measured on a 2-core machine (mission.sweep.MEASURED_RUN_S)"
+        else "run times measured on a 2-core machine (mission.experiments.sweep.MEASURED_RUN_S)"
         if not from_store
         else "this store's run times where it has the size and method, else times measured on a 2-core machine"
     )

@@ -131,9 +131,16 @@ def run(args) -> int:
         split_overrides,
         validate_methods,
     )
-    from mission.report import ALPHA, Selector, _fmt, _fmt_p, p_greater_paired, rank_samples
-    from mission.store import ResultStore
-    from mission.sweep import code_version, product_grid
+    from mission.experiments.report import (
+        ALPHA,
+        Selector,
+        _fmt,
+        _fmt_p,
+        p_greater_paired,
+        rank_samples,
+    )
+    from mission.experiments.store import ResultStore
+    from mission.experiments.sweep import code_version, product_grid
     from planner.problem import SIZES
 
     validate_methods([args.method])

@@ -98,7 +98,7 @@ def test_bad_output_kind_is_refused():
 
 
 def _small_mission(count=4):
-    from mission.schema import RunSpec
+    from mission.format.schema import RunSpec
     from small_mission import crew, small_mission
 
     return small_mission(
@@ -114,7 +114,8 @@ class _Flight:
     """An emulated flight (in-process emulator) on its own thread and loop, stopped on demand."""
 
     def __init__(self, tmp_path, **opts) -> None:
-        from mission.runners import FlyOptions
+        from mission.flight.runners import FlyOptions
+        from mission.view.live import attach
 
         self.info: dict = {}
         self.stop = threading.Event()
@@ -130,12 +131,13 @@ class _Flight:
             out_dir=str(tmp_path / "runs"),
             on_live=self.info.update,
             on_operator=hook,
+            attach_view=attach,
             **opts,
         )
         self.thread = threading.Thread(target=self._run, daemon=True)
 
     def _run(self) -> None:
-        from mission.runners import fly_emulated_async
+        from mission.flight.runners import fly_emulated_async
 
         try:
             self.result = asyncio.run(fly_emulated_async(_small_mission(), self.opts))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from mission.load import dump_mission
+from mission.format.load import dump_mission
 
 pytestmark = pytest.mark.udp
 
@@ -22,7 +22,7 @@ PHIREMAN = [str(Path(sys.executable).with_name("phireman"))]
 
 
 def _mission_file(tmp_path, count=6, duration_s=40.0, speedup=20.0):
-    from mission.schema import RunSpec
+    from mission.format.schema import RunSpec
     from small_mission import small_mission
 
     m = small_mission(
@@ -63,7 +63,7 @@ def test_fly_cli_emulated_and_tlog_reads_back(tmp_path):
         n += 1
     assert n == n_frames and n > 1000
     # The run directory replays: emulator truth (mission interval only) drawn as PNGs.
-    from mission.replay import load_run, replay
+    from mission.view.replay import load_run, replay
 
     data = load_run(run)
     assert 0.0 <= data.t_s[0] < 1.0 and data.pos_m.shape[2] == 2
@@ -88,8 +88,8 @@ def _wait(cond, timeout_s, what):
 
 
 def test_station_sigkilled_and_restarted_reclaims_every_live_vehicle(tmp_path):
-    from mission.load import load_mission
-    from mission.runners import build_swarm, mission_scenario
+    from mission.format.load import load_mission
+    from mission.flight.runners import build_swarm, mission_scenario
     from vehicle_emu.udp import run_in_thread
 
     speedup = 10.0

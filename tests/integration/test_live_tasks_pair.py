@@ -8,11 +8,11 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from small_mission import crew, small_mission
-from mission.ether import LockstepEther, station_for_swarm
-from mission.fly_options import FlyOptions
-from mission.mission_world import build_swarm, mission_scenario
-from mission.station_loop import live_task_columns, make_operator
-from mission.schema import (
+from mission.flight.ether import LockstepEther, station_for_swarm
+from mission.flight.fly_options import FlyOptions
+from mission.flight.mission_world import build_swarm, mission_scenario
+from mission.flight.station_loop import live_task_columns, make_operator
+from mission.format.schema import (
     MavlinkSource,
     RunSpec,
     Task,

@@ -1,5 +1,5 @@
 """Lock-step pacing of the emulated backend: a stalled station slows simulated time down instead
-of tripping every vehicle's GCS failsafe (mission.runners, mavedge.clock.PacedClock)."""
+of tripping every vehicle's GCS failsafe (mission.flight.runners, mavedge.clock.PacedClock)."""
 
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ def test_paced_clock_never_outruns_the_station_nor_jumps():
 
 
 def _mission(tmp_path, speedup):
-    from mission.schema import RunSpec
+    from mission.format.schema import RunSpec
     from small_mission import small_mission
 
     return small_mission(
@@ -59,7 +59,7 @@ def _mission(tmp_path, speedup):
 
 @pytest.mark.udp
 def test_a_stalled_station_does_not_trip_the_gcs_failsafe(tmp_path):
-    from mission.runners import FlyOptions, fly_emulated
+    from mission.flight.runners import FlyOptions, fly_emulated
 
     speedup = 50.0
     fs_gcs_timeout_s = 5.0

@@ -1,6 +1,6 @@
 """Station core <-> emulated vehicles in memory: virtual clock, seeded lossy ether, no sockets.
 
-The ether (:class:`mission.runners.LockstepEther`) moves datagrams between the station's links
+The ether (:class:`mission.flight.runners.LockstepEther`) moves datagrams between the station's links
 and a :class:`vehicle_emu.swarm.Swarm` (its vehicle cores); time moves only when told to.
 """
 
@@ -22,11 +22,11 @@ from gcs.events import (
 )
 from gcs.control import layer_alt_m
 from small_mission import crew, small_mission
-from mission.ether import LockstepEther, station_for_swarm
-from mission.fly_options import FlyOptions
-from mission.mission_world import MissionWorld, build_swarm, mission_scenario
-from mission.station_loop import make_operator
-from mission.schema import (
+from mission.flight.ether import LockstepEther, station_for_swarm
+from mission.flight.fly_options import FlyOptions
+from mission.flight.mission_world import MissionWorld, build_swarm, mission_scenario
+from mission.flight.station_loop import make_operator
+from mission.format.schema import (
     Attrition,
     RunSpec,
     ScriptedLoss,

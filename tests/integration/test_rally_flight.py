@@ -19,15 +19,15 @@ import numpy as np
 import pytest
 
 from small_mission import crew, small_mission
-from mission.ether import LockstepEther, station_for_swarm
-from mission.fly_options import FlyOptions
-from mission.mission_world import MissionWorld, build_swarm, mission_scenario
-from mission.schema import (
+from mission.flight.ether import LockstepEther, station_for_swarm
+from mission.flight.fly_options import FlyOptions
+from mission.flight.mission_world import MissionWorld, build_swarm, mission_scenario
+from mission.format.schema import (
     Mission,
     PlannerSpec,
     RunSpec,
 )
-from mission.station_loop import make_operator
+from mission.flight.station_loop import make_operator
 
 SEED = 3
 

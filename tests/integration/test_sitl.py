@@ -1,7 +1,7 @@
 """Real firmware: the shipped SITL missions flown through ``phireman fly`` against ArduCopter SITL
-and PX4 SITL (SIH), started by :mod:`mission.sitl` exactly as ``phireman sitl`` starts them.
+and PX4 SITL (SIH), started by :mod:`mission.flight.sitl` exactly as ``phireman sitl`` starts them.
 
-These need the user's own firmware builds, found through the environment (see mission/sitl.py):
+These need the user's own firmware builds, found through the environment (see mission/flight/sitl.py):
 ``PHIREMAN_ARDUCOPTER`` (+ ``PHIREMAN_ARDUCOPTER_DEFAULTS``) and ``PHIREMAN_PX4`` (+
 ``PHIREMAN_PX4_ETC``). Without them each test is skipped with the reason. One flight per firmware
 walks the whole life cycle and checks each step from the station's own records (events.jsonl,
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import pytest
 
-from mission.sitl import SitlSpec, SitlSwarm, find_binary, SitlError
+from mission.flight.sitl import SitlSpec, SitlSwarm, find_binary, SitlError
 
 pytestmark = [pytest.mark.sitl, pytest.mark.udp]
 
@@ -332,7 +332,7 @@ def test_the_audit_refuses_unsafe_lost_link_settings_on_real_firmware(
     """Each unsafe setting, booted into the real firmware, makes `phireman fly` (without
     --apply-failsafes) refuse before anything is armed, naming the parameter."""
     binary = _binary_or_skip(firmware)
-    from mission.sitl import DEFAULT_HOMES
+    from mission.flight.sitl import DEFAULT_HOMES
 
     mission = "sitl_ardupilot" if firmware == "ardupilot" else "sitl_px4"
     spec = SitlSpec(

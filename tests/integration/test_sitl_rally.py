@@ -1,6 +1,6 @@
 """Real firmware accepts the station's rally upload (gcs/rally.py RallyUpload) and stores it.
 
-One SITL vehicle per firmware, started by :mod:`mission.sitl` as ``phireman sitl`` starts it
+One SITL vehicle per firmware, started by :mod:`mission.flight.sitl` as ``phireman sitl`` starts it
 (skipped without ``PHIREMAN_ARDUCOPTER`` / ``PHIREMAN_PX4``). The upload state machine is driven
 over a pymavlink connection on the wall clock; the points are then read back with the mission
 protocol's download (MISSION_REQUEST_LIST / MISSION_REQUEST_INT, mission_type RALLY).
@@ -14,7 +14,7 @@ import pytest
 
 from gcs.rally import MISSION_PROTOCOL_MESSAGES, RallyPoint, RallyUpload, UploadState, mission_event
 from gcs.wire import deg_to_e7, mavlink
-from mission.sitl import DEFAULT_HOMES, SitlError, SitlSpec, SitlSwarm, find_binary
+from mission.flight.sitl import DEFAULT_HOMES, SitlError, SitlSpec, SitlSwarm, find_binary
 
 pytestmark = [pytest.mark.sitl, pytest.mark.udp]
 

@@ -2,12 +2,12 @@
 
 Same mission, same seed, both backends, ground truth on both sides:
 
-* in-process: :func:`mission.playback.run_inprocess` - the world model stepped by
-  :func:`mission.world_loop.run_world`, targets from the station's tick (:func:`gcs.control.tick`);
-* emulated: the station's operator (:func:`mission.station_loop.make_operator`) flying emulated
+* in-process: :func:`mission.experiments.playback.run_inprocess` - the world model stepped by
+  :func:`mission.experiments.world_loop.run_world`, targets from the station's tick (:func:`gcs.control.tick`);
+* emulated: the station's operator (:func:`mission.flight.station_loop.make_operator`) flying emulated
   ArduPilot and PX4 vehicles (``personality: mixed``) through the in-memory MAVLink ether
-  (:class:`mission.ether.LockstepEther`, virtual clock, no sockets), with the mission's world
-  rules (:class:`mission.mission_world.MissionWorld`); truth sampled on the mission's step grid.
+  (:class:`mission.flight.ether.LockstepEther`, virtual clock, no sockets), with the mission's world
+  rules (:class:`mission.flight.mission_world.MissionWorld`); truth sampled on the mission's step grid.
 
 Both start from the same spawn, see the same task tracks and random walk and plan with the same
 planner on the same algorithm stream. What still differs is the vehicle, not the mission: the
@@ -36,12 +36,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mission.ether import LockstepEther, station_for_swarm
-from mission.fly_options import FlyOptions
-from mission.load import loads_mission
-from mission.mission_world import MissionWorld, build_swarm, mission_scenario
-from mission.playback import run_inprocess
-from mission.station_loop import make_operator
+from mission.flight.ether import LockstepEther, station_for_swarm
+from mission.flight.fly_options import FlyOptions
+from mission.format.load import loads_mission
+from mission.flight.mission_world import MissionWorld, build_swarm, mission_scenario
+from mission.experiments.playback import run_inprocess
+from mission.flight.station_loop import make_operator
 
 DURATION_S = 40.0
 SEEDS = (0, 1, 2, 3)

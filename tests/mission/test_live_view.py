@@ -26,7 +26,7 @@ CREWS = ("Engine 7", "Hand crew Alpha")
 
 
 def _mission():
-    from mission.schema import RunSpec
+    from mission.format.schema import RunSpec
     from small_mission import crew, small_mission
 
     return small_mission(
@@ -90,7 +90,8 @@ def _count(drv, state: str) -> int:
 @pytest.fixture(scope="module")
 def live_run(browser, tmp_path_factory):
     """Fly, watch and act through the page; returns the run directory (for the replay tests)."""
-    from mission.runners import FlyOptions, fly_emulated_async
+    from mission.flight.runners import FlyOptions, fly_emulated_async
+    from mission.view.live import attach
 
     tmp = tmp_path_factory.mktemp("live")
     info, box = {}, {}
@@ -107,6 +108,7 @@ def live_run(browser, tmp_path_factory):
         emulator_in_process=True,
         out_dir=str(tmp),
         serve="127.0.0.1:0",
+        attach_view=attach,
         on_live=info.update,
         on_operator=hook,
     )
@@ -184,7 +186,7 @@ def live_run(browser, tmp_path_factory):
         )
         box["rtl_sysid"] = target
         # The emulator's vehicle itself is in RTL (ArduCopter custom_mode 6).
-        from mission import runners  # noqa: F401  (the swarm comes back with the result)
+        from mission.flight import runners  # noqa: F401  (the swarm comes back with the result)
 
         box["rtl_seen_page"] = True
     finally:
@@ -216,8 +218,8 @@ def _metrics(run_dir):
 
 @pytest.fixture(scope="module")
 def replay_server(live_run):
-    from mission.live.replay import ReplaySource
-    from mission.live.server import LiveServer
+    from mission.view.live.replay import ReplaySource
+    from mission.view.live.server import LiveServer
 
     src = ReplaySource(live_run)
     box, ready = {}, threading.Event()
@@ -330,8 +332,8 @@ def test_replay_slider_matches_the_records(browser, replay_server):
 
 
 def test_geojson_and_kml_export(live_run, tmp_path):
-    from mission.live.export import export_run
-    from mission.live.replay import ReplaySource
+    from mission.view.live.export import export_run
+    from mission.view.live.replay import ReplaySource
 
     src = ReplaySource(live_run)
     path = export_run(src, "geojson", [10.0], tmp_path / "x.geojson")

@@ -324,7 +324,7 @@ def test_valid_mission_prints_ok_summary(tmp_path, capsys):
 )
 def test_pure_python_loader_has_the_same_guards(monkeypatch, text, expected):
     """The libyaml-accelerated loader is optional; the fallback must be just as strict."""
-    import mission.load as load
+    import mission.format.load as load
 
     monkeypatch.setattr(load, "_BoundedLoader", load._BoundedSafeLoader)
     with pytest.raises(load.MissionError, match=expected):

@@ -12,10 +12,10 @@ import yaml
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mission import schema
+from mission.format import schema
 from mission.cli import main
-from mission.examples import example_path, example_text, list_examples
-from mission.load import (
+from mission.format.examples import example_path, example_text, list_examples
+from mission.format.load import (
     MissionError,
     dump_mission,
     load_mission,
@@ -23,7 +23,7 @@ from mission.load import (
     resolved_dict,
     validate_mission,
 )
-from mission.schema import (
+from mission.format.schema import (
     Attrition,
     Circle,
     HazardZone,

@@ -94,10 +94,9 @@ def test_workers_zero_is_refused_everywhere(cmd, capsys):
 
 
 def test_workers_default_is_one_place():
-    from mission import cli, sim
+    from mission import cli
     from mission.commands import sweep
 
-    assert sim.default_workers() == cli.default_workers()
     p = cli.build_parser("sweep")
     args = p.parse_args(["sweep"])
     assert args.workers is None  # resolved by mission.cli.resolve_workers, not frozen at import
@@ -286,12 +285,12 @@ def test_tune_unknown_grid_key_refused(tmp_path, capsys):
 
 
 def test_dry_run_estimate_uses_measured_costs_and_the_store(tmp_path, capsys):
-    from mission.sweep import estimate_run_s, measured_costs
+    from mission.experiments.sweep import estimate_run_s, measured_costs
     from planner.problem import problem_preset
 
     xl, xs = problem_preset("XL", 0.01), problem_preset("XS", 0.01)
     assert estimate_run_s(xl) > 5 * estimate_run_s(xs)
-    from mission.sweep import METHOD_COST_FACTOR
+    from mission.experiments.sweep import METHOD_COST_FACTOR
 
     assert estimate_run_s(xl, "mccst") == pytest.approx(
         METHOD_COST_FACTOR["mccst"] * estimate_run_s(xl, "phireman")
@@ -334,8 +333,8 @@ def test_dry_run_estimate_uses_measured_costs_and_the_store(tmp_path, capsys):
 
 
 def test_ci_wider_than_the_range_is_clipped_and_explained():
-    from mission.report import _fmt
-    from mission.sim import format_pct_ci, mean_ci95
+    from mission.experiments.report import _fmt
+    from mission.experiments.sim import format_pct_ci, mean_ci95
 
     mean, half = mean_ci95([60.0, 100.0])
     assert half > 100
@@ -522,7 +521,7 @@ def test_report_with_overrides_does_not_grade_against_the_paper(custom_store, tm
 
 
 def test_compared_heatmap_panels_share_one_colour_scale(monkeypatch, tmp_path):
-    from mission import report
+    from mission.experiments import report
 
     calls = []
     real = report._heatmap
@@ -586,7 +585,7 @@ def test_replay_mp4_without_ffmpeg_fails_up_front(run_dir, tmp_path, monkeypatch
 
     from matplotlib.animation import FFMpegWriter
 
-    import mission.replay as replay_mod
+    import mission.view.replay as replay_mod
 
     monkeypatch.setattr(shutil, "which", lambda name, *a, **k: None)
     monkeypatch.setattr(FFMpegWriter, "isAvailable", classmethod(lambda cls: False))
@@ -599,7 +598,7 @@ def test_replay_mp4_without_ffmpeg_fails_up_front(run_dir, tmp_path, monkeypatch
 
 
 def test_legend_is_complete():
-    from mission.plots import Scene, legend_handles
+    from mission.view.plots import Scene, legend_handles
 
     labels = [
         h.get_label() for h in legend_handles(Scene(100, 80, 300, [lambda ax: None], unit="m"))
@@ -625,8 +624,8 @@ def test_legend_is_complete():
 def test_frame_shows_names_links_and_a_tree_without_recorded_trees(run_dir):
     import matplotlib.pyplot as plt
 
-    from mission.plots import FrameView
-    from mission.replay import _scene, load_run, tree_at
+    from mission.view.plots import FrameView
+    from mission.view.replay import _scene, load_run, tree_at
 
     (run_dir / "trees.json").rename(run_dir / "trees.json.bak")
     try:
@@ -663,7 +662,7 @@ def test_frame_shows_names_links_and_a_tree_without_recorded_trees(run_dir):
 def test_animation_has_the_frames_asked_for(run_dir, tmp_path):
     from PIL import Image
 
-    from mission.replay import replay
+    from mission.view.replay import replay
 
     files = replay(run_dir, tmp_path, "gif", max_frames=12)
     gif = next(f for f in files if f.suffix == ".gif")

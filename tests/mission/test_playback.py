@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from mission.load import loads_mission
-from mission.playback import loss_probability, run_inprocess, write_run_dir, zone_mask
+from mission.format.load import loads_mission
+from mission.experiments.playback import loss_probability, run_inprocess, write_run_dir, zone_mask
 
 BASE = """
 name: test
@@ -119,7 +119,7 @@ def test_live_mavlink_tasks_are_refused_in_process():
 
 
 def test_run_directory_and_replay(tmp_path):
-    from mission.replay import load_run, replay
+    from mission.view.replay import load_run, replay
 
     m = loads_mission(BASE + "attrition: {rate_per_s: 0.01}\n")
     r = run_inprocess(m)
@@ -134,8 +134,8 @@ def test_run_directory_and_replay(tmp_path):
 
 
 def test_geofence_section_is_validated_and_reaches_the_station_config():
-    from mission.load import MissionError
-    from mission.runners import control_config
+    from mission.format.load import MissionError
+    from mission.flight.runners import control_config
 
     m = loads_mission(BASE + "geofence: {half_width_m: 300, max_alt_m: 120}\n")
     fence = control_config(m).geofence

@@ -8,11 +8,16 @@ import json
 import numpy as np
 import pytest
 
-from mission import paper
+from mission.experiments import paper
 from mission.cli import main
-from mission.report import Sample, best_of, build_report, p_greater, p_greater_paired
-from mission.store import ResultStore, utc_now
-from mission.sweep import ConfigSpec, canonical_json, paper_ablations_grid, paper_table_grid
+from mission.experiments.report import Sample, best_of, build_report, p_greater, p_greater_paired
+from mission.experiments.store import ResultStore, utc_now
+from mission.experiments.sweep import (
+    ConfigSpec,
+    canonical_json,
+    paper_ablations_grid,
+    paper_table_grid,
+)
 
 N_SEEDS = 30
 
@@ -320,7 +325,7 @@ def test_per_baseline_split_of_the_paper_bolds(rng):
     """Where the paper bolds ΦIREMAN, the split counts the cells ours is significantly above each
     baseline separately: a DCCRS that ties ΦIREMAN must show up as 0 above DCCRS and all above
     MCCST, and no bold."""
-    from mission.report import Cell, _phireman_vs_each
+    from mission.experiments.report import Cell, _phireman_vs_each
 
     bolded = [
         (size, att)

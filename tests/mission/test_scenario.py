@@ -1,12 +1,12 @@
-"""One mission scenario (mission.scenario) and one world loop (mission.world_loop)."""
+"""One mission scenario (mission.format.scenario) and one world loop (mission.experiments.world_loop)."""
 
 import numpy as np
 import pytest
 
-from mission.load import loads_mission
-from mission.mission_world import MissionWorld, build_swarm, mission_scenario
-from mission.scenario import MissionScenario, build_scenario, loss_probability, track_at
-from mission.world_loop import run_world
+from mission.format.load import loads_mission
+from mission.flight.mission_world import MissionWorld, build_swarm, mission_scenario
+from mission.format.scenario import MissionScenario, build_scenario, loss_probability, track_at
+from mission.experiments.world_loop import run_world
 from planner.methods import make_planner
 from planner.problem import problem_preset
 from vehicle_emu.world import World, draw_scenario, spawn_streams

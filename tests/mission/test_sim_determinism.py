@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from mission.sim import run_episode, run_many
+from mission.experiments.sim import run_episode, run_many
 from planner.problem import problem_preset
 
 

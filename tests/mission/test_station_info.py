@@ -12,19 +12,19 @@ import dataclasses
 import numpy as np
 import pytest
 
-import mission.playback as playback
-import mission.station_loop as station_loop
+import mission.experiments.playback as playback
+import mission.flight.station_loop as station_loop
 from small_mission import crew, small_mission
-from mission.ether import LockstepEther, station_for_swarm
-from mission.fly_options import FlyOptions
-from mission.load import validate_mission
-from mission.mission_world import MissionWorld, build_swarm, mission_scenario
-from mission.schema import (
+from mission.flight.ether import LockstepEther, station_for_swarm
+from mission.flight.fly_options import FlyOptions
+from mission.format.load import validate_mission
+from mission.flight.mission_world import MissionWorld, build_swarm, mission_scenario
+from mission.format.schema import (
     INFO_MODES,
     PlannerSpec,
     RunSpec,
 )
-from mission.station_loop import make_operator
+from mission.flight.station_loop import make_operator
 from planner.info import INFO_MODELS, STATION_INFO, CentralInfo, MessagePassingInfo
 
 
@@ -140,8 +140,8 @@ def test_station_and_playback_build_the_same_planner(monkeypatch, method, info):
     )
     playback.run_inprocess(m, seed=3)
     expected = m.planner.run_params()
-    assert seen["mission.station_loop"] == [(method, expected)]
-    assert seen["mission.playback"] == [(method, expected)]
+    assert seen["mission.flight.station_loop"] == [(method, expected)]
+    assert seen["mission.experiments.playback"] == [(method, expected)]
     assert expected.get("info", "central") == info
 
 

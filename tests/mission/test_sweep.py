@@ -12,8 +12,8 @@ import time
 import pytest
 
 from mission.cli import main
-from mission.store import ResultStore
-from mission.sweep import (
+from mission.experiments.store import ResultStore
+from mission.experiments.sweep import (
     ConfigSpec,
     Grid,
     custom_grid,

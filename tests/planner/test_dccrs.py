@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mission.sim import run_episode
+from mission.experiments.sim import run_episode
 from planner.dccrs import (
     LABEL,
     DccrsParams,

@@ -190,7 +190,7 @@ def test_world_step_compiled_is_the_numpy_step(rng, reference_paths):
     """Whole episodes of the world with random instructions: same positions bit for bit, same losses."""
     from dataclasses import replace
 
-    from mission.sim import draw_scenario, spawn_streams
+    from mission.experiments.sim import draw_scenario, spawn_streams
     from planner.problem import problem_preset
     from vehicle_emu.world import World
 

@@ -26,7 +26,7 @@ from planner.problem import problem_preset
 from planner.steiner import TaskTree
 
 # A disc flaring up between 30 s and 150 s and a non-convex polygon active all the time (the
-# shapes of mission/examples/hazard_zone.yaml, plus a notch).
+# shapes of mission/format/examples/hazard_zone.yaml, plus a notch).
 ZONES = HazardMap(
     (
         HazardZone(0.05, center_m=(120.0, 100.0), radius_m=80.0, start_s=30.0, end_s=150.0),
@@ -244,10 +244,16 @@ def test_async_split_descent_equals_one_numpy_descent():
 
 
 def test_drones_spend_less_time_inside_the_zone_with_hazard_awareness():
-    from mission.playback import run_inprocess
-    from mission.scenario import hazard_map
-    from mission.schema import Attrition, Circle, HazardZone as MissionZone, LocalPoint, PlannerSpec
-    from mission.schema import RunSpec
+    from mission.experiments.playback import run_inprocess
+    from mission.format.scenario import hazard_map
+    from mission.format.schema import (
+        Attrition,
+        Circle,
+        HazardZone as MissionZone,
+        LocalPoint,
+        PlannerSpec,
+    )
+    from mission.format.schema import RunSpec
     from tests.small_mission import crew, small_mission
 
     zone = MissionZone(

@@ -4,7 +4,7 @@ rally rule, and the contract that every mechanism off is PhiIREMAN."""
 import numpy as np
 import pytest
 
-from mission.sim import run_episode
+from mission.experiments.sim import run_episode
 from planner.methods import TickInput, make_planner
 from planner.problem import problem_preset
 from planner.resilient import (

@@ -2,10 +2,10 @@
 
 * :func:`run_station` - opens the links, builds the :class:`gcs.operations.Operator`, polls it
   on the flight's clock until the mission is done (or Ctrl-C has settled), records every event
-  and tick into the run directory (:class:`mission.run_dir.Records`) and drives the emulator's
+  and tick into the run directory (:class:`mission.flight.run_dir.Records`) and drives the emulator's
   world rules when there is an emulator;
 * :func:`make_operator` - the operator for a mission (planner, fleet view, control and operations
-  configuration): also what the in-memory tests drive through :class:`mission.ether.LockstepEther`;
+  configuration): also what the in-memory tests drive through :class:`mission.flight.ether.LockstepEther`;
 * the planner is warmed up before any link opens, so the loop never stalls in flight.
 """
 
@@ -29,16 +29,16 @@ from gcs.rally import RallyConfig, RallyKeeper
 from gcs.station import Station
 from gcs.tasks import LiveTasks
 from gcs.wire import mavlink
-from mission.fly_options import FlyOptions, RunnerError
-from mission.mission_world import MissionScenario, control_config
-from mission.run_dir import Records
-from mission.schema import Mission
+from mission.flight.fly_options import FlyOptions, RunnerError
+from mission.flight.mission_world import MissionScenario, control_config
+from mission.flight.run_dir import Records
+from mission.format.schema import Mission
 from planner.methods import make_planner
 from planner.problem import ProblemConfig
 from vehicle_emu.world import spawn_streams
 
 if TYPE_CHECKING:
-    from mission.emulator_host import EmulatorProcess, InProcessEmulator
+    from mission.flight.emulator_host import EmulatorProcess, InProcessEmulator
 
 __all__ = [
     "run_station",
@@ -303,10 +303,14 @@ async def run_station(
         op.handle_event(ev)
     extras = []
     if opts.serve or opts.forward:  # the live view and MAVLink forwarding, on this loop
-        from mission.live import attach
-
+        if opts.attach_view is None:
+            for a in adapters:
+                a.close()
+            raise RunnerError(
+                "--serve / --forward: no live view was given (FlyOptions.attach_view)"
+            )
         try:
-            extras = await attach(
+            extras = await opts.attach_view(
                 op,
                 adapters,
                 mission=mission,

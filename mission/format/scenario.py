@@ -3,8 +3,8 @@ per-step loss probability and the fence - one scenario type and one drawing orde
 backend.
 
 :class:`MissionScenario` is the only mission scenario type. The in-process playback
-(:mod:`mission.playback`), the emulated flights (:mod:`mission.mission_world`) and the station
-(:mod:`mission.station_loop`) all use it, so the same seed gives the same spawn, the same task
+(:mod:`mission.experiments.playback`), the emulated flights (:mod:`mission.flight.mission_world`) and the station
+(:mod:`mission.flight.station_loop`) all use it, so the same seed gives the same spawn, the same task
 motion and the same losses on each (common random numbers, docs/design/model.md §6.1):
 
 * drones start at the mission's spawn (ring with seeded noise, or explicit positions);
@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gcs.control import ControlConfig, Geofence
-from mission.schema import Attrition, HazardZone, Mission
+from mission.format.schema import Attrition, HazardZone, Mission
 from planner.hazard import HazardMap, HazardZone as PlannerHazardZone
 from vehicle_emu.world import RunStreams, spawn_streams, walk_tasks
 

@@ -1,4 +1,4 @@
-"""Mission YAML -> :class:`mission.schema.Mission`, validated once, every error reported at once.
+"""Mission YAML -> :class:`mission.format.schema.Mission`, validated once, every error reported at once.
 
 Missions may come from strangers, so loading is defensive:
 
@@ -12,7 +12,7 @@ Missions may come from strangers, so loading is defensive:
 * duplicate keys in a mapping are errors (PyYAML would silently keep the last one).
 
 Validation walks the schema's dataclasses generically (types and ``metadata`` limits come from
-:mod:`mission.schema`), then runs each section's ``validate()`` for cross-field rules. Every problem
+:mod:`mission.format.schema`), then runs each section's ``validate()`` for cross-field rules. Every problem
 becomes one line ``path: message`` (``tasks[2].track[0].t_s: expected a number, got 'abc'``), and
 all of them are raised together in one :class:`MissionError`.
 """
@@ -30,8 +30,8 @@ from typing import Any, Literal, Union
 
 import yaml
 
-from mission import schema
-from mission.schema import Mission
+from mission.format import schema
+from mission.format.schema import Mission
 
 __all__ = [
     "MissionError",

@@ -1,7 +1,7 @@
 """The code version: one string for store rows, run directories and ``phireman --version``.
 
-A sweep's store row (:mod:`mission.store`), an in-process run directory's ``summary.json``
-(:func:`mission.playback.write_run_dir`), a flight's ``run.json`` (:mod:`mission.run_dir`) and
+A sweep's store row (:mod:`mission.experiments.store`), an in-process run directory's ``summary.json``
+(:func:`mission.experiments.playback.write_run_dir`), a flight's ``run.json`` (:mod:`mission.flight.run_dir`) and
 ``phireman --version`` all record :func:`code_version`, so a row and a run directory made by the
 same code carry the same string (docs/design/architecture.md §8: a run records its seed, its
 resolved configuration and its code version).
@@ -16,10 +16,14 @@ import subprocess
 
 __all__ = ["code_version"]
 
-_ROOT = pathlib.Path(__file__).resolve().parents[1]
+_ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 #: Hashed sources outside planner/ (paths from the repository root).
-_LOOSE_SOURCES = ("vehicle_emu/world.py", "mission/sim.py", "mission/world_loop.py")
+_LOOSE_SOURCES = (
+    "vehicle_emu/world.py",
+    "mission/experiments/sim.py",
+    "mission/experiments/world_loop.py",
+)
 
 
 def _source_files() -> list[pathlib.Path]:
@@ -34,7 +38,7 @@ def _source_files() -> list[pathlib.Path]:
 def code_version() -> str:
     """'phireman <version> git <commit>[+dirty] src <hash>' of the code in this process.
 
-    ``src`` hashes planner/**.py, vehicle_emu/world.py, mission/sim.py and mission/world_loop.py
+    ``src`` hashes planner/**.py, vehicle_emu/world.py, mission/experiments/sim.py and mission/experiments/world_loop.py
     (:func:`_source_files`) as they were when first
     asked (cached per process), so rows from changed code are distinguishable even without git;
     ``+dirty`` says that git sees uncommitted changes to those same sources.

@@ -1,6 +1,6 @@
 """The mission: one typed definition of a deployment, in SI units, with every default.
 
-A mission file (YAML, loaded by :mod:`mission.load`) describes where the base station is, which
+A mission file (YAML, loaded by :mod:`mission.format.load`) describes where the base station is, which
 vehicles fly, where the tasks (fire crews, rovers) are and how they move, what the radio reaches,
 what kills drones, which planner runs, and for how long. The same file is played by the in-process
 simulator, by the emulator + ground station, and on real links.

@@ -13,7 +13,7 @@ Workers only compute: each returns its rows and the parent writes them to the st
 transaction per chunk, so a sweep killed at any moment loses only the runs in flight and rerunning
 the same command completes it with nothing lost or duplicated. A run that raises is recorded as an
 ``error`` row (exception type and message) and the sweep goes on. Every run is deterministic given
-its seed (``mission.sim.run_episode``), so the executor and the number of workers do not change the
+its seed (``mission.experiments.sim.run_episode``), so the executor and the number of workers do not change the
 results.
 
 Local pool workers are started with the ``forkserver`` method (they must not inherit the parent's
@@ -41,8 +41,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Iterable, Iterator
 
-from mission.store import ResultStore, utc_now
-from mission.version import code_version  # re-exported: one code version for rows and run dirs
+from mission.experiments.store import ResultStore, utc_now
+from mission.format.version import (
+    code_version,
+)  # re-exported: one code version for rows and run dirs
 
 if TYPE_CHECKING:
     from concurrent.futures import ProcessPoolExecutor
@@ -183,7 +185,7 @@ def paper_table_grid(
     ``sizes``, ``attrition`` and ``methods`` select a subset; ``params`` / ``problem_overrides``
     apply to every configuration (normally empty).
     """
-    from mission.paper import PAPER_METHODS
+    from mission.experiments.paper import PAPER_METHODS
     from planner.problem import SIZES
 
     sizes = [s.upper() for s in (SIZES if sizes is None else sizes)]
@@ -503,7 +505,7 @@ def run_chunk(chunk: Chunk) -> list[dict]:
     Returns one row per seed with ``run_key``, ``seed``, ``status``, ``error``, ``tu1``, ``tu2``,
     ``wall_s``, ``final_alive``, ``final_active``, ``code_version``, ``host``, ``created_utc``.
     """
-    from mission.sim import run_episode
+    from mission.experiments.sim import run_episode
 
     version, host = code_version(), socket.gethostname()
     rows = []
@@ -581,7 +583,7 @@ class LocalExecutor:
 
         # forkserver: workers do not inherit the parent's SQLite handle, threads or tqdm state.
         ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["mission.sweep", "mission.sim"])
+        ctx.set_forkserver_preload(["mission.experiments.sweep", "mission.experiments.sim"])
         self._pool = ProcessPoolExecutor(
             max_workers=self.workers, mp_context=ctx, initializer=_worker_init
         )
@@ -600,7 +602,7 @@ class LocalExecutor:
             return
         if cancel:
             # Stop the workers now (they ignore SIGINT); completed chunks are already stored.
-            from mission.sim import stop_pool_now
+            from mission.experiments.sim import stop_pool_now
 
             stop_pool_now(pool)
         else:

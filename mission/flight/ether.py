@@ -7,7 +7,7 @@ nondeterminism (docs/design/architecture.md §3.1, driver 2). Most integration t
 
 Typical use (``tests/integration/test_pair.py``)::
 
-    swarm = build_swarm(mission, scenario, seed=seed)       # mission.mission_world
+    swarm = build_swarm(mission, scenario, seed=seed)       # mission.flight.mission_world
     station = station_for_swarm(swarm)
     ether = LockstepEther(swarm, station, np.random.default_rng(seed), loss=0.05)
     ether.advance_to(t_s, poll=operator.poll)

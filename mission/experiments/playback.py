@@ -9,13 +9,13 @@ is compared with). It maps the mission onto the world model of ``vehicle_emu.wor
   generator; live ``mavlink`` tasks cannot be rehearsed in-process and are refused;
 * attrition per drone and step: background rate, plus every hazard zone that contains the drone
   and is active, converted with p = 1 - exp(-rate * dt); scripted losses happen at their step;
-* the world loop is :func:`mission.world_loop.run_world` (the one ``phireman sim`` and the sweep
+* the world loop is :func:`mission.experiments.world_loop.run_world` (the one ``phireman sim`` and the sweep
   use), and each step's targets come from the station's own tick, :func:`gcs.control.tick`
-  (planner -> geofence clip), through :func:`mission.world_loop.station_control`.
+  (planner -> geofence clip), through :func:`mission.experiments.world_loop.station_control`.
 
 Random streams follow ``vehicle_emu.world.spawn_streams``: spawn noise and task walks come from the
 scenario stream, attrition uniforms from the attrition stream, so the same seed gives the same run.
-The drawing itself lives in :mod:`mission.scenario`, shared with the emulated flights.
+The drawing itself lives in :mod:`mission.format.scenario`, shared with the emulated flights.
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mission.schema import Mission
-from mission.scenario import (  # re-exported: they were drawn here before mission.scenario
+from mission.format.schema import Mission
+from mission.format.scenario import (  # re-exported: they were drawn here before mission.format.scenario
     MissionScenario,
     build_scenario,
     control_config,
@@ -41,7 +41,7 @@ from mission.scenario import (  # re-exported: they were drawn here before missi
     task_track_m,
     zone_mask,
 )
-from mission.world_loop import EpisodeRecord, run_world, station_control
+from mission.experiments.world_loop import EpisodeRecord, run_world, station_control
 from planner.methods import make_planner
 from planner.metrics import UptimeSeries, uptime_series
 from vehicle_emu.world import World, spawn_streams
@@ -126,8 +126,8 @@ def write_run_dir(
     mission: Mission, result: PlaybackResult, out_dir: pathlib.Path, backend: str = "inprocess"
 ) -> None:
     """Record a played mission: resolved mission, seed, code version, events, metrics, truth, summary."""
-    from mission.load import dump_mission
-    from mission.version import code_version
+    from mission.format.load import dump_mission
+    from mission.format.version import code_version
 
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "mission.yaml").write_text(

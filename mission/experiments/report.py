@@ -1,6 +1,6 @@
 """The evaluation report: Table II, tests, comparison with the paper, ablations, Fig. 3 heatmaps.
 
-:func:`build_report` reads a results store (``mission.store``) and writes into a directory:
+:func:`build_report` reads a results store (``mission.experiments.store``) and writes into a directory:
 
 * ``report.md``: Table II (mean ± 95 % CI; bold where the best method beats both others by the
   paper's one-tailed unpaired Student's t-test at p < 0.05, and a paired test beside it since the
@@ -32,10 +32,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mission import paper
-from mission.sim import mean_ci95  # the one definition, re-exported (it was defined here too)
-from mission.store import ResultStore, utc_now
-from mission.sweep import ConfigSpec, paper_ablations_grid, paper_table_grid, resolve
+from mission.experiments import paper
+from mission.experiments.sim import (
+    mean_ci95,
+)  # the one definition, re-exported (it was defined here too)
+from mission.experiments.store import ResultStore, utc_now
+from mission.experiments.sweep import ConfigSpec, paper_ablations_grid, paper_table_grid, resolve
 
 if TYPE_CHECKING:
     from matplotlib.image import AxesImage
@@ -208,7 +210,7 @@ class Selector:
 
 def _fmt(mean: float, ci: float) -> str:
     """'mean ± half', or the interval clipped to [0, 100] when it reaches past (few seeds)."""
-    from mission.sim import format_pct_ci
+    from mission.experiments.sim import format_pct_ci
 
     if math.isnan(mean):
         return "–"

@@ -61,7 +61,7 @@ MAX_LINKS = 3000
 
 
 def crew_names(mission) -> list[str]:
-    """One name per task column, in :func:`mission.playback.task_track_m` order."""
+    """One name per task column, in :func:`mission.experiments.playback.task_track_m` order."""
     names = []
     for i, task in enumerate(mission.tasks):
         label = task.name or f"Task {i + 1}"

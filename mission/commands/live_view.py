@@ -71,9 +71,10 @@ def _announce(info: dict) -> None:
 def fly_options(opts, args):
     """``opts`` (FlyOptions) with the live/forward options of ``args``; UserError if invalid."""
     from mission.cli import UserError
+    from mission.view.live import attach
 
     if args.serve is not None:
-        from mission.live.server import parse_serve, tiles_meta
+        from mission.view.live.server import parse_serve, tiles_meta
 
         try:
             parse_serve(args.serve)
@@ -99,6 +100,7 @@ def fly_options(opts, args):
         forward=tuple(args.forward),
         forward_readonly=args.forward_readonly,
         on_live=_announce,
+        attach_view=attach if (args.serve is not None or args.forward) else None,
     )
 
 
@@ -141,14 +143,14 @@ def run_replay(args) -> int | None:
     if args.serve is None and args.export is None:
         return None
     from mission.cli import UserError
-    from mission.live.replay import ReplaySource
+    from mission.view.live.replay import ReplaySource
 
     try:
         src = ReplaySource(args.run_dir)
     except (FileNotFoundError, ValueError) as exc:
         raise UserError(str(exc)) from None
     if args.export:
-        from mission.live.export import export_run
+        from mission.view.live.export import export_run
 
         out = None
         if args.out is not None:
@@ -158,7 +160,7 @@ def run_replay(args) -> int | None:
     if args.serve is not None:
         import asyncio
 
-        from mission.live.server import LiveServer, parse_serve, tiles_meta
+        from mission.view.live.server import LiveServer, parse_serve, tiles_meta
 
         try:
             host, port = parse_serve(args.serve)

@@ -17,9 +17,9 @@ from pathlib import Path
 from gcs.events import TelemetryReceived
 from gcs.operations import Operator
 from gcs.records import EventLog, MetricsWriter, TlogWriter
-from mission.fly_options import FlyOptions
-from mission.schema import Mission
-from mission.version import code_version
+from mission.flight.fly_options import FlyOptions
+from mission.format.schema import Mission
+from mission.format.version import code_version
 
 __all__ = ["new_run_dir", "Records", "run_meta", "summary"]
 
@@ -42,7 +42,7 @@ class Records:
     """The run directory's writers (buffered, written every 0.5 s by a background thread)."""
 
     def __init__(self, run_dir: Path, mission: Mission, meta: dict) -> None:
-        from mission.load import dump_mission
+        from mission.format.load import dump_mission
 
         self.dir = run_dir
         (run_dir / "mission.yaml").write_text(

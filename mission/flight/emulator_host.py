@@ -5,7 +5,7 @@ Lock-step pacing (docs/design/mavlink.md §4.3, ArduPilot SITL's lock-step idea)
 simulated time (a shared double it advances from wall time x speed-up, never more than
 :data:`PACE_SLACK_S` beyond the station's last acknowledged clock read), so a lagging process slows
 the simulation down instead of making it jump past every vehicle's link failsafe
-(:func:`mission.runners.fly_emulated_async` explains the choice).
+(:func:`mission.flight.runners.fly_emulated_async` explains the choice).
 
 * :class:`InProcessEmulator` - the emulator on the station's loop (tests: the swarm is reachable);
 * :class:`EmulatorProcess` - the emulator in its own process (the default), obeying a pipe;
@@ -18,9 +18,9 @@ import asyncio
 import logging
 
 from mavedge.clock import PacedClock, SharedValue
-from mission.fly_options import RunnerError
-from mission.mission_world import MissionWorld, build_swarm, mission_scenario
-from mission.schema import Mission
+from mission.flight.fly_options import RunnerError
+from mission.flight.mission_world import MissionWorld, build_swarm, mission_scenario
+from mission.format.schema import Mission
 from vehicle_emu.udp import EmulatorServer
 
 __all__ = [

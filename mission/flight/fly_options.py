@@ -1,12 +1,12 @@
 """What ``phireman fly`` asks of the runners, and the error a runner raises when it cannot fly.
 
-The lowest module of the flight path (:mod:`mission.runners` and the modules it is cut into,
+The lowest module of the flight path (:mod:`mission.flight.runners` and the modules it is cut into,
 pyproject.toml's import-linter contracts): every other one imports it, it imports none of them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 
 from gcs.operations import Operator
@@ -55,7 +55,7 @@ class FlyOptions:
     on_operator: Callable[[Operator, object], None] | None = None
     """Hook called on every poll with (operator, world or None) - tests inject failures here."""
     serve: str | None = None
-    """``[HOST:]PORT``: serve the live web view there (:mod:`mission.live`)."""
+    """``[HOST:]PORT``: serve the live web view there (:mod:`mission.view.live`)."""
     serve_actions: bool = True
     """Operator actions on the page (behind the key printed at start); False: read-only."""
     tiles: str | None = None
@@ -65,3 +65,6 @@ class FlyOptions:
     forward_readonly: bool = False
     on_live: Callable[[dict], None] | None = None
     """Called once with the live view's url and operator key, the forwarders' addresses."""
+    attach_view: Callable[..., Awaitable[list]] | None = None
+    """What serves ``serve`` and ``forward`` on the station's loop (:func:`mission.view.live.attach`,
+    given by the command: the flight room never imports the view room above it)."""

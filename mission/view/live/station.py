@@ -31,7 +31,7 @@ from gcs.events import (
 )
 from gcs.operations import OPERATOR_ACTIONS
 from gcs.wire import mavlink
-from mission.live.state import (
+from mission.view.live.state import (
     Picture,
     classify,
     decimate,

@@ -42,7 +42,7 @@ from gcs import events as gcs_events
 from gcs.control import layer_alt_m
 from gcs.fleet import FleetSnapshot, FleetView, MissionOrigin
 from gcs.wire import mavlink
-from mission.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
+from mission.view.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
 from planner.geometry import geodetic_to_ned_m
 
 __all__ = ["ReplaySource", "load_replay"]
@@ -125,8 +125,8 @@ class ReplaySource:
     tiles: dict | None  # set by the replay command (--tiles); read with getattr
 
     def __init__(self, run_dir: Path, *, dt_s: float = 0.5) -> None:
-        from mission.load import load_mission
-        from mission.runners import control_config, live_task_columns, mission_scenario
+        from mission.format.load import load_mission
+        from mission.flight.runners import control_config, live_task_columns, mission_scenario
 
         self.run_dir = run_dir = Path(run_dir)
         for need in ("mission.yaml", "events.jsonl", "flight.tlog"):
@@ -272,7 +272,7 @@ class ReplaySource:
         times = np.unique(
             np.concatenate([np.arange(t_first, t_last + dt, dt), np.asarray(ticks, dtype=float)])
         )
-        fleet = FleetView(self.origin, timeout_s=2.0)  # mission.runners.PLAN_SILENCE_S
+        fleet = FleetView(self.origin, timeout_s=2.0)  # mission.flight.runners.PLAN_SILENCE_S
         yaw: dict[tuple[int, int], float] = {}
         released: dict[tuple[int, int], str] = {}
         reclaimed: set = set()
@@ -451,7 +451,7 @@ class ReplaySource:
         return frame_dict(pic, self.mission.radio.range_m, self.mission.radio.base_range_m)
 
     def _events_until(self, t_s: float, limit: int = 60) -> list[dict]:
-        from mission.live.station import event_entry
+        from mission.view.live.station import event_entry
 
         out = []
         for ev in self.events:

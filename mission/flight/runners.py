@@ -17,12 +17,12 @@ meet, and they meet only through bytes.
 
 The pieces, from the top down (an import-linter contract in pyproject.toml keeps this order):
 
-* :mod:`mission.station_loop` - the station's asyncio loop, its operator and status;
-* :mod:`mission.emulator_host` - the emulator in process or in its own process, paced;
-* :mod:`mission.run_dir` - the run directory (see there for what it holds);
-* :mod:`mission.mission_world` - the emulator built for a mission and its world rules;
-* :mod:`mission.ether` - the in-memory ether;
-* :mod:`mission.scenario`, :mod:`mission.fly_options` - the seed's draws; options and errors.
+* :mod:`mission.flight.station_loop` - the station's asyncio loop, its operator and status;
+* :mod:`mission.flight.emulator_host` - the emulator in process or in its own process, paced;
+* :mod:`mission.flight.run_dir` - the run directory (see there for what it holds);
+* :mod:`mission.flight.mission_world` - the emulator built for a mission and its world rules;
+* :mod:`mission.flight.ether` - the in-memory ether;
+* :mod:`mission.format.scenario`, :mod:`mission.flight.fly_options` - the seed's draws; options and errors.
 
 Every name other modules and tests imported from here before the split is still importable
 from here.
@@ -41,7 +41,7 @@ import numpy as np
 from gcs.operations import Operator
 from gcs.records import write_summary
 from mavedge.clock import Clock, PacedReader, RealClock
-from mission.emulator_host import (
+from mission.flight.emulator_host import (
     PACE_SLACK_S,
     EmulatorProcess,
     InProcessEmulator,
@@ -49,9 +49,9 @@ from mission.emulator_host import (
     emulator_clock,
     paced_values,
 )
-from mission.ether import LockstepEther, station_for_swarm
-from mission.fly_options import FlyOptions, RunnerError
-from mission.mission_world import (
+from mission.flight.ether import LockstepEther, station_for_swarm
+from mission.flight.fly_options import FlyOptions, RunnerError
+from mission.flight.mission_world import (
     FENCE_MARGIN_M,
     POSITION_LOOP_TAU_S,
     MissionScenario,
@@ -59,9 +59,9 @@ from mission.mission_world import (
     control_config,
     mission_scenario,
 )
-from mission.run_dir import Records, new_run_dir, run_meta, summary as run_summary
-from mission.schema import Mission
-from mission.station_loop import (
+from mission.flight.run_dir import Records, new_run_dir, run_meta, summary as run_summary
+from mission.format.schema import Mission
+from mission.flight.station_loop import (
     INTERRUPT_SETTLE_S,
     PLAN_SILENCE_S,
     live_task_columns,
@@ -86,7 +86,7 @@ __all__ = [
     "station_for_swarm",
     "fly_emulated_async",
     "fly_real_async",
-    # re-exported from the modules this one was cut into (importers of mission.runners)
+    # re-exported from the modules this one was cut into (importers of mission.flight.runners)
     "live_task_columns",
     "live_task_connections",
     "PLAN_SILENCE_S",

@@ -40,7 +40,7 @@ def _feature(geom_type: str, coords, **props) -> dict:
 
 
 def features(src, at_mission_s: list[float]) -> list[dict]:
-    """GeoJSON features of ``src`` (a :class:`mission.live.replay.ReplaySource`)."""
+    """GeoJSON features of ``src`` (a :class:`mission.view.live.replay.ReplaySource`)."""
     m = src.meta()
     out = [_feature("Point", _lonlat(src, [0, 0])[0], kind="base", name="Base (command post)")]
     f = m["geofence"]

@@ -1,6 +1,6 @@
-"""The missions shipped with the package (``mission/examples/*.yaml``), usable right after install.
+"""The missions shipped with the package (``mission/format/examples/*.yaml``), usable right after install.
 
->>> from mission.examples import example_path, list_examples
+>>> from mission.format.examples import example_path, list_examples
 >>> "wildfire" in list_examples()
 True
 """
@@ -14,7 +14,7 @@ __all__ = ["list_examples", "example_path", "example_text"]
 
 
 def _dir():
-    return resources.files("mission") / "examples"
+    return resources.files("mission.format") / "examples"
 
 
 def list_examples() -> list[str]:

@@ -1,7 +1,7 @@
 """The one world loop: measure -> plan -> attrit -> step, for every in-process driver.
 
-``phireman sim`` and the sweep (:func:`mission.sim.run_episode`, the paper's world) and the
-in-process playback of a mission file (:func:`mission.playback.run_inprocess`) both call
+``phireman sim`` and the sweep (:func:`mission.experiments.sim.run_episode`, the paper's world) and the
+in-process playback of a mission file (:func:`mission.experiments.playback.run_inprocess`) both call
 :func:`run_world`. One step is (docs/design/model.md §4, §7 #2, #16):
 
 1. measure: active drones D'(t) and connected tasks A(t) (the metrics' left Riemann sum);

@@ -1,6 +1,6 @@
 """In-process RTNUA simulation: the paper's world model driven by a registered planner.
 
-One episode = ``problem.n_steps`` steps of :func:`mission.world_loop.run_world` (measure ->
+One episode = ``problem.n_steps`` steps of :func:`mission.experiments.world_loop.run_world` (measure ->
 plan -> attrit -> step, docs/design/model.md §7 #2, #16) on the paper's scenario
 (:func:`vehicle_emu.world.draw_scenario`), with the planner's displacements as they are (the
 paper's world has no geofence).
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mission.world_loop import EpisodeRecord, run_world
+from mission.experiments.world_loop import EpisodeRecord, run_world
 from planner.hazard import HazardMap
 from planner.methods import make_planner
 from planner.metrics import UptimeSeries, uptime_series
@@ -193,7 +193,7 @@ def run_many(
 def mean_ci95(values) -> tuple[float, float]:
     """Mean and the half-width of its 95 % Student-t confidence interval (nan half-width if
     n < 2; nan, nan if n = 0). The one definition: ``phireman sim``, ``phireman play`` and the
-    report (:mod:`mission.report`) use it."""
+    report (:mod:`mission.experiments.report`) use it."""
     from scipy import stats
 
     x = np.asarray(values, dtype=float)
@@ -220,10 +220,3 @@ def format_pct_ci(mean: float, half: float, lo: float = 0.0, hi: float = 100.0) 
             True,
         )
     return f"{mean:.2f} ± {half:.2f}", False
-
-
-def default_workers() -> int:
-    """The one --workers default (defined in mission.cli)."""
-    from mission.cli import default_workers as _default
-
-    return _default()

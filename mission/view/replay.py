@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from mission.schema import Mission
+    from mission.format.schema import Mission
 
 __all__ = ["RunData", "load_run", "replay", "find_run_dir", "check_animation_writer", "tree_at"]
 
@@ -48,7 +48,7 @@ class _Tree:
 
 def load_run(run_dir: pathlib.Path) -> RunData:
     """Read a run directory; raises FileNotFoundError / ValueError with a clear message."""
-    from mission.load import load_mission
+    from mission.format.load import load_mission
 
     run_dir = pathlib.Path(run_dir)
     truth_path = run_dir / "truth.npz"
@@ -82,7 +82,7 @@ def load_run(run_dir: pathlib.Path) -> RunData:
     if "task_pos_ne_m" in truth:
         tasks = truth["task_pos_ne_m"]
     elif mission is not None:
-        from mission.playback import build_scenario, task_position_fn
+        from mission.experiments.playback import build_scenario, task_position_fn
 
         scn = build_scenario(mission, summary.get("seed"))
         fn = task_position_fn(scn.task_track_m, scn.dt_s)
@@ -203,7 +203,7 @@ def _task_names(run: RunData) -> list | None:
         return list(names)
     if run.mission is not None:
         try:
-            from mission.playback import build_scenario
+            from mission.experiments.playback import build_scenario
 
             return list(build_scenario(run.mission, run.summary.get("seed")).task_names)
         except Exception:  # names are a nicety; a mission that cannot be redrawn still replays
@@ -223,7 +223,7 @@ def tree_at(run: RunData, k: int):
 
 
 def _scene(run: RunData, fontsize: float = 9.0):
-    from mission.plots import Scene
+    from mission.view.plots import Scene
 
     radio = run.mission.radio.range_m if run.mission is not None else 2.0
     base = run.mission.radio.base_range_m if run.mission is not None else radio
@@ -269,7 +269,7 @@ def replay(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from mission.plots import FrameView, strip_figure
+    from mission.view.plots import FrameView, strip_figure
 
     check_animation_writer(animation)
     run = load_run(run_dir)
@@ -376,7 +376,7 @@ def _animate(
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from PIL import Image
 
-    from mission.plots import FrameView, legend_handles
+    from mission.view.plots import FrameView, legend_handles
 
     n_drones, n_tasks = run.pos_m.shape[1], run.task_pos_m.shape[1]
     scene = _scene(run, fontsize=8.0)

@@ -1,9 +1,9 @@
 """The emulator built for a mission, and the mission's world rules applied to it.
 
-* :func:`mission_scenario` - the seed's draws for a flight (:func:`mission.scenario.build_scenario`,
+* :func:`mission_scenario` - the seed's draws for a flight (:func:`mission.format.scenario.build_scenario`,
   the one mission scenario type, with the runner's error for live tasks);
 * :func:`control_config` - the station's altitude layers and geofence for the mission
-  (defined in :mod:`mission.scenario`, re-exported);
+  (defined in :mod:`mission.format.scenario`, re-exported);
 * :func:`build_swarm` - the emulator (:class:`vehicle_emu.swarm.Swarm`) for the mission;
 * :class:`MissionWorld` - attrition, scripted losses, hazard zones and task motion applied to
   that emulator on the mission clock (runner side: never visible to the station).
@@ -17,15 +17,15 @@ from typing import Any
 
 import numpy as np
 
-from mission.fly_options import RunnerError
-from mission.scenario import (  # re-exported: importers of mission.mission_world
+from mission.flight.fly_options import RunnerError
+from mission.format.scenario import (  # re-exported: importers of mission.flight.mission_world
     FENCE_MARGIN_M,
     POSITION_LOOP_TAU_S,
     MissionScenario,
     build_scenario,
     control_config,
 )
-from mission.schema import Mission
+from mission.format.schema import Mission
 from planner.metrics import task_uptime
 from vehicle_emu.radio import RadioConfig
 from vehicle_emu.swarm import Swarm
@@ -63,7 +63,7 @@ def _speed_params(
 def mission_scenario(
     mission: Mission, seed: int | None = None, *, live_tasks: bool = False
 ) -> MissionScenario:
-    """The seed's draws for a flight of ``mission`` (:func:`mission.scenario.build_scenario`:
+    """The seed's draws for a flight of ``mission`` (:func:`mission.format.scenario.build_scenario`:
     spawn, task tracks, attrition uniforms, in the in-process simulator's order); a live MAVLink
     task without ``live_tasks`` is a :class:`RunnerError`."""
     try:
@@ -162,7 +162,7 @@ class MissionWorld:
 
     Losses follow the in-process world's draws (common random numbers, docs/design/model.md §6.1): at
     mission step ``t`` vehicle ``i`` is lost iff ``u[t, i] < p_i(t)``, with the uniforms of
-    :func:`mission.scenario.build_scenario` (the run's attrition stream) and the per-step
+    :func:`mission.format.scenario.build_scenario` (the run's attrition stream) and the per-step
     probability of :meth:`MissionScenario.loss_probability` (background rate plus the active
     hazard zones containing the vehicle, from its true position at the step). The loss takes
     effect half a step later (the in-process world measures connectivity, then attrits, then
@@ -179,7 +179,7 @@ class MissionWorld:
         self.swarm = swarm
         self.t0_s: float | None = None
         # ``seed`` is accepted for older callers: the uniforms are the scenario's, drawn from the
-        # seed the scenario was built with (one drawing, mission.scenario.build_scenario).
+        # seed the scenario was built with (one drawing, mission.format.scenario.build_scenario).
         del seed
         self._attrition_u = scenario.attrition_u
         self._step = 0

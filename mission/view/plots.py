@@ -114,7 +114,7 @@ class Scene:
     base_range_m: float
     extent_m: float
     hazard_zones: list = field(default_factory=list)
-    """Painters ``paint(ax)`` adding one patch each (mission.replay)."""
+    """Painters ``paint(ax)`` adding one patch each (mission.view.replay)."""
     task_names: list | None = None
     unit: str = "m"
     tree_recomputed: bool = False

@@ -41,8 +41,8 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 
 
 class Source(Protocol):
-    """What the server shows: a live station (:class:`mission.live.station.LiveStation`) or a
-    recorded run (:class:`mission.live.replay.ReplaySource`)."""
+    """What the server shows: a live station (:class:`mission.view.live.station.LiveStation`) or a
+    recorded run (:class:`mission.view.live.replay.ReplaySource`)."""
 
     def meta(self) -> dict: ...
 

@@ -1,12 +1,12 @@
 """The operator's live picture: a web view served by the station, its replay, MAVLink forwarding
 and GIS export (issue 17; docs/live_view.md).
 
-* :func:`attach` - called once by the runner (``mission.station_loop.run_station``) when
+* :func:`attach` - called once by the runner (``mission.flight.station_loop.run_station``) when
   ``FlyOptions.serve`` or ``FlyOptions.forward`` is set, on the station's event loop after the
-  links are open: starts the web server (:mod:`mission.live.server`) reading the operator
-  (:mod:`mission.live.station`) and the MAVLink forwarder (:mod:`gcs.forward`).
-* :mod:`mission.live.replay` - the same page for a recorded run directory.
-* :mod:`mission.live.export` - GeoJSON / KML of a run at chosen times.
+  links are open: starts the web server (:mod:`mission.view.live.server`) reading the operator
+  (:mod:`mission.view.live.station`) and the MAVLink forwarder (:mod:`gcs.forward`).
+* :mod:`mission.view.live.replay` - the same page for a recorded run directory.
+* :mod:`mission.view.live.export` - GeoJSON / KML of a run at chosen times.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ async def attach(
     out: list = []
     info: dict = {"url": None, "key": None, "forward": []}
     # Operator actions reach events.jsonl through the runner's own ``op.on_action``; the live
-    # view chains onto it (mission.live.station) and never replaces it.
+    # view chains onto it (mission.view.live.station) and never replaces it.
     if getattr(opts, "forward", ()):
         from gcs.forward import Forwarder
 
@@ -67,8 +67,8 @@ async def attach(
             " (read-only)" if opts.forward_readonly else "",
         )
     if getattr(opts, "serve", None):
-        from mission.live.server import LiveServer, parse_serve, tiles_meta
-        from mission.live.station import LiveStation
+        from mission.view.live.server import LiveServer, parse_serve, tiles_meta
+        from mission.view.live.station import LiveStation
 
         host, port = parse_serve(opts.serve)
         tiles, tiles_dir = tiles_meta(getattr(opts, "tiles", None))
