@@ -160,7 +160,7 @@ def run_meta(
         "options": {
             f.name: getattr(opts, f.name)
             for f in dataclasses.fields(opts)
-            if f.name not in ("status", "on_operator", "on_live")
+            if not callable(getattr(opts, f.name))  # hooks (status, on_live, attach_view, ...)
         },
         "started_unix_s": time.time(),
     }
