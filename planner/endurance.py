@@ -19,7 +19,7 @@ Phases of a drone (:data:`PHASES`):
 
 * ``air``       in the plan: the planner moves it;
 * ``inbound``   a spare flying from the base to the position of the relay it replaces;
-* ``returning`` left the plan, flying home (replaced, out of reserve, or surplus);
+* ``returning`` left the plan, flying home (replaced, or out of reserve);
 * ``landed``    on the ground at the base, waiting for a free pad;
 * ``swapping``  on a pad while its battery is changed (``swap_time_s``, or until the ground crew
   confirms the swap when the caller passes ``swap_done``);
@@ -270,9 +270,10 @@ class RotationEvent:
     t_s: float
     kind: str
     """'launch' (spare sent to relay ``other``), 'handover' (spare ``drone`` took ``other``'s
-    place), 'return' (replaced / 'forced_return' out of reserve without a replacement /
-    'surplus_return'), 'landed', 'swap_start', 'swap_done', 'no_spare', 'no_battery', 'pad_wait',
-    'lost'."""
+    place), 'return' (replaced), 'forced_return' (out of reserve without a replacement),
+    'landed', 'swap_start', 'swap_done', 'no_spare', 'no_battery', 'pad_wait',
+    'lost', 'failsafe_return' (the firmware's low-battery RTL, :meth:`RotationPolicy.failsafe`)
+    and, without rotation, 'relaunch'."""
     drone: int
     other: int = -1
 
@@ -308,6 +309,11 @@ class RotationPolicy:
     flying: int
     base: BaseResources = field(default_factory=BaseResources)
     params: EnduranceParams = field(default_factory=EnduranceParams)
+    rotate: bool = True
+    """False: no rotation, the reference every result is compared with (``--rotation off``):
+    every drone flies until its firmware's low-battery failsafe sends it home (reported with
+    :meth:`failsafe`), swaps at the base like the others and relaunches into the plan as soon as
+    it is ready."""
     phase: IntArray = field(init=False)
     replaces: IntArray = field(init=False)
     """(N,) the relay an inbound spare replaces (-1: none)."""
@@ -335,7 +341,13 @@ class RotationPolicy:
         self.stock = self.base.spare_batteries
         self.charging_done_s = []
         self.charge_queue = 0
-        self.counters = {"rotations": 0, "forced_returns": 0, "swaps": 0, "no_spare": 0}
+        self.counters = {
+            "rotations": 0,
+            "forced_returns": 0,
+            "failsafe_returns": 0,
+            "swaps": 0,
+            "no_spare": 0,
+        }
         self._reported = set()
 
     # -- the per-tick decision --------------------------------------------------------------
@@ -452,6 +464,13 @@ class RotationPolicy:
         dist = np.hypot(pos[:, 0] - base[0], pos[:, 1] - base[1])
         in_air = (ph == AIR) | (ph == INBOUND)
         t_res = time_to_reserve_s(batt, rate, dist, p)
+        if not self.rotate:
+            # No rotation: only the firmware's failsafe (:meth:`failsafe`) sends a drone home, and
+            # a drone ready at the base relaunches into the plan at once.
+            for i in np.flatnonzero(ph == READY):
+                ph[i] = AIR
+                events.append(RotationEvent(now_s, "relaunch", int(i)))
+            return self._output(ph, pos, base, swapped, events)
         forced = in_air & (t_res <= 0.0)
         for i in np.flatnonzero(forced):
             k = int(self.replaced_by[i])
@@ -487,7 +506,18 @@ class RotationPolicy:
                 self._reported.discard(("no_spare", int(j)))
                 events.append(RotationEvent(now_s, "launch", k, int(j)))
 
-        # 6. Targets.
+        return self._output(ph, pos, base, swapped, events)
+
+    def _output(
+        self,
+        ph: IntArray,
+        pos: FloatArray,
+        base: FloatArray,
+        swapped: BoolArray,
+        events: list[RotationEvent],
+    ) -> RotationOutput:
+        """Targets of the drones outside the plan, from their phases."""
+        n = self.n_drones
         target = np.full((n, 2), np.nan)
         inb = np.flatnonzero(ph == INBOUND)
         target[inb] = pos[self.replaces[inb]]
@@ -496,6 +526,24 @@ class RotationPolicy:
         target[home] = base
         on_ground = (ph == LANDED) | (ph == SWAPPING) | (ph == NO_BATTERY) | (ph == READY)
         return RotationOutput(ph == AIR, target, on_ground, swapped, tuple(events))
+
+    def failsafe(self, i: int, now_s: float) -> RotationEvent:
+        """Drone ``i``'s firmware sent it home on its own (a low-battery failsafe's RTL): it leaves
+        the plan as if out of reserve. Its inbound spare, if any, joins the plan where it
+        arrives. Returns the event to log ('failsafe_return')."""
+        k = int(self.replaced_by[i])
+        if k >= 0:
+            self.replaces[k] = -1
+            self.phase[k] = AIR
+        j = int(self.replaces[i])
+        if j >= 0:
+            self.replaced_by[j] = -1
+        self.replaces[i] = -1
+        self.replaced_by[i] = -1
+        if self.phase[i] != LOST:
+            self.phase[i] = RETURNING
+        self.counters["failsafe_returns"] += 1
+        return RotationEvent(now_s, "failsafe_return", int(i))
 
     # -- the base's batteries --------------------------------------------------------------
 

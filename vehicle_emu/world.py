@@ -118,6 +118,9 @@ class World:
     """(tau + 1, M, 2) task positions per step, metres."""
     t_step: int = 0
     base_m: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    grounded: np.ndarray | None = None
+    """(N,) bool: on the ground at the base (endurance model, mission.experiments.endurance): out of
+    the mesh, no attrition. None: every alive drone flies (the paper's world)."""
 
     @classmethod
     def from_scenario(cls, problem: ProblemConfig, scenario: Scenario) -> World:
@@ -135,7 +138,8 @@ class World:
     def active(self) -> np.ndarray:
         """(N,) bool: alive and connected to the base through alive drones (exact)."""
         p = self.problem
-        return active_mask(self.pos_m, self.alive, p.radio_range_m, p.base_range_m, self.base_m)
+        flying = self.alive if self.grounded is None else self.alive & ~self.grounded
+        return active_mask(self.pos_m, flying, p.radio_range_m, p.base_range_m, self.base_m)
 
     def tasks_connected(self, active: np.ndarray) -> np.ndarray:
         """(M,) bool: an active drone strictly within r of each task."""

@@ -111,6 +111,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--out writes a run directory. --size/--attrition/--method/--info/--reading/--set/"
         "--workers do not apply (the mission sets them)",
     )
+    p.add_argument(
+        "--battery",
+        choices=["mission", "unlimited"],
+        default="mission",
+        help="with --mission: the mission's batteries (default), or 'unlimited' to play the "
+        "same mission with endless batteries (the reference for relay rotation)",
+    )
+    p.add_argument(
+        "--rotation",
+        choices=["mission", "on", "off"],
+        default="mission",
+        help="with --mission: relay rotation through the base as the mission says (default), "
+        "'on', or 'off': fly until the firmware's low-battery failsafe, relaunch after the swap",
+    )
 
 
 def ci_note(n: int, clipped: bool) -> str | None:
@@ -136,6 +150,11 @@ def run(args) -> int:
         return 0
     if args.mission is not None:
         return _run_mission(args)
+    if args.battery != "mission" or args.rotation != "mission":
+        raise UserError(
+            "--battery and --rotation apply to a mission with batteries (--mission wildfire_2h); "
+            "the paper's presets have endless batteries"
+        )
     args.size = args.size or "S"
     args.attrition = 0.01 if args.attrition is None else args.attrition
     args.method = args.method or "phireman"
@@ -324,14 +343,22 @@ def _run_mission(args) -> int:
     try:
         for seed in seeds:
             try:
-                r = run_inprocess(mission, seed)
+                r = run_inprocess(mission, seed, battery=args.battery, rotation=args.rotation)
             except ValueError as exc:
                 raise UserError(str(exc)) from None
             results.append(r)
+            n_lost = sum(ev["event"] == "vehicle_lost" for ev in r.losses)
             line = (
-                f"seed {seed}: TU1 = {100 * r.tu1:.2f} %, TU2 = {100 * r.tu2:.2f} %, {len(r.losses)} losses, "
+                f"seed {seed}: TU1 = {100 * r.tu1:.2f} %, TU2 = {100 * r.tu2:.2f} %, {n_lost} losses, "
                 f"{r.wall_s:.2f} s"
             )
+            if r.endurance is not None:
+                e = r.endurance
+                line += (
+                    f"; {e['rotations']} rotations, {e['battery_failsafes_in_air']} battery "
+                    f"failsafes in the air, {e['landed_away']} landed away from the base, "
+                    f"min battery in the air {100 * e['min_battery_in_air']:.0f} %"
+                )
             (bar.write(line) if bar else print(line))
             if bar:
                 bar.update(1)
@@ -345,6 +372,16 @@ def _run_mission(args) -> int:
         note = ci_note(len(results), c1 or c2)
         if note:
             print(note, file=sys.stderr)
+        ends = [r.endurance for r in results if r.endurance is not None]
+        if ends:
+            print(
+                f"rotations {sum(e['rotations'] for e in ends) / len(ends):.1f} per run; "
+                f"battery failsafes in the air {sum(e['battery_failsafes_in_air'] for e in ends)}, "
+                f"at the critical level {sum(e['critical_in_air'] for e in ends)}, "
+                f"landed away from the base {sum(e['landed_away'] for e in ends)} "
+                f"(over {len(ends)} runs); min battery in the air "
+                f"{100 * min(e['min_battery_in_air'] for e in ends):.0f} %"
+            )
     if args.out is not None:
         try:
             write_run_dir(mission, results[0], args.out)

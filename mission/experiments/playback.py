@@ -41,6 +41,7 @@ from mission.format.scenario import (  # re-exported: they were drawn here befor
     task_track_m,
     zone_mask,
 )
+from mission.experiments.endurance import endurance_run
 from mission.experiments.world_loop import EpisodeRecord, run_world, station_control
 from planner.methods import make_planner
 from planner.metrics import UptimeSeries, uptime_series
@@ -73,12 +74,25 @@ class PlaybackResult:
     losses: list[dict]
     wall_s: float
     task_names: list[str]
+    endurance: dict | None = None
+    """Rotations, failsafes, landings away, minimum battery in the air (batteries only)."""
+    battery_frac: np.ndarray | None = None
+    """(tau, N) battery fraction at each step (batteries only)."""
 
 
 def run_inprocess(
-    mission: Mission, seed: int | None = None, frames: Collection[int] = ()
+    mission: Mission,
+    seed: int | None = None,
+    frames: Collection[int] = (),
+    *,
+    battery: str = "mission",
+    rotation: str = "mission",
 ) -> PlaybackResult:
-    """Play ``mission`` on the in-process world model with its planner (one tick per control period)."""
+    """Play ``mission`` on the in-process world model with its planner (one tick per control period).
+
+    ``battery`` 'unlimited' plays a mission with batteries as if they were endless, ``rotation``
+    'off' / 'on' overrides the mission's ``endurance.rotation`` (the two references of
+    docs/design/endurance.md §5)."""
     t0 = time.perf_counter()
     seed = mission.run.seed if seed is None else seed
     scn = build_scenario(mission, seed)
@@ -91,6 +105,17 @@ def run_inprocess(
         problem, scn.spawn_ne_m.copy(), np.ones(len(scn.spawn_ne_m), bool), scn.task_track_m
     )
     tau = mission.run.n_steps
+    task_dist_m = np.hypot(*scn.task_track_m.reshape(-1, 2).T)
+    endurance = endurance_run(
+        mission.endurance,
+        len(scn.spawn_ne_m),
+        mission.run.duration_s,
+        scn.dt_s,
+        mission.vehicles.limits.max_speed_m_s,
+        mean_post_dist_m=0.5 * float(task_dist_m.mean()) if task_dist_m.size else 0.0,
+        battery=battery,
+        rotation=rotation,
+    )
     # Targets as the station computes them (gcs.control.tick: planner, then the mission's fence).
     run = run_world(
         world,
@@ -101,6 +126,7 @@ def run_inprocess(
         controller=station_control(control_config(mission, scn)),
         record=True,
         frames=set(frames) or None,
+        endurance=endurance,
     )
     rec = run.record
     assert rec is not None  # record=True
@@ -117,9 +143,18 @@ def run_inprocess(
         for t, i in run.losses
     ]
     series = uptime_series(rec.connected[:tau])
-    return PlaybackResult(
+    result = PlaybackResult(
         seed, series.tu1, series.tu2, series, rec, losses, time.perf_counter() - t0, scn.task_names
     )
+    if endurance is not None:
+        result.endurance = endurance.summary()
+        result.battery_frac = np.array(endurance.battery_log)
+        result.losses += [
+            {"t_s": e.t_s, "event": e.kind, "index": e.drone, "other": e.other}
+            for e in endurance.events
+        ]
+        result.losses.sort(key=lambda ev: ev["t_s"])
+    return result
 
 
 def write_run_dir(
@@ -174,10 +209,12 @@ def write_run_dir(
         "tu2": result.tu2,
         "truth_tu1": result.tu1,
         "truth_tu2": result.tu2,
-        "n_losses": len(result.losses),
+        "n_losses": sum(ev["event"] == "vehicle_lost" for ev in result.losses),
         "final_alive": int(rec.alive[-1].sum()),
         "final_active": int(rec.active[-1].sum()),
         "wall_s": result.wall_s,
         "task_names": result.task_names,
     }
+    if result.endurance is not None:
+        summary["endurance"] = result.endurance
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))

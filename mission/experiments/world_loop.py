@@ -30,6 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from gcs.control import ControlConfig, tick as control_tick
+from mission.experiments.endurance import EnduranceRun
 from planner.hazard import HazardMap
 from planner.methods import PlanOutput, Planner, TickInput
 from vehicle_emu.world import World
@@ -147,6 +148,7 @@ def run_world(
     record: bool = False,
     frames: Collection[int] | None = (),
     hazards: HazardMap | None = None,
+    endurance: EnduranceRun | None = None,
 ) -> WorldRun:
     """Run ``world`` for ``n_steps`` steps under ``planner``.
 
@@ -163,6 +165,8 @@ def run_world(
     frames : steps at which to keep the task tree (with ``record``); None keeps every step
     hazards : the mission's hazard zones, given to the planner in every ``TickInput`` (None: no
         zones, the paper's world); :func:`station_control` passes its ``ControlConfig.hazards``
+    endurance : batteries and relay rotation (:mod:`mission.experiments.endurance`); None: endless
+        batteries, every alive drone planned (the paper's world, untouched)
     """
     control = direct_control if controller is None else controller
     tau = int(n_steps)
@@ -191,6 +195,14 @@ def run_world(
         if t == tau:
             break
         alive_count[t], active_count[t] = world.alive.sum(), active.sum()
+        if endurance is not None:
+            lost, tree = _endurance_step(
+                t, world, planner, control, active, loss_prob, attrition_u[t], hazards, endurance
+            )
+            if rec is not None and keep_tree(t):
+                rec.trees[t] = tree
+            losses.extend((t, int(i)) for i in np.flatnonzero(lost))
+            continue
         out = control(
             planner,
             TickInput(t, world.pos_m, world.alive, active, world.task_pos_m, world.base_m, hazards),
@@ -201,3 +213,38 @@ def run_world(
         lost = world.step(out.disp_m, active, p_loss, attrition_u[t], out.recovery_target_m)
         losses.extend((t, int(i)) for i in np.flatnonzero(lost))
     return WorldRun(connected, alive_count, active_count, losses, rec)
+
+
+def _endurance_step(
+    t: int,
+    world: World,
+    planner: Planner,
+    control: Controller,
+    active: np.ndarray,
+    loss_prob: LossProb,
+    attrition_u: np.ndarray,
+    hazards: HazardMap | None,
+    endurance: EnduranceRun,
+) -> tuple[np.ndarray, Any]:
+    """One step with batteries (:mod:`mission.experiments.endurance`): the rotation policy decides
+    who the planner plans; spares, returning drones and drones on the ground go where the policy
+    says; the ground is safe from attrition; the batteries drain and the firmware's failsafes act.
+    Returns (N,) bool, the drones lost this step (attrition or a critical-battery landing), and
+    the planner's tree."""
+    rot = endurance.before_step(t, world, active)
+    planned = rot.planned & world.alive
+    out = control(
+        planner,
+        TickInput(
+            t, world.pos_m, planned, active & planned, world.task_pos_m, world.base_m, hazards
+        ),
+    )
+    target = rot.target_m.copy()
+    if out.recovery_target_m is not None:  # a planner's rally points, for its planned drones
+        target[planned] = np.asarray(out.recovery_target_m, float)[planned]
+    grounded = world.grounded if world.grounded is not None else np.zeros(len(planned), bool)
+    p_loss = loss_prob(t, world.pos_m) if callable(loss_prob) else loss_prob
+    p_loss = np.where(grounded, 0.0, p_loss)
+    pos_before = world.pos_m.copy()
+    lost = world.step(out.disp_m, active & planned, p_loss, attrition_u, target)
+    return lost | endurance.after_step(t, world, pos_before), out.tree

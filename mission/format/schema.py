@@ -78,6 +78,9 @@ __all__ = [
     "Circle",
     "PlannerSpec",
     "RunSpec",
+    "BatterySpec",
+    "BaseSpec",
+    "EnduranceSpec",
     "OutputSpec",
     "PERSONALITIES",
     "BORDERS",
@@ -691,6 +694,82 @@ class Attrition(_Section):
 
 
 # --------------------------------------------------------------------------------------------
+# Endurance: batteries and the base (docs/design/endurance.md)
+
+
+@dataclass(frozen=True, kw_only=True)
+class BatterySpec(_Section):
+    """The drones' batteries (truth in the in-process world and the emulator; the station only
+    sees what the telemetry says)."""
+
+    endurance_s: float = _f(1500.0, gt=0.0, le=86_400.0)
+    """Hover time on a full battery, seconds (25 minutes: a common relay multirotor)."""
+    speed_drain_factor: float = _f(0.3, ge=0.0, le=10.0)
+    """Extra drain at full speed: the drain is ``(1 + f (v / max_speed)^2) / endurance_s``."""
+    low_frac: float = _f(0.20, gt=0.0, lt=1.0)
+    """The firmware's low-battery level, as a fraction of capacity, where its failsafe returns
+    the drone to launch (what ``--apply-failsafes`` sets; the reference without rotation)."""
+    critical_frac: float = _f(0.10, ge=0.0, lt=1.0)
+    """The firmware's critical level: its failsafe lands the drone where it is."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        if not self.critical_frac < self.low_frac:
+            return [("critical_frac", f"must be below low_frac ({_fmt(self.low_frac)})")]
+        return []
+
+
+@dataclass(frozen=True, kw_only=True)
+class BaseSpec(_Section):
+    """What the base can do for batteries. Unset: the planner's defaults
+    (``planner.endurance.BaseResources``, docs/design/endurance.md §2)."""
+
+    pads: int | None = _f(None, ge=1, le=1000)
+    """Landing pads where a battery is swapped, one drone at a time each."""
+    swap_time_s: float | None = _f(None, gt=0.0, le=86_400.0)
+    """Time on the pad for one swap, seconds."""
+    spare_batteries: int | None = _f(None, ge=0, le=1_000_000)
+    """Charged batteries on the shelf at the start, beyond one in every drone."""
+    chargers: int | None = _f(None, ge=0, le=10_000)
+    """Batteries charging at once."""
+    charge_time_s: float | None = _f(None, gt=0.0, le=86_400.0)
+    """Time to charge one battery, seconds."""
+
+    def resources(self) -> Any:
+        """The :class:`planner.endurance.BaseResources` of this base (unset fields: defaults)."""
+        from planner.endurance import BaseResources
+
+        given = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        return BaseResources(**{k: v for k, v in given.items() if v is not None})
+
+
+@dataclass(frozen=True, kw_only=True)
+class EnduranceSpec(_Section):
+    """Batteries and relay rotation. Without ``battery`` every battery is endless (the paper's
+    world, and every mission that does not ask for endurance)."""
+
+    battery: BatterySpec | None = None
+    """The drones' batteries; unset: endless."""
+    base: BaseSpec = _f(factory=BaseSpec)
+    """Pads, swaps, batteries and chargers at the base."""
+    rotation: bool = True
+    """Rotate relays through the base before their reserve; false: fly until the firmware's
+    low-battery failsafe, relaunch after the swap (the reference)."""
+    params: dict[str, float | int] = _f(factory=dict)
+    """Rotation policy settings (``planner.endurance.EnduranceParams``: margin_frac, handover_s,
+    launch_s, hold_radius_m, slack_s)."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        from planner.endurance import EnduranceParams
+
+        names = {f.name for f in dataclasses.fields(EnduranceParams)}
+        names -= {"critical_frac", "return_speed_m_s"}  # from the battery and the vehicles
+        bad = sorted(set(self.params) - names)
+        if bad:
+            return [("params", f"unknown setting(s) {', '.join(bad)}; valid: {', '.join(sorted(names))}")]
+        return []
+
+
+# --------------------------------------------------------------------------------------------
 # Planner, run, output
 
 
@@ -846,6 +925,8 @@ class Mission(_Section):
     """Duration, control period, seed, speed-up."""
     geofence: GeofenceSpec = _f(factory=GeofenceSpec)
     """Where the ground station lets drones fly."""
+    endurance: EnduranceSpec = _f(factory=EnduranceSpec)
+    """Batteries, the base's pads and chargers, relay rotation (default: endless batteries)."""
     output: OutputSpec = _f(factory=OutputSpec)
     """Run directory."""
 
@@ -962,10 +1043,18 @@ class Mission(_Section):
             extra.append(f"{len(att.scripted)} scripted losses")
         if att.hazard_zones:
             extra.append(f"{len(att.hazard_zones)} hazard zones")
+        end = self.endurance
+        batteries = ""
+        if end.battery is not None:
+            batteries = (
+                f", {end.battery.endurance_s / 60:.0f}-min batteries, "
+                + ("relay rotation" if end.rotation else "no rotation")
+            )
         return (
             f"{self.name}: {fleet}, {self.n_tasks} tasks ({tasks}), radio {_fmt(self.radio.range_m)} m, "
             f"attrition {att.rate_per_s:.4g}/s"
             + (f" + {', '.join(extra)}" if extra else "")
+            + batteries
             + f", planner {self.planner.method} ({self.planner.info}), "
             f"{_fmt(self.run.duration_s)} s at {_fmt(self.run.control_period_s)} s/step, "
             f"seed {self.run.seed}, origin {self.origin.lat_deg:.5f}, {self.origin.lon_deg:.5f}"
