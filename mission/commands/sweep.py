@@ -14,7 +14,8 @@ Run every (configuration, seed) of a grid with mission.experiments.sim and store
 results store: the full resolved configuration, the seed, the code version, TU1/TU2, wall time and
 status. Runs already in the store are skipped, so killing a sweep at any moment (Ctrl-C, kill -9,
 a lost node) and rerunning the same command finishes it with nothing lost or duplicated. A run that
-raises is stored as an error row and the sweep goes on (exit status 1 if the grid has error rows).
+raises is stored as an error row and the sweep goes on (exit status 1 if the grid has error rows,
+or if runs were lost to the executor: rerun the same command to finish).
 
 grids:
   paper-table      Table II: sizes XS S M L XL x attrition 0 0.5 1 2 5 %/step x phireman, dccrs,
@@ -25,9 +26,24 @@ grids:
 
 executors:
   local (default)  a process pool of --workers processes (chunks of seeds, largest configs first)
-  dask             --scheduler tcp://host:port uses an existing cluster (every worker must have
-                   this package installed); without --scheduler a LocalCluster of --workers
-                   single-threaded processes. Runs are deterministic by seed: same rows either way.
+  dask             --scheduler tcp://host:port (or the file 'dask scheduler --scheduler-file'
+                   writes) uses an existing cluster (every worker must have this package
+                   installed); without --scheduler a LocalCluster of --workers single-threaded
+                   processes. Runs are deterministic by seed: same rows either way.
+
+on a Dask cluster (this package, same version, on every machine: pip install -e '.[dask]'):
+  dask scheduler --port 8786                            # on one machine (HEAD)
+  dask worker tcp://HEAD:8786 --nthreads 1 --nworkers N  # on each machine, N = its cores
+  phireman sweep --grid paper-table --scheduler tcp://HEAD:8786 --store results.sqlite
+  A worker lost mid-sweep (killed, its machine gone) loses nothing: the scheduler runs its tasks
+  again on the other workers and the command finishes with every row. If the scheduler goes (or
+  one task kills 3 workers), the runs in flight are reported lost and the command exits 1; rerun
+  it to finish. With no worker left the sweep waits for one to join.
+  On one machine, on loopback with ports the system chooses (what
+  tests/mission/test_sweep_dask_cluster.py runs; the scheduler writes its address to sched.json):
+  dask scheduler --host 127.0.0.1 --port 0 --dashboard-address 127.0.0.1:0 --scheduler-file sched.json
+  dask worker --scheduler-file sched.json --nthreads 1    # twice: two worker processes
+  phireman sweep --grid custom --size XS --attrition 0 1% --method phireman dccrs --seeds 3 --chunk 1 --scheduler sched.json --store cluster.sqlite
 
 examples:
   phireman sweep --grid paper-table --store results.sqlite
@@ -85,7 +101,8 @@ def add_common_arguments(
         "--scheduler",
         default=None,
         metavar="ADDR",
-        help="existing Dask scheduler, e.g. tcp://host:8786 (implies --executor dask)",
+        help="existing Dask scheduler: its address, e.g. tcp://host:8786, or the file written by "
+        "'dask scheduler --scheduler-file FILE' (implies --executor dask)",
     )
     p.add_argument(
         "--chunk",
@@ -278,7 +295,7 @@ def execute(grid, args, argv: list[str]) -> int:
                 store,
                 executor=args.executor,
                 workers=args.workers,
-                scheduler=args.scheduler,
+                scheduler=scheduler_address(args.scheduler),
                 chunk=args.chunk,
                 progress=not args.no_progress,
                 retry_errors=args.retry_errors,
@@ -319,7 +336,33 @@ def execute(grid, args, argv: list[str]) -> int:
             file=sys.stderr,
         )
         return 1
-    return 0
+    # Lost runs (a scheduler gone, a task that killed its workers) leave the grid incomplete: a
+    # script chaining 'sweep && report' must not go on as if it were done.
+    return 1 if summary.lost else 0
+
+
+def scheduler_address(value: str | None) -> str | None:
+    """--scheduler: a Dask scheduler address as given, or the address in a scheduler file.
+
+    ``dask scheduler --scheduler-file FILE`` writes its address (with the port it chose for
+    ``--port 0``) to FILE as JSON; anything with ``://`` or that is not a file is an address.
+    """
+    from mission.cli import UserError
+
+    if value is None or "://" in value:
+        return value
+    path = pathlib.Path(value)
+    if not (path.is_file() or path.suffix == ".json"):
+        return value  # host:port
+    try:
+        address = json.loads(path.read_text())["address"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UserError(
+            f"--scheduler {value}: not a readable Dask scheduler file "
+            f"({type(exc).__name__}: {exc}); give tcp://host:port or the file of "
+            f"'dask scheduler --scheduler-file'"
+        ) from None
+    return str(address)
 
 
 def build_grid(args):

@@ -613,6 +613,10 @@ class DaskExecutor:
     """A ``dask.distributed`` cluster: an existing one (``scheduler``) or a LocalCluster.
 
     Every worker must be able to import this package (``pip install -e .`` or a shared venv).
+    A worker lost mid-sweep loses nothing: the scheduler runs its tasks again on the others (up to
+    ``distributed.scheduler.allowed-failures`` worker deaths per task). A task lost beyond that,
+    or with the scheduler, comes back as an exception: its runs are not stored and a rerun retries
+    them (tests/mission/test_sweep_dask_cluster.py).
     """
 
     name = "dask"
