@@ -52,6 +52,7 @@ __all__ = [
     "BaseResources",
     "EnduranceParams",
     "FleetPlan",
+    "PAD_UTILISATION",
     "RotationEvent",
     "RotationOutput",
     "RotationPolicy",
@@ -75,6 +76,11 @@ PHASES: tuple[str, ...] = (
     "ready",
     "lost",
 )
+
+
+#: The share of the pads' time a plan may use (:func:`plan_fleet`); at full use every small delay
+#: queues drones at the base, and the queue only grows.
+PAD_UTILISATION = 0.8
 
 
 @dataclass(frozen=True)
@@ -166,6 +172,7 @@ def time_to_reserve_s(
     drain_per_s: FloatArray,
     dist_home_m: FloatArray,
     params: EnduranceParams,
+    return_drain_per_s: FloatArray | None = None,
 ) -> FloatArray:
     """(N,) seconds until each drone must start home (0 when already due; inf if not draining).
 
@@ -174,10 +181,13 @@ def time_to_reserve_s(
     battery_frac : (N,) remaining charge, fraction of capacity (NaN: unknown -> 0 s)
     drain_per_s : (N,) fraction of capacity used per second at the current load
     dist_home_m : (N,) distance to the base, metres
+    return_drain_per_s : (N,) the drain on the way home (at return speed); default
+        ``drain_per_s``
     """
     b = np.asarray(battery_frac, float)
     r = np.asarray(drain_per_s, float)
-    left = b - reserve_frac(dist_home_m, r, params)
+    r_home = r if return_drain_per_s is None else np.asarray(return_drain_per_s, float)
+    left = b - reserve_frac(dist_home_m, r_home, params)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(r > 0, left / np.where(r > 0, r, 1.0), np.inf)
     t = np.where(np.isnan(b), 0.0, t)
@@ -214,7 +224,7 @@ def plan_fleet(
 
     * the fleet: each of the K positions needs a fresh drone every sortie, and a drone is away from
       the plan for the cycle's non-useful part: ``K * cycle / sortie <= n_drones``;
-    * the pads: ``K / sortie`` swaps per second at most ``pads / swap_time_s``;
+    * the pads: ``K / sortie`` swaps per second at most ``PAD_UTILISATION * pads / swap_time_s``;
     * the batteries: at every time t up to the horizon, the ``K * (1 + t / sortie)`` battery lives
       used so far at most the ones in the drones, the spare stock and what the chargers have given
       back by then (the first charged battery comes back one charge after the first swap).
@@ -243,7 +253,8 @@ def plan_fleet(
     ground_s = base.swap_time_s + params.handover_s + transit_s + mean_dist_m / v
     cycle_s = sortie_s + ground_s
     k_fleet = math.floor(n_drones * sortie_s / cycle_s)
-    k_pads = math.floor(base.pads * sortie_s / base.swap_time_s)
+    # Pads busy at most PAD_UTILISATION of the time: a queue at full use grows without bound.
+    k_pads = math.floor(PAD_UTILISATION * base.pads * sortie_s / base.swap_time_s)
 
     # Battery lives used by time t: the K in the air at the start and one per post per sortie,
     # K * (1 + t / sortie). Lives available: one in every drone, the stock, and what the chargers
@@ -363,6 +374,7 @@ class RotationPolicy:
         landed_at_base: BoolArray,
         base_m: FloatArray | None = None,
         swap_done: BoolArray | None = None,
+        return_drain_per_s: FloatArray | None = None,
     ) -> RotationOutput:
         """Advance the rotation to ``now_s`` and decide this tick.
 
@@ -380,6 +392,8 @@ class RotationPolicy:
         base_m : (2,) base position (default origin)
         swap_done : (N,) the ground crew confirmed the swap of a drone on a pad (or it came back
             powered and full); None: swaps finish after ``swap_time_s``
+        return_drain_per_s : (N,) the drain flying home at return speed (the reserve's way
+            home); default ``drain_per_s``
         """
         n = self.n_drones
         p = self.params
@@ -463,7 +477,7 @@ class RotationPolicy:
         # 5. Reserve: who must go home now, and who needs a spare launched now.
         dist = np.hypot(pos[:, 0] - base[0], pos[:, 1] - base[1])
         in_air = (ph == AIR) | (ph == INBOUND)
-        t_res = time_to_reserve_s(batt, rate, dist, p)
+        t_res = time_to_reserve_s(batt, rate, dist, p, return_drain_per_s)
         if not self.rotate:
             # No rotation: only the firmware's failsafe (:meth:`failsafe`) sends a drone home, and
             # a drone ready at the base relaunches into the plan at once.
@@ -486,15 +500,18 @@ class RotationPolicy:
             self.counters["forced_returns"] += 1
             events.append(RotationEvent(now_s, "forced_return", int(i)))
         lead_s = p.launch_s + dist / p.return_speed_m_s + p.handover_s + p.slack_s
-        need = (ph == AIR) & (self.replaced_by < 0) & (t_res <= lead_s)
+        relief_s = self._relief_schedule(t_res, dist, (ph == AIR) & (self.replaced_by < 0), alive)
+        need = (ph == AIR) & (self.replaced_by < 0) & (relief_s <= lead_s)
         if need.any():
             # Most urgent first; the fullest spare goes.
-            order = np.flatnonzero(need)[np.argsort(t_res[need], kind="stable")]
+            order = np.flatnonzero(need)[np.argsort(relief_s[need], kind="stable")]
             spares = np.flatnonzero(ph == READY)
             spares = spares[np.argsort(-np.nan_to_num(batt[spares], nan=0.0), kind="stable")]
             for n_used, j in enumerate(order):
                 if n_used >= len(spares):
-                    if ("no_spare", int(j)) not in self._reported:
+                    # Starved only when its own reserve is due, not when the schedule wanted it
+                    # relieved early (docs/design/endurance.md §3).
+                    if t_res[j] <= lead_s[j] and ("no_spare", int(j)) not in self._reported:
                         self._reported.add(("no_spare", int(j)))
                         self.counters["no_spare"] += 1
                         events.append(RotationEvent(now_s, "no_spare", int(j)))
@@ -526,6 +543,39 @@ class RotationPolicy:
         target[home] = base
         on_ground = (ph == LANDED) | (ph == SWAPPING) | (ph == NO_BATTERY) | (ph == READY)
         return RotationOutput(ph == AIR, target, on_ground, swapped, tuple(events))
+
+    def _relief_schedule(
+        self, t_res: FloatArray, dist_m: FloatArray, waiting: BoolArray, alive: BoolArray
+    ) -> FloatArray:
+        """(N,) seconds from now until each waiting relay should be relieved (inf elsewhere).
+
+        No later than its reserve, and no two reliefs closer than the base can turn a spare
+        around: ``spacing = max(turnaround / spares in circulation, swap_time / pads)``, where a
+        spare's turnaround is its way out and back, the handover and a swap. Relays whose reserves
+        fall due together (the first battery of a fleet that took off together) are relieved
+        early, one spacing apart, instead of all at once with too few spares: the backward pass
+        ``r_k = min(t_res_k, r_(k+1) - spacing)`` over the relays sorted by reserve, as a reversed
+        running minimum (docs/design/endurance.md §3).
+        """
+        out = np.full(self.n_drones, np.inf)
+        idx = np.flatnonzero(waiting)
+        if idx.size == 0:
+            return out
+        p = self.params
+        circulating = int(np.count_nonzero(alive & (self.phase != AIR) & (self.phase != LOST)))
+        turnaround_s = (
+            p.launch_s
+            + 2.0 * float(dist_m[idx].mean()) / p.return_speed_m_s
+            + p.handover_s
+            + self.base.swap_time_s
+        )
+        spacing_s = max(turnaround_s / max(1, circulating), self.base.swap_time_s / self.base.pads)
+        order = idx[np.argsort(t_res[idx], kind="stable")]
+        ranks = np.arange(order.size) * spacing_s
+        shifted = t_res[order] - ranks
+        # r_k = min_{j >= k}(t_res_j - j * spacing) + k * spacing
+        out[order] = np.minimum.accumulate(shifted[::-1])[::-1] + ranks
+        return out
 
     def failsafe(self, i: int, now_s: float) -> RotationEvent:
         """Drone ``i``'s firmware sent it home on its own (a low-battery failsafe's RTL): it leaves

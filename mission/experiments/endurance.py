@@ -62,6 +62,7 @@ class EnduranceRun:
 
     def __post_init__(self) -> None:
         self.battery_frac = np.ones(self.policy.n_drones)
+        self._last_drain_per_s = np.zeros(self.policy.n_drones)
 
     def before_step(self, t: int, world: World, active: np.ndarray) -> RotationOutput:
         """The policy's decision at the start of step ``t``: who is planned, where the others go."""
@@ -71,9 +72,11 @@ class EnduranceRun:
         now_s = t * self.dt_s
         d_home = np.hypot(*(world.pos_m - world.base_m).T)
         landed = (self.policy.phase == RETURNING) & (d_home <= LAND_RADIUS_M)
-        # What telemetry would say: whole percent; the way home planned at the full-speed drain.
+        # What telemetry would say: whole percent, and the drain of the last step (as the station
+        # estimates it from consecutive readings); the way home planned at the full-speed drain.
         reported = np.round(self.battery_frac * 100.0) / 100.0
-        drain = np.full(n, (1.0 + self.speed_drain_factor) / self.endurance_s)
+        hover = 1.0 / self.endurance_s
+        drain = np.maximum(self._last_drain_per_s, hover)
         out = self.policy.step(
             now_s,
             world.pos_m,
@@ -83,6 +86,7 @@ class EnduranceRun:
             networked=active,
             landed_at_base=landed,
             base_m=world.base_m,
+            return_drain_per_s=np.full(n, (1.0 + self.speed_drain_factor) * hover),
         )
         self.events.extend(out.events)
         self.battery_frac[out.battery_swapped] = 1.0
@@ -101,6 +105,7 @@ class EnduranceRun:
         frac_speed = np.minimum(speed / self.max_speed_m_s, 1.0)
         drain = self.dt_s / self.endurance_s * (1.0 + self.speed_drain_factor * frac_speed**2)
         self.battery_frac = np.where(flying, self.battery_frac - drain, self.battery_frac)
+        self._last_drain_per_s = np.where(flying, drain / self.dt_s, 0.0)
         if flying.any():
             self.min_battery_in_air = min(
                 self.min_battery_in_air, float(self.battery_frac[flying].min())
@@ -162,8 +167,10 @@ def endurance_run(
     if spec is None or battery == "unlimited":
         return None
     rotate = endurance.rotation if rotation == "mission" else rotation == "on"
+    # The level the policy must never reach in the air is the firmware's *first* action, its
+    # low-battery return to launch: below it the autopilot, not the plan, decides.
     params = EnduranceParams(
-        critical_frac=spec.critical_frac,
+        critical_frac=spec.low_frac,
         return_speed_m_s=max_speed_m_s,
         **endurance.params,
     )
