@@ -58,31 +58,48 @@ class UserError(Exception):
 
 
 def parse_rate(text: str, option: str = "--attrition") -> float:
-    """A probability given as a fraction (``0.01``) or a percent (``1%``): the one rate parser.
+    """A probability given as a fraction (``0.01``) or a percent (``1%``): the one rate parser
+    of every command that takes one (sim, sweep, tune, mission new).
+
+    A bare number must be a fraction below 1. ``1`` is refused as ambiguous (1 % or 100 %?)
+    and so is any bare number above 1 (``2`` is not a probability; ``2%`` is): the message
+    spells out both readings, so nobody runs 100 %/step by accident. 100 % is written ``100%``.
 
     Raises
     ------
     UserError
-        Not a number, or outside [0, 1].
+        Not a number, a bare number >= 1, or outside [0, 1].
     """
+    at = f"{option}: " if option else ""
     t = str(text).strip()
+    percent = t.endswith("%")
     try:
-        value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
+        value = float(t[:-1]) / 100 if percent else float(t)
     except ValueError:
         raise UserError(
-            f"{option}: expected a fraction like 0.01 or a percent like 1%, got {text!r}"
+            f"{at}expected a fraction like 0.01 or a percent like 1%, got {text!r}"
         ) from None
+    if not percent and value == 1.0:
+        raise UserError(
+            f"{at}{text} is ambiguous: write 1% (or 0.01) for one percent, or 100% to "
+            "lose every drone at every step"
+        )
+    if not percent and 1.0 < value <= 100.0:
+        raise UserError(
+            f"{at}{text} is not a probability (a fraction below 1); "
+            f"did you mean {t}% (= {value / 100:g})?"
+        )
     if not 0.0 <= value <= 1.0:
-        raise UserError(f"{option}: {text} is not a probability in [0, 1] (0.01 = 1%)")
+        raise UserError(f"{at}{text} is not a probability in [0, 1] (0.01 = 1%)")
     return value
 
 
 def rate_arg(text: str) -> float:
     """argparse ``type=`` for a single rate (0.01 or 1%)."""
     try:
-        return parse_rate(text)
+        return parse_rate(text, option="")  # argparse names the option itself
     except UserError as exc:
-        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[-1]) from None
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def positive_int(text: str) -> int:
