@@ -6,7 +6,17 @@ import argparse
 import math
 import sys
 
-__all__ = ["HELP", "DESCRIPTION", "add_arguments", "run", "format_status", "format_param_changes"]
+__all__ = [
+    "HELP",
+    "DESCRIPTION",
+    "add_arguments",
+    "run",
+    "format_status",
+    "status_layout",
+    "planned_drop",
+    "STATUS_DROP_ORDER",
+    "format_param_changes",
+]
 
 HELP = "fly a mission with the ground station (built-in emulator by default, or --connect)"
 DESCRIPTION = """\
@@ -33,9 +43,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "mission",
         nargs="?",
-        default="wildfire",
+        default=None,
         metavar="MISSION",
         help="mission file or shipped example name (default: wildfire)",
+    )
+    p.add_argument(
+        "--mission",
+        dest="mission_option",
+        default=None,
+        metavar="MISSION",
+        help="the same as the MISSION argument (as 'sim' and 'sitl' take it)",
     )
     p.add_argument(
         "--connect",
@@ -135,11 +152,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_fly_arguments(p)  # --serve, --serve-actions, --tiles, --forward, --forward-readonly
 
 
-def _load(spec: str):
+def _mission_path(spec: str):
     from pathlib import Path
 
     from mission.cli import UserError
-    from mission.format.load import MissionError, load_mission
 
     path = Path(spec)
     if not path.exists():
@@ -152,6 +168,29 @@ def _load(spec: str):
                 f"{spec!r} is neither a mission file nor a shipped example "
                 f"({', '.join(list_examples())})"
             ) from None
+    return path
+
+
+def _mission_spec(args) -> str:
+    """The mission to fly: the MISSION argument or ``--mission`` (one, or both naming the same
+    file), else the shipped 'wildfire'."""
+    from mission.cli import UserError
+
+    given, option = args.mission, args.mission_option
+    if given is not None and option is not None and given != option:
+        if _mission_path(given).resolve() != _mission_path(option).resolve():
+            raise UserError(
+                f"two missions given: {given!r} and --mission {option!r}; give one "
+                "(--mission is the same as the MISSION argument)"
+            )
+    return option or given or "wildfire"
+
+
+def _load(spec: str):
+    from mission.cli import UserError
+    from mission.format.load import MissionError, load_mission
+
+    path = _mission_path(spec)
     try:
         return load_mission(path)
     except MissionError as exc:
@@ -177,33 +216,100 @@ _PHASE_WORDS = {
 }
 
 
-def format_status(d: dict, width: int = 80) -> str:
-    """One status line for people that fits ``width`` columns (80 at least; more detail when
-    there is room): phase, mission clock, drones by state, crews connected, TU so far."""
-    phase = _PHASE_WORDS.get(d["phase"], d["phase"])
+def _status_fields(d: dict) -> list[tuple[str, str]]:
+    """The status line's fields as (group, text), in the order shown."""
     if d["phase"] == "run":
         t = f"{d['t_mission_s']:.0f}/{d['duration_s']:.0f}s"
     elif d["phase"] in ("end", "done") and d.get("end_t0_s") is not None:
         t = f"+{d['t_s'] - d['end_t0_s']:.0f}s"
     else:
         t = f"{d['t_s']:.0f}s"
-    tu = f"TU1 {_pct0(d['tu1'])} TU2 {_pct0(d['tu2'])}"
-    crews = f"crews {d['tasks_covered']}/{d['n_tasks']}"
-    state = f"{d['networked']} net {d['lost']} lost {d['returning']} home"
-    line = f"{phase} {t} | {d['fleet']} drones: {state} | {crews} | {tu}"
-    if len(line) > width - 1:  # big fleets on a narrow terminal: the same words, tighter
-        tu = f"TU1/TU2 {_pct0(d['tu1'])}/{_pct0(d['tu2'])}"
-        line = f"{phase} {t} {d['fleet']} drones: {state}, {crews}, {tu}"
-    if width >= 110:
-        extra = []
-        if d.get("reclaims"):
-            extra.append(f"{d['reclaims']} reclaimed")
-        modes = " ".join(f"{k}:{v}" for k, v in sorted(d["modes"].items(), key=lambda kv: -kv[1]))
-        if modes:
-            extra.append(modes)
-        if extra:
-            line += " | " + ", ".join(extra)
-    return line[: max(40, width - 1)]
+    covered = "-" if d.get("tasks_covered") is None else d["tasks_covered"]
+    n_tasks = "-" if d.get("n_tasks") is None else d["n_tasks"]
+    fields = [
+        ("phase", _PHASE_WORDS.get(d["phase"], d["phase"])),
+        ("clock", t),
+        ("drones", f"{d['fleet']} drones:"),
+        ("net", f"{d['networked']} net"),
+        ("lost", f"{d['lost']} lost"),
+        ("home", f"{d['returning']} home"),
+        ("crews", f"crews {covered}/{n_tasks}"),
+        ("tu", f"TU1 {_pct0(d['tu1'])} TU2 {_pct0(d['tu2'])}"),
+    ]
+    if d.get("reclaims"):
+        fields.append(("reclaimed", f"{d['reclaims']} reclaimed"))
+    modes = " ".join(f"{k}:{v}" for k, v in sorted(d["modes"].items(), key=lambda kv: -kv[1]))
+    if modes:
+        fields.append(("modes", modes))
+    return fields
+
+
+#: The order in which fields leave a status line too wide for the terminal: the lesser first;
+#: TU1/TU2 never leave.
+STATUS_DROP_ORDER = (
+    "modes",
+    "reclaimed",
+    "home",
+    "lost",
+    "crews",
+    "drones",
+    "net",
+    "clock",
+    "phase",
+)
+
+#: How the fields are grouped into the line's parts (``a b | c d e | ...``).
+_STATUS_PARTS = (("phase", "clock"), ("drones", "net", "lost", "home"), ("crews",), ("tu",))
+
+
+def _status_line(fields: list[tuple[str, str]], dropped: int) -> str:
+    gone = set(STATUS_DROP_ORDER[:dropped])
+    text = dict(f for f in fields if f[0] not in gone)
+    if "drones" in text and "net" not in text:
+        del text["drones"]
+    elif "drones" not in text and "net" in text:
+        # "40 net" alone would not say of how many: "40/50 net"
+        text["net"] = f"{text['net'].split()[0]}/{dict(fields)['drones'].split()[0]} net"
+    parts = [" ".join(text[k] for k in part if k in text) for part in _STATUS_PARTS]
+    parts += [text[k] for k in ("reclaimed", "modes") if k in text]
+    return " | ".join(p for p in parts if p)
+
+
+def status_layout(d: dict, width: int = 80, dropped: int = 0) -> tuple[str, int]:
+    """(line, fields left out) for :func:`format_status`: the fullest line of at most
+    ``width - 1`` columns leaving out at least ``dropped`` fields (:data:`STATUS_DROP_ORDER`)."""
+    fields = _status_fields(d)
+    for k in range(dropped, len(STATUS_DROP_ORDER) + 1):
+        line = _status_line(fields, k)
+        if len(line) <= width - 1:
+            return line, k
+    return line, len(STATUS_DROP_ORDER)  # TU1/TU2 alone, even if wider than the terminal
+
+
+def planned_drop(d: dict, width: int = 80) -> int:
+    """Fields to leave out for the whole run so that its widest plausible line fits ``width``:
+    every count at the expected fleet (``fleet_expected``, else the fleet heard so far), every
+    crew connected, TU at 100 %, the mission clock at its end, the longest phase word. Reclaims
+    and modes, at the end of the line, are not planned for: they show while there is room."""
+    n = max(d["fleet"], d.get("fleet_expected") or 0)
+    n_tasks = d.get("n_tasks") or 0
+    base = dict(d, fleet=n, networked=n, lost=n, returning=n, tasks_covered=n_tasks)
+    base.update(tu1=1.0, tu2=1.0, reclaims=0, modes={})
+    widest = [
+        dict(base, phase="run", t_mission_s=d["duration_s"]),
+        dict(base, phase="launch", t_s=max(d["t_s"], 999.0)),
+        dict(base, phase="end", end_t0_s=0.0, t_s=999.0),
+    ]
+    return max(status_layout(w, width)[1] for w in widest)
+
+
+def format_status(d: dict, width: int = 80, dropped: int = 0) -> str:
+    """One status line for people within ``width - 1`` columns: phase and its clock, drones by
+    state, crews connected (``-/10`` until the first control tick measured them), TU so far,
+    then reclaims and modes when there is room. One format from finding to the end: on a narrow
+    terminal whole fields are left out, the lesser first (:data:`STATUS_DROP_ORDER`), never the
+    TU figures; the wording and separators never change."""
+    return status_layout(d, width, dropped)[0]
 
 
 def format_param_changes(changes) -> list[str]:
@@ -236,6 +342,7 @@ class _Status:
         self.tty = stream.isatty()
         self.columns = shutil.get_terminal_size((80, 24)).columns if self.tty else 80
         self.width = 0
+        self.dropped = 0  # fields left out so far: once out, out for the rest of the run
         self.last_phase = None
         self.last_print_t = -math.inf
         self._failures_warned = 0
@@ -285,7 +392,10 @@ class _Status:
 
     def __call__(self, d: dict) -> None:
         self._warnings(d)
-        line = format_status(d, self.columns)
+        # Fields left out are planned for the widest line of the run, and a field left out
+        # once stays out: the line keeps one look from finding to the end.
+        self.dropped = max(self.dropped, planned_drop(d, self.columns))
+        line, self.dropped = status_layout(d, self.columns, self.dropped)
         if self.tty:
             pad = max(0, self.width - len(line))
             self.stream.write("\r" + line + " " * pad)
@@ -361,7 +471,7 @@ def run(args) -> int:
     from mission.cli import UserError
     from mission.flight.runners import FlyOptions, RunnerError, fly
 
-    mission = _load(args.mission)
+    mission = _load(_mission_spec(args))
     if args.speedup is not None and not args.speedup > 0:
         raise UserError(f"--speedup must be > 0, got {args.speedup}")
     if args.duration_s is not None and not args.duration_s > 0:

@@ -204,7 +204,9 @@ def _rally_keeper(mission: Mission, params: dict) -> RallyKeeper | None:
     )
 
 
-def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> dict:
+def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world, n_tasks: int) -> dict:
+    """The status for people (``FlyOptions.status``). ``n_tasks``: the mission's crews, shown
+    from the start; ``tasks_covered`` is None until the first control tick measured it."""
     snap = op.fleet.snapshot(now_s)
     modes: dict[str, int] = {}
     for m, lost in zip(snap.mode, snap.lost):
@@ -221,8 +223,9 @@ def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> d
         "returning": int(snap.returning.sum()),
         "lost": int(snap.lost.sum()),
         "modes": modes,
-        "tasks_covered": last.tasks_covered if last else 0,
-        "n_tasks": last.n_tasks if last else 0,
+        "tasks_covered": last.tasks_covered if last else None,
+        "n_tasks": last.n_tasks if last else n_tasks,
+        "fleet_expected": op.config.expected_vehicles,
         "tu1": last.tu1_so_far if last else None,
         "tu2": last.tu2_so_far if last else None,
         "command_failures": op.counters["command_failures"],
@@ -371,7 +374,7 @@ async def run_station(
                 wall = time.monotonic()
                 if opts.status is not None and (wall - last_status >= 0.5 or op.finished):
                     last_status = wall
-                    d = _status_dict(op, now, rec, world)
+                    d = _status_dict(op, now, rec, world, mission.n_tasks)
                     d["speedup"] = speedup
                     d["links_down"] = [
                         (a.link_id, a.spec.text, a.down_reason) for a in adapters if not a.connected
