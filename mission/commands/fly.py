@@ -16,6 +16,9 @@ __all__ = [
     "planned_drop",
     "STATUS_DROP_ORDER",
     "format_param_changes",
+    "format_pace",
+    "format_tu",
+    "slow_pace_warning",
 ]
 
 HELP = "fly a mission with the ground station (built-in emulator by default, or --connect)"
@@ -385,8 +388,8 @@ class _Status:
                 if got < 0.5 * want:
                     self._warn(
                         f"running at {got:.1f}x instead of {want:g}x (this machine is "
-                        "too busy or the fleet too large; timings stay correct, the "
-                        "flight just takes longer)"
+                        "too busy or the fleet too large; timings stay correct, but "
+                        "results move with the pace)"
                     )
                     self._slow_warned = True
 
@@ -441,6 +444,68 @@ _EXPLAIN = (
     "already reached once\n     (so the time to first reach a crew is not held against "
     "it). 100 % = always connected."
 )
+
+
+def _secs(x: float) -> str:
+    """Seconds for people: whole when they are ("200"), else to a tenth ("107.6")."""
+    return f"{x:.1f}".removesuffix(".0")
+
+
+def format_pace(s: dict) -> list[str]:
+    """How long the flight took, from ``summary.json``: the mission seconds flown over the wall
+    seconds printed beside them, and the pace the mission itself was flown at (start-up,
+    take-off and landing are in the wall time, not in the mission seconds)."""
+    span, wall = s["mission_s_flown"], s["wall_s"]
+    overall = f"{span / wall:.1f}x" if wall > 0 else "-"
+    line = f"flown {_secs(span)} s of mission in {wall:.1f} s wall ({overall} overall"
+    if s.get("speedup_achieved") is not None:
+        line += (
+            f"; the mission itself ran at {s['speedup_achieved']:.1f}x, "
+            f"{s['speedup_requested']:g}x asked"
+        )
+    return [line + ")"]
+
+
+def slow_pace_warning(s: dict) -> str:
+    """The warning when the mission ran at under half the speed-up asked (``speedup_slow``)."""
+    return (
+        f"the mission ran at {s['speedup_achieved']:.1f}x, under half the "
+        f"{s['speedup_requested']:g}x asked (this machine was too busy or the fleet too large). "
+        "The vehicles' timings stay correct, but results such as reclaims and TU move with "
+        "the pace: compare runs flown at similar speed-ups (summary.json speedup_achieved), "
+        "or ask for less (--speedup)"
+    )
+
+
+def format_tu(s: dict) -> list[str]:
+    """TU1/TU2 as the station saw them and from the truth, both over the span flown (all of the
+    mission, or up to Ctrl-C), saying which."""
+    st = s["station"]
+    span, duration = s["flown_span_s"], s["duration_s"]
+    lines = [
+        f"TU1/TU2 as the station saw them:     {_pct(st['tu1'])} / {_pct(st['tu2'])}"
+        f"   ({st['ticks']} control ticks)"
+    ]
+    if "truth" in s:
+        tr = s["truth"]
+        lines.append(
+            f"TU1/TU2 from the emulator's truth:   {_pct(tr['tu1'])} / {_pct(tr['tu2'])}"
+            f"   ({tr['samples']} samples; {tr['alive_end']} vehicles alive at the end)"
+        )
+    both = "both" if "truth" in s else "TU"
+    if span >= duration - 1e-6:
+        lines.append(f"{both} over the whole {_secs(duration)} s mission")
+    elif s.get("interrupted") is not None:
+        lines.append(
+            f"{both} over the first {_secs(span)} s, flown before the interrupt "
+            f"(of the {_secs(duration)} s mission)"
+        )
+    else:
+        lines.append(
+            f"{both} over the first {_secs(span)} s of the {_secs(duration)} s mission, "
+            "where it stopped"
+        )
+    return lines
 
 
 def _group_report(items: list[dict], per_line: int = 12) -> list[str]:
@@ -557,7 +622,6 @@ def run(args) -> int:
                 file=sys.stderr,
             )
         return 1
-    st = s["station"]
     if op.interrupted is not None and not s.get("interrupt_report"):
         print("interrupted before any vehicle was heard: nothing was commanded", file=sys.stderr)
     elif op.interrupted is not None:
@@ -569,12 +633,12 @@ def run(args) -> int:
         for line in _group_report(s.get("interrupt_report") or []):
             print(f"  {line}", file=sys.stderr)
     print(f"run directory: {result.run_dir}")
+    for line in format_pace(s):
+        print(line)
     n_rec = s["reclaimed"]
     print(
-        f"flown {s['mission_s_flown']:.0f} s of mission in {s['wall_s']:.1f} s wall "
-        f"(speed-up {s['speedup_achieved']:.1f}x); {s['vehicles_discovered']} vehicles; "
-        f"{n_rec} reclaim{'s' if n_rec != 1 else ''} (a vehicle back from its own "
-        "failsafe, taken into the plan again)"
+        f"{s['vehicles_discovered']} vehicles; {n_rec} reclaim{'s' if n_rec != 1 else ''} "
+        "(a vehicle back from its own failsafe, taken into the plan again)"
     )
     refused: dict[int, int] = {}
     for link in s.get("links", []):
@@ -596,12 +660,12 @@ def run(args) -> int:
             f"{end['in_air']} vehicle(s) still in the air when the station stopped "
             "(returning on their own)"
         )
-    print(f"TU1/TU2 as the station saw them:     {_pct(st['tu1'])} / {_pct(st['tu2'])}")
-    if "truth" in s:
-        tr = s["truth"]
-        print(
-            f"TU1/TU2 from the emulator's truth:   {_pct(tr['tu1'])} / {_pct(tr['tu2'])}"
-            f"   ({tr['alive_end']} vehicles alive at the end)"
-        )
+    for line in format_tu(s):
+        print(line)
+    if s.get("speedup_slow"):
+        import textwrap
+
+        warning = textwrap.fill(f"warning: {slow_pace_warning(s)}", 79, subsequent_indent="  ")
+        print(warning, file=sys.stderr)
     print(_EXPLAIN)
     return 130 if op.interrupted is not None else 0

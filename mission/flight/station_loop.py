@@ -31,7 +31,7 @@ from gcs.tasks import LiveTasks
 from gcs.wire import mavlink
 from mission.flight.fly_options import FlyOptions, RunnerError
 from mission.flight.mission_world import MissionScenario, control_config
-from mission.flight.run_dir import Records
+from mission.flight.run_dir import FlightTimes, Records
 from mission.format.schema import Mission
 from planner.methods import make_planner
 from planner.problem import ProblemConfig
@@ -254,9 +254,12 @@ async def run_station(
     world: InProcessEmulator | EmulatorProcess | None = None,
     max_sleep_s: float = math.inf,
     ack: Callable[[float], None] | None = None,
+    times: FlightTimes | None = None,
 ) -> Operator:
     """The station's loop. ``max_sleep_s`` (simulated seconds): wake at least this often even
-    when idle, so a paced emulator is never starved of clock acknowledgements."""
+    when idle, so a paced emulator is never starved of clock acknowledgements. ``times``: where
+    the mission phase's start and end (and Ctrl-C) are noted on both clocks."""
+    times = FlightTimes() if times is None else times
     # Before any link is open (a stall now costs nothing; in flight it trips failsafes).
     _warm_up_planner(*_planner_spec(mission), scenario)
     cfg = _station_config(mission, expected if world is None else None)
@@ -351,6 +354,7 @@ async def run_station(
                     # (docs/results/scale.md).
                     ack(min(now, due_s))
                 rec = op.poll(now)
+                times.note(op, now, time.monotonic())
                 if ack is not None:
                     ack(now)  # everything due up to `now` is done
                 if world is not None:
@@ -392,7 +396,9 @@ async def run_station(
                 task.uncancel()
                 interrupted_wall = time.monotonic()
                 log.info("interrupted: telling every vehicle to %s", opts.on_interrupt)
-                op.interrupt(opts.on_interrupt, clock())
+                times.interrupt_s = clock()
+                op.interrupt(opts.on_interrupt, times.interrupt_s)
+                times.note(op, times.interrupt_s, interrupted_wall)
                 for a in adapters:
                     a.transmit()
     finally:
