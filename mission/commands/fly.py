@@ -247,15 +247,15 @@ def _status_fields(d: dict) -> list[tuple[str, str]]:
     return fields
 
 
-#: The order in which fields leave a status line too wide for the terminal: the lesser first;
-#: TU1/TU2 never leave.
+#: The order in which fields leave a status line too wide for the terminal: the lesser first
+#: ("50 drones: 40 net" shortens to "40/50 net" before the crews leave); TU1/TU2 never leave.
 STATUS_DROP_ORDER = (
     "modes",
     "reclaimed",
     "home",
     "lost",
-    "crews",
     "drones",
+    "crews",
     "net",
     "clock",
     "phase",

@@ -80,6 +80,7 @@ def test_tu_stays_visible_at_every_width_and_the_lesser_fields_leave_first(width
         "reclaimed": "reclaimed",
         "home": "home",
         "lost": "lost",
+        "drones": "drones:",
         "crews": "crews",
         "clock": "100/200s",
         "phase": "flying",
@@ -89,8 +90,12 @@ def test_tu_stays_visible_at_every_width_and_the_lesser_fields_leave_first(width
 
 
 def test_at_60_columns_the_tu_figures_and_the_networked_drones_stay():
+    # planned for the run's widest line ("flying 200/200s | 50/50 net | crews 10/10 | TU1 100%
+    # TU2 100%" is 61 columns): the crews leave at 60, stay at 66
     line = format_status(_d(), 60, planned_drop(_d(), 60))
-    assert line == "flying 100/200s | 50 drones: 40 net | TU1 71% TU2 77%"
+    assert line == "flying 100/200s | 40/50 net | TU1 71% TU2 77%"
+    line = format_status(_d(), 66, planned_drop(_d(), 66))
+    assert line == "flying 100/200s | 40/50 net | crews 9/10 | TU1 71% TU2 77%"
     assert format_status(_d(), 40, planned_drop(_d(), 40)) == "flying 100/200s | TU1 71% TU2 77%"
 
 
