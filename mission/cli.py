@@ -13,7 +13,9 @@ import argparse
 import importlib
 import logging
 import os
+import re
 import sys
+import textwrap
 
 __all__ = [
     "main",
@@ -27,6 +29,8 @@ __all__ = [
     "add_seed_arguments",
     "version_string",
     "did_you_mean",
+    "fit_text",
+    "HelpFormatter",
 ]
 
 #: subcommand name -> module under mission.commands (order = order in --help).
@@ -54,31 +58,48 @@ class UserError(Exception):
 
 
 def parse_rate(text: str, option: str = "--attrition") -> float:
-    """A probability given as a fraction (``0.01``) or a percent (``1%``): the one rate parser.
+    """A probability given as a fraction (``0.01``) or a percent (``1%``): the one rate parser
+    of every command that takes one (sim, sweep, tune, mission new).
+
+    A bare number must be a fraction below 1. ``1`` is refused as ambiguous (1 % or 100 %?)
+    and so is any bare number above 1 (``2`` is not a probability; ``2%`` is): the message
+    spells out both readings, so nobody runs 100 %/step by accident. 100 % is written ``100%``.
 
     Raises
     ------
     UserError
-        Not a number, or outside [0, 1].
+        Not a number, a bare number >= 1, or outside [0, 1].
     """
+    at = f"{option}: " if option else ""
     t = str(text).strip()
+    percent = t.endswith("%")
     try:
-        value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
+        value = float(t[:-1]) / 100 if percent else float(t)
     except ValueError:
         raise UserError(
-            f"{option}: expected a fraction like 0.01 or a percent like 1%, got {text!r}"
+            f"{at}expected a fraction like 0.01 or a percent like 1%, got {text!r}"
         ) from None
+    if not percent and value == 1.0:
+        raise UserError(
+            f"{at}{text} is ambiguous: write 1% (or 0.01) for one percent, or 100% to "
+            "lose every drone at every step"
+        )
+    if not percent and 1.0 < value <= 100.0:
+        raise UserError(
+            f"{at}{text} is not a probability (a fraction below 1); "
+            f"did you mean {t}% (= {value / 100:g})?"
+        )
     if not 0.0 <= value <= 1.0:
-        raise UserError(f"{option}: {text} is not a probability in [0, 1] (0.01 = 1%)")
+        raise UserError(f"{at}{text} is not a probability in [0, 1] (0.01 = 1%)")
     return value
 
 
 def rate_arg(text: str) -> float:
     """argparse ``type=`` for a single rate (0.01 or 1%)."""
     try:
-        return parse_rate(text)
+        return parse_rate(text, option="")  # argparse names the option itself
     except UserError as exc:
-        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[-1]) from None
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def positive_int(text: str) -> int:
@@ -145,6 +166,140 @@ def version_string() -> str:
     return code_version()
 
 
+# ----------------------------------------------------------------------------------------------
+# Help pages that fit the terminal
+# ----------------------------------------------------------------------------------------------
+
+_TERM = re.compile(r"^(\s*)(\S.*?)\s{2,}(?=\S)")
+
+
+def _indent_of(line: str) -> int:
+    return len(line) - len(line.lstrip(" "))
+
+
+def _wrap(text: str, width: int, first: str, rest: str) -> list[str]:
+    """``text`` filled to ``width`` columns: the first line after ``first``, the others after
+    ``rest`` (a word longer than a line stays whole rather than being cut)."""
+    return textwrap.wrap(
+        " ".join(text.split()),
+        width=max(width, len(first) + 20),
+        initial_indent=first,
+        subsequent_indent=rest,
+        break_long_words=False,
+        break_on_hyphens=False,
+    ) or [first.rstrip()]
+
+
+def _fit_command(lines: list[str], width: int) -> list[str]:
+    """An example command (``  phireman ... # what it does``, maybe already continued with
+    ``\\``) too wide: cut before an option (an option stays with its values) with a shell
+    continuation, so what is shown can still be pasted into a shell; a comment that no longer
+    fits beside it goes on its own line below."""
+    ind = " " * _indent_of(lines[0])
+    comment = ""
+    words: list[str] = []
+    for raw in lines:
+        body = raw.strip()
+        m = re.search(r"\s{2,}#\s*", body)
+        if m:
+            body, comment = body[: m.start()], body[m.end() :]
+        words += body.removesuffix("\\").split()
+    groups: list[str] = []
+    for w in words:  # "--size XS S" is one group: never cut between an option and its values
+        if groups and not w.startswith("-") and groups[-1].startswith("-"):
+            groups[-1] += " " + w
+        else:
+            groups.append(w)
+    out: list[str] = []
+    cur = ind
+    for g in groups:
+        if cur.strip() and len(cur) + 1 + len(g) + 2 > width:
+            out.append(cur + " \\")
+            cur = ind + "    " + g
+        else:
+            cur = cur + (" " if cur.strip() else "") + g
+    if comment and len(cur) + 4 + len(comment) <= width:
+        return [*out, f"{cur}  # {comment}"]
+    out.append(cur)
+    if comment:
+        out += _wrap(comment, width, ind + "    # ", ind + "      ")
+    return out
+
+
+def _fit_item(head: str, body: list[str], width: int) -> list[str]:
+    """One indented item (a head line and its deeper continuation lines) within ``width``."""
+    if all(len(x) <= width for x in (head, *body)):
+        return [head, *body]  # fits: keep the author's layout
+    ind = _indent_of(head)
+    if head[ind:].startswith("phireman "):
+        if head.rstrip().endswith("\\"):  # the command goes on in the lines below
+            return _fit_command([head, *body], width)
+        out = _fit_command([head], width)
+        if body:
+            b = _indent_of(body[0])
+            out += _wrap(" ".join(body), width, " " * b, " " * b)
+        return out
+    hang = _indent_of(body[0]) if body else None
+    if hang is None:
+        m = _TERM.match(head)
+        hang = m.end() if m else None
+    if hang is not None and hang < len(head) and head[hang - 1] == " " and hang <= width // 2:
+        # A definition ("  term     what it is", continued under "what it is").
+        return _wrap(" ".join([head[hang:], *body]), width, head[:hang], " " * hang)
+    out = _wrap(head, width, " " * ind, " " * (ind + 4))
+    if body:
+        b = _indent_of(body[0])
+        out += _wrap(" ".join(body), width, " " * b, " " * b)
+    return out
+
+
+def fit_text(text: str, width: int) -> str:
+    """A hand-laid-out help text (a command's DESCRIPTION or epilog) fitted to ``width``
+    columns, keeping the author's layout wherever it already fits.
+
+    * Unindented lines are prose: a paragraph with a line too wide is filled again.
+    * An indented line and the deeper-indented lines under it are one item: a definition
+      (``  report.md    what it holds``) is filled under its text column, an example command
+      (``  phireman ...  # comment``) is cut with shell continuations and its comment moved below.
+    """
+    out: list[str] = []
+    lines = text.splitlines()
+    i = 0
+    while i < len(lines):
+        line = lines[i].rstrip()
+        if not line.strip():
+            out.append("")
+            i += 1
+            continue
+        if _indent_of(line) == 0:
+            j = i + 1
+            while j < len(lines) and lines[j].strip() and _indent_of(lines[j]) == 0:
+                j += 1
+            para = [x.rstrip() for x in lines[i:j]]
+            if any(len(x) > width for x in para):
+                out += _wrap(" ".join(para), width, "", "")
+            else:
+                out += para
+            i = j
+            continue
+        ind = _indent_of(line)
+        j = i + 1
+        while j < len(lines) and lines[j].strip() and _indent_of(lines[j]) > ind:
+            j += 1
+        out += _fit_item(line, [x.rstrip() for x in lines[i + 1 : j]], width)
+        i = j
+    return "\n".join(out) + ("\n" if text.endswith("\n") else "")
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Every command's ``--help``: argparse's own layout for the options, and the hand-laid-out
+    description and epilog fitted to the terminal (:func:`fit_text`; ``COLUMNS`` when not a
+    terminal, as argparse does)."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return "".join(indent + line for line in fit_text(text, width).splitlines(keepends=True))
+
+
 def _load(name: str):
     return importlib.import_module(f"mission.commands.{COMMANDS[name]}")
 
@@ -152,6 +307,7 @@ def _load(name: str):
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="phireman",
+        formatter_class=HelpFormatter,
         description=(
             "Keep tasks (fire crews, rovers) networked to a base station with a drone relay swarm "
             "that survives attrition. Simulate the paper's RTNUA problem, reproduce its evaluation, "
@@ -181,7 +337,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
             name,
             help=module.HELP.replace("%", "%%"),
             description=module.DESCRIPTION,
-            formatter_class=argparse.RawDescriptionHelpFormatter,
+            formatter_class=HelpFormatter,
         )
         module.add_arguments(p)
         p.set_defaults(_module=module)

@@ -6,7 +6,20 @@ import argparse
 import math
 import sys
 
-__all__ = ["HELP", "DESCRIPTION", "add_arguments", "run", "format_status", "format_param_changes"]
+__all__ = [
+    "HELP",
+    "DESCRIPTION",
+    "add_arguments",
+    "run",
+    "format_status",
+    "status_layout",
+    "planned_drop",
+    "STATUS_DROP_ORDER",
+    "format_param_changes",
+    "format_pace",
+    "format_tu",
+    "slow_pace_warning",
+]
 
 HELP = "fly a mission with the ground station (built-in emulator by default, or --connect)"
 DESCRIPTION = """\
@@ -33,9 +46,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "mission",
         nargs="?",
-        default="wildfire",
+        default=None,
         metavar="MISSION",
         help="mission file or shipped example name (default: wildfire)",
+    )
+    p.add_argument(
+        "--mission",
+        dest="mission_option",
+        default=None,
+        metavar="MISSION",
+        help="the same as the MISSION argument (as 'sim' and 'sitl' take it)",
     )
     p.add_argument(
         "--connect",
@@ -135,11 +155,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_fly_arguments(p)  # --serve, --serve-actions, --tiles, --forward, --forward-readonly
 
 
-def _load(spec: str):
+def _mission_path(spec: str):
     from pathlib import Path
 
     from mission.cli import UserError
-    from mission.format.load import MissionError, load_mission
 
     path = Path(spec)
     if not path.exists():
@@ -152,6 +171,29 @@ def _load(spec: str):
                 f"{spec!r} is neither a mission file nor a shipped example "
                 f"({', '.join(list_examples())})"
             ) from None
+    return path
+
+
+def _mission_spec(args) -> str:
+    """The mission to fly: the MISSION argument or ``--mission`` (one, or both naming the same
+    file), else the shipped 'wildfire'."""
+    from mission.cli import UserError
+
+    given, option = args.mission, args.mission_option
+    if given is not None and option is not None and given != option:
+        if _mission_path(given).resolve() != _mission_path(option).resolve():
+            raise UserError(
+                f"two missions given: {given!r} and --mission {option!r}; give one "
+                "(--mission is the same as the MISSION argument)"
+            )
+    return option or given or "wildfire"
+
+
+def _load(spec: str):
+    from mission.cli import UserError
+    from mission.format.load import MissionError, load_mission
+
+    path = _mission_path(spec)
     try:
         return load_mission(path)
     except MissionError as exc:
@@ -177,33 +219,100 @@ _PHASE_WORDS = {
 }
 
 
-def format_status(d: dict, width: int = 80) -> str:
-    """One status line for people that fits ``width`` columns (80 at least; more detail when
-    there is room): phase, mission clock, drones by state, crews connected, TU so far."""
-    phase = _PHASE_WORDS.get(d["phase"], d["phase"])
+def _status_fields(d: dict) -> list[tuple[str, str]]:
+    """The status line's fields as (group, text), in the order shown."""
     if d["phase"] == "run":
         t = f"{d['t_mission_s']:.0f}/{d['duration_s']:.0f}s"
     elif d["phase"] in ("end", "done") and d.get("end_t0_s") is not None:
         t = f"+{d['t_s'] - d['end_t0_s']:.0f}s"
     else:
         t = f"{d['t_s']:.0f}s"
-    tu = f"TU1 {_pct0(d['tu1'])} TU2 {_pct0(d['tu2'])}"
-    crews = f"crews {d['tasks_covered']}/{d['n_tasks']}"
-    state = f"{d['networked']} net {d['lost']} lost {d['returning']} home"
-    line = f"{phase} {t} | {d['fleet']} drones: {state} | {crews} | {tu}"
-    if len(line) > width - 1:  # big fleets on a narrow terminal: the same words, tighter
-        tu = f"TU1/TU2 {_pct0(d['tu1'])}/{_pct0(d['tu2'])}"
-        line = f"{phase} {t} {d['fleet']} drones: {state}, {crews}, {tu}"
-    if width >= 110:
-        extra = []
-        if d.get("reclaims"):
-            extra.append(f"{d['reclaims']} reclaimed")
-        modes = " ".join(f"{k}:{v}" for k, v in sorted(d["modes"].items(), key=lambda kv: -kv[1]))
-        if modes:
-            extra.append(modes)
-        if extra:
-            line += " | " + ", ".join(extra)
-    return line[: max(40, width - 1)]
+    covered = "-" if d.get("tasks_covered") is None else d["tasks_covered"]
+    n_tasks = "-" if d.get("n_tasks") is None else d["n_tasks"]
+    fields = [
+        ("phase", _PHASE_WORDS.get(d["phase"], d["phase"])),
+        ("clock", t),
+        ("drones", f"{d['fleet']} drones:"),
+        ("net", f"{d['networked']} net"),
+        ("lost", f"{d['lost']} lost"),
+        ("home", f"{d['returning']} home"),
+        ("crews", f"crews {covered}/{n_tasks}"),
+        ("tu", f"TU1 {_pct0(d['tu1'])} TU2 {_pct0(d['tu2'])}"),
+    ]
+    if d.get("reclaims"):
+        fields.append(("reclaimed", f"{d['reclaims']} reclaimed"))
+    modes = " ".join(f"{k}:{v}" for k, v in sorted(d["modes"].items(), key=lambda kv: -kv[1]))
+    if modes:
+        fields.append(("modes", modes))
+    return fields
+
+
+#: The order in which fields leave a status line too wide for the terminal: the lesser first
+#: ("50 drones: 40 net" shortens to "40/50 net" before the crews leave); TU1/TU2 never leave.
+STATUS_DROP_ORDER = (
+    "modes",
+    "reclaimed",
+    "home",
+    "lost",
+    "drones",
+    "crews",
+    "net",
+    "clock",
+    "phase",
+)
+
+#: How the fields are grouped into the line's parts (``a b | c d e | ...``).
+_STATUS_PARTS = (("phase", "clock"), ("drones", "net", "lost", "home"), ("crews",), ("tu",))
+
+
+def _status_line(fields: list[tuple[str, str]], dropped: int) -> str:
+    gone = set(STATUS_DROP_ORDER[:dropped])
+    text = dict(f for f in fields if f[0] not in gone)
+    if "drones" in text and "net" not in text:
+        del text["drones"]
+    elif "drones" not in text and "net" in text:
+        # "40 net" alone would not say of how many: "40/50 net"
+        text["net"] = f"{text['net'].split()[0]}/{dict(fields)['drones'].split()[0]} net"
+    parts = [" ".join(text[k] for k in part if k in text) for part in _STATUS_PARTS]
+    parts += [text[k] for k in ("reclaimed", "modes") if k in text]
+    return " | ".join(p for p in parts if p)
+
+
+def status_layout(d: dict, width: int = 80, dropped: int = 0) -> tuple[str, int]:
+    """(line, fields left out) for :func:`format_status`: the fullest line of at most
+    ``width - 1`` columns leaving out at least ``dropped`` fields (:data:`STATUS_DROP_ORDER`)."""
+    fields = _status_fields(d)
+    for k in range(dropped, len(STATUS_DROP_ORDER) + 1):
+        line = _status_line(fields, k)
+        if len(line) <= width - 1:
+            return line, k
+    return line, len(STATUS_DROP_ORDER)  # TU1/TU2 alone, even if wider than the terminal
+
+
+def planned_drop(d: dict, width: int = 80) -> int:
+    """Fields to leave out for the whole run so that its widest plausible line fits ``width``:
+    every count at the expected fleet (``fleet_expected``, else the fleet heard so far), every
+    crew connected, TU at 100 %, the mission clock at its end, the longest phase word. Reclaims
+    and modes, at the end of the line, are not planned for: they show while there is room."""
+    n = max(d["fleet"], d.get("fleet_expected") or 0)
+    n_tasks = d.get("n_tasks") or 0
+    base = dict(d, fleet=n, networked=n, lost=n, returning=n, tasks_covered=n_tasks)
+    base.update(tu1=1.0, tu2=1.0, reclaims=0, modes={})
+    widest = [
+        dict(base, phase="run", t_mission_s=d["duration_s"]),
+        dict(base, phase="launch", t_s=max(d["t_s"], 999.0)),
+        dict(base, phase="end", end_t0_s=0.0, t_s=999.0),
+    ]
+    return max(status_layout(w, width)[1] for w in widest)
+
+
+def format_status(d: dict, width: int = 80, dropped: int = 0) -> str:
+    """One status line for people within ``width - 1`` columns: phase and its clock, drones by
+    state, crews connected (``-/10`` until the first control tick measured them), TU so far,
+    then reclaims and modes when there is room. One format from finding to the end: on a narrow
+    terminal whole fields are left out, the lesser first (:data:`STATUS_DROP_ORDER`), never the
+    TU figures; the wording and separators never change."""
+    return status_layout(d, width, dropped)[0]
 
 
 def format_param_changes(changes) -> list[str]:
@@ -236,6 +345,7 @@ class _Status:
         self.tty = stream.isatty()
         self.columns = shutil.get_terminal_size((80, 24)).columns if self.tty else 80
         self.width = 0
+        self.dropped = 0  # fields left out so far: once out, out for the rest of the run
         self.last_phase = None
         self.last_print_t = -math.inf
         self._failures_warned = 0
@@ -278,14 +388,17 @@ class _Status:
                 if got < 0.5 * want:
                     self._warn(
                         f"running at {got:.1f}x instead of {want:g}x (this machine is "
-                        "too busy or the fleet too large; timings stay correct, the "
-                        "flight just takes longer)"
+                        "too busy or the fleet too large; timings stay correct, but "
+                        "results move with the pace)"
                     )
                     self._slow_warned = True
 
     def __call__(self, d: dict) -> None:
         self._warnings(d)
-        line = format_status(d, self.columns)
+        # Fields left out are planned for the widest line of the run, and a field left out
+        # once stays out: the line keeps one look from finding to the end.
+        self.dropped = max(self.dropped, planned_drop(d, self.columns))
+        line, self.dropped = status_layout(d, self.columns, self.dropped)
         if self.tty:
             pad = max(0, self.width - len(line))
             self.stream.write("\r" + line + " " * pad)
@@ -333,6 +446,68 @@ _EXPLAIN = (
 )
 
 
+def _secs(x: float) -> str:
+    """Seconds for people: whole when they are ("200"), else to a tenth ("107.6")."""
+    return f"{x:.1f}".removesuffix(".0")
+
+
+def format_pace(s: dict) -> list[str]:
+    """How long the flight took, from ``summary.json``: the mission seconds flown over the wall
+    seconds printed beside them, and the pace the mission itself was flown at (start-up,
+    take-off and landing are in the wall time, not in the mission seconds)."""
+    span, wall = s["mission_s_flown"], s["wall_s"]
+    overall = f"{span / wall:.1f}x" if wall > 0 else "-"
+    line = f"flown {_secs(span)} s of mission in {wall:.1f} s wall ({overall} overall"
+    if s.get("speedup_achieved") is not None:
+        line += (
+            f"; the mission itself ran at {s['speedup_achieved']:.1f}x, "
+            f"{s['speedup_requested']:g}x asked"
+        )
+    return [line + ")"]
+
+
+def slow_pace_warning(s: dict) -> str:
+    """The warning when the mission ran at under half the speed-up asked (``speedup_slow``)."""
+    return (
+        f"the mission ran at {s['speedup_achieved']:.1f}x, under half the "
+        f"{s['speedup_requested']:g}x asked (this machine was too busy or the fleet too large). "
+        "The vehicles' timings stay correct, but results such as reclaims and TU move with "
+        "the pace: compare runs flown at similar speed-ups (summary.json speedup_achieved), "
+        "or ask for less (--speedup)"
+    )
+
+
+def format_tu(s: dict) -> list[str]:
+    """TU1/TU2 as the station saw them and from the truth, both over the span flown (all of the
+    mission, or up to Ctrl-C), saying which."""
+    st = s["station"]
+    span, duration = s["flown_span_s"], s["duration_s"]
+    lines = [
+        f"TU1/TU2 as the station saw them:     {_pct(st['tu1'])} / {_pct(st['tu2'])}"
+        f"   ({st['ticks']} control ticks)"
+    ]
+    if "truth" in s:
+        tr = s["truth"]
+        lines.append(
+            f"TU1/TU2 from the emulator's truth:   {_pct(tr['tu1'])} / {_pct(tr['tu2'])}"
+            f"   ({tr['samples']} samples; {tr['alive_end']} vehicles alive at the end)"
+        )
+    both = "both" if "truth" in s else "TU"
+    if span >= duration - 1e-6:
+        lines.append(f"{both} over the whole {_secs(duration)} s mission")
+    elif s.get("interrupted") is not None:
+        lines.append(
+            f"{both} over the first {_secs(span)} s, flown before the interrupt "
+            f"(of the {_secs(duration)} s mission)"
+        )
+    else:
+        lines.append(
+            f"{both} over the first {_secs(span)} s of the {_secs(duration)} s mission, "
+            "where it stopped"
+        )
+    return lines
+
+
 def _group_report(items: list[dict], per_line: int = 12) -> list[str]:
     """One line per vehicle for small fleets; for large ones, one line per kind of answer
     (``told RTL; now RTL``, ``not heard``...) with the vehicles it applies to."""
@@ -361,7 +536,7 @@ def run(args) -> int:
     from mission.cli import UserError
     from mission.flight.runners import FlyOptions, RunnerError, fly
 
-    mission = _load(args.mission)
+    mission = _load(_mission_spec(args))
     if args.speedup is not None and not args.speedup > 0:
         raise UserError(f"--speedup must be > 0, got {args.speedup}")
     if args.duration_s is not None and not args.duration_s > 0:
@@ -447,7 +622,6 @@ def run(args) -> int:
                 file=sys.stderr,
             )
         return 1
-    st = s["station"]
     if op.interrupted is not None and not s.get("interrupt_report"):
         print("interrupted before any vehicle was heard: nothing was commanded", file=sys.stderr)
     elif op.interrupted is not None:
@@ -459,12 +633,12 @@ def run(args) -> int:
         for line in _group_report(s.get("interrupt_report") or []):
             print(f"  {line}", file=sys.stderr)
     print(f"run directory: {result.run_dir}")
+    for line in format_pace(s):
+        print(line)
     n_rec = s["reclaimed"]
     print(
-        f"flown {s['mission_s_flown']:.0f} s of mission in {s['wall_s']:.1f} s wall "
-        f"(speed-up {s['speedup_achieved']:.1f}x); {s['vehicles_discovered']} vehicles; "
-        f"{n_rec} reclaim{'s' if n_rec != 1 else ''} (a vehicle back from its own "
-        "failsafe, taken into the plan again)"
+        f"{s['vehicles_discovered']} vehicles; {n_rec} reclaim{'s' if n_rec != 1 else ''} "
+        "(a vehicle back from its own failsafe, taken into the plan again)"
     )
     refused: dict[int, int] = {}
     for link in s.get("links", []):
@@ -486,12 +660,12 @@ def run(args) -> int:
             f"{end['in_air']} vehicle(s) still in the air when the station stopped "
             "(returning on their own)"
         )
-    print(f"TU1/TU2 as the station saw them:     {_pct(st['tu1'])} / {_pct(st['tu2'])}")
-    if "truth" in s:
-        tr = s["truth"]
-        print(
-            f"TU1/TU2 from the emulator's truth:   {_pct(tr['tu1'])} / {_pct(tr['tu2'])}"
-            f"   ({tr['alive_end']} vehicles alive at the end)"
-        )
+    for line in format_tu(s):
+        print(line)
+    if s.get("speedup_slow"):
+        import textwrap
+
+        warning = textwrap.fill(f"warning: {slow_pace_warning(s)}", 79, subsequent_indent="  ")
+        print(warning, file=sys.stderr)
     print(_EXPLAIN)
     return 130 if op.interrupted is not None else 0

@@ -241,7 +241,8 @@ class MissionWorld:
         self.t_end_s = self.swarm.now_s
 
     def report(self, duration_s: float) -> dict:
-        """Ground truth for the summary and ``truth.npz`` (plain, picklable)."""
+        """Ground truth for the summary and ``truth.npz`` (plain, picklable); TU over the first
+        ``duration_s`` of the mission (the span flown: all of it, or up to Ctrl-C)."""
         truth = self.truth_tu(duration_s)
         truth["alive_end"] = int(self.swarm.alive.sum())
         arrays: dict[str, Any] = self.swarm.truth.arrays()
@@ -258,11 +259,11 @@ class MissionWorld:
         """Ground-truth TU1/TU2 over the truth samples in [t0, t0 + duration)."""
         tr = self.swarm.truth
         if self.t0_s is None or not tr.task_connected:
-            return {"tu1": None, "tu2": None, "samples": 0}
+            return {"tu1": None, "tu2": None, "samples": 0, "span_s": duration_s}
         t = np.asarray(tr.t_s)
         sel = (t >= self.t0_s - 1e-9) & (t < self.t0_s + duration_s - 1e-9)
         conn = np.asarray(tr.task_connected)[sel]
         if len(conn) == 0:
-            return {"tu1": None, "tu2": None, "samples": 0}
+            return {"tu1": None, "tu2": None, "samples": 0, "span_s": duration_s}
         tu1, tu2 = task_uptime(conn)
-        return {"tu1": tu1, "tu2": tu2, "samples": int(len(conn))}
+        return {"tu1": tu1, "tu2": tu2, "samples": int(len(conn)), "span_s": duration_s}

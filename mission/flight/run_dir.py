@@ -21,7 +21,63 @@ from mission.flight.fly_options import FlyOptions
 from mission.format.schema import Mission
 from mission.format.version import code_version
 
-__all__ = ["new_run_dir", "Records", "run_meta", "summary"]
+__all__ = ["new_run_dir", "Records", "run_meta", "summary", "FlightTimes", "flown_span_s"]
+
+#: Under this share of the requested speed-up the pace is reported as too slow (on screen and
+#: ``summary.json``'s ``speedup_slow``): results such as reclaims and TU move with the pace.
+SLOW_PACE_FRACTION = 0.5
+
+
+@dataclasses.dataclass
+class FlightTimes:
+    """When the mission phase began and ended on both clocks (simulated, wall), and when Ctrl-C
+    came, noted by the station's loop: the pace the mission was flown at (``summary.json``'s
+    ``speedup_achieved``) and the replay's interrupt marker (``interrupted_at_s``)."""
+
+    mission_start: tuple[float, float] | None = None
+    """(simulated s, wall s) when the run phase began."""
+    mission_end: tuple[float, float] | None = None
+    """(simulated s, wall s) when it ended: its duration, Ctrl-C, or the operator ending it."""
+    interrupt_s: float | None = None
+    """Simulated time of Ctrl-C, if any."""
+
+    def note(self, op: Operator, now_s: float, wall_s: float) -> None:
+        if self.mission_start is None and op.mission_t0_s is not None:
+            self.mission_start = (op.mission_t0_s, wall_s)
+        if (
+            self.mission_start is not None
+            and self.mission_end is None
+            and op.phase not in ("launch", "run")
+        ):
+            self.mission_end = (now_s, wall_s)
+
+    def pace(self) -> float | None:
+        """Simulated seconds per wall second while the mission ran (None before it ran)."""
+        if self.mission_start is None or self.mission_end is None:
+            return None
+        wall = self.mission_end[1] - self.mission_start[1]
+        return (self.mission_end[0] - self.mission_start[0]) / wall if wall > 0 else None
+
+
+def flown_span_s(op: Operator) -> float:
+    """The mission seconds flown, [0, span): the control steps the station ran (step k covers
+    [k, k + 1) control periods, the truth's sample grid t0 + k dt), up to the mission's
+    duration: all of it, or up to Ctrl-C. The span of both TU figures in ``summary.json``."""
+    if op.mission_t0_s is None or not op.records:
+        return 0.0
+    period = op.config.control_period_s
+    return min(op.config.duration_s, (op.records[-1].t_step + 1) * period)
+
+
+def _station_tu(op: Operator, span_s: float) -> dict:
+    """The station's TU1/TU2 over its control steps in [0, span_s) of mission time (each
+    tick's record carries the TU of the ticks up to it)."""
+    period = op.config.control_period_s
+    inside = [r for r in op.records if r.t_step * period < span_s - 1e-9]
+    if not inside:
+        return {"tu1": None, "tu2": None, "ticks": 0, "span_s": span_s}
+    last = inside[-1]
+    return {"tu1": last.tu1_so_far, "tu2": last.tu2_so_far, "ticks": len(inside), "span_s": span_s}
 
 
 def new_run_dir(mission: Mission, opts: FlyOptions, seed: int, kind: str) -> Path:
@@ -74,24 +130,39 @@ def summary(
     report: dict | None,
     run_dir: Path,
     now_s: float,
+    times: FlightTimes | None = None,
 ) -> dict:
-    """``summary.json``: the station's view of the flight, plus the emulator's truth if any."""
-    tu1, tu2 = op.station_tu()
+    """``summary.json``: the station's view of the flight, plus the emulator's truth if any.
+
+    Both TU figures cover the same span, the mission seconds flown (``flown_span_s``: all of
+    the mission, or up to Ctrl-C); the report's truth must be taken over the same span. The
+    pace: ``speedup_requested``, ``speedup_achieved`` (simulated / wall seconds while the
+    mission ran: what the results were flown at), ``speedup_overall`` (mission seconds flown /
+    ``wall_s``, start-up, take-off and landing included), ``speedup_slow``."""
     recs = op.records
-    sim_s = (recs[-1].t_mission_s + mission.run.control_period_s) if recs else 0.0
+    span = flown_span_s(op)
+    pace = times.pace() if times is not None else None
+    overall = span / wall_s if wall_s > 0 else None
     s = {
         "mission": mission.name,
         "backend": kind,
         "seed": seed,
         "phase": op.phase,
-        "station": {"tu1": tu1, "tu2": tu2, "ticks": len(recs)},
+        "station": _station_tu(op, span),
         "duration_s": op.config.duration_s,
-        "mission_s_flown": sim_s,
+        "flown_span_s": span,
+        "mission_s_flown": span,
         "wall_s": wall_s,
+        "sim_s_flight": now_s - op.t_start_s,
         "speedup_requested": speedup,
+        "speedup_achieved": pace,
+        "speedup_overall": overall,
+        "speedup_slow": pace is not None and pace < SLOW_PACE_FRACTION * speedup,
         "station_cpu_s": time.process_time(),
-        "speedup_achieved": (now_s - op.t_start_s) / wall_s if wall_s > 0 else None,
         "mission_t0_s": op.mission_t0_s,
+        "interrupted_at_s": None
+        if times is None or times.interrupt_s is None or op.mission_t0_s is None
+        else max(0.0, times.interrupt_s - op.mission_t0_s),
         "vehicles_discovered": len(op.fleet),
         "refusal": op.refusal,
         "live_tasks": None

@@ -59,7 +59,14 @@ from mission.flight.mission_world import (
     control_config,
     mission_scenario,
 )
-from mission.flight.run_dir import Records, new_run_dir, run_meta, summary as run_summary
+from mission.flight.run_dir import (
+    FlightTimes,
+    Records,
+    flown_span_s,
+    new_run_dir,
+    run_meta,
+    summary as run_summary,
+)
 from mission.format.schema import Mission
 from mission.flight.station_loop import (
     INTERRUPT_SETTLE_S,
@@ -166,6 +173,7 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
         run_dir, mission, run_meta(mission, opts, seed, "emulated", speedup, connections)
     )
     wall0 = time.monotonic()
+    times = FlightTimes()
     try:
         op = await run_station(
             mission,
@@ -180,8 +188,10 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
             world=emu,
             max_sleep_s=PACE_SLACK_S / 4,
             ack=clock.acknowledge,
+            times=times,
         )
-        report = emu.finish(op.config.duration_s)
+        # The truth over the span the station's TU covers: the mission flown, up to Ctrl-C.
+        report = emu.finish(flown_span_s(op))
         summary = run_summary(
             mission,
             op,
@@ -192,6 +202,7 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
             report,
             run_dir,
             clock.now(),
+            times,
         )
         arrays = report.pop("arrays")
         np.savez_compressed(run_dir / "truth.npz", **arrays)
@@ -234,6 +245,7 @@ async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
     run_dir = new_run_dir(mission, opts, seed, "real")
     records = Records(run_dir, mission, run_meta(mission, opts, seed, "real", speedup, connections))
     wall0 = time.monotonic()
+    times = FlightTimes()
     try:
         op = await run_station(
             mission,
@@ -245,9 +257,19 @@ async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
             speedup=speedup,
             expected=_expected_real(mission, opts),
             seed=seed,
+            times=times,
         )
         summary = run_summary(
-            mission, op, seed, "real", time.monotonic() - wall0, speedup, None, run_dir, clock.now()
+            mission,
+            op,
+            seed,
+            "real",
+            time.monotonic() - wall0,
+            speedup,
+            None,
+            run_dir,
+            clock.now(),
+            times,
         )
         write_summary(run_dir / "summary.json", summary)
     finally:

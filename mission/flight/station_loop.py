@@ -31,7 +31,7 @@ from gcs.tasks import LiveTasks
 from gcs.wire import mavlink
 from mission.flight.fly_options import FlyOptions, RunnerError
 from mission.flight.mission_world import MissionScenario, control_config
-from mission.flight.run_dir import Records
+from mission.flight.run_dir import FlightTimes, Records
 from mission.format.schema import Mission
 from planner.methods import make_planner
 from planner.problem import ProblemConfig
@@ -204,7 +204,9 @@ def _rally_keeper(mission: Mission, params: dict) -> RallyKeeper | None:
     )
 
 
-def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> dict:
+def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world, n_tasks: int) -> dict:
+    """The status for people (``FlyOptions.status``). ``n_tasks``: the mission's crews, shown
+    from the start; ``tasks_covered`` is None until the first control tick measured it."""
     snap = op.fleet.snapshot(now_s)
     modes: dict[str, int] = {}
     for m, lost in zip(snap.mode, snap.lost):
@@ -221,8 +223,9 @@ def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world) -> d
         "returning": int(snap.returning.sum()),
         "lost": int(snap.lost.sum()),
         "modes": modes,
-        "tasks_covered": last.tasks_covered if last else 0,
-        "n_tasks": last.n_tasks if last else 0,
+        "tasks_covered": last.tasks_covered if last else None,
+        "n_tasks": last.n_tasks if last else n_tasks,
+        "fleet_expected": op.config.expected_vehicles,
         "tu1": last.tu1_so_far if last else None,
         "tu2": last.tu2_so_far if last else None,
         "command_failures": op.counters["command_failures"],
@@ -251,9 +254,12 @@ async def run_station(
     world: InProcessEmulator | EmulatorProcess | None = None,
     max_sleep_s: float = math.inf,
     ack: Callable[[float], None] | None = None,
+    times: FlightTimes | None = None,
 ) -> Operator:
     """The station's loop. ``max_sleep_s`` (simulated seconds): wake at least this often even
-    when idle, so a paced emulator is never starved of clock acknowledgements."""
+    when idle, so a paced emulator is never starved of clock acknowledgements. ``times``: where
+    the mission phase's start and end (and Ctrl-C) are noted on both clocks."""
+    times = FlightTimes() if times is None else times
     # Before any link is open (a stall now costs nothing; in flight it trips failsafes).
     _warm_up_planner(*_planner_spec(mission), scenario)
     cfg = _station_config(mission, expected if world is None else None)
@@ -348,6 +354,7 @@ async def run_station(
                     # (docs/results/scale.md).
                     ack(min(now, due_s))
                 rec = op.poll(now)
+                times.note(op, now, time.monotonic())
                 if ack is not None:
                     ack(now)  # everything due up to `now` is done
                 if world is not None:
@@ -371,7 +378,7 @@ async def run_station(
                 wall = time.monotonic()
                 if opts.status is not None and (wall - last_status >= 0.5 or op.finished):
                     last_status = wall
-                    d = _status_dict(op, now, rec, world)
+                    d = _status_dict(op, now, rec, world, mission.n_tasks)
                     d["speedup"] = speedup
                     d["links_down"] = [
                         (a.link_id, a.spec.text, a.down_reason) for a in adapters if not a.connected
@@ -389,7 +396,9 @@ async def run_station(
                 task.uncancel()
                 interrupted_wall = time.monotonic()
                 log.info("interrupted: telling every vehicle to %s", opts.on_interrupt)
-                op.interrupt(opts.on_interrupt, clock())
+                times.interrupt_s = clock()
+                op.interrupt(opts.on_interrupt, times.interrupt_s)
+                times.note(op, times.interrupt_s, interrupted_wall)
                 for a in adapters:
                     a.transmit()
     finally:

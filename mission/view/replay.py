@@ -19,7 +19,15 @@ import numpy as np
 if TYPE_CHECKING:
     from mission.format.schema import Mission
 
-__all__ = ["RunData", "load_run", "replay", "find_run_dir", "check_animation_writer", "tree_at"]
+__all__ = [
+    "RunData",
+    "load_run",
+    "replay",
+    "find_run_dir",
+    "check_animation_writer",
+    "tree_at",
+    "mark_interrupt",
+]
 
 
 @dataclass
@@ -243,6 +251,18 @@ def _scene(run: RunData, fontsize: float = 9.0):
     )
 
 
+def mark_interrupt(ax, summary: dict):
+    """A dotted vertical line, in the legend, at the mission time Ctrl-C stopped the flight
+    (``summary.json``'s ``interrupted_at_s``: the end of the span both TU figures cover; what
+    follows is the vehicles returning). None when the run was not interrupted in flight."""
+    t = summary.get("interrupted_at_s")
+    if not summary.get("interrupted") or t is None:
+        return None
+    return ax.axvline(
+        float(t), color="black", ls=":", lw=1.2, label=f"interrupted (Ctrl-C) at {float(t):.0f} s"
+    )
+
+
 def check_animation_writer(animation: str) -> None:
     """Refuse up front an animation format whose encoder is missing (instead of failing at the end)."""
     if animation == "mp4":
@@ -316,6 +336,7 @@ def replay(
         lw=0.9,
         label="connected / ever connected (TU2's integrand)",
     )
+    mark_interrupt(ax, run.summary)
     ax.set_xlabel("mission time (s)", fontsize=10)
     ax.set_ylabel("%", fontsize=10)
     ax.set(ylim=(0, 102))
