@@ -83,8 +83,12 @@ def mission_meta(
     actions: bool,
     tiles: dict | None,
     duration_s: float | None = None,
+    end_action: str | None = None,
 ) -> dict:
-    """What does not change during a run: base, crews, hazard zones, geofence, ranges."""
+    """What does not change during a run: base, crews, hazard zones, geofence, ranges.
+
+    ``end_action``: what the vehicles do once the mission time is over (``"rtl"`` or ``"land"``,
+    ``OperationsConfig.end``); the page names the end phase with it."""
     zones = []
     for k, z in enumerate(mission.attrition.hazard_zones):
         when = (
@@ -142,6 +146,7 @@ def mission_meta(
             "spacing_m": lim.layer_spacing_m,
         },
         "duration_s": mission.run.duration_s if duration_s is None else duration_s,
+        "end_action": end_action,
         "vehicles_expected": mission.vehicles.count,
         "actions": bool(actions),
         "tiles": tiles,
