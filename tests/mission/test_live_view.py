@@ -367,12 +367,30 @@ def ending_flight(tmp_path_factory):
     from mission.view.live import attach
     from small_mission import crew, small_mission
 
+    from mission.format.schema import Attrition, Circle, HazardZone, LocalPoint
+
+    zones = (  # harmless (rate 0), for the export: a disc and a polygon given clockwise
+        HazardZone(
+            circle=Circle(center=LocalPoint(north_m=-40.0, east_m=50.0), radius_m=30.0),
+            rate_per_s=0.0,
+            start_s=10.0,
+            end_s=30.0,
+        ),
+        HazardZone(
+            polygon=tuple(
+                LocalPoint(north_m=n, east_m=e)
+                for n, e in ((-80.0, -80.0), (-40.0, -40.0), (-80.0, -20.0))
+            ),
+            rate_per_s=0.0,
+        ),
+    )
     mission = small_mission(
         "ending",
         RunSpec(duration_s=END_DURATION_S, seed=5, speedup=3.0),
         count=4,
         tasks=(crew(60.0, 40.0, CREWS[0]),),
         latency_s=0.01,
+        attrition=Attrition(hazard_zones=zones),
     )
     info, box = {}, {}
     stop = threading.Event()
@@ -565,3 +583,61 @@ def test_replay_truth_answers_like_live(ending_flight, tmp_path):
     assert code == 200 and len(body["truth"]["alive"]) == 4, (code, list(body))
     code, body = answers["bare"]
     assert code == 404 and "truth.npz" in body["error"], (code, body)
+
+
+def _ring_area2(ring) -> float:
+    """Twice the signed area of a closed lon/lat ring (> 0: counter-clockwise)."""
+    return sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(ring, ring[1:]))
+
+
+def test_export_rings_heights_and_kml_altitude_mode(ending_flight, tmp_path):
+    """RFC 7946: exterior rings counter-clockwise, no third coordinate that is not an ellipsoidal
+    height; KML: vehicles above sea level with altitudeMode absolute."""
+    import xml.etree.ElementTree as ET
+
+    from mission.view.live.export import export_run
+    from mission.view.live.replay import ReplaySource
+
+    info, box = ending_flight
+    _wait(lambda: "result" in box or "error" in box, 240, "the short flight to end")
+    assert "error" not in box, box.get("error")
+    src = ReplaySource(box["result"].run_dir)
+    alt0 = src.mission.origin.alt_amsl_m
+    feats = json.loads(export_run(src, "geojson", [20.0], tmp_path / "x.geojson").read_text())[
+        "features"
+    ]
+    polys = [f for f in feats if f["geometry"]["type"] == "Polygon"]
+    assert {f["properties"]["kind"] for f in polys} == {"geofence", "hazard_zone"}
+    assert len(polys) == 3
+    for f in polys:
+        ring = f["geometry"]["coordinates"][0]
+        assert ring[0] == ring[-1] and _ring_area2(ring) > 0, f["properties"]
+    vehicles = [f for f in feats if f["properties"]["kind"] == "vehicle"]
+    assert len(vehicles) == 4
+    for f in vehicles:
+        p = f["properties"]
+        assert len(f["geometry"]["coordinates"]) == 2, f
+        assert 5.0 < p["alt_m"] < 60.0, p  # flying, above the base
+        assert p["alt_amsl_m"] == pytest.approx(alt0 + p["alt_m"], abs=0.11), p
+    kml = export_run(src, "kml", [20.0], tmp_path / "x.kml").read_text()
+    ns = {"k": "http://www.opengis.net/kml/2.2"}
+    root = ET.fromstring(kml)
+    marks = root.findall(".//k:Placemark", ns)
+    seen = 0
+    for pm in marks:
+        data = {
+            d.get("name"): d.findtext("k:value", namespaces=ns)
+            for d in pm.iter(f"{{{ns['k']}}}Data")
+        }
+        geom = next(g for g in pm if g.tag.split("}")[1] in ("Point", "LineString", "Polygon"))
+        mode = geom.findtext("k:altitudeMode", namespaces=ns)
+        if data.get("kind") == "vehicle":
+            lon, lat, alt = (
+                float(x) for x in geom.findtext("k:coordinates", namespaces=ns).split(",")
+            )
+            assert mode == "absolute" and alt == pytest.approx(float(data["alt_amsl_m"]))
+            assert alt > alt0 + 5.0
+            seen += 1
+        else:
+            assert mode == "clampToGround", data
+    assert seen == 4
