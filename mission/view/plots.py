@@ -126,7 +126,7 @@ class ZoneArt:
 
     def active(self, t_s: float, mission_end_s: float | None = None) -> bool:
         """Active at ``t_s``; never after the mission end (attrition stops there)."""
-        if mission_end_s is not None and t_s >= mission_end_s:
+        if mission_end_s is not None and t_s > mission_end_s + 1e-6:  # as replay._after_end
             return False
         return t_s >= self.start_s and (self.end_s is None or t_s < self.end_s)
 
