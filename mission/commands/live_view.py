@@ -52,6 +52,17 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _forward_line(out: dict) -> str:
+    """One forwarding output for people: udpout names its destination (where QGC listens), not
+    the local ephemeral port it sends from; udpin / tcpin name where they listen."""
+    host, port = out["local"][0], out["local"][1]
+    if out["kind"] == "udpout":
+        rh, rp = out["remote"]
+        return f"forwarding MAVLink to {rh}:{rp} (UDP, sent from local port {port})"
+    proto = "UDP" if out["kind"] == "udpin" else "TCP"
+    return f"forwarding MAVLink: listening on {proto} {host}:{port} ({out['text']})"
+
+
 def _announce(info: dict) -> None:
     if info.get("url"):
         url = info["url"]
@@ -63,8 +74,8 @@ def _announce(info: dict) -> None:
             )
         else:
             print(f"\nlive view (read-only): {url}", file=sys.stderr)
-    for a in info.get("forward") or []:
-        print(f"forwarding MAVLink via local {a[0]}:{a[1]}", file=sys.stderr)
+    for out in info.get("forward_outputs") or []:
+        print(_forward_line(out), file=sys.stderr)
     sys.stderr.flush()
 
 

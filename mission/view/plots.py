@@ -10,14 +10,18 @@ presets (``unit``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.artist import Artist  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.colors import to_rgba  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
@@ -31,6 +35,8 @@ __all__ = [
     "short_name",
     "crew_links",
     "PAPER_UNIT",
+    "ZoneArt",
+    "C_END",
 ]
 
 #: Axis label unit of the paper's presets (the scaled reading keeps paper units, docs/design/model.md §6.4).
@@ -45,6 +51,8 @@ C_OK, C_CUT, C_TREE, C_BASE, C_HAZARD, C_CREW = (
     "tab:red",
     "green",
 )
+#: After the mission end (the vehicles return to launch or land): shading and marks.
+C_END = "tab:orange"
 
 
 def plot_time_series(
@@ -106,6 +114,35 @@ def crew_links(task_pos_m, pos_m, active, range_m) -> np.ndarray:
     return np.stack([task_pos_m[ok], pos_m[idx[near[ok]]]], 1)
 
 
+@dataclass(frozen=True)
+class ZoneArt:
+    """A hazard zone on a map: ``paint(ax)`` adds its patch and returns it; the zone is active
+    in ``[start_s, end_s)`` of mission time (``end_s`` None: to the end of the mission), as
+    :meth:`mission.format.schema.HazardZone.active`."""
+
+    paint: Callable
+    start_s: float = 0.0
+    end_s: float | None = None
+
+    def active(self, t_s: float, mission_end_s: float | None = None) -> bool:
+        """Active at ``t_s``; never after the mission end (attrition stops there)."""
+        if mission_end_s is not None and t_s > mission_end_s + 1e-6:  # as replay._after_end
+            return False
+        return t_s >= self.start_s and (self.end_s is None or t_s < self.end_s)
+
+
+#: Hazard zone looks: active (filled, hatched) and not active at the instant drawn (outline).
+_ZONE_ON: dict[str, Any] = dict(
+    facecolor=to_rgba(C_HAZARD, 0.15),
+    edgecolor=to_rgba(C_HAZARD, 0.6),
+    linestyle="-",
+    hatch="//",
+)
+_ZONE_OFF: dict[str, Any] = dict(
+    facecolor="none", edgecolor=to_rgba("0.45", 0.7), linestyle="--", hatch=None
+)
+
+
 @dataclass
 class Scene:
     """What does not change during a run: ranges, extent, hazard zones, names, units."""
@@ -114,12 +151,14 @@ class Scene:
     base_range_m: float
     extent_m: float
     hazard_zones: list = field(default_factory=list)
-    """Painters ``paint(ax)`` adding one patch each (mission.view.replay)."""
+    """:class:`ZoneArt` (or plain painters ``paint(ax)``, always active), mission.view.replay."""
     task_names: list | None = None
     unit: str = "m"
     tree_recomputed: bool = False
     """The tree is rebuilt from the recorded task positions (the run did not record the planner's)."""
     fontsize: float = 9.0
+    mission_end_s: float | None = None
+    """Mission time at which the mission ended (then: return to launch); None: not known."""
 
 
 def legend_handles(scene: Scene) -> list:
@@ -183,7 +222,9 @@ def legend_handles(scene: Scene) -> list:
         ),
     ]
     if scene.hazard_zones:
-        h.append(Patch(color=C_HAZARD, alpha=0.15, label="hazard zone"))
+        h.append(Patch(**_ZONE_ON, label="hazard zone, active"))
+        if any(isinstance(z, ZoneArt) for z in scene.hazard_zones):
+            h.append(Patch(**_ZONE_OFF, label="hazard zone, not active then"))
     return h
 
 
@@ -202,8 +243,14 @@ class FrameView:
                 zorder=0,
             )
         )
+        self.zones: list[tuple[ZoneArt, Patch]] = []
         for zone in scene.hazard_zones:
-            zone(ax)
+            if isinstance(zone, ZoneArt):
+                patch = zone.paint(ax)
+                patch.set(**_ZONE_ON)
+                self.zones.append((zone, patch))
+            else:
+                zone(ax)
         self.links = LineCollection([], colors=C_ACTIVE, alpha=0.3, linewidths=0.6, zorder=1)
         self.crew = LineCollection([], colors=C_CREW, linestyles="--", linewidths=1.4, zorder=2)
         self.tree = LineCollection([], colors=C_TREE, linewidths=1.6, alpha=0.85, zorder=2)
@@ -248,10 +295,14 @@ class FrameView:
                 fontsize=fs - 1.5,
                 zorder=7,
                 clip_on=True,
-                bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.7),
+                bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.75),
             )
             for n in (names if len(names) <= 20 else [])
         ]
+        for t in self.labels:
+            t.set_visible(False)  # drawn by the layout below, which places them at draw time
+        self.label_layout = _LabelLayout(ax, self.labels)
+        ax.add_artist(self.label_layout)
         self.clock = (
             ax.text(
                 0.02,
@@ -277,11 +328,20 @@ class FrameView:
         ax.grid(alpha=0.2)
 
     def update(
-        self, pos_m, alive, active, task_pos_m, connected, tree, clock_text: str = ""
+        self,
+        pos_m,
+        alive,
+        active,
+        task_pos_m,
+        connected,
+        tree,
+        clock_text: str = "",
+        t_s: float | None = None,
     ) -> list:
         """Redraw the dynamic part for one instant; returns the artists changed (for blitting).
 
-        Positions are (north, east) rows; the map draws east on x and north on y.
+        Positions are (north, east) rows; the map draws east on x and north on y. ``t_s``
+        (mission time): hazard zones are drawn active only inside their time window.
         """
         from planner.geometry import neighbour_pairs
 
@@ -310,12 +370,12 @@ class FrameView:
         connected = np.asarray(connected, bool)
         self.task_ok.set_offsets(xy(task_pos_m[connected]))
         self.task_cut.set_offsets(xy(task_pos_m[~connected]))
-        off = self.scene.extent_m * 0.03
-        for label, p in zip(self.labels, task_pos_m):
-            right = p[1] > 0.55 * self.scene.extent_m  # near the right edge: label on the left
-            label.set_position((p[1] - off if right else p[1] + off, p[0] + off))
-            label.set_horizontalalignment("right" if right else "left")
+        self.label_layout.anchors = xy(np.asarray(task_pos_m, float)[: len(self.labels)])
+        for zone, patch in self.zones:
+            on = t_s is None or zone.active(t_s, self.scene.mission_end_s)
+            patch.set(**(_ZONE_ON if on else _ZONE_OFF))
         changed = [
+            *(patch for _, patch in self.zones),
             self.links,
             self.crew,
             self.tree,
@@ -325,12 +385,101 @@ class FrameView:
             self.active,
             self.task_ok,
             self.task_cut,
-            *self.labels,
+            self.label_layout,
         ]
         if self.clock is not None:
             self.clock.set_text(clock_text)
             changed.append(self.clock)
         return changed
+
+
+class _LabelLayout(Artist):
+    """Draws the crew labels where they do not collide, at draw time (when the axes' final size
+    and the text extents are known, so a strip after ``tight_layout`` and every animation frame
+    are laid out as they are drawn).
+
+    Each label tries, in order, the eight places around its crew's marker (right-above first);
+    it takes the first that overlaps no label placed before it and no crew marker, else the one
+    overlapping the least; a label that would still cover another label is not drawn (its crew
+    keeps its marker; the crews list of the live page names every crew)."""
+
+    #: Offsets (points) from the marker's centre to the label's corner, tried in this order:
+    #: (dx, dy, horizontal alignment, vertical alignment).
+    PLACES = (
+        (7, 3, "left", "bottom"),
+        (-7, 3, "right", "bottom"),
+        (7, -3, "left", "top"),
+        (-7, -3, "right", "top"),
+        (0, 9, "center", "bottom"),
+        (0, -9, "center", "top"),
+        (12, 0, "left", "center"),
+        (-12, 0, "right", "center"),
+    )
+    MARKER_PT = 6.0  # half the crew star's size, points
+
+    def __init__(self, ax, labels: list) -> None:
+        super().__init__()
+        self.ax = ax
+        self.labels = labels
+        self.anchors = np.zeros((0, 2))
+        self.hidden_rows: list[int] = []
+        """Labels left out at the last draw (they would have covered another label)."""
+        self.set_zorder(7)
+
+    def draw(self, renderer) -> None:
+        if not self.get_visible() or not self.labels:
+            return
+        ax, px = self.ax, renderer.points_to_pixels(1.0)
+        n = min(len(self.labels), len(self.anchors))
+        pts = ax.transData.transform(self.anchors[:n]) if n else np.zeros((0, 2))
+        ok: np.ndarray = np.asarray(np.isfinite(pts).all(axis=1), dtype=bool)
+        m = self.MARKER_PT * px
+        markers = [(x - m, y - m, x + m, y + m) for (x, y), good in zip(pts, ok) if good]
+        frame = ax.bbox
+        placed: list[tuple[float, float, float, float]] = []
+        self.hidden_rows = []
+        for i, label in enumerate(self.labels):
+            if i >= n or not ok[i]:
+                continue
+            label.set_visible(True)
+            label.set_position((0, 0))
+            label.set_transform(matplotlib.transforms.IdentityTransform())
+            label.set_horizontalalignment("left")
+            label.set_verticalalignment("bottom")
+            bb = label.get_window_extent(renderer)
+            w, h = bb.width, bb.height
+            x, y = pts[i]
+            best = None
+            for dx, dy, ha, va in self.PLACES:
+                x0 = x + dx * px - {"left": 0.0, "center": w / 2, "right": w}[ha]
+                y0 = y + dy * px - {"bottom": 0.0, "center": h / 2, "top": h}[va]
+                box = (x0, y0, x0 + w, y0 + h)
+                on_labels = sum(_overlap(box, b) for b in placed)
+                on_marks = sum(_overlap(box, b) for j, b in enumerate(markers) if j != i)
+                outside = w * h - _overlap(box, (frame.x0, frame.y0, frame.x1, frame.y1))
+                score = (on_labels > 0, on_labels + on_marks + outside)
+                if best is None or score < best[0]:
+                    best = (score, box)
+                if score == (False, 0.0):
+                    break
+            assert best is not None  # PLACES is not empty
+            (covers, _), box = best
+            if covers:
+                label.set_visible(False)
+                self.hidden_rows.append(i)
+                continue
+            placed.append(box)
+            label.set_position((box[0], box[1]))
+            label.draw(renderer)
+            label.set_visible(False)  # drawn here only, never again by the axes
+        self.stale = False
+
+
+def _overlap(a, b) -> float:
+    """Area shared by two boxes (x0, y0, x1, y1)."""
+    w = min(a[2], b[2]) - max(a[0], b[0])
+    h = min(a[3], b[3]) - max(a[1], b[1])
+    return w * h if w > 0 and h > 0 else 0.0
 
 
 def draw_frame(

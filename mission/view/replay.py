@@ -41,6 +41,11 @@ class RunData:
     trees: dict  # step index -> TaskTree-like (nodes_m, parent, n_tasks, segments())
     mission: Mission | None
     summary: dict
+    mission_end_s: float | None = None
+    """Mission time at which the mission ended (after it: the vehicles return to launch or land);
+    None when the run does not say (then nothing is marked)."""
+    end_action: str = "rtl"
+    """What the vehicles did at the end (``phireman fly --end``): ``rtl`` or ``land``."""
 
 
 @dataclass(frozen=True)
@@ -109,6 +114,9 @@ def load_run(run_dir: pathlib.Path) -> RunData:
             trees[int(key)] = _Tree(
                 np.asarray(tr["nodes_ne_m"], float), np.asarray(tr["parent"], int), tr["n_tasks"]
             )
+    run_meta = (
+        json.loads((run_dir / "run.json").read_text()) if (run_dir / "run.json").is_file() else {}
+    )
     return RunData(
         t_s[:n_samples],
         pos[:n_samples],
@@ -119,7 +127,25 @@ def load_run(run_dir: pathlib.Path) -> RunData:
         trees,
         mission,
         summary,
+        _mission_end_s(summary, mission),
+        str(run_meta.get("options", {}).get("end") or "rtl"),
     )
+
+
+def _mission_end_s(summary: dict, mission) -> float | None:
+    """When the mission ended, mission seconds: its duration, or earlier if the flight stopped
+    early (``mission_s_flown`` of a ``phireman fly`` summary); in-process runs: the duration."""
+    duration = summary.get("duration_s")
+    if duration is None and mission is not None:
+        duration = mission.run.duration_s
+    flown = summary.get("mission_s_flown")
+    ends = [float(x) for x in (duration, flown) if x is not None]
+    return min(ends) if ends else None
+
+
+def end_phase_text(run: RunData) -> str:
+    """What the vehicles do after the mission end, for labels."""
+    return "landing" if run.end_action == "land" else "return to launch (RTL)"
 
 
 def _tree_at(trees: dict, k: int):
@@ -128,9 +154,12 @@ def _tree_at(trees: dict, k: int):
 
 
 def _zone_painters(mission):
+    """The mission's hazard zones as :class:`mission.view.plots.ZoneArt` (patch and time window)."""
     import matplotlib.pyplot as plt
 
-    painters = []
+    from mission.view.plots import ZoneArt
+
+    painters: list = []
     if mission is None:
         return painters
     for zone in mission.attrition.hazard_zones:
@@ -138,22 +167,16 @@ def _zone_painters(mission):
             c = zone.circle
 
             def paint(ax, c=c):
-                ax.add_patch(
-                    plt.Circle(
-                        (c.center.east_m, c.center.north_m),
-                        c.radius_m,
-                        color="tab:red",
-                        alpha=0.12,
-                        hatch="//",
-                    )
+                return ax.add_patch(
+                    plt.Circle((c.center.east_m, c.center.north_m), c.radius_m, zorder=0.5)
                 )
         else:
             pts = [(p.east_m, p.north_m) for p in zone.polygon]
 
             def paint(ax, pts=pts):
-                ax.add_patch(plt.Polygon(pts, closed=True, color="tab:red", alpha=0.12))
+                return ax.add_patch(plt.Polygon(pts, closed=True, zorder=0.5))
 
-        painters.append(paint)
+        painters.append(ZoneArt(paint, zone.start_s, zone.end_s))
     return painters
 
 
@@ -206,17 +229,16 @@ def find_run_dir(path: pathlib.Path) -> tuple[pathlib.Path, str | None]:
 
 
 def _task_names(run: RunData) -> list | None:
-    names = run.summary.get("task_names")
-    if names:
-        return list(names)
+    """The crews' names as the live page gives them (``Task 7``, ``Engine 7``:
+    :func:`mission.view.live.state.crew_names`); without mission.yaml, the recorded ones."""
     if run.mission is not None:
-        try:
-            from mission.experiments.playback import build_scenario
+        from mission.view.live.state import crew_names
 
-            return list(build_scenario(run.mission, run.summary.get("seed")).task_names)
-        except Exception:  # names are a nicety; a mission that cannot be redrawn still replays
-            return None
-    return None
+        names = crew_names(run.mission)
+        if len(names) == run.task_pos_m.shape[1]:
+            return names
+    recorded = run.summary.get("task_names")
+    return list(recorded) if recorded else None
 
 
 def tree_at(run: RunData, k: int):
@@ -248,6 +270,7 @@ def _scene(run: RunData, fontsize: float = 9.0):
         "m",
         tree_recomputed=not run.trees,
         fontsize=fontsize,
+        mission_end_s=run.mission_end_s,
     )
 
 
@@ -261,6 +284,13 @@ def mark_interrupt(ax, summary: dict):
     return ax.axvline(
         float(t), color="black", ls=":", lw=1.2, label=f"interrupted (Ctrl-C) at {float(t):.0f} s"
     )
+
+
+def _after_end(run: RunData) -> np.ndarray:
+    """(T,) which samples are after the mission end."""
+    if run.mission_end_s is None:
+        return np.zeros(len(run.t_s), bool)
+    return run.t_s > run.mission_end_s + 1e-6
 
 
 def check_animation_writer(animation: str) -> None:
@@ -289,7 +319,7 @@ def replay(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from mission.view.plots import FrameView, strip_figure
+    from mission.view.plots import C_END, FrameView, strip_figure
 
     check_animation_writer(animation)
     run = load_run(run_dir)
@@ -337,9 +367,31 @@ def replay(
         label="connected / ever connected (TU2's integrand)",
     )
     mark_interrupt(ax, run.summary)
+    after = _after_end(run)
+    if after.any():  # the mission is over: what follows is the flight home, not the planner
+        assert run.mission_end_s is not None  # after.any() needs it
+        ax.axvspan(
+            run.mission_end_s,
+            run.t_s[-1],
+            color=C_END,
+            alpha=0.12,
+            lw=0,
+            label=f"after the mission end: {end_phase_text(run)}",
+        )
+        ax.axvline(run.mission_end_s, color=C_END, ls="--", lw=1.2)
+        ax.annotate(
+            f"mission end\n(t = {run.mission_end_s:.0f} s)",
+            (run.mission_end_s, 1.0),
+            xycoords=("data", "axes fraction"),
+            xytext=(4, -4),
+            textcoords="offset points",
+            va="top",
+            fontsize=8.5,
+            color="0.25",
+        )
     ax.set_xlabel("mission time (s)", fontsize=10)
     ax.set_ylabel("%", fontsize=10)
-    ax.set(ylim=(0, 102))
+    ax.set(ylim=(0, 102), xlim=(min(0.0, float(run.t_s[0])), float(run.t_s[-1])))
     ax.set_title(full_title, fontsize=10)
     ax.tick_params(labelsize=9)
     # Below the axes: inside, any corner hides a curve (they span 0-100 % over the whole run).
@@ -353,7 +405,15 @@ def replay(
 
     # Fig. 4: frame strip
     scene = _scene(run)
-    picks = np.unique(np.linspace(0, len(run.t_s) - 1, 5).round().astype(int))
+    after = _after_end(run)
+    in_mission = np.flatnonzero(~after)
+    if after.any() and len(in_mission):  # four frames of the mission, then the last one
+        picks = np.unique(
+            np.r_[in_mission[np.linspace(0, len(in_mission) - 1, 4).round().astype(int)], -1]
+            % len(run.t_s)
+        )
+    else:
+        picks = np.unique(np.linspace(0, len(run.t_s) - 1, 5).round().astype(int))
     fig, axes, _ = strip_figure(len(picks), scene)
     for ax, k in zip(axes, picks):
         FrameView(ax, scene).update(
@@ -363,11 +423,14 @@ def replay(
             run.task_pos_m[k],
             run.connected[k],
             tree_at(run, k),
+            t_s=float(run.t_s[k]),
         )
         ax.set_title(
             f"t = {run.t_s[k]:.0f} s: {run.connected[k].sum()}/{n_tasks} tasks connected, "
-            f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked",
+            f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked"
+            + (f"\nafter the mission end: {end_phase_text(run)}" if after[k] else ""),
             fontsize=10,
+            color="#a04000" if after[k] else "black",
         )
     fig.suptitle(full_title, fontsize=13)
     fig.tight_layout(rect=(0, 0, 1, 0.97))
@@ -415,8 +478,16 @@ def _animate(
     fig.suptitle(title, fontsize=10)
     view = FrameView(ax, scene, clock=True)
     moving = view.update(
-        run.pos_m[0], run.alive[0], run.active[0], run.task_pos_m[0], run.connected[0], None, " "
+        run.pos_m[0],
+        run.alive[0],
+        run.active[0],
+        run.task_pos_m[0],
+        run.connected[0],
+        None,
+        " ",
+        t_s=float(run.t_s[0]),
     )
+    after = _after_end(run)
     for a in moving:
         a.set_animated(True)
     canvas.draw()
@@ -462,7 +533,9 @@ def _animate(
                 run.connected[k],
                 tree_at(run, k),
                 f"t = {run.t_s[k]:5.0f} s\n{run.connected[k].sum()}/{n_tasks} tasks connected\n"
-                f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked",
+                f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked"
+                + (f"\nmission over: {end_phase_text(run)}" if after[k] else ""),
+                t_s=float(run.t_s[k]),
             ):
                 ax.draw_artist(a)
             rgba = np.asarray(canvas.buffer_rgba())

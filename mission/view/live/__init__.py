@@ -44,8 +44,9 @@ async def attach(
     """Start what ``opts`` asks for (serve, forward) around a running station.
 
     Returns objects with ``async aclose()``, to close before the links. ``opts.on_live``, if set,
-    is called once with ``{"url", "key", "forward"}`` (the page's address, the operator key or
-    None, the forwarding outputs' local addresses).
+    is called once with ``{"url", "key", "forward", "forward_outputs"}`` (the page's address, the
+    operator key or None, the forwarding outputs' local addresses, and per output its kind, the
+    text given, the remote ``(host, port)`` as given and the local address).
     """
     out: list = []
     info: dict = {"url": None, "key": None, "forward": []}
@@ -60,6 +61,13 @@ async def attach(
         await fwd.start()
         out.append(_Closer(fwd.close))
         info["forward"] = list(fwd.addresses)
+        # What each output is (udpout: where it sends; udpin / tcpin: where it listens, the
+        # bound port when 0 was asked): what the announcement names (--forward udpout:H:P ->
+        # "to H:P", not our ephemeral source port).
+        info["forward_outputs"] = [
+            {"kind": spec.kind, "text": spec.text, "remote": (spec.host, spec.port), "local": local}
+            for spec, local in zip(fwd.specs, fwd.addresses)
+        ]
         info["forwarder"] = fwd
         log.info(
             "forwarding MAVLink to %s%s",

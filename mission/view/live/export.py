@@ -4,6 +4,15 @@ Contents: the base, the geofence, the hazard zones (circles as 64-gons), every v
 and every crew's track over the whole run (station's belief), and, at each chosen mission time:
 vehicles (state, mode, altitude), crews (name, connected), radio links (vehicle-vehicle,
 vehicle-crew, vehicle-base) and the task tree.
+
+Heights (docs/live_view.md, "GIS export"): GeoJSON positions are 2-D. RFC 7946's optional third
+coordinate is the height above the WGS 84 *ellipsoid*; the station knows heights above mean sea
+level (GLOBAL_POSITION_INT ``alt``) and above the mission origin, and the geoid between the two
+is tens of metres, so a vehicle's height goes in its properties instead: ``alt_m`` above the
+mission origin (the base), ``alt_amsl_m`` above mean sea level. KML writes vehicles at
+``alt_amsl_m`` with ``altitudeMode`` ``absolute`` (KML's absolute is above sea level), extruded
+to the ground; every other geometry is ``clampToGround``. Polygon exterior rings are
+counter-clockwise (RFC 7946 §3.1.6).
 """
 
 from __future__ import annotations
@@ -31,6 +40,15 @@ def _lonlat(src, ne) -> list:
     ]
 
 
+def _ccw(ring: list) -> list:
+    """A closed lon/lat ring counter-clockwise (positive shoelace area), as RFC 7946 §3.1.6
+    wants exterior rings (reversed if it was clockwise)."""
+    x = np.array([p[0] for p in ring], dtype=float)
+    y = np.array([p[1] for p in ring], dtype=float)
+    area2 = float(np.sum(x[:-1] * y[1:] - x[1:] * y[:-1]))
+    return ring if area2 >= 0 else ring[::-1]
+
+
 def _feature(geom_type: str, coords, **props) -> dict:
     return {
         "type": "Feature",
@@ -55,7 +73,7 @@ def features(src, at_mission_s: list[float]) -> list[dict]:
                 [f["n_min"], f["e_min"]],
             ],
         )
-        out.append(_feature("Polygon", [ring], kind="geofence", max_alt_m=f["max_alt_m"]))
+        out.append(_feature("Polygon", [_ccw(ring)], kind="geofence", max_alt_m=f["max_alt_m"]))
     for z in m["hazard_zones"]:
         if z["kind"] == "circle":
             a = np.linspace(0, 2 * math.pi, 65)
@@ -65,7 +83,7 @@ def features(src, at_mission_s: list[float]) -> list[dict]:
         out.append(
             _feature(
                 "Polygon",
-                [_lonlat(src, pts)],
+                [_ccw(_lonlat(src, pts))],
                 kind="hazard_zone",
                 name=z["label"],
                 rate_per_s=z["rate_per_s"],
@@ -95,6 +113,7 @@ def features(src, at_mission_s: list[float]) -> list[dict]:
             pts = pts[np.isfinite(pts).all(axis=1)]
             if len(pts) > 1:
                 out.append(_feature("LineString", _lonlat(src, pts), kind="crew_track", name=name))
+    alt0_amsl_m = float(src.origin.alt_amsl_m)
     for t in at_mission_s:
         fr = src.frame(src.index_at(t))
         tm = fr["t_mission_s"]
@@ -104,16 +123,18 @@ def features(src, at_mission_s: list[float]) -> list[dict]:
             if v["n"][i] is None:
                 continue
             ne[i] = [v["n"][i], v["e"][i]]
+            alt = v["alt"][i]  # above the mission origin (FleetView's NED frame)
             out.append(
                 _feature(
                     "Point",
-                    _lonlat(src, ne[i])[0] + [v["alt"][i] or 0.0],
+                    _lonlat(src, ne[i])[0],
                     kind="vehicle",
                     t_mission_s=tm,
                     vehicle=vid,
                     state=v["state"][i],
                     mode=v["mode"][i],
-                    alt_m=v["alt"][i],
+                    alt_m=alt,
+                    alt_amsl_m=None if alt is None else round(alt + alt0_amsl_m, 1),
                     heading_deg=v["hdg"][i],
                 )
             )
@@ -200,17 +221,25 @@ def _kml(feats: list[dict], name: str) -> str:
         folder = kind if tm is None else f"t+{tm:.0f} s"
         g = f["geometry"]
         c = g["coordinates"]
-        if g["type"] == "Point":
-            geom = f"<Point><coordinates>{','.join(map(str, c))}</coordinates></Point>"
+        ground = "<altitudeMode>clampToGround</altitudeMode>"
+        if g["type"] == "Point" and p.get("alt_amsl_m") is not None:
+            # A vehicle: its height above sea level (KML absolute), a line down to the ground.
+            geom = (
+                "<Point><extrude>1</extrude><altitudeMode>absolute</altitudeMode><coordinates>"
+                f"{c[0]},{c[1]},{p['alt_amsl_m']}</coordinates></Point>"
+            )
+        elif g["type"] == "Point":
+            geom = f"<Point>{ground}<coordinates>{c[0]},{c[1]}</coordinates></Point>"
         elif g["type"] == "LineString":
             geom = (
-                "<LineString><coordinates>"
+                f"<LineString><tessellate>1</tessellate>{ground}<coordinates>"
                 + " ".join(f"{a},{b}" for a, b in c)
                 + "</coordinates></LineString>"
             )
         else:
             geom = (
-                "<Polygon><outerBoundaryIs><LinearRing><coordinates>"
+                f"<Polygon><tessellate>1</tessellate>{ground}<outerBoundaryIs><LinearRing>"
+                "<coordinates>"
                 + " ".join(f"{a},{b}" for a, b in c[0])
                 + "</coordinates></LinearRing></outerBoundaryIs></Polygon>"
             )

@@ -42,6 +42,7 @@ from gcs import events as gcs_events
 from gcs.control import layer_alt_m
 from gcs.fleet import FleetSnapshot, FleetView, MissionOrigin
 from gcs.wire import mavlink
+from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
 from planner.geometry import geodetic_to_ned_m
 
@@ -159,6 +160,7 @@ class ReplaySource:
         self.duration_s = (
             float(meta.get("options", {}).get("duration_s") or 0) or mission.run.duration_s
         )
+        self.end_action = meta.get("options", {}).get("end")
         tlog = read_tlog(run_dir / "flight.tlog")
         self._build(records, tlog, dt_s)
         self.truth = self._read_truth(run_dir / "truth.npz")
@@ -365,6 +367,7 @@ class ReplaySource:
             actions=False,
             tiles=getattr(self, "tiles", None),
             duration_s=self.duration_s,
+            end_action=self.end_action,
         )
         m["replay"] = {
             "t": [
@@ -400,6 +403,19 @@ class ReplaySource:
         return "run" if t_s <= last + 1e-6 else "end"
 
     def frame(self, index: int | None = None, truth: bool = False) -> dict:
+        """Frame ``index`` (default: the last); ``truth`` adds the emulator's truth layer.
+
+        Raises
+        ------
+        IndexError
+            ``index`` out of range.
+        TruthUnavailable
+            ``truth`` for a run without ``truth.npz`` (real vehicles), as on the live view.
+        """
+        if truth and (self.truth is None or not len(self.truth["t_s"])):
+            raise TruthUnavailable(
+                f"no emulator truth in {self.run_dir} (no truth.npz: a run with real vehicles)"
+            )
         if index is None:
             index = len(self.frames) - 1
         if not 0 <= index < len(self.frames):

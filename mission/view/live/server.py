@@ -7,7 +7,9 @@ Routes::
 
     GET  /                 the page (static/index.html; Leaflet vendored under static/leaflet)
     GET  /api/meta         what does not change (mission, base, crews, zones, fence, mode)
-    GET  /api/frame        the current frame (live) or ?i=K, the K-th recorded frame (replay)
+    GET  /api/frame        the current frame (live) or ?i=K, the K-th recorded frame (replay);
+                           &truth=1 adds the emulator's truth (replay of an emulated run only;
+                           404 with a JSON {"error": ...} where there is none, as live)
     GET  /api/stream       live: Server-Sent Events, one frame per message, several a second
     POST /api/action       live: {"action": "rtl", "vehicle": "0:7" | "all"}, header
                            X-Operator-Key: the key the station printed; 403 without it
@@ -33,7 +35,7 @@ from typing import Protocol
 
 from aiohttp import web
 
-__all__ = ["LiveServer", "parse_serve", "STATIC_DIR", "tiles_meta"]
+__all__ = ["LiveServer", "parse_serve", "STATIC_DIR", "tiles_meta", "TruthUnavailable"]
 
 log = logging.getLogger(__name__)
 
@@ -42,11 +44,23 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 
 class Source(Protocol):
     """What the server shows: a live station (:class:`mission.view.live.station.LiveStation`) or a
-    recorded run (:class:`mission.view.live.replay.ReplaySource`)."""
+    recorded run (:class:`mission.view.live.replay.ReplaySource`).
+
+    ``frame(index, truth=True)`` raises :class:`TruthUnavailable` when the source has no truth
+    (always live: the station never sees the emulator's truth; a replay without truth.npz)."""
 
     def meta(self) -> dict: ...
 
-    def frame(self, index: int | None = None) -> dict: ...
+    def frame(self, index: int | None = None, truth: bool = False) -> dict: ...
+
+
+class TruthUnavailable(LookupError):
+    """The emulator's truth was asked of a source that has none (-> HTTP 404)."""
+
+
+def _json_error(cls, text: str) -> web.HTTPException:
+    """An HTTP error whose body is ``{"error": text}`` (what the API answers on failure)."""
+    return cls(text=json.dumps({"error": text}), content_type="application/json")
 
 
 def parse_serve(text: str | int) -> tuple[str, int]:
@@ -190,11 +204,17 @@ class LiveServer:
 
     async def _frame(self, request: web.Request) -> web.Response:
         i = request.query.get("i")
+        truth = request.query.get("truth", "0") not in ("", "0", "false", "no")
         try:
-            extra = {"truth": True} if request.query.get("truth") else {}
-            frame = self.source.frame(None if i is None else int(i), **extra)
+            index = None if i is None else int(i)
+        except ValueError:
+            raise _json_error(web.HTTPBadRequest, f"i must be a frame number, got {i!r}") from None
+        try:
+            frame = self.source.frame(index, truth=truth)
+        except TruthUnavailable as exc:
+            raise _json_error(web.HTTPNotFound, str(exc)) from None
         except (ValueError, IndexError) as exc:
-            raise web.HTTPBadRequest(text=str(exc)) from None
+            raise _json_error(web.HTTPBadRequest, str(exc)) from None
         return web.json_response(frame, dumps=lambda o: json.dumps(o, allow_nan=False))
 
     async def _stream(self, request: web.Request) -> web.StreamResponse:
@@ -229,8 +249,13 @@ class LiveServer:
         act = getattr(self.source, "act", None)
         if act is None or self.key is None:
             raise web.HTTPForbidden(text="actions are off: this view is read-only")
-        given = request.headers.get("X-Operator-Key", "")
-        if not hmac.compare_digest(given.encode(), self.key.encode()):
+        # Header values arrive as str decoded from bytes; a key with bytes that are not UTF-8
+        # (surrogate escapes) cannot be encoded back: it is simply not the key (403, not 500).
+        try:
+            given = request.headers.get("X-Operator-Key", "").encode("utf-8", "surrogateescape")
+        except UnicodeError:
+            given = b""
+        if not given or not hmac.compare_digest(given, self.key.encode()):
             log.warning("web action refused: wrong or missing operator key from %s", request.remote)
             raise web.HTTPForbidden(text="wrong or missing operator key")
         try:

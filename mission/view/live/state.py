@@ -61,13 +61,20 @@ MAX_LINKS = 3000
 
 
 def crew_names(mission) -> list[str]:
-    """One name per task column, in :func:`mission.experiments.playback.task_track_m` order."""
+    """One name per task column, in :func:`mission.experiments.playback.task_track_m` order.
+
+    Counted from 1; the crews of an unnamed ``random`` entry are ``Task 3``, ``Task 4``, ...
+    when it is the mission's only entry, else ``Task 2.1``, ``Task 2.2`` (entry, crew); a named
+    one gives ``Engine 1``, ``Engine 2``."""
     names = []
+    alone = len(mission.tasks) == 1
     for i, task in enumerate(mission.tasks):
         label = task.name or f"Task {i + 1}"
         if task.kind == "random":
             names += [
-                f"{label} {k + 1}" if task.name else f"Task {i + 1}.{k + 1}"
+                f"{label} {k + 1}"
+                if task.name
+                else (f"Task {k + 1}" if alone else f"Task {i + 1}.{k + 1}")
                 for k in range(task.count)
             ]
         else:
@@ -83,8 +90,12 @@ def mission_meta(
     actions: bool,
     tiles: dict | None,
     duration_s: float | None = None,
+    end_action: str | None = None,
 ) -> dict:
-    """What does not change during a run: base, crews, hazard zones, geofence, ranges."""
+    """What does not change during a run: base, crews, hazard zones, geofence, ranges.
+
+    ``end_action``: what the vehicles do once the mission time is over (``"rtl"`` or ``"land"``,
+    ``OperationsConfig.end``); the page names the end phase with it."""
     zones = []
     for k, z in enumerate(mission.attrition.hazard_zones):
         when = (
@@ -142,6 +153,7 @@ def mission_meta(
             "spacing_m": lim.layer_spacing_m,
         },
         "duration_s": mission.run.duration_s if duration_s is None else duration_s,
+        "end_action": end_action,
         "vehicles_expected": mission.vehicles.count,
         "actions": bool(actions),
         "tiles": tiles,

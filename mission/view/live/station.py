@@ -31,6 +31,7 @@ from gcs.events import (
 )
 from gcs.operations import OPERATOR_ACTIONS
 from gcs.wire import mavlink
+from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import (
     Picture,
     classify,
@@ -192,9 +193,22 @@ class LiveStation:
             actions=self.actions_enabled,
             tiles=self.tiles,
             duration_s=self.op.config.duration_s,
+            end_action=self.op.config.end,
         )
 
-    def frame(self, index: int | None = None) -> dict:
+    def frame(self, index: int | None = None, truth: bool = False) -> dict:
+        """The current frame (``index`` is ignored: a live station has only now).
+
+        Raises
+        ------
+        TruthUnavailable
+            ``truth``: the station never sees the emulator's truth (docs/live_view.md).
+        """
+        if truth:
+            raise TruthUnavailable(
+                "no emulator truth on the live view: the station never sees it; replay the run "
+                "directory afterwards (phireman replay RUN_DIR --serve) for the truth layer"
+            )
         op = self.op
         now = self.clock()
         snap = op.fleet.snapshot(now)

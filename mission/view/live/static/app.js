@@ -67,8 +67,11 @@
     layers.grid = L.layerGroup().addTo(map);
     layers.static = L.layerGroup().addTo(map);
     layers.vv = L.polyline([], {color: "#7fb0e8", weight: 1, opacity: 0.55, interactive: false}).addTo(map);
-    layers.vb = L.polyline([], {color: "#222", weight: 1.2, opacity: 0.6, interactive: false}).addTo(map);
-    layers.vc = L.polyline([], {color: "#2ca02c", weight: 1.6, opacity: 0.8, interactive: false}).addTo(map);
+    layers.vb = L.polyline([], {color: "#222", weight: 1.2, opacity: 0.6, interactive: false});
+    layers.vc = L.polyline([], {color: "#2ca02c", weight: 1.6, opacity: 0.8, interactive: false});
+    // One group, on the map and in the layer control: the checkbox shows what is drawn.
+    layers.crewbase = L.layerGroup([layers.vb, layers.vc]).addTo(map);
+    window.phiremanMap = {map, layers};  // for tests and the curious
     layers.tree = L.polyline([], {color: "#c2185b", weight: 3, opacity: 0.75, dashArray: "8 6", interactive: false}).addTo(map);
     layers.targets = L.polyline([], {color: "#555", weight: 1, opacity: 0.7, dashArray: "2 4", interactive: false}).addTo(map);
     layers.tracks = L.layerGroup().addTo(map);
@@ -79,10 +82,9 @@
     layers.labels = L.layerGroup();
     if ((meta.vehicles_expected || 0) <= 80) layers.labels.addTo(map);
     L.control.layers(null, {"vehicle ids": layers.labels, "radio links": layers.vv,
-      "links to crews / base": L.layerGroup([layers.vc, layers.vb]), "task tree": layers.tree,
+      "links to crews / base": layers.crewbase, "task tree": layers.tree,
       "planned targets": layers.targets, "crew tracks": layers.tracks, "metric grid": layers.grid},
       {position: "topleft", collapsed: true}).addTo(map);
-    L.layerGroup([layers.vc, layers.vb]).addTo(map);
 
     // zones, fence, base
     for (const z of meta.hazard_zones) {
@@ -258,9 +260,29 @@
     renderPanel(f);
   }
 
+  // After the mission time the station ends the flight (OperationsConfig.end): phase "end" while
+  // the vehicles return (RTL) or land, "done" once they are down.
+  const missionOver = (f) => f.phase === "end" || f.phase === "done" ||
+    (f.t_mission_s !== null && f.t_mission_s > meta.duration_s + 1e-6);
+  const endText = () => (meta.end_action === "land" ? "vehicles landing where they are" : "vehicles returning to launch (RTL)");
+  function renderBadge(f) {
+    const b = $("badge");
+    let text = "REPLAY", cls = "replay";
+    if (meta.mode === "live") {
+      if (f.phase === "done") { text = "ENDED"; cls = "ended"; }
+      else if (missionOver(f)) { text = meta.end_action === "land" ? "LANDING" : "RTL"; cls = "ending"; }
+      else if (f.phase === "refused") { text = "REFUSED"; cls = "ended"; }
+      else { text = "LIVE"; cls = ""; }
+    }
+    b.textContent = text; b.className = "badge" + (cls ? " " + cls : ""); b.dataset.phase = f.phase;
+  }
   function renderPanel(f) {
-    $("clock").textContent = f.t_mission_s === null ? `before launch (station t=${Math.round(f.t_s)} s)` : `${fmtT(f.t_mission_s)} of ${Math.round(meta.duration_s)} s`;
-    $("phase").textContent = `phase: ${f.phase}` + (f.links.vv_total > f.links.vv.length / 2 ? ` — ${f.links.vv_total} radio links, ${f.links.vv.length / 2} shortest drawn` : "");
+    const dur = Math.round(meta.duration_s);
+    $("clock").textContent = f.t_mission_s === null ? `before launch (station t=${Math.round(f.t_s)} s)`
+      : missionOver(f) ? `mission over at t+${dur} s (now ${fmtT(f.t_mission_s)})` : `${fmtT(f.t_mission_s)} of ${dur} s`;
+    const phaseText = f.phase === "done" ? "done — flight over" : missionOver(f) ? `${f.phase} — mission over, ${endText()}` : f.phase;
+    $("phase").textContent = `phase: ${phaseText}` + (f.links.vv_total > f.links.vv.length / 2 ? ` — ${f.links.vv_total} radio links, ${f.links.vv.length / 2} shortest drawn` : "");
+    renderBadge(f);
     $("tu1").textContent = pct(f.tu1); $("tu2").textContent = pct(f.tu2);
     $("crews-connected").textContent = `${f.crews_connected} / ${f.crews.n.length}`;
     for (const s of meta.states) $(`count-${s}`).textContent = f.counts[s] || 0;
@@ -324,6 +346,11 @@
     g.fillText(String(NC), W - pad.r + 3, pad.t + 8); g.fillText("0", W - pad.r + 3, H - pad.b);
     g.fillStyle = "#444"; g.textAlign = "center";
     g.fillText(`mission time (s), 0 - ${Math.round(T)}`, W / 2, H - 5);
+    if (T > meta.duration_s) {  // after the mission end: shaded, the end marked
+      g.fillStyle = "rgba(255, 140, 0, 0.12)"; g.fillRect(x(meta.duration_s), pad.t, x(T) - x(meta.duration_s), H - pad.t - pad.b);
+      g.strokeStyle = "#e67e00"; g.setLineDash([4, 3]); g.beginPath(); g.moveTo(x(meta.duration_s), pad.t); g.lineTo(x(meta.duration_s), H - pad.b); g.stroke(); g.setLineDash([]);
+      g.fillStyle = "#b35f00"; g.textAlign = "right"; g.fillText(meta.end_action === "land" ? "end: land" : "end: RTL", W - pad.r - 2, pad.t + 10);
+    }
     const line = (ys, yf, color) => { g.strokeStyle = color; g.lineWidth = 2; g.beginPath();
       s.t.forEach((t, k) => (k ? g.lineTo(x(t), yf(ys[k])) : g.moveTo(x(t), yf(ys[k])))); g.stroke(); };
     if (s.t.length) { line(s.networked, yv, "#1f6fd1"); line(s.crews, yc, "#2ca02c"); }
