@@ -765,7 +765,12 @@ class EnduranceSpec(_Section):
         names -= {"critical_frac", "return_speed_m_s"}  # from the battery and the vehicles
         bad = sorted(set(self.params) - names)
         if bad:
-            return [("params", f"unknown setting(s) {', '.join(bad)}; valid: {', '.join(sorted(names))}")]
+            return [
+                (
+                    "params",
+                    f"unknown setting(s) {', '.join(bad)}; valid: {', '.join(sorted(names))}",
+                )
+            ]
         return []
 
 
@@ -1046,9 +1051,8 @@ class Mission(_Section):
         end = self.endurance
         batteries = ""
         if end.battery is not None:
-            batteries = (
-                f", {end.battery.endurance_s / 60:.0f}-min batteries, "
-                + ("relay rotation" if end.rotation else "no rotation")
+            batteries = f", {end.battery.endurance_s / 60:.0f}-min batteries, " + (
+                "relay rotation" if end.rotation else "no rotation"
             )
         return (
             f"{self.name}: {fleet}, {self.n_tasks} tasks ({tasks}), radio {_fmt(self.radio.range_m)} m, "
