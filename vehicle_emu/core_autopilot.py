@@ -74,6 +74,8 @@ class AutopilotRules(CoreState):
         self._missions.update(now_s)
         if self._last_gcs_hb_s is not None:
             self._check_gcs_link(now_s)
+        if self.batt is not None:  # the firmware's battery failsafes (vehicle_emu.battery_monitor)
+            self.batt.update(now_s)
 
     def _gcs_failsafe_config(self) -> tuple[bool, float]:
         """``pers.gcs_failsafe_config()``, kept until the parameter table changes (its stamp:

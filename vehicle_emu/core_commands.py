@@ -81,7 +81,7 @@ class CommandHandlers(SetpointHandlers):
             return (C.MAV_RESULT_ACCEPTED if ok else C.MAV_RESULT_FAILED), None
         if cmd == C.MAV_CMD_REQUEST_MESSAGE:
             msg_id = int(p[0]) if math.isfinite(p[0]) else -1
-            builder = tm.BUILDERS.get(msg_id)
+            builder = tm.BUILDERS.get(msg_id) if self._can_send(msg_id) else None
             if builder is None:
                 return self.pers.no_such_message, None
             return C.MAV_RESULT_ACCEPTED, lambda: self._send(builder(self, now_s))

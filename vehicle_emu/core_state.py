@@ -151,6 +151,8 @@ class CoreState:
     gcs_failsafe: bool
     offboard_failsafe: bool
     streams: tm.StreamScheduler
+    batt: Any
+    """The firmware's battery monitor (vehicle_emu.battery_monitor), None: endless battery."""
     _missions: MissionServer
     # Set from the parameters by the personality (vehicle_emu/personality/*.py).
     _guided_speed_m_s: float
@@ -167,7 +169,13 @@ class CoreState:
         self.stats.bytes_out += len(buf)
 
     def _set_interval(self, msg_id: int, interval_s: float, now_s: float) -> bool:
+        if not self._can_send(msg_id):
+            return False
         return self.streams.set_interval(msg_id, interval_s, now_s)
+
+    def _can_send(self, msg_id: int) -> bool:
+        """Whether this vehicle has message ``msg_id`` at all (BATTERY_STATUS: a battery)."""
+        return msg_id in tm.BUILDERS and (msg_id != tm.M_BATTERY_STATUS or self.batt is not None)
 
     def _statustext(self, now_s: float, severity: int, text: str) -> None:
         self._send(mavlink.MAVLink_statustext_message(severity, text.encode()[:50]))

@@ -22,6 +22,8 @@ __all__ = [
     "SigningChanged",
     "TakeoffStarted",
     "VehicleKilled",
+    "VehiclePoweredOff",
+    "VehicleBooted",
 ]
 
 
@@ -71,7 +73,8 @@ class CommandHandled(EmulatorEvent):
 @dataclass(frozen=True)
 class FailsafeTriggered(EmulatorEvent):
     kind: str = ""
-    """'gcs' (GCS heartbeat / data link lost) or 'offboard' (PX4 setpoint stream lost)."""
+    """'gcs' (GCS heartbeat / data link lost), 'offboard' (PX4 setpoint stream lost),
+    'battery_low', 'battery_critical' or 'battery_emergency' (PX4) (vehicle_emu.battery_monitor)."""
     action: str = ""
     """What the vehicle did: 'RTL', 'LAND', 'HOLD', 'DISARM', 'NONE', or a mode name."""
 
@@ -98,3 +101,21 @@ class VehicleKilled(EmulatorEvent):
     index: int = 0
     cause: str = ""
     """'hazard' (random attrition) or 'scripted'."""
+
+
+@dataclass(frozen=True)
+class VehiclePoweredOff(EmulatorEvent):
+    """The vehicle went silent for a battery swap (vehicle_emu.swarm, docs/design/endurance.md §6.4)."""
+
+    network: int = 0
+    index: int = 0
+    boot_at_s: float = 0.0
+    """When it powers up again, vehicle seconds."""
+
+
+@dataclass(frozen=True)
+class VehicleBooted(EmulatorEvent):
+    """The vehicle powered up again with a full battery (time_boot_ms from 0)."""
+
+    network: int = 0
+    index: int = 0

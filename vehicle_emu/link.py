@@ -49,6 +49,8 @@ from . import telemetry as tm
 from . import wire
 from .core_commands import CommandHandlers
 from .core_protocols import ProtocolHandlers
+from .battery import BatteryConfig
+from .battery_monitor import monitor_for
 from .core_state import CoreStats, RateLimitedLog
 from .missions import MissionServer
 from .params import ParamTable, defaults_for
@@ -113,6 +115,9 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         timestamps (the firmware uses GPS time there).
     log_limiter : RateLimitedLog, optional
         Rate limit for warnings caused by remote input (a Swarm shares one among its cores).
+    battery : BatteryConfig, optional
+        Drain a battery (docs/design/endurance.md §6) when the core owns its physics; with a
+        shared physics the batteries are on when ``physics.battery`` is set. Off: endless.
 
     Notes
     -----
@@ -139,6 +144,7 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         unix_time_at_zero_s: float = 1.7e9,
         network: int = 0,
         log_limiter: RateLimitedLog | None = None,
+        battery: BatteryConfig | None = None,
     ) -> None:
         if not 1 <= int(sysid) <= 254:
             raise ValueError(f"vehicle sysid must be 1..254, got {sysid}")
@@ -152,6 +158,8 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         if physics is None:
             physics = Physics(np.zeros((1, 3)), origin_lla=origin_lla)
             index = 0
+            if battery is not None:
+                physics.enable_battery(battery)
         self.physics = physics
         self.index = int(index)
         self.alive = True
@@ -162,10 +170,21 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         self._ekf_ready_s = float(now_s) + float(ekf_ready_after_s)
         self.trusted_addrs = frozenset(trusted_addrs)
 
-        spec = defaults_for(personality)
+        pack = physics.battery
+        spec = defaults_for(personality, battery=pack is not None)
         overrides = dict(params or {})
         overrides.setdefault(self.pers.sysid_param, self.sysid)
+        if pack is not None:
+            # The monitor configured for the pack it carries (vehicle_emu.params).
+            cfg = pack.config
+            if personality == "ardupilot":
+                overrides.setdefault("BATT_CAPACITY", cfg.capacity_mah)
+            else:
+                overrides.setdefault("BAT1_CAPACITY", cfg.capacity_mah)
+                overrides.setdefault("BAT1_N_CELLS", cfg.cells)
         self.params = ParamTable(spec, overrides)
+        #: The firmware's battery monitor (vehicle_emu.battery_monitor); None: endless battery.
+        self.batt = monitor_for(personality, self) if pack is not None else None
 
         allow_unsigned = frozenset(
             {mavlink.MAVLINK_MSG_ID_RADIO_STATUS, mavlink.MAVLINK_MSG_ID_SETUP_SIGNING}
@@ -215,7 +234,10 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
         self.offboard_failsafe = False
 
         #: Streams: interval and next due time per message id (vehicle_emu.telemetry).
-        self.streams = tm.StreamScheduler(self.pers.default_rates_hz, now_s)
+        rates = dict(self.pers.default_rates_hz)
+        if self.batt is not None:
+            rates.update(self.batt.default_rates_hz)
+        self.streams = tm.StreamScheduler(rates, now_s)
         self._missions = MissionServer(
             self._send, self.pers.mission_home_items == 0, lambda: self.home_lla
         )

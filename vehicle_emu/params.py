@@ -25,7 +25,15 @@ from dataclasses import dataclass
 
 from .wire import dialect
 
-__all__ = ["ParamSpec", "ParamTable", "ARDUPILOT_PARAMS", "PX4_PARAMS", "defaults_for"]
+__all__ = [
+    "ParamSpec",
+    "ParamTable",
+    "ARDUPILOT_PARAMS",
+    "PX4_PARAMS",
+    "ARDUPILOT_BATTERY_PARAMS",
+    "PX4_BATTERY_PARAMS",
+    "defaults_for",
+]
 
 _F = dialect.MAV_PARAM_TYPE_REAL32
 _I8 = dialect.MAV_PARAM_TYPE_INT8
@@ -98,11 +106,42 @@ PX4_PARAMS: tuple[ParamSpec, ...] = (
 )
 
 
-def defaults_for(personality: str) -> tuple[ParamSpec, ...]:
+# The battery monitor's parameters, present only when the emulator's batteries are on
+# (vehicle_emu.battery; without them the tables above are unchanged). docs/design/endurance.md §6.
+# ArduCopter: libraries/AP_BattMonitor/AP_BattMonitor_Params.cpp (var_info; DEFAULT_LOW_BATTERY_VOLTAGE
+# is 10.5 V for Copter, 0 for the other vehicles), types as declared in AP_BattMonitor_Params.h.
+ARDUPILOT_BATTERY_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("BATT_MONITOR", 4, _I8, 0, 30),  # emulator default (firmware 0; SITL copter 4)
+    ParamSpec("BATT_CAPACITY", 3300, _I32, 0, 2**31 - 1),  # mAh (the emulator's pack)
+    ParamSpec("BATT_LOW_TIMER", 10, _I8, 0, 120),  # s; 0 disables the voltage failsafes
+    ParamSpec("BATT_FS_VOLTSRC", 0, _I8, 0, 1),  # 0 raw voltage, 1 sag compensated
+    ParamSpec("BATT_LOW_VOLT", 10.5, _F, 0, 1000),  # V (Copter default); 0 disables
+    ParamSpec("BATT_LOW_MAH", 0, _I32, 0, 2**31 - 1),  # mAh left; 0 disables
+    ParamSpec("BATT_CRT_VOLT", 0.0, _F, 0, 1000),  # V; 0 disables
+    ParamSpec("BATT_CRT_MAH", 0, _I32, 0, 2**31 - 1),  # mAh left; 0 disables
+    ParamSpec("BATT_FS_LOW_ACT", 0, _I8, 0, 7),  # Copter: 0 None, 1 Land, 2 RTL, 3 SmartRTL
+    ParamSpec("BATT_FS_CRT_ACT", 0, _I8, 0, 7),  # or RTL, 4 SmartRTL or Land, 5 Terminate, ...
+)
+
+# PX4: src/lib/battery/battery_params.c (BAT_*_THR), module.yaml (BAT1_*),
+# src/modules/commander/commander_params.yaml (COM_LOW_BAT_ACT).
+PX4_BATTERY_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("BAT_LOW_THR", 0.15, _F, 0.12, 0.5),  # fraction: BATTERY_WARNING_LOW below
+    ParamSpec("BAT_CRIT_THR", 0.07, _F, 0.05, 0.5),  # fraction: BATTERY_WARNING_CRITICAL below
+    ParamSpec("BAT_EMERGEN_THR", 0.05, _F, 0.03, 0.5),  # fraction: BATTERY_WARNING_EMERGENCY
+    ParamSpec("BAT_AVRG_CURRENT", 15.0, _F, 0, 500),  # A, time-remaining estimate at rest
+    ParamSpec("BAT1_N_CELLS", 3, _I32, 1, 14),  # emulator default: the emulator's pack
+    ParamSpec("BAT1_CAPACITY", 3300.0, _F, -1, 100000),  # mAh; emulator default (firmware -1)
+    ParamSpec("COM_LOW_BAT_ACT", 0, _I32, 0, 3),  # 0 Warning, 2 Land, 3 Return then Land
+)
+
+
+def defaults_for(personality: str, battery: bool = False) -> tuple[ParamSpec, ...]:
+    """The parameter table of ``personality``, with the battery monitor's when ``battery``."""
     if personality == "ardupilot":
-        return ARDUPILOT_PARAMS
+        return ARDUPILOT_PARAMS + (ARDUPILOT_BATTERY_PARAMS if battery else ())
     if personality == "px4":
-        return PX4_PARAMS
+        return PX4_PARAMS + (PX4_BATTERY_PARAMS if battery else ())
     raise ValueError(f"personality must be 'ardupilot' or 'px4', got {personality!r}")
 
 

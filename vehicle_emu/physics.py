@@ -23,6 +23,8 @@ import numpy as np
 
 from planner.geometry import DOWN, EAST, NORTH, ned_to_geodetic
 
+from .battery import Battery, BatteryConfig
+
 __all__ = ["Physics", "CTRL_POS", "CTRL_VEL", "CTRL_LAND"]
 
 CTRL_POS, CTRL_VEL, CTRL_LAND = 0, 1, 2
@@ -84,12 +86,21 @@ class Physics:
         self.landed = np.ones(n, dtype=bool)
         self.battery_frac = np.ones(n)
         self.battery_drain_per_s = 0.0
+        self.battery: Battery | None = None
+        """The packs' truth (vehicle_emu.battery), None: endless batteries (the default)."""
         self.tau_pos_s = float(tau_pos_s)
         self.tau_vel_s = float(tau_vel_s)
         self.lat_deg = np.zeros(n)
         self.lon_deg = np.zeros(n)
         self.alt_amsl_m = np.zeros(n)
         self.update_geodetic()
+
+    def enable_battery(self, config: BatteryConfig) -> Battery:
+        """Drain batteries from now on (:mod:`vehicle_emu.battery`); ``battery_frac`` follows
+        the packs' state of charge."""
+        self.battery = Battery(self.n, config)
+        self.battery_frac = self.battery.soc
+        return self.battery
 
     def update_geodetic(self) -> None:
         """Recompute ``lat_deg``, ``lon_deg``, ``alt_amsl_m`` (N,) for all vehicles (one call)."""
@@ -128,9 +139,14 @@ class Physics:
             return
         n_sub = max(1, int(np.ceil(dt_s / MAX_SUBSTEP_S)))
         h = dt_s / n_sub
+        batt = self.battery
         for _ in range(n_sub):
             self._substep(h)
-        if self.battery_drain_per_s:
+            if batt is not None:
+                batt.step(h, self.vel_ned_m_s, self.armed & self.alive)
+        if batt is not None:
+            self.battery_frac = batt.soc
+        elif self.battery_drain_per_s:
             drain = self.battery_drain_per_s * dt_s * (self.armed & self.alive)
             self.battery_frac = np.maximum(0.0, self.battery_frac - drain)
 

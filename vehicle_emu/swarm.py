@@ -53,6 +53,7 @@ from planner.metrics import task_uptime, uptime_series
 from . import events as ev
 from . import wire
 from .attrition import Attrition
+from .battery import BatteryConfig, SwapConfig
 from .link import TICK_S, RateLimitedLog, VehicleCore
 from .physics import Physics
 from .radio import Radio, RadioConfig
@@ -71,6 +72,8 @@ log = logging.getLogger(__name__)
 
 VEHICLES_PER_NETWORK = 254
 _MAX_EVENTS = 100_000
+#: The ground crew a swarm with batteries has unless told otherwise (docs/design/endurance.md §6.4).
+DEFAULT_SWAP = SwapConfig()
 #: Default silence (vehicle seconds) after which a learned peer is forgotten: 6 x ArduPilot's
 #: FS_GCS_TIMEOUT default (5 s), 3 x PX4's COM_DL_LOSS_T default (10 s); by then the vehicles
 #: themselves have declared that GCS lost.
@@ -169,6 +172,14 @@ class Swarm:
         silent S times longer in vehicle time; raise this accordingly.
     max_peers : int
         Learned peers kept per endpoint (least recently heard dropped first).
+    battery : BatteryConfig, optional
+        Drain batteries (docs/design/endurance.md §6): the firmware's battery monitor, its
+        telemetry and failsafes in every vehicle; a vehicle that runs its pack empty is lost.
+        None (default): endless batteries, the emulator as it always was.
+    battery_swap : SwapConfig or None
+        With batteries: the ground crew at the base (on by default): a vehicle landed and
+        disarmed at its home with a used pack powers off, and boots again with a full one
+        ``swap_time_s`` later (parameters kept, ``time_boot_ms`` from 0). None: no swaps.
     telemetry : {'batch', 'reference'}
         'batch' (default): each message type packed once per tick for every vehicle due
         (:mod:`vehicle_emu.telemetry_batch`); 'reference': every vehicle builds and packs its
@@ -207,6 +218,8 @@ class Swarm:
         peer_timeout_s: float = PEER_TIMEOUT_S,
         max_peers: int = MAX_PEERS,
         telemetry: str = "batch",
+        battery: BatteryConfig | None = None,
+        battery_swap: SwapConfig | None = DEFAULT_SWAP,
     ) -> None:
         if n_vehicles < 1:
             raise ValueError(f"n_vehicles must be >= 1, got {n_vehicles}")
@@ -226,6 +239,13 @@ class Swarm:
         self.physics = Physics(
             spawn, origin_lla=self.home_lla, max_speed_h_m_s=max_speed_h_m_s, tau_pos_s=tau_pos_s
         )
+        if battery is not None:
+            self.physics.enable_battery(battery)
+        self.battery_swap = battery_swap if battery is not None else None
+        self.powered = np.ones(n, dtype=bool)
+        """(N,) bool: the autopilot is on (False during a battery swap)."""
+        self.boot_at_s = np.full(n, np.inf)
+        """(N,) when each powered-off vehicle boots again, vehicle seconds."""
         self.radio = Radio(radio or RadioConfig(), np.zeros(3), radio_rng)
         self.attrition = Attrition(
             n, hazard_per_s, kills, attrition_rng, airborne_only=airborne_only_attrition
@@ -247,26 +267,18 @@ class Swarm:
         self.log_limiter = RateLimitedLog(log)
         core_limiter = RateLimitedLog(logging.getLogger(VehicleCore.__module__))
         self.cores: list[VehicleCore] = []
+        self._personalities = personalities
+        self._core_kw = dict(
+            trusted_addrs=trusted_addrs,
+            ekf_ready_after_s=ekf_ready_after_s,
+            unix_time_at_zero_s=unix_time_at_zero_s,
+            log_limiter=core_limiter,
+        )
+        self._stream_rates_hz = dict(stream_rates_hz or {})
         for i in range(n):
             p = dict(params or {})
             p.update(per_vehicle_params.get(i, {}))
-            core = VehicleCore(
-                int(self.sysid_of_index[i]),
-                personalities[i],
-                now_s=now_s,
-                physics=self.physics,
-                index=i,
-                params=p,
-                signing_key=signing_key,
-                trusted_addrs=trusted_addrs,
-                ekf_ready_after_s=ekf_ready_after_s,
-                unix_time_at_zero_s=unix_time_at_zero_s,
-                network=int(self.network_of_index[i]),
-                log_limiter=core_limiter,
-            )
-            for msg_id, hz in (stream_rates_hz or {}).items():
-                core.set_stream_rate(int(msg_id), float(hz), now_s)
-            self.cores.append(core)
+            self.cores.append(self._make_core(i, now_s, p, signing_key))
         #: Indices of the cores that queued frames since datagrams_to_send last looked (each
         #: core adds its own): the flush after every datagram received visits those, not all.
         self._out_dirty: set[int] = {i for i, core in enumerate(self.cores) if core._out}
@@ -321,6 +333,23 @@ class Swarm:
         self._batch = BatchTelemetry(self.cores, self.physics) if telemetry == "batch" else None
         self.radio.update(self.physics.pos_ned_m, self.physics.alive)
         self._record_truth(self._t_s)  # sample 0: the state before any motion
+
+    def _make_core(self, i: int, now_s: float, params: dict, signing_key) -> VehicleCore:
+        """Boot the autopilot of row ``i`` at ``now_s`` (at start, and after a battery swap)."""
+        core = VehicleCore(
+            int(self.sysid_of_index[i]),
+            self._personalities[i],
+            now_s=now_s,
+            physics=self.physics,
+            index=i,
+            params=params,
+            signing_key=signing_key,
+            network=int(self.network_of_index[i]),
+            **self._core_kw,
+        )
+        for msg_id, hz in self._stream_rates_hz.items():
+            core.set_stream_rate(int(msg_id), float(hz), now_s)
+        return core
 
     # ------------------------------------------------------------------ identity / endpoints
 
@@ -522,8 +551,10 @@ class Swarm:
             ph.step(dt)
             ph.update_geodetic()
         self._t_s = max(t0, now_s)
+        if ph.battery is not None:
+            self._battery_ground_truth(now_s)
         if now_s - self._last_radio_s >= self.radio_period_s - 1e-9 or self._radio_dirty:
-            self.radio.update(ph.pos_ned_m, ph.alive)
+            self.radio.update(ph.pos_ned_m, ph.alive & self.powered)
             self._last_radio_s = now_s
             self._radio_dirty = False
         if now_s >= self._next_truth_s - 1e-9:
@@ -605,9 +636,75 @@ class Swarm:
 
     # ------------------------------------------------------------------ attrition / truth
 
+    # ------------------------------------------------------------------ batteries
+
+    def _battery_ground_truth(self, now_s: float) -> None:
+        """After the physics step: packs run empty (the vehicle is lost), the ground crew's swaps
+        (power off, then boot with a full pack). docs/design/endurance.md §6.4."""
+        ph = self.physics
+        batt = ph.battery
+        assert batt is not None  # called only with batteries on
+        soc = batt.soc
+        empty = ph.alive & self.powered & ph.armed & (soc <= 0.0)
+        for i in np.flatnonzero(empty).tolist():
+            self.kill(i, now_s, "battery_empty")
+        swap = self.battery_swap
+        if swap is None:
+            return
+        for i in np.flatnonzero(self.boot_at_s <= now_s + 1e-9).tolist():
+            self._boot(i, now_s)
+        soc = batt.soc  # after the boots (a booted vehicle has a full pack)
+        home = np.array([c.home_ned_m for c in self.cores]).reshape(-1, 3)  # (N, 3) world NED
+        at_home = np.hypot(*(ph.pos_ned_m[:, :2] - home[:, :2]).T) <= swap.home_radius_m
+        due = (
+            ph.alive & self.powered & ~ph.armed & ph.landed & at_home & (soc < swap.used_below_frac)
+        )
+        for i in np.flatnonzero(due).tolist():
+            self._power_off(i, now_s, now_s + swap.swap_time_s)
+
+    def _power_off(self, i: int, now_s: float, boot_at_s: float) -> None:
+        """The crew pulls the pack: the autopilot is off, silent, and no relay."""
+        core = self.cores[i]
+        core.kill()  # silent: nothing in, nothing out, no timers (the core is replaced at boot)
+        self.powered[i] = False
+        self.boot_at_s[i] = boot_at_s
+        self.radio.active[i] = False
+        self._radio_dirty = True
+        net, sysid = self.identity(i)
+        log.info("vehicle %d (sysid %d): battery swap until t=%.1f s", i, sysid, boot_at_s)
+        self._events.append(ev.VehiclePoweredOff(sysid, now_s, net, i, boot_at_s))
+
+    def _boot(self, i: int, now_s: float) -> None:
+        """Power up with a full pack: a new autopilot (``time_boot_ms`` from 0, boot mode, EKF
+        and arming wait of a fresh start) with the parameters and signing key it stored."""
+        ph = self.physics
+        assert ph.battery is not None  # swaps only with batteries
+        old = self.cores[i]
+        params = {name: old.params[name] for name in old.params.names()}
+        # The key the vehicle stored (ArduPilot keeps it in its storage, PX4 on its SD card).
+        key = old._codec._mav.signing.secret_key if old._codec.signing_enabled else None
+        ph.battery.replace(i)
+        ph.battery_frac = ph.battery.soc
+        ph.hold(i)
+        ph.vel_ned_m_s[i] = 0.0
+        core = self._make_core(i, now_s, params, key)
+        core._out_dirty = self._out_dirty
+        self.cores[i] = core
+        if self._batch is not None:
+            self._batch.rebind(i, core)
+        self.powered[i] = True
+        self.boot_at_s[i] = np.inf
+        self._radio_dirty = True
+        net, sysid = self.identity(i)
+        self._events.append(ev.VehicleBooted(sysid, now_s, net, i))
+
     def kill(self, index: int, now_s: float, cause: str = "scripted") -> None:
         """Lose vehicle ``index`` now: it freezes and goes silent forever."""
         core = self.cores[index]
+        if not self.powered[index]:  # lost during a swap: it never boots again
+            self.powered[index] = True
+            self.boot_at_s[index] = np.inf
+            core.alive = True
         if not core.alive:
             return
         core.kill()

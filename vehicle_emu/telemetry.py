@@ -45,6 +45,7 @@ __all__ = [
     "M_MISSION_CURRENT",
     "M_ATTITUDE",
     "M_VFR_HUD",
+    "M_BATTERY_STATUS",
 ]
 
 M_HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
@@ -61,6 +62,7 @@ M_EXTENDED_SYS_STATE = mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE
 M_MISSION_CURRENT = mavlink.MAVLINK_MSG_ID_MISSION_CURRENT
 M_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
 M_VFR_HUD = mavlink.MAVLINK_MSG_ID_VFR_HUD
+M_BATTERY_STATUS = mavlink.MAVLINK_MSG_ID_BATTERY_STATUS
 
 #: Largest finite float32 (every float field on the wire is single precision).
 _FLT_MAX = float(np.finfo(np.float32).max)
@@ -170,6 +172,8 @@ SYS_STATUS_SENSORS = (
 
 
 def sys_status(core, now_s: float):
+    if core.batt is not None:
+        return _sys_status_battery(core)
     sensors = SYS_STATUS_SENSORS
     batt = float(core.physics.battery_frac[core.index])
     health = sensors | core.pers.sys_status_health_extra
@@ -188,6 +192,24 @@ def sys_status(core, now_s: float):
         0,
         0,
     )
+
+
+def _sys_status_battery(core):
+    """SYS_STATUS of a vehicle with a battery: the battery fields and sensor bits as its
+    firmware fills them (vehicle_emu.battery_monitor)."""
+    bits, health_bit, voltage_mv, current_ca, remaining = core.batt.sys_status_fields()
+    sensors = SYS_STATUS_SENSORS | bits
+    health = SYS_STATUS_SENSORS | health_bit | core.pers.sys_status_health_extra
+    return mavlink.MAVLink_sys_status_message(
+        sensors, sensors, health, 100, voltage_mv, current_ca, remaining, 0, 0, 0, 0, 0, 0
+    )
+
+
+def battery_status(core, now_s: float):
+    """BATTERY_STATUS as the vehicle's firmware fills it (vehicle_emu.battery_monitor)."""
+    if core.batt is None:
+        raise ValueError("BATTERY_STATUS of a vehicle without a battery")
+    return core.batt.battery_status(now_s)
 
 
 def global_position_int(core, now_s: float):
@@ -367,4 +389,5 @@ BUILDERS = {
     M_MISSION_CURRENT: mission_current,
     M_ATTITUDE: attitude,
     M_VFR_HUD: vfr_hud,
+    M_BATTERY_STATUS: battery_status,
 }

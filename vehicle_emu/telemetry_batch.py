@@ -207,6 +207,22 @@ def _heartbeat(b, cores, rows, now_s):
 
 
 def _sys_status(b, cores, rows, now_s):
+    if b.ph.battery is not None:
+        # The firmware's own numbers (vehicle_emu.battery_monitor), one call per vehicle at the
+        # codec edge: the same function the reference builder calls.
+        f = np.array([c.batt.sys_status_fields() for c in cores], dtype=np.int64).reshape(-1, 5)
+        s = tm.SYS_STATUS_SENSORS | f[:, 0]
+        return {
+            "onboard_control_sensors_present": s,
+            "onboard_control_sensors_enabled": s,
+            "onboard_control_sensors_health": tm.SYS_STATUS_SENSORS
+            | f[:, 1]
+            | b.health_extra[rows],
+            "load": 100,
+            "voltage_battery": f[:, 2],
+            "current_battery": f[:, 3],
+            "battery_remaining": f[:, 4],
+        }
     batt = b.ph.battery_frac[rows]
     s = tm.SYS_STATUS_SENSORS
     return {
@@ -434,6 +450,25 @@ class BatchTelemetry:
         """Frames packed by the batch path so far."""
         self.n_reference = 0
         """Frames of vehicles that took the reference path (signing, non-finite state)."""
+
+    def rebind(self, i: int, core) -> None:
+        """Row ``i`` is served by a new ``core`` from now on (a vehicle that booted again)."""
+        if core.physics is not self.ph or core.index != i:
+            raise ValueError("the new core must be row i of the shared physics")
+        self.cores[i] = core
+        self.boot_s[i] = core._boot_s
+        self.home_ned_m[i] = core.home_ned_m
+        self.home_alt_m[i] = core.home_lla[2]
+        self.home_e7[i] = (
+            deg_to_e7(core.home_lla[0]),
+            deg_to_e7(core.home_lla[1]),
+            m_to_mm(core.home_lla[2]),
+        )
+        self.autopilot[i] = core.pers.autopilot
+        self.health_extra[i] = core.pers.sys_status_health_extra
+        self.sysid[i] = core.sysid
+        self.compid[i] = core.compid
+        core.streams.mirror_into(self.next_any_s, i)
 
     def _sane_rows(self) -> np.ndarray:
         ph = self.ph

@@ -27,6 +27,7 @@ from mission.format.scenario import (  # re-exported: importers of mission.fligh
 )
 from mission.format.schema import Mission
 from planner.metrics import task_uptime
+from vehicle_emu.battery import BatteryConfig, SwapConfig
 from vehicle_emu.radio import RadioConfig
 from vehicle_emu.swarm import Swarm
 
@@ -58,6 +59,21 @@ def _speed_params(
         want = limit_params(ARDUPILOT if p == "ardupilot" else PX4, max_speed_m_s, climb_rate_m_s)
         out[i] = {k: v for k, v in want.items() if k not in user}
     return out
+
+
+def _battery(mission: Mission, max_speed_m_s: float, climb_rate_m_s: float):
+    """The emulator's packs and ground crew for the mission's ``endurance`` section (None, None:
+    endless batteries). docs/design/endurance.md §6."""
+    spec = mission.endurance.battery
+    if spec is None:
+        return None, None
+    battery = BatteryConfig(
+        hover_endurance_s=spec.endurance_s,
+        speed_drain_factor=spec.speed_drain_factor,
+        ref_speed_m_s=max_speed_m_s,
+        ref_climb_m_s=climb_rate_m_s,
+    )
+    return battery, SwapConfig(swap_time_s=mission.endurance.base.resources().swap_time_s)
 
 
 def mission_scenario(
@@ -133,6 +149,7 @@ def build_swarm(
     spawn = np.column_stack([scenario.spawn_ne_m, np.zeros(len(scenario.spawn_ne_m))])
     o = mission.origin
     pers = _personalities(mission, personality)
+    battery, swap = _battery(mission, emu.max_speed_m_s, emu.climb_rate_m_s)
     swarm = _MissionSwarm(
         emu.count,
         personality=pers,
@@ -150,6 +167,8 @@ def build_swarm(
         max_speed_h_m_s=emu.max_speed_m_s,
         tick_s=tick_s,
         radio_period_s=0.2,
+        battery=battery,
+        battery_swap=swap,
     )
     swarm.physics.climb_rate_m_s[:] = emu.climb_rate_m_s
     return swarm
