@@ -149,15 +149,16 @@ def add_replay_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def run_replay(args) -> int | None:
-    """``phireman replay --serve / --export``; None if neither was asked (plots as before)."""
+def run_replay(args, run_dir) -> int | None:
+    """``phireman replay --serve / --export`` of ``run_dir`` (the run directory found from
+    ``args.run_dir``); None if neither was asked (plots as before)."""
     if args.serve is None and args.export is None:
         return None
     from mission.cli import UserError
     from mission.view.live.replay import ReplaySource
 
     try:
-        src = ReplaySource(args.run_dir)
+        src = ReplaySource(run_dir)
     except (FileNotFoundError, ValueError) as exc:
         raise UserError(str(exc)) from None
     if args.export:
@@ -181,7 +182,7 @@ def run_replay(args) -> int | None:
 
         async def serve() -> None:
             server = await LiveServer(src, host, port, tiles_dir=tiles_dir).start()
-            print(f"replay of {args.run_dir} at {server.url} (Ctrl-C to stop)", file=sys.stderr)
+            print(f"replay of {run_dir} at {server.url} (Ctrl-C to stop)", file=sys.stderr)
             try:
                 await asyncio.Event().wait()
             finally:

@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 
 from gcs.autopilot import adapter_for
 from planner.geometry import tasks_connected
+from planner.phireman import PhiremanPlanner
 
 if TYPE_CHECKING:
     from gcs.fleet import FleetSnapshot
@@ -351,12 +352,18 @@ def frame_dict(p: Picture, radio_range_m: float, base_range_m: float) -> dict:
 
 
 def tree_from_planner(planner) -> dict | None:
-    """The planner's task tree in metres (PhiIREMAN keeps it in paper units as ``tree``)."""
-    tree = getattr(planner, "tree", None)
-    if tree is None or not hasattr(tree, "nodes_m"):
+    """The planner's task tree in metres; None for a planner without one (DCCRS, MCCST) and
+    before PhiIREMAN's first tick.
+
+    PhiIREMAN (and ``phireman-resilient``, its subclass) keeps the tree in paper units as
+    ``tree`` and its scale in ``units`` (planner/units.py), read here without a fallback: a
+    renamed attribute fails loudly instead of drawing the tree at the wrong scale."""
+    if not isinstance(planner, PhiremanPlanner):
         return None
-    unit = float(getattr(planner, "unit_m", 1.0))
-    nodes = np.asarray(tree.nodes_m, dtype=float) * unit
+    tree = planner.units.tree_to_m(planner.tree)
+    if tree is None:
+        return None
+    nodes = np.asarray(tree.nodes_m, dtype=float)
     return {
         "nodes": np.round(nodes, 1).tolist(),
         "parent": np.asarray(tree.parent).tolist(),
