@@ -660,6 +660,19 @@ TABLE: dict[str, Case] = {
             ),
         ),
     ),
+    "phireman sim --mission wildfire_2h": Case(
+        # Two hours of mission with batteries in process (one seed, ~6 s of CPU).
+        check=lambda c: c.has(r"\d+ rotations", r"0 landed away from the base"),
+        timeout=900,
+    ),
+    "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),
+    "phireman sweep --grid custom --size XS --attrition 0 1% --method phireman dccrs --seeds 3 --chunk 1 --scheduler sched.json --store cluster.sqlite": SKIP(  # noqa: E501
+        "needs a Dask scheduler and workers started first: run with them, a worker killed "
+        "mid-sweep, by tests/mission/test_sweep_dask_cluster.py"
+    ),
+    "phireman sweep --grid paper-table --scheduler tcp://HEAD:8786 --store results.sqlite": SKIP(
+        "HEAD is a placeholder for the cluster's head node"
+    ),
     "phireman sim --mission wildfire --out runs/wf": Case(
         check=lambda c: [c.file(f"runs/wf/{f}") for f in ("truth.npz", "metrics.csv")]
     ),
@@ -989,7 +1002,7 @@ TABLE: dict[str, Case] = {
             ".venv/bin/python bench/bench_emulator.py --px4 1000 --ardupilot 1000 --no-realtime --ticks 100",  # noqa: E501
         )
     },
-    "PYTHONPATH=$PWD .venv/bin/python bench/bench_hazard.py run mission/examples/hazard_zone.yaml --info central --seeds 0 10 --config phireman phireman '{}' --config off phireman-resilient '{}' --config avoid phireman-resilient '{\"hazard_avoid\": true}' --config push1 phireman-resilient '{\"hazard_push_gain\": 1.0}' --config avoid+push1 phireman-resilient '{\"hazard_avoid\": true, \"hazard_push_gain\": 1.0}' --config avoid+push3 phireman-resilient '{\"hazard_avoid\": true, \"hazard_push_gain\": 3.0}' > central.jsonl": Case(  # noqa: E501
+    "PYTHONPATH=$PWD .venv/bin/python bench/bench_hazard.py run mission/format/examples/hazard_zone.yaml --info central --seeds 0 10 --config phireman phireman '{}' --config off phireman-resilient '{}' --config avoid phireman-resilient '{\"hazard_avoid\": true}' --config push1 phireman-resilient '{\"hazard_push_gain\": 1.0}' --config avoid+push1 phireman-resilient '{\"hazard_avoid\": true, \"hazard_push_gain\": 1.0}' --config avoid+push3 phireman-resilient '{\"hazard_avoid\": true, \"hazard_push_gain\": 3.0}' > central.jsonl": Case(  # noqa: E501
         kind="bench", help_args=("bench/bench_hazard.py", "run")
     ),
     "PYTHONPATH=$PWD .venv/bin/python bench/bench_hazard.py summary central.jsonl async.jsonl": Case(

@@ -62,7 +62,7 @@ def run(args) -> int:
         raise UserError(str(exc)) from None
     if note:
         print(note, file=sys.stderr)
-    from mission.live.cli import run_replay
+    from mission.commands.live_view import run_replay
 
     served = run_replay(args, run_dir)  # --serve / --export: the live page or a GIS file, no plots
     if served is not None:
