@@ -665,6 +665,11 @@ TABLE: dict[str, Case] = {
         check=lambda c: c.has(r"\d+ rotations", r"0 landed away from the base"),
         timeout=900,
     ),
+    "phireman sim --mission wildfire_2h --rotation off": Case(
+        # Without rotation the firmware's low-battery failsafe is what brings drones home.
+        check=lambda c: c.has(r"0 rotations", r"[1-9]\d* battery failsafes in the air"),
+        timeout=900,
+    ),
     "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),
     "phireman sweep --grid custom --size XS --attrition 0 1% --method phireman dccrs --seeds 3 --chunk 1 --scheduler sched.json --store cluster.sqlite": SKIP(  # noqa: E501
         "needs a Dask scheduler and workers started first: run with them, a worker killed "

@@ -46,6 +46,7 @@ EXAMPLES = [
     "sitl_ardupilot",
     "sitl_px4",
     "wildfire",
+    "wildfire_2h",
 ]
 SIZES = ["XS", "S", "M", "L", "XL"]
 
