@@ -8,7 +8,7 @@ Model, per vehicle and per physics sub-step ``h`` (seconds):
 * current, A: ``I = I_hover (1 + f (v_h / v_ref)^2 + c max(0, v_up) / climb_ref)`` while armed
   and alive, 0 disarmed (motors off, the autopilot's own draw is neglected). ``I_hover =
   capacity / hover_endurance`` is the mission's ``BatterySpec`` (``endurance_s``,
-  ``speed_drain_factor``: mission.format.schema), plus a climb term (``climb_drain_factor`` at the
+  ``speed_drain_frac``: mission.format.schema), plus a climb term (``climb_drain_factor`` at the
   reference climb rate; descending gives nothing back);
 * consumed charge ``mAh += I h / 3.6``; consumed energy ``Wh += V I h / 3600``;
 * state of charge ``soc = 1 - consumed / capacity`` (clipped to [0, 1]);
@@ -61,8 +61,8 @@ class BatteryConfig:
     """Cells in series."""
     hover_endurance_s: float = 1500.0
     """Hover time on a full pack, seconds (BatterySpec.endurance_s)."""
-    speed_drain_factor: float = 0.3
-    """Extra drain at ``ref_speed_m_s``: ``(1 + f (v / v_ref)^2)`` (BatterySpec.speed_drain_factor)."""
+    speed_drain_frac: float = 0.3
+    """Extra drain at ``ref_speed_m_s``: ``(1 + f (v / v_ref)^2)`` (BatterySpec.speed_drain_frac)."""
     ref_speed_m_s: float = 10.0
     """Horizontal speed of the full speed term, m/s (the mission's max speed)."""
     climb_drain_factor: float = 0.5
@@ -82,7 +82,7 @@ class BatteryConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
-        for name in ("speed_drain_factor", "climb_drain_factor", "internal_resistance_ohm"):
+        for name in ("speed_drain_frac", "climb_drain_factor", "internal_resistance_ohm"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be >= 0, got {v!r}")
@@ -151,7 +151,7 @@ def battery_step(cfg: BatteryConfig, consumed_mah, energy_wh, vel_ned_m_s, drawi
     climb = np.maximum(0.0, -vel_ned_m_s[:, DOWN])
     factor = (
         1.0
-        + cfg.speed_drain_factor * (speed_h / cfg.ref_speed_m_s) ** 2
+        + cfg.speed_drain_frac * (speed_h / cfg.ref_speed_m_s) ** 2
         + cfg.climb_drain_factor * climb / cfg.ref_climb_m_s
     )
     current = np.where(drawing, cfg.hover_current_a * factor, 0.0)
@@ -173,7 +173,7 @@ def battery_step_reference(
         if drawing[i]:
             factor = (
                 1.0
-                + cfg.speed_drain_factor * (math.hypot(vn, ve) / cfg.ref_speed_m_s) ** 2
+                + cfg.speed_drain_frac * (math.hypot(vn, ve) / cfg.ref_speed_m_s) ** 2
                 + cfg.climb_drain_factor * max(0.0, -vd) / cfg.ref_climb_m_s
             )
             current = cfg.hover_current_a * factor

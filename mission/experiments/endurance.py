@@ -5,7 +5,7 @@ The RTNUA world (:mod:`vehicle_emu.world`) has endless batteries. A mission with
 instead (docs/design/endurance.md §5):
 
 * every drone in the air drains ``(1 + f (v / v_max)^2) / endurance_s`` of its battery per second
-  (``f``: ``speed_drain_factor``), a drone on the ground nothing;
+  (``f``: ``speed_drain_frac``), a drone on the ground nothing;
 * the firmware's own failsafes act on the truth: at ``low_frac`` a drone returns to launch on
   its own (the station is told, :meth:`planner.endurance.RotationPolicy.failsafe`), at
   ``critical_frac`` it lands where it is, lost to the mission (and counted as landed away when
@@ -47,7 +47,7 @@ class EnduranceRun:
 
     policy: RotationPolicy
     endurance_s: float
-    speed_drain_factor: float
+    speed_drain_frac: float
     low_frac: float
     critical_frac: float
     dt_s: float
@@ -86,7 +86,7 @@ class EnduranceRun:
             networked=active,
             landed_at_base=landed,
             base_m=world.base_m,
-            return_drain_per_s=np.full(n, (1.0 + self.speed_drain_factor) * hover),
+            return_drain_per_s=np.full(n, (1.0 + self.speed_drain_frac) * hover),
         )
         self.events.extend(out.events)
         self.battery_frac[out.battery_swapped] = 1.0
@@ -103,7 +103,7 @@ class EnduranceRun:
         flying = world.alive & ~world.grounded
         speed = np.hypot(*(world.pos_m - pos_before_m).T) / self.dt_s
         frac_speed = np.minimum(speed / self.max_speed_m_s, 1.0)
-        drain = self.dt_s / self.endurance_s * (1.0 + self.speed_drain_factor * frac_speed**2)
+        drain = self.dt_s / self.endurance_s * (1.0 + self.speed_drain_frac * frac_speed**2)
         self.battery_frac = np.where(flying, self.battery_frac - drain, self.battery_frac)
         self._last_drain_per_s = np.where(flying, drain / self.dt_s, 0.0)
         if flying.any():
@@ -185,7 +185,7 @@ def endurance_run(
     return EnduranceRun(
         policy,
         spec.endurance_s,
-        spec.speed_drain_factor,
+        spec.speed_drain_frac,
         spec.low_frac,
         spec.critical_frac,
         dt_s,

@@ -69,7 +69,7 @@ def _battery(mission: Mission, max_speed_m_s: float, climb_rate_m_s: float):
         return None, None
     battery = BatteryConfig(
         hover_endurance_s=spec.endurance_s,
-        speed_drain_factor=spec.speed_drain_factor,
+        speed_drain_frac=spec.speed_drain_frac,
         ref_speed_m_s=max_speed_m_s,
         ref_climb_m_s=climb_rate_m_s,
     )

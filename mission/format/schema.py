@@ -704,7 +704,7 @@ class BatterySpec(_Section):
 
     endurance_s: float = _f(1500.0, gt=0.0, le=86_400.0)
     """Hover time on a full battery, seconds (25 minutes: a common relay multirotor)."""
-    speed_drain_factor: float = _f(0.3, ge=0.0, le=10.0)
+    speed_drain_frac: float = _f(0.3, ge=0.0, le=10.0)
     """Extra drain at full speed: the drain is ``(1 + f (v / max_speed)^2) / endurance_s``."""
     low_frac: float = _f(0.20, gt=0.0, lt=1.0)
     """The firmware's low-battery level, as a fraction of capacity, where its failsafe returns

@@ -336,9 +336,9 @@ def test_numeric_keys_carry_units():
         for f in dataclasses.fields(cls):
             hint = str(f.type)
             if "float" in hint and "str" not in hint and f.name not in allowed_unitless:
-                assert f.name.endswith(("_m", "_s", "_deg", "_per_s", "_m_s", "_per_sqrt_s")), (
-                    f"{cls.__name__}.{f.name} has no unit suffix"
-                )
+                assert f.name.endswith(
+                    ("_m", "_s", "_deg", "_per_s", "_m_s", "_per_sqrt_s", "_frac")
+                ), f"{cls.__name__}.{f.name} has no unit suffix"
 
 
 @pytest.mark.parametrize("size", SIZES)
