@@ -138,7 +138,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _load(spec: str):
     from pathlib import Path
 
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.format.load import MissionError, load_mission
 
     path = Path(spec)
@@ -358,7 +358,7 @@ def _group_report(items: list[dict], per_line: int = 12) -> list[str]:
 
 
 def run(args) -> int:
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.flight.runners import FlyOptions, RunnerError, fly
 
     mission = _load(args.mission)

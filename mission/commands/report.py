@@ -73,7 +73,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.commands.sweep import split_list, split_overrides
     from mission.experiments.report import build_report
     from mission.experiments.store import StoreError
