@@ -132,4 +132,10 @@ def run(args) -> int:
         print(
             "not compared with the paper: the --set overrides make the configurations differ from it"
         )
+    few = s.get("too_few_seeds") or {}
+    if few.get("too_few_seeds"):
+        print(
+            f"too few seeds to grade {few['too_few_seeds']} of {few['comparisons']} comparisons with "
+            "the paper (our 95 % CI wider than the tolerance): see the top of report.md"
+        )
     return 0

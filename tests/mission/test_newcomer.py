@@ -527,9 +527,9 @@ def test_compared_heatmap_panels_share_one_colour_scale(monkeypatch, tmp_path):
     calls = []
     real = figures._heatmap
 
-    def spy(ax, z, marks, sizes, levels, title, vmax=None):
+    def spy(ax, z, marks, sizes, levels, title, vmax=None, **kw):
         calls.append((title, vmax))
-        return real(ax, z, marks, sizes, levels, title, vmax)
+        return real(ax, z, marks, sizes, levels, title, vmax, **kw)
 
     monkeypatch.setattr(figures, "_heatmap", spy)
     cell = report.Cell("S", 0.01, {m: None for m in ("phireman", "dccrs", "mccst")})

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import pathlib
 from collections import Counter
 from dataclasses import dataclass
 
 from mission.experiments import paper
 from mission.experiments.report.ablations import _ablations
-from mission.experiments.report.cells import analyse_table
+from mission.experiments.report.cells import Cell, analyse_table
 from mission.experiments.report.configs import (
     CSV_FIELDS,
     _csv_row,
@@ -40,6 +41,48 @@ class ReportResult:
     csv: pathlib.Path
     figures: list[pathlib.Path]
     summary: dict
+
+
+def _too_few_seeds(cells: list[Cell], methods) -> tuple[str, dict]:
+    """The warning at the top of the report when some comparisons with the paper cannot be graded
+    (:meth:`Cell.too_few_seeds`): how many, how many seeds the store has, how many would do."""
+    graded = few = 0
+    need: list[int] = []
+    for c in cells:
+        for m in methods:
+            for k in paper.METRICS:
+                if math.isnan(c.delta(m, k)):
+                    continue
+                graded += 1
+                if c.too_few_seeds(m, k):
+                    few += 1
+                    if (n := c.seeds_to_tell(m, k)) is not None:
+                        need.append(n)
+    stats = {"comparisons": graded, "too_few_seeds": few}
+    if not few:
+        return "", stats
+    ns = sorted(
+        {s.n for c in cells for m in methods if (s := c.samples.get(m)) is not None and s.n}
+    )
+    seeds = f"{ns[0]}" if len(ns) == 1 else f"{ns[0]}–{ns[-1]}"
+    text = (
+        f"> **Too few seeds to grade against the paper: {few} of {graded}** (configuration, method, "
+        f"metric) comparisons say *too few seeds* instead of ✓ / ✗. There, the half-width of our "
+        f"95 % confidence interval is wider than the tolerance (3 pp for ΦIREMAN, 5 pp for the "
+        f"baselines): other seeds could land on either side of it, so a ✓ or ✗ would be chance. "
+        f"This store has {seeds} seeds per configuration; the paper used 100."
+    )
+    if need:
+        stats["seeds_needed_max"] = max(need)
+        text += (
+            f" At the spread of these runs, about {max(need)} seeds would bring the widest of those "
+            f"intervals down to its tolerance ((1.96 s / tolerance)², s the standard deviation over seeds)."
+        )
+    text += (
+        " The significance tests (bold, *, °) hold at any number of seeds, but with few seeds they "
+        "find only large differences; the heatmaps colour only significant ones."
+    )
+    return text, stats
 
 
 def build_report(
@@ -163,6 +206,7 @@ def build_report(
             f"- **not compared with the paper**: these configurations differ from the paper's "
             f"({'; '.join(not_paper)}), so the paper's numbers do not apply to them"
         )
+    few_text, few_stats = _too_few_seeds(cells, pm) if comparable else ("", {})
     if sweeps:
         total_wall = sum(s["wall_s"] or 0.0 for s in sweeps)
         md.append(
@@ -170,6 +214,8 @@ def build_report(
             f"({sum(s['completed'] for s in sweeps)} runs completed by them)"
         )
     md.append("")
+    if few_text:
+        md += [few_text, ""]
 
     yours = []
     if lead_with_yours:
@@ -249,7 +295,8 @@ def build_report(
                 "## Ours against the paper",
                 "",
                 "Each cell: ours vs paper (Δ = ours − paper, pp). ✓ when |Δ| ≤ 3 pp for ΦIREMAN, ≤ 5 pp for the "
-                "baselines.",
+                "baselines; *too few seeds* when the half-width of our 95 % CI is wider than that tolerance "
+                "(other seeds could land on either side of it, so ✓ or ✗ would be chance).",
                 "",
                 _vs_paper(cells, pm),
                 "",
@@ -293,7 +340,9 @@ def build_report(
             "",
             "Diverging colour maps centred at 0 (blue: ΦIREMAN higher), one colour scale per figure so "
             "compared panels read alike. * ΦIREMAN significantly higher, ° significantly lower (one-tailed "
-            "unpaired t-test, p < 0.05); grey: no data.",
+            "unpaired t-test, p < 0.05); grey: no data. Only significant differences are coloured (ours − "
+            "paper: Δ outside the combined 95 % CIs); the others are white with their number in grey, and "
+            "the colour scale spans the significant ones, so one noisy cell cannot saturate it.",
             "",
         ]
     tick("drew the figures")
@@ -384,6 +433,7 @@ def build_report(
         "your_configurations": len(yours) if lead_with_yours else len(other_samples),
         "leads_with_yours": lead_with_yours,
         "compared_with_paper": comparable and show_paper,
+        "too_few_seeds": few_stats,
         "code_versions": dict(used_versions),
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, ensure_ascii=False))

@@ -17,34 +17,49 @@ if TYPE_CHECKING:
     from matplotlib.image import AxesImage
 
 
-def _grid_of(cells: list[Cell], fn) -> tuple[np.ndarray, np.ndarray, list[str], list[float]]:
+def _grid_of(
+    cells: list[Cell], fn
+) -> tuple[np.ndarray, np.ndarray, list[str], list[float], np.ndarray]:
+    """``fn(cell) -> (value, mark, significant)`` on the size × attrition grid: the values (nan:
+    no data), the marks, the row and column labels, and where the value is significant."""
     sizes = list(dict.fromkeys(c.size for c in cells))
     levels = sorted(dict.fromkeys(c.attrition for c in cells))
     z = np.full((len(sizes), len(levels)), np.nan)
     marks = np.full((len(sizes), len(levels)), "", dtype=object)
+    sig = np.zeros((len(sizes), len(levels)), dtype=bool)
     for c in cells:
         i, j = sizes.index(c.size), levels.index(c.attrition)
-        z[i, j], marks[i, j] = fn(c)
-    return z, marks, sizes, levels
+        z[i, j], marks[i, j], sig[i, j] = fn(c)
+    return z, marks, sizes, levels, sig
+
+
+def _significant_only(z: np.ndarray, sig: np.ndarray) -> np.ndarray:
+    return np.where(sig, z, np.nan)
 
 
 def _common_limit(arrays) -> float:
-    """One symmetric colour limit for panels that are compared with each other."""
+    """One symmetric colour limit for panels that are compared with each other: the largest
+    significant difference (callers pass the non-significant cells as nan), so one noisy cell
+    cannot saturate the scale and wash the others out (issue 28 point 10)."""
     finite = [np.abs(z[np.isfinite(z)]) for z in arrays]
     finite = [f for f in finite if f.size]
     return max(1.0, max(float(f.max()) for f in finite)) if finite else 1.0
 
 
-def _heatmap(ax, z, marks, sizes, levels, title, vmax=None) -> AxesImage:
+def _heatmap(ax, z, marks, sizes, levels, title, vmax=None, significant=None) -> AxesImage:
+    """One panel. Cells where ``significant`` is False are drawn white (the colour of 0) with
+    their number in grey: a difference the tests cannot tell from 0 gets no colour."""
     from matplotlib.colors import TwoSlopeNorm
 
-    finite = z[np.isfinite(z)]
+    sig = np.ones(z.shape, dtype=bool) if significant is None else significant
+    colour = np.where(sig | ~np.isfinite(z), z, 0.0)
+    finite = colour[np.isfinite(colour) & sig]
     lim = vmax or (max(1.0, float(np.abs(finite).max())) if finite.size else 1.0)
     import matplotlib
 
     cmap = matplotlib.colormaps["RdBu"].with_extremes(bad="#dddddd")
     im = ax.imshow(
-        np.ma.masked_invalid(z),
+        np.ma.masked_invalid(colour),
         cmap=cmap,
         norm=TwoSlopeNorm(vcenter=0.0, vmin=-lim, vmax=lim),
         aspect="auto",
@@ -57,7 +72,7 @@ def _heatmap(ax, z, marks, sizes, levels, title, vmax=None) -> AxesImage:
     for i in range(z.shape[0]):
         for j in range(z.shape[1]):
             if np.isfinite(z[i, j]):
-                strong = abs(z[i, j]) > 0.6 * lim
+                strong = sig[i, j] and abs(z[i, j]) > 0.6 * lim
                 ax.text(
                     j,
                     i,
@@ -65,7 +80,7 @@ def _heatmap(ax, z, marks, sizes, levels, title, vmax=None) -> AxesImage:
                     ha="center",
                     va="center",
                     fontsize=8,
-                    color="white" if strong else "black",
+                    color="white" if strong else ("black" if sig[i, j] else "#888888"),
                 )
             else:
                 ax.text(j, i, "n/a", ha="center", va="center", fontsize=7, color="#777777")
@@ -84,13 +99,13 @@ def _pair_diff(cells, other: str, metric: str):
     def fn(c: Cell):
         a, b = c.samples.get("phireman"), c.samples.get(other)
         if a is None or b is None or a.n == 0 or b.n == 0:
-            return np.nan, ""
+            return np.nan, "", False
         mark = (
             "*"
             if p_greater(a, b, metric) < ALPHA
             else ("°" if p_greater(b, a, metric) < ALPHA else "")
         )
-        return a.mean(metric) - b.mean(metric), mark
+        return a.mean(metric) - b.mean(metric), mark, bool(mark)
 
     return fn
 
@@ -106,8 +121,8 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
         pair_panels = [
             _grid_of(cells, _pair_diff(cells, other, metric)) for metric in paper.METRICS
         ]
-        lim = _common_limit(z for z, *_ in pair_panels)
-        for ax, metric, (z, marks, sizes, levels) in zip(axes, paper.METRICS, pair_panels):
+        lim = _common_limit(_significant_only(z, sig) for z, *_, sig in pair_panels)
+        for ax, metric, (z, marks, sizes, levels, sig) in zip(axes, paper.METRICS, pair_panels):
             im = _heatmap(
                 ax,
                 z,
@@ -116,6 +131,7 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
                 levels,
                 f"{METRIC_LABELS[metric]}: ΦIREMAN − {paper.METHOD_LABELS[other]} (pp)",
                 vmax=lim,
+                significant=sig,
             )
             fig.colorbar(im, ax=ax, shrink=0.8)
         fig.suptitle(
@@ -133,12 +149,12 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
                 b for b in (c.samples.get(m) for m in ("dccrs", "mccst")) if b is not None and b.n
             ]
             if a is None or not a.n or not base:
-                return np.nan, ""
+                return np.nan, "", False
             v = c.unpaired[metric]
             mark = (
                 "*" if (v.significant and v.best == "phireman") else ("°" if v.significant else "")
             )
-            return a.mean(metric) - max(b.mean(metric) for b in base), mark
+            return a.mean(metric) - max(b.mean(metric) for b in base), mark, bool(mark)
 
         return fn
 
@@ -148,10 +164,10 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
                 m: paper.paper_value(c.size, c.attrition, m, metric) for m in paper.PAPER_METHODS
             }
             if any(v is None for v in vals.values()):
-                return np.nan, ""
+                return np.nan, "", False
             bold = paper.paper_bold(c.size, c.attrition, metric)
             mark = "*" if bold == "phireman" else ("°" if bold else "")
-            return vals["phireman"][0] - max(vals["dccrs"][0], vals["mccst"][0]), mark  # type: ignore[index]  # none is None (above)
+            return vals["phireman"][0] - max(vals["dccrs"][0], vals["mccst"][0]), mark, bool(mark)  # type: ignore[index]  # none is None (above)
 
         return fn
 
@@ -162,8 +178,9 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
         for row, (who, fn) in enumerate((("ours", ours), ("paper", theirs)))
         for col, metric in enumerate(paper.METRICS)
     }
-    lim = _common_limit(z for z, *_ in panels.values())  # compared panels share one colour scale
-    for (row, col), (z, marks, sizes, levels) in panels.items():
+    # compared panels share one colour scale
+    lim = _common_limit(_significant_only(z, sig) for z, *_, sig in panels.values())
+    for (row, col), (z, marks, sizes, levels, sig) in panels.items():
         who, metric = ("ours", "paper")[row], paper.METRICS[col]
         im = _heatmap(
             axes[row, col],
@@ -173,6 +190,7 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
             levels,
             f"{who}: {METRIC_LABELS[metric]}, ΦIREMAN − max(DCCRS, MCCST) (pp)",
             vmax=lim,
+            significant=sig,
         )
         fig.colorbar(im, ax=axes[row, col], shrink=0.8)
     fig.suptitle(
@@ -191,11 +209,18 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
 
             def fn(c: Cell, m=m, metric=metric):
                 d = c.delta(m, metric)
-                return d, ("" if math.isnan(d) or c.within(m, metric) else "!")
+                if math.isnan(d):
+                    return d, "", False
+                # Significant: Δ outside the combined 95 % CIs of ours and the paper's.
+                half = c.samples[m].mean_ci(metric)[1]  # type: ignore[union-attr]  # d not nan
+                ref = paper.paper_value(c.size, c.attrition, m, metric)
+                assert ref is not None  # d not nan
+                sig = not math.isnan(half) and abs(d) > math.hypot(half, ref[1])
+                return d, ("!" if c.grade(m, metric) is False else ""), sig
 
             panels[(row, col)] = _grid_of(cells, fn)
-    lim = _common_limit(z for z, *_ in panels.values())
-    for (row, col), (z, marks, sizes, levels) in panels.items():
+    lim = _common_limit(_significant_only(z, sig) for z, *_, sig in panels.values())
+    for (row, col), (z, marks, sizes, levels, sig) in panels.items():
         m, metric = paper.PAPER_METHODS[row], paper.METRICS[col]
         im = _heatmap(
             axes[row, col],
@@ -205,8 +230,13 @@ def heatmaps(cells: list[Cell], out: pathlib.Path) -> list[pathlib.Path]:
             levels,
             f"{paper.METHOD_LABELS[m]} {METRIC_LABELS[metric]}: ours − paper (pp)",
             vmax=lim,
+            significant=sig,
         )
         fig.colorbar(im, ax=axes[row, col], shrink=0.8)
-    fig.suptitle("Ours − paper; ! outside the tolerance (ΦIREMAN 3 pp, baselines 5 pp)", fontsize=9)
+    fig.suptitle(
+        "Ours − paper; ! outside the tolerance (ΦIREMAN 3 pp, baselines 5 pp); white: within "
+        "the combined 95 % CIs",
+        fontsize=9,
+    )
     paths.append(_save(fig, out / "delta_vs_paper.png"))
     return paths

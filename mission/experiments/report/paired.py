@@ -3,6 +3,8 @@ information against the paper, and your planner (``--method``) against ΦIREMAN.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from mission.experiments import paper
@@ -36,9 +38,13 @@ def _central_vs_async(cells: list[Cell], central: list[Cell]) -> tuple[str, dict
                     ok_both = False
                     continue
                 d = smp.mean(k) - ref[0]
-                ok = abs(d) <= paper.TOLERANCE_PP["phireman"] + 1e-9
+                mean, half = smp.mean_ci(k)
+                tol = paper.TOLERANCE_PP["phireman"] + 1e-9
+                few = math.isnan(half) or half > tol  # as Cell.too_few_seeds
+                ok = abs(d) <= tol and not few
                 ok_both &= ok
-                row.append(f"{_fmt(*smp.mean_ci(k))} ({_signed(d)}{' ✓' if ok else ''})")
+                mark = " too few seeds" if few else (" ✓" if ok else "")
+                row.append(f"{_fmt(mean, half)} ({_signed(d)}{mark})")
             within[name] += core and ok_both
         row.append(f"{a.n if a else 0} / {z.n if z else 0}")
         rows.append(row)

@@ -66,7 +66,8 @@ def _vs_paper(cells: list[Cell], methods) -> str:
                     row.append("–" if ref is None else f"– vs {ref[0]:.2f}")
                     continue
                 d = c.delta(m, metric)
-                mark = "✓" if c.within(m, metric) else "✗"
+                g = c.grade(m, metric)
+                mark = "✓" if g else ("✗" if g is False else "too few seeds")
                 row.append(f"{s.mean(metric):.2f} vs {ref[0]:.2f} ({_signed(d)} {mark})")
         rows.append(row)
     return _md_table(header, rows, "lr" + "r" * (len(header) - 2))
@@ -132,9 +133,15 @@ def _agreement_summary(cells: list[Cell], methods) -> tuple[str, dict]:
     for m in methods:
         tol = paper.TOLERANCE_PP[m]
         have = [c for c in core if (s_m := c.samples.get(m)) is not None and s_m.n > 0]
-        both = sum(bool(c.within(m, "tu1")) and bool(c.within(m, "tu2")) for c in have)
-        t1 = sum(bool(c.within(m, "tu1")) for c in have)
-        t2 = sum(bool(c.within(m, "tu2")) for c in have)
+        both = sum(bool(c.grade(m, "tu1")) and bool(c.grade(m, "tu2")) for c in have)
+        t1 = sum(bool(c.grade(m, "tu1")) for c in have)
+        t2 = sum(bool(c.grade(m, "tu2")) for c in have)
+        # Too few seeds to tell on a metric, and not a clear miss on the other.
+        few = sum(
+            any(c.too_few_seeds(m, k) for k in paper.METRICS)
+            and all(c.grade(m, k) is not False for k in paper.METRICS)
+            for c in have
+        )
         stats[m] = {
             "configs": len(core),
             "with_data": len(have),
@@ -142,6 +149,7 @@ def _agreement_summary(cells: list[Cell], methods) -> tuple[str, dict]:
             "within_tu1": t1,
             "within_tu2": t2,
             "tolerance_pp": tol,
+            "too_few_seeds": few,
         }
         # The target is about the paper's whole table; on a partial store it would mislead.
         target = (
@@ -161,6 +169,7 @@ def _agreement_summary(cells: list[Cell], methods) -> tuple[str, dict]:
                 if len(have) < len(core)
                 else ""
             )
+            + (f"; **{few} with too few seeds to tell**" if few else "")
         )
     return "\n".join(lines), stats
 
@@ -168,7 +177,7 @@ def _agreement_summary(cells: list[Cell], methods) -> tuple[str, dict]:
 def _misses(cells: list[Cell], methods) -> str:
     out = []
     for m in methods:
-        miss, missing = [], []
+        miss, missing, few = [], [], []
         for c in cells:
             if c.attrition > 0.02 + 1e-12:
                 continue
@@ -176,7 +185,10 @@ def _misses(cells: list[Cell], methods) -> str:
             if s is None or s.n == 0:
                 missing.append(f"{c.size} / {_pct(c.attrition)} %")
                 continue
-            if c.within(m, "tu1") and c.within(m, "tu2"):
+            grades = [c.grade(m, k) for k in paper.METRICS]
+            if False not in grades:
+                if None in grades:
+                    few.append(f"{c.size} / {_pct(c.attrition)} %")
                 continue
             miss.append(
                 f"- {c.size} / {_pct(c.attrition)} %: TU1 Δ {_signed(c.delta(m, 'tu1'))}, "
@@ -184,6 +196,8 @@ def _misses(cells: list[Cell], methods) -> str:
             )
         if missing:
             miss.append(f"- no data: {', '.join(missing)}")
+        if few:
+            miss.append(f"- too few seeds to tell: {', '.join(few)}")
         title = f"**{paper.METHOD_LABELS.get(m, m)}** (tolerance {paper.TOLERANCE_PP[m]:g} pp)"
         out.append(
             title
