@@ -14,24 +14,21 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from collections.abc import Callable, Hashable
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from gcs import wire
 from gcs.autopilot import Adapter
 from gcs.events import Event, HomePositionReceived, TelemetryReceived
+from gcs.link_config import Addr, LinkStats, StationConfig
 from gcs.wire import mavlink
-
-if TYPE_CHECKING:
-    from gcs.link import LinkStats, StationConfig
 
 __all__ = ["LinkState", "Addr", "UnknownVehicle", "LinkUsageError"]
 
 #: The link's log lines keep the logger they always had (StationLink was one module).
 log = logging.getLogger("gcs.link")
 
-Addr = Hashable
 
 _CMD_SET_MESSAGE_INTERVAL = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL  # 511
 _AUTOPILOT_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1  # 1

@@ -114,7 +114,7 @@ Maintenance for Large-Scale Multi-Robot Systems", ICRA 2020, pp. 9845-9851. Auth
 ChendiDotLin/Online_Connectivity-aware_MultiRobot_Deployment (GetGraphWeight.m,
 create_con_barrier_certificate.m). docs/design/model.md §2.
 
-Size: ~970 lines, above the ~600 guideline: one method with its calibration notes, each step as a
+Size: ~1,230 lines, above the ~600 guideline: one method with its calibration notes, each step as a
 testable function and the reference versions of the compiled paths (spanning tree, collision
 pairs, constraint matrix) next to them.
 """

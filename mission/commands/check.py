@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from mission.cli import UserError
+from mission.commands.options import UserError
 
 HELP = "validate a mission file and report every problem with its path"
 DESCRIPTION = """\

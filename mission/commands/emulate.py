@@ -7,7 +7,7 @@ __all__ = ["HELP", "DESCRIPTION", "add_arguments", "run"]
 
 
 def run(args) -> int:
-    from mission.cli import UserError
+    from mission.commands.options import UserError
 
     try:
         return _run(args)

@@ -158,7 +158,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _mission_path(spec: str):
     from pathlib import Path
 
-    from mission.cli import UserError
+    from mission.commands.options import UserError
 
     path = Path(spec)
     if not path.exists():
@@ -177,7 +177,7 @@ def _mission_path(spec: str):
 def _mission_spec(args) -> str:
     """The mission to fly: the MISSION argument or ``--mission`` (one, or both naming the same
     file), else the shipped 'wildfire'."""
-    from mission.cli import UserError
+    from mission.commands.options import UserError
 
     given, option = args.mission, args.mission_option
     if given is not None and option is not None and given != option:
@@ -190,7 +190,7 @@ def _mission_spec(args) -> str:
 
 
 def _load(spec: str):
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.format.load import MissionError, load_mission
 
     path = _mission_path(spec)
@@ -533,7 +533,7 @@ def _group_report(items: list[dict], per_line: int = 12) -> list[str]:
 
 
 def run(args) -> int:
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.flight.runners import FlyOptions, RunnerError, fly
 
     mission = _load(_mission_spec(args))

@@ -81,7 +81,7 @@ def _announce(info: dict) -> None:
 
 def fly_options(opts, args):
     """``opts`` (FlyOptions) with the live/forward options of ``args``; UserError if invalid."""
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.view.live import attach
 
     if args.serve is not None:
@@ -154,7 +154,7 @@ def run_replay(args, run_dir) -> int | None:
     ``args.run_dir``); None if neither was asked (plots as before)."""
     if args.serve is None and args.export is None:
         return None
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.view.live.replay import ReplaySource
 
     try:

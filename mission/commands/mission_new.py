@@ -6,7 +6,7 @@ import math
 import sys
 from pathlib import Path
 
-from mission.cli import UserError, parse_rate
+from mission.commands.options import UserError, parse_rate
 
 HELP = "write the paper's configurations as mission files (new), show or list missions"
 DESCRIPTION = """\

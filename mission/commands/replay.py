@@ -26,7 +26,7 @@ examples:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from mission.cli import positive_int
+    from mission.commands.options import positive_int
 
     p.add_argument(
         "run_dir",
@@ -52,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.view.replay import check_animation_writer, find_run_dir, replay
 
     try:

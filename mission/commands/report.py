@@ -73,7 +73,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.commands.sweep import split_list, split_overrides
     from mission.experiments.report import build_report
     from mission.experiments.store import StoreError
@@ -131,5 +131,11 @@ def run(args) -> int:
     elif s["paper_configs_with_data"] and not s["compared_with_paper"]:
         print(
             "not compared with the paper: the --set overrides make the configurations differ from it"
+        )
+    few = s.get("too_few_seeds") or {}
+    if few.get("too_few_seeds"):
+        print(
+            f"too few seeds to grade {few['too_few_seeds']} of {few['comparisons']} comparisons with "
+            "the paper (our 95 % CI wider than the tolerance): see the top of report.md"
         )
     return 0

@@ -54,7 +54,7 @@ _PRESET_ONLY = {
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from mission.cli import add_seed_arguments, add_workers_argument, rate_arg
+    from mission.commands.options import add_seed_arguments, add_workers_argument, rate_arg
     from planner.problem import SIZES
 
     p.add_argument(
@@ -140,7 +140,7 @@ def ci_note(n: int, clipped: bool) -> str | None:
 
 
 def run(args) -> int:
-    from mission.cli import UserError, resolve_workers
+    from mission.commands.options import UserError, resolve_workers
     from mission.experiments.sim import format_pct_ci, mean_ci95, run_episode, run_many
     from planner.methods import UnknownMethod, make_planner, method_names, params_with_info
     from planner.problem import problem_preset
@@ -290,7 +290,7 @@ def run(args) -> int:
 
 
 def _refuse_preset_flags(args) -> None:
-    from mission.cli import UserError
+    from mission.commands.options import UserError
 
     given = [
         (flag, why)
@@ -310,7 +310,7 @@ def _refuse_preset_flags(args) -> None:
 
 
 def _run_mission(args) -> int:
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.format.examples import example_path, list_examples
     from mission.format.load import MissionError, load_mission
     from mission.experiments.playback import run_inprocess, write_run_dir

@@ -83,7 +83,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.flight.sitl import DEFAULT_HOMES, SitlError, SitlSpec, SitlSwarm, find_binary
 
     if args.spacing_m <= 0:

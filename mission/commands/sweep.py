@@ -65,7 +65,7 @@ def add_common_arguments(
     p: argparse.ArgumentParser, seeds_default: int = 100, store_default: str = "results.sqlite"
 ) -> None:
     """Options shared by sweep and tune: seeds, reading, overrides, executor, store."""
-    from mission.cli import add_seed_arguments, add_workers_argument
+    from mission.commands.options import add_seed_arguments, add_workers_argument
 
     p.add_argument(
         "--store",
@@ -165,7 +165,7 @@ def split_list(values: list[str] | None) -> list[str] | None:
 
 
 def parse_attrition(values: list[str] | None) -> list[float] | None:
-    from mission.cli import parse_rate
+    from mission.commands.options import parse_rate
 
     items = split_list(values)
     if items is None:
@@ -192,7 +192,7 @@ def parse_value(text: str, field=None):
 
 def split_overrides(pairs: list[str], option: str = "--set") -> tuple[dict, dict]:
     """KEY=VALUE items -> (problem overrides, planner params)."""
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from planner.problem import ProblemConfig
 
     fields = {f.name: f for f in dataclasses.fields(ProblemConfig)}
@@ -214,7 +214,7 @@ def split_overrides(pairs: list[str], option: str = "--set") -> tuple[dict, dict
 
 
 def validate_methods(methods: list[str] | None, option: str = "--method") -> None:
-    from mission.cli import UserError, did_you_mean
+    from mission.commands.options import UserError, did_you_mean
     from planner.methods import method_names
 
     for m in methods or []:
@@ -242,7 +242,7 @@ def check_overrides(methods, problem, params: dict, option: str = "--set") -> No
 
     A misspelt key would otherwise fail every run (stored as error rows) or be silently ignored.
     """
-    from mission.cli import UserError, did_you_mean
+    from mission.commands.options import UserError, did_you_mean
     from planner.problem import ProblemConfig
 
     problem_fields = [f.name for f in dataclasses.fields(ProblemConfig)]
@@ -270,11 +270,11 @@ def check_overrides(methods, problem, params: dict, option: str = "--set") -> No
 
 def execute(grid, args, argv: list[str]) -> int:
     """Run ``grid`` with the common options; print a summary; return the exit status."""
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.experiments.store import ResultStore, StoreError
     from mission.experiments.sweep import code_version, run_sweep
 
-    from mission.cli import resolve_workers
+    from mission.commands.options import resolve_workers
 
     args.workers = resolve_workers(args.workers)
     if args.chunk is not None and args.chunk < 1:
@@ -347,7 +347,7 @@ def scheduler_address(value: str | None) -> str | None:
     ``dask scheduler --scheduler-file FILE`` writes its address (with the port it chose for
     ``--port 0``) to FILE as JSON; anything with ``://`` or that is not a file is an address.
     """
-    from mission.cli import UserError
+    from mission.commands.options import UserError
 
     if value is None or "://" in value:
         return value
@@ -366,7 +366,7 @@ def scheduler_address(value: str | None) -> str | None:
 
 
 def build_grid(args):
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.experiments.sweep import custom_grid, paper_ablations_grid, paper_table_grid
     from planner.problem import SIZES
 
@@ -401,7 +401,7 @@ def build_grid(args):
 
 def check_grid(grid, option: str = "--set") -> None:
     """Every configuration's problem builds and every planner takes its parameters: refuse up front."""
-    from mission.cli import UserError
+    from mission.commands.options import UserError
 
     try:
         problems = [spec.problem() for spec in grid.configs]
@@ -432,7 +432,7 @@ def _fmt_duration(seconds: float) -> str:
 
 
 def _dry_run(grid, args) -> int:
-    from mission.cli import UserError, resolve_workers
+    from mission.commands.options import UserError, resolve_workers
     from mission.experiments.store import ResultStore, StoreError
     from mission.experiments.sweep import estimate_run_s, measured_costs, resolve
 

@@ -78,7 +78,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _parse_axes(items: list[str]) -> dict[str, list]:
     import dataclasses
 
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.commands.sweep import parse_value
     from planner.problem import ProblemConfig
 
@@ -123,7 +123,7 @@ def reproduce_command(args) -> str:
 
 
 def run(args) -> int:
-    from mission.cli import UserError
+    from mission.commands.options import UserError
     from mission.commands.sweep import (
         check_grid,
         execute,

@@ -522,15 +522,16 @@ def test_report_with_overrides_does_not_grade_against_the_paper(custom_store, tm
 
 def test_compared_heatmap_panels_share_one_colour_scale(monkeypatch, tmp_path):
     from mission.experiments import report
+    from mission.experiments.report import figures
 
     calls = []
-    real = report._heatmap
+    real = figures._heatmap
 
-    def spy(ax, z, marks, sizes, levels, title, vmax=None):
+    def spy(ax, z, marks, sizes, levels, title, vmax=None, **kw):
         calls.append((title, vmax))
-        return real(ax, z, marks, sizes, levels, title, vmax)
+        return real(ax, z, marks, sizes, levels, title, vmax, **kw)
 
-    monkeypatch.setattr(report, "_heatmap", spy)
+    monkeypatch.setattr(figures, "_heatmap", spy)
     cell = report.Cell("S", 0.01, {m: None for m in ("phireman", "dccrs", "mccst")})
     s = report.Sample(report.ConfigSpec("S", 0.01, "phireman"))
     s.by_seed = {"tu1": {0: 70.0, 1: 72.0}, "tu2": {0: 80.0, 1: 81.0}}

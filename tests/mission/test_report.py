@@ -383,3 +383,86 @@ def test_extra_method_is_paired_against_phireman(synthetic_store, tmp_path):
     s05 = next(line for line in part.splitlines() if line.startswith("| S | 0.5 ‡ |"))
     assert "+0.00 (1.000)" in s05 and "n.s." in s05
     assert "better on both TU1 and TU2 in **1 of 2**" in part
+
+
+# ----------------------------------------------------------------------------------------------
+# Too few seeds to grade (issue 28 point 10)
+# ----------------------------------------------------------------------------------------------
+
+
+def test_report_command_says_when_there_are_too_few_seeds(tmp_path, rng, monkeypatch):
+    """A 5-seed store: where our 95 % CI is wider than the tolerance the grade is 'too few
+    seeds', not ✓ / ✗, the top of report.md says so, and a noisy cell does not set the heatmaps'
+    colour scale; where the CI is narrow the grade stands."""
+    import subprocess
+    import sys
+
+    from mission.experiments.report import figures
+
+    n = 5
+    table = {(c.size, c.attrition, c.method): c for c in paper_table_grid(seeds=[]).configs}
+    rows = []
+
+    def add(size, att, method, shift, sd):
+        (t1, _), (t2, _) = (paper.paper_value(size, att, method, m) for m in paper.METRICS)
+        noise = rng.normal(0, sd, n)
+        noise = noise - noise.mean()  # exact means: the grades below are known
+        rows.extend(_rows(table[(size, att, method)], t1 + shift + noise, t2 + shift + noise))
+
+    # S / 1 %: wide intervals (sd 8 over 5 seeds: CI ± ~10 pp); MCCST +20 pp but noise (sd 15).
+    add("S", 0.01, "phireman", 1.0, 8.0)
+    add("S", 0.01, "dccrs", 0.0, 8.0)
+    add("S", 0.01, "mccst", 20.0, 15.0)
+    # M / 0 %: narrow intervals: ΦIREMAN +1 (✓), DCCRS −6 (✗, beyond its 5 pp), MCCST on it.
+    add("M", 0.0, "phireman", 1.0, 0.1)
+    add("M", 0.0, "dccrs", -6.0, 0.1)
+    add("M", 0.0, "mccst", 0.0, 0.1)
+    store = tmp_path / "five.sqlite"
+    with ResultStore(store) as s:
+        s.insert_runs(rows)
+
+    out = tmp_path / "r"
+    res = subprocess.run(
+        [sys.executable, "-m", "mission.cli", "report", str(store), "--out", str(out)]
+        + ["--no-figures", "--no-progress"],
+        capture_output=True,
+        text=True,
+    )
+    assert res.returncode == 0, res.stderr
+    assert "too few seeds to grade 6 of 12 comparisons" in res.stdout
+    md = (out / "report.md").read_text()
+    top = md.split("## Summary")[0]
+    assert "**Too few seeds to grade against the paper: 6 of 12**" in top
+    assert "This store has 5 seeds per configuration" in top
+    vs = md.split("## Ours against the paper")[1].split("\n## ")[0]
+    s1 = next(line for line in vs.splitlines() if line.startswith("| S | 1 |"))
+    assert s1.count("too few seeds") == 6 and "✓" not in s1 and "✗" not in s1
+    m0 = next(line for line in vs.splitlines() if line.startswith("| M | 0 |"))
+    assert "(+1.00 ✓)" in m0 and "(-6.00 ✗)" in m0 and "too few seeds" not in m0
+    summary_line = next(line for line in md.splitlines() if line.startswith("- **ΦIREMAN** within"))
+    assert "**1 of 2**" in summary_line and "**1 with too few seeds to tell**" in summary_line
+    misses = md.split("## Configurations that miss")[1].split("\n## ")[0]
+    assert "- too few seeds to tell: S / 1 %" in misses
+    assert "- M / 0 %: TU1 Δ -6.00" in misses.split("**DCCRS**")[1]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["too_few_seeds"]["too_few_seeds"] == 6
+    assert summary["too_few_seeds"]["seeds_needed_max"] > 5
+    assert summary["agreement"]["phireman"]["too_few_seeds"] == 1
+
+    # Heatmaps: the noisy +20 pp (within the combined CIs) is drawn white and does not set the
+    # scale of ours − paper; DCCRS's −6 pp at M / 0 % (significant) does.
+    calls = []
+    real = figures._heatmap
+
+    def spy(ax, z, marks, sizes, levels, title, vmax=None, significant=None):
+        calls.append((title, vmax, z, significant))
+        return real(ax, z, marks, sizes, levels, title, vmax, significant)
+
+    monkeypatch.setattr(figures, "_heatmap", spy)
+    build_report(store, tmp_path / "figs", progress=None)
+    delta = [(v, z, sig) for t, v, z, sig in calls if "ours − paper" in t]
+    assert len(delta) == 6
+    assert all(v == pytest.approx(6.0, abs=1e-6) for v, _, _ in delta)
+    mccst_tu1 = next(z for t, v, z, sig in calls if t.startswith("MCCST TU1: ours − paper"))
+    sig = next(sig for t, v, z, sig in calls if t.startswith("MCCST TU1: ours − paper"))
+    assert np.nanmax(mccst_tu1) == pytest.approx(20.0, abs=1e-6) and not sig.any()
