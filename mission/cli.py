@@ -13,6 +13,7 @@ import argparse
 import importlib
 import logging
 import os
+import pathlib
 import sys
 
 __all__ = [
@@ -27,6 +28,9 @@ __all__ = [
     "add_seed_arguments",
     "version_string",
     "did_you_mean",
+    "writable_dir",
+    "writable_file",
+    "os_error_text",
 ]
 
 #: subcommand name -> module under mission.commands (order = order in --help).
@@ -129,6 +133,80 @@ def add_seed_arguments(
     )
 
 
+# ----------------------------------------------------------------------------------------------
+# Output locations: checked before any work starts (one place for every command)
+# ----------------------------------------------------------------------------------------------
+
+
+def os_error_text(exc: OSError) -> str:
+    """'Permission denied', or 'Not a directory: /a/file' when the failing path is another one."""
+    text = exc.strerror or str(exc)
+    return f"{text}: {exc.filename}" if exc.filename else text
+
+
+def _dir_problem(p: pathlib.Path) -> str | None:
+    """Why ``p`` cannot receive files, or None. Creates ``p`` (and its parents) if missing, then
+    creates and removes a probe file in it (the only test that holds for root, ACLs and
+    read-only mounts alike)."""
+    import tempfile
+
+    for parent in (p, *p.parents):  # the nearest existing one: a file there is the usual slip
+        if parent.exists():
+            if not parent.is_dir():
+                return f"{parent} is a file, not a directory"
+            break
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return os_error_text(exc)
+    try:
+        with tempfile.TemporaryFile(dir=p, prefix=".phireman-probe-"):
+            pass
+    except OSError as exc:
+        return exc.strerror or str(exc)  # not the probe's random name
+    return None
+
+
+def writable_dir(path: str | os.PathLike, option: str = "--out") -> pathlib.Path:
+    """Make sure the directory ``path`` can receive a command's outputs, before the work starts.
+
+    Creates it (and its parents) if missing and writes (then removes) a probe file in it: a
+    read-only file system, a missing permission or a parent that is a file fail here, at once,
+    rather than after a long simulation or once a flight is under way.
+
+    Raises
+    ------
+    UserError
+        One line naming ``option``, the path and the reason.
+    """
+    p = pathlib.Path(path)
+    problem = _dir_problem(p)
+    if problem is not None:
+        raise UserError(f"{option} {p}: cannot write there ({problem})")
+    return p
+
+
+def writable_file(path: str | os.PathLike, option: str) -> pathlib.Path:
+    """Make sure the file ``path`` can be written (created or replaced), before the work starts:
+    its directory passes the same probe as :func:`writable_dir` and the file, if it exists, is a
+    writable file.
+
+    Raises
+    ------
+    UserError
+        One line naming ``option``, the path and the reason.
+    """
+    p = pathlib.Path(path)
+    if p.is_dir():
+        raise UserError(f"{option} {p}: is a directory, expected a file")
+    problem = _dir_problem(p.parent)
+    if problem is None and p.exists() and not os.access(p, os.W_OK):
+        problem = "Permission denied"
+    if problem is not None:
+        raise UserError(f"{option} {p}: cannot write there ({problem})")
+    return p
+
+
 def did_you_mean(word: str, choices) -> str:
     """' (did you mean X?)' for the closest of ``choices``, or ''."""
     import difflib
@@ -216,6 +294,15 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"phireman {args.command}: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:
+        if exc.filename is None:  # not a file (a socket, a process): a bug or the machine's
+            raise
+        # Writing (or reading) a file failed mid-run: a full disk, a directory removed or made
+        # read-only after the up-front check (writable_dir). One line with the path, no traceback
+        # (-vv logs it).
+        logging.getLogger(__name__).debug("file error", exc_info=True)
+        print(f"phireman {args.command}: error: {os_error_text(exc)}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -389,6 +389,10 @@ def run(args) -> int:
                 parse_connection(c)
             except ValueError as exc:
                 raise UserError(f"--connect {c!r}: {exc}") from None
+    from mission.cli import writable_dir
+
+    # Before the emulator starts or any link opens: a flight must not fail on its records.
+    writable_dir(args.out or mission.output.dir, "--out" if args.out else "output.dir")
     status = _Status()
     opts = FlyOptions(
         seed=args.seed,

@@ -52,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from mission.cli import UserError
+    from mission.cli import UserError, writable_dir
     from mission.view.replay import check_animation_writer, find_run_dir, replay
 
     try:
@@ -62,6 +62,10 @@ def run(args) -> int:
         raise UserError(str(exc)) from None
     if note:
         print(note, file=sys.stderr)
+    if args.out is not None:
+        writable_dir(args.out)
+    else:
+        writable_dir(run_dir, "the run directory (give --out DIR to write elsewhere)")
     from tqdm import tqdm
 
     bar = None
