@@ -186,10 +186,12 @@ def writable_dir(path: str | os.PathLike, option: str = "--out") -> pathlib.Path
     return p
 
 
-def writable_file(path: str | os.PathLike, option: str) -> pathlib.Path:
+def writable_file(
+    path: str | os.PathLike, option: str, example_name: str | None = None
+) -> pathlib.Path:
     """Make sure the file ``path`` can be written (created or replaced), before the work starts:
     its directory passes the same probe as :func:`writable_dir` and the file, if it exists, is a
-    writable file.
+    writable file. ``example_name``: a file name to suggest when ``path`` is a directory.
 
     Raises
     ------
@@ -198,7 +200,8 @@ def writable_file(path: str | os.PathLike, option: str) -> pathlib.Path:
     """
     p = pathlib.Path(path)
     if p.is_dir():
-        raise UserError(f"{option} {p}: is a directory, expected a file")
+        hint = f", e.g. {p / example_name}" if example_name else ""
+        raise UserError(f"{option} {p}: is a directory; give a file{hint}")
     problem = _dir_problem(p.parent)
     if problem is None and p.exists() and not os.access(p, os.W_OK):
         problem = "Permission denied"

@@ -262,7 +262,7 @@ def execute(grid, args, argv: list[str]) -> int:
     args.workers = resolve_workers(args.workers)
     if args.chunk is not None and args.chunk < 1:
         raise UserError("--chunk must be >= 1")
-    writable_file(args.store, "--store")
+    writable_file(args.store, "--store", "results.sqlite")  # before any run
     try:
         store = ResultStore(args.store)
     except StoreError as exc:
