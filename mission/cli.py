@@ -18,6 +18,9 @@ import sys
 import textwrap
 
 from mission.commands.options import (
+    os_error_text,
+    writable_dir,
+    writable_file,
     UserError,
     add_seed_arguments,
     add_workers_argument,
@@ -41,6 +44,9 @@ __all__ = [
     "add_seed_arguments",
     "version_string",
     "did_you_mean",
+    "writable_dir",
+    "writable_file",
+    "os_error_text",
     "fit_text",
     "HelpFormatter",
     "default_workers",
@@ -275,6 +281,15 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"phireman {args.command}: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:
+        if exc.filename is None:  # not a file (a socket, a process): a bug or the machine's
+            raise
+        # Writing (or reading) a file failed mid-run: a full disk, a directory removed or made
+        # read-only after the up-front check (writable_dir). One line with the path, no traceback
+        # (-vv logs it).
+        logging.getLogger(__name__).debug("file error", exc_info=True)
+        print(f"phireman {args.command}: error: {os_error_text(exc)}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -556,13 +556,18 @@ def emulate_ports(c: Ctx) -> None:
 
 
 def emulate_base_pair() -> tuple[str, Callable[[re.Match], str]]:
-    """--base-port 14550 ... udpout:...:14551 -> B ... B+1 (the documented layout, free ports)."""
+    """--base-port 14560 ... udpout:...:14550 -> free ports B ... G (the documented layout: the
+    station's port outside the vehicles')."""
 
     def repl(m: re.Match) -> str:
-        base = _free_port(socket.SOCK_DGRAM)
-        return m.group(0).replace("14550", str(base)).replace("14551", str(base + 1))
+        base, gcs = _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_DGRAM)
+        return m.group(0).replace("14560", str(base)).replace("14550", str(gcs))
 
-    return (r"--base-port 14550.*udpout:127\.0\.0\.1:14551", repl)
+    return (r"--base-port 14560.*udpout:127\.0\.0\.1:14550", repl)
+
+
+#: Free ports of the documented emulator + station pair (vehicles' base port, station's port).
+_EMU_PAIR = (_free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_DGRAM))
 
 
 def version(c: Ctx) -> None:
@@ -582,13 +587,15 @@ def check_ok(c: Ctx) -> None:
 
 
 def emulate_mux(c: Ctx) -> None:
-    c.has(r"emulating 500 ardupilot vehicle\(s\) in 2 network\(s\) on udp [\d.]+:(\d+)\.\.\d+")
+    c.has(
+        r"emulating 500 ardupilot vehicle\(s\) in 2 MAVLink network\(s\) on udp [\d.]+:(\d+)\.\.\d+"
+    )
     m = re.search(r"on udp [\d.]+:(\d+)\.\.(\d+)", c.text())
     assert m is not None
     base = int(re.search(r"--base-port (\d+)", c.cmd).group(1))  # type: ignore[union-attr]
     ports = (int(m.group(1)), int(m.group(2)))
     c.expect(ports == (base, base + 1), f"--mux: ports {ports}, not one per network from {base}")
-    c.has(r"stopped at t=\d")
+    c.has(r"stopped at t = \d")
 
 
 _HOME_TILE = "tiles/paradise/15/5000/12000.png"
@@ -953,15 +960,23 @@ TABLE: dict[str, Case] = {
         kind="help"
     ),
     # ---- emulate -----------------------------------------------------------------------------
-    "phireman emulate --vehicles 10 --personality ardupilot --base-port 14550 --gcs udpout:127.0.0.1:14551": Case(  # noqa: E501
+    "phireman emulate --vehicles 10 --personality ardupilot --home 39.7596,-121.6219,540 --base-port 14560 --gcs udpout:127.0.0.1:14550": Case(  # noqa: E501
         rewrite=(emulate_base_pair(), (r"$", " --duration-s 2")),
         check=emulate_ports,
-        xfail="issue 28 point 2: the --gcs port 14551 is one of the vehicles' ports 14550..14559",
     ),
-    "phireman emulate --vehicles 3 --personality ardupilot --home 47.3977,8.5456,488 --base-port 14550 --gcs udpout:127.0.0.1:14551": Case(  # noqa: E501
-        rewrite=(emulate_base_pair(), (r"$", " --duration-s 2")),
-        check=emulate_ports,
-        xfail="issue 28 point 2: the --gcs port 14551 is one of the vehicles' ports 14550..14552",
+    # The documented pair: the emulator in the background (another terminal), the station on it.
+    "phireman fly wildfire --connect udpin:127.0.0.1:14550 --vehicles 10": Case(
+        pre=(
+            f"nohup phireman emulate --vehicles 10 --personality ardupilot --home "
+            f"39.7596,-121.6219,540 --base-port {_EMU_PAIR[0]} --gcs udpout:127.0.0.1:"
+            f"{_EMU_PAIR[1]} --duration-s 240 > emulate.log 2>&1 &",
+        ),
+        rewrite=(
+            (r"udpin:127\.0\.0\.1:14550", f"udpin:127.0.0.1:{_EMU_PAIR[1]}"),
+            (r"$", " --duration-s 10 --no-wait"),
+        ),
+        check=lambda c: c.has(r"10 drones"),
+        timeout=300,
     ),
     "phireman emulate --vehicles 500 --mux --radio-range-m 300 --attrition-per-s 0.0005": Case(
         rewrite=((r"$", lambda m: f" --base-port {_free_port(socket.SOCK_DGRAM)} --duration-s 2"),),

@@ -7,6 +7,8 @@ import asyncio
 import logging
 import signal
 import socket
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -17,7 +19,15 @@ from .radio import RadioConfig
 from .swarm import PEER_TIMEOUT_S, Swarm
 from .udp import EmulatorServer
 
-__all__ = ["HELP", "DESCRIPTION", "add_arguments", "run"]
+__all__ = [
+    "HELP",
+    "DESCRIPTION",
+    "add_arguments",
+    "run",
+    "EmulateResult",
+    "describe_start",
+    "describe_end",
+]
 
 log = logging.getLogger(__name__)
 
@@ -28,12 +38,19 @@ process: vehicle k (0-based) listens on UDP base-port + k (or, with --mux, one p
 MAVLink network of 254 vehicles). Vehicles send to every address they hear from and to the
 --gcs addresses. Radio range and attrition decide who the ground station can hear.
 
+The ground station's port must lie outside the vehicles' own ports (base-port .. base-port +
+N - 1): a --gcs address inside them is refused, since the vehicles would send to each other.
+
 Vehicle timers follow the vehicle clock: under --speedup K a GCS must heartbeat K times faster
 or the GCS failsafe fires (as in SITL).
 
+Prints the vehicles' ports at start and the traffic statistics at the end. Stops after
+--duration-s or at Ctrl-C (exit status 130; SIGTERM 143).
+
 Examples:
-  phireman emulate --vehicles 3 --personality ardupilot --home 47.3977,8.5456,488 \\
-      --base-port 14550 --gcs udpout:127.0.0.1:14551
+  phireman emulate --vehicles 10 --personality ardupilot --home 39.7596,-121.6219,540 \\
+      --base-port 14560 --gcs udpout:127.0.0.1:14550
+  phireman fly wildfire --connect udpin:127.0.0.1:14550 --vehicles 10   # another terminal
   phireman emulate --vehicles 500 --mux --radio-range-m 300 --attrition-per-s 0.0005
 """
 
@@ -90,7 +107,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="number of vehicles (more than 254 use several MAVLink networks)",
     )
-    parser.add_argument("--personality", choices=("ardupilot", "px4"), default="ardupilot")
+    parser.add_argument(
+        "--personality",
+        choices=("ardupilot", "px4"),
+        default="ardupilot",
+        help="autopilot the vehicles behave like: modes, parameters, failsafes (default ardupilot)",
+    )
     parser.add_argument(
         "--home",
         type=_home,
@@ -130,8 +152,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="R",
         help="drone-base range if different from --radio-range-m",
     )
-    parser.add_argument("--latency-per-hop-s", type=float, default=0.0)
-    parser.add_argument("--loss-per-hop", type=float, default=0.0)
+    parser.add_argument(
+        "--latency-per-hop-s",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="radio delay added per relay hop, seconds of vehicle time (default 0)",
+    )
+    parser.add_argument(
+        "--loss-per-hop",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="probability that a datagram is lost on each relay hop (default 0)",
+    )
     parser.add_argument(
         "--attrition-per-s",
         type=float,
@@ -155,7 +189,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="udpout:HOST:PORT",
-        help="always send to this address",
+        help="the ground station: every vehicle always sends there (repeatable); a port "
+        "outside the vehicles' own (base-port .. base-port + N - 1)",
     )
     parser.add_argument(
         "--rate",
@@ -185,7 +220,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="stop after this much vehicle time (default: until Ctrl-C)",
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="seed of the random draws: attrition, radio loss (default 0)",
+    )
 
 
 class UsageError(ValueError):
@@ -237,30 +277,110 @@ def _build(args) -> tuple[Swarm, RealClock]:
         )
     except (ValueError, KeyError) as exc:
         raise UserError(str(exc)) from exc
+    _check_gcs_ports(args, swarm.n_endpoints)
     return swarm, clock
 
 
-async def _serve(swarm: Swarm, clock: RealClock, args) -> None:
+def _local(host: str) -> str:
+    return "127.0.0.1" if host in ("", "localhost") else host
+
+
+def _check_gcs_ports(args, n_endpoints: int) -> None:
+    """Refuse a ``--gcs`` address that is one of the vehicles' own sockets: they would send their
+    ground-station traffic to a vehicle (with a station listening there, the bind fails; without
+    one, the vehicles learn each other as peers until "more than 8 peers, dropped")."""
+    if not args.base_port:
+        return  # ephemeral ports: the system picks them at bind time, never one already bound
+    first, last = args.base_port, args.base_port + n_endpoints - 1
+    bind = _local(args.bind)
+    for host, port in args.gcs:
+        h = _local(host)
+        # This machine's sockets: the bind address itself, any loopback address when bound to
+        # every interface, and 0.0.0.0 as a destination (Linux delivers it locally).
+        same_host = h in (bind, "0.0.0.0") or (bind == "0.0.0.0" and h.startswith("127."))
+        if same_host and first <= port <= last:
+            raise UsageError(
+                f"--gcs udpout:{host}:{port} is one of the emulator's own ports (its vehicles "
+                f"bind {args.bind}:{first}..{last}); give the ground station a port outside "
+                f"them, e.g. --base-port {port + 10} --gcs udpout:{host}:{port} (then: "
+                f"phireman fly MISSION --connect udpin:{host}:{port})"
+            )
+
+
+@dataclass
+class EmulateResult:
+    """How a ``phireman emulate`` session ended (the command prints it for people)."""
+
+    t_s: float
+    """Vehicle time at the stop, s."""
+    n: int
+    alive: int
+    active: int
+    stats: dict[str, int]
+    """:attr:`vehicle_emu.swarm.Swarm.stats` at the stop."""
+    stopped_by: str | None = None
+    """'SIGINT' (Ctrl-C), 'SIGTERM', or None when ``--duration-s`` ran out."""
+
+
+def describe_start(swarm: Swarm, args, addresses: list[tuple[str, int]], speedup: float) -> str:
+    """One line for people: what is emulated and on which ports."""
+    ports = [p for _, p in addresses]
+    if ports == list(range(ports[0], ports[0] + len(ports))):
+        where = f"{addresses[0][0]}:{ports[0]}" + (f"..{ports[-1]}" if len(ports) > 1 else "")
+    else:  # ephemeral ports (--base-port 0): each one
+        where = f"{addresses[0][0]} ports {', '.join(map(str, ports))}"
+    gcs = ", ".join(f"{h}:{p}" for h, p in args.gcs) or "none (they answer whoever sends to them)"
+    return (
+        f"emulating {swarm.n} {args.personality} vehicle(s) in {swarm.n_networks} MAVLink "
+        f"network(s) on udp {where} (speed-up {speedup:g}); ground station: {gcs}"
+    )
+
+
+def describe_end(result: EmulateResult) -> list[str]:
+    """Lines for people: when and why the emulation stopped, and its traffic statistics."""
+    why = {"SIGINT": " (Ctrl-C)", "SIGTERM": " (SIGTERM)", None: ""}[result.stopped_by]
+    st = dict(result.stats)
+
+    def take(key: str) -> int:
+        return int(st.pop(key, 0))
+
+    lines = [
+        f"stopped at t = {result.t_s:.1f} s of vehicle time{why}: {result.alive} of "
+        f"{result.n} vehicles alive, {result.active} active",
+        f"datagrams: {take('datagrams_in')} in, {take('datagrams_out')} out; dropped: "
+        f"{take('dropped_radio_in')} out of radio range inbound, {take('dropped_radio_out')} "
+        f"outbound, {take('dropped_dead')} to dead vehicles, {take('unroutable')} unroutable",
+        f"peers: {take('peers_learned')} learned, {take('peers_expired')} expired, "
+        f"{take('peers_evicted')} evicted (over the limit per vehicle); {take('ticks')} ticks",
+    ]
+    if st:  # counters added later still show, one "name value" each
+        lines.append("other: " + ", ".join(f"{k} {v}" for k, v in sorted(st.items())))
+    return lines
+
+
+async def _serve(
+    swarm: Swarm, clock: RealClock, args, on_ready: Callable[[str], None] | None
+) -> EmulateResult:
     server = EmulatorServer(swarm, clock, args.bind, args.base_port)
     await server.start()
-    first, last = server.addresses[0], server.addresses[-1]
-    log.warning(
-        "emulating %d %s vehicle(s) in %d network(s) on udp %s:%d..%d (speed-up %g)",
-        swarm.n,
-        args.personality,
-        swarm.n_networks,
-        first[0],
-        first[1],
-        last[1],
-        clock.speedup,
-    )
     stop = asyncio.Event()
+    stopped_by: list[str] = []
     loop = asyncio.get_running_loop()
+
+    def on_signal(name: str) -> None:
+        stopped_by.append(name)
+        stop.set()
+
     for sig in (signal.SIGINT, signal.SIGTERM):
         try:
-            loop.add_signal_handler(sig, stop.set)
+            loop.add_signal_handler(sig, on_signal, sig.name)
         except (NotImplementedError, RuntimeError):
             pass
+    # Ready only now: a signal from whoever waits for this line finds its handler installed.
+    line = describe_start(swarm, args, list(server.addresses), clock.speedup)
+    log.info("%s", line)
+    if on_ready is not None:
+        on_ready(line)
     try:
         if args.duration_s is None:
             await stop.wait()
@@ -271,17 +391,20 @@ async def _serve(swarm: Swarm, clock: RealClock, args) -> None:
                 pass
     finally:
         server.close()
-    log.warning(
-        "stopped at t=%.1f s: %d alive, %d active; %s",
-        clock.now(),
-        int(swarm.alive.sum()),
-        int(swarm.active.sum()),
-        swarm.stats,
+    return EmulateResult(
+        t_s=clock.now(),
+        n=swarm.n,
+        alive=int(swarm.alive.sum()),
+        active=int(swarm.active.sum()),
+        stats=dict(swarm.stats),
+        stopped_by=stopped_by[0] if stopped_by else None,
     )
 
 
-def run(args) -> int:
-    """Build and serve the swarm.
+def run(args, on_ready: Callable[[str], None] | None = None) -> EmulateResult:
+    """Build and serve the swarm until ``--duration-s`` or SIGINT / SIGTERM.
+
+    ``on_ready`` is called once with a line for people when the ports are bound.
 
     Raises
     ------
@@ -293,7 +416,7 @@ def run(args) -> int:
 
     swarm, clock = _build(args)
     try:
-        asyncio.run(_serve(swarm, clock, args))
+        return asyncio.run(_serve(swarm, clock, args, on_ready))
     except OSError as exc:
         if exc.errno == errno.EADDRINUSE:
             last = args.base_port + (swarm.n_networks if args.mux else swarm.n) - 1
@@ -314,4 +437,3 @@ def run(args) -> int:
                 f"--bind {args.bind}: not an address of this machine ({exc.strerror or exc})"
             ) from None
         raise
-    return 0

@@ -9,8 +9,8 @@ asyncio adapters, or an in-memory ether in tests) moves the bytes and calls :met
 Phases (``Operator.phase``, a :class:`Phase`: a ``str``-valued Enum, so ``op.phase == "run"``)::
 
     discover -> audit -> launch -> run -> end -> done
-    discover / audit -> refused (a live task never heard; a blocking audit finding and no
-                                 override)
+    discover / audit -> refused (no vehicle heard; a live task never heard; a blocking audit
+                                 finding and no override)
     any phase -> done (interrupted); discover / audit / launch -> end (``begin_end``)
 
 Every allowed transition, with its trigger, is in :data:`TRANSITIONS`
@@ -20,6 +20,7 @@ Every allowed transition, with its trigger, is in :data:`TRANSITIONS`
 * **discover**: wait for ``expected_vehicles`` HEARTBEATs (or ``discover_timeout_s``, or
   ``discover_settle_s`` without a new vehicle when no count is expected), and for the first
   position of every live task tracker (:mod:`gcs.tasks`; refused after ``task_wait_timeout_s``).
+  No vehicle at all by ``discover_timeout_s``: refused.
 * **audit**: read the lost-link parameters of every vehicle (:mod:`gcs.audit`); refuse unless
   every vehicle is safe or ``override_audit``. With ``apply_failsafes`` (and only then: no
   failsafe parameter is ever written otherwise), every fixable blocking finding is first fixed by a

@@ -22,6 +22,8 @@ class OperationsConfig:
     expected_vehicles: int | None = None
     """Start as soon as this many vehicles are discovered (None: wait ``discover_settle_s``)."""
     discover_timeout_s: float = 30.0
+    """Start with the vehicles heard after this long; refuse (``Operator.refusal``) if none was.
+    ``math.inf``: wait for the first vehicle for ever."""
     discover_settle_s: float = 3.0
     audit: bool = True
     override_audit: bool = False

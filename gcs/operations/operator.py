@@ -314,10 +314,17 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
 
     def _poll_discover(self, snap: FleetSnapshot, now_s: float) -> None:
         """Wait for the fleet (``expected_vehicles``, or settled, or ``discover_timeout_s``) and
-        every live task's first position; then audit (or launch), or refuse."""
+        every live task's first position; then audit (or launch), or refuse. Nothing heard by
+        ``discover_timeout_s`` is refused too (a wrong port or an autopilot not started does
+        not fix itself; the caller says what it tried)."""
         cfg = self.config
         n = snap.n_vehicles
         waited = now_s - self._phase_since_s
+        if not n and waited >= cfg.discover_timeout_s:
+            self.refusal = f"no vehicle heard within {cfg.discover_timeout_s:g} s"
+            log.warning("refusing to launch: %s", self.refusal)
+            self._enter(Trigger.NOTHING_HEARD, now_s)
+            return
         if n and (
             (cfg.expected_vehicles is not None and n >= cfg.expected_vehicles)
             or (

@@ -9,7 +9,7 @@ audit verdict) stays in the per-phase poll handlers; the table says only which m
 
     discover --found--------------> audit --cleared--> launch --launched--> run
     discover --found, audit off---------------------> launch
-    discover --tasks unseen--> refused      audit --unsafe--> refused
+    discover --tasks unseen / nothing heard--> refused      audit --unsafe--> refused
     discover / audit / launch / run --end--> end --landed / end timeout--> done
     every phase --interrupt--> done   (Ctrl-C with hold / rtl / land; "end" before launch)
 """
@@ -48,6 +48,8 @@ class Trigger(StrEnum):
     """The same, with ``OperationsConfig.audit`` off: straight to the launch."""
     TASKS_UNSEEN = "tasks unseen"
     """A live task tracker was never heard within ``task_wait_timeout_s``."""
+    NOTHING_HEARD = "nothing heard"
+    """No vehicle at all was heard within ``discover_timeout_s``."""
     CLEARED = "cleared"
     """The audit cleared the fleet (or was overridden), fixes and limits confirmed."""
     UNSAFE = "unsafe"
@@ -70,6 +72,7 @@ TRANSITIONS: dict[Phase, dict[Trigger, Phase]] = {
         Trigger.FOUND: Phase.AUDIT,
         Trigger.FOUND_UNAUDITED: Phase.LAUNCH,
         Trigger.TASKS_UNSEEN: Phase.REFUSED,
+        Trigger.NOTHING_HEARD: Phase.REFUSED,
         Trigger.END: Phase.END,
         Trigger.INTERRUPT: Phase.DONE,
     },

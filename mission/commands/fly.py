@@ -6,6 +6,8 @@ import argparse
 import math
 import sys
 
+from mission.flight.fly_options import FlyOptions as _FlyOptions
+
 __all__ = [
     "HELP",
     "DESCRIPTION",
@@ -20,6 +22,9 @@ __all__ = [
     "format_tu",
     "slow_pace_warning",
 ]
+
+#: The defaults of the options (one place: FlyOptions; a light module, imported for --help).
+FLY_DEFAULTS = _FlyOptions()
 
 HELP = "fly a mission with the ground station (built-in emulator by default, or --connect)"
 DESCRIPTION = """\
@@ -120,6 +125,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="N",
         help="with --connect: start as soon as N vehicles are heard",
+    )
+    p.add_argument(
+        "--discover-timeout-s",
+        type=float,
+        default=None,
+        metavar="S",
+        help="how long discovery waits: with no vehicle heard by then the flight is refused "
+        "(exit 1, the reason in summary.json); with some, it starts with those heard "
+        f"(default {FLY_DEFAULTS.discover_timeout_s:g} s)",
     )
     p.add_argument("--wave-size", type=int, default=25, help="vehicles per take-off wave")
     p.add_argument(
@@ -556,6 +570,8 @@ def run(args) -> int:
         )
     if args.vehicles is not None and args.vehicles < 1:
         raise UserError(f"--vehicles must be >= 1, got {args.vehicles}")
+    if args.discover_timeout_s is not None and not args.discover_timeout_s > 0:
+        raise UserError(f"--discover-timeout-s must be > 0, got {args.discover_timeout_s}")
     if args.connect:
         from gcs.connection import parse_connection
 
@@ -564,6 +580,10 @@ def run(args) -> int:
                 parse_connection(c)
             except ValueError as exc:
                 raise UserError(f"--connect {c!r}: {exc}") from None
+    from mission.commands.options import writable_dir
+
+    # Before the emulator starts or any link opens: a flight must not fail on its records.
+    writable_dir(args.out or mission.output.dir, "--out" if args.out else "output.dir")
     status = _Status()
     opts = FlyOptions(
         seed=args.seed,
@@ -583,6 +603,8 @@ def run(args) -> int:
         restore_params=args.restore_params,
         on_interrupt=args.on_interrupt,
     )
+    if args.discover_timeout_s is not None:
+        opts.discover_timeout_s = args.discover_timeout_s
     from mission.commands.live_view import fly_options
 
     opts = fly_options(opts, args)  # --serve / --forward (mission.view.live)
@@ -615,6 +637,8 @@ def run(args) -> int:
                 f"parameters{hint} or pass --override-audit. Run directory: {result.run_dir}",
                 file=sys.stderr,
             )
+        elif not s["vehicles_discovered"] and real:
+            print(_nothing_heard(op.refusal, result.run_dir), file=sys.stderr)
         else:
             print(
                 f"phireman fly: refused to launch: {op.refusal or 'unknown reason'}. "
@@ -668,4 +692,22 @@ def run(args) -> int:
         warning = textwrap.fill(f"warning: {slow_pace_warning(s)}", 79, subsequent_indent="  ")
         print(warning, file=sys.stderr)
     print(_EXPLAIN)
-    return 130 if op.interrupted is not None else 0
+    if op.interrupted is None:
+        return 0
+    return 143 if s.get("stopped_by") == "SIGTERM" else 130
+
+
+def _nothing_heard(refusal: str | None, run_dir) -> str:
+    """Why a real flight heard nobody: what was tried (in ``refusal``) and the usual causes."""
+    return (
+        f"phireman fly: {refusal or 'no vehicle heard'}. Usual causes:\n"
+        "  - a wrong address or port (SITL: tcp:127.0.0.1:5760 for the first ArduCopter, "
+        "udpin:0.0.0.0:14550 for a vehicle that sends to 14550; 'phireman sitl --print-fly' "
+        "prints the right --connect)\n"
+        "  - udpin vs udpout: udpin:H:P waits for vehicles that send to port P; udpout:H:P "
+        "sends first, to a vehicle listening on P\n"
+        "  - a firewall dropping the MAVLink traffic (UDP gives no error for it)\n"
+        "  - the autopilot, SITL or 'phireman emulate' not started (yet): start it first, or "
+        "wait longer with --discover-timeout-s\n"
+        f"Run directory: {run_dir} (summary.json says why)"
+    )

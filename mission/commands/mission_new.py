@@ -6,7 +6,7 @@ import math
 import sys
 from pathlib import Path
 
-from mission.commands.options import UserError, parse_rate
+from mission.commands.options import UserError, parse_rate, writable_file
 
 HELP = "write the paper's configurations as mission files (new), show or list missions"
 DESCRIPTION = """\
@@ -178,10 +178,8 @@ def _run_new(args) -> int:
         out = Path(args.out)
         if out.exists() and not args.force:
             raise UserError(f"{out} exists; use --force to overwrite")
-        try:
-            out.write_text(text, encoding="utf-8")
-        except OSError as exc:
-            raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
+        writable_file(out, "--out")
+        out.write_text(text, encoding="utf-8")  # an OSError now: one line (mission.cli.main)
         print(f"wrote {out}", file=sys.stderr)
     else:
         sys.stdout.write(text)

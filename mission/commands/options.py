@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import pathlib
 
 __all__ = [
     "UserError",
@@ -21,6 +22,9 @@ __all__ = [
     "resolve_workers",
     "add_seed_arguments",
     "did_you_mean",
+    "writable_dir",
+    "writable_file",
+    "os_error_text",
 ]
 
 
@@ -119,6 +123,83 @@ def add_seed_arguments(
     p.add_argument(
         "--seeds", type=positive_int, default=seeds_default, metavar="N", help=seeds_help
     )
+
+
+# ----------------------------------------------------------------------------------------------
+# Output locations: checked before any work starts (one place for every command)
+# ----------------------------------------------------------------------------------------------
+
+
+def os_error_text(exc: OSError) -> str:
+    """'Permission denied', or 'Not a directory: /a/file' when the failing path is another one."""
+    text = exc.strerror or str(exc)
+    return f"{text}: {exc.filename}" if exc.filename else text
+
+
+def _dir_problem(p: pathlib.Path) -> str | None:
+    """Why ``p`` cannot receive files, or None. Creates ``p`` (and its parents) if missing, then
+    creates and removes a probe file in it (the only test that holds for root, ACLs and
+    read-only mounts alike)."""
+    import tempfile
+
+    for parent in (p, *p.parents):  # the nearest existing one: a file there is the usual slip
+        if parent.exists():
+            if not parent.is_dir():
+                return f"{parent} is a file, not a directory"
+            break
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return os_error_text(exc)
+    try:
+        with tempfile.TemporaryFile(dir=p, prefix=".phireman-probe-"):
+            pass
+    except OSError as exc:
+        return exc.strerror or str(exc)  # not the probe's random name
+    return None
+
+
+def writable_dir(path: str | os.PathLike, option: str = "--out") -> pathlib.Path:
+    """Make sure the directory ``path`` can receive a command's outputs, before the work starts.
+
+    Creates it (and its parents) if missing and writes (then removes) a probe file in it: a
+    read-only file system, a missing permission or a parent that is a file fail here, at once,
+    rather than after a long simulation or once a flight is under way.
+
+    Raises
+    ------
+    UserError
+        One line naming ``option``, the path and the reason.
+    """
+    p = pathlib.Path(path)
+    problem = _dir_problem(p)
+    if problem is not None:
+        raise UserError(f"{option} {p}: cannot write there ({problem})")
+    return p
+
+
+def writable_file(
+    path: str | os.PathLike, option: str, example_name: str | None = None
+) -> pathlib.Path:
+    """Make sure the file ``path`` can be written (created or replaced), before the work starts:
+    its directory passes the same probe as :func:`writable_dir` and the file, if it exists, is a
+    writable file. ``example_name``: a file name to suggest when ``path`` is a directory.
+
+    Raises
+    ------
+    UserError
+        One line naming ``option``, the path and the reason.
+    """
+    p = pathlib.Path(path)
+    if p.is_dir():
+        hint = f", e.g. {p / example_name}" if example_name else ""
+        raise UserError(f"{option} {p}: is a directory; give a file{hint}")
+    problem = _dir_problem(p.parent)
+    if problem is None and p.exists() and not os.access(p, os.W_OK):
+        problem = "Permission denied"
+    if problem is not None:
+        raise UserError(f"{option} {p}: cannot write there ({problem})")
+    return p
 
 
 def did_you_mean(word: str, choices) -> str:

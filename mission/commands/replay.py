@@ -52,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from mission.commands.options import UserError
+    from mission.commands.options import UserError, writable_dir
     from mission.view.replay import check_animation_writer, find_run_dir, replay
 
     try:
@@ -67,6 +67,11 @@ def run(args) -> int:
     served = run_replay(args, run_dir)  # --serve / --export: the live page or a GIS file, no plots
     if served is not None:
         return served
+    # The pictures: their directory checked before any drawing.
+    if args.out is not None:
+        writable_dir(args.out)
+    else:
+        writable_dir(run_dir, "the run directory (give --out DIR to write elsewhere)")
     from tqdm import tqdm
 
     bar = None

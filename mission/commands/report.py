@@ -73,13 +73,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from mission.commands.options import UserError
+    from mission.commands.options import UserError, writable_dir
     from mission.commands.sweep import split_list, split_overrides
     from mission.experiments.report import build_report
     from mission.experiments.store import StoreError
 
     if not args.store.exists():
         raise UserError(f"no results store at {args.store}")
+    writable_dir(args.out)
     problem, params = split_overrides(args.set)
     notes = None
     if args.notes is not None:

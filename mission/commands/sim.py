@@ -140,7 +140,7 @@ def ci_note(n: int, clipped: bool) -> str | None:
 
 
 def run(args) -> int:
-    from mission.commands.options import UserError, resolve_workers
+    from mission.commands.options import UserError, resolve_workers, writable_dir
     from mission.experiments.sim import format_pct_ci, mean_ci95, run_episode, run_many
     from planner.methods import UnknownMethod, make_planner, method_names, params_with_info
     from planner.problem import problem_preset
@@ -182,6 +182,8 @@ def run(args) -> int:
     except (ValueError, TypeError) as exc:
         raise UserError(str(exc)) from None
 
+    if args.out is not None:
+        writable_dir(args.out)  # before the runs, not after them
     seeds = list(range(seed0, seed0 + n_seeds))
     workers = resolve_workers(args.workers)
     label = (
@@ -227,10 +229,6 @@ def run(args) -> int:
 
     if args.out is not None:
         out = args.out
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UserError(f"--out {out}: {exc.strerror or exc}") from None
         with open(out / "runs.csv", "w", newline="") as fh:
             w = csv.DictWriter(
                 fh,
@@ -310,7 +308,7 @@ def _refuse_preset_flags(args) -> None:
 
 
 def _run_mission(args) -> int:
-    from mission.commands.options import UserError
+    from mission.commands.options import UserError, writable_dir
     from mission.format.examples import example_path, list_examples
     from mission.format.load import MissionError, load_mission
     from mission.experiments.playback import run_inprocess, write_run_dir
@@ -330,6 +328,8 @@ def _run_mission(args) -> int:
         mission = load_mission(path)
     except MissionError as exc:
         raise UserError("invalid mission:\n  " + "\n  ".join(exc.errors)) from None
+    if args.out is not None:
+        writable_dir(args.out)  # before the runs, not after them
     n = 1 if args.seeds is None else args.seeds
     first = mission.run.seed if args.seed is None else args.seed
     seeds = [first + k for k in range(n)]
@@ -383,10 +383,7 @@ def _run_mission(args) -> int:
                 f"{100 * min(e['min_battery_in_air'] for e in ends):.0f} %"
             )
     if args.out is not None:
-        try:
-            write_run_dir(mission, results[0], args.out)
-        except OSError as exc:
-            raise UserError(f"--out {args.out}: {exc.strerror or exc}") from None
+        write_run_dir(mission, results[0], args.out)  # an OSError: one line (mission.cli.main)
         print(
             f"wrote run directory {args.out} (seed {results[0].seed}); see it with: phireman replay {args.out}"
         )

@@ -83,13 +83,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from mission.commands.options import UserError
+    from mission.commands.options import UserError, writable_dir
     from mission.flight.sitl import DEFAULT_HOMES, SitlError, SitlSpec, SitlSwarm, find_binary
 
     if args.spacing_m <= 0:
         raise UserError(f"--spacing-m must be > 0, got {args.spacing_m}")
     if args.first_instance < 0:
         raise UserError(f"--first-instance must be >= 0, got {args.first_instance}")
+    if args.workdir:
+        writable_dir(args.workdir, "--workdir")
     origin = DEFAULT_HOMES[args.firmware]
     mission_name = None
     if args.mission:

@@ -274,11 +274,12 @@ def execute(grid, args, argv: list[str]) -> int:
     from mission.experiments.store import ResultStore, StoreError
     from mission.experiments.sweep import code_version, run_sweep
 
-    from mission.commands.options import resolve_workers
+    from mission.commands.options import resolve_workers, writable_file
 
     args.workers = resolve_workers(args.workers)
     if args.chunk is not None and args.chunk < 1:
         raise UserError("--chunk must be >= 1")
+    writable_file(args.store, "--store", "results.sqlite")  # before any run
     try:
         store = ResultStore(args.store)
     except StoreError as exc:

@@ -123,7 +123,7 @@ def reproduce_command(args) -> str:
 
 
 def run(args) -> int:
-    from mission.commands.options import UserError
+    from mission.commands.options import UserError, writable_dir, writable_file
     from mission.commands.sweep import (
         check_grid,
         execute,
@@ -160,6 +160,8 @@ def run(args) -> int:
         args.method, axes, seeds, args.size, attrition[0], args.reading, params, problem
     )
     check_grid(grid, "--grid/--set")
+    if args.out is not None:  # before the search, not after it
+        (writable_file if args.out.suffix == ".md" else writable_dir)(args.out, "--out")
     command = reproduce_command(args)
     status = execute(grid, args, shlex.split(command))
     if status == 130:

@@ -8,8 +8,11 @@ from __future__ import annotations
 
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from gcs.operations import Operator
+if TYPE_CHECKING:  # a type only: importing the operator costs seconds; `phireman fly --help` reads
+    # the defaults below without it
+    from gcs.operations import Operator
 
 __all__ = ["FlyOptions", "RunnerError"]
 

@@ -21,7 +21,15 @@ from mission.flight.fly_options import FlyOptions
 from mission.format.schema import Mission
 from mission.format.version import code_version
 
-__all__ = ["new_run_dir", "Records", "run_meta", "summary", "FlightTimes", "flown_span_s"]
+__all__ = [
+    "new_run_dir",
+    "Records",
+    "run_meta",
+    "summary",
+    "stopped_summary",
+    "FlightTimes",
+    "flown_span_s",
+]
 
 #: Under this share of the requested speed-up the pace is reported as too slow (on screen and
 #: ``summary.json``'s ``speedup_slow``): results such as reclaims and TU move with the pace.
@@ -215,6 +223,28 @@ def summary(
         s["truth"] = report["truth"]
         s["emulator"] = report["stats"]
     return s
+
+
+def stopped_summary(
+    mission: Mission, seed: int, kind: str, run_dir: Path, exc: BaseException, wall_s: float
+) -> dict:
+    """``summary.json`` of a flight stopped before its station loop returned (interrupted while
+    starting, Ctrl-C twice, SIGTERM twice, or an error): why, so a run directory is never left
+    without one."""
+    import asyncio
+
+    interrupted = isinstance(exc, (asyncio.CancelledError, KeyboardInterrupt))
+    return {
+        "mission": mission.name,
+        "backend": kind,
+        "seed": seed,
+        "phase": "stopped",
+        "stopped": "interrupted (Ctrl-C or SIGTERM)"
+        if interrupted
+        else f"{type(exc).__name__}: {exc}",
+        "wall_s": wall_s,
+        "run_dir": str(run_dir),
+    }
 
 
 def run_meta(

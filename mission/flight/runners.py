@@ -32,7 +32,9 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,6 +67,7 @@ from mission.flight.run_dir import (
     flown_span_s,
     new_run_dir,
     run_meta,
+    stopped_summary,
     summary as run_summary,
 )
 from mission.format.schema import Mission
@@ -128,7 +131,51 @@ def _resolve(mission: Mission, opts: FlyOptions, *, real: bool = False) -> tuple
     return seed, speedup
 
 
+def _sigterm_as_interrupt(stopped_by: list[str]) -> Callable[[], None]:
+    """SIGTERM (``kill``, a service manager) ends the flight as Ctrl-C does: asyncio.run cancels
+    the main task on SIGINT, and :func:`mission.flight.station_loop.run_station` turns that
+    cancellation into the ``--on-interrupt`` command, closes the records and returns, so the
+    run directory gets its summary.json. Returns the undo."""
+    loop = asyncio.get_running_loop()
+    task = asyncio.current_task()
+    assert task is not None  # called from a coroutine
+
+    def on_term() -> None:
+        stopped_by.append("SIGTERM")
+        task.cancel()
+
+    try:
+        loop.add_signal_handler(signal.SIGTERM, on_term)
+    except (NotImplementedError, RuntimeError, ValueError):  # not Unix, or not the main thread
+        return lambda: None
+
+    def undo() -> None:
+        loop.remove_signal_handler(signal.SIGTERM)
+
+    return undo
+
+
+def _write_stopped(
+    mission: Mission, seed: int, kind: str, run_dir: Path, exc: BaseException, wall0: float
+) -> None:
+    """A summary.json saying why, unless the flight already wrote its own."""
+    if not (run_dir / "summary.json").exists():
+        write_summary(
+            run_dir / "summary.json",
+            stopped_summary(mission, seed, kind, run_dir, exc, time.monotonic() - wall0),
+        )
+
+
 async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
+    stopped_by: list[str] = []
+    undo = _sigterm_as_interrupt(stopped_by)
+    try:
+        return await _fly_emulated(mission, opts, stopped_by)
+    finally:
+        undo()
+
+
+async def _fly_emulated(mission: Mission, opts: FlyOptions, stopped_by: list[str]) -> FlyResult:
     seed, speedup = _resolve(mission, opts)
     if opts.duration_s:
         mission = dataclasses.replace(
@@ -204,9 +251,14 @@ async def fly_emulated_async(mission: Mission, opts: FlyOptions) -> FlyResult:
             clock.now(),
             times,
         )
+        if stopped_by:
+            summary["stopped_by"] = stopped_by[0]
         arrays = report.pop("arrays")
         np.savez_compressed(run_dir / "truth.npz", **arrays)
         write_summary(run_dir / "summary.json", summary)
+    except BaseException as exc:
+        _write_stopped(mission, seed, "emulated", run_dir, exc, wall0)
+        raise
     finally:
         emu.close()
         records.close()
@@ -222,6 +274,15 @@ def _expected_real(mission: Mission, opts: FlyOptions) -> int | None:
 
 
 async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
+    stopped_by: list[str] = []
+    undo = _sigterm_as_interrupt(stopped_by)
+    try:
+        return await _fly_real(mission, opts, stopped_by)
+    finally:
+        undo()
+
+
+async def _fly_real(mission: Mission, opts: FlyOptions, stopped_by: list[str]) -> FlyResult:
     seed, speedup = _resolve(mission, opts, real=True)
     if opts.duration_s:
         mission = dataclasses.replace(
@@ -271,20 +332,34 @@ async def fly_real_async(mission: Mission, opts: FlyOptions) -> FlyResult:
             clock.now(),
             times,
         )
+        if stopped_by:
+            summary["stopped_by"] = stopped_by[0]
         write_summary(run_dir / "summary.json", summary)
+    except BaseException as exc:
+        _write_stopped(mission, seed, "real", run_dir, exc, wall0)
+        raise
     finally:
         records.close()
     return FlyResult(run_dir, summary, op, None)
 
 
+def _run(flight) -> FlyResult:
+    try:
+        return asyncio.run(flight)
+    except asyncio.CancelledError:
+        # SIGTERM before the station's loop, or a second one: stopped as by Ctrl-C (asyncio.run
+        # itself turns a cancellation by SIGINT into KeyboardInterrupt).
+        raise KeyboardInterrupt from None
+
+
 def fly_emulated(mission: Mission, opts: FlyOptions | None = None) -> FlyResult:
     """Fly ``mission`` against the emulator over loopback UDP (see the module docstring)."""
-    return asyncio.run(fly_emulated_async(mission, opts or FlyOptions()))
+    return _run(fly_emulated_async(mission, opts or FlyOptions()))
 
 
 def fly_real(mission: Mission, opts: FlyOptions) -> FlyResult:
     """Fly ``mission`` over real links (``opts.connections`` or ``vehicles.real``)."""
-    return asyncio.run(fly_real_async(mission, opts))
+    return _run(fly_real_async(mission, opts))
 
 
 def fly(mission: Mission, opts: FlyOptions | None = None) -> FlyResult:

@@ -402,8 +402,20 @@ async def run_station(
                 for a in adapters:
                     a.transmit()
     finally:
+        if op.phase == "refused" and not len(op.fleet):
+            # Nothing heard: say what was tried, in the summary too (Operator.refusal).
+            op.refusal = f"{op.refusal}; tried {_links_tried(adapters)}"
         for x in extras:
             await x.aclose()
         for a in adapters:
             a.close()
     return op
+
+
+def _links_tried(adapters) -> str:
+    """'link 0 udpout:127.0.0.1:9 (open), link 1 tcp:127.0.0.1:9 (down: Connection refused)'."""
+    return ", ".join(
+        f"link {a.link_id} {a.spec.text} "
+        f"({'open' if a.connected else 'down: ' + (a.down_reason or 'not connected')})"
+        for a in adapters
+    )

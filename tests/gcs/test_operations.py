@@ -384,8 +384,20 @@ def test_discover_timeout_starts_with_the_vehicles_heard():
     assert t == pytest.approx(30.0) and op.phase == "launch"
 
 
-def test_discover_without_any_vehicle_waits_forever():
-    op, station, feed, _ = make(expected_vehicles=2)
+def test_discover_without_any_vehicle_refuses_at_the_timeout():
+    """Issue 28: nothing heard is refused at discover_timeout_s (it used to wait for ever)."""
+    op, station, feed, _ = make(expected_vehicles=2, discover_timeout_s=30.0)
+    op.poll(0.0)
+    op.poll(29.5)
+    assert op.phase == "discover" and op.refusal is None
+    op.poll(30.0)
+    assert op.phase == "refused" and op.finished
+    assert op.refusal == "no vehicle heard within 30 s"
+    assert station.calls == []
+
+
+def test_discover_without_any_vehicle_can_wait_forever():
+    op, station, feed, _ = make(expected_vehicles=2, discover_timeout_s=math.inf)
     for t in (0.0, 30.0, 1000.0):
         op.poll(t)
     assert op.phase == "discover" and not op.finished
