@@ -37,6 +37,30 @@ Unknown autopilot or a parameter that matters and could not be read -> **blockin
 parameters that older firmware lacks are in :data:`OPTIONAL_PARAMS` (reasons in
 :data:`OPTIONAL_REASONS`) and their absence means "this firmware has no such setting".
 
+Battery failsafes (``battery`` = ``"require"`` for a mission with batteries, ``"warn"`` for one
+without them on real firmware, ``"off"``: not read; docs/design/endurance.md §3). A drone must fly
+home at the firmware's *first* battery action, never land where it is (in the fire area) or fly on
+until the critical level:
+ArduPilot Copter (AP_BattMonitor_Params.cpp ``FS_LOW_ACT`` / ``FS_CRT_ACT`` @Values for Copter;
+ArduCopter/events.cpp ``handle_battery_failsafe`` -> ``do_failsafe_action`` with
+``Copter::FailsafeAction``: 0 None, 1 Land, 2 RTL, 3 SmartRTL-or-RTL, 4 SmartRTL-or-Land,
+5 Terminate, 6 DO_LAND_START-or-RTL, 7 Brake-or-Land)
+  * ``BATT_FS_LOW_ACT`` 2, 3 fine; 6 warning; 0, 1, 4, 5, 7 **blocking** (fix: 2).
+  * ``BATT_LOW_MAH`` and ``BATT_LOW_VOLT`` both 0: the low failsafe never fires -> **blocking**
+    (fix: ``BATT_LOW_MAH`` = the mission's low level x ``BATT_CAPACITY``, when both are known).
+  * ``BATT_CRT_*`` at or above ``BATT_LOW_*``: the critical action (usually Land) comes first ->
+    **blocking**. ``BATT_FS_CRT_ACT`` 5 (Terminate) **blocking**, 0 warning, Land expected.
+  * The firmware's low level (``BATT_LOW_MAH / BATT_CAPACITY``) above the mission's
+    ``low_frac``: the firmware returns before the plan expects -> warning.
+PX4 (src/modules/commander/commander_params.yaml ``COM_LOW_BAT_ACT``; failsafe/failsafe.cpp
+``checkStateAndMode`` battery warnings: ``BAT_LOW_THR`` only warns, the first *action* comes at
+``BAT_CRIT_THR``, Land at ``BAT_EMERGEN_THR``)
+  * ``COM_LOW_BAT_ACT`` 3 (Return at critical, Land at emergency) and 1 (Return, older PX4)
+    fine; 0 (Warning only) and 2 (Land at critical) **blocking** (fix: 3).
+  * thresholds not in order ``BAT_LOW_THR > BAT_CRIT_THR > BAT_EMERGEN_THR`` -> warning;
+    ``BAT_CRIT_THR`` above the mission's ``low_frac`` -> warning.
+With ``battery="warn"`` every battery finding is at most a warning.
+
 A blocking finding refuses the flight unless ``override=True`` (the verdict then says so).
 
 :func:`failsafe_fixes` lists the parameter writes that clear every *fixable* blocking finding
@@ -72,6 +96,12 @@ __all__ = [
     "NAV_RCL_ACT_FIX",
     "COM_OBL_RC_ACT_FIX",
     "COM_OBL_ACT_FIX",
+    "BATTERY_AUDIT_PARAMS",
+    "BATTERY_AUDIT_MODES",
+    "audit_battery",
+    "battery_fixes",
+    "BATT_FS_LOW_ACT_FIX",
+    "COM_LOW_BAT_ACT_FIX",
 ]
 
 #: What to read per autopilot. ArduPilot alternatives: old or new GCS-sysid names.
@@ -499,13 +529,213 @@ def audit_px4(params: Mapping[str, float], gcs_sysid: int = 255) -> tuple[Findin
     return tuple(out)
 
 
+# ------------------------------------------------------------------------------- batteries
+
+#: The battery-failsafe parameters read per autopilot (``battery`` not ``"off"``).
+BATTERY_AUDIT_PARAMS: dict[int, tuple[str, ...]] = {
+    ARDUPILOT: (
+        "BATT_FS_LOW_ACT",
+        "BATT_FS_CRT_ACT",
+        "BATT_LOW_MAH",
+        "BATT_LOW_VOLT",
+        "BATT_CRT_MAH",
+        "BATT_CRT_VOLT",
+        "BATT_CAPACITY",
+    ),
+    PX4: ("COM_LOW_BAT_ACT", "BAT_LOW_THR", "BAT_CRIT_THR", "BAT_EMERGEN_THR"),
+}
+#: ``off`` (not read), ``warn`` (findings at most warnings), ``require`` (blocking as found).
+BATTERY_AUDIT_MODES = ("off", "warn", "require")
+
+# AP_BattMonitor_Params.cpp FS_LOW_ACT / FS_CRT_ACT @Values (Copter), the actions
+# ArduCopter/events.cpp do_failsafe_action takes for Copter::FailsafeAction.
+_BATT_FS_ACT = {
+    0: "None: warns and flies on",
+    1: "Land where it is",
+    2: "RTL",
+    3: "SmartRTL, else RTL",
+    4: "SmartRTL, else Land where it is",
+    5: "Terminate: motors off, falls",
+    6: "the mission's DO_LAND_START, else RTL",
+    7: "Brake, else Land where it is",
+}
+_BATT_LOW_SAFE, _BATT_LOW_WARN = frozenset({2, 3}), frozenset({6})
+# PX4 commander_params.yaml COM_LOW_BAT_ACT (failsafe.h LowBatteryAction).
+_COM_LOW_BAT_ACT = {
+    0: "Warning only: flies on until empty",
+    1: "Return at the critical level (older PX4)",
+    2: "Land where it is at the critical level",
+    3: "Return at the critical level, Land at the emergency level",
+}
+_COM_LOW_BAT_SAFE = frozenset({1, 3})
+#: ArduPilot BATT_FS_LOW_ACT written by --apply-failsafes: 2 = RTL (Copter::FailsafeAction::RTL).
+BATT_FS_LOW_ACT_FIX = 2
+#: PX4 COM_LOW_BAT_ACT written by --apply-failsafes: 3 = Return at critical, Land at emergency.
+COM_LOW_BAT_ACT_FIX = 3
+
+
+def _batt_ardupilot(params: Mapping[str, float], low_frac: float | None) -> list[Finding]:
+    out: list[Finding] = []
+    low = _int(params, "BATT_FS_LOW_ACT")
+    if low is None:
+        out.append(_missing_battery("BATT_FS_LOW_ACT"))
+    else:
+        what = _BATT_FS_ACT.get(low, f"unknown value {low}")
+        sev = INFO if low in _BATT_LOW_SAFE else WARNING if low in _BATT_LOW_WARN else BLOCKING
+        out.append(Finding(sev, "BATT_FS_LOW_ACT", f"{low}: low battery: {what}"))
+    crt = _int(params, "BATT_FS_CRT_ACT")
+    if crt is not None:
+        what = _BATT_FS_ACT.get(crt, f"unknown value {crt}")
+        sev = BLOCKING if crt == 5 else WARNING if crt == 0 or crt not in _BATT_FS_ACT else INFO
+        out.append(Finding(sev, "BATT_FS_CRT_ACT", f"{crt}: critical battery: {what}"))
+    low_mah, low_v = params.get("BATT_LOW_MAH"), params.get("BATT_LOW_VOLT")
+    crt_mah, crt_v = params.get("BATT_CRT_MAH"), params.get("BATT_CRT_VOLT")
+    if low_mah is None and low_v is None:
+        out.append(_missing_battery("BATT_LOW_MAH / BATT_LOW_VOLT"))
+    elif not (low_mah or 0) > 0 and not (low_v or 0) > 0:
+        out.append(
+            Finding(
+                BLOCKING,
+                "BATT_LOW_MAH",
+                "BATT_LOW_MAH and BATT_LOW_VOLT are 0: the low-battery failsafe never fires",
+            )
+        )
+    for name, lo, cr in (("BATT_CRT_MAH", low_mah, crt_mah), ("BATT_CRT_VOLT", low_v, crt_v)):
+        if lo is not None and cr is not None and lo > 0 and cr > 0 and cr >= lo:
+            out.append(
+                Finding(
+                    BLOCKING,
+                    name,
+                    f"{cr:g} is not below the low level {lo:g}: the critical action comes first",
+                )
+            )
+    cap = params.get("BATT_CAPACITY")
+    if cap is not None and cap > 0 and low_mah is not None and low_mah > 0:
+        fw = low_mah / cap
+        if low_frac is not None and fw > low_frac + 0.005:
+            out.append(
+                Finding(
+                    WARNING,
+                    "BATT_LOW_MAH",
+                    f"{low_mah:g} of {cap:g} mAh: the firmware returns at {fw:.0%}, the mission "
+                    f"plans down to {low_frac:.0%}",
+                )
+            )
+        else:
+            out.append(Finding(INFO, "BATT_LOW_MAH", f"{low_mah:g} of {cap:g} mAh ({fw:.0%})"))
+    return out
+
+
+def _batt_px4(params: Mapping[str, float], low_frac: float | None) -> list[Finding]:
+    out: list[Finding] = []
+    act = _int(params, "COM_LOW_BAT_ACT")
+    if act is None:
+        out.append(_missing_battery("COM_LOW_BAT_ACT"))
+    else:
+        what = _COM_LOW_BAT_ACT.get(act, f"unknown value {act}")
+        sev = INFO if act in _COM_LOW_BAT_SAFE else BLOCKING
+        out.append(Finding(sev, "COM_LOW_BAT_ACT", f"{act}: {what}"))
+    lo, cr, em = (params.get(n) for n in ("BAT_LOW_THR", "BAT_CRIT_THR", "BAT_EMERGEN_THR"))
+    if cr is None:
+        out.append(_missing_battery("BAT_CRIT_THR"))
+    if lo is not None and cr is not None and em is not None and not lo > cr > em:
+        out.append(
+            Finding(
+                WARNING,
+                "BAT_CRIT_THR",
+                f"thresholds not in order: low {lo:g} > critical {cr:g} > emergency {em:g}",
+            )
+        )
+    if cr is not None:
+        if low_frac is not None and cr > low_frac + 0.005:
+            out.append(
+                Finding(
+                    WARNING,
+                    "BAT_CRIT_THR",
+                    f"{cr:g}: the firmware's first action comes at {cr:.0%}, the mission plans "
+                    f"down to {low_frac:.0%}",
+                )
+            )
+        else:
+            out.append(Finding(INFO, "BAT_CRIT_THR", f"{cr:g}: the first battery action"))
+    return out
+
+
+def _missing_battery(name: str) -> Finding:
+    return Finding(BLOCKING, name, "could not be read; battery failsafe behaviour unknown")
+
+
+def audit_battery(
+    autopilot: int,
+    params: Mapping[str, float],
+    *,
+    battery: str = "require",
+    low_frac: float | None = None,
+) -> tuple[Finding, ...]:
+    """The battery-failsafe findings of one vehicle (module docstring); ``low_frac``: the
+    mission's low level (``endurance.battery.low_frac``), compared with the firmware's."""
+    if battery not in BATTERY_AUDIT_MODES:
+        raise ValueError(f"battery must be one of {BATTERY_AUDIT_MODES}, got {battery!r}")
+    if battery == "off":
+        return ()
+    if autopilot == ARDUPILOT:
+        found = _batt_ardupilot(params, low_frac)
+    elif autopilot == PX4:
+        found = _batt_px4(params, low_frac)
+    else:
+        return ()  # the lost-link audit already blocks an unknown autopilot
+    if battery == "warn":
+        found = [
+            Finding(WARNING, f.param, f.message + " (mission without batteries: not refused)")
+            if f.severity == BLOCKING
+            else f
+            for f in found
+        ]
+    return tuple(found)
+
+
+def battery_fixes(
+    autopilot: int, params: Mapping[str, float], low_frac: float | None = None
+) -> tuple[tuple[str, float], ...]:
+    """``(name, value)`` writes that clear the fixable blocking battery findings: the low action
+    to return to launch, and (ArduPilot) a low level where none is set, when the capacity and
+    the mission's ``low_frac`` are known."""
+    blocking = {
+        f.param
+        for f in audit_battery(autopilot, params, low_frac=low_frac)
+        if f.severity == BLOCKING
+    }
+    out: list[tuple[str, float]] = []
+    if autopilot == ARDUPILOT:
+        if "BATT_FS_LOW_ACT" in blocking and "BATT_FS_LOW_ACT" in params:
+            out.append(("BATT_FS_LOW_ACT", float(BATT_FS_LOW_ACT_FIX)))
+        cap = params.get("BATT_CAPACITY") or 0.0
+        if "BATT_LOW_MAH" in blocking and "BATT_LOW_MAH" in params and cap > 0 and low_frac:
+            out.append(("BATT_LOW_MAH", float(round(low_frac * cap))))
+    elif autopilot == PX4:
+        if "COM_LOW_BAT_ACT" in blocking and "COM_LOW_BAT_ACT" in params:
+            out.append(("COM_LOW_BAT_ACT", float(COM_LOW_BAT_ACT_FIX)))
+    return tuple(out)
+
+
 def audit_vehicle(
-    link_id: int, sysid: int, autopilot: int, params: Mapping[str, float], gcs_sysid: int = 255
+    link_id: int,
+    sysid: int,
+    autopilot: int,
+    params: Mapping[str, float],
+    gcs_sysid: int = 255,
+    *,
+    battery: str = "off",
+    battery_low_frac: float | None = None,
 ) -> VehicleAudit:
     if autopilot == ARDUPILOT:
-        findings = audit_ardupilot(params, gcs_sysid)
+        findings = audit_ardupilot(params, gcs_sysid) + audit_battery(
+            autopilot, params, battery=battery, low_frac=battery_low_frac
+        )
     elif autopilot == PX4:
-        findings = audit_px4(params, gcs_sysid)
+        findings = audit_px4(params, gcs_sysid) + audit_battery(
+            autopilot, params, battery=battery, low_frac=battery_low_frac
+        )
     else:
         findings = (
             Finding(
@@ -522,10 +752,15 @@ def audit_fleet(
     gcs_sysid: int = 255,
     *,
     override: bool = False,
+    battery: str = "off",
+    battery_low_frac: float | None = None,
 ) -> AuditReport:
-    """Audit every vehicle; ``vehicles`` maps (link_id, sysid) -> (autopilot, params)."""
+    """Audit every vehicle; ``vehicles`` maps (link_id, sysid) -> (autopilot, params);
+    ``battery``: the battery-failsafe audit's mode (:data:`BATTERY_AUDIT_MODES`)."""
     audits = tuple(
-        audit_vehicle(link, sysid, ap, params, gcs_sysid)
+        audit_vehicle(
+            link, sysid, ap, params, gcs_sysid, battery=battery, battery_low_frac=battery_low_frac
+        )
         for (link, sysid), (ap, params) in sorted(vehicles.items())
     )
     all_safe = all(a.safe for a in audits)

@@ -27,6 +27,8 @@ __all__ = [
     "ParamSetConfirmed",
     "ParamSetFailed",
     "StatusText",
+    "BatteryReceived",
+    "VehicleRebooted",
     "HomePositionReceived",
     "TaskPositionReceived",
     "LinkEvent",
@@ -251,6 +253,62 @@ class StatusText(Event):
     severity: int = 6
     """MAV_SEVERITY (0 emergency .. 7 debug)."""
     text: str = ""
+
+
+def _optional_finite(name: str, value: float | None) -> None:
+    if value is not None:
+        _finite(name, value)
+
+
+@dataclass(frozen=True)
+class BatteryReceived(Event):
+    """A battery report (SYS_STATUS or BATTERY_STATUS), converted to SI; None: not reported.
+
+    MAVLink's "unknown" values (``battery_remaining`` -1, ``voltage_battery`` UINT16_MAX,
+    ``current_battery`` -1, ``current_consumed`` -1, ``time_remaining`` 0) become None at the
+    codec edge (:mod:`gcs.link_discovery`), never a number.
+    """
+
+    source: str = "SYS_STATUS"
+    """``SYS_STATUS`` or ``BATTERY_STATUS``."""
+    remaining_frac: float | None = None
+    """Remaining charge, fraction of capacity in [0, 1] (whole percent on the wire)."""
+    voltage_v: float | None = None
+    current_a: float | None = None
+    consumed_mah: float | None = None
+    """Charge used since boot, mAh (BATTERY_STATUS ``current_consumed``)."""
+    time_remaining_s: float | None = None
+    """The autopilot's own estimate (BATTERY_STATUS ``time_remaining``)."""
+    charge_state: int = 0
+    """MAV_BATTERY_CHARGE_STATE (0 undefined, 1 OK, 2 low, 3 critical, 4 emergency, 5 failed,
+    6 unhealthy, 7 charging)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.source not in ("SYS_STATUS", "BATTERY_STATUS"):
+            raise ValueError(f"unknown battery source {self.source!r}")
+        for name in ("remaining_frac", "voltage_v", "current_a", "consumed_mah"):
+            _optional_finite(name, getattr(self, name))
+        _optional_finite("time_remaining_s", self.time_remaining_s)
+        if self.remaining_frac is not None and not 0.0 <= self.remaining_frac <= 1.0:
+            raise ValueError(f"remaining_frac must be in [0, 1], got {self.remaining_frac}")
+
+
+@dataclass(frozen=True)
+class VehicleRebooted(Event):
+    """The vehicle's clock (``time_boot_ms``) went back: it was power-cycled (a battery swap) or
+    rebooted, and comes back as the same vehicle (same link and sysid), not a new one. Emitted
+    with its first report after the reboot, whether or not the link had declared it lost."""
+
+    previous_boot_s: float = 0.0
+    """Its clock at the last report before the reboot, seconds."""
+    time_boot_s: float = 0.0
+    """Its clock now, seconds."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _finite("previous_boot_s", self.previous_boot_s)
+        _finite("time_boot_s", self.time_boot_s)
 
 
 # ------------------------------------------------------------------------------------------------

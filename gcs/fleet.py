@@ -26,14 +26,17 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.autopilot import adapter_for
+from gcs.battery import QUANTUM_FRAC, DrainEstimator
 from gcs.events import (
     ArmedChanged,
+    BatteryReceived,
     Event,
     HomePositionReceived,
     ModeChanged,
     TelemetryReceived,
     VehicleDiscovered,
     VehicleLost,
+    VehicleRebooted,
     VehicleRecovered,
 )
 from planner.geometry import geodetic_to_ned_m, ned_to_geodetic
@@ -94,6 +97,21 @@ class FleetSnapshot:
     """Mode names, per row."""
     home_reported: np.ndarray | None = None
     """(N,) bool: ``home_amsl_m`` is from HOME_POSITION (not the estimate)."""
+    battery_frac: np.ndarray | None = None
+    """(N,) float64: remaining charge, fraction (NaN: never reported). SYS_STATUS's, else
+    BATTERY_STATUS's."""
+    battery_voltage_v: np.ndarray | None = None
+    battery_current_a: np.ndarray | None = None
+    battery_consumed_mah: np.ndarray | None = None
+    battery_time_remaining_s: np.ndarray | None = None
+    """(N,) float64: the autopilot's own estimate (BATTERY_STATUS), NaN if not reported."""
+    battery_charge_state: np.ndarray | None = None
+    """(N,) int: MAV_BATTERY_CHARGE_STATE of the last BATTERY_STATUS (0: undefined / none)."""
+    drain_per_s: np.ndarray | None = None
+    """(N,) float64: drain estimated from the vehicle's own reports, fraction of capacity per
+    second (:mod:`gcs.battery`; NaN until two level changes were seen)."""
+    rebooted_s: np.ndarray | None = None
+    """(N,) float64: core time of the vehicle's last reboot (-inf: none seen)."""
 
     @property
     def n_vehicles(self) -> int:
@@ -124,6 +142,13 @@ class FleetView:
         self._link_lost = np.empty(0, dtype=bool)
         self._was_lost = np.empty(0, dtype=bool)
         self._armed = np.empty(0, dtype=bool)
+        # Batteries (docs/design/endurance.md §3): remaining, V, A, mAh used, time remaining,
+        # charge state; the drain estimate's rate and last level change per row.
+        self._batt = np.empty((0, 6))
+        self._rate = np.empty(0)
+        self._last_edge = np.empty(0)
+        self._rebooted = np.empty(0)
+        self._drain_est: list[DrainEstimator] = []
         #: (autopilot, custom_mode) -> (mode name, failsafe mode?): a fleet shows few modes, and
         #: the adapters' answers depend on these two numbers alone.
         self._mode_info: dict[tuple[int, int], tuple[str, bool]] = {}
@@ -166,6 +191,12 @@ class FleetView:
         self._link_lost[idx] = False
         self._was_lost[idx] = False
         self._armed[idx] = False
+        self._batt[idx] = math.nan
+        self._batt[idx, 5] = 0
+        self._rate[idx] = math.nan
+        self._last_edge[idx] = math.nan
+        self._rebooted[idx] = -math.inf
+        self._drain_est.append(DrainEstimator())
         return idx
 
     def _grow(self, cap: int) -> None:
@@ -179,6 +210,10 @@ class FleetView:
             "_link_lost",
             "_was_lost",
             "_armed",
+            "_batt",
+            "_rate",
+            "_last_edge",
+            "_rebooted",
         ):
             old = getattr(self, name)
             new = np.empty((cap, *old.shape[1:]), dtype=old.dtype)
@@ -245,6 +280,39 @@ class FleetView:
             self._settle(i)
         elif isinstance(event, ArmedChanged):
             self._armed[i] = event.armed
+        elif isinstance(event, BatteryReceived):
+            self._apply_battery(i, event)
+        elif isinstance(event, VehicleRebooted):
+            # Power-cycled: a new battery (or none reported yet) and the same vehicle; what it
+            # said before the reboot no longer describes it.
+            self._rebooted[i] = event.t_s
+            self._batt[i] = math.nan
+            self._batt[i, 5] = 0
+            self._drain_est[i].reset()
+            self._rate[i] = math.nan
+            self._last_edge[i] = math.nan
+            self._was_lost[i] = False
+
+    def _apply_battery(self, i: int, event: BatteryReceived) -> None:
+        b = self._batt[i]
+        frac = event.remaining_frac
+        if frac is not None and (event.source == "SYS_STATUS" or math.isnan(b[0])):
+            b[0] = frac
+            if event.source == "SYS_STATUS":  # one source of levels for the drain's edges
+                est = self._drain_est[i]
+                est.update(event.t_s, frac)
+                self._rate[i] = est.rate_per_s
+                self._last_edge[i] = est.last_edge_s
+        for col, value in (
+            (1, event.voltage_v),
+            (2, event.current_a),
+            (3, event.consumed_mah),
+            (4, event.time_remaining_s),
+        ):
+            if value is not None:
+                b[col] = value
+        if event.source == "BATTERY_STATUS":
+            b[5] = event.charge_state
 
     def _settle(self, i: int) -> None:
         # Heard and not in a failsafe mode: reclaimed (or never left); a normal member again.
@@ -293,7 +361,23 @@ class FleetView:
             autopilot=autopilot.copy(),
             mode=modes,
             home_reported=self._home_reported[:n].copy(),
+            battery_frac=self._batt[:n, 0].copy(),
+            battery_voltage_v=self._batt[:n, 1].copy(),
+            battery_current_a=self._batt[:n, 2].copy(),
+            battery_consumed_mah=self._batt[:n, 3].copy(),
+            battery_time_remaining_s=self._batt[:n, 4].copy(),
+            battery_charge_state=self._batt[:n, 5].astype(int),
+            drain_per_s=self._drain(n, now_s),
+            rebooted_s=self._rebooted[:n].copy(),
         )
+
+    def _drain(self, n: int, now_s: float) -> np.ndarray:
+        """(n,) the drain estimates at ``now_s``: each row's edge slope, at most one
+        quantization step over the time since its last level change (gcs.battery)."""
+        rate, since = self._rate[:n], now_s - self._last_edge[:n]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            held = (since > 0) & (since * rate > QUANTUM_FRAC)
+            return np.where(held, QUANTUM_FRAC / np.where(held, since, 1.0), rate)
 
     def _positions(self, n: int, has_pos: np.ndarray) -> np.ndarray:
         """(n, 3) mission-NED positions (NaN without one): ``geodetic_to_ned_m`` of every row

@@ -136,6 +136,7 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
             _NEVER_DISABLE
             | {m for m, _ in self.config.stream_rates_hz}
             | set(self.config.stale_msgids)
+            | (_BATTERY_MSGIDS if self.config.battery_telemetry else frozenset())
         )
 
     # ------------------------------------------------------------------ outputs
@@ -399,10 +400,18 @@ _HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
     "PARAM_ERROR": StationLink._on_param_error,
     "STATUSTEXT": StationLink._on_statustext,
     "HOME_POSITION": StationLink._on_home_position,
+    "SYS_STATUS": StationLink._on_sys_status,
+    "BATTERY_STATUS": StationLink._on_battery_status,
     "MISSION_REQUEST": StationLink._on_mission_protocol,  # gcs/rally.py
     "MISSION_REQUEST_INT": StationLink._on_mission_protocol,
     "MISSION_ACK": StationLink._on_mission_protocol,
 }
+
+#: Battery reports: handled only with ``StationConfig.battery_telemetry``; without it they are
+#: ignored (and stopped when unused) exactly as before it existed.
+_BATTERY_MSGIDS = frozenset(
+    (mavlink.MAVLINK_MSG_ID_SYS_STATUS, mavlink.MAVLINK_MSG_ID_BATTERY_STATUS)
+)
 
 #: Fully decoded; every other known message stays a checked :class:`~gcs.wire.RawFrame`.
 _DECODED_MSGIDS = frozenset(
@@ -411,7 +420,7 @@ _DECODED_MSGIDS = frozenset(
 
 #: Never asked to stop, used or not: replies to requests (ours or another GCS's), protocol
 #: traffic, one-off notices; stopping them is refused at best and breaks a protocol at worst.
-_NEVER_DISABLE = _DECODED_MSGIDS | frozenset(
+_NEVER_DISABLE = _DECODED_MSGIDS - _BATTERY_MSGIDS | frozenset(
     getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
     for name in (
         "AUTOPILOT_VERSION",
@@ -452,7 +461,6 @@ _NEVER_DISABLE = _DECODED_MSGIDS | frozenset(
 #: Known and deliberately ignored here (requested for display or future use; counted only).
 _IGNORED = frozenset(
     {
-        "SYS_STATUS",
         "GPS_RAW_INT",
         "EXTENDED_SYS_STATE",
         "LOCAL_POSITION_NED",
@@ -464,7 +472,6 @@ _IGNORED = frozenset(
         "RADIO_STATUS",
         "TIMESYNC",
         "SYSTEM_TIME",
-        "BATTERY_STATUS",
         "PARAM_REQUEST_READ",
         "MISSION_CURRENT",
         "NAV_CONTROLLER_OUTPUT",

@@ -104,6 +104,11 @@ class StationConfig:
     """A message still arriving this long after we asked to stop it is asked again ..."""
     disable_attempts: int = 3
     """... at most this many times per (vehicle, message) (reset when the vehicle reboots)."""
+    battery_telemetry: bool = False
+    """Fold SYS_STATUS / BATTERY_STATUS into :class:`gcs.events.BatteryReceived` events (the
+    rotation through the base, docs/design/endurance.md §3). Off, both stay ignored exactly as
+    before (counted, and BATTERY_STATUS stopped like any unused message): a mission without
+    batteries keeps its event stream bit for bit."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.sysid <= 255:

@@ -14,12 +14,14 @@ from gcs import wire
 from gcs.autopilot import adapter_for
 from gcs.events import (
     ArmedChanged,
+    BatteryReceived,
     HomePositionReceived,
     ModeChanged,
     StatusText,
     TaskPositionReceived,
     TelemetryReceived,
     VehicleDiscovered,
+    VehicleRebooted,
     VehicleRecovered,
 )
 from gcs.link_state import _AUTOPILOT_COMPID, Addr, _result_name, _Vehicle
@@ -30,6 +32,10 @@ __all__ = ["VehicleDiscovery", "NON_VEHICLE_TYPES"]
 
 #: The link's log lines keep the logger they always had (StationLink was one module).
 log = logging.getLogger("gcs.link")
+
+#: A vehicle clock (``time_boot_ms``) this much behind its last report means a reboot, not
+#: reordered datagrams, seconds.
+REBOOT_CLOCK_JUMP_S = 1.0
 
 #: HEARTBEAT.type values that never create a vehicle (docs/design/mavlink.md §1.1): another GCS, a
 #: companion computer, a gimbal, an ADS-B receiver.
@@ -329,7 +335,81 @@ class VehicleDiscovery(StreamRequests):
         except ValueError:
             self.stats.invalid_telemetry += 1
             return
+        if ev.time_boot_s < v.time_boot_s - REBOOT_CLOCK_JUMP_S:
+            # Its clock went back: power-cycled (a battery swap, docs/design/endurance.md §1) or
+            # rebooted. The same (link, sysid) is the same vehicle: say so before the report.
+            log.info(
+                "link %d sysid %d: rebooted (clock %.1f s -> %.1f s)",
+                self.link_id,
+                v.sysid,
+                v.time_boot_s,
+                ev.time_boot_s,
+            )
+            self._emit(VehicleRebooted(self.link_id, v.sysid, now_s, v.time_boot_s, ev.time_boot_s))
+            if not v.lost:  # a reboot faster than the loss timeout forgot our rates and home too
+                self._request_streams(v, now_s)
+                self._request_home(v, now_s)
+                v.disable_tries.clear()
+                v.disable_queue.clear()
+        v.time_boot_s = ev.time_boot_s
         v.position = ev
+        self._emit(ev)
+
+    # ------------------------------------------------------------------ batteries
+
+    def _battery_ignored(self, v: _Vehicle, msg: Any, now_s: float) -> None:
+        # Without battery telemetry: exactly what an unhandled message gets.
+        self.stats.ignored_messages += 1
+        if self.config.disable_unused_messages:
+            self._note_unused(v, msg.get_msgId(), now_s)
+
+    def _on_sys_status(self, v: _Vehicle, msg: Any, now_s: float) -> None:
+        """SYS_STATUS's battery fields (common.xml): the autopilot's main battery."""
+        if not self.config.battery_telemetry:
+            self._battery_ignored(v, msg, now_s)
+            return
+        try:
+            ev = BatteryReceived(
+                self.link_id,
+                v.sysid,
+                now_s,
+                source="SYS_STATUS",
+                remaining_frac=wire.battery_remaining_to_frac(msg.battery_remaining),
+                voltage_v=wire.battery_mv_to_v(msg.voltage_battery),
+                current_a=wire.battery_ca_to_a(msg.current_battery),
+            )
+        except ValueError:
+            self.stats.invalid_telemetry += 1
+            return
+        self._emit(ev)
+
+    def _on_battery_status(self, v: _Vehicle, msg: Any, now_s: float) -> None:
+        """BATTERY_STATUS of battery 0 (common.xml): consumed charge, the autopilot's own time
+        remaining and charge state (other ids: a second pack, not the one the plan follows)."""
+        if not self.config.battery_telemetry:
+            self._battery_ignored(v, msg, now_s)
+            return
+        if msg.id != 0:
+            self.stats.ignored_messages += 1
+            return
+        try:
+            ev = BatteryReceived(
+                self.link_id,
+                v.sysid,
+                now_s,
+                source="BATTERY_STATUS",
+                remaining_frac=wire.battery_remaining_to_frac(msg.battery_remaining),
+                voltage_v=wire.battery_mv_to_v(msg.voltages[0]),
+                current_a=wire.battery_ca_to_a(msg.current_battery),
+                consumed_mah=wire.battery_consumed_mah(msg.current_consumed),
+                time_remaining_s=wire.battery_time_remaining_s(
+                    getattr(msg, "time_remaining", 0) or 0
+                ),
+                charge_state=int(getattr(msg, "charge_state", 0) or 0),
+            )
+        except ValueError:
+            self.stats.invalid_telemetry += 1
+            return
         self._emit(ev)
 
     def _on_home_position(self, v: _Vehicle, msg: Any, now_s: float) -> None:

@@ -60,6 +60,8 @@ class _Vehicle:
     interval_accepted: bool = False
     last_stream_request_s: float = -math.inf
     position: TelemetryReceived | None = None
+    time_boot_s: float = -math.inf
+    """The vehicle's clock at its last GLOBAL_POSITION_INT (a jump back: it rebooted)."""
     setpoint: tuple[float, float, float, int] | None = None  # lat, lon, alt, frame
     setpoint_since_s: float = math.nan
     setpoint_next_s: float = math.inf

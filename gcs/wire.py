@@ -44,6 +44,11 @@ from mavedge.units import (
 
 __all__ = [
     "mavlink",
+    "battery_remaining_to_frac",
+    "battery_mv_to_v",
+    "battery_ca_to_a",
+    "battery_consumed_mah",
+    "battery_time_remaining_s",
     "Codec",
     "Decoder",
     "DecodeStats",
@@ -75,3 +80,42 @@ __all__ = [
     "param_values_equal",
     "is_int_param_type",
 ]
+
+
+# Battery fields of SYS_STATUS / BATTERY_STATUS (message definitions in common.xml): each wire
+# integer has an "unknown" value, returned as None so it can never pass for a measurement.
+
+
+def battery_remaining_to_frac(percent: int) -> float | None:
+    """``battery_remaining`` (int8 %, -1 unknown) -> fraction in [0, 1] or None."""
+    if percent < 0 or percent > 100:
+        return None
+    return percent / 100.0
+
+
+def battery_mv_to_v(mv: int) -> float | None:
+    """``voltage_battery`` / ``voltages[0]`` (uint16 mV, UINT16_MAX unknown) -> volts or None."""
+    if mv < 0 or mv >= 0xFFFF:
+        return None
+    return mv / 1000.0
+
+
+def battery_ca_to_a(ca: int) -> float | None:
+    """``current_battery`` (int16 cA, -1 unknown) -> amperes or None."""
+    if ca == -1:
+        return None
+    return ca / 100.0
+
+
+def battery_consumed_mah(mah: int) -> float | None:
+    """``current_consumed`` (int32 mAh, -1 unknown) -> mAh or None."""
+    if mah < 0:
+        return None
+    return float(mah)
+
+
+def battery_time_remaining_s(s: int) -> float | None:
+    """``time_remaining`` (int32 s, 0 not provided) -> seconds or None."""
+    if s <= 0:
+        return None
+    return float(s)

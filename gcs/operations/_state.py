@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     from gcs.fleet import FleetSnapshot, FleetView
     from gcs.operations.config import OperationsConfig, OperatorAction, _Row
     from gcs.operations.phases import Phase, Trigger
+    from gcs.operations.rotation import RotationSetup
     from gcs.rally import RallyKeeper
     from gcs.station import Station
 
@@ -70,6 +71,7 @@ class OperatorState:
         end_status: dict[str, int] | None
         actions: list[OperatorAction]
         on_action: Callable[[OperatorAction], None] | None
+        rotation: RotationSetup | None
 
         @property
         def phase(self) -> Phase: ...
@@ -91,4 +93,8 @@ class OperatorState:
         def _start_launch(self, snap: FleetSnapshot, now_s: float, trigger: Trigger) -> None: ...
         def _hold(self, snap: FleetSnapshot, rows: npt.ArrayLike, now_s: float) -> None: ...
         def begin_end(self, now_s: float) -> None: ...
+        def _send_targets(
+            self, snap: FleetSnapshot, rows: np.ndarray, target_ned_m: np.ndarray, now_s: float
+        ) -> int: ...
+        def _rotation_may_fly(self, n: int) -> np.ndarray: ...
         def _rally_holds_end(self, vid: tuple[int, int], now_s: float) -> bool: ...

@@ -110,6 +110,7 @@ class AuditStep(OperatorState):
                     for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
                     if n not in names
                 ]
+            names += [n for n in self._battery_params(int(snap.autopilot[i])) if n not in names]
             if self.rally is not None:  # the settings that make RTL use rally points
                 names += [
                     n
@@ -163,6 +164,11 @@ class AuditStep(OperatorState):
                         for n in rally_mod.RALLY_PARAMS.get(int(snap.autopilot[i]), ())
                         if n not in got and n not in names
                     ]
+                names += [
+                    n
+                    for n in self._battery_params(int(snap.autopilot[i]))
+                    if n not in got and n not in names
+                ]
                 if snap.lost[i]:
                     continue
                 for name in names:
@@ -181,7 +187,11 @@ class AuditStep(OperatorState):
             elif self._sets_pending and now_s - self._fixes_sent_s < self.config.audit_timeout_s:
                 return  # the link ends every set with Confirmed or Failed; this is a backstop
         report = audit_mod.audit_fleet(
-            vehicles, self.gcs_sysid, override=self.config.override_audit
+            vehicles,
+            self.gcs_sysid,
+            override=self.config.override_audit,
+            battery=self.config.battery_audit,
+            battery_low_frac=self.config.battery_low_frac,
         )
         self.audit_report = report
         if not report.cleared_to_fly:
@@ -207,6 +217,12 @@ class AuditStep(OperatorState):
             ):
                 return
         self._start_launch(snap, now_s, Trigger.CLEARED)
+
+    def _battery_params(self, autopilot: int) -> tuple[str, ...]:
+        """The battery-failsafe parameters to read (none with ``battery_audit`` off)."""
+        if self.config.battery_audit == "off":
+            return ()
+        return audit_mod.BATTERY_AUDIT_PARAMS.get(autopilot, ())
 
     def _limits_wanted(self) -> bool:
         return self.config.set_limits and self.config.max_speed_m_s is not None
@@ -290,12 +306,21 @@ class AuditStep(OperatorState):
 
     def _send_fixes(self, vehicles: _Vehicles, now_s: float) -> bool:
         """PARAM_SET every fixable blocking finding; True if any write was sent."""
-        before = audit_mod.audit_fleet(vehicles, self.gcs_sysid)
+        cfg = self.config
+        before = audit_mod.audit_fleet(
+            vehicles,
+            self.gcs_sysid,
+            battery=cfg.battery_audit,
+            battery_low_frac=cfg.battery_low_frac,
+        )
         self._fixes_sent_s = now_s
         for va in before.unsafe:
             vid = (va.link_id, va.sysid)
             autopilot, params = vehicles[vid]
-            for name, value in audit_mod.failsafe_fixes(autopilot, params, self.gcs_sysid):
+            fixes = audit_mod.failsafe_fixes(autopilot, params, self.gcs_sysid)
+            if cfg.battery_audit == "require":
+                fixes += audit_mod.battery_fixes(autopilot, params, cfg.battery_low_frac)
+            for name, value in fixes:
                 self._set_param(vid, name, value, params.get(name), "failsafe", now_s)
         if self._sets_pending:
             self.initial_audit_report = before

@@ -35,6 +35,13 @@ class OperationsConfig:
     ArduPilot FS_GCS_ENABLE, the GCS sysid; PX4 NAV_DLL_ACT, NAV_RCL_ACT, COM_OBL_RC_ACT,
     COM_OBL_ACT, COM_DLL_EXCEPT) before re-auditing. No failsafe parameter is ever written
     without it (the mission's speed limits are, see ``set_limits``)."""
+    battery_audit: str = "off"
+    """Battery failsafes in the audit (:func:`gcs.audit.audit_battery`): ``off`` (not read),
+    ``warn`` (a mission without batteries on real firmware: reported, never refused) or
+    ``require`` (a mission with batteries: a drone must return at the firmware's first battery
+    action). With ``apply_failsafes`` the low action is written as return to launch."""
+    battery_low_frac: float | None = None
+    """The mission's low level (``endurance.battery.low_frac``), compared with the firmware's."""
     max_speed_m_s: float | None = None
     """The mission's horizontal speed limit; with ``set_limits`` written into each vehicle's own
     parameters at launch (:mod:`gcs.limits`). None: the firmware's limits are left alone."""
@@ -87,6 +94,10 @@ class OperationsConfig:
     def __post_init__(self) -> None:
         if self.end not in ("rtl", "land"):
             raise ValueError(f"end must be 'rtl' or 'land', got {self.end!r}")
+        if self.battery_audit not in ("off", "warn", "require"):
+            raise ValueError(
+                f"battery_audit must be off, warn or require, got {self.battery_audit!r}"
+            )
         if self.wave_size < 1:
             raise ValueError("wave_size must be >= 1")
         for name in ("control_period_s", "duration_s", "poll_period_s", "action_retry_s"):

@@ -120,8 +120,10 @@ class LaunchStep(OperatorState):
         heard = ~snap.lost
         fin = np.isfinite(alt)
         airborne = heard & snap.armed & fin & (alt > cfg.airborne_alt_m)
+        # With a rotation, only the planned K take off; the spares wait on the ground.
+        may_fly = self._rotation_may_fly(snap.n_vehicles)
         if self._wave < len(self._waves):
-            wave = [i for i in self._waves[self._wave] if i < snap.n_vehicles]
+            wave = [i for i in self._waves[self._wave] if i < snap.n_vehicles and may_fly[i]]
             live = int(heard[wave].sum()) if wave else 0
             up = int(airborne[wave].sum()) if wave else 0
             if (
@@ -142,10 +144,10 @@ class LaunchStep(OperatorState):
         in_plan = self._in_plan(snap)
         for w in self._waves[: self._wave + 1]:
             for i in w:
-                if i < snap.n_vehicles and heard[i] and in_plan[i]:
+                if i < snap.n_vehicles and heard[i] and in_plan[i] and may_fly[i]:
                     self._drive(snap, i, alt, now_s)
         if self._wave >= len(self._waves):
-            rows = np.flatnonzero(heard)
+            rows = np.flatnonzero(heard & may_fly)
             target = layer_alt_m(rows, self.control)
             climbed = fin[rows] & (
                 np.where(fin[rows], alt[rows], 0.0) >= cfg.climbed_alt_frac * target
@@ -325,7 +327,9 @@ class LaunchStep(OperatorState):
         # deciding every row first is deciding each just before its turn).
         todo = [
             i
-            for i in np.flatnonzero(~snap.lost & self._in_plan(snap)).tolist()
+            for i in np.flatnonzero(
+                ~snap.lost & self._in_plan(snap) & self._rotation_may_fly(snap.n_vehicles)
+            ).tolist()
             if not (
                 flying[i]
                 and (row := get(i)) is not None

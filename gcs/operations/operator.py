@@ -38,10 +38,12 @@ from gcs.events import (
     ParamSetConfirmed,
     ParamSetFailed,
     ParamTimedOut,
+    ModeChanged,
     StatusText,
     TaskPositionReceived,
     VehicleDiscovered,
     VehicleLost,
+    VehicleRebooted,
     VehicleRecovered,
 )
 from gcs.fleet import FleetSnapshot, FleetView
@@ -52,6 +54,7 @@ from gcs.operations.end import EndStep
 from gcs.operations.launch import LaunchStep
 from gcs.operations.phases import Phase, Trigger, next_phase
 from gcs.operations.rally import RallyStep
+from gcs.operations.rotation import RotationSetup, RotationStep
 from gcs.rally import MissionProtocolReceived, RallyKeeper
 from gcs.station import Station
 from gcs.tasks import LiveTasks
@@ -88,7 +91,7 @@ _LOOKUPS: dict[
 ] = {}
 
 
-class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
+class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, RotationStep):
     """Launch, run, end and reclaim (see the :mod:`gcs.operations` docstring).
 
     Parameters
@@ -102,6 +105,8 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
     config : sequencing
     now_s : core time at construction
     rally : keeps the planner's rally points on the vehicles (gcs.operations.rally); None: off
+    rotation : relays rotated through the base (gcs.operations.rotation), for a mission with
+        batteries; None: every vehicle flies the whole mission, as before
     """
 
     def __init__(
@@ -117,8 +122,10 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
         gcs_sysid: int = 255,
         live_tasks: LiveTasks | None = None,
         rally: RallyKeeper | None = None,
+        rotation: RotationSetup | None = None,
     ) -> None:
         self.station = station
+        self.rotation = rotation
         self.fleet = fleet
         self.planner = planner
         self.live_tasks = live_tasks
@@ -283,6 +290,8 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
         VehicleLost: _on_vehicle_lost,
         VehicleRecovered: _on_vehicle_recovered,
         MissionProtocolReceived: RallyStep._on_mission_protocol,
+        ModeChanged: RotationStep._rotation_on_mode,
+        VehicleRebooted: RotationStep._rotation_on_reboot,
     }
 
     # ------------------------------------------------------------------ timing
@@ -394,10 +403,17 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep):
         heard = ~snap.lost
         airborne = heard & snap.armed & np.isfinite(alt) & (alt > self.config.airborne_alt_m)
         airborne &= self._in_plan(snap)  # released vehicles are neither planned nor relays
+        plan_alive = heard
+        if self.rotation is not None:
+            # Only the rotation's ``air`` vehicles reach the planner (docs/design/endurance.md
+            # §1): spares on the ground, inbound and returning ones are not in its fleet.
+            planned = self._rotation_step(snap, alt, now_s)
+            airborne &= planned
+            plan_alive = heard & planned
         t_m = self.t_mission_s(now_s)
         task_pos = np.asarray(self.task_pos_fn(t_m), dtype=float).reshape(-1, 2)
         result = tick(
-            snap.pos_ned_m, airborne, heard, task_pos, self.planner, self._t_step, self.control
+            snap.pos_ned_m, airborne, plan_alive, task_pos, self.planner, self._t_step, self.control
         )
         self._send_targets(snap, result.rows, result.target_ned_m, now_s)
         self._rally_after_tick(now_s)

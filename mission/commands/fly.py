@@ -137,6 +137,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--wave-size", type=int, default=25, help="vehicles per take-off wave")
     p.add_argument(
+        "--battery",
+        choices=["mission", "unlimited"],
+        default="mission",
+        help="the mission's batteries (default), or 'unlimited' to fly a mission with batteries "
+        "as if they were endless (the reference for relay rotation, as sim --battery)",
+    )
+    p.add_argument(
+        "--rotation",
+        choices=["mission", "on", "off"],
+        default="mission",
+        help="relay rotation through the base as the mission says (default), 'on', or 'off': "
+        "every drone flies until its firmware's low-battery failsafe (as sim --rotation)",
+    )
+    p.add_argument(
         "--no-wait",
         action="store_true",
         help="do not wait for the vehicles to land after the end command",
@@ -602,6 +616,8 @@ def run(args) -> int:
         set_limits=not args.keep_firmware_limits,
         restore_params=args.restore_params,
         on_interrupt=args.on_interrupt,
+        battery=args.battery,
+        rotation=args.rotation,
     )
     if args.discover_timeout_s is not None:
         opts.discover_timeout_s = args.discover_timeout_s

@@ -49,6 +49,12 @@ class FlyOptions:
     """Write the mission's speed / climb limits into each vehicle's own parameters at launch."""
     restore_params: bool = False
     """After landing, write back every parameter the station changed."""
+    battery: str = "mission"
+    """'mission' (the mission's ``endurance.battery``) or 'unlimited' (fly it as if the batteries
+    were endless: the reference for relay rotation, as ``phireman sim --battery``)."""
+    rotation: str = "mission"
+    """'mission', 'on' or 'off' (no rotation: every drone flies until its firmware's low-battery
+    failsafe; ``phireman sim --rotation``)."""
     on_interrupt: str = "end"
     """What Ctrl-C tells every reachable vehicle: 'end' (the mission's end action), 'hold',
     'rtl' or 'land'."""

@@ -181,6 +181,7 @@ def summary(
         },
         "reclaimed": len(op.reclaimed),
         "counters": op.counters,
+        "endurance": op.rotation_summary(),
         "interrupted": op.interrupted,
         "end_status": op.end_status,
         "interrupt_report": None

@@ -362,9 +362,33 @@ def fly_real(mission: Mission, opts: FlyOptions) -> FlyResult:
     return _run(fly_real_async(mission, opts))
 
 
+def with_battery_options(mission: Mission, opts: FlyOptions) -> Mission:
+    """``mission`` as ``--battery`` / ``--rotation`` say: endless batteries drop its
+    ``endurance.battery`` (the station and the emulator both fly without), a rotation override
+    replaces ``endurance.rotation``."""
+    if opts.battery not in ("mission", "unlimited"):
+        raise RunnerError(f"battery must be 'mission' or 'unlimited', got {opts.battery!r}")
+    if opts.rotation not in ("mission", "on", "off"):
+        raise RunnerError(f"rotation must be 'mission', 'on' or 'off', got {opts.rotation!r}")
+    end = mission.endurance
+    if end.battery is None:
+        if opts.battery != "mission" or opts.rotation != "mission":
+            raise RunnerError(
+                "--battery and --rotation apply to a mission with batteries "
+                "(an endurance.battery section, e.g. wildfire_2h)"
+            )
+        return mission
+    if opts.battery == "unlimited":
+        end = dataclasses.replace(end, battery=None)
+    elif opts.rotation != "mission":
+        end = dataclasses.replace(end, rotation=opts.rotation == "on")
+    return dataclasses.replace(mission, endurance=end)
+
+
 def fly(mission: Mission, opts: FlyOptions | None = None) -> FlyResult:
     """Real links if any are given (options or mission), else the emulator."""
     opts = opts or FlyOptions()
+    mission = with_battery_options(mission, opts)
     if opts.connections or mission.vehicles.real is not None:
         return fly_real(mission, opts)
     return fly_emulated(mission, opts)

@@ -25,6 +25,7 @@ from gcs.aio import StationAdapter
 from gcs.fleet import FleetView, MissionOrigin
 from gcs.link import StationConfig
 from gcs.operations import OperationsConfig, Operator, TickRecord
+from gcs.operations.rotation import RotationSetup
 from gcs.rally import RallyConfig, RallyKeeper
 from gcs.station import Station
 from gcs.tasks import LiveTasks
@@ -33,6 +34,7 @@ from mission.flight.fly_options import FlyOptions, RunnerError
 from mission.flight.mission_world import MissionScenario, control_config
 from mission.flight.run_dir import FlightTimes, Records
 from mission.format.schema import Mission
+from planner.endurance import EnduranceParams, RotationPolicy, plan_fleet
 from planner.methods import make_planner
 from planner.problem import ProblemConfig
 from vehicle_emu.world import spawn_streams
@@ -89,7 +91,9 @@ def _station_config(mission: Mission, max_vehicles: int | None = None) -> Statio
     allowed = frozenset(real.sysids) if real is not None and real.sysids else None
     # Fleet-scale telemetry (docs/design/mavlink.md §2, Skybrush): position at 2 Hz is all the plan uses;
     # every other stream costs decode time at 50+ vehicles x speed-up.
+    batteries = mission.endurance.battery is not None
     return StationConfig(
+        battery_telemetry=batteries,
         signing_key=key,
         command_timeout_s=1.0,
         param_timeout_s=2.0,
@@ -99,7 +103,8 @@ def _station_config(mission: Mission, max_vehicles: int | None = None) -> Statio
         task_sysids=tuple(live_task_columns(mission).values()),
         stream_rates_hz=(
             (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 2.0),
-            (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 0.2),
+            # The rotation's drain estimate wants the battery's level changes to the second.
+            (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 1.0 if batteries else 0.2),
         ),
     )
 
@@ -108,7 +113,15 @@ def _operations_config(
     mission: Mission, opts: FlyOptions, expected: int | None
 ) -> OperationsConfig:
     lim = mission.vehicles.limits
+    spec = mission.endurance.battery
+    # Battery failsafes: required with batteries; on real firmware without them, at least warned
+    # about (a real drone has a battery whatever the mission says); the emulator without
+    # batteries has no battery parameters to read.
+    real = bool(opts.connections) or mission.vehicles.real is not None
+    battery_audit = "require" if spec is not None else "warn" if real else "off"
     return OperationsConfig(
+        battery_audit=battery_audit,
+        battery_low_frac=spec.low_frac if spec is not None else None,
         max_speed_m_s=lim.max_speed_m_s,
         climb_rate_m_s=lim.climb_rate_m_s,
         set_limits=opts.set_limits,
@@ -190,6 +203,36 @@ def make_operator(
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
         rally=_rally_keeper(mission, params),
+        rotation=rotation_setup(mission, scenario),
+    )
+
+
+def rotation_setup(mission: Mission, scenario: MissionScenario) -> RotationSetup | None:
+    """The station's relay rotation for a mission with batteries (None without): the policy as
+    the in-process run builds it (``mission.experiments.endurance.endurance_run``: the level to
+    avoid is the firmware's low-battery failsafe, K from ``plan_fleet``), and what the mission
+    says of the batteries (nominal hover drain, the drain at full speed)."""
+    end = mission.endurance
+    spec = end.battery
+    if spec is None:
+        return None
+    n = len(scenario.spawn_ne_m)
+    speed = mission.vehicles.limits.max_speed_m_s
+    params = EnduranceParams(critical_frac=spec.low_frac, return_speed_m_s=speed, **end.params)
+    base = end.base.resources()
+    tasks = np.asarray(scenario.task_pos_m(0.0), dtype=float).reshape(-1, 2)
+    dist = np.hypot(*tasks[np.isfinite(tasks).all(axis=1)].T)
+    mean_post_m = 0.5 * float(dist.mean()) if dist.size else 0.0
+    if end.rotation:
+        flying = plan_fleet(n, spec.endurance_s, mission.run.duration_s, base, params, mean_post_m)
+        k = flying.flying
+        log.info("rotation: %d of %d fly at once (%s-bound)", k, n, flying.limit)
+    else:
+        k = n
+    return RotationSetup(
+        RotationPolicy(n, k, base, params, rotate=end.rotation),
+        hover_drain_per_s=1.0 / spec.endurance_s,
+        return_drain_factor=1.0 + spec.speed_drain_frac,
     )
 
 
@@ -235,6 +278,9 @@ def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world, n_ta
         "reclaims": len(op.reclaimed),
         "wall_s": time.monotonic(),
     }
+    rot = op.rotation_summary()
+    if rot is not None:
+        d["rotation"] = rot
     if world is not None and getattr(world, "swarm", None) is not None:
         d["truth_alive"] = int(world.swarm.alive.sum())
     return d

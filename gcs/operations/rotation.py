@@ -1,0 +1,316 @@
+"""The rotation step: relays rotated through the base in the station's control tick
+(docs/design/endurance.md §1-§3), when the mission has batteries.
+
+A mixin of :class:`gcs.operations.Operator`. Each control tick it runs
+:class:`planner.endurance.RotationPolicy` on what the station's telemetry says, the way the paper's
+world drives it in process (``mission/experiments/endurance.py``):
+
+* only ``air`` vehicles reach the planner (its ``alive`` and ``networked`` masks); spares
+  ``ready`` stay on the ground at home (the launch flies only the planned K);
+* an ``inbound`` spare is armed, taken off (the launch's ``_drive``) and sent to its relay's
+  position; the policy hands the post over once it holds it, networked;
+* a ``returning`` vehicle is sent home: RTL, or with ``end: land`` a target over the base and
+  LAND there (the station's usual end action);
+* ``landed_at_base`` = heard, disarmed, within ``land_radius_m`` of the base;
+* the swap is confirmed when the vehicle comes back powered and full (a reboot,
+  :class:`gcs.events.VehicleRebooted`, or a charge that rose to ``full_frac``): ``swap_done``;
+* the firmware's own low-battery RTL or LAND (a mode change the station did not command, on a
+  vehicle whose battery is low) -> :meth:`planner.endurance.RotationPolicy.failsafe`; a vehicle
+  that lands away from the base is gone for the mission (counted ``landed_away``).
+
+A vehicle on the ground at the base may go silent (its battery is out): it is not lost. Without a
+:class:`RotationSetup` nothing here runs and the operator flies exactly as before.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from gcs.autopilot import adapter_for
+from gcs.control import layer_alt_m
+from gcs.events import ModeChanged, VehicleRebooted
+from gcs.fleet import FleetSnapshot
+from gcs.link import LinkUsageError, UnknownVehicle
+from gcs.operations._state import OperatorState
+from gcs.operations.config import _Row
+from gcs.operations.phases import Phase
+from planner.endurance import (
+    AIR,
+    INBOUND,
+    LANDED,
+    LOST,
+    NO_BATTERY,
+    READY,
+    RETURNING,
+    SWAPPING,
+    RotationEvent,
+    RotationPolicy,
+    time_to_reserve_s,
+)
+
+__all__ = ["RotationSetup", "RotationStep"]
+
+log = logging.getLogger(__name__)
+
+_GROUND = (LANDED, SWAPPING, NO_BATTERY, READY)
+
+
+@dataclass
+class RotationSetup:
+    """The rotation of one flight: the policy and what the station knows of the batteries from
+    the mission (not truth: the nominal endurance the operator wrote down)."""
+
+    policy: RotationPolicy
+    hover_drain_per_s: float
+    """Nominal drain in a hover, fraction per second (1 / the mission's endurance): the floor
+    of the estimate, and the drain before the first estimate."""
+    return_drain_factor: float = 1.0
+    """The drain flying home at full speed over the hover drain (1 + speed_drain_frac)."""
+    base_ne_m: tuple[float, float] = (0.0, 0.0)
+    """The base (the vehicles' home) in the mission frame, metres north / east."""
+    land_radius_m: float = 30.0
+    """Disarmed within this of the base = landed at the base, metres (GPS and RTL spread)."""
+    full_frac: float = 0.95
+    """A charge at least this after landing = a fresh battery."""
+    failsafe_margin_frac: float = 0.05
+    """An RTL / LAND nobody commanded, on a vehicle at most this above the policy's low level
+    (``critical_frac``) or reporting a low charge state, is the firmware's battery failsafe."""
+    lost_after_s: float = 30.0
+    """A flying vehicle silent this long is lost to the rotation (the planner drops it sooner)."""
+    counters: dict[str, int] = field(
+        default_factory=lambda: {"battery_failsafes": 0, "landed_away": 0, "reboots": 0}
+    )
+    min_battery_in_air: float = 1.0
+    events: list[RotationEvent] = field(default_factory=list)
+    gone: set[int] = field(default_factory=set)
+    """Rows landed away from the base (lost to the mission)."""
+    landed_s: dict[int, float] = field(default_factory=dict)
+    """Row -> when it was seen landed at the base (a reboot after it confirms the swap)."""
+    landed_frac: dict[int, float] = field(default_factory=dict)
+    home_cmd_s: dict[int, float] = field(default_factory=dict)
+    """Row -> when it was last told to go home / land (retry pacing)."""
+    time_to_reserve_s: np.ndarray = field(default_factory=lambda: np.empty(0))
+    """(N,) at the last tick (inf: not draining)."""
+
+    def __post_init__(self) -> None:
+        if not self.hover_drain_per_s > 0:
+            raise ValueError(f"hover_drain_per_s must be > 0, got {self.hover_drain_per_s}")
+
+    def summary(self) -> dict[str, Any]:
+        """For the status line and summary.json (the in-process run's keys, where they exist)."""
+        s = self.policy.summary()
+        return {
+            "rotations": s["rotations"],
+            "swaps": s["swaps"],
+            "forced_returns": s["forced_returns"],
+            "battery_failsafes_in_air": self.counters["battery_failsafes"],
+            "landed_away": self.counters["landed_away"],
+            "no_spare": s["no_spare"],
+            "min_battery_in_air": round(self.min_battery_in_air, 4),
+            "planned_at_start": self.policy.flying,
+            "reboots": self.counters["reboots"],
+            "in_air": s["in_air"],
+            "ready": s["ready"],
+            "on_pads": s["on_pads"],
+            "batteries_charged": s["batteries_charged"],
+        }
+
+
+class RotationStep(OperatorState):
+    """The rotation of :class:`gcs.operations.Operator` (see the module docstring)."""
+
+    # ------------------------------------------------------------------ masks
+
+    def _rotation_may_fly(self, n: int) -> np.ndarray:
+        """(n,) rows the station may launch, reclaim or keep in the air: all without a rotation;
+        with one, the ``air`` and ``inbound`` ones (and rows beyond the policy's fleet)."""
+        rot = self.rotation
+        ok = np.ones(n, dtype=bool)
+        if rot is None:
+            return ok
+        m = min(n, rot.policy.n_drones)
+        ph = rot.policy.phase[:m]
+        ok[:m] = (ph == AIR) | (ph == INBOUND)
+        return ok
+
+    # ------------------------------------------------------------------ events
+
+    def _rotation_on_mode(self, event: ModeChanged, key: tuple[int, int]) -> None:
+        """The firmware's own RTL / LAND on a low battery: the policy is told (failsafe)."""
+        rot = self.rotation
+        if rot is None or self._phase != Phase.RUN or key in self.released:
+            return
+        i = self.fleet.index_of(*key)
+        if i >= rot.policy.n_drones or rot.policy.phase[i] not in (AIR, INBOUND):
+            return
+        snap = self.fleet.snapshot(event.t_s)
+        adapter = adapter_for(int(snap.autopilot[i]))
+        if event.mode not in (adapter.rtl_mode, adapter.land_mode):
+            return
+        batt = float(snap.battery_frac[i]) if snap.battery_frac is not None else math.nan
+        state = int(snap.battery_charge_state[i]) if snap.battery_charge_state is not None else 0
+        low = rot.policy.params.critical_frac + rot.failsafe_margin_frac
+        # MAV_BATTERY_CHARGE_STATE 2 LOW .. 4 EMERGENCY: the autopilot says so itself.
+        if (math.isfinite(batt) and batt <= low) or 2 <= state <= 4:
+            rot.counters["battery_failsafes"] += 1
+            rot.events.append(rot.policy.failsafe(i, event.t_s))
+            log.warning(
+                "link %d sysid %d: battery failsafe %s at %.0f %%", *key, event.mode, 100 * batt
+            )
+
+    def _rotation_on_reboot(self, event: VehicleRebooted, key: tuple[int, int]) -> None:
+        """A power-cycled vehicle is the same vehicle: its launch bookkeeping starts over."""
+        if self.rotation is None:
+            return
+        self.rotation.counters["reboots"] += 1
+        i = self.fleet.index_of(*key)
+        self._rows[i] = _Row()
+
+    # ------------------------------------------------------------------ the tick
+
+    def _rotation_step(self, snap: FleetSnapshot, alt_m: np.ndarray, now_s: float) -> np.ndarray:
+        """Run the policy on the station's telemetry; returns (N,) the rows it plans."""
+        rot = self.rotation
+        assert rot is not None  # only called with a rotation
+        pol = rot.policy
+        n, m = snap.n_vehicles, min(snap.n_vehicles, pol.n_drones)
+        nd = pol.n_drones
+        base = np.asarray(rot.base_ne_m, dtype=float)
+        pos = np.tile(base, (nd, 1))
+        has = snap.has_position[:m]
+        pos[:m][has] = snap.pos_ned_m[:m, :2][has]
+        dist = np.hypot(*(pos - base).T)
+        ph = pol.phase
+        heard = np.zeros(nd, bool)
+        heard[:m] = ~snap.lost[:m]
+        recent = np.zeros(nd, bool)
+        recent[:m] = now_s - snap.last_heard_s[:m] <= rot.lost_after_s
+        on_ground = np.isin(ph, _GROUND)
+        armed = np.zeros(nd, bool)
+        armed[:m] = snap.armed[:m]
+        alive = np.zeros(nd, bool)
+        # On the ground at the base a vehicle may be silent: its battery is out for a swap.
+        alive[:m] = recent[:m] | on_ground[:m]
+        # Landed away from the base (a critical-battery LAND in the field): gone for the mission.
+        away = heard & ~armed & (dist > rot.land_radius_m) & np.isin(ph, (AIR, INBOUND, RETURNING))
+        for i in np.flatnonzero(away & self._was_flying(nd)).tolist():
+            if i not in rot.gone:
+                rot.gone.add(i)
+                rot.counters["landed_away"] += 1
+                log.warning("row %d landed %.0f m from the base: lost to the mission", i, dist[i])
+        if rot.gone:
+            alive[list(rot.gone)] = False
+        batt = np.full(nd, np.nan)
+        if snap.battery_frac is not None:
+            batt[:m] = snap.battery_frac[:m]
+        est = np.zeros(nd)
+        if snap.drain_per_s is not None:
+            est[:m] = np.nan_to_num(snap.drain_per_s[:m], nan=0.0)
+        drain = np.maximum(est, rot.hover_drain_per_s)
+        networked = np.zeros(nd, bool)
+        networked[:m] = snap.networked[:m]
+        landed = heard & ~armed & (dist <= rot.land_radius_m)
+        for i in np.flatnonzero(landed & (ph == RETURNING)).tolist():
+            rot.landed_s[i] = now_s
+            rot.landed_frac[i] = float(batt[i])
+        rebooted = np.full(nd, -np.inf)
+        if snap.rebooted_s is not None:
+            rebooted[:m] = snap.rebooted_s[:m]
+        landed_at = np.array([rot.landed_s.get(i, np.inf) for i in range(nd)])
+        landed_frac = np.array([rot.landed_frac.get(i, np.nan) for i in range(nd)])
+        full = batt >= rot.full_frac
+        rose = full & ~(landed_frac >= rot.full_frac)  # NaN (unknown at landing) counts as rose
+        swap_done = (ph == SWAPPING) & full & ((rebooted > landed_at) | rose)
+        ret_drain = np.full(nd, rot.hover_drain_per_s * rot.return_drain_factor)
+        out = pol.step(
+            now_s,
+            pos,
+            alive,
+            batt,
+            drain,
+            networked=networked,
+            landed_at_base=landed,
+            base_m=base,
+            swap_done=swap_done,
+            return_drain_per_s=ret_drain,
+        )
+        rot.events.extend(out.events)
+        for ev in out.events:
+            log.info("rotation t=%.0f s: %s row %d (%d)", ev.t_s, ev.kind, ev.drone, ev.other)
+        rot.time_to_reserve_s = time_to_reserve_s(batt, drain, dist, pol.params, ret_drain)
+        flying = heard & armed & (np.isin(pol.phase, (AIR, INBOUND, RETURNING)))
+        if flying.any() and np.isfinite(batt[flying]).any():
+            rot.min_battery_in_air = min(rot.min_battery_in_air, float(np.nanmin(batt[flying])))
+        self._rotation_command(snap, out.target_m, alt_m, now_s)
+        planned = np.ones(n, dtype=bool)
+        planned[:m] = out.planned[:m]
+        return planned
+
+    def _was_flying(self, nd: int) -> np.ndarray:
+        flew = np.zeros(nd, bool)
+        for i in range(nd):
+            row = self._rows.get(i)
+            flew[i] = row is not None and (row.flew or row.launched)
+        return flew
+
+    def _rotation_command(
+        self, snap: FleetSnapshot, target_m: np.ndarray, alt_m: np.ndarray, now_s: float
+    ) -> None:
+        """Targets for inbound spares in the air; home for returning vehicles."""
+        rot = self.rotation
+        assert rot is not None
+        ph = rot.policy.phase
+        m = min(snap.n_vehicles, rot.policy.n_drones)
+        airborne = (
+            ~snap.lost[:m]
+            & snap.armed[:m]
+            & np.isfinite(alt_m[:m])
+            & (alt_m[:m] > self.config.airborne_alt_m)
+        )
+        inbound = np.flatnonzero((ph[:m] == INBOUND) & airborne & np.isfinite(target_m[:m, 0]))
+        inbound = np.array([i for i in inbound.tolist() if self._vid(snap, i) not in self.released])
+        if len(inbound):
+            tgt = np.column_stack([target_m[inbound], -layer_alt_m(inbound, self.control)])
+            self._send_targets(snap, inbound, tgt, now_s)
+        for i in np.flatnonzero((ph[:m] == RETURNING) & ~snap.lost[:m] & snap.armed[:m]).tolist():
+            vid = self._vid(snap, i)
+            if vid in self.released:
+                continue
+            adapter = adapter_for(int(snap.autopilot[i]))
+            mode = snap.mode[i]
+            if mode in (adapter.rtl_mode, adapter.land_mode):
+                continue  # on its way down or home (its own failsafe, or our command)
+            if now_s - rot.home_cmd_s.get(i, -math.inf) < self.config.action_retry_s:
+                continue
+            try:
+                if self.config.end == "rtl":
+                    self.station.clear_position_target(vid, now_s)
+                    self.station.rtl(vid, now_s)
+                    rot.home_cmd_s[i] = now_s
+                else:
+                    d = float(np.hypot(*(snap.pos_ned_m[i, :2] - np.asarray(rot.base_ne_m))))
+                    if d <= rot.land_radius_m / 3:
+                        self.station.clear_position_target(vid, now_s)
+                        self.station.land(vid, now_s)
+                        rot.home_cmd_s[i] = now_s
+                    else:
+                        tgt = np.array(
+                            [[*rot.base_ne_m, -float(layer_alt_m([i], self.control)[0])]]
+                        )
+                        self._send_targets(snap, np.array([i]), tgt, now_s)
+            except (LinkUsageError, UnknownVehicle, ValueError) as exc:
+                log.info("link %d sysid %d: %s", *vid, exc)
+        # A vehicle that left the plan is not reclaimed from the RTL it was sent on.
+        for i in np.flatnonzero(np.isin(ph[:m], (RETURNING, LOST, *_GROUND))).tolist():
+            row = self._rows.get(i)
+            if row is not None:
+                row.reclaiming = False
+
+    def rotation_summary(self) -> dict[str, Any] | None:
+        """The rotation's counters (None without batteries)."""
+        return None if self.rotation is None else self.rotation.summary()

@@ -1,0 +1,172 @@
+"""The rotation in the station's tick (gcs/operations/rotation.py), against the fake station of
+test_operations.py, in memory with explicit time: a relay's battery falls (fake telemetry), a
+spare is launched, takes the post, the relay is sent home, lands, is power-cycled full and is a
+spare again; the firmware's own low-battery RTL is the policy's failsafe."""
+
+from __future__ import annotations
+
+import numpy as np
+from test_operations import CONTROL, ORIGIN, RTL, FakePlanner, FakeStation, Feed
+
+from gcs.events import BatteryReceived, VehicleRebooted
+from gcs.fleet import FleetView
+from gcs.operations import OperationsConfig, Operator
+from gcs.operations.rotation import RotationSetup
+from planner.endurance import (
+    AIR,
+    INBOUND,
+    READY,
+    RETURNING,
+    SWAPPING,
+    BaseResources,
+    EnduranceParams,
+    RotationPolicy,
+)
+
+POST_N_M = 100.0
+
+
+def _make(n: int = 2, flying: int = 1):
+    policy = RotationPolicy(
+        n,
+        flying,
+        BaseResources(pads=1, swap_time_s=60.0, spare_batteries=4),
+        EnduranceParams(critical_frac=0.2, return_speed_m_s=5.0),
+    )
+    rot = RotationSetup(policy, hover_drain_per_s=1.0 / 1500.0)
+    station = FakeStation()
+    planner = FakePlanner()
+    op = Operator(
+        station,
+        FleetView(ORIGIN, timeout_s=5.0),
+        planner,
+        lambda t: np.array([[POST_N_M + 50.0, 0.0]]),
+        CONTROL,
+        OperationsConfig(audit=False, expected_vehicles=n, duration_s=10_000.0),
+        rotation=rot,
+    )
+    feed = Feed(op)
+    vids = [feed.add(k + 1, 0.0) for k in range(n)]
+    return op, station, planner, feed, vids, rot
+
+
+def _battery(feed: Feed, vid, t_s: float, frac: float) -> None:
+    feed.emit(BatteryReceived(vid[0], vid[1], t_s, "SYS_STATUS", frac, 15.0, 20.0))
+
+
+def _run(feed: Feed, t0: float, t1: float, batt: dict) -> float:
+    t = t0
+    while t <= t1 + 1e-9:
+        for vid, frac in batt.items():
+            if vid not in feed.silent:
+                _battery(feed, vid, t, frac)
+        feed.poll(t)
+        t = round(t + 0.5, 9)
+    return t
+
+
+def test_only_the_planned_k_take_off_and_the_spares_stay_home():
+    op, station, planner, feed, (relay, spare), rot = _make()
+    feed.poll(0.0)
+    assert op.phase == "launch"
+    # (A charge never reported counts as due now, docs/design/endurance.md §3: SYS_STATUS
+    # arrives during the launch.)
+    _battery(feed, relay, 0.5, 0.9)
+    feed.fly(relay, 1.0)
+    feed.poll(1.0)
+    assert op.phase == "run"
+    _run(feed, 1.5, 3.0, {relay: 0.9, spare: 1.0})
+    assert station.of("takeoff", relay) and not station.of("takeoff", spare)
+    assert not station.of("arm", spare)
+    tick = planner.ticks[-1]
+    assert tick.alive.tolist() == [True, False]  # the spare is not in the planner's fleet
+
+
+def test_relay_relieved_by_a_spare_sent_home_landed_rebooted_and_ready_again():
+    op, station, planner, feed, (relay, spare), rot = _make()
+    feed.poll(0.0)
+    _battery(feed, relay, 0.5, 0.9)
+    feed.fly(relay, 1.0)
+    feed.v[relay]["north_m"] = POST_N_M
+    feed.v[spare]["north_m"] = 0.0
+    batt = {relay: 0.9, spare: 1.0}
+    t = _run(feed, 1.0, 20.0, batt)
+    assert rot.policy.phase.tolist() == [AIR, READY]
+    assert np.isfinite(rot.time_to_reserve_s[0]) and rot.time_to_reserve_s[0] > 0
+    # The relay's battery falls to its launch lead: the spare is launched.
+    batt[relay] = 0.30
+    t = _run(feed, t, t + 3.0, batt)
+    assert rot.policy.phase.tolist() == [AIR, INBOUND]
+    t_launch = t
+    t = _run(feed, t, t + 2.0, batt)
+    assert station.of("takeoff", spare, since_s=t_launch - 3.0)  # armed and taken off
+    feed.fly(spare, t)
+    t = _run(feed, t, t + 3.0, batt)
+    # In the air, it is sent to the relay's post.
+    (call,) = station.of("set_position_target", spare, since_s=t - 1.0)[-1:]
+    assert call[2] > ORIGIN.lat_deg + 0.0008  # ~100 m north of the origin
+    # It holds the post, networked: the handover, and the relay is sent home (RTL).
+    feed.v[spare]["north_m"] = POST_N_M
+    t = _run(feed, t, t + 2.0, batt)
+    assert rot.policy.phase.tolist() == [RETURNING, AIR]
+    assert station.of("rtl", relay)
+    assert planner.ticks[-1].alive.tolist() == [False, True]
+    # It flies home in RTL and lands: disarmed at the base -> on a pad.
+    feed.mode(relay, t, RTL)
+    feed.v[relay]["north_m"] = 2.0
+    feed.alt(relay, t, 0.0)
+    feed.armed(relay, t, False)
+    t = _run(feed, t, t + 2.0, batt)
+    assert rot.policy.phase[0] == SWAPPING
+    n_takeoffs = len(station.of("takeoff", relay))
+    # The crew pulls its battery: silent for 20 s (lost to the link, not to the rotation) ...
+    feed.silent.add(relay)
+    t = _run(feed, t, t + 20.0, batt)
+    assert rot.policy.phase[0] == SWAPPING
+    # ... and it boots again, full: the same vehicle, a spare again.
+    feed.silent.discard(relay)
+    feed.emit(VehicleRebooted(relay[0], relay[1], t, 1500.0, 2.0))
+    batt[relay] = 1.0
+    t = _run(feed, t, t + 2.0, batt)
+    assert rot.policy.phase.tolist() == [READY, AIR]
+    assert op.fleet.snapshot(t).n_vehicles == 2
+    s = op.rotation_summary()
+    assert s is not None
+    assert (s["rotations"], s["swaps"], s["reboots"]) == (1, 1, 1)
+    assert 0.29 <= s["min_battery_in_air"] <= 0.31
+    # A spare on the ground is not launched again until the policy sends it.
+    t = _run(feed, t, t + 5.0, batt)
+    assert len(station.of("takeoff", relay)) == n_takeoffs
+
+
+def test_firmware_low_battery_rtl_is_a_failsafe_not_a_reclaim():
+    op, station, planner, feed, (relay, spare), rot = _make()
+    feed.poll(0.0)
+    _battery(feed, relay, 0.5, 0.9)
+    feed.fly(relay, 1.0)
+    feed.v[relay]["north_m"] = POST_N_M
+    batt = {relay: 0.9, spare: 1.0}
+    t = _run(feed, 1.0, 5.0, batt)
+    # No spare launched yet; the firmware's own low-battery RTL (the station sent none).
+    batt[relay] = 0.21
+    _battery(feed, relay, t, 0.21)
+    feed.mode(relay, t, RTL)
+    t0 = t
+    t = _run(feed, t, t + 5.0, batt)
+    assert rot.policy.phase[0] == RETURNING
+    assert rot.counters["battery_failsafes"] == 1
+    assert not station.of("engage_guided", relay, since_s=t0)  # not reclaimed from its RTL
+
+
+def test_an_rtl_with_a_full_battery_is_reclaimed_as_before():
+    op, station, planner, feed, (relay, spare), rot = _make()
+    feed.poll(0.0)
+    _battery(feed, relay, 0.5, 0.9)
+    feed.fly(relay, 1.0)
+    batt = {relay: 0.9, spare: 1.0}
+    t = _run(feed, 1.0, 5.0, batt)
+    feed.mode(relay, t, RTL)  # e.g. its GCS failsafe: not a battery one
+    t = _run(feed, t, t + 5.0, batt)
+    assert rot.counters["battery_failsafes"] == 0
+    assert rot.policy.phase[0] == AIR
+    assert station.of("engage_guided", relay, since_s=t - 5.0)
