@@ -196,7 +196,8 @@ def terrain_flight(mission: Mission, terrain_aware: str) -> TerrainFlight | None
     assert spec is not None  # radio.model terrain needs a terrain section (validated)
     ground = build_terrain(mission)
     assert ground is not None  # a terrain section
-    radio = TerrainRadio(ground, mission.radio.budget.link_budget())
+    link = mission.radio.terrain_link
+    radio = TerrainRadio(ground, link.link_budget())
     lim = mission.vehicles.limits
     base_ground_m = float(ground.height_m(np.zeros((1, 2)))[0])
     return TerrainFlight(
@@ -207,8 +208,8 @@ def terrain_flight(mission: Mission, terrain_aware: str) -> TerrainFlight | None
         clearance_m=spec.clearance_m,
         ceiling_agl_m=spec.ceiling_agl_m,
         max_climb_m=lim.climb_rate_m_s * mission.run.control_period_s,
-        crew_antenna_agl_m=mission.radio.crew_antenna_agl_m,
-        base_antenna_agl_m=mission.radio.base_antenna_agl_m,
+        crew_antenna_agl_m=link.crew_antenna_agl_m,
+        base_antenna_agl_m=link.base_antenna_agl_m,
     )
 
 

@@ -570,10 +570,10 @@ class Task(_Section):
 
 
 @dataclass(frozen=True, kw_only=True)
-class RadioBudget(_Section):
-    """A radio's link budget and clearance rule (``radio.model: terrain``; docs/terrain.md §2).
-    Defaults: a common 2.4 GHz mesh radio; the one place they are defined is
-    :class:`planner.terrain.LinkBudget`, mirrored here for the file."""
+class RadioLink(_Section):
+    """A radio's link budget, clearance rule and antenna heights (``radio.model: terrain``;
+    docs/terrain.md §2). Defaults: a common 2.4 GHz mesh radio (the planner's
+    :class:`planner.terrain.LinkBudget` has the same)."""
 
     frequency_mhz: float = _f(2400.0, gt=0.0, le=100_000.0)
     """Carrier frequency, MHz."""
@@ -591,6 +591,10 @@ class RadioBudget(_Section):
     """Fraction of the first Fresnel zone the terrain must stay out of."""
     k_factor: float = _f(4.0 / 3.0, gt=0.0, le=100.0)
     """Effective earth radius factor."""
+    crew_antenna_agl_m: float = _f(1.5, ge=0.0, le=100.0)
+    """Height of a crew's radio above the ground, metres."""
+    base_antenna_agl_m: float = _f(1.5, ge=0.0, le=100.0)
+    """Height of the base's antenna above the ground, metres."""
 
     def link_budget(self):
         """The :class:`planner.terrain.LinkBudget` of this section."""
@@ -630,12 +634,14 @@ class Radio(_Section):
     model: RadioModel = "disc"
     """'disc' (the paper: links within ``range_m``) or 'terrain' (links need line of sight over
     the mission's ``terrain`` and a closing link ``budget``; docs/terrain.md)."""
-    budget: RadioBudget = _f(factory=RadioBudget)
-    """The link budget (``model: terrain``)."""
-    crew_antenna_agl_m: float = _f(1.5, ge=0.0, le=100.0)
-    """Height of a crew's radio above the ground, metres (``model: terrain``)."""
-    base_antenna_agl_m: float = _f(1.5, ge=0.0, le=100.0)
-    """Height of the base's antenna above the ground, metres (``model: terrain``)."""
+    link: RadioLink | None = None
+    """The link budget and antenna heights (``model: terrain``); unset: the defaults of
+    :class:`RadioLink`."""
+
+    @property
+    def terrain_link(self) -> RadioLink:
+        """``link``, or the defaults."""
+        return self.link if self.link is not None else RadioLink()
 
     range_m: float = _f(100.0, gt=0.0)
     """Drone-to-drone (and drone-to-task) communication radius r, metres (paper: 2 units)."""
@@ -704,8 +710,11 @@ class SyntheticTerrain(_Section):
     spacing_m: float = _f(10.0, gt=0.0, le=1000.0)
     """Post spacing, metres."""
     ridges: tuple[RidgeSpec, ...] = ()
+    """Ridges."""
     canyons: tuple[CanyonSpec, ...] = ()
+    """River canyons."""
     hills: tuple[HillSpec, ...] = ()
+    """Hills and basins."""
 
     def validate(self) -> list[tuple[str, str]]:
         if (2 * self.half_width_m / self.spacing_m + 1) ** 2 > 25_000_000:
@@ -735,7 +744,9 @@ class TerrainSpec(_Section):
     ONE_OF = ("synthetic", "geotiff")
 
     synthetic: SyntheticTerrain | None = None
+    """A scene of parametric features."""
     geotiff: GeoTiffTerrain | None = None
+    """A digital elevation model."""
     cruise_agl_m: float = _f(100.0, gt=0.0, le=10_000.0)
     """Height above ground terrain-aware drones hold, metres."""
     ceiling_agl_m: float = _f(120.0, gt=0.0, le=10_000.0)

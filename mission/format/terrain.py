@@ -61,8 +61,10 @@ def terrain_from_geotiff(
         with rasterio.open(spec.path) as src:
             xs, ys = warp_transform("EPSG:4326", src.crs, lon.tolist(), lat.tolist())
             band = src.read(spec.band, masked=True).astype(float)
-            inv = ~src.transform
-            cols, rows = inv * (np.asarray(xs), np.asarray(ys))  # pixel edges at integers
+            inv = ~src.transform  # map -> pixel coordinates, pixel edges at integers
+            x, y = np.asarray(xs), np.asarray(ys)
+            cols = inv.a * x + inv.b * y + inv.c
+            rows = inv.d * x + inv.e * y + inv.f
     except rasterio.errors.RasterioError as exc:
         raise ValueError(f"terrain.geotiff.path {spec.path}: {exc}") from None
     # Pixel centres sit at +0.5: bilinear between the four centres around each point.
