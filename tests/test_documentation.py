@@ -677,6 +677,10 @@ TABLE: dict[str, Case] = {
         check=lambda c: c.has(r"0 rotations", r"[1-9]\d* battery failsafes in the air"),
         timeout=900,
     ),
+    "phireman sim --mission canyon --terrain-aware ...": Case(kind="help"),
+    "phireman sim --mission canyon --terrain-aware off": Case(
+        check=lambda c: c.has(r"terrain-aware off: 0 crashes", r"TU1 = ")
+    ),
     "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),
     "phireman sweep --grid custom --size XS --attrition 0 1% --method phireman dccrs --seeds 3 --chunk 1 --scheduler sched.json --store cluster.sqlite": SKIP(  # noqa: E501
         "needs a Dask scheduler and workers started first: run with them, a worker killed "

@@ -22,8 +22,17 @@ import numpy as np
 
 from planner.geometry import active_mask, bounded_moves, step_toward, tasks_connected
 from planner.problem import ProblemConfig
+from planner.terrain import TerrainRadio, path_clearance_m
 
-__all__ = ["Scenario", "RunStreams", "spawn_streams", "draw_scenario", "walk_tasks", "World"]
+__all__ = [
+    "Scenario",
+    "RunStreams",
+    "spawn_streams",
+    "draw_scenario",
+    "walk_tasks",
+    "World",
+    "TerrainFlight",
+]
 
 
 @dataclass(frozen=True)
@@ -105,6 +114,53 @@ def draw_scenario(problem: ProblemConfig, streams: RunStreams) -> Scenario:
     return Scenario(drone_pos0, track, u)
 
 
+#: Terrain following keeps this much above ``TerrainFlight.clearance_m`` at its path samples, metres:
+#: the ground between two samples of a step (at most a few metres apart) can rise a little above
+#: its samples on a steep wall.
+CLEARANCE_MARGIN_M = 1.0
+
+
+@dataclass(frozen=True)
+class TerrainFlight:
+    """How drones fly and talk over terrain (a mission's ``radio.model: terrain``, docs/terrain.md).
+
+    ``mode`` 'flat' is today's flight: every drone holds one altitude AMSL (the base's ground plus
+    the cruise altitude, as the station commands over a flat earth) and a flight whose straight
+    path goes into the ground is a crash. 'follow' is terrain following (ArduPilot's
+    ``TERRAIN_FOLLOW``): each drone holds ``alt_agl_m`` above the ground under it, climbing at
+    most ``max_climb_m`` per step, and shortens a step whose straight path would pass closer than
+    ``clearance_m`` to the ground or would end above ``ceiling_agl_m`` (docs/terrain.md §3)."""
+
+    radio: TerrainRadio
+    mode: str = "follow"
+    """'follow' or 'flat'."""
+    alt_agl_m: float = 40.0
+    """'follow': the height above ground each drone holds, metres."""
+    flat_alt_amsl_m: float = 0.0
+    """'flat': the one altitude every drone holds, metres AMSL."""
+    clearance_m: float = 10.0
+    """'follow': the least height above the ground along any flight, metres."""
+    max_climb_m: float = 2.5
+    """Largest altitude change in one step, metres."""
+    ceiling_agl_m: float = float("inf")
+    """'follow': the highest a drone may end a step above the ground, metres (a step that would
+    end higher, off a cliff faster than the drone can descend, is shortened)."""
+    crew_antenna_agl_m: float = 1.5
+    """Height of a crew's radio above the ground, metres."""
+    base_antenna_agl_m: float = 1.5
+    """Height of the base's antenna above the ground, metres."""
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("follow", "flat"):
+            raise ValueError(f"TerrainFlight.mode must be 'follow' or 'flat', got {self.mode!r}")
+
+    def start_alt_amsl_m(self, pos_ne_m: np.ndarray) -> np.ndarray:
+        """(N,) the altitude each drone starts at (already at its cruise height), metres AMSL."""
+        if self.mode == "flat":
+            return np.full(len(pos_ne_m), self.flat_alt_amsl_m)
+        return self.radio.terrain.height_m(pos_ne_m) + self.alt_agl_m
+
+
 @dataclass
 class World:
     """Mutable ground truth of one episode; rows are stable (dead drones stay, masked)."""
@@ -121,6 +177,13 @@ class World:
     grounded: np.ndarray | None = None
     """(N,) bool: on the ground at the base (endurance model, mission.experiments.endurance): out of
     the mesh, no attrition. None: every alive drone flies (the paper's world)."""
+    terrain: TerrainFlight | None = None
+    """Terrain, its radio and how drones fly over it (docs/terrain.md); None: the paper's flat
+    world and disc radio, untouched."""
+    alt_amsl_m: np.ndarray | None = None
+    """(N,) drone heights AMSL, metres (with ``terrain`` only; set by :meth:`with_terrain`)."""
+    terrain_crashes: int = 0
+    """Drones lost by flying into the ground (with ``terrain`` only)."""
 
     @classmethod
     def from_scenario(cls, problem: ProblemConfig, scenario: Scenario) -> World:
@@ -131,6 +194,12 @@ class World:
             scenario.task_track_m,
         )
 
+    def with_terrain(self, terrain: TerrainFlight) -> World:
+        """This world over ``terrain``: drones start at their cruise altitude (in place)."""
+        self.terrain = terrain
+        self.alt_amsl_m = terrain.start_alt_amsl_m(self.pos_m)
+        return self
+
     @property
     def task_pos_m(self) -> np.ndarray:
         return self.task_track_m[min(self.t_step, len(self.task_track_m) - 1)]
@@ -139,10 +208,25 @@ class World:
         """(N,) bool: alive and connected to the base through alive drones (exact)."""
         p = self.problem
         flying = self.alive if self.grounded is None else self.alive & ~self.grounded
+        if self.terrain is not None:
+            assert self.alt_amsl_m is not None  # set with the terrain (with_terrain)
+            tf = self.terrain
+            base_h = float(tf.radio.terrain.height_m(self.base_m[None])[0])
+            return tf.radio.active_mask(
+                self.pos_m, self.alt_amsl_m, flying, self.base_m, base_h + tf.base_antenna_agl_m
+            )
         return active_mask(self.pos_m, flying, p.radio_range_m, p.base_range_m, self.base_m)
 
     def tasks_connected(self, active: np.ndarray) -> np.ndarray:
-        """(M,) bool: an active drone strictly within r of each task."""
+        """(M,) bool: an active drone strictly within r of each task (over terrain: an active
+        drone whose link to the crew's radio closes)."""
+        if self.terrain is not None:
+            assert self.alt_amsl_m is not None  # set with the terrain (with_terrain)
+            tp = self.task_pos_m
+            ground = self.terrain.radio.terrain.height_m(tp)
+            return self.terrain.radio.tasks_connected(
+                tp, ground + self.terrain.crew_antenna_agl_m, self.pos_m, self.alt_amsl_m, active
+            )
         return tasks_connected(self.task_pos_m, self.pos_m, active, self.problem.radio_range_m)
 
     def step(
@@ -198,3 +282,42 @@ class World:
         self.pos_m = self.pos_m + disp * self.alive[:, None]  # attrited drones cease all movement
         self.t_step += 1
         return lost
+
+    def fly_terrain(
+        self, pos_before_m: np.ndarray, n_fractions: int = 8, n_samples: int = 32
+    ) -> np.ndarray:
+        """Heights over the terrain for the step just taken by :meth:`step` (from
+        ``pos_before_m``, (N, 2) metres), per :class:`TerrainFlight`. 'follow' shortens each
+        horizontal move to the longest of ``n_fractions`` equal parts whose straight flight keeps
+        ``clearance_m`` above the ground at ``n_samples`` points plus
+        :data:`CLEARANCE_MARGIN_M` (the margin covers the ground between the samples); 'flat'
+        holds the one altitude and a flight into the ground is a crash. Returns (N,) bool, the
+        drones that crashed this step."""
+        tf = self.terrain
+        assert tf is not None and self.alt_amsl_m is not None  # terrain worlds only
+        ground = tf.radio.terrain
+        alt0 = self.alt_amsl_m
+        move = self.pos_m - pos_before_m
+        if tf.mode == "flat":
+            alt1 = alt0 + np.clip(tf.flat_alt_amsl_m - alt0, -tf.max_climb_m, tf.max_climb_m)
+            clear = path_clearance_m(ground, pos_before_m, self.pos_m, alt0, alt1, n_samples)
+            crash = self.alive & (clear < 0)
+        else:
+            best_pos, best_alt = pos_before_m.copy(), alt0.copy()
+            # Fractions from short to long (a handful): keep the longest that keeps clearance.
+            for k in range(n_fractions + 1):
+                end = pos_before_m + (k / n_fractions) * move
+                want = ground.height_m(end) + tf.alt_agl_m
+                alt1 = alt0 + np.clip(want - alt0, -tf.max_climb_m, tf.max_climb_m)
+                clear = path_clearance_m(ground, pos_before_m, end, alt0, alt1, n_samples)
+                high = alt1 - ground.height_m(end) > tf.ceiling_agl_m
+                ok = ((clear >= tf.clearance_m + CLEARANCE_MARGIN_M) & ~high) | (k == 0)
+                best_pos = np.where(ok[:, None], end, best_pos)
+                best_alt = np.where(ok, alt1, best_alt)
+            self.pos_m, alt1 = best_pos, best_alt
+            clear = path_clearance_m(ground, pos_before_m, self.pos_m, alt0, alt1, n_samples)
+            crash = self.alive & (clear < 0)
+        self.alt_amsl_m = np.where(self.alive, alt1, alt0)
+        self.alive = self.alive & ~crash
+        self.terrain_crashes += int(crash.sum())
+        return crash

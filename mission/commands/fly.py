@@ -223,9 +223,16 @@ def _load(spec: str):
 
     path = _mission_path(spec)
     try:
-        return load_mission(path)
+        mission = load_mission(path)
     except MissionError as exc:
         raise UserError(str(exc)) from None
+    if mission.radio.model == "terrain":  # docs/terrain.md §5
+        raise UserError(
+            f"{mission.name}: radio.model terrain is played in-process only "
+            f"(phireman sim --mission {spec}); the emulator's radio and the station still use "
+            "the disc (docs/terrain.md)"
+        )
+    return mission
 
 
 def _pct(x) -> str:

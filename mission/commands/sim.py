@@ -28,6 +28,7 @@ examples:
   phireman sim --set step_size=0.3 --set max_speed_m_s=0.2 --out runs/s1
   phireman sim --mission wildfire --out runs/wf    # play a mission file in-process, then:
   phireman replay runs/wf                          # plots and an animation of that run
+  phireman sim --mission canyon --terrain-aware off  # terrain radio, today's disc planner
 
 With --mission the mission file sets the size, attrition, planner and its parameters: --size,
 --attrition, --method, --info, --reading, --set and --workers are refused rather than ignored.
@@ -119,6 +120,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "same mission with endless batteries (the reference for relay rotation)",
     )
     p.add_argument(
+        "--terrain-aware",
+        choices=["on", "altitude", "off"],
+        default=None,
+        help="with a terrain mission (radio.model: terrain): 'on' (default) terrain following "
+        "under the ceiling and moves checked against the terrain radio; 'altitude' terrain "
+        "following with the disc planner; 'off' today's system, the disc planner at one altitude "
+        "above the base (docs/terrain.md)",
+    )
+    p.add_argument(
         "--rotation",
         choices=["mission", "on", "off"],
         default="mission",
@@ -150,6 +160,8 @@ def run(args) -> int:
         return 0
     if args.mission is not None:
         return _run_mission(args)
+    if args.terrain_aware is not None:
+        raise UserError("--terrain-aware applies to a terrain mission (--mission canyon)")
     if args.battery != "mission" or args.rotation != "mission":
         raise UserError(
             "--battery and --rotation apply to a mission with batteries (--mission wildfire_2h); "
@@ -330,6 +342,12 @@ def _run_mission(args) -> int:
         raise UserError("invalid mission:\n  " + "\n  ".join(exc.errors)) from None
     if args.out is not None:
         writable_dir(args.out)  # before the runs, not after them
+    if args.terrain_aware is not None and mission.radio.model != "terrain":
+        raise UserError(
+            f"--terrain-aware: mission {mission.name} has the disc radio (radio.model: disc); "
+            "it applies to a terrain mission (radio.model: terrain, e.g. canyon)"
+        )
+    aware = args.terrain_aware or "on"
     n = 1 if args.seeds is None else args.seeds
     first = mission.run.seed if args.seed is None else args.seed
     seeds = [first + k for k in range(n)]
@@ -343,7 +361,13 @@ def _run_mission(args) -> int:
     try:
         for seed in seeds:
             try:
-                r = run_inprocess(mission, seed, battery=args.battery, rotation=args.rotation)
+                r = run_inprocess(
+                    mission,
+                    seed,
+                    battery=args.battery,
+                    rotation=args.rotation,
+                    terrain_aware=aware,
+                )
             except ValueError as exc:
                 raise UserError(str(exc)) from None
             results.append(r)
@@ -358,6 +382,12 @@ def _run_mission(args) -> int:
                     f"; {e['rotations']} rotations, {e['battery_failsafes_in_air']} battery "
                     f"failsafes in the air, {e['landed_away']} landed away from the base, "
                     f"min battery in the air {100 * e['min_battery_in_air']:.0f} %"
+                )
+            if r.terrain is not None:
+                g = r.terrain
+                line += (
+                    f"; terrain-aware {aware}: {g['crashes']} crashes into the ground, least "
+                    f"clearance {g['min_clearance_m']:.1f} m, highest {g['max_agl_m']:.0f} m AGL"
                 )
             (bar.write(line) if bar else print(line))
             if bar:

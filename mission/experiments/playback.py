@@ -43,9 +43,12 @@ from mission.format.scenario import (  # re-exported: they were drawn here befor
 )
 from mission.experiments.endurance import endurance_run
 from mission.experiments.world_loop import EpisodeRecord, run_world, station_control
-from planner.methods import make_planner
+from mission.format.terrain import build_terrain
+from planner.methods import Planner, make_planner
 from planner.metrics import UptimeSeries, uptime_series
-from vehicle_emu.world import World, spawn_streams
+from planner.terrain import TerrainRadio, path_clearance_m
+from planner.terrain_aware import TerrainAwarePlanner
+from vehicle_emu.world import TerrainFlight, World, spawn_streams
 
 __all__ = [
     "MissionScenario",
@@ -57,6 +60,9 @@ __all__ = [
     "loss_probability",
     "control_config",
     "PlaybackResult",
+    "TERRAIN_AWARE",
+    "terrain_flight",
+    "terrain_summary",
     "run_inprocess",
     "write_run_dir",
 ]
@@ -78,6 +84,9 @@ class PlaybackResult:
     """Rotations, failsafes, landings away, minimum battery in the air (batteries only)."""
     battery_frac: np.ndarray | None = None
     """(tau, N) battery fraction at each step (batteries only)."""
+    terrain: dict | None = None
+    """Over terrain: crashes, least clearance along every flight, highest height above ground
+    (:func:`terrain_summary`)."""
 
 
 def run_inprocess(
@@ -87,12 +96,15 @@ def run_inprocess(
     *,
     battery: str = "mission",
     rotation: str = "mission",
+    terrain_aware: str = "on",
 ) -> PlaybackResult:
     """Play ``mission`` on the in-process world model with its planner (one tick per control period).
 
     ``battery`` 'unlimited' plays a mission with batteries as if they were endless, ``rotation``
     'off' / 'on' overrides the mission's ``endurance.rotation`` (the two references of
-    docs/design/endurance.md §5)."""
+    docs/design/endurance.md §5). ``terrain_aware`` says how a ``radio.model: terrain``
+    mission is flown (:data:`TERRAIN_AWARE`, docs/terrain.md §3); the truth's links need line of
+    sight whatever it says."""
     t0 = time.perf_counter()
     seed = mission.run.seed if seed is None else seed
     scn = build_scenario(mission, seed)
@@ -104,6 +116,12 @@ def run_inprocess(
     world = World(
         problem, scn.spawn_ne_m.copy(), np.ones(len(scn.spawn_ne_m), bool), scn.task_track_m
     )
+    flight = terrain_flight(mission, terrain_aware)
+    if flight is not None:
+        if mission.endurance.battery is not None:
+            raise ValueError("a terrain radio with batteries is not supported yet")
+        world.with_terrain(flight)
+        planner = terrain_planner(planner, flight, terrain_aware)
     tau = mission.run.n_steps
     task_dist_m = np.hypot(*scn.task_track_m.reshape(-1, 2).T)
     endurance = endurance_run(
@@ -146,6 +164,8 @@ def run_inprocess(
     result = PlaybackResult(
         seed, series.tu1, series.tu2, series, rec, losses, time.perf_counter() - t0, scn.task_names
     )
+    if flight is not None:
+        result.terrain = terrain_summary(flight, rec, world.terrain_crashes)
     if endurance is not None:
         result.endurance = endurance.summary()
         result.battery_frac = np.array(endurance.battery_log)
@@ -155,6 +175,89 @@ def run_inprocess(
         ]
         result.losses.sort(key=lambda ev: ev["t_s"])
     return result
+
+
+#: How a terrain mission is flown (docs/terrain.md §3): 'off' is today's system (the disc planner,
+#: every drone at ``vehicles.cruise_alt_m`` above the base's ground); 'altitude' the disc planner
+#: with terrain following at ``terrain.cruise_agl_m`` under the ceiling; 'on' that, with the
+#: planner's moves checked against the terrain radio (planner.terrain_aware).
+TERRAIN_AWARE: tuple[str, ...] = ("on", "altitude", "off")
+
+
+def terrain_flight(mission: Mission, terrain_aware: str) -> TerrainFlight | None:
+    """How drones fly and talk over the mission's terrain (None: the disc radio): terrain
+    following at ``terrain.cruise_agl_m`` unless ``terrain_aware`` is 'off', then one altitude,
+    ``vehicles.cruise_alt_m`` above the base's ground (docs/terrain.md §3)."""
+    if terrain_aware not in TERRAIN_AWARE:
+        raise ValueError(f"terrain_aware must be one of {', '.join(TERRAIN_AWARE)}")
+    if mission.radio.model != "terrain":
+        return None
+    spec = mission.terrain
+    assert spec is not None  # radio.model terrain needs a terrain section (validated)
+    ground = build_terrain(mission)
+    assert ground is not None  # a terrain section
+    link = mission.radio.terrain_link
+    radio = TerrainRadio(ground, link.link_budget())
+    lim = mission.vehicles.limits
+    base_ground_m = float(ground.height_m(np.zeros((1, 2)))[0])
+    return TerrainFlight(
+        radio,
+        mode="flat" if terrain_aware == "off" else "follow",
+        alt_agl_m=spec.cruise_agl_m,
+        flat_alt_amsl_m=base_ground_m + lim.cruise_alt_m,
+        clearance_m=spec.clearance_m,
+        ceiling_agl_m=spec.ceiling_agl_m,
+        max_climb_m=lim.climb_rate_m_s * mission.run.control_period_s,
+        crew_antenna_agl_m=link.crew_antenna_agl_m,
+        base_antenna_agl_m=link.base_antenna_agl_m,
+    )
+
+
+def terrain_planner(planner: Planner, flight: TerrainFlight, terrain_aware: str) -> Planner:
+    """The mission's planner over terrain: as it is when terrain-blind, with its moves checked
+    against the terrain radio when ``terrain_aware`` is 'on'
+    (:class:`planner.terrain_aware.TerrainAwarePlanner`)."""
+    if terrain_aware != "on":
+        return planner
+    return TerrainAwarePlanner(
+        planner,
+        flight.radio,
+        flight.alt_agl_m,
+        flight.crew_antenna_agl_m,
+        flight.base_antenna_agl_m,
+    )
+
+
+def terrain_summary(flight: TerrainFlight, rec: EpisodeRecord, crashes: int) -> dict:
+    """Crashes into the ground; the least height above the ground along every flight of a drone
+    alive at its start (metres, 128 samples per step) and how many such flights passed lower than
+    the terrain's ``clearance_m``; the highest height above the ground of a flying drone
+    (metres)."""
+    assert rec.alt_amsl_m is not None  # recorded in terrain worlds
+    ground = flight.radio.terrain
+    tau = len(rec.pos_m) - 1
+    least, below = np.inf, 0
+    for t in range(tau):  # loop over time; vectorised over drones
+        live = rec.alive[t]
+        if live.any():
+            c = path_clearance_m(
+                ground,
+                rec.pos_m[t][live],
+                rec.pos_m[t + 1][live],
+                rec.alt_amsl_m[t][live],
+                rec.alt_amsl_m[t + 1][live],
+                n_samples=128,
+            )
+            least = min(least, float(c.min()))
+            below += int((c < flight.clearance_m).sum()) if flight.mode == "follow" else 0
+    agl = rec.alt_amsl_m - ground.height_m(rec.pos_m)
+    return {
+        "mode": flight.mode,
+        "crashes": int(crashes),
+        "min_clearance_m": least,
+        "flights_below_clearance": below,
+        "max_agl_m": float(agl[rec.alive].max()) if rec.alive.any() else 0.0,
+    }
 
 
 def write_run_dir(

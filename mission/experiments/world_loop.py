@@ -59,6 +59,7 @@ class EpisodeRecord:
     task_pos_m: np.ndarray  # (tau+1, M, 2)
     connected: np.ndarray  # (tau+1, M) bool
     trees: dict = field(default_factory=dict)  # step -> TaskTree (metres), at recorded frames
+    alt_amsl_m: np.ndarray | None = None  # (tau+1, N) drone heights AMSL, terrain worlds only
 
 
 @dataclass(frozen=True)
@@ -186,12 +187,16 @@ def run_world(
             world.task_track_m.copy(),
             connected,
         )
+        if world.alt_amsl_m is not None:
+            rec.alt_amsl_m = np.zeros((tau + 1, n))
     keep_tree = (lambda t: True) if frames is None else set(frames).__contains__
     for t in range(tau + 1):
         active = world.active()
         connected[t] = world.tasks_connected(active)
         if rec is not None:
             rec.pos_m[t], rec.alive[t], rec.active[t] = world.pos_m, world.alive, active
+            if rec.alt_amsl_m is not None:
+                rec.alt_amsl_m[t] = world.alt_amsl_m
         if t == tau:
             break
         alive_count[t], active_count[t] = world.alive.sum(), active.sum()
@@ -210,7 +215,10 @@ def run_world(
         if rec is not None and keep_tree(t):
             rec.trees[t] = out.tree
         p_loss = loss_prob(t, world.pos_m) if callable(loss_prob) else loss_prob
+        pos_before = world.pos_m if world.terrain is not None else None
         lost = world.step(out.disp_m, active, p_loss, attrition_u[t], out.recovery_target_m)
+        if pos_before is not None:  # over terrain: heights, and flights into the ground
+            lost = lost | world.fly_terrain(pos_before)
         losses.extend((t, int(i)) for i in np.flatnonzero(lost))
     return WorldRun(connected, alive_count, active_count, losses, rec)
 

@@ -570,8 +570,78 @@ class Task(_Section):
 
 
 @dataclass(frozen=True, kw_only=True)
+class RadioLink(_Section):
+    """A radio's link budget, clearance rule and antenna heights (``radio.model: terrain``;
+    docs/terrain.md §2). Defaults: a common 2.4 GHz mesh radio (the planner's
+    :class:`planner.terrain.LinkBudget` has the same)."""
+
+    frequency_mhz: float = _f(2400.0, gt=0.0, le=100_000.0)
+    """Carrier frequency, MHz."""
+    tx_power_dbm: float = _f(20.0, ge=-30.0, le=50.0)
+    """Transmit power, dBm."""
+    tx_gain_dbi: float = _f(2.0, ge=-20.0, le=40.0)
+    """Transmit antenna gain, dBi."""
+    rx_gain_dbi: float = _f(2.0, ge=-20.0, le=40.0)
+    """Receive antenna gain, dBi."""
+    sensitivity_dbm: float = _f(-90.0, ge=-150.0, le=0.0)
+    """Receiver sensitivity, dBm."""
+    fade_margin_db: float = _f(10.0, ge=0.0, le=60.0)
+    """Margin kept for fading, dB."""
+    fresnel_clear_fraction: float = _f(0.6, ge=0.0, le=1.0)
+    """Fraction of the first Fresnel zone the terrain must stay out of."""
+    k_factor: float = _f(4.0 / 3.0, gt=0.0, le=100.0)
+    """Effective earth radius factor."""
+    crew_antenna_agl_m: float = _f(1.5, ge=0.0, le=100.0)
+    """Height of a crew's radio above the ground, metres."""
+    base_antenna_agl_m: float = _f(1.5, ge=0.0, le=100.0)
+    """Height of the base's antenna above the ground, metres."""
+
+    def link_budget(self):
+        """The :class:`planner.terrain.LinkBudget` of this section."""
+        from planner.terrain import LinkBudget
+
+        return LinkBudget(
+            frequency_hz=self.frequency_mhz * 1e6,
+            tx_power_dbm=self.tx_power_dbm,
+            tx_gain_dbi=self.tx_gain_dbi,
+            rx_gain_dbi=self.rx_gain_dbi,
+            sensitivity_dbm=self.sensitivity_dbm,
+            fade_margin_db=self.fade_margin_db,
+            fresnel_clear_fraction=self.fresnel_clear_fraction,
+            k_factor=self.k_factor,
+        )
+
+    def validate(self) -> list[tuple[str, str]]:
+        budget = (
+            self.tx_power_dbm
+            + self.tx_gain_dbi
+            + self.rx_gain_dbi
+            - self.sensitivity_dbm
+            - self.fade_margin_db
+        )
+        if budget <= 0:
+            return [("", f"the link budget is {_fmt(budget)} dB: no link closes")]
+        return []
+
+
+RadioModel = Literal["disc", "terrain"]
+
+
+@dataclass(frozen=True, kw_only=True)
 class Radio(_Section):
     """The radio model the planner plans for and the simulator applies."""
+
+    model: RadioModel = "disc"
+    """'disc' (the paper: links within ``range_m``) or 'terrain' (links need line of sight over
+    the mission's ``terrain`` and a closing link ``budget``; docs/terrain.md)."""
+    link: RadioLink | None = None
+    """The link budget and antenna heights (``model: terrain``); unset: the defaults of
+    :class:`RadioLink`."""
+
+    @property
+    def terrain_link(self) -> RadioLink:
+        """``link``, or the defaults."""
+        return self.link if self.link is not None else RadioLink()
 
     range_m: float = _f(100.0, gt=0.0)
     """Drone-to-drone (and drone-to-task) communication radius r, metres (paper: 2 units)."""
@@ -581,6 +651,114 @@ class Radio(_Section):
     """Delay per radio hop, seconds."""
     loss_prob: float = _f(0.0, ge=0.0, le=1.0)
     """Independent probability that one message on one hop is lost."""
+
+
+# --------------------------------------------------------------------------------------------
+# Terrain (docs/terrain.md)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RidgeSpec(_Section):
+    """A ridge along a polyline, raised-cosine flanks."""
+
+    path: tuple[LocalPoint, ...] = _f(min_len=1, max_len=1000)
+    """The crest line."""
+    height_m: float = _f(ge=-5000.0, le=5000.0)
+    """Height of the crest above the plane, metres."""
+    half_width_m: float = _f(gt=0.0)
+    """Distance from the crest at which the flanks reach the plane, metres."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class CanyonSpec(_Section):
+    """A river canyon along a polyline: a flat floor and straight walls."""
+
+    path: tuple[LocalPoint, ...] = _f(min_len=1, max_len=1000)
+    """The river."""
+    depth_m: float = _f(gt=0.0, le=5000.0)
+    """Depth of the floor below the rims, metres."""
+    floor_half_width_m: float = _f(ge=0.0)
+    """Half width of the floor, metres."""
+    rim_half_width_m: float = _f(gt=0.0)
+    """Distance from the river to each rim, metres (more than the floor's half width)."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        if not self.rim_half_width_m > self.floor_half_width_m:
+            return [("rim_half_width_m", "must be more than floor_half_width_m")]
+        return []
+
+
+@dataclass(frozen=True, kw_only=True)
+class HillSpec(_Section):
+    """A round (Gaussian) hill; a negative height makes a basin."""
+
+    center: LocalPoint = _f()
+    """The summit."""
+    height_m: float = _f(ge=-5000.0, le=5000.0)
+    """Height above the plane, metres."""
+    radius_m: float = _f(gt=0.0)
+    """The Gaussian's sigma, metres."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class SyntheticTerrain(_Section):
+    """A scene of a few parametric features on the plane through the base's ground
+    (``origin.alt_amsl_m``)."""
+
+    half_width_m: float = _f(1500.0, gt=0.0, le=50_000.0)
+    """The grid covers [-w, w]^2 around the base, metres."""
+    spacing_m: float = _f(10.0, gt=0.0, le=1000.0)
+    """Post spacing, metres."""
+    ridges: tuple[RidgeSpec, ...] = ()
+    """Ridges."""
+    canyons: tuple[CanyonSpec, ...] = ()
+    """River canyons."""
+    hills: tuple[HillSpec, ...] = ()
+    """Hills and basins."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        if (2 * self.half_width_m / self.spacing_m + 1) ** 2 > 25_000_000:
+            return [("spacing_m", "more than 25 million posts; use a coarser spacing")]
+        return []
+
+
+@dataclass(frozen=True, kw_only=True)
+class GeoTiffTerrain(_Section):
+    """A digital elevation model in a GeoTIFF (USGS 3DEP, SRTM, ...), in any CRS: resampled onto
+    a grid in the mission's local frame (docs/terrain.md §4)."""
+
+    path: str = _f()
+    """The file (absolute, or relative to the working directory)."""
+    half_width_m: float = _f(2000.0, gt=0.0, le=50_000.0)
+    """The local grid covers [-w, w]^2 around the base, metres."""
+    spacing_m: float = _f(10.0, gt=0.0, le=1000.0)
+    """Post spacing of the local grid, metres."""
+    band: int = _f(1, ge=1)
+    """The raster band of heights."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class TerrainSpec(_Section):
+    """The ground: a synthetic scene or a GeoTIFF; and how high drones may fly over it."""
+
+    ONE_OF = ("synthetic", "geotiff")
+
+    synthetic: SyntheticTerrain | None = None
+    """A scene of parametric features."""
+    geotiff: GeoTiffTerrain | None = None
+    """A digital elevation model."""
+    cruise_agl_m: float = _f(100.0, gt=0.0, le=10_000.0)
+    """Height above ground terrain-aware drones hold, metres."""
+    ceiling_agl_m: float = _f(120.0, gt=0.0, le=10_000.0)
+    """The highest a drone may fly above the ground, metres (400 ft)."""
+    clearance_m: float = _f(15.0, ge=0.0, le=1000.0)
+    """The least height above the ground along any terrain-aware flight, metres."""
+
+    def validate(self) -> list[tuple[str, str]]:
+        problems = super().validate()
+        if not self.clearance_m <= self.cruise_agl_m <= self.ceiling_agl_m:
+            problems.append(("cruise_agl_m", "must lie between clearance_m and ceiling_agl_m"))
+        return problems
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -922,6 +1100,8 @@ class Mission(_Section):
     """What must stay networked to the base."""
     radio: Radio = _f(factory=Radio)
     """Radio model."""
+    terrain: TerrainSpec | None = None
+    """The ground (docs/terrain.md); None: a flat earth. Needed by ``radio.model: terrain``."""
     attrition: Attrition = _f(factory=Attrition)
     """Losses."""
     planner: PlannerSpec = _f(factory=PlannerSpec)
@@ -973,6 +1153,8 @@ class Mission(_Section):
                             "swapped lat/lon or wrong origin?",
                         )
                     )
+        if self.radio.model == "terrain" and self.terrain is None:
+            problems.append(("radio.model", "'terrain' needs a terrain section"))
         if self.n_tasks > 10_000:
             problems.append(("tasks", f"{self.n_tasks} tasks in total; at most 10000"))
         lim, fence = self.vehicles.limits, self.geofence

@@ -39,6 +39,7 @@ from mission.format.schema import (
 )
 
 EXAMPLES = [
+    "canyon",
     "hazard_zone",
     "paper_S",
     "real_links_template",
@@ -59,7 +60,7 @@ def test_examples_are_shipped():
     for name in EXAMPLES:
         assert example_path(name).is_file()
         assert example_path(f"{name}.yaml") == example_path(name)
-    with pytest.raises(KeyError, match="examples: hazard_zone"):
+    with pytest.raises(KeyError, match="examples: canyon, hazard_zone"):
         example_path("nope")
 
 
@@ -331,13 +332,24 @@ def test_every_schema_field_has_a_docstring_and_a_frozen_class(cls):
 
 
 def test_numeric_keys_carry_units():
-    allowed_unitless = {"count", "n_layers", "seed", "sysid", "vehicle", "loss_prob", "speedup"}
+    allowed_unitless = {
+        "count",
+        "n_layers",
+        "seed",
+        "sysid",
+        "vehicle",
+        "loss_prob",
+        "speedup",
+        "fresnel_clear_fraction",
+        "k_factor",
+    }
     for cls in _schema_classes():
         for f in dataclasses.fields(cls):
             hint = str(f.type)
             if "float" in hint and "str" not in hint and f.name not in allowed_unitless:
+                radio_units = ("_mhz", "_dbm", "_dbi", "_db")
                 assert f.name.endswith(
-                    ("_m", "_s", "_deg", "_per_s", "_m_s", "_per_sqrt_s", "_frac")
+                    ("_m", "_s", "_deg", "_per_s", "_m_s", "_per_sqrt_s", "_frac") + radio_units
                 ), f"{cls.__name__}.{f.name} has no unit suffix"
 
 

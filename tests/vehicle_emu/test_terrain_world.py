@@ -1,0 +1,68 @@
+"""vehicle_emu.world over terrain: terrain following keeps its clearance, flat flight crashes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from planner.problem import ProblemConfig
+from planner.terrain import LinkBudget, Ridge, TerrainRadio, path_clearance_m, synthetic_terrain
+from vehicle_emu.world import TerrainFlight, World
+
+
+def _world(mode: str, n: int = 30, seed: int = 0) -> World:
+    ground = synthetic_terrain([Ridge([(0.0, -900.0), (0.0, 900.0)], 120.0, 60.0)], 900.0, 10.0)
+    rng = np.random.default_rng(seed)
+    pos = np.column_stack([rng.uniform(-300.0, -100.0, n), rng.uniform(-200.0, 200.0, n)])
+    track = np.zeros((2, 1, 2))
+    problem = ProblemConfig(n_drones=n, n_tasks=1, max_speed_m_s=10.0)
+    w = World(problem, pos, np.ones(n, bool), track)
+    flight = TerrainFlight(
+        TerrainRadio(ground, LinkBudget()),
+        mode=mode,
+        alt_agl_m=40.0,
+        flat_alt_amsl_m=60.0,
+        clearance_m=15.0,
+        max_climb_m=3.0,
+        ceiling_agl_m=120.0,
+    )
+    return w.with_terrain(flight)
+
+
+def _fly_north(w: World, steps: int) -> float:
+    """Every drone heads north over the ridge at full speed; the least clearance seen."""
+    least = np.inf
+    n = len(w.pos_m)
+    for _ in range(steps):  # loop over time
+        before, alt0 = w.pos_m, w.alt_amsl_m
+        assert alt0 is not None
+        disp = np.tile([10.0, 0.0], (n, 1))
+        w.step(disp, np.ones(n, bool), 0.0, np.ones(n))
+        w.fly_terrain(before)
+        assert w.alt_amsl_m is not None
+        live = w.alive
+        if live.any():
+            c = path_clearance_m(
+                w.terrain.radio.terrain,  # type: ignore[union-attr]
+                before[live],
+                w.pos_m[live],
+                alt0[live],
+                w.alt_amsl_m[live],
+                n_samples=128,
+            )
+            least = min(least, float(c.min()))
+    return least
+
+
+def test_terrain_following_never_goes_below_its_clearance():
+    w = _world("follow")
+    least = _fly_north(w, 60)
+    assert w.terrain_crashes == 0 and w.alive.all()
+    assert least >= 15.0
+    assert (w.pos_m[:, 0] > 0).all()  # they did cross the ridge, slowed by the climb
+
+
+def test_flat_flight_into_a_ridge_is_a_crash():
+    w = _world("flat")
+    _fly_north(w, 60)
+    assert w.terrain_crashes == len(w.pos_m)  # 60 m AMSL into a 120 m ridge: every drone
+    assert not w.alive.any()
