@@ -51,7 +51,8 @@ class TakContactReported:
     """Height above the WGS 84 ellipsoid, metres (None: unknown)."""
     stale_s: float
     """Station time after which the report no longer holds, seconds."""
-    type: str = ""
+    cot_type: str = ""
+    """The CoT type (``a-f-G-U-C``: a friendly ground unit)."""
 
     def __post_init__(self) -> None:
         if not self.uid:

@@ -152,7 +152,7 @@ class TakLink:
                 lon_deg=ev.lon_deg,
                 hae_m=ev.hae_m,
                 stale_s=now + ev.lifetime_s * self.speedup,
-                type=ev.type,
+                cot_type=ev.type,
             )
         except ValueError:
             conn.counters["bad"] += 1
