@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import time
@@ -57,6 +58,7 @@ def test_two_tak_clients_through_freetakserver(tmp_path):
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        start_new_session=True,  # its own process group: FTS forks service processes
     )
     try:
         deadline = time.monotonic() + 90
@@ -113,10 +115,14 @@ def test_two_tak_clients_through_freetakserver(tmp_path):
 
         assert "ANDROID-a" in asyncio.run(exchange())
     finally:
-        proc.terminate()
         try:
+            os.killpg(proc.pid, signal.SIGTERM)  # the server and every service it forked
             proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        except (ProcessLookupError, subprocess.TimeoutExpired):
+            pass
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
         if Path("/opt/fts").exists() and os.environ.get("PHIREMAN_FTS_CLEAN") == "1":
             shutil.rmtree("/opt/fts", ignore_errors=True)
