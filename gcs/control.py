@@ -131,7 +131,8 @@ def tick(
     pos_ned_m : (N, 3) float64 - believed positions, mission NED, metres (NaN: no fix yet)
     networked : (N,) bool - D'(t) as the station sees it (heard within the timeout)
     alive : (N,) bool - not believed lost
-    task_pos_m : (M, 2) float64 - task positions (north, east), metres
+    task_pos_m : (M, 2) float64 - task positions (north, east), metres (NaN: unknown, planned at
+        the base)
     planner : a planner from :func:`planner.methods.make_planner` (central information)
     t_step : int - tick index since the start of the run
     config : altitudes and fence
@@ -144,13 +145,18 @@ def tick(
     has_pos = np.isfinite(pos).all(axis=1)
     planned = np.asarray(networked, dtype=bool) & np.asarray(alive, dtype=bool) & has_pos
     ne = np.where(has_pos[:, None], pos[:, :2], 0.0)
+    tasks = np.asarray(task_pos_m, dtype=float).reshape(-1, 2)
+    # A task with no known position (a live crew not heard yet, or whose TAK report went stale:
+    # gcs.tak) is planned at the base: a zero-length branch of the tree, so no relay chases a
+    # position that may be wrong and none is kept for it; the planners refuse NaN.
+    tasks = np.where(np.isfinite(tasks).all(axis=1)[:, None], tasks, 0.0)
     out = planner.plan(
         TickInput(
             int(t_step),
             ne,
             np.asarray(alive, bool) & has_pos,
             planned,
-            np.asarray(task_pos_m, dtype=float).reshape(-1, 2),
+            tasks,
             hazards=config.hazards,
         )
     )

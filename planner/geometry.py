@@ -248,7 +248,7 @@ def tasks_connected(
 
     Parameters
     ----------
-    task_pos_m : (M, D) float64, metres
+    task_pos_m : (M, D) float64, metres (a non-finite row is an unknown task: never connected)
     drone_pos_m : (N, D) float64, metres
     active : (N,) bool
     radio_range_m : float
@@ -261,6 +261,11 @@ def tasks_connected(
     act = np.asarray(drone_pos_m, dtype=float)[np.asarray(active, dtype=bool)]
     if len(act) == 0 or len(task_pos_m) == 0:
         return np.zeros(len(task_pos_m), dtype=bool)
+    known = np.isfinite(task_pos_m).all(axis=1)
+    if not known.all():  # a task whose position is unknown (NaN: a stale crew) is not connected
+        out = np.zeros(len(task_pos_m), dtype=bool)
+        out[known] = tasks_connected(task_pos_m[known], drone_pos_m, active, radio_range_m)
+        return out
     fast = _graph_kernels.any_within(task_pos_m, act, radio_range_m)
     if fast is not None:  # brute force, compiled: the same distance, no KD-tree per tick
         return fast

@@ -57,6 +57,7 @@ from gcs.operations.rally import RallyStep
 from gcs.operations.rotation import RotationSetup, RotationStep
 from gcs.rally import MissionProtocolReceived, RallyKeeper
 from gcs.station import Station
+from gcs.tak import TakContactReported, TakCrews
 from gcs.tasks import LiveTasks
 from planner.geometry import tasks_connected
 from planner.methods import Planner
@@ -123,6 +124,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         live_tasks: LiveTasks | None = None,
         rally: RallyKeeper | None = None,
         rotation: RotationSetup | None = None,
+        tak: TakCrews | None = None,
     ) -> None:
         self.station = station
         self.rotation = rotation
@@ -130,9 +132,15 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         self.planner = planner
         self.live_tasks = live_tasks
         self.rally = rally
-        self.task_pos_fn = (
-            task_pos_fn if live_tasks is None else (lambda t_s: live_tasks.fill(task_pos_fn(t_s)))
-        )
+        self.tak = tak
+        """Crews from TAK (gcs.tak): their columns are NaN while unknown (never heard or stale)."""
+        if live_tasks is not None:
+            base_fn = task_pos_fn
+            task_pos_fn = lambda t_s: live_tasks.fill(base_fn(t_s))  # noqa: E731
+        if tak is not None:
+            inner_fn = task_pos_fn
+            task_pos_fn = lambda t_s: tak.fill(inner_fn(t_s))  # noqa: E731
+        self.task_pos_fn = task_pos_fn
         self.refusal: str | None = None
         """Why the flight was refused (phase 'refused'), for people."""
         self.control = control
@@ -244,6 +252,15 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         if self.live_tasks is not None:  # a crew's tracker
             self.live_tasks.apply(event)
 
+    def _on_tak_report(self, event: TakContactReported) -> None:
+        if self.tak is not None:  # a crew's TAK phone
+            self.tak.apply(event)
+
+    @property
+    def crews_connected(self) -> np.ndarray | None:
+        """(M,) bool: which crews the last control tick found networked (None before it)."""
+        return self._connected[-1] if self._connected else None
+
     def _on_vehicle_discovered(self, event: VehicleDiscovered, key: tuple[int, int]) -> None:
         self._known.add(key)
         self._last_discovery_s = event.t_s
@@ -274,7 +291,10 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
             row.next_action_s = -math.inf  # act on it at the next poll
 
     #: Events from systems that are not vehicles (no fleet row): type -> handler(op, event).
-    _SYSTEM_HANDLERS: dict[type, Callable[..., None]] = {TaskPositionReceived: _on_task_position}
+    _SYSTEM_HANDLERS: dict[type, Callable[..., None]] = {
+        TaskPositionReceived: _on_task_position,
+        TakContactReported: _on_tak_report,
+    }
 
     #: Vehicle events, after the fleet view folded them: type -> handler(op, event, vid).
     #: Types not listed (telemetry, mode, armed, home, acks) only update the fleet view.
@@ -307,6 +327,8 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
     def poll(self, now_s: float) -> TickRecord | None:
         """Advance the phases; returns the metrics of a control tick if one ran."""
         snap = self.fleet.snapshot(now_s)
+        if self.tak is not None:
+            self.tak.expire(now_s)  # a crew past its CoT stale time is unknown from now on
         rows = self._rows
         for i in range(snap.n_vehicles):  # a row for every vehicle (built only when missing)
             if i not in rows:
@@ -342,14 +364,17 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
             )
             or waited >= cfg.discover_timeout_s
         ):
-            waiting = self.live_tasks.waiting_for() if self.live_tasks is not None else ()
-            if not waiting:
+            trackers = self.live_tasks.waiting_for() if self.live_tasks is not None else ()
+            crews = self.tak.waiting_for() if self.tak is not None else ()
+            if not trackers and not crews:
                 self._start_audit(snap, now_s)
             elif waited >= cfg.discover_timeout_s + cfg.task_wait_timeout_s:
-                self.refusal = (
-                    "no position from live task tracker(s) sysid "
-                    f"{', '.join(map(str, waiting))} after {waited:.0f} s"
-                )
+                unseen = []
+                if trackers:
+                    unseen.append(f"live task tracker(s) sysid {', '.join(map(str, trackers))}")
+                if crews:
+                    unseen.append(f"TAK crew(s) {', '.join(crews)}")
+                self.refusal = f"no position from {' nor '.join(unseen)} after {waited:.0f} s"
                 log.warning("refusing to launch: %s", self.refusal)
                 self._enter(Trigger.TASKS_UNSEEN, now_s)
 
@@ -418,8 +443,15 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         self._send_targets(snap, result.rows, result.target_ned_m, now_s)
         self._rally_after_tick(now_s)
         ne = np.where(snap.has_position[:, None], snap.pos_ned_m[:, :2], np.inf)
-        covered = tasks_connected(
-            task_pos, ne, heard & snap.has_position, self.config.radio_range_m
+        known = np.isfinite(task_pos).all(axis=1)  # an unknown crew is never connected
+        covered = (
+            tasks_connected(
+                np.where(known[:, None], task_pos, np.inf),
+                ne,
+                heard & snap.has_position,
+                self.config.radio_range_m,
+            )
+            & known
         )
         self._connected.append(covered)
         series = uptime_series(np.asarray(self._connected))

@@ -181,6 +181,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from mission.commands.live_view import add_fly_arguments
 
     add_fly_arguments(p)  # --serve, --serve-actions, --tiles, --forward, --forward-readonly
+    from mission.commands.tak_args import add_tak_arguments
+
+    add_tak_arguments(p)  # --tak URL, --tak-period-s, --tak-tls-*
 
 
 def _mission_path(spec: str):
@@ -631,6 +634,9 @@ def run(args) -> int:
     from mission.commands.live_view import fly_options
 
     opts = fly_options(opts, args)  # --serve / --forward (mission.view.live)
+    from mission.commands.tak_args import tak_options
+
+    opts = tak_options(opts, args)  # --tak (mission.view.tak)
     print(_header(mission, args, real), file=sys.stderr)
     try:
         result = fly(mission, opts)

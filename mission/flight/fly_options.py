@@ -77,3 +77,17 @@ class FlyOptions:
     attach_view: Callable[..., Awaitable[list]] | None = None
     """What serves ``serve`` and ``forward`` on the station's loop (:func:`mission.view.live.attach`,
     given by the command: the flight room never imports the view room above it)."""
+    tak: tuple[str, ...] = ()
+    """TAK connections (``phireman fly --tak URL``, pytak COT_URLs: ``udp://239.2.3.1:6969``,
+    ``tcp://H:P``, ``tls://H:P``): crews' reports come in, the mesh's picture goes out
+    (docs/tak.md)."""
+    tak_tls: dict | None = None
+    """pytak's ``PYTAK_TLS_*`` settings for ``tls://`` connections (client certificate, key, CA)."""
+    tak_period_s: float = 1.0
+    """Wall seconds between two pictures published on TAK (each uid at most once a period)."""
+    attach_tak: Callable[..., Awaitable[list]] | None = None
+    """What publishes the mesh on the TAK connections (:func:`mission.view.tak.attach`, given by
+    the command: the flight room never imports the view room above it)."""
+    on_tak: Callable[[dict], None] | None = None
+    """Called with the TAK connections at start (``{"urls": [...]}``) and their counters at the
+    end (``{"counters": {...}, "published": {cot type: count}}``)."""

@@ -81,9 +81,10 @@ def mission_scenario(
 ) -> MissionScenario:
     """The seed's draws for a flight of ``mission`` (:func:`mission.format.scenario.build_scenario`:
     spawn, task tracks, attrition uniforms, in the in-process simulator's order); a live MAVLink
-    task without ``live_tasks`` is a :class:`RunnerError`."""
+    task without ``live_tasks`` is a :class:`RunnerError`. TAK crews are always NaN columns: every
+    flight, emulated or real, fills them from the crews' reports (gcs.tak)."""
     try:
-        return build_scenario(mission, seed, live_tasks=live_tasks)
+        return build_scenario(mission, seed, live_tasks=live_tasks, tak=True)
     except ValueError as exc:  # live MAVLink tasks
         raise RunnerError(str(exc)) from None
 

@@ -28,6 +28,7 @@ from gcs.operations import OperationsConfig, Operator, TickRecord
 from gcs.operations.rotation import RotationSetup
 from gcs.rally import RallyConfig, RallyKeeper
 from gcs.station import Station
+from gcs.tak import CrewMatch, TakCrews
 from gcs.tasks import LiveTasks
 from gcs.wire import mavlink
 from mission.flight.fly_options import FlyOptions, RunnerError
@@ -47,6 +48,8 @@ __all__ = [
     "make_operator",
     "live_task_columns",
     "live_task_connections",
+    "tak_task_columns",
+    "tak_urls",
     "INTERRUPT_SETTLE_S",
     "PLAN_SILENCE_S",
 ]
@@ -80,6 +83,41 @@ def live_task_connections(mission: Mission, connections: list[str]) -> list[str]
         if conn and conn not in connections and conn not in extra:
             extra.append(conn)
     return extra
+
+
+def tak_task_columns(mission: Mission) -> dict[int, CrewMatch]:
+    """Task column -> its TAK contact matcher, for every ``tak`` crew (a pattern's slots: one
+    column each, named ``NAME 0``, ``NAME 1``, ...)."""
+    out, col = {}, 0
+    for i, task in enumerate(mission.tasks):
+        src = task.tak
+        if src is not None:
+            label = task.name or f"task {i}"
+            for k in range(task.count):
+                out[col + k] = CrewMatch(
+                    name=label if task.count == 1 else f"{label} {k}",
+                    uid=src.uid,
+                    callsign=src.callsign,
+                    callsign_pattern=src.callsign_pattern,
+                    callsign_regex=src.callsign_regex,
+                )
+        col += task.count
+    return out
+
+
+def tak_urls(mission: Mission, given: tuple[str, ...] | list[str]) -> list[str]:
+    """The TAK connections of a flight: ``given`` (``--tak``), then every crew's own ``url``;
+    crews without one listen on ``given``, or on ATAK's mesh SA multicast if none is given."""
+    from mission.flight.tak_link import MESH_SA_URL
+
+    urls = list(dict.fromkeys(given))
+    for task in mission.tasks:
+        if task.tak is None:
+            continue
+        url = task.tak.url or (None if given else MESH_SA_URL)
+        if url is not None and url not in urls:
+            urls.append(url)
+    return urls
 
 
 def _station_config(mission: Mission, max_vehicles: int | None = None) -> StationConfig:
@@ -193,6 +231,7 @@ def make_operator(
     method, problem, params = _planner_spec(mission)
     planner = make_planner(method, problem, params, spawn_streams(seed).algorithm)
     live = live_task_columns(mission)
+    tak = tak_task_columns(mission)
     return Operator(
         station,
         fleet,
@@ -204,6 +243,7 @@ def make_operator(
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
         rally=_rally_keeper(mission, params),
         rotation=rotation_setup(mission, scenario),
+        tak=TakCrews(fleet.origin, tak) if tak else None,
     )
 
 
@@ -375,6 +415,28 @@ async def run_station(
             for a in adapters:
                 a.close()
             raise RunnerError(f"cannot serve / forward: {exc}") from exc
+    urls = tak_urls(mission, opts.tak)
+    tak_link = None
+    if urls:  # crews from TAK, the mesh published on TAK: on this loop, never blocking a tick
+        from mission.flight.tak_link import TakLink
+
+        try:
+            tak_link = await TakLink(
+                urls, on_event, clock=clock, speedup=speedup, tls=opts.tak_tls
+            ).start()
+        except (OSError, ValueError, SyntaxError) as exc:
+            for a in adapters:
+                a.close()
+            for x in extras:
+                await x.aclose()
+            raise RunnerError(f"cannot open TAK connection: {exc}") from exc
+        extras.append(tak_link)
+        if opts.on_tak is not None:
+            opts.on_tak({"urls": list(urls)})
+        if opts.tak and opts.attach_tak is not None:
+            extras[:0] = await opts.attach_tak(
+                op, tak_link, mission=mission, opts=opts, clock=clock, speedup=speedup
+            )
     last_status = -math.inf
     due_s = -math.inf  # the operator's next deadline (simulated s), as of the last poll
     started = ended = False

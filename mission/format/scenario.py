@@ -107,15 +107,29 @@ def spawn_positions(mission: Mission, rng: np.random.Generator) -> np.ndarray:
     return pts[:n]
 
 
+def _tak_who(src) -> str:
+    for key in ("uid", "callsign", "callsign_pattern", "callsign_regex"):
+        if getattr(src, key) is not None:
+            return f"{key} {getattr(src, key)!r}"
+    return "?"
+
+
 def task_track_m(
-    mission: Mission, rng: np.random.Generator, n_steps: int, *, live: str = "refuse"
+    mission: Mission,
+    rng: np.random.Generator,
+    n_steps: int,
+    *,
+    live: str = "refuse",
+    tak: bool = False,
 ) -> tuple[np.ndarray, list[str]]:
     """(n_steps + 1, M, 2) task positions at every control step, and the task names.
 
     Tasks are drawn in file order from ``rng`` (the scenario stream). A live MAVLink task has no
     track to draw: ``live='refuse'`` raises ValueError (in-process and emulated runs need every
     task's truth), ``live='nan'`` gives it a NaN column that the ground station fills from the
-    tracker (:class:`gcs.tasks.LiveTasks`).
+    tracker (:class:`gcs.tasks.LiveTasks`). ``tak``: a TAK crew gets NaN columns (one per slot)
+    that the station fills from its reports (:class:`gcs.tak.TakCrews`); without it TAK crews
+    raise ValueError (the in-process simulator has no truth for them).
     """
     dt = mission.run.control_period_s
     times = np.arange(n_steps + 1) * dt
@@ -149,9 +163,22 @@ def task_track_m(
             inc = rng.normal(0, gen.sigma_m_per_sqrt_s * math.sqrt(dt), (n_steps, gen.count, 2))
             columns.append(walk_tasks(start, inc, w, gen.border))
             names += [f"{label} {k}" for k in range(gen.count)]
-        elif live == "nan":
+        elif kind == "tak" and tak:
+            # A TAK crew has no track anywhere: the station fills its column from the crew's
+            # reports (gcs.tak.TakCrews); the emulator's truth sees it as unknown (NaN).
+            assert task.tak is not None
+            columns.append(np.full((n_steps + 1, task.count, 2), np.nan))
+            names += [label] if task.count == 1 else [f"{label} {k}" for k in range(task.count)]
+        elif live == "nan" and kind == "mavlink":
             columns.append(np.full((n_steps + 1, 1, 2), np.nan))
             names.append(label)
+        elif kind == "tak":
+            assert task.tak is not None
+            raise ValueError(
+                f"tasks[{i}]: a TAK crew ({_tak_who(task.tak)}) has no track to simulate; "
+                "fly it with 'phireman fly' (emulated or real vehicles), its position comes "
+                "from the crew's TAK reports"
+            )
         else:
             assert task.mavlink is not None
             raise ValueError(
@@ -178,7 +205,7 @@ def task_position_fn(track_m: np.ndarray, dt_s: float) -> Callable[[float], np.n
 
 
 def build_scenario(
-    mission: Mission, seed: int | None = None, *, live_tasks: bool = False
+    mission: Mission, seed: int | None = None, *, live_tasks: bool = False, tak: bool = False
 ) -> MissionScenario:
     """Draw a mission's scenario from ``seed`` (default: ``mission.run.seed``).
 
@@ -193,7 +220,7 @@ def build_scenario(
     dt = mission.run.control_period_s
     pos0 = spawn_positions(mission, streams.scenario)
     track, names = task_track_m(
-        mission, streams.scenario, n_steps, live="nan" if live_tasks else "refuse"
+        mission, streams.scenario, n_steps, live="nan" if live_tasks else "refuse", tak=tak
     )
     n = len(pos0)
     scripted = np.full(n, -1, dtype=np.int64)

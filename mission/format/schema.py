@@ -70,6 +70,8 @@ __all__ = [
     "Task",
     "RandomWalk",
     "MavlinkSource",
+    "TakSource",
+    "TAK_URL_SCHEMES",
     "RandomTasks",
     "Radio",
     "Attrition",
@@ -497,6 +499,99 @@ class MavlinkSource(_Section):
         return []
 
 
+#: How ``tak.url`` and ``phireman fly --tak`` may start (pytak's COT_URL schemes; ``+ro`` read
+#: only, ``+wo`` write only).
+TAK_URL_SCHEMES: tuple[str, ...] = (
+    "udp",
+    "udp+ro",
+    "udp+wo",
+    "udp+broadcast",
+    "tcp",
+    "tcp+ro",
+    "tcp+wo",
+    "tls",
+    "tls+ro",
+    "tls+wo",
+)
+
+
+def tak_url_problem(text: str) -> str | None:
+    """None if ``text`` is a TAK connection this station opens, else why not."""
+    from urllib.parse import urlparse
+
+    try:
+        u = urlparse(text)
+        port = u.port
+    except ValueError as exc:
+        return f"{text!r} is not a URL: {exc}"
+    if u.scheme.lower() not in TAK_URL_SCHEMES:
+        return (
+            f"{text!r}: scheme {u.scheme or '(none)'!r} is not one of "
+            f"{', '.join(TAK_URL_SCHEMES)} (e.g. udp://239.2.3.1:6969, tls://tak.example:8089)"
+        )
+    if not u.hostname or port is None:
+        return f"{text!r} needs a host and a port, e.g. udp://239.2.3.1:6969"
+    return None
+
+
+@dataclass(frozen=True, kw_only=True)
+class TakSource(_Section):
+    """A crew whose position comes live from its TAK phone (ATAK, iTAK, WinTAK): the Cursor-on-
+    Target position reports of one TAK contact, given by exactly one of ``uid``, ``callsign``,
+    ``callsign_pattern`` or ``callsign_regex`` (docs/tak.md). A report past its CoT ``stale``
+    time makes the crew unknown: shown and planned as not connected until it reports again."""
+
+    ONE_OF = ("uid", "callsign", "callsign_pattern", "callsign_regex")
+
+    uid: str | None = None
+    """The contact's CoT uid (ATAK: ANDROID-<device id>)."""
+    callsign: str | None = None
+    """The contact's callsign (case-insensitive)."""
+    callsign_pattern: str | None = None
+    """A glob (``ENGINE-*``, case-insensitive): each new contact matching it takes a free slot."""
+    callsign_regex: str | None = None
+    """A regular expression the whole callsign must match (Python ``re``), as the pattern."""
+    slots: int = _f(1, ge=1, le=1000)
+    """With a pattern: how many crews may join by it (task columns kept for them; an empty slot
+    is an unknown crew). With ``uid`` / ``callsign``: 1."""
+    url: str | None = None
+    """Where the reports come from (a pytak COT_URL: ``udp://239.2.3.1:6969``, ``tcp://H:P``,
+    ``tls://H:P``); unset: every ``phireman fly --tak`` URL, or ATAK's mesh SA multicast
+    udp://239.2.3.1:6969 when none is given."""
+
+    @property
+    def is_pattern(self) -> bool:
+        return self.callsign_pattern is not None or self.callsign_regex is not None
+
+    def validate(self) -> list[tuple[str, str]]:
+        problems = super().validate()
+        for key in ("uid", "callsign", "callsign_pattern", "callsign_regex"):
+            v = getattr(self, key)
+            if v is not None and not v.strip():
+                problems.append((key, "must not be empty"))
+        if self.callsign_regex is not None:
+            import re
+
+            try:
+                re.compile(self.callsign_regex)
+            except re.error as exc:
+                problems.append(
+                    (
+                        "callsign_regex",
+                        f"{self.callsign_regex!r} is not a regular expression: {exc}",
+                    )
+                )
+        if self.slots != 1 and not self.is_pattern:
+            problems.append(
+                ("slots", f"only with callsign_pattern or callsign_regex (got {self.slots})")
+            )
+        if self.url is not None:
+            msg = tak_url_problem(self.url)
+            if msg:
+                problems.append(("url", msg))
+        return problems
+
+
 @dataclass(frozen=True, kw_only=True)
 class RandomTasks(_Section):
     """A generator of ``count`` tasks, uniform in the square field, each doing a random walk
@@ -514,10 +609,10 @@ class RandomTasks(_Section):
 
 @dataclass(frozen=True, kw_only=True)
 class Task(_Section):
-    """One entry of ``tasks``: exactly one of ``track``, ``random_walk``, ``mavlink`` or the
-    generator ``random``; ``name`` is an optional label."""
+    """One entry of ``tasks``: exactly one of ``track``, ``random_walk``, ``mavlink``, ``tak`` or
+    the generator ``random``; ``name`` is an optional label."""
 
-    ONE_OF = ("track", "random_walk", "mavlink", "random")
+    ONE_OF = ("track", "random_walk", "mavlink", "tak", "random")
 
     name: str | None = None
     """Label for plots and logs (for ``random``: a prefix)."""
@@ -527,18 +622,22 @@ class Task(_Section):
     """Seeded random walk."""
     mavlink: MavlinkSource | None = None
     """Live position from a MAVLink system."""
+    tak: TakSource | None = None
+    """Live position from a crew's TAK phone (Cursor on Target)."""
     random: RandomTasks | None = None
     """Generator of N random-walking tasks."""
 
     @property
     def kind(self) -> str:
-        """'track', 'random_walk', 'mavlink' or 'random'."""
+        """'track', 'random_walk', 'mavlink', 'tak' or 'random'."""
         return self.set_alternative()
 
     @property
     def count(self) -> int:
         """Number of tasks this entry stands for."""
-        return self.random.count if self.random is not None else 1
+        if self.random is not None:
+            return self.random.count
+        return self.tak.slots if self.tak is not None else 1
 
     def validate(self) -> list[tuple[str, str]]:
         problems = super().validate()

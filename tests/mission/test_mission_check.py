@@ -52,12 +52,12 @@ MALFORMED = [
     (
         "task-with-two-kinds",
         "tasks:\n  - track: [{t_s: 0, north_m: 0, east_m: 0}]\n    mavlink: {sysid: 3}",
-        "tasks[0]: must have exactly one of track, random_walk, mavlink, random; got track, mavlink",
+        "tasks[0]: must have exactly one of track, random_walk, mavlink, tak, random; got track, mavlink",
     ),
     (
         "task-with-no-kind",
         "tasks:\n  - name: lonely",
-        "tasks[0]: must have exactly one of track, random_walk, mavlink, random; got none",
+        "tasks[0]: must have exactly one of track, random_walk, mavlink, tak, random; got none",
     ),
     (
         "unknown-planner",

@@ -71,7 +71,7 @@ def crew_names(mission) -> list[str]:
     alone = len(mission.tasks) == 1
     for i, task in enumerate(mission.tasks):
         label = task.name or f"Task {i + 1}"
-        if task.kind == "random":
+        if task.kind == "random" or task.count > 1:  # a generator, or a TAK pattern's slots
             names += [
                 f"{label} {k + 1}"
                 if task.name
