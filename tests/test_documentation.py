@@ -681,6 +681,38 @@ TABLE: dict[str, Case] = {
     "phireman sim --mission canyon --terrain-aware off": Case(
         check=lambda c: c.has(r"terrain-aware off: 0 crashes", r"TU1 = ")
     ),
+    # ---- TAK (docs/tak.md) ----------------------------------------------------------------------
+    "phireman -v": Case(check=lambda c: c.has(r"-v, --verbose")),
+    "phireman check mission.yaml": Case(
+        pre=(
+            "printf 'name: tak-demo\\ntasks:\\n"
+            "  - {name: Alpha, tak: {callsign: ALPHA}}\\n"
+            '  - {name: Engine, tak: {callsign_pattern: "ENGINE-*", slots: 3}}\\n'
+            "  - {track: [{t_s: 0, north_m: 50, east_m: 0}]}\\n' > mission.yaml",
+        ),
+        check=lambda c: c.has(r"^OK: tak-demo", r"tak"),
+    ),
+    "phireman fly --tak": Case(kind="help"),
+    "phireman fly --tak URL": Case(kind="help"),
+    "phireman fly mission.yaml --tak tcp://tak.example:8087": SKIP(
+        "tak.example is a placeholder TAK server; the exchange through FreeTAKServer runs in "
+        "tests/integration/test_tak_server.py when PHIREMAN_FTS_PYTHON points at one"
+    ),
+    "phireman fly mission.yaml --tak tls://tak.example:8089 --tak-tls-client-cert me.pem --tak-tls-client-key me.key --tak-tls-client-cafile ca.pem": SKIP(  # noqa: E501
+        "tak.example and the certificates are placeholders: a TLS TAK server with a client "
+        "certificate is not available here"
+    ),
+    "phireman fly mission.yaml --tak udp+ro://127.0.0.1:4242 --tak udp+wo://127.0.0.1:4243": SKIP(
+        "needs TAK clients on those ports: the same command, with pytak clients moving two crews, "
+        "runs end to end in tests/integration/test_tak_udp.py"
+    ),
+    "phireman fly mission.yaml --tak udp://239.2.3.1:6969": SKIP(
+        "multicast leaves loopback for the machine's network: never sent by tests"
+    ),
+    "python3.11 -m venv /opt/fts-venv": SKIP(
+        "installs FreeTAKServer outside the project (docs/tak.md); its test runs when "
+        "PHIREMAN_FTS_PYTHON points at that venv"
+    ),
     "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),
     "phireman sweep --grid custom --size XS --attrition 0 1% --method phireman dccrs --seeds 3 --chunk 1 --scheduler sched.json --store cluster.sqlite": SKIP(  # noqa: E501
         "needs a Dask scheduler and workers started first: run with them, a worker killed "

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from gcs.fleet import FleetSnapshot, FleetView
     from gcs.operations.config import OperationsConfig, OperatorAction, _Row
     from gcs.operations.phases import Phase, Trigger
-    from gcs.operations.rotation import RotationSetup
+    from gcs.operations.rotation_setup import RotationSetup
     from gcs.rally import RallyKeeper
     from gcs.station import Station
 
