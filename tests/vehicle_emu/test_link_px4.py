@@ -231,6 +231,12 @@ def test_datalink_loss_returns_home_with_emulator_default(gcs):
     assert rig.core.mode_name == "AUTO.LOITER"
     rig.run(t0 + 6.0, hb=False)
     assert rig.core.mode_name == "AUTO.RTL"  # NAV_DLL_ACT = 2
+    # The GCS comes back: PX4's own words (Commander.cpp Commander::dataLinkCheck), at INFO;
+    # never ArduPilot's "GCS Failsafe Cleared".
+    out = rig.run(rig.t + 2.0)
+    texts = [(m.severity, m.text) for m in of_type(out, "STATUSTEXT")]
+    assert texts == [(mavlink.MAV_SEVERITY_INFO, "GCS connection regained")]
+    assert not rig.core.gcs_failsafe
 
 
 def test_px4_takeoff_and_param_bytewise(gcs):
