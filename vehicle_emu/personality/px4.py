@@ -73,6 +73,10 @@ _PX4_OBL_STOP = frozenset({6, 7})
 #: 5 Terminate and 6 Disarm stop the motors (:data:`_PX4_NAV_STOP`); 0 Disabled, 7 "Hold mode, no
 #: failsafe" and unknown values (``default:``) are ``Action::None``: no failsafe action.
 _PX4_NAV_ACT = {1: PX4_LOITER, 2: PX4_RTL, 3: PX4_LAND}
+#: src/modules/commander/failsafe/framework.cpp ``FailsafeBase::notifyUser``: for any action but
+#: a warning, ``mavlink_log_critical(..., "Failsafe activated\t")`` is the one STATUSTEXT (the
+#: cause and the new mode are sent as events only).
+_PX4_FAILSAFE_TEXT = (_C.MAV_SEVERITY_CRITICAL, "Failsafe activated")
 _PX4_NAV_STOP = frozenset({5, 6})
 
 #: PX4's mavlink module streams without being asked (``src/modules/mavlink/mavlink_main.cpp``,
@@ -332,15 +336,13 @@ class PX4(Personality):
         if stop:
             if not core.armed:
                 return "NONE"
-            core._statustext(
-                now_s, _C.MAV_SEVERITY_CRITICAL, "Failsafe activated: No offboard signal"
-            )
+            core._statustext(now_s, *_PX4_FAILSAFE_TEXT)
             core._disarm(now_s, "failsafe", force=True)
             return "DISARM"
         if target is None:
             return "NONE"
         core._set_mode(_key(target), now_s, "failsafe")
-        core._statustext(now_s, _C.MAV_SEVERITY_WARNING, "Failsafe activated: No offboard signal")
+        core._statustext(now_s, *_PX4_FAILSAFE_TEXT)
         return PX4_MODES[target][0]
 
     def accepts_gcs_heartbeat(self, src_sysid: int) -> bool:
@@ -353,20 +355,21 @@ class PX4(Personality):
         return P["NAV_DLL_ACT"] > 0, P["COM_DL_LOSS_T"]
 
     def gcs_failsafe_action(self, now_s: float) -> str:
+        # PX4's words: Commander.cpp Commander::dataLinkCheck ``mavlink_log_info(...,
+        # "Connection to ground station lost\t")`` (INFO), then the failsafe's own
+        # (_PX4_FAILSAFE_TEXT); the cause and the mode go out only as events (framework.cpp).
         core = self.core
+        core._statustext(now_s, _C.MAV_SEVERITY_INFO, "Connection to ground station lost")
         act = int(core.params["NAV_DLL_ACT"])
         if act in _PX4_NAV_STOP:
+            core._statustext(now_s, *_PX4_FAILSAFE_TEXT)
             core._disarm(now_s, "failsafe", force=True)
             return "DISARM"
         target = _PX4_NAV_ACT.get(act)
         if target is None:
             return "NONE"
         core._set_mode(_key(target), now_s, "failsafe")
-        core._statustext(
-            now_s,
-            _C.MAV_SEVERITY_CRITICAL,
-            "Failsafe activated: No connection to ground control station",
-        )
+        core._statustext(now_s, *_PX4_FAILSAFE_TEXT)
         return PX4_MODES[target][0]
 
     # -- setpoints ------------------------------------------------------------------------
