@@ -43,7 +43,8 @@ mavlink_mission_item->frame``) and its RTL read only frames 0 and 3 of a rally p
 ``RTL::findClosestSafePoint`` still chose the point, so RTL had no destination). A frame-6 upload
 was accepted and read back as 6 (``format_mavlink_mission_item`` writes 6 for any relative
 item in int mode, 3 in float mode), indistinguishable from a working one. QGroundControl sends
-PX4 rally points in frame 3. ArduPilot takes 3 and 6 alike as above home
+rally points to every autopilot in frame 3 (src/MissionManager/RallyPointManager.cc
+``RallyPointManager::sendToVehicle``). ArduPilot takes 3 and 6 alike as above home
 (libraries/GCS_MAVLink/MissionItemProtocol_Rally.cpp
 ``MissionItemProtocol_Rally::convert_MISSION_ITEM_INT_to_RallyLocation``; others ->
 MAV_MISSION_UNSUPPORTED_FRAME), and reads them back as 3.
