@@ -92,6 +92,8 @@ class Adapter:
     """PARAM_VALUE integers are byte-wise encoded (PX4) rather than C-cast (ArduPilot)."""
     takeoff_by_offboard_climb = False
     """Take off by climbing to a position target in the guided mode rather than NAV_TAKEOFF."""
+    command_int_frame: int | None = None
+    """The one frame COMMAND_INT goes in (altitudes converted), None: as the caller says."""
 
     def mode_name(self, custom_mode: int) -> str:
         return f"MODE({custom_mode})"
@@ -174,6 +176,8 @@ class PX4Adapter(Adapter):
     # Frame 5 is z = ref_alt - alt: exact. The link converts "above home" with the home AMSL
     # from GLOBAL_POSITION_INT (alt - relative_alt = home.alt on PX4).
     setpoint_frame = mavlink.MAV_FRAME_GLOBAL_INT
+    # COMMAND_INT: frame 5, z AMSL (gcs/link_commands.py send_command_int says why).
+    command_int_frame = mavlink.MAV_FRAME_GLOBAL_INT
     setpoint_period_s = 0.1  # >= 10 Hz (PX4 needs > 2 Hz; MAVSDK streams at 20 Hz)
     prestream_s = 1.2  # "more than a second" of setpoints before OFFBOARD / arming
     param_bytewise = True

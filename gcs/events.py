@@ -248,11 +248,33 @@ class ParamSetFailed(Event):
     attempts: int = 0
 
 
+#: STATUSTEXT endings that report a failsafe over, in each firmware's words: ArduCopter
+#: ArduCopter/events.cpp ``Copter::failsafe_gcs_off_event`` "GCS Failsafe Cleared" and
+#: ``failsafe_radio_off_event`` "Radio Failsafe Cleared" (both MAV_SEVERITY_WARNING),
+#: ArduCopter/ekf_check.cpp ``failsafe_ekf_off_event`` "EKF Failsafe Cleared" (CRITICAL); PX4
+#: src/modules/commander/Commander.cpp ``Commander::dataLinkCheck`` "GCS connection regained"
+#: (INFO). The severity cannot tell them from bad news (ArduPilot sends them at WARNING and
+#: above), the words can.
+_GOOD_NEWS_ENDINGS = ("failsafe cleared", "connection regained")
+
+
 @dataclass(frozen=True)
 class StatusText(Event):
     severity: int = 6
     """MAV_SEVERITY (0 emergency .. 7 debug)."""
     text: str = ""
+
+    @property
+    def kind(self) -> str:
+        """How to show it: ``"recovered"`` for a failsafe that ended (:data:`_GOOD_NEWS_ENDINGS`,
+        whatever its severity), ``"failsafe"`` for a failsafe or anything at WARNING (4) or worse,
+        else ``"status"``."""
+        low = self.text.strip().lower()
+        if low.endswith(_GOOD_NEWS_ENDINGS):
+            return "recovered"
+        if self.severity <= 4 or "fail" in low:
+            return "failsafe"
+        return "status"
 
 
 def _optional_finite(name: str, value: float | None) -> None:

@@ -110,16 +110,6 @@ class VehicleActions(CommandTracker):
             msg = None  # built from other number types: _send_setpoint's own, from v.setpoint
         self._send_setpoint(v, now_s, msg)
 
-    def _home_alt_amsl_m(self, v: _Vehicle) -> float:
-        """HOME_POSITION's altitude; until it arrives, GLOBAL_POSITION_INT ``alt -
-        relative_alt`` (on PX4 the two come from different estimates and their difference moves
-        by metres in flight, so it is only a stand-in)."""
-        if v.home is not None:
-            return v.home.alt_amsl_m
-        if v.position is None:
-            raise LinkUsageError(f"sysid {v.sysid}: no position yet, home altitude unknown")
-        return v.position.alt_amsl_m - v.position.rel_alt_m
-
     def clear_position_target(self, sysid: int, now_s: float) -> None:
         """Stop re-sending the position target (commands waiting for the pre-stream fail)."""
         v = self._get(sysid)

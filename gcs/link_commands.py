@@ -148,11 +148,38 @@ class CommandTracker(LinkState):
         alt_m: float = 0.0,
         now_s: float = 0.0,
     ) -> int:
-        """Send a COMMAND_INT (positional commands: x/y as degE7); returns the request id."""
-        self._get(sysid)
-        p = tuple(float(v) for v in params)
+        """Send a COMMAND_INT (positional commands: x/y as degE7); returns the request id.
+
+        ``frame`` and ``alt_m`` say what the caller means; on the wire they go as the vehicle's
+        firmware reads them (``adapter.command_int_frame``). PX4 takes x / y as latitude /
+        longitude and z as AMSL whatever the frame (src/modules/mavlink/mavlink_receiver.cpp
+        ``MavlinkReceiver::handle_message_command_int`` copies them to param5-7 without looking
+        at it; src/modules/navigator/navigator_main.cpp DO_REPOSITION: ``position_setpoint.alt =
+        cmd.param7``), and main of 2026-02-25 to 2026-03-03 answered any frame but
+        MAV_FRAME_GLOBAL_INT with MAV_RESULT_COMMAND_UNSUPPORTED_MAV_FRAME (PX4 PR #26408,
+        reverted by #26626): so PX4 gets frame 5, a relative altitude made AMSL with the home
+        altitude (HOME_POSITION, else GLOBAL_POSITION_INT ``alt - relative_alt``).
+
+        Raises LinkUsageError for a frame the firmware cannot be given (local, terrain on PX4)
+        or when the home altitude is needed and not known yet.
+        """
+        v = self._get(sysid)
+        p = tuple(float(x) for x in params)
         if len(p) != 4:
             raise ValueError(f"COMMAND_INT takes 4 params, got {len(p)}")
+        want = v.adapter.command_int_frame
+        if want is not None and frame != want:
+            if frame in (
+                mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            ):
+                alt_m = float(alt_m) + self._home_alt_amsl_m(v)
+            elif frame not in (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_MISSION):
+                raise LinkUsageError(
+                    f"sysid {sysid} ({v.adapter.name}): COMMAND_INT in frame {frame} cannot be "
+                    f"sent (the firmware reads frame {want} only)"
+                )
+            frame = want
         cmd = self._new_command(
             sysid,
             command,
@@ -161,6 +188,16 @@ class CommandTracker(LinkState):
         )
         self._submit(cmd, now_s)
         return cmd.request_id
+
+    def _home_alt_amsl_m(self, v: _Vehicle) -> float:
+        """HOME_POSITION's altitude; until it arrives, GLOBAL_POSITION_INT ``alt -
+        relative_alt`` (on PX4 the two come from different estimates and their difference moves
+        by metres in flight, so it is only a stand-in)."""
+        if v.home is not None:
+            return v.home.alt_amsl_m
+        if v.position is None:
+            raise LinkUsageError(f"sysid {v.sysid}: no position yet, home altitude unknown")
+        return v.position.alt_amsl_m - v.position.rel_alt_m
 
     def _send_spec(self, sysid: int, spec: CommandSpec, now_s: float) -> int:
         v = self._get(sysid)

@@ -13,7 +13,7 @@ of them instead of all the way home: ArduCopter ``ModeRTL::compute_return_target
   (src/MissionManager/PlanManager.cc, .h): MISSION_COUNT(n, RALLY) -> the vehicle asks for each
   item (MISSION_REQUEST_INT; ArduPilot asks with the legacy MISSION_REQUEST,
   ``MissionItemProtocol::queued_request_send``) -> MISSION_ITEM_INT(seq, frame
-  GLOBAL_RELATIVE_ALT_INT, MAV_CMD_NAV_RALLY_POINT) -> ... -> MISSION_ACK(ACCEPTED). The vehicle
+  :data:`RALLY_ITEM_FRAME`, MAV_CMD_NAV_RALLY_POINT) -> ... -> MISSION_ACK(ACCEPTED). The vehicle
   drives the item retries (it asks again, ArduPilot after 1 s); a repeated request gets the
   item again. Without a first request within ``ack_timeout_s`` (QGC ``_ackTimeoutMilliseconds``
   1500) the count is sent again, at most ``retries`` times (QGC ``_maxRetryCount`` 5); silence
@@ -25,18 +25,36 @@ of them instead of all the way home: ArduCopter ``ModeRTL::compute_return_target
 * :class:`RallyKeeper` - the fleet's rally set: the station publishes the planner's points every
   control tick; the set is re-uploaded only when a point moved more than
   ``move_threshold_m`` (or the number changed), at most every ``min_period_s``; every vehicle
-  heard gets the same set (a failed upload is tried again after ``retry_after_s``).
+  heard gets the same set (a failed upload is tried again after ``retry_after_s``). A failure is
+  loud: an error in the log and a :class:`RallyUploadFailed` event (``on_failure``); so is a
+  firmware that accepted the items but says it cannot use them (:data:`REFUSAL_TEXTS`: PX4's
+  "RTL: unsupported MAV_FRAME"), which is why a read-back alone proves nothing.
 * :data:`RALLY_PARAMS` / :func:`rally_param_writes` - the firmware settings that make RTL use the
   points (ArduPilot ``RALLY_LIMIT_KM``, PX4 ``RTL_TYPE``), written with the mission's limits.
 * :class:`MissionProtocolReceived` - the event :class:`gcs.link.StationLink` emits for the
   mission-protocol replies it does not handle itself.
+
+The frame of the items (:data:`RALLY_ITEM_FRAME`) is one both firmwares' RTL uses. PX4 stores the
+frame number of an item as sent (src/modules/mavlink/mavlink_mission.cpp
+``MavlinkMissionManager::parse_mavlink_mission_item``: ``mission_item->frame =
+mavlink_mission_item->frame``) and its RTL read only frames 0 and 3 of a rally point until main of
+2026-03-30 (src/modules/navigator/rtl.cpp ``RTL::setSafepointAsDestination``; any other frame:
+"RTL: unsupported MAV_FRAME", severity CRITICAL, every 2 s from ``RTL::on_inactive``, while
+``RTL::findClosestSafePoint`` still chose the point, so RTL had no destination). A frame-6 upload
+was accepted and read back as 6 (``format_mavlink_mission_item`` writes 6 for any relative
+item in int mode, 3 in float mode), indistinguishable from a working one. QGroundControl sends
+rally points to every autopilot in frame 3 (src/MissionManager/RallyPointManager.cc
+``RallyPointManager::sendToVehicle``). ArduPilot takes 3 and 6 alike as above home
+(libraries/GCS_MAVLink/MissionItemProtocol_Rally.cpp
+``MissionItemProtocol_Rally::convert_MISSION_ITEM_INT_to_RallyLocation``; others ->
+MAV_MISSION_UNSUPPORTED_FRAME), and reads them back as 3.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
@@ -49,6 +67,10 @@ from gcs.wire import deg_to_e7, mavlink
 
 __all__ = [
     "MissionProtocolReceived",
+    "RallyUploadFailed",
+    "RALLY_ITEM_FRAME",
+    "REFUSAL_TEXTS",
+    "is_refusal_text",
     "mission_event",
     "RallyPoint",
     "UploadState",
@@ -66,6 +88,21 @@ log = logging.getLogger(__name__)
 T_RALLY = mavlink.MAV_MISSION_TYPE_RALLY
 #: Replies of a vehicle during an upload, routed to the keeper (gcs/link.py hook).
 MISSION_PROTOCOL_MESSAGES = ("MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK")
+#: The frame of every rally item: MAV_FRAME_GLOBAL_RELATIVE_ALT (3), altitude above home, the
+#: one frame both firmwares' RTL reads in every version (module docstring: PX4 rtl.cpp
+#: ``RTL::setSafepointAsDestination`` 0 and 3 only until 2026-03-30, ArduPilot
+#: ``MissionItemProtocol_Rally::convert_MISSION_ITEM_INT_to_RallyLocation`` 3 or 6). In a
+#: MISSION_ITEM_INT x / y stay degE7 whatever the frame (common.xml MISSION_ITEM_INT).
+RALLY_ITEM_FRAME = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT
+#: STATUSTEXT beginnings by which a firmware says it cannot use the rally points it accepted:
+#: PX4 src/modules/navigator/rtl.cpp ``RTL::setSafepointAsDestination``, ``mavlink_log_critical(
+#: ..., "RTL: unsupported MAV_FRAME\t")`` (severity 2, repeated every 2 s by ``RTL::on_inactive``).
+REFUSAL_TEXTS = ("RTL: unsupported MAV_FRAME",)
+
+
+def is_refusal_text(text: str) -> bool:
+    """Whether a vehicle's STATUSTEXT says it cannot use its rally points (:data:`REFUSAL_TEXTS`)."""
+    return text.strip().startswith(REFUSAL_TEXTS)
 
 
 @dataclass(frozen=True)
@@ -97,6 +134,21 @@ def mission_event(link_id: int, sysid: int, msg: Any, now_s: float) -> MissionPr
         target_system=int(msg.target_system),
         target_component=int(msg.target_component),
     )
+
+
+@dataclass(frozen=True)
+class RallyUploadFailed(Event):
+    """The vehicle does not hold the station's rally set: the upload failed, was refused, or the
+    firmware said it cannot use the points (plain fields: recordable as JSON)."""
+
+    version: int = 0
+    """The keeper's set that failed (:attr:`RallyKeeper.version`)."""
+    reason: str = ""
+    result: int = -1
+    """The vehicle's MAV_MISSION_RESULT when it answered with an error ACK, else -1."""
+    refused: bool = False
+    """True when the firmware refused the points (an error ACK or a :data:`REFUSAL_TEXTS`
+    STATUSTEXT), False when it did not answer."""
 
 
 @dataclass(frozen=True)
@@ -245,7 +297,7 @@ class RallyUpload:
                 self.target_system,
                 self.target_component,
                 seq,
-                mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                RALLY_ITEM_FRAME,
                 mavlink.MAV_CMD_NAV_RALLY_POINT,
                 0,
                 1,
@@ -360,8 +412,13 @@ class RallyKeeper:
         self._accepted: dict[VehicleId, int] = {}
         self._uploads: dict[VehicleId, tuple[int, RallyUpload]] = {}
         self._retry_s: dict[VehicleId, float] = {}
+        self._refused: dict[VehicleId, int] = {}
+        """Vehicle -> the set version its firmware refused (not uploaded again: the same items
+        would be refused again; a new set is)."""
         self.stats = {"sets": 0, "uploads": 0, "accepted": 0, "failed": 0}
         self.failures: list[tuple[float, VehicleId, str]] = []
+        self.on_failure: Callable[[RallyUploadFailed], None] | None = None
+        """Called with every :class:`RallyUploadFailed` (the runner records it and shows it)."""
 
     # -- the set -----------------------------------------------------------------------------
 
@@ -424,6 +481,7 @@ class RallyKeeper:
             if (
                 vid in self._uploads
                 or self.up_to_date(vid)
+                or self._refused.get(vid) == self.version
                 or now_s < self._retry_s.get(vid, -math.inf)
             ):
                 continue
@@ -467,10 +525,53 @@ class RallyKeeper:
             self.stats["accepted"] += 1
             log.debug("link %d sysid %d: rally set %d accepted", *vid, version)
         else:
-            self.stats["failed"] += 1
             self._retry_s[vid] = now_s + self.config.retry_after_s
-            self.failures.append((now_s, vid, up.reason))
-            log.info("link %d sysid %d: rally upload failed: %s", *vid, up.reason)
+            self._fail(
+                vid,
+                version,
+                now_s,
+                f"rally upload failed: {up.reason}",
+                -1 if up.result is None else up.result,
+                refused=up.result is not None,
+            )
+
+    def on_status_text(self, vid: VehicleId, text: str, now_s: float) -> None:
+        """A vehicle's STATUSTEXT. One of :data:`REFUSAL_TEXTS` means the firmware holds rally
+        points it cannot fly to (PX4 repeats it every 2 s): reported once per set and vehicle,
+        and a vehicle that had accepted the set no longer counts as holding it (it is not sent
+        the same set again; the next set is uploaded as usual)."""
+        if not is_refusal_text(text) or self._refused.get(vid) == self.version:
+            return
+        self._refused[vid] = self.version
+        self._accepted.pop(vid, None)
+        self._fail(
+            vid,
+            self.version,
+            now_s,
+            f"the firmware cannot use its rally points: {text.strip()!r}",
+            -1,
+            refused=True,
+        )
+
+    def _fail(
+        self, vid: VehicleId, version: int, now_s: float, reason: str, result: int, *, refused: bool
+    ) -> None:
+        """Count, log (an error: RTL would not go where the station believes) and announce."""
+        self.stats["failed"] += 1
+        self.failures.append((now_s, vid, reason))
+        log.error("link %d sysid %d: rally set %d: %s", *vid, version, reason)
+        if self.on_failure is not None:
+            self.on_failure(
+                RallyUploadFailed(
+                    vid[0],
+                    vid[1],
+                    now_s,
+                    version=version,
+                    reason=reason,
+                    result=result,
+                    refused=refused,
+                )
+            )
 
 
 # ------------------------------------------------------------------------------------------------

@@ -72,6 +72,7 @@ class AutopilotRules(CoreState):
                 self._disarm(now_s, "landed")
 
         self._missions.update(now_s)
+        self.pers.update(now_s)
         if self._last_gcs_hb_s is not None:
             self._check_gcs_link(now_s)
         if self.batt is not None:  # the firmware's battery failsafes (vehicle_emu.battery_monitor)
@@ -111,7 +112,9 @@ class AutopilotRules(CoreState):
         elif not lost and self.gcs_failsafe:
             self.gcs_failsafe = False
             self._events.append(ev.GcsLinkRegained(self.sysid, now_s))
-            self._statustext(now_s, mavlink.MAV_SEVERITY_INFO, "GCS Failsafe Cleared")
+            severity, text = self.pers.gcs_regained_text  # each firmware's words
+            if text:
+                self._statustext(now_s, severity, text)
 
     def _gcs_failsafe_action(self, now_s: float) -> str:
         if not self.armed:
@@ -214,7 +217,7 @@ class AutopilotRules(CoreState):
         if beh == "rtl":
             self._rtl_phase = "climb"
             self._rtl_cruise_down_m = None
-            self._rtl_dest_ned_m = self.pers.rtl_destination_ned_m()
+            self._rtl_dest_ned_m = self.pers.rtl_destination_ned_m(now_s)
         elif beh == "land":
             ph.command_land(i)
         elif beh == "guided" and self.pers.resume_offboard(now_s):

@@ -30,9 +30,10 @@ class CommandHandlers(SetpointHandlers):
     def _on_command_int(self, m, addr, now_s: float) -> None:
         if not self._for_me(m.target_system, m.target_component):
             return
-        # COMMAND_INT: x, y are degE7 for global frames; z is float.
+        # COMMAND_INT: x, y are degE7 for global frames; z is float. The frame as the firmware
+        # reads it (PX4 ignores it: personality/px4.py command_int_frame).
         params = (m.param1, m.param2, m.param3, m.param4, m.x, m.y, m.z)
-        self._command(m.command, params, m.frame, m, now_s)
+        self._command(m.command, params, self.pers.command_int_frame(m.frame), m, now_s)
 
     def _ack(self, command: int, result: int, m, now_s: float) -> None:
         self._send(

@@ -22,10 +22,25 @@ Items are stored, never flown: the vehicle core refuses AUTO / AUTO.MISSION with
 Fence items must be MAV_CMD_NAV_FENCE_* and rally items MAV_CMD_NAV_RALLY_POINT, else the
 upload is refused with ACK(UNSUPPORTED) (ArduPilot ``MissionItemProtocol_Fence`` /
 ``MissionItemProtocol_Rally``).
+
+Frames, as each firmware stores and reports them:
+
+* PX4 ``MavlinkMissionManager::parse_mavlink_mission_item`` takes global items in frames 0 / 3
+  (5 / 6 in int mode) and MAV_FRAME_MISSION (2), anything else -> ACK(UNSUPPORTED_FRAME); it
+  stores the frame number as sent (``mission_item->frame = mavlink_mission_item->frame``), which
+  is what the navigator later reads (the rally frames its RTL can use:
+  vehicle_emu/personality/px4.py), and ``format_mavlink_mission_item`` reports a global item by
+  its altitude reference only: relative -> 6 (int mode) or 3, absolute -> 5 or 0. A frame-3
+  upload reads back as 6: a read-back cannot tell a frame the navigator uses from one it cannot.
+* ArduPilot rally points (libraries/GCS_MAVLink/MissionItemProtocol_Rally.cpp
+  ``convert_MISSION_ITEM_INT_to_RallyLocation``): 0 / 5 absolute, 3 / 6 above home, 10 / 11
+  above terrain, anything else -> ACK(UNSUPPORTED_FRAME); ``get_item_as_mission_item`` reports
+  them as 0, 3 and 10 (the non-int frame numbers, even in a MISSION_ITEM_INT).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from . import wire
@@ -51,6 +66,23 @@ _GLOBAL_FRAMES = frozenset(
         mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
     }
 )
+
+_F = mavlink
+#: PX4 parse_mavlink_mission_item: the frames it takes (module docstring); 5 / 6 in int mode only.
+_PX4_FRAMES = frozenset(
+    {_F.MAV_FRAME_GLOBAL, _F.MAV_FRAME_GLOBAL_RELATIVE_ALT, _F.MAV_FRAME_MISSION}
+)
+_PX4_INT_FRAMES = frozenset({_F.MAV_FRAME_GLOBAL_INT, _F.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT})
+_PX4_RELATIVE = frozenset({_F.MAV_FRAME_GLOBAL_RELATIVE_ALT, _F.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT})
+#: ArduPilot convert_MISSION_ITEM_INT_to_RallyLocation: frame -> the frame it reports it in.
+_AP_RALLY_FRAMES = {
+    _F.MAV_FRAME_GLOBAL: _F.MAV_FRAME_GLOBAL,
+    _F.MAV_FRAME_GLOBAL_INT: _F.MAV_FRAME_GLOBAL,
+    _F.MAV_FRAME_GLOBAL_RELATIVE_ALT: _F.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    _F.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: _F.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    _F.MAV_FRAME_GLOBAL_TERRAIN_ALT: _F.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    _F.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT: _F.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+}
 
 RESEND_S = 1.0  # ArduPilot MissionItemProtocol::update: 1000 ms + stream slowdown
 UPLOAD_TIMEOUT_S = 8.0  # ArduPilot MissionItemProtocol.h upload_timeout_ms = 8000
@@ -194,6 +226,7 @@ class MissionServer:
         if it is None:
             self._ack(src, comp, mavlink.MAV_MISSION_INVALID_SEQUENCE, t)
             return
+        it = self._as_reported(it, t, as_int)
         if as_int:
             self._send(
                 mavlink.MAVLink_mission_item_int_message(
@@ -266,6 +299,10 @@ class MissionServer:
         if self.px4 and m.get_type() == "MISSION_ITEM":
             self._int_mode = False
         it = MissionItem.from_msg(m)
+        if not self._frame_ok(it.frame, t, m.get_type() == "MISSION_ITEM_INT"):
+            self._upload = None
+            self._ack(src, comp, mavlink.MAV_MISSION_UNSUPPORTED_FRAME, t)
+            return
         allowed = {T_FENCE: _FENCE_CMDS, T_RALLY: _RALLY_CMDS}.get(t)
         if allowed is not None and it.command not in allowed:
             self._upload = None
@@ -281,6 +318,27 @@ class MissionServer:
             self._ack(src, comp, mavlink.MAV_MISSION_ACCEPTED, t)
             return
         self._request(now_s)
+
+    def _frame_ok(self, frame: int, mission_type: int, as_int: bool) -> bool:
+        """Whether the firmware takes an item in ``frame`` (module docstring)."""
+        if self.px4:
+            return frame in _PX4_FRAMES or (as_int and frame in _PX4_INT_FRAMES)
+        if mission_type == T_RALLY:
+            return frame in _AP_RALLY_FRAMES
+        return True
+
+    def _as_reported(self, it: MissionItem, mission_type: int, as_int: bool) -> MissionItem:
+        """The stored item with the frame the firmware reports (module docstring)."""
+        frame = it.frame
+        if self.px4 and frame != mavlink.MAV_FRAME_MISSION:
+            rel = frame in _PX4_RELATIVE
+            if as_int:
+                frame = _F.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT if rel else _F.MAV_FRAME_GLOBAL_INT
+            else:
+                frame = _F.MAV_FRAME_GLOBAL_RELATIVE_ALT if rel else _F.MAV_FRAME_GLOBAL
+        elif not self.px4 and mission_type == T_RALLY:
+            frame = _AP_RALLY_FRAMES.get(frame, frame)
+        return it if frame == it.frame else dataclasses.replace(it, frame=frame)
 
     def on_clear_all(self, m, now_s: float) -> None:
         t = getattr(m, "mission_type", T_MISSION)

@@ -268,12 +268,15 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
 
     def _on_status_text(self, event: StatusText, key: tuple[int, int]) -> None:
         text = event.text.strip()
+        if self.rally is not None:  # "RTL: unsupported MAV_FRAME": its rally points are unusable
+            self.rally.on_status_text(key, text, event.t_s)
         # ArduPilot AP_Arming::check_failed: "PreArm: ..." / "Arm: ..."; PX4 commander:
         # "Arming denied: ...", "Preflight Fail: ...".
         low = text.lower()
         # ArduPilot events.cpp "Failsafe" texts (e.g. "GCS Failsafe"), PX4 commander
-        # "Failsafe activated: ..." / "... failsafe ...": shown to the operator as they come.
-        if "failsafe" in low or "fail-safe" in low:
+        # "Failsafe activated: ..." / "... failsafe ...": shown to the operator as they come;
+        # the end of one ("GCS Failsafe Cleared", StatusText.kind "recovered") is not a warning.
+        if ("failsafe" in low or "fail-safe" in low) and event.kind != "recovered":
             self.failsafe_texts.append((event.t_s, key, text))
         if text.startswith(("PreArm", "Arm:", "Arming denied", "Preflight Fail")):
             old = self.prearm.get(key)

@@ -374,7 +374,7 @@ class _Status:
     """The live status line (rewritten in place on a terminal, a line per phase change and every
     30 s otherwise) and warnings, each printed once on its own line above it, when the flight
     degrades: the emulation far slower than asked, command failures, failsafes reported by
-    vehicles."""
+    vehicles, rally points a vehicle does not hold."""
 
     def __init__(self, stream=sys.stderr) -> None:
         import shutil
@@ -388,6 +388,7 @@ class _Status:
         self.last_print_t = -math.inf
         self._failures_warned = 0
         self._failsafes_warned = 0
+        self._rally_warned = 0
         self._slow_warned = False
         self._pace: list[tuple[float, float]] = []
 
@@ -416,6 +417,12 @@ class _Status:
             )
             self._warn(f'link {link_id} sysid {sysid} reports "{text}"{more}')
             self._failsafes_warned = k
+        r = d.get("rally_failures", 0)
+        if r > self._rally_warned and d.get("last_rally_failure"):
+            t_s, (link_id, sysid), why = d["last_rally_failure"]
+            more = f" (+{r - self._rally_warned - 1} more)" if r - self._rally_warned > 1 else ""
+            self._warn(f"link {link_id} sysid {sysid}: {why}{more}")
+            self._rally_warned = r
         want = d.get("speedup")
         if want and want > 1 and not self._slow_warned and d["phase"] == "run":
             self._pace.append((d["wall_s"], d["t_s"]))

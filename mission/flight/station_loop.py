@@ -316,6 +316,10 @@ def _status_dict(op: Operator, now_s: float, rec: TickRecord | None, world, n_ta
         "failsafes": len(op.failsafe_texts),
         "last_failsafe": op.failsafe_texts[-1] if op.failsafe_texts else None,
         "reclaims": len(op.reclaimed),
+        "rally_failures": len(op.rally.failures) if op.rally is not None else 0,
+        "last_rally_failure": op.rally.failures[-1]
+        if op.rally is not None and op.rally.failures
+        else None,
         "wall_s": time.monotonic(),
     }
     rot = op.rotation_summary()
@@ -391,6 +395,14 @@ async def run_station(
     op = make_operator(mission, scenario, station, opts, expected, clock(), seed)
     holder["op"] = op
     op.on_action = records.events.write  # operator actions in events.jsonl, with their source
+    if op.rally is not None:  # failed rally uploads: events.jsonl and the live view, not the fleet
+
+        def on_rally_failure(ev) -> None:
+            records.event(ev)
+            for listener in holder.get("listeners", ()):
+                listener(ev)
+
+        op.rally.on_failure = on_rally_failure
     for ev in holder.pop("early", []):
         op.handle_event(ev)
     extras = []

@@ -103,6 +103,47 @@ def test_px4_setpoint_altitude_uses_home_position(station):
     assert sp.alt == pytest.approx(488.0)
 
 
+def test_px4_command_int_goes_in_frame_5_with_the_amsl_altitude(station):
+    """PX4 reads COMMAND_INT z as AMSL whatever the frame (mavlink_receiver.cpp
+    handle_message_command_int; main of 2026-02-25 to 2026-03-03 even refused frames but 5): a
+    frame-6 request leaves as frame 5, home + alt; ArduPilot gets the frame as asked."""
+    from gcs.link import LinkUsageError
+
+    link = station(request_home_position=True, stream_rates_hz=())
+    px4 = FakeAutopilot(sysid=1, autopilot=mav.MAV_AUTOPILOT_PX4)
+    ardu = FakeAutopilot(sysid=2, autopilot=mav.MAV_AUTOPILOT_ARDUPILOTMEGA)
+    link.receive_datagram(px4.heartbeat(OFFBOARD), A1, 0.0)
+    link.receive_datagram(ardu.heartbeat(GUIDED), A1, 0.0)
+    link.receive_datagram(px4.home_position(47.5, 8.25, 478.0), A1, 0.1)
+    sent(link, 0.1)
+    rel = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    for sysid in (1, 2):
+        link.send_command_int(
+            sysid,
+            mav.MAV_CMD_DO_REPOSITION,
+            frame=rel,
+            params=(-1, 1, 0, float("nan")),
+            lat_deg=47.501,
+            lon_deg=8.25,
+            alt_m=20.0,
+            now_s=0.2,
+        )
+    cmds = {m.target_system: m for m, _ in sent(link, 0.2, "COMMAND_INT")}
+    assert (cmds[1].frame, cmds[1].z) == (mav.MAV_FRAME_GLOBAL_INT, pytest.approx(498.0))
+    assert (cmds[2].frame, cmds[2].z) == (rel, pytest.approx(20.0))
+    assert cmds[1].x == cmds[2].x == 475010000
+    # (another command id: one DO_REPOSITION per vehicle is in flight until it is acked)
+    link.send_command_int(
+        1, mav.MAV_CMD_DO_SET_ROI_LOCATION, frame=mav.MAV_FRAME_GLOBAL, alt_m=500.0, now_s=0.3
+    )
+    ((m, _),) = sent(link, 0.3, "COMMAND_INT")
+    assert (m.frame, m.z) == (mav.MAV_FRAME_GLOBAL_INT, pytest.approx(500.0))
+    with pytest.raises(LinkUsageError):
+        link.send_command_int(
+            1, mav.MAV_CMD_DO_REPOSITION, frame=mav.MAV_FRAME_LOCAL_NED, now_s=0.4
+        )
+
+
 def test_fleet_view_prefers_home_position_and_never_drifts_once_known():
     fleet = FleetView(MissionOrigin(47.5, 8.25, 400.0))
 

@@ -1202,6 +1202,29 @@ def test_status_texts_failsafes_and_prearm():
     assert op.prearm[v] == (1.2, "Arming denied: not ready")
 
 
+def test_a_failsafe_that_ended_is_good_news_not_a_failsafe_warning():
+    """ArduCopter says "GCS Failsafe Cleared" at WARNING (events.cpp failsafe_gcs_off_event),
+    PX4 "GCS connection regained" at INFO (Commander.cpp dataLinkCheck): neither is a failsafe
+    for the operator (fly's "warning: ... reports", the live view's red line)."""
+    op, station, feed, (v,) = make(1)
+    feed.emit(StatusText(0, 1, 1.0, 4, "GCS Failsafe"))
+    feed.emit(StatusText(0, 1, 2.0, 4, "GCS Failsafe Cleared"))
+    feed.emit(StatusText(0, 1, 3.0, 6, "GCS connection regained"))
+    feed.emit(StatusText(0, 1, 4.0, 2, "EKF Failsafe Cleared"))
+    assert op.failsafe_texts == [(1.0, v, "GCS Failsafe")]
+    kinds = [
+        StatusText(0, 1, 0.0, sev, text).kind
+        for sev, text in (
+            (4, "GCS Failsafe"),
+            (4, "GCS Failsafe Cleared"),
+            (6, "GCS connection regained"),
+            (2, "RTL: unsupported MAV_FRAME"),
+            (6, "Takeoff detected"),
+        )
+    ]
+    assert kinds == ["failsafe", "recovered", "recovered", "failsafe", "status"]
+
+
 def test_home_position_moves_the_altitude_above_home():
     op, station, feed, (v,) = make(1, wave_timeout_s=1000.0, takeoff_grace_s=1.0)
     feed.poll(0.0)

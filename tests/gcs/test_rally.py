@@ -3,6 +3,9 @@ server (vehicle_emu/missions.py) in memory, on an explicit clock."""
 
 from __future__ import annotations
 
+import dataclasses
+import logging
+
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -10,6 +13,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from gcs.autopilot import ARDUPILOT, PX4
 from gcs.rally import (
     MISSION_PROTOCOL_MESSAGES,
+    RALLY_ITEM_FRAME,
+    RallyUploadFailed,
     RallyConfig,
     RallyKeeper,
     RallyPoint,
@@ -128,7 +133,8 @@ def test_upload_happy_path(personality, request_kind):
         (p.lat_e7, p.lon_e7, p.alt_above_home_m) for p in POINTS
     ]
     assert {it.command for it in stored} == {mavlink.MAV_CMD_NAV_RALLY_POINT}
-    assert {it.frame for it in stored} == {mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
+    # Frame 3: the one PX4's RTL reads (rtl.cpp RTL::setSafepointAsDestination), ArduPilot too.
+    assert {it.frame for it in stored} == {mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT}
     # ArduPilot asks with the legacy MISSION_REQUEST (queued_request_send), PX4 with _INT.
     assert [k for _, _, k, _ in v.seen] == [request_kind] * 3 + ["MISSION_ACK"]
     assert [k for _, _, k, _ in v.sent] == ["MISSION_COUNT"] + ["MISSION_ITEM_INT"] * 3
@@ -356,3 +362,98 @@ def test_planner_rally_points_are_the_resilient_planners():
     phi = make_planner("phireman", problem, {"info": "central"}, np.random.default_rng(0))
     phi.plan(tick)
     assert planner_rally_points_m(phi) is None
+
+
+# ------------------------------------------------------------------------------------------------
+# Frames the firmware can fly to, and loud failures (issue 28, point 5)
+# ------------------------------------------------------------------------------------------------
+
+
+def statustexts(v: Vehicles, seconds: float) -> list[tuple[float, int, int, str]]:
+    """Tick ``seconds`` and return every STATUSTEXT as (t, sysid, severity, text)."""
+    out = []
+    end = v.t + seconds
+    while v.t < end - 1e-9:
+        v.tick()
+        for sysid, core in v.cores.items():
+            for m in v.gcs.decode(core.datagrams_to_send(v.t)):
+                if m.get_type() == "STATUSTEXT":
+                    out.append((v.t, sysid, m.severity, m.text))
+    return out
+
+
+@pytest.mark.parametrize("personality", ["ardupilot", "px4"])
+def test_station_points_are_ones_the_firmware_rtl_uses(personality):
+    """The station's items (frame 3) are taken by both firmwares, and PX4's RTL has no complaint
+    about them (with frame 6 it says "RTL: unsupported MAV_FRAME" every 2 s: next test)."""
+    v = Vehicles(personality)
+    keeper = RallyKeeper(*ORIGIN[:2], RallyConfig(inward_m=0.0))
+    keeper.publish(np.array([[120.0, 0.0]]), v.t)
+    pump(v, keeper, [(0, 1)], 2.0)
+    assert keeper.up_to_date((0, 1)) and keeper.stats["failed"] == 0
+    assert (
+        [it.frame for it in v.rally()]
+        == [RALLY_ITEM_FRAME]
+        == [mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT]
+    )
+    assert not [t for t in statustexts(v, 6.0) if "MAV_FRAME" in t[3]]
+    # RTL from 200 m north goes to the point (120 m), not home.
+    core = v.cores[1]
+    core.physics.pos_ned_m[0] = (200.0, 0.0, -20.0)
+    np.testing.assert_allclose(core.pers.rtl_destination_ned_m(v.t)[:2], (120.0, 0.0), atol=0.1)
+
+
+def test_keeper_reports_a_firmware_that_cannot_use_its_points_loudly(caplog):
+    """PX4 up to main of 2026-03-29 accepts frame-6 rally points, reads them back as 6 and then
+    says "RTL: unsupported MAV_FRAME" (severity 2) every 2 s: the keeper takes that as a failed
+    upload, once per set, with an error in the log and a RallyUploadFailed event, and does not
+    send the same set again (it would be refused again); the next set goes out as usual."""
+    v = Vehicles("px4")
+    events: list[RallyUploadFailed] = []
+    keeper = RallyKeeper(*ORIGIN[:2], RallyConfig(inward_m=0.0, min_period_s=0.0))
+    keeper.on_failure = events.append
+    keeper.publish(np.array([[120.0, 0.0]]), v.t)
+    pump(v, keeper, [(0, 1)], 2.0)
+    assert keeper.up_to_date((0, 1))
+    # What the station sent before the fix: the same point in frame 6 (GLOBAL_RELATIVE_ALT_INT).
+    core = v.cores[1]
+    core._missions.items[T_RALLY] = [
+        dataclasses.replace(it, frame=mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT) for it in v.rally()
+    ]
+    texts = statustexts(v, 6.0)
+    bad = [(t, sev) for t, _, sev, text in texts if text == "RTL: unsupported MAV_FRAME"]
+    assert len(bad) >= 2 and {sev for _, sev in bad} == {mavlink.MAV_SEVERITY_CRITICAL}
+    assert bad[1][0] - bad[0][0] == pytest.approx(2.0, abs=0.051)
+    uploads = keeper.stats["uploads"]
+    with caplog.at_level(logging.ERROR, logger="gcs.rally"):
+        for t, sysid, _, text in texts:
+            keeper.on_status_text((0, sysid), text, t)
+    assert not keeper.up_to_date((0, 1)) and keeper.stats["failed"] == 1
+    assert len(events) == 1 and events[0].refused and events[0].version == keeper.version
+    assert (events[0].link_id, events[0].sysid) == (0, 1)
+    assert "unsupported MAV_FRAME" in events[0].reason
+    assert [r.levelno for r in caplog.records] == [logging.ERROR]
+    pump(v, keeper, [(0, 1)], 10.0)  # refused: the same set is not sent again
+    assert keeper.stats["uploads"] == uploads
+    assert keeper.publish(np.array([[150.0, 0.0]]), v.t)  # a new set is
+    pump(v, keeper, [(0, 1)], 2.0)
+    assert keeper.up_to_date((0, 1)) and keeper.stats["uploads"] == uploads + 1
+
+
+def test_keeper_refused_upload_is_an_error_and_an_event(caplog):
+    """A MISSION_ACK error (another GCS uploading: DENIED) is logged as an error and announced."""
+    v = Vehicles("ardupilot")
+    other = FakeGcs(sysid=254)
+    v.cores[1].receive_datagram(
+        other.frame(mavlink.MAVLink_mission_count_message(1, 1, 2, T_RALLY)), GCS_ADDR, v.t
+    )
+    v.cores[1].datagrams_to_send(v.t)
+    events: list[RallyUploadFailed] = []
+    keeper = RallyKeeper(*ORIGIN[:2], RallyConfig(inward_m=0.0))
+    keeper.on_failure = events.append
+    keeper.publish(np.array([[60.0, 0.0]]), v.t)
+    with caplog.at_level(logging.ERROR, logger="gcs.rally"):
+        pump(v, keeper, [(0, 1)], 1.0)
+    assert [(e.result, e.refused) for e in events] == [(mavlink.MAV_MISSION_DENIED, True)]
+    assert "MAV_MISSION_DENIED" in events[0].reason
+    assert [r.levelno for r in caplog.records] == [logging.ERROR]

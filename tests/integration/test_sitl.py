@@ -311,7 +311,16 @@ _REFUSALS = [
     # (firmware, boot parameters, parameter the audit must name, what it must say)
     ("ardupilot", {}, "FS_GCS_ENABLE", "disabled"),  # copter default 0
     ("ardupilot", {"FS_GCS_ENABLE": 5}, "FS_GCS_ENABLE", "Land"),
-    ("ardupilot", {"FS_GCS_ENABLE": 1, "MAV_GCS_SYSID": 200}, "SYSID", "does not include"),
+    # Both spellings: ArduCopter 4.6 has SYSID_MYGCS (ArduCopter/Parameters.cpp), 4.7 renamed it
+    # MAV_GCS_SYSID; a defaults file's unknown name is skipped (AP_Param::load_defaults_file),
+    # so each version gets the one it knows (with one only, 4.6 booted 255 and the audit
+    # rightly cleared the flight).
+    (
+        "ardupilot",
+        {"FS_GCS_ENABLE": 1, "SYSID_MYGCS": 200, "MAV_GCS_SYSID": 200},
+        "SYSID",
+        "does not include",
+    ),
     ("px4", {"NAV_DLL_ACT": 0}, "NAV_DLL_ACT", "disabled"),  # PX4 default
     ("px4", {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 6}, "NAV_RCL_ACT", "isarm"),
     ("px4", {"NAV_DLL_ACT": 2, "COM_OBL_RC_ACT": 4}, "COM_OBL_RC_ACT", "Land"),

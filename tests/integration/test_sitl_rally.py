@@ -12,7 +12,14 @@ import time
 
 import pytest
 
-from gcs.rally import MISSION_PROTOCOL_MESSAGES, RallyPoint, RallyUpload, UploadState, mission_event
+from gcs.rally import (
+    MISSION_PROTOCOL_MESSAGES,
+    RallyPoint,
+    RallyUpload,
+    UploadState,
+    is_refusal_text,
+    mission_event,
+)
 from gcs.wire import deg_to_e7, mavlink
 from mission.flight.sitl import DEFAULT_HOMES, SitlError, SitlSpec, SitlSwarm, find_binary
 
@@ -94,6 +101,15 @@ def test_rally_upload_is_accepted_by_real_firmware(tmp_path, firmware):
                 assert item.command == mavlink.MAV_CMD_NAV_RALLY_POINT
                 assert (item.x, item.y) == (p.lat_e7, p.lon_e7)
                 assert item.z == pytest.approx(p.alt_above_home_m, abs=0.5)
+                # Sent in frame 3 (gcs/rally.py RALLY_ITEM_FRAME); reported by altitude reference:
+                # PX4 6 in int mode (mavlink_mission.cpp format_mavlink_mission_item), ArduPilot 3
+                # (MissionItemProtocol_Rally::get_item_as_mission_item). So a read-back alone
+                # cannot prove the navigator can use the point (the RTL test below does).
+                assert item.frame == (
+                    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+                    if firmware == "px4"
+                    else mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT
+                ), item
             conn.mav.mission_ack_send(sysid, 1, mavlink.MAV_MISSION_ACCEPTED, T_RALLY)
         finally:
             conn.close()
@@ -149,6 +165,7 @@ def test_real_firmware_rtl_flies_to_the_uploaded_rally_point(tmp_path, firmware)
             sitl.connection(0), source_system=255, source_component=190, dialect="ardupilotmega"
         )
         pos: dict[str, float] = {}
+        texts: list[tuple[int, str]] = []
 
         def pump(seconds: float, until=None) -> bool:
             end = time.monotonic() + seconds
@@ -162,6 +179,8 @@ def test_real_firmware_rtl_flies_to_the_uploaded_rally_point(tmp_path, firmware)
                 m = conn.recv_match(blocking=True, timeout=0.2)
                 if m is None:
                     continue
+                if m.get_type() == "STATUSTEXT":
+                    texts.append((m.severity, m.text))
                 if m.get_type() == "GLOBAL_POSITION_INT" and m.get_srcComponent() == 1:
                     pos.update(lat=m.lat * 1e-7, lon=m.lon * 1e-7, rel=m.relative_alt * 1e-3)
                 if (
@@ -275,5 +294,8 @@ def test_real_firmware_rtl_flies_to_the_uploaded_rally_point(tmp_path, firmware)
             )
             assert north == pytest.approx(70.0, abs=6.0) and abs(east) < 6.0, track[-1]
             assert min(n for _, n, _ in track) > 60.0  # it never came home
+            # PX4 rtl.cpp RTL::setSafepointAsDestination complains every 2 s about a point in a
+            # frame it cannot fly to (gcs/rally.py REFUSAL_TEXTS): never about the station's.
+            assert not [t for t in texts if is_refusal_text(t[1])], texts
         finally:
             conn.close()

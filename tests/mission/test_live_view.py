@@ -641,3 +641,22 @@ def test_export_rings_heights_and_kml_altitude_mode(ending_flight, tmp_path):
         else:
             assert mode == "clampToGround", data
     assert seen == 4
+
+
+def test_event_list_kinds_good_news_and_rally_failures():
+    """The live view's event list: a failsafe that ended is shown as good news whatever its
+    severity (ArduCopter sends "GCS Failsafe Cleared" at WARNING), a rally set a vehicle does
+    not hold as a failure."""
+    from gcs.events import StatusText
+    from gcs.rally import RallyUploadFailed
+    from mission.view.live.station import event_entry
+
+    assert event_entry(StatusText(0, 1, 1.0, 4, "GCS Failsafe Cleared")) == (
+        "recovered",
+        "says: GCS Failsafe Cleared",
+    )
+    assert event_entry(StatusText(0, 1, 1.0, 6, "GCS connection regained"))[0] == "recovered"
+    assert event_entry(StatusText(0, 1, 1.0, 4, "GCS Failsafe"))[0] == "failsafe"
+    assert event_entry(StatusText(0, 1, 1.0, 6, "Takeoff detected"))[0] == "status"
+    failed = RallyUploadFailed(0, 1, 2.0, version=3, reason="rally upload failed: x", refused=True)
+    assert event_entry(failed) == ("failsafe", "rally upload failed: x")

@@ -257,9 +257,12 @@ def test_gcs_failsafe_rtl_home_and_stays_in_rtl(gcs):
     assert rig.core.local_pos_ned_m[2] == pytest.approx(-15, abs=0.3)
     d1 = np.hypot(*rig.core.local_pos_ned_m[:2])
     assert d1 < d0 - 10  # heading home
-    # GCS comes back: failsafe clears but the vehicle stays in RTL
-    rig.run(rig.t + 2, hb_period_s=1.0)
+    # GCS comes back: failsafe clears but the vehicle stays in RTL; ArduCopter says so at
+    # WARNING (ArduCopter/events.cpp Copter::failsafe_gcs_off_event).
+    out = rig.run(rig.t + 2, hb_period_s=1.0)
     assert not rig.core.gcs_failsafe and rig.core.mode_name == "RTL"
+    texts = [(m.severity, m.text) for m in of_type(out, "STATUSTEXT")]
+    assert texts == [(mavlink.MAV_SEVERITY_WARNING, "GCS Failsafe Cleared")]
     rig.run(rig.t + 40, hb_period_s=1.0)
     assert np.hypot(*rig.core.local_pos_ned_m[:2]) < 1.0
     assert rig.core.landed and not rig.core.armed  # RTL_ALT_FINAL = 0: land and disarm

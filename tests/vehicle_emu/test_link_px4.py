@@ -229,8 +229,19 @@ def test_datalink_loss_returns_home_with_emulator_default(gcs):
     t0 = rig.t
     rig.run(t0 + 4.0, hb=False)
     assert rig.core.mode_name == "AUTO.LOITER"
-    rig.run(t0 + 6.0, hb=False)
+    out = rig.run(t0 + 6.0, hb=False)
     assert rig.core.mode_name == "AUTO.RTL"  # NAV_DLL_ACT = 2
+    # PX4's words: Commander.cpp dataLinkCheck, then failsafe/framework.cpp notifyUser.
+    assert [(m.severity, m.text) for m in of_type(out, "STATUSTEXT")] == [
+        (mavlink.MAV_SEVERITY_INFO, "Connection to ground station lost"),
+        (mavlink.MAV_SEVERITY_CRITICAL, "Failsafe activated"),
+    ]
+    # The GCS comes back: PX4's own words (Commander.cpp Commander::dataLinkCheck), at INFO;
+    # never ArduPilot's "GCS Failsafe Cleared".
+    out = rig.run(rig.t + 2.0)
+    texts = [(m.severity, m.text) for m in of_type(out, "STATUSTEXT")]
+    assert texts == [(mavlink.MAV_SEVERITY_INFO, "GCS connection regained")]
+    assert not rig.core.gcs_failsafe
 
 
 def test_px4_takeoff_and_param_bytewise(gcs):

@@ -63,9 +63,14 @@ class Flying:
             out += self.gcs.decode(self.core.datagrams_to_send(self.t))
         return out
 
-    def reposition(self, lat_e7, lon_e7, alt_m=10.0):
+    def reposition(self, lat_e7, lon_e7, alt_m=10.0, frame=None):
+        """DO_REPOSITION to ``alt_m`` above home, in the frame the station uses: ArduPilot 6;
+        PX4 5 with the AMSL altitude (PX4 reads z as AMSL whatever the frame, gcs/link_commands.py
+        send_command_int). ``frame`` given: sent as is."""
+        if frame is None and self.px4:
+            frame, alt_m = mavlink.MAV_FRAME_GLOBAL_INT, alt_m + self.core.home_lla[2]
         msg = mavlink.MAVLink_command_int_message(
-            1, 1, REL_INT, REPOSITION, 0, 0, -1, 1, 0, float("nan"), lat_e7, lon_e7, alt_m
+            1, 1, frame or REL_INT, REPOSITION, 0, 0, -1, 1, 0, float("nan"), lat_e7, lon_e7, alt_m
         )
         return acks(self.send(self.gcs.frame(msg)), REPOSITION)
 
@@ -174,6 +179,28 @@ def test_px4_reposition_int32_max_keeps_the_horizontal_target(gcs):
     assert after[:2] == pytest.approx(before[:2], abs=1e-9)
     assert after[2] - rig.core.home_ned_m[2] == pytest.approx(-20.0)
     assert rig.reposition(0x7FF80000, 0x7FF80000) == [DENIED]
+
+
+@pytest.mark.parametrize(
+    "frame", [REL_INT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink.MAV_FRAME_MISSION]
+)
+def test_px4_reads_command_int_z_as_amsl_whatever_the_frame(gcs, frame):
+    """mavlink_receiver.cpp handle_message_command_int copies z to param7 without looking at the
+    frame; navigator_main.cpp DO_REPOSITION takes param7 as AMSL. A frame-6 "10 m above home"
+    is a target 10 m above sea level: 390 m below home here."""
+    rig = Flying(gcs, "px4")
+    home_amsl = rig.core.home_lla[2]
+    assert home_amsl > 100.0  # so that 10 m AMSL is far below home
+    assert rig.reposition(*rig.core.pers.home_e7(), alt_m=10.0, frame=frame) == [ACCEPTED]
+    target_down = rig.core.physics.target_pos_ned_m[0, 2] - rig.core.home_ned_m[2]
+    assert target_down == pytest.approx(home_amsl - 10.0, abs=1e-6)
+
+
+def test_px4_command_int_in_frame_5_is_above_home_as_meant(gcs):
+    rig = Flying(gcs, "px4")
+    assert rig.reposition(*rig.core.pers.home_e7(), alt_m=25.0) == [ACCEPTED]
+    target_down = rig.core.physics.target_pos_ned_m[0, 2] - rig.core.home_ned_m[2]
+    assert target_down == pytest.approx(-25.0, abs=1e-6)
 
 
 # ---------------------------------------------------------------------------------------------

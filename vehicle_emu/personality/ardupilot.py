@@ -106,6 +106,8 @@ class ArduPilot(Personality):
     global_frames = GLOBAL_AMSL + GLOBAL_REL
     guided_mission_items = True
     no_mission_text = (_C.MAV_SEVERITY_WARNING, "Flight mode change failed")
+    # ArduCopter/events.cpp Copter::failsafe_gcs_off_event: send_text(MAV_SEVERITY_WARNING, ...).
+    gcs_regained_text = (_C.MAV_SEVERITY_WARNING, "GCS Failsafe Cleared")
 
     # -- modes ----------------------------------------------------------------------------
 
@@ -237,7 +239,7 @@ class ArduPilot(Personality):
 
     # -- return (RTL) ---------------------------------------------------------------------
 
-    def rtl_destination_ned_m(self) -> np.ndarray:
+    def rtl_destination_ned_m(self, now_s: float) -> np.ndarray:
         """ArduCopter RTL returns to ``AP_Rally::calc_best_rally_or_home_location`` (ArduCopter/
         mode_rtl.cpp ``ModeRTL::compute_return_target``, at RTL entry through ``build_path``),
         libraries/AP_Rally/AP_Rally.cpp:

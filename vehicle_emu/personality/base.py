@@ -174,6 +174,9 @@ class Personality:
         return result
 
     no_mission_text: tuple[int, str] = (mavlink.MAV_SEVERITY_WARNING, "")
+    gcs_regained_text: tuple[int, str] = (mavlink.MAV_SEVERITY_INFO, "")
+    """(severity, STATUSTEXT) when GCS heartbeats come back after a GCS failsafe, in the
+    firmware's own words (each personality); empty: nothing is said."""
 
     def resume_offboard(self, now_s: float) -> bool:
         """On entering the guided mode: fly a setpoint kept from before (PX4); True if so."""
@@ -317,7 +320,14 @@ class Personality:
             out.append((float(ned[0]), float(ned[1])))
         return np.array(out, dtype=float).reshape(-1, 2)
 
-    def rtl_destination_ned_m(self) -> np.ndarray:
+    def update(self, now_s: float) -> None:
+        """Every tick, after the core's timers: the firmware's own periodic work."""
+
+    def command_int_frame(self, frame: int) -> int:
+        """The frame a COMMAND_INT's x / y / z are read in (the firmware may ignore the one sent)."""
+        return frame
+
+    def rtl_destination_ned_m(self, now_s: float) -> np.ndarray:
         """World NED (m) of where RTL flies, chosen when RTL starts (down: home's; the return
         altitude is the core's). Home here; each firmware's rally-point rule in the subclasses."""
         return self.core.home_ned_m.copy()

@@ -23,6 +23,9 @@ from vehicle_emu.telemetry import (
     M_SYS_STATUS,
 )
 
+from mavedge.units import e7_to_deg
+from planner.geometry import geodetic_to_ned_m
+
 from .base import COMMON_CAPABILITIES, Personality, px4_map_project
 
 __all__ = ["PX4", "PX4_MODES", "PX4_DEFAULT_RATES_HZ"]
@@ -70,6 +73,10 @@ _PX4_OBL_STOP = frozenset({6, 7})
 #: 5 Terminate and 6 Disarm stop the motors (:data:`_PX4_NAV_STOP`); 0 Disabled, 7 "Hold mode, no
 #: failsafe" and unknown values (``default:``) are ``Action::None``: no failsafe action.
 _PX4_NAV_ACT = {1: PX4_LOITER, 2: PX4_RTL, 3: PX4_LAND}
+#: src/modules/commander/failsafe/framework.cpp ``FailsafeBase::notifyUser``: for any action but
+#: a warning, ``mavlink_log_critical(..., "Failsafe activated\t")`` is the one STATUSTEXT (the
+#: cause and the new mode are sent as events only).
+_PX4_FAILSAFE_TEXT = (_C.MAV_SEVERITY_CRITICAL, "Failsafe activated")
 _PX4_NAV_STOP = frozenset({5, 6})
 
 #: PX4's mavlink module streams without being asked (``src/modules/mavlink/mavlink_main.cpp``,
@@ -96,6 +103,16 @@ _ALL_GROUPS = POS_BITS | VEL_BITS | ACC_BITS
 #: close to home are ignored; ``MIN_DIST_THRESHOLD`` (m): the margin a nearer point needs.
 _PX4_RALLY_NEAR_HOME_M = 10.0
 _PX4_RALLY_MIN_DIST_M = 2.0
+#: The rally-point frames ``RTL::setSafepointAsDestination`` (rtl.cpp, PX4 up to main of
+#: 2026-03-29) can fly to: 0 GLOBAL and 3 GLOBAL_RELATIVE_ALT. The mission receiver stores the
+#: frame as sent (mavlink_mission.cpp ``parse_mavlink_mission_item``), so a frame-5/6 point is
+#: stored, read back and still chosen by ``RTL::findClosestSafePoint``, but has no destination.
+_PX4_RTL_FRAMES = (_C.MAV_FRAME_GLOBAL, _C.MAV_FRAME_GLOBAL_RELATIVE_ALT)
+#: rtl.cpp ``RTL::on_inactive``: "Limit inactive calculation to 0.5Hz" (destination re-chosen,
+#: and the frame complaint repeated, every 2 s while Return is not active).
+_PX4_RTL_CHECK_PERIOD_S = 2.0
+#: rtl.cpp ``RTL::setSafepointAsDestination``, ``mavlink_log_critical`` (severity 2).
+_PX4_UNSUPPORTED_FRAME_TEXT = "RTL: unsupported MAV_FRAME"
 
 
 #: Below this in every component a float32 norm of two or three components is finite:
@@ -160,9 +177,14 @@ class PX4(Personality):
     )
     guided_mission_items = False
     no_mission_text = (_C.MAV_SEVERITY_CRITICAL, "Switching to Mission is currently not possible")
+    # src/modules/commander/Commander.cpp Commander::dataLinkCheck: mavlink_log_info(...,
+    # "GCS connection regained\t") when a GCS heartbeat ends a data-link loss.
+    gcs_regained_text = (_C.MAV_SEVERITY_INFO, "GCS connection regained")
 
     def __init__(self, core) -> None:
         super().__init__(core)
+        self._rtl_check_s = -math.inf
+        """When Return last re-chose its destination while inactive (``RTL::on_inactive``)."""
         self.sp_last_s: float | None = None
         """When the last setpoint counting as offboard signal arrived."""
         self.offboard_target = None
@@ -314,15 +336,13 @@ class PX4(Personality):
         if stop:
             if not core.armed:
                 return "NONE"
-            core._statustext(
-                now_s, _C.MAV_SEVERITY_CRITICAL, "Failsafe activated: No offboard signal"
-            )
+            core._statustext(now_s, *_PX4_FAILSAFE_TEXT)
             core._disarm(now_s, "failsafe", force=True)
             return "DISARM"
         if target is None:
             return "NONE"
         core._set_mode(_key(target), now_s, "failsafe")
-        core._statustext(now_s, _C.MAV_SEVERITY_WARNING, "Failsafe activated: No offboard signal")
+        core._statustext(now_s, *_PX4_FAILSAFE_TEXT)
         return PX4_MODES[target][0]
 
     def accepts_gcs_heartbeat(self, src_sysid: int) -> bool:
@@ -335,20 +355,21 @@ class PX4(Personality):
         return P["NAV_DLL_ACT"] > 0, P["COM_DL_LOSS_T"]
 
     def gcs_failsafe_action(self, now_s: float) -> str:
+        # PX4's words: Commander.cpp Commander::dataLinkCheck ``mavlink_log_info(...,
+        # "Connection to ground station lost\t")`` (INFO), then the failsafe's own
+        # (_PX4_FAILSAFE_TEXT); the cause and the mode go out only as events (framework.cpp).
         core = self.core
+        core._statustext(now_s, _C.MAV_SEVERITY_INFO, "Connection to ground station lost")
         act = int(core.params["NAV_DLL_ACT"])
         if act in _PX4_NAV_STOP:
+            core._statustext(now_s, *_PX4_FAILSAFE_TEXT)
             core._disarm(now_s, "failsafe", force=True)
             return "DISARM"
         target = _PX4_NAV_ACT.get(act)
         if target is None:
             return "NONE"
         core._set_mode(_key(target), now_s, "failsafe")
-        core._statustext(
-            now_s,
-            _C.MAV_SEVERITY_CRITICAL,
-            "Failsafe activated: No connection to ground control station",
-        )
+        core._statustext(now_s, *_PX4_FAILSAFE_TEXT)
         return PX4_MODES[target][0]
 
     # -- setpoints ------------------------------------------------------------------------
@@ -394,10 +415,10 @@ class PX4(Personality):
 
     # -- return (RTL) ---------------------------------------------------------------------
 
-    def rtl_destination_ned_m(self) -> np.ndarray:
+    def rtl_destination_ned_m(self, now_s: float) -> np.ndarray:
         """PX4 Return's destination, chosen on activation (src/modules/navigator/rtl.cpp
-        ``RTL::setRtlTypeAndDestination`` -> ``RTL::findRtlDestination`` ->
-        ``RTL::findClosestSafePoint``), by ``RTL_TYPE`` (rtl_params.c):
+        ``RTL::on_activation`` -> ``RTL::setRtlTypeAndDestination`` -> ``RTL::findRtlDestination``
+        -> ``RTL::findClosestSafePoint``), by ``RTL_TYPE`` (rtl_params.c):
 
         * 0 (default) and 3: the closest of home and the rally points (mission landings are not
           flown by the emulator); 1: the closest rally point, home only without one
@@ -407,25 +428,86 @@ class PX4(Personality):
           home here (the emulator flies no missions);
         * a rally point within ``MAX_DIST_FROM_HOME_FOR_LAND_APPROACHES`` (10 m) of home is
           ignored (except with 5), and one wins only when nearer than the best so far by
-          ``MIN_DIST_THRESHOLD`` (2 m): ``(dist + MIN_DIST_THRESHOLD) < min_dist``.
+          ``MIN_DIST_THRESHOLD`` (2 m): ``(dist + MIN_DIST_THRESHOLD) < min_dist``;
+        * the winner is chosen by its latitude / longitude whatever its frame, but
+          ``RTL::setSafepointAsDestination`` sets a destination only for frames 0 and 3
+          (:data:`_PX4_RTL_FRAMES`); for any other it says "RTL: unsupported MAV_FRAME" and
+          leaves the destination unset: the vehicle stays where it is (hovers) instead of
+          returning.
         """
         core = self.core
-        rtl_type = int(core.params["RTL_TYPE"])
-        if rtl_type in (2, 4):
+        if int(core.params["RTL_TYPE"]) in (2, 4):
             return self._rally_or_home(None)
+        rtl_type = int(core.params["RTL_TYPE"])
+        pos = core.physics.pos_ned_m[core.index, :2]
+        best = self._closest_safe_point(now_s)
+        if best is None:
+            if rtl_type == 5:
+                return np.array((pos[0], pos[1], core.home_ned_m[2]), dtype=float)
+            return self._rally_or_home(None)
+        ne_m, frame = best
+        if frame not in _PX4_RTL_FRAMES:
+            # No destination: hold here (the core's RTL does nothing more in "hover").
+            here = core.physics.pos_ned_m[core.index].copy()
+            core.physics.command_position(core.index, here)
+            core._rtl_phase = "hover"
+            return here
+        return self._rally_or_home(ne_m)
+
+    def _closest_safe_point(self, now_s: float) -> tuple[np.ndarray, int] | None:
+        """``RTL::findRtlDestination`` / ``findClosestSafePoint`` for RTL_TYPE 0, 1, 3, 5: the
+        chosen rally point (north / east m, its stored frame), None for home. Every far-enough
+        point in a frame ``setSafepointAsDestination`` cannot use sends its STATUSTEXT, as the
+        firmware does for each such point on every evaluation."""
+        core = self.core
+        rtl_type = int(core.params["RTL_TYPE"])
         pos = core.physics.pos_ned_m[core.index, :2]
         home_ne = core.home_ned_m[:2]
         min_dist = math.inf if rtl_type in (1, 5) else float(np.hypot(*(home_ne - pos)))
         best = None
-        for pt in self.rally_ne_m():  # loop over a handful of stored points
+        for pt, frame in self._safe_points():  # a handful of stored points
             if rtl_type != 5 and float(np.hypot(*(pt - home_ne))) <= _PX4_RALLY_NEAR_HOME_M:
                 continue
+            if frame not in _PX4_RTL_FRAMES:
+                core._statustext(now_s, _C.MAV_SEVERITY_CRITICAL, _PX4_UNSUPPORTED_FRAME_TEXT)
             dist = float(np.hypot(*(pt - pos)))
             if dist + _PX4_RALLY_MIN_DIST_M < min_dist:
-                min_dist, best = dist, pt
-        if best is None and rtl_type == 5:
-            return np.array((pos[0], pos[1], core.home_ned_m[2]), dtype=float)
-        return self._rally_or_home(best)
+                min_dist, best = dist, (pt, frame)
+        return best
+
+    def _safe_points(self) -> list[tuple[np.ndarray, int]]:
+        """(north / east m, stored frame) of the rally items, in upload order (PX4 keeps the
+        frame as sent; only global frames are accepted, vehicle_emu/missions.py)."""
+        core = self.core
+        items = core._missions.items.get(_C.MAV_MISSION_TYPE_RALLY, ())
+        out = []
+        for it in items:
+            ned = geodetic_to_ned_m(
+                e7_to_deg(it.x), e7_to_deg(it.y), core.home_lla[2], *core.physics.origin_lla
+            )
+            out.append((np.array((float(ned[0]), float(ned[1]))), int(it.frame)))
+        return out
+
+    def update(self, now_s: float) -> None:
+        """``RTL::on_inactive`` every 2 s: the destination is chosen again (and an unusable
+        rally point complained about, "RTL: unsupported MAV_FRAME" each time)."""
+        core = self.core
+        if core._behaviour == "rtl" or now_s - self._rtl_check_s < _PX4_RTL_CHECK_PERIOD_S:
+            return
+        self._rtl_check_s = now_s
+        if int(core.params["RTL_TYPE"]) not in (2, 4) and core._missions.items.get(
+            _C.MAV_MISSION_TYPE_RALLY
+        ):
+            self._closest_safe_point(now_s)
+
+    def command_int_frame(self, frame: int) -> int:
+        """mavlink_receiver.cpp ``MavlinkReceiver::handle_message_command_int`` copies x / y
+        (degE7 -> deg) and z to param5-7 without looking at the frame, and the navigator takes
+        DO_REPOSITION's param7 as AMSL (navigator_main.cpp ``position_setpoint.alt =
+        cmd.param7``): every frame reads as GLOBAL_INT. (PX4 main of 2026-02-25 to 2026-03-03
+        answered frames other than 5 with MAV_RESULT_COMMAND_UNSUPPORTED_MAV_FRAME, PR #26408,
+        reverted by #26626.)"""
+        return _C.MAV_FRAME_GLOBAL_INT
 
     # -- parameters -----------------------------------------------------------------------
 

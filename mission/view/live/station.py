@@ -30,6 +30,7 @@ from gcs.events import (
     VehicleRecovered,
 )
 from gcs.operations import OPERATOR_ACTIONS
+from gcs.rally import RallyUploadFailed
 from gcs.wire import mavlink
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import (
@@ -63,10 +64,10 @@ def event_entry(ev) -> tuple[str, str] | None:
         return "lost", "lost (not heard)"
     if isinstance(ev, VehicleRecovered):
         return "recovered", f"heard again after {ev.silent_s:.0f} s, in {ev.mode or '?'}"
-    if isinstance(ev, StatusText):
-        text = ev.text.strip()
-        failsafe = ev.severity <= 4 or "fail" in text.lower()
-        return ("failsafe" if failsafe else "status"), f"says: {text}"
+    if isinstance(ev, StatusText):  # "GCS Failsafe Cleared" is good news (gcs.events)
+        return ev.kind, f"says: {ev.text.strip()}"
+    if isinstance(ev, RallyUploadFailed):
+        return "failsafe", ev.reason
     if isinstance(ev, CommandFailed):
         why = ev.reason or (f"result {ev.result}" if ev.result is not None else "failed")
         return "command", f"{_cmd_name(ev.command)} failed: {why}"
