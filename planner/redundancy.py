@@ -37,6 +37,7 @@ from planner.geometry import active_mask_reference, tasks_connected
 __all__ = [
     "MeshGraph",
     "mesh_graph",
+    "mesh_from_links",
     "critical_counts",
     "critical_counts_reference",
     "backbone",
@@ -93,10 +94,6 @@ def mesh_graph(
     if pairs is None:
         pairs = np.zeros((0, 2), np.int64)
     at_base = np.flatnonzero(np.linalg.norm(p - base, axis=1) <= base_reach)
-    src = np.concatenate([pairs[:, 0], pairs[:, 1], at_base, np.full(len(at_base), k)])
-    dst = np.concatenate([pairs[:, 1], pairs[:, 0], np.full(len(at_base), k), at_base])
-    adj = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(k + 1, k + 1)).tocsr()
-    adj.sort_indices()
     task_nodes: list[np.ndarray] = []
     if kd is not None and len(tasks):
         near = kd.query_ball_point(np.asarray(tasks, float), r)
@@ -106,6 +103,30 @@ def mesh_graph(
             task_nodes.append(np.sort(cand[d < r]))
     else:
         task_nodes = [np.zeros(0, np.int64) for _ in range(len(tasks))]
+    return mesh_from_links(rows, pairs, at_base, task_nodes)
+
+
+def mesh_from_links(
+    rows: np.ndarray, pairs: np.ndarray, at_base: np.ndarray, task_nodes: list[np.ndarray]
+) -> MeshGraph:
+    """The mesh over given links (not measured from positions): what :func:`mesh_graph` builds
+    once it has its links, and what the base of ``phireman-resilient`` builds from the reports it
+    has heard (planner/base_view.py).
+
+    Parameters
+    ----------
+    rows : (k,) int, the drone (row of the tick's arrays) of each node 0..k-1
+    pairs : (P, 2) int, links between nodes (indices into ``rows``), each once
+    at_base : (B,) int, the nodes linked to the base (node k)
+    task_nodes : for each task, the nodes attached to it (sorted)
+    """
+    k = len(rows)
+    pairs = np.asarray(pairs).reshape(-1, 2)
+    at_base = np.asarray(at_base)
+    src = np.concatenate([pairs[:, 0], pairs[:, 1], at_base, np.full(len(at_base), k)])
+    dst = np.concatenate([pairs[:, 1], pairs[:, 0], np.full(len(at_base), k), at_base])
+    adj = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(k + 1, k + 1)).tocsr()
+    adj.sort_indices()
     return MeshGraph(rows, adj.indptr, adj.indices, task_nodes)
 
 
