@@ -7,10 +7,13 @@ chain. Here the base finds, each tick, the networked drones whose loss alone wou
 pulls a nearby *spare* (a networked drone no connected task needs) onto each of them, so that
 the chain has a second drone where a loss would hurt most.
 
-Information: the base knows the topology of the mesh it is connected to (a link-state mesh
-routing protocol gives every member the connected component's links), i.e. the networked drones'
-positions at this tick, and which crews it hears (the connected tasks). It broadcasts one target
-per assigned spare with its task tree; a drone acts on the copy it holds.
+Information: the functions here take a mesh and positions and do not care where they come
+from. ``phireman-resilient`` gives them, under the asynchronous model, the mesh its base has heard
+through the message layer (planner/base_view.py: each drone's reported position and neighbour
+list, delayed one step per hop; :func:`mesh_from_links`), or with ``base_view='oracle'`` the true
+positions and mesh of this tick (:func:`mesh_graph`), as under central information (issue 28;
+planner/resilient.py says what the base knows in each case). It broadcasts one target per
+assigned spare with its task tree; a drone acts on the copy it holds.
 
 * :func:`critical_counts` - for each networked drone, how many connected tasks its loss alone
   would cut: Tarjan's low-point depth-first search on the mesh, rooted at the base, then one walk

@@ -7,8 +7,8 @@ energy, descent, message layer and task tree) with switchable mechanisms, each a
 * **Coverage claims** (``claim_gain``, ``claim_reach``). The tree potential is flat along the
   tree, so nothing pulls a drone out to the end of a branch whose crew has lost its link; with
   few drones left the swarm sits near the base while a crew a few metres out is unserved. The
-  base hears a crew exactly when the crew is connected, so it broadcasts, with the tree, the kept
-  tasks that are not (:func:`planner.geometry.tasks_connected` on D'(t)). A drone whose nearest
+  base broadcasts, with the tree, the kept tasks it does not hear (below: what the base knows).
+  A drone whose nearest
   such task is within ``claim_reach`` and who knows no drone nearer to it adds
   ``claim_gain`` × |x - task| to its energy (:func:`claim_targets`, :func:`claim_gradient`). The
   optional ``claim_tether`` keeps a claimer within a fraction of r of its anchor toward the base.
@@ -42,9 +42,34 @@ energy, descent, message layer and task tree) with switchable mechanisms, each a
   task's fewest-hop path) onto each, most critical first; pairs persist while they make sense.
   The targets travel with the tree broadcast, like the open tasks of the claims.
 
-Frozen defaults (docs/tuning/resilient.md): claims 0.03 / 4, redundancy 0.3 / 8, hazard
-awareness on; triage, rally points and prediction off. Central information (the station) runs
-the same pulls in the joint descent (:meth:`ResilientPlanner._plan_central_pulled`).
+What the base knows (``base_view``, issue 28). Like ΦIREMAN's, the base knows the true task
+positions (it builds the tree from them, docs/design/model.md §5.4) and the mission's hazard
+zones. What it needs beyond that, the mesh, depends on the information model:
+
+* ``info='async'``, ``base_view='heard'`` (the default): only what the message layer delivered to
+  it (planner/base_view.py). Every drone's report (its own position, the drones it heard, the
+  crews it hears) is flooded to the base one hop per step over the layer's links and kept 15 steps
+  (``tree_stale_steps``); the base's mesh is the two-way links of the reports it holds, its
+  networked set is its component of that mesh, the crews it hears are those its networked drones
+  report, the redundancy runs on that mesh, a spare's target is where its relay last reported
+  being, and triage counts the drones heard at the previous step. A drone h hops out is seen
+  h - 1 steps late; one whose reports do not reach the base is not seen.
+* ``info='async'``, ``base_view='oracle'``: the planner as evaluated before issue 28
+  (docs/results/resilient.md): the base reads, at each step, every networked drone's true
+  position, the true mesh (a KD-tree on the true positions), the true networked set D'(t) and the
+  true connected crews A(t) (:func:`planner.geometry.tasks_connected`); a spare's target is its
+  relay's true position. Nothing ΦIREMAN's base receives.
+* ``info='central'`` (the station): the planner sees D'(t) with true positions by definition
+  (planner/info.py); ``base_view`` is not consulted.
+
+The drones' side is the same in every variant: each acts on its own table of neighbour reports
+and on the copy of the base's broadcast (tree, open crews, spare targets) it holds.
+
+Defaults (docs/tuning/resilient.md): claims 0.03 / 4 (frozen at round 1), redundancy 0.3 / 8
+(round 2, designed after round 1 had been evaluated on the paper's seeds 0-99), hazard awareness
+on; triage, rally points and prediction off; all tuned with the oracle base, none re-tuned for the
+heard base. Central information (the station) runs the same pulls in the joint descent
+(:meth:`ResilientPlanner._plan_central_pulled`).
 
 Units: as PhiIREMAN, every length parameter is in paper units (1 unit = r / 2); instructions and
 ``recovery_target_m`` are metres.
@@ -679,8 +704,9 @@ class ResilientPlanner(PhiremanPlanner):
         if p.rally:
             self._rally_by_stamp[tick.t_step] = rally_points(self.tree, p.rally_dist)
         if p.claim_gain > 0:
-            # The base hears a crew exactly when the crew is connected (A(t)), so it can broadcast
-            # the kept tasks that are not.
+            # base_view='oracle': the base reads the true connected crews A(t) (issue 28: no
+            # message brings it this; _plan_heard is what it can hear) and broadcasts the kept
+            # tasks that are not connected.
             conn = tasks_connected(tasks_u, pos_u, networked, u.radio_range_u)
             self._open_by_stamp[tick.t_step] = tasks_u[self.kept_tasks & ~conn]
             for old in [s for s in self._open_by_stamp if s < tick.t_step - p.tree_stale_steps - 1]:
@@ -902,7 +928,9 @@ class ResilientPlanner(PhiremanPlanner):
         base_u: np.ndarray,
     ) -> int:
         """The base pairs spares with critical relays (planner/redundancy.py) and files the targets
-        under this tick's broadcast stamp; returns the number of pairs."""
+        under this tick's broadcast stamp; returns the number of pairs. ``base_view='oracle'``
+        and central information: the true positions and networked set (the heard variant is
+        :meth:`_pair_spares_heard`)."""
         p, u = self.params, self.units
         graph = mesh_graph(pos_u, networked, tasks_u, base_u, u.radio_range_u, u.base_reach_u)
         crit = critical_counts(graph, len(pos_u))
