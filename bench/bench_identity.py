@@ -7,6 +7,9 @@ tree, and compares the exact floats. Exit status 1 if any run differs.
     .venv/bin/python bench/bench_identity.py --baseline /tmp/base --cells S:1 M:1 XL:1 --seeds 0 1 2 3 4
     .venv/bin/python bench/bench_identity.py --baseline /tmp/base --methods dccrs@central   # METHOD@INFO
     .venv/bin/python bench/bench_identity.py --baseline /tmp/base --table-cost --seeds 0 1   # every Table II cell
+    # a parameter only this tree knows (the baseline runs the method's defaults)
+    .venv/bin/python bench/bench_identity.py --baseline /tmp/base --methods phireman-resilient \
+        --new-params base_view=oracle
 
 Each tree runs in one process after a warm-up run (imports, JIT cache loading), so the CPU seconds
 per run are comparable. With ``--table-cost`` (every size x attrition level of Table II) it also
@@ -29,9 +32,10 @@ from mission.experiments.sim import run_episode
 from planner.problem import problem_preset
 out = []
 items = json.loads(sys.argv[1])
+extra = json.loads(sys.argv[2]) if len(sys.argv) > 2 else {}
 def split(method):  # "dccrs@central": the method with params {"info": "central"}
     name, _, info = method.partition("@")
-    return name, ({"info": info} if info else {})
+    return name, ({"info": info} if info else {}) | extra.get(name, {})
 for method in sorted({it[0] for it in items}):
     run_episode(problem_preset("XS", 0.01), *split(method), 10_000)   # warm-up: imports, JIT caches
 for item in items:
@@ -43,10 +47,10 @@ print(json.dumps(out))
 """
 
 
-def run_tree(tree: str, items: list) -> list:
+def run_tree(tree: str, items: list, extra: dict | None = None) -> list:
     env = {**os.environ, "PYTHONPATH": tree, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
     out = subprocess.run(
-        [sys.executable, "-c", CHILD, json.dumps(items)],
+        [sys.executable, "-c", CHILD, json.dumps(items), json.dumps(extra or {})],
         capture_output=True,
         text=True,
         env=env,
@@ -82,7 +86,17 @@ def main(argv=None) -> int:
         "--table-cost", action="store_true", help="every Table II cell (5 sizes x 5 levels)"
     )
     ap.add_argument("--quiet", action="store_true", help="one line per cell, not per run")
+    ap.add_argument(
+        "--new-params",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="parameters for this tree's runs only (every method that knows them: pass one "
+        "method), e.g. base_view=oracle to run the old default of phireman-resilient",
+    )
     args = ap.parse_args(argv)
+    new_params = dict(kv.split("=", 1) for kv in args.new_params)
+    extra = {m.partition("@")[0]: new_params for m in args.methods} if new_params else {}
     seeds = list(range(*args.seed_range)) if args.seed_range else args.seeds
     cells = args.cells
     if args.table_cost:
@@ -95,7 +109,7 @@ def main(argv=None) -> int:
     for cell in cells:
         size, pct = cell.split(":")
         items = [[m, size.upper(), float(pct) / 100, s] for m in args.methods for s in seeds]
-        old, new = run_tree(args.baseline, items), run_tree(here, items)
+        old, new = run_tree(args.baseline, items), run_tree(here, items, extra)
         for m in args.methods:
             rows = [(o, n) for o, n in zip(old, new) if o[0] == m]
             diff = 0

@@ -7,7 +7,9 @@ TU1 / TU2 with the rows of a results store (the paper table's). Used to show tha
 
 usage:
   python bench/resilient_check.py STORE [--methods phireman dccrs mccst] [--cells S:1 XS:2 M:5 L:2]
-                                        [--seeds 0 1 2]
+                                        [--seeds 0 1 2] [--set KEY=VALUE ...]
+  # the stored rows of the planner before issue 28 (its base read the truth): base_view=oracle
+  python bench/resilient_check.py resilient.sqlite --methods phireman-resilient --set base_view=oracle
 Exit status 1 if any run differs.
 """
 
@@ -30,7 +32,15 @@ def main(argv=None) -> int:
     ap.add_argument("--methods", nargs="+", default=["phireman", "dccrs", "mccst"])
     ap.add_argument("--cells", nargs="+", default=["S:1", "XS:2", "M:5", "L:2"], metavar="SIZE:PCT")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    ap.add_argument(
+        "--set",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="parameters of the reruns (the stored rows are those without overrides)",
+    )
     args = ap.parse_args(argv)
+    params = dict(kv.split("=", 1) for kv in args.set)
     con = sqlite3.connect(f"file:{args.store}?mode=ro", uri=True)
     bad = 0
     for cell in args.cells:
@@ -52,7 +62,7 @@ def main(argv=None) -> int:
                 if not rows:
                     print(f"{method:10s} {size:2s} {pct:>3s} % seed {seed}: not in the store")
                     continue
-                r = run_episode(problem, method, {}, seed)
+                r = run_episode(problem, method, params, seed)
                 same = (r.tu1, r.tu2) == rows[0]
                 bad += not same
                 print(

@@ -597,6 +597,14 @@ class Knowledge(_StampTables):
     _scratch: tuple[np.ndarray, ...] = field(
         default_factory=_message_kernels.knowledge_scratch, repr=False, compare=False
     )
+    #: the links of the last delivery, as :meth:`update` used them: (t_step, idx, pairs,
+    #: link_pos), ``pairs`` (P, 2) indexing ``idx`` (the drones alive at link time) and
+    #: ``link_pos`` the (N, 2) positions the links were measured at; None when nothing was
+    #: delivered (the first step). Read by listeners of the same deliveries
+    #: (planner/base_view.py); the update itself never reads it.
+    last_delivery: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = field(
+        default=None, repr=False, compare=False
+    )
 
     @classmethod
     def empty(cls, n_drones: int, n_steps: int) -> Self:
@@ -701,6 +709,9 @@ class Knowledge(_StampTables):
             _flood_tree_stamp(
                 self.tree_stamp, idx, pairs, link_pos_m[idx], base_m, base_reach_m, t_step
             )
+            self.last_delivery = (int(t_step), idx, pairs, link_pos_m)
+        else:
+            self.last_delivery = None
         # Own state is always fresh; dead drones hold nothing.
         self.tree_stamp[~alive] = UNKNOWN
         if (

@@ -7,10 +7,13 @@ chain. Here the base finds, each tick, the networked drones whose loss alone wou
 pulls a nearby *spare* (a networked drone no connected task needs) onto each of them, so that
 the chain has a second drone where a loss would hurt most.
 
-Information: the base knows the topology of the mesh it is connected to (a link-state mesh
-routing protocol gives every member the connected component's links), i.e. the networked drones'
-positions at this tick, and which crews it hears (the connected tasks). It broadcasts one target
-per assigned spare with its task tree; a drone acts on the copy it holds.
+Information: the functions here take a mesh and positions and do not care where they come
+from. ``phireman-resilient`` gives them, under the asynchronous model, the mesh its base has heard
+through the message layer (planner/base_view.py: each drone's reported position and neighbour
+list, delayed one step per hop; :func:`mesh_from_links`), or with ``base_view='oracle'`` the true
+positions and mesh of this tick (:func:`mesh_graph`), as under central information (issue 28;
+planner/resilient.py says what the base knows in each case). It broadcasts one target per
+assigned spare with its task tree; a drone acts on the copy it holds.
 
 * :func:`critical_counts` - for each networked drone, how many connected tasks its loss alone
   would cut: Tarjan's low-point depth-first search on the mesh, rooted at the base, then one walk
@@ -37,6 +40,7 @@ from planner.geometry import active_mask_reference, tasks_connected
 __all__ = [
     "MeshGraph",
     "mesh_graph",
+    "mesh_from_links",
     "critical_counts",
     "critical_counts_reference",
     "backbone",
@@ -93,10 +97,6 @@ def mesh_graph(
     if pairs is None:
         pairs = np.zeros((0, 2), np.int64)
     at_base = np.flatnonzero(np.linalg.norm(p - base, axis=1) <= base_reach)
-    src = np.concatenate([pairs[:, 0], pairs[:, 1], at_base, np.full(len(at_base), k)])
-    dst = np.concatenate([pairs[:, 1], pairs[:, 0], np.full(len(at_base), k), at_base])
-    adj = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(k + 1, k + 1)).tocsr()
-    adj.sort_indices()
     task_nodes: list[np.ndarray] = []
     if kd is not None and len(tasks):
         near = kd.query_ball_point(np.asarray(tasks, float), r)
@@ -106,6 +106,30 @@ def mesh_graph(
             task_nodes.append(np.sort(cand[d < r]))
     else:
         task_nodes = [np.zeros(0, np.int64) for _ in range(len(tasks))]
+    return mesh_from_links(rows, pairs, at_base, task_nodes)
+
+
+def mesh_from_links(
+    rows: np.ndarray, pairs: np.ndarray, at_base: np.ndarray, task_nodes: list[np.ndarray]
+) -> MeshGraph:
+    """The mesh over given links (not measured from positions): what :func:`mesh_graph` builds
+    once it has its links, and what the base of ``phireman-resilient`` builds from the reports it
+    has heard (planner/base_view.py).
+
+    Parameters
+    ----------
+    rows : (k,) int, the drone (row of the tick's arrays) of each node 0..k-1
+    pairs : (P, 2) int, links between nodes (indices into ``rows``), each once
+    at_base : (B,) int, the nodes linked to the base (node k)
+    task_nodes : for each task, the nodes attached to it (sorted)
+    """
+    k = len(rows)
+    pairs = np.asarray(pairs).reshape(-1, 2)
+    at_base = np.asarray(at_base)
+    src = np.concatenate([pairs[:, 0], pairs[:, 1], at_base, np.full(len(at_base), k)])
+    dst = np.concatenate([pairs[:, 1], pairs[:, 0], np.full(len(at_base), k), at_base])
+    adj = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(k + 1, k + 1)).tocsr()
+    adj.sort_indices()
     return MeshGraph(rows, adj.indptr, adj.indices, task_nodes)
 
 

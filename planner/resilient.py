@@ -7,8 +7,8 @@ energy, descent, message layer and task tree) with switchable mechanisms, each a
 * **Coverage claims** (``claim_gain``, ``claim_reach``). The tree potential is flat along the
   tree, so nothing pulls a drone out to the end of a branch whose crew has lost its link; with
   few drones left the swarm sits near the base while a crew a few metres out is unserved. The
-  base hears a crew exactly when the crew is connected, so it broadcasts, with the tree, the kept
-  tasks that are not (:func:`planner.geometry.tasks_connected` on D'(t)). A drone whose nearest
+  base broadcasts, with the tree, the kept tasks it does not hear (below: what the base knows).
+  A drone whose nearest
   such task is within ``claim_reach`` and who knows no drone nearer to it adds
   ``claim_gain`` × |x - task| to its energy (:func:`claim_targets`, :func:`claim_gradient`). The
   optional ``claim_tether`` keeps a claimer within a fraction of r of its anchor toward the base.
@@ -42,9 +42,34 @@ energy, descent, message layer and task tree) with switchable mechanisms, each a
   task's fewest-hop path) onto each, most critical first; pairs persist while they make sense.
   The targets travel with the tree broadcast, like the open tasks of the claims.
 
-Frozen defaults (docs/tuning/resilient.md): claims 0.03 / 4, redundancy 0.3 / 8, hazard
-awareness on; triage, rally points and prediction off. Central information (the station) runs
-the same pulls in the joint descent (:meth:`ResilientPlanner._plan_central_pulled`).
+What the base knows (``base_view``, issue 28). Like ΦIREMAN's, the base knows the true task
+positions (it builds the tree from them, docs/design/model.md §5.4) and the mission's hazard
+zones. What it needs beyond that, the mesh, depends on the information model:
+
+* ``info='async'``, ``base_view='heard'`` (the default): only what the message layer delivered to
+  it (planner/base_view.py). Every drone's report (its own position, the drones it heard, the
+  crews it hears) is flooded to the base one hop per step over the layer's links and kept 15 steps
+  (``tree_stale_steps``); the base's mesh is the two-way links of the reports it holds, its
+  networked set is its component of that mesh, the crews it hears are those its networked drones
+  report, the redundancy runs on that mesh, a spare's target is where its relay last reported
+  being, and triage counts the drones heard at the previous step. A drone h hops out is seen
+  h - 1 steps late; one whose reports do not reach the base is not seen.
+* ``info='async'``, ``base_view='oracle'``: the planner as evaluated before issue 28
+  (docs/results/resilient.md): the base reads, at each step, every networked drone's true
+  position, the true mesh (a KD-tree on the true positions), the true networked set D'(t) and the
+  true connected crews A(t) (:func:`planner.geometry.tasks_connected`); a spare's target is its
+  relay's true position. Nothing ΦIREMAN's base receives.
+* ``info='central'`` (the station): the planner sees D'(t) with true positions by definition
+  (planner/info.py); ``base_view`` is not consulted.
+
+The drones' side is the same in every variant: each acts on its own table of neighbour reports
+and on the copy of the base's broadcast (tree, open crews, spare targets) it holds.
+
+Defaults (docs/tuning/resilient.md): claims 0.03 / 4 (frozen at round 1), redundancy 0.3 / 8
+(round 2, designed after round 1 had been evaluated on the paper's seeds 0-99), hazard awareness
+on; triage, rally points and prediction off; all tuned with the oracle base, none re-tuned for the
+heard base. Central information (the station) runs the same pulls in the joint descent
+(:meth:`ResilientPlanner._plan_central_pulled`).
 
 Units: as PhiIREMAN, every length parameter is in paper units (1 unit = r / 2); instructions and
 ``recovery_target_m`` are metres.
@@ -64,6 +89,7 @@ import numpy as np
 
 from planner import _kernels
 from planner.geometry import tasks_connected
+from planner.base_view import BaseListener, HeardMesh
 from planner.hazard import (
     HazardMap,
     hazard_rate_per_s,
@@ -71,7 +97,7 @@ from planner.hazard import (
     route_tree,
     signed_depth,
 )
-from planner.info import CentralView, MessageView
+from planner.info import CentralView, MessagePassingInfo, MessageView
 from planner.methods import PlanOutput, TickInput
 from planner.phireman import (
     PhiremanParams,
@@ -89,6 +115,7 @@ from planner.redundancy import RedundancyBook, backbone, critical_counts, mesh_g
 from planner.steiner import TaskTree, maintain_task_tree
 
 __all__ = [
+    "BASE_VIEWS",
     "ResilientParams",
     "ResilientPlanner",
     "task_paths",
@@ -107,6 +134,10 @@ __all__ = [
     "tether",
     "make_resilient",
 ]
+
+
+#: Where the base's picture of the mesh comes from (``ResilientParams.base_view``).
+BASE_VIEWS = ("heard", "oracle")
 
 
 @dataclass(frozen=True)
@@ -160,6 +191,14 @@ class ResilientParams(PhiremanParams):
     units."""
     hazard_detour_cap: float = 1.5
     """Hazard awareness: longest detour accepted, as a multiple of the edge it replaces."""
+    # -- what the base knows (issue 28; planner/base_view.py) ----------------------------------
+    base_view: str = "heard"
+    """Where the base's picture of the mesh comes from under the asynchronous model (the claims'
+    unconnected crews, the redundancy's mesh, positions and networked set): 'heard', the reports
+    the message layer delivered to it (planner/base_view.py: each drone's position and neighbour
+    list, flooded with the layer's delays and losses); 'oracle', the true positions, mesh and
+    networked set of this tick (the planner evaluated before issue 28,
+    docs/results/resilient.md). Central information (the station) sees the truth either way."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -187,6 +226,8 @@ class ResilientParams(PhiremanParams):
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not self.hazard_detour_cap >= 1.0:
             raise ValueError(f"hazard_detour_cap must be >= 1, got {self.hazard_detour_cap}")
+        if self.base_view not in BASE_VIEWS:
+            raise ValueError(f"base_view must be one of {BASE_VIEWS}, got {self.base_view!r}")
 
     @property
     def triage_on(self) -> bool:
@@ -604,6 +645,9 @@ class ResilientPlanner(PhiremanPlanner):
         self._spare_by_stamp: dict[int, np.ndarray] = {}  # broadcast stamp -> (N, 2) spare targets
         self._book = RedundancyBook()
         self._hazards: HazardMap | None = None  # hazard awareness: the zones active this tick
+        self._listener: BaseListener | None = None  # base_view='heard': the reports heard
+        self._heard_networked = 0  # base_view='heard': |D'| as the base heard it last tick
+        self.heard: HeardMesh | None = None  # base_view='heard': the base's picture this tick
 
     # -- the base's side ---------------------------------------------------------------------
     def _predicted_tasks(self, tasks_u: np.ndarray) -> np.ndarray:
@@ -646,6 +690,8 @@ class ResilientPlanner(PhiremanPlanner):
 
     # -- main entry --------------------------------------------------------------------------
     def plan(self, tick: TickInput) -> PlanOutput:
+        if self.params.base_view == "heard" and isinstance(self.info_model, MessagePassingInfo):
+            return self._plan_heard(tick)
         p, u = self.params, self.units
         pos_u = u.to_u(tick.pos_m)
         tasks_u = u.to_u(tick.task_pos_m)
@@ -658,8 +704,9 @@ class ResilientPlanner(PhiremanPlanner):
         if p.rally:
             self._rally_by_stamp[tick.t_step] = rally_points(self.tree, p.rally_dist)
         if p.claim_gain > 0:
-            # The base hears a crew exactly when the crew is connected (A(t)), so it can broadcast
-            # the kept tasks that are not.
+            # base_view='oracle': the base reads the true connected crews A(t) (issue 28: no
+            # message brings it this; _plan_heard is what it can hear) and broadcasts the kept
+            # tasks that are not connected.
             conn = tasks_connected(tasks_u, pos_u, networked, u.radio_range_u)
             self._open_by_stamp[tick.t_step] = tasks_u[self.kept_tasks & ~conn]
             for old in [s for s in self._open_by_stamp if s < tick.t_step - p.tree_stale_steps - 1]:
@@ -682,6 +729,85 @@ class ResilientPlanner(PhiremanPlanner):
         if p.rally:
             self._update_recovery(pos_u, base_u, alive, networked, view.held_stamp)
         return PlanOutput(u.to_m(disp_u), tree=u.tree_to_m(self.tree), info=info)
+
+    def _plan_heard(self, tick: TickInput) -> PlanOutput:
+        """:meth:`plan` under the asynchronous model with ``base_view='heard'``: the base decides
+        the open crews and the spares from what the message layer delivered to it at this step
+        (planner/base_view.py), never from the truth. The order differs from the oracle's only in
+        that the layer's delivery comes before those decisions (they are filed under this step's
+        broadcast, which no drone holds before the next step), and triage, which shapes the
+        broadcast tree itself, counts the drones the base heard at the previous step."""
+        p, u = self.params, self.units
+        pos_u = u.to_u(tick.pos_m)
+        tasks_u = u.to_u(tick.task_pos_m)
+        base_u = u.to_u(tick.base_m)
+        alive = np.asarray(tick.alive, bool)
+        networked = np.asarray(tick.networked, bool) & alive  # the world's: who is planned
+        self._hazards = _active_hazards(tick, self.problem.dt_s, p)
+        self.tree = self._base_tree(tick, tasks_u, base_u, self._heard_networked)
+        assert self.kept_tasks is not None  # set by _base_tree
+        if p.rally:
+            self._rally_by_stamp[tick.t_step] = rally_points(self.tree, p.rally_dist)
+        view = self.info_model.see(tick.t_step, pos_u, tick.alive, networked, base_u, self.tree)
+        assert isinstance(view, MessageView)  # the asynchronous model
+        if self._listener is None:
+            self._listener = BaseListener(
+                p.tree_stale_steps, p.broadcast_after_move, u.radio_range_u, u.base_reach_u
+            )
+        self._listener.record(tick.t_step, view.layer.knowledge, pos_u, alive, tasks_u, base_u)
+        heard = self._listener.heard(tick.t_step, len(pos_u), len(tasks_u))
+        self.heard = heard
+        self._heard_networked = int(heard.networked.sum())
+        info: dict[str, Any] = {
+            "kept_tasks": int(self.kept_tasks.sum()),
+            "heard_networked": self._heard_networked,
+        }
+        if p.claim_gain > 0:
+            # The crews the base heard of (reported by a drone it believes networked).
+            self._open_by_stamp[tick.t_step] = tasks_u[self.kept_tasks & ~heard.crews]
+            for old in [s for s in self._open_by_stamp if s < tick.t_step - p.tree_stale_steps - 1]:
+                del self._open_by_stamp[old]
+        if p.redundancy_gain > 0:
+            info["spares"] = self._pair_spares_heard(tick.t_step, heard)
+        disp_u, more = self._plan_async(pos_u, base_u, view)
+        info.update(more)
+        if p.rally:
+            self._update_recovery(pos_u, base_u, alive, networked, view.held_stamp)
+        return PlanOutput(u.to_m(disp_u), tree=u.tree_to_m(self.tree), info=info)
+
+    def _pair_spares_heard(self, t_step: int, heard: HeardMesh) -> int:
+        """:meth:`_pair_spares` on the base's picture: its mesh, the positions of the reports it
+        holds (a spare's target is its relay where the relay last reported being) and the drones
+        it believes networked; returns the number of pairs."""
+        p = self.params
+        n = len(heard.stamp)
+        graph = heard.graph()
+        crit = critical_counts(graph, n)
+        on = backbone(graph, n)
+        priority = None
+        if self._hazards is not None:
+            known = np.isfinite(heard.pos_u).all(axis=1)
+            in_zone = np.zeros(n, bool)
+            in_zone[known] = (
+                hazard_rate_per_s(
+                    self._hazards, self.units.to_m(heard.pos_u[known]), t_step * self.problem.dt_s
+                )
+                > 0
+            )
+            priority = crit + (int(crit.max(initial=0)) + 1) * in_zone
+        target = self._book.assign(
+            heard.pos_u,
+            heard.networked,
+            crit,
+            on,
+            p.redundancy_reach,
+            p.redundancy_min_cut,
+            priority,
+        )
+        self._spare_by_stamp[t_step] = target
+        for old in [s for s in self._spare_by_stamp if s < t_step - p.tree_stale_steps - 1]:
+            del self._spare_by_stamp[old]
+        return len(self._book.pair_of)
 
     def _plan_async(
         self, pos_u: np.ndarray, base_u: np.ndarray, view: MessageView
@@ -802,7 +928,9 @@ class ResilientPlanner(PhiremanPlanner):
         base_u: np.ndarray,
     ) -> int:
         """The base pairs spares with critical relays (planner/redundancy.py) and files the targets
-        under this tick's broadcast stamp; returns the number of pairs."""
+        under this tick's broadcast stamp; returns the number of pairs. ``base_view='oracle'``
+        and central information: the true positions and networked set (the heard variant is
+        :meth:`_pair_spares_heard`)."""
         p, u = self.params, self.units
         graph = mesh_graph(pos_u, networked, tasks_u, base_u, u.radio_range_u, u.base_reach_u)
         crit = critical_counts(graph, len(pos_u))

@@ -232,11 +232,12 @@ def test_claim_by_hand_nearest_known_drone_claims():
 # -- the planner contract --------------------------------------------------------------------
 
 
-def test_every_mechanism_off_is_phireman_bit_for_bit():
+@pytest.mark.parametrize("base_view", ["heard", "oracle"])
+def test_every_mechanism_off_is_phireman_bit_for_bit(base_view):
     p = problem_preset("S", 0.01).replace(n_steps=60)
     for seed in (3, 11):
         a = run_episode(p, "phireman", {}, seed)
-        b = run_episode(p, "phireman-resilient", OFF, seed)
+        b = run_episode(p, "phireman-resilient", {**OFF, "base_view": base_view}, seed)
         assert a.tu1 == b.tu1 and a.tu2 == b.tu2
         assert np.array_equal(a.series.tu1_step, b.series.tu1_step)
 
