@@ -1,7 +1,7 @@
 """Issue 28: CPU seconds per run of ``phireman-resilient`` (heard and oracle base) against ``phireman``.
 
 One process runs, for every configuration and seed asked, the three planners one after the other
-(``mission.sim.run_episode``, after a warm-up run of each for the imports and JIT caches) and
+(``mission.experiments.sim.run_episode``, after a warm-up run of each for the imports and JIT caches) and
 measures each run's CPU time (``time.process_time``): the three share the process, the machine's
 load and the seed, so the ratios compare like with like. Prints a Markdown table per
 configuration and the totals over the 25 configurations.
@@ -17,7 +17,7 @@ import argparse
 import sys
 import time
 
-from mission.sim import run_episode
+from mission.experiments.sim import run_episode
 from planner.problem import problem_preset
 
 VARIANTS = (

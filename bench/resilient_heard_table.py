@@ -25,7 +25,7 @@ import sys
 import numpy as np
 from resilient_table import NEW, _p, load, paired
 
-from mission.paper import paper_value
+from mission.experiments.paper import paper_value
 from planner.problem import ATTRITION_LEVELS, SIZES
 
 
