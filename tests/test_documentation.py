@@ -713,6 +713,21 @@ TABLE: dict[str, Case] = {
         "installs FreeTAKServer outside the project (docs/tak.md); its test runs when "
         "PHIREMAN_FTS_PYTHON points at that venv"
     ),
+    # ---- endurance (docs/results/endurance.md): 2 seeds of the 100 --------------------------------
+    "phireman sim --mission wildfire_2h --seeds 100 --seed 0 --no-progress": Case(
+        rewrite=(SEEDS_TO_2,),
+        check=lambda c: c.has(r"rotations [\d.]+ per run", r"landed away from the base 0 "),
+        timeout=900,
+    ),
+    "phireman sim --mission wildfire_2h --seeds 100 --seed 0 --no-progress --battery unlimited": Case(
+        rewrite=(SEEDS_TO_2,), check=lambda c: c.has(r"TU1 = "), timeout=900
+    ),
+    "phireman sim --mission wildfire_2h --seeds 100 --seed 0 --no-progress --rotation off": Case(
+        rewrite=(SEEDS_TO_2,),
+        check=lambda c: c.has(r"rotations 0\.0 per run", r"battery failsafes in the air [1-9]"),
+        timeout=900,
+    ),
+    ".venv/bin/python bench/bench_endurance.py --seeds 0": Case(kind="bench"),
     "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),
     "phireman sweep --grid custom --size XS --attrition 0 1% --method phireman dccrs --seeds 3 --chunk 1 --scheduler sched.json --store cluster.sqlite": SKIP(  # noqa: E501
         "needs a Dask scheduler and workers started first: run with them, a worker killed "
