@@ -500,7 +500,8 @@ def format_pace(s: dict) -> list[str]:
     """How long the flight took, from ``summary.json``: the mission seconds flown over the wall
     seconds printed beside them, and the pace the mission itself was flown at (start-up,
     take-off and landing are in the wall time, not in the mission seconds)."""
-    span, wall = s["mission_s_flown"], s["wall_s"]
+    span, wall = s["mission_s_flown"], round(s["wall_s"], 1)
+    # The ratio of the two numbers printed beside it, so that a reader's division agrees.
     overall = f"{span / wall:.1f}x" if wall > 0 else "-"
     line = f"flown {_secs(span)} s of mission in {wall:.1f} s wall ({overall} overall"
     if s.get("speedup_achieved") is not None:
