@@ -67,7 +67,17 @@ def verdicts(rows: list[tuple]) -> tuple[list[str], dict]:
     p = np.array([[r[6], r[8]] for r in rows]).ravel()
     adj = holm(p).reshape(-1, 2)
     counts = {
-        k: 0 for k in ("better", "worse", "better_holm", "worse_holm", "better_dd", "worse_dd")
+        k: 0
+        for k in (
+            "better",
+            "worse",
+            "better_holm",
+            "worse_holm",
+            "better_dd",
+            "worse_dd",
+            "better_dd_holm",
+            "worse_dd_holm",
+        )
     }
     out = []
     for r, (a1, a2) in zip(rows, adj):
@@ -86,6 +96,8 @@ def verdicts(rows: list[tuple]) -> tuple[list[str], dict]:
         counts["worse_holm"] += wh
         counts["better_dd"] += b and below
         counts["worse_dd"] += w and below
+        counts["better_dd_holm"] += bh and below
+        counts["worse_dd_holm"] += wh and below
         word = "better" if b else ("worse" if w else "n.s.")
         word_h = "better" if bh else ("worse" if wh else "n.s.")
         out.append(f"{word} / {word_h}")
@@ -136,8 +148,8 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"- {label}: better on both TU1 and TU2 in **{c['better']}** cells uncorrected, "
             f"**{c['better_holm']}** Holm; worse on either in **{c['worse']}** uncorrected, "
-            f"**{c['worse_holm']}** Holm (of the 16 ‡ cells, uncorrected: better {c['better_dd']}, "
-            f"worse {c['worse_dd']})"
+            f"**{c['worse_holm']}** Holm (of the 16 ‡ cells: better {c['better_dd']} uncorrected, "
+            f"{c['better_dd_holm']} Holm; worse {c['worse_dd']} uncorrected, {c['worse_dd_holm']} Holm)"
         )
     return 0
 

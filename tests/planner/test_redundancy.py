@@ -68,8 +68,10 @@ def test_book_pairs_most_critical_first_and_keeps_pairs():
 def test_spares_double_the_critical_relays_of_a_chain(info):
     """A chain base -> task 5 m out held by 3 relays, 4 spares at the base, no attrition: with the
     mechanism on, the relays' single losses stop cutting the task; off, they still do. Under
-    async with the base's true picture (base_view='oracle'); with the picture it hears
-    (planner/base_view.py) the pairs churn on this chain (tests/planner/test_base_view.py)."""
+    async with the base's true picture (base_view='oracle'). With the picture it hears
+    (planner/base_view.py) the pairs churned on this chain when tried (relays and spares swap
+    roles on delayed positions) and the cut count did not fall; not asserted here (what the heard
+    base acts on is tested in tests/planner/test_base_view.py)."""
     problem = problem_preset("S", 0.0, n_drones=7, n_tasks=1)
     task = np.array([[0.0, 5.6]])
     start = np.array(
