@@ -90,7 +90,13 @@ def _from_markdown(text: str) -> list[str]:
                 fence = []
                 continue
             # A block with '$ ' prompts shows commands and their output: only prompts are commands.
-            prompts = [s.strip()[2:] for s in fence if s.strip().startswith("$ ")]
+            prompts: list[str] = []
+            for s in fence:
+                if s.strip().startswith("$ "):
+                    prompts.append(s.strip()[2:])
+                elif prompts and prompts[-1].rstrip().endswith("\\"):
+                    prompts.append(s.strip())  # a prompt's continuation line
+
             for cmd in _logical_lines(prompts or [s.strip() for s in fence]):
                 if _is_ours(cmd):
                     found.append(_norm(cmd))
@@ -934,18 +940,18 @@ TABLE: dict[str, Case] = {
     "phireman sweep --grid custom --methods phireman-central --sizes XS S M --seeds 100 ...": SKIP(
         "abridged in the text ('...'): the full line is docs/results/resilient.md's loop, run below"
     ),
-    "phireman sweep --grid custom --size XS S M L XL --attrition 0 0.5% 1% 2% 5% --method phireman-resilient --seeds 100 --store resilient.sqlite --workers 2": Case(  # noqa: E501
-        rewrite=(
-            (r"--attrition 0 0\.5% 1% 2% 5%", "--attrition 0"),
-            SEEDS_TO_1,
-            (r"$", " --set n_steps=10"),
-        ),  # noqa: E501
-        check=sweep_store("resilient.sqlite", 5),
-    ),
     # the loop bodies of docs/results/resilient.md, with the loops' first values
-    "phireman sweep --grid custom --method phireman-resilient --seeds 100 --size $1 --attrition $2 --set $v --store resilient.sqlite --workers 2": Case(  # noqa: E501
+    "phireman sweep --grid custom --method phireman-resilient --seeds 100 --size $1 --attrition $2 --set $v --set base_view=oracle --store resilient.sqlite --workers 2": Case(  # noqa: E501
         rewrite=((r"\$1", "XS"), (r"\$2", "0.01"), (r"\$v", "claim_gain=0"), SEEDS_TO_1, STEPS_20),
         check=sweep_store("resilient.sqlite", 1),
+    ),
+    "phireman sweep --grid custom --size XS S M L XL --attrition 0 0.5% 1% 2% 5% --method phireman-resilient --seeds 100 --store resilient.sqlite --workers 2 --set base_view=oracle": Case(  # noqa: E501
+        rewrite=((r"--attrition 0 0\.5% 1% 2% 5%", "--attrition 0"), SEEDS_TO_1, STEPS_20),
+        check=sweep_store("resilient.sqlite", 5),
+    ),
+    "phireman sweep --grid custom --size XS S M L XL --attrition 0 0.5% 1% 2% 5% --method phireman-resilient --seeds 100 --store resilient_heard.sqlite --workers 2": Case(  # noqa: E501
+        rewrite=((r"--attrition 0 0\.5% 1% 2% 5%", "--attrition 0"), SEEDS_TO_1, STEPS_20),
+        check=sweep_store("resilient_heard.sqlite", 5),
     ),
     "phireman sweep --grid custom --method phireman-central --seeds 100 --size $1 --attrition $2 --store central.sqlite": Case(  # noqa: E501
         rewrite=((r"\$1", "XS"), (r"\$2", "0.01"), SEEDS_TO_1, STEPS_20),
@@ -1054,7 +1060,11 @@ TABLE: dict[str, Case] = {
             "PYTHONPATH=$PWD .venv/bin/python bench/bench_identity.py --baseline /tmp/hz_base --methods phireman phireman-resilient phireman-resilient@central dccrs --cells XS:1 S:1 --seeds 0 1",  # noqa: E501
             ".venv/bin/python bench/compare_backends.py --seeds 1-10 --personality ardupilot px4 --speedup 22",  # noqa: E501
             "python bench/resilient_check.py paper.sqlite --methods phireman --cells XS:1 S:1 M:2 L:5 XL:2 --seeds 0 1",  # noqa: E501
-            "python bench/resilient_check.py paper.sqlite --methods dccrs mccst --cells S:1 XS:2 --seeds 0",  # noqa: E501
+            "python bench/resilient_check.py resilient.sqlite --methods phireman-resilient --cells XS:1 S:1 M:2 L:2 XL:2 --seeds 0 1 --set base_view=oracle",  # noqa: E501
+            "python bench/resilient_cpu.py --seeds 0 1",
+            "python bench/resilient_heard_table.py --phireman paper.sqlite --oracle resilient.sqlite --heard resilient_heard.sqlite",  # noqa: E501
+            "python bench/bench_identity.py --baseline <tree of d936203> --methods phireman dccrs mccst phireman@central dccrs@central --cells XS:1 S:1 M:2 L:5 XL:2 --seeds 0 1 2 --quiet",  # noqa: E501
+            "python bench/bench_identity.py --baseline <tree of d936203> --methods phireman-resilient phireman-resilient@central --new-params base_view=oracle --cells XS:1 S:1 M:2 L:2 --seeds 0 1 --quiet",  # noqa: E501
             "python bench/resilient_table.py --baseline paper.sqlite --store resilient.sqlite --ablations XS:1 S:1 M:2 L:2",  # noqa: E501
             "python bench/resilient_table.py --baseline resilient_central.sqlite --base-method phireman-central --store resilient_central.sqlite --new-set info=central",  # noqa: E501
             "python bench/resilient_flights.py --runs /work/flight/runs --seeds 11-20 --mission wildfire phireman=wildfire_phireman.yaml phireman-resilient=wildfire_resilient.yaml --mission hazard_zone phireman=hazard_zone_phireman.yaml phireman-resilient=hazard_zone_resilient.yaml",  # noqa: E501
