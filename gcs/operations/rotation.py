@@ -11,9 +11,13 @@ world drives it in process (``mission/experiments/endurance.py``):
   position; the policy hands the post over once it holds it, networked;
 * a ``returning`` vehicle is sent home: RTL, or with ``end: land`` a target over the base and
   LAND there (the station's usual end action);
-* ``landed_at_base`` = heard, disarmed, within ``land_radius_m`` of the base;
+* ``landed_at_base`` = heard, disarmed, within ``land_radius_m`` of its pad (where it was
+  first heard on the ground: its home, where RTL lands it; the base's centre until then);
 * the swap is confirmed when the vehicle comes back powered and full (a reboot,
   :class:`gcs.events.VehicleRebooted`, or a charge that rose to ``full_frac``): ``swap_done``;
+  the reboot may come before the station heard it land (the crew pulled the pack as it
+  disarmed): a reboot after it was sent home counts, and a returning vehicle last heard low at
+  the base is not lost while it is silent;
 * the firmware's own low-battery RTL or LAND (a mode change the station did not command, on a
   vehicle whose battery is low) -> :meth:`planner.endurance.RotationPolicy.failsafe`; a vehicle
   that lands away from the base is gone for the mission (counted ``landed_away``).
@@ -104,9 +108,12 @@ class RotationStep(OperatorState):
         """A power-cycled vehicle is the same vehicle: its launch bookkeeping starts over."""
         if self.rotation is None:
             return
-        self.rotation.counters["reboots"] += 1
+        rot = self.rotation
+        rot.counters["reboots"] += 1
         i = self.fleet.index_of(*key)
         self._rows[i] = _Row()
+        if i < rot.policy.n_drones and rot.policy.phase[i] in (RETURNING, *_GROUND):
+            rot.rebooted_home.add(i)  # the crew's swap (docs/design/endurance.md §6.4)
 
     # ------------------------------------------------------------------ the tick
 
@@ -125,21 +132,39 @@ class RotationStep(OperatorState):
         ph = pol.phase
         heard = np.zeros(nd, bool)
         heard[:m] = ~snap.lost[:m]
+        armed = np.zeros(nd, bool)
+        armed[:m] = snap.armed[:m]
+        # Each vehicle's pad: where it was first heard on the ground (its home, where RTL brings
+        # it back and the crew swaps it), which may be tens of metres from the base's centre.
+        if rot.home_ne_m.shape != (nd, 2):
+            rot.home_ne_m = np.full((nd, 2), np.nan)
+        seen = np.zeros(nd, bool)
+        seen[:m] = has & heard[:m] & ~armed[:m]
+        new = seen & np.isnan(rot.home_ne_m[:, 0])
+        rot.home_ne_m[new] = pos[new]
+        home = np.where(np.isnan(rot.home_ne_m), base, rot.home_ne_m)
+        dist_home = np.hypot(*(pos - home).T)
         recent = np.zeros(nd, bool)
         recent[:m] = now_s - snap.last_heard_s[:m] <= rot.lost_after_s
         on_ground = np.isin(ph, _GROUND)
-        armed = np.zeros(nd, bool)
-        armed[:m] = snap.armed[:m]
         alive = np.zeros(nd, bool)
-        # On the ground at the base a vehicle may be silent: its battery is out for a swap.
-        alive[:m] = recent[:m] | on_ground[:m]
+        # On the ground at the base a vehicle may be silent: its battery is out for a swap. So may
+        # a returning one last heard down at the base: the crew may pull the pack in the very
+        # moment it disarms, before a heartbeat says so (the emulator's crew does).
+        low = np.ones(nd, bool)
+        low[:m] = ~(np.nan_to_num(alt_m[:m], nan=0.0) > self.config.airborne_alt_m)
+        down_home = (ph == RETURNING) & (dist_home <= rot.land_radius_m) & low
+        alive[:m] = recent[:m] | on_ground[:m] | down_home[:m]
         # Landed away from the base (a critical-battery LAND in the field): gone for the mission.
-        away = heard & ~armed & (dist > rot.land_radius_m) & np.isin(ph, (AIR, INBOUND, RETURNING))
+        away = heard & ~armed & (dist_home > rot.land_radius_m)
+        away &= np.isin(ph, (AIR, INBOUND, RETURNING))
         for i in np.flatnonzero(away & self._was_flying(nd)).tolist():
             if i not in rot.gone:
                 rot.gone.add(i)
                 rot.counters["landed_away"] += 1
-                log.warning("row %d landed %.0f m from the base: lost to the mission", i, dist[i])
+                log.warning(
+                    "row %d landed %.0f m from its pad: lost to the mission", i, dist_home[i]
+                )
         if rot.gone:
             alive[list(rot.gone)] = False
         batt = np.full(nd, np.nan)
@@ -151,7 +176,7 @@ class RotationStep(OperatorState):
         drain = np.maximum(est, rot.hover_drain_per_s)
         networked = np.zeros(nd, bool)
         networked[:m] = snap.networked[:m]
-        landed = heard & ~armed & (dist <= rot.land_radius_m)
+        landed = heard & ~armed & (dist_home <= rot.land_radius_m)
         for i in np.flatnonzero(landed & (ph == RETURNING)).tolist():
             rot.landed_s[i] = now_s
             rot.landed_frac[i] = float(batt[i])
@@ -162,7 +187,11 @@ class RotationStep(OperatorState):
         landed_frac = np.array([rot.landed_frac.get(i, np.nan) for i in range(nd)])
         full = batt >= rot.full_frac
         rose = full & ~(landed_frac >= rot.full_frac)  # NaN (unknown at landing) counts as rose
-        swap_done = (ph == SWAPPING) & full & ((rebooted > landed_at) | rose)
+        # A reboot since it was sent home is the crew's swap, whether the station heard it land
+        # before (rebooted > landed_at) or only after it (powered off before the disarm was heard).
+        booted_home = np.zeros(nd, bool)
+        booted_home[list(rot.rebooted_home)] = True
+        swap_done = (ph == SWAPPING) & full & ((rebooted > landed_at) | rose | booted_home)
         ret_drain = np.full(nd, rot.hover_drain_per_s * rot.return_drain_factor)
         out = pol.step(
             now_s,
@@ -176,6 +205,8 @@ class RotationStep(OperatorState):
             swap_done=swap_done,
             return_drain_per_s=ret_drain,
         )
+        for i in np.flatnonzero(out.battery_swapped).tolist():
+            rot.rebooted_home.discard(i)
         rot.events.extend(out.events)
         for ev in out.events:
             log.info("rotation t=%.0f s: %s row %d (%d)", ev.t_s, ev.kind, ev.drone, ev.other)
@@ -230,15 +261,15 @@ class RotationStep(OperatorState):
                     self.station.rtl(vid, now_s)
                     rot.home_cmd_s[i] = now_s
                 else:
-                    d = float(np.hypot(*(snap.pos_ned_m[i, :2] - np.asarray(rot.base_ne_m))))
+                    pad = rot.home_ne_m[i] if i < len(rot.home_ne_m) else np.full(2, np.nan)
+                    pad = np.where(np.isnan(pad), np.asarray(rot.base_ne_m, float), pad)
+                    d = float(np.hypot(*(snap.pos_ned_m[i, :2] - pad)))
                     if d <= rot.land_radius_m / 3:
                         self.station.clear_position_target(vid, now_s)
                         self.station.land(vid, now_s)
                         rot.home_cmd_s[i] = now_s
                     else:
-                        tgt = np.array(
-                            [[*rot.base_ne_m, -float(layer_alt_m([i], self.control)[0])]]
-                        )
+                        tgt = np.array([[*pad, -float(layer_alt_m([i], self.control)[0])]])
                         self._send_targets(snap, np.array([i]), tgt, now_s)
             except (LinkUsageError, UnknownVehicle, ValueError) as exc:
                 log.info("link %d sysid %d: %s", *vid, exc)

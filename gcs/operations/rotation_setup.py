@@ -50,6 +50,11 @@ class RotationSetup:
     landed_s: dict[int, float] = field(default_factory=dict)
     """Row -> when it was seen landed at the base (a reboot after it confirms the swap)."""
     landed_frac: dict[int, float] = field(default_factory=dict)
+    home_ne_m: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
+    """(N, 2) each row's pad (first heard disarmed on the ground), mission frame (NaN: not yet)."""
+    rebooted_home: set[int] = field(default_factory=set)
+    """Rows power-cycled since they were sent home (the crew's swap), until the swap is
+    confirmed: the reboot may come before the station heard the landing."""
     home_cmd_s: dict[int, float] = field(default_factory=dict)
     """Row -> when it was last told to go home / land (retry pacing)."""
     time_to_reserve_s: np.ndarray = field(default_factory=lambda: np.empty(0))

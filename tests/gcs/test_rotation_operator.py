@@ -6,15 +6,23 @@ spare again; the firmware's own low-battery RTL is the policy's failsafe."""
 from __future__ import annotations
 
 import numpy as np
-from test_operations import CONTROL, ORIGIN, RTL, FakePlanner, FakeStation, Feed
+from test_operations import CONTROL, ORIGIN, RTL, STABILIZE, FakePlanner, FakeStation, Feed
 
-from gcs.events import BatteryReceived, VehicleRebooted
+from gcs.events import (
+    ArmedChanged,
+    BatteryReceived,
+    ModeChanged,
+    VehicleLost,
+    VehicleRebooted,
+    VehicleRecovered,
+)
 from gcs.fleet import FleetView
 from gcs.operations import OperationsConfig, Operator
 from gcs.operations.rotation import RotationSetup
 from planner.endurance import (
     AIR,
     INBOUND,
+    LOST,
     READY,
     RETURNING,
     SWAPPING,
@@ -137,6 +145,92 @@ def test_relay_relieved_by_a_spare_sent_home_landed_rebooted_and_ready_again():
     # A spare on the ground is not launched again until the policy sends it.
     t = _run(feed, t, t + 5.0, batt)
     assert len(station.of("takeoff", relay)) == n_takeoffs
+
+
+def test_swap_confirmed_when_the_crew_powers_off_before_the_disarm_is_heard():
+    """The emulator's sequence (/work/flyruns/a, sysid 40): the relay lands in RTL at the base
+    and is powered off by the ground crew in the very step it disarms, so the station never
+    hears it disarmed; the link declares it lost ~5 s later, and after the swap (60 s of silence,
+    longer than ``lost_after_s``) it comes back in one burst: VehicleRecovered, ModeChanged
+    RTL -> STABILIZE, ArmedChanged False, VehicleRebooted, a full SYS_STATUS. The station must
+    neither drop it as lost nor miss the swap: it is a spare again."""
+    op, station, planner, feed, (relay, spare), rot = _make()
+    feed.poll(0.0)
+    _battery(feed, relay, 0.5, 0.9)
+    feed.fly(relay, 1.0)
+    feed.v[relay]["north_m"] = POST_N_M
+    feed.v[spare]["north_m"] = 0.0
+    batt = {relay: 0.9, spare: 1.0}
+    t = _run(feed, 1.0, 20.0, batt)
+    batt[relay] = 0.30
+    t = _run(feed, t, t + 5.0, batt)
+    feed.fly(spare, t)
+    feed.v[spare]["north_m"] = POST_N_M
+    t = _run(feed, t, t + 3.0, batt)
+    assert rot.policy.phase.tolist() == [RETURNING, AIR]
+    feed.mode(relay, t, RTL)
+    t = _run(feed, t, t + 3.0, batt)
+    # Home in RTL, on the ground, still armed in the last heartbeat the station hears ...
+    feed.v[relay]["north_m"] = 1.0
+    feed.alt(relay, t, 0.0)
+    t = _run(feed, t, t + 1.0, batt)
+    last_heard = t - 0.5
+    # ... then the crew pulls the pack: silent, never heard disarmed.
+    feed.silent.add(relay)
+    t = _run(feed, t, t + 5.0, batt)
+    feed.emit(VehicleLost(relay[0], relay[1], t, last_heard))
+    t = _run(feed, t, last_heard + 60.5, batt)
+    assert rot.policy.phase[0] != LOST  # powered off at the base, not lost
+    # The boot, as the link reports it (one burst at the first heartbeat).
+    feed.silent.discard(relay)
+    feed.emit(VehicleRecovered(relay[0], relay[1], t, t - last_heard, STABILIZE, "STABILIZE"))
+    feed.v[relay]["mode"] = STABILIZE
+    feed.emit(ModeChanged(relay[0], relay[1], t, STABILIZE, "STABILIZE", "RTL"))
+    feed.v[relay]["armed"] = False
+    feed.emit(ArmedChanged(relay[0], relay[1], t, False))
+    feed.emit(VehicleRebooted(relay[0], relay[1], t, last_heard, 0.5))
+    batt[relay] = 1.0
+    t = _run(feed, t, t + 3.0, batt)
+    assert rot.policy.phase.tolist() == [READY, AIR]
+    s = op.rotation_summary()
+    assert s is not None
+    assert (s["rotations"], s["swaps"], s["reboots"], s["landed_away"]) == (1, 1, 1, 0)
+    assert (s["ready"], s["in_air"]) == (1, 1)
+
+
+def test_pads_away_from_the_base_centre_are_home_not_landed_away():
+    """The emulator's vehicles stand on pads spread tens of metres around the base's centre and
+    RTL lands each on its own: a spare on its pad while being launched, and a relay back on its
+    pad, are at home (not ``landed_away``), and the relay's swap is confirmed there."""
+    op, station, planner, feed, (relay, spare), rot = _make()
+    for vid, east in ((relay, 60.0), (spare, 66.0)):
+        feed.v[vid]["east_m"] = east
+    feed.poll(0.0)
+    _battery(feed, relay, 0.5, 0.9)
+    feed.fly(relay, 1.0)
+    feed.v[relay]["north_m"] = POST_N_M
+    batt = {relay: 0.9, spare: 1.0}
+    t = _run(feed, 1.0, 20.0, batt)
+    batt[relay] = 0.30
+    t = _run(feed, t, t + 5.0, batt)  # launched, still disarmed on its pad
+    assert rot.policy.phase.tolist() == [AIR, INBOUND]
+    assert rot.counters["landed_away"] == 0 and not rot.gone
+    feed.fly(spare, t)
+    feed.v[spare]["north_m"] = POST_N_M
+    feed.v[spare]["east_m"] = 60.0
+    t = _run(feed, t, t + 3.0, batt)
+    assert rot.policy.phase.tolist() == [RETURNING, AIR]
+    feed.mode(relay, t, RTL)
+    feed.v[relay]["north_m"] = 0.5
+    feed.alt(relay, t, 0.0)
+    feed.armed(relay, t, False)
+    t = _run(feed, t, t + 2.0, batt)
+    assert rot.policy.phase[0] == SWAPPING
+    feed.emit(VehicleRebooted(relay[0], relay[1], t, 1500.0, 2.0))
+    batt[relay] = 1.0
+    t = _run(feed, t, t + 2.0, batt)
+    assert rot.policy.phase.tolist() == [READY, AIR]
+    assert rot.counters["landed_away"] == 0
 
 
 def test_firmware_low_battery_rtl_is_a_failsafe_not_a_reclaim():
