@@ -43,6 +43,7 @@ from gcs.events import (
     TaskPositionReceived,
     VehicleDiscovered,
     VehicleLost,
+    HomePositionReceived,
     VehicleRebooted,
     VehicleRecovered,
 )
@@ -315,6 +316,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         MissionProtocolReceived: RallyStep._on_mission_protocol,
         ModeChanged: RotationStep._rotation_on_mode,
         VehicleRebooted: RotationStep._rotation_on_reboot,
+        HomePositionReceived: RotationStep._rotation_on_home,
     }
 
     # ------------------------------------------------------------------ timing

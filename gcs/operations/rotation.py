@@ -36,7 +36,7 @@ import numpy as np
 
 from gcs.autopilot import adapter_for
 from gcs.control import layer_alt_m
-from gcs.events import ModeChanged, VehicleRebooted
+from gcs.events import HomePositionReceived, ModeChanged, VehicleRebooted
 from gcs.fleet import FleetSnapshot
 from gcs.link import LinkUsageError, UnknownVehicle
 from gcs.operations._state import OperatorState
@@ -54,6 +54,7 @@ from planner.endurance import (
     SWAPPING,
     time_to_reserve_s,
 )
+from planner.geometry import geodetic_to_ned_m
 
 __all__ = ["RotationSetup", "RotationStep"]
 
@@ -103,6 +104,28 @@ class RotationStep(OperatorState):
             log.warning(
                 "link %d sysid %d: battery failsafe %s at %.0f %%", *key, event.mode, 100 * batt
             )
+
+    def _rotation_on_home(self, event: HomePositionReceived, key: tuple[int, int]) -> None:
+        """The vehicle's pad from its HOME_POSITION (where RTL lands it), first heard before
+        the launch: a relay sent home is never heard disarmed in the RUN before the crew pulls
+        its pack, so without this its pad would be the base's centre, tens of metres off, and the
+        silent vehicle down on its own pad would be lost to the rotation for good."""
+        rot = self.rotation
+        if rot is None:
+            return
+        nd = rot.policy.n_drones
+        i = self.fleet.index_of(*key)
+        if i >= nd:
+            return
+        if rot.home_ne_m.shape != (nd, 2):
+            rot.home_ne_m = np.full((nd, 2), np.nan)
+        if not np.isnan(rot.home_ne_m[i, 0]):
+            return
+        o = self.fleet.origin
+        ned = geodetic_to_ned_m(
+            event.lat_deg, event.lon_deg, event.alt_amsl_m, o.lat_deg, o.lon_deg, o.alt_amsl_m
+        )
+        rot.home_ne_m[i] = np.asarray(ned, float).reshape(-1)[:2]
 
     def _rotation_on_reboot(self, event: VehicleRebooted, key: tuple[int, int]) -> None:
         """A power-cycled vehicle is the same vehicle: its launch bookkeeping starts over."""

@@ -264,3 +264,62 @@ def test_an_rtl_with_a_full_battery_is_reclaimed_as_before():
     assert rot.counters["battery_failsafes"] == 0
     assert rot.policy.phase[0] == AIR
     assert station.of("engage_guided", relay, since_s=t - 5.0)
+
+
+def test_relay_on_a_pad_off_the_base_centre_powered_off_unheard_is_a_spare_again():
+    """The emulator's sequence of wildfire_2h: the relay took off from its pad 60 m from the
+    base's centre before the rotation's first tick (never heard disarmed in the run), RTL brings
+    it back to that pad, the crew pulls the pack before the disarm is heard, and it reboots 60 s
+    later. Its pad is known from HOME_POSITION: it is down at home, not lost, and a spare again."""
+    from gcs.events import HomePositionReceived
+    from planner.geometry import ned_to_geodetic
+
+    op, station, planner, feed, (relay, spare), rot = _make()
+    lat, lon, _ = ned_to_geodetic(
+        np.array([0.0, 60.0, 0.0]), ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_amsl_m
+    )
+    feed.emit(
+        HomePositionReceived(
+            relay[0],
+            relay[1],
+            0.0,
+            float(np.ravel(lat)[0]),
+            float(np.ravel(lon)[0]),
+            ORIGIN.alt_amsl_m,
+        )
+    )
+    feed.v[relay]["east_m"] = 60.0
+    feed.fly(relay, 0.0)
+    _battery(feed, relay, 0.0, 0.9)
+    feed.poll(0.0)
+    feed.v[relay]["north_m"] = POST_N_M
+    batt = {relay: 0.9, spare: 1.0}
+    t = _run(feed, 0.5, 20.0, batt)
+    batt[relay] = 0.30
+    t = _run(feed, t, t + 5.0, batt)
+    feed.fly(spare, t)
+    feed.v[spare]["north_m"] = POST_N_M
+    feed.v[spare]["east_m"] = 60.0
+    t = _run(feed, t, t + 3.0, batt)
+    assert rot.policy.phase.tolist() == [RETURNING, AIR]
+    feed.mode(relay, t, RTL)
+    t = _run(feed, t, t + 3.0, batt)
+    feed.v[relay]["north_m"] = 1.0
+    feed.alt(relay, t, 0.0)
+    t = _run(feed, t, t + 1.0, batt)
+    last_heard = t - 0.5
+    feed.silent.add(relay)
+    t = _run(feed, t, t + 5.0, batt)
+    feed.emit(VehicleLost(relay[0], relay[1], t, last_heard))
+    t = _run(feed, t, last_heard + 60.5, batt)
+    assert rot.policy.phase[0] != LOST
+    feed.silent.discard(relay)
+    feed.emit(VehicleRecovered(relay[0], relay[1], t, t - last_heard, STABILIZE, "STABILIZE"))
+    feed.v[relay]["mode"] = STABILIZE
+    feed.emit(ModeChanged(relay[0], relay[1], t, STABILIZE, "STABILIZE", "RTL"))
+    feed.v[relay]["armed"] = False
+    feed.emit(ArmedChanged(relay[0], relay[1], t, False))
+    feed.emit(VehicleRebooted(relay[0], relay[1], t, last_heard, 0.5))
+    batt[relay] = 1.0
+    t = _run(feed, t, t + 3.0, batt)
+    assert rot.policy.phase.tolist() == [READY, AIR]
