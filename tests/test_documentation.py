@@ -734,6 +734,12 @@ TABLE: dict[str, Case] = {
         timeout=900,
     ),
     ".venv/bin/python bench/bench_endurance.py --seeds 0": Case(kind="bench"),
+    "phireman fly wildfire_2h --duration-s 2400 --speedup 50 --apply-failsafes": Case(
+        # The first 60 s of the 2,400: batteries read, the battery failsafes applied, K planned.
+        rewrite=((r"--duration-s 2400", "--duration-s 60"), (r"$", " --no-wait --out runs")),
+        check=lambda c: c.has(r"TU1/TU2 as the station saw them", r"BATT_FS_LOW_ACT"),
+        timeout=600,
+    ),
     "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),
     "phireman sweep --grid custom --size XS --attrition 0 1% --method phireman dccrs --seeds 3 --chunk 1 --scheduler sched.json --store cluster.sqlite": SKIP(  # noqa: E501
         "needs a Dask scheduler and workers started first: run with them, a worker killed "
