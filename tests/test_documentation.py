@@ -476,7 +476,7 @@ def forwarding(outputs: tuple[str, ...], readonly: bool, serve: bool = False) ->
     def check(c: Ctx) -> None:
         s = c.served
         assert s is not None
-        s.wait_for(r"forwarding MAVLink via local")
+        s.wait_for(r"forwarding MAVLink( to |: listening on )")
         if serve:
             page()(c)
         for kind, port in zip(outputs, c.extra["ports"]):
