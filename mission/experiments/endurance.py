@@ -27,11 +27,9 @@ import numpy as np
 
 from planner.endurance import (
     RETURNING,
-    EnduranceParams,
     RotationEvent,
     RotationOutput,
     RotationPolicy,
-    plan_fleet,
 )
 from vehicle_emu.world import World
 
@@ -167,21 +165,7 @@ def endurance_run(
     if spec is None or battery == "unlimited":
         return None
     rotate = endurance.rotation if rotation == "mission" else rotation == "on"
-    # The level the policy must never reach in the air is the firmware's *first* action, its
-    # low-battery return to launch: below it the autopilot, not the plan, decides.
-    params = EnduranceParams(
-        critical_frac=spec.low_frac,
-        return_speed_m_s=max_speed_m_s,
-        **endurance.params,
-    )
-    base = endurance.base.resources()
-    if rotate:
-        flying = plan_fleet(
-            n_drones, spec.endurance_s, horizon_s, base, params, mean_post_dist_m
-        ).flying
-    else:
-        flying = n_drones
-    policy = RotationPolicy(n_drones, flying, base, params, rotate=rotate)
+    policy = endurance.policy(n_drones, horizon_s, max_speed_m_s, mean_post_dist_m, rotate)
     return EnduranceRun(
         policy,
         spec.endurance_s,

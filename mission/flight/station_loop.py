@@ -35,7 +35,6 @@ from mission.flight.fly_options import FlyOptions, RunnerError
 from mission.flight.mission_world import MissionScenario, control_config
 from mission.flight.run_dir import FlightTimes, Records
 from mission.format.schema import Mission
-from planner.endurance import EnduranceParams, RotationPolicy, plan_fleet
 from planner.methods import make_planner
 from planner.problem import ProblemConfig
 from vehicle_emu.world import spawn_streams
@@ -248,29 +247,23 @@ def make_operator(
 
 
 def rotation_setup(mission: Mission, scenario: MissionScenario) -> RotationSetup | None:
-    """The station's relay rotation for a mission with batteries (None without): the policy as
-    the in-process run builds it (``mission.experiments.endurance.endurance_run``: the level to
-    avoid is the firmware's low-battery failsafe, K from ``plan_fleet``), and what the mission
-    says of the batteries (nominal hover drain, the drain at full speed)."""
+    """The station's relay rotation for a mission with batteries (None without): the policy the
+    in-process run builds too (:meth:`mission.format.schema.EnduranceSpec.policy`), and what the
+    mission says of the batteries (nominal hover drain, the drain at full speed)."""
     end = mission.endurance
     spec = end.battery
     if spec is None:
         return None
     n = len(scenario.spawn_ne_m)
-    speed = mission.vehicles.limits.max_speed_m_s
-    params = EnduranceParams(critical_frac=spec.low_frac, return_speed_m_s=speed, **end.params)
-    base = end.base.resources()
     tasks = np.asarray(scenario.task_pos_m(0.0), dtype=float).reshape(-1, 2)
     dist = np.hypot(*tasks[np.isfinite(tasks).all(axis=1)].T)
     mean_post_m = 0.5 * float(dist.mean()) if dist.size else 0.0
-    if end.rotation:
-        flying = plan_fleet(n, spec.endurance_s, mission.run.duration_s, base, params, mean_post_m)
-        k = flying.flying
-        log.info("rotation: %d of %d fly at once (%s-bound)", k, n, flying.limit)
-    else:
-        k = n
+    policy = end.policy(
+        n, mission.run.duration_s, mission.vehicles.limits.max_speed_m_s, mean_post_m
+    )
+    log.info("rotation: %d of %d fly at once", policy.flying, n)
     return RotationSetup(
-        RotationPolicy(n, k, base, params, rotate=end.rotation),
+        policy,
         hover_drain_per_s=1.0 / spec.endurance_s,
         return_drain_factor=1.0 + spec.speed_drain_frac,
     )

@@ -1035,6 +1035,37 @@ class EnduranceSpec(_Section):
     """Rotation policy settings (``planner.endurance.EnduranceParams``: margin_frac, handover_s,
     launch_s, hold_radius_m, slack_s)."""
 
+    def policy(
+        self,
+        n_drones: int,
+        horizon_s: float,
+        max_speed_m_s: float,
+        mean_post_dist_m: float,
+        rotate: bool | None = None,
+    ) -> Any:
+        """The :class:`planner.endurance.RotationPolicy` of this section (the one construction the
+        in-process run and the station share; needs ``battery``).
+
+        The level the policy must never reach in the air is the firmware's *first* battery
+        action, its low-battery return to launch (``battery.low_frac``): below it the autopilot,
+        not the plan, decides. With rotation, ``plan_fleet`` decides how many fly
+        (``mean_post_dist_m``: the typical way out to a relay's post); without, all fly.
+        ``rotate`` None: this section's ``rotation``."""
+        from planner.endurance import EnduranceParams, RotationPolicy, plan_fleet
+
+        assert self.battery is not None  # callers check: no policy for endless batteries
+        rotate = self.rotation if rotate is None else rotate
+        params = EnduranceParams(
+            critical_frac=self.battery.low_frac, return_speed_m_s=max_speed_m_s, **self.params
+        )
+        base = self.base.resources()
+        flying = n_drones
+        if rotate:
+            flying = plan_fleet(
+                n_drones, self.battery.endurance_s, horizon_s, base, params, mean_post_dist_m
+            ).flying
+        return RotationPolicy(n_drones, flying, base, params, rotate=rotate)
+
     def validate(self) -> list[tuple[str, str]]:
         from planner.endurance import EnduranceParams
 
