@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from gcs.forward import Forwarder, split_frames
+from gcs.forward import Forwarder, Override, override_of, split_frames
 from gcs.wire import mavlink
 
 
@@ -44,9 +44,13 @@ class _FakeLink:
 class _FakeOut:
     def __init__(self) -> None:
         self.got: list[bytes] = []
+        self.replies: list[tuple[bytes, object]] = []
 
     def send(self, payload: bytes) -> None:
         self.got.append(payload)
+
+    def reply(self, payload: bytes, source: object) -> None:
+        self.replies.append((payload, source))
 
 
 def test_split_frames_whole_and_cut():
@@ -55,8 +59,8 @@ def test_split_frames_whole_and_cut():
     assert frames == [a, b] and used == 5 + len(a) + len(b)
 
 
-def _forwarder(readonly=False):
-    fwd = Forwarder(["udpout:127.0.0.1:9"], readonly=readonly)
+def _forwarder(readonly=False, on_override=None):
+    fwd = Forwarder(["udpout:127.0.0.1:9"], readonly=readonly, on_override=on_override)
     links = [_FakeLink(0), _FakeLink(1)]
     for link in links:
         fwd.attach(link)
@@ -86,6 +90,127 @@ def test_readonly_drops_everything_from_outputs():
     fwd.from_output(_frame(_cmd(0), 254), "qgc")
     assert not l0.sent and not l1.sent and fwd.stats["dropped_readonly"] == 2
     assert out.got  # vehicle traffic still goes out
+
+
+# ------------------------------------------------------------------------------------------------
+# Overrides from a forwarded client (issue 26)
+
+C = mavlink
+
+
+def _long(target: int, command: int, *params: float, compid: int = 1):
+    p = list(params) + [0.0] * (7 - len(params))
+    return C.MAVLink_command_long_message(target, compid, command, 0, *p)
+
+
+def _int(target: int, command: int, *params: float):
+    p = list(params) + [0.0] * (4 - len(params))
+    return C.MAVLink_command_int_message(target, 1, 6, command, 0, 0, *p, 453000000, 70000000, 30.0)
+
+
+def _item_int(target: int, current: int):
+    return C.MAVLink_mission_item_int_message(
+        target, 1, 0, 6, C.MAV_CMD_NAV_WAYPOINT, current, 1, 0, 0, 0, 0, 453000000, 70000000, 30.0
+    )
+
+
+#: What QGroundControl and other clients send to take a vehicle, and what they only read.
+TAKING = [
+    (C.MAVLink_set_mode_message(7, 1, 6), ("SET_MODE", None, 6, None)),  # PX4 / QGC: message
+    (_long(7, C.MAV_CMD_DO_SET_MODE, 1, 6), ("COMMAND_LONG", C.MAV_CMD_DO_SET_MODE, 6, None)),
+    (_long(7, C.MAV_CMD_NAV_RETURN_TO_LAUNCH), ("COMMAND_LONG", 20, None, None)),
+    (_long(7, C.MAV_CMD_NAV_LAND), ("COMMAND_LONG", C.MAV_CMD_NAV_LAND, None, None)),
+    (_long(7, C.MAV_CMD_COMPONENT_ARM_DISARM, 0), ("COMMAND_LONG", 400, None, False)),
+    (_long(7, C.MAV_CMD_COMPONENT_ARM_DISARM, 1), ("COMMAND_LONG", 400, None, True)),
+    (_int(7, C.MAV_CMD_DO_REPOSITION, -1, 1), ("COMMAND_INT", C.MAV_CMD_DO_REPOSITION, None, None)),
+    (_item_int(7, 2), ("MISSION_ITEM_INT", None, None, None)),  # ArduPilot guided "go to"
+]
+READING = [
+    C.MAVLink_heartbeat_message(C.MAV_TYPE_GCS, C.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3),
+    C.MAVLink_param_request_read_message(7, 1, b"FS_GCS_ENABLE", -1),
+    C.MAVLink_param_request_list_message(7, 1),
+    C.MAVLink_mission_request_list_message(7, 1, 0),
+    C.MAVLink_mission_request_int_message(7, 1, 0, 0),
+    _long(7, C.MAV_CMD_REQUEST_MESSAGE, 148),
+    _long(7, C.MAV_CMD_SET_MESSAGE_INTERVAL, 33, 200000),
+    _item_int(7, 0),  # a mission upload's item
+]
+
+
+def test_override_of_takes_mode_return_land_arm_and_goto_but_not_reads():
+    for msg, want in TAKING:
+        assert override_of(msg) == want, msg.get_type()
+    for msg in READING:
+        assert override_of(msg) is None, msg.get_type()
+
+
+def test_override_names_the_mode_by_the_vehicles_autopilot():
+    ov = Override("c", 7, 1, ((0, 7),), "SET_MODE", custom_mode=6)
+    assert ov.what(C.MAV_AUTOPILOT_ARDUPILOTMEGA) == "SET_MODE RTL"
+    assert ov.what() == "SET_MODE custom_mode 6"
+    arm = Override("c", 7, 1, ((0, 7),), "COMMAND_LONG", command=400, arm=False)
+    assert arm.what() == "COMPONENT_ARM_DISARM disarm"
+
+
+def _decode(payload: bytes) -> list:
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    return [m for m in parser.parse_buffer(payload) or [] if m.get_type() != "BAD_DATA"]
+
+
+def test_a_refused_override_is_not_routed_and_the_client_is_told_why():
+    asked: list[Override] = []
+    reason = "phireman: vehicle 7 is flown by the relay plan; hold it on the station first"
+
+    def policy(ov: Override) -> str | None:
+        asked.append(ov)
+        return reason
+
+    fwd, (l0, l1), out = _forwarder(on_override=policy)
+    l0.taps[0](_frame(_hb(), 7), ("emu", 0))
+    l1.taps[0](_frame(_hb(), 9), ("emu", 1))
+    source = ("udpout:127.0.0.1:9", ("127.0.0.1", 14550))
+    fwd.from_output(_frame(_long(7, C.MAV_CMD_DO_SET_MODE, 1, 6), 254, 190), source)
+    assert not l0.sent and not l1.sent
+    (ov,) = asked
+    assert ov.vids == ((0, 7),) and ov.client == "127.0.0.1:14550 sysid 254"
+    assert (ov.client_sysid, ov.client_compid) == (254, 190)
+    ((payload, to),) = out.replies
+    assert to == source and len(out.got) == 2  # to that client only (out.got: 2 heartbeats)
+    ack, *texts = _decode(payload)
+    assert ack.get_type() == "COMMAND_ACK" and ack.command == C.MAV_CMD_DO_SET_MODE
+    assert ack.result == C.MAV_RESULT_DENIED
+    assert (ack.target_system, ack.target_component) == (254, 190)
+    # As from the vehicle (QGC drops messages of other sysids; matches the ACK by component).
+    assert {(m.get_srcSystem(), m.get_srcComponent()) for m in (ack, *texts)} == {(7, 1)}
+    assert all(t.get_type() == "STATUSTEXT" for t in texts) and len(texts) == 2
+    assert all(t.severity == C.MAV_SEVERITY_WARNING for t in texts)
+    assert [t.chunk_seq for t in texts] == [0, 1] and texts[0].id == texts[1].id != 0
+    assert "".join(t.text for t in texts) == reason
+    # A mode change by message (PX4 in QGC) is refused too, without an ACK (it has none).
+    fwd.from_output(_frame(C.MAVLink_set_mode_message(9, 1, 6), 254, 190), source)
+    assert not l1.sent and [m.get_type() for m in _decode(out.replies[-1][0])] == [
+        "STATUSTEXT",
+        "STATUSTEXT",
+    ]
+    # Read-only traffic is never asked about and still reaches the vehicle.
+    for msg in READING:
+        fwd.from_output(_frame(msg, 254, 190), source)
+    assert len(asked) == 2 and len(l0.sent) == len(READING)
+    assert fwd.stats["overrides_refused"] == 2 and fwd.stats["overrides_passed"] == 0
+
+
+def test_a_passed_override_is_routed_to_the_addressed_vehicle():
+    asked: list[Override] = []
+    fwd, (l0, l1), out = _forwarder(on_override=lambda ov: asked.append(ov))
+    l0.taps[0](_frame(_hb(), 7), ("emu", 0))
+    l1.taps[0](_frame(_hb(), 9), ("emu", 1))
+    fwd.from_output(_frame(_long(9, C.MAV_CMD_NAV_RETURN_TO_LAUNCH), 254), ("x", ("h", 1)))
+    assert len(l1.sent) == 1 and not l0.sent and not out.replies
+    assert asked[0].vids == ((1, 9),)
+    fwd.from_output(_frame(C.MAVLink_set_mode_message(0, 1, 6), 254), ("x", ("h", 1)))
+    assert asked[1].vids == ((0, 7), (1, 9))  # a broadcast addresses every vehicle heard
+    assert fwd.stats["overrides_passed"] == 2
 
 
 def test_bad_output_kind_is_refused():
