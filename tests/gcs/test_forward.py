@@ -246,8 +246,11 @@ class _Flight:
         self.stop = threading.Event()
         self.error: BaseException | None = None
         self.result = None
+        self.op = None
+        """The flight's operator (set at its first poll)."""
 
         def hook(op, world):
+            self.op = op
             if self.stop.is_set():
                 op.phase = "done"
 
@@ -338,6 +341,78 @@ def test_client_sees_every_vehicle_and_commands_reach_the_addressed_one(tmp_path
                 assert beats >= 40 and not got_ack
                 fwd = flight.info["forwarder"]
                 assert fwd.stats["dropped_readonly"] >= 1 and fwd.stats["routed"] == 0
+        assert flight.error is None, flight.error
+    finally:
+        conn.close()
+
+
+@pytest.mark.udp
+@pytest.mark.parametrize("policy", ["honour", "refuse"])
+def test_a_clients_rtl_during_a_flight_is_honoured_or_refused_never_undone(tmp_path, policy):
+    """QGroundControl's RTL through the forward port (a SET_MODE, as QGC sends it for PX4 and a
+    MAVProxy ``rtl`` does), during a short emulated ``phireman fly``: honoured, the vehicle stays
+    in RTL and the station records who took it; refused, it flies on in the guided mode and the
+    client gets the station's STATUSTEXT (and a COMMAND_ACK DENIED for DO_SET_MODE)."""
+    from gcs.autopilot import adapter_for
+
+    conn, port = _client()
+    try:
+        with _Flight(
+            tmp_path, forward=(f"udpout:127.0.0.1:{port}",), forward_overrides=policy
+        ) as flight:
+            want = 3
+
+            def guided_in_run(m):
+                if m.get_type() != "HEARTBEAT" or m.get_srcSystem() != want:
+                    return False
+                ad = adapter_for(m.autopilot)
+                armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                in_run = flight.op is not None and flight.op.phase == "run"
+                return in_run and armed and ad.is_guided(m.custom_mode)
+
+            hb = _recv_until(conn, guided_in_run, 120, f"vehicle {want} flying the plan")
+            ad = adapter_for(hb.autopilot)
+            rtl = ad.mode_number(ad.rtl_mode)
+            op = flight.op
+            conn.mav.set_mode_send(want, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, rtl)
+            if policy == "refuse":
+                conn.mav.command_long_send(
+                    want, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, 1, rtl, 0, 0, 0, 0, 0
+                )
+            modes, texts, acks = [], {}, []
+            end = time.monotonic() + 60
+            while len(modes) < 25 and time.monotonic() < end:
+                m = conn.recv_match(blocking=True, timeout=0.5)
+                if m is None or m.get_srcSystem() != want:
+                    continue
+                if m.get_type() == "HEARTBEAT":
+                    modes.append(ad.mode_name(m.custom_mode))
+                elif m.get_type() == "STATUSTEXT" and m.text.startswith("phireman"):
+                    texts[m.id] = m.text
+                elif m.get_type() == "STATUSTEXT" and m.id in texts:
+                    texts[m.id] += m.text
+                elif m.get_type() == "COMMAND_ACK" and m.target_system == 254:
+                    acks.append((m.command, m.result))
+            assert len(modes) >= 25, "too few heartbeats of the vehicle"
+            vid = (0, want)
+            if policy == "honour":
+                # Once in RTL it stays there (the station never switches it back) ...
+                first = modes.index(ad.rtl_mode)
+                assert set(modes[first:]) <= {ad.rtl_mode, ad.land_mode}, modes
+                assert vid not in [(l, s) for _, l, s in op.reclaimed]
+                # ... and the station says who took it, with what.
+                assert op.released.get(vid) == "override"
+                rec = op.overrides[vid]
+                assert rec.source.endswith("sysid 254") and rec.result.startswith("SET_MODE RTL")
+            else:
+                assert ad.rtl_mode not in modes and set(modes) == {ad.guided_mode}, modes
+                assert vid not in op.released
+                assert list(texts.values())[0] == (
+                    f"phireman: vehicle {want} is flown by the relay plan; hold it on the "
+                    "station first"
+                )
+                assert (mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_RESULT_DENIED) in acks
+                assert any(a.action == "override-refused" for a in op.actions)
         assert flight.error is None, flight.error
     finally:
         conn.close()
