@@ -59,7 +59,7 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
         default=FlyOptions.forward_overrides,
         help="when a --forward client changes the mode of a vehicle the plan flies (mode, "
         "RTL, land, arm/disarm, go to): honour = the vehicle leaves the plan as if held "
-        "on the station, and the live page says who took it ('back to plan' gives it "
+        "on the station, and the live page says who took it ('Return to plan' gives it "
         "back); refuse = not passed on, the client gets COMMAND_ACK DENIED and a "
         "STATUSTEXT saying why (hold the vehicle on the station first). Never undone "
         "silently (default %(default)s)",

@@ -358,7 +358,10 @@ def test_a_clients_rtl_during_a_flight_is_honoured_or_refused_never_undone(tmp_p
     conn, port = _client()
     try:
         with _Flight(
-            tmp_path, forward=(f"udpout:127.0.0.1:{port}",), forward_overrides=policy
+            tmp_path,
+            forward=(f"udpout:127.0.0.1:{port}",),
+            forward_overrides=policy,
+            serve="127.0.0.1:0",
         ) as flight:
             want = 3
 
@@ -404,6 +407,17 @@ def test_a_clients_rtl_during_a_flight_is_honoured_or_refused_never_undone(tmp_p
                 assert op.released.get(vid) == "override"
                 rec = op.overrides[vid]
                 assert rec.source.endswith("sysid 254") and rec.result.startswith("SET_MODE RTL")
+                label = f"taken by {rec.source}: {rec.result}"
+                # The live page says so, on the vehicle and in the event feed.
+                frame = _get_json(flight.info["url"] + "api/frame")
+                row = frame["v"]["id"].index(f"0:{want}")
+                assert frame["v"]["released"][row] == label
+                assert any(
+                    e["vehicle"] == f"0:{want}"
+                    and "OVERRIDE" in e["text"]
+                    and rec.source in e["text"]
+                    for e in frame["events"]
+                )
             else:
                 assert ad.rtl_mode not in modes and set(modes) == {ad.guided_mode}, modes
                 assert vid not in op.released
@@ -414,5 +428,18 @@ def test_a_clients_rtl_during_a_flight_is_honoured_or_refused_never_undone(tmp_p
                 assert (mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_RESULT_DENIED) in acks
                 assert any(a.action == "override-refused" for a in op.actions)
         assert flight.error is None, flight.error
+        if policy == "honour":  # the replay of the run says the same (events.jsonl)
+            from mission.view.live.replay import ReplaySource
+
+            last = ReplaySource(flight.result.run_dir).frame()
+            assert last["v"]["released"][last["v"]["id"].index(f"0:{want}")] == label
     finally:
         conn.close()
+
+
+def _get_json(url: str) -> dict:
+    import json
+    import urllib.request
+
+    with urllib.request.urlopen(url, timeout=10) as r:
+        return json.loads(r.read())
