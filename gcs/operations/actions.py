@@ -224,6 +224,13 @@ class OperatorActions(OperatorState):
             if not armed:
                 out.append((vid, f"on the ground ({mode})", True))
                 continue
+            taken = self.overrides.get(vid)
+            if taken is not None and action == self.config.end:
+                # The end command is never sent to it (gcs/operations/end.py): say whose it is.
+                out.append(
+                    (vid, f"{taken.source} flies it ({taken.result}); now {mode}: not told", True)
+                )
+                continue
             want = {
                 "rtl": (adapter.rtl_mode, adapter.land_mode),
                 "land": (adapter.land_mode,),

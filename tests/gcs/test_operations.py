@@ -1565,6 +1565,13 @@ def test_an_honoured_override_is_not_end_commanded():
     feed.run(1.25, 20.0)
     assert op.phase == "end"
     assert station.of("rtl", w) and not station.of("rtl", v)
+    op.interrupt("end", 20.1)  # Ctrl-C: the report says whose it is
+    rep = dict((vid, (text, ok)) for vid, text, ok in op.interrupt_report(20.2))
+    assert rep[v] == (
+        "127.0.0.1:14550 sysid 254 flies it (DO_REPOSITION (t+1 s)); now GUIDED: not told",
+        True,
+    )
+    assert "told RTL" in rep[w][0]
 
 
 def test_a_refused_override_leaves_the_vehicle_in_the_plan_and_says_why():
