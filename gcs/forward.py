@@ -432,7 +432,8 @@ class Forwarder:
 
     def _refuse(self, ov: Override, reason: str, source: object) -> None:
         """Answer a refused override to the client that sent it (and to no other)."""
-        log.warning("forwarding: %s from %s refused: %s", ov.what(), ov.client, reason)
+        # Info only: the station's policy records and logs the refusal (once per retry burst).
+        log.info("forwarding: %s from %s refused: %s", ov.what(), ov.client, reason)
         payload = b"".join(self.refusal_frames(ov, reason))
         for out in self._outputs:
             out.reply(payload, source)
