@@ -347,8 +347,12 @@ def test_client_sees_every_vehicle_and_commands_reach_the_addressed_one(tmp_path
 
 
 @pytest.mark.udp
-@pytest.mark.parametrize("policy", ["honour", "refuse"])
-def test_a_clients_rtl_during_a_flight_is_honoured_or_refused_never_undone(tmp_path, policy):
+@pytest.mark.parametrize(
+    "policy,personality", [("honour", "ardupilot"), ("refuse", "ardupilot"), ("honour", "px4")]
+)
+def test_a_clients_rtl_during_a_flight_is_honoured_or_refused_never_undone(
+    tmp_path, policy, personality
+):
     """QGroundControl's RTL through the forward port (a SET_MODE, as QGC sends it for PX4 and a
     MAVProxy ``rtl`` does), during a short emulated ``phireman fly``: honoured, the vehicle stays
     in RTL and the station records who took it; refused, it flies on in the guided mode and the
@@ -362,6 +366,7 @@ def test_a_clients_rtl_during_a_flight_is_honoured_or_refused_never_undone(tmp_p
             forward=(f"udpout:127.0.0.1:{port}",),
             forward_overrides=policy,
             serve="127.0.0.1:0",
+            personality=personality,
         ) as flight:
             want = 3
 
@@ -406,7 +411,9 @@ def test_a_clients_rtl_during_a_flight_is_honoured_or_refused_never_undone(tmp_p
                 # ... and the station says who took it, with what.
                 assert op.released.get(vid) == "override"
                 rec = op.overrides[vid]
-                assert rec.source.endswith("sysid 254") and rec.result.startswith("SET_MODE RTL")
+                assert rec.source.endswith("sysid 254") and rec.result.startswith(
+                    f"SET_MODE {ad.rtl_mode} ("
+                )
                 label = f"taken by {rec.source}: {rec.result}"
                 # The live page says so, on the vehicle and in the event feed.
                 frame = _get_json(flight.info["url"] + "api/frame")
