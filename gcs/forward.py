@@ -125,7 +125,7 @@ class Override:
     """A forwarded client's message that changes who flies the vehicles it addresses."""
 
     client: str
-    """Who sent it, for people (:func:`client_name`: address, MAVLink sysid, output)."""
+    """Who sent it, for people (:func:`client_name`: its address and MAVLink sysid)."""
     target_system: int
     target_component: int
     vids: tuple[tuple[int, int], ...]

@@ -105,22 +105,21 @@ class OperatorActions(OperatorState):
         return "released"
 
     def forwarded_override(
-        self, ov: ForwardedOverride, now_s: float, *, policy: str = "honour"
+        self, ov: ForwardedOverride, now_s: float, *, refuse: bool = False
     ) -> str | None:
         """A forwarded client (QGroundControl, MAVProxy through ``phireman fly --forward``) sent
         a command that changes who flies the vehicles ``ov.vids`` (:func:`gcs.forward.override_of`).
         Returns None to pass it on, or the reason it is refused (the forwarder tells the client).
 
         A vehicle the plan flies (known, not released) is never switched back behind the
-        client's back: ``policy`` ``honour`` takes it out of the plan as if the operator held it
-        (``released`` ``override``: not planned, reclaimed, relaunched or end-commanded; its
-        position target stops) and records who took it (:attr:`overrides`, an
-        :class:`OperatorAction` ``override``), until an operator's ``rejoin``; ``refuse`` keeps it
-        in the plan and refuses the command (recorded as ``override-refused``). A vehicle the
-        operator already took out of the plan (held) is the client's to command under either
-        policy; before the launch and after the end nothing is flown, and everything passes."""
-        if policy not in ("honour", "refuse"):
-            raise ValueError(f"policy must be 'honour' or 'refuse', got {policy!r}")
+        client's back. By default (``phireman fly --forward-overrides honour``) it leaves the
+        plan as if the operator held it (``released`` ``override``: not planned, reclaimed,
+        relaunched or end-commanded; its position target and our retried flight commands stop)
+        and the record says who took it (:attr:`overrides`, an :class:`OperatorAction`
+        ``override``), until an operator's ``rejoin``. With ``refuse`` it stays in the plan and
+        the command is refused (recorded as ``override-refused``). A vehicle the operator
+        already took out of the plan (held) is the client's to command either way; so is every
+        vehicle once the flight is over (done or refused)."""
         if self.phase in (Phase.DONE, Phase.REFUSED):
             return None
         targets = [v for v in ov.vids if v in self._known]
@@ -131,7 +130,7 @@ class OperatorActions(OperatorState):
         t_m = self.t_mission_s(now_s) if self.mission_t0_s is not None else None
         when = f"t+{t_m:.0f} s" if t_m is not None else "before the mission"
         flown = [v for v in targets if v not in self.released]
-        if policy == "refuse" and flown:
+        if refuse and flown:
             names = ", ".join(str(s) if l == 0 else f"{l}:{s}" for l, s in flown)
             many = "s" if len(flown) > 1 else ""
             reason = (

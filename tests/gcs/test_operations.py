@@ -1531,7 +1531,7 @@ def test_an_honoured_override_takes_the_vehicle_out_of_the_plan_until_rejoined()
     seen: list[OperatorAction] = []
     op.on_action = seen.append
     feed.run(1.25, 5.0)
-    assert op.forwarded_override(_Override([v]), 5.1, policy="honour") is None  # passed on
+    assert op.forwarded_override(_Override([v]), 5.1, refuse=False) is None  # passed on
     assert op.released == {v: "override"}
     (rec,) = seen
     assert (rec.action, rec.link_id, rec.sysid) == ("override", 0, 1)
@@ -1550,7 +1550,7 @@ def test_an_honoured_override_takes_the_vehicle_out_of_the_plan_until_rejoined()
     assert station.of("set_position_target", w, since_s=25.0)
     assert op.records[-1].planned == 1  # only w is given a target
     # A client's retry of the same command is recorded once.
-    op.forwarded_override(_Override([v]), 30.1, policy="honour")
+    op.forwarded_override(_Override([v]), 30.1, refuse=False)
     assert len(seen) == 1
     # The operator gives it back: reclaimed like a vehicle back from a failsafe.
     op.operator_command("rejoin", v, 30.2, source="web 127.0.0.1")
@@ -1561,7 +1561,7 @@ def test_an_honoured_override_takes_the_vehicle_out_of_the_plan_until_rejoined()
 
 def test_an_honoured_override_is_not_end_commanded():
     op, station, feed, (v, w) = to_run(2, duration_s=10.0)
-    op.forwarded_override(_Override([v], "DO_REPOSITION"), 2.0, policy="honour")
+    op.forwarded_override(_Override([v], "DO_REPOSITION"), 2.0, refuse=False)
     feed.run(1.25, 20.0)
     assert op.phase == "end"
     assert station.of("rtl", w) and not station.of("rtl", v)
@@ -1578,26 +1578,24 @@ def test_a_refused_override_leaves_the_vehicle_in_the_plan_and_says_why():
     op, station, feed, (v, w) = to_run(2)
     seen: list[OperatorAction] = []
     op.on_action = seen.append
-    why = op.forwarded_override(_Override([v]), 2.0, policy="refuse")
+    why = op.forwarded_override(_Override([v]), 2.0, refuse=True)
     assert why == "phireman: vehicle 1 is flown by the relay plan; hold it on the station first"
     assert op.released == {} and not station.of("clear_position_target")
     (rec,) = seen
     assert (rec.action, rec.sysid, rec.result) == ("override-refused", 1, "SET_MODE RTL (t+1 s)")
     # A client's retries are each refused, recorded once (again after a while).
-    assert op.forwarded_override(_Override([v]), 3.0, policy="refuse") == why
+    assert op.forwarded_override(_Override([v]), 3.0, refuse=True) == why
     assert len(seen) == 1
-    op.forwarded_override(_Override([v]), 14.0, policy="refuse")
+    op.forwarded_override(_Override([v]), 14.0, refuse=True)
     assert len(seen) == 2
     # Held on the station first: the client may fly it, and the record says it took it.
     op.operator_command("hold", v, 15.0, source="web 127.0.0.1")
-    assert op.forwarded_override(_Override([v]), 15.5, policy="refuse") is None
+    assert op.forwarded_override(_Override([v]), 15.5, refuse=True) is None
     assert op.released[v] == "override" and seen[-1].action == "override"
 
 
 def test_override_of_vehicles_the_station_does_not_fly_passes():
     op, station, feed, (v,) = to_run(1)
-    assert op.forwarded_override(_Override([(0, 42)]), 2.0, policy="refuse") is None
-    assert op.forwarded_override(_Override([]), 2.0, policy="refuse") is None
+    assert op.forwarded_override(_Override([(0, 42)]), 2.0, refuse=True) is None
+    assert op.forwarded_override(_Override([]), 2.0, refuse=True) is None
     assert op.released == {} and not op.actions
-    with pytest.raises(ValueError, match="policy"):
-        op.forwarded_override(_Override([v]), 2.0, policy="maybe")

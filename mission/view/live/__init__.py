@@ -60,7 +60,7 @@ async def attach(
         def on_override(ov) -> str | None:
             # The station's policy for a client's override (gcs.forward module docstring):
             # honour takes the vehicle out of the plan, refuse answers why not.
-            return op.forwarded_override(ov, clock(), policy=policy)
+            return op.forwarded_override(ov, clock(), refuse=policy == "refuse")
 
         fwd = Forwarder(
             opts.forward,
