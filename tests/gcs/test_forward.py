@@ -450,3 +450,67 @@ def _get_json(url: str) -> dict:
 
     with urllib.request.urlopen(url, timeout=10) as r:
         return json.loads(r.read())
+
+
+@pytest.mark.udp
+@pytest.mark.parametrize("kind", ["udpin", "tcpin"])
+def test_a_refusal_goes_to_the_one_client_that_sent_it(kind):
+    """udpin / tcpin outputs serve several clients: the refusal reaches only the sender."""
+    set_mode = _frame(C.MAVLink_set_mode_message(7, 1, 6), 254)
+
+    async def main():
+        fwd = Forwarder([f"{kind}:127.0.0.1:0"], on_override=lambda ov: "phireman: no")
+        link = _FakeLink(0)
+        fwd.attach(link)
+        await fwd.start()
+        addr = fwd.addresses[0]
+        try:
+            if kind == "udpin":
+                loop = asyncio.get_running_loop()
+                queues = [asyncio.Queue(), asyncio.Queue()]
+                socks = []
+                for q in queues:
+
+                    class _P(asyncio.DatagramProtocol):
+                        def datagram_received(self, data, _addr, q=q):
+                            q.put_nowait(data)
+
+                    tr, _ = await loop.create_datagram_endpoint(_P, remote_addr=addr)
+                    tr.sendto(_frame(_hb(), 254, 190))  # the forwarder learns its peers
+                    socks.append(tr)
+                await asyncio.sleep(0.2)
+                link.taps[0](_frame(_hb(), 7), ("emu", 0))  # the vehicle is heard by both
+                socks[0].sendto(set_mode)
+                await asyncio.sleep(0.3)
+                got = [b"".join(q.get_nowait() for _ in range(q.qsize())) for q in queues]
+                for tr in socks:
+                    tr.close()
+            else:
+                conns = [await asyncio.open_connection(*addr) for _ in range(2)]
+                await asyncio.sleep(0.2)
+                link.taps[0](_frame(_hb(), 7), ("emu", 0))
+                conns[0][1].write(set_mode)
+                await conns[0][1].drain()
+                await asyncio.sleep(0.3)
+                got = []
+                for r, w in conns:
+                    data = b""
+                    while True:
+                        try:
+                            data += await asyncio.wait_for(r.read(65536), 0.3)
+                        except TimeoutError:
+                            break
+                    got.append(data)
+                    w.close()
+            return got, link.sent
+        finally:
+            fwd.close()
+
+    (got_a, got_b), to_vehicle = asyncio.run(main())
+
+    def texts(data):
+        return [(m.get_srcSystem(), m.text) for m in _decode(data) if m.get_type() == "STATUSTEXT"]
+
+    assert texts(got_a) == [(7, "phireman: no")]
+    assert texts(got_b) == [] and _decode(got_b)  # b hears the vehicle, not a's refusal
+    assert set_mode not in to_vehicle
