@@ -72,6 +72,10 @@ class FlyOptions:
     forward: tuple[str, ...] = ()
     """MAVLink forwarding outputs (``udpout:H:P``, ``udpin:H:P``, ``tcpin:H:P``, gcs.forward)."""
     forward_readonly: bool = False
+    forward_overrides: str = "honour"
+    """What a forwarded client's override (a mode change, RTL, land, arm / disarm, reposition:
+    gcs.forward.override_of) does to a vehicle the plan flies: ``honour`` (it leaves the plan, as
+    held by the operator) or ``refuse`` (not passed on; the client is told why)."""
     on_live: Callable[[dict], None] | None = None
     """Called once with the live view's url and operator key, the forwarders' addresses."""
     attach_view: Callable[..., Awaitable[list]] | None = None

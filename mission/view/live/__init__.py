@@ -55,7 +55,19 @@ async def attach(
     if getattr(opts, "forward", ()):
         from gcs.forward import Forwarder
 
-        fwd = Forwarder(opts.forward, readonly=opts.forward_readonly, gcs_sysid=op.gcs_sysid)
+        policy = getattr(opts, "forward_overrides", "honour")
+
+        def on_override(ov) -> str | None:
+            # The station's policy for a client's override (gcs.forward module docstring):
+            # honour takes the vehicle out of the plan, refuse answers why not.
+            return op.forwarded_override(ov, clock(), refuse=policy == "refuse")
+
+        fwd = Forwarder(
+            opts.forward,
+            readonly=opts.forward_readonly,
+            gcs_sysid=op.gcs_sysid,
+            on_override=on_override,
+        )
         for a in adapters:
             fwd.attach(a, datagram=a.spec.kind in ("udpin", "udpout"))
         await fwd.start()
@@ -72,7 +84,7 @@ async def attach(
         log.info(
             "forwarding MAVLink to %s%s",
             ", ".join(opts.forward),
-            " (read-only)" if opts.forward_readonly else "",
+            " (read-only)" if opts.forward_readonly else f" (overrides: {policy})",
         )
     if getattr(opts, "serve", None):
         from mission.view.live.server import LiveServer, parse_serve, tiles_meta

@@ -41,6 +41,7 @@ import numpy as np
 from gcs import events as gcs_events
 from gcs.control import layer_alt_m
 from gcs.fleet import FleetSnapshot, FleetView, MissionOrigin
+from gcs.operations.config import OVERRIDE, OVERRIDE_REFUSED, override_label
 from gcs.wire import mavlink
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
@@ -294,7 +295,9 @@ class ReplaySource:
                 vid = (int(r["link_id"]), int(r["sysid"]))
                 if r["action"] == "rejoin":
                     released.pop(vid, None)
-                else:
+                elif r["action"] == OVERRIDE:  # a forwarded client took it: say who
+                    released[vid] = override_label(r.get("source", "?"), r.get("result", ""))
+                elif r["action"] != OVERRIDE_REFUSED:  # a refusal leaves it in the plan
                     released[vid] = r["action"]
                 a += 1
             snap = fleet.snapshot(float(t))

@@ -30,6 +30,7 @@ from gcs.events import (
     VehicleRecovered,
 )
 from gcs.operations import OPERATOR_ACTIONS
+from gcs.operations.config import override_label
 from gcs.rally import RallyUploadFailed
 from gcs.wire import mavlink
 from mission.view.live.server import TruthUnavailable
@@ -76,6 +77,17 @@ def event_entry(ev) -> tuple[str, str] | None:
     if isinstance(ev, ModeChanged) and ev.mode in ("RTL", "LAND", "AUTO.RTL", "AUTO.LAND"):
         return "mode", f"mode {ev.previous_mode or '?'} -> {ev.mode}"
     return None
+
+
+def held_by(released: dict, overrides: dict) -> dict:
+    """The page's word per released vehicle: the operator's action, or who took it for one a
+    forwarded client took (``overrides``: vid -> its :class:`~gcs.operations.OperatorAction`)."""
+    if not overrides:
+        return released
+    return {
+        v: override_label(overrides[v].source, overrides[v].result) if v in overrides else a
+        for v, a in released.items()
+    }
 
 
 class LiveStation:
@@ -273,7 +285,7 @@ class LiveStation:
             },
             events=list(self.events)[-60:],
             crew_tracks=self._crew_tracks,
-            released=op.released,
+            released=held_by(op.released, op.overrides),
         )
         mission = self.mission
         return frame_dict(pic, mission.radio.range_m, mission.radio.base_range_m)

@@ -320,7 +320,7 @@
     const alt = V.alt[i] === null ? "-" : `${Math.round(V.alt[i])} m`;
     const tgt = V.tn[i] === null ? "none" : `${Math.round(V.tn[i])} m N, ${Math.round(V.te[i])} m E, ${Math.round(V.talt[i])} m up`;
     let html = `<div data-vid="${V.id[i]}" id="selected-state" data-state="${V.state[i]}"><b style="color:${COLORS[V.state[i]]}">${esc(meta.state_labels[V.state[i]])}</b><br>` +
-      `mode ${esc(V.mode[i])}${V.released[i] ? ` (operator: ${esc(V.released[i])})` : ""}; altitude ${alt}, layer ${V.layer[i] + 1} of ${meta.layers.n} (${V.layer_alt[i]} m)<br>` +
+      `mode ${esc(V.mode[i])}${V.released[i] ? ` (${V.released[i].startsWith("taken by ") ? "" : "operator: "}${esc(V.released[i])})` : ""}; altitude ${alt}, layer ${V.layer[i] + 1} of ${meta.layers.n} (${V.layer_alt[i]} m)<br>` +
       `heading ${V.hdg[i] === null ? "-" : Math.round(V.hdg[i]) + "°"}; position ${V.n[i] === null ? "-" : `${Math.round(V.n[i])} m N, ${Math.round(V.e[i])} m E`}<br>planned target: ${tgt}</div>`;
     if (meta.mode === "live" && meta.actions) {
       html += `<div class="btns">` + [["hold", "Hold"], ["rtl", "RTL", "warn"], ["land", "Land", "warn"], ["release", "Release from plan"], ["rejoin", "Return to plan"]]
