@@ -25,7 +25,7 @@ from gcs.events import (
     VehicleRecovered,
 )
 from gcs.link_state import _AUTOPILOT_COMPID, Addr, _result_name, _Vehicle
-from gcs.link_streams import StreamRequests
+from gcs.link_health import VehicleHealth
 from gcs.wire import mavlink
 
 __all__ = ["VehicleDiscovery", "NON_VEHICLE_TYPES"]
@@ -49,7 +49,7 @@ NON_VEHICLE_TYPES = frozenset(
 )
 
 
-class VehicleDiscovery(StreamRequests):
+class VehicleDiscovery(VehicleHealth):
     """Discovery and vehicle reports (a mixin of :class:`gcs.link.StationLink`)."""
 
     # ------------------------------------------------------------------ who is a vehicle
@@ -346,6 +346,7 @@ class VehicleDiscovery(StreamRequests):
                 ev.time_boot_s,
             )
             self._emit(VehicleRebooted(self.link_id, v.sysid, now_s, v.time_boot_s, ev.time_boot_s))
+            v.seq.reset()  # its sequence numbers start again too
             if not v.lost:  # a reboot faster than the loss timeout forgot our rates and home too
                 self._request_streams(v, now_s)
                 self._request_home(v, now_s)
@@ -364,7 +365,9 @@ class VehicleDiscovery(StreamRequests):
             self._note_unused(v, msg.get_msgId(), now_s)
 
     def _on_sys_status(self, v: _Vehicle, msg: Any, now_s: float) -> None:
-        """SYS_STATUS's battery fields (common.xml): the autopilot's main battery."""
+        """SYS_STATUS's battery fields (common.xml): the autopilot's main battery; its sensor
+        masks go to :mod:`gcs.link_health`."""
+        self._on_sensors(v, msg, now_s)
         if not self.config.battery_telemetry:
             self._battery_ignored(v, msg, now_s)
             return

@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from gcs.events import TelemetryReceived
+from gcs.events import HEALTH_EVENTS, TelemetryReceived
 from gcs.operations import Operator
 from gcs.records import EventLog, MetricsWriter, TlogWriter
 from mission.flight.fly_options import FlyOptions
@@ -120,7 +120,7 @@ class Records:
         self.metrics = MetricsWriter(run_dir / "metrics.csv")
 
     def event(self, ev) -> None:
-        if not isinstance(ev, TelemetryReceived):
+        if not isinstance(ev, (TelemetryReceived, *HEALTH_EVENTS)):
             self.events.write(ev)
 
     def close(self) -> None:
