@@ -112,8 +112,9 @@ class StationConfig:
 
     health_telemetry: bool = False
     """Fold what a pilot watches into events (:mod:`gcs.link_health`): GPS_RAW_INT, SYS_STATUS's
-    sensor masks, EKF_STATUS_REPORT / ESTIMATOR_STATUS and RADIO_STATUS (the live page asks for
-    it). Off, they stay ignored exactly as before."""
+    sensor masks and its battery (as ``battery_telemetry`` does for SYS_STATUS),
+    EKF_STATUS_REPORT / ESTIMATOR_STATUS and RADIO_STATUS (the live page asks for it). Off, they
+    stay ignored exactly as before."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.sysid <= 255:

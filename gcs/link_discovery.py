@@ -368,7 +368,7 @@ class VehicleDiscovery(VehicleHealth):
         """SYS_STATUS's battery fields (common.xml): the autopilot's main battery; its sensor
         masks go to :mod:`gcs.link_health`."""
         self._on_sensors(v, msg, now_s)
-        if not self.config.battery_telemetry:
+        if not (self.config.battery_telemetry or self.config.health_telemetry):
             self._battery_ignored(v, msg, now_s)
             return
         try:

@@ -397,13 +397,13 @@ def autopilot_version(core, now_s: float):
 
 
 def ekf_status_report(core, now_s: float):
-    """ArduPilot's EKF_STATUS_REPORT (a healthy filter; ardupilotmega.xml field order)."""
+    """ArduPilot's EKF_STATUS_REPORT (a healthy filter)."""
     r = ESTIMATOR_RATIO
-    return mavlink.MAVLink_ekf_status_report_message(r, r, r, r, 0.0, ESTIMATOR_FLAGS_OK, 0.0)
+    return mavlink.MAVLink_ekf_status_report_message(ESTIMATOR_FLAGS_OK, r, r, r, r, 0.0, 0.0)
 
 
 def estimator_status(core, now_s: float):
-    """PX4's ESTIMATOR_STATUS (a healthy filter; common.xml field order)."""
+    """PX4's ESTIMATOR_STATUS (a healthy filter)."""
     r = ESTIMATOR_RATIO
     return mavlink.MAVLink_estimator_status_message(
         s_to_time_usec(now_s - core._boot_s), ESTIMATOR_FLAGS_OK, r, r, r, r, 0.0, 0.0, 0.5, 0.5

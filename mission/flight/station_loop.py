@@ -372,6 +372,7 @@ async def run_station(
         # does not use: do not turn it off (gcs.link disable_unused_messages).
         cfg = dataclasses.replace(cfg, disable_unused_messages=False)
     holder: dict = {}
+    records.battery_events = mission.endurance.battery is not None
 
     def on_event(ev) -> None:
         records.event(ev)

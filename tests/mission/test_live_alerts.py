@@ -55,9 +55,7 @@ def test_crew_cut_off_after_the_threshold_only():
     assert len(step(book, 81.0, [], crews_connected=[False], **kw)) == 1
     # Not while the mission is not running.
     book2 = AlertBook(AlertConfig(crew_cut_off_s=0.0))
-    assert (
-        step(book2, 0.0, [], crews=["A"], crews_connected=[False], mission_running=False) == []
-    )
+    assert step(book2, 0.0, [], crews=["A"], crews_connected=[False], mission_running=False) == []
 
 
 def test_low_battery_by_level_or_charge_state():

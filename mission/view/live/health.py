@@ -22,7 +22,12 @@ __all__ = [
     "estimator_problems",
     "minutes_to_reserve",
     "GPS_FIX_NAMES",
+    "LOSS_WINDOW_S",
 ]
+
+#: Packet loss is shown over windows of this many station seconds (gcs.link_quality), live
+#: and in replay.
+LOSS_WINDOW_S = 10.0
 
 #: GPS_FIX_TYPE (common.xml) as the page names it.
 GPS_FIX_NAMES = {

@@ -33,7 +33,7 @@ from gcs.operations import OPERATOR_ACTIONS
 from gcs.rally import RallyUploadFailed
 from gcs.wire import mavlink
 from mission.view.live.alerts import AlertBook, AlertConfig
-from mission.view.live.health import health_columns, minutes_to_reserve
+from mission.view.live.health import LOSS_WINDOW_S, health_columns, minutes_to_reserve
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import (
     Picture,
@@ -53,8 +53,6 @@ log = logging.getLogger(__name__)
 #: Frames cost at most this fraction of the station's wall time (the sampler slows down).
 CPU_BUDGET = 0.015
 MIN_PERIOD_S = 0.25
-#: Packet loss is shown over windows of this many station seconds (gcs.link_quality).
-LOSS_WINDOW_S = 10.0
 
 
 def _cmd_name(cmd: int) -> str:
