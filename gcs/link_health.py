@@ -101,7 +101,7 @@ class VehicleHealth(StreamRequests):
         )
 
     def _emit_estimator(
-        self, v: _Vehicle, now_s: float, source: str, flags: int, ratios: tuple
+        self, v: _Vehicle, now_s: float, source: str, flags: int, ratios: tuple[float, ...]
     ) -> None:
         finite = [float(r) for r in ratios if r == r and abs(r) != float("inf")]
         try:

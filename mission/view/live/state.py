@@ -349,7 +349,8 @@ def frame_dict(p: Picture, radio_range_m: float, base_range_m: float) -> dict:
         "events": p.events,
     }
     if p.health is not None:
-        frame["v"].update(p.health)
+        columns: dict = frame["v"]  # type: ignore[assignment]  # the dict built above
+        columns.update(p.health)
     if p.alerts is not None:
         frame["alerts"] = p.alerts
     if p.crew_tracks is not None:

@@ -67,13 +67,18 @@
   const Coords = {
     dd: (lat, lon) => `${lat.toFixed(6)}, ${lon.toFixed(6)}`,
     dm: (lat, lon) => `${dm(lat, "N", "S", 2)} ${dm(lon, "E", "W", 3)}`,
-    mgrs: (lat, lon, digits = 5) => { const p = mgrsParts(lat, lon, digits); return p ? p.join("") : "-"; },
+    // MGRS as GeoTrans writes it (zone on two digits: 01G...); USNG without the leading zero.
+    mgrs: (lat, lon, digits = 5) => { const p = mgrsParts(lat, lon, digits); return p ? p[0].padStart(3, "0") + p.slice(1).join("") : "-"; },
     usng: (lat, lon, digits = 5) => { const p = mgrsParts(lat, lon, digits); return p ? p.join(" ") : "-"; },
     toUtm,
   };
   window.PhiremanCoords = Coords;
   const FORMATS = {dd: "decimal degrees", dm: "degrees, minutes", mgrs: "MGRS", usng: "USNG"};
-  let fmt = localStorage.getItem("phireman-coords") || "dd";
+  const store = {  // localStorage, where the page may have one
+    get: (k) => { try { return localStorage.getItem(k); } catch (e) { return null; } },
+    set: (k, v) => { try { localStorage.setItem(k, v); } catch (e) { /* private mode */ } },
+  };
+  let fmt = store.get("phireman-coords") || "dd";
   if (!FORMATS[fmt]) fmt = "dd";
   const coord = (V, i) => (nz(V.lat) && nz(V.lat[i]) ? Coords[fmt](V.lat[i], V.lon[i]) : "-");
 
@@ -194,7 +199,7 @@
     if (!th.querySelector(".hcol")) th.insertAdjacentHTML("beforeend", '<th class="hcol" title="battery">batt</th><th class="hcol" title="packet loss · since last heard">link</th><th class="hcol">GPS</th><th class="hcol">health</th>');
     const sel = $("coordfmt");
     sel.innerHTML = Object.entries(FORMATS).map(([v, t]) => `<option value="${v}"${v === fmt ? " selected" : ""}>${t}</option>`).join("");
-    sel.onchange = () => { fmt = sel.value; localStorage.setItem("phireman-coords", fmt); if (window.phiremanRedraw) window.phiremanRedraw(); };
+    sel.onchange = () => { fmt = sel.value; store.set("phireman-coords", fmt); if (window.phiremanRedraw) window.phiremanRedraw(); };
     $("hidelost").onchange = (e) => { hideLost = e.target.checked; if (lastFrame) fade(lastFrame); };
     $("ack-all").onclick = () => ack("all");
     $("sound").onclick = () => { beep(); };
