@@ -8,9 +8,10 @@
 2. replay_hazard.png: the ``hazard_zone`` mission flown, then ``phireman replay --serve`` of
    its run directory, the slider at ~t+120 s (zone 1 active), the emulator-truth layer off.
 3. live_health.png: ``wildfire`` again (50 emulated ArduPilot drones, in-process emulator, 10x),
-   at mission time ~50 s one vehicle killed and another put in RTL by its own autopilot (a
-   failsafe the station did not command); shot with the alert banner up, a vehicle selected
-   (battery, link, GPS, health, altitudes, MGRS position). Prints the frame's JSON size at 50
+   the alerts of the hazard's losses acknowledged at ~45 s, at ~50 s one vehicle killed and
+   another put in RTL by its own autopilot (a failsafe the station did not command); shot at
+   ~58 s with the alert banner up, a networked vehicle selected (battery, link, GPS, health,
+   altitudes, MGRS position). Prints the frame's JSON size at 50
    vehicles with and without the health columns.
 
     nice .venv/bin/python docs/images/make_screenshots.py health   # only the third
@@ -57,6 +58,16 @@ def post(info, action, vehicle):
         info["url"] + "api/action",
         method="POST",
         data=json.dumps({"action": action, "vehicle": vehicle}).encode(),
+        headers={"Content-Type": "application/json", "X-Operator-Key": info["key"]},
+    )
+    return json.loads(urllib.request.urlopen(req, timeout=10).read())
+
+
+def ack(info, alert):
+    req = urllib.request.Request(
+        info["url"] + "api/ack",
+        method="POST",
+        data=json.dumps({"alert": alert}).encode(),
         headers={"Content-Type": "application/json", "X-Operator-Key": info["key"]},
     )
     return json.loads(urllib.request.urlopen(req, timeout=10).read())
@@ -174,7 +185,7 @@ def health_shot(out_dir: Path) -> Path:
     info, state = {}, {"stop": False, "done": False}
 
     def hook(op, world):
-        t = op.t_mission_s(op.fleet.snapshot(0).t_s) if op.mission_t0_s else None
+        t = op.records[-1].t_mission_s if op.records else None
         if t is not None and t > 50 and not state["done"]:
             sw = world.swarm
             world.kill(3)
@@ -213,14 +224,20 @@ def health_shot(out_dir: Path) -> Path:
                 "return window.phiremanFrame && window.phiremanFrame.t_mission_s"
             )
 
-        while (t_mission() or 0) < 70:
+        while (t_mission() or 0) < 45:
+            time.sleep(0.5)
+        ack(info, "all")  # the hazard's earlier losses: acknowledged, off the banner
+        while (t_mission() or 0) < 58:
             time.sleep(0.5)
         drv.execute_script(
             "const s = document.getElementById('coordfmt'); s.value = 'mgrs';"
             "s.dispatchEvent(new Event('change'));"
-            "document.querySelector('#vtable tr[data-vid=\"0:21\"]').click()"
+            "const V = window.phiremanFrame.v, i = V.state.indexOf('networked');"
+            "document.querySelector(`#vtable tr[data-vid='${V.id[i]}']`).click();"
         )
-        time.sleep(1.5)
+        time.sleep(1.0)
+        drv.execute_script("document.getElementById('sel-title').scrollIntoView()")
+        time.sleep(0.5)
         frame = drv.execute_script("return window.phiremanFrame")
         health_keys = set(frame["v"]) - {
             "id",

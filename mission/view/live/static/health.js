@@ -104,7 +104,7 @@
     const p = problems(V, i);
     const ok = V.ekf[i] === null && !V.sensors_bad[i] ? "-" : (p.length ? "" : "ok");
     return `<td class="bat${low ? " bad" : ""}" data-bat="${nz(b) ? b : ""}">${bat}</td>` +
-      `<td class="lnk" title="packet loss, time since last heard">${loss} · ${since}</td>` +
+      `<td class="lnk" title="packet loss, time since last heard">${loss} ${since}</td>` +
       `<td class="gpscell" data-sats="${nz(V.sats[i]) ? V.sats[i] : ""}">${gps}</td>` +
       `<td class="hl${p.length ? " bad" : ""}" title="${esc(p.join("; "))}">${p.length ? esc(p.join("; ")) : ok}</td>`;
   }
