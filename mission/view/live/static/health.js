@@ -116,7 +116,7 @@
     const p = problems(V, i);
     const rows = [
       ["battery", nz(b) ? `<span id="h-bat">${b}</span> %${nz(V.volt[i]) ? `, ${V.volt[i].toFixed(2)} V` : ""}${res}` : "not reported"],
-      ["link", `${radio}loss ${nz(V.loss[i]) ? V.loss[i].toFixed(1) + " %" : "-"} (last ${"10"} s), heard <span id="h-since">${nz(V.since[i]) ? V.since[i].toFixed(1) : "-"}</span> s ago`],
+      ["link", `${radio}loss ${nz(V.loss[i]) ? V.loss[i].toFixed(1) + " %" : "-"} (last 10 s), heard <span id="h-since">${nz(V.since[i]) ? V.since[i].toFixed(1) : "-"}</span> s ago`],
       ["GPS", nz(V.gps[i]) ? `<span id="h-fix">${GPS[V.gps[i]] || V.gps[i]}</span>, <span id="h-sats">${nz(V.sats[i]) ? V.sats[i] : "-"}</span> satellites${nz(V.hdop[i]) ? `, HDOP ${V.hdop[i].toFixed(2)}` : ""}` : "not reported"],
       ["health", V.ekf[i] === null && !V.sensors_bad[i] ? "not reported" : (p.length ? `<b class="bad">${esc(p.join("; "))}</b>` : `sensors ok, EKF ok`)],
       ["altitude", `${nz(V.ahome[i]) ? Math.round(V.ahome[i]) : "-"} m above home, ${nz(V.amsl[i]) ? Math.round(V.amsl[i]) : "-"} m AMSL`],
