@@ -412,9 +412,9 @@ _HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
     "MISSION_REQUEST": StationLink._on_mission_protocol,  # gcs/rally.py
     "MISSION_REQUEST_INT": StationLink._on_mission_protocol,
     "MISSION_ACK": StationLink._on_mission_protocol,
-    "GPS_RAW_INT": StationLink._on_gps_raw,  # gcs/link_health.py
-    "EKF_STATUS_REPORT": StationLink._on_ekf_status,
-    "ESTIMATOR_STATUS": StationLink._on_estimator_status,
+    "GPS_RAW_INT": StationLink._on_health,  # gcs/link_health.py
+    "EKF_STATUS_REPORT": StationLink._on_health,
+    "ESTIMATOR_STATUS": StationLink._on_health,
     "RADIO_STATUS": StationLink._on_radio_status,
 }
 

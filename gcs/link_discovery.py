@@ -28,7 +28,7 @@ from gcs.link_state import _AUTOPILOT_COMPID, Addr, _result_name, _Vehicle
 from gcs.link_health import VehicleHealth
 from gcs.wire import mavlink
 
-__all__ = ["VehicleDiscovery", "NON_VEHICLE_TYPES"]
+__all__ = ["VehicleDiscovery", "NON_VEHICLE_TYPES", "sys_status_battery"]
 
 #: The link's log lines keep the logger they always had (StationLink was one module).
 log = logging.getLogger("gcs.link")
@@ -47,6 +47,20 @@ NON_VEHICLE_TYPES = frozenset(
         mavlink.MAV_TYPE_ADSB,
     }
 )
+
+
+def sys_status_battery(link_id: int, sysid: int, t_s: float, msg: Any) -> BatteryReceived:
+    """SYS_STATUS's battery fields (common.xml) as an event (the live link and the replay of a
+    .tlog, mission.view.live.replay); ValueError for values no event accepts."""
+    return BatteryReceived(
+        link_id,
+        sysid,
+        t_s,
+        source="SYS_STATUS",
+        remaining_frac=wire.battery_remaining_to_frac(msg.battery_remaining),
+        voltage_v=wire.battery_mv_to_v(msg.voltage_battery),
+        current_a=wire.battery_ca_to_a(msg.current_battery),
+    )
 
 
 class VehicleDiscovery(VehicleHealth):
@@ -372,15 +386,7 @@ class VehicleDiscovery(VehicleHealth):
             self._battery_ignored(v, msg, now_s)
             return
         try:
-            ev = BatteryReceived(
-                self.link_id,
-                v.sysid,
-                now_s,
-                source="SYS_STATUS",
-                remaining_frac=wire.battery_remaining_to_frac(msg.battery_remaining),
-                voltage_v=wire.battery_mv_to_v(msg.voltage_battery),
-                current_a=wire.battery_ca_to_a(msg.current_battery),
-            )
+            ev = sys_status_battery(self.link_id, v.sysid, now_s, msg)
         except ValueError:
             self.stats.invalid_telemetry += 1
             return

@@ -41,6 +41,8 @@ import numpy as np
 from gcs import events as gcs_events
 from gcs.control import layer_alt_m
 from gcs.fleet import FleetSnapshot, FleetView, MissionOrigin
+from gcs.link_discovery import sys_status_battery
+from gcs.link_health import health_event
 from gcs.link_quality import SeqCounter
 from gcs.wire import mavlink
 from mission.view.live.alerts import DEFAULT_BATTERY_LOW_FRAC
@@ -123,78 +125,14 @@ def read_tlog(path: Path, gcs_sysid: int = 255, loss: dict | None = None):
 
 
 def _health_event(link_id: int, sysid: int, t_s: float, msg, battery: bool = False):
-    """The :mod:`gcs.link_health` event of one recorded health frame (None: not one);
-    ``battery``: the BatteryReceived of a SYS_STATUS instead of its SensorsReceived.
-
-    The same conversions as the live station (gcs.wire); the station's own handlers need a
-    link core, which a replay does not have."""
-    from gcs import wire
-
-    kind = msg.get_type()
+    """The station's event of one recorded health frame (gcs.link_health.health_event; with
+    ``battery`` the BatteryReceived of a SYS_STATUS instead), None if it is not valid."""
     try:
-        if kind == "GPS_RAW_INT":
-            return gcs_events.GpsReceived(
-                link_id,
-                sysid,
-                t_s,
-                fix_type=int(msg.fix_type),
-                satellites=wire.satellites_or_none(msg.satellites_visible),
-                hdop=wire.dop_or_none(msg.eph),
-            )
-        if kind == "SYS_STATUS" and battery:
-            return gcs_events.BatteryReceived(
-                link_id,
-                sysid,
-                t_s,
-                source="SYS_STATUS",
-                remaining_frac=wire.battery_remaining_to_frac(msg.battery_remaining),
-                voltage_v=wire.battery_mv_to_v(msg.voltage_battery),
-                current_a=wire.battery_ca_to_a(msg.current_battery),
-            )
-        if kind == "SYS_STATUS":
-            return gcs_events.SensorsReceived(
-                link_id,
-                sysid,
-                t_s,
-                present=int(msg.onboard_control_sensors_present),
-                enabled=int(msg.onboard_control_sensors_enabled),
-                health=int(msg.onboard_control_sensors_health),
-            )
-        if kind in ("EKF_STATUS_REPORT", "ESTIMATOR_STATUS"):
-            ratios = (
-                (
-                    msg.velocity_variance,
-                    msg.pos_horiz_variance,
-                    msg.pos_vert_variance,
-                    msg.compass_variance,
-                )
-                if kind == "EKF_STATUS_REPORT"
-                else (msg.vel_ratio, msg.pos_horiz_ratio, msg.pos_vert_ratio, msg.mag_ratio)
-            )
-            fin = [float(r) for r in ratios if math.isfinite(r)]
-            return gcs_events.EstimatorReceived(
-                link_id,
-                sysid,
-                t_s,
-                source=kind,
-                flags=int(msg.flags),
-                variance=max(fin) if fin else None,
-            )
-        if kind == "RADIO_STATUS":
-            return gcs_events.RadioStatusReceived(
-                link_id,
-                sysid,
-                t_s,
-                rssi=wire.rssi_or_none(msg.rssi),
-                remrssi=wire.rssi_or_none(msg.remrssi),
-                noise=wire.rssi_or_none(msg.noise),
-                remnoise=wire.rssi_or_none(msg.remnoise),
-                rxerrors=int(msg.rxerrors),
-                fixed=int(msg.fixed),
-            )
-    except ValueError:
+        if battery:
+            return sys_status_battery(link_id, sysid, t_s, msg)
+        return health_event(link_id, sysid, t_s, msg)
+    except (ValueError, KeyError):
         return None
-    return None
 
 
 def _event_from_record(rec: dict):
