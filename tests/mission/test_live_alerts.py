@@ -69,6 +69,10 @@ def test_low_battery_by_level_or_charge_state():
     )
     assert sorted(a.subject for a in out) == ["0:2", "0:3"]
     assert "29 %" in next(a.text for a in out if a.subject == "0:2")
+    # Landed at the base (its swap pending): expected, not an alert; armed again and low: one.
+    book2 = AlertBook(AlertConfig(battery_low_frac=0.3))
+    assert step(book2, 0.0, ["landed"], battery_frac=[0.1]) == []
+    assert len(step(book2, 1.0, ["networked"], battery_frac=[0.1])) == 1
 
 
 def test_acknowledge_one_and_all_and_records():

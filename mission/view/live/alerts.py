@@ -17,8 +17,9 @@ when the condition ends:
   one on the ground going silent (powered off at the base) is not an alert;
 * ``crew`` - a crew not connected to the base for longer than :attr:`AlertConfig.crew_cut_off_s`
   during the mission;
-* ``battery`` - a vehicle's remaining charge below :attr:`AlertConfig.battery_low_frac`, or its
-  autopilot reporting the battery low or worse (BATTERY_STATUS ``charge_state`` >= 2).
+* ``battery`` - a vehicle off the ground with its remaining charge below
+  :attr:`AlertConfig.battery_low_frac`, or its autopilot reporting the battery low or worse
+  (BATTERY_STATUS ``charge_state`` >= 2).
 """
 
 from __future__ import annotations
@@ -176,7 +177,10 @@ class AlertBook:
             )
             frac = math.nan if battery_frac is None else float(battery_frac[k])
             cs = 0 if charge_state is None else int(charge_state[k])
-            low = (state != "lost") and (frac < cfg.battery_low_frac or cs >= _CHARGE_STATE_LOW)
+            # On the ground (waiting for its swap at the base) a low battery is expected.
+            low = state not in ("lost", "landed") and (
+                frac < cfg.battery_low_frac or cs >= _CHARGE_STATE_LOW
+            )
             pct = "?" if math.isnan(frac) else f"{100 * frac:.0f} %"
             self._hold(out, now_s, "battery", vid, low, low, f"vehicle {vid} battery low: {pct}")
         for name, ok in zip(crews, crews_connected):
