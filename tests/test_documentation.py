@@ -883,6 +883,9 @@ TABLE: dict[str, Case] = {
     "phireman fly wildfire --serve 0.0.0.0:8080": Case(
         kind="serve", rewrite=(PORT_0,), check=page(public=True)
     ),
+    "phireman fly wildfire --serve 8080 --alert-crew-after 30": Case(
+        kind="serve", rewrite=(PORT_0,), check=page()
+    ),
     "phireman fly wildfire --serve 8080 --serve-actions off": Case(
         kind="serve", rewrite=(PORT_0,), check=page(actions=False)
     ),

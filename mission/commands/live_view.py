@@ -39,6 +39,14 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
         "metric grid around the mission origin",
     )
     g.add_argument(
+        "--alert-crew-after",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="alert on the page (banner and sound) when a crew has been cut off from "
+        "the base this long during the mission (default 60)",
+    )
+    g.add_argument(
         "--forward",
         action="append",
         default=[],
@@ -108,6 +116,12 @@ def fly_options(opts, args):
             raise UserError(f"--serve / --tiles: {exc}") from None
     elif args.tiles:
         raise UserError("--tiles needs --serve")
+    alert_after = getattr(args, "alert_crew_after", None)
+    if alert_after is not None:
+        if args.serve is None:
+            raise UserError("--alert-crew-after needs --serve")
+        if not alert_after >= 0:
+            raise UserError(f"--alert-crew-after must be >= 0 seconds, got {alert_after}")
     if args.forward:
         from gcs.forward import Forwarder
 
@@ -123,6 +137,7 @@ def fly_options(opts, args):
         opts,
         serve=args.serve,
         serve_actions=args.serve_actions == "on",
+        alert_crew_after_s=alert_after,
         tiles=args.tiles,
         forward=tuple(args.forward),
         forward_readonly=args.forward_readonly,

@@ -67,6 +67,9 @@ class FlyOptions:
     """``[HOST:]PORT``: serve the live web view there (:mod:`mission.view.live`)."""
     serve_actions: bool = True
     """Operator actions on the page (behind the key printed at start); False: read-only."""
+    alert_crew_after_s: float | None = None
+    """The page alerts on a crew cut off this long (None: the default of
+    :data:`mission.view.live.alerts.DEFAULT_CREW_CUT_OFF_S`)."""
     tiles: str | None = None
     """Background imagery of the live view: an XYZ tile folder or a URL template."""
     forward: tuple[str, ...] = ()

@@ -93,7 +93,24 @@ async def attach(
         host, port = parse_serve(opts.serve)
         tiles, tiles_dir = tiles_meta(getattr(opts, "tiles", None))
         actions = getattr(opts, "serve_actions", True)
-        live = LiveStation(op, mission, clock, adapters, actions=actions, tiles=tiles)
+        from mission.view.live.alerts import DEFAULT_CREW_CUT_OFF_S, AlertConfig
+
+        after = getattr(opts, "alert_crew_after_s", None)
+        battery = getattr(getattr(mission, "endurance", None), "battery", None)
+        alert_config = AlertConfig(
+            crew_cut_off_s=DEFAULT_CREW_CUT_OFF_S if after is None else float(after),
+            **({"battery_low_frac": battery.low_frac} if battery is not None else {}),
+        )
+        live = LiveStation(
+            op,
+            mission,
+            clock,
+            adapters,
+            actions=actions,
+            tiles=tiles,
+            alert_config=alert_config,
+            log_event=None if records is None else records.events.write,
+        )
         if listeners is not None:
             listeners.append(live.on_event)
         key = secrets.token_urlsafe(18) if actions else None
