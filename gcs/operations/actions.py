@@ -1,5 +1,6 @@
 """Operator actions: one vehicle (or all) taken out of the plan and held, sent home or down,
-released or brought back (``rejoin``), and the Ctrl-C interrupt with its report.
+released or brought back (``rejoin``), a battery swap confirmed by the ground crew
+(``confirm_swap``), and the Ctrl-C interrupt with its report.
 
 A mixin of :class:`gcs.operations.Operator` (split out of one 950-line module along this seam:
 what a person asks of the flight, as opposed to what the plan does). It holds no state of its
@@ -39,6 +40,8 @@ class OperatorActions(OperatorState):
         if action not in OPERATOR_ACTIONS:
             raise ValueError(f"unknown action {action!r}; valid: {', '.join(OPERATOR_ACTIONS)}")
         snap = self.fleet.snapshot(now_s)
+        if vid is None and action == "confirm_swap":
+            raise ValueError("confirm_swap confirms one vehicle's swap: name the vehicle")
         if vid is None:
             rows = [i for i in range(snap.n_vehicles) if not snap.lost[i]]
         else:
@@ -60,6 +63,8 @@ class OperatorActions(OperatorState):
     def _operator_act(
         self, action: str, snap: FleetSnapshot, i: int, vid: tuple[int, int], now_s: float
     ) -> str:
+        if action == "confirm_swap":  # the plan is not touched: the rotation's bookkeeping
+            return self._rotation_confirm_swap(i, now_s)
         if action == "rejoin":
             if self.released.pop(vid, None) is None:
                 return "was not released"

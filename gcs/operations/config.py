@@ -131,8 +131,10 @@ class TickRecord:
 #: What an operator may ask of one vehicle (or of all): ``hold`` (leave the plan, hover where it
 #: is at its layer, still in GUIDED/OFFBOARD so the link failsafes still apply), ``rtl``, ``land``
 #: (leave the plan, the firmware's RTL / LAND mode), ``release`` (leave the plan, keep the last
-#: target) and ``rejoin`` (back into the plan: reclaimed like a vehicle back from a failsafe).
-OPERATOR_ACTIONS = ("hold", "rtl", "land", "release", "rejoin")
+#: target) and ``rejoin`` (back into the plan: reclaimed like a vehicle back from a failsafe);
+#: ``confirm_swap``: the ground crew changed the battery of the vehicle on a pad (relay rotation,
+#: docs/design/endurance.md §8; one vehicle at a time, never "all").
+OPERATOR_ACTIONS = ("hold", "rtl", "land", "release", "rejoin", "confirm_swap")
 
 
 @dataclass(frozen=True)
@@ -146,7 +148,7 @@ class OperatorAction:
     source: str
     """Where it came from (e.g. ``web 127.0.0.1``, ``cli``)."""
     result: str
-    """``sent``, ``released``, ``rejoined`` or why nothing was sent."""
+    """``sent``, ``released``, ``rejoined``, ``swap confirmed ...`` or why nothing was done."""
 
 
 @dataclass
