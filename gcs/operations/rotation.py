@@ -335,6 +335,23 @@ class RotationStep(OperatorState):
         log.info("rotation t=%.0f s: the crew confirmed the swap of row %d", now_s, i)
         return "swap confirmed (ready once heard with a charged battery)"
 
+    def _fleet_ids(self) -> list[str]:
+        """``"LINK:SYSID"`` of each fleet row (the rotation's rows are the fleet's)."""
+        f = self.fleet
+        return [f"{l}:{s}" for l, s in zip(f.link_of_index.tolist(), f.sysid_of_index.tolist())]
+
+    def rotation_state(self) -> dict[str, Any] | None:
+        """The rotation as the operator's view draws it (:meth:`RotationSetup.state`; None
+        without batteries)."""
+        return None if self.rotation is None else self.rotation.state(self._fleet_ids())
+
+    def rotation_events(self, start: int = 0) -> list[dict[str, Any]]:
+        """The rotation's events from the ``start``-th on, the vehicles by id
+        (:meth:`RotationSetup.event_dicts`; [] without batteries)."""
+        if self.rotation is None:
+            return []
+        return self.rotation.event_dicts(start, self._fleet_ids())
+
     def rotation_summary(self) -> dict[str, Any] | None:
         """The rotation's counters (None without batteries)."""
         return None if self.rotation is None else self.rotation.summary()

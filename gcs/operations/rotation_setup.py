@@ -107,7 +107,8 @@ class RotationSetup:
         ``inbound`` (``[spare, relay]`` pairs: who relieves whom); ``reserve_at_s`` (relay ->
         when it reaches its reserve, to :data:`RESERVE_ROUND_S`; relays in the plan with no spare
         on its way); ``pads`` (one per pad: the vehicle on it, when its swap started, when the
-        crew confirmed it); ``swap_time_s``; ``batteries`` (charged on the shelf, the charging
+        crew confirmed it); ``swap_time_s``; ``return_speed_m_s`` (for the spares' ETA);
+        ``batteries`` (charged on the shelf, the charging
         ones' finish times, the ones waiting for a charger, chargers); ``counters``
         (:meth:`summary`).
         """
@@ -149,6 +150,7 @@ class RotationSetup:
             "reserve_at_s": reserve,
             "pads": pads,
             "swap_time_s": pol.base.swap_time_s,
+            "return_speed_m_s": pol.params.return_speed_m_s,
             "batteries": {
                 "charged": pol.stock,
                 "charging_done_s": [round(t, 1) for t in pol.charging_done_s],

@@ -11,6 +11,8 @@ What is read (a ``phireman fly`` run directory):
   networked vehicles;
 * ``mission.yaml`` and ``run.json`` (seed) - base, crews (tracks redrawn from the seed, live crews
   from their recorded positions), hazard zones, geofence, radio ranges;
+* ``rotation.jsonl`` (a flight with batteries) - the relay rotation's state when it changed and
+  its events: the rotation panel (:mod:`mission.view.live.rotation`);
 * ``truth.npz`` (emulated runs) - only for the optional "emulator truth" layer.
 
 The same :class:`gcs.fleet.FleetView` the station used folds these events again, so each frame
@@ -42,6 +44,8 @@ from gcs import events as gcs_events
 from gcs.control import layer_alt_m
 from gcs.fleet import FleetSnapshot, FleetView, MissionOrigin
 from gcs.wire import mavlink
+from mission.flight.run_dir import ROTATION_FILE
+from mission.view.live.rotation import MAX_EVENTS, rotation_frame
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
 from planner.geometry import geodetic_to_ned_m
@@ -163,6 +167,7 @@ class ReplaySource:
         self.end_action = meta.get("options", {}).get("end")
         tlog = read_tlog(run_dir / "flight.tlog")
         self._build(records, tlog, dt_s)
+        self.rotation = self._read_rotation(run_dir / ROTATION_FILE)
         self.truth = self._read_truth(run_dir / "truth.npz")
 
     # ------------------------------------------------------------------ loading
@@ -181,6 +186,38 @@ class ReplaySource:
                 except ValueError:
                     continue
         return rows
+
+    @staticmethod
+    def _read_rotation(path: Path) -> list[dict] | None:
+        """``rotation.jsonl`` (a flight with batteries; None without): its lines in time order,
+        each with the number of events recorded up to it (``n_events``) into ``events``, one
+        list for the whole file."""
+        if not path.is_file():
+            return None
+        lines: list[dict] = []
+        events: list[dict] = []
+        for text in path.read_text().splitlines():
+            try:
+                rec = json.loads(text)
+                line = {"t_s": float(rec["t_s"]), "state": rec["state"], "events": events}
+                events.extend(rec.get("events", ()))
+            except (ValueError, KeyError, TypeError):
+                continue  # a line cut short by a crash
+            line["n_events"] = len(events)
+            lines.append(line)
+        return lines
+
+    def _rotation_at(self, snap, t_s: float) -> dict | None:
+        """The frame's ``rotation`` key at ``t_s``: the last recorded state at or before it."""
+        if not self.rotation:
+            return None
+        k = bisect.bisect_right([r["t_s"] for r in self.rotation], t_s + 1e-9) - 1
+        if k < 0:
+            return None
+        rec = self.rotation[k]
+        n = rec["n_events"]
+        events = rec["events"][max(0, n - MAX_EVENTS) : n]
+        return rotation_frame(rec["state"], events, snap, t_s, self.t0_s)
 
     def _read_truth(self, path: Path):
         if not path.is_file():
@@ -294,6 +331,8 @@ class ReplaySource:
                 vid = (int(r["link_id"]), int(r["sysid"]))
                 if r["action"] == "rejoin":
                     released.pop(vid, None)
+                elif r["action"] == "confirm_swap":
+                    pass  # the rotation's bookkeeping (rotation.jsonl), not the plan's
                 else:
                     released[vid] = r["action"]
                 a += 1
@@ -463,6 +502,7 @@ class ReplaySource:
             crew_tracks=tracks,
             truth=self._truth_at(t) if truth else None,
             released=fr.released,
+            rotation=self._rotation_at(snap, t),
         )
         return frame_dict(pic, self.mission.radio.range_m, self.mission.radio.base_range_m)
 

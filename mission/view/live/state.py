@@ -263,6 +263,8 @@ class Picture:
     crew_tracks: list | None = None
     truth: dict | None = None
     released: dict | None = None
+    rotation: dict | None = None
+    """The relay rotation (:func:`mission.view.live.rotation.rotation_frame`; None: no batteries)."""
 
 
 def frame_dict(p: Picture, radio_range_m: float, base_range_m: float) -> dict:
@@ -348,6 +350,8 @@ def frame_dict(p: Picture, radio_range_m: float, base_range_m: float) -> dict:
         frame["crew_tracks"] = p.crew_tracks
     if p.truth is not None:
         frame["truth"] = p.truth
+    if p.rotation is not None:
+        frame["rotation"] = p.rotation
     return frame
 
 

@@ -32,6 +32,7 @@ from gcs.events import (
 from gcs.operations import OPERATOR_ACTIONS
 from gcs.rally import RallyUploadFailed
 from gcs.wire import mavlink
+from mission.view.live.rotation import MAX_EVENTS, rotation_frame
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import (
     Picture,
@@ -274,9 +275,20 @@ class LiveStation:
             events=list(self.events)[-60:],
             crew_tracks=self._crew_tracks,
             released=op.released,
+            rotation=self._rotation(snap, now),
         )
         mission = self.mission
         return frame_dict(pic, mission.radio.range_m, mission.radio.base_range_m)
+
+    def _rotation(self, snap, now_s: float) -> dict | None:
+        """The frame's ``rotation`` key (None without batteries)."""
+        state = self.op.rotation_state()
+        if state is None:
+            return None
+        start = max(0, len(self.op.rotation.events) - MAX_EVENTS)
+        return rotation_frame(
+            state, self.op.rotation_events(start), snap, now_s, self.op.mission_t0_s
+        )
 
     def _track_crews(self, t_m: float | None, crews: np.ndarray) -> None:
         if t_m is None or t_m < self._crew_track_t + 1.0:
