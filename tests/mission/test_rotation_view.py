@@ -134,15 +134,16 @@ def test_rotation_jsonl_records_changes_only_and_the_replay_reads_it(tmp_path):
         rotation_state=lambda: rot.state(IDS),
         rotation_events=lambda start=0: rot.event_dicts(start, IDS),
     )
-    rec = Records.__new__(Records)  # only the rotation log (the other writers need a mission)
-    rec.dir = tmp_path
-    rec._rotation, rec._rotation_last, rec._rotation_events = None, None, 0
+    from mission.format.schema import RunSpec
+    from small_mission import small_mission
+
+    rec = Records(tmp_path, small_mission("records", RunSpec()), {})
     rec.rotation(op, 100.0)
     rec.rotation(op, 101.0)  # nothing changed: no line
     rot.confirmed_s[3] = 102.0
     rot.events.append(rot.events[-1].__class__(102.0, "crew_confirmed", 3))
     rec.rotation(op, 102.0)
-    rec._rotation.close()
+    rec.close()
     lines = [json.loads(x) for x in (tmp_path / ROTATION_FILE).read_text().splitlines()]
     assert [x["t_s"] for x in lines] == [100.0, 102.0]
     assert [e["kind"] for e in lines[1]["events"]] == ["crew_confirmed"]

@@ -28,7 +28,7 @@ import numpy as np
 __all__ = ["rotation_frame", "event_text", "MAX_DUE", "MAX_EVENTS"]
 
 #: At most this many relays are listed by their time to reserve.
-MAX_DUE = 8
+MAX_DUE = 5
 #: The panel lists this many of the latest rotation events.
 MAX_EVENTS = 12
 
@@ -145,7 +145,6 @@ def rotation_frame(
     return {
         "swap_confirm": state["swap_confirm"],
         "phase": [phase_of.get(vid) for vid in ids],
-        "counts": {ph: state["phase"].count(ph) for ph in dict.fromkeys(state["phase"])},
         "queue": queue,
         "due": due,
         "pads": pads,
