@@ -761,7 +761,11 @@ TABLE: dict[str, Case] = {
     "phireman fly wildfire_2h --duration-s 2400 --speedup 50 --apply-failsafes": Case(
         # The first 60 s of the 2,400: batteries read, the battery failsafes applied, K planned.
         rewrite=((r"--duration-s 2400", "--duration-s 60"), (r"$", " --no-wait --out runs")),
-        check=lambda c: c.has(r"TU1/TU2 as the station saw them", r"BATT_FS_LOW_ACT"),
+        check=lambda c: c.has(
+            r"TU1/TU2 as the station saw them",
+            r"BATT_FS_LOW_ACT",
+            r"relay rotation: \d+ rotations, \d+ battery failsafes in the air, \d+ landed away",
+        ),
         timeout=600,
     ),
     "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),

@@ -311,13 +311,15 @@ def _rotation_field(rot: dict) -> str:
 
 #: The order in which fields leave a status line too wide for the terminal: the lesser first
 #: ("50 drones: 40 net" shortens to "40/50 net" before the crews leave); TU1/TU2 never leave.
+#: The relay rotation (a mission with batteries, beside TU: "TU1 95% TU2 97% rot 12 min 31%")
+#: stays on an 80-column line of a two-hour mission, once the drones lost and home have left.
 STATUS_DROP_ORDER = (
     "modes",
     "reclaimed",
-    "rotation",
     "home",
     "lost",
     "drones",
+    "rotation",
     "crews",
     "net",
     "clock",
@@ -325,7 +327,12 @@ STATUS_DROP_ORDER = (
 )
 
 #: How the fields are grouped into the line's parts (``a b | c d e | ...``).
-_STATUS_PARTS = (("phase", "clock"), ("drones", "net", "lost", "home"), ("crews",), ("tu",))
+_STATUS_PARTS = (
+    ("phase", "clock"),
+    ("drones", "net", "lost", "home"),
+    ("crews",),
+    ("tu", "rotation"),
+)
 
 
 def _status_line(fields: list[tuple[str, str]], dropped: int) -> str:
@@ -337,7 +344,7 @@ def _status_line(fields: list[tuple[str, str]], dropped: int) -> str:
         # "40 net" alone would not say of how many: "40/50 net"
         text["net"] = f"{text['net'].split()[0]}/{dict(fields)['drones'].split()[0]} net"
     parts = [" ".join(text[k] for k in part if k in text) for part in _STATUS_PARTS]
-    parts += [text[k] for k in ("rotation", "reclaimed", "modes") if k in text]
+    parts += [text[k] for k in ("reclaimed", "modes") if k in text]
     return " | ".join(p for p in parts if p)
 
 
@@ -361,8 +368,14 @@ def planned_drop(d: dict, width: int = 80) -> int:
     n_tasks = d.get("n_tasks") or 0
     base = dict(d, fleet=n, networked=n, lost=n, returning=n, tasks_covered=n_tasks)
     base.update(tu1=1.0, tu2=1.0, reclaims=0, modes={})
-    if d.get("rotation"):  # hundreds of rotations, the failsafes and landings away not planned
-        base["rotation"] = dict(d["rotation"], rotations=999, min_battery_in_air=1.0)
+    if d.get("rotation"):
+        # Hundreds of rotations; the lowest battery in the air has two digits once anything flew
+        # (100 % only before the take-off, when the clock is shorter); the failsafes and
+        # landings away are not planned for: they show while there is room.
+        base["rotation"] = dict(
+            d["rotation"], rotations=999, min_battery_in_air=0.99, battery_failsafes_in_air=0
+        )
+        base["rotation"]["landed_away"] = 0
     widest = [
         dict(base, phase="run", t_mission_s=d["duration_s"]),
         dict(base, phase="launch", t_s=max(d["t_s"], 999.0)),
@@ -600,11 +613,10 @@ def format_rotation(e: dict) -> str:
     from mission.commands.options import endurance_line
 
     crew = e.get("swaps_confirmed_by_crew", 0)
-    by = f", {crew} confirmed by the ground crew" if crew else ""
-    return (
-        f"relay rotation: {endurance_line(e)}; {e['swaps']} battery swaps ({e.get('swap_confirm', 'auto')} "
-        f"confirmation{by})"
-    )
+    how = f"{e.get('swap_confirm', 'auto')} confirmation"
+    if crew:
+        how += f", {crew} confirmed by the ground crew"
+    return f"relay rotation: {endurance_line(e)}; {e['swaps']} battery swaps ({how})"
 
 
 def _group_report(items: list[dict], per_line: int = 12) -> list[str]:

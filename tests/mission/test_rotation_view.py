@@ -15,7 +15,7 @@ import pytest
 from gcs.events import TelemetryReceived, VehicleDiscovered
 from gcs.fleet import FleetView, MissionOrigin
 from gcs.operations.rotation_setup import RotationSetup
-from mission.commands.fly import _Status, format_rotation, format_status, status_layout
+from mission.commands.fly import _Status, format_rotation, format_status, planned_drop
 from mission.flight.run_dir import ROTATION_FILE, Records
 from mission.view.live.rotation import event_text, rotation_frame
 from mission.view.live.replay import ReplaySource
@@ -194,9 +194,14 @@ def test_the_status_line_counts_rotations_and_says_failsafes_and_landings_away()
     assert "rot 12 min 31%" in line and "batt fs" not in line and "away" not in line
     bad = dict(ROT, battery_failsafes_in_air=2, landed_away=1)
     assert "rot 12 min 31% 2 batt fs 1 away" in format_status(_status(rotation=bad), width=200)
-    # On a narrow terminal the rotation leaves after the modes, TU1/TU2 stay.
-    narrow, dropped = status_layout(_status(rotation=ROT), width=80)
-    assert "TU1 95%" in narrow and len(narrow) <= 79
+    # On 80 columns the rotation stays (the drones lost and home leave first), planned for the
+    # whole run: hundreds of rotations.
+    d = _status(rotation=ROT, t_mission_s=7199.0)
+    dropped = planned_drop(d, 80)
+    narrow = format_status(d, 80, dropped)
+    assert narrow == "flying 7199/7200s | 20/50 net | crews 9/10 | TU1 95% TU2 97% rot 12 min 31%"
+    late = format_status(_status(rotation=dict(ROT, rotations=480)), 80, dropped)
+    assert "rot 480 min 31%" in late and len(late) <= 79
     err = io.StringIO()
     st = _Status(err)
     st(_status(rotation=ROT))

@@ -28,6 +28,8 @@
   const fmtT = (t) => t === null || t === undefined ? "-" : `t+${Math.round(t)} s`;
 
   function pads(R, canAct) {
+    const onPads = new Set(R.pads.map((p) => p.vehicle).filter((v) => v));
+    for (const v of [...sent.keys()]) if (!onPads.has(v)) sent.delete(v);  // its swap is over
     const rows = R.pads.map((p) => {
       if (!p.vehicle) return `<tr data-pad="${p.pad}" data-vehicle=""><td>pad ${p.pad}</td><td class="muted">free</td><td></td></tr>`;
       const who = esc(label(p.vehicle));
