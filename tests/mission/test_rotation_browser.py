@@ -11,6 +11,7 @@ generous timeouts, nothing is timed."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import threading
 
@@ -149,7 +150,51 @@ def test_the_crew_confirms_a_swap_on_the_page_and_the_replay_shows_it(browser, t
     kinds = [e["kind"] for e in last["events"]]
     assert last["counters"]["swaps_confirmed_by_crew"] >= 1 or "crew_confirmed" in kinds
     assert all(r is None for f in frames for r in f["v"]["released"])  # not an operator hold
+    # ... and the page draws it: the slider on a frame with the pad occupied, no Confirm button.
+    k = src.index_at(on_pad[0]["t_mission_s"])
+    with _replay_page(src) as url:
+        drv.get(url)
+        _wait(lambda: drv.execute_script("return !!window.phiremanReplay"), 60, "the replay")
+        drv.execute_script("window.phiremanReplay.load(arguments[0])", k)
+        _wait(
+            lambda: drv.execute_script(
+                "const r = document.querySelector('#rotation-pads tr[data-pad=\"1\"]');"
+                "return r && r.getAttribute('data-vehicle') === arguments[0]",
+                vid,
+            ),
+            60,
+            "the replayed pad occupied",
+        )
+        assert "swap requested" in drv.find_element("id", "rotation-pads-box").text
+        assert not drv.find_elements("css selector", "button[data-confirm]")  # read-only
 
 
 def rot_row(drv, vid: str) -> int:
     return drv.execute_script("return window.phiremanFrame.v.id.indexOf(arguments[0])", vid)
+
+
+@contextlib.contextmanager
+def _replay_page(src):
+    """Serve a :class:`ReplaySource` on loopback (port 0) from a thread: yields its URL."""
+    from mission.view.live.server import LiveServer
+
+    box, ready = {}, threading.Event()
+
+    def run():
+        async def main():
+            server = await LiveServer(src, "127.0.0.1", 0).start()
+            box.update(url=server.url, stop=asyncio.Event(), loop=asyncio.get_running_loop())
+            ready.set()
+            await box["stop"].wait()
+            await server.aclose()
+
+        asyncio.run(main())
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    assert ready.wait(60)
+    try:
+        yield box["url"]
+    finally:
+        box["loop"].call_soon_threadsafe(box["stop"].set)
+        th.join(30)
