@@ -73,8 +73,11 @@ MAX_TAK_LINKS = 200
 #: its text changed.
 MOVE_M = 5.0
 
-# Who goes first when a picture exceeds the budget: what crews act on, then the drones.
-_PRIORITY = {"crew": 0, "base": 1, "uav": 2, "tree": 3, "radio": 4}
+# When a picture exceeds the budget: a crew's marker or the base that changed goes first; then
+# everything else by how long it has waited, a crew's marker counted as 3 s older, the base 2 s,
+# a drone 1 s (seconds of head start over the lines).
+_HEAD_START_S = {"crew": 3.0, "base": 2.0, "uav": 1.0, "tree": 0.0, "radio": 0.0}
+_URGENT = ("crew", "base")
 
 _GREEN, _RED, _GREY, _ORANGE = -16711936, -65536, -8355712, -23296
 
@@ -97,11 +100,14 @@ def _grid(*ne_m: float) -> tuple[int, ...]:
 
 
 class Throttle:
-    """Which items of a picture to send (sans-I/O, explicit time): an item goes out when it is
-    new, when its key changed (it moved a grid cell, its text changed) or when it was last sent
-    ``refresh_s`` ago (so clients never see it go stale while the station lives); at most
-    ``budget`` items per picture, by priority (crews, base, drones, tree, radio links), the
-    longest unsent first within one. What is over budget waits for the next picture."""
+    """Which items of a picture to send (sans-I/O, explicit time).
+
+    An item is due when it is new, when its key changed (it moved a grid cell, its text
+    changed) or when it was last sent ``refresh_s`` ago (so clients do not see it go stale while
+    the station lives). At most ``budget`` due items go per picture: first a crew's marker or the
+    base that changed, then the rest by how long each has waited (a never-sent item as if sent
+    ``refresh_s`` ago), with a head start for crews, the base and the drones over the lines.
+    Nothing starves: what waits grows older. What is over budget waits for the next picture."""
 
     def __init__(self, budget: int, refresh_s: float) -> None:
         if budget < 1:
@@ -113,19 +119,18 @@ class Throttle:
         """Items that were due but waited for a later picture (over budget)."""
 
     def select(self, items: list[CotItem], now_s: float) -> list[CotItem]:
-        due = []
+        ranked = []
         for it in items:
             last = self._sent.get(it.uid)
-            if last is None or last[1] != it.key or now_s - last[0] >= self.refresh_s:
-                due.append(it)
-        due.sort(
-            key=lambda it: (
-                _PRIORITY.get(it.kind, len(_PRIORITY)),
-                self._sent.get(it.uid, (-math.inf,))[0],
-            )
-        )
-        out = due[: self.budget]
-        self.deferred += len(due) - len(out)
+            changed = last is None or last[1] != it.key
+            if not changed and now_s - last[0] < self.refresh_s:  # type: ignore[index]
+                continue
+            sent_s = now_s - self.refresh_s if last is None else last[0]
+            urgent = changed and it.kind in _URGENT
+            ranked.append(((not urgent, sent_s - _HEAD_START_S.get(it.kind, 0.0)), it))
+        ranked.sort(key=lambda r: r[0])
+        out = [it for _, it in ranked[: self.budget]]
+        self.deferred += len(ranked) - len(out)
         for it in out:
             self._sent[it.uid] = (now_s, it.key)
         return out
@@ -385,7 +390,9 @@ class _Publisher:
     ) -> None:
         self.op, self.link, self.mission, self.clock = op, link, mission, clock
         self.period_s = period_s
-        self.stale_s = max(MIN_STALE_S, STALE_PERIODS * period_s)
+        self.min_stale_s = max(MIN_STALE_S, STALE_PERIODS * period_s)
+        self.stale_s = self.min_stale_s
+        self.rate_msgs_s = max_rate_msgs_s
         self.throttle = Throttle(max(1, int(max_rate_msgs_s * period_s)), self.stale_s / 2.0)
         self.tracker = CrewLinkTracker()
         self.published: collections.Counter[str] = collections.Counter()
@@ -403,6 +410,12 @@ class _Publisher:
             stale_s=self.stale_s,
             crews=self.tracker,
         )
+        # Under the rate limit every item is sent at least once per cycle of len(batch) / rate
+        # seconds: the stale time (hence the refresh, at half of it) grows with the picture, so
+        # a client never sees a live item go stale (used from the next picture on).
+        cycle_s = len(batch) / self.rate_msgs_s
+        self.stale_s = max(self.min_stale_s, 2.0 * cycle_s + 2.0 * self.period_s)
+        self.throttle.refresh_s = self.stale_s / 2.0
         batch = self.throttle.select(batch, now_unix_s)
         self.link.send([it.xml for it in batch])
         self.published.update(it.type for it in batch)

@@ -39,14 +39,29 @@ def test_over_budget_the_crews_go_first_and_the_rest_take_turns():
     assert third == [] and th.deferred == 3  # everything sent once, nothing changed
 
 
-def test_a_moving_drone_outranks_a_line_but_not_a_crew():
-    th = Throttle(budget=1, refresh_s=100.0)
+def test_a_changed_crew_marker_goes_first_and_the_rest_by_how_long_they_waited():
+    th = Throttle(budget=1, refresh_s=10.0)
     th.select([item("c", "crew")], 0.0)
     th.select([item("u", "uav")], 0.0)
-    moved = [item("r", "radio"), item("u", "uav", key=(5, 5)), item("c", "crew", key=("x",))]
-    assert uids(th.select(moved, 1.0)) == ["c"]
-    assert uids(th.select(moved, 2.0)) == ["u"]
-    assert uids(th.select(moved, 3.0)) == ["r"]
+    th.select([item("r", "radio")], 5.0)
+    moved = [item("r", "radio", key=(9,)), item("u", "uav", key=(5, 5)), item("c", "crew", ("x",))]
+    assert uids(th.select(moved, 6.0)) == ["c"]  # its state changed: urgent
+    assert uids(th.select(moved, 7.0)) == ["u"]  # waited since 0
+    assert uids(th.select(moved, 8.0)) == ["r"]  # waited since 5
+
+
+def test_crews_that_never_change_are_still_refreshed_among_many_moving_drones():
+    # 40 drones moving every picture, 5 still crews, 10 messages a picture: every crew's marker
+    # is sent again within its refresh time plus a few pictures (aging, no starvation).
+    th = Throttle(budget=10, refresh_s=5.0)
+    last_sent = {f"c{k}": 0.0 for k in range(5)}
+    for t in range(1, 60):
+        pic = [item(f"u{i}", "uav", key=(t, i)) for i in range(40)]
+        pic += [item(f"c{k}", "crew") for k in range(5)]
+        for it in th.select(pic, float(t)):
+            if it.uid in last_sent:
+                last_sent[it.uid] = float(t)
+        assert all(t - s <= 5.0 + 2.0 for s in last_sent.values()), (t, last_sent)
 
 
 def test_a_budget_below_one_message_is_refused():
