@@ -32,6 +32,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -86,13 +87,18 @@ _GREEN, _RED, _GREY, _ORANGE = -16711936, -65536, -8355712, -23296
 class CotItem:
     """One event of a picture: its CoT ``type``, ``uid``, ``kind`` (crew, base, uav, tree,
     radio: the priority), ``key`` (what it shows: positions on a :data:`MOVE_M` grid, labels;
-    an unchanged key need not be sent again before the refresh) and its ``xml``."""
+    an unchanged key need not be sent again before the refresh) and how to ``render`` its XML."""
 
     type: str
     uid: str
     kind: str
     key: tuple[object, ...]
-    xml: bytes
+    render: Callable[[], bytes]
+    """Builds the XML: only for the items the throttle sends (most of a big picture waits)."""
+
+    @property
+    def xml(self) -> bytes:
+        return self.render()
 
 
 def _grid(*ne_m: float) -> tuple[int, ...]:
@@ -202,7 +208,8 @@ def picture_cot(
             f"{OWN_UID_PREFIX}base",
             "base",
             (op.phase,),
-            cot_xml(
+            partial(
+                cot_xml,
                 uid=f"{OWN_UID_PREFIX}base",
                 type=BASE_TYPE,
                 lat_deg=o.lat_deg,
@@ -241,7 +248,8 @@ def picture_cot(
                     uid,
                     "uav",
                     key,
-                    cot_xml(
+                    partial(
+                        cot_xml,
                         uid=uid,
                         type=UAV_TYPE,
                         lat_deg=float(lat[j]),
@@ -300,7 +308,8 @@ def picture_cot(
                     f"{OWN_UID_PREFIX}{kind}-{name}",
                     kind,
                     _grid(*a, *b),
-                    _line(
+                    partial(
+                        _line,
                         f"{OWN_UID_PREFIX}{kind}-{name}",
                         (float(lat[j, 0]), float(lon[j, 0])),
                         (float(lat[j, 1]), float(lon[j, 1])),
@@ -358,7 +367,8 @@ def _crew_markers(op, mission, snap, crews_ne, crew_ok, now_unix_s, stale_s, tra
                 f"{OWN_UID_PREFIX}crew-{k}",
                 "crew",
                 (state, since, who, *_grid(*pos)),
-                cot_xml(
+                partial(
+                    cot_xml,
                     uid=f"{OWN_UID_PREFIX}crew-{k}",
                     type=CREW_STATUS_TYPE,
                     how="h-g-i-g-o",

@@ -9,7 +9,7 @@ from mission.view.tak import CotItem, Throttle
 
 
 def item(uid: str, kind: str = "uav", key: tuple = (0, 0)) -> CotItem:
-    return CotItem("a-f-A-M-H-Q", uid, kind, key, uid.encode())
+    return CotItem("a-f-A-M-H-Q", uid, kind, key, uid.encode)
 
 
 def uids(items: list[CotItem]) -> list[str]:
