@@ -10,6 +10,8 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from mission.flight.tak_link import MAX_RATE_MSGS_S
+
 if TYPE_CHECKING:  # a type only: importing the operator costs seconds; `phireman fly --help` reads
     # the defaults below without it
     from gcs.operations import Operator
@@ -97,6 +99,8 @@ class FlyOptions:
     """pytak's ``PYTAK_TLS_*`` settings for ``tls://`` connections (client certificate, key, CA)."""
     tak_period_s: float = 1.0
     """Wall seconds between two pictures published on TAK (each uid at most once a period)."""
+    tak_max_rate_msgs_s: float = MAX_RATE_MSGS_S
+    """Messages a second per TAK connection, at most (docs/tak.md: what a TAK server accepts)."""
     attach_tak: Callable[..., Awaitable[list]] | None = None
     """What publishes the mesh on the TAK connections (:func:`mission.view.tak.attach`, given by
     the command: the flight room never imports the view room above it)."""
