@@ -46,6 +46,8 @@ class RunData:
     None when the run does not say (then nothing is marked)."""
     end_action: str = "rtl"
     """What the vehicles did at the end (``phireman fly --end``): ``rtl`` or ``land``."""
+    alt_amsl_m: np.ndarray | None = None
+    """(T, N) drone heights AMSL, metres: recorded by an in-process run over terrain."""
 
 
 @dataclass(frozen=True)
@@ -129,6 +131,7 @@ def load_run(run_dir: pathlib.Path) -> RunData:
         summary,
         _mission_end_s(summary, mission),
         str(run_meta.get("options", {}).get("end") or "rtl"),
+        truth["alt_amsl_m"][:n_samples] if "alt_amsl_m" in truth else None,
     )
 
 
@@ -261,6 +264,11 @@ def _scene(run: RunData, fontsize: float = 9.0):
     extent = max(
         np.abs(run.task_pos_m).max(), np.abs(run.pos_m[run.alive]).max() if run.alive.any() else 1.0
     )
+    terrain = None
+    if run.mission is not None:
+        from mission.format.terrain import terrain_radio
+
+        terrain = terrain_radio(run.mission)
     return Scene(
         radio,
         base,
@@ -271,6 +279,7 @@ def _scene(run: RunData, fontsize: float = 9.0):
         tree_recomputed=not run.trees,
         fontsize=fontsize,
         mission_end_s=run.mission_end_s,
+        terrain=terrain,
     )
 
 
@@ -424,6 +433,7 @@ def replay(
             run.connected[k],
             tree_at(run, k),
             t_s=float(run.t_s[k]),
+            alt_amsl_m=None if run.alt_amsl_m is None else run.alt_amsl_m[k],
         )
         ax.set_title(
             f"t = {run.t_s[k]:.0f} s: {run.connected[k].sum()}/{n_tasks} tasks connected, "
@@ -536,6 +546,7 @@ def _animate(
                 f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked"
                 + (f"\nmission over: {end_phase_text(run)}" if after[k] else ""),
                 t_s=float(run.t_s[k]),
+                alt_amsl_m=None if run.alt_amsl_m is None else run.alt_amsl_m[k],
             ):
                 ax.draw_artist(a)
             rgba = np.asarray(canvas.buffer_rgba())

@@ -44,6 +44,7 @@ from gcs.fleet import FleetSnapshot, FleetView, MissionOrigin
 from gcs.wire import mavlink
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
+from mission.view.live.terrain import TerrainView
 from planner.geometry import geodetic_to_ned_m
 
 __all__ = ["ReplaySource", "load_replay"]
@@ -137,6 +138,7 @@ class ReplaySource:
                     "has mission.yaml, events.jsonl, flight.tlog, metrics.csv)"
                 )
         self.mission = mission = load_mission(run_dir / "mission.yaml")
+        self.terrain = TerrainView.of_mission(mission)
         meta = (
             json.loads((run_dir / "run.json").read_text())
             if (run_dir / "run.json").is_file()
@@ -464,7 +466,9 @@ class ReplaySource:
             truth=self._truth_at(t) if truth else None,
             released=fr.released,
         )
-        return frame_dict(pic, self.mission.radio.range_m, self.mission.radio.base_range_m)
+        return frame_dict(
+            pic, self.mission.radio.range_m, self.mission.radio.base_range_m, terrain=self.terrain
+        )
 
     def _events_until(self, t_s: float, limit: int = 60) -> list[dict]:
         from mission.view.live.station import event_entry

@@ -42,6 +42,7 @@ from mission.view.live.state import (
     mst_tree,
     tree_from_planner,
 )
+from mission.view.live.terrain import TerrainView
 from planner.geometry import geodetic_to_ned_m
 
 __all__ = ["LiveStation", "event_entry"]
@@ -107,6 +108,8 @@ class LiveStation:
         self.adapters = list(adapters)
         self.actions_enabled = actions
         self.tiles = tiles
+        #: The ground of a terrain mission (relief, link status, profiles); None: the disc.
+        self.terrain = TerrainView.of_mission(mission)
         self.events: collections.deque = collections.deque(maxlen=300)
         self._seq = 0
         self._yaw_deg: dict[tuple[int, int], float] = {}
@@ -276,7 +279,9 @@ class LiveStation:
             released=op.released,
         )
         mission = self.mission
-        return frame_dict(pic, mission.radio.range_m, mission.radio.base_range_m)
+        return frame_dict(
+            pic, mission.radio.range_m, mission.radio.base_range_m, terrain=self.terrain
+        )
 
     def _track_crews(self, t_m: float | None, crews: np.ndarray) -> None:
         if t_m is None or t_m < self._crew_track_t + 1.0:

@@ -1,0 +1,218 @@
+"""The ground as the operator sees it: hillshade, the relief PNG, link status in the live frame,
+the profile endpoint, and an in-process terrain run on the live page's replay."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from mission.view.terrain import contour_step_m, hillshade, terrain_png
+from planner.terrain import (
+    LINK_BLOCKED,
+    LINK_OK,
+    LINK_OUT_OF_RANGE,
+    LinkBudget,
+    Ridge,
+    Terrain,
+    TerrainRadio,
+    link_profile,
+    synthetic_terrain,
+)
+
+
+def _plane(slope_deg: float, facing_deg: float, n: int = 9, spacing_m: float = 10.0) -> Terrain:
+    """A plane falling at ``slope_deg`` towards azimuth ``facing_deg`` (from north, clockwise)."""
+    axis = spacing_m * np.arange(n)
+    nn, ee = np.meshgrid(axis, axis, indexing="ij")
+    f = math.radians(facing_deg)
+    h = -(ee * math.sin(f) + nn * math.cos(f)) * math.tan(math.radians(slope_deg))
+    return Terrain(h + 500.0, 0.0, 0.0, spacing_m)
+
+
+@pytest.mark.parametrize(
+    ("slope_deg", "facing_deg", "sun_az", "sun_alt", "want"),
+    [
+        (0.0, 0.0, 315.0, 45.0, math.sin(math.radians(45.0))),  # flat: sin(altitude)
+        (45.0, 315.0, 315.0, 45.0, 1.0),  # facing the sun, normal on the sun
+        (45.0, 135.0, 315.0, 45.0, 0.0),  # facing away at 45 degrees: grazing light
+        (60.0, 135.0, 315.0, 45.0, 0.0),  # steeper away: in its own shadow (clipped)
+        # facing east at 30 degrees, sun from the north at 30 degrees: cos(angle) between
+        # n = (sin30, 0, cos30) and s = (0, cos30, sin30) (east, north, up) = cos30 sin30
+        (30.0, 90.0, 0.0, 30.0, math.cos(math.radians(30)) * math.sin(math.radians(30))),
+        # facing south at 20 degrees, sun from the south at 50 degrees: cos(40 - 20)... the
+        # normal leans 20 degrees south, the sun is 40 degrees from the zenith: cos(20)
+        (20.0, 180.0, 180.0, 50.0, math.cos(math.radians(20.0))),
+    ],
+)
+def test_hillshade_of_planes_is_the_cosine_to_the_sun(slope_deg, facing_deg, sun_az, sun_alt, want):
+    t = _plane(slope_deg, facing_deg)
+    hs = hillshade(t.height_amsl_m, t.spacing_m, sun_az, sun_alt)
+    assert hs.shape == t.height_amsl_m.shape
+    np.testing.assert_allclose(hs, want, atol=1e-9)
+
+
+def test_hillshade_lights_the_sunny_flank_of_a_ridge():
+    ridge = synthetic_terrain([Ridge([(0.0, -400.0), (0.0, 400.0)], 80.0, 150.0)], 400.0, 10.0)
+    hs = hillshade(ridge.height_amsl_m, ridge.spacing_m)  # sun from the north-west
+    r, c = ridge.height_amsl_m.shape
+    north_flank = hs[r // 2 + 7, c // 2]  # 70 m north of the crest, facing north
+    south_flank = hs[r // 2 - 7, c // 2]
+    assert north_flank > math.sin(math.radians(45.0)) > south_flank
+
+
+def test_contour_steps_are_round():
+    assert contour_step_m(310.0) == 25.0
+    assert contour_step_m(60.0) == 5.0
+    assert contour_step_m(1000.0) == 100.0
+
+
+def test_terrain_png_covers_the_grid_cells():
+    t = synthetic_terrain([Ridge([(0.0, -400.0), (0.0, 400.0)], 80.0, 150.0)], 400.0, 20.0, 900.0)
+    png, b = terrain_png(t, max_px=200)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (b["n_min"], b["n_max"], b["e_min"], b["e_max"]) == (-410.0, 410.0, -410.0, 410.0)
+    assert b["h_min_m"] == pytest.approx(900.0) and b["h_max_m"] == pytest.approx(980.0)
+    from PIL import Image
+    import io
+
+    img = Image.open(io.BytesIO(png))
+    assert img.size == (200, 200)
+
+
+# ------------------------------------------------------------------ the live frame's links
+
+
+def _view():
+    from mission.view.live.terrain import TerrainView
+
+    wall = synthetic_terrain([Ridge([(0.0, -600.0), (0.0, 600.0)], 60.0, 10.0)], 600.0, 5.0, 1000.0)
+    return TerrainView(TerrainRadio(wall, LinkBudget(fade_margin_db=20.0)), 1000.0, 1.5, 3.0)
+
+
+def test_frame_links_classify_with_the_planner_model():
+    view = _view()
+    rng = view.radio.budget.max_range_m  # about 498 m
+    # 0: south of the wall, 1: north of it (the wall cuts 0-1 at 20 m up), 2: far east of 0 on
+    # its side but beyond the budget's range slant, 3: high above 1 (sees over the wall to 0).
+    ne = np.array([[-100.0, 0.0], [100.0, 0.0], [-100.0, rng - 5.0], [100.0, 10.0]])
+    amsl = np.array([1020.0, 1020.0, 1500.0, 1200.0])
+    heard = np.ones(4, bool)
+    crews = np.array([[-150.0, 30.0], [150.0, -30.0], [np.nan, np.nan]])
+    out = view.frame_links(ne, amsl, heard, crews, radio_range_m=250.0, base_range_m=250.0)
+    pairs = np.asarray(out["vv"]).reshape(-1, 2)
+    got = {tuple(sorted(p)): s for p, s in zip(pairs.tolist(), out["vv_status"])}
+    assert got[(0, 1)] == LINK_BLOCKED
+    assert got[(0, 2)] == LINK_OUT_OF_RANGE  # slant sqrt(493^2 + 480^2) > 498
+    assert got[(0, 3)] == LINK_OK
+    # every status is what the radio says for the same antennas
+    p3 = np.column_stack([ne, amsl])
+    want = view.radio.link_status(p3[pairs[:, 0]], p3[pairs[:, 1]])
+    assert out["vv_status"] == want.tolist()
+    # crews: antenna 1.5 m above the ground; crew 0 sees drone 0 on its side, crew 1 drone 1
+    assert out["crew_amsl"][:2].tolist() == pytest.approx([1001.5, 1001.5])
+    assert out["connected"].tolist() == [True, True, False]
+    vc = np.asarray(out["vc"]).reshape(-1, 2)
+    st = dict(zip(map(tuple, vc.tolist()), out["vc_status"]))
+    assert st[(1, 0)] == LINK_BLOCKED and st[(0, 0)] == LINK_OK
+    # the base (antenna 3 m up at the origin, on the wall's crest 60 m up): in the frame too
+    assert out["base_amsl"] == pytest.approx(1063.0)
+    assert sorted(out["vb"]) == [0, 1, 3]  # 2 is beyond the base's reach horizontally
+
+
+def test_profile_endpoint_is_the_planner_profile():
+    from aiohttp.test_utils import TestClient, TestServer
+
+    from mission.view.live.server import LiveServer
+
+    view = _view()
+
+    class Src:
+        terrain = view
+
+        def meta(self):
+            return {"mode": "replay"}
+
+        def frame(self, index=None, truth=False):
+            return {}
+
+    class Disc(Src):
+        terrain = None
+
+    async def go():
+        async with TestClient(TestServer(LiveServer(Src()).app)) as c:
+            meta = await (await c.get("/api/meta")).json()
+            assert meta["terrain"]["url"] == "/api/terrain.png"
+            assert meta["terrain"]["status_names"][LINK_BLOCKED] == "blocked by terrain"
+            r = await c.get("/api/terrain.png")
+            assert r.status == 200 and r.content_type == "image/png"
+            r = await c.get("/api/profile?a=-100,0,1020&b=100,0,1020")
+            prof = await r.json()
+            bad = await c.get("/api/profile?a=-100,0&b=100,0,1020")
+            assert bad.status == 400 and "N,E,H" in (await bad.json())["error"]
+        async with TestClient(TestServer(LiveServer(Disc()).app)) as c:
+            assert (await (await c.get("/api/meta")).json())["terrain"] is None
+            assert (await c.get("/api/profile?a=0,0,0&b=1,1,1")).status == 404
+        return prof
+
+    prof = asyncio.run(go())
+    want = link_profile(view.radio.terrain, view.radio.budget, (-100, 0, 1020), (100, 0, 1020))
+    assert prof["status"] == want.status == LINK_BLOCKED
+    assert prof["status_name"] == "blocked by terrain"
+    assert prof["d"] == pytest.approx(want.distance_m.tolist(), abs=0.05)
+    assert prof["margin"][prof["worst"]] == pytest.approx(want.margin_m[want.worst], abs=0.01)
+    assert prof["d"][prof["worst"]] == pytest.approx(100.0)  # the wall
+
+
+# ------------------------------------------------------------------ an in-process terrain run
+
+
+@pytest.fixture(scope="module")
+def canyon_run(tmp_path_factory):
+    """A short run of the canyon mission (12 drones, 40 s), recorded as sim --out writes it."""
+    from mission.experiments.playback import run_inprocess, write_run_dir
+    from mission.format.examples import example_path
+    from mission.format.load import load_mission
+
+    m = load_mission(example_path("canyon"))
+    m = dataclasses.replace(
+        m,
+        vehicles=dataclasses.replace(
+            m.vehicles, emulated=dataclasses.replace(m.vehicles.emulated, count=12)
+        ),
+        run=dataclasses.replace(m.run, duration_s=40.0),
+    )
+    out = tmp_path_factory.mktemp("canyon")
+    write_run_dir(m, run_inprocess(m, 1), out)
+    return out
+
+
+def test_sim_run_frames_carry_terrain_status(canyon_run):
+    from mission.view.live.replay_sim import SimReplaySource, is_sim_run
+
+    assert is_sim_run(canyon_run)
+    src = SimReplaySource(canyon_run)
+    meta = src.meta()
+    assert meta["mode"] == "replay" and len(meta["replay"]["t"]) == 41
+    f = src.frame(40)
+    links = f["links"]
+    assert len(links["vv_status"]) == len(links["vv"]) // 2 > 0
+    # Recomputed with the radio for the frame's antennas: the same statuses.
+    z = np.load(canyon_run / "truth.npz")
+    pos = z["pos_ne_m"][40]
+    alt = z["alt_amsl_m"][40]
+    p3 = np.column_stack([pos, alt])
+    pairs = np.asarray(links["vv"]).reshape(-1, 2)
+    want = src.terrain.radio.link_status(p3[pairs[:, 0]], p3[pairs[:, 1]])
+    assert links["vv_status"] == want.tolist()
+    # a drone alive is heard at its height; one attrited is lost, with no antenna
+    for x, a, alive in zip(f["v"]["amsl"], alt, z["alive"][40]):
+        assert (x is None) if not alive else x == pytest.approx(a, abs=0.05)
+    assert not all(z["alive"][40]) or len(f["v"]["amsl"]) == 12
+    # a crew the truth saw connected is connected on the page too (same radio, same drones)
+    truth_conn = z["task_connected"][40]
+    page_conn = np.asarray(f["crews"]["connected"])
+    assert (page_conn | ~truth_conn).all()
