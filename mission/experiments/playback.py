@@ -284,17 +284,17 @@ def write_run_dir(
                 f"{int(s.n_connected[t])},{int(s.n_ever_connected[t])},"
                 f"{s.tu1_step[: t + 1].mean():.6f},{s.tu2_step[: t + 1].mean():.6f}\n"
             )
-    heights = {} if rec.alt_amsl_m is None else {"alt_amsl_m": rec.alt_amsl_m}  # over terrain
-    np.savez_compressed(
-        out_dir / "truth.npz",
-        t_s=np.arange(tau + 1) * mission.run.control_period_s,
-        pos_ne_m=rec.pos_m,
-        alive=rec.alive,
-        active=rec.active,
-        task_pos_ne_m=rec.task_pos_m,
-        task_connected=rec.connected,
-        **heights,
-    )
+    truth: dict[str, np.ndarray] = {
+        "t_s": np.arange(tau + 1) * mission.run.control_period_s,
+        "pos_ne_m": rec.pos_m,
+        "alive": rec.alive,
+        "active": rec.active,
+        "task_pos_ne_m": rec.task_pos_m,
+        "task_connected": rec.connected,
+    }
+    if rec.alt_amsl_m is not None:  # over terrain: the drones' heights AMSL
+        truth["alt_amsl_m"] = rec.alt_amsl_m
+    np.savez_compressed(out_dir / "truth.npz", **truth)  # type: ignore[arg-type]  # names -> arrays
     trees = {
         str(t): {
             "nodes_ne_m": tr.nodes_m.tolist(),

@@ -216,3 +216,122 @@ def test_sim_run_frames_carry_terrain_status(canyon_run):
     truth_conn = z["task_connected"][40]
     page_conn = np.asarray(f["crews"]["connected"])
     assert (page_conn | ~truth_conn).all()
+
+
+# ------------------------------------------------------------------ the page, in Chromium
+
+# The live view tests' headless Chromium (skipped, loudly, without chromium / chromedriver).
+from test_live_view import _wait, browser  # noqa: E402, F401
+
+# A link whose midpoint is unambiguous on screen: no other drawn link within 12 px, no vehicle
+# within 14 px, on the map itself (not under a control). Blocked links first.
+_FIND_LINK_JS = """
+const f = window.phiremanFrame, M = window.phiremanMap.map, L = f.links, V = f.v;
+const px = (n, e) => M.latLngToContainerPoint(window.L.latLng(n, e));
+const segs = [];
+const add = (kind, k, st, a, b) => segs.push({kind, k, st, a, b, pa: px(a[0], a[1]), pb: px(b[0], b[1])});
+for (let k = 0; k < L.vv.length; k += 2) { const i = L.vv[k], j = L.vv[k + 1];
+  if (V.n[i] !== null && V.n[j] !== null) add("vv", k / 2, L.vv_status[k / 2], [V.n[i], V.e[i], V.amsl[i]], [V.n[j], V.e[j], V.amsl[j]]); }
+L.vb.forEach((i, j) => V.n[i] !== null && add("vb", j, L.vb_status[j], [V.n[i], V.e[i], V.amsl[i]], [0, 0, L.base_amsl]));
+const dist = (p, a, b) => { const dx = b.x - a.x, dy = b.y - a.y, l2 = dx * dx + dy * dy;
+  const t = l2 ? Math.max(0, Math.min(1, ((p.x - a.x) * dx + (p.y - a.y) * dy) / l2)) : 0;
+  return Math.hypot(p.x - a.x - t * dx, p.y - a.y - t * dy); };
+const mapRect = document.getElementById("map").getBoundingClientRect();
+const order = segs.slice().sort((x, y) => (y.st === 1) - (x.st === 1));
+for (const s of order) {
+  const m = {x: (s.pa.x + s.pb.x) / 2, y: (s.pa.y + s.pb.y) / 2};
+  if (segs.some((o) => o !== s && dist(m, o.pa, o.pb) < 12)) continue;
+  if (V.n.some((n, i) => n !== null && px(n, V.e[i]).distanceTo(m) < 14)) continue;
+  if (px(0, 0).distanceTo(m) < 14) continue;
+  const el = document.elementFromPoint(mapRect.left + m.x, mapRect.top + m.y);
+  if (!el || el.closest(".leaflet-control") || !el.closest("#map")) continue;
+  return {x: m.x, y: m.y, w: mapRect.width, h: mapRect.height, st: s.st, a: s.a, b: s.b};
+}
+return null;"""
+
+
+@pytest.mark.udp
+def test_page_draws_the_relief_and_opens_a_link_profile(browser, canyon_run):  # noqa: F811
+    import threading
+
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    from mission.view.live.replay_sim import SimReplaySource
+    from mission.view.live.server import LiveServer
+
+    src = SimReplaySource(canyon_run)
+    box, ready = {}, threading.Event()
+
+    def serve():
+        async def main():
+            server = await LiveServer(src, "127.0.0.1", 0).start()
+            box.update(url=server.url, stop=asyncio.Event(), loop=asyncio.get_running_loop())
+            ready.set()
+            await box["stop"].wait()
+            await server.aclose()
+
+        asyncio.run(main())
+
+    th = threading.Thread(target=serve, daemon=True)
+    th.start()
+    assert ready.wait(60)
+    drv = browser
+    try:
+        drv.get(box["url"])
+        # The relief: an image overlay that loaded (decoded, not a broken image).
+        size = _wait(
+            lambda: drv.execute_script(
+                "const i = document.querySelector('img.terrain-relief');"
+                "return i && i.complete && i.naturalWidth ? [i.naturalWidth, i.naturalHeight] : null"
+            ),
+            60,
+            "the terrain relief image",
+        )
+        assert size[0] > 500 and size[1] > 500
+        assert "blocked by terrain" in drv.find_element("css selector", ".terrain-legend").text
+        last = len(src.meta()["replay"]["t"]) - 1
+        drv.execute_script(
+            "const s = document.getElementById('slider'); s.value = arguments[0];"
+            "s.dispatchEvent(new Event('input'));",
+            last,
+        )
+        _wait(
+            lambda: drv.execute_script("return window.phiremanFrame.t_mission_s") == 40.0,
+            30,
+            "the last frame",
+        )
+        # The statuses the page holds are the server's; the blocked ones are drawn apart.
+        frame = src.frame(last)
+        page = drv.execute_script("return window.phiremanFrame.links")
+        assert page["vv_status"] == frame["links"]["vv_status"]
+        every = page["vv_status"] + page["vc_status"] + page["vb_status"]
+        n_blocked = sum(s == LINK_BLOCKED for s in every)
+        drawn = drv.execute_script(
+            "return window.phiremanTerrainLayers.blocked.getLatLngs().length"
+        )
+        assert drawn == n_blocked
+        # A real click on a link opens its profile, with the frame's verdict.
+        hit = _wait(lambda: drv.execute_script(_FIND_LINK_JS), 30, "a link to click")
+        m = drv.find_element("id", "map")
+        ActionChains(drv).move_to_element_with_offset(
+            m, int(hit["x"] - hit["w"] / 2), int(hit["y"] - hit["h"] / 2)
+        ).click().perform()
+        names = ["ok", "blocked by terrain", "out of range"]
+        prof = _wait(
+            lambda: drv.execute_script(
+                "const b = document.getElementById('terrain-profile');"
+                "return b && !b.hidden && window.phiremanProfile ? window.phiremanProfile : null"
+            ),
+            30,
+            "the link profile panel",
+        )
+        assert prof["status_name"] == names[hit["st"]]
+        np.testing.assert_allclose(
+            sorted([prof["a"], prof["b"]]), sorted([hit["a"], hit["b"]]), atol=0.11
+        )
+        verdict = drv.find_element("id", "terrain-verdict").text
+        assert verdict.startswith(names[hit["st"]].upper())
+        assert drv.find_element("css selector", "#terrain-svg path")  # the drawing
+    finally:
+        box["loop"].call_soon_threadsafe(box["stop"].set)
+        th.join(30)

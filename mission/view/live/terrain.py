@@ -152,8 +152,8 @@ class TerrainView:
         crew_ok = np.isfinite(crew_h)
         rows = np.flatnonzero(heard)
         cols = np.flatnonzero(crew_ok)
-        vi, ci = np.meshgrid(rows, cols, indexing="ij")
-        vi, ci = vi.ravel(), ci.ravel()
+        vi = np.repeat(rows, len(cols))  # every (heard vehicle, crew with a position)
+        ci = np.tile(cols, len(rows))
         near = np.hypot(*(ne[vi] - crews[ci]).T) <= reach if len(vi) else np.zeros(0, bool)
         vi, ci = vi[near], ci[near]
         crew3 = np.column_stack([crews[ci], crew_h[ci]]) if len(ci) else np.empty((0, 3))
