@@ -197,8 +197,9 @@ def draw_link_profile(ax, prof: LinkProfile, title: str | None = None) -> None:
     verdict = LINK_STATUS_NAMES[prof.status]
     head = f"{title}: " if title else ""
     ax.set_title(
-        f"{head}{verdict} (slant {prof.slant_m:.0f} m of {prof.max_range_m:.0f} m; clearance "
-        f"{prof.least_clearance_ratio:.2f} of F1, needs {prof.clear_fraction:.2f})",
+        f"{head}{verdict.upper()}\nslant {prof.slant_m:.0f} m of {prof.max_range_m:.0f} m; least "
+        f"clearance {prof.least_clearance_ratio:.2f} of the first Fresnel radius "
+        f"(needs {prof.clear_fraction:.2f})",
         fontsize=9,
     )
     ax.legend(fontsize=7, loc="best", frameon=False)

@@ -218,6 +218,22 @@ def test_sim_run_frames_carry_terrain_status(canyon_run):
     assert (page_conn | ~truth_conn).all()
 
 
+def test_replay_figures_of_a_terrain_run(canyon_run, tmp_path):
+    from PIL import Image
+
+    from mission.view.replay import load_run, replay
+
+    written = replay(canyon_run, tmp_path, "none")
+    assert sorted(p.name for p in written) == [
+        "fig2_timeseries.png",
+        "frames.png",
+        "link_profiles.png",
+    ]
+    assert Image.open(tmp_path / "link_profiles.png").size[1] > 300
+    run = load_run(canyon_run)
+    assert run.alt_amsl_m is not None and run.alt_amsl_m.shape == run.alive.shape
+
+
 # ------------------------------------------------------------------ the page, in Chromium
 
 # The live view tests' headless Chromium (skipped, loudly, without chromium / chromedriver).
@@ -248,6 +264,21 @@ for (const s of order) {
   return {x: m.x, y: m.y, w: mapRect.width, h: mapRect.height, st: s.st, a: s.a, b: s.b};
 }
 return null;"""
+
+
+# Two vehicles far from any other vehicle on screen, on the map (not under a control).
+_FIND_VEHICLES_JS = """
+const f = window.phiremanFrame, M = window.phiremanMap.map, V = f.v;
+const mapRect = document.getElementById("map").getBoundingClientRect(), out = [];
+const pts = V.n.map((n, i) => n === null || V.amsl[i] === null ? null : M.latLngToContainerPoint(window.L.latLng(n, V.e[i])));
+for (let i = 0; i < pts.length && out.length < 2; i++) {
+  const p = pts[i];
+  if (!p || pts.some((q, j) => q && j !== i && q.distanceTo(p) < 20)) continue;
+  const el = document.elementFromPoint(mapRect.left + p.x, mapRect.top + p.y);
+  if (!el || el.closest(".leaflet-control") || !el.closest("#map")) continue;
+  out.push({x: p.x, y: p.y, label: V.label[i], p: [Math.round(V.n[i] * 10) / 10, Math.round(V.e[i] * 10) / 10, Math.round(V.amsl[i] * 10) / 10]});
+}
+return out.length === 2 ? {v: out, w: mapRect.width, h: mapRect.height} : null;"""
 
 
 @pytest.mark.udp
@@ -332,6 +363,27 @@ def test_page_draws_the_relief_and_opens_a_link_profile(browser, canyon_run):  #
         verdict = drv.find_element("id", "terrain-verdict").text
         assert verdict.startswith(names[hit["st"]].upper())
         assert drv.find_element("css selector", "#terrain-svg path")  # the drawing
+        # Shift-click two vehicles: the profile between them.
+        two = drv.execute_script(_FIND_VEHICLES_JS)
+        assert two is not None, "no two vehicles apart on screen"
+        from selenium.webdriver.common.keys import Keys
+
+        chain = ActionChains(drv).key_down(Keys.SHIFT)
+        for v in two["v"]:
+            chain = chain.move_to_element_with_offset(
+                m, int(v["x"] - two["w"] / 2), int(v["y"] - two["h"] / 2)
+            ).click()
+        chain.key_up(Keys.SHIFT).perform()
+        want = sorted(v["p"] for v in two["v"])
+        prof = _wait(
+            lambda: (lambda p: p if sorted([p["a"], p["b"]]) == want else None)(
+                drv.execute_script("return window.phiremanProfile")
+            ),
+            30,
+            "the profile between the two vehicles",
+        )
+        head = drv.find_element("css selector", "#terrain-profile .head").text
+        assert all(f"vehicle {v['label']}" in head for v in two["v"]), head
     finally:
         box["loop"].call_soon_threadsafe(box["stop"].set)
         th.join(30)
