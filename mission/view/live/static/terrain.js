@@ -48,7 +48,7 @@
       return d; }});
     new Legend({position: "bottomright"}).addTo(map);
     const style = document.createElement("style");
-    style.textContent = `#terrain-profile { position: absolute; left: 10px; bottom: 56px; z-index: 1001; background: rgba(255,255,255,.97);
+    style.textContent = `#terrain-profile { position: absolute; left: 10px; bottom: 56px; max-width: 470px; z-index: 1001; background: rgba(255,255,255,.97);
       border: 1px solid #888; border-radius: 4px; padding: 6px 8px; font-size: 11px; box-shadow: 0 2px 10px rgba(0,0,0,.25); }
       #terrain-profile[hidden] { display: none; } #terrain-profile .head { display: flex; justify-content: space-between; gap: 8px; }
       #terrain-profile .verdict.ok { color: #1a7f1a; } #terrain-profile .verdict.no { color: #c00; }
