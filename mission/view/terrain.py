@@ -105,7 +105,10 @@ def draw_terrain(ax, terrain: Terrain, alpha: float = 0.85, labels: bool = True)
     n0, n1, e0, e1 = terrain.extent_ne_m
     r, c = h.shape
     step = contour_step_m(float(h.max() - h.min()))
-    levels = np.arange(math.floor(h.min() / step) * step, h.max() + step, step)
+    # Each level 1 mm up, and only those inside the relief: a level at the very height of a flat
+    # plain (a synthetic scene's plane, a lake in a DEM) would trace the plain's rounding noise.
+    levels = np.arange(math.floor(h.min() / step) * step, h.max() + step, step) + 1e-3
+    levels = levels[(levels > h.min()) & (levels < h.max())]
     cs = ax.contour(
         np.linspace(e0, e1, c),
         np.linspace(n0, n1, r),
@@ -118,7 +121,7 @@ def draw_terrain(ax, terrain: Terrain, alpha: float = 0.85, labels: bool = True)
     )
     out = [img, cs]
     if labels and len(cs.levels):
-        index = [v for v in cs.levels if abs(v / (5 * step) - round(v / (5 * step))) < 1e-6]
+        index = [v for v in cs.levels if abs(v / (5 * step) - round(v / (5 * step))) < 1e-4]
         out += ax.clabel(cs, levels=index or cs.levels[::5], fontsize=6, fmt="%.0f m")
     return out
 

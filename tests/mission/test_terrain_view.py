@@ -83,6 +83,27 @@ def test_terrain_png_covers_the_grid_cells():
     assert img.size == (200, 200)
 
 
+def test_terrain_png_is_north_up_east_right():
+    from PIL import Image
+    import io
+
+    from planner.terrain import Hill
+
+    hill = synthetic_terrain([Hill((250.0, 250.0), 120.0, 60.0)], 400.0, 10.0, 500.0)
+    png, _ = terrain_png(hill, max_px=200)
+    a = np.asarray(Image.open(io.BytesIO(png)).convert("L"), dtype=float)
+    quad = {  # image rows go down (south), columns right (east)
+        "ne": a[:100, 100:],
+        "nw": a[:100, :100],
+        "se": a[100:, 100:],
+        "sw": a[100:, :100],
+    }
+    spread = {k: float(v.std()) for k, v in quad.items()}
+    # the hill, its shading and its contours are in the north-east quarter only
+    assert spread["ne"] > 10.0
+    assert max(spread["nw"], spread["se"], spread["sw"]) < 0.1 * spread["ne"]
+
+
 # ------------------------------------------------------------------ the live frame's links
 
 
