@@ -24,6 +24,7 @@ __all__ = [
     "contour_step_m",
     "draw_terrain",
     "terrain_png",
+    "terrain_bounds",
     "draw_link_profile",
     "SUN_AZIMUTH_DEG",
     "SUN_ALTITUDE_DEG",
@@ -126,10 +127,26 @@ def draw_terrain(ax, terrain: Terrain, alpha: float = 0.85, labels: bool = True)
     return out
 
 
+def terrain_bounds(terrain: Terrain) -> dict:
+    """Where :func:`terrain_png` lies and what it shows: ``{"n_min", "n_max", "e_min", "e_max",
+    "contour_m", "h_min_m", "h_max_m"}`` (metres, the mission frame)."""
+    e_min, e_max, n_min, n_max = _extent(terrain)
+    h = terrain.height_amsl_m
+    return {
+        "n_min": n_min,
+        "n_max": n_max,
+        "e_min": e_min,
+        "e_max": e_max,
+        "contour_m": contour_step_m(float(h.max() - h.min())),
+        "h_min_m": round(float(h.min()), 1),
+        "h_max_m": round(float(h.max()), 1),
+    }
+
+
 def terrain_png(terrain: Terrain, max_px: int = 1400) -> tuple[bytes, dict]:
     """The relief and contours as a PNG covering exactly the grid's cells, and its bounds
-    ``{"n_min", "n_max", "e_min", "e_max", "contour_m", "h_min_m", "h_max_m"}`` (metres, the
-    mission frame): what the live page lays over its map."""
+    (:func:`terrain_bounds`): what the live page lays over its map. Uses no pyplot state (a
+    server may render it off its event loop)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -146,17 +163,7 @@ def terrain_png(terrain: Terrain, max_px: int = 1400) -> tuple[bytes, dict]:
     ax.set_ylim(n_min, n_max)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
-    h = terrain.height_amsl_m
-    bounds = {
-        "n_min": n_min,
-        "n_max": n_max,
-        "e_min": e_min,
-        "e_max": e_max,
-        "contour_m": contour_step_m(float(h.max() - h.min())),
-        "h_min_m": round(float(h.min()), 1),
-        "h_max_m": round(float(h.max()), 1),
-    }
-    return buf.getvalue(), bounds
+    return buf.getvalue(), terrain_bounds(terrain)
 
 
 def draw_link_profile(ax, prof: LinkProfile, title: str | None = None) -> None:

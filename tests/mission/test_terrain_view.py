@@ -89,7 +89,7 @@ def test_terrain_png_is_north_up_east_right():
 
     from planner.terrain import Hill
 
-    hill = synthetic_terrain([Hill((250.0, 250.0), 120.0, 60.0)], 400.0, 10.0, 500.0)
+    hill = synthetic_terrain([Hill((250.0, 250.0), 120.0, 40.0)], 400.0, 10.0, 500.0)
     png, _ = terrain_png(hill, max_px=200)
     a = np.asarray(Image.open(io.BytesIO(png)).convert("L"), dtype=float)
     quad = {  # image rows go down (south), columns right (east)

@@ -217,7 +217,10 @@ class LiveServer:
         return terrain
 
     async def _terrain_png(self, request: web.Request) -> web.Response:
-        return web.Response(body=self._terrain().png(), content_type="image/png")
+        terrain = self._terrain()
+        # Rendered once, in a worker thread: the station's loop keeps polling meanwhile.
+        png = await asyncio.get_running_loop().run_in_executor(None, terrain.png)
+        return web.Response(body=png, content_type="image/png")
 
     async def _profile(self, request: web.Request) -> web.Response:
         from mission.view.live.terrain import parse_end

@@ -56,7 +56,7 @@ class TerrainView:
     """Altitude AMSL of the mission frame's origin (the base), metres."""
     crew_antenna_agl_m: float
     base_antenna_agl_m: float
-    _png: tuple[bytes, dict] | None = field(default=None, repr=False)
+    _png: bytes | None = field(default=None, repr=False)
 
     @classmethod
     def of_mission(cls, mission) -> TerrainView | None:
@@ -77,22 +77,24 @@ class TerrainView:
     # ------------------------------------------------------------------ the overlay
 
     def png(self) -> bytes:
-        """The relief and contours (:func:`mission.view.terrain.terrain_png`), rendered once."""
+        """The relief and contours (:func:`mission.view.terrain.terrain_png`), rendered once
+        (about a second of CPU for the canyon's 301 x 301 posts: the server calls it off its
+        event loop)."""
         if self._png is None:
             from mission.view.terrain import terrain_png
 
-            self._png = terrain_png(self.radio.terrain)
-        return self._png[0]
+            self._png = terrain_png(self.radio.terrain)[0]
+        return self._png
 
     def meta(self) -> dict:
         """``meta.terrain``: the overlay's address and bounds, the budget's range, the status
         names (index = the code in ``links.*_status``)."""
-        self.png()
-        assert self._png is not None  # rendered by png()
+        from mission.view.terrain import terrain_bounds
+
         b = self.radio.budget
         return {
             "url": "/api/terrain.png",
-            **self._png[1],
+            **terrain_bounds(self.radio.terrain),
             "max_range_m": round(b.max_range_m, 1),
             "clear_fraction": b.fresnel_clear_fraction,
             "frequency_mhz": b.frequency_hz / 1e6,
