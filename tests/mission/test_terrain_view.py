@@ -408,3 +408,12 @@ def test_page_draws_the_relief_and_opens_a_link_profile(browser, canyon_run):  #
     finally:
         box["loop"].call_soon_threadsafe(box["stop"].set)
         th.join(30)
+
+
+def test_export_of_an_in_process_run_is_refused_in_one_line(canyon_run):
+    from user_cli import PHIREMAN, run
+
+    res = run([PHIREMAN, "replay", str(canyon_run), "--export", "geojson"], canyon_run, 120)
+    assert res.returncode == 2
+    assert "--export reads a 'phireman fly' run" in res.stderr
+    assert "Traceback" not in res.stderr
