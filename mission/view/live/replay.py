@@ -47,7 +47,7 @@ from mission.view.live.state import Picture, classify, frame_dict, mission_meta,
 from mission.view.live.terrain import TerrainView
 from planner.geometry import geodetic_to_ned_m
 
-__all__ = ["ReplaySource", "load_replay"]
+__all__ = ["ReplaySource", "load_replay", "read_metrics"]
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +111,20 @@ def _event_from_record(rec: dict):
         return None
 
 
+def read_metrics(path: Path) -> list[dict]:
+    """The rows of a run's ``metrics.csv`` as floats (None where empty); [] without the file."""
+    if not path.is_file():
+        return []
+    rows = []
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            try:
+                rows.append({k: (float(v) if v not in ("", None) else None) for k, v in r.items()})
+            except ValueError:
+                continue
+    return rows
+
+
 @dataclasses.dataclass
 class _Frame:
     t_s: float
@@ -155,7 +169,7 @@ class ReplaySource:
             for line in (run_dir / "events.jsonl").read_text().splitlines()
             if line.strip()
         ]
-        self.metrics = self._read_metrics(run_dir / "metrics.csv")
+        self.metrics = read_metrics(run_dir / "metrics.csv")
         self.t0_s = (
             self.metrics[0]["t_s"] - self.metrics[0]["t_mission_s"] if self.metrics else None
         )
@@ -168,21 +182,6 @@ class ReplaySource:
         self.truth = self._read_truth(run_dir / "truth.npz")
 
     # ------------------------------------------------------------------ loading
-
-    @staticmethod
-    def _read_metrics(path: Path) -> list[dict]:
-        if not path.is_file():
-            return []
-        rows = []
-        with open(path, newline="") as f:
-            for r in csv.DictReader(f):
-                try:
-                    rows.append(
-                        {k: (float(v) if v not in ("", None) else None) for k, v in r.items()}
-                    )
-                except ValueError:
-                    continue
-        return rows
 
     def _read_truth(self, path: Path):
         if not path.is_file():

@@ -13,7 +13,6 @@ cannot fly yet.
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 from pathlib import Path
@@ -21,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from gcs.fleet import FleetSnapshot
+from mission.view.live.replay import read_metrics
 from mission.view.live.state import Picture, classify, decimate, frame_dict, mission_meta
 from mission.view.live.terrain import TerrainView
 
@@ -60,7 +60,7 @@ class SimReplaySource:
             if "alt_amsl_m" in z
             else np.full((n_t, n), base_alt + run.mission.vehicles.limits.cruise_alt_m)
         )
-        self.metrics = self._read_metrics(run_dir / "metrics.csv")
+        self.metrics = read_metrics(run_dir / "metrics.csv")
         losses = (
             [json.loads(x) for x in (run_dir / "events.jsonl").read_text().splitlines() if x]
             if (run_dir / "events.jsonl").is_file()
@@ -76,16 +76,6 @@ class SimReplaySource:
             "networked": (run.alive & run.active)[ks].sum(axis=1).astype(int).tolist(),
             "lost": (~run.alive[ks]).sum(axis=1).astype(int).tolist(),
         }
-
-    @staticmethod
-    def _read_metrics(path: Path) -> list[dict]:
-        if not path.is_file():
-            return []
-        with open(path, newline="") as f:
-            return [
-                {k: float(v) for k, v in r.items() if v not in ("", None)}
-                for r in csv.DictReader(f)
-            ]
 
     def meta(self) -> dict:
         m = mission_meta(

@@ -276,7 +276,6 @@ def frame_dict(p: Picture, radio_range_m: float, base_range_m: float, terrain=No
     pos = snap.pos_ned_m
     ne = pos[:, :2] if n else np.empty((0, 2))
     heard_pos = ~snap.lost & snap.has_position
-    ne_ok = np.where(heard_pos[:, None], ne, 0.0)
     crews = np.asarray(p.crews_ne_m, dtype=float).reshape(-1, 2)
     crew_ok = np.isfinite(crews).all(axis=1)
     if terrain is not None:
@@ -298,6 +297,7 @@ def frame_dict(p: Picture, radio_range_m: float, base_range_m: float, terrain=No
         frame["v"]["amsl"] = _col(tl["amsl"])
         frame["crews"]["amsl"] = _col(tl["crew_amsl"])
         return frame
+    ne_ok = np.where(heard_pos[:, None], ne, 0.0)
     vv, total_vv = radio_links(ne_ok, heard_pos, radio_range_m)
     vc: list = []
     if heard_pos.any() and crew_ok.any():
