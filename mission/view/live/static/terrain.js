@@ -32,6 +32,7 @@
       className: "terrain-relief", alt: "shaded relief and contours"}).addTo(map);
     layers = {relief, blocked: L.polyline([], STYLE[BLOCKED]).addTo(map), far: L.polyline([], STYLE[FAR]).addTo(map),
       pick: L.layerGroup().addTo(map)};
+    layers.far.bringToBack(); layers.blocked.bringToBack();  // under the vehicles and crews
     window.phiremanTerrainLayers = layers;  // for tests and the curious
     const lc = ctx.layers.control;  // app.js's layer control
     lc.addOverlay(relief, "terrain relief"); lc.addOverlay(layers.blocked, "links blocked by terrain");
