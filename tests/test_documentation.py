@@ -555,6 +555,57 @@ def _forward_after(c: Ctx, readonly: bool) -> None:
         c.expect(seen, "a command sent through --forward did not reach the vehicles")
 
 
+def forward_refusal(c: Ctx) -> None:
+    """``--forward-overrides refuse``: a client's SET_MODE to a vehicle the station flies is
+    answered by the vehicle's sysid with the station's STATUSTEXT, and recorded in events.jsonl
+    (docs/live_view.md "Overrides from a forwarded client")."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    s = c.served
+    assert s is not None
+    s.wait_for(r"forwarding MAVLink to ")
+    mav = mavlink.MAVLink(None, srcSystem=254, srcComponent=190)
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    text, sysid = "", None
+    end = time.monotonic() + 90
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", c.extra["ports"][0]))
+        sock.settimeout(1.0)
+        while time.monotonic() < end and not text.endswith("first"):
+            try:
+                data, peer = sock.recvfrom(65536)
+            except TimeoutError:
+                continue
+            for m in parser.parse_buffer(data) or []:
+                kind = m.get_type()
+                if kind == "HEARTBEAT" and sysid is None and m.get_srcSystem() != 255:
+                    sysid = m.get_srcSystem()
+                elif kind == "STATUSTEXT" and m.get_srcSystem() == sysid:
+                    if m.text.startswith("phireman:"):
+                        text = m.text
+                    elif text:
+                        text += m.text
+            if sysid is not None and not text:  # RTL (ArduCopter 6), again until refused
+                sock.sendto(mavlink.MAVLink_set_mode_message(sysid, 1, 6).pack(mav), peer)
+    c.expect(
+        text == f"phireman: vehicle {sysid} is flown by the relay plan; hold it on the station "
+        "first",
+        f"no refusal STATUSTEXT from the vehicle (got {text!r})",
+    )
+
+    def after() -> None:
+        events = c.run_dirs("runs")[-1] / "events.jsonl"
+        c.expect(events.is_file(), "no events.jsonl")
+        recs = [json.loads(l) for l in events.read_text().splitlines() if l.strip()]
+        c.expect(
+            any(r.get("action") == "override-refused" and r.get("sysid") == sysid for r in recs),
+            "the refusal is not in events.jsonl",
+        )
+
+    c.extra["after"] = after
+
+
 def forward_ports(*kinds: str) -> tuple[str, Callable[[re.Match], str]]:
     """Rewrite every --forward URL's port to a free one (fixed ports are never used in tests)."""
 
@@ -863,6 +914,9 @@ TABLE: dict[str, Case] = {
     "phireman fly wildfire --serve 0.0.0.0:8080": Case(
         kind="serve", rewrite=(PORT_0,), check=page(public=True)
     ),
+    "phireman fly wildfire --serve 8080 --alert-crew-after 30": Case(
+        kind="serve", rewrite=(PORT_0,), check=page()
+    ),
     "phireman fly wildfire --serve 8080 --serve-actions off": Case(
         kind="serve", rewrite=(PORT_0,), check=page(actions=False)
     ),
@@ -892,6 +946,9 @@ TABLE: dict[str, Case] = {
     ),
     "phireman fly wildfire --forward udpin:0.0.0.0:14551 --forward-readonly": Case(
         kind="serve", rewrite=(forward_ports(),), check=forwarding(("udpin",), readonly=True)
+    ),
+    "phireman fly wildfire --forward udpout:127.0.0.1:14550 --forward-overrides refuse": Case(
+        kind="serve", rewrite=(forward_ports(),), check=forward_refusal
     ),
     "phireman fly wildfire --forward udpout:192.0.2.10:14550 --forward tcpin:0.0.0.0:5763": Case(
         kind="serve",

@@ -7,11 +7,18 @@
    API with the operator key, a vehicle selected; shot at mission time ~90 s.
 2. replay_hazard.png: the ``hazard_zone`` mission flown, then ``phireman replay --serve`` of
    its run directory, the slider at ~t+120 s (zone 1 active), the emulator-truth layer off.
-3. terrain_canyon.png: ``phireman sim --mission canyon --out DIR`` (in process, seed 1), then
+3. live_health.png: ``wildfire`` again (50 emulated ArduPilot drones, in-process emulator, 10x),
+   the alerts of the hazard's losses acknowledged at ~45 s, at ~50 s one vehicle killed and
+   another put in RTL by its own autopilot (a failsafe the station did not command); shot at
+   ~58 s with the alert banner up, a networked vehicle selected (battery, link, GPS, health,
+   altitudes, MGRS position). Prints the frame's JSON size at 50
+   vehicles with and without the health columns.
+4. terrain_canyon.png: ``phireman sim --mission canyon --out DIR`` (in process, seed 1), then
    ``phireman replay DIR --serve`` at t+150 s: the relief and contours under the map, links blocked
    by terrain drawn apart, and the profile of the shortest blocked link opened (as a click does).
 
-    nice .venv/bin/python docs/images/make_screenshots.py terrain   # only the third
+    nice .venv/bin/python docs/images/make_screenshots.py health    # only the third
+    nice .venv/bin/python docs/images/make_screenshots.py terrain   # only the fourth
 """
 
 from __future__ import annotations
@@ -55,6 +62,16 @@ def post(info, action, vehicle):
         info["url"] + "api/action",
         method="POST",
         data=json.dumps({"action": action, "vehicle": vehicle}).encode(),
+        headers={"Content-Type": "application/json", "X-Operator-Key": info["key"]},
+    )
+    return json.loads(urllib.request.urlopen(req, timeout=10).read())
+
+
+def ack(info, alert):
+    req = urllib.request.Request(
+        info["url"] + "api/ack",
+        method="POST",
+        data=json.dumps({"alert": alert}).encode(),
         headers={"Content-Type": "application/json", "X-Operator-Key": info["key"]},
     )
     return json.loads(urllib.request.urlopen(req, timeout=10).read())
@@ -222,11 +239,114 @@ def terrain_shot(out_dir: Path) -> Path:
     return path
 
 
+def health_shot(out_dir: Path) -> Path:
+    from mission.format.examples import example_path
+    from mission.format.load import load_mission
+    from mission.flight.runners import FlyOptions, fly_emulated_async
+    from mission.view.live import attach
+
+    mission = load_mission(example_path("wildfire"))
+    info, state = {}, {"stop": False, "done": False}
+
+    def hook(op, world):
+        t = op.records[-1].t_mission_s if op.records else None
+        if t is not None and t > 50 and not state["done"]:
+            sw = world.swarm
+            world.kill(3)
+            core = sw.cores[7]
+            core._set_mode(core.pers.rtl_mode, sw.now_s, "screenshot: failsafe")
+            state["done"] = True
+        if state["stop"]:
+            op.phase = "done"
+
+    def run():
+        asyncio.run(
+            fly_emulated_async(
+                mission,
+                FlyOptions(
+                    speedup=10.0,
+                    emulator_in_process=True,
+                    out_dir=str(out_dir),
+                    serve="127.0.0.1:0",
+                    attach_view=attach,
+                    on_live=info.update,
+                    on_operator=hook,
+                ),
+            )
+        )
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    while "url" not in info:
+        time.sleep(0.2)
+    drv = browser()
+    try:
+        drv.get(f"{info['url']}#key={info['key']}")
+
+        def t_mission():
+            return drv.execute_script(
+                "return window.phiremanFrame && window.phiremanFrame.t_mission_s"
+            )
+
+        while (t_mission() or 0) < 45:
+            time.sleep(0.5)
+        ack(info, "all")  # the hazard's earlier losses: acknowledged, off the banner
+        while (t_mission() or 0) < 58:
+            time.sleep(0.5)
+        drv.execute_script(
+            "const s = document.getElementById('coordfmt'); s.value = 'mgrs';"
+            "s.dispatchEvent(new Event('change'));"
+            "const V = window.phiremanFrame.v, i = V.state.indexOf('networked');"
+            "document.querySelector(`#vtable tr[data-vid='${V.id[i]}']`).click();"
+        )
+        time.sleep(1.0)
+        drv.execute_script("document.getElementById('sel-title').scrollIntoView()")
+        time.sleep(0.5)
+        frame = drv.execute_script("return window.phiremanFrame")
+        health_keys = set(frame["v"]) - {
+            "id",
+            "label",
+            "state",
+            "mode",
+            "n",
+            "e",
+            "alt",
+            "layer",
+            "layer_alt",
+            "hdg",
+            "tn",
+            "te",
+            "talt",
+            "released",
+        }
+        full = len(json.dumps(frame, separators=(",", ":")))
+        frame["v"] = {k: v for k, v in frame["v"].items() if k not in health_keys}
+        frame.pop("alerts", None)
+        before = len(json.dumps(frame, separators=(",", ":")))
+        n = len(frame["v"]["id"])
+        print(
+            f"frame JSON at {n} vehicles: {before} B without the health columns and alerts, "
+            f"{full} B with them ({before / n:.0f} -> {full / n:.0f} B per vehicle)"
+        )
+        path = HERE / "live_health.png"
+        drv.save_screenshot(str(path))
+    finally:
+        drv.quit()
+        state["stop"] = True
+        th.join(120)
+    return path
+
+
 if __name__ == "__main__":
     import sys
 
     with tempfile.TemporaryDirectory() as tmp:
-        if sys.argv[1:] != ["terrain"]:
+        if sys.argv[1:] == ["health"]:
+            print(health_shot(Path(tmp)))
+        elif sys.argv[1:] == ["terrain"]:
+            print(terrain_shot(Path(tmp)))
+        else:
             print(live_shot(Path(tmp)))
             print(replay_shot(Path(tmp)))
-        print(terrain_shot(Path(tmp)))
+            print(health_shot(Path(tmp)))
+            print(terrain_shot(Path(tmp)))

@@ -67,6 +67,11 @@ class OperatorState:
         reclaimed: list[tuple[float, int, int]]
         counters: dict[str, int]
         released: dict[tuple[int, int], str]
+        overrides: dict[tuple[int, int], OperatorAction]
+        _refusals_logged: dict[tuple[int, int], tuple[float, str, str]]
+
+        def t_mission_s(self, now_s: float) -> float: ...
+
         interrupted: str | None
         end_status: dict[str, int] | None
         actions: list[OperatorAction]

@@ -180,7 +180,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     from mission.commands.live_view import add_fly_arguments
 
-    add_fly_arguments(p)  # --serve, --serve-actions, --tiles, --forward, --forward-readonly
+    add_fly_arguments(p)  # --serve(-actions), --tiles, --forward(-readonly, -overrides)
     from mission.commands.tak_args import add_tak_arguments
 
     add_tak_arguments(p)  # --tak URL, --tak-period-s, --tak-tls-*

@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from gcs.events import TelemetryReceived
+from gcs.events import HEALTH_EVENTS, BatteryReceived, TelemetryReceived
 from gcs.operations import Operator
 from gcs.records import EventLog, MetricsWriter, TlogWriter
 from mission.flight.fly_options import FlyOptions
@@ -119,8 +119,15 @@ class Records:
         self.events = EventLog(run_dir / "events.jsonl")
         self.metrics = MetricsWriter(run_dir / "metrics.csv")
 
+    #: Write BatteryReceived to events.jsonl (a mission with batteries: the rotation's inputs);
+    #: without batteries the live page's SYS_STATUS battery is in the .tlog only (replay reads
+    #: it there), not one line per vehicle per second here.
+    battery_events: bool = True
+
     def event(self, ev) -> None:
-        if not isinstance(ev, TelemetryReceived):
+        if isinstance(ev, BatteryReceived) and not self.battery_events:
+            return
+        if not isinstance(ev, (TelemetryReceived, *HEALTH_EVENTS)):
             self.events.write(ev)
 
     def close(self) -> None:
