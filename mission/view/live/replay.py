@@ -41,10 +41,10 @@ import numpy as np
 from gcs import events as gcs_events
 from gcs.control import layer_alt_m
 from gcs.fleet import FleetSnapshot, FleetView, MissionOrigin
-from gcs.operations.config import OVERRIDE, OVERRIDE_REFUSED, override_label
 from gcs.link_discovery import sys_status_battery
 from gcs.link_health import health_event
 from gcs.link_quality import SeqCounter
+from gcs.operations.config import OVERRIDE, OVERRIDE_REFUSED, override_label
 from gcs.wire import mavlink
 from mission.view.live.alerts import DEFAULT_BATTERY_LOW_FRAC
 from mission.view.live.health import LOSS_WINDOW_S, health_columns, minutes_to_reserve
