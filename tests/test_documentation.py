@@ -415,11 +415,35 @@ def page(actions: bool = True, tiles: str | None = None, public: bool = False) -
     return check
 
 
-def _post(url: str, body: dict) -> tuple[int, bytes]:
+def rotation_page(swap_confirm: str) -> Check:
+    """A flight with batteries served: the frame has the Relay rotation (docs/live_view.md) in the
+    ``--swap-confirm`` mode asked for, and ``confirm_swap`` for "all" is refused (one vehicle at a
+    time), with the operator key."""
+
+    def check(c: Ctx) -> None:
+        page()(c)
+        s = c.served
+        assert s is not None
+        url = c.extra["url"]
+        rot = s.get_json(url + "api/frame").get("rotation")
+        c.expect(rot is not None, "no rotation in the frame of a mission with batteries")
+        c.expect(rot["swap_confirm"] == swap_confirm, f"swap_confirm {rot['swap_confirm']}")
+        c.expect(len(rot["pads"]) == 4, f"wildfire_2h has 4 pads, the frame {len(rot['pads'])}")
+        key = s.wait_for(r"operator key \(actions\): (\S+)").group(1)
+        body = {"action": "confirm_swap", "vehicle": "all"}
+        st, text = _post(url + "api/action", body, {"X-Operator-Key": key})
+        c.expect(st == 400 and b"name the vehicle" in text, f"confirm_swap all: {st} {text!r}")
+
+    return check
+
+
+def _post(url: str, body: dict, headers: dict | None = None) -> tuple[int, bytes]:
     import urllib.error
     import urllib.request
 
-    req = urllib.request.Request(url, data=json.dumps(body).encode(), method="POST")
+    req = urllib.request.Request(
+        url, data=json.dumps(body).encode(), method="POST", headers=headers or {}
+    )
     try:
         with urllib.request.urlopen(req, timeout=10) as r:
             return r.status, r.read()
@@ -819,7 +843,11 @@ TABLE: dict[str, Case] = {
     "phireman fly wildfire_2h --duration-s 2400 --speedup 50 --apply-failsafes": Case(
         # The first 60 s of the 2,400: batteries read, the battery failsafes applied, K planned.
         rewrite=((r"--duration-s 2400", "--duration-s 60"), (r"$", " --no-wait --out runs")),
-        check=lambda c: c.has(r"TU1/TU2 as the station saw them", r"BATT_FS_LOW_ACT"),
+        check=lambda c: c.has(
+            r"TU1/TU2 as the station saw them",
+            r"BATT_FS_LOW_ACT",
+            r"relay rotation: \d+ rotations, \d+ battery failsafes in the air, \d+ landed away",
+        ),
         timeout=600,
     ),
     "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),
@@ -911,6 +939,14 @@ TABLE: dict[str, Case] = {
     ),
     "phireman fly --serve 8080": Case(kind="serve", rewrite=(PORT_0,), check=page()),
     "phireman fly wildfire --serve 8080": Case(kind="serve", rewrite=(PORT_0,), check=page()),
+    # ---- the relay rotation on the page (docs/live_view.md, docs/design/endurance.md §8) --------
+    "phireman fly --swap-confirm": Case(kind="help"),
+    "phireman fly wildfire_2h --serve 8080 --apply-failsafes": Case(
+        kind="serve", rewrite=(PORT_0,), check=rotation_page("auto")
+    ),
+    "phireman fly wildfire_2h --serve 8080 --apply-failsafes --swap-confirm manual": Case(
+        kind="serve", rewrite=(PORT_0,), check=rotation_page("manual")
+    ),
     "phireman fly wildfire --serve 0.0.0.0:8080": Case(
         kind="serve", rewrite=(PORT_0,), check=page(public=True)
     ),

@@ -1,24 +1,27 @@
 """Make the live-view screenshots of the README and docs/live_view.md (headless chromium).
 
-    nice .venv/bin/python docs/images/make_screenshots.py
+    nice .venv/bin/python docs/images/make_screenshots.py            # all of them
+    nice .venv/bin/python docs/images/make_screenshots.py rotation   # some: live, replay, rotation,
+                                                                     # health, terrain
 
 1. live_wildfire.png: ``phireman fly wildfire`` (50 emulated ArduPilot drones, emulator process,
    10x) served with --serve; one vehicle sent home (RTL) and one held through the page's own
    API with the operator key, a vehicle selected; shot at mission time ~90 s.
 2. replay_hazard.png: the ``hazard_zone`` mission flown, then ``phireman replay --serve`` of
    its run directory, the slider at ~t+120 s (zone 1 active), the emulator-truth layer off.
-3. live_health.png: ``wildfire`` again (50 emulated ArduPilot drones, in-process emulator, 10x),
+3. rotation_panel.png: ``phireman fly wildfire_2h --swap-confirm manual`` (50 emulated drones on
+   25-minute batteries, emulator process, 50x) served with --serve; the Relay rotation panel
+   (docs/live_view.md) shot when a second vehicle stands on a pad waiting for the crew's Confirm
+   (the first one confirmed through the page's own API with the operator key).
+4. live_health.png: ``wildfire`` again (50 emulated ArduPilot drones, in-process emulator, 10x),
    the alerts of the hazard's losses acknowledged at ~45 s, at ~50 s one vehicle killed and
    another put in RTL by its own autopilot (a failsafe the station did not command); shot at
    ~58 s with the alert banner up, a networked vehicle selected (battery, link, GPS, health,
    altitudes, MGRS position). Prints the frame's JSON size at 50
    vehicles with and without the health columns.
-4. terrain_canyon.png: ``phireman sim --mission canyon --out DIR`` (in process, seed 1), then
+5. terrain_canyon.png: ``phireman sim --mission canyon --out DIR`` (in process, seed 1), then
    ``phireman replay DIR --serve`` at t+150 s: the relief and contours under the map, links blocked
    by terrain drawn apart, and the profile of the shortest blocked link opened (as a click does).
-
-    nice .venv/bin/python docs/images/make_screenshots.py health    # only the third
-    nice .venv/bin/python docs/images/make_screenshots.py terrain   # only the fourth
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 
 
-def browser():
+def browser(height: int = 1000):
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -48,7 +51,7 @@ def browser():
         "--disable-component-update",
         "--disable-sync",
         "--no-first-run",
-        "--window-size=1600,1000",
+        f"--window-size=1600,{height}",
         "--hide-scrollbars",
         f"--user-data-dir={tempfile.mkdtemp(prefix='phireman-shot-')}",
     ):
@@ -81,6 +84,7 @@ def live_shot(out_dir: Path) -> Path:
     from mission.format.examples import example_path
     from mission.format.load import load_mission
     from mission.flight.runners import FlyOptions, fly_emulated_async
+    from mission.view.live import attach
 
     mission = load_mission(example_path("wildfire"))
     info, state = {}, {"t": None, "stop": False}
@@ -98,6 +102,7 @@ def live_shot(out_dir: Path) -> Path:
                     speedup=10.0,
                     out_dir=str(out_dir),
                     serve="127.0.0.1:0",
+                    attach_view=attach,
                     on_live=info.update,
                     on_operator=hook,
                 ),
@@ -337,16 +342,79 @@ def health_shot(out_dir: Path) -> Path:
     return path
 
 
+def rotation_shot(out_dir: Path) -> Path:
+    from mission.format.examples import example_path
+    from mission.format.load import load_mission
+    from mission.flight.runners import FlyOptions, fly_emulated_async
+    from mission.view.live import attach
+
+    mission = load_mission(example_path("wildfire_2h"))
+    info, state = {}, {"stop": False}
+
+    def hook(op, world):
+        if state["stop"]:
+            op.phase = "done"
+
+    def run():
+        asyncio.run(
+            fly_emulated_async(
+                mission,
+                FlyOptions(
+                    speedup=50.0,
+                    out_dir=str(out_dir),
+                    serve="127.0.0.1:0",
+                    attach_view=attach,
+                    on_live=info.update,
+                    on_operator=hook,
+                    apply_failsafes=True,
+                    swap_confirm="manual",
+                    end_wait=False,
+                ),
+            )
+        )
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    while "url" not in info:
+        time.sleep(0.2)
+    drv = browser(height=1900)  # the whole panel in view: an element is shot as far as it shows
+    try:
+        drv.get(f"{info['url']}#key={info['key']}")
+
+        def on_pads():
+            rot = drv.execute_script("return window.phiremanFrame && window.phiremanFrame.rotation")
+            return [] if not rot else [p["vehicle"] for p in rot["pads"] if p["vehicle"]]
+
+        while len(on_pads()) < 1:
+            time.sleep(0.5)
+        post(info, "confirm_swap", on_pads()[0])
+        end = time.monotonic() + 120.0  # a second vehicle on a pad, if one comes soon
+        while len(on_pads()) < 2 and time.monotonic() < end:
+            time.sleep(0.5)
+        time.sleep(1.0)
+        path = HERE / "rotation_panel.png"
+        panel = drv.find_element("id", "rotation")
+        drv.execute_script("arguments[0].scrollIntoView()", panel)
+        drv.save_screenshot(str(out_dir / "rotation_page.png"))
+        panel.screenshot(str(path))
+    finally:
+        drv.quit()
+        state["stop"] = True
+        th.join(120)
+    return path
+
+
+SHOTS = {
+    "live": live_shot,
+    "replay": replay_shot,
+    "health": health_shot,
+    "rotation": rotation_shot,
+    "terrain": terrain_shot,
+}
+
 if __name__ == "__main__":
     import sys
 
     with tempfile.TemporaryDirectory() as tmp:
-        if sys.argv[1:] == ["health"]:
-            print(health_shot(Path(tmp)))
-        elif sys.argv[1:] == ["terrain"]:
-            print(terrain_shot(Path(tmp)))
-        else:
-            print(live_shot(Path(tmp)))
-            print(replay_shot(Path(tmp)))
-            print(health_shot(Path(tmp)))
-            print(terrain_shot(Path(tmp)))
+        for name in sys.argv[1:] or SHOTS:
+            print(SHOTS[name](Path(tmp)))

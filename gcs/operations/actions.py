@@ -1,6 +1,7 @@
 """Operator actions: one vehicle (or all) taken out of the plan and held, sent home or down,
-released or brought back (``rejoin``), the Ctrl-C interrupt with its report, and the policy for
-a forwarded client's override (:meth:`OperatorActions.forwarded_override`).
+released or brought back (``rejoin``), a battery swap confirmed by the ground crew
+(``confirm_swap``), the Ctrl-C interrupt with its report, and the policy for a forwarded
+client's override (:meth:`OperatorActions.forwarded_override`).
 
 A mixin of :class:`gcs.operations.Operator` (split out of one 950-line module along this seam:
 what a person asks of the flight, as opposed to what the plan does). It holds no state of its
@@ -61,6 +62,8 @@ class OperatorActions(OperatorState):
         if action not in OPERATOR_ACTIONS:
             raise ValueError(f"unknown action {action!r}; valid: {', '.join(OPERATOR_ACTIONS)}")
         snap = self.fleet.snapshot(now_s)
+        if vid is None and action == "confirm_swap":
+            raise ValueError("confirm_swap confirms one vehicle's swap: name the vehicle")
         if vid is None:
             rows = [i for i in range(snap.n_vehicles) if not snap.lost[i]]
         else:
@@ -82,6 +85,8 @@ class OperatorActions(OperatorState):
     def _operator_act(
         self, action: str, snap: FleetSnapshot, i: int, vid: tuple[int, int], now_s: float
     ) -> str:
+        if action == "confirm_swap":  # the plan is not touched: the rotation's bookkeeping
+            return self._rotation_confirm_swap(i, now_s)
         self.overrides.pop(vid, None)  # the station's operator has it now
         if action == "rejoin":
             if self.released.pop(vid, None) is None:

@@ -55,6 +55,11 @@ class FlyOptions:
     rotation: str = "mission"
     """'mission', 'on' or 'off' (no rotation: every drone flies until its firmware's low-battery
     failsafe; ``phireman sim --rotation``)."""
+    swap_confirm: str = "auto"
+    """Who ends a battery swap on a pad: 'auto' (the station, when the vehicle comes back
+    powered and full, or the ground crew first from the live page) or 'manual' (only the ground
+    crew: the live page's Confirm, the operator action ``confirm_swap``); docs/design/endurance.md
+    §8. The emulator's own crew always swaps by itself (a power cycle)."""
     on_interrupt: str = "end"
     """What Ctrl-C tells every reachable vehicle: 'end' (the mission's end action), 'hold',
     'rtl' or 'land'."""

@@ -260,15 +260,18 @@ def make_operator(
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
         rally=_rally_keeper(mission, params),
-        rotation=rotation_setup(mission, scenario),
+        rotation=rotation_setup(mission, scenario, opts.swap_confirm),
         tak=TakCrews(fleet.origin, tak) if tak else None,
     )
 
 
-def rotation_setup(mission: Mission, scenario: MissionScenario) -> RotationSetup | None:
+def rotation_setup(
+    mission: Mission, scenario: MissionScenario, swap_confirm: str = "auto"
+) -> RotationSetup | None:
     """The station's relay rotation for a mission with batteries (None without): the policy the
     in-process run builds too (:meth:`mission.format.schema.EnduranceSpec.policy`), and what the
-    mission says of the batteries (nominal hover drain, the drain at full speed)."""
+    mission says of the batteries (nominal hover drain, the drain at full speed).
+    ``swap_confirm``: who ends a swap (``FlyOptions.swap_confirm``)."""
     end = mission.endurance
     spec = end.battery
     if spec is None:
@@ -285,6 +288,7 @@ def rotation_setup(mission: Mission, scenario: MissionScenario) -> RotationSetup
         policy,
         hover_drain_per_s=1.0 / spec.endurance_s,
         return_drain_factor=1.0 + spec.speed_drain_frac,
+        swap_confirm=swap_confirm,
     )
 
 
@@ -504,6 +508,7 @@ async def run_station(
                     opts.on_operator(op, world)
                 if rec is not None:
                     records.metrics.write(rec.row())
+                    records.rotation(op, now)
                 if op.phase == "done" and not opts.end_wait:
                     break
                 if op.phase == "end" and not opts.end_wait:

@@ -334,7 +334,7 @@ def answer_audit(
 
 def test_public_names_and_phase_strings():
     assert PHASES == ("discover", "audit", "launch", "run", "end", "done", "refused")
-    assert OPERATOR_ACTIONS == ("hold", "rtl", "land", "release", "rejoin")
+    assert OPERATOR_ACTIONS == ("hold", "rtl", "land", "release", "rejoin", "confirm_swap")
     op, *_ = make()
     assert op.phase == "discover" and isinstance(op.phase, str) and not op.finished
     assert f"{op.phase}" == "discover" and str(op.phase) == "discover"

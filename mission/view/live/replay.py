@@ -11,6 +11,8 @@ What is read (a ``phireman fly`` run directory):
   networked vehicles;
 * ``mission.yaml`` and ``run.json`` (seed) - base, crews (tracks redrawn from the seed, live crews
   from their recorded positions), hazard zones, geofence, radio ranges;
+* ``rotation.jsonl`` (a flight with batteries) - the relay rotation's state when it changed and
+  its events: the rotation panel (:mod:`mission.view.live.rotation`);
 * ``truth.npz`` (emulated runs) - only for the optional "emulator truth" layer.
 
 The same :class:`gcs.fleet.FleetView` the station used folds these events again, so each frame
@@ -48,6 +50,8 @@ from gcs.operations.config import OVERRIDE, OVERRIDE_REFUSED, override_label
 from gcs.wire import mavlink
 from mission.view.live.alerts import DEFAULT_BATTERY_LOW_FRAC
 from mission.view.live.health import LOSS_WINDOW_S, health_columns, minutes_to_reserve
+from mission.flight.run_dir import ROTATION_FILE
+from mission.view.live.rotation import MAX_EVENTS, rotation_frame
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
 from mission.view.live.terrain import TerrainView
@@ -229,9 +233,42 @@ class ReplaySource:
         self._loss: dict[int, list] = {}
         tlog = read_tlog(run_dir / "flight.tlog", loss=self._loss)
         self._build(records, tlog, dt_s)
+        self.rotation = self._read_rotation(run_dir / ROTATION_FILE)
         self.truth = self._read_truth(run_dir / "truth.npz")
 
     # ------------------------------------------------------------------ loading
+
+    @staticmethod
+    def _read_rotation(path: Path) -> list[dict] | None:
+        """``rotation.jsonl`` (a flight with batteries; None without): its lines in time order,
+        each with the number of events recorded up to it (``n_events``) into ``events``, one
+        list for the whole file."""
+        if not path.is_file():
+            return None
+        lines: list[dict] = []
+        events: list[dict] = []
+        for text in path.read_text().splitlines():
+            try:
+                rec = json.loads(text)
+                line = {"t_s": float(rec["t_s"]), "state": rec["state"], "events": events}
+                events.extend(rec.get("events", ()))
+            except (ValueError, KeyError, TypeError):
+                continue  # a line cut short by a crash
+            line["n_events"] = len(events)
+            lines.append(line)
+        return lines
+
+    def _rotation_at(self, snap, t_s: float) -> dict | None:
+        """The frame's ``rotation`` key at ``t_s``: the last recorded state at or before it."""
+        if not self.rotation:
+            return None
+        k = bisect.bisect_right([r["t_s"] for r in self.rotation], t_s + 1e-9) - 1
+        if k < 0:
+            return None
+        rec = self.rotation[k]
+        n = rec["n_events"]
+        events = rec["events"][max(0, n - MAX_EVENTS) : n]
+        return rotation_frame(rec["state"], events, snap, t_s, self.t0_s)
 
     def _read_truth(self, path: Path):
         if not path.is_file():
@@ -358,6 +395,8 @@ class ReplaySource:
                     released.pop(vid, None)
                 elif r["action"] == OVERRIDE:  # a forwarded client took it: say who
                     released[vid] = override_label(r.get("source", "?"), r.get("result", ""))
+                elif r["action"] == "confirm_swap":
+                    pass  # the rotation's bookkeeping (rotation.jsonl), not the plan's
                 elif r["action"] != OVERRIDE_REFUSED:  # a refusal leaves it in the plan
                     released[vid] = r["action"]
                 a += 1
@@ -538,6 +577,7 @@ class ReplaySource:
                     self._reserve_frac,
                 ),
             ),
+            rotation=self._rotation_at(snap, t),
         )
         frame = frame_dict(
             pic, self.mission.radio.range_m, self.mission.radio.base_range_m, terrain=self.terrain

@@ -267,6 +267,8 @@ class Picture:
     """Per-vehicle health columns (:func:`mission.view.live.health.health_columns`)."""
     alerts: dict | None = None
     """``{"open": [...], "recent": [...]}`` (:class:`mission.view.live.alerts.AlertBook`)."""
+    rotation: dict | None = None
+    """The relay rotation (:func:`mission.view.live.rotation.rotation_frame`; None: no batteries)."""
 
 
 def frame_dict(p: Picture, radio_range_m: float, base_range_m: float, terrain=None) -> dict:
@@ -389,6 +391,8 @@ def _frame(p: Picture, vv: list, total_vv: int, vc: list, vb: list, connected) -
         frame["crew_tracks"] = p.crew_tracks
     if p.truth is not None:
         frame["truth"] = p.truth
+    if p.rotation is not None:
+        frame["rotation"] = p.rotation
     return frame
 
 

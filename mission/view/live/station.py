@@ -35,6 +35,7 @@ from gcs.rally import RallyUploadFailed
 from gcs.wire import mavlink
 from mission.view.live.alerts import AlertBook, AlertConfig
 from mission.view.live.health import LOSS_WINDOW_S, health_columns, minutes_to_reserve
+from mission.view.live.rotation import MAX_EVENTS, rotation_frame
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import (
     Picture,
@@ -324,6 +325,7 @@ class LiveStation:
             events=list(self.events)[-60:],
             crew_tracks=self._crew_tracks,
             released=held_by(op.released, op.overrides),
+            rotation=self._rotation(snap, now),
         )
         pic.health = health_columns(
             snap,
@@ -428,6 +430,16 @@ class LiveStation:
             if self.log_event is not None:
                 self.log_event(rec)
         return [{"id": r.alert_id, "kind": r.kind, "subject": r.subject} for r in done]
+
+    def _rotation(self, snap, now_s: float) -> dict | None:
+        """The frame's ``rotation`` key (None without batteries)."""
+        state = self.op.rotation_state()
+        if state is None:
+            return None
+        start = max(0, len(self.op.rotation.events) - MAX_EVENTS)
+        return rotation_frame(
+            state, self.op.rotation_events(start), snap, now_s, self.op.mission_t0_s
+        )
 
     def _track_crews(self, t_m: float | None, crews: np.ndarray) -> None:
         if t_m is None or t_m < self._crew_track_t + 1.0:

@@ -265,6 +265,7 @@
     if (f.truth) f.truth.n.forEach((nn, i) => L.circleMarker(ll(nn, f.truth.e[i]), {radius: 3, color: "#000", weight: 1, fillColor: f.truth.alive[i] ? "#fff" : "#000", fillOpacity: 1, interactive: false}).addTo(layers.truth));
     renderPanel(f);
     if (H) { Object.assign(window.phiremanMap, {vmark, vlabel}); H.afterRender(f); }
+    document.dispatchEvent(new CustomEvent("phireman:frame", {detail: {frame: f, meta}}));  // rotation.js
   }
 
   // After the mission time the station ends the flight (OperationsConfig.end): phase "end" while
