@@ -45,11 +45,23 @@ __all__ = [
     "free_space_loss_db",
     "links_clear_reference",
     "path_clearance_m",
+    "LinkProfile",
+    "link_profile",
+    "LINK_OK",
+    "LINK_BLOCKED",
+    "LINK_OUT_OF_RANGE",
+    "LINK_STATUS_NAMES",
     "SPEED_OF_LIGHT_M_S",
     "EARTH_RADIUS_M",
 ]
 
 SPEED_OF_LIGHT_M_S = 299_792_458.0
+#: A link's status (:meth:`TerrainRadio.link_status`): it closes; the budget closes over the slant
+#: distance but the terrain enters the cleared part of the first Fresnel zone; the budget does not
+#: close (too far, whatever lies between).
+LINK_OK, LINK_BLOCKED, LINK_OUT_OF_RANGE = 0, 1, 2
+#: The words for each status code, in code order (what the operator reads).
+LINK_STATUS_NAMES: tuple[str, ...] = ("ok", "blocked by terrain", "out of range")
 #: Mean earth radius, metres (the bulge uses k times this).
 EARTH_RADIUS_M = 6_371_008.8
 
@@ -337,6 +349,100 @@ def path_clearance_m(
 
 
 @dataclass(frozen=True)
+class LinkProfile:
+    """The terrain between the two ends of one link, sample by sample (:func:`link_profile`).
+
+    Samples ``k = 0 .. S-1`` lie at horizontal distance ``distance_m[k]`` from end a, evenly from
+    a (k = 0) to b (k = S-1); only the inner samples are tested, as in
+    :func:`links_clear_reference`, whose verdict this is."""
+
+    distance_m: np.ndarray
+    """(S,) horizontal distance from end a, metres."""
+    ground_amsl_m: np.ndarray
+    """(S,) the map's ground height, metres AMSL."""
+    bulge_m: np.ndarray
+    """(S,) the earth's bulge d1 d2 / (2 k R) that lifts the ground under the line, metres."""
+    los_amsl_m: np.ndarray
+    """(S,) the straight line of sight between the antennas, metres AMSL."""
+    fresnel_radius_m: np.ndarray
+    """(S,) the first Fresnel zone's radius sqrt(lambda d1 d2 / d), metres (0 at the ends)."""
+    clear_fraction: float
+    """The part of the first Fresnel radius that must stay clear of the ground (0.6)."""
+    slant_m: float
+    """Distance between the antennas, metres."""
+    max_range_m: float
+    """The budget's range over free space, metres."""
+    status: int
+    """:data:`LINK_OK`, :data:`LINK_BLOCKED` or :data:`LINK_OUT_OF_RANGE`."""
+    worst: int
+    """Index of the inner sample with the least margin (-1: no inner sample)."""
+
+    @property
+    def margin_m(self) -> np.ndarray:
+        """(S,) line of sight - (ground + bulge) - ``clear_fraction`` x Fresnel radius, metres:
+        negative where the ground enters the zone that must be clear."""
+        return (
+            self.los_amsl_m
+            - (self.ground_amsl_m + self.bulge_m)
+            - (self.clear_fraction * self.fresnel_radius_m)
+        )
+
+    @property
+    def least_clearance_ratio(self) -> float:
+        """min over the inner samples of (line of sight - ground - bulge) / Fresnel radius: the
+        link is clear when this is at least ``clear_fraction`` (inf: no inner sample)."""
+        inner = slice(1, len(self.distance_m) - 1)
+        r = self.fresnel_radius_m[inner]
+        if not len(r):
+            return math.inf
+        gap = self.los_amsl_m[inner] - self.ground_amsl_m[inner] - self.bulge_m[inner]
+        return float(np.min(gap / np.maximum(r, 1e-12)))
+
+
+def link_profile(
+    terrain: Terrain, budget: LinkBudget, a_m: Sequence[float], b_m: Sequence[float]
+) -> LinkProfile:
+    """The profile of the link a -> b (each (north, east, height AMSL), metres) as the radio
+    model sees it: the samples of :func:`links_clear_reference` (one every ``profile_step_m``,
+    default the post spacing), plus both ends, and the same verdict (docs/terrain.md §2)."""
+    a = np.asarray(a_m, dtype=float).reshape(3)
+    b = np.asarray(b_m, dtype=float).reshape(3)
+    step = budget.profile_step_m or terrain.spacing_m
+    dn, de, dz = b - a
+    dh = math.hypot(dn, de)
+    slant = math.hypot(dh, dz)
+    n_seg = max(1, int(math.ceil(dh / step)))
+    f = np.arange(n_seg + 1) / n_seg
+    d1 = f * dh
+    d2 = dh - d1
+    ground = terrain.height_m(np.column_stack([a[0] + f * dn, a[1] + f * de]))
+    bulge = d1 * d2 / (2.0 * budget.k_factor * EARTH_RADIUS_M)
+    los = a[2] + f * dz
+    r1 = np.sqrt(budget.wavelength_m * d1 * d2 / dh) if dh > 0 else np.zeros_like(f)
+    margin = los - (ground + bulge) - budget.fresnel_clear_fraction * r1
+    inner = margin[1:-1]
+    worst = int(np.argmin(inner)) + 1 if len(inner) else -1
+    if slant > budget.max_range_m:
+        status = LINK_OUT_OF_RANGE
+    elif len(inner) and inner.min() < 0.0:
+        status = LINK_BLOCKED
+    else:
+        status = LINK_OK
+    return LinkProfile(
+        distance_m=d1,
+        ground_amsl_m=ground,
+        bulge_m=bulge,
+        los_amsl_m=los,
+        fresnel_radius_m=r1,
+        clear_fraction=budget.fresnel_clear_fraction,
+        slant_m=slant,
+        max_range_m=budget.max_range_m,
+        status=status,
+        worst=worst,
+    )
+
+
+@dataclass(frozen=True)
 class TerrainRadio:
     """Links over terrain: the truth's and a terrain-aware planner's radio model."""
 
@@ -363,6 +469,19 @@ class TerrainRadio:
             bud.profile_step_m or t.spacing_m,
         )
         return fast if fast is not None else links_clear_reference(t, bud, a, b)
+
+    def link_status(self, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
+        """(P,) int8 status of the links a -> b (:data:`LINK_OK`, :data:`LINK_BLOCKED`,
+        :data:`LINK_OUT_OF_RANGE`): out of range when the slant distance exceeds the budget's
+        range, blocked when it does not and :meth:`links_clear` still fails (the terrain)."""
+        a = np.asarray(a_m, dtype=float).reshape(-1, 3)
+        b = np.asarray(b_m, dtype=float).reshape(-1, 3)
+        far = np.linalg.norm(b - a, axis=1) > self.budget.max_range_m
+        out = np.full(len(a), LINK_BLOCKED, dtype=np.int8)
+        out[far] = LINK_OUT_OF_RANGE
+        near = np.flatnonzero(~far)
+        out[near[self.links_clear(a[near], b[near])]] = LINK_OK
+        return out
 
     def candidate_pairs(self, pos_ne_m: np.ndarray) -> np.ndarray:
         """(P, 2) pairs i < j within the budget's range horizontally (a superset of the links)."""

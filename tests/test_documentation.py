@@ -463,6 +463,23 @@ def replay_page(c: Ctx) -> None:
     c.expect(s.proc.poll() is None, "the replay page stopped on its own")
 
 
+def terrain_page(c: Ctx) -> None:
+    """The replay of an in-process canyon run: the relief, link statuses, a link's profile."""
+    replay_page(c)
+    s = c.served
+    assert s is not None
+    url = s.wait_for(r"replay of \S+ at (http://\S+)").group(1)
+    meta = s.get_json(url + "api/meta")
+    c.expect(meta.get("terrain") and meta["terrain"]["url"] == "/api/terrain.png", "no terrain")
+    status, png = http_get(url + "api/terrain.png")
+    c.expect(status == 200 and png[:4] == b"\x89PNG", f"terrain.png: HTTP {status}")
+    frame = s.get_json(url + "api/frame?i=150")
+    links = frame["links"]
+    c.expect(len(links["vv_status"]) == len(links["vv"]) // 2 > 0, "links without a status")
+    prof = s.get_json(url + "api/profile?a=0,0,2103&b=0,350,1960")
+    c.expect(prof["status_name"] == "blocked by terrain", f"base to canyon floor: {prof}")
+
+
 # MAVLink forwarding: the test plays QGroundControl on a port of its own (port 0) and checks that
 # vehicles' frames arrive; a command it sends (COMMAND_LONG from sysid 254, param1 = 28.0) appears
 # in flight.tlog only when the output is not --forward-readonly (docs/live_view.md).
@@ -718,6 +735,7 @@ TABLE: dict[str, Case] = {
             "phireman sim --mission",
             "phireman fly --serve",
             "phireman replay RUN_DIR --serve",
+            "phireman sim --mission M --out DIR",
             "phireman fly --apply-failsafes",
             "phireman sweep --grid paper-table",
         )
@@ -759,6 +777,19 @@ TABLE: dict[str, Case] = {
         timeout=900,
     ),
     "phireman sim --mission canyon --terrain-aware ...": Case(kind="help"),
+    "phireman sim --mission canyon --out runs/canyon && phireman replay runs/canyon": Case(
+        rewrite=(FEW_FRAMES,),
+        check=lambda c: (
+            sim_mission_then_replay("runs/canyon")(c),
+            c.file("runs/canyon/link_profiles.png"),
+        ),
+    ),
+    "phireman replay runs/canyon --serve 8080": Case(
+        kind="serve",
+        pre=("phireman sim --mission canyon --out runs/canyon",),
+        rewrite=(PORT_0,),
+        check=terrain_page,
+    ),
     "phireman sim --mission canyon --terrain-aware off": Case(
         check=lambda c: c.has(r"terrain-aware off: 0 crashes", r"TU1 = ")
     ),

@@ -1,7 +1,8 @@
 """Make the live-view screenshots of the README and docs/live_view.md (headless chromium).
 
     nice .venv/bin/python docs/images/make_screenshots.py            # all of them
-    nice .venv/bin/python docs/images/make_screenshots.py rotation   # some: live, replay, rotation
+    nice .venv/bin/python docs/images/make_screenshots.py rotation   # some: live, replay, rotation,
+                                                                     # health, terrain
 
 1. live_wildfire.png: ``phireman fly wildfire`` (50 emulated ArduPilot drones, emulator process,
    10x) served with --serve; one vehicle sent home (RTL) and one held through the page's own
@@ -18,6 +19,9 @@
    ~58 s with the alert banner up, a networked vehicle selected (battery, link, GPS, health,
    altitudes, MGRS position). Prints the frame's JSON size at 50
    vehicles with and without the health columns.
+5. terrain_canyon.png: ``phireman sim --mission canyon --out DIR`` (in process, seed 1), then
+   ``phireman replay DIR --serve`` at t+150 s: the relief and contours under the map, links blocked
+   by terrain drawn apart, and the profile of the shortest blocked link opened (as a click does).
 """
 
 from __future__ import annotations
@@ -173,6 +177,66 @@ def replay_shot(out_dir: Path) -> Path:
         )
         time.sleep(2)
         path = HERE / "replay_hazard.png"
+        drv.save_screenshot(str(path))
+    finally:
+        drv.quit()
+        box["loop"].call_soon_threadsafe(box["stop"].set)
+    return path
+
+
+def terrain_shot(out_dir: Path) -> Path:
+    from mission.experiments.playback import run_inprocess, write_run_dir
+    from mission.format.examples import example_path
+    from mission.format.load import load_mission
+    from mission.view.live.replay_sim import SimReplaySource
+    from mission.view.live.server import LiveServer
+
+    mission = load_mission(example_path("canyon"))
+    run_dir = out_dir / "canyon"
+    write_run_dir(mission, run_inprocess(mission, mission.run.seed), run_dir)
+    src = SimReplaySource(run_dir)
+    box, ready = {}, threading.Event()
+
+    def serve():
+        async def main():
+            server = await LiveServer(src, "127.0.0.1", 0).start()
+            box.update(url=server.url, stop=asyncio.Event(), loop=asyncio.get_running_loop())
+            ready.set()
+            await box["stop"].wait()
+            await server.aclose()
+
+        asyncio.run(main())
+
+    threading.Thread(target=serve, daemon=True).start()
+    ready.wait(60)
+    drv = browser()
+    try:
+        drv.get(box["url"])
+        for _ in range(120):  # the page up, with its replay controls
+            if drv.execute_script("return !!(window.phiremanReplay && window.phiremanFrame)"):
+                break
+            time.sleep(0.5)
+        drv.execute_script(
+            "window.phiremanMap.map.setView(L.latLng(-60, 330), window.phiremanMap.map.getZoom() + 0.5);"
+            "const s = document.getElementById('slider'); s.value = arguments[0];"
+            "s.dispatchEvent(new Event('input'));",
+            150,
+        )
+        for _ in range(120):
+            if drv.execute_script("return window.phiremanFrame.t_mission_s") == 150:
+                break
+            time.sleep(0.5)
+        time.sleep(1)
+        # The shortest vehicle-vehicle link the terrain blocks: its profile, as a click opens it.
+        drv.execute_script(
+            """const f = window.phiremanFrame, L = f.links, V = f.v; let best = -1, d = 1e9;
+            for (let k = 0; k < L.vv_status.length; k++) { if (L.vv_status[k] !== 1) continue;
+              const i = L.vv[2 * k], j = L.vv[2 * k + 1], x = Math.hypot(V.n[i] - V.n[j], V.e[i] - V.e[j]);
+              if (x < d) { d = x; best = k; } }
+            if (best >= 0) window.phiremanTerrain.show({kind: "vv", pair: [L.vv[2 * best], L.vv[2 * best + 1]]});"""
+        )
+        time.sleep(3)
+        path = HERE / "terrain_canyon.png"
         drv.save_screenshot(str(path))
     finally:
         drv.quit()
@@ -345,6 +409,7 @@ SHOTS = {
     "replay": replay_shot,
     "health": health_shot,
     "rotation": rotation_shot,
+    "terrain": terrain_shot,
 }
 
 if __name__ == "__main__":

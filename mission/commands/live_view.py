@@ -148,7 +148,10 @@ def fly_options(opts, args):
 
 
 def add_replay_arguments(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("live page and GIS export of a 'phireman fly' run (docs/live_view.md)")
+    g = p.add_argument_group(
+        "live page and GIS export of a run (docs/live_view.md); an in-process run "
+        "('phireman sim --mission M --out DIR') is served, not exported"
+    )
     g.add_argument(
         "--serve",
         default=None,
@@ -188,9 +191,15 @@ def run_replay(args, run_dir) -> int | None:
         return None
     from mission.commands.options import UserError
     from mission.view.live.replay import ReplaySource
+    from mission.view.live.replay_sim import SimReplaySource, is_sim_run
 
+    if is_sim_run(run_dir) and args.export:
+        raise UserError(
+            f"{run_dir}: --export reads a 'phireman fly' run (flight.tlog); "
+            "an in-process run is served with --serve"
+        )
     try:
-        src = ReplaySource(run_dir)
+        src = SimReplaySource(run_dir) if is_sim_run(run_dir) else ReplaySource(run_dir)
     except (FileNotFoundError, ValueError) as exc:
         raise UserError(str(exc)) from None
     if args.export:

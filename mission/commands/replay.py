@@ -17,6 +17,12 @@ Read a run directory written by 'phireman sim --mission ... --out DIR' or 'phire
                        (rebuilt from the positions when the run did not record it), hazard zones
   animation.gif        the whole run with axes, legend and clock, about 10 s long (--animation mp4
                        when ffmpeg is installed, none to skip)
+  link_profiles.png    a terrain run (radio.model: terrain): the profiles of two links, one the
+                       terrain blocks and one that closes; the maps above are drawn over the
+                       shaded relief with contours (docs/terrain.md)
+
+--serve shows a 'phireman fly' run, or an in-process run of 'phireman sim --mission', on the
+live page; --export needs a 'phireman fly' run.
 
 examples:
   phireman sim --mission wildfire --out runs/wildfire && phireman replay runs/wildfire

@@ -43,10 +43,10 @@ from mission.format.scenario import (  # re-exported: they were drawn here befor
 )
 from mission.experiments.endurance import endurance_run
 from mission.experiments.world_loop import EpisodeRecord, run_world, station_control
-from mission.format.terrain import build_terrain
+from mission.format.terrain import terrain_radio
 from planner.methods import Planner, make_planner
 from planner.metrics import UptimeSeries, uptime_series
-from planner.terrain import TerrainRadio, path_clearance_m
+from planner.terrain import path_clearance_m
 from planner.terrain_aware import TerrainAwarePlanner
 from vehicle_emu.world import TerrainFlight, World, spawn_streams
 
@@ -194,10 +194,10 @@ def terrain_flight(mission: Mission, terrain_aware: str) -> TerrainFlight | None
         return None
     spec = mission.terrain
     assert spec is not None  # radio.model terrain needs a terrain section (validated)
-    ground = build_terrain(mission)
-    assert ground is not None  # a terrain section
+    radio = terrain_radio(mission)
+    assert radio is not None  # radio.model terrain
+    ground = radio.terrain
     link = mission.radio.terrain_link
-    radio = TerrainRadio(ground, link.link_budget())
     lim = mission.vehicles.limits
     base_ground_m = float(ground.height_m(np.zeros((1, 2)))[0])
     return TerrainFlight(
@@ -284,15 +284,17 @@ def write_run_dir(
                 f"{int(s.n_connected[t])},{int(s.n_ever_connected[t])},"
                 f"{s.tu1_step[: t + 1].mean():.6f},{s.tu2_step[: t + 1].mean():.6f}\n"
             )
-    np.savez_compressed(
-        out_dir / "truth.npz",
-        t_s=np.arange(tau + 1) * mission.run.control_period_s,
-        pos_ne_m=rec.pos_m,
-        alive=rec.alive,
-        active=rec.active,
-        task_pos_ne_m=rec.task_pos_m,
-        task_connected=rec.connected,
-    )
+    truth: dict[str, np.ndarray] = {
+        "t_s": np.arange(tau + 1) * mission.run.control_period_s,
+        "pos_ne_m": rec.pos_m,
+        "alive": rec.alive,
+        "active": rec.active,
+        "task_pos_ne_m": rec.task_pos_m,
+        "task_connected": rec.connected,
+    }
+    if rec.alt_amsl_m is not None:  # over terrain: the drones' heights AMSL
+        truth["alt_amsl_m"] = rec.alt_amsl_m
+    np.savez_compressed(out_dir / "truth.npz", **truth)  # type: ignore[arg-type]  # names -> arrays
     trees = {
         str(t): {
             "nodes_ne_m": tr.nodes_m.tolist(),

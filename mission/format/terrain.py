@@ -15,9 +15,9 @@ import numpy as np
 
 from mission.format.schema import GeoTiffTerrain, Mission, SyntheticTerrain, TerrainSpec
 from planner.geometry import ned_to_geodetic
-from planner.terrain import Canyon, Hill, Ridge, Terrain, synthetic_terrain
+from planner.terrain import Canyon, Hill, Ridge, Terrain, TerrainRadio, synthetic_terrain
 
-__all__ = ["build_terrain", "synthetic_from_spec", "terrain_from_geotiff"]
+__all__ = ["build_terrain", "terrain_radio", "synthetic_from_spec", "terrain_from_geotiff"]
 
 
 def synthetic_from_spec(spec: SyntheticTerrain, plane_amsl_m: float) -> Terrain:
@@ -99,3 +99,13 @@ def build_terrain(mission: Mission) -> Terrain | None:
         return synthetic_from_spec(spec.synthetic, o.alt_amsl_m)
     assert spec.geotiff is not None  # one of synthetic or geotiff (validated)
     return terrain_from_geotiff(spec.geotiff, o.lat_deg, o.lon_deg, o.alt_amsl_m)
+
+
+def terrain_radio(mission: Mission) -> TerrainRadio | None:
+    """The radio of a ``radio.model: terrain`` mission: its ground and its ``radio.link`` budget
+    (None: the disc radio)."""
+    if mission.radio.model != "terrain":
+        return None
+    ground = build_terrain(mission)
+    assert ground is not None  # radio.model terrain needs a terrain section (validated)
+    return TerrainRadio(ground, mission.radio.terrain_link.link_budget())

@@ -53,6 +53,8 @@ C_OK, C_CUT, C_TREE, C_BASE, C_HAZARD, C_CREW = (
 )
 #: After the mission end (the vehicles return to launch or land): shading and marks.
 C_END = "tab:orange"
+#: A link the budget would close but the terrain cuts (docs/terrain.md §2).
+C_BLOCKED = "#e31a1c"
 
 
 def plot_time_series(
@@ -159,6 +161,10 @@ class Scene:
     fontsize: float = 9.0
     mission_end_s: float | None = None
     """Mission time at which the mission ended (then: return to launch); None: not known."""
+    terrain: Any = None
+    """A :class:`planner.terrain.TerrainRadio` for a terrain mission: the map is drawn over its
+    shaded relief and contours (:func:`mission.view.terrain.draw_terrain`), and given the drones'
+    heights the links blocked by terrain are drawn apart from those that close (docs/terrain.md)."""
 
 
 def legend_handles(scene: Scene) -> list:
@@ -185,7 +191,9 @@ def legend_handles(scene: Scene) -> list:
             color=C_ACTIVE,
             alpha=0.5,
             lw=1,
-            label=f"radio link (≤ {scene.radio_range_m:g} {scene.unit})",
+            label=f"radio link (≤ {scene.radio_range_m:g} {scene.unit})"
+            if scene.terrain is None
+            else "radio link (closes over the terrain)",
         ),
         Line2D(
             [],
@@ -221,6 +229,13 @@ def legend_handles(scene: Scene) -> list:
             + ", Steiner points",
         ),
     ]
+    if scene.terrain is not None:
+        h.append(
+            Line2D(
+                [], [], color=C_BLOCKED, lw=1, ls=(0, (5, 2, 1, 2)), label="link blocked by terrain"
+            )
+        )
+        h.append(Patch(color="#b99a6b", alpha=0.6, label="terrain: shaded relief, contours"))
     if scene.hazard_zones:
         h.append(Patch(**_ZONE_ON, label="hazard zone, active"))
         if any(isinstance(z, ZoneArt) for z in scene.hazard_zones):
@@ -234,6 +249,10 @@ class FrameView:
     def __init__(self, ax, scene: Scene, clock: bool = False) -> None:
         self.ax, self.scene = ax, scene
         fs = scene.fontsize
+        if scene.terrain is not None:
+            from mission.view.terrain import draw_terrain
+
+            draw_terrain(ax, scene.terrain.terrain, alpha=0.8, labels=fs >= 9)
         ax.add_patch(
             plt.Circle(
                 (0, 0),
@@ -254,7 +273,15 @@ class FrameView:
         self.links = LineCollection([], colors=C_ACTIVE, alpha=0.3, linewidths=0.6, zorder=1)
         self.crew = LineCollection([], colors=C_CREW, linestyles="--", linewidths=1.4, zorder=2)
         self.tree = LineCollection([], colors=C_TREE, linewidths=1.6, alpha=0.85, zorder=2)
-        for c in (self.links, self.crew, self.tree):
+        self.blocked = LineCollection(
+            [],
+            colors=C_BLOCKED,
+            alpha=0.6,
+            linewidths=0.7,
+            linestyles=[(0, (5, 2, 1, 2))],
+            zorder=1,
+        )
+        for c in (self.links, self.blocked, self.crew, self.tree):
             ax.add_collection(c)
         empty = np.zeros((0, 2))
         self.steiner = ax.scatter(
@@ -337,23 +364,35 @@ class FrameView:
         tree,
         clock_text: str = "",
         t_s: float | None = None,
+        alt_amsl_m=None,
     ) -> list:
         """Redraw the dynamic part for one instant; returns the artists changed (for blitting).
 
         Positions are (north, east) rows; the map draws east on x and north on y. ``t_s``
         (mission time): hazard zones are drawn active only inside their time window.
+        ``alt_amsl_m`` (N,) with a terrain scene: the links are the pairs within the larger of the
+        disc's and the budget's range, those the terrain radio closes drawn as links, those it
+        blocks apart (:meth:`planner.terrain.TerrainRadio.link_status`).
         """
         from planner.geometry import neighbour_pairs
 
         xy = lambda a: np.asarray(a, float)[..., ::-1]  # (north, east) -> (x = east, y = north)  # noqa: E731
         active = np.asarray(active, bool) & np.asarray(alive, bool)
         idx = np.flatnonzero(active)
-        pairs = (
-            idx[neighbour_pairs(pos_m[idx], self.scene.radio_range_m)]
-            if len(idx) > 1
-            else np.zeros((0, 2), int)
-        )
+        radio = self.scene.terrain
+        reach = self.scene.radio_range_m
+        if radio is not None and alt_amsl_m is not None:
+            reach = max(reach, radio.budget.max_range_m)
+        pairs = idx[neighbour_pairs(pos_m[idx], reach)] if len(idx) > 1 else np.zeros((0, 2), int)
+        blocked = np.zeros((0, 2), int)
+        if radio is not None and alt_amsl_m is not None and len(pairs):
+            from planner.terrain import LINK_BLOCKED, LINK_OK
+
+            p3 = np.column_stack([pos_m, alt_amsl_m])
+            st = radio.link_status(p3[pairs[:, 0]], p3[pairs[:, 1]])
+            pairs, blocked = pairs[st == LINK_OK], pairs[st == LINK_BLOCKED]
         self.links.set_segments(xy(pos_m[pairs]) if len(pairs) else [])  # type: ignore[arg-type]  # (n, 2, 2) arrays are fine
+        self.blocked.set_segments(xy(pos_m[blocked]) if len(blocked) else [])  # type: ignore[arg-type]
         self.crew.set_segments(xy(crew_links(task_pos_m, pos_m, active, self.scene.radio_range_m)))  # type: ignore[arg-type]
         if tree is not None:
             a, b = tree.segments()
@@ -377,6 +416,7 @@ class FrameView:
         changed = [
             *(patch for _, patch in self.zones),
             self.links,
+            self.blocked,
             self.crew,
             self.tree,
             self.steiner,

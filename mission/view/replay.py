@@ -27,6 +27,7 @@ __all__ = [
     "check_animation_writer",
     "tree_at",
     "mark_interrupt",
+    "link_profiles_figure",
 ]
 
 
@@ -46,6 +47,8 @@ class RunData:
     None when the run does not say (then nothing is marked)."""
     end_action: str = "rtl"
     """What the vehicles did at the end (``phireman fly --end``): ``rtl`` or ``land``."""
+    alt_amsl_m: np.ndarray | None = None
+    """(T, N) drone heights AMSL, metres: recorded by an in-process run over terrain."""
 
 
 @dataclass(frozen=True)
@@ -129,6 +132,7 @@ def load_run(run_dir: pathlib.Path) -> RunData:
         summary,
         _mission_end_s(summary, mission),
         str(run_meta.get("options", {}).get("end") or "rtl"),
+        truth["alt_amsl_m"][:n_samples] if "alt_amsl_m" in truth else None,
     )
 
 
@@ -261,6 +265,11 @@ def _scene(run: RunData, fontsize: float = 9.0):
     extent = max(
         np.abs(run.task_pos_m).max(), np.abs(run.pos_m[run.alive]).max() if run.alive.any() else 1.0
     )
+    terrain = None
+    if run.mission is not None:
+        from mission.format.terrain import terrain_radio
+
+        terrain = terrain_radio(run.mission)
     return Scene(
         radio,
         base,
@@ -271,6 +280,7 @@ def _scene(run: RunData, fontsize: float = 9.0):
         tree_recomputed=not run.trees,
         fontsize=fontsize,
         mission_end_s=run.mission_end_s,
+        terrain=terrain,
     )
 
 
@@ -424,6 +434,7 @@ def replay(
             run.connected[k],
             tree_at(run, k),
             t_s=float(run.t_s[k]),
+            alt_amsl_m=None if run.alt_amsl_m is None else run.alt_amsl_m[k],
         )
         ax.set_title(
             f"t = {run.t_s[k]:.0f} s: {run.connected[k].sum()}/{n_tasks} tasks connected, "
@@ -439,6 +450,12 @@ def replay(
     plt.close(fig)
     written.append(path)
 
+    if scene.terrain is not None and run.alt_amsl_m is not None:
+        k = int(picks[len(picks) // 2])
+        path = out_dir / "link_profiles.png"
+        if link_profiles_figure(run, scene.terrain, k, path, full_title):
+            written.append(path)
+
     if animation != "none":
         ks = np.unique(
             np.linspace(0, len(run.t_s) - 1, min(max_frames, len(run.t_s))).round().astype(int)
@@ -448,6 +465,45 @@ def replay(
         _animate(run, ks, full_title, path, fps, progress)
         written.append(path)
     return written
+
+
+def link_profiles_figure(run: RunData, radio, k: int, path: pathlib.Path, title: str) -> bool:
+    """Two link profiles at sample ``k`` of a terrain run (docs/terrain.md §2): the shortest link
+    between networked drones that the terrain blocks, and the longest that closes. Writes
+    ``path`` and returns True, or False when the frame has neither."""
+    import matplotlib.pyplot as plt
+
+    from mission.view.terrain import draw_link_profile
+    from planner.geometry import neighbour_pairs
+    from planner.terrain import LINK_BLOCKED, LINK_OK, link_profile
+
+    assert run.alt_amsl_m is not None  # the caller checks: a terrain run
+    idx = np.flatnonzero(run.alive[k] & run.active[k])
+    if len(idx) < 2:
+        return False
+    pos = run.pos_m[k]
+    p3 = np.column_stack([pos, run.alt_amsl_m[k]])
+    pairs = idx[neighbour_pairs(pos[idx], radio.budget.max_range_m)]
+    if not len(pairs):
+        return False
+    status = radio.link_status(p3[pairs[:, 0]], p3[pairs[:, 1]])
+    dist = np.linalg.norm(pos[pairs[:, 0]] - pos[pairs[:, 1]], axis=1)
+    chosen = []
+    blocked = np.flatnonzero(status == LINK_BLOCKED)
+    if len(blocked):
+        chosen.append(("shortest link blocked", pairs[blocked[np.argmin(dist[blocked])]]))
+    ok = np.flatnonzero(status == LINK_OK)
+    if len(ok):
+        chosen.append(("longest link that closes", pairs[ok[np.argmax(dist[ok])]]))
+    fig, axes = plt.subplots(len(chosen), 1, figsize=(8, 3.4 * len(chosen)), squeeze=False)
+    for ax, (what, (i, j)) in zip(axes[:, 0], chosen):
+        prof = link_profile(radio.terrain, radio.budget, p3[i], p3[j])
+        draw_link_profile(ax, prof, f"{what}, drones {i + 1} and {j + 1}")
+    fig.suptitle(f"{title}\nlink profiles at t = {run.t_s[k]:.0f} s", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return True
 
 
 def _animate(
@@ -536,6 +592,7 @@ def _animate(
                 f"{(run.alive[k] & run.active[k]).sum()}/{n_drones} drones networked"
                 + (f"\nmission over: {end_phase_text(run)}" if after[k] else ""),
                 t_s=float(run.t_s[k]),
+                alt_amsl_m=None if run.alt_amsl_m is None else run.alt_amsl_m[k],
             ):
                 ax.draw_artist(a)
             rgba = np.asarray(canvas.buffer_rgba())

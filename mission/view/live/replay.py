@@ -54,9 +54,10 @@ from mission.flight.run_dir import ROTATION_FILE
 from mission.view.live.rotation import MAX_EVENTS, rotation_frame
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
+from mission.view.live.terrain import TerrainView
 from planner.geometry import geodetic_to_ned_m
 
-__all__ = ["ReplaySource", "load_replay"]
+__all__ = ["ReplaySource", "load_replay", "read_metrics"]
 
 log = logging.getLogger(__name__)
 
@@ -154,6 +155,20 @@ def _event_from_record(rec: dict):
         return None
 
 
+def read_metrics(path: Path) -> list[dict]:
+    """The rows of a run's ``metrics.csv`` as floats (None where empty); [] without the file."""
+    if not path.is_file():
+        return []
+    rows = []
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            try:
+                rows.append({k: (float(v) if v not in ("", None) else None) for k, v in r.items()})
+            except ValueError:
+                continue
+    return rows
+
+
 @dataclasses.dataclass
 class _Frame:
     t_s: float
@@ -181,6 +196,7 @@ class ReplaySource:
                     "has mission.yaml, events.jsonl, flight.tlog, metrics.csv)"
                 )
         self.mission = mission = load_mission(run_dir / "mission.yaml")
+        self.terrain = TerrainView.of_mission(mission)
         meta = (
             json.loads((run_dir / "run.json").read_text())
             if (run_dir / "run.json").is_file()
@@ -206,7 +222,7 @@ class ReplaySource:
             for r in records
             if r.get("type") == "AlertAcknowledged"
         }
-        self.metrics = self._read_metrics(run_dir / "metrics.csv")
+        self.metrics = read_metrics(run_dir / "metrics.csv")
         self.t0_s = (
             self.metrics[0]["t_s"] - self.metrics[0]["t_mission_s"] if self.metrics else None
         )
@@ -221,21 +237,6 @@ class ReplaySource:
         self.truth = self._read_truth(run_dir / "truth.npz")
 
     # ------------------------------------------------------------------ loading
-
-    @staticmethod
-    def _read_metrics(path: Path) -> list[dict]:
-        if not path.is_file():
-            return []
-        rows = []
-        with open(path, newline="") as f:
-            for r in csv.DictReader(f):
-                try:
-                    rows.append(
-                        {k: (float(v) if v not in ("", None) else None) for k, v in r.items()}
-                    )
-                except ValueError:
-                    continue
-        return rows
 
     @staticmethod
     def _read_rotation(path: Path) -> list[dict] | None:
@@ -578,7 +579,9 @@ class ReplaySource:
             ),
             rotation=self._rotation_at(snap, t),
         )
-        frame = frame_dict(pic, self.mission.radio.range_m, self.mission.radio.base_range_m)
+        frame = frame_dict(
+            pic, self.mission.radio.range_m, self.mission.radio.base_range_m, terrain=self.terrain
+        )
         frame["alerts"] = self._alerts_at(t)
         return frame
 

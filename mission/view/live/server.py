@@ -16,6 +16,10 @@ Routes::
     POST /api/ack          live: {"alert": 3 | "all"}: the operator acknowledges an alert
                            (same key; logged to events.jsonl, mission.view.live.alerts)
     GET  /tiles/{z}/{x}/{y}.{ext}   --tiles DIR: the XYZ tiles of that folder
+    GET  /api/terrain.png  a terrain mission: shaded relief and contours (bounds in meta.terrain)
+    GET  /api/profile?a=N,E,H&b=N,E,H   a terrain mission: the profile of the link between two
+                           antennas (north, east metres, height AMSL metres) as JSON
+                           (mission.view.live.terrain; 404 for a mission without terrain)
 
 Security: loopback by default; actions need the operator key (a random secret printed at start,
 compared in constant time) or are off (``--serve-actions off``); the key travels in a header,
@@ -148,6 +152,8 @@ class LiveServer:
         app.router.add_get("/api/frame", self._frame)
         app.router.add_get("/api/stream", self._stream)
         app.router.add_post("/api/action", self._action)
+        app.router.add_get("/api/terrain.png", self._terrain_png)
+        app.router.add_get("/api/profile", self._profile)
         app.router.add_post("/api/ack", self._ack)
         app.router.add_get(r"/tiles/{z:\d+}/{x:\d+}/{y:\d+}.{ext:(png|jpg|jpeg|webp)}", self._tile)
         app.router.add_static("/static", STATIC_DIR, follow_symlinks=False)
@@ -203,7 +209,33 @@ class LiveServer:
     async def _meta(self, request: web.Request) -> web.Response:
         meta = dict(self.source.meta())
         meta["actions"] = bool(meta.get("actions")) and self.key is not None
+        terrain = getattr(self.source, "terrain", None)
+        meta["terrain"] = None if terrain is None else terrain.meta()
         return web.json_response(meta)
+
+    def _terrain(self):
+        terrain = getattr(self.source, "terrain", None)
+        if terrain is None:
+            raise _json_error(web.HTTPNotFound, "this mission has no terrain (radio.model: disc)")
+        return terrain
+
+    async def _terrain_png(self, request: web.Request) -> web.Response:
+        terrain = self._terrain()
+        # Rendered once, in a worker thread: the station's loop keeps polling meanwhile.
+        png = await asyncio.get_running_loop().run_in_executor(None, terrain.png)
+        return web.Response(body=png, content_type="image/png")
+
+    async def _profile(self, request: web.Request) -> web.Response:
+        from mission.view.live.terrain import parse_end
+
+        terrain = self._terrain()
+        try:
+            a, b = parse_end(request.query["a"]), parse_end(request.query["b"])
+        except (KeyError, ValueError) as exc:
+            raise _json_error(
+                web.HTTPBadRequest, f"expected ?a=N,E,H&b=N,E,H (metres, heights AMSL): {exc}"
+            ) from None
+        return web.json_response(terrain.profile(a, b))
 
     async def _frame(self, request: web.Request) -> web.Response:
         i = request.query.get("i")

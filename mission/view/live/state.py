@@ -271,18 +271,41 @@ class Picture:
     """The relay rotation (:func:`mission.view.live.rotation.rotation_frame`; None: no batteries)."""
 
 
-def frame_dict(p: Picture, radio_range_m: float, base_range_m: float) -> dict:
-    """The JSON frame the page draws (columnar: one list per field, one entry per vehicle)."""
+def frame_dict(p: Picture, radio_range_m: float, base_range_m: float, terrain=None) -> dict:
+    """The JSON frame the page draws (columnar: one list per field, one entry per vehicle).
+
+    ``terrain``: a :class:`mission.view.live.terrain.TerrainView` for a terrain mission: the links
+    then carry a status (ok / blocked by terrain / out of range, ``links.*_status``) and a crew is
+    connected when a heard vehicle's link to it closes over the terrain (docs/live_view.md)."""
     snap = p.snap
     n = snap.n_vehicles
     pos = snap.pos_ned_m
     ne = pos[:, :2] if n else np.empty((0, 2))
     heard_pos = ~snap.lost & snap.has_position
-    ne_ok = np.where(heard_pos[:, None], ne, 0.0)
-    vv, total_vv = radio_links(ne_ok, heard_pos, radio_range_m)
     crews = np.asarray(p.crews_ne_m, dtype=float).reshape(-1, 2)
     crew_ok = np.isfinite(crews).all(axis=1)
-    vc = []
+    if terrain is not None:
+        tl = terrain.frame_links(
+            ne if n else np.empty((0, 2)),
+            terrain.origin_alt_amsl_m - pos[:, 2] if n else np.empty(0),
+            heard_pos,
+            crews,
+            radio_range_m,
+            base_range_m,
+        )
+        frame = _frame(p, tl["vv"], tl["vv_total"], tl["vc"], tl["vb"], tl["connected"])
+        frame["links"].update(
+            vv_status=tl["vv_status"],
+            vc_status=tl["vc_status"],
+            vb_status=tl["vb_status"],
+            base_amsl=tl["base_amsl"],
+        )
+        frame["v"]["amsl"] = _col(tl["amsl"])
+        frame["crews"]["amsl"] = _col(tl["crew_amsl"])
+        return frame
+    ne_ok = np.where(heard_pos[:, None], ne, 0.0)
+    vv, total_vv = radio_links(ne_ok, heard_pos, radio_range_m)
+    vc: list = []
     if heard_pos.any() and crew_ok.any():
         rows = np.flatnonzero(heard_pos)
         near = cKDTree(ne[rows]).query_ball_point(
@@ -306,6 +329,15 @@ def frame_dict(p: Picture, radio_range_m: float, base_range_m: float) -> dict:
         if len(crews)
         else np.zeros(0, bool)
     )
+    return _frame(p, vv.ravel().tolist(), total_vv, vc, vb, connected)
+
+
+def _frame(p: Picture, vv: list, total_vv: int, vc: list, vb: list, connected) -> dict:
+    """The frame of :func:`frame_dict` once its links and connected crews are known."""
+    snap = p.snap
+    n = snap.n_vehicles
+    pos = snap.pos_ned_m
+    crews = np.asarray(p.crews_ne_m, dtype=float).reshape(-1, 2)
     states = [str(s) for s in p.states]
     counts = {s: states.count(s) for s in STATES}
     labels = [
@@ -341,7 +373,7 @@ def frame_dict(p: Picture, radio_range_m: float, base_range_m: float) -> dict:
             "e": _col(crews[:, 1]),
             "connected": [bool(c) for c in connected],
         },
-        "links": {"vv": vv.ravel().tolist(), "vv_total": int(total_vv), "vc": vc, "vb": vb},
+        "links": {"vv": vv, "vv_total": int(total_vv), "vc": vc, "vb": vb},
         "tree": p.tree,
         "counts": counts,
         "crews_connected": int(np.sum(connected)),

@@ -46,6 +46,7 @@ from mission.view.live.state import (
     mst_tree,
     tree_from_planner,
 )
+from mission.view.live.terrain import TerrainView
 from planner.geometry import geodetic_to_ned_m
 
 __all__ = ["LiveStation", "event_entry"]
@@ -133,6 +134,8 @@ class LiveStation:
         self.adapters = list(adapters)
         self.actions_enabled = actions
         self.tiles = tiles
+        #: The ground of a terrain mission (relief, link status, profiles); None: the disc.
+        self.terrain = TerrainView.of_mission(mission)
         self.events: collections.deque = collections.deque(maxlen=300)
         self._seq = 0
         self._yaw_deg: dict[tuple[int, int], float] = {}
@@ -332,7 +335,9 @@ class LiveStation:
             reserve_min=self._reserve_min(snap),
         )
         mission = self.mission
-        frame = frame_dict(pic, mission.radio.range_m, mission.radio.base_range_m)
+        frame = frame_dict(
+            pic, mission.radio.range_m, mission.radio.base_range_m, terrain=self.terrain
+        )
         self._update_alerts(now, frame, snap)
         frame["alerts"] = {
             "open": self.alerts.unacknowledged(),

@@ -81,7 +81,7 @@
     layers.crews = L.layerGroup().addTo(map);
     layers.labels = L.layerGroup();
     if ((meta.vehicles_expected || 0) <= 80) layers.labels.addTo(map);
-    L.control.layers(null, {"vehicle ids": layers.labels, "radio links": layers.vv,
+    layers.control = L.control.layers(null, {"vehicle ids": layers.labels, "radio links": layers.vv,
       "links to crews / base": layers.crewbase, "task tree": layers.tree,
       "planned targets": layers.targets, "crew tracks": layers.tracks, "metric grid": layers.grid},
       {position: "topleft", collapsed: true}).addTo(map);
@@ -225,13 +225,16 @@
     layers.targets.setLatLngs(tgt);
     // links
     const seg = (a, b) => [a, b];
+    // Over terrain a link has a status (0 ok); the others are drawn by terrain.js.
+    const up = (st, j) => !st || st[j] === 0;
     const vv = [], L1 = f.links.vv;
-    for (let k = 0; k < L1.length; k += 2) { const a = pos(L1[k]), b = pos(L1[k + 1]); if (a && b) vv.push(seg(a, b)); }
+    for (let k = 0; k < L1.length; k += 2) { const a = pos(L1[k]), b = pos(L1[k + 1]); if (a && b && up(f.links.vv_status, k / 2)) vv.push(seg(a, b)); }
     layers.vv.setLatLngs(vv);
     const vc = [], L2 = f.links.vc;
-    for (let k = 0; k < L2.length; k += 2) { const a = pos(L2[k]); if (a && f.crews.n[L2[k + 1]] !== null) vc.push(seg(a, ll(f.crews.n[L2[k + 1]], f.crews.e[L2[k + 1]]))); }
+    for (let k = 0; k < L2.length; k += 2) { const a = pos(L2[k]); if (a && f.crews.n[L2[k + 1]] !== null && up(f.links.vc_status, k / 2)) vc.push(seg(a, ll(f.crews.n[L2[k + 1]], f.crews.e[L2[k + 1]]))); }
     layers.vc.setLatLngs(vc);
-    layers.vb.setLatLngs(f.links.vb.map((i) => pos(i)).filter((a) => a).map((a) => seg(a, ll(0, 0))));
+    layers.vb.setLatLngs(f.links.vb.map((i, j) => up(f.links.vb_status, j) && pos(i)).filter((a) => a).map((a) => seg(a, ll(0, 0))));
+    if (window.phiremanTerrain) window.phiremanTerrain.render(f);  // terrain.js
     // tree
     const tr = [];
     if (f.tree) for (let k = 1; k < f.tree.nodes.length; k++) { const pa = f.tree.parent[k]; if (pa >= 0) tr.push([ll(...f.tree.nodes[pa]), ll(...f.tree.nodes[k])]); }
@@ -401,6 +404,7 @@
 
   fetch("/api/meta").then((r) => r.json()).then((m) => {
     meta = m; setupMap(); setupPanel();
+    if (window.phiremanTerrain) window.phiremanTerrain.setup(meta, {map, layers, ll});  // terrain.js
     if (meta.mode === "replay") replay(); else live();
   });
 })();
