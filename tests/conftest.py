@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from browser import browser  # noqa: F401 - the real-browser fixture, for every test module
 from hypothesis import settings
 
 settings.register_profile("ci", derandomize=True, deadline=None, max_examples=100)

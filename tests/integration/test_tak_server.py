@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from gcs.cot import CotStream, cot_xml, parse_cot
+from browser import _wait
 from tak_clients import CrewPhone, tak_mission
 
 pytestmark = pytest.mark.udp
@@ -143,11 +144,17 @@ def test_two_tak_clients_through_freetakserver(fts_port):
     assert "ANDROID-a" in asyncio.run(exchange())
 
 
-def test_phireman_fly_through_freetakserver(fts_port, tmp_path):
-    """``phireman fly --tak tcp://`` through the server, with two crews' phones on it: the
+def test_phireman_fly_through_freetakserver(fts_port, tmp_path, request):
+    """``phireman fly --tak tcp:// --serve`` through the server, with two crews' phones on it: the
     station plans for the crews the server relays, and both phones see the vehicles, the links
-    and their crews' connectivity; Alpha moves and its marker follows (the latency is printed);
+    and their crews' connectivity; Alpha moves and its marker follows (the latency is printed),
+    on the phones and on the operator's live page in a real browser (when chromium is here);
     Engine falls silent and is shown as unknown."""
+    try:
+        drv = request.getfixturevalue("browser")
+    except pytest.skip.Exception as exc:
+        print(f"the live page part is skipped: {exc}")
+        drv = None
     url = f"tcp://127.0.0.1:{fts_port}"
     path = tak_mission(tmp_path / "tak.yaml", duration_s=60.0, speedup=2.0)
     moved_ne = (60.0, 60.0)
@@ -157,7 +164,25 @@ def test_phireman_fly_through_freetakserver(fts_port, tmp_path):
     alpha = CrewPhone("ANDROID-alpha", "ALPHA", lambda t: (60.0, 0.0) if t < 12.0 else moved_ne)
     engine = CrewPhone("ANDROID-e7", "ENGINE-7", lambda t: (-60.0, 0.0), stop_after_s=15.0)
     cmd = [*PHIREMAN, "fly", str(path), "--out", str(tmp_path / "runs"), "--tak", url]
-    cmd += ["--tak-period-s", "0.5"]
+    cmd += ["--tak-period-s", "0.5", "--serve", "127.0.0.1:0"]
+    page: dict = {}
+
+    def watch_page(page_url: str) -> None:  # the operator's browser: Alpha's crew on the map
+        drv.get(page_url)
+        frame = "return window.phiremanFrame && window.phiremanFrame.crews"
+        _wait(lambda: drv.execute_script(frame), 120, "the page's first frame")
+        crews = drv.execute_script(frame)
+        page["before_ne"] = (crews["n"][0], crews["e"][0])
+        page["after_ne"] = _wait(
+            lambda: (
+                (c := drv.execute_script(frame))["e"][0] is not None
+                and abs(c["e"][0] - moved_ne[1]) < 1.0
+                and (c["n"][0], c["e"][0])
+            ),
+            120,
+            "Alpha's move on the page",
+        )
+        page["moved_s"] = time.monotonic()
 
     async def main():
         done = asyncio.Event()
@@ -166,14 +191,30 @@ def test_phireman_fly_through_freetakserver(fts_port, tmp_path):
         proc = await asyncio.create_subprocess_exec(
             *cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE
         )
+        lines: list[str] = []
+        watcher = None
+
+        async def read_err() -> None:
+            nonlocal watcher
+            async for raw in proc.stderr:
+                line = raw.decode()
+                lines.append(line)
+                if line.startswith("live view") and "http" in line and watcher is None:
+                    page_url = line.split(": ", 1)[1].strip()
+                    if drv is not None:
+                        watcher = asyncio.create_task(asyncio.to_thread(watch_page, page_url))
+
         try:
-            out, err = await asyncio.wait_for(proc.communicate(), 300)
+            out, _ = await asyncio.wait_for(asyncio.gather(proc.stdout.read(), read_err()), 300)
+            await proc.wait()
+            if watcher is not None:
+                await watcher
         finally:
             done.set()
             await clients
             if proc.returncode is None:
                 proc.kill()
-        return proc.returncode, out.decode(), err.decode()
+        return proc.returncode, out[0].decode() if isinstance(out, list) else "", "".join(lines)
 
     rc, out, err = asyncio.run(main())
     assert rc == 0, err[-3000:]
@@ -183,6 +224,10 @@ def test_phireman_fly_through_freetakserver(fts_port, tmp_path):
         print(f"client {phone.callsign} crew markers:", dict(phone.markers))
     latency_s = alpha.marker_latency_s("Alpha", moved_ne, tol_m=1.0)
     print(f"Alpha moved: its marker moved on the phone {latency_s:.2f} s later (wall)")
+    if drv is not None:
+        page_s = page["moved_s"] - next(t for t, n, e in alpha.sent_log if (n, e) == moved_ne)
+        print(f"... and on the live page {page_s:.2f} s later: {page}")
+        assert page["after_ne"][1] == pytest.approx(moved_ne[1], abs=1.0)
     for phone in (alpha, engine):  # what the server relayed from the station
         g = phone.got
         assert g["a-f-A-M-H-Q"] >= 6 and g["a-f-G-I"] >= 1, dict(g)

@@ -15,7 +15,7 @@ import urllib.request
 
 import pytest
 
-from test_live_view import _wait, browser  # noqa: F401 - the shared fixture
+from browser import _wait  # the ``browser`` fixture: tests/conftest.py
 
 pytestmark = pytest.mark.udp
 

@@ -11,17 +11,15 @@ import csv
 import json
 import shutil
 import threading
-import time
 import urllib.error
 import urllib.request
 from pathlib import Path
 
 import pytest
+from browser import CHROMEDRIVER, CHROMIUM, _wait  # noqa: F401 - the ``browser`` fixture: tests/conftest.py
 
 pytestmark = pytest.mark.udp
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-CHROMEDRIVER = shutil.which("chromedriver")
 CREWS = ("Engine 7", "Hand crew Alpha")
 
 
@@ -36,51 +34,6 @@ def _mission():
         tasks=(crew(60.0, 40.0, CREWS[0]), crew(-50.0, -60.0, CREWS[1])),
         latency_s=0.01,
     )
-
-
-@pytest.fixture(scope="module")
-def browser(tmp_path_factory):
-    if not (CHROMIUM and CHROMEDRIVER):
-        pytest.skip(
-            "BROWSER TEST SKIPPED: chromium / chromedriver not installed "
-            "(apt-get install -y chromium chromium-driver)"
-        )
-    webdriver = pytest.importorskip(
-        "selenium.webdriver", reason="BROWSER TEST SKIPPED: no selenium"
-    )
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    for a in (
-        "--headless=new",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--no-first-run",
-        "--window-size=1400,900",
-        f"--user-data-dir={tmp_path_factory.mktemp('chrome-profile')}",
-    ):
-        opts.add_argument(a)
-    opts.binary_location = CHROMIUM
-    drv = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
-    yield drv
-    drv.quit()
-
-
-def _wait(cond, timeout_s: float, what: str):
-    end = time.monotonic() + timeout_s
-    last = None
-    while time.monotonic() < end:
-        try:
-            last = cond()
-            if last:
-                return last
-        except Exception as exc:  # noqa: BLE001 - page still loading
-            last = exc
-        time.sleep(0.2)
-    raise AssertionError(f"timed out waiting for {what} (last: {last!r})")
 
 
 def _count(drv, state: str) -> int:
@@ -556,7 +509,6 @@ def test_forward_udpout_announces_its_destination(capsys):
 def test_replay_truth_answers_like_live(ending_flight, tmp_path):
     """``/api/frame?truth=1`` on a replay: the truth layer with truth.npz; without it the same
     404 + JSON error as the live view (never a frame silently without the layer asked for)."""
-    import shutil
 
     from mission.view.live.replay import ReplaySource
     from mission.view.live.server import LiveServer

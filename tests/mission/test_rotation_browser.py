@@ -16,7 +16,7 @@ import json
 import threading
 
 import pytest
-from test_live_view import CHROMEDRIVER, CHROMIUM, _wait, browser  # noqa: F401  (a fixture)
+from browser import CHROMEDRIVER, CHROMIUM, _wait  # noqa: F401 - the ``browser`` fixture: tests/conftest.py
 
 pytestmark = pytest.mark.udp
 
