@@ -22,6 +22,8 @@ ground), returned as ``PlanOutput.alt_agl_m``, and the mesh is predicted at thos
 ``TickInput.alt_amsl_m``, what the drones fly at now). Before a breaking drone is held back, the
 relay search (:func:`planner.terrain_heights.relay_candidates`) looks for a nearby position and
 altitude that sees both ends: a drone that keeps the mesh, and every crew it is the last link of.
+An inner planner that follows a task tree (``tree_transform``, planner.phireman) follows one whose
+edges relays can hold over the terrain (:func:`planner.terrain_heights.detour_tree`).
 Without ``heights`` every drone is predicted at ``alt_agl_m`` above the ground.
 """
 
@@ -33,7 +35,13 @@ import numpy as np
 
 from planner.methods import PlanOutput, Planner, TickInput
 from planner.terrain import TerrainRadio
-from planner.terrain_heights import HeightRule, relay_candidates, target_alt_amsl_m
+from planner.steiner import TaskTree
+from planner.terrain_heights import (
+    HeightRule,
+    detour_tree,
+    relay_candidates,
+    target_alt_amsl_m,
+)
 
 __all__ = ["TerrainAwarePlanner"]
 
@@ -55,6 +63,19 @@ class TerrainAwarePlanner:
     heights: HeightRule | None = None
     """Plan altitudes and search relay positions in 3-D (module docstring); None: every drone at
     ``alt_agl_m``, moves only held back."""
+
+    def __post_init__(self) -> None:
+        # In 3-D, an inner planner that follows a task tree follows one whose edges relays can
+        # hold over the terrain (planner.terrain_heights.detour_tree).
+        if self.heights is not None and hasattr(self.inner, "tree_transform"):
+            self.inner.tree_transform = self._route_tree
+        self.tree_bends = 0
+        """Tree edges bent around the terrain at the last tick."""
+
+    def _route_tree(self, tree_m: TaskTree) -> TaskTree:
+        assert self.heights is not None  # set in 3-D only
+        tree, self.tree_bends = detour_tree(tree_m, self.radio, self.heights)
+        return tree
 
     def _mesh(
         self, pos_ne_m: np.ndarray, alt_m: np.ndarray, tick: TickInput, members: np.ndarray
@@ -150,6 +171,7 @@ class TerrainAwarePlanner:
         info["terrain_held"] = int(((level > 0) & ~placed).sum())
         info["terrain_placed"] = int(placed.sum())
         info["terrain_passes"] = passes
+        info["terrain_tree_bends"] = self.tree_bends
         alt_agl = None
         if self.heights is not None:
             goal, alt = self._altitudes(pos, final_move, alt_now)

@@ -15,7 +15,13 @@ Two pieces of :class:`planner.terrain_aware.TerrainAwarePlanner` (docs/terrain.m
   tested with the compiled line-of-sight kernel against the drones that keep the mesh, and the
   crew; the candidate nearest the planned position that sees both ends wins.
 
-Both are vectorised over drones and candidates, each with a slow loop beside it
+* :func:`detour_tree`, the link predicate on the task tree's edges: an edge counts only if
+  relays along it, at most ``relay_spacing_m`` apart at the ceiling, see each other
+  (:func:`edges_relayable`); an edge that fails is bent through a Steiner node moved sideways
+  from its midpoint, the shortest bend that passes, so the tree, and the potential that draws
+  the drones to it, goes around a ridge instead of through it.
+
+All are vectorised over drones, candidates and edges, each with a slow loop beside it
 (``*_reference``) that tests/planner/test_terrain_heights.py compares it with.
 """
 
@@ -26,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.terrain import Terrain, TerrainRadio
+from planner.steiner import TaskTree
+from planner.terrain import Terrain, TerrainRadio, links_clear_reference
 
 __all__ = [
     "HeightRule",
@@ -35,6 +42,9 @@ __all__ = [
     "candidate_moves",
     "relay_candidates",
     "relay_candidates_reference",
+    "edges_relayable",
+    "edges_relayable_reference",
+    "detour_tree",
 ]
 
 
@@ -59,6 +69,9 @@ class HeightRule:
     """Relay search: the planned move turned by these angles."""
     move_fractions: tuple[float, ...] = (1.0, 0.5)
     """Relay search: and scaled by these fractions (plus the drone staying put)."""
+    relay_spacing_m: float | None = None
+    """Tree edges: the longest hop between relays along an edge, metres; None: half the link
+    budget's range."""
 
     def __post_init__(self) -> None:
         if not self.ceiling_agl_m - self.margin_m > self.clearance_m + self.margin_m:
@@ -266,3 +279,106 @@ def relay_candidates_reference(
             ne_out[i] = ne[i, best_j]
             alt_out[i] = alt[i, best_j]
     return found, ne_out, alt_out
+
+
+# --------------------------------------------------------------------------------------------
+# Tree edges over terrain
+
+
+def _relay_samples(
+    terrain: Terrain, a_ne_m: np.ndarray, b_ne_m: np.ndarray, spacing_m: float, agl_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The relays along E edges: (P, 3) and (P, 3) the two ends of every hop between
+    consecutive relays (north, east, metres AMSL at ``agl_m`` over the ground) and (P,) the edge
+    of each hop. An edge of length L has ceil(L / spacing_m) hops (at least 1)."""
+    a = np.asarray(a_ne_m, dtype=float).reshape(-1, 2)
+    b = np.asarray(b_ne_m, dtype=float).reshape(-1, 2)
+    hops = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / spacing_m)).astype(np.int64)
+    edge = np.repeat(np.arange(len(a)), hops)
+    k = np.arange(int(hops.sum())) - np.repeat(np.cumsum(hops) - hops, hops)  # hop index in edge
+    f0 = (k / hops[edge])[:, None]
+    f1 = ((k + 1) / hops[edge])[:, None]
+    p0 = a[edge] + f0 * (b - a)[edge]
+    p1 = a[edge] + f1 * (b - a)[edge]
+    h = terrain.height_m(np.concatenate([p0, p1])) + agl_m
+    return (
+        np.column_stack([p0, h[: len(p0)]]),
+        np.column_stack([p1, h[len(p0) :]]),
+        edge,
+    )
+
+
+def edges_relayable(
+    radio: TerrainRadio, a_ne_m: np.ndarray, b_ne_m: np.ndarray, spacing_m: float, agl_m: float
+) -> np.ndarray:
+    """(E,) bool: relays every ``spacing_m`` at most along the edge a -> b, ``agl_m`` above the
+    ground, see each other (the link predicate on the task tree's edges, docs/terrain.md §3)."""
+    p0, p1, edge = _relay_samples(radio.terrain, a_ne_m, b_ne_m, spacing_m, agl_m)
+    clear = radio.links_clear(p0, p1) if len(edge) else np.zeros(0, dtype=bool)
+    blocked = np.bincount(edge[~clear], minlength=len(np.asarray(a_ne_m).reshape(-1, 2)))
+    return np.asarray(blocked == 0)
+
+
+def edges_relayable_reference(
+    radio: TerrainRadio, a_ne_m: np.ndarray, b_ne_m: np.ndarray, spacing_m: float, agl_m: float
+) -> np.ndarray:
+    """:func:`edges_relayable` by plain loops over edges and hops (for tests)."""
+    t = radio.terrain
+    out = np.ones(len(a_ne_m), dtype=bool)
+    for e in range(len(a_ne_m)):
+        a, b = np.asarray(a_ne_m[e], float), np.asarray(b_ne_m[e], float)
+        hops = max(1, int(math.ceil(float(np.linalg.norm(b - a)) / spacing_m)))
+        for k in range(hops):
+            p = a + (k / hops) * (b - a)
+            q = a + ((k + 1) / hops) * (b - a)
+            p3 = np.array([[p[0], p[1], t.height_m_reference(p[0], p[1]) + agl_m]])
+            q3 = np.array([[q[0], q[1], t.height_m_reference(q[0], q[1]) + agl_m]])
+            if not links_clear_reference(t, radio.budget, p3, q3)[0]:
+                out[e] = False
+                break
+    return out
+
+
+def detour_tree(
+    tree_m: TaskTree,
+    radio: TerrainRadio,
+    rule: HeightRule,
+    offsets_m: tuple[float, ...] = (100.0, -100.0, 200.0, -200.0, 300.0, -300.0, 400.0, -400.0),
+) -> tuple[TaskTree, int]:
+    """The task tree (metres) with every edge that relays cannot hold over the terrain
+    (:func:`edges_relayable` at ``rule.high_agl_m``, relays every ``rule.relay_spacing_m``)
+    bent through a new Steiner node: the shortest of the edge's midpoint moved sideways by
+    ``offsets_m`` for which both halves can be relayed. An edge with no such detour stays as it
+    is. Returns the tree and the number of edges bent."""
+    spacing = rule.relay_spacing_m or radio.budget.max_range_m / 2.0
+    a, b = tree_m.segments()  # child end, parent end
+    ok = edges_relayable(radio, a, b, spacing, rule.high_agl_m)
+    bad = np.flatnonzero(~ok & (np.linalg.norm(b - a, axis=1) > 0))
+    if len(bad) == 0:
+        return tree_m, 0
+    ab = b[bad] - a[bad]
+    perp = np.column_stack([-ab[:, 1], ab[:, 0]]) / np.linalg.norm(ab, axis=1)[:, None]
+    off = np.asarray(offsets_m, dtype=float)
+    mid = 0.5 * (a[bad] + b[bad])[:, None, :] + off[None, :, None] * perp[:, None, :]  # (B, O, 2)
+    n_b, n_o = mid.shape[:2]
+    m_flat = mid.reshape(-1, 2)
+    a_rep = np.repeat(a[bad], n_o, axis=0)
+    b_rep = np.repeat(b[bad], n_o, axis=0)
+    both = edges_relayable(
+        radio, np.concatenate([a_rep, m_flat]), np.concatenate([m_flat, b_rep]), spacing,
+        rule.high_agl_m,
+    )
+    good = (both[: len(m_flat)] & both[len(m_flat) :]).reshape(n_b, n_o)
+    length = (np.linalg.norm(m_flat - a_rep, axis=1) + np.linalg.norm(b_rep - m_flat, axis=1))
+    length = np.where(good, length.reshape(n_b, n_o), np.inf)
+    pick = np.argmin(length, axis=1)
+    bent = np.isfinite(length[np.arange(n_b), pick])
+    if not bent.any():
+        return tree_m, 0
+    child = bad[bent] + 1  # segment e is node e + 1's edge to its parent
+    new_nodes = mid[np.flatnonzero(bent), pick[bent]]
+    k = tree_m.n_nodes
+    parent = np.concatenate([tree_m.parent, tree_m.parent[child]])
+    parent[child] = k + np.arange(len(child))
+    nodes = np.concatenate([tree_m.nodes_m, new_nodes])
+    return TaskTree(nodes, parent, tree_m.n_tasks), int(bent.sum())

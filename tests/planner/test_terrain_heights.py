@@ -10,9 +10,13 @@ from planner import _kernels
 from planner.methods import PlanOutput, TickInput
 from planner.terrain import Canyon, LinkBudget, Ridge, Terrain, TerrainRadio, synthetic_terrain
 from planner.terrain_aware import TerrainAwarePlanner
+from planner.steiner import TaskTree
 from planner.terrain_heights import (
     HeightRule,
     candidate_moves,
+    detour_tree,
+    edges_relayable,
+    edges_relayable_reference,
     relay_candidates,
     relay_candidates_reference,
     target_alt_amsl_m,
@@ -146,3 +150,42 @@ def test_3d_planner_keeps_the_mesh_and_commands_heights_in_the_band():
     assert np.linalg.norm(out.disp_m[1]) < 200.0
     np.testing.assert_array_equal(out.disp_m[[0, 2]], disp[[0, 2]])  # harmless: kept
     assert out.info["terrain_placed"] + out.info["terrain_held"] >= 1  # drone 1 was caught
+
+
+def _wall_radio() -> TerrainRadio:
+    """A 300 m wall along north = 300, from far west to east = 150, where it ends."""
+    ground = synthetic_terrain([Ridge([(300.0, -900.0), (300.0, 150.0)], 300.0, 100.0)], 900, 10)
+    return TerrainRadio(ground, LinkBudget(fade_margin_db=20.0))  # about 500 m
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_edges_relayable_fast_and_reference_agree(rng, monkeypatch, compiled):
+    monkeypatch.setattr(_kernels, "ENABLED", compiled)
+    radio = _wall_radio()
+    a = rng.uniform(-700.0, 700.0, (40, 2))
+    b = rng.uniform(-700.0, 700.0, (40, 2))
+    b[0] = a[0]  # a zero-length edge
+    fast = edges_relayable(radio, a, b, 250.0, RULE.high_agl_m)
+    slow = edges_relayable_reference(radio, a, b, 250.0, RULE.high_agl_m)
+    np.testing.assert_array_equal(fast, slow)
+    assert 0 < fast.sum() < len(a)
+
+
+def test_tree_edge_through_a_wall_is_bent_through_a_relayable_point():
+    radio = _wall_radio()
+    tree = TaskTree(np.array([[0.0, 0.0], [600.0, 0.0]]), np.array([-1, 0]), 1)
+    a, b = tree.segments()
+    assert not edges_relayable(radio, a, b, 250.0, RULE.high_agl_m)[0]
+    bent, n = detour_tree(tree, radio, RULE)
+    assert n == 1 and bent.n_nodes == 3 and bent.n_tasks == 1
+    np.testing.assert_array_equal(bent.nodes_m[:2], tree.nodes_m)  # base and task stay
+    assert bent.parent[1] == 2 and bent.parent[2] == 0  # task -> detour -> base
+    a, b = bent.segments()
+    assert edges_relayable(radio, a, b, 250.0, RULE.high_agl_m).all()
+    # The shortest bend that passes: the nearest point on the crest (a relay there sees both
+    # sides), not around the wall's end (east > 250, about 1000 m of edges).
+    assert bent.nodes_m[2, 0] == pytest.approx(300.0)
+    assert radio.terrain.height_m(bent.nodes_m[2:3])[0] > 250.0
+    assert np.sum(bent.edge_lengths_m()) < 700.0
+    same, n0 = detour_tree(bent, radio, RULE)
+    assert n0 == 0 and same is bent  # nothing left to bend
