@@ -147,7 +147,7 @@ class TerrainAwarePlanner:
             alt = np.where(placed, placed_alt, alt)
             act, links = self._mesh(new, alt, tick, members)
             passes += 1
-            lost_crews = crews_now & ~links.any(axis=1)
+            lost_crews = np.asarray(crews_now & ~links.any(axis=1))
             broken = members & now_act & ~act
             broken |= members & now_links[lost_crews].any(axis=0)
             broken &= level < len(frac) - 1
@@ -161,7 +161,15 @@ class TerrainAwarePlanner:
                 rows = np.flatnonzero(fresh)
                 needs = (now_links[:, rows] & lost_crews[:, None]).T  # (B, M)
                 found, ne_f, alt_f = self._search(
-                    tick, pos[rows], alt_now[rows], move[rows], goal[rows], new, alt, act & ~broken, needs
+                    tick,
+                    pos[rows],
+                    alt_now[rows],
+                    move[rows],
+                    goal[rows],
+                    new,
+                    alt,
+                    act & ~broken,
+                    needs,
                 )
                 placed[rows[found]] = True
                 placed_ne[rows], placed_alt[rows] = ne_f, alt_f

@@ -131,7 +131,10 @@ def candidate_moves(disp_m: np.ndarray, rule: HeightRule) -> np.ndarray:
     c, s = np.cos(a), np.sin(a)
     d = np.asarray(disp_m, dtype=float).reshape(-1, 2)
     turned = np.stack(
-        [c[None, :] * d[:, :1] - s[None, :] * d[:, 1:], s[None, :] * d[:, :1] + c[None, :] * d[:, 1:]],
+        [
+            c[None, :] * d[:, :1] - s[None, :] * d[:, 1:],
+            s[None, :] * d[:, :1] + c[None, :] * d[:, 1:],
+        ],
         axis=-1,
     )  # (B, A, 2)
     f = np.asarray(rule.move_fractions, dtype=float)
@@ -156,7 +159,11 @@ def _candidates(
     g = terrain.height_m(ne)  # (B, C)
     offsets = np.array([0.0, rule.max_climb_m, -rule.max_climb_m])
     alt = alt_goal_m[:, None, None] + offsets[None, None, :]  # (B, 1, 3)
-    alt = np.clip(alt, alt_now_m[:, None, None] - rule.max_climb_m, alt_now_m[:, None, None] + rule.max_climb_m)
+    alt = np.clip(
+        alt,
+        alt_now_m[:, None, None] - rule.max_climb_m,
+        alt_now_m[:, None, None] + rule.max_climb_m,
+    )
     alt = np.clip(alt, g[:, :, None] + rule.low_agl_m, g[:, :, None] + rule.high_agl_m)  # (B, C, 3)
     reach = np.abs(alt - alt_now_m[:, None, None]) <= rule.max_climb_m + 1e-9
     ne3 = np.broadcast_to(ne[:, :, None, :], (b, c, 3, 2)).reshape(b, c * 3, 2)
@@ -203,7 +210,10 @@ def relay_candidates(
 
     def sees(targets: np.ndarray, want: np.ndarray) -> np.ndarray:
         """(B*C, T) bool: candidate -> target link closes, only where ``want`` (B*C, T)."""
-        ci, ti = np.nonzero(want & (np.hypot(*(cand3[:, None, :2] - targets[None, :, :2]).transpose(2, 0, 1)) <= rng_m))
+        ci, ti = np.nonzero(
+            want
+            & (np.hypot(*(cand3[:, None, :2] - targets[None, :, :2]).transpose(2, 0, 1)) <= rng_m)
+        )
         out = np.zeros(want.shape, dtype=bool)
         if len(ci):
             out[ci, ti] = radio.links_clear(cand3[ci], targets[ti])
@@ -240,7 +250,9 @@ def relay_candidates_reference(
     rule: HeightRule,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`relay_candidates` by plain loops over drones, candidates and ends (for tests)."""
-    ne, alt, ok = _candidates(radio.terrain, np.asarray(pos_ne_m, float), alt_now_m, disp_m, alt_goal_m, rule)
+    ne, alt, ok = _candidates(
+        radio.terrain, np.asarray(pos_ne_m, float), alt_now_m, disp_m, alt_goal_m, rule
+    )
     b, c = ok.shape
     found = np.zeros(b, dtype=bool)
     ne_out = np.asarray(pos_ne_m, float) + np.asarray(disp_m, float)
@@ -365,11 +377,14 @@ def detour_tree(
     a_rep = np.repeat(a[bad], n_o, axis=0)
     b_rep = np.repeat(b[bad], n_o, axis=0)
     both = edges_relayable(
-        radio, np.concatenate([a_rep, m_flat]), np.concatenate([m_flat, b_rep]), spacing,
+        radio,
+        np.concatenate([a_rep, m_flat]),
+        np.concatenate([m_flat, b_rep]),
+        spacing,
         rule.high_agl_m,
     )
     good = (both[: len(m_flat)] & both[len(m_flat) :]).reshape(n_b, n_o)
-    length = (np.linalg.norm(m_flat - a_rep, axis=1) + np.linalg.norm(b_rep - m_flat, axis=1))
+    length = np.linalg.norm(m_flat - a_rep, axis=1) + np.linalg.norm(b_rep - m_flat, axis=1)
     length = np.where(good, length.reshape(n_b, n_o), np.inf)
     pick = np.argmin(length, axis=1)
     bent = np.isfinite(length[np.arange(n_b), pick])
