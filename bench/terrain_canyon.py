@@ -1,13 +1,15 @@
 """The canyon mission terrain-blind vs terrain-aware, in process, over many seeds (issue 27).
 
     .venv/bin/python bench/terrain_canyon.py --seeds 100
+    .venv/bin/python bench/terrain_canyon.py --seeds 100 --mission canyon_camp
 
 Each seed is played three ways (mission.experiments.playback.TERRAIN_AWARE): 'off' (today's
 system: the disc planner, one altitude above the base), 'altitude' (terrain following under the
 ceiling, disc planner) and 'on' (that, with the planner's moves checked against the terrain
-radio). Prints TU1 and TU2 (mean +- 95 % CI), paired differences with a paired t-test and a
+radio, planned in 3-D: altitudes per drone, relay search, tree edges relays can hold). Prints TU1
+and TU2 (mean +- 95 % CI), paired differences with a paired t-test and a
 Wilcoxon signed-rank test, crashes into the ground, the least clearance along every flight and
-the highest height above the ground. Seeds share scenario and attrition streams (common random
+the highest height above the ground, and the CPU time of each mode. Seeds share scenario and attrition streams (common random
 numbers, docs/design/model.md §6.1), so the pairs are paired.
 """
 
@@ -39,10 +41,13 @@ def main() -> int:
     mission = load_mission(example_path(args.mission))
     seeds = list(range(args.seed, args.seed + args.seeds))
     rows: dict[str, list[dict]] = {m: [] for m in TERRAIN_AWARE}
+    cpu_of = dict.fromkeys(TERRAIN_AWARE, 0.0)
     t0 = time.process_time()
     for s in seeds:
         for mode in TERRAIN_AWARE:
+            t1 = time.process_time()
             r = run_inprocess(mission, s, terrain_aware=mode)
+            cpu_of[mode] += time.process_time() - t1
             assert r.terrain is not None  # a terrain mission
             rows[mode].append({"seed": s, "tu1": r.tu1, "tu2": r.tu2, **r.terrain})
     cpu = time.process_time() - t0
@@ -59,6 +64,7 @@ def main() -> int:
             f"  least clearance {min(r['min_clearance_m'] for r in rs):.1f} m"
             f"  flights below clearance {sum(r['flights_below_clearance'] for r in rs)}"
             f"  highest {max(r['max_agl_m'] for r in rs):.0f} m AGL"
+            f"  {cpu_of[mode]:.0f} s CPU"
         )
         print(line)
     for a, b in (("on", "off"), ("on", "altitude"), ("altitude", "off")):

@@ -65,6 +65,9 @@ class TickInput:
     """The mission's hazard zones (planner.hazard), with their activity windows on the mission
     clock (t = t_step x ProblemConfig.dt_s), or None (the paper's world: no zones). Known to the
     station from the mission file; planners that do not use them ignore them."""
+    alt_amsl_m: np.ndarray | None = None
+    """(N,) float64: each drone's altitude above mean sea level, metres, over terrain
+    (docs/terrain.md §3), or None (the paper's flat world: planners plan in the plane)."""
 
 
 @dataclass(frozen=True)
@@ -77,6 +80,10 @@ class PlanOutput:
     """The task tree used this tick (``planner.steiner.TaskTree``) or None, for plots."""
     info: dict[str, Any] = field(default_factory=dict)
     """Diagnostics (descent iterations, solver status, ...)."""
+    alt_agl_m: np.ndarray | None = None
+    """(N,) float64: the height above the ground each drone should hold, metres, from a planner
+    that chooses altitudes over terrain (planner.terrain_aware); None: the mission's one cruise
+    height (every planner of the paper)."""
 
 
 class Planner(Protocol):

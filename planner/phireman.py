@@ -878,6 +878,11 @@ class PhiremanPlanner:
         self.reach_u = 2 * params.repulsion_radius_ratio * self.units.radio_range_u
         self.tree: TaskTree | None = None
         self.info_model = information_model(params.info, self.units, problem.n_steps, params)
+        self.tree_transform: Callable[[TaskTree], TaskTree] | None = None
+        """A map from the maintained tree to the tree the potential follows, both in metres,
+        returning its argument itself when it changes nothing (planner.terrain_aware bends edges
+        that relays cannot hold over terrain, docs/terrain.md §3); None: the maintained tree
+        (the paper)."""
 
     # -- helpers --------------------------------------------------------------------------
     def _pair_grad(
@@ -915,6 +920,11 @@ class PhiremanPlanner:
             accept_ratio=p.accept_ratio,
             rebuild_period=p.rebuild_period,
         )
+        if self.tree_transform is not None:
+            tree_m = tree.scaled(u.unit_m)
+            routed = self.tree_transform(tree_m)
+            if routed is not tree_m:  # changed: back to paper units
+                tree = routed.scaled(1.0 / u.unit_m)
         planning = np.asarray(tick.networked, bool) & np.asarray(tick.alive, bool)
         view = self.info_model.see(tick.t_step, pos_u, tick.alive, planning, base_u, tree)
         if isinstance(view, CentralView):

@@ -284,15 +284,22 @@ class World:
         return lost
 
     def fly_terrain(
-        self, pos_before_m: np.ndarray, n_fractions: int = 8, n_samples: int = 32
+        self,
+        pos_before_m: np.ndarray,
+        n_fractions: int = 8,
+        n_samples: int = 32,
+        alt_agl_m: np.ndarray | None = None,
     ) -> np.ndarray:
         """Heights over the terrain for the step just taken by :meth:`step` (from
         ``pos_before_m``, (N, 2) metres), per :class:`TerrainFlight`. 'follow' shortens each
         horizontal move to the longest of ``n_fractions`` equal parts whose straight flight keeps
         ``clearance_m`` above the ground at ``n_samples`` points plus
         :data:`CLEARANCE_MARGIN_M` (the margin covers the ground between the samples); 'flat'
-        holds the one altitude and a flight into the ground is a crash. Returns (N,) bool, the
-        drones that crashed this step."""
+        holds the one altitude and a flight into the ground is a crash. ``alt_agl_m`` (N,):
+        'follow' holds each drone's own height above the ground, as a planner that chooses
+        altitudes commands it (kept within [``clearance_m`` + margin, ``ceiling_agl_m``]); None:
+        ``TerrainFlight.alt_agl_m`` for every drone. Returns (N,) bool, the drones that crashed
+        this step."""
         tf = self.terrain
         assert tf is not None and self.alt_amsl_m is not None  # terrain worlds only
         ground = tf.radio.terrain
@@ -304,10 +311,17 @@ class World:
             crash = self.alive & (clear < 0)
         else:
             best_pos, best_alt = pos_before_m.copy(), alt0.copy()
+            agl: float | np.ndarray = tf.alt_agl_m
+            if alt_agl_m is not None:
+                agl = np.clip(
+                    np.asarray(alt_agl_m, dtype=float),
+                    tf.clearance_m + CLEARANCE_MARGIN_M,
+                    tf.ceiling_agl_m,
+                )
             # Fractions from short to long (a handful): keep the longest that keeps clearance.
             for k in range(n_fractions + 1):
                 end = pos_before_m + (k / n_fractions) * move
-                want = ground.height_m(end) + tf.alt_agl_m
+                want = ground.height_m(end) + agl
                 alt1 = alt0 + np.clip(want - alt0, -tf.max_climb_m, tf.max_climb_m)
                 clear = path_clearance_m(ground, pos_before_m, end, alt0, alt1, n_samples)
                 high = alt1 - ground.height_m(end) > tf.ceiling_agl_m

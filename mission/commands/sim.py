@@ -123,8 +123,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--terrain-aware",
         choices=["on", "altitude", "off"],
         default=None,
-        help="with a terrain mission (radio.model: terrain): 'on' (default) terrain following "
-        "under the ceiling and moves checked against the terrain radio; 'altitude' terrain "
+        help="with a terrain mission (radio.model: terrain): 'on' (default) planning in 3-D, "
+        "each drone's altitude between the clearance and the ceiling, tree edges and moves "
+        "checked against the terrain radio, relay positions searched; 'altitude' terrain "
         "following with the disc planner; 'off' today's system, the disc planner at one altitude "
         "above the base (docs/terrain.md)",
     )

@@ -48,6 +48,7 @@ from planner.methods import Planner, make_planner
 from planner.metrics import UptimeSeries, uptime_series
 from planner.terrain import path_clearance_m
 from planner.terrain_aware import TerrainAwarePlanner
+from planner.terrain_heights import HeightRule
 from vehicle_emu.world import TerrainFlight, World, spawn_streams
 
 __all__ = [
@@ -121,7 +122,9 @@ def run_inprocess(
         if mission.endurance.battery is not None:
             raise ValueError("a terrain radio with batteries is not supported yet")
         world.with_terrain(flight)
-        planner = terrain_planner(planner, flight, terrain_aware)
+        planner = terrain_planner(
+            planner, flight, terrain_aware, problem.max_speed_m_s * problem.dt_s
+        )
     tau = mission.run.n_steps
     task_dist_m = np.hypot(*scn.task_track_m.reshape(-1, 2).T)
     endurance = endurance_run(
@@ -179,8 +182,9 @@ def run_inprocess(
 
 #: How a terrain mission is flown (docs/terrain.md §3): 'off' is today's system (the disc planner,
 #: every drone at ``vehicles.cruise_alt_m`` above the base's ground); 'altitude' the disc planner
-#: with terrain following at ``terrain.cruise_agl_m`` under the ceiling; 'on' that, with the
-#: planner's moves checked against the terrain radio (planner.terrain_aware).
+#: with terrain following at ``terrain.cruise_agl_m`` under the ceiling; 'on' planning in 3-D:
+#: each drone's altitude between the clearance and the ceiling chosen by the planner, its moves
+#: checked against the terrain radio and relay positions searched (planner.terrain_aware).
 TERRAIN_AWARE: tuple[str, ...] = ("on", "altitude", "off")
 
 
@@ -213,10 +217,14 @@ def terrain_flight(mission: Mission, terrain_aware: str) -> TerrainFlight | None
     )
 
 
-def terrain_planner(planner: Planner, flight: TerrainFlight, terrain_aware: str) -> Planner:
-    """The mission's planner over terrain: as it is when terrain-blind, with its moves checked
-    against the terrain radio when ``terrain_aware`` is 'on'
-    (:class:`planner.terrain_aware.TerrainAwarePlanner`)."""
+def terrain_planner(
+    planner: Planner, flight: TerrainFlight, terrain_aware: str, max_step_m: float
+) -> Planner:
+    """The mission's planner over terrain: as it is when terrain-blind; when ``terrain_aware``
+    is 'on', planning in 3-D (:class:`planner.terrain_aware.TerrainAwarePlanner` with a
+    :class:`planner.terrain_heights.HeightRule`: altitudes per drone between the clearance and
+    the ceiling, moves checked against the terrain radio, relay positions searched).
+    ``max_step_m``: the longest horizontal move in one step, metres."""
     if terrain_aware != "on":
         return planner
     return TerrainAwarePlanner(
@@ -225,6 +233,12 @@ def terrain_planner(planner: Planner, flight: TerrainFlight, terrain_aware: str)
         flight.alt_agl_m,
         flight.crew_antenna_agl_m,
         flight.base_antenna_agl_m,
+        heights=HeightRule(
+            clearance_m=flight.clearance_m,
+            ceiling_agl_m=flight.ceiling_agl_m,
+            max_climb_m=flight.max_climb_m,
+            max_step_m=max_step_m,
+        ),
     )
 
 

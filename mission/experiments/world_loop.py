@@ -72,6 +72,9 @@ class ControlOutput:
     """The planner's task tree this step (for plots), or None."""
     recovery_target_m: np.ndarray | None = None
     """(N, 2) where disconnected drones fly instead of the base (NaN rows: the base), or None."""
+    alt_agl_m: np.ndarray | None = None
+    """(N,) the height above the ground each drone should hold over terrain, metres (the
+    planner's ``PlanOutput.alt_agl_m``), or None: the terrain flight's one cruise height."""
 
 
 class Controller(Protocol):
@@ -83,17 +86,24 @@ def direct_control(planner: Planner, tick: TickInput) -> ControlOutput:
     rally points (``planner.resilient``) switches the world's recovery rule for its disconnected
     drones, every other planner leaves it at "fly home" (docs/design/model.md §4)."""
     out = planner.plan(tick)
-    return ControlOutput(out.disp_m, out.tree, getattr(planner, "recovery_target_m", None))
+    return ControlOutput(
+        out.disp_m, out.tree, getattr(planner, "recovery_target_m", None), out.alt_agl_m
+    )
 
 
 class _Keep:
-    """A planner that remembers its last answer (:func:`gcs.control.tick` returns no tree)."""
+    """A planner that remembers its last answer (:func:`gcs.control.tick` returns no tree), and
+    is told the drones' altitudes over terrain (``alt_amsl_m``), as a station reads them from
+    telemetry: the station's tick plans in the plane."""
 
-    def __init__(self, planner: Planner) -> None:
+    def __init__(self, planner: Planner, alt_amsl_m: np.ndarray | None = None) -> None:
         self.planner = planner
+        self.alt_amsl_m = alt_amsl_m
         self.last: PlanOutput | None = None
 
     def plan(self, tick: TickInput) -> PlanOutput:
+        if self.alt_amsl_m is not None:
+            tick = dataclasses.replace(tick, alt_amsl_m=self.alt_amsl_m)
         self.last = self.planner.plan(tick)
         return self.last
 
@@ -110,14 +120,20 @@ def station_control(config: ControlConfig) -> Controller:
     config = dataclasses.replace(config, lead=1.0)
 
     def control(planner: Planner, tick: TickInput) -> ControlOutput:
-        keep = _Keep(planner)
+        keep = _Keep(planner, tick.alt_amsl_m)
         pos_ned_m = np.column_stack([tick.pos_m, np.zeros(len(tick.pos_m))])
         res = control_tick(
             pos_ned_m, tick.networked, tick.alive, tick.task_pos_m, keep, tick.t_step, config
         )
         disp = np.zeros_like(tick.pos_m)
         disp[res.rows] = res.target_ned_m[:, :2] - tick.pos_m[res.rows]
-        return ControlOutput(disp, keep.last.tree if keep.last is not None else None, None)
+        last = keep.last
+        return ControlOutput(
+            disp,
+            last.tree if last is not None else None,
+            None,
+            last.alt_agl_m if last is not None else None,
+        )
 
     return control
 
@@ -210,7 +226,16 @@ def run_world(
             continue
         out = control(
             planner,
-            TickInput(t, world.pos_m, world.alive, active, world.task_pos_m, world.base_m, hazards),
+            TickInput(
+                t,
+                world.pos_m,
+                world.alive,
+                active,
+                world.task_pos_m,
+                world.base_m,
+                hazards,
+                world.alt_amsl_m,
+            ),
         )
         if rec is not None and keep_tree(t):
             rec.trees[t] = out.tree
@@ -218,7 +243,7 @@ def run_world(
         pos_before = world.pos_m if world.terrain is not None else None
         lost = world.step(out.disp_m, active, p_loss, attrition_u[t], out.recovery_target_m)
         if pos_before is not None:  # over terrain: heights, and flights into the ground
-            lost = lost | world.fly_terrain(pos_before)
+            lost = lost | world.fly_terrain(pos_before, alt_agl_m=out.alt_agl_m)
         losses.extend((t, int(i)) for i in np.flatnonzero(lost))
     return WorldRun(connected, alive_count, active_count, losses, rec)
 

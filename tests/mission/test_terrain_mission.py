@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from mission.experiments.playback import run_inprocess
 from mission.format.examples import example_path
 from mission.format.load import MissionError, load_mission, loads_mission
 from mission.format.schema import GeoTiffTerrain
@@ -119,6 +120,40 @@ def test_canyon_has_a_canyon_a_ridge_and_crews_on_them():
     ridge_crews = np.array([[250.0, 795.0], [-300.0, 810.0]])
     assert (t.height_m(floor_crews) < base - 240).all()
     assert (t.height_m(ridge_crews) > base + 50).all()
+
+
+def test_canyon_camp_has_its_base_on_the_floor_below_a_bend():
+    m = load_mission(example_path("canyon_camp"))
+    t = build_terrain(m)
+    assert t is not None and m.radio.model == "terrain"
+    base = t.height_m(np.zeros((1, 2)))[0]
+    assert base == pytest.approx(m.origin.alt_amsl_m - 200.0)  # on the floor
+    inner_bend = np.array([[150.0, 300.0], [80.0, 300.0]])  # the plateau inside the bend
+    assert (t.height_m(inner_bend) > base + 190).all()
+    floor_crews = np.array([[300.0, 450.0], [290.0, 1000.0], [-500.0, 10.0]])
+    assert (np.abs(t.height_m(floor_crews) - base) < 1.0).all()
+    # One altitude above the base is under the ceiling over the floor, under the rims elsewhere.
+    assert m.vehicles.limits.cruise_alt_m <= m.terrain.ceiling_agl_m  # type: ignore[union-attr]
+    assert m.vehicles.limits.cruise_alt_m < 200.0
+
+
+def test_planning_in_3d_flies_each_drone_at_its_own_height_within_the_band():
+    """'on' over the canyon: heights chosen per drone between the clearance and the ceiling, no
+    flight below the clearance, and no worse than terrain following at one height (seed 1)."""
+    m = load_mission(example_path("canyon"))
+    on = run_inprocess(m, 1, terrain_aware="on")
+    alt = run_inprocess(m, 1, terrain_aware="altitude")
+    assert on.terrain is not None and alt.terrain is not None
+    assert on.terrain["crashes"] == 0 and on.terrain["flights_below_clearance"] == 0
+    assert on.terrain["max_agl_m"] <= m.terrain.ceiling_agl_m + 1e-6  # type: ignore[union-attr]
+    ground = build_terrain(m)
+    assert ground is not None and on.record.alt_amsl_m is not None
+    agl = on.record.alt_amsl_m - ground.height_m(on.record.pos_m)
+    flying = on.record.alive[1:]
+    flown = np.where(flying, agl[1:], np.nan)
+    spread = np.nanmax(flown, axis=1) - np.nanmin(flown, axis=1)
+    assert spread.max() > 50.0  # not one cruise height: some low, some high
+    assert on.tu1 >= alt.tu1
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:

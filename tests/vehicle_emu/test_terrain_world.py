@@ -66,3 +66,18 @@ def test_flat_flight_into_a_ridge_is_a_crash():
     _fly_north(w, 60)
     assert w.terrain_crashes == len(w.pos_m)  # 60 m AMSL into a 120 m ridge: every drone
     assert not w.alive.any()
+
+
+def test_terrain_following_holds_each_drones_own_height():
+    """A planner's per-drone heights above the ground (PlanOutput.alt_agl_m) are flown, kept
+    within [clearance + margin, ceiling], one climb step at a time."""
+    w = _world("follow", n=4)
+    ground = w.terrain.radio.terrain  # type: ignore[union-attr]
+    want = np.array([20.0, 60.0, 500.0, 0.0])  # the last two outside the band: clipped
+    for _ in range(40):  # loop over time: long enough to reach every height at 3 m per step
+        before = w.pos_m
+        w.step(np.zeros((4, 2)), np.ones(4, bool), 0.0, np.ones(4))
+        w.fly_terrain(before, alt_agl_m=want)
+    assert w.alt_amsl_m is not None
+    agl = w.alt_amsl_m - ground.height_m(w.pos_m)
+    np.testing.assert_allclose(agl, [20.0, 60.0, 120.0, 16.0], atol=1e-9)
