@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from .params import ParamTable
     from .personality.base import Personality
     from .physics import Physics
+    from .terrain import TerrainDatabase
 
 __all__ = ["CoreState", "CoreStats", "RateLimitedLog"]
 
@@ -137,6 +138,8 @@ class CoreState:
     _mode_key: int
     mode_name: str
     _behaviour: str
+    #: ArduPilot's terrain database (vehicle_emu.core_terrain), None without one.
+    terrain_db: TerrainDatabase | None
     _rtl_phase: str
     _rtl_cruise_down_m: float | None
     _rtl_dest_ned_m: np.ndarray
@@ -159,6 +162,10 @@ class CoreState:
     _auto_speed_m_s: float
     _rtl_alt_m: float
     _rtl_hover_alt_m: float | None
+
+    def _terrain_tick(self, now_s: float) -> None:
+        """ArduPilot's terrain protocol, once per tick with a database (vehicle_emu.core_terrain
+        overrides this)."""
 
     def _send(self, msg) -> None:
         buf = self._codec.encode(msg)

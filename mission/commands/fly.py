@@ -229,12 +229,6 @@ def _load(spec: str):
         mission = load_mission(path)
     except MissionError as exc:
         raise UserError(str(exc)) from None
-    if mission.radio.model == "terrain":  # docs/terrain.md §5
-        raise UserError(
-            f"{mission.name}: radio.model terrain is played in-process only "
-            f"(phireman sim --mission {spec}); the emulator's radio and the station still use "
-            "the disc (docs/terrain.md)"
-        )
     return mission
 
 
@@ -538,6 +532,14 @@ def format_tu(s: dict) -> list[str]:
             f"TU1/TU2 from the emulator's truth:   {_pct(tr['tu1'])} / {_pct(tr['tu2'])}"
             f"   ({tr['samples']} samples; {tr['alive_end']} vehicles alive at the end)"
         )
+        emu = s.get("emulator") or {}
+        if "least_agl_m" in emu:  # over terrain (docs/terrain.md §6)
+            least = emu["least_agl_m"]
+            lines.append(
+                f"over the terrain: {int(emu.get('terrain_crashes', 0))} crashes into the ground, "
+                f"least height above it during the mission "
+                f"{'-' if least is None else f'{least:.1f} m'}"
+            )
     both = "both" if "truth" in s else "TU"
     if span >= duration - 1e-6:
         lines.append(f"{both} over the whole {_secs(duration)} s mission")

@@ -30,6 +30,7 @@ from gcs.rally import RallyConfig, RallyKeeper
 from gcs.station import Station
 from gcs.tak import CrewMatch, TakCrews
 from gcs.tasks import LiveTasks
+from gcs.terrain import TerrainServer, mission_heights
 from gcs.wire import mavlink
 from mission.flight.fly_options import FlyOptions, RunnerError
 from mission.flight.mission_world import MissionScenario, control_config
@@ -385,6 +386,7 @@ async def run_station(
             a.close()
         raise RunnerError(f"cannot open link {conn!r}: {exc}") from exc
     station = Station([a.core for a in adapters])  # type: ignore[misc]  # started: each has a core
+    serve_terrain(mission, station)
     op = make_operator(mission, scenario, station, opts, expected, clock(), seed)
     holder["op"] = op
     op.on_action = records.events.write  # operator actions in events.jsonl, with their source
@@ -523,6 +525,22 @@ async def run_station(
         for a in adapters:
             a.close()
     return op
+
+
+def serve_terrain(mission: Mission, station: Station) -> TerrainServer | None:
+    """Answer the vehicles' TERRAIN_REQUEST from the mission's DEM on every link (gcs/terrain.py,
+    docs/terrain.md §6); nothing for a mission without terrain. Returns the server."""
+    if mission.terrain is None:
+        return None
+    from mission.format.terrain import build_terrain
+
+    dem = build_terrain(mission)
+    assert dem is not None  # a terrain section
+    o = mission.origin
+    server = TerrainServer(mission_heights(dem, o.lat_deg, o.lon_deg, o.alt_amsl_m))
+    for link in station.links:
+        link.terrain_server = server
+    return server
 
 
 def _links_tried(adapters) -> str:

@@ -40,6 +40,7 @@ __all__ = [
     "LOCAL_FRAMES",
     "GLOBAL_AMSL",
     "GLOBAL_REL",
+    "TERRAIN_FRAMES",
     "TARGET_MASK_POSITION",
 ]
 
@@ -60,6 +61,9 @@ GLOBAL_REL = (
     mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
     mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
 )
+#: Terrain-relative frames: over the ground the vehicle's terrain database holds, where it has one
+#: (vehicle_emu.core_terrain); without one, as the flat earth of GLOBAL_REL.
+TERRAIN_FRAMES = (mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT)
 #: type_mask of a position-only target (what POSITION_TARGET_* reports after a guided item).
 TARGET_MASK_POSITION = 0b110111111000
 
@@ -281,7 +285,15 @@ class Personality:
             return None
         if frame in GLOBAL_AMSL:
             alt_amsl = alt_m
-        else:  # GLOBAL_REL: flat terrain at home altitude, terrain-relative == home-relative
+        elif frame in TERRAIN_FRAMES and core.terrain_db is not None:
+            # ArduCopter GCS_Mavlink.cpp handle_message_set_position_target_global_int takes
+            # frame 11 as a Location ABOVE_TERRAIN; ModeGuided::set_destination then needs the
+            # terrain under the target (AP_Terrain), and refuses the target without it.
+            ground = core.terrain_db.height_amsl_m(lat_e7, lon_e7)
+            if ground is None:
+                return None
+            alt_amsl = alt_m + ground
+        else:  # GLOBAL_REL (and terrain frames with no terrain database): flat at home altitude
             alt_amsl = alt_m + core.home_lla[2]
         lat_deg, lon_deg = e7_to_deg(lat_e7), e7_to_deg(lon_e7)
         if not ap_check_latlng_e7(lat_e7, lon_e7):
