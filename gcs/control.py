@@ -97,6 +97,10 @@ class TerrainAltitude:
     """Highest layer above the ground, metres (a path over higher ground may need more)."""
     n_samples: int = 16
     """Points sampled along each path (ends included: ``n_samples + 1``)."""
+    corridor_m: float = 5.0
+    """The ground is also sampled this far either side of each path, metres: a vehicle's
+    position loop does not fly the straight line exactly (a turn swings it a few metres out),
+    and by a steep wall a few metres sideways is many metres up."""
 
     def __post_init__(self) -> None:
         if not self.clearance_m >= 0 or not self.ceiling_agl_m > 0:
@@ -159,7 +163,8 @@ def terrain_targets(
     ta : the terrain and its clearance
 
     Each target's altitude is the ground under it plus ``agl_m``, raised to ``clearance_m`` over
-    the highest ground sampled between the vehicle and the target (the floor). A vehicle below
+    the highest ground sampled between the vehicle and the target, and ``corridor_m`` either
+    side (the floor). A vehicle below
     the floor, or whose straight path to the target would pass closer than ``clearance_m`` to
     the ground, gets a climb to that altitude over its own position instead.
     """
@@ -167,8 +172,13 @@ def terrain_targets(
     tgt = np.asarray(target_ne_m, dtype=float).reshape(-1, 2)
     ground = ta.terrain
     f = np.linspace(0.0, 1.0, ta.n_samples + 1)
-    pts = pos[:, None, :2] + f[None, :, None] * (tgt - pos[:, :2])[:, None, :]
-    floor = ground.height_m(pts).max(axis=1) + ta.clearance_m
+    d = tgt - pos[:, :2]
+    pts = pos[:, None, :2] + f[None, :, None] * d[:, None, :]  # (K, S, 2)
+    # ... and two lines ``corridor_m`` either side: the flown path is not quite straight
+    side = np.column_stack([-d[:, 1], d[:, 0]])
+    side *= (ta.corridor_m / np.maximum(np.linalg.norm(d, axis=1), 1e-9))[:, None]
+    band = np.concatenate([pts, pts + side[:, None, :], pts - side[:, None, :]], axis=1)
+    floor = ground.height_m(band).max(axis=1) + ta.clearance_m
     alt = np.maximum(ground.height_m(tgt) + np.asarray(agl_m, dtype=float), floor)
     alt_now = ta.origin_amsl_m - pos[:, 2]
     clear = path_clearance_m(ground, pos[:, :2], tgt, alt_now, alt, ta.n_samples)

@@ -264,6 +264,8 @@ class Swarm:
         #: at any tick is kept in ``least_agl_m`` (metres; None: none flew yet).
         self.track_clearance = False
         self.least_agl_m: float | None = None
+        #: ... and the greatest (metres; None: none flew yet).
+        self.highest_agl_m: float | None = None
         self._risen = np.zeros(n, dtype=bool)
         if ground is not None:
             self.physics.ground_down_m = ground.ground_down_m(self.physics.pos_ned_m[:, :2])
@@ -780,9 +782,12 @@ class Swarm:
             self._risen |= flying & (agl >= CLEARANCE_FROM_AGL_M)
             sel = flying & self._risen
             if sel.any():
-                least = float(agl[sel].min())
+                least, most = float(agl[sel].min()), float(agl[sel].max())
                 self.least_agl_m = (
                     least if self.least_agl_m is None else min(self.least_agl_m, least)
+                )
+                self.highest_agl_m = (
+                    most if self.highest_agl_m is None else max(self.highest_agl_m, most)
                 )
 
     def sample_truth_from(self, t_s: float) -> None:

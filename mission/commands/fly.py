@@ -534,11 +534,12 @@ def format_tu(s: dict) -> list[str]:
         )
         emu = s.get("emulator") or {}
         if "least_agl_m" in emu:  # over terrain (docs/terrain.md §6)
-            least = emu["least_agl_m"]
+            least, most = emu["least_agl_m"], emu.get("highest_agl_m")
             lines.append(
-                f"over the terrain: {int(emu.get('terrain_crashes', 0))} crashes into the ground, "
-                f"least height above it during the mission "
-                f"{'-' if least is None else f'{least:.1f} m'}"
+                f"over the terrain: {int(emu.get('terrain_crashes', 0))} crashes into the ground; "
+                f"during the mission least height above it "
+                f"{'-' if least is None else f'{least:.1f} m'}, highest "
+                f"{'-' if most is None else f'{most:.0f} m'}"
             )
     both = "both" if "truth" in s else "TU"
     if span >= duration - 1e-6:

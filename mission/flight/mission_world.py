@@ -320,6 +320,7 @@ class MissionWorld:
         stats["cpu_s"] = time.process_time()
         if self.swarm.ground is not None:
             stats["least_agl_m"] = self.swarm.least_agl_m
+            stats["highest_agl_m"] = self.swarm.highest_agl_m
         return {"truth": truth, "stats": stats, "arrays": arrays}
 
     def truth_tu(self, duration_s: float) -> dict:

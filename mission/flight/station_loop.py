@@ -237,7 +237,7 @@ def make_operator(
         fleet,
         planner,
         scenario.task_pos_m,
-        control_config(mission, scenario),
+        control_config(mission, scenario, over_terrain=True),
         _operations_config(mission, opts, expected),
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,

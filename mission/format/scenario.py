@@ -304,10 +304,13 @@ def terrain_altitude(mission: Mission) -> TerrainAltitude | None:
     )
 
 
-def control_config(mission: Mission, scenario: MissionScenario | None = None) -> ControlConfig:
+def control_config(
+    mission: Mission, scenario: MissionScenario | None = None, *, over_terrain: bool = False
+) -> ControlConfig:
     """Altitude layers from the mission's flight limits; the mission's geofence, or by default the
     task field plus :data:`FENCE_MARGIN_M` (wide enough for the scenario's tracks and spawn); the
-    mission's hazard zones for the planner (:func:`hazard_map`)."""
+    mission's hazard zones for the planner (:func:`hazard_map`). ``over_terrain``: the station's
+    flight of a terrain mission, altitudes over its DEM (:func:`terrain_altitude`)."""
     lim = mission.vehicles.limits
     half = mission.problem_config().field_half_width_m
     if scenario is not None:
@@ -316,7 +319,9 @@ def control_config(mission: Mission, scenario: MissionScenario | None = None) ->
             float(np.abs(scenario.task_track_m).max(initial=0.0)),
             float(np.abs(scenario.spawn_ne_m).max(initial=0.0)),
         )
-    terrain = terrain_altitude(mission)
+    # The station's flights over terrain (over_terrain); the in-process world flies its own
+    # terrain following (vehicle_emu.world.TerrainFlight) from the planner's 2-D moves.
+    terrain = terrain_altitude(mission) if over_terrain else None
     fence = mission.geofence
     geofence = Geofence.square(
         fence.half_width_m if fence.half_width_m is not None else half + FENCE_MARGIN_M,
