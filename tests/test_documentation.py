@@ -684,6 +684,16 @@ TABLE: dict[str, Case] = {
         timeout=900,
     ),
     "phireman sim --mission canyon --terrain-aware ...": Case(kind="help"),
+    "phireman fly canyon": Case(
+        # 20 s of the canyon through the station: altitudes over the DEM, ArduPilot's terrain
+        # requests answered (docs/terrain.md §6).
+        rewrite=(SHORT_FLY_NOWAIT,),
+        check=lambda c: c.has(
+            r"over the terrain: 0 crashes into the ground",
+            r"terrain served to the vehicles: [1-9]\d* TERRAIN_REQUEST answered",
+        ),
+        timeout=600,
+    ),
     "phireman sim --mission canyon --terrain-aware off": Case(
         check=lambda c: c.has(r"terrain-aware off: 0 crashes", r"TU1 = ")
     ),

@@ -167,6 +167,10 @@ class CoreState:
         """ArduPilot's terrain protocol, once per tick with a database (vehicle_emu.core_terrain
         overrides this)."""
 
+    def _set_terrain_interval(self, interval_s: float) -> bool:
+        """The terrain messages' period (vehicle_emu.core_terrain overrides this)."""
+        return False
+
     def _send(self, msg) -> None:
         buf = self._codec.encode(msg)
         self._out.append(buf)
@@ -176,6 +180,8 @@ class CoreState:
         self.stats.bytes_out += len(buf)
 
     def _set_interval(self, msg_id: int, interval_s: float, now_s: float) -> bool:
+        if msg_id == mavlink.MAVLINK_MSG_ID_TERRAIN_REQUEST and self.terrain_db is not None:
+            return self._set_terrain_interval(interval_s)  # vehicle_emu.core_terrain
         if not self._can_send(msg_id):
             return False
         return self.streams.set_interval(msg_id, interval_s, now_s)

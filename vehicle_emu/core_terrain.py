@@ -19,8 +19,10 @@ from .wire import dialect as mavlink
 
 __all__ = ["TerrainProtocol", "TERRAIN_REPORT_PERIOD_S"]
 
-#: TERRAIN_REPORT (and the request check) once a second: ArduPilot sends them with its EXTRA3
-#: stream (MSG_TERRAIN), which ground stations commonly ask at 1 to 2 Hz.
+#: TERRAIN_REPORT (and the request check) once a second unless the station sets the interval of
+#: TERRAIN_REQUEST: ArduPilot sends them as MSG_TERRAIN, in its EXTRA3 stream or at the interval
+#: SET_MESSAGE_INTERVAL gives TERRAIN_REQUEST (GCS_Common.cpp map_message_id_to_ap_message:
+#: "request also does report").
 TERRAIN_REPORT_PERIOD_S = 1.0
 
 
@@ -29,11 +31,20 @@ class TerrainProtocol(SetpointHandlers):
 
     terrain_db: TerrainDatabase | None
     _terrain_next_s: float
+    _terrain_period_s: float
 
     def enable_terrain(self, spacing_m: int, now_s: float) -> None:
         """Start the terrain database (ArduPilot TERRAIN_ENABLE=1, TERRAIN_SPACING)."""
         self.terrain_db = TerrainDatabase(spacing_m)
         self._terrain_next_s = now_s
+        self._terrain_period_s = TERRAIN_REPORT_PERIOD_S
+
+    def _set_terrain_interval(self, interval_s: float) -> bool:
+        """SET_MESSAGE_INTERVAL of TERRAIN_REQUEST: 0 the default period, < 0 off."""
+        if interval_s == 0:
+            interval_s = TERRAIN_REPORT_PERIOD_S
+        self._terrain_period_s = interval_s if interval_s > 0 else float("inf")
+        return True
 
     def _here_e7(self) -> tuple[int, int]:
         ph, i = self.physics, self.index
@@ -43,7 +54,7 @@ class TerrainProtocol(SetpointHandlers):
         db = self.terrain_db
         if db is None or now_s < self._terrain_next_s:
             return
-        self._terrain_next_s = now_s + TERRAIN_REPORT_PERIOD_S
+        self._terrain_next_s = now_s + self._terrain_period_s
         lat, lon = self._here_e7()
         self._send_terrain_report(lat, lon)
         req = db.request(lat, lon, now_s)

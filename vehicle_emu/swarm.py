@@ -267,6 +267,8 @@ class Swarm:
         #: ... and the greatest (metres; None: none flew yet).
         self.highest_agl_m: float | None = None
         self._risen = np.zeros(n, dtype=bool)
+        #: ... counting a vehicle once it has been this high (a mission sets its cruise height).
+        self.clearance_from_agl_m = CLEARANCE_FROM_AGL_M
         if ground is not None:
             self.physics.ground_down_m = ground.ground_down_m(self.physics.pos_ned_m[:, :2])
         self.radio = Radio(radio or RadioConfig(), np.zeros(3), radio_rng, ground=ground)
@@ -775,11 +777,11 @@ class Swarm:
         ph.ground_down_m = ground
         if self.track_clearance:
             # Vehicles flying the station's targets (GUIDED / OFFBOARD), once they have been
-            # CLEARANCE_FROM_AGL_M up: not a take-off or a landing.
+            # clearance_from_agl_m up: not a take-off or a landing.
             agl = ground - ph.pos_ned_m[:, 2]
             guided = np.array([c._behaviour == "guided" for c in self.cores])
             flying = ph.alive & ph.armed & ~ph.landed & guided
-            self._risen |= flying & (agl >= CLEARANCE_FROM_AGL_M)
+            self._risen |= flying & (agl >= self.clearance_from_agl_m)
             sel = flying & self._risen
             if sel.any():
                 least, most = float(agl[sel].min()), float(agl[sel].max())

@@ -541,6 +541,16 @@ def format_tu(s: dict) -> list[str]:
                 f"{'-' if least is None else f'{least:.1f} m'}, highest "
                 f"{'-' if most is None else f'{most:.0f} m'}"
             )
+    terrain = s.get("terrain")
+    if terrain is not None and terrain["reports"]:
+        reps = terrain["reports"]
+        loaded = [r for r in reps if r["pending"] == 0 and r["loaded"] > 0]
+        lines.append(
+            f"terrain served to the vehicles: {terrain['requests_answered']} TERRAIN_REQUEST "
+            f"answered with {terrain['terrain_data_sent']} TERRAIN_DATA; "
+            f"{len(loaded)} of {len(reps)} vehicles last reported their terrain loaded "
+            "(pending 0)"
+        )
     both = "both" if "truth" in s else "TU"
     if span >= duration - 1e-6:
         lines.append(f"{both} over the whole {_secs(duration)} s mission")

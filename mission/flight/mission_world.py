@@ -265,6 +265,8 @@ class MissionWorld:
         """The station began the mission at emulator time ``t0_s``."""
         self.t0_s = t0_s
         self.swarm.track_clearance = True  # over terrain: least height above it, mission only
+        if self.mission.terrain is not None:  # counted once at 90 % of the cruise height
+            self.swarm.clearance_from_agl_m = 0.9 * self.mission.terrain.cruise_agl_m
         self.swarm.attrition.hazard_per_s = np.zeros(self.swarm.n)
         for loss in self.mission.attrition.scripted:
             if loss.vehicle < self.swarm.n:

@@ -143,7 +143,11 @@ def _station_config(mission: Mission, max_vehicles: int | None = None) -> Statio
             (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 2.0),
             # The rotation's drain estimate wants the battery's level changes to the second.
             (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 1.0 if batteries else 0.2),
-        ),
+        )
+        # Over terrain, ArduPilot's terrain requests and reports (MSG_TERRAIN): asked for by
+        # TERRAIN_REQUEST's id ("request also does report", GCS_Common.cpp
+        # map_message_id_to_ap_message). PX4 refuses the interval; the refusal is only logged.
+        + (((mavlink.MAVLINK_MSG_ID_TERRAIN_REQUEST, 1.0),) if mission.terrain is not None else ()),
     )
 
 
