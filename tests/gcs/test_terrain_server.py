@@ -103,3 +103,31 @@ def test_every_terrain_target_path_clears_the_ground():
     assert clear.min() >= 15.0 - 1.0  # a path sampled 4x finer than the check: within 1 m
     moved = np.linalg.norm(out[:, :2] - ne, axis=1) > 0
     assert moved.mean() > 0.5  # most move; the rest climb first
+
+
+def test_a_vehicle_below_the_ground_on_its_way_home_climbs_before_rtl():
+    from types import SimpleNamespace
+
+    from gcs.control import ControlConfig
+    from gcs.operations.end import EndStep
+
+    ta = TerrainAltitude(DEM, ORIGIN[2], clearance_m=15.0)
+    sent = []
+    op = SimpleNamespace(
+        control=ControlConfig(terrain=ta),
+        _send_targets=lambda snap, rows, target, now_s: sent.append((rows.tolist(), target)),
+    )
+    # vehicle 0 east of the hill (150 m high at 300 N -200 E), 30 m over the plane: the hill
+    # stands between it and the base; vehicle 1 high above everything
+    pos = np.array([[300.0, -400.0, -30.0], [0.0, 900.0, -500.0]])
+    snap = SimpleNamespace(pos_ned_m=pos, has_position=np.array([True, True]))
+    assert EndStep._climb_before_rtl(op, snap, 0, 1.0)
+    ((rows, target),) = sent
+    assert rows == [0] and target[0, :2].tolist() == pos[0, :2].tolist()
+    f = np.linspace(0.0, 1.0, 1001)[:, None]
+    highest = float(DEM.height_m(pos[0, :2] * (1.0 - f)).max())  # the hill's flank on the way
+    assert highest > ORIGIN[2] + 30.0
+    assert ORIGIN[2] - target[0, 2] == pytest.approx(highest + 15.0, abs=1.0)
+    assert not EndStep._climb_before_rtl(op, snap, 1, 1.0)  # high enough: RTL at once
+    op.control = ControlConfig()  # a flat earth: never
+    assert not EndStep._climb_before_rtl(op, snap, 0, 1.0)

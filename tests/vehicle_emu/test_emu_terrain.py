@@ -181,3 +181,30 @@ def test_flown_into_the_hill_is_lost_and_landing_on_it_is_not():
     assert 100.0 < ph.pos_ned_m[0, 1] < 400.0  # lost on the flank, short of the top
     assert ph.alive[1] and ph.landed[1]
     assert ph.pos_ned_m[1, 2] == pytest.approx(GROUND.ground_down_m(ph.pos_ned_m[1:, :2])[0])
+
+
+def test_the_station_sets_the_terrain_interval_by_terrain_requests_id():
+    # GCS_Common.cpp map_message_id_to_ap_message: TERRAIN_REQUEST -> MSG_TERRAIN, which sends the
+    # report (and any request) at that interval
+    core, gcs = _core_with_terrain()
+    t = 0.0
+    cmd = gcs.command(
+        mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_TERRAIN_REQUEST, 250_000
+    )
+    core.receive_datagram(cmd, GCS_ADDR, t)
+    acks = [m for m in gcs.decode(core.datagrams_to_send(t)) if m.get_type() == "COMMAND_ACK"]
+    assert acks and acks[0].result == mavlink.MAV_RESULT_ACCEPTED
+    reports = 0
+    for _ in range(100):  # 10 s
+        t = round(t + 0.1, 6)
+        core.receive_datagram(gcs.heartbeat(), GCS_ADDR, t)
+        core.handle_timer(t)
+        reports += len(of_type(gcs.decode(core.datagrams_to_send(t)), "TERRAIN_REPORT"))
+    assert 30 <= reports <= 41  # 4 Hz, not the default 1 Hz (0.1 s ticks: every 0.3 s at worst)
+    # a vehicle without a terrain database refuses it, as before
+    plain = VehicleCore(2, "ardupilot", origin_lla=HOME)
+    plain.receive_datagram(
+        gcs.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 133, 250_000, target=2), GCS_ADDR, 0.0
+    )
+    acks = [m for m in gcs.decode(plain.datagrams_to_send(0.0)) if m.get_type() == "COMMAND_ACK"]
+    assert acks and acks[0].result != mavlink.MAV_RESULT_ACCEPTED
