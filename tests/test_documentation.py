@@ -640,6 +640,7 @@ TABLE: dict[str, Case] = {
             "phireman check",
             "phireman replay",
             "phireman sitl",
+            "phireman sitl --mission",
             "phireman sim --mission",
             "phireman fly --serve",
             "phireman replay RUN_DIR --serve",

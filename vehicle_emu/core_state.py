@@ -31,6 +31,10 @@ if TYPE_CHECKING:
 
 __all__ = ["CoreState", "CoreStats", "RateLimitedLog"]
 
+#: TERRAIN_REQUEST and TERRAIN_REPORT: either one's interval sets the terrain messages' period
+#: (vehicle_emu.core_terrain).
+_TERRAIN_IDS = (mavlink.MAVLINK_MSG_ID_TERRAIN_REQUEST, mavlink.MAVLINK_MSG_ID_TERRAIN_REPORT)
+
 
 @dataclass
 class CoreStats:
@@ -180,7 +184,7 @@ class CoreState:
         self.stats.bytes_out += len(buf)
 
     def _set_interval(self, msg_id: int, interval_s: float, now_s: float) -> bool:
-        if msg_id == mavlink.MAVLINK_MSG_ID_TERRAIN_REQUEST and self.terrain_db is not None:
+        if msg_id in _TERRAIN_IDS and self.terrain_db is not None:
             return self._set_terrain_interval(interval_s)  # vehicle_emu.core_terrain
         if not self._can_send(msg_id):
             return False

@@ -144,10 +144,19 @@ def _station_config(mission: Mission, max_vehicles: int | None = None) -> Statio
             # The rotation's drain estimate wants the battery's level changes to the second.
             (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 1.0 if batteries else 0.2),
         )
-        # Over terrain, ArduPilot's terrain requests and reports (MSG_TERRAIN): asked for by
-        # TERRAIN_REQUEST's id ("request also does report", GCS_Common.cpp
-        # map_message_id_to_ap_message). PX4 refuses the interval; the refusal is only logged.
-        + (((mavlink.MAVLINK_MSG_ID_TERRAIN_REQUEST, 1.0),) if mission.terrain is not None else ()),
+        # Over terrain, ArduPilot's terrain requests and reports. GCS_Common.cpp
+        # map_message_id_to_ap_message maps TERRAIN_REQUEST to MSG_TERRAIN ("request also does
+        # report") in older firmware; newer firmware has MSG_TERRAIN_REQUEST and
+        # MSG_TERRAIN_REPORT apart (ArduCopter SITL 4.7-dev sent requests and no report with the
+        # first alone). Both asked; a refusal (PX4, or the id an old firmware lacks) is logged.
+        + (
+            (
+                (mavlink.MAVLINK_MSG_ID_TERRAIN_REQUEST, 1.0),
+                (mavlink.MAVLINK_MSG_ID_TERRAIN_REPORT, 1.0),
+            )
+            if mission.terrain is not None
+            else ()
+        ),
     )
 
 
