@@ -208,3 +208,39 @@ def test_the_station_sets_the_terrain_interval_by_terrain_requests_id():
     )
     acks = [m for m in gcs.decode(plain.datagrams_to_send(0.0)) if m.get_type() == "COMMAND_ACK"]
     assert acks and acks[0].result != mavlink.MAV_RESULT_ACCEPTED
+
+
+def test_px4_drops_a_terrain_frame_setpoint_without_a_terrain_estimate():
+    # mavlink_receiver.cpp handle_message_set_position_target_global_int: frame 11 needs
+    # vehicle_global_position.terrain_alt_valid (a distance sensor), else return
+    core = VehicleCore(1, "px4", origin_lla=HOME)
+    gcs = FakeGcs()
+    la, lo, _ = ned_to_geodetic(np.array([50.0, 0.0, 0.0]), *HOME)
+
+    def target(frame):
+        return gcs.frame(
+            mavlink.MAVLink_set_position_target_global_int_message(
+                0,
+                1,
+                1,
+                frame,
+                0b110111111000,
+                round(float(la) * 1e7),
+                round(float(lo) * 1e7),
+                30.0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+            )
+        )
+
+    before = core.stats.setpoints_ignored
+    core.receive_datagram(target(mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT), GCS_ADDR, 0.1)
+    assert core.stats.setpoints_ignored == before + 1
+    core.receive_datagram(target(mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT), GCS_ADDR, 0.2)
+    assert core.stats.setpoints_ignored == before + 1

@@ -137,6 +137,9 @@ class Personality:
     """Items of a mission list that are not part of the mission (ArduPilot's home at seq 0)."""
     global_frames: tuple[int, ...] = ()
     """Frames accepted for SET_POSITION_TARGET_GLOBAL_INT / global commands."""
+    terrain_setpoint_needs_estimate = False
+    """A SET_POSITION_TARGET_GLOBAL_INT in a terrain frame is relative to a terrain estimate under
+    the vehicle (a distance sensor) that the emulator does not model: dropped."""
     guided_mission_items = False
     """MISSION_ITEM(_INT) with current = 2 / 3 are guided waypoints (ArduPilot)."""
 
