@@ -35,7 +35,7 @@ import numpy.typing as npt
 
 from planner.hazard import HazardMap
 from planner.methods import Planner, TickInput
-from planner.terrain import Terrain, path_clearance_m
+from planner.terrain import Terrain, TerrainRadio, path_clearance_m
 
 __all__ = [
     "ControlConfig",
@@ -97,6 +97,11 @@ class TerrainAltitude:
     """Highest layer above the ground, metres (a path over higher ground may need more)."""
     n_samples: int = 16
     """Points sampled along each path (ends included: ``n_samples + 1``)."""
+    radio: TerrainRadio | None = None
+    """The link model over this ground: crews count as covered "as the station sees them" when a
+    heard vehicle's link to the crew's radio closes (None: the disc of ``radio_range_m``)."""
+    crew_antenna_agl_m: float = 1.5
+    """A crew's radio above its ground, metres."""
     corridor_m: float = 5.0
     """The ground is also sampled this far either side of each path, metres: a vehicle's
     position loop does not fly the straight line exactly (a turn swings it a few metres out),

@@ -295,12 +295,17 @@ def terrain_altitude(mission: Mission) -> TerrainAltitude | None:
 
     dem = build_terrain(mission)
     assert dem is not None  # a terrain section
+    from planner.terrain import TerrainRadio
+
     spec = mission.terrain
+    link = mission.radio.terrain_link
     return TerrainAltitude(
         dem,
         mission.origin.alt_amsl_m,
         clearance_m=spec.clearance_m,
         ceiling_agl_m=spec.ceiling_agl_m,
+        radio=TerrainRadio(dem, link.link_budget()),
+        crew_antenna_agl_m=link.crew_antenna_agl_m,
     )
 
 

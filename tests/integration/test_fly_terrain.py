@@ -55,6 +55,8 @@ def test_fly_canyon_keeps_clear_of_the_ground_and_serves_terrain(tmp_path, perso
     # flying the station's targets, never closer to the ground than the mission's clearance
     assert emu["least_agl_m"] is not None and emu["least_agl_m"] >= 15.0 - 1.0
     assert s["truth"]["tu1"] > 0.3
+    # the station counts a crew covered by the same line-of-sight model over its map
+    assert abs(s["station"]["tu1"] - s["truth"]["tu1"]) < 0.1
     assert "over the terrain: 0 crashes into the ground" in out.stdout
     if personality == "ardupilot":
         t = s["terrain"]
