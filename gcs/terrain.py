@@ -1,4 +1,4 @@
-"""The station's side of ArduPilot's terrain protocol, and terrain-following setpoints.
+"""The station's side of ArduPilot's terrain protocol (TERRAIN_REQUEST, TERRAIN_DATA, TERRAIN_REPORT).
 
 ArduPilot with ``TERRAIN_ENABLE=1`` and no terrain files asks its ground station for the ground
 around it: every second or so (libraries/AP_Terrain/TerrainGCS.cpp ``send_request``, at most one
@@ -6,8 +6,10 @@ request per 2 s) it sends TERRAIN_REQUEST naming a block (the south-west corner 
 ``grid_spacing`` = ``TERRAIN_SPACING`` metres apart) and a 56-bit mask of the 4 x 4 sub-grids it
 lacks. The ground station answers with one TERRAIN_DATA per bit: the 16 heights (int16 metres
 AMSL) of that sub-grid, ``data[4 i + j]`` the post i spacings north and j east of the sub-grid's
-corner (TerrainGCS.cpp ``handle_terrain_data``; MAVProxy modules/mavproxy_terrain.py
-``send_terrain_data_bit`` and Mission Planner answer the same way from SRTM). The vehicle streams
+corner (TerrainGCS.cpp ``handle_terrain_data``). MAVProxy answers this way from SRTM
+(modules/mavproxy_terrain.py ``send_terrain_data_bit``: the sub-grid's corner offset from the
+block's by 4 spacings per bit, then each post from it); QGroundControl's TerrainProtocolHandler and
+Mission Planner serve the same protocol. The vehicle streams
 TERRAIN_REPORT (``send_terrain_report``): ``pending`` sub-grids still wanted, ``loaded`` held.
 
 Here the heights come from the mission's DEM (:class:`planner.terrain.Terrain`, in the mission's
@@ -39,7 +41,6 @@ __all__ = [
     "HeightFn",
     "mission_heights",
     "report_from_message",
-    "path_floor_amsl_m",
 ]
 
 #: Heights AMSL (metres) at arrays of latitudes and longitudes (degrees).
@@ -118,29 +119,13 @@ class TerrainServer:
 
 def report_from_message(msg: Any, now_s: float) -> TerrainReport:
     """A :class:`TerrainReport` from a decoded TERRAIN_REPORT."""
-    g = getattr
     return TerrainReport(
         now_s,
-        g(msg, "lat") * 1e-7,
-        g(msg, "lon") * 1e-7,
-        int(g(msg, "spacing")),
-        float(g(msg, "terrain_height")),
-        float(g(msg, "current_height")),
-        int(g(msg, "pending")),
-        int(g(msg, "loaded")),
+        msg.lat * 1e-7,
+        msg.lon * 1e-7,
+        int(msg.spacing),
+        float(msg.terrain_height),
+        float(msg.current_height),
+        int(msg.pending),
+        int(msg.loaded),
     )
-
-
-def path_floor_amsl_m(
-    terrain: Terrain,
-    from_ne_m: np.ndarray,
-    to_ne_m: np.ndarray,
-    clearance_m: float,
-    n_samples: int = 16,
-) -> np.ndarray:
-    """(K,) the least altitude AMSL at which a level flight from each ``from_ne_m`` to its
-    ``to_ne_m`` ((K, 2) metres) keeps ``clearance_m`` over the highest ground sampled on the way
-    (``n_samples + 1`` points, ends included), metres."""
-    f = np.linspace(0.0, 1.0, n_samples + 1)
-    pts = from_ne_m[:, None, :] + f[None, :, None] * (to_ne_m - from_ne_m)[:, None, :]
-    return np.asarray(terrain.height_m(pts).max(axis=1) + clearance_m)
