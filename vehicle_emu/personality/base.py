@@ -20,7 +20,9 @@ from ..geodesy import NedOrigin, ned_origin
 
 #: AUTOPILOT_VERSION.capabilities both firmwares announce and the emulator implements (each
 #: personality adds its parameter encoding); FTP, SET_ATTITUDE_TARGET, FLIGHT_TERMINATION,
-#: TERRAIN are left out on purpose: the emulator does not implement them and a GCS would try.
+#: TERRAIN are left out on purpose: the emulator does not implement them and a GCS would try
+#: (the emulated ArduPilot runs the terrain protocol in terrain missions only,
+#: vehicle_emu.core_terrain, so it does not announce it everywhere).
 COMMON_CAPABILITIES = (
     mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
