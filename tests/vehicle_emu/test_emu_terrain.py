@@ -244,3 +244,22 @@ def test_px4_drops_a_terrain_frame_setpoint_without_a_terrain_estimate():
     assert core.stats.setpoints_ignored == before + 1
     core.receive_datagram(target(mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT), GCS_ADDR, 0.2)
     assert core.stats.setpoints_ignored == before + 1
+
+
+def test_hops_over_terrain_follow_the_links_that_clear_it():
+    from vehicle_emu.radio import Radio
+
+    # a chain north from the base over flat ground, 250 m apart at 30 m up, with the 1.6 km
+    # budget: every vehicle hears the base directly (1 hop) ...
+    ne = np.array([[-250.0, 0.0], [-500.0, 0.0], [-750.0, 0.0]])
+    pos = np.column_stack([ne, GROUND.ground_down_m(ne) - 30.0])
+    radio = Radio(RadioConfig(latency_per_hop_s=0.1), np.zeros(3), np.random.default_rng(0), GROUND)
+    radio.update(pos, np.ones(3, bool))
+    assert radio.active.all() and radio.hops.tolist() == [1, 1, 1]
+    # ... then a budget of ~400 m: a chain of three hops
+    short = Ground(TerrainRadio(DEM, LinkBudget(fade_margin_db=22.0)), HOME[2])
+    assert 250.0 < short.radio.budget.max_range_m < 500.0
+    radio = Radio(RadioConfig(latency_per_hop_s=0.1), np.zeros(3), np.random.default_rng(0), short)
+    radio.update(pos, np.ones(3, bool))
+    assert radio.active.all() and radio.hops.tolist() == [1, 2, 3]
+    assert radio.transit(2) == pytest.approx(0.3)
