@@ -19,6 +19,12 @@ emulator process is spawned, so each tree's emulator runs its own code.
     .venv/bin/python bench/bench_fly_loop.py --vehicles 500 --duration-s 40 --speedup 10
     .venv/bin/python bench/bench_fly_loop.py --speedup 10 --commit 64a57d8 --repeat 2
     .venv/bin/python bench/bench_fly_loop.py --speedup 10 --profile /tmp/loop   # cProfile both sides
+    .venv/bin/python bench/bench_fly_loop.py --vehicles 500 --extras-compare --repeat 2
+
+``--tak`` publishes the mesh on TAK (to a UDP sink on loopback, one picture a second) and
+``--serve`` serves the live page with one client reading its frame stream (``/api/stream``, as
+the browser does). ``--extras-compare`` runs the flight without them and with both, alternated
+``--repeat`` times in child processes, and prints the ratios (the cost of TAK and the page).
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import numpy as np
@@ -105,6 +112,54 @@ def run_once(args) -> dict:
         vehicles=dataclasses.replace(m.vehicles, emulated=emu),
         planner=dataclasses.replace(m.planner, info="central"),
     )
+    extras: dict = {}
+    extras_out: dict = {}
+    stop = threading.Event()
+    sink_bytes = [0]
+    if args.tak:
+        import socket
+
+        from mission.view.tak import attach as attach_tak
+
+        sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sink.bind(("127.0.0.1", 0))
+        sink.settimeout(0.5)
+
+        def drain() -> None:
+            while not stop.is_set():
+                try:
+                    sink_bytes[0] += len(sink.recv(65536))
+                except OSError:
+                    pass
+
+        threading.Thread(target=drain, daemon=True).start()
+        extras.update(
+            tak=(f"udp+wo://127.0.0.1:{sink.getsockname()[1]}",),
+            attach_tak=attach_tak,
+            on_tak=lambda info: extras_out.update(tak=info),
+        )
+    stream_bytes = [0]
+    if args.serve:
+        import urllib.request
+
+        from mission.view.live import attach as attach_view
+
+        def reader(url: str) -> None:  # the browser: the page's frame stream
+            try:
+                with urllib.request.urlopen(url + "api/stream", timeout=30) as r:
+                    while not stop.is_set():
+                        line = r.readline()
+                        if not line:
+                            break
+                        stream_bytes[0] += len(line)
+            except OSError:
+                pass
+
+        def on_live(info: dict) -> None:
+            if info.get("url"):
+                threading.Thread(target=reader, args=(info["url"],), daemon=True).start()
+
+        extras.update(serve="127.0.0.1:0", attach_view=attach_view, on_live=on_live)
     load0 = os.getloadavg()
     prof = None
     if args.profile:
@@ -124,8 +179,10 @@ def run_once(args) -> dict:
                 end_wait=False,
                 override_audit=True,
                 emulator_in_process=args.in_process,
+                **extras,
             ),
         )
+    stop.set()
     if run_prof is not None:
         run_prof.disable()
         run_prof.dump_stats(args.profile_run)
@@ -173,7 +230,41 @@ def run_once(args) -> dict:
         # step limit held it back (mavedge.clock.PacedClock.stats).
         "pacing": s["emulator"].get("pacing", {}),
         "loadavg_before_after": [round(load0[0], 2), round(os.getloadavg()[0], 2)],
+        "tak_bytes_received": sink_bytes[0],
+        "tak_published": extras_out.get("tak", {}).get("published", {}),
+        "page_stream_bytes": stream_bytes[0],
     }
+
+
+def compare_extras(args, here: str) -> None:
+    """The same flight without and with TAK publishing and the live page (alternated), and the
+    ratios with / without of the station's CPU per tick and the tick latency."""
+    argv = [
+        f"--vehicles={args.vehicles}",
+        f"--duration-s={args.duration_s}",
+        f"--speedup={args.speedup}",
+        f"--personality={args.personality}",
+    ]
+    res: dict[str, list[dict]] = {"plain": [], "tak+page": []}
+    for _ in range(args.repeat):
+        for name, extra in (("plain", []), ("tak+page", ["--tak", "--serve"])):
+            r = _child(here, argv + extra)
+            res[name].append(r)
+            print(name, json.dumps(r), flush=True)
+
+    def med(name: str, key: str, sub: str | None = None) -> float:
+        return float(np.median([x[key][sub] if sub else x[key] for x in res[name]]))
+
+    ratios = {
+        "station_cpu_s_per_tick": med("tak+page", "station_cpu_s_per_tick")
+        / med("plain", "station_cpu_s_per_tick"),
+        "tick_latency_p50": med("tak+page", "tick_latency_ms", "p50")
+        / med("plain", "tick_latency_ms", "p50"),
+        "tick_latency_p95": med("tak+page", "tick_latency_ms", "p95")
+        / med("plain", "tick_latency_ms", "p95"),
+        "ticks_per_wall_s": med("tak+page", "ticks_per_wall_s") / med("plain", "ticks_per_wall_s"),
+    }
+    print(json.dumps({"with_over_without": {k: round(v, 3) for k, v in ratios.items()}}))
 
 
 def _child(tree: str, argv: list[str]) -> dict:
@@ -206,13 +297,23 @@ def main() -> None:
     ap.add_argument("--baseline", help="root of the previous code tree")
     ap.add_argument("--commit", help="git archive this revision as the baseline")
     ap.add_argument("--repeat", type=int, default=1, help="runs per tree, alternated")
+    ap.add_argument("--tak", action="store_true", help="publish the mesh on TAK (a UDP sink)")
+    ap.add_argument("--serve", action="store_true", help="serve the live page, one reader")
+    ap.add_argument(
+        "--extras-compare",
+        action="store_true",
+        help="without / with --tak --serve, alternated, and the ratios",
+    )
     ap.add_argument("--single", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if args.extras_compare:
+        compare_extras(args, here)
+        return
     if args.single or not (args.baseline or args.commit):
         for _ in range(1 if args.single else args.repeat):
             print(json.dumps(run_once(args)), flush=True)
         return
-    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     tmp = None
     base = args.baseline
     if base is None:

@@ -6,6 +6,8 @@ import argparse
 import dataclasses
 import sys
 
+from mission.flight.tak_link import MAX_RATE_MSGS_S
+
 __all__ = ["add_tak_arguments", "tak_options", "TLS_FLAGS"]
 
 #: --tak-... flag -> pytak's configuration name (https://pytak.rtfd.io, "TLS").
@@ -36,6 +38,16 @@ def add_tak_arguments(p: argparse.ArgumentParser) -> None:
         default=1.0,
         help="wall seconds between two published pictures (each uid once; default 1)",
     )
+    g.add_argument(
+        "--tak-max-rate",
+        type=float,
+        default=MAX_RATE_MSGS_S,
+        metavar="MSGS_PER_S",
+        help="messages a second per TAK connection, at most (default %(default)g: what "
+        "FreeTAKServer relayed here without falling behind). Unchanged items are sent only "
+        "to refresh them; when a picture is over budget the crews' markers, the base and the "
+        "drones go first and the lines wait",
+    )
     for flag, name in TLS_FLAGS.items():
         g.add_argument(
             "--" + flag.replace("_", "-"),
@@ -64,7 +76,8 @@ def _announce(info: dict) -> None:
         crews = info.get("crews", {})
         print(
             f"TAK published {info.get('batches', 0)} pictures: {pub or 'nothing'}; "
-            f"sent {c.get('sent', 0)}, dropped {c.get('dropped', 0)}; received "
+            f"{info.get('deferred', 0)} deferred (rate limit); sent {c.get('sent', 0)}, "
+            f"dropped {c.get('dropped', 0)}; received "
             f"{c.get('received', 0)} ({c.get('reports', 0)} reports, {c.get('bad', 0)} bad); "
             f"crews: {crews.get('reports', 0)} reports used, {crews.get('expired', 0)} went "
             f"stale, {crews.get('joined', 0)} joined",
@@ -85,6 +98,11 @@ def tak_options(opts, args):
             raise UserError(f"--tak: {msg}")
     if not args.tak_period_s > 0:
         raise UserError(f"--tak-period-s must be > 0, got {args.tak_period_s}")
+    if not args.tak_max_rate * args.tak_period_s >= 1:
+        raise UserError(
+            f"--tak-max-rate {args.tak_max_rate:g} x --tak-period-s {args.tak_period_s:g} "
+            "must allow at least one message a picture"
+        )
     tls = {name: getattr(args, flag) for flag, name in TLS_FLAGS.items() if getattr(args, flag)}
     if args.tak_tls_dont_verify:
         tls["PYTAK_TLS_DONT_VERIFY"] = "1"
@@ -97,6 +115,7 @@ def tak_options(opts, args):
         tak=tuple(args.tak),
         tak_tls=tls or None,
         tak_period_s=args.tak_period_s,
+        tak_max_rate_msgs_s=args.tak_max_rate,
         attach_tak=attach if args.tak else None,
         on_tak=_announce,
     )

@@ -10,6 +10,8 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from mission.flight.tak_link import MAX_RATE_MSGS_S
+
 if TYPE_CHECKING:  # a type only: importing the operator costs seconds; `phireman fly --help` reads
     # the defaults below without it
     from gcs.operations import Operator
@@ -55,6 +57,11 @@ class FlyOptions:
     rotation: str = "mission"
     """'mission', 'on' or 'off' (no rotation: every drone flies until its firmware's low-battery
     failsafe; ``phireman sim --rotation``)."""
+    swap_confirm: str = "auto"
+    """Who ends a battery swap on a pad: 'auto' (the station, when the vehicle comes back
+    powered and full, or the ground crew first from the live page) or 'manual' (only the ground
+    crew: the live page's Confirm, the operator action ``confirm_swap``); docs/design/endurance.md
+    §8. The emulator's own crew always swaps by itself (a power cycle)."""
     on_interrupt: str = "end"
     """What Ctrl-C tells every reachable vehicle: 'end' (the mission's end action), 'hold',
     'rtl' or 'land'."""
@@ -67,11 +74,18 @@ class FlyOptions:
     """``[HOST:]PORT``: serve the live web view there (:mod:`mission.view.live`)."""
     serve_actions: bool = True
     """Operator actions on the page (behind the key printed at start); False: read-only."""
+    alert_crew_after_s: float | None = None
+    """The page alerts on a crew cut off this long (None: the default of
+    :data:`mission.view.live.alerts.DEFAULT_CREW_CUT_OFF_S`)."""
     tiles: str | None = None
     """Background imagery of the live view: an XYZ tile folder or a URL template."""
     forward: tuple[str, ...] = ()
     """MAVLink forwarding outputs (``udpout:H:P``, ``udpin:H:P``, ``tcpin:H:P``, gcs.forward)."""
     forward_readonly: bool = False
+    forward_overrides: str = "honour"
+    """What a forwarded client's override (a mode change, RTL, land, arm / disarm, reposition:
+    gcs.forward.override_of) does to a vehicle the plan flies: ``honour`` (it leaves the plan, as
+    held by the operator) or ``refuse`` (not passed on; the client is told why)."""
     on_live: Callable[[dict], None] | None = None
     """Called once with the live view's url and operator key, the forwarders' addresses."""
     attach_view: Callable[..., Awaitable[list]] | None = None
@@ -85,6 +99,8 @@ class FlyOptions:
     """pytak's ``PYTAK_TLS_*`` settings for ``tls://`` connections (client certificate, key, CA)."""
     tak_period_s: float = 1.0
     """Wall seconds between two pictures published on TAK (each uid at most once a period)."""
+    tak_max_rate_msgs_s: float = MAX_RATE_MSGS_S
+    """Messages a second per TAK connection, at most (docs/tak.md: what a TAK server accepts)."""
     attach_tak: Callable[..., Awaitable[list]] | None = None
     """What publishes the mesh on the TAK connections (:func:`mission.view.tak.attach`, given by
     the command: the flight room never imports the view room above it)."""

@@ -120,7 +120,11 @@ def tak_urls(mission: Mission, given: tuple[str, ...] | list[str]) -> list[str]:
     return urls
 
 
-def _station_config(mission: Mission, max_vehicles: int | None = None) -> StationConfig:
+def _station_config(
+    mission: Mission, max_vehicles: int | None = None, *, health: bool = False
+) -> StationConfig:
+    """The station links' configuration; ``health``: the live page is served, so ask for and
+    fold what a pilot watches (GPS, sensors, estimator, radio: gcs.link_health)."""
     key = None
     real = mission.vehicles.real
     if real is not None and real.signing_key_hex:
@@ -130,8 +134,22 @@ def _station_config(mission: Mission, max_vehicles: int | None = None) -> Statio
     # Fleet-scale telemetry (docs/design/mavlink.md §2, Skybrush): position at 2 Hz is all the plan uses;
     # every other stream costs decode time at 50+ vehicles x speed-up.
     batteries = mission.endurance.battery is not None
+    # The page's GPS and estimator rows (docs/live_view.md): GPS_RAW_INT at 1 Hz (ArduCopter
+    # and PX4 both stream it); EKF_STATUS_REPORT is ArduPilot's (GCS_Common.cpp, MSG_EKF_STATUS_
+    # REPORT), ESTIMATOR_STATUS PX4's (mavlink_main.cpp configure_streams_to_default, 0.5 Hz in
+    # MAVLINK_MODE_NORMAL): each refuses the other's, which the link logs once and moves on.
+    health_rates = (
+        (
+            (mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, 1.0),
+            (mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT, 1.0),
+            (mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS, 0.5),
+        )
+        if health
+        else ()
+    )
     return StationConfig(
         battery_telemetry=batteries,
+        health_telemetry=health,
         signing_key=key,
         command_timeout_s=1.0,
         param_timeout_s=2.0,
@@ -142,7 +160,8 @@ def _station_config(mission: Mission, max_vehicles: int | None = None) -> Statio
         stream_rates_hz=(
             (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 2.0),
             # The rotation's drain estimate wants the battery's level changes to the second.
-            (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 1.0 if batteries else 0.2),
+            (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 1.0 if batteries or health else 0.2),
+            *health_rates,
         )
         # Over terrain, ArduPilot's terrain requests and reports. GCS_Common.cpp
         # map_message_id_to_ap_message maps TERRAIN_REQUEST to MSG_TERRAIN ("request also does
@@ -255,15 +274,18 @@ def make_operator(
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
         rally=_rally_keeper(mission, params),
-        rotation=rotation_setup(mission, scenario),
+        rotation=rotation_setup(mission, scenario, opts.swap_confirm),
         tak=TakCrews(fleet.origin, tak) if tak else None,
     )
 
 
-def rotation_setup(mission: Mission, scenario: MissionScenario) -> RotationSetup | None:
+def rotation_setup(
+    mission: Mission, scenario: MissionScenario, swap_confirm: str = "auto"
+) -> RotationSetup | None:
     """The station's relay rotation for a mission with batteries (None without): the policy the
     in-process run builds too (:meth:`mission.format.schema.EnduranceSpec.policy`), and what the
-    mission says of the batteries (nominal hover drain, the drain at full speed)."""
+    mission says of the batteries (nominal hover drain, the drain at full speed).
+    ``swap_confirm``: who ends a swap (``FlyOptions.swap_confirm``)."""
     end = mission.endurance
     spec = end.battery
     if spec is None:
@@ -280,6 +302,7 @@ def rotation_setup(mission: Mission, scenario: MissionScenario) -> RotationSetup
         policy,
         hover_drain_per_s=1.0 / spec.endurance_s,
         return_drain_factor=1.0 + spec.speed_drain_frac,
+        swap_confirm=swap_confirm,
     )
 
 
@@ -359,12 +382,15 @@ async def run_station(
     times = FlightTimes() if times is None else times
     # Before any link is open (a stall now costs nothing; in flight it trips failsafes).
     _warm_up_planner(*_planner_spec(mission), scenario)
-    cfg = _station_config(mission, expected if world is None else None)
+    cfg = _station_config(
+        mission, expected if world is None else None, health=bool(getattr(opts, "serve", None))
+    )
     if opts.forward:
         # A forwarded GCS (QGroundControl, MAVProxy) wants the telemetry the station itself
         # does not use: do not turn it off (gcs.link disable_unused_messages).
         cfg = dataclasses.replace(cfg, disable_unused_messages=False)
     holder: dict = {}
+    records.battery_events = mission.endurance.battery is not None
 
     def on_event(ev) -> None:
         records.event(ev)
@@ -497,6 +523,7 @@ async def run_station(
                     opts.on_operator(op, world)
                 if rec is not None:
                     records.metrics.write(rec.row())
+                    records.rotation(op, now)
                 if op.phase == "done" and not opts.end_wait:
                     break
                 if op.phase == "end" and not opts.end_wait:

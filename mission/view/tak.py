@@ -28,19 +28,26 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
+import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from gcs.cot import cot_time, cot_xml
-from mission.flight.tak_link import OWN_UID_PREFIX
+from mission.flight.tak_link import MAX_RATE_MSGS_S, OWN_UID_PREFIX
 from mission.view.live.state import classify, crew_names, mst_tree, radio_links, tree_from_planner
 from planner.geometry import ned_to_geodetic, tasks_connected
 
 __all__ = [
     "attach",
     "picture_cot",
+    "CotItem",
+    "Throttle",
+    "MAX_RATE_MSGS_S",
+    "MOVE_M",
     "CrewLinkTracker",
     "UAV_TYPE",
     "BASE_TYPE",
@@ -63,7 +70,76 @@ MIN_STALE_S = 5.0
 #: Links published at most (shortest first): a TAK server must not be flooded.
 MAX_TAK_LINKS = 200
 
+#: An item is sent again before its refresh only when it moved this far (metres, on a grid) or
+#: its text changed.
+MOVE_M = 5.0
+
+# When a picture exceeds the budget: a crew's marker or the base that changed goes first; then
+# everything else by how long it has waited, a crew's marker counted as 3 s older, the base 2 s,
+# a drone 1 s (seconds of head start over the lines).
+_HEAD_START_S = {"crew": 3.0, "base": 2.0, "uav": 1.0, "tree": 0.0, "radio": 0.0}
+_URGENT = ("crew", "base")
+
 _GREEN, _RED, _GREY, _ORANGE = -16711936, -65536, -8355712, -23296
+
+
+@dataclass(frozen=True)
+class CotItem:
+    """One event of a picture: its CoT ``type``, ``uid``, ``kind`` (crew, base, uav, tree,
+    radio: the priority), ``key`` (what it shows: positions on a :data:`MOVE_M` grid, labels;
+    an unchanged key need not be sent again before the refresh) and how to ``render`` its XML."""
+
+    type: str
+    uid: str
+    kind: str
+    key: tuple[object, ...]
+    render: Callable[[], bytes]
+    """Builds the XML: only for the items the throttle sends (most of a big picture waits)."""
+
+    @property
+    def xml(self) -> bytes:
+        return self.render()
+
+
+def _grid(*ne_m: float) -> tuple[int, ...]:
+    return tuple(int(math.floor(v / MOVE_M)) if math.isfinite(v) else 0 for v in ne_m)
+
+
+class Throttle:
+    """Which items of a picture to send (sans-I/O, explicit time).
+
+    An item is due when it is new, when its key changed (it moved a grid cell, its text
+    changed) or when it was last sent ``refresh_s`` ago (so clients do not see it go stale while
+    the station lives). At most ``budget`` due items go per picture: first a crew's marker or the
+    base that changed, then the rest by how long each has waited (a never-sent item as if sent
+    ``refresh_s`` ago), with a head start for crews, the base and the drones over the lines.
+    Nothing starves: what waits grows older. What is over budget waits for the next picture."""
+
+    def __init__(self, budget: int, refresh_s: float) -> None:
+        if budget < 1:
+            raise ValueError(f"budget must be >= 1, got {budget}")
+        self.budget = budget
+        self.refresh_s = refresh_s
+        self._sent: dict[str, tuple[float, tuple[object, ...]]] = {}
+        self.deferred = 0
+        """Items that were due but waited for a later picture (over budget)."""
+
+    def select(self, items: list[CotItem], now_s: float) -> list[CotItem]:
+        ranked = []
+        for it in items:
+            last = self._sent.get(it.uid)
+            changed = last is None or last[1] != it.key
+            if not changed and now_s - last[0] < self.refresh_s:  # type: ignore[index]
+                continue
+            sent_s = now_s - self.refresh_s if last is None else last[0]
+            urgent = changed and it.kind in _URGENT
+            ranked.append(((not urgent, sent_s - _HEAD_START_S.get(it.kind, 0.0)), it))
+        ranked.sort(key=lambda r: r[0])
+        out = [it for _, it in ranked[: self.budget]]
+        self.deferred += len(ranked) - len(out)
+        for it in out:
+            self._sent[it.uid] = (now_s, it.key)
+        return out
 
 
 class CrewLinkTracker:
@@ -116,20 +192,24 @@ def picture_cot(
     *,
     stale_s: float = MIN_STALE_S,
     crews: CrewLinkTracker | None = None,
-) -> list[tuple[str, bytes]]:
-    """One batch: ``(cot type, XML bytes)`` for the base, every vehicle heard, the radio links,
-    the task tree and every crew's connectivity. ``now_s``: station time; ``now_unix_s``: the
+) -> list[CotItem]:
+    """One batch: a :class:`CotItem` for the base, every vehicle heard, the radio links, the
+    task tree and every crew's connectivity. ``now_s``: station time; ``now_unix_s``: the
     events' time; ``stale_s``: their lifetime."""
     o = op.fleet.origin
     snap = op.fleet.snapshot(now_s)
-    out: list[tuple[str, bytes]] = []
+    out: list[CotItem] = []
     geo = lambda ne: ned_to_geodetic(  # noqa: E731
         np.column_stack([ne, np.zeros(len(ne))]), o.lat_deg, o.lon_deg, o.alt_amsl_m
     )
     out.append(
-        (
+        CotItem(
             BASE_TYPE,
-            cot_xml(
+            f"{OWN_UID_PREFIX}base",
+            "base",
+            (op.phase,),
+            partial(
+                cot_xml,
                 uid=f"{OWN_UID_PREFIX}base",
                 type=BASE_TYPE,
                 lat_deg=o.lat_deg,
@@ -147,6 +227,7 @@ def picture_cot(
         list(classify(snap, op.released, {(l, s) for _, l, s in op.reclaimed})) if n else []
     )
     heard = ~snap.lost & snap.has_position
+    batt = snap.battery_frac  # None: no battery reported by any vehicle
     if heard.any():
         rows = np.flatnonzero(heard)
         lat, lon, alt = ned_to_geodetic(snap.pos_ned_m[rows], o.lat_deg, o.lon_deg, o.alt_amsl_m)
@@ -158,11 +239,18 @@ def picture_cot(
             link, sysid = int(snap.link_id[i]), int(snap.sysid_of_index[i])
             name = f"UAV {sysid}" if link == 0 else f"UAV {link}:{sysid}"
             above_base = -float(snap.pos_ned_m[i, 2])
+            pct = None if batt is None or not np.isfinite(batt[i]) else round(100 * batt[i])
+            uid = f"{OWN_UID_PREFIX}uav-{link}-{sysid}"
+            key = (*_grid(*snap.pos_ned_m[i]), states[i], snap.mode[i], pct)
             out.append(
-                (
+                CotItem(
                     UAV_TYPE,
-                    cot_xml(
-                        uid=f"{OWN_UID_PREFIX}uav-{link}-{sysid}",
+                    uid,
+                    "uav",
+                    key,
+                    partial(
+                        cot_xml,
+                        uid=uid,
                         type=UAV_TYPE,
                         lat_deg=float(lat[j]),
                         lon_deg=float(lon[j]),
@@ -175,7 +263,9 @@ def picture_cot(
                         remarks=(
                             f"{states[i]}, mode {snap.mode[i] or '?'}; "
                             f"{alt[j]:.0f} m AMSL, {above_base:.0f} m above base"
+                            + ("" if pct is None else f"; battery {pct} %")
                         ),
+                        detail_xml="" if pct is None else f'<status battery="{pct}"/>',
                     ),
                 )
             )
@@ -211,16 +301,20 @@ def picture_cot(
         pts = np.array([[s[1], s[2]] for s in segs]).reshape(-1, 2)
         lat, lon, _ = geo(pts)
         lat, lon = np.atleast_1d(lat).reshape(-1, 2), np.atleast_1d(lon).reshape(-1, 2)
-        for j, (key, _, _, kind) in enumerate(segs):
+        for j, (name, a, b, kind) in enumerate(segs):
             out.append(
-                (
+                CotItem(
                     LINE_TYPE,
-                    _line(
-                        f"{OWN_UID_PREFIX}{kind}-{key}",
+                    f"{OWN_UID_PREFIX}{kind}-{name}",
+                    kind,
+                    _grid(*a, *b),
+                    partial(
+                        _line,
+                        f"{OWN_UID_PREFIX}{kind}-{name}",
                         (float(lat[j, 0]), float(lon[j, 0])),
                         (float(lat[j, 1]), float(lon[j, 1])),
                         _GREEN if kind == "radio" else _ORANGE,
-                        f"{kind} {key}",
+                        f"{kind} {name}",
                         now_unix_s,
                         stale_s,
                     ),
@@ -268,9 +362,13 @@ def _crew_markers(op, mission, snap, crews_ne, crew_ok, now_unix_s, stale_s, tra
             f'<color argb="{colour}"/><status readiness="{str(state == "connected").lower()}"/>'
         )
         out.append(
-            (
+            CotItem(
                 CREW_STATUS_TYPE,
-                cot_xml(
+                f"{OWN_UID_PREFIX}crew-{k}",
+                "crew",
+                (state, since, who, *_grid(*pos)),
+                partial(
+                    cot_xml,
                     uid=f"{OWN_UID_PREFIX}crew-{k}",
                     type=CREW_STATUS_TYPE,
                     how="h-g-i-g-o",
@@ -298,10 +396,14 @@ class _Publisher:
         clock: Callable[[], float],
         period_s: float,
         on_tak: Callable[[dict], None] | None,
+        max_rate_msgs_s: float = MAX_RATE_MSGS_S,
     ) -> None:
         self.op, self.link, self.mission, self.clock = op, link, mission, clock
         self.period_s = period_s
-        self.stale_s = max(MIN_STALE_S, STALE_PERIODS * period_s)
+        self.min_stale_s = max(MIN_STALE_S, STALE_PERIODS * period_s)
+        self.stale_s = self.min_stale_s
+        self.rate_msgs_s = max_rate_msgs_s
+        self.throttle = Throttle(max(1, int(max_rate_msgs_s * period_s)), self.stale_s / 2.0)
         self.tracker = CrewLinkTracker()
         self.published: collections.Counter[str] = collections.Counter()
         self.batches = 0
@@ -309,16 +411,24 @@ class _Publisher:
         self._task = asyncio.create_task(self._run())
 
     def publish_once(self) -> int:
+        now_unix_s = time.time()
         batch = picture_cot(
             self.op,
             self.mission,
             self.clock(),
-            time.time(),
+            now_unix_s,
             stale_s=self.stale_s,
             crews=self.tracker,
         )
-        self.link.send([m for _, m in batch])
-        self.published.update(t for t, _ in batch)
+        # Under the rate limit every item is sent at least once per cycle of len(batch) / rate
+        # seconds: the stale time (hence the refresh, at half of it) grows with the picture, so
+        # a client never sees a live item go stale (used from the next picture on).
+        cycle_s = len(batch) / self.rate_msgs_s
+        self.stale_s = max(self.min_stale_s, 2.0 * cycle_s + 2.0 * self.period_s)
+        self.throttle.refresh_s = self.stale_s / 2.0
+        batch = self.throttle.select(batch, now_unix_s)
+        self.link.send([it.xml for it in batch])
+        self.published.update(it.type for it in batch)
         self.batches += 1
         return len(batch)
 
@@ -342,6 +452,7 @@ class _Publisher:
                     "counters": self.link.counters(),
                     "published": dict(self.published),
                     "batches": self.batches,
+                    "deferred": self.throttle.deferred,
                     "crews": self.op.tak.counters if self.op.tak is not None else {},
                 }
             )
@@ -350,6 +461,8 @@ class _Publisher:
 async def attach(op, link, *, mission, opts, clock: Callable[[], float], speedup: float = 1.0):
     """Publish the mesh on ``link`` every ``opts.tak_period_s`` wall seconds; returns objects
     with ``async aclose()`` (``opts.on_tak`` gets the counters when it closes)."""
-    pub = _Publisher(op, link, mission, clock, opts.tak_period_s, opts.on_tak)
+    pub = _Publisher(
+        op, link, mission, clock, opts.tak_period_s, opts.on_tak, opts.tak_max_rate_msgs_s
+    )
     log.info("publishing the mesh on TAK (%s) every %.1f s", ", ".join(link.urls), pub.period_s)
     return [pub]

@@ -6,19 +6,16 @@ the mesh; one crew falls silent and must be shown as unknown (stale). Ports are 
 from __future__ import annotations
 
 import asyncio
-import collections
-import configparser
 import json
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from mission.format.load import dump_mission
+from tak_clients import CrewPhone, tak_mission
 
 pytestmark = pytest.mark.udp
 
@@ -32,90 +29,8 @@ def _free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def _mission(tmp_path: Path) -> Path:
-    from mission.format.schema import RunSpec, TakSource, Task
-    from small_mission import small_mission
-
-    m = small_mission(
-        "tak",
-        RunSpec(duration_s=40.0, seed=3, speedup=2.0),
-        count=6,
-        tasks=(
-            Task(name="Alpha", tak=TakSource(callsign="ALPHA")),
-            Task(name="Engine", tak=TakSource(callsign_pattern="ENGINE-*")),
-        ),
-    )
-    path = tmp_path / "tak.yaml"
-    path.write_text(dump_mission(m))
-    return path
-
-
-async def _client(
-    cfg_in: str,
-    cfg_out: str,
-    uid: str,
-    callsign: str,
-    track,
-    stop_after_s: float,
-    done: asyncio.Event,
-    got: collections.Counter,
-    seen: dict,
-) -> None:
-    import pytak
-
-    from gcs.cot import CotError, cot_xml, parse_cot
-    from planner.geometry import ned_to_geodetic
-
-    def cfg(url):
-        c = configparser.ConfigParser()
-        c["c"] = {"COT_URL": url}
-        return c["c"]
-
-    _, writer = await pytak.protocol_factory(cfg(cfg_out))
-    reader, _ = await pytak.protocol_factory(cfg(cfg_in))
-
-    async def rx():
-        while True:
-            data, _ = await reader.recv()
-            try:
-                ev = parse_cot(data)
-            except CotError:
-                got["bad"] += 1
-                continue
-            got[ev.type] += 1
-            if ev.type == "b-m-p-s-m":
-                seen.setdefault(ev.callsign, 0)
-                seen[ev.callsign] += 1
-
-    task = asyncio.create_task(rx())
-    t0 = time.monotonic()
-    while not done.is_set():
-        t = time.monotonic() - t0
-        if t < stop_after_s:
-            n, e = track(t)
-            lat, lon, _ = ned_to_geodetic(np.array([n, e, 0.0]), -35.36326, 149.16523, 584.0)
-            msg = cot_xml(
-                uid=uid,
-                type="a-f-G-U-C",
-                lat_deg=float(lat),
-                lon_deg=float(lon),
-                hae_m=600.0,
-                now_unix_s=time.time(),
-                stale_after_s=2.0,
-                callsign=callsign,
-            )
-            try:
-                await writer.send(msg)
-            except OSError:  # the station is not listening yet (ICMP port unreachable)
-                got["refused"] += 1
-        await asyncio.sleep(0.25)
-    task.cancel()
-    writer.close()
-    reader.close()
-
-
 def test_tak_crews_over_udp_with_phireman_fly(tmp_path):
-    path = _mission(tmp_path)
+    path = tak_mission(tmp_path / "tak.yaml", duration_s=40.0, speedup=2.0)
     p_in, p1, p2 = _free_udp_port(), _free_udp_port(), _free_udp_port()
     cmd = [
         *PHIREMAN,
@@ -132,39 +47,21 @@ def test_tak_crews_over_udp_with_phireman_fly(tmp_path):
         "--tak-period-s",
         "0.5",
     ]
-    got = [collections.Counter(), collections.Counter()]
-    seen: list[dict] = [{}, {}]
+    # From when each phone first hears the station: Alpha walks north from 60 m to 140 m over
+    # 40 s (beyond the base's 100 m); Engine 7 stands
+    # 60 m south and falls silent after 15 s (its last report stale 2 s later).
+    alpha = CrewPhone("ANDROID-alpha", "ALPHA", lambda t: (60.0 + 2.0 * min(t, 40.0), 0.0))
+    engine = CrewPhone("ANDROID-e7", "ENGINE-7", lambda t: (-60.0, 0.0), stop_after_s=15.0)
 
     async def main():
         proc = await asyncio.create_subprocess_exec(
             *cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE
         )
         done = asyncio.Event()
-        # Alpha walks north from 60 m to 140 m over 40 s (beyond the base's 100 m); Engine 7
-        # stands 60 m south and falls silent after 15 s (its last report stale 2 s later).
-        alpha = _client(
-            f"udp+ro://127.0.0.1:{p1}",
-            f"udp+wo://127.0.0.1:{p_in}",
-            "ANDROID-alpha",
-            "ALPHA",
-            lambda t: (60.0 + 2.0 * min(t, 40.0), 0.0),
-            1e9,
-            done,
-            got[0],
-            seen[0],
+        clients = asyncio.gather(
+            alpha.run(f"udp+ro://127.0.0.1:{p1}", f"udp+wo://127.0.0.1:{p_in}", done),
+            engine.run(f"udp+ro://127.0.0.1:{p2}", f"udp+wo://127.0.0.1:{p_in}", done),
         )
-        engine = _client(
-            f"udp+ro://127.0.0.1:{p2}",
-            f"udp+wo://127.0.0.1:{p_in}",
-            "ANDROID-e7",
-            "ENGINE-7",
-            lambda t: (-60.0, 0.0),
-            15.0,
-            done,
-            got[1],
-            seen[1],
-        )
-        clients = asyncio.gather(alpha, engine)
         try:
             out, err = await asyncio.wait_for(proc.communicate(), 240)
         finally:
@@ -178,14 +75,14 @@ def test_tak_crews_over_udp_with_phireman_fly(tmp_path):
     assert rc == 0, err[-3000:]
     run = next((tmp_path / "runs").iterdir())
     print(err[-1500:])
-    print("client ALPHA received:", dict(got[0]))
-    print("client ENGINE-7 received:", dict(got[1]))
-    print("crew markers ALPHA client saw:", seen[0])
+    print("client ALPHA received:", dict(alpha.got))
+    print("client ENGINE-7 received:", dict(engine.got))
+    print("crew markers ALPHA client saw:", dict(alpha.markers))
     # Both clients received vehicles, the base, the links and the crews' connectivity.
-    for g in got:
+    for g in (alpha.got, engine.got):
         assert g["a-f-A-M-H-Q"] >= 6 and g["a-f-G-I"] >= 1
         assert g["u-d-f"] > 0 and g["b-m-p-s-m"] > 0 and g["bad"] == 0
-    labels = set(seen[0])
+    labels = set(alpha.markers)
     assert "Alpha: mesh OK" in labels
     assert "Engine: UNKNOWN" in labels  # silent after 15 s: stale, shown as unknown
     # The station used both crews' reports and saw Engine 7 go stale.
