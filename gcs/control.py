@@ -15,6 +15,13 @@ Targets:
   on different layers;
 * clipped to the geofence: an axis-aligned box in the mission frame (the mission schema has no
   geofence section yet; the runner passes the task field plus a margin).
+
+Over terrain (``ControlConfig.terrain``, docs/terrain.md §6) the altitude is the ground under the
+target (the mission's DEM) plus the row's layer height above it, and never lower than
+``clearance_m`` over the highest ground between the vehicle and its target. A target whose straight
+path from the vehicle's present altitude would come closer than that to the ground is replaced by
+a climb where the vehicle is ("climb first, then move"): every setpoint's straight path clears the
+terrain, not only its end.
 """
 
 from __future__ import annotations
@@ -28,8 +35,17 @@ import numpy.typing as npt
 
 from planner.hazard import HazardMap
 from planner.methods import Planner, TickInput
+from planner.terrain import Terrain, TerrainRadio, path_clearance_m
 
-__all__ = ["ControlConfig", "Geofence", "TickResult", "layer_alt_m", "tick"]
+__all__ = [
+    "ControlConfig",
+    "Geofence",
+    "TerrainAltitude",
+    "TickResult",
+    "layer_alt_m",
+    "terrain_targets",
+    "tick",
+]
 
 
 @dataclass(frozen=True)
@@ -67,6 +83,36 @@ class Geofence:
 
 
 @dataclass(frozen=True)
+class TerrainAltitude:
+    """Altitudes over a mission's DEM (docs/terrain.md §6): the ground the station knows (a map,
+    not the vehicles' truth) and how high above it to fly."""
+
+    terrain: Terrain
+    """Ground heights AMSL in the mission frame."""
+    origin_amsl_m: float
+    """Altitude of the mission frame's origin (down = 0), metres AMSL."""
+    clearance_m: float = 15.0
+    """Least height above the ground along any setpoint's straight path, metres."""
+    ceiling_agl_m: float = math.inf
+    """Highest layer above the ground, metres (a path over higher ground may need more)."""
+    n_samples: int = 16
+    """Points sampled along each path (ends included: ``n_samples + 1``)."""
+    radio: TerrainRadio | None = None
+    """The link model over this ground: crews count as covered "as the station sees them" when a
+    heard vehicle's link to the crew's radio closes (None: the disc of ``radio_range_m``)."""
+    crew_antenna_agl_m: float = 1.5
+    """A crew's radio above its ground, metres."""
+    corridor_m: float = 5.0
+    """The ground is also sampled this far either side of each path, metres: a vehicle's
+    position loop does not fly the straight line exactly (a turn swings it a few metres out),
+    and by a steep wall a few metres sideways is many metres up."""
+
+    def __post_init__(self) -> None:
+        if not self.clearance_m >= 0 or not self.ceiling_agl_m > 0:
+            raise ValueError("clearance_m must be >= 0 and ceiling_agl_m > 0")
+
+
+@dataclass(frozen=True)
 class ControlConfig:
     """Altitudes and fence. Units in the names."""
 
@@ -84,6 +130,11 @@ class ControlConfig:
     hazards: HazardMap | None = None
     """The mission's hazard zones, passed to the planner each tick (``TickInput.hazards``); None:
     no zones (planners that do not use them ignore them)."""
+    terrain: TerrainAltitude | None = None
+    """Over terrain: ``cruise_alt_m`` and the layers are heights above the ground under the
+    target, and every path clears the ground (:func:`terrain_targets`); the geofence's
+    ``max_alt_m`` (above the base) is not applied, the ceiling is ``terrain.ceiling_agl_m``.
+    None: a flat earth, altitudes above the base."""
 
     def __post_init__(self) -> None:
         if not self.cruise_alt_m > 0:
@@ -95,10 +146,55 @@ class ControlConfig:
 
 
 def layer_alt_m(rows: npt.ArrayLike, config: ControlConfig) -> np.ndarray:
-    """(K,) cruise altitude above the base of each row (vectorised ``FlightLimits.layer_alt_m``)."""
+    """(K,) cruise altitude above the base of each row (vectorised ``FlightLimits.layer_alt_m``);
+    over terrain, the layer's height above the ground (capped by the terrain ceiling)."""
     rows = np.asarray(rows, dtype=int)
     alt = config.cruise_alt_m + (rows % config.n_layers) * config.layer_spacing_m
+    if config.terrain is not None:
+        return np.minimum(alt, config.terrain.ceiling_agl_m)
     return np.minimum(alt, config.geofence.max_alt_m)
+
+
+def terrain_targets(
+    pos_ned_m: np.ndarray, target_ne_m: np.ndarray, agl_m: np.ndarray, ta: TerrainAltitude
+) -> np.ndarray:
+    """(K, 3) targets over terrain, mission NED (down = -(altitude AMSL - origin)).
+
+    Parameters
+    ----------
+    pos_ned_m : (K, 3) the vehicles' positions, mission NED, metres
+    target_ne_m : (K, 2) where each should go, metres
+    agl_m : (K,) the height above the ground under the target each should hold, metres
+    ta : the terrain and its clearance
+
+    Each target's altitude is the ground under it plus ``agl_m``, raised to ``clearance_m`` over
+    the highest ground sampled between the vehicle and the target, and ``corridor_m`` either
+    side (the floor). A vehicle below
+    the floor, or whose straight path to the target would pass closer than ``clearance_m`` to
+    the ground, gets a climb to that altitude over its own position instead.
+    """
+    pos = np.asarray(pos_ned_m, dtype=float).reshape(-1, 3)
+    tgt = np.asarray(target_ne_m, dtype=float).reshape(-1, 2)
+    ground = ta.terrain
+    f = np.linspace(0.0, 1.0, ta.n_samples + 1)
+    d = tgt - pos[:, :2]
+    pts = pos[:, None, :2] + f[None, :, None] * d[:, None, :]  # (K, S, 2)
+    # ... and two lines ``corridor_m`` either side: the flown path is not quite straight
+    side = np.column_stack([-d[:, 1], d[:, 0]])
+    side *= (ta.corridor_m / np.maximum(np.linalg.norm(d, axis=1), 1e-9))[:, None]
+    band = np.concatenate([pts, pts + side[:, None, :], pts - side[:, None, :]], axis=1)
+    floor = ground.height_m(band).max(axis=1) + ta.clearance_m
+    alt = np.maximum(ground.height_m(tgt) + np.asarray(agl_m, dtype=float), floor)
+    alt_now = ta.origin_amsl_m - pos[:, 2]
+    clear = path_clearance_m(ground, pos[:, :2], tgt, alt_now, alt, ta.n_samples)
+    # A vehicle below the floor climbs first: autopilots limit horizontal speed and climb rate
+    # separately (ArduCopter WPNAV_SPEED / WPNAV_SPEED_UP, PX4 MPC_XY_VEL_MAX / MPC_Z_VEL_MAX_UP),
+    # so a climbing move runs under its straight line. From the floor up, every point of the
+    # flight is at least as high as the floor whatever the speeds. 1 cm of slack.
+    climb = (alt_now < floor - 0.01) | (clear < ta.clearance_m - 0.01)
+    ne = np.where(climb[:, None], pos[:, :2], tgt)
+    alt = np.where(climb, np.maximum(alt, alt_now), alt)
+    return np.column_stack([ne, ta.origin_amsl_m - alt])
 
 
 @dataclass(frozen=True)
@@ -163,5 +259,8 @@ def tick(
     rows = np.flatnonzero(planned)
     disp = np.asarray(out.disp_m, dtype=float)[rows]
     target_ne = config.geofence.clip_ne(ne[rows] + config.lead * disp)
-    target = np.column_stack([target_ne, -layer_alt_m(rows, config)])
+    if config.terrain is not None:
+        target = terrain_targets(pos[rows], target_ne, layer_alt_m(rows, config), config.terrain)
+    else:
+        target = np.column_stack([target_ne, -layer_alt_m(rows, config)])
     return TickResult(rows, target, disp, dict(out.info or {}))

@@ -59,6 +59,7 @@ from gcs.link_state import (
     _Vehicle,
 )
 from gcs.rally import mission_event
+from gcs.terrain import TerrainReport, TerrainServer, report_from_message
 from gcs.wire import mavlink
 
 __all__ = [
@@ -133,6 +134,11 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
         self._task_request_s: dict[int, float] = {}
         self._timer_hint_s = now_s
         self._warn = _RateLimitedLog(self.config.warn_interval_s)
+        #: Answers the vehicles' TERRAIN_REQUEST from the mission's DEM (gcs/terrain.py); None:
+        #: requests are left unanswered, as a station without a map would.
+        self.terrain_server: TerrainServer | None = None
+        #: The last TERRAIN_REPORT of each sysid.
+        self.terrain_reports: dict[int, TerrainReport] = {}
         self._used_msgids = (
             _NEVER_DISABLE
             | {m for m, _ in self.config.stream_rates_hz}
@@ -209,6 +215,16 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
     # Rally points (gcs/rally.py): the vehicle's replies to an upload go to its keeper as events.
     def _on_mission_protocol(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         self._emit(mission_event(self.link_id, v.sysid, msg, now_s))
+
+    # Terrain (gcs/terrain.py): ArduPilot asks for the ground around it; we answer from the DEM.
+    def _on_terrain_request(self, v: _Vehicle, msg: Any, now_s: float) -> None:
+        if self.terrain_server is None:
+            return
+        for data in self.terrain_server.answer(msg):
+            self._send(data, v.addr, now_s)
+
+    def _on_terrain_report(self, v: _Vehicle, msg: Any, now_s: float) -> None:
+        self.terrain_reports[v.sysid] = report_from_message(msg, now_s)
 
     def send_message(self, sysid: int, msg: Any, now_s: float) -> None:
         """Queue one ready-made message to a vehicle (its last address): gcs/rally.py's uploads."""
@@ -416,6 +432,8 @@ _HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
     "EKF_STATUS_REPORT": StationLink._on_health,
     "ESTIMATOR_STATUS": StationLink._on_health,
     "RADIO_STATUS": StationLink._on_radio_status,
+    "TERRAIN_REQUEST": StationLink._on_terrain_request,  # gcs/terrain.py
+    "TERRAIN_REPORT": StationLink._on_terrain_report,
 }
 
 #: Battery reports: handled only with ``StationConfig.battery_telemetry``; without it they are
@@ -507,7 +525,6 @@ _IGNORED = frozenset(
         "AHRS2",
         "POWER_STATUS",
         "MEMINFO",
-        "TERRAIN_REPORT",
         "SIMSTATE",
     }
 )

@@ -732,6 +732,7 @@ TABLE: dict[str, Case] = {
             "phireman check",
             "phireman replay",
             "phireman sitl",
+            "phireman sitl --mission",
             "phireman sim --mission",
             "phireman fly --serve",
             "phireman replay RUN_DIR --serve",
@@ -789,6 +790,16 @@ TABLE: dict[str, Case] = {
         pre=("phireman sim --mission canyon --out runs/canyon",),
         rewrite=(PORT_0,),
         check=terrain_page,
+    ),
+    "phireman fly canyon": Case(
+        # 20 s of the canyon through the station: altitudes over the DEM, ArduPilot's terrain
+        # requests answered (docs/terrain.md §6).
+        rewrite=(SHORT_FLY_NOWAIT,),
+        check=lambda c: c.has(
+            r"over the terrain: 0 crashes into the ground",
+            r"terrain served to the vehicles: [1-9]\d* TERRAIN_REQUEST answered",
+        ),
+        timeout=600,
     ),
     "phireman sim --mission canyon --terrain-aware off": Case(
         check=lambda c: c.has(r"terrain-aware off: 0 crashes", r"TU1 = ")

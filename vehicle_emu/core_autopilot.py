@@ -72,6 +72,8 @@ class AutopilotRules(CoreState):
                 self._disarm(now_s, "landed")
 
         self._missions.update(now_s)
+        if self.terrain_db is not None:  # ArduPilot's terrain protocol (core_terrain)
+            self._terrain_tick(now_s)
         self.pers.update(now_s)
         if self._last_gcs_hb_s is not None:
             self._check_gcs_link(now_s)

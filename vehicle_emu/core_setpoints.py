@@ -13,6 +13,7 @@ from mavedge.setpoints import VEL_BITS as _VEL_BITS
 
 from .core_autopilot import AutopilotRules
 from .personality.base import LOCAL_FRAMES as _LOCAL_FRAMES
+from .personality.base import TERRAIN_FRAMES
 from .wire import dialect as mavlink
 
 __all__ = ["SetpointHandlers"]
@@ -67,6 +68,9 @@ class SetpointHandlers(AutopilotRules):
         mask = m.type_mask
         pos = vel = None
         if not mask & _POS_BITS:
+            if self.pers.terrain_setpoint_needs_estimate and m.coordinate_frame in TERRAIN_FRAMES:
+                self.stats.setpoints_ignored += 1
+                return
             pos = self._global_to_world(m.lat_int, m.lon_int, m.alt, m.coordinate_frame)
             if pos is None:
                 self.stats.setpoints_ignored += 1

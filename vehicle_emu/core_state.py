@@ -27,8 +27,13 @@ if TYPE_CHECKING:
     from .params import ParamTable
     from .personality.base import Personality
     from .physics import Physics
+    from .terrain import TerrainDatabase
 
 __all__ = ["CoreState", "CoreStats", "RateLimitedLog"]
+
+#: TERRAIN_REQUEST and TERRAIN_REPORT: either one's interval sets the terrain messages' period
+#: (vehicle_emu.core_terrain).
+_TERRAIN_IDS = (mavlink.MAVLINK_MSG_ID_TERRAIN_REQUEST, mavlink.MAVLINK_MSG_ID_TERRAIN_REPORT)
 
 
 @dataclass
@@ -137,6 +142,8 @@ class CoreState:
     _mode_key: int
     mode_name: str
     _behaviour: str
+    #: ArduPilot's terrain database (vehicle_emu.core_terrain), None without one.
+    terrain_db: TerrainDatabase | None
     _rtl_phase: str
     _rtl_cruise_down_m: float | None
     _rtl_dest_ned_m: np.ndarray
@@ -160,6 +167,14 @@ class CoreState:
     _rtl_alt_m: float
     _rtl_hover_alt_m: float | None
 
+    def _terrain_tick(self, now_s: float) -> None:
+        """ArduPilot's terrain protocol, once per tick with a database (vehicle_emu.core_terrain
+        overrides this)."""
+
+    def _set_terrain_interval(self, interval_s: float) -> bool:
+        """The terrain messages' period (vehicle_emu.core_terrain overrides this)."""
+        return False
+
     def _send(self, msg) -> None:
         buf = self._codec.encode(msg)
         self._out.append(buf)
@@ -169,6 +184,8 @@ class CoreState:
         self.stats.bytes_out += len(buf)
 
     def _set_interval(self, msg_id: int, interval_s: float, now_s: float) -> bool:
+        if msg_id in _TERRAIN_IDS and self.terrain_db is not None:
+            return self._set_terrain_interval(interval_s)  # vehicle_emu.core_terrain
         if not self._can_send(msg_id):
             return False
         return self.streams.set_interval(msg_id, interval_s, now_s)

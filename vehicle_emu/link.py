@@ -49,6 +49,7 @@ from . import telemetry as tm
 from . import wire
 from .core_commands import CommandHandlers
 from .core_protocols import ProtocolHandlers
+from .core_terrain import TerrainProtocol
 from .battery import BatteryConfig
 from .battery_monitor import monitor_for
 from .core_state import CoreStats, RateLimitedLog
@@ -83,7 +84,7 @@ _GCS_HEARTBEAT_TYPE = mavlink.MAV_TYPE_GCS
 TICK_S = 0.05
 
 
-class VehicleCore(CommandHandlers, ProtocolHandlers):
+class VehicleCore(CommandHandlers, ProtocolHandlers, TerrainProtocol):
     """One emulated autopilot.
 
     Parameters
@@ -264,6 +265,8 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
             "MISSION_ITEM": self._on_mission_item,
             "MISSION_CLEAR_ALL": self._on_mission_clear_all,
             "MISSION_ACK": nop,  # end of a download: nothing to do (no state kept)
+            "TERRAIN_DATA": self._on_terrain_data,  # vehicle_emu.core_terrain
+            "TERRAIN_CHECK": self._on_terrain_check,
             # Explicit ignores (skybrush-style nop handlers): traffic a GCS legitimately sends
             # that this emulator has no use for.
             "RADIO_STATUS": nop,
@@ -279,6 +282,9 @@ class VehicleCore(CommandHandlers, ProtocolHandlers):
             "LOCAL_POSITION_NED": nop,
             "SYS_STATUS": nop,
         }
+        #: ArduPilot's terrain database (vehicle_emu.core_terrain), started by enable_terrain.
+        self.terrain_db = None
+        self._terrain_next_s = float("inf")
         self._apply_params()
 
     # =========================================================================================

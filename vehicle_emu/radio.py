@@ -13,6 +13,11 @@ base is delayed by ``h * latency_per_hop_s`` and survives with probability
 
 Distances are horizontal (north/east) by default, like the paper's 2-D model; ``planar=False``
 uses 3-D distances.
+
+Over terrain (a mission's ``radio.model: terrain``) the radio is given the mission's
+:class:`vehicle_emu.terrain.Ground`: a hop then exists when its link clears the terrain and closes
+its budget (:meth:`planner.terrain.TerrainRadio.active_mask`, the in-process world's model), and
+the range settings are not used (docs/terrain.md §5).
 """
 
 from __future__ import annotations
@@ -25,6 +30,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order
 
 from planner.geometry import active_mask, neighbour_pairs
+
+from .terrain import Ground
 
 __all__ = ["RadioConfig", "Radio"]
 
@@ -67,8 +74,16 @@ class Radio:
         Source of loss randomness.
     """
 
-    def __init__(self, config: RadioConfig, base_ned_m, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        config: RadioConfig,
+        base_ned_m,
+        rng: np.random.Generator,
+        ground: Ground | None = None,
+    ) -> None:
         self._config = config
+        #: Links over terrain (None: the disc of ``config``).
+        self.ground = ground
         #: Hop counts are kept (latency or loss per hop); without them a packet's fate is
         #: just ``active`` (config is fixed at construction, so is this).
         self._needs_hops = config.latency_per_hop_s > 0 or config.loss_per_hop > 0
@@ -91,6 +106,11 @@ class Radio:
         cfg = self.config
         pos = np.asarray(pos_ned_m, dtype=float)
         base = self.base_ned_m
+        if self.ground is not None:
+            self.active = self.ground.active_mask(pos, alive, base)
+            if self._needs_hops:
+                self.hops = self._hop_counts_terrain(pos, base)
+            return self.active
         if cfg.planar:
             pos, base = pos[:, :2], base[:2]
         base_range = cfg.radio_range_m if cfg.base_range_m is None else cfg.base_range_m
@@ -101,6 +121,33 @@ class Radio:
         if self._needs_hops:
             self.hops = self._hop_counts(pos, base, base_range)
         return self.active
+
+    def _hop_counts_terrain(self, pos: np.ndarray, base: np.ndarray) -> np.ndarray:
+        """Hop counts over the links that clear the terrain (breadth-first from the base)."""
+        assert self.ground is not None  # terrain radios only
+        hops = np.zeros(len(pos), dtype=np.int64)
+        idx = np.flatnonzero(self.active)
+        if len(idx) == 0:
+            return hops
+        p = pos[idx]
+        k = len(idx)
+        pairs = self.ground.link_pairs(p)
+        at_base = np.flatnonzero(self.ground.links_to_base(p, base))
+        return self._bfs_hops(hops, idx, k, pairs, at_base)
+
+    @staticmethod
+    def _bfs_hops(
+        hops: np.ndarray, idx: np.ndarray, k: int, pairs: np.ndarray, at_base: np.ndarray
+    ) -> np.ndarray:
+        rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.full(len(at_base), k), at_base])
+        cols = np.concatenate([pairs[:, 1], pairs[:, 0], at_base, np.full(len(at_base), k)])
+        graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(k + 1, k + 1)).tocsr()
+        order, pred = breadth_first_order(graph, k, directed=True, return_predecessors=True)
+        depth = np.zeros(k + 1, dtype=np.int64)
+        for node in order[1:]:  # BFS order: the predecessor's depth is already known
+            depth[node] = depth[pred[node]] + 1
+        hops[idx] = depth[:k]
+        return hops
 
     def _hop_counts(self, pos: np.ndarray, base: np.ndarray, base_range: float) -> np.ndarray:
         n = len(pos)
@@ -117,15 +164,7 @@ class Radio:
         at_base = np.flatnonzero(
             np.linalg.norm(p - base, axis=1) <= min(base_range, self.config.radio_range_m)
         )
-        rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.full(len(at_base), k), at_base])
-        cols = np.concatenate([pairs[:, 1], pairs[:, 0], at_base, np.full(len(at_base), k)])
-        graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(k + 1, k + 1)).tocsr()
-        order, pred = breadth_first_order(graph, k, directed=True, return_predecessors=True)
-        depth = np.zeros(k + 1, dtype=np.int64)
-        for node in order[1:]:  # BFS order: the predecessor's depth is already known
-            depth[node] = depth[pred[node]] + 1
-        hops[idx] = depth[:k]
-        return hops
+        return self._bfs_hops(hops, idx, k, pairs, at_base)
 
     def transit_many(self, indices: list[int]) -> list[float | None]:
         """``[transit(i) for i in indices]``: the same fates, counters and random draws, in

@@ -57,7 +57,12 @@ from .battery import BatteryConfig, SwapConfig
 from .link import TICK_S, RateLimitedLog, VehicleCore
 from .physics import Physics
 from .radio import Radio, RadioConfig
+from .terrain import CRASH_DEPTH_M, TOUCHDOWN_SPEED_H_M_S, Ground
 from .telemetry_batch import BatchTelemetry
+
+#: The least height above the ground (``Swarm.least_agl_m``) counts a vehicle in GUIDED or
+#: OFFBOARD once it has been this high, metres: the station's flight, not a take-off or landing.
+CLEARANCE_FROM_AGL_M = 10.0
 
 __all__ = [
     "Swarm",
@@ -184,6 +189,11 @@ class Swarm:
         'batch' (default): each message type packed once per tick for every vehicle due
         (:mod:`vehicle_emu.telemetry_batch`); 'reference': every vehicle builds and packs its
         own messages with pymavlink (the slower path the batch is tested against byte for byte).
+    ground : Ground, optional
+        The terrain (:mod:`vehicle_emu.terrain`, docs/terrain.md §5): links must clear it, the
+        vehicles stand on it and one flown into it is lost, and every ArduPilot vehicle runs its
+        terrain database (TERRAIN_REQUEST to the station, :mod:`vehicle_emu.core_terrain`) with
+        ``terrain_spacing_m`` between posts (TERRAIN_SPACING). None: the flat earth.
     """
 
     def __init__(
@@ -220,6 +230,8 @@ class Swarm:
         telemetry: str = "batch",
         battery: BatteryConfig | None = None,
         battery_swap: SwapConfig | None = DEFAULT_SWAP,
+        ground: Ground | None = None,
+        terrain_spacing_m: int = 100,
     ) -> None:
         if n_vehicles < 1:
             raise ValueError(f"n_vehicles must be >= 1, got {n_vehicles}")
@@ -246,7 +258,20 @@ class Swarm:
         """(N,) bool: the autopilot is on (False during a battery swap)."""
         self.boot_at_s = np.full(n, np.inf)
         """(N,) when each powered-off vehicle boots again, vehicle seconds."""
-        self.radio = Radio(radio or RadioConfig(), np.zeros(3), radio_rng)
+        #: The terrain (vehicle_emu.terrain): links over it, ground contact; None: flat earth.
+        self.ground = ground
+        #: While True (a mission's run), the least height above the ground of a flying vehicle
+        #: at any tick is kept in ``least_agl_m`` (metres; None: none flew yet).
+        self.track_clearance = False
+        self.least_agl_m: float | None = None
+        #: ... and the greatest (metres; None: none flew yet).
+        self.highest_agl_m: float | None = None
+        self._risen = np.zeros(n, dtype=bool)
+        #: ... counting a vehicle once it has been this high (a mission sets its cruise height).
+        self.clearance_from_agl_m = CLEARANCE_FROM_AGL_M
+        if ground is not None:
+            self.physics.ground_down_m = ground.ground_down_m(self.physics.pos_ned_m[:, :2])
+        self.radio = Radio(radio or RadioConfig(), np.zeros(3), radio_rng, ground=ground)
         self.attrition = Attrition(
             n, hazard_per_s, kills, attrition_rng, airborne_only=airborne_only_attrition
         )
@@ -279,6 +304,10 @@ class Swarm:
             p = dict(params or {})
             p.update(per_vehicle_params.get(i, {}))
             self.cores.append(self._make_core(i, now_s, p, signing_key))
+        if ground is not None:  # ArduPilot's terrain database, filled by the station
+            for core in self.cores:
+                if core.personality == "ardupilot":
+                    core.enable_terrain(terrain_spacing_m, now_s)
         #: Indices of the cores that queued frames since datagrams_to_send last looked (each
         #: core adds its own): the flush after every datagram received visits those, not all.
         self._out_dirty: set[int] = {i for i, core in enumerate(self.cores) if core._out}
@@ -322,6 +351,7 @@ class Swarm:
             "peers_learned": 0,
             "peers_expired": 0,
             "peers_evicted": 0,
+            "terrain_crashes": 0,
         }
         self._radio_dirty = False
         if telemetry not in ("batch", "reference"):
@@ -548,7 +578,10 @@ class Swarm:
             if core.alive:
                 core.update_autopilot(now_s)
         if dt > 0:
+            was_landed = ph.landed.copy()
             ph.step(dt)
+            if self.ground is not None:
+                self._ground_contact(was_landed, now_s)
             ph.update_geodetic()
         self._t_s = max(t0, now_s)
         if ph.battery is not None:
@@ -723,6 +756,42 @@ class Swarm:
         )
         self._events.append(ev.VehicleKilled(sysid, now_s, net, index, cause))
 
+    def _ground_contact(self, was_landed: np.ndarray, now_s: float) -> None:
+        """Keep every vehicle on or above the terrain after a physics step: one that came down
+        on it stands on it; one flying that the ground rose through by more than
+        :data:`vehicle_emu.terrain.CRASH_DEPTH_M`, or that touched it while moving faster than
+        :data:`vehicle_emu.terrain.TOUCHDOWN_SPEED_H_M_S`, flew into it and is lost."""
+        assert self.ground is not None  # terrain swarms only
+        ph = self.physics
+        ground = self.ground.ground_down_m(ph.pos_ned_m[:, :2])
+        depth = ph.pos_ned_m[:, 2] - ground  # > 0: below the ground
+        speed_h = np.hypot(ph.vel_ned_m_s[:, 0], ph.vel_ned_m_s[:, 1])
+        hit = (depth > CRASH_DEPTH_M) | ((depth > 0) & (speed_h > TOUCHDOWN_SPEED_H_M_S))
+        crash = hit & ph.alive & ph.armed & ~was_landed
+        for i in np.flatnonzero(crash).tolist():
+            self.stats["terrain_crashes"] += 1
+            self.kill(i, now_s, "terrain")
+        below = depth > 0
+        ph.pos_ned_m[below, 2] = ground[below]
+        ph.vel_ned_m_s[below, 2] = np.minimum(ph.vel_ned_m_s[below, 2], 0.0)
+        ph.ground_down_m = ground
+        if self.track_clearance:
+            # Vehicles flying the station's targets (GUIDED / OFFBOARD), once they have been
+            # clearance_from_agl_m up: not a take-off or a landing.
+            agl = ground - ph.pos_ned_m[:, 2]
+            guided = np.array([c._behaviour == "guided" for c in self.cores])
+            flying = ph.alive & ph.armed & ~ph.landed & guided
+            self._risen |= flying & (agl >= self.clearance_from_agl_m)
+            sel = flying & self._risen
+            if sel.any():
+                least, most = float(agl[sel].min()), float(agl[sel].max())
+                self.least_agl_m = (
+                    least if self.least_agl_m is None else min(self.least_agl_m, least)
+                )
+                self.highest_agl_m = (
+                    most if self.highest_agl_m is None else max(self.highest_agl_m, most)
+                )
+
     def sample_truth_from(self, t_s: float) -> None:
         """Put the truth sampling grid at ``t_s + k * truth_period_s`` (e.g. a mission's step
         grid); the first sample is taken at the first tick at or after ``t_s``."""
@@ -742,10 +811,12 @@ class Swarm:
         tr.active.append(self.radio.active.copy())
         if self.task_pos_fn is not None:
             task_pos = np.asarray(self.task_pos_fn(now_s), dtype=float).reshape(-1, 2)
-            r = self.radio.config.radio_range_m
-            tr.task_connected.append(
-                tasks_connected(task_pos, ph.pos_ned_m[:, :2], self.radio.active, r)
-            )
+            if self.ground is not None:
+                conn = self.ground.tasks_connected(task_pos, ph.pos_ned_m, self.radio.active)
+            else:
+                r = self.radio.config.radio_range_m
+                conn = tasks_connected(task_pos, ph.pos_ned_m[:, :2], self.radio.active, r)
+            tr.task_connected.append(conn)
 
     def task_uptime(self, zero_over_zero: str = "zero") -> tuple[float, float]:
         """Ground-truth (TU1, TU2) over the recorded samples (fractions)."""

@@ -38,6 +38,26 @@ class EndStep(OperatorState):
         for row in self._rows.values():
             row.next_action_s = -math.inf
 
+    def _climb_before_rtl(self, snap: FleetSnapshot, i: int, now_s: float) -> bool:
+        """Over terrain: True (and a climb over its position sent) while vehicle ``i`` is too low
+        to fly straight to the base with ``clearance_m`` over the ground between. RTL returns at
+        the higher of its altitude and RTL_ALT above home (ArduCopter mode_rtl.cpp
+        ``compute_return_target``, RTL_ALT_TYPE 0; PX4 RTL at RTL_RETURN_ALT or higher), a
+        straight line at one altitude: from a canyon floor that line runs into the wall, so the
+        vehicle climbs over the highest ground on its way first (docs/terrain.md §6)."""
+        ta = self.control.terrain
+        if ta is None or not snap.has_position[i]:
+            return False
+        pos = snap.pos_ned_m[i]
+        f = np.linspace(0.0, 1.0, ta.n_samples * 4 + 1)
+        path = pos[None, :2] * (1.0 - f)[:, None]  # to the base, the mission origin
+        need = float(ta.terrain.height_m(path).max()) + ta.clearance_m
+        if ta.origin_amsl_m - float(pos[2]) >= need - 1.0:
+            return False
+        target = np.array([[pos[0], pos[1], ta.origin_amsl_m - need]])
+        self._send_targets(snap, np.array([i]), target, now_s)
+        return True
+
     def _restore(self, now_s: float) -> bool:
         """Write back the previous value of every parameter the station changed (once); True
         while the echoes are awaited."""
@@ -85,6 +105,9 @@ class EndStep(OperatorState):
                 continue
             if self.config.end == "rtl" and self._rally_holds_end(vid, now_s):
                 continue  # its rally points are being cleared first (gcs/operations/rally.py)
+            if self.config.end == "rtl" and self._climb_before_rtl(snap, i, now_s):
+                row.next_action_s = now_s + self.config.action_retry_s
+                continue
             row.next_action_s = now_s + self.config.action_retry_s
             try:
                 self.station.clear_position_target(vid, now_s)

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.autopilot import adapter_for
-from gcs.control import layer_alt_m
+from gcs.control import layer_alt_m, terrain_targets
 from gcs.events import CommandFailed, CommandTimedOut
 from gcs.fleet import FleetSnapshot
 from gcs.link import LinkUsageError, UnknownVehicle
@@ -292,7 +292,12 @@ class LaunchStep(OperatorState):
 
     def _hold(self, snap: FleetSnapshot, rows: npt.ArrayLike, now_s: float) -> None:
         rows = np.asarray(rows, dtype=int)
-        target = np.column_stack([snap.pos_ned_m[rows, :2], -layer_alt_m(rows, self.control)])
+        here = snap.pos_ned_m[rows, :2]
+        if self.control.terrain is not None:  # at its layer above the ground under it
+            layer = layer_alt_m(rows, self.control)
+            target = terrain_targets(snap.pos_ned_m[rows], here, layer, self.control.terrain)
+        else:
+            target = np.column_stack([here, -layer_alt_m(rows, self.control)])
         self._send_targets(snap, rows, target, now_s)
 
     def _send_targets(

@@ -455,15 +455,30 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         self._rally_after_tick(now_s)
         ne = np.where(snap.has_position[:, None], snap.pos_ned_m[:, :2], np.inf)
         known = np.isfinite(task_pos).all(axis=1)  # an unknown crew is never connected
-        covered = (
-            tasks_connected(
-                np.where(known[:, None], task_pos, np.inf),
-                ne,
-                heard & snap.has_position,
-                self.config.radio_range_m,
+        ta = self.control.terrain
+        if ta is not None and ta.radio is not None:
+            # Over terrain: a heard vehicle's link to the crew's radio must clear the DEM.
+            crews = np.where(known[:, None], task_pos, 0.0)
+            covered = (
+                ta.radio.tasks_connected(
+                    crews,
+                    ta.terrain.height_m(crews) + ta.crew_antenna_agl_m,
+                    np.where(snap.has_position[:, None], snap.pos_ned_m[:, :2], 0.0),
+                    ta.origin_amsl_m - np.nan_to_num(snap.pos_ned_m[:, 2]),
+                    heard & snap.has_position,
+                )
+                & known
             )
-            & known
-        )
+        else:
+            covered = (
+                tasks_connected(
+                    np.where(known[:, None], task_pos, np.inf),
+                    ne,
+                    heard & snap.has_position,
+                    self.config.radio_range_m,
+                )
+                & known
+            )
         self._connected.append(covered)
         series = uptime_series(np.asarray(self._connected))
         adapters = [adapter_for(int(a)) for a in snap.autopilot]

@@ -238,12 +238,6 @@ def _load(spec: str):
         mission = load_mission(path)
     except MissionError as exc:
         raise UserError(str(exc)) from None
-    if mission.radio.model == "terrain":  # docs/terrain.md §5
-        raise UserError(
-            f"{mission.name}: radio.model terrain is played in-process only "
-            f"(phireman sim --mission {spec}); the emulator's radio and the station still use "
-            "the disc (docs/terrain.md)"
-        )
     return mission
 
 
@@ -590,6 +584,25 @@ def format_tu(s: dict) -> list[str]:
         lines.append(
             f"TU1/TU2 from the emulator's truth:   {_pct(tr['tu1'])} / {_pct(tr['tu2'])}"
             f"   ({tr['samples']} samples; {tr['alive_end']} vehicles alive at the end)"
+        )
+        emu = s.get("emulator") or {}
+        if "least_agl_m" in emu:  # over terrain (docs/terrain.md §6)
+            least, most = emu["least_agl_m"], emu.get("highest_agl_m")
+            lines.append(
+                f"over the terrain: {int(emu.get('terrain_crashes', 0))} crashes into the ground; "
+                f"during the mission least height above it "
+                f"{'-' if least is None else f'{least:.1f} m'}, highest "
+                f"{'-' if most is None else f'{most:.0f} m'}"
+            )
+    terrain = s.get("terrain")
+    if terrain is not None and terrain["reports"]:
+        reps = terrain["reports"]
+        loaded = [r for r in reps if r["pending"] == 0 and r["loaded"] > 0]
+        lines.append(
+            f"terrain served to the vehicles: {terrain['requests_answered']} TERRAIN_REQUEST "
+            f"answered with {terrain['terrain_data_sent']} TERRAIN_DATA; "
+            f"{len(loaded)} of {len(reps)} vehicles last reported their terrain loaded "
+            "(pending 0)"
         )
     both = "both" if "truth" in s else "TU"
     if span >= duration - 1e-6:

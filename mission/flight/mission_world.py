@@ -30,12 +30,15 @@ from planner.metrics import task_uptime
 from vehicle_emu.battery import BatteryConfig, SwapConfig
 from vehicle_emu.radio import RadioConfig
 from vehicle_emu.swarm import Swarm
+from vehicle_emu.terrain import Ground
 
 __all__ = [
     "MissionScenario",
     "mission_scenario",
     "control_config",
     "build_swarm",
+    "mission_ground",
+    "terrain_spacing_m",
     "MissionWorld",
     "FENCE_MARGIN_M",
     "POSITION_LOOP_TAU_S",
@@ -147,8 +150,14 @@ def build_swarm(
         latency_per_hop_s=mission.radio.latency_s,
         loss_per_hop=min(mission.radio.loss_prob, 0.999),
     )
-    spawn = np.column_stack([scenario.spawn_ne_m, np.zeros(len(scenario.spawn_ne_m))])
     o = mission.origin
+    ground = mission_ground(mission)
+    down = (
+        np.zeros(len(scenario.spawn_ne_m))
+        if ground is None
+        else ground.ground_down_m(scenario.spawn_ne_m)  # on the ground under each spawn point
+    )
+    spawn = np.column_stack([scenario.spawn_ne_m, down])
     pers = _personalities(mission, personality)
     battery, swap = _battery(mission, emu.max_speed_m_s, emu.climb_rate_m_s)
     swarm = _MissionSwarm(
@@ -170,9 +179,43 @@ def build_swarm(
         radio_period_s=0.2,
         battery=battery,
         battery_swap=swap,
+        ground=ground,
+        terrain_spacing_m=terrain_spacing_m(mission),
     )
     swarm.physics.climb_rate_m_s[:] = emu.climb_rate_m_s
     return swarm
+
+
+def mission_ground(mission: Mission) -> Ground | None:
+    """The emulator's terrain for a ``radio.model: terrain`` mission (its DEM and the terrain
+    radio, docs/terrain.md §5); None for the disc radio and a flat earth."""
+    if mission.radio.model != "terrain":
+        return None
+    from mission.format.terrain import build_terrain
+    from planner.terrain import TerrainRadio
+
+    dem = build_terrain(mission)
+    assert dem is not None  # radio.model terrain needs a terrain section (validated)
+    link = mission.radio.terrain_link
+    return Ground(
+        TerrainRadio(dem, link.link_budget()),
+        mission.origin.alt_amsl_m,
+        base_antenna_agl_m=link.base_antenna_agl_m,
+        crew_antenna_agl_m=link.crew_antenna_agl_m,
+    )
+
+
+def terrain_spacing_m(mission: Mission) -> int:
+    """TERRAIN_SPACING of the emulated ArduPilots: the DEM's post spacing (whole metres, at
+    least 1), so the vehicles hold the map at the resolution the station has it; 100 (the
+    firmware's default) without terrain."""
+    spec = mission.terrain
+    if spec is None:
+        return 100
+    spacing = spec.synthetic.spacing_m if spec.synthetic is not None else None
+    if spacing is None and spec.geotiff is not None:
+        spacing = spec.geotiff.spacing_m
+    return max(1, int(round(spacing or 100)))
 
 
 class MissionWorld:
@@ -221,6 +264,9 @@ class MissionWorld:
     def start(self, t0_s: float) -> None:
         """The station began the mission at emulator time ``t0_s``."""
         self.t0_s = t0_s
+        self.swarm.track_clearance = True  # over terrain: least height above it, mission only
+        if self.mission.terrain is not None:  # counted once at 90 % of the cruise height
+            self.swarm.clearance_from_agl_m = 0.9 * self.mission.terrain.cruise_agl_m
         self.swarm.attrition.hazard_per_s = np.zeros(self.swarm.n)
         for loss in self.mission.attrition.scripted:
             if loss.vehicle < self.swarm.n:
@@ -258,6 +304,7 @@ class MissionWorld:
     def stop_attrition(self) -> None:
         """The mission is over: no more random losses (the end is not part of the horizon)."""
         self._stopped = True
+        self.swarm.track_clearance = False
         self.t_end_s = self.swarm.now_s
 
     def report(self, duration_s: float) -> dict:
@@ -271,8 +318,11 @@ class MissionWorld:
             sysid_of_index=self.swarm.sysid_of_index,
             network_of_index=self.swarm.network_of_index,
         )
-        stats: dict[str, float] = dict(self.swarm.stats)
+        stats: dict[str, Any] = dict(self.swarm.stats)
         stats["cpu_s"] = time.process_time()
+        if self.swarm.ground is not None:
+            stats["least_agl_m"] = self.swarm.least_agl_m
+            stats["highest_agl_m"] = self.swarm.highest_agl_m
         return {"truth": truth, "stats": stats, "arrays": arrays}
 
     def truth_tu(self, duration_s: float) -> dict:

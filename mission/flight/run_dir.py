@@ -251,6 +251,18 @@ def summary(
         },
         "run_dir": str(run_dir),
     }
+    servers = {id(l.terrain_server): l.terrain_server for l in op.station.links}
+    served = [t for t in servers.values() if t is not None]
+    if served:  # ArduPilot's terrain protocol (gcs/terrain.py, docs/terrain.md §6)
+        s["terrain"] = {
+            "requests_answered": sum(t.requests for t in served),
+            "terrain_data_sent": sum(t.data_sent for t in served),
+            "reports": [
+                {"link_id": l.link_id, "sysid": sysid, **dataclasses.asdict(r)}
+                for l in op.station.links
+                for sysid, r in sorted(l.terrain_reports.items())
+            ],
+        }
     if recs:
         s["final"] = recs[-1].row()
     if report is not None:

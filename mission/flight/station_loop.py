@@ -30,6 +30,7 @@ from gcs.rally import RallyConfig, RallyKeeper
 from gcs.station import Station
 from gcs.tak import CrewMatch, TakCrews
 from gcs.tasks import LiveTasks
+from gcs.terrain import TerrainServer, mission_heights
 from gcs.wire import mavlink
 from mission.flight.fly_options import FlyOptions, RunnerError
 from mission.flight.mission_world import MissionScenario, control_config
@@ -161,6 +162,19 @@ def _station_config(
             # The rotation's drain estimate wants the battery's level changes to the second.
             (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 1.0 if batteries or health else 0.2),
             *health_rates,
+        )
+        # Over terrain, ArduPilot's terrain requests and reports. GCS_Common.cpp
+        # map_message_id_to_ap_message maps TERRAIN_REQUEST to MSG_TERRAIN ("request also does
+        # report") in older firmware; newer firmware has MSG_TERRAIN_REQUEST and
+        # MSG_TERRAIN_REPORT apart (ArduCopter SITL 4.7-dev sent requests and no report with the
+        # first alone). Both asked; a refusal (PX4, or the id an old firmware lacks) is logged.
+        + (
+            (
+                (mavlink.MAVLINK_MSG_ID_TERRAIN_REQUEST, 1.0),
+                (mavlink.MAVLINK_MSG_ID_TERRAIN_REPORT, 1.0),
+            )
+            if mission.terrain is not None
+            else ()
         ),
     )
 
@@ -255,7 +269,7 @@ def make_operator(
         fleet,
         planner,
         scenario.task_pos_m,
-        control_config(mission, scenario),
+        control_config(mission, scenario, over_terrain=True),
         _operations_config(mission, opts, expected),
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
@@ -411,6 +425,7 @@ async def run_station(
             a.close()
         raise RunnerError(f"cannot open link {conn!r}: {exc}") from exc
     station = Station([a.core for a in adapters])  # type: ignore[misc]  # started: each has a core
+    serve_terrain(mission, station)
     op = make_operator(mission, scenario, station, opts, expected, clock(), seed)
     holder["op"] = op
     op.on_action = records.events.write  # operator actions in events.jsonl, with their source
@@ -550,6 +565,22 @@ async def run_station(
         for a in adapters:
             a.close()
     return op
+
+
+def serve_terrain(mission: Mission, station: Station) -> TerrainServer | None:
+    """Answer the vehicles' TERRAIN_REQUEST from the mission's DEM on every link (gcs/terrain.py,
+    docs/terrain.md §6); nothing for a mission without terrain. Returns the server."""
+    if mission.terrain is None:
+        return None
+    from mission.format.terrain import build_terrain
+
+    dem = build_terrain(mission)
+    assert dem is not None  # a terrain section
+    o = mission.origin
+    server = TerrainServer(mission_heights(dem, o.lat_deg, o.lon_deg, o.alt_amsl_m))
+    for link in station.links:
+        link.terrain_server = server
+    return server
 
 
 def _links_tried(adapters) -> str:

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gcs.control import ControlConfig, Geofence
+from gcs.control import ControlConfig, Geofence, TerrainAltitude
 from mission.format.schema import Attrition, HazardZone, Mission
 from planner.hazard import HazardMap, HazardZone as PlannerHazardZone
 from vehicle_emu.world import RunStreams, spawn_streams, walk_tasks
@@ -285,10 +285,37 @@ def hazard_map(attrition: Attrition) -> HazardMap | None:
     return HazardMap(tuple(zones)) if zones else None
 
 
-def control_config(mission: Mission, scenario: MissionScenario | None = None) -> ControlConfig:
+def terrain_altitude(mission: Mission) -> TerrainAltitude | None:
+    """How the station flies over a ``radio.model: terrain`` mission's DEM: ``terrain.cruise_agl_m``
+    above the ground under each target, ``clearance_m`` along every path, layers capped at
+    ``ceiling_agl_m`` (docs/terrain.md §6); None for the disc radio (a flat earth)."""
+    if mission.radio.model != "terrain" or mission.terrain is None:
+        return None
+    from mission.format.terrain import build_terrain
+
+    dem = build_terrain(mission)
+    assert dem is not None  # a terrain section
+    from planner.terrain import TerrainRadio
+
+    spec = mission.terrain
+    link = mission.radio.terrain_link
+    return TerrainAltitude(
+        dem,
+        mission.origin.alt_amsl_m,
+        clearance_m=spec.clearance_m,
+        ceiling_agl_m=spec.ceiling_agl_m,
+        radio=TerrainRadio(dem, link.link_budget()),
+        crew_antenna_agl_m=link.crew_antenna_agl_m,
+    )
+
+
+def control_config(
+    mission: Mission, scenario: MissionScenario | None = None, *, over_terrain: bool = False
+) -> ControlConfig:
     """Altitude layers from the mission's flight limits; the mission's geofence, or by default the
     task field plus :data:`FENCE_MARGIN_M` (wide enough for the scenario's tracks and spawn); the
-    mission's hazard zones for the planner (:func:`hazard_map`)."""
+    mission's hazard zones for the planner (:func:`hazard_map`). ``over_terrain``: the station's
+    flight of a terrain mission, altitudes over its DEM (:func:`terrain_altitude`)."""
     lim = mission.vehicles.limits
     half = mission.problem_config().field_half_width_m
     if scenario is not None:
@@ -297,16 +324,22 @@ def control_config(mission: Mission, scenario: MissionScenario | None = None) ->
             float(np.abs(scenario.task_track_m).max(initial=0.0)),
             float(np.abs(scenario.spawn_ne_m).max(initial=0.0)),
         )
+    # The station's flights over terrain (over_terrain); the in-process world flies its own
+    # terrain following (vehicle_emu.world.TerrainFlight) from the planner's 2-D moves.
+    terrain = terrain_altitude(mission) if over_terrain else None
     fence = mission.geofence
     geofence = Geofence.square(
         fence.half_width_m if fence.half_width_m is not None else half + FENCE_MARGIN_M,
         fence.max_alt_m if fence.max_alt_m is not None else math.inf,
     )
     return ControlConfig(
-        cruise_alt_m=lim.cruise_alt_m,
+        cruise_alt_m=lim.cruise_alt_m
+        if mission.terrain is None or terrain is None
+        else mission.terrain.cruise_agl_m,
         layer_spacing_m=lim.layer_spacing_m,
         n_layers=lim.n_layers,
         geofence=geofence,
         lead=1.0 + POSITION_LOOP_TAU_S / mission.run.control_period_s,
         hazards=hazard_map(mission.attrition),
+        terrain=terrain,
     )

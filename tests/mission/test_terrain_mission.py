@@ -181,9 +181,3 @@ def test_documented_canyon_commands_run():
 def test_terrain_aware_is_refused_without_a_terrain_mission():
     out = _cli("sim", "--mission", "wildfire", "--terrain-aware", "off")
     assert out.returncode == 2 and "disc radio" in out.stderr and "Traceback" not in out.stderr
-
-
-def test_flights_refuse_a_terrain_mission():
-    out = _cli("fly", "canyon")
-    assert out.returncode == 2 and "in-process only" in out.stderr
-    assert "Traceback" not in out.stderr

@@ -20,7 +20,9 @@ from ..geodesy import NedOrigin, ned_origin
 
 #: AUTOPILOT_VERSION.capabilities both firmwares announce and the emulator implements (each
 #: personality adds its parameter encoding); FTP, SET_ATTITUDE_TARGET, FLIGHT_TERMINATION,
-#: TERRAIN are left out on purpose: the emulator does not implement them and a GCS would try.
+#: TERRAIN are left out on purpose: the emulator does not implement them and a GCS would try
+#: (the emulated ArduPilot runs the terrain protocol in terrain missions only,
+#: vehicle_emu.core_terrain, so it does not announce it everywhere).
 COMMON_CAPABILITIES = (
     mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
@@ -40,6 +42,7 @@ __all__ = [
     "LOCAL_FRAMES",
     "GLOBAL_AMSL",
     "GLOBAL_REL",
+    "TERRAIN_FRAMES",
     "TARGET_MASK_POSITION",
 ]
 
@@ -60,6 +63,9 @@ GLOBAL_REL = (
     mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
     mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
 )
+#: Terrain-relative frames: over the ground the vehicle's terrain database holds, where it has one
+#: (vehicle_emu.core_terrain); without one, as the flat earth of GLOBAL_REL.
+TERRAIN_FRAMES = (mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT)
 #: type_mask of a position-only target (what POSITION_TARGET_* reports after a guided item).
 TARGET_MASK_POSITION = 0b110111111000
 
@@ -136,6 +142,9 @@ class Personality:
     """Items of a mission list that are not part of the mission (ArduPilot's home at seq 0)."""
     global_frames: tuple[int, ...] = ()
     """Frames accepted for SET_POSITION_TARGET_GLOBAL_INT / global commands."""
+    terrain_setpoint_needs_estimate = False
+    """A SET_POSITION_TARGET_GLOBAL_INT in a terrain frame is relative to a terrain estimate under
+    the vehicle (a distance sensor) that the emulator does not model: dropped."""
     guided_mission_items = False
     """MISSION_ITEM(_INT) with current = 2 / 3 are guided waypoints (ArduPilot)."""
 
@@ -284,7 +293,15 @@ class Personality:
             return None
         if frame in GLOBAL_AMSL:
             alt_amsl = alt_m
-        else:  # GLOBAL_REL: flat terrain at home altitude, terrain-relative == home-relative
+        elif frame in TERRAIN_FRAMES and core.terrain_db is not None:
+            # ArduCopter GCS_Mavlink.cpp handle_message_set_position_target_global_int takes
+            # frame 11 as a Location ABOVE_TERRAIN; ModeGuided::set_destination then needs the
+            # terrain under the target (AP_Terrain), and refuses the target without it.
+            ground = core.terrain_db.height_amsl_m(lat_e7, lon_e7)
+            if ground is None:
+                return None
+            alt_amsl = alt_m + ground
+        else:  # GLOBAL_REL (and terrain frames with no terrain database): flat at home altitude
             alt_amsl = alt_m + core.home_lla[2]
         lat_deg, lon_deg = e7_to_deg(lat_e7), e7_to_deg(lon_e7)
         if not ap_check_latlng_e7(lat_e7, lon_e7):

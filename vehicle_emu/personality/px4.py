@@ -179,6 +179,10 @@ class PX4(Personality):
         _C.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
         _C.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
     )
+    # Frame 11 there is alt + vehicle_global_position.terrain_alt (the ground under the vehicle,
+    # from a distance sensor), and the setpoint is dropped while terrain_alt_valid is false: the
+    # emulated PX4 has no distance sensor (docs/terrain.md §6.2).
+    terrain_setpoint_needs_estimate = True
     guided_mission_items = False
     no_mission_text = (_C.MAV_SEVERITY_CRITICAL, "Switching to Mission is currently not possible")
     # src/modules/commander/Commander.cpp Commander::dataLinkCheck: mavlink_log_info(...,
