@@ -148,6 +148,7 @@ class FleetView:
         self._rate = np.empty(0)
         self._last_edge = np.empty(0)
         self._rebooted = np.empty(0)
+        self._batt_t = np.empty(0)  # when the level (column 0) was last reported
         self._drain_est: list[DrainEstimator] = []
         #: (autopilot, custom_mode) -> (mode name, failsafe mode?): a fleet shows few modes, and
         #: the adapters' answers depend on these two numbers alone.
@@ -196,6 +197,7 @@ class FleetView:
         self._rate[idx] = math.nan
         self._last_edge[idx] = math.nan
         self._rebooted[idx] = -math.inf
+        self._batt_t[idx] = -math.inf
         self._drain_est.append(DrainEstimator())
         return idx
 
@@ -214,6 +216,7 @@ class FleetView:
             "_rate",
             "_last_edge",
             "_rebooted",
+            "_batt_t",
         ):
             old = getattr(self, name)
             new = np.empty((cap, *old.shape[1:]), dtype=old.dtype)
@@ -284,20 +287,31 @@ class FleetView:
             self._apply_battery(i, event)
         elif isinstance(event, VehicleRebooted):
             # Power-cycled: a new battery (or none reported yet) and the same vehicle; what it
-            # said before the reboot no longer describes it.
+            # said before the reboot no longer describes it. The reboot is noticed at the first
+            # position report of the new boot, which comes after its first battery reports (an
+            # autopilot reports a position only once it has one): a level reported since the
+            # boot, now_s - time_boot_s, is the new battery's and is kept (cleared, a spare just
+            # confirmed full by it had an unknown charge, due now, and was sent home at once).
             self._rebooted[i] = event.t_s
+            booted_s = event.t_s - event.time_boot_s
+            kept = self._batt_t[i] >= booted_s and math.isfinite(self._batt[i, 0])
+            level = float(self._batt[i, 0])
             self._batt[i] = math.nan
             self._batt[i, 5] = 0
             self._drain_est[i].reset()
             self._rate[i] = math.nan
             self._last_edge[i] = math.nan
             self._was_lost[i] = False
+            if kept:
+                self._batt[i, 0] = level
+                self._drain_est[i].update(float(self._batt_t[i]), level)
 
     def _apply_battery(self, i: int, event: BatteryReceived) -> None:
         b = self._batt[i]
         frac = event.remaining_frac
         if frac is not None and (event.source == "SYS_STATUS" or math.isnan(b[0])):
             b[0] = frac
+            self._batt_t[i] = event.t_s
             if event.source == "SYS_STATUS":  # one source of levels for the drain's edges
                 est = self._drain_est[i]
                 est.update(event.t_s, frac)

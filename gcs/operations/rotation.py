@@ -135,8 +135,16 @@ class RotationStep(OperatorState):
         rot.counters["reboots"] += 1
         i = self.fleet.index_of(*key)
         self._rows[i] = _Row()
-        if i < rot.policy.n_drones and rot.policy.phase[i] in (RETURNING, *_GROUND):
-            rot.rebooted_home.add(i)  # the crew's swap (docs/design/endurance.md §6.4)
+        # The crew's swap (docs/design/endurance.md §6.4), to confirm: not a spare's reboot
+        # (READY: its swap was confirmed already, from the new boot's full charge reported
+        # before the reboot was noticed; kept, the mark would confirm its next swap unseen).
+        if i < rot.policy.n_drones and rot.policy.phase[i] in (
+            RETURNING,
+            LANDED,
+            SWAPPING,
+            NO_BATTERY,
+        ):
+            rot.rebooted_home.add(i)
 
     # ------------------------------------------------------------------ the tick
 

@@ -27,6 +27,7 @@ from gcs.link import StationConfig
 from gcs.operations import OperationsConfig, Operator, TickRecord
 from gcs.operations.rotation import RotationSetup
 from gcs.rally import RallyConfig, RallyKeeper
+from gcs.records import EventLog
 from gcs.station import Station
 from gcs.tak import CrewMatch, TakCrews
 from gcs.tasks import LiveTasks
@@ -241,20 +242,39 @@ def make_operator(
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
         rally=_rally_keeper(mission, params),
-        rotation=rotation_setup(mission, scenario),
+        rotation=rotation_setup(mission, scenario, expected),
         tak=TakCrews(fleet.origin, tak) if tak else None,
     )
 
 
-def rotation_setup(mission: Mission, scenario: MissionScenario) -> RotationSetup | None:
+def rotation_fleet_size(
+    mission: Mission, scenario: MissionScenario, expected: int | None = None
+) -> int:
+    """How many vehicles the rotation shares the posts among: the real vehicles' ``sysids`` when
+    the mission lists them, else the vehicles to wait for (``--vehicles N``, or the emulator's
+    count), else the mission's count. A real mission's count is its links, and one link may
+    carry several vehicles (every PX4 SITL instance on UDP 14550): sized by links, a rotation
+    of three PX4 vehicles was one of one drone, everything flew and nothing rotated."""
+    real = mission.vehicles.real
+    if real is not None and real.sysids:
+        return len(real.sysids)
+    if expected:
+        return expected
+    return len(scenario.spawn_ne_m)
+
+
+def rotation_setup(
+    mission: Mission, scenario: MissionScenario, expected: int | None = None
+) -> RotationSetup | None:
     """The station's relay rotation for a mission with batteries (None without): the policy the
-    in-process run builds too (:meth:`mission.format.schema.EnduranceSpec.policy`), and what the
-    mission says of the batteries (nominal hover drain, the drain at full speed)."""
+    in-process run builds too (:meth:`mission.format.schema.EnduranceSpec.policy`) for
+    :func:`rotation_fleet_size` vehicles, and what the mission says of the batteries (nominal
+    hover drain, the drain at full speed)."""
     end = mission.endurance
     spec = end.battery
     if spec is None:
         return None
-    n = len(scenario.spawn_ne_m)
+    n = rotation_fleet_size(mission, scenario, expected)
     tasks = np.asarray(scenario.task_pos_m(0.0), dtype=float).reshape(-1, 2)
     dist = np.hypot(*tasks[np.isfinite(tasks).all(axis=1)].T)
     mean_post_m = 0.5 * float(dist.mean()) if dist.size else 0.0
@@ -267,6 +287,25 @@ def rotation_setup(mission: Mission, scenario: MissionScenario) -> RotationSetup
         hover_drain_per_s=1.0 / spec.endurance_s,
         return_drain_factor=1.0 + spec.speed_drain_frac,
     )
+
+
+def log_rotation_events(op: Operator, events: EventLog, start: int) -> int:
+    """Append the rotation's events from index ``start`` on (:class:`planner.endurance.
+    RotationEvent`: launch, handover, return, landed, swap_done, ...) to ``events.jsonl``, each
+    with the vehicles' ``link_id`` / ``sysid`` beside its rows (``other_`` for the other row), so
+    a flight's rotations can be read with its link events on one clock. Returns the new count."""
+    rot = op.rotation
+    if rot is None or len(rot.events) <= start:
+        return start
+    links, sysids = op.fleet.link_of_index, op.fleet.sysid_of_index
+    for ev in rot.events[start:]:
+        extra = {}
+        for prefix, row in (("", ev.drone), ("other_", ev.other)):
+            if 0 <= row < len(sysids):
+                extra[f"{prefix}link_id"] = int(links[row])
+                extra[f"{prefix}sysid"] = int(sysids[row])
+        events.write(ev, **extra)
+    return len(rot.events)
 
 
 def _rally_keeper(mission: Mission, params: dict) -> RallyKeeper | None:
@@ -445,6 +484,7 @@ async def run_station(
     last_status = -math.inf
     due_s = -math.inf  # the operator's next deadline (simulated s), as of the last poll
     started = ended = False
+    rotation_logged = 0  # rotation events written to events.jsonl
     interrupted_wall: float | None = None
     try:
         while True:
@@ -467,6 +507,7 @@ async def run_station(
                     # (docs/results/scale.md).
                     ack(min(now, due_s))
                 rec = op.poll(now)
+                rotation_logged = log_rotation_events(op, records.events, rotation_logged)
                 times.note(op, now, time.monotonic())
                 if ack is not None:
                     ack(now)  # everything due up to `now` is done
