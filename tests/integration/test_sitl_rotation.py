@@ -298,6 +298,21 @@ def _rotate(tmp_path: Path, firmware: str, speedup: float, guided: str, home_mod
                 f"sysid {tired} rebooted and its swap confirmed",
                 station,
             )
+            # A few more control ticks: the spare it is again must stay one (a reboot noticed
+            # after the swap was confirmed once made its charge unknown, "due now").
+            settle_from = max(
+                e["t_s"]
+                for e in _events(_run_dir(runs))
+                if e["type"] == "VehicleRebooted"
+                or (e["type"] == "RotationEvent" and e["kind"] == "swap_done")
+            )
+            _wait_for(
+                runs,
+                lambda ev: any(e.get("t_s", 0.0) >= settle_from + 10.0 for e in ev),
+                120,
+                "10 s of the station's clock after the swap",
+                station,
+            )
         finally:
             # Ctrl-C: the station tells every vehicle to end (RTL) and writes its summary.
             if station.poll() is None:
@@ -394,6 +409,7 @@ def _rotate(tmp_path: Path, firmware: str, speedup: float, guided: str, home_mod
         print(f"[{firmware}] swap confirmed from the charge before the power cycle")
         assert not _rotation(events, "lost", sysid=tired), ev_rot
     assert not _rotation(events, "no_battery", sysid=tired), ev_rot
+    assert not _rotation(events, "forced_return"), ev_rot
     assert end["reboots"] >= 1 and end["swaps"] >= 1 and end["rotations"] >= 1, end
     assert "Traceback" not in log_text, log_text[-3000:]
 
