@@ -387,6 +387,14 @@ def _rotate(tmp_path: Path, firmware: str, speedup: float, guided: str, home_mod
     assert spare is not None and spare != tired, ev_rot
     assert launch and launch[0]["sysid"] == spare, ev_rot
     assert handover[0]["t_s"] <= ret["t_s"], ev_rot
+    # The spare flew out under the station's control (GUIDED / OFFBOARD) before the handover.
+    assert any(
+        e["type"] == "ModeChanged"
+        and e["sysid"] == spare
+        and e["mode"] == guided
+        and launch[0]["t_s"] <= e["t_s"] <= handover[0]["t_s"]
+        for e in events
+    ), [e for e in events if e["type"] == "ModeChanged" and e["sysid"] == spare]
     assert not _rotation(events, "forced_return", sysid=tired), ev_rot
     at_rtl = _at_first_mode(run, firmware, tired, home_modes)
     assert at_rtl is not None and spare in at_rtl and tired in at_rtl, at_rtl
