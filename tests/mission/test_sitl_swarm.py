@@ -74,3 +74,51 @@ def test_power_cycle_boots_the_same_instance_again(tmp_path, firmware):
     else:
         assert again == first[1] == "ARGS -i 41 -d " + str(tmp_path / "etc")
         assert envs[0] == envs[1] and "DRAIN 300" in envs[1]
+
+
+def test_phireman_sitl_power_cycles_the_vehicle_typed_at_the_terminal(tmp_path):
+    """``phireman sitl``: a vehicle's number and Enter is the crew's battery swap; anything else
+    is refused with a line, and the swarm runs on."""
+    import signal
+    import subprocess
+    import sys
+
+    phireman = str(Path(sys.executable).with_name("phireman"))
+    out = tmp_path / "out.txt"
+    work = tmp_path / "sitl"
+    with open(out, "w") as f:
+        proc = subprocess.Popen(
+            [
+                phireman,
+                "sitl",
+                "ardupilot",
+                "--vehicles",
+                "2",
+                "--binary",
+                str(_binary(tmp_path)),
+                "--first-instance",
+                "42",
+                "--workdir",
+                str(work),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+    try:
+        _lines(out, "Ctrl-C stops them", 1)
+        log = work / "ardupilot-43" / "console.log"
+        _lines(log, "ARGS", 1)
+        assert proc.stdin is not None
+        proc.stdin.write("5\n1\n")
+        proc.stdin.flush()
+        _lines(out, "vehicle 1 (sysid 44) power-cycled", 1)
+        args = _lines(log, "ARGS", 2)
+        assert " -w " in f" {args[0]} " and " -w " not in f" {args[1]} "
+        assert len(_lines(work / "ardupilot-42" / "console.log", "ARGS", 1)) == 1
+        assert _lines(out, "type a vehicle number 0 .. 1", 1)
+        assert proc.poll() is None  # the swarm runs on
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(30)
