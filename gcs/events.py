@@ -29,6 +29,11 @@ __all__ = [
     "StatusText",
     "BatteryReceived",
     "VehicleRebooted",
+    "GpsReceived",
+    "SensorsReceived",
+    "EstimatorReceived",
+    "RadioStatusReceived",
+    "HEALTH_EVENTS",
     "HomePositionReceived",
     "TaskPositionReceived",
     "LinkEvent",
@@ -314,6 +319,92 @@ class BatteryReceived(Event):
         _optional_finite("time_remaining_s", self.time_remaining_s)
         if self.remaining_frac is not None and not 0.0 <= self.remaining_frac <= 1.0:
             raise ValueError(f"remaining_frac must be in [0, 1], got {self.remaining_frac}")
+
+
+@dataclass(frozen=True)
+class GpsReceived(Event):
+    """GPS_RAW_INT (common.xml): the receiver's fix, what a pilot reads before trusting a
+    position. ``fix_type`` is GPS_FIX_TYPE (0 no GPS, 1 no fix, 2 2D, 3 3D, 4 DGPS, 5 RTK float,
+    6 RTK fixed); ``satellites`` None where the wire says unknown (255)."""
+
+    fix_type: int = 0
+    satellites: int | None = None
+    hdop: float | None = None
+    """Horizontal dilution of precision (``eph`` / 100; None where the wire says UINT16_MAX)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not 0 <= self.fix_type <= 255:
+            raise ValueError(f"fix_type must be in 0..255, got {self.fix_type}")
+        if self.satellites is not None and not 0 <= self.satellites < 255:
+            raise ValueError(f"satellites must be in 0..254, got {self.satellites}")
+        _optional_finite("hdop", self.hdop)
+
+
+@dataclass(frozen=True)
+class SensorsReceived(Event):
+    """SYS_STATUS's sensor bitmasks (MAV_SYS_STATUS_SENSOR): present, enabled, healthy. A sensor
+    present and enabled but not healthy is what a pilot must see."""
+
+    present: int = 0
+    enabled: int = 0
+    health: int = 0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("present", "enabled", "health"):
+            v = getattr(self, name)
+            if not 0 <= v < 2**64:
+                raise ValueError(f"{name} must be a 64-bit mask, got {v}")
+
+
+@dataclass(frozen=True)
+class EstimatorReceived(Event):
+    """The navigation filter's own report: ArduPilot's EKF_STATUS_REPORT (ardupilotmega.xml,
+    EKF_STATUS_FLAGS) or PX4's ESTIMATOR_STATUS (common.xml, ESTIMATOR_STATUS_FLAGS).
+
+    ``flags`` as the wire has them (the two enums share bits 0-9); ``variance`` the worst of the
+    velocity / position / compass test ratios (both messages report them scaled so that 1.0 is
+    the filter's rejection threshold), None if not reported."""
+
+    source: str = "EKF_STATUS_REPORT"
+    flags: int = 0
+    variance: float | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.source not in ("EKF_STATUS_REPORT", "ESTIMATOR_STATUS"):
+            raise ValueError(f"unknown estimator source {self.source!r}")
+        if not 0 <= self.flags < 2**32:
+            raise ValueError(f"flags must be a 32-bit mask, got {self.flags}")
+        _optional_finite("variance", self.variance)
+
+
+@dataclass(frozen=True)
+class RadioStatusReceived(Event):
+    """RADIO_STATUS (common.xml) attributed to this vehicle: its telemetry radio's received
+    signal strength, local (``rssi``, at the ground end) and remote (``remrssi``, at the
+    vehicle's end), in the radio's units (SiK: 0..254, about 1.9 x dBm + 255, rssi "unknown"
+    255 -> None); ``rxerrors`` and ``fixed`` as counted by the radio."""
+
+    rssi: int | None = None
+    remrssi: int | None = None
+    noise: int | None = None
+    remnoise: int | None = None
+    rxerrors: int = 0
+    fixed: int = 0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("rssi", "remrssi", "noise", "remnoise"):
+            v = getattr(self, name)
+            if v is not None and not 0 <= v <= 254:
+                raise ValueError(f"{name} must be in 0..254 or None, got {v}")
+
+
+#: What a pilot watches, up to a few per vehicle per second: the live view folds them, the run's
+#: events.jsonl does not keep them (the .tlog has every frame they came from).
+HEALTH_EVENTS = (GpsReceived, SensorsReceived, EstimatorReceived, RadioStatusReceived)
 
 
 @dataclass(frozen=True)

@@ -30,9 +30,13 @@ from gcs.battery import QUANTUM_FRAC, DrainEstimator
 from gcs.events import (
     ArmedChanged,
     BatteryReceived,
+    EstimatorReceived,
     Event,
+    GpsReceived,
     HomePositionReceived,
     ModeChanged,
+    RadioStatusReceived,
+    SensorsReceived,
     TelemetryReceived,
     VehicleDiscovered,
     VehicleLost,
@@ -41,7 +45,13 @@ from gcs.events import (
 )
 from planner.geometry import geodetic_to_ned_m, ned_to_geodetic
 
-__all__ = ["MissionOrigin", "FleetSnapshot", "FleetView"]
+__all__ = ["MissionOrigin", "FleetSnapshot", "FleetView", "HEALTH_COLUMNS", "MASK_COLUMNS"]
+
+#: Columns of :attr:`FleetSnapshot.health`.
+HEALTH_COLUMNS = ("gps_fix", "satellites", "hdop", "est_ratio", "rssi", "remrssi")
+#: Columns of :attr:`FleetSnapshot.masks`.
+MASK_COLUMNS = ("sensors_present", "sensors_enabled", "sensors_health", "est_flags", "est_source")
+_EST_SOURCES = {"EKF_STATUS_REPORT": 1, "ESTIMATOR_STATUS": 2}
 
 
 @dataclass(frozen=True)
@@ -112,6 +122,14 @@ class FleetSnapshot:
     second (:mod:`gcs.battery`; NaN until two level changes were seen)."""
     rebooted_s: np.ndarray | None = None
     """(N,) float64: core time of the vehicle's last reboot (-inf: none seen)."""
+    health: np.ndarray | None = None
+    """(N, 6) float64, what a pilot watches (gcs.link_health; NaN: never reported), columns
+    :data:`HEALTH_COLUMNS`: GPS fix type, satellites, HDOP, the estimator's worst test ratio,
+    RADIO_STATUS rssi and remrssi."""
+    masks: np.ndarray | None = None
+    """(N, 5) int64 (-1: never reported), columns :data:`MASK_COLUMNS`: SYS_STATUS sensors
+    present / enabled / healthy, the estimator's flags, and which message sent them
+    (1 EKF_STATUS_REPORT, 2 ESTIMATOR_STATUS)."""
 
     @property
     def n_vehicles(self) -> int:
@@ -149,6 +167,9 @@ class FleetView:
         self._last_edge = np.empty(0)
         self._rebooted = np.empty(0)
         self._batt_t = np.empty(0)  # when the level (column 0) was last reported
+        self._pos_t = np.empty(0)  # when the position was last reported
+        self._health = np.empty((0, len(HEALTH_COLUMNS)))
+        self._masks = np.empty((0, len(MASK_COLUMNS)), dtype=np.int64)
         self._drain_est: list[DrainEstimator] = []
         #: (autopilot, custom_mode) -> (mode name, failsafe mode?): a fleet shows few modes, and
         #: the adapters' answers depend on these two numbers alone.
@@ -198,6 +219,9 @@ class FleetView:
         self._last_edge[idx] = math.nan
         self._rebooted[idx] = -math.inf
         self._batt_t[idx] = -math.inf
+        self._pos_t[idx] = -math.inf
+        self._health[idx] = math.nan
+        self._masks[idx] = -1
         self._drain_est.append(DrainEstimator())
         return idx
 
@@ -217,6 +241,9 @@ class FleetView:
             "_last_edge",
             "_rebooted",
             "_batt_t",
+            "_pos_t",
+            "_health",
+            "_masks",
         ):
             old = getattr(self, name)
             new = np.empty((cap, *old.shape[1:]), dtype=old.dtype)
@@ -255,6 +282,7 @@ class FleetView:
         self._last_heard[i] = max(last, event.t_s)
         if isinstance(event, TelemetryReceived):
             self._geo[i] = (event.lat_deg, event.lon_deg, event.alt_amsl_m)
+            self._pos_t[i] = event.t_s
             self._pos_stale.add(i)
             self._vel[i] = event.vel_ned_m_s
             if not self._home_reported[i]:
@@ -285,16 +313,33 @@ class FleetView:
             self._armed[i] = event.armed
         elif isinstance(event, BatteryReceived):
             self._apply_battery(i, event)
+        elif isinstance(event, GpsReceived):
+            h = self._health[i]
+            h[0] = event.fix_type
+            h[1] = math.nan if event.satellites is None else event.satellites
+            h[2] = math.nan if event.hdop is None else event.hdop
+        elif isinstance(event, SensorsReceived):
+            self._masks[i, :3] = (event.present, event.enabled, event.health)
+        elif isinstance(event, EstimatorReceived):
+            self._masks[i, 3:] = (event.flags, _EST_SOURCES[event.source])
+            self._health[i, 3] = math.nan if event.variance is None else event.variance
+        elif isinstance(event, RadioStatusReceived):
+            self._health[i, 4:] = [
+                math.nan if x is None else x for x in (event.rssi, event.remrssi)
+            ]
         elif isinstance(event, VehicleRebooted):
             # Power-cycled: a new battery (or none reported yet) and the same vehicle; what it
             # said before the reboot no longer describes it. The reboot is noticed at the first
-            # position report of the new boot, which comes after its first battery reports (an
-            # autopilot reports a position only once it has one): a level reported since the
-            # boot, now_s - time_boot_s, is the new battery's and is kept (cleared, a spare just
-            # confirmed full by it had an unknown charge, due now, and was sent home at once).
+            # position report of the new boot (this event comes just before it), which comes
+            # after its first battery reports (an autopilot reports a position only once it has
+            # one): a level reported since the boot (now_s - time_boot_s) and since the old
+            # boot's last position is the new battery's and is kept. Cleared, a spare just
+            # confirmed full by it had an unknown charge, due now, and was sent home at once.
             self._rebooted[i] = event.t_s
             booted_s = event.t_s - event.time_boot_s
-            kept = self._batt_t[i] >= booted_s and math.isfinite(self._batt[i, 0])
+            t_batt = self._batt_t[i]
+            kept = t_batt >= booted_s and t_batt > self._pos_t[i]
+            kept = kept and math.isfinite(self._batt[i, 0])
             level = float(self._batt[i, 0])
             self._batt[i] = math.nan
             self._batt[i, 5] = 0
@@ -383,6 +428,8 @@ class FleetView:
             battery_charge_state=self._batt[:n, 5].astype(int),
             drain_per_s=self._drain(n, now_s),
             rebooted_s=self._rebooted[:n].copy(),
+            health=self._health[:n].copy(),
+            masks=self._masks[:n].copy(),
         )
 
     def _drain(self, n: int, now_s: float) -> np.ndarray:

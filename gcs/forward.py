@@ -20,6 +20,18 @@ and their COMMAND_ACKs (addressed to 255) would be taken by the station as answe
 commands. Set QGC's "MAVLink system ID" (Application Settings -> MAVLink) to another value,
 e.g. 254, for it to command vehicles through the forwarder.
 
+Overrides. A message from an output that changes who flies a vehicle (:func:`override_of`: a
+mode change, return / land / take-off, arm or disarm, a reposition or position target, a guided
+"go to" mission item) is shown to ``on_override`` before it is routed. ``on_override`` (the
+station's policy, ``phireman fly --forward-overrides``: :meth:`gcs.operations.Operator.
+forwarded_override`) returns None to pass it on, or the reason it is refused: then the message is
+not routed, and the client gets a COMMAND_ACK ``MAV_RESULT_DENIED`` (for a command) and a
+STATUSTEXT (severity WARNING) with the reason, both sent as from the addressed vehicle (its sysid
+and component): QGroundControl drops every message whose sysid is not the vehicle's
+(``Vehicle::_mavlinkMessageReceived``, src/Vehicle/Vehicle.cc) and matches an ACK to its
+pending command by the sending component and the command id. Everything else (heartbeats,
+parameter and mission reads, stream requests) is routed as before.
+
 Sans-clock: the forwarder keeps no timers; it needs the links' raw taps
 (:meth:`gcs.aio.StationAdapter.add_tap` / :meth:`~gcs.aio.StationAdapter.send_raw`), and runs
 on the station's event loop.
@@ -28,14 +40,26 @@ on the station's event loop.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
+from dataclasses import dataclass
 from typing import Any, Protocol
 from collections.abc import Callable, Sequence
 
+from gcs.autopilot import mode_name
 from gcs.connection import ConnectionSpec, parse_connection
 from gcs.wire import mavlink
 
-__all__ = ["Forwarder", "split_frames", "OUTPUT_KINDS"]
+__all__ = [
+    "Forwarder",
+    "split_frames",
+    "OUTPUT_KINDS",
+    "Override",
+    "override_of",
+    "OVERRIDE_COMMANDS",
+    "OVERRIDE_POLICIES",
+    "client_name",
+]
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +68,127 @@ OUTPUT_KINDS = ("udpout", "udpin", "tcpin")
 _V1, _V2 = 0xFE, 0xFD
 _MAX_TCP_CLIENTS = 16
 _MAX_UDP_PEERS = 16
+
+
+#: What the station does with an override from a forwarded client (``phireman fly
+#: --forward-overrides``): ``honour`` (the vehicle leaves the plan, as held by the operator) or
+#: ``refuse`` (not passed on while the plan flies the vehicle; the client is told why).
+OVERRIDE_POLICIES = ("honour", "refuse")
+
+_C = mavlink
+#: Commands (COMMAND_LONG / COMMAND_INT) that change who flies a vehicle. What QGroundControl
+#: sends (mavlink/qgroundcontrol): its mode menu and its RTL / Land / Pause actions go through
+#: ``Vehicle::setFlightMode`` (src/Vehicle/Vehicle.cc), which sends MAV_CMD_DO_SET_MODE when the
+#: firmware plugin's ``MAV_CMD_DO_SET_MODE_is_supported()`` is true (ArduPilot,
+#: src/FirmwarePlugin/APM/APMFirmwarePlugin.h) and the SET_MODE message otherwise (PX4: the base
+#: ``FirmwarePlugin`` default); "Go to location" is MAV_CMD_DO_REPOSITION
+#: (``APMFirmwarePlugin::guidedModeGotoLocation``, falling back to a guided MISSION_ITEM with
+#: ``current`` 2; ``PX4FirmwarePlugin::pauseVehicle`` and ``guidedModeGotoLocation``); arm and
+#: disarm are MAV_CMD_COMPONENT_ARM_DISARM (``Vehicle::setArmed``); take-off NAV_TAKEOFF. The
+#: rest are the same actions as other ground stations and scripts send them (MAVProxy's ``rtl``,
+#: ``land``, ``mode``, DroneKit's ``simple_goto``).
+OVERRIDE_COMMANDS = frozenset(
+    {
+        _C.MAV_CMD_DO_SET_MODE,
+        _C.MAV_CMD_NAV_RETURN_TO_LAUNCH,
+        _C.MAV_CMD_NAV_LAND,
+        _C.MAV_CMD_NAV_TAKEOFF,
+        _C.MAV_CMD_NAV_LOITER_UNLIM,
+        _C.MAV_CMD_COMPONENT_ARM_DISARM,
+        _C.MAV_CMD_DO_REPOSITION,
+        _C.MAV_CMD_DO_PAUSE_CONTINUE,
+        _C.MAV_CMD_DO_CHANGE_ALTITUDE,
+        _C.MAV_CMD_DO_ORBIT,
+        _C.MAV_CMD_MISSION_START,
+        _C.MAV_CMD_DO_FLIGHTTERMINATION,
+    }
+)
+#: Messages that steer a vehicle without a command (a client flying it in GUIDED / OFFBOARD).
+_OVERRIDE_MESSAGES = frozenset(
+    {
+        "SET_MODE",
+        "SET_POSITION_TARGET_GLOBAL_INT",
+        "SET_POSITION_TARGET_LOCAL_NED",
+        "SET_ATTITUDE_TARGET",
+    }
+)
+_STATUSTEXT_LEN = 50  # MAVLink STATUSTEXT.text; longer texts go in chunks (id, chunk_seq)
+
+
+def _cmd_name(command: int) -> str:
+    e = mavlink.enums.get("MAV_CMD", {}).get(command)
+    return e.name.replace("MAV_CMD_", "") if e is not None else f"command {command}"
+
+
+@dataclass(frozen=True)
+class Override:
+    """A forwarded client's message that changes who flies the vehicles it addresses."""
+
+    client: str
+    """Who sent it, for people (:func:`client_name`: its address and MAVLink sysid)."""
+    target_system: int
+    target_component: int
+    vids: tuple[tuple[int, int], ...]
+    """The vehicles ``(link_id, sysid)`` it goes to (every vehicle heard for a broadcast; empty
+    for a system never heard)."""
+    message: str
+    """The message type (``SET_MODE``, ``COMMAND_LONG``, ...)."""
+    command: int | None = None
+    """MAV_CMD of a COMMAND_LONG / COMMAND_INT (a refusal is acknowledged), else None."""
+    custom_mode: int | None = None
+    """The mode asked (SET_MODE, MAV_CMD_DO_SET_MODE), else None."""
+    arm: bool | None = None
+    """MAV_CMD_COMPONENT_ARM_DISARM: True to arm, False to disarm."""
+    client_sysid: int = 0
+    client_compid: int = 0
+
+    def what(self, autopilot: int | None = None) -> str:
+        """For people: ``SET_MODE RTL``, ``DO_SET_MODE LAND``, ``COMPONENT_ARM_DISARM disarm``
+        (mode names from the vehicle's ``autopilot``, a HEARTBEAT value; numbers without it)."""
+        name = self.message if self.command is None else _cmd_name(self.command)
+        if self.custom_mode is not None:
+            mode = (
+                mode_name(autopilot, self.custom_mode)
+                if autopilot is not None
+                else f"custom_mode {self.custom_mode}"
+            )
+            return f"{name} {mode}"
+        if self.arm is not None:
+            return f"{name} {'arm' if self.arm else 'disarm'}"
+        return name
+
+
+def override_of(msg: Any) -> tuple[str, int | None, int | None, bool | None] | None:
+    """``(message, command, custom_mode, arm)`` if the decoded message ``msg`` changes who flies
+    a vehicle (see :data:`OVERRIDE_COMMANDS`), else None (read-only or harmless traffic)."""
+    kind = msg.get_type()
+    if kind in ("COMMAND_LONG", "COMMAND_INT"):
+        cmd = int(msg.command)
+        if cmd not in OVERRIDE_COMMANDS:
+            return None
+        if cmd == _C.MAV_CMD_DO_SET_MODE:
+            return kind, cmd, int(msg.param2), None
+        if cmd == _C.MAV_CMD_COMPONENT_ARM_DISARM:
+            return kind, cmd, None, bool(msg.param1 >= 0.5)
+        return kind, cmd, None, None
+    if kind == "SET_MODE":
+        return kind, None, int(msg.custom_mode), None
+    if kind in _OVERRIDE_MESSAGES:
+        return kind, None, None, None
+    if kind in ("MISSION_ITEM", "MISSION_ITEM_INT") and int(msg.current) in (2, 3):
+        # ArduPilot's guided "go to" (current 2) and altitude change (3): not a mission upload
+        # (GCS_MAVLINK::handle_mission_item in libraries/GCS_MAVLink/GCS_Common.cpp).
+        return kind, None, None, None
+    return None
+
+
+def client_name(source: object, sysid: int) -> str:
+    """A forwarded client for people: ``127.0.0.1:51234 sysid 254`` (``source`` as the outputs
+    give it: ``(connection text, peer address)``)."""
+    peer = source[1] if isinstance(source, tuple) and len(source) == 2 else source
+    if isinstance(peer, tuple) and len(peer) >= 2:
+        peer = f"{peer[0]}:{peer[1]}"
+    return f"{peer} sysid {sysid}"
 
 
 class RawLink(Protocol):
@@ -94,10 +239,17 @@ class Forwarder:
     outputs : connection strings (``udpout:``, ``udpin:``, ``tcpin:``)
     readonly : drop everything the outputs send
     gcs_sysid : the station's own MAVLink system id (never forwarded; dropped from outputs)
+    on_override : called with every :class:`Override` before it is routed; returns None to pass
+        it on, or why it is refused (module docstring). None: every override passes.
     """
 
     def __init__(
-        self, outputs: Sequence[str], *, readonly: bool = False, gcs_sysid: int = 255
+        self,
+        outputs: Sequence[str],
+        *,
+        readonly: bool = False,
+        gcs_sysid: int = 255,
+        on_override: Callable[[Override], str | None] | None = None,
     ) -> None:
         self.specs: list[ConnectionSpec] = []
         for text in outputs:
@@ -110,6 +262,8 @@ class Forwarder:
             self.specs.append(spec)
         self.readonly = bool(readonly)
         self.gcs_sysid = int(gcs_sysid)
+        self.on_override = on_override
+        self._statustext_ids = itertools.cycle(range(1, 1 << 16))
         self.links: list[RawLink] = []
         self._links_of_sysid: dict[int, set[int]] = {}
         self._stream_bufs: dict[tuple[int, object], bytearray] = {}
@@ -124,6 +278,8 @@ class Forwarder:
             "dropped_readonly": 0,
             "dropped_own_sysid": 0,
             "dropped_undecodable": 0,
+            "overrides_passed": 0,
+            "overrides_refused": 0,
         }
         self._warned_sysid = False
 
@@ -215,10 +371,72 @@ class Forwarder:
             frame = bytes(msg.get_msgbuf())
             target = int(getattr(msg, "target_system", 0) or 0)
             ids = self._links_of_sysid.get(target) if target else None
+            if self.on_override is not None and (kind := override_of(msg)) is not None:
+                ov = Override(
+                    client=client_name(source, msg.get_srcSystem()),
+                    target_system=target,
+                    target_component=int(getattr(msg, "target_component", 0) or 0),
+                    vids=self._vids_of(target),
+                    message=kind[0],
+                    command=kind[1],
+                    custom_mode=kind[2],
+                    arm=kind[3],
+                    client_sysid=msg.get_srcSystem(),
+                    client_compid=msg.get_srcComponent(),
+                )
+                why = self.on_override(ov)
+                if why is not None:
+                    self.stats["overrides_refused"] += 1
+                    self._refuse(ov, why, source)
+                    continue
+                self.stats["overrides_passed"] += 1
             for link in self.links:
                 if ids is None or link.link_id in ids:
                     link.send_raw(frame)
                     self.stats["routed"] += 1
+
+    def _vids_of(self, target: int) -> tuple[tuple[int, int], ...]:
+        """The vehicles a message for ``target`` goes to (0: every vehicle heard)."""
+        if target:
+            return tuple((lid, target) for lid in sorted(self._links_of_sysid.get(target, ())))
+        return tuple(sorted((lid, s) for s, lids in self._links_of_sysid.items() for lid in lids))
+
+    def refusal_frames(self, ov: Override, reason: str) -> list[bytes]:
+        """What a refused client is sent, as from each addressed vehicle: a COMMAND_ACK
+        ``MAV_RESULT_DENIED`` for a command, then the ``reason`` as a STATUSTEXT (severity
+        WARNING, in 50-character chunks of one ``id`` beyond 50 characters: MAVLink 2's
+        STATUSTEXT ``id`` / ``chunk_seq``, which QGroundControl joins again)."""
+        out: list[bytes] = []
+        sysids = sorted({s for _, s in ov.vids}) or ([ov.target_system] if ov.target_system else [])
+        text = reason.encode("utf-8")[:1000]
+        chunks = [text[i : i + _STATUSTEXT_LEN] for i in range(0, len(text), _STATUSTEXT_LEN)]
+        if len(chunks) > 1 and len(chunks[-1]) == _STATUSTEXT_LEN:
+            chunks.append(b"")  # a full last chunk would leave the receiver waiting for more
+        for sysid in sysids:
+            mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=ov.target_component or 1)
+            if ov.command is not None:
+                ack = mavlink.MAVLink_command_ack_message(
+                    ov.command,
+                    mavlink.MAV_RESULT_DENIED,
+                    0,
+                    0,
+                    ov.client_sysid,
+                    ov.client_compid,
+                )
+                out.append(bytes(ack.pack(mav)))
+            tid = next(self._statustext_ids) if len(chunks) > 1 else 0
+            for k, chunk in enumerate(chunks):
+                st = mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING, chunk, tid, k)
+                out.append(bytes(st.pack(mav)))
+        return out
+
+    def _refuse(self, ov: Override, reason: str, source: object) -> None:
+        """Answer a refused override to the client that sent it (and to no other)."""
+        # Info only: the station's policy records and logs the refusal (once per retry burst).
+        log.info("forwarding: %s from %s refused: %s", ov.what(), ov.client, reason)
+        payload = b"".join(self.refusal_frames(ov, reason))
+        for out in self._outputs:
+            out.reply(payload, source)
 
 
 class _Output:
@@ -294,6 +512,26 @@ class _Output:
                 for w in list(self._writers):
                     # A stalled client must not grow our memory: drop what it cannot take.
                     if w.transport.get_write_buffer_size() < (1 << 20):
+                        w.write(payload)
+        except OSError as exc:
+            log.debug("forward %s: %s", self.spec.text, exc)
+
+    def reply(self, payload: bytes, source: object) -> None:
+        """Send ``payload`` to the one peer ``source`` (``(connection text, address)`` as
+        :meth:`Forwarder.from_output` is given it), if it is one of this output's."""
+        if not (isinstance(source, tuple) and len(source) == 2 and source[0] == self.spec.text):
+            return
+        peer = source[1]
+        try:
+            if self.spec.kind == "udpout":
+                assert self._udp is not None  # started
+                self._udp.sendto(payload)
+            elif self.spec.kind == "udpin":
+                assert self._udp is not None  # started
+                self._udp.sendto(payload, peer)
+            else:
+                for w in list(self._writers):
+                    if w.get_extra_info("peername") == peer:
                         w.write(payload)
         except OSError as exc:
             log.debug("forward %s: %s", self.spec.text, exc)

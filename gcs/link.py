@@ -27,6 +27,7 @@ state declared once (:class:`gcs.link_state.LinkState`):
 * :mod:`gcs.link_commands` - commands with ACK matching, retries and queueing;
 * :mod:`gcs.link_streams` - telemetry stream requests and stops of unused messages;
 * :mod:`gcs.link_discovery` - who is a vehicle, task systems, what a vehicle reports;
+* :mod:`gcs.link_health` - what a pilot watches (GPS, sensors, estimator, radio, packet loss);
 * :mod:`gcs.link_actions` - modes, arming, takeoff, the re-sent position target;
 * :mod:`gcs.link_params` - parameter reads and writes.
 """
@@ -137,6 +138,7 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
             | {m for m, _ in self.config.stream_rates_hz}
             | set(self.config.stale_msgids)
             | (_BATTERY_MSGIDS if self.config.battery_telemetry else frozenset())
+            | (_HEALTH_MSGIDS if self.config.health_telemetry else frozenset())
         )
 
     # ------------------------------------------------------------------ outputs
@@ -299,6 +301,11 @@ class StationLink(VehicleDiscovery, VehicleActions, ParamProtocol):
                 v.addr_heard_s = now_s
             elif not self._moved(v, msg, kind, addr, now_s):
                 return
+        if msg.get_srcComponent() == _AUTOPILOT_COMPID:
+            v.seq.update(msg.get_seq())  # packet loss (gcs.link_quality)
+        elif kind == "RADIO_STATUS":  # a radio stamping its vehicle's sysid (gcs.link_health)
+            self._on_radio_status(v, msg, now_s)
+            return
         if kind == "HEARTBEAT":
             self._on_heartbeat(v, msg, addr, now_s)
             return
@@ -405,12 +412,24 @@ _HANDLERS: dict[str, Callable[[StationLink, _Vehicle, Any, float], None]] = {
     "MISSION_REQUEST": StationLink._on_mission_protocol,  # gcs/rally.py
     "MISSION_REQUEST_INT": StationLink._on_mission_protocol,
     "MISSION_ACK": StationLink._on_mission_protocol,
+    "GPS_RAW_INT": StationLink._on_health,  # gcs/link_health.py
+    "EKF_STATUS_REPORT": StationLink._on_health,
+    "ESTIMATOR_STATUS": StationLink._on_health,
+    "RADIO_STATUS": StationLink._on_radio_status,
 }
 
 #: Battery reports: handled only with ``StationConfig.battery_telemetry``; without it they are
 #: ignored (and stopped when unused) exactly as before it existed.
 _BATTERY_MSGIDS = frozenset(
     (mavlink.MAVLINK_MSG_ID_SYS_STATUS, mavlink.MAVLINK_MSG_ID_BATTERY_STATUS)
+)
+
+#: What a pilot watches (gcs/link_health.py): handled only with
+#: ``StationConfig.health_telemetry``; without it ignored (and stopped when unused) as before.
+#: RADIO_STATUS is never stopped (a radio's message, not a stream of the autopilot).
+_HEALTH_MSGIDS = frozenset(
+    getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
+    for name in ("GPS_RAW_INT", "EKF_STATUS_REPORT", "ESTIMATOR_STATUS", "SYS_STATUS")
 )
 
 #: Fully decoded; every other known message stays a checked :class:`~gcs.wire.RawFrame`.
@@ -420,7 +439,7 @@ _DECODED_MSGIDS = frozenset(
 
 #: Never asked to stop, used or not: replies to requests (ours or another GCS's), protocol
 #: traffic, one-off notices; stopping them is refused at best and breaks a protocol at worst.
-_NEVER_DISABLE = _DECODED_MSGIDS - _BATTERY_MSGIDS | frozenset(
+_NEVER_DISABLE = _DECODED_MSGIDS - _BATTERY_MSGIDS - _HEALTH_MSGIDS | frozenset(
     getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
     for name in (
         "AUTOPILOT_VERSION",
@@ -461,7 +480,6 @@ _NEVER_DISABLE = _DECODED_MSGIDS - _BATTERY_MSGIDS | frozenset(
 #: Known and deliberately ignored here (requested for display or future use; counted only).
 _IGNORED = frozenset(
     {
-        "GPS_RAW_INT",
         "EXTENDED_SYS_STATE",
         "LOCAL_POSITION_NED",
         "ATTITUDE",
@@ -478,7 +496,6 @@ _IGNORED = frozenset(
         "AUTOPILOT_VERSION",
         "PING",
         "ALTITUDE",
-        "ESTIMATOR_STATUS",
         "VIBRATION",
         "HIGHRES_IMU",
         "SCALED_IMU",
@@ -488,7 +505,6 @@ _IGNORED = frozenset(
         "RC_CHANNELS",
         "AHRS",
         "AHRS2",
-        "EKF_STATUS_REPORT",
         "POWER_STATUS",
         "MEMINFO",
         "TERRAIN_REPORT",

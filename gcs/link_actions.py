@@ -16,6 +16,12 @@ from gcs.wire import mavlink
 
 __all__ = ["VehicleActions"]
 
+#: The commands the autopilot adapters send for a flight (gcs.autopilot: modes, RTL and LAND as
+#: modes, arm / disarm, take-off): what :meth:`VehicleActions.withdraw_flight_commands` stops.
+_FLIGHT_COMMANDS = frozenset(
+    {mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_CMD_NAV_TAKEOFF}
+)
+
 
 class VehicleActions(CommandTracker):
     """Actions and setpoints (a mixin of :class:`gcs.link.StationLink`)."""
@@ -127,6 +133,24 @@ class VehicleActions(CommandTracker):
                 )
             )
         v.deferred = []
+
+    def withdraw_flight_commands(self, sysid: int, now_s: float, reason: str) -> int:
+        """Stop re-sending this station's mode, arm / disarm and take-off commands to ``sysid``
+        (in flight or queued): each fails now with ``reason`` (CommandFailed). Someone else took
+        the vehicle (a forwarded client's override, gcs.forward): a retry of ours must not undo
+        it. Returns how many were withdrawn."""
+        self._get(sysid)
+        n = 0
+        for key in [k for k in self._commands if k[0] == sysid and k[1] in _FLIGHT_COMMANDS]:
+            queued = self._queued.pop(key, None) or ()
+            for cmd in (self._commands.pop(key), *queued):  # never internal (stream) ones
+                n += 1
+                self._emit(
+                    CommandFailed(
+                        self.link_id, sysid, now_s, cmd.command, cmd.request_id, None, reason
+                    )
+                )
+        return n
 
     def _send_setpoint(self, v: _Vehicle, now_s: float, msg: Any = None) -> None:
         """Send ``v.setpoint`` (``msg``: that very message, already built from the same floats

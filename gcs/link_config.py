@@ -110,6 +110,12 @@ class StationConfig:
     before (counted, and BATTERY_STATUS stopped like any unused message): a mission without
     batteries keeps its event stream bit for bit."""
 
+    health_telemetry: bool = False
+    """Fold what a pilot watches into events (:mod:`gcs.link_health`): GPS_RAW_INT, SYS_STATUS's
+    sensor masks and its battery (as ``battery_telemetry`` does for SYS_STATUS),
+    EKF_STATUS_REPORT / ESTIMATOR_STATUS and RADIO_STATUS (the live page asks for it). Off, they
+    stay ignored exactly as before."""
+
     def __post_init__(self) -> None:
         if not 1 <= self.sysid <= 255:
             raise ValueError(f"sysid must be in 1..255, got {self.sysid}")

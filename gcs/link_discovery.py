@@ -25,10 +25,10 @@ from gcs.events import (
     VehicleRecovered,
 )
 from gcs.link_state import _AUTOPILOT_COMPID, Addr, _result_name, _Vehicle
-from gcs.link_streams import StreamRequests
+from gcs.link_health import VehicleHealth
 from gcs.wire import mavlink
 
-__all__ = ["VehicleDiscovery", "NON_VEHICLE_TYPES"]
+__all__ = ["VehicleDiscovery", "NON_VEHICLE_TYPES", "sys_status_battery"]
 
 #: The link's log lines keep the logger they always had (StationLink was one module).
 log = logging.getLogger("gcs.link")
@@ -49,7 +49,21 @@ NON_VEHICLE_TYPES = frozenset(
 )
 
 
-class VehicleDiscovery(StreamRequests):
+def sys_status_battery(link_id: int, sysid: int, t_s: float, msg: Any) -> BatteryReceived:
+    """SYS_STATUS's battery fields (common.xml) as an event (the live link and the replay of a
+    .tlog, mission.view.live.replay); ValueError for values no event accepts."""
+    return BatteryReceived(
+        link_id,
+        sysid,
+        t_s,
+        source="SYS_STATUS",
+        remaining_frac=wire.battery_remaining_to_frac(msg.battery_remaining),
+        voltage_v=wire.battery_mv_to_v(msg.voltage_battery),
+        current_a=wire.battery_ca_to_a(msg.current_battery),
+    )
+
+
+class VehicleDiscovery(VehicleHealth):
     """Discovery and vehicle reports (a mixin of :class:`gcs.link.StationLink`)."""
 
     # ------------------------------------------------------------------ who is a vehicle
@@ -346,6 +360,7 @@ class VehicleDiscovery(StreamRequests):
                 ev.time_boot_s,
             )
             self._emit(VehicleRebooted(self.link_id, v.sysid, now_s, v.time_boot_s, ev.time_boot_s))
+            v.seq.reset()  # its sequence numbers start again too
             if not v.lost:  # a reboot faster than the loss timeout forgot our rates and home too
                 self._request_streams(v, now_s)
                 self._request_home(v, now_s)
@@ -364,20 +379,14 @@ class VehicleDiscovery(StreamRequests):
             self._note_unused(v, msg.get_msgId(), now_s)
 
     def _on_sys_status(self, v: _Vehicle, msg: Any, now_s: float) -> None:
-        """SYS_STATUS's battery fields (common.xml): the autopilot's main battery."""
-        if not self.config.battery_telemetry:
+        """SYS_STATUS's battery fields (common.xml): the autopilot's main battery; its sensor
+        masks go to :mod:`gcs.link_health`."""
+        self._on_sensors(v, msg, now_s)
+        if not (self.config.battery_telemetry or self.config.health_telemetry):
             self._battery_ignored(v, msg, now_s)
             return
         try:
-            ev = BatteryReceived(
-                self.link_id,
-                v.sysid,
-                now_s,
-                source="SYS_STATUS",
-                remaining_frac=wire.battery_remaining_to_frac(msg.battery_remaining),
-                voltage_v=wire.battery_mv_to_v(msg.voltage_battery),
-                current_a=wire.battery_ca_to_a(msg.current_battery),
-            )
+            ev = sys_status_battery(self.link_id, v.sysid, now_s, msg)
         except ValueError:
             self.stats.invalid_telemetry += 1
             return

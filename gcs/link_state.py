@@ -22,6 +22,7 @@ from gcs import wire
 from gcs.autopilot import Adapter
 from gcs.events import Event, HomePositionReceived, TelemetryReceived
 from gcs.link_config import Addr, LinkStats, StationConfig
+from gcs.link_quality import SeqCounter
 from gcs.wire import mavlink
 
 __all__ = ["LinkState", "Addr", "UnknownVehicle", "LinkUsageError"]
@@ -75,6 +76,8 @@ class _Vehicle:
     """msgid -> (requests so far, core time of the last one) for unused messages."""
     disable_queue: dict[int, None] = field(default_factory=dict)
     """Unused message ids waiting for the SET_MESSAGE_INTERVAL slot to be free."""
+    seq: SeqCounter = field(default_factory=SeqCounter)
+    """Sequence gaps of its autopilot's frames: packet loss (gcs.link_quality)."""
 
     @property
     def armed(self) -> bool:

@@ -84,6 +84,9 @@ class Station:
     def clear_position_target(self, vid: VehicleId, now_s: float) -> None:
         self.link(vid[0]).clear_position_target(vid[1], now_s)
 
+    def withdraw_flight_commands(self, vid: VehicleId, now_s: float, reason: str) -> int:
+        return self.link(vid[0]).withdraw_flight_commands(vid[1], now_s, reason)
+
     def set_mode(self, vid: VehicleId, mode: str, now_s: float) -> int:
         return self.link(vid[0]).set_mode(vid[1], mode, now_s)
 

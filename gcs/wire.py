@@ -79,6 +79,9 @@ __all__ = [
     "encode_param_value",
     "param_values_equal",
     "is_int_param_type",
+    "satellites_or_none",
+    "dop_or_none",
+    "rssi_or_none",
 ]
 
 
@@ -119,3 +122,19 @@ def battery_time_remaining_s(s: int) -> float | None:
     if s <= 0:
         return None
     return float(s)
+
+
+def satellites_or_none(n: int) -> int | None:
+    """GPS_RAW_INT ``satellites_visible``: UINT8_MAX (255) is "unknown" (common.xml)."""
+    return None if n == 255 else int(n)
+
+
+def dop_or_none(cdop: int) -> float | None:
+    """GPS_RAW_INT ``eph`` / ``epv``: dilution of precision x 100; UINT16_MAX is "unknown"."""
+    return None if cdop == 65535 else cdop / 100.0
+
+
+def rssi_or_none(value: int) -> int | None:
+    """RADIO_STATUS ``rssi`` / ``remrssi`` / ``noise``: 255 (UINT8_MAX) is "unknown"
+    (common.xml, RADIO_STATUS)."""
+    return None if value == 255 else int(value)

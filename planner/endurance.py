@@ -331,6 +331,10 @@ class RotationPolicy:
     replaced_by: IntArray = field(init=False)
     """(N,) the spare inbound to this relay (-1: none)."""
     swap_end_s: FloatArray = field(init=False)
+    pad: IntArray = field(init=False)
+    """(N,) the pad (0 .. ``base.pads - 1``) a drone is being swapped on (-1: none): the lowest
+    free pad when its swap starts, free again when the swap is done or the drone is lost. What
+    the operator's view names ("vehicle 7 on pad 2"); no decision depends on which pad."""
     stock: int = field(init=False)
     """Charged batteries on the shelf."""
     charging_done_s: list[float] = field(init=False)
@@ -349,6 +353,7 @@ class RotationPolicy:
         self.replaces = np.full(n, -1, np.int64)
         self.replaced_by = np.full(n, -1, np.int64)
         self.swap_end_s = np.full(n, np.inf)
+        self.pad = np.full(n, -1, np.int64)
         self.stock = self.base.spare_batteries
         self.charging_done_s = []
         self.charge_queue = 0
@@ -421,6 +426,7 @@ class RotationPolicy:
                 if ph[k] == INBOUND:
                     ph[k] = AIR  # it was flying to a relay that is gone: plan it where it is
         ph[newly_lost] = LOST
+        self.pad[newly_lost] = -1
         self.replaces[newly_lost] = -1
         self.replaced_by[newly_lost] = -1
 
@@ -440,6 +446,7 @@ class RotationPolicy:
             ph[i] = READY
             swapped[i] = True
             self.swap_end_s[i] = np.inf
+            self.pad[i] = -1
             self.counters["swaps"] += 1
             events.append(RotationEvent(now_s, "swap_done", int(i)))
         # A landed drone waits off the pads until a pad and a charged battery are both free.
@@ -601,6 +608,9 @@ class RotationPolicy:
         self.stock -= 1
         self.phase[i] = SWAPPING
         self.swap_end_s[i] = now_s + self.base.swap_time_s
+        taken = set(self.pad[(self.phase == SWAPPING) & (self.pad >= 0)].tolist())
+        # The step starts a swap only while fewer than ``pads`` drones are on the pads.
+        self.pad[i] = next(p for p in range(self.base.pads) if p not in taken)
         self.charge_queue += 1  # the battery taken out goes to the chargers
         self._advance_chargers(now_s)
         events.append(RotationEvent(now_s, "swap_start", i))

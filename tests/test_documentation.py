@@ -415,11 +415,35 @@ def page(actions: bool = True, tiles: str | None = None, public: bool = False) -
     return check
 
 
-def _post(url: str, body: dict) -> tuple[int, bytes]:
+def rotation_page(swap_confirm: str) -> Check:
+    """A flight with batteries served: the frame has the Relay rotation (docs/live_view.md) in the
+    ``--swap-confirm`` mode asked for, and ``confirm_swap`` for "all" is refused (one vehicle at a
+    time), with the operator key."""
+
+    def check(c: Ctx) -> None:
+        page()(c)
+        s = c.served
+        assert s is not None
+        url = c.extra["url"]
+        rot = s.get_json(url + "api/frame").get("rotation")
+        c.expect(rot is not None, "no rotation in the frame of a mission with batteries")
+        c.expect(rot["swap_confirm"] == swap_confirm, f"swap_confirm {rot['swap_confirm']}")
+        c.expect(len(rot["pads"]) == 4, f"wildfire_2h has 4 pads, the frame {len(rot['pads'])}")
+        key = s.wait_for(r"operator key \(actions\): (\S+)").group(1)
+        body = {"action": "confirm_swap", "vehicle": "all"}
+        st, text = _post(url + "api/action", body, {"X-Operator-Key": key})
+        c.expect(st == 400 and b"name the vehicle" in text, f"confirm_swap all: {st} {text!r}")
+
+    return check
+
+
+def _post(url: str, body: dict, headers: dict | None = None) -> tuple[int, bytes]:
     import urllib.error
     import urllib.request
 
-    req = urllib.request.Request(url, data=json.dumps(body).encode(), method="POST")
+    req = urllib.request.Request(
+        url, data=json.dumps(body).encode(), method="POST", headers=headers or {}
+    )
     try:
         with urllib.request.urlopen(req, timeout=10) as r:
             return r.status, r.read()
@@ -536,6 +560,57 @@ def _forward_after(c: Ctx, readonly: bool) -> None:
         c.expect(not seen, "--forward-readonly: a forwarded command reached the vehicles")
     else:
         c.expect(seen, "a command sent through --forward did not reach the vehicles")
+
+
+def forward_refusal(c: Ctx) -> None:
+    """``--forward-overrides refuse``: a client's SET_MODE to a vehicle the station flies is
+    answered by the vehicle's sysid with the station's STATUSTEXT, and recorded in events.jsonl
+    (docs/live_view.md "Overrides from a forwarded client")."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    s = c.served
+    assert s is not None
+    s.wait_for(r"forwarding MAVLink to ")
+    mav = mavlink.MAVLink(None, srcSystem=254, srcComponent=190)
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    text, sysid = "", None
+    end = time.monotonic() + 90
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", c.extra["ports"][0]))
+        sock.settimeout(1.0)
+        while time.monotonic() < end and not text.endswith("first"):
+            try:
+                data, peer = sock.recvfrom(65536)
+            except TimeoutError:
+                continue
+            for m in parser.parse_buffer(data) or []:
+                kind = m.get_type()
+                if kind == "HEARTBEAT" and sysid is None and m.get_srcSystem() != 255:
+                    sysid = m.get_srcSystem()
+                elif kind == "STATUSTEXT" and m.get_srcSystem() == sysid:
+                    if m.text.startswith("phireman:"):
+                        text = m.text
+                    elif text:
+                        text += m.text
+            if sysid is not None and not text:  # RTL (ArduCopter 6), again until refused
+                sock.sendto(mavlink.MAVLink_set_mode_message(sysid, 1, 6).pack(mav), peer)
+    c.expect(
+        text == f"phireman: vehicle {sysid} is flown by the relay plan; hold it on the station "
+        "first",
+        f"no refusal STATUSTEXT from the vehicle (got {text!r})",
+    )
+
+    def after() -> None:
+        events = c.run_dirs("runs")[-1] / "events.jsonl"
+        c.expect(events.is_file(), "no events.jsonl")
+        recs = [json.loads(l) for l in events.read_text().splitlines() if l.strip()]
+        c.expect(
+            any(r.get("action") == "override-refused" and r.get("sysid") == sysid for r in recs),
+            "the refusal is not in events.jsonl",
+        )
+
+    c.extra["after"] = after
 
 
 def forward_ports(*kinds: str) -> tuple[str, Callable[[re.Match], str]]:
@@ -737,7 +812,11 @@ TABLE: dict[str, Case] = {
     "phireman fly wildfire_2h --duration-s 2400 --speedup 50 --apply-failsafes": Case(
         # The first 60 s of the 2,400: batteries read, the battery failsafes applied, K planned.
         rewrite=((r"--duration-s 2400", "--duration-s 60"), (r"$", " --no-wait --out runs")),
-        check=lambda c: c.has(r"TU1/TU2 as the station saw them", r"BATT_FS_LOW_ACT"),
+        check=lambda c: c.has(
+            r"TU1/TU2 as the station saw them",
+            r"BATT_FS_LOW_ACT",
+            r"relay rotation: \d+ rotations, \d+ battery failsafes in the air, \d+ landed away",
+        ),
         timeout=600,
     ),
     "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),
@@ -829,8 +908,19 @@ TABLE: dict[str, Case] = {
     ),
     "phireman fly --serve 8080": Case(kind="serve", rewrite=(PORT_0,), check=page()),
     "phireman fly wildfire --serve 8080": Case(kind="serve", rewrite=(PORT_0,), check=page()),
+    # ---- the relay rotation on the page (docs/live_view.md, docs/design/endurance.md §8) --------
+    "phireman fly --swap-confirm": Case(kind="help"),
+    "phireman fly wildfire_2h --serve 8080 --apply-failsafes": Case(
+        kind="serve", rewrite=(PORT_0,), check=rotation_page("auto")
+    ),
+    "phireman fly wildfire_2h --serve 8080 --apply-failsafes --swap-confirm manual": Case(
+        kind="serve", rewrite=(PORT_0,), check=rotation_page("manual")
+    ),
     "phireman fly wildfire --serve 0.0.0.0:8080": Case(
         kind="serve", rewrite=(PORT_0,), check=page(public=True)
+    ),
+    "phireman fly wildfire --serve 8080 --alert-crew-after 30": Case(
+        kind="serve", rewrite=(PORT_0,), check=page()
     ),
     "phireman fly wildfire --serve 8080 --serve-actions off": Case(
         kind="serve", rewrite=(PORT_0,), check=page(actions=False)
@@ -861,6 +951,9 @@ TABLE: dict[str, Case] = {
     ),
     "phireman fly wildfire --forward udpin:0.0.0.0:14551 --forward-readonly": Case(
         kind="serve", rewrite=(forward_ports(),), check=forwarding(("udpin",), readonly=True)
+    ),
+    "phireman fly wildfire --forward udpout:127.0.0.1:14550 --forward-overrides refuse": Case(
+        kind="serve", rewrite=(forward_ports(),), check=forward_refusal
     ),
     "phireman fly wildfire --forward udpout:192.0.2.10:14550 --forward tcpin:0.0.0.0:5763": Case(
         kind="serve",

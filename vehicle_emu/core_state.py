@@ -174,7 +174,10 @@ class CoreState:
         return self.streams.set_interval(msg_id, interval_s, now_s)
 
     def _can_send(self, msg_id: int) -> bool:
-        """Whether this vehicle has message ``msg_id`` at all (BATTERY_STATUS: a battery)."""
+        """Whether this vehicle has message ``msg_id`` at all (BATTERY_STATUS: a battery; the
+        filter's report: its own firmware's, ``pers.estimator_msgid``)."""
+        if msg_id in (tm.M_EKF_STATUS_REPORT, tm.M_ESTIMATOR_STATUS):
+            return msg_id == self.pers.estimator_msgid
         return msg_id in tm.BUILDERS and (msg_id != tm.M_BATTERY_STATUS or self.batt is not None)
 
     def _statustext(self, now_s: float, severity: int, text: str) -> None:

@@ -46,6 +46,11 @@ __all__ = [
     "M_ATTITUDE",
     "M_VFR_HUD",
     "M_BATTERY_STATUS",
+    "M_EKF_STATUS_REPORT",
+    "M_ESTIMATOR_STATUS",
+    "satellites_of",
+    "ESTIMATOR_FLAGS_OK",
+    "ESTIMATOR_RATIO",
 ]
 
 M_HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
@@ -63,6 +68,18 @@ M_MISSION_CURRENT = mavlink.MAVLINK_MSG_ID_MISSION_CURRENT
 M_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
 M_VFR_HUD = mavlink.MAVLINK_MSG_ID_VFR_HUD
 M_BATTERY_STATUS = mavlink.MAVLINK_MSG_ID_BATTERY_STATUS
+M_EKF_STATUS_REPORT = mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT
+M_ESTIMATOR_STATUS = mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS
+
+#: What a healthy GPS-aided filter reports: attitude, horizontal and vertical velocity, relative
+#: and absolute horizontal position, absolute vertical position, and both predicted horizontal
+#: positions (EKF_STATUS_FLAGS / ESTIMATOR_STATUS_FLAGS share these bits; ArduPilot
+#: libraries/AP_NavEKF3/AP_NavEKF3_Outputs.cpp NavEKF3_core::send_status_report, PX4
+#: src/modules/mavlink/streams/ESTIMATOR_STATUS.hpp). No rangefinder: no AGL height.
+ESTIMATOR_FLAGS_OK = 1 | 2 | 4 | 8 | 16 | 32 | 256 | 512
+#: The filter's innovation test ratios (velocity, positions, compass) in steady flight: well
+#: below 1.0, the rejection threshold.
+ESTIMATOR_RATIO = 0.1
 
 #: Largest finite float32 (every float field on the wire is single precision).
 _FLT_MAX = float(np.finfo(np.float32).max)
@@ -239,6 +256,12 @@ def local_position_ned(core, now_s: float):
     )
 
 
+def satellites_of(sysid):
+    """Satellites the emulated receiver sees: 10..16 by sysid (a fixed sky per vehicle, so a
+    page or a test can tell vehicles apart; the emulator has no GNSS model)."""
+    return 10 + sysid % 7
+
+
 def gps_raw_int(core, now_s: float):
     ph, i = core.physics, core.index
     v = ph.vel_ned_m_s[i]
@@ -254,7 +277,7 @@ def gps_raw_int(core, now_s: float):
         120,
         min(65534, int(round(speed * 100))),
         cog,
-        12,
+        satellites_of(core.sysid),
     )
 
 
@@ -373,6 +396,20 @@ def autopilot_version(core, now_s: float):
     )
 
 
+def ekf_status_report(core, now_s: float):
+    """ArduPilot's EKF_STATUS_REPORT (a healthy filter)."""
+    r = ESTIMATOR_RATIO
+    return mavlink.MAVLink_ekf_status_report_message(ESTIMATOR_FLAGS_OK, r, r, r, r, 0.0, 0.0)
+
+
+def estimator_status(core, now_s: float):
+    """PX4's ESTIMATOR_STATUS (a healthy filter)."""
+    r = ESTIMATOR_RATIO
+    return mavlink.MAVLink_estimator_status_message(
+        s_to_time_usec(now_s - core._boot_s), ESTIMATOR_FLAGS_OK, r, r, r, r, 0.0, 0.0, 0.5, 0.5
+    )
+
+
 #: msg id -> builder(core, now_s).
 BUILDERS = {
     M_HEARTBEAT: heartbeat,
@@ -390,4 +427,6 @@ BUILDERS = {
     M_ATTITUDE: attitude,
     M_VFR_HUD: vfr_hud,
     M_BATTERY_STATUS: battery_status,
+    M_EKF_STATUS_REPORT: ekf_status_report,
+    M_ESTIMATOR_STATUS: estimator_status,
 }

@@ -293,7 +293,7 @@ def _gps_raw_int(b, cores, rows, now_s):
         "epv": 120,
         "vel": [min(65534, int(round(s * 100))) for s in speed],
         "cog": cog,
-        "satellites_visible": 12,
+        "satellites_visible": tm.satellites_of(b.sysid[rows]),
     }
 
 
@@ -388,6 +388,31 @@ def _vfr_hud(b, cores, rows, now_s):
     }
 
 
+def _ekf_status_report(b, cores, rows, now_s):
+    r = tm.ESTIMATOR_RATIO
+    return {
+        "velocity_variance": r,
+        "pos_horiz_variance": r,
+        "pos_vert_variance": r,
+        "compass_variance": r,
+        "flags": tm.ESTIMATOR_FLAGS_OK,
+    }
+
+
+def _estimator_status(b, cores, rows, now_s):
+    r = tm.ESTIMATOR_RATIO
+    return {
+        "time_usec": _usec(b, rows, now_s),
+        "flags": tm.ESTIMATOR_FLAGS_OK,
+        "vel_ratio": r,
+        "pos_horiz_ratio": r,
+        "pos_vert_ratio": r,
+        "mag_ratio": r,
+        "pos_horiz_accuracy": 0.5,
+        "pos_vert_accuracy": 0.5,
+    }
+
+
 _M = mavlink
 #: msg id -> (pymavlink class, vectorised field function).
 BATCHED_TYPES = {
@@ -408,6 +433,8 @@ BATCHED_TYPES = {
     tm.M_EXTENDED_SYS_STATE: (_M.MAVLink_extended_sys_state_message, _extended_sys_state),
     tm.M_ATTITUDE: (_M.MAVLink_attitude_message, _attitude),
     tm.M_VFR_HUD: (_M.MAVLink_vfr_hud_message, _vfr_hud),
+    tm.M_EKF_STATUS_REPORT: (_M.MAVLink_ekf_status_report_message, _ekf_status_report),
+    tm.M_ESTIMATOR_STATUS: (_M.MAVLink_estimator_status_message, _estimator_status),
 }
 
 _BATCHED_IDS = frozenset(BATCHED_TYPES)

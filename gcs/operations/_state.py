@@ -67,6 +67,11 @@ class OperatorState:
         reclaimed: list[tuple[float, int, int]]
         counters: dict[str, int]
         released: dict[tuple[int, int], str]
+        overrides: dict[tuple[int, int], OperatorAction]
+        _refusals_logged: dict[tuple[int, int], tuple[float, str, str]]
+
+        def t_mission_s(self, now_s: float) -> float: ...
+
         interrupted: str | None
         end_status: dict[str, int] | None
         actions: list[OperatorAction]
@@ -97,4 +102,5 @@ class OperatorState:
             self, snap: FleetSnapshot, rows: np.ndarray, target_ned_m: np.ndarray, now_s: float
         ) -> int: ...
         def _rotation_may_fly(self, n: int) -> np.ndarray: ...
+        def _rotation_confirm_swap(self, i: int, now_s: float) -> str: ...
         def _rally_holds_end(self, vid: tuple[int, int], now_s: float) -> bool: ...

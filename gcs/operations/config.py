@@ -11,7 +11,15 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["OperationsConfig", "TickRecord", "OPERATOR_ACTIONS", "OperatorAction"]
+__all__ = [
+    "OperationsConfig",
+    "TickRecord",
+    "OPERATOR_ACTIONS",
+    "OperatorAction",
+    "OVERRIDE",
+    "OVERRIDE_REFUSED",
+    "override_label",
+]
 
 
 @dataclass(frozen=True)
@@ -131,8 +139,23 @@ class TickRecord:
 #: What an operator may ask of one vehicle (or of all): ``hold`` (leave the plan, hover where it
 #: is at its layer, still in GUIDED/OFFBOARD so the link failsafes still apply), ``rtl``, ``land``
 #: (leave the plan, the firmware's RTL / LAND mode), ``release`` (leave the plan, keep the last
-#: target) and ``rejoin`` (back into the plan: reclaimed like a vehicle back from a failsafe).
-OPERATOR_ACTIONS = ("hold", "rtl", "land", "release", "rejoin")
+#: target) and ``rejoin`` (back into the plan: reclaimed like a vehicle back from a failsafe);
+#: ``confirm_swap``: the ground crew changed the battery of the vehicle on a pad (relay rotation,
+#: docs/design/endurance.md §8; one vehicle at a time, never "all").
+OPERATOR_ACTIONS = ("hold", "rtl", "land", "release", "rejoin", "confirm_swap")
+
+#: The records of a forwarded client's override (``phireman fly --forward-overrides``;
+#: :meth:`gcs.operations.Operator.forwarded_override`), never asked by the station's operator:
+#: ``override`` (honoured: the vehicle left the plan, as held, until ``rejoin``) and
+#: ``override-refused`` (not passed on: the vehicle stays in the plan).
+OVERRIDE = "override"
+OVERRIDE_REFUSED = "override-refused"
+
+
+def override_label(source: str, result: str) -> str:
+    """What the live page says of a vehicle a forwarded client took (the record's ``source``
+    and ``result``): ``taken by 127.0.0.1:14550 sysid 254: SET_MODE RTL (t+42 s)``."""
+    return f"taken by {source}: {result}"
 
 
 @dataclass(frozen=True)
@@ -144,9 +167,11 @@ class OperatorAction:
     link_id: int
     sysid: int
     source: str
-    """Where it came from (e.g. ``web 127.0.0.1``, ``cli``)."""
+    """Where it came from (e.g. ``web 127.0.0.1``, ``cli``; a forwarded client's address and
+    sysid for :data:`OVERRIDE` / :data:`OVERRIDE_REFUSED`)."""
     result: str
-    """``sent``, ``released``, ``rejoined`` or why nothing was sent."""
+    """``sent``, ``released``, ``rejoined``, ``swap confirmed ...`` or why nothing was done; for
+    an override, the client's command and when (``SET_MODE RTL (t+42 s)``)."""
 
 
 @dataclass

@@ -18,7 +18,7 @@ from gcs.autopilot import adapter_for
 from gcs.fleet import FleetSnapshot
 from gcs.link import LinkUsageError, UnknownVehicle
 from gcs.operations._state import OperatorState
-from gcs.operations.config import _Row
+from gcs.operations.config import OVERRIDE, _Row
 from gcs.operations.phases import TRANSITIONS, Trigger
 
 __all__ = ["EndStep"]
@@ -72,10 +72,12 @@ class EndStep(OperatorState):
             mode = snap.mode[i]
             vid = self._vid(snap, i)
             # Obeying (or already coming down on its own, e.g. a battery failsafe LAND), or an
-            # operator sent it home / down: the vehicle finishes on its own.
+            # operator sent it home / down: the vehicle finishes on its own. One a forwarded
+            # client took is the client's to bring down: never commanded behind its back.
             if mode in (adapter.rtl_mode, adapter.land_mode) or self.released.get(vid) in (
                 "rtl",
                 "land",
+                OVERRIDE,
             ):
                 continue
             row = self._rows.setdefault(i, _Row())

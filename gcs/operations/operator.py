@@ -198,7 +198,13 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         }
         self.released: dict[tuple[int, int], str] = {}
         """Vehicles an operator took out of the plan -> the action that did it (hold, rtl, land,
-        release). The operator never plans, reclaims, relaunches or end-commands them."""
+        release, or ``override``: a forwarded client's command, honoured). The operator never
+        plans, reclaims or relaunches them; nor end-commands those sent home or down, or taken
+        by a forwarded client."""
+        self.overrides: dict[tuple[int, int], OperatorAction] = {}
+        """Vehicles a forwarded client took (``released`` ``override``) -> the record saying who,
+        with which command and when (:meth:`forwarded_override`)."""
+        self._refusals_logged: dict[tuple[int, int], tuple[float, str, str]] = {}
         self.failsafe_texts: list[tuple[float, tuple[int, int], str]] = []
         """(t_s, vid, text) of every failsafe STATUSTEXT a vehicle sent."""
         self.interrupted: str | None = None

@@ -13,7 +13,8 @@ world drives it in process (``mission/experiments/endurance.py``):
   LAND there (the station's usual end action);
 * ``landed_at_base`` = heard, disarmed, within ``land_radius_m`` of its pad (where it was
   first heard on the ground: its home, where RTL lands it; the base's centre until then);
-* the swap is confirmed when the vehicle comes back powered and full (a reboot,
+* the swap is confirmed by the ground crew (the operator action ``confirm_swap``), or, with
+  ``swap_confirm`` ``auto`` (the default), when the vehicle comes back powered and full (a reboot,
   :class:`gcs.events.VehicleRebooted`, or a charge that rose to ``full_frac``): ``swap_done``;
   the reboot may come before the station heard it land (the crew pulled the pack as it
   disarmed): a reboot after it was sent home counts, and a returning vehicle last heard low at
@@ -49,9 +50,11 @@ from planner.endurance import (
     LANDED,
     LOST,
     NO_BATTERY,
+    PHASES,
     READY,
     RETURNING,
     SWAPPING,
+    RotationEvent,
     time_to_reserve_s,
 )
 from planner.geometry import geodetic_to_ned_m
@@ -228,7 +231,15 @@ class RotationStep(OperatorState):
         # before (rebooted > landed_at) or only after it (powered off before the disarm was heard).
         booted_home = np.zeros(nd, bool)
         booted_home[list(rot.rebooted_home)] = True
-        swap_done = (ph == SWAPPING) & full & ((rebooted > landed_at) | rose | booted_home)
+        swap_done = np.zeros(nd, bool)
+        if rot.swap_confirm == "auto":
+            swap_done = (ph == SWAPPING) & full & ((rebooted > landed_at) | rose | booted_home)
+        # The ground crew's confirmation (docs/design/endurance.md §8): ready once the vehicle is
+        # heard again without a low battery (not the pack that came home in it).
+        crew = np.zeros(nd, bool)
+        crew[[i for i in rot.confirmed_s if i < nd]] = True
+        crew &= (ph == SWAPPING) & heard & ~(np.isfinite(batt) & (batt < rot.full_frac))
+        swap_done |= crew
         ret_drain = np.full(nd, rot.hover_drain_per_s * rot.return_drain_factor)
         out = pol.step(
             now_s,
@@ -244,10 +255,15 @@ class RotationStep(OperatorState):
         )
         for i in np.flatnonzero(out.battery_swapped).tolist():
             rot.rebooted_home.discard(i)
+            if i in rot.confirmed_s:
+                rot.counters["swaps_confirmed_by_crew"] += 1
+        for i in [i for i in rot.confirmed_s if pol.phase[i] != SWAPPING]:
+            del rot.confirmed_s[i]  # done, or lost on the pad
         rot.events.extend(out.events)
         for ev in out.events:
             log.info("rotation t=%.0f s: %s row %d (%d)", ev.t_s, ev.kind, ev.drone, ev.other)
         rot.time_to_reserve_s = time_to_reserve_s(batt, drain, dist, pol.params, ret_drain)
+        rot.tick_s = now_s
         flying = heard & armed & (np.isin(pol.phase, (AIR, INBOUND, RETURNING)))
         if flying.any() and np.isfinite(batt[flying]).any():
             rot.min_battery_in_air = min(rot.min_battery_in_air, float(np.nanmin(batt[flying])))
@@ -315,6 +331,40 @@ class RotationStep(OperatorState):
             row = self._rows.get(i)
             if row is not None:
                 row.reclaiming = False
+
+    def _rotation_confirm_swap(self, i: int, now_s: float) -> str:
+        """The ground crew confirms the swap of row ``i`` (the operator action ``confirm_swap``);
+        returns what was done, for the action's record."""
+        rot = self.rotation
+        if rot is None:
+            return "not confirmed: this flight has no relay rotation"
+        pol = rot.policy
+        phase = PHASES[int(pol.phase[i])] if i < pol.n_drones else "not in the rotation"
+        if i >= pol.n_drones or pol.phase[i] != SWAPPING:
+            return f"not confirmed: no swap requested ({phase})"
+        if i in rot.confirmed_s:
+            return "already confirmed"
+        rot.confirmed_s[i] = now_s
+        rot.events.append(RotationEvent(now_s, "crew_confirmed", i))
+        log.info("rotation t=%.0f s: the crew confirmed the swap of row %d", now_s, i)
+        return "swap confirmed (ready once heard with a charged battery)"
+
+    def _fleet_ids(self) -> list[str]:
+        """``"LINK:SYSID"`` of each fleet row (the rotation's rows are the fleet's)."""
+        f = self.fleet
+        return [f"{l}:{s}" for l, s in zip(f.link_of_index.tolist(), f.sysid_of_index.tolist())]
+
+    def rotation_state(self) -> dict[str, Any] | None:
+        """The rotation as the operator's view draws it (:meth:`RotationSetup.state`; None
+        without batteries)."""
+        return None if self.rotation is None else self.rotation.state(self._fleet_ids())
+
+    def rotation_events(self, start: int = 0) -> list[dict[str, Any]]:
+        """The rotation's events from the ``start``-th on, the vehicles by id
+        (:meth:`RotationSetup.event_dicts`; [] without batteries)."""
+        if self.rotation is None:
+            return []
+        return self.rotation.event_dicts(start, self._fleet_ids())
 
     def rotation_summary(self) -> dict[str, Any] | None:
         """The rotation's counters (None without batteries)."""

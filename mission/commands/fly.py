@@ -20,6 +20,7 @@ __all__ = [
     "format_param_changes",
     "format_pace",
     "format_tu",
+    "format_rotation",
     "slow_pace_warning",
 ]
 
@@ -151,6 +152,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "every drone flies until its firmware's low-battery failsafe (as sim --rotation)",
     )
     p.add_argument(
+        "--swap-confirm",
+        choices=("auto", "manual"),
+        default=FLY_DEFAULTS.swap_confirm,
+        help="who ends a battery swap on a pad (a mission with batteries): 'auto' (default) "
+        "the station, when the vehicle comes back powered and full, or the ground crew first "
+        "with the live page's Confirm; 'manual' only the ground crew (--serve, Confirm)",
+    )
+    p.add_argument(
         "--no-wait",
         action="store_true",
         help="do not wait for the vehicles to land after the end command",
@@ -180,7 +189,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     from mission.commands.live_view import add_fly_arguments
 
-    add_fly_arguments(p)  # --serve, --serve-actions, --tiles, --forward, --forward-readonly
+    add_fly_arguments(p)  # --serve(-actions), --tiles, --forward(-readonly, -overrides)
     from mission.commands.tak_args import add_tak_arguments
 
     add_tak_arguments(p)  # --tak URL, --tak-period-s, --tak-tls-*
@@ -277,6 +286,9 @@ def _status_fields(d: dict) -> list[tuple[str, str]]:
         ("crews", f"crews {covered}/{n_tasks}"),
         ("tu", f"TU1 {_pct0(d['tu1'])} TU2 {_pct0(d['tu2'])}"),
     ]
+    rot = d.get("rotation")
+    if rot:
+        fields.append(("rotation", _rotation_field(rot)))
     if d.get("reclaims"):
         fields.append(("reclaimed", f"{d['reclaims']} reclaimed"))
     modes = " ".join(f"{k}:{v}" for k, v in sorted(d["modes"].items(), key=lambda kv: -kv[1]))
@@ -285,14 +297,29 @@ def _status_fields(d: dict) -> list[tuple[str, str]]:
     return fields
 
 
+def _rotation_field(rot: dict) -> str:
+    """The relay rotation on the status line: rotations done, the lowest battery seen in the air,
+    and, when there are any, battery failsafes in the air and vehicles landed away from the
+    base."""
+    text = f"rot {rot['rotations']} min {_pct0(rot['min_battery_in_air'])}"
+    if rot.get("battery_failsafes_in_air"):
+        text += f" {rot['battery_failsafes_in_air']} batt fs"
+    if rot.get("landed_away"):
+        text += f" {rot['landed_away']} away"
+    return text
+
+
 #: The order in which fields leave a status line too wide for the terminal: the lesser first
 #: ("50 drones: 40 net" shortens to "40/50 net" before the crews leave); TU1/TU2 never leave.
+#: The relay rotation (a mission with batteries, beside TU: "TU1 95% TU2 97% rot 12 min 31%")
+#: stays on an 80-column line of a two-hour mission, once the drones lost and home have left.
 STATUS_DROP_ORDER = (
     "modes",
     "reclaimed",
     "home",
     "lost",
     "drones",
+    "rotation",
     "crews",
     "net",
     "clock",
@@ -300,7 +327,12 @@ STATUS_DROP_ORDER = (
 )
 
 #: How the fields are grouped into the line's parts (``a b | c d e | ...``).
-_STATUS_PARTS = (("phase", "clock"), ("drones", "net", "lost", "home"), ("crews",), ("tu",))
+_STATUS_PARTS = (
+    ("phase", "clock"),
+    ("drones", "net", "lost", "home"),
+    ("crews",),
+    ("tu", "rotation"),
+)
 
 
 def _status_line(fields: list[tuple[str, str]], dropped: int) -> str:
@@ -336,6 +368,14 @@ def planned_drop(d: dict, width: int = 80) -> int:
     n_tasks = d.get("n_tasks") or 0
     base = dict(d, fleet=n, networked=n, lost=n, returning=n, tasks_covered=n_tasks)
     base.update(tu1=1.0, tu2=1.0, reclaims=0, modes={})
+    if d.get("rotation"):
+        # Hundreds of rotations; the lowest battery in the air has two digits once anything flew
+        # (100 % only before the take-off, when the clock is shorter); the failsafes and
+        # landings away are not planned for: they show while there is room.
+        base["rotation"] = dict(
+            d["rotation"], rotations=999, min_battery_in_air=0.99, battery_failsafes_in_air=0
+        )
+        base["rotation"]["landed_away"] = 0
     widest = [
         dict(base, phase="run", t_mission_s=d["duration_s"]),
         dict(base, phase="launch", t_s=max(d["t_s"], 999.0)),
@@ -389,6 +429,8 @@ class _Status:
         self._failures_warned = 0
         self._failsafes_warned = 0
         self._rally_warned = 0
+        self._battery_fs_warned = 0
+        self._away_warned = 0
         self._slow_warned = False
         self._pace: list[tuple[float, float]] = []
 
@@ -417,6 +459,17 @@ class _Status:
             )
             self._warn(f'link {link_id} sysid {sysid} reports "{text}"{more}')
             self._failsafes_warned = k
+        rot = d.get("rotation") or {}
+        fs, away = rot.get("battery_failsafes_in_air", 0), rot.get("landed_away", 0)
+        if fs > self._battery_fs_warned:
+            self._warn(
+                f"battery failsafe in the air ({fs} so far): a vehicle's firmware sent it home "
+                "on its own, before the rotation relieved it"
+            )
+            self._battery_fs_warned = fs
+        if away > self._away_warned:
+            self._warn(f"{away} vehicle(s) landed away from the base (lost to the mission)")
+            self._away_warned = away
         r = d.get("rally_failures", 0)
         if r > self._rally_warned and d.get("last_rally_failure"):
             t_s, (link_id, sysid), why = d["last_rally_failure"]
@@ -554,6 +607,18 @@ def format_tu(s: dict) -> list[str]:
     return lines
 
 
+def format_rotation(e: dict) -> str:
+    """The closing summary's relay rotation (``summary.json`` ``endurance``): the line ``sim``
+    prints per seed, and the swaps with who confirmed them (docs/design/endurance.md §8)."""
+    from mission.commands.options import endurance_line
+
+    crew = e.get("swaps_confirmed_by_crew", 0)
+    how = f"{e.get('swap_confirm', 'auto')} confirmation"
+    if crew:
+        how += f", {crew} confirmed by the ground crew"
+    return f"relay rotation: {endurance_line(e)}; {e['swaps']} battery swaps ({how})"
+
+
 def _group_report(items: list[dict], per_line: int = 12) -> list[str]:
     """One line per vehicle for small fleets; for large ones, one line per kind of answer
     (``told RTL; now RTL``, ``not heard``...) with the vehicles it applies to."""
@@ -636,6 +701,7 @@ def run(args) -> int:
         on_interrupt=args.on_interrupt,
         battery=args.battery,
         rotation=args.rotation,
+        swap_confirm=args.swap_confirm,
     )
     if args.discover_timeout_s is not None:
         opts.discover_timeout_s = args.discover_timeout_s
@@ -723,6 +789,8 @@ def run(args) -> int:
         )
     for line in format_tu(s):
         print(line)
+    if s.get("endurance"):
+        print(format_rotation(s["endurance"]))
     if s.get("speedup_slow"):
         import textwrap
 

@@ -7,6 +7,9 @@ import argparse
 import dataclasses
 import sys
 
+from gcs.forward import OVERRIDE_POLICIES
+from mission.flight.fly_options import FlyOptions
+
 __all__ = ["add_fly_arguments", "fly_options", "add_replay_arguments", "run_replay"]
 
 _SERVE_HELP = (
@@ -36,6 +39,14 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
         "metric grid around the mission origin",
     )
     g.add_argument(
+        "--alert-crew-after",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="alert on the page (banner and sound) when a crew has been cut off from "
+        "the base this long during the mission (default 60)",
+    )
+    g.add_argument(
         "--forward",
         action="append",
         default=[],
@@ -49,6 +60,17 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
         "--forward-readonly",
         action="store_true",
         help="drop everything the --forward outputs send (they only watch)",
+    )
+    g.add_argument(
+        "--forward-overrides",
+        choices=OVERRIDE_POLICIES,
+        default=FlyOptions.forward_overrides,
+        help="when a --forward client changes the mode of a vehicle the plan flies (mode, "
+        "RTL, land, arm/disarm, go to): honour = the vehicle leaves the plan as if held "
+        "on the station, and the live page says who took it ('Return to plan' gives it "
+        "back); refuse = not passed on, the client gets COMMAND_ACK DENIED and a "
+        "STATUSTEXT saying why (hold the vehicle on the station first). Never undone "
+        "silently (default %(default)s)",
     )
 
 
@@ -94,6 +116,12 @@ def fly_options(opts, args):
             raise UserError(f"--serve / --tiles: {exc}") from None
     elif args.tiles:
         raise UserError("--tiles needs --serve")
+    alert_after = getattr(args, "alert_crew_after", None)
+    if alert_after is not None:
+        if args.serve is None:
+            raise UserError("--alert-crew-after needs --serve")
+        if not alert_after >= 0:
+            raise UserError(f"--alert-crew-after must be >= 0 seconds, got {alert_after}")
     if args.forward:
         from gcs.forward import Forwarder
 
@@ -103,13 +131,17 @@ def fly_options(opts, args):
             raise UserError(f"--forward: {exc}") from None
     elif args.forward_readonly:
         raise UserError("--forward-readonly needs --forward")
+    elif args.forward_overrides != FlyOptions.forward_overrides:
+        raise UserError("--forward-overrides needs --forward")
     return dataclasses.replace(
         opts,
         serve=args.serve,
         serve_actions=args.serve_actions == "on",
+        alert_crew_after_s=alert_after,
         tiles=args.tiles,
         forward=tuple(args.forward),
         forward_readonly=args.forward_readonly,
+        forward_overrides=args.forward_overrides,
         on_live=_announce,
         attach_view=attach if (args.serve is not None or args.forward) else None,
     )

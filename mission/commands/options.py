@@ -25,6 +25,7 @@ __all__ = [
     "writable_dir",
     "writable_file",
     "os_error_text",
+    "endurance_line",
 ]
 
 
@@ -208,3 +209,14 @@ def did_you_mean(word: str, choices) -> str:
 
     close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
     return f" (did you mean {close[0]}?)" if close else ""
+
+
+def endurance_line(e: dict) -> str:
+    """A run's relay rotation for people (``sim`` per seed, ``fly``'s closing summary), from its
+    endurance summary (``summary.json`` ``endurance``): rotations, battery failsafes in the air,
+    vehicles landed away from the base, the lowest battery seen in the air."""
+    return (
+        f"{e['rotations']} rotations, {e['battery_failsafes_in_air']} battery failsafes in the "
+        f"air, {e['landed_away']} landed away from the base, min battery in the air "
+        f"{100 * e['min_battery_in_air']:.0f} %"
+    )

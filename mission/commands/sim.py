@@ -320,7 +320,7 @@ def _refuse_preset_flags(args) -> None:
 
 
 def _run_mission(args) -> int:
-    from mission.commands.options import UserError, writable_dir
+    from mission.commands.options import UserError, endurance_line, writable_dir
     from mission.format.examples import example_path, list_examples
     from mission.format.load import MissionError, load_mission
     from mission.experiments.playback import run_inprocess, write_run_dir
@@ -377,12 +377,7 @@ def _run_mission(args) -> int:
                 f"{r.wall_s:.2f} s"
             )
             if r.endurance is not None:
-                e = r.endurance
-                line += (
-                    f"; {e['rotations']} rotations, {e['battery_failsafes_in_air']} battery "
-                    f"failsafes in the air, {e['landed_away']} landed away from the base, "
-                    f"min battery in the air {100 * e['min_battery_in_air']:.0f} %"
-                )
+                line += f"; {endurance_line(r.endurance)}"
             if r.terrain is not None:
                 g = r.terrain
                 line += (

@@ -55,6 +55,11 @@ class FlyOptions:
     rotation: str = "mission"
     """'mission', 'on' or 'off' (no rotation: every drone flies until its firmware's low-battery
     failsafe; ``phireman sim --rotation``)."""
+    swap_confirm: str = "auto"
+    """Who ends a battery swap on a pad: 'auto' (the station, when the vehicle comes back
+    powered and full, or the ground crew first from the live page) or 'manual' (only the ground
+    crew: the live page's Confirm, the operator action ``confirm_swap``); docs/design/endurance.md
+    §8. The emulator's own crew always swaps by itself (a power cycle)."""
     on_interrupt: str = "end"
     """What Ctrl-C tells every reachable vehicle: 'end' (the mission's end action), 'hold',
     'rtl' or 'land'."""
@@ -67,11 +72,18 @@ class FlyOptions:
     """``[HOST:]PORT``: serve the live web view there (:mod:`mission.view.live`)."""
     serve_actions: bool = True
     """Operator actions on the page (behind the key printed at start); False: read-only."""
+    alert_crew_after_s: float | None = None
+    """The page alerts on a crew cut off this long (None: the default of
+    :data:`mission.view.live.alerts.DEFAULT_CREW_CUT_OFF_S`)."""
     tiles: str | None = None
     """Background imagery of the live view: an XYZ tile folder or a URL template."""
     forward: tuple[str, ...] = ()
     """MAVLink forwarding outputs (``udpout:H:P``, ``udpin:H:P``, ``tcpin:H:P``, gcs.forward)."""
     forward_readonly: bool = False
+    forward_overrides: str = "honour"
+    """What a forwarded client's override (a mode change, RTL, land, arm / disarm, reposition:
+    gcs.forward.override_of) does to a vehicle the plan flies: ``honour`` (it leaves the plan, as
+    held by the operator) or ``refuse`` (not passed on; the client is told why)."""
     on_live: Callable[[dict], None] | None = None
     """Called once with the live view's url and operator key, the forwarders' addresses."""
     attach_view: Callable[..., Awaitable[list]] | None = None

@@ -2,7 +2,8 @@
 
 A run directory holds: ``mission.yaml`` (resolved), ``run.json`` (seed, code version, options),
 ``flight.tlog`` (every frame both ways), ``events.jsonl``, ``metrics.csv`` (one row per control
-tick), ``summary.json`` and, when emulated, ``truth.npz``. Records are written by a background
+tick), ``summary.json``, with batteries ``rotation.jsonl`` (the relay rotation, when it changes)
+and, when emulated, ``truth.npz``. Records are written by a background
 thread every half second (:mod:`gcs.records`), off the control path; ``close()`` writes the rest.
 """
 
@@ -14,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from gcs.events import TelemetryReceived
+from gcs.events import HEALTH_EVENTS, BatteryReceived, TelemetryReceived
 from gcs.operations import Operator
 from gcs.records import EventLog, MetricsWriter, TlogWriter
 from mission.flight.fly_options import FlyOptions
@@ -29,7 +30,11 @@ __all__ = [
     "stopped_summary",
     "FlightTimes",
     "flown_span_s",
+    "ROTATION_FILE",
 ]
+
+#: The rotation's record in a run directory (:meth:`Records.rotation`).
+ROTATION_FILE = "rotation.jsonl"
 
 #: Under this share of the requested speed-up the pace is reported as too slow (on screen and
 #: ``summary.json``'s ``speedup_slow``): results such as reclaims and TU move with the pace.
@@ -118,14 +123,42 @@ class Records:
         self.tlog = TlogWriter(run_dir / "flight.tlog")
         self.events = EventLog(run_dir / "events.jsonl")
         self.metrics = MetricsWriter(run_dir / "metrics.csv")
+        self._rotation: MetricsWriter | None = None
+        self._rotation_last: dict | None = None
+        self._rotation_events = 0
+
+    #: Write BatteryReceived to events.jsonl (a mission with batteries: the rotation's inputs);
+    #: without batteries the live page's SYS_STATUS battery is in the .tlog only (replay reads
+    #: it there), not one line per vehicle per second here.
+    battery_events: bool = True
 
     def event(self, ev) -> None:
-        if not isinstance(ev, TelemetryReceived):
+        if isinstance(ev, BatteryReceived) and not self.battery_events:
+            return
+        if not isinstance(ev, (TelemetryReceived, *HEALTH_EVENTS)):
             self.events.write(ev)
 
+    def rotation(self, op: Operator, now_s: float) -> None:
+        """``rotation.jsonl`` (a mission with batteries): after a control tick, the rotation's
+        state (:meth:`gcs.operations.rotation_setup.RotationSetup.state`) when it changed, with
+        the rotation events since the line before: ``{"t_s", "state", "events"}``. The replay
+        draws its rotation panel from it (docs/live_view.md)."""
+        state = op.rotation_state()
+        if state is None:
+            return
+        events = op.rotation_events(self._rotation_events)
+        if state == self._rotation_last and not events:
+            return
+        if self._rotation is None:
+            self._rotation = MetricsWriter(self.dir / ROTATION_FILE)
+        self._rotation.write({"t_s": round(now_s, 3), "state": state, "events": events})
+        self._rotation_last = state
+        self._rotation_events += len(events)
+
     def close(self) -> None:
-        for w in (self.tlog, self.events, self.metrics):
-            w.close()
+        for w in (self.tlog, self.events, self.metrics, self._rotation):
+            if w is not None:
+                w.close()
 
 
 def summary(

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from gcs.operations import Operator
+from gcs.operations.rotation_setup import SWAP_CONFIRM
 from gcs.records import write_summary
 from mavedge.clock import Clock, PacedReader, RealClock
 from mission.flight.emulator_host import (
@@ -363,19 +364,29 @@ def fly_real(mission: Mission, opts: FlyOptions) -> FlyResult:
 
 
 def with_battery_options(mission: Mission, opts: FlyOptions) -> Mission:
-    """``mission`` as ``--battery`` / ``--rotation`` say: endless batteries drop its
+    """``mission`` as ``--battery`` / ``--rotation`` say (``--swap-confirm`` checked: it needs
+    batteries too): endless batteries drop its
     ``endurance.battery`` (the station and the emulator both fly without), a rotation override
     replaces ``endurance.rotation``."""
     if opts.battery not in ("mission", "unlimited"):
         raise RunnerError(f"battery must be 'mission' or 'unlimited', got {opts.battery!r}")
     if opts.rotation not in ("mission", "on", "off"):
         raise RunnerError(f"rotation must be 'mission', 'on' or 'off', got {opts.rotation!r}")
+    if opts.swap_confirm not in SWAP_CONFIRM:
+        raise RunnerError(
+            f"swap_confirm must be one of {', '.join(SWAP_CONFIRM)}, got {opts.swap_confirm!r}"
+        )
     end = mission.endurance
     if end.battery is None:
         if opts.battery != "mission" or opts.rotation != "mission":
             raise RunnerError(
                 "--battery and --rotation apply to a mission with batteries "
                 "(an endurance.battery section, e.g. wildfire_2h)"
+            )
+        if opts.swap_confirm != "auto":
+            raise RunnerError(
+                "--swap-confirm applies to a mission with batteries (battery swaps on the "
+                "base's pads: an endurance.battery section, e.g. wildfire_2h)"
             )
         return mission
     if opts.battery == "unlimited":

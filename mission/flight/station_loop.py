@@ -27,7 +27,6 @@ from gcs.link import StationConfig
 from gcs.operations import OperationsConfig, Operator, TickRecord
 from gcs.operations.rotation import RotationSetup
 from gcs.rally import RallyConfig, RallyKeeper
-from gcs.records import EventLog
 from gcs.station import Station
 from gcs.tak import CrewMatch, TakCrews
 from gcs.tasks import LiveTasks
@@ -120,7 +119,11 @@ def tak_urls(mission: Mission, given: tuple[str, ...] | list[str]) -> list[str]:
     return urls
 
 
-def _station_config(mission: Mission, max_vehicles: int | None = None) -> StationConfig:
+def _station_config(
+    mission: Mission, max_vehicles: int | None = None, *, health: bool = False
+) -> StationConfig:
+    """The station links' configuration; ``health``: the live page is served, so ask for and
+    fold what a pilot watches (GPS, sensors, estimator, radio: gcs.link_health)."""
     key = None
     real = mission.vehicles.real
     if real is not None and real.signing_key_hex:
@@ -130,8 +133,22 @@ def _station_config(mission: Mission, max_vehicles: int | None = None) -> Statio
     # Fleet-scale telemetry (docs/design/mavlink.md §2, Skybrush): position at 2 Hz is all the plan uses;
     # every other stream costs decode time at 50+ vehicles x speed-up.
     batteries = mission.endurance.battery is not None
+    # The page's GPS and estimator rows (docs/live_view.md): GPS_RAW_INT at 1 Hz (ArduCopter
+    # and PX4 both stream it); EKF_STATUS_REPORT is ArduPilot's (GCS_Common.cpp, MSG_EKF_STATUS_
+    # REPORT), ESTIMATOR_STATUS PX4's (mavlink_main.cpp configure_streams_to_default, 0.5 Hz in
+    # MAVLINK_MODE_NORMAL): each refuses the other's, which the link logs once and moves on.
+    health_rates = (
+        (
+            (mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, 1.0),
+            (mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT, 1.0),
+            (mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS, 0.5),
+        )
+        if health
+        else ()
+    )
     return StationConfig(
         battery_telemetry=batteries,
+        health_telemetry=health,
         signing_key=key,
         command_timeout_s=1.0,
         param_timeout_s=2.0,
@@ -142,7 +159,8 @@ def _station_config(mission: Mission, max_vehicles: int | None = None) -> Statio
         stream_rates_hz=(
             (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 2.0),
             # The rotation's drain estimate wants the battery's level changes to the second.
-            (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 1.0 if batteries else 0.2),
+            (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 1.0 if batteries or health else 0.2),
+            *health_rates,
         ),
     )
 
@@ -242,7 +260,7 @@ def make_operator(
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
         rally=_rally_keeper(mission, params),
-        rotation=rotation_setup(mission, scenario, expected),
+        rotation=rotation_setup(mission, scenario, opts.swap_confirm, expected),
         tak=TakCrews(fleet.origin, tak) if tak else None,
     )
 
@@ -264,12 +282,16 @@ def rotation_fleet_size(
 
 
 def rotation_setup(
-    mission: Mission, scenario: MissionScenario, expected: int | None = None
+    mission: Mission,
+    scenario: MissionScenario,
+    swap_confirm: str = "auto",
+    expected: int | None = None,
 ) -> RotationSetup | None:
     """The station's relay rotation for a mission with batteries (None without): the policy the
     in-process run builds too (:meth:`mission.format.schema.EnduranceSpec.policy`) for
     :func:`rotation_fleet_size` vehicles, and what the mission says of the batteries (nominal
-    hover drain, the drain at full speed)."""
+    hover drain, the drain at full speed). ``swap_confirm``: who ends a swap
+    (``FlyOptions.swap_confirm``); ``expected``: the vehicles to wait for (``--vehicles N``)."""
     end = mission.endurance
     spec = end.battery
     if spec is None:
@@ -286,26 +308,8 @@ def rotation_setup(
         policy,
         hover_drain_per_s=1.0 / spec.endurance_s,
         return_drain_factor=1.0 + spec.speed_drain_frac,
+        swap_confirm=swap_confirm,
     )
-
-
-def log_rotation_events(op: Operator, events: EventLog, start: int) -> int:
-    """Append the rotation's events from index ``start`` on (:class:`planner.endurance.
-    RotationEvent`: launch, handover, return, landed, swap_done, ...) to ``events.jsonl``, each
-    with the vehicles' ``link_id`` / ``sysid`` beside its rows (``other_`` for the other row), so
-    a flight's rotations can be read with its link events on one clock. Returns the new count."""
-    rot = op.rotation
-    if rot is None or len(rot.events) <= start:
-        return start
-    links, sysids = op.fleet.link_of_index, op.fleet.sysid_of_index
-    for ev in rot.events[start:]:
-        extra = {}
-        for prefix, row in (("", ev.drone), ("other_", ev.other)):
-            if 0 <= row < len(sysids):
-                extra[f"{prefix}link_id"] = int(links[row])
-                extra[f"{prefix}sysid"] = int(sysids[row])
-        events.write(ev, **extra)
-    return len(rot.events)
 
 
 def _rally_keeper(mission: Mission, params: dict) -> RallyKeeper | None:
@@ -384,12 +388,15 @@ async def run_station(
     times = FlightTimes() if times is None else times
     # Before any link is open (a stall now costs nothing; in flight it trips failsafes).
     _warm_up_planner(*_planner_spec(mission), scenario)
-    cfg = _station_config(mission, expected if world is None else None)
+    cfg = _station_config(
+        mission, expected if world is None else None, health=bool(getattr(opts, "serve", None))
+    )
     if opts.forward:
         # A forwarded GCS (QGroundControl, MAVProxy) wants the telemetry the station itself
         # does not use: do not turn it off (gcs.link disable_unused_messages).
         cfg = dataclasses.replace(cfg, disable_unused_messages=False)
     holder: dict = {}
+    records.battery_events = mission.endurance.battery is not None
 
     def on_event(ev) -> None:
         records.event(ev)
@@ -484,7 +491,6 @@ async def run_station(
     last_status = -math.inf
     due_s = -math.inf  # the operator's next deadline (simulated s), as of the last poll
     started = ended = False
-    rotation_logged = 0  # rotation events written to events.jsonl
     interrupted_wall: float | None = None
     try:
         while True:
@@ -507,7 +513,6 @@ async def run_station(
                     # (docs/results/scale.md).
                     ack(min(now, due_s))
                 rec = op.poll(now)
-                rotation_logged = log_rotation_events(op, records.events, rotation_logged)
                 times.note(op, now, time.monotonic())
                 if ack is not None:
                     ack(now)  # everything due up to `now` is done
@@ -523,6 +528,7 @@ async def run_station(
                     opts.on_operator(op, world)
                 if rec is not None:
                     records.metrics.write(rec.row())
+                    records.rotation(op, now)
                 if op.phase == "done" and not opts.end_wait:
                     break
                 if op.phase == "end" and not opts.end_wait:

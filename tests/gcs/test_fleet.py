@@ -201,3 +201,13 @@ def test_a_reboot_keeps_the_battery_the_new_boot_reported_before_it_was_noticed(
     fleet.apply(BatteryReceived(0, 1, 111.0, remaining_frac=0.45))
     fleet.apply(VehicleRebooted(0, 1, 120.0, 3000.0, 8.0))
     assert np.isnan(fleet.snapshot(120.0).battery_frac[0])
+    # A level reported within the boot's clock but before the last position of the old boot
+    # is the old battery's (no silence between them: the fake feeds of the operator's tests).
+    fleet.apply(BatteryReceived(0, 1, 125.0, remaining_frac=0.45))
+    fleet.apply(
+        TelemetryReceived(
+            0, 1, 125.5, lat_deg=ORIGIN.lat_deg, lon_deg=ORIGIN.lon_deg, alt_amsl_m=500.0
+        )
+    )
+    fleet.apply(VehicleRebooted(0, 1, 126.0, 3000.0, 8.0))
+    assert np.isnan(fleet.snapshot(126.0).battery_frac[0])

@@ -200,6 +200,28 @@ def test_ack_stops_retries(station):
     assert not commands(run_until(link, 5.0), mav.MAV_CMD_DO_SET_MODE)
 
 
+def test_withdrawn_flight_commands_are_never_sent_again(station):
+    """A forwarded client took the vehicle (gcs.forward): our pending GUIDED, queued and
+    in-flight, must not reach it after the client's mode change."""
+    ap = FakeAutopilot(sysid=1)
+    link = discovered(station, ap, stream_rates_hz=())
+    rid1 = link.set_mode(1, "GUIDED", 0.0)
+    rid2 = link.set_mode(1, "GUIDED", 0.1)  # queued behind the first (one per command id)
+    rid3 = link.arm(1, 0.1)
+    sent(link, 0.1)
+    assert link.withdraw_flight_commands(1, 0.2, "withdrawn: taken") == 3
+    evs = [e for e in drain(link) if isinstance(e, CommandFailed)]
+    assert sorted(e.request_id for e in evs) == sorted([rid1, rid2, rid3])
+    assert all(e.reason == "withdrawn: taken" and e.result is None for e in evs)
+    frames = run_until(link, 5.0)
+    assert not commands(frames, mav.MAV_CMD_DO_SET_MODE)
+    assert not commands(frames, mav.MAV_CMD_COMPONENT_ARM_DISARM)
+    assert not [e for e in drain(link) if isinstance(e, (CommandFailed, CommandTimedOut))]
+    # The link still commands it when asked again (an operator's rejoin).
+    link.set_mode(1, "GUIDED", 5.0)
+    assert len(sent(link, 5.0, "COMMAND_LONG")) == 1
+
+
 def test_in_progress_keeps_waiting_without_resending(station):
     ap = FakeAutopilot(sysid=1)
     link = discovered(station, ap, stream_rates_hz=())

@@ -126,6 +126,9 @@ class FakeStation:
     def clear_position_target(self, vid, now_s):
         return self._record("clear_position_target", vid, now_s)
 
+    def withdraw_flight_commands(self, vid, now_s, reason):
+        return self._record("withdraw_flight_commands", vid, reason, now_s)
+
     def request_param(self, vid, name, now_s):
         return self._record("request_param", vid, name, now_s)
 
@@ -331,7 +334,7 @@ def answer_audit(
 
 def test_public_names_and_phase_strings():
     assert PHASES == ("discover", "audit", "launch", "run", "end", "done", "refused")
-    assert OPERATOR_ACTIONS == ("hold", "rtl", "land", "release", "rejoin")
+    assert OPERATOR_ACTIONS == ("hold", "rtl", "land", "release", "rejoin", "confirm_swap")
     op, *_ = make()
     assert op.phase == "discover" and isinstance(op.phase, str) and not op.finished
     assert f"{op.phase}" == "discover" and str(op.phase) == "discover"
@@ -1508,3 +1511,91 @@ def test_optional_parameters_a_firmware_lacks_do_not_hold_the_audit():
     feed.poll(0.5 + OPTIONAL_GRACE_S + 0.1)
     assert op.phase == "launch"
     assert ("cancel_param", v, "COM_OBL_ACT") in [c[:3] for c in station.calls]
+
+
+# ------------------------------------------------------------ a forwarded client's override
+
+
+class _Override:
+    """What the operator reads of a gcs.forward.Override (a forwarded client's mode change)."""
+
+    def __init__(self, vids, what="SET_MODE RTL", client="127.0.0.1:14550 sysid 254"):
+        self.vids, self._what, self.client = tuple(vids), what, client
+
+    def what(self, autopilot=None):
+        return self._what
+
+
+def test_an_honoured_override_takes_the_vehicle_out_of_the_plan_until_rejoined():
+    op, station, feed, (v, w) = to_run(2)
+    seen: list[OperatorAction] = []
+    op.on_action = seen.append
+    feed.run(1.25, 5.0)
+    assert op.forwarded_override(_Override([v]), 5.1, refuse=False) is None  # passed on
+    assert op.released == {v: "override"}
+    (rec,) = seen
+    assert (rec.action, rec.link_id, rec.sysid) == ("override", 0, 1)
+    assert rec.source == "127.0.0.1:14550 sysid 254" and rec.result == "SET_MODE RTL (t+4 s)"
+    assert op.overrides[v] is rec
+    # Its setpoint stream and any command retry of ours stop at once ...
+    assert [c[0] for c in station.calls[-2:]] == [
+        "clear_position_target",
+        "withdraw_flight_commands",
+    ]
+    feed.mode(v, 5.2, RTL)  # the client's RTL reaches the vehicle
+    feed.run(5.25, 30.0)
+    # ... and it is never switched back, re-targeted or planned while the other one flies on.
+    assert not station.of("engage_guided", v, since_s=5.1)
+    assert not station.of("set_position_target", v, since_s=5.1)
+    assert station.of("set_position_target", w, since_s=25.0)
+    assert op.records[-1].planned == 1  # only w is given a target
+    # A client's retry of the same command is recorded once.
+    op.forwarded_override(_Override([v]), 30.1, refuse=False)
+    assert len(seen) == 1
+    # The operator gives it back: reclaimed like a vehicle back from a failsafe.
+    op.operator_command("rejoin", v, 30.2, source="web 127.0.0.1")
+    assert v not in op.released and v not in op.overrides
+    feed.poll(30.25)
+    assert station.of("engage_guided", v, since_s=30.25)
+
+
+def test_an_honoured_override_is_not_end_commanded():
+    op, station, feed, (v, w) = to_run(2, duration_s=10.0)
+    op.forwarded_override(_Override([v], "DO_REPOSITION"), 2.0, refuse=False)
+    feed.run(1.25, 20.0)
+    assert op.phase == "end"
+    assert station.of("rtl", w) and not station.of("rtl", v)
+    op.interrupt("end", 20.1)  # Ctrl-C: the report says whose it is
+    rep = dict((vid, (text, ok)) for vid, text, ok in op.interrupt_report(20.2))
+    assert rep[v] == (
+        "127.0.0.1:14550 sysid 254 flies it (DO_REPOSITION (t+1 s)); now GUIDED: not told",
+        True,
+    )
+    assert "told RTL" in rep[w][0]
+
+
+def test_a_refused_override_leaves_the_vehicle_in_the_plan_and_says_why():
+    op, station, feed, (v, w) = to_run(2)
+    seen: list[OperatorAction] = []
+    op.on_action = seen.append
+    why = op.forwarded_override(_Override([v]), 2.0, refuse=True)
+    assert why == "phireman: vehicle 1 is flown by the relay plan; hold it on the station first"
+    assert op.released == {} and not station.of("clear_position_target")
+    (rec,) = seen
+    assert (rec.action, rec.sysid, rec.result) == ("override-refused", 1, "SET_MODE RTL (t+1 s)")
+    # A client's retries are each refused, recorded once (again after a while).
+    assert op.forwarded_override(_Override([v]), 3.0, refuse=True) == why
+    assert len(seen) == 1
+    op.forwarded_override(_Override([v]), 14.0, refuse=True)
+    assert len(seen) == 2
+    # Held on the station first: the client may fly it, and the record says it took it.
+    op.operator_command("hold", v, 15.0, source="web 127.0.0.1")
+    assert op.forwarded_override(_Override([v]), 15.5, refuse=True) is None
+    assert op.released[v] == "override" and seen[-1].action == "override"
+
+
+def test_override_of_vehicles_the_station_does_not_fly_passes():
+    op, station, feed, (v,) = to_run(1)
+    assert op.forwarded_override(_Override([(0, 42)]), 2.0, refuse=True) is None
+    assert op.forwarded_override(_Override([]), 2.0, refuse=True) is None
+    assert op.released == {} and not op.actions

@@ -6,6 +6,7 @@ spare again; the firmware's own low-battery RTL is the policy's failsafe."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from test_operations import CONTROL, ORIGIN, RTL, STABILIZE, FakePlanner, FakeStation, Feed
 
 from gcs.events import (
@@ -34,14 +35,14 @@ from planner.endurance import (
 POST_N_M = 100.0
 
 
-def _make(n: int = 2, flying: int = 1):
+def _make(n: int = 2, flying: int = 1, swap_confirm: str = "auto"):
     policy = RotationPolicy(
         n,
         flying,
         BaseResources(pads=1, swap_time_s=60.0, spare_batteries=4),
         EnduranceParams(critical_frac=0.2, return_speed_m_s=5.0),
     )
-    rot = RotationSetup(policy, hover_drain_per_s=1.0 / 1500.0)
+    rot = RotationSetup(policy, hover_drain_per_s=1.0 / 1500.0, swap_confirm=swap_confirm)
     station = FakeStation()
     planner = FakePlanner()
     op = Operator(
@@ -323,6 +324,101 @@ def test_relay_on_a_pad_off_the_base_centre_powered_off_unheard_is_a_spare_again
     batt[relay] = 1.0
     t = _run(feed, t, t + 3.0, batt)
     assert rot.policy.phase.tolist() == [READY, AIR]
+
+
+def _relieve_and_land(feed, rot, relay, spare):
+    """The relay relieved by the spare, home in RTL and disarmed on its pad: swapping."""
+    feed.poll(0.0)
+    _battery(feed, relay, 0.5, 0.9)
+    feed.fly(relay, 1.0)
+    feed.v[relay]["north_m"] = POST_N_M
+    batt = {relay: 0.9, spare: 1.0}
+    t = _run(feed, 1.0, 20.0, batt)
+    batt[relay] = 0.30
+    t = _run(feed, t, t + 5.0, batt)
+    feed.fly(spare, t)
+    feed.v[spare]["north_m"] = POST_N_M
+    t = _run(feed, t, t + 3.0, batt)
+    feed.mode(relay, t, RTL)
+    feed.v[relay]["north_m"] = 1.0
+    feed.alt(relay, t, 0.0)
+    feed.armed(relay, t, False)
+    t = _run(feed, t, t + 2.0, batt)
+    assert rot.policy.phase.tolist() == [SWAPPING, AIR]
+    return t, batt
+
+
+def test_manual_swap_waits_for_the_crew_then_for_a_charged_battery():
+    """``swap_confirm='manual'``: the power cycle with a full battery does not end the swap; the
+    crew's ``confirm_swap`` does, once the vehicle is heard with a charged battery. The action is
+    recorded like every operator action, and the state names the vehicle on its pad."""
+    op, station, planner, feed, (relay, spare), rot = _make(swap_confirm="manual")
+    seen = []
+    op.on_action = seen.append
+    t, batt = _relieve_and_land(feed, rot, relay, spare)
+    ids = [f"{relay[0]}:{relay[1]}", f"{spare[0]}:{spare[1]}"]
+    st = rot.state(ids)
+    assert st["pads"] == [
+        {"vehicle": ids[0], "since_s": st["pads"][0]["since_s"], "confirmed_s": None}
+    ]
+    assert st["pads"][0]["since_s"] <= t and st["swap_confirm"] == "manual"
+    assert st["phase"] == ["swapping", "air"] and st["batteries"]["charged"] == 3
+    # A spare on the ground may not be confirmed (no swap requested), nor "all" at once.
+    (rec,) = op.operator_command("confirm_swap", spare, t, source="test")
+    assert rec.result.startswith("not confirmed: no swap requested")
+    with pytest.raises(ValueError):
+        op.operator_command("confirm_swap", None, t, source="test")
+    # Powered off and back, full: the station alone does not end a manual swap.
+    feed.silent.add(relay)
+    t = _run(feed, t, t + 10.0, batt)
+    # The crew confirms while it is still off: confirmed, not yet ready.
+    (rec,) = op.operator_command("confirm_swap", relay, t, source="web 127.0.0.1")
+    assert rec.result.startswith("swap confirmed") and seen[-1] is rec
+    assert rot.state(ids)["pads"][0]["confirmed_s"] == pytest.approx(t, abs=0.1)
+    (again,) = op.operator_command("confirm_swap", relay, t, source="test")
+    assert again.result == "already confirmed"
+    t = _run(feed, t, t + 5.0, batt)
+    assert rot.policy.phase[0] == SWAPPING
+    feed.silent.discard(relay)
+    feed.emit(VehicleRebooted(relay[0], relay[1], t, 1500.0, 2.0))
+    # Heard again, the old pack's charge still in the last report: not yet.
+    t = _run(feed, t, t + 1.0, batt)
+    assert rot.policy.phase[0] == SWAPPING
+    batt[relay] = 1.0
+    t = _run(feed, t, t + 2.0, batt)
+    assert rot.policy.phase.tolist() == [READY, AIR]
+    assert rot.confirmed_s == {} and relay not in op.released
+    s = op.rotation_summary()
+    assert s is not None
+    assert (s["swaps"], s["swaps_confirmed_by_crew"], s["swap_confirm"]) == (1, 1, "manual")
+    kinds = [e["kind"] for e in rot.event_dicts(0, ids)]
+    assert kinds.index("crew_confirmed") < kinds.index("swap_done")
+    assert rot.state(ids)["pads"] == [{"vehicle": None}]
+
+
+def test_manual_swap_without_the_crew_stays_on_the_pad():
+    op, station, planner, feed, (relay, spare), rot = _make(swap_confirm="manual")
+    t, batt = _relieve_and_land(feed, rot, relay, spare)
+    feed.emit(VehicleRebooted(relay[0], relay[1], t, 1500.0, 2.0))
+    batt[relay] = 1.0
+    t = _run(feed, t, t + 120.0, batt)
+    assert rot.policy.phase[0] == SWAPPING and rot.policy.summary()["swaps"] == 0
+
+
+def test_auto_swap_the_crew_may_confirm_first():
+    """``auto``: a vehicle whose battery the station never reads back full (an unknown charge)
+    is never confirmed by the station; the crew's confirmation ends its swap."""
+    op, station, planner, feed, (relay, spare), rot = _make()
+    t, batt = _relieve_and_land(feed, rot, relay, spare)
+    # Power-cycled, but its battery is never reported again (the charge is unknown).
+    feed.emit(VehicleRebooted(relay[0], relay[1], t, 1500.0, 2.0))
+    del batt[relay]
+    t = _run(feed, t, t + 100.0, batt)
+    assert rot.policy.phase[0] == SWAPPING
+    (rec,) = op.operator_command("confirm_swap", relay, t, source="test")
+    assert rec.result.startswith("swap confirmed")
+    t = _run(feed, t, t + 2.0, batt)
+    assert rot.policy.phase[0] == READY
 
 
 def test_firmware_low_battery_smart_rtl_is_a_failsafe_left_to_fly_home():

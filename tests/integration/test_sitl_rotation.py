@@ -131,16 +131,31 @@ def _run_dir(parent: Path) -> Path | None:
     return dirs[-1] if dirs else None
 
 
-def _events(run_dir: Path | None) -> list[dict]:
-    if run_dir is None or not (run_dir / "events.jsonl").exists():
-        return []
+def _jsonl(path: Path) -> list[dict]:
     out = []
-    for line in (run_dir / "events.jsonl").read_text().splitlines():
+    for line in path.read_text().splitlines() if path.exists() else []:
         try:
             out.append(json.loads(line))
         except json.JSONDecodeError:
             pass  # the line being written
     return out
+
+
+def _events(run_dir: Path | None) -> list[dict]:
+    """events.jsonl, and the rotation's events from rotation.jsonl (mission/flight/run_dir.py
+    ``Records.rotation``) as ``RotationEvent`` records with the system ids of their vehicles
+    (``sysid``, ``other_sysid``), in time order."""
+    if run_dir is None:
+        return []
+    out = _jsonl(run_dir / "events.jsonl")
+    for rec in _jsonl(run_dir / "rotation.jsonl"):
+        for e in rec.get("events", []):
+            ids = {}
+            for key, name in (("vehicle", "sysid"), ("other", "other_sysid")):
+                v = e.get(key)
+                ids[name] = int(v.split(":")[1]) if v and ":" in v else None
+            out.append({"type": "RotationEvent", **e, **ids})
+    return sorted(out, key=lambda e: e.get("t_s", 0.0))
 
 
 def _rotation(events: list[dict], kind: str, **match) -> list[dict]:

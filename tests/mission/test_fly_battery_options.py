@@ -1,4 +1,4 @@
-"""``phireman fly --battery / --rotation`` (FlyOptions) and the station's rotation built from a
+"""``phireman fly --battery / --rotation / --swap-confirm`` (FlyOptions) and the station's rotation built from a
 mission with batteries (mission/flight/station_loop.py rotation_setup)."""
 
 from __future__ import annotations
@@ -82,3 +82,15 @@ def test_rotation_is_sized_by_the_vehicles_not_the_links(tmp_path):
     bare = load_mission(path)
     assert rotation_fleet_size(bare, mission_scenario(bare), expected=4) == 4
     assert rotation_fleet_size(bare, mission_scenario(bare)) == 1  # the links: all it knows
+
+
+def test_swap_confirm_goes_to_the_station_and_needs_batteries(wildfire):
+    m = with_battery_options(wildfire, FlyOptions(swap_confirm="manual"))
+    scn = mission_scenario(m)
+    assert rotation_setup(m, scn, "manual").swap_confirm == "manual"
+    assert rotation_setup(m, scn).swap_confirm == "auto"
+    with pytest.raises(RunnerError, match="swap_confirm must be one of auto, manual"):
+        with_battery_options(wildfire, FlyOptions(swap_confirm="crew"))
+    bare = with_battery_options(wildfire, FlyOptions(battery="unlimited"))
+    with pytest.raises(RunnerError, match="--swap-confirm applies to a mission with batteries"):
+        with_battery_options(bare, FlyOptions(swap_confirm="manual"))

@@ -92,6 +92,7 @@ def test_interrupt_report_groups_large_fleets():
         (["fly", "wildfire", "--vehicles", "3"], "--vehicles applies to real links"),
         (["fly", "wildfire", "--speedup", "0"], "--speedup must be > 0"),
         (["fly", "nonexistent_mission"], "neither a mission file nor a shipped example"),
+        (["fly", "wildfire", "--forward-overrides", "refuse"], "--forward-overrides needs"),
     ],
 )
 def test_flags_that_cannot_apply_are_refused(capsys, args, words):

@@ -185,6 +185,30 @@ def test_batteries_charge_and_queue_for_chargers():
     assert pol.phase.tolist() == [READY, READY] and out.battery_swapped[1]
 
 
+def test_each_swap_takes_the_lowest_free_pad_and_frees_it_when_done_or_lost():
+    """The pads the operator's view names (docs/design/endurance.md §8): one drone per pad, the
+    lowest free one, free again after the swap or a loss; a drone waiting for a pad has none."""
+    base = BaseResources(pads=2, swap_time_s=10.0, spare_batteries=10)
+    pol = RotationPolicy(3, 0, base, EnduranceParams())
+    pol.phase[:] = RETURNING
+    pos = np.zeros((3, 2))
+    alive = np.ones(3, bool)
+
+    def step(t_s, landed):
+        return pol.step(t_s, pos, alive, np.full(3, 0.2), np.zeros(3), alive, landed)
+
+    step(0.0, np.array([False, True, False]))
+    assert pol.pad.tolist() == [-1, 0, -1]
+    step(1.0, np.ones(3, bool))
+    assert pol.pad.tolist() == [1, 0, -1] and pol.phase[2] != SWAPPING  # no third pad
+    alive[1] = False  # lost on pad 0: the pad is free for the drone waiting
+    step(2.0, np.ones(3, bool))
+    assert pol.pad.tolist() == [1, -1, 0] and pol.phase[2] == SWAPPING
+    out = step(11.0, np.ones(3, bool))  # drone 0's swap (started at 1 s) is done
+    assert out.battery_swapped[0] and pol.pad.tolist() == [-1, -1, 0]
+    assert len(set(pol.pad[pol.pad >= 0].tolist())) == np.count_nonzero(pol.phase == SWAPPING)
+
+
 def test_plan_fleet_never_plans_more_than_the_batteries_can_carry():
     """The defaults' 50 spare batteries and 16 chargers carry about 15 posts for two hours: the
     toy world then always has a charged spare to send (the bound's reason to exist); drones may

@@ -70,8 +70,12 @@ AP_STREAM_GROUPS = {
     ),
     _M.MAV_DATA_STREAM_EXTRA1: (_M.MAVLINK_MSG_ID_ATTITUDE,),
     _M.MAV_DATA_STREAM_EXTRA2: (_M.MAVLINK_MSG_ID_VFR_HUD,),
-    # STREAM_EXTRA3_msgs: MSG_BATTERY_STATUS (refused by a vehicle without a battery).
-    _M.MAV_DATA_STREAM_EXTRA3: (_M.MAVLINK_MSG_ID_BATTERY_STATUS,),
+    # STREAM_EXTRA3_msgs: MSG_BATTERY_STATUS (refused by a vehicle without a battery),
+    # MSG_EKF_STATUS_REPORT.
+    _M.MAV_DATA_STREAM_EXTRA3: (
+        _M.MAVLINK_MSG_ID_BATTERY_STATUS,
+        _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT,
+    ),
 }
 
 
@@ -101,6 +105,8 @@ class ArduPilot(Personality):
     # failed, even when no fence is present (MAVProxy's fence module reports "fence breach"
     # otherwise).
     sys_status_health_extra = _C.MAV_SYS_STATUS_GEOFENCE
+    # AP_NavEKF3_Outputs.cpp NavEKF3_core::send_status_report, in STREAM_EXTRA3.
+    estimator_msgid = _C.MAVLINK_MSG_ID_EKF_STATUS_REPORT
     mission_home_items = 1
     # mavlink_coordinate_frame_to_location_alt_frame: 0, 3, 10 and the _INT frames 5, 6, 11.
     global_frames = GLOBAL_AMSL + GLOBAL_REL

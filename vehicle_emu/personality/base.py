@@ -129,6 +129,9 @@ class Personality:
     """AUTOPILOT_VERSION.flight_sw_version."""
     sys_status_health_extra = 0
     """SYS_STATUS health bits reported on top of the present sensors."""
+    estimator_msgid: int | None = None
+    """The navigation filter's report this firmware streams (ArduPilot EKF_STATUS_REPORT, PX4
+    ESTIMATOR_STATUS); the other one is refused."""
     mission_home_items = 0
     """Items of a mission list that are not part of the mission (ArduPilot's home at seq 0)."""
     global_frames: tuple[int, ...] = ()

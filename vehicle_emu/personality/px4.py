@@ -12,6 +12,7 @@ from mavedge.setpoints import ACC_BITS, POS_BITS, VEL_BITS
 from mavedge.units import INT32_MAX
 from vehicle_emu import events as ev
 from vehicle_emu.telemetry import (
+    M_ESTIMATOR_STATUS,
     M_EXTENDED_SYS_STATE,
     M_GLOBAL_POSITION_INT,
     M_GPS_RAW_INT,
@@ -91,6 +92,8 @@ PX4_DEFAULT_RATES_HZ = {
     M_HOME_POSITION: 0.5,
     M_POSITION_TARGET_LOCAL_NED: 1.5,
     M_POSITION_TARGET_GLOBAL_INT: 1.5,
+    # mavlink_main.cpp Mavlink::configure_streams_to_default, MAVLINK_MODE_NORMAL.
+    M_ESTIMATOR_STATUS: 0.5,
 }
 
 #: PX4 mavlink_receiver.cpp handle_message_command_int: x == y == INT32_MAX means "not given"
@@ -155,6 +158,7 @@ class PX4(Personality):
     rtl_mode = _key(PX4_RTL)
     reposition_mode = _key(PX4_LOITER)
     default_rates_hz = PX4_DEFAULT_RATES_HZ
+    estimator_msgid = M_ESTIMATOR_STATUS
     arm_reject = _C.MAV_RESULT_TEMPORARILY_REJECTED
     # mavlink_receiver.cpp handle_request_message_command: no stream sent -> DENIED.
     no_such_message = _C.MAV_RESULT_DENIED

@@ -55,7 +55,19 @@ async def attach(
     if getattr(opts, "forward", ()):
         from gcs.forward import Forwarder
 
-        fwd = Forwarder(opts.forward, readonly=opts.forward_readonly, gcs_sysid=op.gcs_sysid)
+        policy = getattr(opts, "forward_overrides", "honour")
+
+        def on_override(ov) -> str | None:
+            # The station's policy for a client's override (gcs.forward module docstring):
+            # honour takes the vehicle out of the plan, refuse answers why not.
+            return op.forwarded_override(ov, clock(), refuse=policy == "refuse")
+
+        fwd = Forwarder(
+            opts.forward,
+            readonly=opts.forward_readonly,
+            gcs_sysid=op.gcs_sysid,
+            on_override=on_override,
+        )
         for a in adapters:
             fwd.attach(a, datagram=a.spec.kind in ("udpin", "udpout"))
         await fwd.start()
@@ -72,7 +84,7 @@ async def attach(
         log.info(
             "forwarding MAVLink to %s%s",
             ", ".join(opts.forward),
-            " (read-only)" if opts.forward_readonly else "",
+            " (read-only)" if opts.forward_readonly else f" (overrides: {policy})",
         )
     if getattr(opts, "serve", None):
         from mission.view.live.server import LiveServer, parse_serve, tiles_meta
@@ -81,7 +93,24 @@ async def attach(
         host, port = parse_serve(opts.serve)
         tiles, tiles_dir = tiles_meta(getattr(opts, "tiles", None))
         actions = getattr(opts, "serve_actions", True)
-        live = LiveStation(op, mission, clock, adapters, actions=actions, tiles=tiles)
+        from mission.view.live.alerts import DEFAULT_CREW_CUT_OFF_S, AlertConfig
+
+        after = getattr(opts, "alert_crew_after_s", None)
+        battery = getattr(getattr(mission, "endurance", None), "battery", None)
+        alert_config = AlertConfig(
+            crew_cut_off_s=DEFAULT_CREW_CUT_OFF_S if after is None else float(after),
+            **({"battery_low_frac": battery.low_frac} if battery is not None else {}),
+        )
+        live = LiveStation(
+            op,
+            mission,
+            clock,
+            adapters,
+            actions=actions,
+            tiles=tiles,
+            alert_config=alert_config,
+            log_event=None if records is None else records.events.write,
+        )
         if listeners is not None:
             listeners.append(live.on_event)
         key = secrets.token_urlsafe(18) if actions else None

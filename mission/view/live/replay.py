@@ -11,6 +11,8 @@ What is read (a ``phireman fly`` run directory):
   networked vehicles;
 * ``mission.yaml`` and ``run.json`` (seed) - base, crews (tracks redrawn from the seed, live crews
   from their recorded positions), hazard zones, geofence, radio ranges;
+* ``rotation.jsonl`` (a flight with batteries) - the relay rotation's state when it changed and
+  its events: the rotation panel (:mod:`mission.view.live.rotation`);
 * ``truth.npz`` (emulated runs) - only for the optional "emulator truth" layer.
 
 The same :class:`gcs.fleet.FleetView` the station used folds these events again, so each frame
@@ -41,7 +43,15 @@ import numpy as np
 from gcs import events as gcs_events
 from gcs.control import layer_alt_m
 from gcs.fleet import FleetSnapshot, FleetView, MissionOrigin
+from gcs.link_discovery import sys_status_battery
+from gcs.link_health import health_event
+from gcs.link_quality import SeqCounter
+from gcs.operations.config import OVERRIDE, OVERRIDE_REFUSED, override_label
 from gcs.wire import mavlink
+from mission.view.live.alerts import DEFAULT_BATTERY_LOW_FRAC
+from mission.view.live.health import LOSS_WINDOW_S, health_columns, minutes_to_reserve
+from mission.flight.run_dir import ROTATION_FILE
+from mission.view.live.rotation import MAX_EVENTS, rotation_frame
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
 from planner.geometry import geodetic_to_ned_m
@@ -56,14 +66,28 @@ _POS, _TARGET, _HB = (
     mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT,
     mavlink.MAVLINK_MSG_ID_HEARTBEAT,
 )
+#: Health reports read from the .tlog (gcs.link_health's messages).
+_HEALTH_IDS = frozenset(
+    getattr(mavlink, f"MAVLINK_MSG_ID_{m}")
+    for m in ("GPS_RAW_INT", "SYS_STATUS", "EKF_STATUS_REPORT", "ESTIMATOR_STATUS", "RADIO_STATUS")
+)
+_KEEP = frozenset((_POS, _TARGET, _HB)) | _HEALTH_IDS
+_SYS_STATUS = mavlink.MAVLINK_MSG_ID_SYS_STATUS
 #: A target not re-sent for this long (core seconds) is no longer shown (ArduPilot 1 s re-send).
 TARGET_STALE_S = 3.0
 MAX_FRAMES = 1500
 
 
-def read_tlog(path: Path, gcs_sysid: int = 255):
-    """(stamp_s, src sysid, src compid, msg) of the HEARTBEAT, GLOBAL_POSITION_INT and
-    SET_POSITION_TARGET_GLOBAL_INT frames of a .tlog (others are skipped undecoded)."""
+def read_tlog(path: Path, gcs_sysid: int = 255, loss: dict | None = None):
+    """(stamp_s, src sysid, src compid, msg) of the HEARTBEAT, GLOBAL_POSITION_INT,
+    SET_POSITION_TARGET_GLOBAL_INT and health frames (GPS_RAW_INT, SYS_STATUS, EKF_STATUS_REPORT,
+    ESTIMATOR_STATUS, RADIO_STATUS) of a .tlog (others are skipped undecoded).
+
+    ``loss``: filled with sysid -> [(stamp_s, loss fraction or None)], the packet loss of each
+    vehicle's autopilot frames (every message, decoded or not) over windows of
+    :data:`mission.view.live.station.LOSS_WINDOW_S`, as the live view shows it."""
+    counters: dict[int, SeqCounter] = {}
+    window_end: dict[int, float] = {}
     raw = Path(path).read_bytes()
     mav = mavlink.MAVLink(None)
     mav.robust_parsing = True
@@ -74,17 +98,26 @@ def read_tlog(path: Path, gcs_sysid: int = 255):
         magic, ln = raw[i], raw[i + 1]
         if magic == 0xFD:
             total = ln + 12 + (13 if raw[i + 2] & 1 else 0)
-            sysid, compid = raw[i + 5], raw[i + 6]
+            seq, sysid, compid = raw[i + 4], raw[i + 5], raw[i + 6]
             msgid = raw[i + 7] | raw[i + 8] << 8 | raw[i + 9] << 16
         elif magic == 0xFE:
             total = ln + 8
-            sysid, compid, msgid = raw[i + 3], raw[i + 4], raw[i + 5]
+            seq, sysid, compid, msgid = raw[i + 2], raw[i + 3], raw[i + 4], raw[i + 5]
         else:  # not a frame start: the file is damaged; resynchronise on the next byte
             off += 1
             continue
         frame = raw[i : i + total]
         off = i + total
-        if msgid not in (_POS, _TARGET, _HB) or len(frame) < total:
+        if loss is not None and compid == 1 and sysid != gcs_sysid and len(frame) == total:
+            c = counters.get(sysid)
+            if c is None:
+                c = counters[sysid] = SeqCounter()
+                window_end[sysid] = stamp + LOSS_WINDOW_S
+            c.update(seq)
+            if stamp >= window_end[sysid]:
+                loss.setdefault(sysid, []).append((stamp, c.take_window()))
+                window_end[sysid] = stamp + LOSS_WINDOW_S
+        if msgid not in _KEEP or len(frame) < total:
             continue
         if msgid == _TARGET and sysid != gcs_sysid:
             continue
@@ -94,6 +127,17 @@ def read_tlog(path: Path, gcs_sysid: int = 255):
             continue
         out.append((stamp, sysid, compid, msg))
     return out
+
+
+def _health_event(link_id: int, sysid: int, t_s: float, msg, battery: bool = False):
+    """The station's event of one recorded health frame (gcs.link_health.health_event; with
+    ``battery`` the BatteryReceived of a SYS_STATUS instead), None if it is not valid."""
+    try:
+        if battery:
+            return sys_status_battery(link_id, sysid, t_s, msg)
+        return health_event(link_id, sysid, t_s, msg)
+    except (ValueError, KeyError):
+        return None
 
 
 def _event_from_record(rec: dict):
@@ -148,11 +192,20 @@ class ReplaySource:
         self.live_cols = {sysid: col for col, sysid in live_task_columns(mission).items()}
         o = mission.origin
         self.origin = MissionOrigin(o.lat_deg, o.lon_deg, o.alt_amsl_m)
+        battery = mission.endurance.battery
+        self._reserve_frac = battery.low_frac if battery is not None else DEFAULT_BATTERY_LOW_FRAC
         records = [
             json.loads(line)
             for line in (run_dir / "events.jsonl").read_text().splitlines()
             if line.strip()
         ]
+        # The alerts the live page raised and who acknowledged them (mission.view.live.alerts).
+        self._alerts = [r for r in records if r.get("type") == "AlertRaised"]
+        self._acks = {
+            int(r["alert_id"]): float(r["t_s"])
+            for r in records
+            if r.get("type") == "AlertAcknowledged"
+        }
         self.metrics = self._read_metrics(run_dir / "metrics.csv")
         self.t0_s = (
             self.metrics[0]["t_s"] - self.metrics[0]["t_mission_s"] if self.metrics else None
@@ -161,8 +214,10 @@ class ReplaySource:
             float(meta.get("options", {}).get("duration_s") or 0) or mission.run.duration_s
         )
         self.end_action = meta.get("options", {}).get("end")
-        tlog = read_tlog(run_dir / "flight.tlog")
+        self._loss: dict[int, list] = {}
+        tlog = read_tlog(run_dir / "flight.tlog", loss=self._loss)
         self._build(records, tlog, dt_s)
+        self.rotation = self._read_rotation(run_dir / ROTATION_FILE)
         self.truth = self._read_truth(run_dir / "truth.npz")
 
     # ------------------------------------------------------------------ loading
@@ -181,6 +236,38 @@ class ReplaySource:
                 except ValueError:
                     continue
         return rows
+
+    @staticmethod
+    def _read_rotation(path: Path) -> list[dict] | None:
+        """``rotation.jsonl`` (a flight with batteries; None without): its lines in time order,
+        each with the number of events recorded up to it (``n_events``) into ``events``, one
+        list for the whole file."""
+        if not path.is_file():
+            return None
+        lines: list[dict] = []
+        events: list[dict] = []
+        for text in path.read_text().splitlines():
+            try:
+                rec = json.loads(text)
+                line = {"t_s": float(rec["t_s"]), "state": rec["state"], "events": events}
+                events.extend(rec.get("events", ()))
+            except (ValueError, KeyError, TypeError):
+                continue  # a line cut short by a crash
+            line["n_events"] = len(events)
+            lines.append(line)
+        return lines
+
+    def _rotation_at(self, snap, t_s: float) -> dict | None:
+        """The frame's ``rotation`` key at ``t_s``: the last recorded state at or before it."""
+        if not self.rotation:
+            return None
+        k = bisect.bisect_right([r["t_s"] for r in self.rotation], t_s + 1e-9) - 1
+        if k < 0:
+            return None
+        rec = self.rotation[k]
+        n = rec["n_events"]
+        events = rec["events"][max(0, n - MAX_EVENTS) : n]
+        return rotation_frame(rec["state"], events, snap, t_s, self.t0_s)
 
     def _read_truth(self, path: Path):
         if not path.is_file():
@@ -221,7 +308,8 @@ class ReplaySource:
                 first_hb[sysid] = stamp
         diffs = [first_hb[s] - first_disc[s] for s in first_hb]
         self.offset_s = float(np.median(diffs)) if diffs else (tlog[0][0] if tlog else 0.0)
-        tel: list[gcs_events.TelemetryReceived] = []
+        tel: list[gcs_events.Event] = []
+        battery_recorded = any(isinstance(e, gcs_events.BatteryReceived) for e in evs)
         targets: dict = {}
         for stamp, sysid, compid, msg in tlog:
             t = stamp - self.offset_s
@@ -246,6 +334,16 @@ class ReplaySource:
                     )
                 except ValueError:
                     continue
+            elif mid in _HEALTH_IDS and sysid in link_of:
+                hev = _health_event(link_of[sysid], sysid, t, msg)
+                if hev is not None:
+                    tel.append(hev)
+                if mid == _SYS_STATUS and not battery_recorded:
+                    # No BatteryReceived in events.jsonl (a mission without batteries): the
+                    # live page's battery came from these SYS_STATUS frames.
+                    bev = _health_event(link_of[sysid], sysid, t, msg, battery=True)
+                    if bev is not None:
+                        tel.append(bev)
             elif mid == _TARGET:
                 targets.setdefault(msg.target_system, []).append(
                     (
@@ -294,7 +392,11 @@ class ReplaySource:
                 vid = (int(r["link_id"]), int(r["sysid"]))
                 if r["action"] == "rejoin":
                     released.pop(vid, None)
-                else:
+                elif r["action"] == OVERRIDE:  # a forwarded client took it: say who
+                    released[vid] = override_label(r.get("source", "?"), r.get("result", ""))
+                elif r["action"] == "confirm_swap":
+                    pass  # the rotation's bookkeeping (rotation.jsonl), not the plan's
+                elif r["action"] != OVERRIDE_REFUSED:  # a refusal leaves it in the plan
                     released[vid] = r["action"]
                 a += 1
             snap = fleet.snapshot(float(t))
@@ -463,8 +565,53 @@ class ReplaySource:
             crew_tracks=tracks,
             truth=self._truth_at(t) if truth else None,
             released=fr.released,
+            health=health_columns(
+                snap,
+                self.origin,
+                t,
+                loss_frac=[self._loss_at(int(s), t) for s in snap.sysid_of_index.tolist()],
+                reserve_min=minutes_to_reserve(
+                    snap.battery_frac if snap.battery_frac is not None else np.full(n, np.nan),
+                    snap.drain_per_s if snap.drain_per_s is not None else np.full(n, np.nan),
+                    self._reserve_frac,
+                ),
+            ),
+            rotation=self._rotation_at(snap, t),
         )
-        return frame_dict(pic, self.mission.radio.range_m, self.mission.radio.base_range_m)
+        frame = frame_dict(pic, self.mission.radio.range_m, self.mission.radio.base_range_m)
+        frame["alerts"] = self._alerts_at(t)
+        return frame
+
+    def _alerts_at(self, t_s: float) -> dict:
+        """The alerts raised by ``t_s`` (recorded), open until their recorded acknowledgement."""
+        rows = []
+        for r in self._alerts:
+            if r["t_s"] > t_s + 1e-6:
+                continue
+            acked = self._acks.get(int(r["alert_id"]), math.inf) <= t_s + 1e-6
+            rows.append(
+                {
+                    "id": int(r["alert_id"]),
+                    "kind": r["kind"],
+                    "subject": r["subject"],
+                    "text": r["text"],
+                    "t_s": round(float(r["t_s"]), 1),
+                    "cleared": False,
+                    "acked": acked,
+                }
+            )
+        return {
+            "open": [a for a in rows if not a["acked"]],
+            "recent": rows[::-1][:20],
+        }
+
+    def _loss_at(self, sysid: int, t_s: float) -> float | None:
+        """The packet loss of the last window closed at core time ``t_s`` (None: none yet)."""
+        wins = self._loss.get(sysid)
+        if not wins:
+            return None
+        k = bisect.bisect_right([w[0] for w in wins], t_s + self.offset_s) - 1
+        return wins[k][1] if k >= 0 else None
 
     def _events_until(self, t_s: float, limit: int = 60) -> list[dict]:
         from mission.view.live.station import event_entry

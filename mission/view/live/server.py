@@ -13,6 +13,8 @@ Routes::
     GET  /api/stream       live: Server-Sent Events, one frame per message, several a second
     POST /api/action       live: {"action": "rtl", "vehicle": "0:7" | "all"}, header
                            X-Operator-Key: the key the station printed; 403 without it
+    POST /api/ack          live: {"alert": 3 | "all"}: the operator acknowledges an alert
+                           (same key; logged to events.jsonl, mission.view.live.alerts)
     GET  /tiles/{z}/{x}/{y}.{ext}   --tiles DIR: the XYZ tiles of that folder
 
 Security: loopback by default; actions need the operator key (a random secret printed at start,
@@ -146,6 +148,7 @@ class LiveServer:
         app.router.add_get("/api/frame", self._frame)
         app.router.add_get("/api/stream", self._stream)
         app.router.add_post("/api/action", self._action)
+        app.router.add_post("/api/ack", self._ack)
         app.router.add_get(r"/tiles/{z:\d+}/{x:\d+}/{y:\d+}.{ext:(png|jpg|jpeg|webp)}", self._tile)
         app.router.add_static("/static", STATIC_DIR, follow_symlinks=False)
         self.app = app
@@ -245,10 +248,9 @@ class LiveServer:
             self.clients -= 1
         return resp
 
-    async def _action(self, request: web.Request) -> web.Response:
-        act = getattr(self.source, "act", None)
-        if act is None or self.key is None:
-            raise web.HTTPForbidden(text="actions are off: this view is read-only")
+    def _check_key(self, request: web.Request) -> None:
+        """403 unless the request carries the operator key."""
+        assert self.key is not None  # the callers refuse first when actions are off
         # Header values arrive as str decoded from bytes; a key with bytes that are not UTF-8
         # (surrogate escapes) cannot be encoded back: it is simply not the key (403, not 500).
         try:
@@ -258,6 +260,28 @@ class LiveServer:
         if not given or not hmac.compare_digest(given, self.key.encode()):
             log.warning("web action refused: wrong or missing operator key from %s", request.remote)
             raise web.HTTPForbidden(text="wrong or missing operator key")
+
+    async def _ack(self, request: web.Request) -> web.Response:
+        ack = getattr(self.source, "acknowledge", None)
+        if ack is None or self.key is None:
+            raise web.HTTPForbidden(text="acknowledging needs the operator key: read-only view")
+        self._check_key(request)
+        try:
+            body = await request.json()
+            alert = str(body["alert"])
+        except (ValueError, KeyError, TypeError):
+            raise web.HTTPBadRequest(text='expected {"alert": ID | "all"}') from None
+        try:
+            done = ack(alert, f"web {request.remote}")
+        except (ValueError, KeyError) as exc:
+            raise web.HTTPBadRequest(text=str(exc)) from None
+        return web.json_response({"done": done})
+
+    async def _action(self, request: web.Request) -> web.Response:
+        act = getattr(self.source, "act", None)
+        if act is None or self.key is None:
+            raise web.HTTPForbidden(text="actions are off: this view is read-only")
+        self._check_key(request)
         try:
             body = await request.json()
             action, vehicle = str(body["action"]), str(body.get("vehicle", ""))

@@ -263,6 +263,12 @@ class Picture:
     crew_tracks: list | None = None
     truth: dict | None = None
     released: dict | None = None
+    health: dict | None = None
+    """Per-vehicle health columns (:func:`mission.view.live.health.health_columns`)."""
+    alerts: dict | None = None
+    """``{"open": [...], "recent": [...]}`` (:class:`mission.view.live.alerts.AlertBook`)."""
+    rotation: dict | None = None
+    """The relay rotation (:func:`mission.view.live.rotation.rotation_frame`; None: no batteries)."""
 
 
 def frame_dict(p: Picture, radio_range_m: float, base_range_m: float) -> dict:
@@ -344,10 +350,17 @@ def frame_dict(p: Picture, radio_range_m: float, base_range_m: float) -> dict:
         "series": p.series,
         "events": p.events,
     }
+    if p.health is not None:
+        columns: dict = frame["v"]  # type: ignore[assignment]  # the dict built above
+        columns.update(p.health)
+    if p.alerts is not None:
+        frame["alerts"] = p.alerts
     if p.crew_tracks is not None:
         frame["crew_tracks"] = p.crew_tracks
     if p.truth is not None:
         frame["truth"] = p.truth
+    if p.rotation is not None:
+        frame["rotation"] = p.rotation
     return frame
 
 

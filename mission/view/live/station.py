@@ -30,8 +30,12 @@ from gcs.events import (
     VehicleRecovered,
 )
 from gcs.operations import OPERATOR_ACTIONS
+from gcs.operations.config import override_label
 from gcs.rally import RallyUploadFailed
 from gcs.wire import mavlink
+from mission.view.live.alerts import AlertBook, AlertConfig
+from mission.view.live.health import LOSS_WINDOW_S, health_columns, minutes_to_reserve
+from mission.view.live.rotation import MAX_EVENTS, rotation_frame
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import (
     Picture,
@@ -78,6 +82,17 @@ def event_entry(ev) -> tuple[str, str] | None:
     return None
 
 
+def held_by(released: dict, overrides: dict) -> dict:
+    """The page's word per released vehicle: the operator's action, or who took it for one a
+    forwarded client took (``overrides``: vid -> its :class:`~gcs.operations.OperatorAction`)."""
+    if not overrides:
+        return released
+    return {
+        v: override_label(overrides[v].source, overrides[v].result) if v in overrides else a
+        for v, a in released.items()
+    }
+
+
 class LiveStation:
     """Reads the :class:`gcs.operations.Operator` (see the module docstring).
 
@@ -89,6 +104,9 @@ class LiveStation:
     adapters : the station's links (flushed after an action)
     actions : whether actions may be enabled (the server also needs a key)
     tiles : what the page needs for background imagery (``server.tiles_meta``)
+    alert_config : thresholds of the alerts (:mod:`mission.view.live.alerts`)
+    log_event : where alerts and their acknowledgements are logged (the run directory's
+        ``events.jsonl`` writer), or None
     """
 
     def __init__(
@@ -100,8 +118,16 @@ class LiveStation:
         *,
         actions: bool = True,
         tiles: dict | None = None,
+        alert_config: AlertConfig | None = None,
+        log_event: Callable[[object], None] | None = None,
     ) -> None:
         self.op = op
+        self.alerts = AlertBook(alert_config or AlertConfig())
+        self.log_event = log_event
+        self._commanded: set[tuple[int, int]] = set()
+        """Vehicles the station itself sent to RTL / LAND (no failsafe alert for them)."""
+        self._loss: dict[tuple[int, int], float | None] = {}
+        self._loss_t = -math.inf
         self.mission = mission
         self.clock = clock
         self.adapters = list(adapters)
@@ -151,6 +177,28 @@ class LiveStation:
 
         st.set_position_target = set_position_target
         st.clear_position_target = clear_position_target
+        # Who sent a vehicle home: the station (an operator action, the end, a rotation) or not
+        # (the autopilot's failsafe, another GCS) - the failsafe alert's question.
+        commanded = self._commanded
+
+        def wrap(name: str, home: bool | None):
+            orig = getattr(st, name)
+
+            def call(vid, *a, **kw):
+                if home is None:  # set_mode(vid, mode, ...)
+                    mode = str(a[0]).upper() if a else ""
+                    on = any(w in mode for w in ("RTL", "LAND", "RETURN"))
+                else:
+                    on = home
+                (commanded.add if on else commanded.discard)(tuple(vid))
+                return orig(vid, *a, **kw)
+
+            setattr(st, name, call)
+
+        wrap("rtl", True)
+        wrap("land", True)
+        wrap("set_mode", None)
+        wrap("engage_guided", False)
 
     def on_event(self, ev) -> None:
         """Every link event (called by the runner before the operator folds it)."""
@@ -273,10 +321,120 @@ class LiveStation:
             },
             events=list(self.events)[-60:],
             crew_tracks=self._crew_tracks,
-            released=op.released,
+            released=held_by(op.released, op.overrides),
+            rotation=self._rotation(snap, now),
+        )
+        pic.health = health_columns(
+            snap,
+            op.fleet.origin,
+            now,
+            loss_frac=self._loss_windows(now, vids),
+            reserve_min=self._reserve_min(snap),
         )
         mission = self.mission
-        return frame_dict(pic, mission.radio.range_m, mission.radio.base_range_m)
+        frame = frame_dict(pic, mission.radio.range_m, mission.radio.base_range_m)
+        self._update_alerts(now, frame, snap)
+        frame["alerts"] = {
+            "open": self.alerts.unacknowledged(),
+            "recent": self.alerts.recent(),
+            "crew_cut_off_s": self.alerts.config.crew_cut_off_s,
+            "battery_low_pct": round(100 * self.alerts.config.battery_low_frac),
+        }
+        return frame
+
+    # ------------------------------------------------------------------ health and alerts
+
+    def _loss_windows(self, now_s: float, vids: list) -> list[float | None]:
+        """Per row, the packet loss of the last closed window (:data:`LOSS_WINDOW_S`)."""
+        if now_s >= self._loss_t + LOSS_WINDOW_S:
+            self._loss_t = now_s
+            st = self.op.station
+            for vid in vids:
+                try:
+                    self._loss[vid] = st.link(vid[0]).seq_counter(vid[1]).take_window()
+                except (KeyError, LookupError):
+                    self._loss[vid] = None
+        return [self._loss.get(v) for v in vids]
+
+    def _reserve_min(self, snap) -> np.ndarray:
+        """Minutes to the battery reserve: the rotation's own figure where it runs (its reserve
+        is the way home plus a margin, planner.endurance.time_to_reserve_s), else the drain
+        estimate (gcs.battery) down to the alert's low level."""
+        n = snap.n_vehicles
+        out = minutes_to_reserve(
+            snap.battery_frac if snap.battery_frac is not None else np.full(n, np.nan),
+            snap.drain_per_s if snap.drain_per_s is not None else np.full(n, np.nan),
+            self.alerts.config.battery_low_frac,
+        )
+        rot = getattr(self.op, "rotation", None)
+        t = getattr(rot, "time_to_reserve_s", None)
+        if t is not None and len(t):
+            k = min(n, len(t))
+            t = np.asarray(t[:k], dtype=float)
+            out[:k] = np.where(np.isfinite(t), t / 60.0, np.nan)
+        return out
+
+    def _update_alerts(self, now_s: float, frame: dict, snap) -> None:
+        op = self.op
+        v = frame["v"]
+        ending = op.phase in ("end", "done")
+        commanded = v["id"] if ending else [f"{l}:{s}" for l, s in self._commanded]
+        raised = self.alerts.update(
+            now_s,
+            vehicles=v["id"],
+            states=v["state"],
+            modes=v["mode"],
+            commanded=commanded,
+            battery_frac=snap.battery_frac,
+            charge_state=snap.battery_charge_state,
+            crews=self._crew_names(len(frame["crews"]["connected"])),
+            crews_connected=frame["crews"]["connected"],
+            mission_running=op.phase == "run" and op.mission_t0_s is not None,
+        )
+        for rec in raised:
+            self._add(rec.t_s, "alert", None, f"ALERT {rec.kind}: {rec.text}")
+            if self.log_event is not None:
+                self.log_event(rec)
+        if raised:
+            log.warning("live view: %s", "; ".join(f"{r.kind}: {r.text}" for r in raised))
+
+    def _crew_names(self, k: int) -> list[str]:
+        names = getattr(self, "_names", None)
+        if names is None or len(names) != k:
+            from mission.view.live.state import crew_names
+
+            names = crew_names(self.mission)
+            names = (names + [f"crew {i + 1}" for i in range(len(names), k)])[:k]
+            self._names = names
+        return names
+
+    def acknowledge(self, alert: str, source: str) -> list[dict]:
+        """An operator acknowledged alert ``alert`` (its id, or ``"all"``) from the page."""
+        try:
+            which: int | str = "all" if alert == "all" else int(alert)
+        except ValueError:
+            raise ValueError(f"alert must be an id or 'all', got {alert!r}") from None
+        done = self.alerts.acknowledge(which, self.clock(), source)
+        for rec in done:
+            self._add(
+                rec.t_s,
+                "ack",
+                None,
+                f"alert {rec.alert_id} ({rec.kind}: {rec.subject}) acknowledged by {source}",
+            )
+            if self.log_event is not None:
+                self.log_event(rec)
+        return [{"id": r.alert_id, "kind": r.kind, "subject": r.subject} for r in done]
+
+    def _rotation(self, snap, now_s: float) -> dict | None:
+        """The frame's ``rotation`` key (None without batteries)."""
+        state = self.op.rotation_state()
+        if state is None:
+            return None
+        start = max(0, len(self.op.rotation.events) - MAX_EVENTS)
+        return rotation_frame(
+            state, self.op.rotation_events(start), snap, now_s, self.op.mission_t0_s
+        )
 
     def _track_crews(self, t_m: float | None, crews: np.ndarray) -> None:
         if t_m is None or t_m < self._crew_track_t + 1.0:
@@ -327,18 +485,21 @@ class LiveStation:
             if self.op.phase != self._phase:
                 self._add(self.clock(), "phase", None, f"phase {self._phase} -> {self.op.phase}")
                 self._phase = self.op.phase
-            if server.clients:
-                t0 = time.process_time()
-                try:
+            # Frames are built with or without a page open: the alerts they feed are logged
+            # either way (docs/live_view.md, "Alerts"); the CPU budget holds for both.
+            t0 = time.process_time()
+            try:
+                frame = self.frame()
+                if server.clients:
                     server.publish(
-                        json.dumps(self.frame(), allow_nan=False, separators=(",", ":")).encode()
+                        json.dumps(frame, allow_nan=False, separators=(",", ":")).encode()
                     )
-                except Exception:  # noqa: BLE001 - the view must never stop the flight
-                    log.exception("live view: building a frame failed")
-                cost = time.process_time() - t0
-                self.frames_built += 1
-                self.frame_cpu_s += cost
-                period = max(MIN_PERIOD_S, cost / CPU_BUDGET)
+            except Exception:  # noqa: BLE001 - the view must never stop the flight
+                log.exception("live view: building a frame failed")
+            cost = time.process_time() - t0
+            self.frames_built += 1
+            self.frame_cpu_s += cost
+            period = max(MIN_PERIOD_S, cost / CPU_BUDGET)
             await asyncio.sleep(period)
 
     async def aclose(self) -> None:

@@ -147,11 +147,12 @@
         $("actions-all").hidden = false;
         $("keybox").hidden = !!key;
         $("key").value = key;
-        $("key").oninput = (ev) => { key = ev.target.value.trim(); sessionStorage.setItem("phireman-key", key); updateButtons(); };
+        $("key").oninput = (ev) => { key = ev.target.value.trim(); sessionStorage.setItem("phireman-key", key); updateButtons(); if (window.phiremanHealth) window.phiremanHealth.setKey(key); };
       } else $("readonly").hidden = false;
     }
     document.querySelectorAll("[data-all]").forEach((b) => b.onclick = () => ask(b.dataset.all, "all"));
     $("cancel").onclick = () => { $("modal").hidden = true; };
+    if (window.phiremanHealth) window.phiremanHealth.setup(meta, key);
   }
 
   const ACTION_TEXT = {hold: "HOLD (hover where it is, out of the plan)", rtl: "RETURN TO LAUNCH (RTL)",
@@ -188,6 +189,8 @@
 
   // ------------------------------------------------------------------ drawing a frame
   const vmark = new Map(), vlabel = new Map(), cmark = [];
+  const H = window.phiremanHealth;  // vehicle health, alerts, coordinates (health.js)
+  window.phiremanRedraw = () => { if (frame) { renderTable(); renderSelected(); } };
   function render(f) {
     frame = f;
     window.phiremanFrame = f;  // for tests and the curious
@@ -258,6 +261,8 @@
     layers.truth.clearLayers();
     if (f.truth) f.truth.n.forEach((nn, i) => L.circleMarker(ll(nn, f.truth.e[i]), {radius: 3, color: "#000", weight: 1, fillColor: f.truth.alive[i] ? "#fff" : "#000", fillOpacity: 1, interactive: false}).addTo(layers.truth));
     renderPanel(f);
+    if (H) { Object.assign(window.phiremanMap, {vmark, vlabel}); H.afterRender(f); }
+    document.dispatchEvent(new CustomEvent("phireman:frame", {detail: {frame: f, meta}}));  // rotation.js
   }
 
   // After the mission time the station ends the flight (OperationsConfig.end): phase "end" while
@@ -303,7 +308,7 @@
       const tdist = V.tn[i] === null || V.n[i] === null ? "-" : `${Math.round(Math.hypot(V.tn[i] - V.n[i], V.te[i] - V.e[i]))} m`;
       rows.push(`<tr data-vid="${V.id[i]}" data-state="${V.state[i]}" class="${V.id[i] === selected ? "sel" : ""}"><td>${esc(V.label[i])}</td>` +
         `<td><span class="legend-dot" style="background:${COLORS[V.state[i]]}"></span> ${V.state[i]}</td><td>${esc(V.mode[i])}</td>` +
-        `<td>${V.alt[i] === null ? "-" : Math.round(V.alt[i])} m (L${V.layer[i] + 1})</td><td>${V.hdg[i] === null ? "-" : Math.round(V.hdg[i]) + "°"}</td><td>${tdist}</td></tr>`);
+        `<td>${V.alt[i] === null ? "-" : Math.round(V.alt[i])} m (L${V.layer[i] + 1})</td><td>${V.hdg[i] === null ? "-" : Math.round(V.hdg[i]) + "°"}</td><td>${tdist}</td>${H ? H.cells(V, i) : ""}</tr>`);
     }
     const tb = $("vtable").tBodies[0];
     tb.innerHTML = rows.join("");
@@ -320,8 +325,8 @@
     const alt = V.alt[i] === null ? "-" : `${Math.round(V.alt[i])} m`;
     const tgt = V.tn[i] === null ? "none" : `${Math.round(V.tn[i])} m N, ${Math.round(V.te[i])} m E, ${Math.round(V.talt[i])} m up`;
     let html = `<div data-vid="${V.id[i]}" id="selected-state" data-state="${V.state[i]}"><b style="color:${COLORS[V.state[i]]}">${esc(meta.state_labels[V.state[i]])}</b><br>` +
-      `mode ${esc(V.mode[i])}${V.released[i] ? ` (operator: ${esc(V.released[i])})` : ""}; altitude ${alt}, layer ${V.layer[i] + 1} of ${meta.layers.n} (${V.layer_alt[i]} m)<br>` +
-      `heading ${V.hdg[i] === null ? "-" : Math.round(V.hdg[i]) + "°"}; position ${V.n[i] === null ? "-" : `${Math.round(V.n[i])} m N, ${Math.round(V.e[i])} m E`}<br>planned target: ${tgt}</div>`;
+      `mode ${esc(V.mode[i])}${V.released[i] ? ` (${V.released[i].startsWith("taken by ") ? "" : "operator: "}${esc(V.released[i])})` : ""}; altitude ${alt}, layer ${V.layer[i] + 1} of ${meta.layers.n} (${V.layer_alt[i]} m)<br>` +
+      `heading ${V.hdg[i] === null ? "-" : Math.round(V.hdg[i]) + "°"}; position ${V.n[i] === null ? "-" : `${Math.round(V.n[i])} m N, ${Math.round(V.e[i])} m E`}<br>planned target: ${tgt}</div>` + (H ? H.panel(V, i) : "");
     if (meta.mode === "live" && meta.actions) {
       html += `<div class="btns">` + [["hold", "Hold"], ["rtl", "RTL", "warn"], ["land", "Land", "warn"], ["release", "Release from plan"], ["rejoin", "Return to plan"]]
         .map(([a, t, c]) => `<button data-act="${a}" class="${c || ""}">${t}</button>`).join("") + `</div>`;

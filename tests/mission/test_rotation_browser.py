@@ -1,0 +1,200 @@
+"""The relay rotation panel in a real headless browser (Debian chromium + chromedriver, selenium):
+a short flight like ``wildfire_2h`` (four emulated drones, one flying, a 4-minute battery, one pad,
+20-s swaps), flown with ``swap_confirm='manual'``; the page shows the pad occupied and the swap
+requested, the Confirm button is clicked, and the page shows the swap confirmed and done. The
+run directory then records the confirmation (events.jsonl, summary.json) and replays it
+(rotation.jsonl).
+
+Skipped, loudly, when chromium or chromedriver is missing. Loopback only, port 0; waits have
+generous timeouts, nothing is timed."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import threading
+
+import pytest
+from test_live_view import CHROMEDRIVER, CHROMIUM, _wait, browser  # noqa: F401  (a fixture)
+
+pytestmark = pytest.mark.udp
+
+
+def rotation_mission(speedup: float = 10.0):
+    """Four drones, one crew 72 m out, 4-minute batteries, one pad with 20-s swaps: the plan
+    flies one drone and relieves it about every two minutes of mission time."""
+    from mission.format.schema import BaseSpec, BatterySpec, EnduranceSpec, RunSpec
+    from small_mission import crew, small_mission
+
+    return small_mission(
+        "rotation",
+        RunSpec(duration_s=900.0, seed=2, speedup=speedup),
+        count=4,
+        tasks=(crew(60.0, 40.0, "Engine 7"),),
+        latency_s=0.01,
+        endurance=EnduranceSpec(
+            battery=BatterySpec(endurance_s=240.0, low_frac=0.2, critical_frac=0.1),
+            base=BaseSpec(
+                pads=1, swap_time_s=20.0, spare_batteries=4, chargers=2, charge_time_s=300.0
+            ),
+        ),
+    )
+
+
+def _rotation(drv) -> dict | None:
+    return drv.execute_script("return window.phiremanFrame && window.phiremanFrame.rotation")
+
+
+def test_the_crew_confirms_a_swap_on_the_page_and_the_replay_shows_it(browser, tmp_path):  # noqa: F811
+    from mission.flight.runners import FlyOptions, fly_emulated_async
+    from mission.view.live import attach
+    from mission.view.live.replay import ReplaySource
+
+    info, box = {}, {}
+    stop = threading.Event()
+
+    def hook(op, world):
+        if stop.is_set():
+            op.phase = "done"
+
+    opts = FlyOptions(
+        emulator_in_process=True,
+        out_dir=str(tmp_path),
+        serve="127.0.0.1:0",
+        attach_view=attach,
+        on_live=info.update,
+        on_operator=hook,
+        apply_failsafes=True,
+        swap_confirm="manual",
+    )
+
+    def run():
+        try:
+            box["result"] = asyncio.run(fly_emulated_async(rotation_mission(), opts))
+        except BaseException as exc:  # noqa: BLE001
+            box["error"] = exc
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    try:
+        _wait(lambda: info.get("url"), 60, "the live view to start")
+        drv = browser
+        drv.get(f"{info['url']}#key={info['key']}")
+        _wait(lambda: drv.find_element("id", "rotation").is_displayed(), 120, "the panel")
+        assert drv.find_element("id", "rotation-mode").text.endswith("by the ground crew")
+        # The relay comes home and lands on the pad: the swap is requested.
+        vid = _wait(
+            lambda: drv.execute_script(
+                "const r = document.querySelector('#rotation-pads tr[data-pad=\"1\"]');"
+                "return r && r.getAttribute('data-vehicle')"
+            ),
+            400,
+            "a vehicle on pad 1",
+        )
+        text = drv.find_element("id", "rotation-pads-box").text
+        assert f"swap requested: vehicle {vid.split(':')[1]} on pad 1" in text
+        rot = _rotation(drv)
+        assert rot["phase"][rot_row(drv, vid)] == "swapping"
+        assert rot["counters"]["swaps"] == 0  # manual: the power cycle alone does not end it
+        # The crew confirms on the page (found and clicked in one script: the panel is redrawn
+        # with every frame).
+        _wait(
+            lambda: drv.execute_script(
+                'const b = document.querySelector(`button[data-confirm="${arguments[0]}"]`);'
+                "if (!b || b.disabled) return false; b.click(); return true;",
+                vid,
+            ),
+            30,
+            "a click on Confirm",
+        )
+        _wait(
+            lambda: drv.find_elements("css selector", "#rotation-events li.crew_confirmed"),
+            60,
+            "the confirmation among the rotation events",
+        )
+        # The emulator's crew powers it up with a full pack: a charged spare again, pad free.
+        _wait(
+            lambda: (
+                drv.find_elements("css selector", "#rotation-events li.swap_done")
+                and _rotation(drv)["counters"]["swaps_confirmed_by_crew"] == 1
+            ),
+            300,
+            "the swap done",
+        )
+        _wait(
+            lambda: _rotation(drv)["phase"][rot_row(drv, vid)] in ("ready", "inbound", "air"),
+            60,
+            "the vehicle a spare again",
+        )
+        assert "1 by the crew" in drv.find_element("id", "rotation-counters").text
+    finally:
+        stop.set()
+        th.join(240)
+    assert "error" not in box, box.get("error")
+    res = box["result"]
+    events = [json.loads(x) for x in (res.run_dir / "events.jsonl").read_text().splitlines()]
+    (act,) = [e for e in events if e.get("type") == "OperatorAction"]
+    assert act["action"] == "confirm_swap" and act["source"].startswith("web 127.0.0.1")
+    assert f"{act['link_id']}:{act['sysid']}" == vid and act["result"].startswith("swap confirmed")
+    summary = json.loads((res.run_dir / "summary.json").read_text())
+    end = summary["endurance"]
+    assert end["swap_confirm"] == "manual" and end["swaps_confirmed_by_crew"] >= 1
+    assert end["rotations"] >= 1 and end["landed_away"] == 0
+    # The replay draws the same panel from rotation.jsonl: the pad occupied, then confirmed.
+    src = ReplaySource(res.run_dir)
+    frames = [src.frame(i) for i in range(0, len(src.frames), 3)] + [src.frame()]
+    on_pad = [f for f in frames if f.get("rotation") and f["rotation"]["pads"][0]["vehicle"]]
+    assert on_pad and on_pad[0]["rotation"]["pads"][0]["vehicle"] == vid
+    last = frames[-1]["rotation"]
+    kinds = [e["kind"] for e in last["events"]]
+    assert last["counters"]["swaps_confirmed_by_crew"] >= 1 or "crew_confirmed" in kinds
+    assert all(r is None for f in frames for r in f["v"]["released"])  # not an operator hold
+    # ... and the page draws it: the slider on a frame with the pad occupied, no Confirm button.
+    k = src.index_at(on_pad[0]["t_mission_s"])
+    with _replay_page(src) as url:
+        drv.get(url)
+        _wait(lambda: drv.execute_script("return !!window.phiremanReplay"), 60, "the replay")
+        drv.execute_script("window.phiremanReplay.load(arguments[0])", k)
+        _wait(
+            lambda: drv.execute_script(
+                "const r = document.querySelector('#rotation-pads tr[data-pad=\"1\"]');"
+                "return r && r.getAttribute('data-vehicle') === arguments[0]",
+                vid,
+            ),
+            60,
+            "the replayed pad occupied",
+        )
+        assert "swap requested" in drv.find_element("id", "rotation-pads-box").text
+        assert not drv.find_elements("css selector", "button[data-confirm]")  # read-only
+
+
+def rot_row(drv, vid: str) -> int:
+    return drv.execute_script("return window.phiremanFrame.v.id.indexOf(arguments[0])", vid)
+
+
+@contextlib.contextmanager
+def _replay_page(src):
+    """Serve a :class:`ReplaySource` on loopback (port 0) from a thread: yields its URL."""
+    from mission.view.live.server import LiveServer
+
+    box, ready = {}, threading.Event()
+
+    def run():
+        async def main():
+            server = await LiveServer(src, "127.0.0.1", 0).start()
+            box.update(url=server.url, stop=asyncio.Event(), loop=asyncio.get_running_loop())
+            ready.set()
+            await box["stop"].wait()
+            await server.aclose()
+
+        asyncio.run(main())
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    assert ready.wait(60)
+    try:
+        yield box["url"]
+    finally:
+        box["loop"].call_soon_threadsafe(box["stop"].set)
+        th.join(30)

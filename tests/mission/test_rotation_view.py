@@ -1,0 +1,224 @@
+"""The relay rotation for the operator, in memory with explicit time: the frame's ``rotation`` key
+(mission/view/live/rotation.py) from the station's rotation state, ``rotation.jsonl`` written only
+when the state changes and read back by the replay, the status line's rotation field and the
+closing summary's line (mission/commands/fly.py)."""
+
+from __future__ import annotations
+
+import io
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from gcs.events import TelemetryReceived, VehicleDiscovered
+from gcs.fleet import FleetView, MissionOrigin
+from gcs.operations.rotation_setup import RotationSetup
+from mission.commands.fly import _Status, format_rotation, format_status, planned_drop
+from mission.flight.run_dir import ROTATION_FILE, Records
+from mission.view.live.rotation import event_text, rotation_frame
+from mission.view.live.replay import ReplaySource
+from planner.endurance import (
+    INBOUND,
+    RETURNING,
+    BaseResources,
+    EnduranceParams,
+    RotationPolicy,
+)
+from planner.geometry import ned_to_geodetic
+
+ORIGIN = MissionOrigin(39.76, -121.62, 540.0)
+#: north, east of each vehicle (sysids 1..4): two relays out, one spare on its way, one home.
+POS = {1: (100.0, 0.0), 2: (0.0, 150.0), 3: (40.0, 120.0), 4: (0.0, 0.0)}
+
+
+def _fleet(t_s: float) -> FleetView:
+    fleet = FleetView(ORIGIN, timeout_s=5.0)
+    for sysid, (n, e) in POS.items():
+        lat, lon, alt = ned_to_geodetic(
+            np.array([n, e, -20.0]), ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_amsl_m
+        )
+        fleet.apply(VehicleDiscovered(0, sysid, 0.0, autopilot=3, mode="GUIDED"))
+        fleet.apply(
+            TelemetryReceived(
+                0,
+                sysid,
+                t_s,
+                lat_deg=float(np.ravel(lat)[0]),
+                lon_deg=float(np.ravel(lon)[0]),
+                alt_amsl_m=float(np.ravel(alt)[0]),
+                rel_alt_m=20.0,
+            )
+        )
+    return fleet
+
+
+def _rotation() -> RotationSetup:
+    """Relays 1 and 2 in the plan, spare 3 inbound to relay 2, vehicle 4 home at t = 100 s: it
+    lands and takes pad 1 (a 60-s swap); its battery goes to one of two chargers (600 s)."""
+    policy = RotationPolicy(
+        4,
+        2,
+        BaseResources(pads=2, swap_time_s=60.0, spare_batteries=5, chargers=2, charge_time_s=600.0),
+        EnduranceParams(return_speed_m_s=5.0),
+    )
+    policy.phase[2], policy.phase[3] = INBOUND, RETURNING
+    policy.replaces[2], policy.replaced_by[1] = 1, 2
+    rot = RotationSetup(policy, hover_drain_per_s=1.0 / 1500.0, swap_confirm="manual")
+    pos = np.array([v for _, v in sorted(POS.items())])
+    alive = np.ones(4, bool)
+    out = policy.step(
+        100.0,
+        pos,
+        alive,
+        np.array([0.6, 0.5, 0.95, 0.3]),
+        np.full(4, 1e-3),
+        networked=np.array([True, True, False, False]),
+        landed_at_base=np.array([False, False, False, True]),
+        swap_done=np.zeros(4, bool),
+    )
+    rot.events.extend(out.events)
+    rot.time_to_reserve_s = np.array([300.0, 240.0, np.inf, np.inf])
+    rot.tick_s = 100.0
+    return rot
+
+
+IDS = [f"0:{s}" for s in sorted(POS)]
+
+
+def test_the_frame_names_pads_queue_batteries_and_phases():
+    rot = _rotation()
+    state = rot.state(IDS)
+    t = 120.0
+    f = rotation_frame(state, rot.event_dicts(0, IDS), _fleet(t).snapshot(t), t, 90.0)
+    json.dumps(f, allow_nan=False)  # what the server sends
+    assert f["swap_confirm"] == "manual"
+    assert f["phase"] == ["air", "air", "inbound", "swapping"]
+    assert f["pads"] == [
+        {"pad": 1, "vehicle": "0:4", "elapsed_s": 20, "left_s": 40, "confirmed": False},
+        {"pad": 2, "vehicle": None},
+    ]
+    # Spare 3 is 50 m from relay 2's post (30 north, 40 east): 10 s at 5 m/s.
+    assert f["queue"] == [{"spare": "0:3", "relay": "0:2", "dist_m": 50, "eta_s": 10}]
+    # Relay 1 (no spare yet) reaches its reserve 300 s after the tick at 100 s: 280 s from now.
+    assert f["due"] == [{"relay": "0:1", "reserve_in_s": 280}]
+    assert f["batteries"] == {
+        "charged": 4,
+        "charging_left_s": [580],
+        "queued": 0,
+        "chargers": 2,
+    }
+    texts = [e["text"] for e in f["events"]]
+    assert "swap requested: vehicle 4 on a pad" in texts
+    assert f["events"][-1]["t_mission_s"] == pytest.approx(10.0)
+
+
+def test_a_crews_confirmation_shows_on_its_pad_and_in_words():
+    rot = _rotation()
+    rot.confirmed_s[3] = 110.0
+    state = rot.state(IDS)
+    assert state["pads"][0]["confirmed_s"] == 110.0
+    f = rotation_frame(state, [], _fleet(130.0).snapshot(130.0), 130.0, None)
+    assert f["pads"][0]["confirmed"] and f["pads"][0]["left_s"] == 30
+    assert event_text({"kind": "crew_confirmed", "vehicle": "1:4", "other": None}) == (
+        "the ground crew confirmed vehicle 1:4's swap"
+    )
+
+
+def test_rotation_jsonl_records_changes_only_and_the_replay_reads_it(tmp_path):
+    """Records.rotation writes a line when the state changed or events came; the replay picks the
+    last line at or before a frame and the events up to it."""
+    rot = _rotation()
+    op = SimpleNamespace(
+        rotation_state=lambda: rot.state(IDS),
+        rotation_events=lambda start=0: rot.event_dicts(start, IDS),
+    )
+    from mission.format.schema import RunSpec
+    from small_mission import small_mission
+
+    rec = Records(tmp_path, small_mission("records", RunSpec()), {})
+    rec.rotation(op, 100.0)
+    rec.rotation(op, 101.0)  # nothing changed: no line
+    rot.confirmed_s[3] = 102.0
+    rot.events.append(rot.events[-1].__class__(102.0, "crew_confirmed", 3))
+    rec.rotation(op, 102.0)
+    rec.close()
+    lines = [json.loads(x) for x in (tmp_path / ROTATION_FILE).read_text().splitlines()]
+    assert [x["t_s"] for x in lines] == [100.0, 102.0]
+    assert [e["kind"] for e in lines[1]["events"]] == ["crew_confirmed"]
+    got = ReplaySource._read_rotation(tmp_path / ROTATION_FILE)
+    assert got is not None and [g["n_events"] for g in got] == [
+        len(lines[0]["events"]),
+        len(lines[0]["events"]) + 1,
+    ]
+    src = SimpleNamespace(rotation=got, t0_s=90.0)
+    snap = _fleet(101.5).snapshot(101.5)
+    before = ReplaySource._rotation_at(src, snap, 101.5)
+    after = ReplaySource._rotation_at(src, snap, 102.0)
+    assert before is not None and not before["pads"][0]["confirmed"]
+    assert after is not None and after["pads"][0]["confirmed"]
+    assert after["events"][-1]["kind"] == "crew_confirmed"
+    assert ReplaySource._rotation_at(src, snap, 99.0) is None
+
+
+def _status(**kw):
+    d = dict(
+        phase="run",
+        t_s=120.0,
+        end_t0_s=None,
+        t_mission_s=100.0,
+        duration_s=7200.0,
+        fleet=50,
+        fleet_expected=50,
+        networked=20,
+        lost=0,
+        returning=1,
+        tasks_covered=9,
+        n_tasks=10,
+        tu1=0.95,
+        tu2=0.97,
+        modes={"GUIDED": 21},
+        reclaims=0,
+        wall_s=0.0,
+    )
+    d.update(kw)
+    return d
+
+
+ROT = dict(rotations=12, min_battery_in_air=0.314, battery_failsafes_in_air=0, landed_away=0)
+
+
+def test_the_status_line_counts_rotations_and_says_failsafes_and_landings_away():
+    line = format_status(_status(rotation=ROT), width=200)
+    assert "rot 12 min 31%" in line and "batt fs" not in line and "away" not in line
+    bad = dict(ROT, battery_failsafes_in_air=2, landed_away=1)
+    assert "rot 12 min 31% 2 batt fs 1 away" in format_status(_status(rotation=bad), width=200)
+    # On 80 columns the rotation stays (the drones lost and home leave first), planned for the
+    # whole run: hundreds of rotations.
+    d = _status(rotation=ROT, t_mission_s=7199.0)
+    dropped = planned_drop(d, 80)
+    narrow = format_status(d, 80, dropped)
+    assert narrow == "flying 7199/7200s | 20/50 net | crews 9/10 | TU1 95% TU2 97% rot 12 min 31%"
+    late = format_status(_status(rotation=dict(ROT, rotations=480)), 80, dropped)
+    assert "rot 480 min 31%" in late and len(late) <= 79
+    err = io.StringIO()
+    st = _Status(err)
+    st(_status(rotation=ROT))
+    st(_status(rotation=bad))
+    st(_status(rotation=bad))
+    warnings = [x for x in err.getvalue().splitlines() if x.startswith("warning:")]
+    assert len(warnings) == 2  # each once
+    assert "battery failsafe in the air (2 so far)" in warnings[0]
+    assert "1 vehicle(s) landed away from the base" in warnings[1]
+
+
+def test_the_closing_summary_line():
+    e = dict(
+        ROT, swaps=11, swap_confirm="manual", swaps_confirmed_by_crew=11, battery_failsafes_in_air=1
+    )
+    assert format_rotation(e) == (
+        "relay rotation: 12 rotations, 1 battery failsafes in the air, 0 landed away from the "
+        "base, min battery in the air 31 %; 11 battery swaps (manual confirmation, 11 confirmed "
+        "by the ground crew)"
+    )
