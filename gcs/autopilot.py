@@ -83,6 +83,9 @@ class Adapter:
     rtl_mode = ""
     land_mode = ""
     failsafe_modes: frozenset[str] = frozenset()
+    home_modes: frozenset[str] = frozenset()
+    """Modes that take the vehicle home or down by themselves (a vehicle sent home in one is
+    left in it)."""
     setpoint_frame = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
     setpoint_period_s = 1.0
     """Re-send the current position target at least this often, even if unchanged."""
@@ -131,6 +134,9 @@ class ArduCopterAdapter(Adapter):
     land_mode = "LAND"
     # What FS_GCS_ENABLE can leave the vehicle in; it stays there after the link recovers.
     failsafe_modes = frozenset({"RTL", "SMART_RTL", "LAND", "AUTO_RTL"})
+    # Each flies home (SMART_RTL back along its path, AUTO_RTL to the mission's DO_LAND_START) or
+    # lands (ArduCopter mode_smart_rtl.cpp, mode_auto.cpp jump_to_landing_sequence_auto_RTL).
+    home_modes = failsafe_modes
     setpoint_period_s = 1.0  # position targets persist, but the wiki says re-send every second
     prestream_s = 0.0
     param_bytewise = False
@@ -169,6 +175,7 @@ class PX4Adapter(Adapter):
     # loss, COM_OBL_RC_ACT 0, with RC; without RC only PX4 v1.14 to 1.16.0), Hold, RTL, Land
     # (COM_OBL_RC_ACT 3-5; 0-2 without RC take NAV_RCL_ACT's action; NAV_DLL_ACT).
     failsafe_modes = frozenset({"POSCTL", "AUTO.LOITER", "AUTO.RTL", "AUTO.LAND"})
+    home_modes = frozenset({"AUTO.RTL", "AUTO.LAND"})
     # Position targets in GLOBAL_INT (AMSL): PX4 mavlink_receiver.cpp
     # handle_message_set_position_target_global_int accepts frames 5, 6 and 11 only (others:
     # "invalid coordinate frame"), and for 6 computes z = home.alt - alt - ref_alt, which puts

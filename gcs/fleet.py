@@ -166,6 +166,8 @@ class FleetView:
         self._rate = np.empty(0)
         self._last_edge = np.empty(0)
         self._rebooted = np.empty(0)
+        self._batt_t = np.empty(0)  # when the level (column 0) was last reported
+        self._pos_t = np.empty(0)  # when the position was last reported
         self._health = np.empty((0, len(HEALTH_COLUMNS)))
         self._masks = np.empty((0, len(MASK_COLUMNS)), dtype=np.int64)
         self._drain_est: list[DrainEstimator] = []
@@ -216,6 +218,8 @@ class FleetView:
         self._rate[idx] = math.nan
         self._last_edge[idx] = math.nan
         self._rebooted[idx] = -math.inf
+        self._batt_t[idx] = -math.inf
+        self._pos_t[idx] = -math.inf
         self._health[idx] = math.nan
         self._masks[idx] = -1
         self._drain_est.append(DrainEstimator())
@@ -236,6 +240,8 @@ class FleetView:
             "_rate",
             "_last_edge",
             "_rebooted",
+            "_batt_t",
+            "_pos_t",
             "_health",
             "_masks",
         ):
@@ -276,6 +282,7 @@ class FleetView:
         self._last_heard[i] = max(last, event.t_s)
         if isinstance(event, TelemetryReceived):
             self._geo[i] = (event.lat_deg, event.lon_deg, event.alt_amsl_m)
+            self._pos_t[i] = event.t_s
             self._pos_stale.add(i)
             self._vel[i] = event.vel_ned_m_s
             if not self._home_reported[i]:
@@ -322,20 +329,34 @@ class FleetView:
             ]
         elif isinstance(event, VehicleRebooted):
             # Power-cycled: a new battery (or none reported yet) and the same vehicle; what it
-            # said before the reboot no longer describes it.
+            # said before the reboot no longer describes it. The reboot is noticed at the first
+            # position report of the new boot (this event comes just before it), which comes
+            # after its first battery reports (an autopilot reports a position only once it has
+            # one): a level reported since the boot (now_s - time_boot_s) and since the old
+            # boot's last position is the new battery's and is kept. Cleared, a spare just
+            # confirmed full by it had an unknown charge, due now, and was sent home at once.
             self._rebooted[i] = event.t_s
+            booted_s = event.t_s - event.time_boot_s
+            t_batt = self._batt_t[i]
+            kept = t_batt >= booted_s and t_batt > self._pos_t[i]
+            kept = kept and math.isfinite(self._batt[i, 0])
+            level = float(self._batt[i, 0])
             self._batt[i] = math.nan
             self._batt[i, 5] = 0
             self._drain_est[i].reset()
             self._rate[i] = math.nan
             self._last_edge[i] = math.nan
             self._was_lost[i] = False
+            if kept:
+                self._batt[i, 0] = level
+                self._drain_est[i].update(float(self._batt_t[i]), level)
 
     def _apply_battery(self, i: int, event: BatteryReceived) -> None:
         b = self._batt[i]
         frac = event.remaining_frac
         if frac is not None and (event.source == "SYS_STATUS" or math.isnan(b[0])):
             b[0] = frac
+            self._batt_t[i] = event.t_s
             if event.source == "SYS_STATUS":  # one source of levels for the drain's edges
                 est = self._drain_est[i]
                 est.update(event.t_s, frac)

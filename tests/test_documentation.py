@@ -1013,6 +1013,10 @@ TABLE: dict[str, Case] = {
         "needs the ArduCopter SITL vehicles of 'phireman sitl ardupilot' (a firmware build, "
         "not shipped; tests/integration/test_sitl.py flies it when PHIREMAN_ARDUCOPTER is set)"
     ),
+    ".venv/bin/python -m pytest tests/integration/test_sitl_rotation.py -s": SKIP(
+        "needs ArduCopter SITL / PX4 SIH builds (not shipped; PHIREMAN_ARDUCOPTER / PHIREMAN_PX4); "
+        "without them the test skips itself, with them it is the suite's own SITL test"
+    ),
     "phireman fly sitl_px4 --apply-failsafes": SKIP(
         "needs the PX4 SITL vehicles of 'phireman sitl px4' (a firmware build, not shipped; "
         "tests/integration/test_sitl.py flies it when PHIREMAN_PX4 is set)"

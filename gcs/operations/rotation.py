@@ -86,7 +86,8 @@ class RotationStep(OperatorState):
     # ------------------------------------------------------------------ events
 
     def _rotation_on_mode(self, event: ModeChanged, key: tuple[int, int]) -> None:
-        """The firmware's own RTL / LAND on a low battery: the policy is told (failsafe)."""
+        """The firmware's own RTL / LAND / Hold (any of its failsafe modes) on a low battery: the
+        policy is told (failsafe), and the vehicle is sent home, not reclaimed."""
         rot = self.rotation
         if rot is None or self._phase != Phase.RUN or key in self.released:
             return
@@ -95,7 +96,12 @@ class RotationStep(OperatorState):
             return
         snap = self.fleet.snapshot(event.t_s)
         adapter = adapter_for(int(snap.autopilot[i]))
-        if event.mode not in (adapter.rtl_mode, adapter.land_mode):
+        # Any failsafe mode, not only RTL and LAND: ArduCopter's BATT_FS_LOW_ACT 3 flies SMART_RTL
+        # (the audit accepts it), and PX4 begins its battery failsafe with a Hold (AUTO.LOITER for
+        # COM_FAIL_ACT_T, failsafe.cpp) before it returns. Taken back into the plan from either,
+        # a drone on a failing battery was flown on: the station reclaimed PX4 SIH vehicles from
+        # their critical-battery Hold four times (docs/results/endurance.md).
+        if event.mode not in (adapter.rtl_mode, adapter.land_mode, *adapter.failsafe_modes):
             return
         batt = float(snap.battery_frac[i]) if snap.battery_frac is not None else math.nan
         state = int(snap.battery_charge_state[i]) if snap.battery_charge_state is not None else 0
@@ -138,8 +144,16 @@ class RotationStep(OperatorState):
         rot.counters["reboots"] += 1
         i = self.fleet.index_of(*key)
         self._rows[i] = _Row()
-        if i < rot.policy.n_drones and rot.policy.phase[i] in (RETURNING, *_GROUND):
-            rot.rebooted_home.add(i)  # the crew's swap (docs/design/endurance.md §6.4)
+        # The crew's swap (docs/design/endurance.md §6.4), to confirm: not a spare's reboot
+        # (READY: its swap was confirmed already, from the new boot's full charge reported
+        # before the reboot was noticed; kept, the mark would confirm its next swap unseen).
+        if i < rot.policy.n_drones and rot.policy.phase[i] in (
+            RETURNING,
+            LANDED,
+            SWAPPING,
+            NO_BATTERY,
+        ):
+            rot.rebooted_home.add(i)
 
     # ------------------------------------------------------------------ the tick
 
@@ -290,7 +304,7 @@ class RotationStep(OperatorState):
                 continue
             adapter = adapter_for(int(snap.autopilot[i]))
             mode = snap.mode[i]
-            if mode in (adapter.rtl_mode, adapter.land_mode):
+            if mode in (adapter.rtl_mode, adapter.land_mode, *adapter.home_modes):
                 continue  # on its way down or home (its own failsafe, or our command)
             if now_s - rot.home_cmd_s.get(i, -math.inf) < self.config.action_retry_s:
                 continue

@@ -15,6 +15,11 @@ around the mission's origin (5 m apart), each with its own system id and port, a
 connection strings to fly them with. Runs until Ctrl-C, then stops exactly what it started.
 phireman ships no firmware: point it at your own build.
 
+A battery swap while it runs: type a vehicle's number (0 .. N-1) and Enter. That vehicle is
+power-cycled: killed, and booted again as the same instance, with the same sysid, home and ports,
+on its stored parameters and with a full battery. A relay-rotation flight (a mission with an
+`endurance` section) takes it back as a spare.
+
   ArduCopter: your SITL build of an ArduPilot tree (see ArduPilot's SITL documentation)
               -> --binary build/sitl/bin/arducopter, or set PHIREMAN_ARDUCOPTER; the defaults
               file Tools/autotest/default_params/copter.parm is looked for beside the binary
@@ -143,10 +148,11 @@ def run(args) -> int:
                 if args.speedup == 1.0
                 else ""
             )
-        print("Ctrl-C stops them.")
+        print("Ctrl-C stops them; a vehicle's number and Enter power-cycles it (a battery swap).")
         sys.stdout.flush()
+        crew = _Crew(swarm)
         while True:
-            time.sleep(1.0)
+            crew.wait(1.0)
             dead = [k for k, ok in enumerate(swarm.alive()) if not ok]
             if dead and len(dead) == len(swarm.procs):
                 print(
@@ -160,3 +166,58 @@ def run(args) -> int:
         return 130
     finally:
         swarm.stop()
+
+
+class _Crew:
+    """The ground crew at the terminal: a vehicle's number on standard input power-cycles it
+    (:meth:`mission.flight.sitl.SitlSwarm.power_cycle`). Without a usable standard input (closed,
+    at its end) it just waits."""
+
+    def __init__(self, swarm) -> None:
+        self.swarm = swarm
+        self.buffer = ""
+        try:
+            self.fd: int | None = sys.stdin.fileno() if sys.stdin is not None else None
+        except (OSError, ValueError):  # closed, or not a file
+            self.fd = None
+
+    def wait(self, timeout_s: float) -> None:
+        import os
+        import select
+
+        if self.fd is None:
+            time.sleep(timeout_s)
+            return
+        # The descriptor itself, not sys.stdin: its buffer would keep a second line unseen by
+        # select() until more input came.
+        ready, _, _ = select.select([self.fd], [], [], timeout_s)
+        if not ready:
+            return
+        data = os.read(self.fd, 4096)
+        if not data:  # end of input: nobody at the terminal
+            self.fd = None
+            return
+        self.buffer += data.decode("utf-8", "replace")
+        *lines, self.buffer = self.buffer.split("\n")
+        for line in lines:
+            self.handle(line.strip())
+
+    def handle(self, text: str) -> None:
+        from mission.flight.sitl import SitlError
+
+        if not text:
+            return
+        n = len(self.swarm.procs)
+        if not text.isdigit() or int(text) >= n:
+            print(f"type a vehicle number 0 .. {n - 1} to power-cycle it", file=sys.stderr)
+            return
+        k = int(text)
+        try:
+            self.swarm.power_cycle(k)
+        except SitlError as exc:
+            print(f"vehicle {k}: {exc}", file=sys.stderr)
+            return
+        print(
+            f"vehicle {k} (sysid {self.swarm.sysid(k)}) power-cycled: booting with a full battery"
+        )
+        sys.stdout.flush()

@@ -200,7 +200,9 @@ class SitlSwarm:
             raise
         return self
 
-    def _start_one(self, k: int) -> subprocess.Popen:
+    def _start_one(self, k: int, wipe: bool = True) -> subprocess.Popen:
+        """Start vehicle ``k``. ``wipe`` False: boot on what the instance stored in its working
+        directory (ArduPilot's eeprom; PX4's parameter file), as a power cycle does."""
         spec, i = self.spec, self.instance(k)
         assert self.workdir is not None  # set by start()
         cwd = self.workdir / f"{spec.firmware}-{i}"
@@ -230,7 +232,7 @@ class SitlSwarm:
                 str(i + 1),
                 "--home",
                 f"{lat:.7f},{lon:.7f},{alt:.2f},0",
-                "-w",
+                *(["-w"] if wipe else []),
                 # Without it SERIAL0 is "tcp:0:wait": the firmware would not boot (GPS,
                 # EKF) until a ground station connects (libraries/AP_HAL_SITL/SITL_cmdline.cpp).
                 "--serial0",
@@ -280,6 +282,30 @@ class SitlSwarm:
     def kill(self, k: int, sig: int = signal.SIGKILL) -> None:
         """Kill vehicle ``k`` (its whole process group): a vehicle lost in flight."""
         _kill_group(self.procs[k], sig)
+
+    def power_cycle(self, k: int, timeout_s: float = 10.0) -> None:
+        """Vehicle ``k``'s battery swap: its power cut (SIGKILL to its process group, no
+        goodbye), then the same instance booted again in the same working directory with the
+        same system id, home and ports. What it stored survives, as on an autopilot whose pack is
+        changed: ArduPilot SITL is started without ``-w`` and reads its ``eeprom.bin``
+        (libraries/AP_HAL_SITL/SITL_cmdline.cpp, ``-w`` wipes it); PX4 reloads its parameter file
+        (ROMFS/px4fmu_common/init.d-posix/rcS: ``param import`` of ``parameters.bson``). The simulated battery starts full:
+        ArduPilot's monitor counts the used mAh from zero at boot, PX4's battery simulator is full
+        while disarmed (src/modules/simulation/battery_simulator/BatterySimulator.cpp, ``Run``)."""
+        proc = self.procs[k]
+        _kill_group(proc, signal.SIGKILL)
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired as exc:
+            raise SitlError(
+                f"{self.spec.firmware} instance {self.instance(k)} did not die"
+            ) from exc
+        if self.spec.firmware == "px4":
+            i = self.instance(k)
+            for stale in (f"/tmp/px4-sock-{i}", f"/tmp/px4_lock-{i}"):
+                _remove_if_stale(stale)
+        self.procs[k] = self._start_one(k, wipe=False)
+        log.info("power-cycled %s instance %d", self.spec.firmware, self.instance(k))
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop every process this swarm started (SIGTERM, then SIGKILL), nothing else."""

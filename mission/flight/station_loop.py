@@ -274,23 +274,43 @@ def make_operator(
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
         rally=_rally_keeper(mission, params),
-        rotation=rotation_setup(mission, scenario, opts.swap_confirm),
+        rotation=rotation_setup(mission, scenario, opts.swap_confirm, expected),
         tak=TakCrews(fleet.origin, tak) if tak else None,
     )
 
 
+def rotation_fleet_size(
+    mission: Mission, scenario: MissionScenario, expected: int | None = None
+) -> int:
+    """How many vehicles the rotation shares the posts among: the real vehicles' ``sysids`` when
+    the mission lists them, else the vehicles to wait for (``--vehicles N``, or the emulator's
+    count), else the mission's count. A real mission's count is its links, and one link may
+    carry several vehicles (every PX4 SITL instance on UDP 14550): sized by links, a rotation
+    of three PX4 vehicles was one of one drone, everything flew and nothing rotated."""
+    real = mission.vehicles.real
+    if real is not None and real.sysids:
+        return len(real.sysids)
+    if expected:
+        return expected
+    return len(scenario.spawn_ne_m)
+
+
 def rotation_setup(
-    mission: Mission, scenario: MissionScenario, swap_confirm: str = "auto"
+    mission: Mission,
+    scenario: MissionScenario,
+    swap_confirm: str = "auto",
+    expected: int | None = None,
 ) -> RotationSetup | None:
     """The station's relay rotation for a mission with batteries (None without): the policy the
-    in-process run builds too (:meth:`mission.format.schema.EnduranceSpec.policy`), and what the
-    mission says of the batteries (nominal hover drain, the drain at full speed).
-    ``swap_confirm``: who ends a swap (``FlyOptions.swap_confirm``)."""
+    in-process run builds too (:meth:`mission.format.schema.EnduranceSpec.policy`) for
+    :func:`rotation_fleet_size` vehicles, and what the mission says of the batteries (nominal
+    hover drain, the drain at full speed). ``swap_confirm``: who ends a swap
+    (``FlyOptions.swap_confirm``); ``expected``: the vehicles to wait for (``--vehicles N``)."""
     end = mission.endurance
     spec = end.battery
     if spec is None:
         return None
-    n = len(scenario.spawn_ne_m)
+    n = rotation_fleet_size(mission, scenario, expected)
     tasks = np.asarray(scenario.task_pos_m(0.0), dtype=float).reshape(-1, 2)
     dist = np.hypot(*tasks[np.isfinite(tasks).all(axis=1)].T)
     mean_post_m = 0.5 * float(dist.mean()) if dist.size else 0.0

@@ -181,3 +181,33 @@ def test_cached_positions_and_modes_match_a_fresh_computation():
             )
             n_checked += n
     assert n_checked > 1000
+
+
+def test_a_reboot_keeps_the_battery_the_new_boot_reported_before_it_was_noticed():
+    """The reboot is noticed at the new boot's first position report; the battery reports of the
+    new boot that came before it describe the new battery (kept), the old boot's do not."""
+    from gcs.events import BatteryReceived, VehicleRebooted
+
+    fleet = FleetView(ORIGIN)
+    fleet.apply(VehicleDiscovered(0, 1, 0.0))
+    fleet.apply(BatteryReceived(0, 1, 100.0, remaining_frac=0.45))
+    # Power cut at 101 s, boot at 102 s, full battery reported at 104 s, first position at 110 s
+    # (its clock at 8 s): the level of 104 s is the new battery's.
+    fleet.apply(BatteryReceived(0, 1, 104.0, remaining_frac=1.0))
+    fleet.apply(VehicleRebooted(0, 1, 110.0, 3000.0, 8.0))
+    snap = fleet.snapshot(110.0)
+    assert snap.battery_frac[0] == 1.0 and snap.rebooted_s[0] == 110.0
+    # Its last level came before this boot (clock at 8 s: booted at 112 s): unknown, not 45 %.
+    fleet.apply(BatteryReceived(0, 1, 111.0, remaining_frac=0.45))
+    fleet.apply(VehicleRebooted(0, 1, 120.0, 3000.0, 8.0))
+    assert np.isnan(fleet.snapshot(120.0).battery_frac[0])
+    # A level reported within the boot's clock but before the last position of the old boot
+    # is the old battery's (no silence between them: the fake feeds of the operator's tests).
+    fleet.apply(BatteryReceived(0, 1, 125.0, remaining_frac=0.45))
+    fleet.apply(
+        TelemetryReceived(
+            0, 1, 125.5, lat_deg=ORIGIN.lat_deg, lon_deg=ORIGIN.lon_deg, alt_amsl_m=500.0
+        )
+    )
+    fleet.apply(VehicleRebooted(0, 1, 126.0, 3000.0, 8.0))
+    assert np.isnan(fleet.snapshot(126.0).battery_frac[0])

@@ -419,3 +419,26 @@ def test_auto_swap_the_crew_may_confirm_first():
     assert rec.result.startswith("swap confirmed")
     t = _run(feed, t, t + 2.0, batt)
     assert rot.policy.phase[0] == READY
+
+
+def test_firmware_low_battery_smart_rtl_is_a_failsafe_left_to_fly_home():
+    """ArduCopter's BATT_FS_LOW_ACT 3 (SmartRTL, accepted by the audit) is a battery failsafe too:
+    the station neither reclaims the drone nor overrides its way home with RTL. (PX4 begins its
+    battery failsafe with a Hold, another failsafe mode: the same path sends it home.)"""
+    smart_rtl = 21  # ArduCopter mode.h Mode::Number::SMART_RTL
+    op, station, planner, feed, (relay, spare), rot = _make()
+    feed.poll(0.0)
+    _battery(feed, relay, 0.5, 0.9)
+    feed.fly(relay, 1.0)
+    feed.v[relay]["north_m"] = POST_N_M
+    batt = {relay: 0.9, spare: 1.0}
+    t = _run(feed, 1.0, 5.0, batt)
+    batt[relay] = 0.21
+    _battery(feed, relay, t, 0.21)
+    feed.mode(relay, t, smart_rtl)
+    t0 = t
+    t = _run(feed, t, t + 5.0, batt)
+    assert rot.counters["battery_failsafes"] == 1
+    assert rot.policy.phase[0] == RETURNING
+    assert not station.of("engage_guided", relay, since_s=t0)  # not reclaimed
+    assert not station.of("rtl", relay, since_s=t0)  # left on its own way home

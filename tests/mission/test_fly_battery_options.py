@@ -8,7 +8,12 @@ import pytest
 from mission.flight.fly_options import FlyOptions, RunnerError
 from mission.flight.mission_world import mission_scenario
 from mission.flight.runners import with_battery_options
-from mission.flight.station_loop import _operations_config, _station_config, rotation_setup
+from mission.flight.station_loop import (
+    _operations_config,
+    _station_config,
+    rotation_fleet_size,
+    rotation_setup,
+)
 from mission.format.examples import example_path
 from mission.format.load import load_mission
 
@@ -56,6 +61,27 @@ def test_battery_options_refused_without_batteries():
         _operations_config(bare, FlyOptions(connections=("udpin:0.0.0.0:0",)), None).battery_audit
         == "warn"
     )
+
+
+def test_rotation_is_sized_by_the_vehicles_not_the_links(tmp_path):
+    """One link may carry several vehicles (every PX4 SITL instance on UDP 14550): the rotation
+    shares the posts among the mission's sysids (or --vehicles), not among its links."""
+    import yaml
+
+    m = yaml.safe_load(example_path("sitl_px4").read_text())
+    m["endurance"] = {"battery": {"endurance_s": 300.0}, "base": {"swap_time_s": 20}}
+    path = tmp_path / "px4_batteries.yaml"
+    path.write_text(yaml.safe_dump(m))
+    mission = load_mission(path)
+    assert len(mission.vehicles.real.connections) == 1
+    assert rotation_fleet_size(mission, mission_scenario(mission)) == 3
+    rot = rotation_setup(mission, mission_scenario(mission))
+    assert rot is not None and rot.policy.n_drones == 3
+    del m["vehicles"]["real"]["sysids"]
+    path.write_text(yaml.safe_dump(m))
+    bare = load_mission(path)
+    assert rotation_fleet_size(bare, mission_scenario(bare), expected=4) == 4
+    assert rotation_fleet_size(bare, mission_scenario(bare)) == 1  # the links: all it knows
 
 
 def test_swap_confirm_goes_to_the_station_and_needs_batteries(wildfire):
