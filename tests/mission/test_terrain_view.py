@@ -258,7 +258,7 @@ def test_replay_figures_of_a_terrain_run(canyon_run, tmp_path):
 # ------------------------------------------------------------------ the page, in Chromium
 
 # The live view tests' headless Chromium (skipped, loudly, without chromium / chromedriver).
-from test_live_view import _wait, browser  # noqa: E402, F401
+from browser import _wait  # noqa: E402 - the ``browser`` fixture: tests/conftest.py
 
 # A link whose midpoint is unambiguous on screen: no other drawn link within 12 px, no vehicle
 # within 14 px, on the map itself (not under a control). Blocked links first.
