@@ -500,35 +500,31 @@ class _Output:
             self.local_address = self._server.sockets[0].getsockname()[:2]
 
     def send(self, payload: bytes) -> None:
-        try:
-            if self.spec.kind == "udpout":
-                assert self._udp is not None  # started
-                self._udp.sendto(payload)
-            elif self.spec.kind == "udpin":
-                assert self._udp is not None  # started
-                for peer in self._peers:
-                    self._udp.sendto(payload, peer)
-            else:
-                for w in list(self._writers):
-                    # A stalled client must not grow our memory: drop what it cannot take.
-                    if w.transport.get_write_buffer_size() < (1 << 20):
-                        w.write(payload)
-        except OSError as exc:
-            log.debug("forward %s: %s", self.spec.text, exc)
+        self._write(payload, None)
 
     def reply(self, payload: bytes, source: object) -> None:
         """Send ``payload`` to the one peer ``source`` (``(connection text, address)`` as
         :meth:`Forwarder.from_output` is given it), if it is one of this output's."""
         if not (isinstance(source, tuple) and len(source) == 2 and source[0] == self.spec.text):
             return
-        peer = source[1]
+        self._write(payload, source[1])
+
+    def _write(self, payload: bytes, peer: Any) -> None:
+        """``payload`` to every peer (``peer`` None) or to ``peer`` alone (udpout: its one
+        destination either way)."""
         try:
             if self.spec.kind == "udpout":
                 assert self._udp is not None  # started
                 self._udp.sendto(payload)
             elif self.spec.kind == "udpin":
                 assert self._udp is not None  # started
-                self._udp.sendto(payload, peer)
+                for p in self._peers if peer is None else (peer,):
+                    self._udp.sendto(payload, p)
+            elif peer is None:
+                for w in list(self._writers):
+                    # A stalled client must not grow our memory: drop what it cannot take.
+                    if w.transport.get_write_buffer_size() < (1 << 20):
+                        w.write(payload)
             else:
                 for w in list(self._writers):
                     if w.get_extra_info("peername") == peer:

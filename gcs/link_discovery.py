@@ -385,12 +385,7 @@ class VehicleDiscovery(VehicleHealth):
         if not (self.config.battery_telemetry or self.config.health_telemetry):
             self._battery_ignored(v, msg, now_s)
             return
-        try:
-            ev = sys_status_battery(self.link_id, v.sysid, now_s, msg)
-        except ValueError:
-            self.stats.invalid_telemetry += 1
-            return
-        self._emit(ev)
+        self._emit_converted(sys_status_battery, v, msg, now_s)
 
     def _on_battery_status(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         """BATTERY_STATUS of battery 0 (common.xml): consumed charge, the autopilot's own time

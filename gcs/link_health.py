@@ -100,12 +100,7 @@ class VehicleHealth(StreamRequests):
         return self._get(sysid).seq
 
     def _emit_health(self, v: _Vehicle, msg: Any, now_s: float) -> None:
-        try:
-            ev = health_event(self.link_id, v.sysid, now_s, msg)
-        except ValueError:
-            self.stats.invalid_telemetry += 1
-            return
-        self._emit(ev)
+        self._emit_converted(health_event, v, msg, now_s)
 
     def _on_health(self, v: _Vehicle, msg: Any, now_s: float) -> None:
         """GPS_RAW_INT, EKF_STATUS_REPORT, ESTIMATOR_STATUS: folded with health telemetry,

@@ -189,6 +189,22 @@ class LinkState:
     def _emit(self, event: Event) -> None:
         self._events.append(event)
 
+    def _emit_converted(
+        self,
+        convert: Callable[[int, int, float, Any], Event],
+        v: _Vehicle,
+        msg: Any,
+        now_s: float,
+    ) -> None:
+        """The event ``convert`` (a codec-edge converter) makes of vehicle ``v``'s ``msg``; a
+        value no event accepts (ValueError) is counted as invalid telemetry instead."""
+        try:
+            ev = convert(self.link_id, v.sysid, now_s, msg)
+        except ValueError:
+            self.stats.invalid_telemetry += 1
+            return
+        self._emit(ev)
+
     def _send(self, msg: Any, addr: Addr, now_s: float) -> None:
         if self._codec.signing:
             self._codec.set_signing_time(now_s + self.config.unix_time_at_zero_s)

@@ -27,6 +27,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import shutil
 import tempfile
@@ -38,7 +39,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 
 
-def browser(height: int = 1000):
+@contextlib.contextmanager
+def chromium(height: int = 1000):
+    """A headless Chromium 1600 px wide, quit on leaving."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -57,40 +60,67 @@ def browser(height: int = 1000):
     ):
         o.add_argument(a)
     o.binary_location = shutil.which("chromium")
-    return webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=o)
+    drv = webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=o)
+    try:
+        yield drv
+    finally:
+        drv.quit()
+
+
+#: Move the replay's slider to frame ``arguments[0]`` as a user's drag does.
+SLIDE_JS = (
+    "const s = document.getElementById('slider'); s.value = arguments[0];"
+    "s.dispatchEvent(new Event('input'));"
+)
+
+
+def _api(info, path: str, body: dict):
+    """POST ``body`` to the live page's ``api/PATH`` with the operator key: its JSON answer."""
+    req = urllib.request.Request(
+        info["url"] + "api/" + path,
+        method="POST",
+        data=json.dumps(body).encode(),
+        headers={"Content-Type": "application/json", "X-Operator-Key": info["key"]},
+    )
+    return json.loads(urllib.request.urlopen(req, timeout=10).read())
 
 
 def post(info, action, vehicle):
-    req = urllib.request.Request(
-        info["url"] + "api/action",
-        method="POST",
-        data=json.dumps({"action": action, "vehicle": vehicle}).encode(),
-        headers={"Content-Type": "application/json", "X-Operator-Key": info["key"]},
-    )
-    return json.loads(urllib.request.urlopen(req, timeout=10).read())
+    return _api(info, "action", {"action": action, "vehicle": vehicle})
 
 
 def ack(info, alert):
-    req = urllib.request.Request(
-        info["url"] + "api/ack",
-        method="POST",
-        data=json.dumps({"alert": alert}).encode(),
-        headers={"Content-Type": "application/json", "X-Operator-Key": info["key"]},
+    return _api(info, "ack", {"alert": alert})
+
+
+def until(cond, period_s: float = 0.5, tries: int | None = None) -> None:
+    """Poll ``cond`` every ``period_s`` until it holds (or ``tries`` polls have passed)."""
+    n = 0
+    while not cond() and (tries is None or n < tries):
+        time.sleep(period_s)
+        n += 1
+
+
+def t_mission(drv) -> float:
+    """The mission time of the frame the page shows (0 before the first)."""
+    return (
+        drv.execute_script("return window.phiremanFrame && window.phiremanFrame.t_mission_s") or 0
     )
-    return json.loads(urllib.request.urlopen(req, timeout=10).read())
 
 
-def live_shot(out_dir: Path) -> Path:
-    from mission.format.examples import example_path
-    from mission.format.load import load_mission
+@contextlib.contextmanager
+def flying(mission, out_dir: Path, hook=None, **options):
+    """Fly ``mission`` emulated from a thread with the live page served on loopback port 0
+    (``options``: more FlyOptions); yields what the flight announced (``url``, ``key``) once the
+    page is up, and ends the flight (phase done) on leaving."""
     from mission.flight.runners import FlyOptions, fly_emulated_async
     from mission.view.live import attach
 
-    mission = load_mission(example_path("wildfire"))
-    info, state = {}, {"t": None, "stop": False}
+    info, state = {}, {"stop": False}
 
-    def hook(op, world):
-        state["t"] = op.t_mission_s(op.fleet.snapshot(0).t_s) if op.mission_t0_s else None
+    def on_operator(op, world):
+        if hook is not None:
+            hook(op, world)
         if state["stop"]:
             op.phase = "done"
 
@@ -99,50 +129,48 @@ def live_shot(out_dir: Path) -> Path:
             fly_emulated_async(
                 mission,
                 FlyOptions(
-                    speedup=10.0,
+                    **options,
                     out_dir=str(out_dir),
                     serve="127.0.0.1:0",
                     attach_view=attach,
                     on_live=info.update,
-                    on_operator=hook,
+                    on_operator=on_operator,
                 ),
             )
         )
 
     th = threading.Thread(target=run, daemon=True)
     th.start()
-    while "url" not in info:
-        time.sleep(0.2)
-    drv = browser()
+    until(lambda: "url" in info, 0.2)
     try:
+        yield info
+    finally:
+        state["stop"] = True
+        th.join(120)
+
+
+def live_shot(out_dir: Path) -> Path:
+    from mission.format.examples import example_path
+    from mission.format.load import load_mission
+
+    mission = load_mission(example_path("wildfire"))
+    with flying(mission, out_dir, speedup=10.0) as info, chromium() as drv:
         drv.get(f"{info['url']}#key={info['key']}")
-
-        def t_mission():
-            return drv.execute_script(
-                "return window.phiremanFrame && window.phiremanFrame.t_mission_s"
-            )
-
-        while (t_mission() or 0) < 50:
-            time.sleep(0.5)
+        until(lambda: t_mission(drv) >= 50)
         post(info, "rtl", "0:12")
         post(info, "hold", "0:31")
-        while (t_mission() or 0) < 90:
-            time.sleep(0.5)
+        until(lambda: t_mission(drv) >= 90)
         drv.execute_script("document.querySelector('#vtable tr[data-vid=\"0:31\"]').click()")
         time.sleep(1.0)
         path = HERE / "live_wildfire.png"
         drv.save_screenshot(str(path))
-    finally:
-        drv.quit()
-        state["stop"] = True
-        th.join(120)
     return path
 
 
 def replay_shot(out_dir: Path) -> Path:
     from mission.format.examples import example_path
     from mission.view.live.replay import ReplaySource
-    from mission.view.live.server import LiveServer
+    from mission.view.live.server import serve_in_thread
     from mission.format.load import load_mission
     from mission.flight.runners import FlyOptions, fly_emulated
 
@@ -151,36 +179,13 @@ def replay_shot(out_dir: Path) -> Path:
         FlyOptions(speedup=20.0, out_dir=str(out_dir), end_wait=False),
     )
     src = ReplaySource(res.run_dir)
-    box, ready = {}, threading.Event()
-
-    def serve():
-        async def main():
-            server = await LiveServer(src, "127.0.0.1", 0).start()
-            box.update(url=server.url, stop=asyncio.Event(), loop=asyncio.get_running_loop())
-            ready.set()
-            await box["stop"].wait()
-            await server.aclose()
-
-        asyncio.run(main())
-
-    threading.Thread(target=serve, daemon=True).start()
-    ready.wait(60)
-    drv = browser()
-    try:
-        drv.get(box["url"])
+    with serve_in_thread(src) as url, chromium() as drv:
+        drv.get(url)
         time.sleep(3)
-        i = src.index_at(120.0)
-        drv.execute_script(
-            "const s = document.getElementById('slider'); s.value = arguments[0];"
-            "s.dispatchEvent(new Event('input'));",
-            i,
-        )
+        drv.execute_script(SLIDE_JS, src.index_at(120.0))
         time.sleep(2)
         path = HERE / "replay_hazard.png"
         drv.save_screenshot(str(path))
-    finally:
-        drv.quit()
-        box["loop"].call_soon_threadsafe(box["stop"].set)
     return path
 
 
@@ -189,45 +194,26 @@ def terrain_shot(out_dir: Path) -> Path:
     from mission.format.examples import example_path
     from mission.format.load import load_mission
     from mission.view.live.replay_sim import SimReplaySource
-    from mission.view.live.server import LiveServer
+    from mission.view.live.server import serve_in_thread
 
     mission = load_mission(example_path("canyon"))
     run_dir = out_dir / "canyon"
     write_run_dir(mission, run_inprocess(mission, mission.run.seed), run_dir)
     src = SimReplaySource(run_dir)
-    box, ready = {}, threading.Event()
-
-    def serve():
-        async def main():
-            server = await LiveServer(src, "127.0.0.1", 0).start()
-            box.update(url=server.url, stop=asyncio.Event(), loop=asyncio.get_running_loop())
-            ready.set()
-            await box["stop"].wait()
-            await server.aclose()
-
-        asyncio.run(main())
-
-    threading.Thread(target=serve, daemon=True).start()
-    ready.wait(60)
-    drv = browser()
-    try:
-        drv.get(box["url"])
-        for _ in range(120):  # the page up, with its replay controls
-            if drv.execute_script("return !!(window.phiremanReplay && window.phiremanFrame)"):
-                break
-            time.sleep(0.5)
+    with serve_in_thread(src) as url, chromium() as drv:
+        drv.get(url)
+        until(  # the page up, with its replay controls
+            lambda: drv.execute_script("return !!(window.phiremanReplay && window.phiremanFrame)"),
+            tries=120,
+        )
         drv.execute_script(
-            "window.phiremanMap.map.setView(L.latLng(-60, 330), window.phiremanMap.map.getZoom() + 0.5);"
-            "const s = document.getElementById('slider'); s.value = arguments[0];"
-            "s.dispatchEvent(new Event('input'));",
+            "window.phiremanMap.map.setView(L.latLng(-60, 330),"
+            " window.phiremanMap.map.getZoom() + 0.5);" + SLIDE_JS,
             150,
         )
-        for _ in range(120):
-            if drv.execute_script("return window.phiremanFrame.t_mission_s") == 150:
-                break
-            time.sleep(0.5)
+        until(lambda: t_mission(drv) == 150, tries=120)
         time.sleep(1)
-        # The shortest vehicle-vehicle link the terrain blocks: its profile, as a click opens it.
+        # The shortest vehicle-vehicle link the terrain blocks: its profile, as a click opens.
         drv.execute_script(
             """const f = window.phiremanFrame, L = f.links, V = f.v; let best = -1, d = 1e9;
             for (let k = 0; k < L.vv_status.length; k++) { if (L.vv_status[k] !== 1) continue;
@@ -238,20 +224,15 @@ def terrain_shot(out_dir: Path) -> Path:
         time.sleep(3)
         path = HERE / "terrain_canyon.png"
         drv.save_screenshot(str(path))
-    finally:
-        drv.quit()
-        box["loop"].call_soon_threadsafe(box["stop"].set)
     return path
 
 
 def health_shot(out_dir: Path) -> Path:
     from mission.format.examples import example_path
     from mission.format.load import load_mission
-    from mission.flight.runners import FlyOptions, fly_emulated_async
-    from mission.view.live import attach
 
     mission = load_mission(example_path("wildfire"))
-    info, state = {}, {"stop": False, "done": False}
+    state = {"done": False}
 
     def hook(op, world):
         t = op.records[-1].t_mission_s if op.records else None
@@ -261,146 +242,93 @@ def health_shot(out_dir: Path) -> Path:
             core = sw.cores[7]
             core._set_mode(core.pers.rtl_mode, sw.now_s, "screenshot: failsafe")
             state["done"] = True
-        if state["stop"]:
-            op.phase = "done"
 
-    def run():
-        asyncio.run(
-            fly_emulated_async(
-                mission,
-                FlyOptions(
-                    speedup=10.0,
-                    emulator_in_process=True,
-                    out_dir=str(out_dir),
-                    serve="127.0.0.1:0",
-                    attach_view=attach,
-                    on_live=info.update,
-                    on_operator=hook,
-                ),
-            )
-        )
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    while "url" not in info:
-        time.sleep(0.2)
-    drv = browser()
-    try:
+    with (
+        flying(mission, out_dir, hook, speedup=10.0, emulator_in_process=True) as info,
+        chromium() as drv,
+    ):
         drv.get(f"{info['url']}#key={info['key']}")
-
-        def t_mission():
-            return drv.execute_script(
-                "return window.phiremanFrame && window.phiremanFrame.t_mission_s"
-            )
-
-        while (t_mission() or 0) < 45:
-            time.sleep(0.5)
+        until(lambda: t_mission(drv) >= 45)
         ack(info, "all")  # the hazard's earlier losses: acknowledged, off the banner
-        while (t_mission() or 0) < 58:
-            time.sleep(0.5)
-        drv.execute_script(
-            "const s = document.getElementById('coordfmt'); s.value = 'mgrs';"
-            "s.dispatchEvent(new Event('change'));"
-            "const V = window.phiremanFrame.v, i = V.state.indexOf('networked');"
-            "document.querySelector(`#vtable tr[data-vid='${V.id[i]}']`).click();"
-        )
-        time.sleep(1.0)
-        drv.execute_script("document.getElementById('sel-title').scrollIntoView()")
-        time.sleep(0.5)
-        frame = drv.execute_script("return window.phiremanFrame")
-        health_keys = set(frame["v"]) - {
-            "id",
-            "label",
-            "state",
-            "mode",
-            "n",
-            "e",
-            "alt",
-            "layer",
-            "layer_alt",
-            "hdg",
-            "tn",
-            "te",
-            "talt",
-            "released",
-        }
-        full = len(json.dumps(frame, separators=(",", ":")))
-        frame["v"] = {k: v for k, v in frame["v"].items() if k not in health_keys}
-        frame.pop("alerts", None)
-        before = len(json.dumps(frame, separators=(",", ":")))
-        n = len(frame["v"]["id"])
-        print(
-            f"frame JSON at {n} vehicles: {before} B without the health columns and alerts, "
-            f"{full} B with them ({before / n:.0f} -> {full / n:.0f} B per vehicle)"
-        )
+        until(lambda: t_mission(drv) >= 58)
+        _health_panel(drv)
         path = HERE / "live_health.png"
         drv.save_screenshot(str(path))
-    finally:
-        drv.quit()
-        state["stop"] = True
-        th.join(120)
     return path
+
+
+def _health_panel(drv) -> None:
+    """MGRS coordinates, a networked vehicle selected and its panel in view; prints the frame's
+    JSON size with and without the health columns."""
+    drv.execute_script(
+        "const s = document.getElementById('coordfmt'); s.value = 'mgrs';"
+        "s.dispatchEvent(new Event('change'));"
+        "const V = window.phiremanFrame.v, i = V.state.indexOf('networked');"
+        "document.querySelector(`#vtable tr[data-vid='${V.id[i]}']`).click();"
+    )
+    time.sleep(1.0)
+    drv.execute_script("document.getElementById('sel-title').scrollIntoView()")
+    time.sleep(0.5)
+    frame = drv.execute_script("return window.phiremanFrame")
+    health_keys = set(frame["v"]) - {
+        "id",
+        "label",
+        "state",
+        "mode",
+        "n",
+        "e",
+        "alt",
+        "layer",
+        "layer_alt",
+        "hdg",
+        "tn",
+        "te",
+        "talt",
+        "released",
+    }
+    full = len(json.dumps(frame, separators=(",", ":")))
+    frame["v"] = {k: v for k, v in frame["v"].items() if k not in health_keys}
+    frame.pop("alerts", None)
+    before = len(json.dumps(frame, separators=(",", ":")))
+    n = len(frame["v"]["id"])
+    print(
+        f"frame JSON at {n} vehicles: {before} B without the health columns and alerts, "
+        f"{full} B with them ({before / n:.0f} -> {full / n:.0f} B per vehicle)"
+    )
 
 
 def rotation_shot(out_dir: Path) -> Path:
     from mission.format.examples import example_path
     from mission.format.load import load_mission
-    from mission.flight.runners import FlyOptions, fly_emulated_async
-    from mission.view.live import attach
 
     mission = load_mission(example_path("wildfire_2h"))
-    info, state = {}, {"stop": False}
-
-    def hook(op, world):
-        if state["stop"]:
-            op.phase = "done"
-
-    def run():
-        asyncio.run(
-            fly_emulated_async(
-                mission,
-                FlyOptions(
-                    speedup=50.0,
-                    out_dir=str(out_dir),
-                    serve="127.0.0.1:0",
-                    attach_view=attach,
-                    on_live=info.update,
-                    on_operator=hook,
-                    apply_failsafes=True,
-                    swap_confirm="manual",
-                    end_wait=False,
-                ),
-            )
-        )
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    while "url" not in info:
-        time.sleep(0.2)
-    drv = browser(height=1900)  # the whole panel in view: an element is shot as far as it shows
-    try:
+    with (
+        flying(
+            mission,
+            out_dir,
+            speedup=50.0,
+            apply_failsafes=True,
+            swap_confirm="manual",
+            end_wait=False,
+        ) as info,
+        chromium(height=1900) as drv,  # the whole panel in view: an element is shot as it shows
+    ):
         drv.get(f"{info['url']}#key={info['key']}")
 
         def on_pads():
             rot = drv.execute_script("return window.phiremanFrame && window.phiremanFrame.rotation")
             return [] if not rot else [p["vehicle"] for p in rot["pads"] if p["vehicle"]]
 
-        while len(on_pads()) < 1:
-            time.sleep(0.5)
+        until(lambda: len(on_pads()) >= 1)
         post(info, "confirm_swap", on_pads()[0])
         end = time.monotonic() + 120.0  # a second vehicle on a pad, if one comes soon
-        while len(on_pads()) < 2 and time.monotonic() < end:
-            time.sleep(0.5)
+        until(lambda: len(on_pads()) >= 2 or time.monotonic() >= end)
         time.sleep(1.0)
         path = HERE / "rotation_panel.png"
         panel = drv.find_element("id", "rotation")
         drv.execute_script("arguments[0].scrollIntoView()", panel)
         drv.save_screenshot(str(out_dir / "rotation_page.png"))
         panel.screenshot(str(path))
-    finally:
-        drv.quit()
-        state["stop"] = True
-        th.join(120)
     return path
 
 

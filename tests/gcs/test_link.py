@@ -320,6 +320,24 @@ def test_stale_telemetry_is_re_requested(station):
 # ---------------------------------------------------------------------------- telemetry etc.
 
 
+def test_a_report_no_event_accepts_is_counted_not_emitted(station):
+    """The codec-edge converters (health, SYS_STATUS's battery) go through one door: a
+    ValueError is invalid telemetry (counted), anything else an event."""
+    ap = FakeAutopilot(sysid=1)
+    link = discovered(station, ap, stream_rates_hz=())
+    drain(link)
+    v, before = link._get(1), link.stats.invalid_telemetry
+
+    def refused(link_id, sysid, t_s, msg):
+        raise ValueError("no event accepts it")
+
+    link._emit_converted(refused, v, "x", 2.0)
+    assert drain(link) == [] and link.stats.invalid_telemetry == before + 1
+    link._emit_converted(lambda li, s, t, m: StatusText(li, s, t, 6, m), v, "hi", 2.5)
+    assert drain(link) == [StatusText(0, 1, 2.5, 6, "hi")]
+    assert link.stats.invalid_telemetry == before + 1
+
+
 def test_telemetry_params_and_statustext_become_events(station):
     ap = FakeAutopilot(sysid=1)
     link = discovered(station, ap, stream_rates_hz=())

@@ -74,6 +74,70 @@ def _run(feed: Feed, t0: float, t1: float, batt: dict) -> float:
     return t
 
 
+def _relay_low(feed: Feed, relay, spare, spare_north_m: float | None = None):
+    """The relay at its post on 90 % for 20 s, then its battery at the launch lead (30 %) for
+    5 s: the spare is launched. Returns the time and the batteries (fed on by ``_run``)."""
+    feed.poll(0.0)
+    _battery(feed, relay, 0.5, 0.9)
+    feed.fly(relay, 1.0)
+    feed.v[relay]["north_m"] = POST_N_M
+    if spare_north_m is not None:
+        feed.v[spare]["north_m"] = spare_north_m
+    batt = {relay: 0.9, spare: 1.0}
+    t = _run(feed, 1.0, 20.0, batt)
+    batt[relay] = 0.30
+    return _run(feed, t, t + 5.0, batt), batt
+
+
+def _spare_at_post(feed: Feed, spare, t: float, batt: dict, east_m: float | None = None) -> float:
+    """The spare in the air at the relay's post for 3 s: the relay is sent home."""
+    feed.fly(spare, t)
+    feed.v[spare]["north_m"] = POST_N_M
+    if east_m is not None:
+        feed.v[spare]["east_m"] = east_m
+    return _run(feed, t, t + 3.0, batt)
+
+
+def _lands(feed: Feed, relay, t: float, batt: dict, north_m: float) -> float:
+    """The relay in RTL lands ``north_m`` from the base's centre and disarms; 2 s pass."""
+    feed.mode(relay, t, RTL)
+    feed.v[relay]["north_m"] = north_m
+    feed.alt(relay, t, 0.0)
+    feed.armed(relay, t, False)
+    return _run(feed, t, t + 2.0, batt)
+
+
+def _powered_off_unheard_and_back(feed: Feed, rot, relay, t: float, batt: dict) -> float:
+    """The relay sent home: in RTL it lands on its pad, still armed in the last heartbeat heard;
+    the crew pulls the pack before the disarm is heard, the link declares it lost, and 60 s later
+    it boots with a full pack in the one burst the link reports at its first heartbeat
+    (VehicleRecovered, ModeChanged RTL -> STABILIZE, ArmedChanged False, VehicleRebooted). It is
+    never lost to the rotation. Returns the time 3 s after the boot."""
+    feed.mode(relay, t, RTL)
+    t = _run(feed, t, t + 3.0, batt)
+    # Home in RTL, on the ground, still armed in the last heartbeat the station hears ...
+    feed.v[relay]["north_m"] = 1.0
+    feed.alt(relay, t, 0.0)
+    t = _run(feed, t, t + 1.0, batt)
+    last_heard = t - 0.5
+    # ... then the crew pulls the pack: silent, never heard disarmed.
+    feed.silent.add(relay)
+    t = _run(feed, t, t + 5.0, batt)
+    feed.emit(VehicleLost(relay[0], relay[1], t, last_heard))
+    t = _run(feed, t, last_heard + 60.5, batt)
+    assert rot.policy.phase[0] != LOST  # powered off at the base, not lost
+    # The boot, as the link reports it (one burst at the first heartbeat).
+    feed.silent.discard(relay)
+    feed.emit(VehicleRecovered(relay[0], relay[1], t, t - last_heard, STABILIZE, "STABILIZE"))
+    feed.v[relay]["mode"] = STABILIZE
+    feed.emit(ModeChanged(relay[0], relay[1], t, STABILIZE, "STABILIZE", "RTL"))
+    feed.v[relay]["armed"] = False
+    feed.emit(ArmedChanged(relay[0], relay[1], t, False))
+    feed.emit(VehicleRebooted(relay[0], relay[1], t, last_heard, 0.5))
+    batt[relay] = 1.0
+    return _run(feed, t, t + 3.0, batt)
+
+
 def test_only_the_planned_k_take_off_and_the_spares_stay_home():
     op, station, planner, feed, (relay, spare), rot = _make()
     feed.poll(0.0)
@@ -121,11 +185,7 @@ def test_relay_relieved_by_a_spare_sent_home_landed_rebooted_and_ready_again():
     assert station.of("rtl", relay)
     assert planner.ticks[-1].alive.tolist() == [False, True]
     # It flies home in RTL and lands: disarmed at the base -> on a pad.
-    feed.mode(relay, t, RTL)
-    feed.v[relay]["north_m"] = 2.0
-    feed.alt(relay, t, 0.0)
-    feed.armed(relay, t, False)
-    t = _run(feed, t, t + 2.0, batt)
+    t = _lands(feed, relay, t, batt, north_m=2.0)
     assert rot.policy.phase[0] == SWAPPING
     n_takeoffs = len(station.of("takeoff", relay))
     # The crew pulls its battery: silent for 20 s (lost to the link, not to the rotation) ...
@@ -156,42 +216,10 @@ def test_swap_confirmed_when_the_crew_powers_off_before_the_disarm_is_heard():
     RTL -> STABILIZE, ArmedChanged False, VehicleRebooted, a full SYS_STATUS. The station must
     neither drop it as lost nor miss the swap: it is a spare again."""
     op, station, planner, feed, (relay, spare), rot = _make()
-    feed.poll(0.0)
-    _battery(feed, relay, 0.5, 0.9)
-    feed.fly(relay, 1.0)
-    feed.v[relay]["north_m"] = POST_N_M
-    feed.v[spare]["north_m"] = 0.0
-    batt = {relay: 0.9, spare: 1.0}
-    t = _run(feed, 1.0, 20.0, batt)
-    batt[relay] = 0.30
-    t = _run(feed, t, t + 5.0, batt)
-    feed.fly(spare, t)
-    feed.v[spare]["north_m"] = POST_N_M
-    t = _run(feed, t, t + 3.0, batt)
+    t, batt = _relay_low(feed, relay, spare, spare_north_m=0.0)
+    t = _spare_at_post(feed, spare, t, batt)
     assert rot.policy.phase.tolist() == [RETURNING, AIR]
-    feed.mode(relay, t, RTL)
-    t = _run(feed, t, t + 3.0, batt)
-    # Home in RTL, on the ground, still armed in the last heartbeat the station hears ...
-    feed.v[relay]["north_m"] = 1.0
-    feed.alt(relay, t, 0.0)
-    t = _run(feed, t, t + 1.0, batt)
-    last_heard = t - 0.5
-    # ... then the crew pulls the pack: silent, never heard disarmed.
-    feed.silent.add(relay)
-    t = _run(feed, t, t + 5.0, batt)
-    feed.emit(VehicleLost(relay[0], relay[1], t, last_heard))
-    t = _run(feed, t, last_heard + 60.5, batt)
-    assert rot.policy.phase[0] != LOST  # powered off at the base, not lost
-    # The boot, as the link reports it (one burst at the first heartbeat).
-    feed.silent.discard(relay)
-    feed.emit(VehicleRecovered(relay[0], relay[1], t, t - last_heard, STABILIZE, "STABILIZE"))
-    feed.v[relay]["mode"] = STABILIZE
-    feed.emit(ModeChanged(relay[0], relay[1], t, STABILIZE, "STABILIZE", "RTL"))
-    feed.v[relay]["armed"] = False
-    feed.emit(ArmedChanged(relay[0], relay[1], t, False))
-    feed.emit(VehicleRebooted(relay[0], relay[1], t, last_heard, 0.5))
-    batt[relay] = 1.0
-    t = _run(feed, t, t + 3.0, batt)
+    t = _powered_off_unheard_and_back(feed, rot, relay, t, batt)
     assert rot.policy.phase.tolist() == [READY, AIR]
     s = op.rotation_summary()
     assert s is not None
@@ -206,26 +234,12 @@ def test_pads_away_from_the_base_centre_are_home_not_landed_away():
     op, station, planner, feed, (relay, spare), rot = _make()
     for vid, east in ((relay, 60.0), (spare, 66.0)):
         feed.v[vid]["east_m"] = east
-    feed.poll(0.0)
-    _battery(feed, relay, 0.5, 0.9)
-    feed.fly(relay, 1.0)
-    feed.v[relay]["north_m"] = POST_N_M
-    batt = {relay: 0.9, spare: 1.0}
-    t = _run(feed, 1.0, 20.0, batt)
-    batt[relay] = 0.30
-    t = _run(feed, t, t + 5.0, batt)  # launched, still disarmed on its pad
+    t, batt = _relay_low(feed, relay, spare)  # launched, still disarmed on its pad
     assert rot.policy.phase.tolist() == [AIR, INBOUND]
     assert rot.counters["landed_away"] == 0 and not rot.gone
-    feed.fly(spare, t)
-    feed.v[spare]["north_m"] = POST_N_M
-    feed.v[spare]["east_m"] = 60.0
-    t = _run(feed, t, t + 3.0, batt)
+    t = _spare_at_post(feed, spare, t, batt, east_m=60.0)
     assert rot.policy.phase.tolist() == [RETURNING, AIR]
-    feed.mode(relay, t, RTL)
-    feed.v[relay]["north_m"] = 0.5
-    feed.alt(relay, t, 0.0)
-    feed.armed(relay, t, False)
-    t = _run(feed, t, t + 2.0, batt)
+    t = _lands(feed, relay, t, batt, north_m=0.5)
     assert rot.policy.phase[0] == SWAPPING
     feed.emit(VehicleRebooted(relay[0], relay[1], t, 1500.0, 2.0))
     batt[relay] = 1.0
@@ -298,52 +312,17 @@ def test_relay_on_a_pad_off_the_base_centre_powered_off_unheard_is_a_spare_again
     t = _run(feed, 0.5, 20.0, batt)
     batt[relay] = 0.30
     t = _run(feed, t, t + 5.0, batt)
-    feed.fly(spare, t)
-    feed.v[spare]["north_m"] = POST_N_M
-    feed.v[spare]["east_m"] = 60.0
-    t = _run(feed, t, t + 3.0, batt)
+    t = _spare_at_post(feed, spare, t, batt, east_m=60.0)
     assert rot.policy.phase.tolist() == [RETURNING, AIR]
-    feed.mode(relay, t, RTL)
-    t = _run(feed, t, t + 3.0, batt)
-    feed.v[relay]["north_m"] = 1.0
-    feed.alt(relay, t, 0.0)
-    t = _run(feed, t, t + 1.0, batt)
-    last_heard = t - 0.5
-    feed.silent.add(relay)
-    t = _run(feed, t, t + 5.0, batt)
-    feed.emit(VehicleLost(relay[0], relay[1], t, last_heard))
-    t = _run(feed, t, last_heard + 60.5, batt)
-    assert rot.policy.phase[0] != LOST
-    feed.silent.discard(relay)
-    feed.emit(VehicleRecovered(relay[0], relay[1], t, t - last_heard, STABILIZE, "STABILIZE"))
-    feed.v[relay]["mode"] = STABILIZE
-    feed.emit(ModeChanged(relay[0], relay[1], t, STABILIZE, "STABILIZE", "RTL"))
-    feed.v[relay]["armed"] = False
-    feed.emit(ArmedChanged(relay[0], relay[1], t, False))
-    feed.emit(VehicleRebooted(relay[0], relay[1], t, last_heard, 0.5))
-    batt[relay] = 1.0
-    t = _run(feed, t, t + 3.0, batt)
+    t = _powered_off_unheard_and_back(feed, rot, relay, t, batt)
     assert rot.policy.phase.tolist() == [READY, AIR]
 
 
 def _relieve_and_land(feed, rot, relay, spare):
     """The relay relieved by the spare, home in RTL and disarmed on its pad: swapping."""
-    feed.poll(0.0)
-    _battery(feed, relay, 0.5, 0.9)
-    feed.fly(relay, 1.0)
-    feed.v[relay]["north_m"] = POST_N_M
-    batt = {relay: 0.9, spare: 1.0}
-    t = _run(feed, 1.0, 20.0, batt)
-    batt[relay] = 0.30
-    t = _run(feed, t, t + 5.0, batt)
-    feed.fly(spare, t)
-    feed.v[spare]["north_m"] = POST_N_M
-    t = _run(feed, t, t + 3.0, batt)
-    feed.mode(relay, t, RTL)
-    feed.v[relay]["north_m"] = 1.0
-    feed.alt(relay, t, 0.0)
-    feed.armed(relay, t, False)
-    t = _run(feed, t, t + 2.0, batt)
+    t, batt = _relay_low(feed, relay, spare)
+    t = _spare_at_post(feed, spare, t, batt)
+    t = _lands(feed, relay, t, batt, north_m=1.0)
     assert rot.policy.phase.tolist() == [SWAPPING, AIR]
     return t, batt
 

@@ -6,36 +6,15 @@ from __future__ import annotations
 import io
 
 import pytest
+from status_rows import status_row
 
 from mission.cli import main
 from mission.commands.fly import _EXPLAIN, _group_report, _Status, format_status
 
 
 def _status(**kw):
-    d = dict(
-        phase="run",
-        t_s=120.0,
-        end_t0_s=None,
-        t_mission_s=100.0,
-        duration_s=200.0,
-        fleet=50,
-        networked=40,
-        lost=8,
-        returning=2,
-        tasks_covered=9,
-        n_tasks=10,
-        tu1=0.71,
-        tu2=0.77,
-        modes={"GUIDED": 40, "LOST": 8, "RTL": 2},
-        command_failures=0,
-        failsafes=0,
-        last_failsafe=None,
-        reclaims=3,
-        speedup=20.0,
-        wall_s=0.0,
-    )
-    d.update(kw)
-    return d
+    """A status row before the expected fleet is known (counts out of the fleet heard)."""
+    return status_row(**{"fleet_expected": None, **kw})
 
 
 @pytest.mark.parametrize("fleet", [6, 50, 500, 5000])

@@ -8,14 +8,12 @@ only, port 0; generous waits, nothing timed."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 import threading
-import urllib.request
 
 import pytest
 
-from browser import _wait  # the ``browser`` fixture: tests/conftest.py
+from browser import _wait, live_flight, post_json  # the ``browser`` fixture: tests/conftest.py
 
 pytestmark = pytest.mark.udp
 
@@ -53,12 +51,8 @@ def _emulator_view(world, sysid):
 
 @pytest.fixture(scope="module")
 def health_run(browser, tmp_path_factory):  # noqa: F811
-    from mission.flight.runners import FlyOptions, fly_emulated_async
-    from mission.view.live import attach
-
-    tmp = tmp_path_factory.mktemp("health")
-    info, box = {}, {"world": None}
-    kill, failsafe, stop = threading.Event(), threading.Event(), threading.Event()
+    box = {"world": None}
+    kill, failsafe = threading.Event(), threading.Event()
 
     def hook(op, world):
         box["world"] = world
@@ -70,32 +64,10 @@ def health_run(browser, tmp_path_factory):  # noqa: F811
             core = sw.cores[1]
             core._set_mode(core.pers.rtl_mode, sw.now_s, "test: failsafe")
             box["failsafe"] = int(sw.sysid_of_index[1])
-        if stop.is_set():
-            op.phase = "done"
 
-    opts = FlyOptions(
-        emulator_in_process=True,
-        out_dir=str(tmp),
-        serve="127.0.0.1:0",
-        attach_view=attach,
-        on_live=info.update,
-        on_operator=hook,
-        alert_crew_after_s=5.0,
-    )
-
-    def run():
-        try:
-            box["result"] = asyncio.run(fly_emulated_async(_mission(), opts))
-        except BaseException as exc:  # noqa: BLE001
-            box["error"] = exc
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
     drv = browser
-    try:
-        _wait(lambda: info.get("url") or "error" in box, 120, "the live view to start")
-        if "error" in box:
-            raise box["error"]
+    out = tmp_path_factory.mktemp("health")
+    with live_flight(_mission(), out, hook, box=box, alert_crew_after_s=5.0) as (info, _):
         drv.get(f"{info['url']}#key={info['key']}")
         _wait(
             lambda: drv.execute_script(
@@ -188,15 +160,7 @@ def health_run(browser, tmp_path_factory):  # noqa: F811
         if box.get("screenshot"):
             drv.save_screenshot(box["screenshot"])
         # Acknowledging without the key is refused.
-        req = urllib.request.Request(
-            info["url"] + "api/ack",
-            method="POST",
-            data=b'{"alert": "all"}',
-            headers={"Content-Type": "application/json"},
-        )
-        with pytest.raises(urllib.error.HTTPError) as err:
-            urllib.request.urlopen(req, timeout=10)
-        assert err.value.code == 403
+        assert post_json(info["url"] + "api/ack", {"alert": "all"})[0] == 403
         # The lost alert acknowledged from the page: gone from the banner, others stay.
         lost_id = drv.execute_script(
             "return document.querySelector(arguments[0]).dataset.id", lost_sel
@@ -253,10 +217,6 @@ def health_run(browser, tmp_path_factory):  # noqa: F811
             "const c = document.getElementById('hidelost'); c.checked = false;"
             "c.dispatchEvent(new Event('change'));"
         )
-    finally:
-        stop.set()
-        th.join(180)
-    assert "error" not in box, box.get("error")
     res = box["result"]
     box["run_dir"] = res.run_dir
     return box

@@ -11,12 +11,15 @@ import csv
 import json
 import shutil
 import threading
-import urllib.error
-import urllib.request
 from pathlib import Path
 
 import pytest
-from browser import CHROMEDRIVER, CHROMIUM, _wait  # noqa: F401 - the ``browser`` fixture: tests/conftest.py
+from browser import (
+    _wait,
+    get_json,
+    live_flight,
+    post_json,
+)  # the ``browser`` fixture: tests/conftest.py
 
 pytestmark = pytest.mark.udp
 
@@ -43,39 +46,15 @@ def _count(drv, state: str) -> int:
 @pytest.fixture(scope="module")
 def live_run(browser, tmp_path_factory):
     """Fly, watch and act through the page; returns the run directory (for the replay tests)."""
-    from mission.flight.runners import FlyOptions, fly_emulated_async
-    from mission.view.live import attach
-
-    tmp = tmp_path_factory.mktemp("live")
-    info, box = {}, {}
-    kill, stop = threading.Event(), threading.Event()
+    box = {}
+    kill = threading.Event()
 
     def hook(op, world):
         if kill.is_set() and "killed" not in box:
             box["killed"] = world.swarm.sysid_of_index[0]
             world.kill(0)
-        if stop.is_set():
-            op.phase = "done"
 
-    opts = FlyOptions(
-        emulator_in_process=True,
-        out_dir=str(tmp),
-        serve="127.0.0.1:0",
-        attach_view=attach,
-        on_live=info.update,
-        on_operator=hook,
-    )
-
-    def run():
-        try:
-            box["result"] = asyncio.run(fly_emulated_async(_mission(), opts))
-        except BaseException as exc:  # noqa: BLE001
-            box["error"] = exc
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    try:
-        _wait(lambda: info.get("url"), 60, "the live view to start")
+    with live_flight(_mission(), tmp_path_factory.mktemp("live"), hook, box=box) as (info, _):
         drv = browser
         drv.get(f"{info['url']}#key={info['key']}")
         # Every vehicle networked, crews by name.
@@ -100,15 +79,8 @@ def live_run(browser, tmp_path_factory):
             "the loss in the events feed",
         )
         # An action without the key is refused.
-        req = urllib.request.Request(
-            info["url"] + "api/action",
-            method="POST",
-            data=b'{"action": "rtl", "vehicle": "all"}',
-            headers={"Content-Type": "application/json"},
-        )
-        with pytest.raises(urllib.error.HTTPError) as err:
-            urllib.request.urlopen(req, timeout=10)
-        assert err.value.code == 403
+        code, _ = post_json(info["url"] + "api/action", {"action": "rtl", "vehicle": "all"})
+        assert code == 403
         # RTL one vehicle from the page, behind the confirmation.
         target = 3 if box["killed"] != 3 else 4
         # The table and the vehicle card are redrawn with every frame: find and click at once.
@@ -142,10 +114,6 @@ def live_run(browser, tmp_path_factory):
         from mission.flight import runners  # noqa: F401  (the swarm comes back with the result)
 
         box["rtl_seen_page"] = True
-    finally:
-        stop.set()
-        th.join(180)
-    assert "error" not in box, box.get("error")
     res = box["result"]
     idx = list(res.swarm.sysid_of_index).index(box["rtl_sysid"])
     core = res.swarm.cores[idx]
@@ -172,28 +140,11 @@ def _metrics(run_dir):
 @pytest.fixture(scope="module")
 def replay_server(live_run):
     from mission.view.live.replay import ReplaySource
-    from mission.view.live.server import LiveServer
+    from mission.view.live.server import serve_in_thread
 
     src = ReplaySource(live_run)
-    box, ready = {}, threading.Event()
-
-    def run():
-        async def main():
-            server = await LiveServer(src, "127.0.0.1", 0).start()
-            box["url"], box["stop"] = server.url, asyncio.Event()
-            box["loop"] = asyncio.get_running_loop()
-            ready.set()
-            await box["stop"].wait()
-            await server.aclose()
-
-        asyncio.run(main())
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    assert ready.wait(60)
-    yield src, box["url"]
-    box["loop"].call_soon_threadsafe(box["stop"].set)
-    th.join(30)
+    with serve_in_thread(src) as url:
+        yield src, url
 
 
 _PAGE_JS = """const f = window.phiremanFrame, c = {};
@@ -316,8 +267,6 @@ def ending_flight(tmp_path_factory):
     """A short emulated flight served on port 0 that reaches its mission end by itself (RTL,
     landing, done); the tests read it while it runs. Yields (info, box); box["result"] after."""
     from mission.format.schema import RunSpec
-    from mission.flight.runners import FlyOptions, fly_emulated_async
-    from mission.view.live import attach
     from small_mission import crew, small_mission
 
     from mission.format.schema import Attrition, Circle, HazardZone, LocalPoint
@@ -345,46 +294,13 @@ def ending_flight(tmp_path_factory):
         latency_s=0.01,
         attrition=Attrition(hazard_zones=zones),
     )
-    info, box = {}, {}
-    stop = threading.Event()
+    box = {}
 
     def hook(op, world):
         box["phase"] = str(op.phase)
-        if stop.is_set():
-            op.phase = "done"
 
-    opts = FlyOptions(
-        emulator_in_process=True,
-        out_dir=str(tmp_path_factory.mktemp("ending")),
-        serve="127.0.0.1:0",
-        attach_view=attach,
-        on_live=info.update,
-        on_operator=hook,
-    )
-
-    def run():
-        try:
-            box["result"] = asyncio.run(fly_emulated_async(mission, opts))
-        except BaseException as exc:  # noqa: BLE001
-            box["error"] = exc
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    try:
-        _wait(lambda: info.get("url"), 60, "the live view to start")
+    with live_flight(mission, tmp_path_factory.mktemp("ending"), hook, box=box) as (info, _):
         yield info, box
-    finally:
-        stop.set()
-        th.join(180)
-    assert "error" not in box, box.get("error")
-
-
-def _get(url: str) -> tuple[int, dict]:
-    try:
-        with urllib.request.urlopen(url, timeout=10) as r:
-            return r.status, json.loads(r.read())
-    except urllib.error.HTTPError as err:
-        return err.code, json.loads(err.read())
 
 
 def test_live_api_truth_and_a_non_utf8_key(ending_flight):
@@ -393,13 +309,13 @@ def test_live_api_truth_and_a_non_utf8_key(ending_flight):
 
     info, box = ending_flight
     url = info["url"]
-    _wait(lambda: _get(url + "api/frame")[1]["phase"] == "run", 120, "the run phase")
+    _wait(lambda: get_json(url + "api/frame")[1]["phase"] == "run", 120, "the run phase")
     # The live station has no emulator truth: a clear 404 with a JSON error, not a 500.
-    code, body = _get(url + "api/frame?truth=1")
+    code, body = get_json(url + "api/frame?truth=1")
     assert code == 404 and "truth" in body["error"], (code, body)
-    code, body = _get(url + "api/frame")
+    code, body = get_json(url + "api/frame")
     assert code == 200 and "truth" not in body and body["v"]["id"]
-    code, body = _get(url + "api/frame?i=x")
+    code, body = get_json(url + "api/frame?i=x")
     assert code == 400 and "frame number" in body["error"]
     # An operator key that is not UTF-8 is a wrong key: 403, not 500.
     u = urllib.parse.urlsplit(url)
@@ -511,7 +427,7 @@ def test_replay_truth_answers_like_live(ending_flight, tmp_path):
     404 + JSON error as the live view (never a frame silently without the layer asked for)."""
 
     from mission.view.live.replay import ReplaySource
-    from mission.view.live.server import LiveServer
+    from mission.view.live.server import serve_in_thread
 
     info, box = ending_flight
     _wait(lambda: "result" in box or "error" in box, 240, "the short flight to end")
@@ -521,16 +437,9 @@ def test_replay_truth_answers_like_live(ending_flight, tmp_path):
     shutil.copytree(run_dir, bare)
     (bare / "truth.npz").unlink()
     answers = {}
-
-    async def main():
-        for name, d in (("truth", run_dir), ("bare", bare)):
-            server = await LiveServer(ReplaySource(d), "127.0.0.1", 0).start()
-            try:
-                answers[name] = await asyncio.to_thread(_get, server.url + "api/frame?i=5&truth=1")
-            finally:
-                await server.aclose()
-
-    asyncio.run(main())
+    for name, d in (("truth", run_dir), ("bare", bare)):
+        with serve_in_thread(ReplaySource(d)) as url:
+            answers[name] = get_json(url + "api/frame?i=5&truth=1")
     code, body = answers["truth"]
     assert code == 200 and len(body["truth"]["alive"]) == 4, (code, list(body))
     code, body = answers["bare"]

@@ -10,13 +10,10 @@ generous timeouts, nothing is timed."""
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import json
-import threading
 
 import pytest
-from browser import CHROMEDRIVER, CHROMIUM, _wait  # noqa: F401 - the ``browser`` fixture: tests/conftest.py
+from browser import _wait, live_flight  # the ``browser`` fixture: tests/conftest.py
 
 pytestmark = pytest.mark.udp
 
@@ -47,39 +44,13 @@ def _rotation(drv) -> dict | None:
 
 
 def test_the_crew_confirms_a_swap_on_the_page_and_the_replay_shows_it(browser, tmp_path):  # noqa: F811
-    from mission.flight.runners import FlyOptions, fly_emulated_async
-    from mission.view.live import attach
     from mission.view.live.replay import ReplaySource
+    from mission.view.live.server import serve_in_thread
 
-    info, box = {}, {}
-    stop = threading.Event()
-
-    def hook(op, world):
-        if stop.is_set():
-            op.phase = "done"
-
-    opts = FlyOptions(
-        emulator_in_process=True,
-        out_dir=str(tmp_path),
-        serve="127.0.0.1:0",
-        attach_view=attach,
-        on_live=info.update,
-        on_operator=hook,
-        apply_failsafes=True,
-        swap_confirm="manual",
-    )
-
-    def run():
-        try:
-            box["result"] = asyncio.run(fly_emulated_async(rotation_mission(), opts))
-        except BaseException as exc:  # noqa: BLE001
-            box["error"] = exc
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    try:
-        _wait(lambda: info.get("url"), 60, "the live view to start")
-        drv = browser
+    drv = browser
+    with live_flight(
+        rotation_mission(), tmp_path, join_s=240.0, apply_failsafes=True, swap_confirm="manual"
+    ) as (info, box):
         drv.get(f"{info['url']}#key={info['key']}")
         _wait(lambda: drv.find_element("id", "rotation").is_displayed(), 120, "the panel")
         assert drv.find_element("id", "rotation-mode").text.endswith("by the ground crew")
@@ -128,10 +99,6 @@ def test_the_crew_confirms_a_swap_on_the_page_and_the_replay_shows_it(browser, t
             "the vehicle a spare again",
         )
         assert "1 by the crew" in drv.find_element("id", "rotation-counters").text
-    finally:
-        stop.set()
-        th.join(240)
-    assert "error" not in box, box.get("error")
     res = box["result"]
     events = [json.loads(x) for x in (res.run_dir / "events.jsonl").read_text().splitlines()]
     (act,) = [e for e in events if e.get("type") == "OperatorAction"]
@@ -152,7 +119,7 @@ def test_the_crew_confirms_a_swap_on_the_page_and_the_replay_shows_it(browser, t
     assert all(r is None for f in frames for r in f["v"]["released"])  # not an operator hold
     # ... and the page draws it: the slider on a frame with the pad occupied, no Confirm button.
     k = src.index_at(on_pad[0]["t_mission_s"])
-    with _replay_page(src) as url:
+    with serve_in_thread(src) as url:
         drv.get(url)
         _wait(lambda: drv.execute_script("return !!window.phiremanReplay"), 60, "the replay")
         drv.execute_script("window.phiremanReplay.load(arguments[0])", k)
@@ -171,30 +138,3 @@ def test_the_crew_confirms_a_swap_on_the_page_and_the_replay_shows_it(browser, t
 
 def rot_row(drv, vid: str) -> int:
     return drv.execute_script("return window.phiremanFrame.v.id.indexOf(arguments[0])", vid)
-
-
-@contextlib.contextmanager
-def _replay_page(src):
-    """Serve a :class:`ReplaySource` on loopback (port 0) from a thread: yields its URL."""
-    from mission.view.live.server import LiveServer
-
-    box, ready = {}, threading.Event()
-
-    def run():
-        async def main():
-            server = await LiveServer(src, "127.0.0.1", 0).start()
-            box.update(url=server.url, stop=asyncio.Event(), loop=asyncio.get_running_loop())
-            ready.set()
-            await box["stop"].wait()
-            await server.aclose()
-
-        asyncio.run(main())
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    assert ready.wait(60)
-    try:
-        yield box["url"]
-    finally:
-        box["loop"].call_soon_threadsafe(box["stop"].set)
-        th.join(30)

@@ -11,6 +11,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from status_rows import status_row
 
 from gcs.events import TelemetryReceived, VehicleDiscovered
 from gcs.fleet import FleetView, MissionOrigin
@@ -163,27 +164,20 @@ def test_rotation_jsonl_records_changes_only_and_the_replay_reads_it(tmp_path):
 
 
 def _status(**kw):
-    d = dict(
-        phase="run",
-        t_s=120.0,
-        end_t0_s=None,
-        t_mission_s=100.0,
-        duration_s=7200.0,
-        fleet=50,
-        fleet_expected=50,
-        networked=20,
-        lost=0,
-        returning=1,
-        tasks_covered=9,
-        n_tasks=10,
-        tu1=0.95,
-        tu2=0.97,
-        modes={"GUIDED": 21},
-        reclaims=0,
-        wall_s=0.0,
+    """A two-hour mission's status row: 20 relays networked, none lost, TU near 1."""
+    return status_row(
+        **{
+            "duration_s": 7200.0,
+            "networked": 20,
+            "lost": 0,
+            "returning": 1,
+            "tu1": 0.95,
+            "tu2": 0.97,
+            "modes": {"GUIDED": 21},
+            "reclaims": 0,
+            **kw,
+        }
     )
-    d.update(kw)
-    return d
 
 
 ROT = dict(rotations=12, min_battery_in_air=0.314, battery_failsafes_in_air=0, landed_away=0)

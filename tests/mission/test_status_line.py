@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 
 import pytest
+from status_rows import status_row
 
 from mission.commands.fly import (
     STATUS_DROP_ORDER,
@@ -15,34 +16,6 @@ from mission.commands.fly import (
     planned_drop,
     status_layout,
 )
-
-
-def _d(**kw):
-    d = dict(
-        phase="run",
-        t_s=120.0,
-        end_t0_s=None,
-        t_mission_s=100.0,
-        duration_s=200.0,
-        fleet=50,
-        fleet_expected=50,
-        networked=40,
-        lost=8,
-        returning=2,
-        tasks_covered=9,
-        n_tasks=10,
-        tu1=0.71,
-        tu2=0.77,
-        modes={"GUIDED": 40, "LOST": 8, "RTL": 2},
-        command_failures=0,
-        failsafes=0,
-        last_failsafe=None,
-        reclaims=3,
-        speedup=20.0,
-        wall_s=0.0,
-    )
-    d.update(kw)
-    return d
 
 
 def _finding(**kw):
@@ -60,7 +33,7 @@ def _finding(**kw):
         reclaims=0,
     )
     d.update(kw)
-    return _d(**d)
+    return status_row(**d)
 
 
 def test_the_crews_of_the_mission_show_before_they_are_measured():
@@ -70,7 +43,7 @@ def test_the_crews_of_the_mission_show_before_they_are_measured():
 
 @pytest.mark.parametrize("width", [20, 30, 40, 50, 60, 70, 80, 100, 140])
 def test_tu_stays_visible_at_every_width_and_the_lesser_fields_leave_first(width):
-    line, dropped = status_layout(_d(), width)
+    line, dropped = status_layout(status_row(), width)
     assert len(line) <= width - 1 or line == "TU1 71% TU2 77%"
     assert "TU1 71% TU2 77%" in line
     gone = STATUS_DROP_ORDER[:dropped]
@@ -92,11 +65,14 @@ def test_tu_stays_visible_at_every_width_and_the_lesser_fields_leave_first(width
 def test_at_60_columns_the_tu_figures_and_the_networked_drones_stay():
     # planned for the run's widest line ("flying 200/200s | 50/50 net | crews 10/10 | TU1 100%
     # TU2 100%" is 61 columns): the crews leave at 60, stay at 66
-    line = format_status(_d(), 60, planned_drop(_d(), 60))
+    line = format_status(status_row(), 60, planned_drop(status_row(), 60))
     assert line == "flying 100/200s | 40/50 net | TU1 71% TU2 77%"
-    line = format_status(_d(), 66, planned_drop(_d(), 66))
+    line = format_status(status_row(), 66, planned_drop(status_row(), 66))
     assert line == "flying 100/200s | 40/50 net | crews 9/10 | TU1 71% TU2 77%"
-    assert format_status(_d(), 40, planned_drop(_d(), 40)) == "flying 100/200s | TU1 71% TU2 77%"
+    assert (
+        format_status(status_row(), 40, planned_drop(status_row(), 40))
+        == "flying 100/200s | TU1 71% TU2 77%"
+    )
 
 
 @pytest.mark.parametrize("width", [60, 80, 100, 140])
@@ -110,11 +86,13 @@ def test_one_look_from_finding_to_the_end(width):
     phases = [
         _finding(),
         _finding(phase="audit", fleet=50, networked=50, modes={"STABILIZE": 50}),
-        _d(phase="launch", t_s=30.0, tasks_covered=None, tu1=None, tu2=None, reclaims=0),
-        _d(t_mission_s=5.0, networked=50, lost=0, returning=0, tu1=1.0, tu2=1.0, reclaims=0),
-        _d(t_mission_s=199.0, networked=38, lost=11, returning=1, tasks_covered=10),
-        _d(phase="end", end_t0_s=320.0, t_s=330.0),
-        _d(phase="done", end_t0_s=320.0, t_s=390.0),
+        status_row(phase="launch", t_s=30.0, tasks_covered=None, tu1=None, tu2=None, reclaims=0),
+        status_row(
+            t_mission_s=5.0, networked=50, lost=0, returning=0, tu1=1.0, tu2=1.0, reclaims=0
+        ),
+        status_row(t_mission_s=199.0, networked=38, lost=11, returning=1, tasks_covered=10),
+        status_row(phase="end", end_t0_s=320.0, t_s=330.0),
+        status_row(phase="done", end_t0_s=320.0, t_s=390.0),
     ]
     shapes = set()
     for d in phases:

@@ -257,7 +257,7 @@ def test_replay_figures_of_a_terrain_run(canyon_run, tmp_path):
 
 # ------------------------------------------------------------------ the page, in Chromium
 
-# The live view tests' headless Chromium (skipped, loudly, without chromium / chromedriver).
+# The page tests' headless Chromium (skipped, loudly, without chromium / chromedriver).
 from browser import _wait  # noqa: E402 - the ``browser`` fixture: tests/conftest.py
 
 # A link whose midpoint is unambiguous on screen: no other drawn link within 12 px, no vehicle
@@ -304,32 +304,15 @@ return out.length === 2 ? {v: out, w: mapRect.width, h: mapRect.height} : null;"
 
 @pytest.mark.udp
 def test_page_draws_the_relief_and_opens_a_link_profile(browser, canyon_run):  # noqa: F811
-    import threading
-
     from selenium.webdriver.common.action_chains import ActionChains
 
     from mission.view.live.replay_sim import SimReplaySource
-    from mission.view.live.server import LiveServer
+    from mission.view.live.server import serve_in_thread
 
     src = SimReplaySource(canyon_run)
-    box, ready = {}, threading.Event()
-
-    def serve():
-        async def main():
-            server = await LiveServer(src, "127.0.0.1", 0).start()
-            box.update(url=server.url, stop=asyncio.Event(), loop=asyncio.get_running_loop())
-            ready.set()
-            await box["stop"].wait()
-            await server.aclose()
-
-        asyncio.run(main())
-
-    th = threading.Thread(target=serve, daemon=True)
-    th.start()
-    assert ready.wait(60)
     drv = browser
-    try:
-        drv.get(box["url"])
+    with serve_in_thread(src) as url:
+        drv.get(url)
         # The relief: an image overlay that loaded (decoded, not a broken image).
         size = _wait(
             lambda: drv.execute_script(
@@ -405,9 +388,6 @@ def test_page_draws_the_relief_and_opens_a_link_profile(browser, canyon_run):  #
         )
         head = drv.find_element("css selector", "#terrain-profile .head").text
         assert all(f"vehicle {v['label']}" in head for v in two["v"]), head
-    finally:
-        box["loop"].call_soon_threadsafe(box["stop"].set)
-        th.join(30)
 
 
 def test_export_of_an_in_process_run_is_refused_in_one_line(canyon_run):

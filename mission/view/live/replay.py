@@ -57,7 +57,7 @@ from mission.view.live.state import Picture, classify, frame_dict, mission_meta,
 from mission.view.live.terrain import TerrainView
 from planner.geometry import geodetic_to_ned_m
 
-__all__ = ["ReplaySource", "load_replay", "read_metrics"]
+__all__ = ["ReplaySource", "frame_index", "load_replay", "read_metrics"]
 
 log = logging.getLogger(__name__)
 
@@ -153,6 +153,17 @@ def _event_from_record(rec: dict):
         return cls(**kw)
     except (TypeError, ValueError):
         return None
+
+
+def frame_index(index: int | None, n_frames: int) -> int:
+    """A replay's frame ``index`` checked against its ``n_frames`` (None: the last).
+
+    Raises IndexError out of range (the page's 400)."""
+    if index is None:
+        index = n_frames - 1
+    if not 0 <= index < n_frames:
+        raise IndexError(f"frame {index} out of range 0..{n_frames - 1}")
+    return index
 
 
 def read_metrics(path: Path) -> list[dict]:
@@ -519,11 +530,7 @@ class ReplaySource:
             raise TruthUnavailable(
                 f"no emulator truth in {self.run_dir} (no truth.npz: a run with real vehicles)"
             )
-        if index is None:
-            index = len(self.frames) - 1
-        if not 0 <= index < len(self.frames):
-            raise IndexError(f"frame {index} out of range 0..{len(self.frames) - 1}")
-        fr = self.frames[index]
+        fr = self.frames[frame_index(index, len(self.frames))]
         snap, t = fr.snap, fr.t_s
         n = snap.n_vehicles
         states = classify(snap, fr.released, fr.reclaimed)

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from gcs.fleet import FleetSnapshot
-from mission.view.live.replay import read_metrics
+from mission.view.live.replay import frame_index, read_metrics
 from mission.view.live.state import Picture, classify, decimate, frame_dict, mission_meta
 from mission.view.live.terrain import TerrainView
 
@@ -109,10 +109,7 @@ class SimReplaySource:
             raise TruthUnavailable(
                 f"{self.run_dir} is an in-process run: every frame is already the truth"
             )
-        if index is None:
-            index = len(self.index) - 1
-        if not 0 <= index < len(self.index):
-            raise IndexError(f"frame {index} out of range 0..{len(self.index) - 1}")
+        index = frame_index(index, len(self.index))
         k = self.index[index]
         run, mission = self.run, self.mission
         t = float(run.t_s[k])

@@ -1,7 +1,9 @@
 """The web server of the live view and of the replay: one page, a JSON API, Server-Sent Events.
 
 Runs on the station's own asyncio loop (aiohttp), so every read of the operator's state and every
-operator action happens on that loop, between two polls of the station, never from a thread.
+operator action happens on that loop, between two polls of the station, never from a thread. A
+recorded run, which shares nothing with a station, may be served from a thread of its own
+(:func:`serve_in_thread`, for a script or a test that drives the page meanwhile).
 
 Routes::
 
@@ -31,17 +33,27 @@ logged with the client's address.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hmac
 import ipaddress
 import json
 import logging
 import re
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Protocol
 
 from aiohttp import web
 
-__all__ = ["LiveServer", "parse_serve", "STATIC_DIR", "tiles_meta", "TruthUnavailable"]
+__all__ = [
+    "LiveServer",
+    "parse_serve",
+    "serve_in_thread",
+    "STATIC_DIR",
+    "tiles_meta",
+    "TruthUnavailable",
+]
 
 log = logging.getLogger(__name__)
 
@@ -293,39 +305,51 @@ class LiveServer:
             log.warning("web action refused: wrong or missing operator key from %s", request.remote)
             raise web.HTTPForbidden(text="wrong or missing operator key")
 
-    async def _ack(self, request: web.Request) -> web.Response:
-        ack = getattr(self.source, "acknowledge", None)
-        if ack is None or self.key is None:
-            raise web.HTTPForbidden(text="acknowledging needs the operator key: read-only view")
+    async def _operator(
+        self,
+        request: web.Request,
+        method: str,
+        refused: str,
+        expected: str,
+        args,
+        errors: tuple[type[Exception], ...] = (ValueError, KeyError, LookupError),
+    ) -> web.Response:
+        """An operator's POST: the source's ``method`` called with ``args(body)`` and the
+        client's address. 403 saying ``refused`` on a read-only view (no such method, or no
+        key), 403 without the right key, 400 saying ``expected`` for a body that does not parse,
+        400 with the source's own words when it raises one of ``errors``."""
+        call = getattr(self.source, method, None)
+        if call is None or self.key is None:
+            raise web.HTTPForbidden(text=refused)
         self._check_key(request)
         try:
-            body = await request.json()
-            alert = str(body["alert"])
+            given = args(await request.json())
         except (ValueError, KeyError, TypeError):
-            raise web.HTTPBadRequest(text='expected {"alert": ID | "all"}') from None
+            raise web.HTTPBadRequest(text=expected) from None
         try:
-            done = ack(alert, f"web {request.remote}")
-        except (ValueError, KeyError) as exc:
+            done = call(*given, f"web {request.remote}")
+        except errors as exc:
             raise web.HTTPBadRequest(text=str(exc)) from None
         return web.json_response({"done": done})
 
+    async def _ack(self, request: web.Request) -> web.Response:
+        return await self._operator(
+            request,
+            "acknowledge",
+            "acknowledging needs the operator key: read-only view",
+            'expected {"alert": ID | "all"}',
+            lambda body: (str(body["alert"]),),
+            errors=(ValueError, KeyError),
+        )
+
     async def _action(self, request: web.Request) -> web.Response:
-        act = getattr(self.source, "act", None)
-        if act is None or self.key is None:
-            raise web.HTTPForbidden(text="actions are off: this view is read-only")
-        self._check_key(request)
-        try:
-            body = await request.json()
-            action, vehicle = str(body["action"]), str(body.get("vehicle", ""))
-        except (ValueError, KeyError, TypeError):
-            raise web.HTTPBadRequest(
-                text='expected {"action": ..., "vehicle": "L:S" | "all"}'
-            ) from None
-        try:
-            done = act(action, vehicle, f"web {request.remote}")
-        except (ValueError, KeyError, LookupError) as exc:
-            raise web.HTTPBadRequest(text=str(exc)) from None
-        return web.json_response({"done": done})
+        return await self._operator(
+            request,
+            "act",
+            "actions are off: this view is read-only",
+            'expected {"action": ..., "vehicle": "L:S" | "all"}',
+            lambda body: (str(body["action"]), str(body.get("vehicle", ""))),
+        )
 
     async def _tile(self, request: web.Request) -> web.StreamResponse:
         if self.tiles_dir is None:
@@ -335,6 +359,47 @@ class LiveServer:
         if not path.is_file():
             raise web.HTTPNotFound()
         return web.FileResponse(path)
+
+
+@contextlib.contextmanager
+def serve_in_thread(source: Source, host: str = "127.0.0.1", port: int = 0) -> Iterator[str]:
+    """Serve a recorded run (a replay source: read-only, nothing shared with a station's loop)
+    from a background thread with its own event loop, for a script or a test that drives the
+    page from this thread; yields the page's URL, closes the server on leaving.
+
+    Raises
+    ------
+    OSError
+        The server could not listen on ``host:port``.
+    TimeoutError
+        It did not start within a minute.
+    """
+    box: dict = {}
+    ready = threading.Event()
+
+    async def main() -> None:
+        try:
+            server = await LiveServer(source, host, port).start()
+        except Exception as exc:  # raised again in the caller's thread
+            box["error"] = exc
+            ready.set()
+            return
+        box.update(url=server.url, stop=asyncio.Event(), loop=asyncio.get_running_loop())
+        ready.set()
+        await box["stop"].wait()
+        await server.aclose()
+
+    th = threading.Thread(target=asyncio.run, args=(main(),), name="live-page", daemon=True)
+    th.start()
+    if not ready.wait(60.0):
+        raise TimeoutError(f"the page did not start on {host}:{port} within a minute")
+    if "error" in box:
+        raise box["error"]
+    try:
+        yield box["url"]
+    finally:
+        box["loop"].call_soon_threadsafe(box["stop"].set)
+        th.join(30.0)
 
 
 @web.middleware
