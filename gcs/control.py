@@ -120,9 +120,10 @@ class TerrainAltitude:
 
 
 #: The descent speed both firmwares fly position targets at by default, m/s: ArduCopter's
-#: ``WPNAV_SPEED_DN`` 150 cm/s (libraries/AC_WPNav/AC_WPNav.cpp, ``WPNAV_WP_SPEED_DOWN``) and
-#: PX4's ``MPC_Z_VEL_MAX_DN`` 1.5 m/s for offboard (src/modules/mc_pos_control/
-#: multicopter_autonomous_params.c). The station does not write it (gcs.limits).
+#: ``WPNAV_SPEED_DN`` 150 cm/s (libraries/AC_WPNav/AC_WPNav.cpp, default
+#: ``WPNAV_WP_SPEED_DOWN_CMS`` in AC_WPNav.h) and PX4's ``MPC_Z_VEL_MAX_DN`` 1.5 m/s, the offboard
+#: descent limit (src/modules/mc_pos_control/mc_pos_control_params.c). The station does not write
+#: it (gcs.limits writes the horizontal and climb limits only).
 FIRMWARE_DESCENT_RATE_M_S = 1.5
 
 

@@ -17,7 +17,7 @@ import pytest
 
 from gcs import audit as audit_mod
 from gcs.autopilot import ARDUPILOT, PX4, adapter_for, px4_custom_mode
-from gcs.control import ControlConfig
+from gcs.control import ControlConfig, TerrainAltitude
 from gcs.events import (
     ArmedChanged,
     CommandFailed,
@@ -49,6 +49,7 @@ from gcs.tasks import LiveTasks
 from gcs.wire import mavlink
 from planner.geometry import ned_to_geodetic
 from planner.methods import PlanOutput
+from planner.terrain import Canyon, synthetic_terrain
 
 ORIGIN = MissionOrigin(45.0, 7.0, 100.0)
 STABILIZE, GUIDED, RTL, LAND = 0, 4, 6, 9
@@ -1599,3 +1600,39 @@ def test_override_of_vehicles_the_station_does_not_fly_passes():
     assert op.forwarded_override(_Override([(0, 42)]), 2.0, refuse=True) is None
     assert op.forwarded_override(_Override([]), 2.0, refuse=True) is None
     assert op.released == {} and not op.actions
+
+
+def test_over_terrain_a_vehicle_in_a_canyon_below_its_home_is_airborne():
+    # docs/terrain.md §6.2: under the ceiling a vehicle flies down into a canyon, below its home
+    # on the rim. Its height is read above the DEM's ground, so it stays planned and is never
+    # sent a take-off (read above home, it was "on the ground" and sent NAV_TAKEOFF each retry).
+    dem = synthetic_terrain(
+        [Canyon([(-1500.0, 300.0), (1500.0, 300.0)], 250.0, 40.0, 150.0)],
+        1500.0,
+        10.0,
+        ORIGIN.alt_amsl_m,
+    )
+    ta = TerrainAltitude(dem, ORIGIN.alt_amsl_m, clearance_m=15.0, ceiling_agl_m=120.0)
+    control = ControlConfig(cruise_alt_m=100.0, n_layers=1, terrain=ta)
+    station, planner = FakeStation(), FakePlanner()
+    op = Operator(
+        station,
+        FleetView(ORIGIN, timeout_s=5.0),
+        planner,
+        lambda t: np.array([[1000.0, 0.0]]),
+        control,
+        OperationsConfig(audit=False, expected_vehicles=1),
+        now_s=0.0,
+    )
+    feed = Feed(op)
+    v = feed.add(1, 0.0, north_m=0.0)
+    feed.poll(0.0)
+    feed.fly(v, 1.0, alt_m=100.0)
+    assert feed.poll(1.0) is not None and op.phase == "run"
+    takeoffs = len(station.of("takeoff", v))
+    feed.v[v]["east_m"] = 300.0  # over the canyon's floor, 250 m down
+    feed.alt(v, 2.0, -150.0)  # 150 m below its home, 100 m above the floor
+    feed.run(2.0, 20.0)
+    assert planner.ticks[-1].networked.tolist() == [True]
+    assert len(station.of("takeoff", v)) == takeoffs
+    assert op.counters["relaunches"] == 0 and op.phase == "run"
