@@ -196,6 +196,7 @@ def _operations_config(
         battery_low_frac=spec.low_frac if spec is not None else None,
         max_speed_m_s=lim.max_speed_m_s,
         climb_rate_m_s=lim.climb_rate_m_s,
+        descent_rate_m_s=lim.descent_rate_m_s,
         set_limits=opts.set_limits,
         restore_params=opts.restore_params,
         expected_vehicles=expected,

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from gcs import audit as audit_mod
+from gcs import limits as limits_mod
 from gcs.autopilot import ARDUPILOT, PX4, adapter_for, px4_custom_mode
 from gcs.control import ControlConfig, TerrainAltitude
 from gcs.events import (
@@ -1636,3 +1637,33 @@ def test_over_terrain_a_vehicle_in_a_canyon_below_its_home_is_airborne():
     assert planner.ticks[-1].networked.tolist() == [True]
     assert len(station.of("takeoff", v)) == takeoffs
     assert op.counters["relaunches"] == 0 and op.phase == "run"
+
+
+def test_a_missions_descent_rate_is_read_and_written_with_the_limits():
+    op, station, feed, (v,) = make(
+        1, audit=True, max_speed_m_s=10.0, climb_rate_m_s=5.0, descent_rate_m_s=4.0
+    )
+    feed.poll(0.0)
+    asked = [c[2] for c in station.of("request_param", v)]
+    assert asked[-3:] == ["WPNAV_SPEED", "WPNAV_SPEED_UP", "WPNAV_SPEED_DN"]
+    answer_audit(
+        feed,
+        station,
+        0.5,
+        {**AP_SAFE, "WPNAV_SPEED": 1000.0, "WPNAV_SPEED_UP": 500.0, "WPNAV_SPEED_DN": 150.0},
+    )
+    feed.poll(0.75)
+    assert [(c[2], c[3], c[6]) for c in station.of("set_param", v)] == [
+        ("WPNAV_SPEED_DN", 400.0, 150.0)
+    ]
+    feed.emit(ParamSetConfirmed(0, 1, 1.0, "WPNAV_SPEED_DN", 400.0, 150.0, REAL32))
+    feed.poll(1.25)
+    assert op.phase == "launch" and op.limit_warnings == []
+
+
+def test_px4_descent_rate_parameter():
+    assert limits_mod.limit_params(PX4, 10.0, 5.0, 4.0)["MPC_Z_VEL_MAX_DN"] == 4.0
+    assert "MPC_Z_VEL_MAX_DN" not in limits_mod.limit_params(PX4, 10.0, 5.0)
+    assert limits_mod.limit_writes(PX4, {"MPC_Z_VEL_MAX_DN": 1.5}, 10.0, 5.0, 4.0) == [
+        ("MPC_Z_VEL_MAX_DN", 4.0)
+    ]
