@@ -122,8 +122,8 @@ class TerrainAltitude:
 #: The descent speed both firmwares fly position targets at by default, m/s: ArduCopter's
 #: ``WPNAV_SPEED_DN`` 150 cm/s (libraries/AC_WPNav/AC_WPNav.cpp, default
 #: ``WPNAV_WP_SPEED_DOWN_CMS`` in AC_WPNav.h) and PX4's ``MPC_Z_VEL_MAX_DN`` 1.5 m/s, the offboard
-#: descent limit (src/modules/mc_pos_control/mc_pos_control_params.c). The station does not write
-#: it (gcs.limits writes the horizontal and climb limits only).
+#: descent limit (src/modules/mc_pos_control/mc_pos_control_params.c). What the station plans for
+#: unless the mission sets ``vehicles.descent_rate_m_s``, which it then writes (gcs.limits).
 FIRMWARE_DESCENT_RATE_M_S = 1.5
 
 
