@@ -38,6 +38,7 @@ from planner.methods import Planner, TickInput
 from planner.terrain import Terrain, TerrainRadio, path_clearance_m
 
 __all__ = [
+    "FIRMWARE_DESCENT_RATE_M_S",
     "ControlConfig",
     "Geofence",
     "TerrainAltitude",
@@ -106,10 +107,24 @@ class TerrainAltitude:
     """The ground is also sampled this far either side of each path, metres: a vehicle's
     position loop does not fly the straight line exactly (a turn swings it a few metres out),
     and by a steep wall a few metres sideways is many metres up."""
+    descent_step_m: float = math.inf
+    """The most a vehicle descends in one control period, metres (its descent speed x the
+    period). A step out over falling ground is shortened so that the vehicle, descending at that
+    speed, stays under the ceiling (:func:`terrain_targets`); inf: steps are not shortened."""
 
     def __post_init__(self) -> None:
         if not self.clearance_m >= 0 or not self.ceiling_agl_m > 0:
             raise ValueError("clearance_m must be >= 0 and ceiling_agl_m > 0")
+        if not self.descent_step_m > 0:
+            raise ValueError(f"descent_step_m must be > 0, got {self.descent_step_m}")
+
+
+#: The descent speed both firmwares fly position targets at by default, m/s: ArduCopter's
+#: ``WPNAV_SPEED_DN`` 150 cm/s (libraries/AC_WPNav/AC_WPNav.cpp, default
+#: ``WPNAV_WP_SPEED_DOWN_CMS`` in AC_WPNav.h) and PX4's ``MPC_Z_VEL_MAX_DN`` 1.5 m/s, the offboard
+#: descent limit (src/modules/mc_pos_control/mc_pos_control_params.c). What the station plans for
+#: unless the mission sets ``vehicles.descent_rate_m_s``, which it then writes (gcs.limits).
+FIRMWARE_DESCENT_RATE_M_S = 1.5
 
 
 @dataclass(frozen=True)
@@ -172,20 +187,23 @@ def terrain_targets(
     side (the floor). A vehicle below
     the floor, or whose straight path to the target would pass closer than ``clearance_m`` to
     the ground, gets a climb to that altitude over its own position instead.
+
+    Over falling ground (a rim, then a canyon) the step is first shortened
+    (:func:`descent_fraction`): to the farthest point along it at which the vehicle, descending
+    at most ``descent_step_m`` this period and never below the floor, is still under
+    ``ceiling_agl_m`` over the lowest ground it has passed (or no further above it than where
+    it is now). So a vehicle leaving a rim walks down the wall at its descent speed instead of
+    crossing at the rim's clearance.
     """
     pos = np.asarray(pos_ned_m, dtype=float).reshape(-1, 3)
     tgt = np.asarray(target_ne_m, dtype=float).reshape(-1, 2)
-    ground = ta.terrain
-    f = np.linspace(0.0, 1.0, ta.n_samples + 1)
-    d = tgt - pos[:, :2]
-    pts = pos[:, None, :2] + f[None, :, None] * d[:, None, :]  # (K, S, 2)
-    # ... and two lines ``corridor_m`` either side: the flown path is not quite straight
-    side = np.column_stack([-d[:, 1], d[:, 0]])
-    side *= (ta.corridor_m / np.maximum(np.linalg.norm(d, axis=1), 1e-9))[:, None]
-    band = np.concatenate([pts, pts + side[:, None, :], pts - side[:, None, :]], axis=1)
-    floor = ground.height_m(band).max(axis=1) + ta.clearance_m
-    alt = np.maximum(ground.height_m(tgt) + np.asarray(agl_m, dtype=float), floor)
     alt_now = ta.origin_amsl_m - pos[:, 2]
+    if math.isfinite(ta.descent_step_m) and math.isfinite(ta.ceiling_agl_m):
+        frac = descent_fraction(pos[:, :2], alt_now, tgt, ta)
+        tgt = pos[:, :2] + frac[:, None] * (tgt - pos[:, :2])
+    ground = ta.terrain
+    floor = ground.height_m(_band(pos[:, :2], tgt, ta)).max(axis=(1, 2)) + ta.clearance_m
+    alt = np.maximum(ground.height_m(tgt) + np.asarray(agl_m, dtype=float), floor)
     clear = path_clearance_m(ground, pos[:, :2], tgt, alt_now, alt, ta.n_samples)
     # A vehicle below the floor climbs first: autopilots limit horizontal speed and climb rate
     # separately (ArduCopter WPNAV_SPEED / WPNAV_SPEED_UP, PX4 MPC_XY_VEL_MAX / MPC_Z_VEL_MAX_UP),
@@ -195,6 +213,66 @@ def terrain_targets(
     ne = np.where(climb[:, None], pos[:, :2], tgt)
     alt = np.where(climb, np.maximum(alt, alt_now), alt)
     return np.column_stack([ne, ta.origin_amsl_m - alt])
+
+
+def _band(pos_ne_m: np.ndarray, target_ne_m: np.ndarray, ta: TerrainAltitude) -> np.ndarray:
+    """(K, 3, S + 1, 2) the points sampled along each path: the straight line (index 0) and
+    the lines ``corridor_m`` either side of it, from the vehicle (sample 0) to the target."""
+    f = np.linspace(0.0, 1.0, ta.n_samples + 1)
+    d = target_ne_m - pos_ne_m
+    pts = pos_ne_m[:, None, :] + f[None, :, None] * d[:, None, :]  # (K, S, 2)
+    # ... and two lines ``corridor_m`` either side: the flown path is not quite straight
+    side = np.column_stack([-d[:, 1], d[:, 0]])
+    side *= (ta.corridor_m / np.maximum(np.linalg.norm(d, axis=1), 1e-9))[:, None]
+    return np.stack([pts, pts + side[:, None, :], pts - side[:, None, :]], axis=1)
+
+
+def descent_fraction(
+    pos_ne_m: np.ndarray, alt_amsl_m: np.ndarray, target_ne_m: np.ndarray, ta: TerrainAltitude
+) -> np.ndarray:
+    """(K,) how much of each step to fly, in [0, 1], so that the vehicle stays under the ceiling
+    over falling ground (:func:`terrain_targets`).
+
+    At the path's samples ``j`` (fractions ``j / n_samples``), the vehicle ends this period no
+    lower than ``max(alt - descent_step_m, floor_j)``, where ``floor_j`` is ``clearance_m`` over
+    the highest ground (with the corridor) up to sample ``j``; its excess over the ceiling is that
+    minus the lowest ground up to ``j`` minus ``ceiling_agl_m``. The fraction is that of the
+    farthest sample whose excess is at most ``max(0, excess at the vehicle)``: a vehicle already
+    too high (after a climb over a ridge) still moves, but no step makes it worse."""
+    pos = np.asarray(pos_ne_m, dtype=float).reshape(-1, 2)
+    tgt = np.asarray(target_ne_m, dtype=float).reshape(-1, 2)
+    g = ta.terrain.height_m(_band(pos, tgt, ta))  # (K, 3, S + 1)
+    floor = np.maximum.accumulate(g.max(axis=1), axis=1) + ta.clearance_m
+    low = np.minimum.accumulate(g[:, 0], axis=1)
+    reach = np.asarray(alt_amsl_m, dtype=float)[:, None] - ta.descent_step_m
+    excess = np.maximum(reach, floor) - low - ta.ceiling_agl_m  # (K, S + 1), non-decreasing
+    ok = excess <= np.maximum(excess[:, :1], 0.0) + 1e-6
+    return np.asarray(ok.sum(axis=1) - 1, dtype=float) / ta.n_samples
+
+
+def descent_fraction_reference(
+    pos_ne_m: np.ndarray, alt_amsl_m: np.ndarray, target_ne_m: np.ndarray, ta: TerrainAltitude
+) -> np.ndarray:
+    """:func:`descent_fraction` by plain loops over vehicles and samples (for tests)."""
+    out = np.zeros(len(pos_ne_m))
+    for k in range(len(pos_ne_m)):
+        p, t = np.asarray(pos_ne_m[k], float), np.asarray(target_ne_m[k], float)
+        d = t - p
+        n = max(float(np.hypot(*d)), 1e-9)
+        side = np.array([-d[1], d[0]]) * ta.corridor_m / n
+        hi, lo, excess0 = -math.inf, math.inf, 0.0
+        for j in range(ta.n_samples + 1):
+            c = p + (j / ta.n_samples) * d
+            line = [ta.terrain.height_m_reference(*q) for q in (c, c + side, c - side)]
+            hi, lo = max(hi, *line), min(lo, line[0])
+            reach = max(float(alt_amsl_m[k]) - ta.descent_step_m, hi + ta.clearance_m)
+            excess = reach - lo - ta.ceiling_agl_m
+            if j == 0:
+                excess0 = max(excess, 0.0)
+            if excess > excess0 + 1e-6:
+                break
+            out[k] = j / ta.n_samples
+    return out
 
 
 @dataclass(frozen=True)
@@ -246,6 +324,14 @@ def tick(
     # gcs.tak) is planned at the base: a zero-length branch of the tree, so no relay chases a
     # position that may be wrong and none is kept for it; the planners refuse NaN.
     tasks = np.where(np.isfinite(tasks).all(axis=1)[:, None], tasks, 0.0)
+    ta = config.terrain
+    alt_amsl = None
+    if ta is not None:
+        # Over terrain the planner is told the altitudes from telemetry (a terrain-aware planner
+        # plans the mesh at them, docs/terrain.md §6.2); a row with no fix is put at the floor.
+        alt_amsl = np.where(
+            has_pos, ta.origin_amsl_m - pos[:, 2], ta.terrain.height_m(ne) + ta.clearance_m
+        )
     out = planner.plan(
         TickInput(
             int(t_step),
@@ -254,13 +340,20 @@ def tick(
             planned,
             tasks,
             hazards=config.hazards,
+            alt_amsl_m=alt_amsl,
         )
     )
     rows = np.flatnonzero(planned)
     disp = np.asarray(out.disp_m, dtype=float)[rows]
     target_ne = config.geofence.clip_ne(ne[rows] + config.lead * disp)
-    if config.terrain is not None:
-        target = terrain_targets(pos[rows], target_ne, layer_alt_m(rows, config), config.terrain)
+    if ta is not None:
+        agl = layer_alt_m(rows, config)
+        if out.alt_agl_m is not None:
+            # The planner's height for each drone (planner.terrain_aware), its layer below it so
+            # that neighbours in the row order still fly apart, never below the clearance.
+            below = agl - config.cruise_alt_m
+            agl = np.maximum(np.asarray(out.alt_agl_m, float)[rows] - below, ta.clearance_m)
+        target = terrain_targets(pos[rows], target_ne, agl, ta)
     else:
         target = np.column_stack([target_ne, -layer_alt_m(rows, config)])
     return TickResult(rows, target, disp, dict(out.info or {}))

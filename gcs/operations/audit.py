@@ -105,11 +105,7 @@ class AuditStep(OperatorState):
             vid = self._vid(snap, i)
             names = list(audit_mod.params_still_needed(int(snap.autopilot[i]), {}))
             if self._limits_wanted():
-                names += [
-                    n
-                    for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
-                    if n not in names
-                ]
+                names += [n for n in self._limit_names(int(snap.autopilot[i])) if n not in names]
             names += [n for n in self._battery_params(int(snap.autopilot[i])) if n not in names]
             if self.rally is not None:  # the settings that make RTL use rally points
                 names += [
@@ -155,7 +151,7 @@ class AuditStep(OperatorState):
                 if self._limits_wanted():  # vehicles discovered late, reads lost: the limits too
                     names += [
                         n
-                        for n in limits_mod.LIMIT_PARAMS.get(int(snap.autopilot[i]), ())
+                        for n in self._limit_names(int(snap.autopilot[i]))
                         if n not in got and n not in names
                     ]
                 if self.rally is not None:
@@ -224,6 +220,10 @@ class AuditStep(OperatorState):
             return ()
         return audit_mod.BATTERY_AUDIT_PARAMS.get(autopilot, ())
 
+    def _limit_names(self, autopilot: int) -> tuple[str, ...]:
+        """The limit parameters read and written on this firmware (gcs.limits)."""
+        return limits_mod.limit_names(autopilot, self.config.descent_rate_m_s is not None)
+
     def _limits_wanted(self) -> bool:
         return self.config.set_limits and self.config.max_speed_m_s is not None
 
@@ -235,7 +235,7 @@ class AuditStep(OperatorState):
         climb = cfg.climb_rate_m_s if cfg.climb_rate_m_s is not None else math.inf
         assert cfg.max_speed_m_s is not None  # only called when _limits_wanted()
         for vid, (autopilot, params) in sorted(vehicles.items()):
-            wanted = limits_mod.LIMIT_PARAMS.get(autopilot, ())
+            wanted = self._limit_names(autopilot)
             missing = [n for n in wanted if n not in params]
             if missing:
                 self.limit_warnings.append(
@@ -250,7 +250,11 @@ class AuditStep(OperatorState):
                     if k != "WPNAV_SPEED_UP" and k != "MPC_Z_VEL_MAX_UP"
                 }
             for name, value in limits_mod.limit_writes(
-                autopilot, params, cfg.max_speed_m_s, climb if math.isfinite(climb) else 1.0
+                autopilot,
+                params,
+                cfg.max_speed_m_s,
+                climb if math.isfinite(climb) else 1.0,
+                cfg.descent_rate_m_s,
             ):
                 self._set_param(vid, name, value, params.get(name), "limit", now_s)
         return bool(self._sets_pending)

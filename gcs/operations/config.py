@@ -54,6 +54,9 @@ class OperationsConfig:
     """The mission's horizontal speed limit; with ``set_limits`` written into each vehicle's own
     parameters at launch (:mod:`gcs.limits`). None: the firmware's limits are left alone."""
     climb_rate_m_s: float | None = None
+    descent_rate_m_s: float | None = None
+    """The mission's descent speed, m/s, written with the other limits (:mod:`gcs.limits`);
+    None: the firmware's own is left alone."""
     set_limits: bool = True
     restore_params: bool = False
     """After landing, write back the previous value of every parameter the station changed."""

@@ -107,16 +107,23 @@ class LaunchStep(OperatorState):
         self._wave = 0
         self._wave_since_s = now_s
 
-    def _alt_above_home_m(self, snap: FleetSnapshot) -> np.ndarray:
+    def _height_m(self, snap: FleetSnapshot) -> np.ndarray:
+        """(N,) each vehicle's height, metres: above its home on a flat earth; over terrain,
+        above the DEM's ground under it. A vehicle flying in a canyon below its home on the rim
+        is airborne (docs/terrain.md §6.2); read above home, it was not, and was sent TAKEOFF."""
         # Mission NED down is relative to the mission origin's altitude; home AMSL per vehicle.
         alt_amsl = self.fleet.origin.alt_amsl_m - snap.pos_ned_m[:, 2]
-        return alt_amsl - snap.home_amsl_m
+        ta = self.control.terrain
+        if ta is None:
+            return alt_amsl - snap.home_amsl_m
+        ne = np.nan_to_num(snap.pos_ned_m[:, :2])
+        return alt_amsl - ta.terrain.height_m(ne)
 
     def _poll_launch(self, snap: FleetSnapshot, now_s: float) -> None:
         """Start the next wave when most of this one is airborne (or at ``wave_timeout_s``),
         drive every started wave's vehicles, and start the run once most have climbed."""
         cfg = self.config
-        alt = self._alt_above_home_m(snap)
+        alt = self._height_m(snap)
         heard = ~snap.lost
         fin = np.isfinite(alt)
         airborne = heard & snap.armed & fin & (alt > cfg.airborne_alt_m)
@@ -319,7 +326,7 @@ class LaunchStep(OperatorState):
     def _reclaim(self, snap: FleetSnapshot, now_s: float) -> None:
         """Drive every heard vehicle still in the plan to "armed, airborne, guided" (the run's
         reclaim and relaunch)."""
-        alt = self._alt_above_home_m(snap)
+        alt = self._height_m(snap)
         # A row already armed, airborne, guided and settled is a no-op for _drive (it would
         # only set flew, failures and not_ready_s to what they are): skip it without the
         # per-row adapter calls (this runs on every poll, for every vehicle of the fleet).

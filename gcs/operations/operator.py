@@ -435,7 +435,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
     # ------------------------------------------------------------------ run
 
     def _control_tick(self, snap: FleetSnapshot, now_s: float) -> TickRecord:
-        alt = self._alt_above_home_m(snap)
+        alt = self._height_m(snap)
         heard = ~snap.lost
         airborne = heard & snap.armed & np.isfinite(alt) & (alt > self.config.airborne_alt_m)
         airborne &= self._in_plan(snap)  # released vehicles are neither planned nor relays

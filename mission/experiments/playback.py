@@ -43,12 +43,10 @@ from mission.format.scenario import (  # re-exported: they were drawn here befor
 )
 from mission.experiments.endurance import endurance_run
 from mission.experiments.world_loop import EpisodeRecord, run_world, station_control
-from mission.format.terrain import terrain_radio
+from mission.format.terrain import terrain_aware_planner, terrain_radio
 from planner.methods import Planner, make_planner
 from planner.metrics import UptimeSeries, uptime_series
 from planner.terrain import path_clearance_m
-from planner.terrain_aware import TerrainAwarePlanner
-from planner.terrain_heights import HeightRule
 from vehicle_emu.world import TerrainFlight, World, spawn_streams
 
 __all__ = [
@@ -123,7 +121,7 @@ def run_inprocess(
             raise ValueError("a terrain radio with batteries is not supported yet")
         world.with_terrain(flight)
         planner = terrain_planner(
-            planner, flight, terrain_aware, problem.max_speed_m_s * problem.dt_s
+            planner, mission, flight, terrain_aware, problem.max_speed_m_s * problem.dt_s
         )
     tau = mission.run.n_steps
     task_dist_m = np.hypot(*scn.task_track_m.reshape(-1, 2).T)
@@ -218,28 +216,14 @@ def terrain_flight(mission: Mission, terrain_aware: str) -> TerrainFlight | None
 
 
 def terrain_planner(
-    planner: Planner, flight: TerrainFlight, terrain_aware: str, max_step_m: float
+    planner: Planner, mission: Mission, flight: TerrainFlight, terrain_aware: str, max_step_m: float
 ) -> Planner:
     """The mission's planner over terrain: as it is when terrain-blind; when ``terrain_aware``
-    is 'on', planning in 3-D (:class:`planner.terrain_aware.TerrainAwarePlanner` with a
-    :class:`planner.terrain_heights.HeightRule`: altitudes per drone between the clearance and
-    the ceiling, moves checked against the terrain radio, relay positions searched).
-    ``max_step_m``: the longest horizontal move in one step, metres."""
+    is 'on', planning in 3-D (:func:`mission.format.terrain.terrain_aware_planner`, as the station
+    plans). ``max_step_m``: the longest horizontal move in one step, metres."""
     if terrain_aware != "on":
         return planner
-    return TerrainAwarePlanner(
-        planner,
-        flight.radio,
-        flight.alt_agl_m,
-        flight.crew_antenna_agl_m,
-        flight.base_antenna_agl_m,
-        heights=HeightRule(
-            clearance_m=flight.clearance_m,
-            ceiling_agl_m=flight.ceiling_agl_m,
-            max_climb_m=flight.max_climb_m,
-            max_step_m=max_step_m,
-        ),
-    )
+    return terrain_aware_planner(planner, mission, flight.radio, max_step_m)
 
 
 def terrain_summary(flight: TerrainFlight, rec: EpisodeRecord, crashes: int) -> dict:

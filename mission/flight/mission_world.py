@@ -48,7 +48,11 @@ log = logging.getLogger(__name__)
 
 
 def _speed_params(
-    personalities: list[str], max_speed_m_s: float, climb_rate_m_s: float, user: dict | None
+    personalities: list[str],
+    max_speed_m_s: float,
+    climb_rate_m_s: float,
+    descent_rate_m_s: float | None,
+    user: dict | None,
 ) -> dict:
     """Per-vehicle parameters that make the emulated autopilots fly the mission's limits from
     boot, as the station would set them on real vehicles (:func:`gcs.limits.limit_params`, so
@@ -59,7 +63,9 @@ def _speed_params(
     user = user or {}
     out = {}
     for i, p in enumerate(personalities):
-        want = limit_params(ARDUPILOT if p == "ardupilot" else PX4, max_speed_m_s, climb_rate_m_s)
+        want = limit_params(
+            ARDUPILOT if p == "ardupilot" else PX4, max_speed_m_s, climb_rate_m_s, descent_rate_m_s
+        )
         out[i] = {k: v for k, v in want.items() if k not in user}
     return out
 
@@ -163,7 +169,9 @@ def build_swarm(
     swarm = _MissionSwarm(
         emu.count,
         personality=pers,
-        per_vehicle_params=_speed_params(pers, emu.max_speed_m_s, emu.climb_rate_m_s, params),
+        per_vehicle_params=_speed_params(
+            pers, emu.max_speed_m_s, emu.climb_rate_m_s, emu.descent_rate_m_s, params
+        ),
         home_lla=(o.lat_deg, o.lon_deg, o.alt_amsl_m),
         spawn_ned_m=spawn,
         radio=radio,

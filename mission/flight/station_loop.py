@@ -36,8 +36,10 @@ from mission.flight.fly_options import FlyOptions, RunnerError
 from mission.flight.mission_world import MissionScenario, control_config
 from mission.flight.run_dir import FlightTimes, Records
 from mission.format.schema import Mission
-from planner.methods import make_planner
+from mission.format.terrain import terrain_aware_planner, terrain_radio
+from planner.methods import Planner, make_planner
 from planner.problem import ProblemConfig
+from planner.terrain import TerrainRadio
 from vehicle_emu.world import spawn_streams
 
 if TYPE_CHECKING:
@@ -194,6 +196,7 @@ def _operations_config(
         battery_low_frac=spec.low_frac if spec is not None else None,
         max_speed_m_s=lim.max_speed_m_s,
         climb_rate_m_s=lim.climb_rate_m_s,
+        descent_rate_m_s=lim.descent_rate_m_s,
         set_limits=opts.set_limits,
         restore_params=opts.restore_params,
         expected_vehicles=expected,
@@ -215,12 +218,37 @@ def _planner_spec(mission: Mission) -> tuple[str, ProblemConfig, dict]:
     return mission.planner.method, mission.problem_config(), mission.planner.run_params()
 
 
-def _warm_up_planner(method: str, problem, params: dict, scenario: MissionScenario) -> None:
+def station_planner(
+    mission: Mission,
+    method: str,
+    problem: ProblemConfig,
+    params: dict,
+    rng: np.random.Generator,
+    radio: TerrainRadio | None,
+) -> Planner:
+    """The station's planner: ``method`` on ``problem``; over a ``radio.model: terrain`` mission's
+    ``radio``, planning in 3-D as the in-process world's ``--terrain-aware on`` does
+    (:func:`mission.format.terrain.terrain_aware_planner`, docs/terrain.md §6.2)."""
+    planner = make_planner(method, problem, params, rng)
+    if radio is None:
+        return planner
+    return terrain_aware_planner(planner, mission, radio, problem.max_speed_m_s * problem.dt_s)
+
+
+def _warm_up_planner(
+    mission: Mission,
+    method: str,
+    problem: ProblemConfig,
+    params: dict,
+    scenario: MissionScenario,
+    radio: TerrainRadio | None,
+) -> None:
     """Run a throw-away planner of the same kind for two ticks on a small made-up fleet, so
     that everything its first real tick needs (imports, Numba kernels compiled or loaded from
-    their cache) is ready before the flight: the station's loop must never stall in flight
-    (a first tick that compiled for ~10 s stopped heartbeats and setpoints: ArduCopter's GCS
-    failsafe acts after FS_GCS_TIMEOUT 5 s, PX4's offboard loss after COM_OF_LOSS_T 1 s)."""
+    their cache, the terrain radio's line-of-sight kernel) is ready before the flight: the
+    station's loop must never stall in flight (a first tick that compiled for ~10 s stopped
+    heartbeats and setpoints: ArduCopter's GCS failsafe acts after FS_GCS_TIMEOUT 5 s, PX4's
+    offboard loss after COM_OF_LOSS_T 1 s)."""
     from planner.methods import TickInput
 
     t0 = time.monotonic()
@@ -230,11 +258,19 @@ def _warm_up_planner(method: str, problem, params: dict, scenario: MissionScenar
     n = 8
     pos = rng.uniform(-half / 4, half / 4, size=(n, 2))
     # A fleet of n (phireman-resilient's rally bookkeeping is sized by the problem's drones).
-    throwaway = make_planner(
-        method, dataclasses.replace(problem, n_drones=n), dict(params), np.random.default_rng(0)
+    throwaway = station_planner(
+        mission,
+        method,
+        dataclasses.replace(problem, n_drones=n),
+        dict(params),
+        np.random.default_rng(0),
+        radio,
     )
+    alt = None if radio is None else radio.terrain.height_m(pos) + 50.0
     for t_step in range(2):
-        throwaway.plan(TickInput(t_step, pos, np.ones(n, bool), np.ones(n, bool), tasks))
+        throwaway.plan(
+            TickInput(t_step, pos, np.ones(n, bool), np.ones(n, bool), tasks, alt_amsl_m=alt)
+        )
     log.info("planner %s warmed up in %.2f s", method, time.monotonic() - t0)
 
 
@@ -261,7 +297,11 @@ def make_operator(
         timeout_s=min(PLAN_SILENCE_S, station.links[0].config.vehicle_timeout_s),
     )
     method, problem, params = _planner_spec(mission)
-    planner = make_planner(method, problem, params, spawn_streams(seed).algorithm)
+    control = control_config(mission, scenario, over_terrain=True)
+    radio = None if control.terrain is None else control.terrain.radio
+    planner = station_planner(
+        mission, method, problem, params, spawn_streams(seed).algorithm, radio
+    )
     live = live_task_columns(mission)
     tak = tak_task_columns(mission)
     return Operator(
@@ -269,7 +309,7 @@ def make_operator(
         fleet,
         planner,
         scenario.task_pos_m,
-        control_config(mission, scenario, over_terrain=True),
+        control,
         _operations_config(mission, opts, expected),
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
@@ -401,7 +441,7 @@ async def run_station(
     the mission phase's start and end (and Ctrl-C) are noted on both clocks."""
     times = FlightTimes() if times is None else times
     # Before any link is open (a stall now costs nothing; in flight it trips failsafes).
-    _warm_up_planner(*_planner_spec(mission), scenario)
+    _warm_up_planner(mission, *_planner_spec(mission), scenario, terrain_radio(mission))
     cfg = _station_config(
         mission, expected if world is None else None, health=bool(getattr(opts, "serve", None))
     )

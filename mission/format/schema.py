@@ -331,6 +331,11 @@ class FlightLimits(_Section):
     """Horizontal speed limit the planner respects, m/s (paper: 0.15 unit per step)."""
     climb_rate_m_s: float = _f(2.5, gt=0.0, le=50.0)
     """Vertical speed for take-off and layer changes, m/s (ArduPilot WPNAV_SPEED_UP default)."""
+    descent_rate_m_s: float | None = _f(None, gt=0.0, le=50.0)
+    """Vertical speed down, m/s, written to the vehicles with the other limits (ArduPilot
+    ``WPNAV_SPEED_DN``, PX4 ``MPC_Z_VEL_MAX_DN``, at most 4 m/s on PX4); over terrain the station
+    plans its descents at it (docs/terrain.md §6.2). None: the firmware's own (1.5 m/s by
+    default on both)."""
     cruise_alt_m: float = _f(30.0, gt=0.0, le=10_000.0)
     """Altitude of the lowest flight layer above the base station, metres."""
     layer_spacing_m: float = _f(5.0, ge=0.0, le=1000.0)

@@ -15,7 +15,10 @@ import numpy as np
 
 from mission.format.schema import GeoTiffTerrain, Mission, SyntheticTerrain, TerrainSpec
 from planner.geometry import ned_to_geodetic
+from planner.methods import Planner
 from planner.terrain import Canyon, Hill, Ridge, Terrain, TerrainRadio, synthetic_terrain
+from planner.terrain_aware import TerrainAwarePlanner
+from planner.terrain_heights import HeightRule
 
 __all__ = ["build_terrain", "terrain_radio", "synthetic_from_spec", "terrain_from_geotiff"]
 
@@ -109,3 +112,31 @@ def terrain_radio(mission: Mission) -> TerrainRadio | None:
     ground = build_terrain(mission)
     assert ground is not None  # radio.model terrain needs a terrain section (validated)
     return TerrainRadio(ground, mission.radio.terrain_link.link_budget())
+
+
+def terrain_aware_planner(
+    planner: Planner, mission: Mission, radio: TerrainRadio, max_step_m: float
+) -> TerrainAwarePlanner:
+    """``planner`` planning in 3-D over ``mission``'s terrain (docs/terrain.md §3):
+    :class:`planner.terrain_aware.TerrainAwarePlanner` with a
+    :class:`planner.terrain_heights.HeightRule` (altitudes per drone between the clearance and the
+    ceiling, moves checked against the terrain radio, relay positions searched). The one place
+    both the in-process world (``--terrain-aware on``) and the station (docs/terrain.md §6.2)
+    build it. ``radio``: the mission's :func:`terrain_radio`; ``max_step_m``: the longest
+    horizontal move in one step, metres."""
+    spec = mission.terrain
+    assert spec is not None  # radio.model terrain needs a terrain section (validated)
+    link = mission.radio.terrain_link
+    return TerrainAwarePlanner(
+        planner,
+        radio,
+        spec.cruise_agl_m,
+        link.crew_antenna_agl_m,
+        link.base_antenna_agl_m,
+        heights=HeightRule(
+            clearance_m=spec.clearance_m,
+            ceiling_agl_m=spec.ceiling_agl_m,
+            max_climb_m=mission.vehicles.limits.climb_rate_m_s * mission.run.control_period_s,
+            max_step_m=max_step_m,
+        ),
+    )

@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from gcs import audit as audit_mod
+from gcs import limits as limits_mod
 from gcs.autopilot import ARDUPILOT, PX4, adapter_for, px4_custom_mode
-from gcs.control import ControlConfig
+from gcs.control import ControlConfig, TerrainAltitude
 from gcs.events import (
     ArmedChanged,
     CommandFailed,
@@ -49,6 +50,7 @@ from gcs.tasks import LiveTasks
 from gcs.wire import mavlink
 from planner.geometry import ned_to_geodetic
 from planner.methods import PlanOutput
+from planner.terrain import Canyon, synthetic_terrain
 
 ORIGIN = MissionOrigin(45.0, 7.0, 100.0)
 STABILIZE, GUIDED, RTL, LAND = 0, 4, 6, 9
@@ -1599,3 +1601,69 @@ def test_override_of_vehicles_the_station_does_not_fly_passes():
     assert op.forwarded_override(_Override([(0, 42)]), 2.0, refuse=True) is None
     assert op.forwarded_override(_Override([]), 2.0, refuse=True) is None
     assert op.released == {} and not op.actions
+
+
+def test_over_terrain_a_vehicle_in_a_canyon_below_its_home_is_airborne():
+    # docs/terrain.md §6.2: under the ceiling a vehicle flies down into a canyon, below its home
+    # on the rim. Its height is read above the DEM's ground, so it stays planned and is never
+    # sent a take-off (read above home, it was "on the ground" and sent NAV_TAKEOFF each retry).
+    dem = synthetic_terrain(
+        [Canyon([(-1500.0, 300.0), (1500.0, 300.0)], 250.0, 40.0, 150.0)],
+        1500.0,
+        10.0,
+        ORIGIN.alt_amsl_m,
+    )
+    ta = TerrainAltitude(dem, ORIGIN.alt_amsl_m, clearance_m=15.0, ceiling_agl_m=120.0)
+    control = ControlConfig(cruise_alt_m=100.0, n_layers=1, terrain=ta)
+    station, planner = FakeStation(), FakePlanner()
+    op = Operator(
+        station,
+        FleetView(ORIGIN, timeout_s=5.0),
+        planner,
+        lambda t: np.array([[1000.0, 0.0]]),
+        control,
+        OperationsConfig(audit=False, expected_vehicles=1),
+        now_s=0.0,
+    )
+    feed = Feed(op)
+    v = feed.add(1, 0.0, north_m=0.0)
+    feed.poll(0.0)
+    feed.fly(v, 1.0, alt_m=100.0)
+    assert feed.poll(1.0) is not None and op.phase == "run"
+    takeoffs = len(station.of("takeoff", v))
+    feed.v[v]["east_m"] = 300.0  # over the canyon's floor, 250 m down
+    feed.alt(v, 2.0, -150.0)  # 150 m below its home, 100 m above the floor
+    feed.run(2.0, 20.0)
+    assert planner.ticks[-1].networked.tolist() == [True]
+    assert len(station.of("takeoff", v)) == takeoffs
+    assert op.counters["relaunches"] == 0 and op.phase == "run"
+
+
+def test_a_missions_descent_rate_is_read_and_written_with_the_limits():
+    op, station, feed, (v,) = make(
+        1, audit=True, max_speed_m_s=10.0, climb_rate_m_s=5.0, descent_rate_m_s=4.0
+    )
+    feed.poll(0.0)
+    asked = [c[2] for c in station.of("request_param", v)]
+    assert asked[-3:] == ["WPNAV_SPEED", "WPNAV_SPEED_UP", "WPNAV_SPEED_DN"]
+    answer_audit(
+        feed,
+        station,
+        0.5,
+        {**AP_SAFE, "WPNAV_SPEED": 1000.0, "WPNAV_SPEED_UP": 500.0, "WPNAV_SPEED_DN": 150.0},
+    )
+    feed.poll(0.75)
+    assert [(c[2], c[3], c[6]) for c in station.of("set_param", v)] == [
+        ("WPNAV_SPEED_DN", 400.0, 150.0)
+    ]
+    feed.emit(ParamSetConfirmed(0, 1, 1.0, "WPNAV_SPEED_DN", 400.0, 150.0, REAL32))
+    feed.poll(1.25)
+    assert op.phase == "launch" and op.limit_warnings == []
+
+
+def test_px4_descent_rate_parameter():
+    assert limits_mod.limit_params(PX4, 10.0, 5.0, 4.0)["MPC_Z_VEL_MAX_DN"] == 4.0
+    assert "MPC_Z_VEL_MAX_DN" not in limits_mod.limit_params(PX4, 10.0, 5.0)
+    assert limits_mod.limit_writes(PX4, {"MPC_Z_VEL_MAX_DN": 1.5}, 10.0, 5.0, 4.0) == [
+        ("MPC_Z_VEL_MAX_DN", 4.0)
+    ]

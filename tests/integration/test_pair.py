@@ -298,7 +298,7 @@ def test_launch_waits_for_vehicles_that_are_not_ready_to_arm(personality, ready_
     assert all("not ready" in text or "denied" in text for _, text in f.op.prearm.values())
     # The run started with the fleet up, not on a timeout with vehicles on the ground.
     snap = f.op.fleet.snapshot(f.ether.now_s)
-    alt = f.op._alt_above_home_m(snap)
+    alt = f.op._height_m(snap)
     target = layer_alt_m(np.arange(snap.n_vehicles), f.op.control)
     assert (alt >= cfg.climbed_alt_frac * target).mean() >= cfg.wave_climbed_frac
     assert f.op.mission_t0_s > max(armed.values())
