@@ -77,6 +77,7 @@ class RotationSetup:
             "min_battery_in_air": round(self.min_battery_in_air, 4),
             "planned_at_start": self.policy.flying,
             "reboots": self.counters["reboots"],
+            "recovered": s["recovered"],
             "in_air": s["in_air"],
             "ready": s["ready"],
             "on_pads": s["on_pads"],
