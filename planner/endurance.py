@@ -132,6 +132,11 @@ class EnduranceParams:
     """Time the spare holds the relay's position, networked, before the relay leaves."""
     launch_s: float = 15.0
     """Time from the launch decision until a spare leaves the ground (arm, take off)."""
+    land_s: float = 0.0
+    """Time from over the pad to disarmed on it (the firmware's landing descent): 0 in the
+    paper's 2-D world, which has no altitude; the station sets it from its flight layers
+    (docs/design/endurance.md §7). It counts in the reserve (the charge to fly home *and land*),
+    the turnaround and the cycle."""
     hold_radius_m: float = 10.0
     """A spare within this distance of the relay's position holds it."""
     slack_s: float = 30.0
@@ -146,7 +151,7 @@ class EnduranceParams:
         for name in ("return_speed_m_s", "hold_radius_m"):
             if not getattr(self, name) > 0:
                 problems.append(f"{name} must be > 0, got {getattr(self, name)}")
-        for name in ("handover_s", "launch_s", "slack_s"):
+        for name in ("handover_s", "launch_s", "land_s", "slack_s"):
             if not getattr(self, name) >= 0:
                 problems.append(f"{name} must be >= 0, got {getattr(self, name)}")
         if problems:
@@ -158,11 +163,11 @@ def reserve_frac(
 ) -> FloatArray:
     """(N,) the battery fraction at which each drone must start home.
 
-    Enough to fly ``dist_home_m`` at ``return_speed_m_s`` draining ``drain_per_s`` and land with
-    ``critical_frac + margin_frac`` left.
+    Enough to fly ``dist_home_m`` at ``return_speed_m_s`` draining ``drain_per_s``, descend to the
+    pad (``land_s``) and land with ``critical_frac + margin_frac`` left.
     """
     fly_home_frac = np.asarray(drain_per_s, float) * (
-        np.asarray(dist_home_m, float) / params.return_speed_m_s
+        np.asarray(dist_home_m, float) / params.return_speed_m_s + params.land_s
     )
     return params.critical_frac + params.margin_frac + fly_home_frac
 
@@ -238,10 +243,16 @@ def plan_fleet(
     v = params.return_speed_m_s
     transit_s = params.launch_s + mean_dist_m / v
     usable_s = endurance_s * (1.0 - params.critical_frac - params.margin_frac)
-    # Useful time per battery: the usable charge less the way out and back, the handover and the
-    # lead the policy takes (a relay is relieved up to ``slack_s`` before its reserve).
+    # Useful time per battery: the usable charge less the way out and back, the landing, the
+    # handover and the lead the policy takes (a relay is relieved up to ``slack_s`` before its
+    # reserve).
     sortie_s = (
-        usable_s - 2.0 * (mean_dist_m / v) - params.launch_s - params.handover_s - params.slack_s
+        usable_s
+        - 2.0 * (mean_dist_m / v)
+        - params.launch_s
+        - params.land_s
+        - params.handover_s
+        - params.slack_s
     )
     if sortie_s <= 0:
         raise ValueError(
@@ -250,7 +261,7 @@ def plan_fleet(
         )
     if horizon_s <= sortie_s:
         return FleetPlan(n_drones, 0, sortie_s, "none")
-    ground_s = base.swap_time_s + params.handover_s + transit_s + mean_dist_m / v
+    ground_s = base.swap_time_s + params.handover_s + transit_s + mean_dist_m / v + params.land_s
     cycle_s = sortie_s + ground_s
     k_fleet = math.floor(n_drones * sortie_s / cycle_s)
     # Pads busy at most PAD_UTILISATION of the time: a queue at full use grows without bound.
@@ -283,7 +294,8 @@ class RotationEvent:
     """'launch' (spare sent to relay ``other``), 'handover' (spare ``drone`` took ``other``'s
     place), 'return' (replaced), 'forced_return' (out of reserve without a replacement),
     'landed', 'swap_start', 'swap_done', 'no_spare', 'no_battery', 'pad_wait',
-    'lost', 'failsafe_return' (the firmware's low-battery RTL, :meth:`RotationPolicy.failsafe`)
+    'lost', 'failsafe_return' (the firmware's low-battery RTL, :meth:`RotationPolicy.failsafe`),
+    'recovered' (a lost drone back at the base, charged, :meth:`RotationPolicy.recovered`)
     and, without rotation, 'relaunch'."""
     drone: int
     other: int = -1
@@ -363,6 +375,7 @@ class RotationPolicy:
             "failsafe_returns": 0,
             "swaps": 0,
             "no_spare": 0,
+            "recovered": 0,
         }
         self._reported = set()
 
@@ -558,7 +571,7 @@ class RotationPolicy:
 
         No later than its reserve, and no two reliefs closer than the base can turn a spare
         around: ``spacing = max(turnaround / spares in circulation, swap_time / pads)``, where a
-        spare's turnaround is its way out and back, the handover and a swap. Relays whose reserves
+        spare's turnaround is its way out and back, the handover, the landing and a swap. Relays whose reserves
         fall due together (the first battery of a fleet that took off together) are relieved
         early, one spacing apart, instead of all at once with too few spares: the backward pass
         ``r_k = min(t_res_k, r_(k+1) - spacing)`` over the relays sorted by reserve, as a reversed
@@ -574,6 +587,7 @@ class RotationPolicy:
             p.launch_s
             + 2.0 * float(dist_m[idx].mean()) / p.return_speed_m_s
             + p.handover_s
+            + p.land_s
             + self.base.swap_time_s
         )
         spacing_s = max(turnaround_s / max(1, circulating), self.base.swap_time_s / self.base.pads)
@@ -601,6 +615,16 @@ class RotationPolicy:
             self.phase[i] = RETURNING
         self.counters["failsafe_returns"] += 1
         return RotationEvent(now_s, "failsafe_return", int(i))
+
+    def recovered(self, i: int, now_s: float) -> RotationEvent:
+        """Drone ``i``, once lost, is back on the ground at the base, powered up and charged (a
+        power-cycled vehicle is the same vehicle): a spare again. Returns the event to log
+        ('recovered'). Its battery is not taken from the shelf: the policy did not swap it."""
+        if self.phase[i] != LOST:
+            raise ValueError(f"drone {i} is not lost (phase {PHASES[int(self.phase[i])]})")
+        self.phase[i] = READY
+        self.counters["recovered"] += 1
+        return RotationEvent(now_s, "recovered", int(i))
 
     # -- the base's batteries --------------------------------------------------------------
 

@@ -861,6 +861,25 @@ TABLE: dict[str, Case] = {
         ),
         timeout=600,
     ),
+    "phireman fly wildfire_2h --seed 1 --speedup 50 --apply-failsafes": Case(
+        # The first 60 s of the two hours (the whole flight is docs/results/endurance.md's).
+        rewrite=(
+            (r"--speedup 50", "--duration-s 60 --speedup 50"),
+            (r"$", " --no-wait --out runs"),
+        ),
+        check=lambda c: c.has(r"TU1/TU2 as the station saw them", r"BATT_FS_LOW_ACT"),
+        timeout=600,
+    ),
+    "phireman fly wildfire_2h --personality px4 --seed 1 --speedup 50 --apply-failsafes": Case(
+        # PX4's battery failsafe applied (COM_LOW_BAT_ACT 0 -> 3) and the first 60 s flown.
+        rewrite=(
+            (r"--speedup 50", "--duration-s 60 --speedup 50"),
+            (r"$", " --no-wait --out runs"),
+        ),
+        check=lambda c: c.has(r"TU1/TU2 as the station saw them", r"COM_LOW_BAT_ACT"),
+        timeout=600,
+    ),
+    ".venv/bin/python bench/bench_endurance_flight.py": Case(kind="bench"),
     "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),
     "phireman sweep --grid custom --size XS --attrition 0 1% --method phireman dccrs --seeds 3 --chunk 1 --scheduler sched.json --store cluster.sqlite": SKIP(  # noqa: E501
         "needs a Dask scheduler and workers started first: run with them, a worker killed "

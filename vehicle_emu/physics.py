@@ -81,6 +81,13 @@ class Physics:
         self.climb_rate_m_s = np.full(n, float(climb_rate_m_s))
         self.descent_rate_m_s = np.full(n, float(descent_rate_m_s))
         self.land_speed_m_s = np.full(n, 0.5)
+        self.land_slow_alt_m = np.full(n, np.inf)
+        """(N,) float64 — above this height over the ground a landing descends at
+        ``descent_rate_m_s`` (ArduCopter LAND_ALT_LOW, PX4 MPC_LAND_ALT1), metres; inf: the whole
+        descent at ``land_speed_m_s``."""
+        self.land_crawl_alt_m = np.full(n, np.inf)
+        """(N,) float64 — below this height a landing descends at ``land_speed_m_s`` (PX4
+        MPC_LAND_ALT2; ArduCopter: LAND_ALT_LOW too), linear in between, metres."""
         self.armed = np.zeros(n, dtype=bool)
         self.alive = np.ones(n, dtype=bool)
         self.landed = np.ones(n, dtype=bool)
@@ -156,8 +163,25 @@ class Physics:
         is_vel = self.ctrl == CTRL_VEL
         v_cmd[is_vel] = self.target_vel_ned_m_s[is_vel]
         is_land = self.ctrl == CTRL_LAND
-        v_cmd[is_land, DOWN] = self.land_speed_m_s[is_land]
+        if is_land.any():
+            v_cmd[is_land, DOWN] = self.land_descent_m_s()[is_land]
         return v_cmd
+
+    def land_descent_m_s(self) -> np.ndarray:
+        """(N,) the landing descent speed at each vehicle's height over the ground, m/s (down).
+
+        Fast down to the slow-down height, then the landing speed: ArduCopter
+        ``Mode::land_run_vertical_control`` (ArduCopter/mode.cpp) descends at WPNAV_SPEED_DN
+        (LAND_SPEED_HIGH 0) until LAND_ALT_LOW, then at LAND_SPEED; PX4
+        ``FlightTaskAuto::_prepareLandSetpoints`` (src/modules/flight_mode_manager/tasks/Auto/
+        FlightTaskAuto.cpp) interpolates from the descent limit at MPC_LAND_ALT1 to
+        MPC_LAND_SPEED at MPC_LAND_ALT2."""
+        h = self.ground_down_m - self.pos_ned_m[:, DOWN]
+        lo, hi = self.land_crawl_alt_m, self.land_slow_alt_m
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ramp = np.where(h >= hi, 1.0, np.where(h <= lo, 0.0, (h - lo) / (hi - lo)))
+        fast = np.maximum(self.descent_rate_m_s, self.land_speed_m_s)
+        return self.land_speed_m_s + ramp * (fast - self.land_speed_m_s)
 
     def _saturate_inplace(self, v: np.ndarray, descent_limit: np.ndarray) -> None:
         speed_h = np.hypot(v[:, NORTH], v[:, EAST])

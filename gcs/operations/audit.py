@@ -120,7 +120,10 @@ class AuditStep(OperatorState):
     def _poll_audit(self, snap: FleetSnapshot, now_s: float) -> None:
         """Wait for the reads (in rounds), fix (``apply_failsafes``), audit, write the limits;
         then launch, or refuse."""
-        in_time = now_s - self._phase_since_s < self.config.audit_timeout_s
+        # The reads' deadline runs from the last answer: 50 PX4 vehicles have some 850
+        # parameters to read, 16 in flight per link, more than a minute while every read is
+        # answered; a link that keeps answering is not a dead one.
+        in_time = now_s - max(self._phase_since_s, self._last_param_s) < self.config.audit_timeout_s
         if self._params_pending and in_time:
             # Optional parameters (absent on some firmware versions, gcs/audit.py
             # OPTIONAL_PARAMS) are not waited for once every other read has been answered for

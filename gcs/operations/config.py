@@ -36,6 +36,8 @@ class OperationsConfig:
     audit: bool = True
     override_audit: bool = False
     audit_timeout_s: float = 60.0
+    """The audit's reads give up this long after the audit began or after the last parameter
+    answered, whichever is later; writes are confirmed within this of being sent."""
     audit_rounds: int = 3
     """Parameter reads that timed out are requested again, up to this many rounds in all."""
     apply_failsafes: bool = False

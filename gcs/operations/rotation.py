@@ -21,7 +21,9 @@ world drives it in process (``mission/experiments/endurance.py``):
   the base is not lost while it is silent;
 * the firmware's own low-battery RTL or LAND (a mode change the station did not command, on a
   vehicle whose battery is low) -> :meth:`planner.endurance.RotationPolicy.failsafe`; a vehicle
-  that lands away from the base is gone for the mission (counted ``landed_away``).
+  that lands away from the base is gone for the mission (counted ``landed_away``);
+* a lost vehicle (not heard, or landed away) heard again on its pad, disarmed and full, is the
+  same vehicle back: a spare again (:meth:`planner.endurance.RotationPolicy.recovered`).
 
 A vehicle on the ground at the base may go silent (its battery is out): it is not lost. Without a
 :class:`RotationSetup` nothing here runs and the operator flies exactly as before.
@@ -186,6 +188,20 @@ class RotationStep(OperatorState):
         dist_home = np.hypot(*(pos - home).T)
         recent = np.zeros(nd, bool)
         recent[:m] = now_s - snap.last_heard_s[:m] <= rot.lost_after_s
+        batt = np.full(nd, np.nan)
+        if snap.battery_frac is not None:
+            batt[:m] = snap.battery_frac[:m]
+        # A lost vehicle heard again on its pad, disarmed and full, is the same vehicle back
+        # (powered up again, its pack charged): a spare (docs/design/endurance.md §7).
+        back = (ph == LOST) & heard & recent & ~armed & (dist_home <= rot.land_radius_m)
+        back &= batt >= rot.full_frac
+        for i in np.flatnonzero(back).tolist():
+            rot.gone.discard(i)
+            rot.landed_s.pop(i, None)
+            rot.landed_frac.pop(i, None)
+            rot.rebooted_home.discard(i)
+            rot.events.append(pol.recovered(i, now_s))
+            log.info("row %d heard again on its pad, charged: a spare again", i)
         on_ground = np.isin(ph, _GROUND)
         alive = np.zeros(nd, bool)
         # On the ground at the base a vehicle may be silent: its battery is out for a swap. So may
@@ -207,9 +223,6 @@ class RotationStep(OperatorState):
                 )
         if rot.gone:
             alive[list(rot.gone)] = False
-        batt = np.full(nd, np.nan)
-        if snap.battery_frac is not None:
-            batt[:m] = snap.battery_frac[:m]
         est = np.zeros(nd)
         if snap.drain_per_s is not None:
             est[:m] = np.nan_to_num(snap.drain_per_s[:m], nan=0.0)

@@ -192,6 +192,7 @@ class RotationSetup:
             "reboots": self.counters["reboots"],
             "swap_confirm": self.swap_confirm,
             "swaps_confirmed_by_crew": self.counters["swaps_confirmed_by_crew"],
+            "recovered": s["recovered"],
             "in_air": s["in_air"],
             "ready": s["ready"],
             "on_pads": s["on_pads"],

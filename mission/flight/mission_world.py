@@ -256,6 +256,7 @@ class MissionWorld:
         self._step = 0
         self._stopped = False
         self._doomed = np.zeros(swarm.n, dtype=bool)
+        self._ground_safe = mission.endurance.battery is not None
         self.losses: list[tuple[float, int, str]] = []
         swarm.task_pos_fn = self._task_pos
         # Sample 0 was recorded without tasks; restart the truth log with tasks from here on.
@@ -302,7 +303,13 @@ class MissionWorld:
             t = self._step
             pos = self.swarm.physics.pos_ned_m[:, :2]
             p = self.scenario.loss_probability(t * dt, pos)
-            hit = self.swarm.physics.alive & ~self._doomed & (u[t] < p)
+            ph = self.swarm.physics
+            hit = ph.alive & ~self._doomed & (u[t] < p)
+            if self._ground_safe:
+                # With batteries, a drone on the ground (a spare, one on a pad) is out of the
+                # mesh and safe from attrition, as in the paper's world with endurance
+                # (mission.experiments.world_loop, docs/design/endurance.md §5).
+                hit &= ph.armed & ~ph.landed
             for i in np.flatnonzero(hit).tolist():
                 self._doomed[i] = True
                 self.swarm.attrition.add_kill(self.t0_s + (t + 0.5) * dt, i)

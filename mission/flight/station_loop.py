@@ -26,6 +26,7 @@ from gcs.fleet import FleetView, MissionOrigin
 from gcs.link import StationConfig
 from gcs.operations import OperationsConfig, Operator, TickRecord
 from gcs.operations.rotation import RotationSetup
+from planner.endurance import EnduranceParams
 from gcs.rally import RallyConfig, RallyKeeper
 from gcs.station import Station
 from gcs.tak import CrewMatch, TakCrews
@@ -335,6 +336,20 @@ def rotation_fleet_size(
     return len(scenario.spawn_ne_m)
 
 
+#: The firmware's landing descent (ArduCopter defaults, ``Mode::land_run_vertical_control`` in
+#: ArduCopter/mode.cpp): WPNAV_SPEED_DN 150 cm/s down to LAND_ALT_LOW 1000 cm, then LAND_SPEED
+#: 50 cm/s. PX4's RTL returns higher (RTL_RETURN_ALT 60 m) and lands faster below it
+#: (MPC_Z_VEL_MAX_DN 1.5 m/s to MPC_LAND_ALT1 10 m, MPC_LAND_SPEED 0.7 m/s below MPC_LAND_ALT2
+#: 5 m): from the flight layers of the shipped missions the two take about as long.
+LANDING_FAST_M_S, LANDING_SLOW_ALT_M, LANDING_SLOW_M_S = 1.5, 10.0, 0.5
+
+
+def landing_descent_s(alt_m: float) -> float:
+    """Seconds from ``alt_m`` above the pad to the ground at the firmware's landing speeds."""
+    fast_m = max(0.0, alt_m - LANDING_SLOW_ALT_M)
+    return fast_m / LANDING_FAST_M_S + min(alt_m, LANDING_SLOW_ALT_M) / LANDING_SLOW_M_S
+
+
 def rotation_setup(
     mission: Mission,
     scenario: MissionScenario,
@@ -354,9 +369,15 @@ def rotation_setup(
     tasks = np.asarray(scenario.task_pos_m(0.0), dtype=float).reshape(-1, 2)
     dist = np.hypot(*tasks[np.isfinite(tasks).all(axis=1)].T)
     mean_post_m = 0.5 * float(dist.mean()) if dist.size else 0.0
-    policy = end.policy(
-        n, mission.run.duration_s, mission.vehicles.limits.max_speed_m_s, mean_post_m
-    )
+    lim = mission.vehicles.limits
+    top_m = lim.cruise_alt_m + (lim.n_layers - 1) * lim.layer_spacing_m
+    # What the paper's 2-D world does not fly and the vehicles do: the climb to the flight layer
+    # after take-off, and the landing descent at the pad (docs/design/endurance.md §7).
+    flight = {
+        "launch_s": EnduranceParams().launch_s + top_m / lim.climb_rate_m_s,
+        "land_s": landing_descent_s(top_m),
+    }
+    policy = end.policy(n, mission.run.duration_s, lim.max_speed_m_s, mean_post_m, flight=flight)
     log.info("rotation: %d of %d fly at once", policy.flying, n)
     return RotationSetup(
         policy,

@@ -1047,6 +1047,7 @@ class EnduranceSpec(_Section):
         max_speed_m_s: float,
         mean_post_dist_m: float,
         rotate: bool | None = None,
+        flight: dict[str, float] | None = None,
     ) -> Any:
         """The :class:`planner.endurance.RotationPolicy` of this section (the one construction the
         in-process run and the station share; needs ``battery``).
@@ -1055,13 +1056,17 @@ class EnduranceSpec(_Section):
         action, its low-battery return to launch (``battery.low_frac``): below it the autopilot,
         not the plan, decides. With rotation, ``plan_fleet`` decides how many fly
         (``mean_post_dist_m``: the typical way out to a relay's post); without, all fly.
-        ``rotate`` None: this section's ``rotation``."""
+        ``rotate`` None: this section's ``rotation``. ``flight``: settings the backend knows of
+        its vehicles (the station's take-off climb and landing descent,
+        :func:`mission.flight.station_loop.rotation_setup`), under the mission's own ``params``."""
         from planner.endurance import EnduranceParams, RotationPolicy, plan_fleet
 
         assert self.battery is not None  # callers check: no policy for endless batteries
         rotate = self.rotation if rotate is None else rotate
         params = EnduranceParams(
-            critical_frac=self.battery.low_frac, return_speed_m_s=max_speed_m_s, **self.params
+            critical_frac=self.battery.low_frac,
+            return_speed_m_s=max_speed_m_s,
+            **{**(flight or {}), **self.params},
         )
         base = self.base.resources()
         flying = n_drones

@@ -541,6 +541,22 @@ def test_audit_timeout_audits_what_was_read():
     assert any(f.param == "FS_GCS_ENABLE" for f in op.audit_report.vehicles[0].blocking)
 
 
+def test_audit_reads_still_answered_past_the_timeout_are_waited_for():
+    """A large fleet's reads take longer than the timeout while every read is answered: the
+    deadline runs from the last answer, and the audit ends when the last one comes."""
+    op, station, feed, (v,) = make(1, audit=True, audit_timeout_s=20.0)
+    feed.poll(0.0)
+    names = list(AP_SAFE)
+    t = 0.0
+    for k, name in enumerate(names):  # one answer every 15 s: 60 s for the five
+        t = 15.0 * (k + 1)
+        feed.run(t - 14.5, t - 0.5, 0.5)
+        assert op.phase == "audit", name
+        feed.param(v, name, AP_SAFE[name], t)
+    feed.run(t, t + 2.0, 0.5, until=lambda op: op.phase != "audit")
+    assert op.phase == "launch" and op.audit_report.cleared_to_fly
+
+
 def test_apply_failsafes_writes_confirms_by_echo_and_reaudits():
     op, station, feed, (v,) = make(1, audit=True, apply_failsafes=True)
     feed.poll(0.0)

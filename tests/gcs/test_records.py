@@ -132,3 +132,36 @@ def test_order_is_kept_across_flushes(tmp_path):
     raw = path.read_bytes()
     stamps = [int.from_bytes(raw[k : k + 8], "big") for k in range(0, len(raw), 8)]
     assert stamps == [i * 1_000_000 for i in range(20000)]
+
+
+def test_jsonable_matches_its_reference_on_events_and_nested_values():
+    import dataclasses
+    import enum
+
+    import numpy as np
+
+    from gcs.events import BatteryReceived, ModeChanged
+    from gcs.records import _jsonable, _jsonable_reference
+
+    class Kind(enum.IntEnum):
+        A = 3
+
+    @dataclasses.dataclass
+    class Nested:
+        xs: tuple
+        d: dict
+        arr: np.ndarray
+
+    values = [
+        BatteryReceived(0, 7, 12.5, "SYS_STATUS", 0.42, 11.1, None),
+        BatteryReceived(1, 2, 3.0, "BATTERY_STATUS", None, None, 2.0, 100.0, 60.0, 2),
+        ModeChanged(0, 3, 1.0, 4, "GUIDED", "STABILIZE"),
+        Nested(
+            (1, float("-inf"), "x", None, True), {1: np.float64(2.5), "k": [np.int64(4)]}, np.eye(2)
+        ),
+        [np.float64("nan"), Kind.A, {"a": (1.5, 2)}],
+        np.float32(1.25),
+    ]
+    for v in values:
+        assert _jsonable(v) == _jsonable_reference(v)
+        assert json.dumps(_jsonable(v)) == json.dumps(_jsonable_reference(v))

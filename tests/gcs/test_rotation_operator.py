@@ -421,3 +421,56 @@ def test_firmware_low_battery_smart_rtl_is_a_failsafe_left_to_fly_home():
     assert rot.policy.phase[0] == RETURNING
     assert not station.of("engage_guided", relay, since_s=t0)  # not reclaimed
     assert not station.of("rtl", relay, since_s=t0)  # left on its own way home
+
+
+def _lose_relay_in_flight(op, feed, relay, spare, rot):
+    """The relay flies its post and falls silent out there: lost to the rotation."""
+    feed.poll(0.0)
+    _battery(feed, relay, 0.5, 0.9)
+    feed.fly(relay, 1.0)
+    feed.v[relay]["north_m"] = POST_N_M
+    batt = {relay: 0.9, spare: 1.0}
+    t = _run(feed, 1.0, 10.0, batt)
+    assert rot.policy.phase[0] == AIR
+    last_heard = t - 0.5
+    feed.silent.add(relay)
+    t = _run(feed, t, t + rot.lost_after_s + 5.0, batt)
+    feed.emit(VehicleLost(relay[0], relay[1], t, last_heard))
+    t = _run(feed, t, t + 2.0, batt)
+    assert rot.policy.phase[0] == LOST
+    return t, batt, last_heard
+
+
+def _heard_on_its_pad(feed, relay, t: float, last_heard: float) -> None:
+    """The crew brought it back: powered up on its pad, disarmed."""
+    feed.silent.discard(relay)
+    feed.v[relay]["north_m"] = 0.5
+    feed.emit(VehicleRecovered(relay[0], relay[1], t, t - last_heard, STABILIZE, "STABILIZE"))
+    feed.v[relay]["mode"] = STABILIZE
+    feed.emit(ModeChanged(relay[0], relay[1], t, STABILIZE, "STABILIZE", "GUIDED"))
+    feed.alt(relay, t, 0.0)
+    feed.armed(relay, t, False)
+    feed.emit(VehicleRebooted(relay[0], relay[1], t, last_heard, 0.5))
+
+
+def test_a_lost_vehicle_heard_again_on_its_pad_full_is_a_spare_again():
+    op, station, planner, feed, (relay, spare), rot = _make()
+    t, batt, last_heard = _lose_relay_in_flight(op, feed, relay, spare, rot)
+    t = _run(feed, t, t + 100.0, batt)
+    assert rot.policy.phase[0] == LOST  # silent: still lost
+    _heard_on_its_pad(feed, relay, t, last_heard)
+    batt[relay] = 1.0
+    t = _run(feed, t, t + 3.0, batt)
+    assert rot.policy.phase[0] == READY
+    assert op.rotation_summary()["recovered"] == 1
+    assert "recovered" in [e.kind for e in rot.events]
+
+
+def test_a_lost_vehicle_heard_again_but_not_full_stays_lost():
+    op, station, planner, feed, (relay, spare), rot = _make()
+    t, batt, last_heard = _lose_relay_in_flight(op, feed, relay, spare, rot)
+    _heard_on_its_pad(feed, relay, t, last_heard)
+    batt[relay] = 0.4  # the same pack: not a charged vehicle
+    t = _run(feed, t, t + 3.0, batt)
+    assert rot.policy.phase[0] == LOST
+    assert op.rotation_summary()["recovered"] == 0

@@ -94,3 +94,30 @@ def test_swap_confirm_goes_to_the_station_and_needs_batteries(wildfire):
     bare = with_battery_options(wildfire, FlyOptions(battery="unlimited"))
     with pytest.raises(RunnerError, match="--swap-confirm applies to a mission with batteries"):
         with_battery_options(bare, FlyOptions(swap_confirm="manual"))
+
+
+def test_the_station_plans_the_climb_and_the_landing_the_paper_world_does_not(wildfire):
+    """rotation_setup: launch_s gains the climb to the top layer at the mission's climb rate,
+    land_s is the firmware's two-stage descent from it; the mission's own params win; fewer fly
+    than in process (a longer cycle), and the in-process policy is left as it was."""
+    import dataclasses
+
+    from mission.flight.station_loop import landing_descent_s
+    from planner.endurance import EnduranceParams
+
+    m = with_battery_options(wildfire, FlyOptions())
+    scn = mission_scenario(m)
+    rot = rotation_setup(m, scn)
+    lim = m.vehicles.limits
+    top = lim.cruise_alt_m + (lim.n_layers - 1) * lim.layer_spacing_m
+    p = rot.policy.params
+    assert p.launch_s == pytest.approx(EnduranceParams().launch_s + top / lim.climb_rate_m_s)
+    assert p.land_s == pytest.approx(landing_descent_s(top))
+    assert landing_descent_s(50.0) == pytest.approx(40.0 / 1.5 + 10.0 / 0.5)
+    assert landing_descent_s(6.0) == pytest.approx(6.0 / 0.5)
+    in_process = m.endurance.policy(rot.policy.n_drones, m.run.duration_s, lim.max_speed_m_s, 100.0)
+    assert in_process.params.land_s == 0.0
+    assert rot.policy.flying < in_process.flying
+    own = dataclasses.replace(m.endurance, params={"land_s": 5.0})
+    rot_own = rotation_setup(dataclasses.replace(m, endurance=own), scn)
+    assert rot_own.policy.params.land_s == 5.0

@@ -89,3 +89,22 @@ def test_run_world_reports_every_loss_once_in_order():
     assert np.array_equal(run.alive_count, rec.alive[:-1].sum(1))
     assert np.array_equal(run.active_count, rec.active[:-1].sum(1))
     assert rec.connected is run.connected and rec.trees == {}
+
+
+def test_with_batteries_the_emulators_drones_on_the_ground_are_safe_from_attrition():
+    """As in the paper's world with endurance (world_loop: grounded drones, p_loss 0): a spare on
+    the ground is never drawn; without batteries every live vehicle is, as before."""
+    batteries = "\nendurance: {battery: {endurance_s: 1500}}\n"
+    for text, ground_safe in ((MISSION, False), (MISSION + batteries, True)):
+        m = loads_mission(text.replace("rate_per_s: 0.02", "rate_per_s: 5.0"))
+        scn = mission_scenario(m, 7)
+        swarm = build_swarm(m, scn, seed=7)
+        world = MissionWorld(m, scn, swarm)
+        ph = swarm.physics
+        ph.armed[:] = [True, True, False, False, False]
+        ph.landed[:] = [False, False, True, True, True]
+        world.start(0.0)
+        world.poll(0.9)
+        lost = {i for _, i, cause in world.losses if cause == "attrition"}
+        assert {0, 1} <= lost  # certain losses (rate 5 per second) in the air
+        assert bool(lost & {2, 4}) is not ground_safe  # 3 is scripted

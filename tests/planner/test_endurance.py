@@ -10,6 +10,7 @@ import pytest
 from planner.endurance import (
     AIR,
     INBOUND,
+    LOST,
     NO_BATTERY,
     READY,
     RETURNING,
@@ -257,3 +258,60 @@ def test_two_hours_in_the_toy_world_never_starve_and_never_reach_critical(seed_k
     lost = len(seed_kill) if seed_kill else 0
     # The plan keeps its size (less the drones lost) except for one tick at a handover.
     assert min_planned >= plan.flying - lost - 1
+
+
+def test_the_landing_counts_in_the_reserve_and_shortens_the_sortie():
+    p0 = EnduranceParams(critical_frac=0.1, margin_frac=0.05, return_speed_m_s=5.0)
+    p1 = EnduranceParams(critical_frac=0.1, margin_frac=0.05, return_speed_m_s=5.0, land_s=40.0)
+    d, r = np.array([500.0]), np.array([1e-3])
+    assert reserve_frac(d, r, p1)[0] == pytest.approx(reserve_frac(d, r, p0)[0] + 40e-3)
+    base = BaseResources(pads=4, swap_time_s=60.0, spare_batteries=500, chargers=50)
+    f0 = plan_fleet(50, 1500.0, 2400.0, base, p0, 150.0)
+    f1 = plan_fleet(50, 1500.0, 2400.0, base, p1, 150.0)
+    assert f1.sortie_s == pytest.approx(f0.sortie_s - 40.0)
+    assert f0.limit == f1.limit == "fleet"
+    assert f1.flying < f0.flying  # a longer cycle on the ground, fewer posts
+
+
+def test_a_slower_landing_spaces_the_first_reliefs_further_apart():
+    def first_launch_s(land_s: float) -> float:
+        p = EnduranceParams(critical_frac=0.2, return_speed_m_s=7.5, land_s=land_s)
+        pol = RotationPolicy(12, 10, BaseResources(), p)
+        pos = np.zeros((12, 2))
+        pos[:10, 0] = 150.0
+        batt, t = np.ones(12), 0.0
+        while t < 2000.0:
+            out = pol.step(
+                t,
+                pos,
+                np.ones(12, bool),
+                batt,
+                np.full(12, 1 / 1500),
+                ~np.zeros(12, bool),
+                np.zeros(12, bool),
+            )
+            if any(e.kind == "launch" for e in out.events):
+                return t
+            batt[:10] -= 1 / 1500
+            t += 1.0
+        raise AssertionError("no launch")
+
+    assert first_launch_s(60.0) < first_launch_s(0.0)
+
+
+def test_a_lost_drone_recovered_is_a_spare_again_and_only_a_lost_one():
+    pol = RotationPolicy(3, 2, BaseResources(), EnduranceParams())
+    alive = np.array([True, False, True])
+    pol.step(0.0, np.zeros((3, 2)), alive, np.ones(3), np.full(3, 1e-4), alive, ~alive)
+    assert pol.phase[1] == LOST
+    with pytest.raises(ValueError):
+        pol.recovered(0, 1.0)
+    ev = pol.recovered(1, 2.0)
+    assert (ev.kind, ev.drone, ev.t_s) == ("recovered", 1, 2.0)
+    assert pol.phase[1] == READY and pol.summary()["recovered"] == 1
+    stock = pol.stock
+    out = pol.step(
+        3.0, np.zeros((3, 2)), np.ones(3, bool), np.ones(3), np.full(3, 1e-4), alive, ~alive
+    )
+    assert pol.phase[1] == READY and "lost" not in [e.kind for e in out.events]
+    assert pol.stock == stock  # its battery did not come from the shelf

@@ -295,6 +295,8 @@ class ArduPilot(Personality):
         ph.climb_rate_m_s[i] = P["WPNAV_SPEED_UP"] / 100.0
         ph.descent_rate_m_s[i] = P["WPNAV_SPEED_DN"] / 100.0
         ph.land_speed_m_s[i] = P["LAND_SPEED"] / 100.0
+        # mode.cpp Mode::land_run_vertical_control: WPNAV_SPEED_DN down to LAND_ALT_LOW.
+        ph.land_slow_alt_m[i] = ph.land_crawl_alt_m[i] = P["LAND_ALT_LOW"] / 100.0
         core._rtl_alt_m = P["RTL_ALT"] / 100.0
         final = P["RTL_ALT_FINAL"] / 100.0
         core._rtl_hover_alt_m = final if final > 0 else None

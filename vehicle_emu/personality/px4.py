@@ -527,5 +527,9 @@ class PX4(Personality):
         ph.climb_rate_m_s[i] = P["MPC_Z_VEL_MAX_UP"]
         ph.descent_rate_m_s[i] = P["MPC_Z_VEL_MAX_DN"]
         ph.land_speed_m_s[i] = P["MPC_LAND_SPEED"]
+        # FlightTaskAuto::_prepareLandSetpoints: the descent limit above MPC_LAND_ALT1, slowing
+        # linearly to MPC_LAND_SPEED at MPC_LAND_ALT2.
+        ph.land_slow_alt_m[i] = P["MPC_LAND_ALT1"]
+        ph.land_crawl_alt_m[i] = P["MPC_LAND_ALT2"]
         core._rtl_alt_m = P["RTL_RETURN_ALT"]
         core._rtl_hover_alt_m = P["RTL_DESCEND_ALT"] if P["RTL_LAND_DELAY"] < 0 else None
