@@ -149,8 +149,8 @@ def fly_options(opts, args):
 
 def add_replay_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group(
-        "live page and GIS export of a run (docs/live_view.md); an in-process run "
-        "('phireman sim --mission M --out DIR') is served, not exported"
+        "live page and GIS export of a run (docs/live_view.md)",
+        "an in-process run ('phireman sim --mission M --out DIR') is served, not exported",
     )
     g.add_argument(
         "--serve",
