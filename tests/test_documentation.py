@@ -1238,6 +1238,7 @@ TABLE: dict[str, Case] = {
             ".venv/bin/python bench/bench_fly_loop.py --vehicles 500 --duration-s 150 --speedup 10",
             ".venv/bin/python bench/bench_fly_loop.py --vehicles 500 --duration-s 40 --speedup 10 --commit 7b1120f --repeat 2",  # noqa: E501
             ".venv/bin/python bench/bench_loop_identity.py --commit 7b1120f",
+            ".venv/bin/python bench/bench_fly_loop.py --vehicles 500 --duration-s 60 --speedup 5 --extras-compare --repeat 2",  # noqa: E501
             ".venv/bin/python bench/bench_fly_loop.py --speedup 10 --duration-s 40 --commit 64a57d8 --repeat 2",  # noqa: E501
             ".venv/bin/python bench/bench_emulator.py --px4 500 --telemetry batch --duration-s 10 --ticks 100",  # noqa: E501
             ".venv/bin/python bench/bench_emulator.py --px4 1000 --telemetry batch --duration-s 10 --ticks 100",  # noqa: E501
