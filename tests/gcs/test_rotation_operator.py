@@ -74,16 +74,22 @@ def _run(feed: Feed, t0: float, t1: float, batt: dict) -> float:
     return t
 
 
-def _relay_low(feed: Feed, relay, spare, spare_north_m: float | None = None):
-    """The relay at its post on 90 % for 20 s, then its battery at the launch lead (30 %) for
-    5 s: the spare is launched. Returns the time and the batteries (fed on by ``_run``)."""
+def _relay_at_post(feed: Feed, relay, spare) -> dict:
+    """The relay airborne at its post on 90 % from t = 1 s, the spare full on the ground.
+    Returns the batteries (fed on by ``_run``)."""
     feed.poll(0.0)
     _battery(feed, relay, 0.5, 0.9)
     feed.fly(relay, 1.0)
     feed.v[relay]["north_m"] = POST_N_M
+    return {relay: 0.9, spare: 1.0}
+
+
+def _relay_low(feed: Feed, relay, spare, spare_north_m: float | None = None):
+    """The relay at its post on 90 % for 20 s, then its battery at the launch lead (30 %) for
+    5 s: the spare is launched. Returns the time and the batteries (fed on by ``_run``)."""
+    batt = _relay_at_post(feed, relay, spare)
     if spare_north_m is not None:
         feed.v[spare]["north_m"] = spare_north_m
-    batt = {relay: 0.9, spare: 1.0}
     t = _run(feed, 1.0, 20.0, batt)
     batt[relay] = 0.30
     return _run(feed, t, t + 5.0, batt), batt
@@ -157,12 +163,8 @@ def test_only_the_planned_k_take_off_and_the_spares_stay_home():
 
 def test_relay_relieved_by_a_spare_sent_home_landed_rebooted_and_ready_again():
     op, station, planner, feed, (relay, spare), rot = _make()
-    feed.poll(0.0)
-    _battery(feed, relay, 0.5, 0.9)
-    feed.fly(relay, 1.0)
-    feed.v[relay]["north_m"] = POST_N_M
+    batt = _relay_at_post(feed, relay, spare)
     feed.v[spare]["north_m"] = 0.0
-    batt = {relay: 0.9, spare: 1.0}
     t = _run(feed, 1.0, 20.0, batt)
     assert rot.policy.phase.tolist() == [AIR, READY]
     assert np.isfinite(rot.time_to_reserve_s[0]) and rot.time_to_reserve_s[0] > 0
@@ -250,11 +252,7 @@ def test_pads_away_from_the_base_centre_are_home_not_landed_away():
 
 def test_firmware_low_battery_rtl_is_a_failsafe_not_a_reclaim():
     op, station, planner, feed, (relay, spare), rot = _make()
-    feed.poll(0.0)
-    _battery(feed, relay, 0.5, 0.9)
-    feed.fly(relay, 1.0)
-    feed.v[relay]["north_m"] = POST_N_M
-    batt = {relay: 0.9, spare: 1.0}
+    batt = _relay_at_post(feed, relay, spare)
     t = _run(feed, 1.0, 5.0, batt)
     # No spare launched yet; the firmware's own low-battery RTL (the station sent none).
     batt[relay] = 0.21
@@ -406,11 +404,7 @@ def test_firmware_low_battery_smart_rtl_is_a_failsafe_left_to_fly_home():
     battery failsafe with a Hold, another failsafe mode: the same path sends it home.)"""
     smart_rtl = 21  # ArduCopter mode.h Mode::Number::SMART_RTL
     op, station, planner, feed, (relay, spare), rot = _make()
-    feed.poll(0.0)
-    _battery(feed, relay, 0.5, 0.9)
-    feed.fly(relay, 1.0)
-    feed.v[relay]["north_m"] = POST_N_M
-    batt = {relay: 0.9, spare: 1.0}
+    batt = _relay_at_post(feed, relay, spare)
     t = _run(feed, 1.0, 5.0, batt)
     batt[relay] = 0.21
     _battery(feed, relay, t, 0.21)
@@ -425,11 +419,7 @@ def test_firmware_low_battery_smart_rtl_is_a_failsafe_left_to_fly_home():
 
 def _lose_relay_in_flight(op, feed, relay, spare, rot):
     """The relay flies its post and falls silent out there: lost to the rotation."""
-    feed.poll(0.0)
-    _battery(feed, relay, 0.5, 0.9)
-    feed.fly(relay, 1.0)
-    feed.v[relay]["north_m"] = POST_N_M
-    batt = {relay: 0.9, spare: 1.0}
+    batt = _relay_at_post(feed, relay, spare)
     t = _run(feed, 1.0, 10.0, batt)
     assert rot.policy.phase[0] == AIR
     last_heard = t - 0.5

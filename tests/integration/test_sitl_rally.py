@@ -20,6 +20,8 @@ from gcs.rally import (
     is_refusal_text,
     mission_event,
 )
+import sitl_gcs
+from sitl_gcs import note_vehicle
 from gcs.wire import deg_to_e7, mavlink
 from mission.flight.sitl import DEFAULT_HOMES, SitlError, SitlSpec, SitlSwarm, find_binary
 
@@ -167,33 +169,13 @@ def test_real_firmware_rtl_flies_to_the_uploaded_rally_point(tmp_path, firmware)
         pos: dict[str, float] = {}
         texts: list[tuple[int, str]] = []
 
+        def on_message(m) -> None:
+            if m.get_type() == "STATUSTEXT":
+                texts.append((m.severity, m.text))
+            note_vehicle(pos, m)
+
         def pump(seconds: float, until=None) -> bool:
-            end = time.monotonic() + seconds
-            last_hb = 0.0
-            while time.monotonic() < end:
-                if time.monotonic() - last_hb > 0.5:
-                    conn.mav.heartbeat_send(
-                        mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 4
-                    )
-                    last_hb = time.monotonic()
-                m = conn.recv_match(blocking=True, timeout=0.2)
-                if m is None:
-                    continue
-                if m.get_type() == "STATUSTEXT":
-                    texts.append((m.severity, m.text))
-                if m.get_type() == "GLOBAL_POSITION_INT" and m.get_srcComponent() == 1:
-                    pos.update(lat=m.lat * 1e-7, lon=m.lon * 1e-7, rel=m.relative_alt * 1e-3)
-                if (
-                    m.get_type() == "HEARTBEAT"
-                    and m.get_srcComponent() == 1
-                    and m.type != mavlink.MAV_TYPE_GCS
-                ):
-                    pos.update(
-                        sysid=m.get_srcSystem(), armed=bool(m.base_mode & 128), mode=m.custom_mode
-                    )
-                if until is not None and until():
-                    return True
-            return until is None
+            return sitl_gcs.pump(conn, seconds, on_message, until)
 
         try:
             assert pump(120, lambda: "sysid" in pos), "no heartbeat"

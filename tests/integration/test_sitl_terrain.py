@@ -19,6 +19,8 @@ import time
 
 import pytest
 
+import sitl_gcs
+from sitl_gcs import note_vehicle
 from gcs.terrain import TerrainServer, mission_heights
 from gcs.wire import deg_to_e7, mavlink
 from mission.flight.sitl import SitlError, SitlSpec, SitlSwarm, find_binary
@@ -61,37 +63,19 @@ def test_arducopter_loads_terrain_from_the_station_and_flies_terrain_frames(tmp_
         )
         st: dict = {"requests": 0, "data": 0}
 
+        def on_message(m) -> None:
+            kind = m.get_type()
+            if kind == "TERRAIN_REQUEST":
+                st["requests"] += 1
+                for data in server.answer(m):
+                    conn.mav.send(data)
+                    st["data"] += 1
+            elif kind == "TERRAIN_REPORT":
+                st["report"] = m
+            note_vehicle(st, m)
+
         def pump(seconds: float, until=None) -> bool:
-            end = time.monotonic() + seconds
-            last_hb = 0.0
-            while time.monotonic() < end:
-                if time.monotonic() - last_hb > 0.5:
-                    conn.mav.heartbeat_send(
-                        mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 4
-                    )
-                    last_hb = time.monotonic()
-                m = conn.recv_match(blocking=True, timeout=0.2)
-                if m is None:
-                    continue
-                kind = m.get_type()
-                if kind == "TERRAIN_REQUEST":
-                    st["requests"] += 1
-                    for data in server.answer(m):
-                        conn.mav.send(data)
-                        st["data"] += 1
-                elif kind == "TERRAIN_REPORT":
-                    st["report"] = m
-                elif kind == "GLOBAL_POSITION_INT" and m.get_srcComponent() == 1:
-                    st.update(lat=m.lat * 1e-7, lon=m.lon * 1e-7, rel=m.relative_alt * 1e-3)
-                elif (
-                    kind == "HEARTBEAT"
-                    and m.get_srcComponent() == 1
-                    and m.type != mavlink.MAV_TYPE_GCS
-                ):
-                    st.update(sysid=m.get_srcSystem(), armed=bool(m.base_mode & 128))
-                if until is not None and until():
-                    return True
-            return until is None
+            return sitl_gcs.pump(conn, seconds, on_message, until)
 
         try:
             assert pump(120, lambda: "sysid" in st), "no heartbeat"
