@@ -384,7 +384,9 @@
       idx = i; sl.value = i;
       $("replaytime").textContent = fmtT(r.t[i]);
       busy = true;
-      try { render(await (await fetch(`/api/frame?i=${i}${truthOn ? "&truth=1" : ""}`)).json()); } finally { busy = false; }
+      // Responses may come back out of order (a slider dragged, a load while the first frame is
+      // still on its way): draw a frame only if it is still the one asked for last.
+      try { const f = await (await fetch(`/api/frame?i=${i}${truthOn ? "&truth=1" : ""}`)).json(); if (i === idx) render(f); } finally { busy = false; }
     }
     window.phiremanReplay = {load, times: r.t};
     sl.oninput = () => { simT = r.t[+sl.value]; load(+sl.value); };
