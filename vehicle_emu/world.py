@@ -128,7 +128,7 @@ class TerrainFlight:
     the cruise altitude, as the station commands over a flat earth) and a flight whose straight
     path goes into the ground is a crash. 'follow' is terrain following (ArduPilot's
     ``TERRAIN_FOLLOW``): each drone holds ``alt_agl_m`` above the ground under it, climbing at
-    most ``max_climb_m`` per step, and shortens a step whose straight path would pass closer than
+    most ``max_climb_m`` and descending at most ``max_descent_m`` per step, and shortens a step whose straight path would pass closer than
     ``clearance_m`` to the ground or would end above ``ceiling_agl_m`` (docs/terrain.md §3)."""
 
     radio: TerrainRadio
@@ -141,7 +141,10 @@ class TerrainFlight:
     clearance_m: float = 10.0
     """'follow': the least height above the ground along any flight, metres."""
     max_climb_m: float = 2.5
-    """Largest altitude change in one step, metres."""
+    """Largest climb in one step, metres."""
+    max_descent_m: float | None = None
+    """Largest descent in one step, metres (the vehicles' descent speed x the step, as the
+    station limits it, docs/terrain.md §6.2); None: ``max_climb_m``."""
     ceiling_agl_m: float = float("inf")
     """'follow': the highest a drone may end a step above the ground, metres (a step that would
     end higher, off a cliff faster than the drone can descend, is shortened)."""
@@ -153,6 +156,13 @@ class TerrainFlight:
     def __post_init__(self) -> None:
         if self.mode not in ("follow", "flat"):
             raise ValueError(f"TerrainFlight.mode must be 'follow' or 'flat', got {self.mode!r}")
+        if self.max_descent_m is not None and not self.max_descent_m > 0:
+            raise ValueError(f"TerrainFlight.max_descent_m must be > 0, got {self.max_descent_m}")
+
+    @property
+    def descent_m(self) -> float:
+        """The largest descent in one step, metres."""
+        return self.max_climb_m if self.max_descent_m is None else self.max_descent_m
 
     def start_alt_amsl_m(self, pos_ne_m: np.ndarray) -> np.ndarray:
         """(N,) the altitude each drone starts at (already at its cruise height), metres AMSL."""
@@ -306,7 +316,7 @@ class World:
         alt0 = self.alt_amsl_m
         move = self.pos_m - pos_before_m
         if tf.mode == "flat":
-            alt1 = alt0 + np.clip(tf.flat_alt_amsl_m - alt0, -tf.max_climb_m, tf.max_climb_m)
+            alt1 = alt0 + np.clip(tf.flat_alt_amsl_m - alt0, -tf.descent_m, tf.max_climb_m)
             clear = path_clearance_m(ground, pos_before_m, self.pos_m, alt0, alt1, n_samples)
             crash = self.alive & (clear < 0)
         else:
@@ -322,7 +332,7 @@ class World:
             for k in range(n_fractions + 1):
                 end = pos_before_m + (k / n_fractions) * move
                 want = ground.height_m(end) + agl
-                alt1 = alt0 + np.clip(want - alt0, -tf.max_climb_m, tf.max_climb_m)
+                alt1 = alt0 + np.clip(want - alt0, -tf.descent_m, tf.max_climb_m)
                 clear = path_clearance_m(ground, pos_before_m, end, alt0, alt1, n_samples)
                 high = alt1 - ground.height_m(end) > tf.ceiling_agl_m
                 ok = ((clear >= tf.clearance_m + CLEARANCE_MARGIN_M) & ~high) | (k == 0)

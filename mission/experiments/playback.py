@@ -43,7 +43,7 @@ from mission.format.scenario import (  # re-exported: they were drawn here befor
 )
 from mission.experiments.endurance import endurance_run
 from mission.experiments.world_loop import EpisodeRecord, run_world, station_control
-from mission.format.terrain import terrain_aware_planner, terrain_radio
+from mission.format.terrain import descent_rate_m_s, terrain_aware_planner, terrain_radio
 from planner.methods import Planner, make_planner
 from planner.metrics import UptimeSeries, uptime_series
 from planner.terrain import path_clearance_m
@@ -210,6 +210,7 @@ def terrain_flight(mission: Mission, terrain_aware: str) -> TerrainFlight | None
         clearance_m=spec.clearance_m,
         ceiling_agl_m=spec.ceiling_agl_m,
         max_climb_m=lim.climb_rate_m_s * mission.run.control_period_s,
+        max_descent_m=descent_rate_m_s(mission) * mission.run.control_period_s,
         crew_antenna_agl_m=link.crew_antenna_agl_m,
         base_antenna_agl_m=link.base_antenna_agl_m,
     )
@@ -230,7 +231,8 @@ def terrain_summary(flight: TerrainFlight, rec: EpisodeRecord, crashes: int) -> 
     """Crashes into the ground; the least height above the ground along every flight of a drone
     alive at its start (metres, 128 samples per step) and how many such flights passed lower than
     the terrain's ``clearance_m``; the highest height above the ground of a flying drone
-    (metres)."""
+    (metres), and how many drone-steps (``samples_above_ceiling``, every alive drone at every
+    step) and drones (``drones_above_ceiling``) were above the terrain's ``ceiling_agl_m``."""
     assert rec.alt_amsl_m is not None  # recorded in terrain worlds
     ground = flight.radio.terrain
     tau = len(rec.pos_m) - 1
@@ -249,12 +251,15 @@ def terrain_summary(flight: TerrainFlight, rec: EpisodeRecord, crashes: int) -> 
             least = min(least, float(c.min()))
             below += int((c < flight.clearance_m).sum()) if flight.mode == "follow" else 0
     agl = rec.alt_amsl_m - ground.height_m(rec.pos_m)
+    high = rec.alive & (agl > flight.ceiling_agl_m + 1e-6)  # (tau + 1, N)
     return {
         "mode": flight.mode,
         "crashes": int(crashes),
         "min_clearance_m": least,
         "flights_below_clearance": below,
         "max_agl_m": float(agl[rec.alive].max()) if rec.alive.any() else 0.0,
+        "samples_above_ceiling": int(high.sum()),
+        "drones_above_ceiling": int(high.any(axis=0).sum()),
     }
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from planner.problem import ProblemConfig
@@ -81,3 +83,20 @@ def test_terrain_following_holds_each_drones_own_height():
     assert w.alt_amsl_m is not None
     agl = w.alt_amsl_m - ground.height_m(w.pos_m)
     np.testing.assert_allclose(agl, [20.0, 60.0, 120.0, 16.0], atol=1e-9)
+
+
+def test_terrain_following_descends_at_the_descent_rate_and_climbs_at_the_climb_rate():
+    """``max_descent_m`` limits each step down, ``max_climb_m`` each step up (the station limits
+    descents to the vehicles' descent speed, docs/terrain.md §6.2); without it, descents are
+    limited by the climb."""
+    w = _world("follow", n=2)
+    w.terrain = dataclasses.replace(w.terrain, max_descent_m=1.5)  # type: ignore[arg-type]
+    ground = w.terrain.radio.terrain
+    alt0 = w.alt_amsl_m.copy()  # type: ignore[union-attr]
+    before = w.pos_m
+    w.step(np.zeros((2, 2)), np.ones(2, bool), 0.0, np.ones(2))
+    w.fly_terrain(before, alt_agl_m=np.array([20.0, 100.0]))  # from 40 m: down 20, up 60
+    np.testing.assert_allclose(w.alt_amsl_m - alt0, [-1.5, 3.0])  # type: ignore[operator]
+    assert w.terrain.descent_m == 1.5
+    assert dataclasses.replace(w.terrain, max_descent_m=None).descent_m == 3.0
+    assert (w.alt_amsl_m - ground.height_m(w.pos_m) > 15.0).all()  # type: ignore[operator]
