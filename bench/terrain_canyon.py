@@ -74,7 +74,7 @@ def main() -> int:
             f"  least clearance {min(r['min_clearance_m'] for r in rs):.1f} m"
             f"  flights below clearance {sum(r['flights_below_clearance'] for r in rs)}"
             f"  highest {max(r['max_agl_m'] for r in rs):.1f} m AGL"
-            f"  above the ceiling: {sum(r['samples_above_ceiling'] for r in rs)} drone-steps,"
+            f"  above the ceiling: {sum(r['flights_above_ceiling'] for r in rs)} flights,"
             f" {sum(r['drones_above_ceiling'] for r in rs)} drones"
             f"  {cpu_of[mode]:.0f} s CPU"
         )

@@ -142,7 +142,7 @@ def test_canyon_one_altitude_is_legal_over_the_whole_fence():
     off = run_inprocess(m, 1, terrain_aware="off")
     assert off.terrain is not None
     assert off.terrain["crashes"] == 0 and off.terrain["min_clearance_m"] >= m.terrain.clearance_m
-    assert off.terrain["samples_above_ceiling"] == 0 and off.terrain["drones_above_ceiling"] == 0
+    assert off.terrain["flights_above_ceiling"] == 0 and off.terrain["drones_above_ceiling"] == 0
     assert off.terrain["max_agl_m"] <= m.terrain.ceiling_agl_m
 
 
@@ -186,7 +186,7 @@ def test_planning_in_3d_flies_each_drone_at_its_own_height_within_the_band():
     assert on.terrain is not None and alt.terrain is not None
     assert on.terrain["crashes"] == 0 and on.terrain["flights_below_clearance"] == 0
     assert on.terrain["max_agl_m"] <= m.terrain.ceiling_agl_m + 1e-6  # type: ignore[union-attr]
-    assert on.terrain["samples_above_ceiling"] == 0
+    assert on.terrain["flights_above_ceiling"] == 0
     ground = build_terrain(m)
     assert ground is not None and on.record.alt_amsl_m is not None
     agl = on.record.alt_amsl_m - ground.height_m(on.record.pos_m)
