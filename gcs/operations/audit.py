@@ -191,6 +191,7 @@ class AuditStep(OperatorState):
             override=self.config.override_audit,
             battery=self.config.battery_audit,
             battery_low_frac=self.config.battery_low_frac,
+            rtl_min_alt_m=self.config.rtl_min_alt_m,
         )
         self.audit_report = report
         if not report.cleared_to_fly:
@@ -218,10 +219,15 @@ class AuditStep(OperatorState):
         self._start_launch(snap, now_s, Trigger.CLEARED)
 
     def _battery_params(self, autopilot: int) -> tuple[str, ...]:
-        """The battery-failsafe parameters to read (none with ``battery_audit`` off)."""
-        if self.config.battery_audit == "off":
-            return ()
-        return audit_mod.BATTERY_AUDIT_PARAMS.get(autopilot, ())
+        """The battery-failsafe parameters to read (none with ``battery_audit`` off), and over
+        terrain the return altitude (``rtl_min_alt_m``)."""
+        names: tuple[str, ...] = ()
+        if self.config.battery_audit != "off":
+            names = audit_mod.BATTERY_AUDIT_PARAMS.get(autopilot, ())
+        rtl = audit_mod.RTL_ALT_PARAMS.get(autopilot)
+        if self.config.rtl_min_alt_m is not None and rtl is not None:
+            names = (*names, rtl[0])
+        return names
 
     def _limit_names(self, autopilot: int) -> tuple[str, ...]:
         """The limit parameters read and written on this firmware (gcs.limits)."""
@@ -319,6 +325,7 @@ class AuditStep(OperatorState):
             self.gcs_sysid,
             battery=cfg.battery_audit,
             battery_low_frac=cfg.battery_low_frac,
+            rtl_min_alt_m=cfg.rtl_min_alt_m,
         )
         self._fixes_sent_s = now_s
         for va in before.unsafe:
@@ -327,6 +334,8 @@ class AuditStep(OperatorState):
             fixes = audit_mod.failsafe_fixes(autopilot, params, self.gcs_sysid)
             if cfg.battery_audit == "require":
                 fixes += audit_mod.battery_fixes(autopilot, params, cfg.battery_low_frac)
+            if cfg.rtl_min_alt_m is not None:
+                fixes += audit_mod.rtl_altitude_fixes(autopilot, params, cfg.rtl_min_alt_m)
             for name, value in fixes:
                 self._set_param(vid, name, value, params.get(name), "failsafe", now_s)
         if self._sets_pending:
