@@ -61,8 +61,8 @@ def test_fly_canyon_keeps_clear_of_the_ground_and_serves_terrain(tmp_path, perso
     assert "over the terrain: 0 crashes into the ground" in out.stdout
     # the firmware's own return raised over the ridge: 60 m over the rims, plus the clearance
     rtl = "RTL_ALT 1500 -> 7500" if personality == "ardupilot" else "RTL_RETURN_ALT 60 -> 75"
-    # (every vehicle audited in time; one discovered after the audit is not yet audited: >= 1)
-    assert (out.stdout + out.stderr).count(f"{rtl} (confirmed)") >= 1, out.stderr[-3000:]
+    # every vehicle heard on its pad and audited (vehicle_emu/terrain.py VEHICLE_ANTENNA_AGL_M)
+    assert (out.stdout + out.stderr).count(f"{rtl} (confirmed)") == 8, out.stderr[-3000:]
     if personality == "ardupilot":
         t = s["terrain"]
         assert t["requests_answered"] > 0 and t["terrain_data_sent"] >= 56
