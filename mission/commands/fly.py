@@ -737,6 +737,15 @@ def run(args) -> int:
         print(line, file=sys.stderr)
     for line in op.limit_warnings:
         print(f"warning: {line}", file=sys.stderr)
+    for late in op.late_audit_summary():  # discovered after the fleet audit, audited alone
+        if late["verdict"] in ("refused", "pending"):
+            print(
+                f"warning: link {late['link_id']} sysid {late['sysid']}, discovered after the "
+                f"pre-flight audit, was kept on the ground ({late['verdict']}"
+                + (f": {'; '.join(late['blocking'])}" if late["blocking"] else "")
+                + ")",
+                file=sys.stderr,
+            )
     if op.prearm:
         print(
             f"{len(op.prearm)} vehicle(s) refused to arm at first (not ready); last reason:",
