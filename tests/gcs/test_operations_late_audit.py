@@ -5,9 +5,13 @@ from __future__ import annotations
 
 import logging
 
+import numpy as np
 from test_operations import (
     AP_SAFE,
+    CONTROL,
+    ORIGIN,
     REAL32,
+    FakePlanner,
     FakeStation,
     Feed,
     answer_audit,
@@ -16,9 +20,12 @@ from test_operations import (
 
 from gcs import audit as audit_mod
 from gcs.autopilot import ARDUPILOT
-from gcs.events import ParamSetConfirmed, ParamTimedOut, VehicleRebooted
-from gcs.operations import Operator
+from gcs.events import BatteryReceived, ParamSetConfirmed, ParamTimedOut, VehicleRebooted
+from gcs.fleet import FleetView
+from gcs.operations import OperationsConfig, Operator
+from gcs.operations.rotation import RotationSetup
 from gcs.wire import mavlink
+from planner.endurance import LOST, READY, BaseResources, EnduranceParams, RotationPolicy
 
 INT8 = mavlink.MAV_PARAM_TYPE_INT8
 #: What launches or steers a vehicle (a late vehicle gets none of these before it is cleared).
@@ -204,3 +211,58 @@ def test_no_late_audit_with_the_audit_off():
     feed.poll(2.0)
     assert station.of("request_param") == [] and op.late_audits == {}
     assert _commanded(station, late) == ["engage_guided", "arm", "takeoff"]
+
+
+def test_with_a_rotation_a_late_vehicle_is_lost_to_it_until_cleared_then_a_spare():
+    # Three drones, two flown: row 0 audited with the fleet; rows 1 (a relay's slot) and 2 (the
+    # spare) heard after the audit. Row 2 passes its own audit; row 1 never answers: it is never
+    # a vehicle of the rotation (the policy does not count on a drone the audit refused).
+    policy = RotationPolicy(
+        3,
+        2,
+        BaseResources(pads=1, swap_time_s=60.0, spare_batteries=4),
+        EnduranceParams(critical_frac=0.2, return_speed_m_s=5.0),
+    )
+    rot = RotationSetup(policy, hover_drain_per_s=1.0 / 1500.0)
+    station = FakeStation()
+    op = Operator(
+        station,
+        FleetView(ORIGIN, timeout_s=5.0),
+        FakePlanner(),
+        lambda t: np.array([[150.0, 0.0]]),
+        CONTROL,
+        OperationsConfig(
+            audit=True, expected_vehicles=1, duration_s=10_000.0, audit_timeout_s=20.0
+        ),
+        rotation=rot,
+    )
+    feed = Feed(op)
+    v = feed.add(1, 0.0)
+    feed.poll(0.0)
+    answer_audit(feed, station, 0.5, vid=v)
+    feed.poll(0.75)
+    assert op.phase == "launch"
+    silent_late = feed.add(2, 0.8)
+    spare = feed.add(3, 0.8)
+    feed.fly(v, 1.0)
+
+    def run(t0: float, t1: float) -> None:
+        t = t0
+        while t <= t1 + 1e-9:
+            for vid in (v, silent_late, spare):
+                feed.emit(BatteryReceived(*vid, t, "SYS_STATUS", 1.0, 15.0, 20.0))
+            feed.poll(t)
+            t = round(t + 0.5, 9)
+
+    run(1.0, 2.0)
+    answer_audit(feed, station, 2.1, vid=spare)
+    run(2.5, 45.0)  # the launch's wave timeout (40 s), then the run
+    assert op.phase == "run"
+    assert op.late_audits[spare].cleared and op.late_audits[silent_late].verdict == "refused"
+    assert policy.phase[1] == LOST  # never a vehicle of the rotation
+    assert policy.phase[2] == READY  # lost to the rotation until cleared, then a spare
+    assert [(e.kind, e.drone) for e in rot.events if e.drone == 2] == [
+        ("lost", 2),
+        ("recovered", 2),
+    ]
+    assert _commanded(station, silent_late) == [] and _commanded(station, spare) == []
