@@ -35,7 +35,8 @@ mission's run.speedup); with --connect the same station flies real links instead
 
 Sequence: discover vehicles -> pre-flight audit of lost-link parameters (refuses unsafe settings
 unless fixed with --apply-failsafes or overridden with --override-audit) -> GUIDED/OFFBOARD, arm, take off in waves -> PhiIREMAN at the control
-period -> RTL or LAND. Vehicles that come back from a failsafe are reclaimed.
+period -> RTL or LAND. Vehicles that come back from a failsafe are reclaimed. A vehicle heard
+only after the audit is audited on its own and stays on the ground until it passes.
 
 Writes a run directory (mission, seed, code version, flight.tlog, events.jsonl, metrics.csv,
 summary.json, truth.npz when emulated) and ends with TU1/TU2 as the station saw them and, when
