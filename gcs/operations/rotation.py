@@ -195,8 +195,8 @@ class RotationStep(OperatorState):
         back = (ph == LOST) & heard & recent & ~armed & (dist_home <= rot.land_radius_m)
         back &= batt >= rot.full_frac
         # A vehicle discovered after the pre-flight audit is no vehicle of the rotation until it
-        # passed its own (gcs/operations/late_audit.py): lost to the policy, which flies another
-        # in its place; once cleared, heard on its pad and charged, it is a spare (back).
+        # passed its own (gcs/operations/late_audit.py): lost to the policy, which counts on it
+        # for nothing; once cleared, heard on its pad and charged, it is a spare (back).
         audited = np.ones(nd, bool)
         audited[:m] = self._audit_gate(snap)[:m]
         back &= audited
