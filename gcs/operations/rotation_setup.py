@@ -105,8 +105,8 @@ class RotationSetup:
 
         Keys: ``swap_confirm``; ``vehicles`` and ``phase`` (one entry per policy row);
         ``inbound`` (``[spare, relay]`` pairs: who relieves whom); ``reserve_at_s`` (relay ->
-        when it reaches its reserve, to :data:`RESERVE_ROUND_S`; relays in the plan with no spare
-        on its way); ``pads`` (one per pad: the vehicle on it, when its swap started, when the
+        when it reaches its reserve, whole seconds to :data:`RESERVE_ROUND_S`; relays in the plan
+        with no spare on its way); ``pads`` (one per pad: the vehicle on it, when its swap started, when the
         crew confirmed it); ``swap_time_s``; ``return_speed_m_s`` (for the spares' ETA);
         ``batteries`` (charged on the shelf, the charging
         ones' finish times, the ones waiting for a charger, chargers); ``counters``
@@ -132,13 +132,13 @@ class RotationSetup:
                     else round(self.confirmed_s[i], 1),
                 }
             )
-        reserve: dict[str, float] = {}
+        reserve: dict[str, int] = {}
         ttr = self.time_to_reserve_s
         if ttr.shape == (n,) and math.isfinite(self.tick_s):
             for i in np.flatnonzero((ph == AIR) & (pol.replaced_by < 0)).tolist():
                 if math.isfinite(ttr[i]):
                     at = RESERVE_ROUND_S * round((self.tick_s + ttr[i]) / RESERVE_ROUND_S)
-                    reserve[who[i]] = round(at, 1)
+                    reserve[who[i]] = int(round(at))
         return {
             "swap_confirm": self.swap_confirm,
             "vehicles": who,
