@@ -299,13 +299,21 @@ class LaunchStep(OperatorState):
 
     def _hold(self, snap: FleetSnapshot, rows: npt.ArrayLike, now_s: float) -> None:
         rows = np.asarray(rows, dtype=int)
-        here = snap.pos_ned_m[rows, :2]
-        if self.control.terrain is not None:  # at its layer above the ground under it
-            layer = layer_alt_m(rows, self.control)
-            target = terrain_targets(snap.pos_ned_m[rows], here, layer, self.control.terrain)
+        self._send_layer_targets(snap, rows, snap.pos_ned_m[rows, :2], now_s)
+
+    def _send_layer_targets(
+        self, snap: FleetSnapshot, rows: np.ndarray, target_ne_m: np.ndarray, now_s: float
+    ) -> int:
+        """Send vehicles ``rows`` to ``target_ne_m`` (K, 2) at their layer's altitude: above home
+        on a flat earth; over terrain, above the ground under the target with the whole path
+        clear of the ground (:func:`gcs.control.terrain_targets`). Every target the station sends
+        outside the planner's tick (holds, the rotation's spares and returns) goes through here."""
+        layer = layer_alt_m(rows, self.control)
+        if self.control.terrain is not None:
+            target = terrain_targets(snap.pos_ned_m[rows], target_ne_m, layer, self.control.terrain)
         else:
-            target = np.column_stack([here, -layer_alt_m(rows, self.control)])
-        self._send_targets(snap, rows, target, now_s)
+            target = np.column_stack([target_ne_m, -layer])
+        return self._send_targets(snap, rows, target, now_s)
 
     def _send_targets(
         self, snap: FleetSnapshot, rows: np.ndarray, target_ned_m: np.ndarray, now_s: float

@@ -38,7 +38,6 @@ from typing import Any
 import numpy as np
 
 from gcs.autopilot import adapter_for
-from gcs.control import layer_alt_m
 from gcs.events import HomePositionReceived, ModeChanged, VehicleRebooted
 from gcs.fleet import FleetSnapshot
 from gcs.link import LinkUsageError, UnknownVehicle
@@ -309,8 +308,7 @@ class RotationStep(OperatorState):
         inbound = np.flatnonzero((ph[:m] == INBOUND) & airborne & np.isfinite(target_m[:m, 0]))
         inbound = np.array([i for i in inbound.tolist() if self._vid(snap, i) not in self.released])
         if len(inbound):
-            tgt = np.column_stack([target_m[inbound], -layer_alt_m(inbound, self.control)])
-            self._send_targets(snap, inbound, tgt, now_s)
+            self._send_layer_targets(snap, inbound, target_m[inbound], now_s)
         for i in np.flatnonzero((ph[:m] == RETURNING) & ~snap.lost[:m] & snap.armed[:m]).tolist():
             vid = self._vid(snap, i)
             if vid in self.released:
@@ -323,6 +321,12 @@ class RotationStep(OperatorState):
                 continue
             try:
                 if self.config.end == "rtl":
+                    # Over terrain RTL's straight line at one altitude may run into a hill
+                    # between the post and home: climb over the highest ground first, as at the
+                    # mission's end (gcs/operations/end.py _climb_before_rtl).
+                    if self._climb_before_rtl(snap, i, now_s):
+                        rot.home_cmd_s[i] = now_s
+                        continue
                     self.station.clear_position_target(vid, now_s)
                     self.station.rtl(vid, now_s)
                     rot.home_cmd_s[i] = now_s
@@ -335,8 +339,7 @@ class RotationStep(OperatorState):
                         self.station.land(vid, now_s)
                         rot.home_cmd_s[i] = now_s
                     else:
-                        tgt = np.array([[*pad, -float(layer_alt_m([i], self.control)[0])]])
-                        self._send_targets(snap, np.array([i]), tgt, now_s)
+                        self._send_layer_targets(snap, np.array([i]), pad[None, :], now_s)
             except (LinkUsageError, UnknownVehicle, ValueError) as exc:
                 log.info("link %d sysid %d: %s", *vid, exc)
         # A vehicle that left the plan is not reclaimed from the RTL it was sent on.

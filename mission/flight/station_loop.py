@@ -377,7 +377,14 @@ def rotation_setup(
         "launch_s": EnduranceParams().launch_s + top_m / lim.climb_rate_m_s,
         "land_s": landing_descent_s(top_m),
     }
-    policy = end.policy(n, mission.run.duration_s, lim.max_speed_m_s, mean_post_m, flight=flight)
+    try:
+        policy = end.policy(
+            n, mission.run.duration_s, lim.max_speed_m_s, mean_post_m, flight=flight
+        )
+    except ValueError as exc:  # e.g. a battery too small to reach the posts and come back
+        raise RunnerError(
+            f"mission {mission.name}: {exc} (endurance.battery.endurance_s, or --rotation off)"
+        ) from exc
     log.info("rotation: %d of %d fly at once", policy.flying, n)
     return RotationSetup(
         policy,
@@ -506,8 +513,13 @@ async def run_station(
             a.close()
         raise RunnerError(f"cannot open link {conn!r}: {exc}") from exc
     station = Station([a.core for a in adapters])  # type: ignore[misc]  # started: each has a core
-    serve_terrain(mission, station)
-    op = make_operator(mission, scenario, station, opts, expected, clock(), seed)
+    try:
+        serve_terrain(mission, station)
+        op = make_operator(mission, scenario, station, opts, expected, clock(), seed)
+    except BaseException:  # e.g. RunnerError: no link may outlive the run (or write its tlog)
+        for a in adapters:
+            a.close()
+        raise
     holder["op"] = op
     op.on_action = records.events.write  # operator actions in events.jsonl, with their source
     if op.rally is not None:  # failed rally uploads: events.jsonl and the live view, not the fleet
