@@ -107,6 +107,9 @@ class AuditStep(OperatorState):
             if self._limits_wanted():
                 names += [n for n in self._limit_names(int(snap.autopilot[i])) if n not in names]
             names += [n for n in self._battery_params(int(snap.autopilot[i])) if n not in names]
+            names += [
+                n for n in self._rotation_landing_params(int(snap.autopilot[i])) if n not in names
+            ]
             if self.rally is not None:  # the settings that make RTL use rally points
                 names += [
                     n
@@ -166,6 +169,7 @@ class AuditStep(OperatorState):
                 names += [
                     n
                     for n in self._battery_params(int(snap.autopilot[i]))
+                    + self._rotation_landing_params(int(snap.autopilot[i]))
                     if n not in got and n not in names
                 ]
                 if snap.lost[i]:
@@ -215,6 +219,7 @@ class AuditStep(OperatorState):
                 and now_s - self._rally_params_sent_s < self.config.audit_timeout_s
             ):
                 return
+        self._rotation_use_landing(vehicles)
         self._start_launch(snap, now_s, Trigger.CLEARED)
 
     def _battery_params(self, autopilot: int) -> tuple[str, ...]:

@@ -5,13 +5,15 @@ import circle (tests/test_layering.py)."""
 
 from __future__ import annotations
 
+import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from gcs.landing import LandingDescent
 from planner.endurance import (
     AIR,
     INBOUND,
@@ -22,6 +24,8 @@ from planner.endurance import (
 )
 
 __all__ = ["RotationSetup", "SWAP_CONFIRM"]
+
+log = logging.getLogger(__name__)
 
 #: Who confirms a battery swap (``RotationSetup.swap_confirm``, ``phireman fly --swap-confirm``).
 SWAP_CONFIRM = ("auto", "manual")
@@ -87,6 +91,11 @@ class RotationSetup:
     """When the last tick ran (station core seconds): the time ``time_to_reserve_s`` counts from."""
     confirmed_s: dict[int, float] = field(default_factory=dict)
     """Row -> when the ground crew confirmed its swap (until the swap is done or it is lost)."""
+    land_from_m: float = 0.0
+    """Height above the pad a vehicle lands from (the top flight layer), metres: with the
+    vehicles' landing parameters, the policy's ``land_s`` (:meth:`use_landing`)."""
+    replan: Callable[[float], RotationPolicy] | None = field(default=None, repr=False)
+    """The policy again with another ``land_s`` (the plan's K counts it); None: kept as built."""
 
     def __post_init__(self) -> None:
         if not self.hover_drain_per_s > 0:
@@ -95,6 +104,34 @@ class RotationSetup:
             raise ValueError(
                 f"swap_confirm must be one of {', '.join(SWAP_CONFIRM)}, got {self.swap_confirm!r}"
             )
+
+    def use_landing(self, descents: Sequence[LandingDescent]) -> float | None:
+        """Plan with the vehicles' own landing (:mod:`gcs.landing`, from the parameters the audit
+        read), before the first tick: ``land_s`` becomes the slowest vehicle's descent from
+        :attr:`land_from_m`, and the policy is built again (:attr:`replan`: the reserve, the
+        turnaround and K all count it; a mission's own ``endurance.params.land_s`` still wins).
+        Returns the new ``land_s``; None when nothing changed (no vehicle, no :attr:`replan`,
+        the rotation already ticking, or a plan the new landing makes impossible, logged)."""
+        if not descents or self.replan is None or math.isfinite(self.tick_s):
+            return None
+        land_s = max(d.time_s(self.land_from_m) for d in descents)
+        if land_s == self.policy.params.land_s:
+            return None
+        try:
+            policy = self.replan(land_s)
+        except ValueError as exc:  # a landing so slow that no sortie is left
+            log.warning("rotation: kept the default landing (%.0f s): %s", land_s, exc)
+            return None
+        log.info(
+            "rotation: the vehicles land in %.0f s from %.0f m (was %.0f s): %d of %d fly at once",
+            land_s,
+            self.land_from_m,
+            self.policy.params.land_s,
+            policy.flying,
+            policy.n_drones,
+        )
+        self.policy = policy
+        return float(policy.params.land_s)
 
     def state(self, ids: Sequence[str]) -> dict[str, Any]:
         """The rotation as the operator's view draws it (docs/design/endurance.md §8), JSON-able.

@@ -125,6 +125,7 @@ def read_rotation(path: Path) -> list[tuple[float, dict[str, Any], list[dict[str
             out.append((t_s, state, events))
     return out
 
+
 #: Under this share of the requested speed-up the pace is reported as too slow (on screen and
 #: ``summary.json``'s ``speedup_slow``): results such as reclaims and TU move with the pace.
 SLOW_PACE_FRACTION = 0.5

@@ -221,7 +221,6 @@ def test_the_closing_summary_line():
     )
 
 
-
 def _two_hours_of_ticks(tmp_path, n_ticks: int = 7200, quiet_ticks: int = 0):
     """A two-hour flight's rotation, one control tick a second: 34 of 50 vehicles in the plan,
     each relay's reserve estimated from whole percents at its own drain as the station does (its
@@ -277,7 +276,7 @@ def test_rotation_jsonl_of_two_hours_is_small_and_the_replay_draws_the_same_pane
     assert sum("state" in x for x in lines) == 1 + int(span // ROTATION_SNAPSHOT_S)
     # What the records were before the patches: the whole state at every tick it changed.
     before, last = 0, None
-    for t, state, events in truth:
+    for t, state, _ in truth:
         if state != last:
             before += len(json.dumps({"t_s": t, "state": state, "events": []})) + 1
         last = state
