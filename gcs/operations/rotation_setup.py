@@ -226,6 +226,7 @@ class RotationSetup:
             "no_spare": s["no_spare"],
             "min_battery_in_air": round(self.min_battery_in_air, 4),
             "planned_at_start": self.policy.flying,
+            "land_s": round(float(self.policy.params.land_s), 1),
             "reboots": self.counters["reboots"],
             "swap_confirm": self.swap_confirm,
             "swaps_confirmed_by_crew": self.counters["swaps_confirmed_by_crew"],

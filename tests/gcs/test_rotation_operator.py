@@ -514,6 +514,7 @@ def test_the_audit_reads_each_vehicles_landing_and_the_plan_counts_the_slowest(l
     assert op.phase == "launch"
     expect = landing_descent(ARDUPILOT, {"LAND_SPEED": land_speed_cm_s}).time_s(50.0)
     assert rot.policy.params.land_s == pytest.approx(expect)
+    assert op.rotation_summary()["land_s"] == round(expect, 1)  # summary.json says it
     if land_speed_cm_s == 50.0:
         assert built == [default_s]  # the same landing: the plan is not built again
     else:
