@@ -101,7 +101,9 @@ class LaunchStep(OperatorState):
         ``wave_size`` rows in discovery order."""
         self._enter(trigger, now_s)
         self._launch_since_s = now_s
-        rows = list(range(snap.n_vehicles))
+        # A vehicle the fleet audit did not cover waits for its own (gcs.operations.late_audit)
+        # and is launched by the run's reclaim once cleared.
+        rows = np.flatnonzero(self._audit_gate(snap)).tolist()
         k = self.config.wave_size
         self._waves = [rows[j : j + k] for j in range(0, len(rows), k)]
         self._wave = 0
@@ -154,7 +156,11 @@ class LaunchStep(OperatorState):
                 if i < snap.n_vehicles and heard[i] and in_plan[i] and may_fly[i]:
                     self._drive(snap, i, alt, now_s)
         if self._wave >= len(self._waves):
-            rows = np.flatnonzero(heard & may_fly)
+            # The climb of the vehicles the launch started: one discovered since (audited on its
+            # own, gcs.operations.late_audit) is launched by the run's reclaim, not waited for.
+            waved = np.zeros(snap.n_vehicles, dtype=bool)
+            waved[[i for w in self._waves for i in w if i < snap.n_vehicles]] = True
+            rows = np.flatnonzero(heard & may_fly & waved)
             target = layer_alt_m(rows, self.control)
             climbed = fin[rows] & (
                 np.where(fin[rows], alt[rows], 0.0) >= cfg.climbed_alt_frac * target

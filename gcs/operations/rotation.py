@@ -224,6 +224,12 @@ class RotationStep(OperatorState):
         # (powered up again, its pack charged): a spare (docs/design/endurance.md §7).
         back = (ph == LOST) & heard & recent & ~armed & (dist_home <= rot.land_radius_m)
         back &= batt >= rot.full_frac
+        # A vehicle discovered after the pre-flight audit is no vehicle of the rotation until it
+        # passed its own (gcs/operations/late_audit.py): lost to the policy, which counts on it
+        # for nothing; once cleared, heard on its pad and charged, it is a spare (back).
+        audited = np.ones(nd, bool)
+        audited[:m] = self._audit_gate(snap)[:m]
+        back &= audited
         for i in np.flatnonzero(back).tolist():
             rot.gone.discard(i)
             rot.landed_s.pop(i, None)
@@ -240,6 +246,7 @@ class RotationStep(OperatorState):
         low[:m] = ~(np.nan_to_num(alt_m[:m], nan=0.0) > self.config.airborne_alt_m)
         down_home = (ph == RETURNING) & (dist_home <= rot.land_radius_m) & low
         alive[:m] = recent[:m] | on_ground[:m] | down_home[:m]
+        alive &= audited
         # Landed away from the base (a critical-battery LAND in the field): gone for the mission.
         away = heard & ~armed & (dist_home > rot.land_radius_m)
         away &= np.isin(ph, (AIR, INBOUND, RETURNING))

@@ -353,6 +353,8 @@ def summary(
             "cleared_to_fly": op.audit_report.cleared_to_fly,
             "overridden": op.audit_report.overridden,
             "unsafe": [[a.link_id, a.sysid] for a in op.audit_report.unsafe],
+            # vehicles discovered after the fleet audit, each audited on its own
+            "late": op.late_audit_summary(),
         },
         "run_dir": str(run_dir),
     }

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from gcs.aio import StationAdapter
+from gcs.control import ControlConfig
 from gcs.fleet import FleetView, MissionOrigin
 from gcs.landing import FIRMWARE_DEFAULTS, landing_descent
 from gcs.link import StationConfig
@@ -184,8 +185,11 @@ def _station_config(
 
 
 def _operations_config(
-    mission: Mission, opts: FlyOptions, expected: int | None
+    mission: Mission, opts: FlyOptions, expected: int | None, control: ControlConfig | None = None
 ) -> OperationsConfig:
+    """The operator's settings for ``mission`` flown with ``opts``; ``control`` (the station's
+    :func:`mission.format.scenario.control_config`): over terrain, the least return altitude the
+    audit requires."""
     lim = mission.vehicles.limits
     spec = mission.endurance.battery
     # Battery failsafes: required with batteries; on real firmware without them, at least warned
@@ -196,6 +200,11 @@ def _operations_config(
     return OperationsConfig(
         battery_audit=battery_audit,
         battery_low_frac=spec.low_frac if spec is not None else None,
+        rtl_min_alt_m=(
+            None
+            if control is None or control.terrain is None
+            else control.terrain.rtl_min_alt_m(control.geofence)
+        ),
         max_speed_m_s=lim.max_speed_m_s,
         climb_rate_m_s=lim.climb_rate_m_s,
         descent_rate_m_s=lim.descent_rate_m_s,
@@ -312,7 +321,7 @@ def make_operator(
         planner,
         scenario.task_pos_m,
         control,
-        _operations_config(mission, opts, expected),
+        _operations_config(mission, opts, expected, control),
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
         rally=_rally_keeper(mission, params),

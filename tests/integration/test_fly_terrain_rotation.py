@@ -15,58 +15,35 @@ import sys
 from pathlib import Path
 
 import pytest
+from hill_mission import hill_mission
 
 pytestmark = pytest.mark.udp
 
 ROOT = Path(__file__).resolve().parents[2]
 PHIREMAN = [str(Path(sys.executable).with_name("phireman"))]
 
-HILL_WITH_BATTERIES = """\
-name: hill_batteries
-description: Relays rotate through battery swaps over a hill that hides one crew from the base.
-origin: {lat_deg: 39.76, lon_deg: -121.62, alt_amsl_m: 500.0}
-terrain:
-  synthetic:
-    half_width_m: 800.0
-    spacing_m: 10.0
-    hills:
-      - {center: {north_m: 0, east_m: 250}, height_m: 70.0, radius_m: 90.0}
-  cruise_agl_m: 60.0
-  ceiling_agl_m: 120.0
-  clearance_m: 15.0
-vehicles:
-  emulated:
-    count: 8
-    spawn: {ring: {radius_m: 20.0, noise_m: 0.0}}
-    max_speed_m_s: 10.0
-    climb_rate_m_s: 5.0
-    descent_rate_m_s: 3.0
-    cruise_alt_m: 40.0
-    n_layers: 1
-tasks:
-  - name: Behind the hill
-    track: [{t_s: 0, north_m: 0, east_m: 480}]
-  - name: North
-    track: [{t_s: 0, north_m: 300, east_m: 0}]
-radio:
-  model: terrain
-  range_m: 250.0
-  base_range_m: 250.0
-  link: {fade_margin_db: 20.0}
-endurance:
-  battery: {endurance_s: ENDURANCE, low_frac: 0.25, critical_frac: 0.10}
-  base: {pads: 2, swap_time_s: 10, spare_batteries: 20, chargers: 4, charge_time_s: 100}
-  rotation: true
-geofence: {half_width_m: 700.0, max_alt_m: 120.0}
-planner: {method: phireman, info: central}
-run: {duration_s: 400.0, control_period_s: 1.0, seed: 1, speedup: 40.0}
-"""
-
 
 def _mission(tmp_path: Path, endurance_s: float) -> Path:
-    path = tmp_path / "hill_batteries.yaml"
-    path.write_text(HILL_WITH_BATTERIES.replace("ENDURANCE", f"{endurance_s:g}"))
-    return path
+    return hill_mission(
+        tmp_path,
+        "hill_batteries",
+        count=8,
+        cruise_agl_m=60.0,
+        ceiling_agl_m=120.0,
+        tasks=({"name": "North", "track": [{"t_s": 0, "north_m": 300, "east_m": 0}]},),
+        run={"speedup": 40.0},
+        endurance={
+            "battery": {"endurance_s": endurance_s, "low_frac": 0.25, "critical_frac": 0.10},
+            "base": {
+                "pads": 2,
+                "swap_time_s": 10,
+                "spare_batteries": 20,
+                "chargers": 4,
+                "charge_time_s": 100,
+            },
+            "rotation": True,
+        },
+    )
 
 
 def _fly(tmp_path: Path, mission: Path, *flags: str) -> subprocess.CompletedProcess:
