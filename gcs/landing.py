@@ -31,7 +31,13 @@ from dataclasses import dataclass
 
 from gcs.autopilot import ARDUPILOT, PX4
 
-__all__ = ["FIRMWARE_DEFAULTS", "LANDING_PARAMS", "LandingDescent", "landing_descent"]
+__all__ = [
+    "FIRMWARE_DEFAULTS",
+    "LANDING_ONLY_PARAMS",
+    "LANDING_PARAMS",
+    "LandingDescent",
+    "landing_descent",
+]
 
 #: The parameters a vehicle lands by, per autopilot (read by the audit with a rotation).
 LANDING_PARAMS: dict[int, tuple[str, ...]] = {
@@ -44,6 +50,14 @@ LANDING_PARAMS: dict[int, tuple[str, ...]] = {
         "MPC_Z_VEL_MAX_DN",
     ),
 }
+
+#: The ones read for the landing alone (not also as the mission's descent limit, gcs/limits.py):
+#: optional reads (gcs/audit.py ``OPTIONAL_PARAMS``), not waited for: a firmware without one
+#: (ArduPilot 4.7 renamed them LAND_SPD_MS, LAND_SPD_HIGH_MS, LAND_ALT_LOW_M) lands at its default
+#: here, and its audit is not held up.
+LANDING_ONLY_PARAMS: frozenset[str] = frozenset(
+    n for names in LANDING_PARAMS.values() for n in names
+) - {"WPNAV_SPEED_DN", "MPC_Z_VEL_MAX_DN"}
 
 #: The firmware's defaults of :data:`LANDING_PARAMS`, in the firmware's units (ArduCopter cm/s and
 #: cm, PX4 m/s and m).

@@ -520,3 +520,40 @@ def test_the_audit_reads_each_vehicles_landing_and_the_plan_counts_the_slowest(l
     else:
         assert expect == pytest.approx(default_s + 10.0 / 0.3 - 10.0 / 0.5)
         assert built == [default_s, pytest.approx(expect)]
+
+
+def test_a_vehicle_without_the_landing_parameters_is_not_held_and_lands_at_the_defaults():
+    """The landing's own parameters are optional reads (a firmware may spell them otherwise):
+    unanswered, the audit goes on after its grace and the plan keeps the firmware's default."""
+    from test_operations import AP_SAFE, answer_audit
+
+    from gcs.autopilot import ARDUPILOT
+    from gcs.landing import landing_descent
+    from gcs.operations.audit import OPTIONAL_GRACE_S
+
+    default_s = landing_descent(ARDUPILOT).time_s(50.0)
+    rot = RotationSetup(
+        RotationPolicy(2, 1, BaseResources(pads=1), EnduranceParams(land_s=default_s)),
+        hover_drain_per_s=1.0 / 1500.0,
+        land_from_m=50.0,
+        replan=lambda land_s: RotationPolicy(
+            2, 1, BaseResources(pads=1), EnduranceParams(land_s=land_s)
+        ),
+    )
+    op = Operator(
+        FakeStation(),
+        FleetView(ORIGIN, timeout_s=5.0),
+        FakePlanner(),
+        lambda t: np.array([[POST_N_M, 0.0]]),
+        CONTROL,
+        OperationsConfig(audit=True, expected_vehicles=2, duration_s=10_000.0),
+        rotation=rot,
+    )
+    feed = Feed(op)
+    vids = [feed.add(k + 1, 0.0) for k in range(2)]
+    feed.poll(0.0)
+    for v in vids:  # no LAND_* answered (WPNAV_SPEED_DN, a limit too, is)
+        answer_audit(feed, op.station, 0.5, {**AP_SAFE, "WPNAV_SPEED_DN": 150.0}, vid=v)
+    t = feed.run(0.75, 10.0, 0.25, until=lambda op: op.phase != "audit")
+    assert op.phase == "launch" and t <= 0.5 + OPTIONAL_GRACE_S + 1.0  # a poll per round
+    assert rot.policy.params.land_s == pytest.approx(default_s)
