@@ -76,6 +76,7 @@ from dataclasses import dataclass, field
 from collections.abc import Mapping
 
 from gcs.autopilot import ARDUPILOT, PX4
+from gcs.landing import LANDING_ONLY_PARAMS
 
 __all__ = [
     "Finding",
@@ -217,6 +218,10 @@ OPTIONAL_REASONS: dict[str, str] = {
     "COM_OBL_ACT": "PX4 <= v1.13 only (offboard loss without RC); v1.14 removed it",
 }
 #: Absent on many firmwares: never re-requested (see :data:`OPTIONAL_REASONS`).
+# The landing's own parameters, read with a relay rotation (gcs/landing.py): not waited for.
+OPTIONAL_REASONS.update(
+    dict.fromkeys(LANDING_ONLY_PARAMS, "landing speeds: an absent one counts at its default")
+)
 OPTIONAL_PARAMS = frozenset(OPTIONAL_REASONS)
 
 

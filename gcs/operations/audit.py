@@ -112,7 +112,8 @@ class AuditStep(OperatorState):
     def _audit_names(self, autopilot: int, got: dict[str, float], *, first: bool) -> list[str]:
         """The parameters the audit reads of one vehicle that are not in ``got`` yet: the
         lost-link ones, the limits (``set_limits``), the battery's and the return altitude, the
-        rally settings (with a rally keeper). A later round (``first`` False) leaves out the
+        landing's (with a relay rotation, gcs/landing.py), the rally settings (with a rally
+        keeper). A later round (``first`` False) leaves out the
         optional ones (gcs/audit.py OPTIONAL_PARAMS: absent on some firmware versions)."""
         names = [
             n
@@ -123,6 +124,7 @@ class AuditStep(OperatorState):
         if self._limits_wanted():  # vehicles discovered late, reads lost: the limits too
             extra += self._limit_names(autopilot)
         extra += self._battery_params(autopilot)
+        extra += self._rotation_landing_params(autopilot)  # with a rotation: its landing
         if self.rally is not None:  # the settings that make RTL use rally points
             extra += rally_mod.RALLY_PARAMS.get(autopilot, ())
         names += [n for n in extra if n not in got and n not in names]
@@ -220,6 +222,7 @@ class AuditStep(OperatorState):
                 and now_s - self._rally_params_sent_s < self.config.audit_timeout_s
             ):
                 return
+        self._rotation_use_landing(vehicles)
         self._start_launch(snap, now_s, Trigger.CLEARED)
 
     def _battery_params(self, autopilot: int) -> tuple[str, ...]:

@@ -40,6 +40,7 @@ import numpy as np
 from gcs.autopilot import adapter_for
 from gcs.events import HomePositionReceived, ModeChanged, VehicleRebooted
 from gcs.fleet import FleetSnapshot
+from gcs.landing import LANDING_PARAMS, landing_descent
 from gcs.link import LinkUsageError, UnknownVehicle
 from gcs.operations._state import OperatorState
 from gcs.operations.config import _Row
@@ -69,6 +70,35 @@ _GROUND = (LANDED, SWAPPING, NO_BATTERY, READY)
 
 class RotationStep(OperatorState):
     """The rotation of :class:`gcs.operations.Operator` (see the module docstring)."""
+
+    # ------------------------------------------------------------------ the audit's parameters
+
+    def _rotation_landing_params(self, autopilot: int) -> tuple[str, ...]:
+        """The landing parameters the audit reads of a vehicle when the flight rotates relays
+        (:data:`gcs.landing.LANDING_PARAMS`); none without a rotation."""
+        if self.rotation is None:
+            return ()
+        return LANDING_PARAMS.get(autopilot, ())
+
+    def _rotation_use_landing(
+        self, vehicles: dict[tuple[int, int], tuple[int, dict[str, float]]]
+    ) -> None:
+        """The audit is over: the rotation plans with the vehicles' own landing (what they gave,
+        with the station's confirmed writes, e.g. the mission's WPNAV_SPEED_DN; the firmware's
+        defaults for what they did not give)."""
+        rot = self.rotation
+        if rot is None or not vehicles:
+            return
+        written: dict[tuple[int, int], dict[str, float]] = {}
+        for c in self.param_changes:
+            if c.get("ok"):
+                written.setdefault((c["link_id"], c["sysid"]), {})[c["name"]] = c["value"]
+        rot.use_landing(
+            [
+                landing_descent(ap, {**params, **written.get(vid, {})})
+                for vid, (ap, params) in sorted(vehicles.items())
+            ]
+        )
 
     # ------------------------------------------------------------------ masks
 

@@ -24,6 +24,7 @@ import numpy as np
 from gcs.aio import StationAdapter
 from gcs.control import ControlConfig
 from gcs.fleet import FleetView, MissionOrigin
+from gcs.landing import FIRMWARE_DEFAULTS, landing_descent
 from gcs.link import StationConfig
 from gcs.operations import OperationsConfig, Operator, TickRecord
 from gcs.operations.rotation import RotationSetup
@@ -345,18 +346,12 @@ def rotation_fleet_size(
     return len(scenario.spawn_ne_m)
 
 
-#: The firmware's landing descent (ArduCopter defaults, ``Mode::land_run_vertical_control`` in
-#: ArduCopter/mode.cpp): WPNAV_SPEED_DN 150 cm/s down to LAND_ALT_LOW 1000 cm, then LAND_SPEED
-#: 50 cm/s. PX4's RTL returns higher (RTL_RETURN_ALT 60 m) and lands faster below it
-#: (MPC_Z_VEL_MAX_DN 1.5 m/s to MPC_LAND_ALT1 10 m, MPC_LAND_SPEED 0.7 m/s below MPC_LAND_ALT2
-#: 5 m): from the flight layers of the shipped missions the two take about as long.
-LANDING_FAST_M_S, LANDING_SLOW_ALT_M, LANDING_SLOW_M_S = 1.5, 10.0, 0.5
-
-
 def landing_descent_s(alt_m: float) -> float:
-    """Seconds from ``alt_m`` above the pad to the ground at the firmware's landing speeds."""
-    fast_m = max(0.0, alt_m - LANDING_SLOW_ALT_M)
-    return fast_m / LANDING_FAST_M_S + min(alt_m, LANDING_SLOW_ALT_M) / LANDING_SLOW_M_S
+    """Seconds from ``alt_m`` above the pad to the ground at the firmware's default landing
+    speeds, the slower of the two (ArduCopter's: WPNAV_SPEED_DN 1.5 m/s down to LAND_ALT_LOW 10 m,
+    then LAND_SPEED 0.5 m/s; PX4's ends at 0.7 m/s): the plan before the audit has read the
+    vehicles' own (:mod:`gcs.landing`, ``RotationSetup.use_landing``)."""
+    return max(landing_descent(ap).time_s(alt_m) for ap in FIRMWARE_DEFAULTS)
 
 
 def rotation_setup(
@@ -382,14 +377,14 @@ def rotation_setup(
     top_m = lim.cruise_alt_m + (lim.n_layers - 1) * lim.layer_spacing_m
     # What the paper's 2-D world does not fly and the vehicles do: the climb to the flight layer
     # after take-off, and the landing descent at the pad (docs/design/endurance.md §7).
-    flight = {
-        "launch_s": EnduranceParams().launch_s + top_m / lim.climb_rate_m_s,
-        "land_s": landing_descent_s(top_m),
-    }
+    launch_s = EnduranceParams().launch_s + top_m / lim.climb_rate_m_s
+
+    def policy_for(land_s: float):
+        flight = {"launch_s": launch_s, "land_s": land_s}
+        return end.policy(n, mission.run.duration_s, lim.max_speed_m_s, mean_post_m, flight=flight)
+
     try:
-        policy = end.policy(
-            n, mission.run.duration_s, lim.max_speed_m_s, mean_post_m, flight=flight
-        )
+        policy = policy_for(landing_descent_s(top_m))
     except ValueError as exc:  # e.g. a battery too small to reach the posts and come back
         raise RunnerError(
             f"mission {mission.name}: {exc} (endurance.battery.endurance_s, or --rotation off)"
@@ -400,6 +395,10 @@ def rotation_setup(
         hover_drain_per_s=1.0 / spec.endurance_s,
         return_drain_factor=1.0 + spec.speed_drain_frac,
         swap_confirm=swap_confirm,
+        land_from_m=top_m,
+        # The audit reads the vehicles' landing parameters; the plan then counts their own
+        # descent, unless the mission set its own land_s (docs/design/endurance.md §7).
+        replan=None if "land_s" in end.params else policy_for,
     )
 
 

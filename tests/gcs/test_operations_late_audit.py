@@ -22,6 +22,7 @@ from gcs import audit as audit_mod
 from gcs.autopilot import ARDUPILOT
 from gcs.events import BatteryReceived, ParamSetConfirmed, ParamTimedOut, VehicleRebooted
 from gcs.fleet import FleetView
+from gcs.landing import FIRMWARE_DEFAULTS
 from gcs.operations import OperationsConfig, Operator
 from gcs.operations.rotation import RotationSetup
 from gcs.wire import mavlink
@@ -239,7 +240,9 @@ def test_with_a_rotation_a_late_vehicle_is_lost_to_it_until_cleared_then_a_spare
     feed = Feed(op)
     v = feed.add(1, 0.0)
     feed.poll(0.0)
-    answer_audit(feed, station, 0.5, vid=v)
+    # With a rotation the audit reads the landing too (gcs/landing.py): the firmware's defaults.
+    landing = {**AP_SAFE, **FIRMWARE_DEFAULTS[ARDUPILOT]}
+    answer_audit(feed, station, 0.5, landing, vid=v)
     feed.poll(0.75)
     assert op.phase == "launch"
     silent_late = feed.add(2, 0.8)
@@ -255,7 +258,7 @@ def test_with_a_rotation_a_late_vehicle_is_lost_to_it_until_cleared_then_a_spare
             t = round(t + 0.5, 9)
 
     run(1.0, 2.0)
-    answer_audit(feed, station, 2.1, vid=spare)
+    answer_audit(feed, station, 2.1, landing, vid=spare)
     run(2.5, 45.0)  # the launch's wave timeout (40 s), then the run
     assert op.phase == "run"
     assert op.late_audits[spare].cleared and op.late_audits[silent_late].verdict == "refused"
