@@ -70,10 +70,13 @@ is not fixed and still blocks.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from collections.abc import Mapping
 
 from gcs.autopilot import ARDUPILOT, PX4
+from gcs.landing import LANDING_ONLY_PARAMS
 
 __all__ = [
     "Finding",
@@ -102,6 +105,9 @@ __all__ = [
     "battery_fixes",
     "BATT_FS_LOW_ACT_FIX",
     "COM_LOW_BAT_ACT_FIX",
+    "RTL_ALT_PARAMS",
+    "audit_rtl_altitude",
+    "rtl_altitude_fixes",
 ]
 
 #: What to read per autopilot. ArduPilot alternatives: old or new GCS-sysid names.
@@ -212,6 +218,10 @@ OPTIONAL_REASONS: dict[str, str] = {
     "COM_OBL_ACT": "PX4 <= v1.13 only (offboard loss without RC); v1.14 removed it",
 }
 #: Absent on many firmwares: never re-requested (see :data:`OPTIONAL_REASONS`).
+# The landing's own parameters, read with a relay rotation (gcs/landing.py): not waited for.
+OPTIONAL_REASONS.update(
+    dict.fromkeys(LANDING_ONLY_PARAMS, "landing speeds: an absent one counts at its default")
+)
 OPTIONAL_PARAMS = frozenset(OPTIONAL_REASONS)
 
 
@@ -727,6 +737,7 @@ def audit_vehicle(
     *,
     battery: str = "off",
     battery_low_frac: float | None = None,
+    rtl_min_alt_m: float | None = None,
 ) -> VehicleAudit:
     if autopilot == ARDUPILOT:
         findings = audit_ardupilot(params, gcs_sysid) + audit_battery(
@@ -744,6 +755,8 @@ def audit_vehicle(
                 f"unknown autopilot {autopilot}: lost-link behaviour cannot be checked",
             ),
         )
+    if rtl_min_alt_m is not None:
+        findings += audit_rtl_altitude(autopilot, params, rtl_min_alt_m)
     return VehicleAudit(link_id, sysid, autopilot, findings)
 
 
@@ -754,12 +767,22 @@ def audit_fleet(
     override: bool = False,
     battery: str = "off",
     battery_low_frac: float | None = None,
+    rtl_min_alt_m: float | None = None,
 ) -> AuditReport:
     """Audit every vehicle; ``vehicles`` maps (link_id, sysid) -> (autopilot, params);
-    ``battery``: the battery-failsafe audit's mode (:data:`BATTERY_AUDIT_MODES`)."""
+    ``battery``: the battery-failsafe audit's mode (:data:`BATTERY_AUDIT_MODES`);
+    ``rtl_min_alt_m``: over terrain, the least return altitude above home
+    (:func:`audit_rtl_altitude`; None: not audited)."""
     audits = tuple(
         audit_vehicle(
-            link, sysid, ap, params, gcs_sysid, battery=battery, battery_low_frac=battery_low_frac
+            link,
+            sysid,
+            ap,
+            params,
+            gcs_sysid,
+            battery=battery,
+            battery_low_frac=battery_low_frac,
+            rtl_min_alt_m=rtl_min_alt_m,
         )
         for (link, sysid), (ap, params) in sorted(vehicles.items())
     )
@@ -824,3 +847,62 @@ def failsafe_fixes(
             cleared = int(params["COM_DLL_EXCEPT"]) & ~_EXCEPT_OFFBOARD
             out.append(("COM_DLL_EXCEPT", float(cleared)))
     return tuple(out)
+
+
+# Over terrain, the firmware's own return. A lost station, a low battery or a forced return
+# sends a vehicle home by the firmware's RTL, which climbs (never descends) to its return
+# altitude above home over where it is, then flies a straight line home at that altitude:
+# ArduCopter mode_rtl.cpp ``ModeRTL::build_path`` / ``compute_return_target`` (RTL_ALT, cm above
+# home, the higher of it and the current altitude; RTL_ALT_TYPE 0, the default); PX4
+# ``src/modules/navigator/rtl_direct.cpp`` (RTL_RETURN_ALT, m above home, rtl_params.c, metadata
+# 0 to 150). On a flat earth any return altitude clears the ground; over terrain the straight line
+# must clear the highest ground the vehicle can be sent home across: the mission's operating
+# area (docs/terrain.md §6.2).
+#: The return-altitude parameter per autopilot and its scale (parameter units per metre).
+RTL_ALT_PARAMS: dict[int, tuple[str, float]] = {
+    ARDUPILOT: ("RTL_ALT", 100.0),
+    PX4: ("RTL_RETURN_ALT", 1.0),
+}
+
+
+def audit_rtl_altitude(
+    autopilot: int, params: Mapping[str, float], min_alt_m: float
+) -> tuple[Finding, ...]:
+    """The return-altitude finding of one vehicle over terrain: **blocking** when the firmware's
+    RTL would fly home lower than ``min_alt_m`` above home (fix: :func:`rtl_altitude_fixes`)."""
+    spec = RTL_ALT_PARAMS.get(autopilot)
+    if spec is None:
+        return ()  # the lost-link audit already blocks an unknown autopilot
+    name, per_m = spec
+    raw = params.get(name)
+    if raw is None:
+        return (
+            Finding(
+                BLOCKING, name, "could not be read; the return altitude over terrain is unknown"
+            ),
+        )
+    alt_m = float(raw) / per_m
+    if alt_m + 0.5 < min_alt_m:
+        return (
+            Finding(
+                BLOCKING,
+                name,
+                f"{raw:g}: RTL flies home {alt_m:.0f} m above home; the ground it may cross needs "
+                f"{min_alt_m:.0f} m (terrain)",
+            ),
+        )
+    return (Finding(INFO, name, f"{raw:g}: RTL flies home at least {alt_m:.0f} m above home"),)
+
+
+def rtl_altitude_fixes(
+    autopilot: int, params: Mapping[str, float], min_alt_m: float
+) -> tuple[tuple[str, float], ...]:
+    """``(name, value)``: the return altitude raised to ``min_alt_m`` (whole metres, up) when
+    :func:`audit_rtl_altitude` blocks on it and the parameter was read."""
+    spec = RTL_ALT_PARAMS.get(autopilot)
+    if spec is None or spec[0] not in params:
+        return ()
+    if not any(f.severity == BLOCKING for f in audit_rtl_altitude(autopilot, params, min_alt_m)):
+        return ()
+    name, per_m = spec
+    return ((name, float(math.ceil(min_alt_m) * per_m)),)

@@ -118,6 +118,22 @@ class TerrainAltitude:
         if not self.descent_step_m > 0:
             raise ValueError(f"descent_step_m must be > 0, got {self.descent_step_m}")
 
+    def rtl_min_alt_m(self, fence: Geofence) -> float:
+        """The least altitude above the origin at which a straight line home anywhere in
+        ``fence`` clears the ground by ``clearance_m``: the highest post of the DEM inside the
+        fence's box (every post where the fence is unbounded), plus the clearance, metres. What
+        the firmware's RTL must fly home at over terrain (:func:`gcs.audit.audit_rtl_altitude`)."""
+        t = self.terrain
+        rows, cols = t.height_amsl_m.shape
+        north = t.north0_m + t.spacing_m * np.arange(rows)
+        east = t.east0_m + t.spacing_m * np.arange(cols)
+        # the posts inside the box and one beyond each side: the ground between posts is bilinear
+        pad = t.spacing_m
+        r = (north >= fence.north_min_m - pad) & (north <= fence.north_max_m + pad)
+        c = (east >= fence.east_min_m - pad) & (east <= fence.east_max_m + pad)
+        grid = t.height_amsl_m[np.ix_(r, c)] if r.any() and c.any() else t.height_amsl_m
+        return float(grid.max()) + self.clearance_m - self.origin_amsl_m
+
 
 #: The descent speed both firmwares fly position targets at by default, m/s: ArduCopter's
 #: ``WPNAV_SPEED_DN`` 150 cm/s (libraries/AC_WPNav/AC_WPNav.cpp, default

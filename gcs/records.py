@@ -242,10 +242,16 @@ class MetricsWriter:
     the module doc)."""
 
     def __init__(
-        self, path: str | os.PathLike[str], *, flush_period_s: float = DEFAULT_FLUSH_PERIOD_S
+        self,
+        path: str | os.PathLike[str],
+        *,
+        flush_period_s: float = DEFAULT_FLUSH_PERIOD_S,
+        compact: bool = False,
     ) -> None:
         self.path = Path(path)
         self._csv = self.path.suffix.lower() == ".csv"
+        #: ``.jsonl`` without the blanks after ``,`` and ``:`` (a record written every tick).
+        self._separators = (",", ":") if compact else None
         self._file = _BackgroundFile(self.path, "wb", flush_period_s=flush_period_s, fsync=False)
         self._f = _TextSink(self._file)
         self._writer: csv.DictWriter[str] | None = None
@@ -261,7 +267,7 @@ class MetricsWriter:
                 raise ValueError(f"metrics row has columns not in the header: {sorted(unknown)}")
             self._writer.writerow(data)
         else:
-            self._f.write(json.dumps(data, allow_nan=False) + "\n")
+            self._f.write(json.dumps(data, allow_nan=False, separators=self._separators) + "\n")
 
     def flush(self) -> None:
         self._file.flush()

@@ -53,6 +53,7 @@ __all__ = [
     "EnduranceParams",
     "FleetPlan",
     "PAD_UTILISATION",
+    "REFILL_MARGIN",
     "RotationEvent",
     "RotationOutput",
     "RotationPolicy",
@@ -77,6 +78,10 @@ PHASES: tuple[str, ...] = (
     "lost",
 )
 
+
+#: A refill (``EnduranceParams.refill_lost``) keeps this many times the spares in circulation a
+#: post needs (``RotationPolicy.spare_ratio``): turnarounds vary, spares are lost too.
+REFILL_MARGIN = 1.5
 
 #: The share of the pads' time a plan may use (:func:`plan_fleet`); at full use every small delay
 #: queues drones at the base, and the queue only grows.
@@ -141,6 +146,10 @@ class EnduranceParams:
     """A spare within this distance of the relay's position holds it."""
     slack_s: float = 30.0
     """Extra lead time when deciding to launch a spare (estimates are estimates)."""
+    refill_lost: bool = False
+    """Refill a post lost in the air (attrition) from the ready spares, up to the plan's K and
+    while the spares in circulation keep the plan's ratio to the posts (docs/design/endurance.md
+    §3); off: a relay lost in the air leaves its post empty for the rest of the mission."""
 
     def __post_init__(self) -> None:
         problems = []
@@ -211,6 +220,9 @@ class FleetPlan:
     """Useful time in the plan per battery (take-off to reserve, minus the way out)."""
     limit: str
     """What bounds ``flying``: 'fleet', 'pads', 'batteries' or 'none' (no rotation needed)."""
+    ground_s: float = 0.0
+    """The rest of a drone's cycle, away from the plan (the way out and home, the handover, the
+    landing, the swap): a post needs ``ground_s / sortie_s`` spares in circulation."""
 
 
 def plan_fleet(
@@ -259,9 +271,9 @@ def plan_fleet(
             f"a battery of {endurance_s:.0f} s cannot reach {mean_dist_m:.0f} m and come back "
             "with its reserve: no rotation is possible"
         )
-    if horizon_s <= sortie_s:
-        return FleetPlan(n_drones, 0, sortie_s, "none")
     ground_s = base.swap_time_s + params.handover_s + transit_s + mean_dist_m / v + params.land_s
+    if horizon_s <= sortie_s:
+        return FleetPlan(n_drones, 0, sortie_s, "none", ground_s)
     cycle_s = sortie_s + ground_s
     k_fleet = math.floor(n_drones * sortie_s / cycle_s)
     # Pads busy at most PAD_UTILISATION of the time: a queue at full use grows without bound.
@@ -282,7 +294,7 @@ def plan_fleet(
     bounds = {"fleet": k_fleet, "pads": k_pads, "batteries": k_batteries}
     limit = min(bounds, key=lambda k: bounds[k])
     flying = max(1, min(n_drones - 1, bounds[limit]))
-    return FleetPlan(flying, n_drones - flying, sortie_s, limit)
+    return FleetPlan(flying, n_drones - flying, sortie_s, limit, ground_s)
 
 
 @dataclass(frozen=True)
@@ -295,8 +307,9 @@ class RotationEvent:
     place), 'return' (replaced), 'forced_return' (out of reserve without a replacement),
     'landed', 'swap_start', 'swap_done', 'no_spare', 'no_battery', 'pad_wait',
     'lost', 'failsafe_return' (the firmware's low-battery RTL, :meth:`RotationPolicy.failsafe`),
-    'recovered' (a lost drone back at the base, charged, :meth:`RotationPolicy.recovered`)
-    and, without rotation, 'relaunch'."""
+    'recovered' (a lost drone back at the base, charged, :meth:`RotationPolicy.recovered`),
+    'refill' (a spare into a post lost in the air, ``EnduranceParams.refill_lost``) and, without
+    rotation, 'relaunch'."""
     drone: int
     other: int = -1
 
@@ -337,6 +350,10 @@ class RotationPolicy:
     every drone flies until its firmware's low-battery failsafe sends it home (reported with
     :meth:`failsafe`), swaps at the base like the others and relaunches into the plan as soon as
     it is ready."""
+    spare_ratio: float = 0.0
+    """Spares in circulation a post needs (:attr:`FleetPlan.ground_s` over its ``sortie_s``);
+    ``EnduranceParams.refill_lost`` refills a post only while the spares left keep
+    :data:`REFILL_MARGIN` times this (0: the plan's own ratio, ``(n - flying) / flying``)."""
     phase: IntArray = field(init=False)
     replaces: IntArray = field(init=False)
     """(N,) the relay an inbound spare replaces (-1: none)."""
@@ -542,8 +559,34 @@ class RotationPolicy:
                 self.replaced_by[j] = k
                 self._reported.discard(("no_spare", int(j)))
                 events.append(RotationEvent(now_s, "launch", k, int(j)))
+        if p.refill_lost:
+            self._refill(now_s, alive, batt, events)
 
         return self._output(ph, pos, base, swapped, events)
+
+    def _refill(
+        self, now_s: float, alive: BoolArray, batt: FloatArray, events: list[RotationEvent]
+    ) -> None:
+        """One ready spare (the fullest) joins the plan at the base when fewer than K posts are
+        held, and the spares left in circulation still relieve every post: at least
+        :data:`REFILL_MARGIN` × :attr:`spare_ratio` per post. A post lost in the air is held
+        again (``refill`` event)."""
+        ph = self.phase
+        k = self.flying
+        if k <= 0 or k >= self.n_drones:
+            return
+        posts = int(np.count_nonzero(ph == AIR))
+        circulating = int(np.count_nonzero(alive & (ph != AIR) & (ph != LOST)))
+        ready = np.flatnonzero(ph == READY)
+        if self.spare_ratio > 0:
+            ratio = REFILL_MARGIN * self.spare_ratio
+        else:
+            ratio = (self.n_drones - k) / k
+        if posts >= k or not ready.size or circulating - 1 < ratio * (posts + 1):
+            return
+        i = int(ready[np.argmax(np.nan_to_num(batt[ready], nan=0.0))])
+        ph[i] = AIR
+        events.append(RotationEvent(now_s, "refill", i))
 
     def _output(
         self,

@@ -123,6 +123,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -1045,6 +1046,11 @@ class MccstPlanner:
         self._last_t_step = -1
         self._rho: float | None = None  # carry_rho: last tick's adapted rho
         self._rho_t_step = -1
+        #: Which candidate links hold besides the range (over terrain, line of sight: set by
+        #: planner.terrain_aware): called with the tick, the members' indices in it and the
+        #: (E, 2) candidate edges (j == len(members): the base); returns (E,) bool. None: every
+        #: edge within range holds, the paper's disc.
+        self.edge_filter: Callable[[TickInput, np.ndarray, np.ndarray], np.ndarray] | None = None
 
     def _persistent_tasks(
         self,
@@ -1163,6 +1169,8 @@ class MccstPlanner:
         edges = candidate_edges(
             pos_m[members], base_m, self.problem.radio_range_m, self.problem.base_range_m
         )
+        if self.edge_filter is not None and len(edges):
+            edges = edges[np.asarray(self.edge_filter(tick, members, edges), dtype=bool)]
         is_base_edge = edges[:, 1] == n
         r_c = prm.kappa * np.where(is_base_edge, self._base_radius, self._radius)
         # The base is its own subgroup (-1); drones without a task (-1 in task_local) form another.

@@ -69,6 +69,10 @@ class TerrainAwarePlanner:
         # hold over the terrain (planner.terrain_heights.detour_tree).
         if self.heights is not None and hasattr(self.inner, "tree_transform"):
             self.inner.tree_transform = self._route_tree
+        # An inner planner that keeps links of a candidate graph (planner.mccst) keeps only the
+        # links that clear the terrain.
+        if hasattr(self.inner, "edge_filter"):
+            self.inner.edge_filter = self._edges_clear
         self.tree_bends = 0
         """Tree edges bent around the terrain at the last tick."""
 
@@ -76,6 +80,25 @@ class TerrainAwarePlanner:
         assert self.heights is not None  # set in 3-D only
         tree, self.tree_bends = detour_tree(tree_m, self.radio, self.heights)
         return tree
+
+    def _edges_clear(self, tick: TickInput, members: np.ndarray, edges: np.ndarray) -> np.ndarray:
+        """(E,) bool: which candidate links of the drones ``members`` (indices into the tick) hold
+        over the terrain at their altitudes now; ``edges`` (E, 2), j == len(members) the base."""
+        pos = np.asarray(tick.pos_m, dtype=float)[members]
+        alt = self._alt_now(tick)[members]
+        n = len(members)
+        a = np.column_stack([pos[edges[:, 0]], alt[edges[:, 0]]])
+        j = np.minimum(edges[:, 1], n - 1)
+        b = np.column_stack([pos[j], alt[j]])
+        base = np.array([tick.base_m[0], tick.base_m[1], self._base_h(tick)])
+        b[edges[:, 1] == n] = base
+        return self.radio.links_clear(a, b)
+
+    def _alt_now(self, tick: TickInput) -> np.ndarray:
+        """(N,) the drones' altitudes AMSL: from telemetry, or ``alt_agl_m`` over the ground."""
+        if tick.alt_amsl_m is not None:
+            return np.asarray(tick.alt_amsl_m, dtype=float)
+        return self.radio.terrain.height_m(np.asarray(tick.pos_m, dtype=float)) + self.alt_agl_m
 
     def _mesh(
         self, pos_ne_m: np.ndarray, alt_m: np.ndarray, tick: TickInput, members: np.ndarray
@@ -125,11 +148,7 @@ class TerrainAwarePlanner:
         disp = np.asarray(out.disp_m, dtype=float)
         pos = np.asarray(tick.pos_m, dtype=float)
         ground = self.radio.terrain
-        alt_now = (
-            np.asarray(tick.alt_amsl_m, dtype=float)
-            if tick.alt_amsl_m is not None
-            else ground.height_m(pos) + self.alt_agl_m
-        )
+        alt_now = self._alt_now(tick)
         members = np.asarray(tick.networked, dtype=bool) & np.asarray(tick.alive, dtype=bool)
         level = np.zeros(len(pos), dtype=np.int64)  # index into fractions, per drone
         frac = np.asarray(self.fractions, dtype=float)

@@ -791,7 +791,7 @@ TABLE: dict[str, Case] = {
         rewrite=(PORT_0,),
         check=terrain_page,
     ),
-    "phireman fly canyon": Case(
+    "phireman fly canyon --apply-failsafes": Case(
         # 20 s of the canyon through the station: altitudes over the DEM, ArduPilot's terrain
         # requests answered (docs/terrain.md §6).
         rewrite=(SHORT_FLY_NOWAIT,),

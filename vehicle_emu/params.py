@@ -68,6 +68,7 @@ ARDUPILOT_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("WPNAV_SPEED_UP", 250.0, _F, 10, 1000),  # cm/s
     ParamSpec("WPNAV_SPEED_DN", 150.0, _F, 10, 500),  # cm/s
     ParamSpec("LAND_SPEED", 50.0, _F, 30, 200),  # cm/s
+    ParamSpec("LAND_SPEED_HIGH", 0.0, _F, 0, 500),  # cm/s above LAND_ALT_LOW; 0 = WPNAV_SPEED_DN
     ParamSpec("LAND_ALT_LOW", 1000.0, _F, 100, 10000),  # cm: LAND_SPEED below, WPNAV_SPEED_DN above
     ParamSpec("RTL_ALT", 1500.0, _F, 200, 300000),  # cm above home
     ParamSpec("RTL_ALT_FINAL", 0.0, _F, 0, 1000),  # cm; 0 = land at home
@@ -98,6 +99,7 @@ PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_XY_VEL_MAX", 12.0, _F, 0, 20),  # m/s (offboard / position limit)
     ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, _F, 0.5, 8),  # m/s
     ParamSpec("MPC_Z_VEL_MAX_DN", 1.5, _F, 0.5, 4),  # m/s
+    ParamSpec("MPC_Z_V_AUTO_DN", 1.5, _F, 0.5, 4),  # m/s: auto modes (RTL, Land) descend at most
     ParamSpec("MPC_LAND_SPEED", 0.7, _F, 0.6, 4),  # m/s
     ParamSpec("MPC_LAND_ALT1", 10.0, _F, 0, 122),  # m: slowing down below (takeoff_land_params.c)
     ParamSpec("MPC_LAND_ALT2", 5.0, _F, 0, 122),  # m: MPC_LAND_SPEED below

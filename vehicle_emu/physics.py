@@ -81,9 +81,12 @@ class Physics:
         self.climb_rate_m_s = np.full(n, float(climb_rate_m_s))
         self.descent_rate_m_s = np.full(n, float(descent_rate_m_s))
         self.land_speed_m_s = np.full(n, 0.5)
+        self.land_fast_m_s = np.full(n, float(descent_rate_m_s))
+        """(N,) float64 — a landing's first stage, above ``land_slow_alt_m`` (ArduCopter
+        LAND_SPEED_HIGH, else WPNAV_SPEED_DN; PX4 MPC_Z_V_AUTO_DN at most), m/s."""
         self.land_slow_alt_m = np.full(n, np.inf)
         """(N,) float64 — above this height over the ground a landing descends at
-        ``descent_rate_m_s`` (ArduCopter LAND_ALT_LOW, PX4 MPC_LAND_ALT1), metres; inf: the whole
+        ``land_fast_m_s`` (ArduCopter LAND_ALT_LOW, PX4 MPC_LAND_ALT1), metres; inf: the whole
         descent at ``land_speed_m_s``."""
         self.land_crawl_alt_m = np.full(n, np.inf)
         """(N,) float64 — below this height a landing descends at ``land_speed_m_s`` (PX4
@@ -180,7 +183,7 @@ class Physics:
         lo, hi = self.land_crawl_alt_m, self.land_slow_alt_m
         with np.errstate(invalid="ignore", divide="ignore"):
             ramp = np.where(h >= hi, 1.0, np.where(h <= lo, 0.0, (h - lo) / (hi - lo)))
-        fast = np.maximum(self.descent_rate_m_s, self.land_speed_m_s)
+        fast = np.maximum(self.land_fast_m_s, self.land_speed_m_s)
         return self.land_speed_m_s + ramp * (fast - self.land_speed_m_s)
 
     def _saturate_inplace(self, v: np.ndarray, descent_limit: np.ndarray) -> None:
@@ -195,7 +198,7 @@ class Physics:
         v_cmd = self._commanded_velocity()
         is_land = self.ctrl == CTRL_LAND
         descent_limit = np.where(
-            is_land, np.maximum(self.descent_rate_m_s, self.land_speed_m_s), self.descent_rate_m_s
+            is_land, np.maximum(self.land_fast_m_s, self.land_speed_m_s), self.descent_rate_m_s
         )
         self._saturate_inplace(v_cmd, descent_limit)
         on_ground = self.pos_ned_m[:, DOWN] >= self.ground_down_m - GROUND_EPS_M

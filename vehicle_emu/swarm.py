@@ -781,6 +781,9 @@ class Swarm:
             agl = ground - ph.pos_ned_m[:, 2]
             guided = np.array([c._behaviour == "guided" for c in self.cores])
             flying = ph.alive & ph.armed & ~ph.landed & guided
+            # A landing ends a flight: the next take-off (a relay relaunched after its battery
+            # swap) is not counted until it is up again.
+            self._risen &= flying
             self._risen |= flying & (agl >= self.clearance_from_agl_m)
             sel = flying & self._risen
             if sel.any():

@@ -41,6 +41,12 @@ CRASH_DEPTH_M = 0.5
 #: A flying vehicle that touches the ground moving faster than this has flown into it (a copter
 #: lands vertically), m/s.
 TOUCHDOWN_SPEED_H_M_S = 1.0
+#: A vehicle's radio antenna above the ground under it when it stands on the ground (on top of the
+#: airframe, above the landing gear), metres. In flight the antenna is where the vehicle is; on a
+#: pad, at 0 m, every link of more than a few metres would graze the ground inside the first
+#: Fresnel zone and be cut (the link model has no diffraction loss, docs/terrain.md §5), and a
+#: fleet waiting on the pads 60 m from the base's mast would not be heard at all.
+VEHICLE_ANTENNA_AGL_M = 0.3
 #: ArduPilot asks again at most every 2 s (TerrainGCS.cpp ``send_request``).
 REQUEST_PERIOD_S = 2.0
 #: Blocks held in memory (AP_Terrain.h TERRAIN_GRID_BLOCK_CACHE_SIZE).
@@ -70,6 +76,13 @@ class Ground:
         """(...) the ground's DOWN coordinate in the world NED frame."""
         return self.origin_amsl_m - self.height_amsl_m(ne_m)
 
+    def antenna_amsl_m(self, pos_ned_m: np.ndarray) -> np.ndarray:
+        """(N,) each vehicle's antenna AMSL: where it is, and at least
+        :data:`VEHICLE_ANTENNA_AGL_M` above the ground under it."""
+        pos = np.asarray(pos_ned_m, dtype=float)
+        floor = self.height_amsl_m(pos[:, :2]) + VEHICLE_ANTENNA_AGL_M
+        return np.maximum(self.origin_amsl_m - pos[:, 2], floor)
+
     def base_antenna_amsl_m(self, base_ne_m: np.ndarray) -> float:
         return float(self.height_amsl_m(np.asarray(base_ne_m, float)[None, :2])[0]) + (
             self.base_antenna_agl_m
@@ -81,7 +94,7 @@ class Ground:
         base = np.asarray(base_ned_m, dtype=float)
         return self.radio.active_mask(
             pos[:, :2],
-            self.origin_amsl_m - pos[:, 2],
+            self.antenna_amsl_m(pos),
             alive,
             base[:2],
             self.base_antenna_amsl_m(base),
@@ -90,14 +103,14 @@ class Ground:
     def link_pairs(self, pos_ned_m: np.ndarray) -> np.ndarray:
         """(K, 2) pairs i < j of the given vehicles whose link closes."""
         pos = np.asarray(pos_ned_m, dtype=float)
-        return self.radio.link_pairs(pos[:, :2], self.origin_amsl_m - pos[:, 2])
+        return self.radio.link_pairs(pos[:, :2], self.antenna_amsl_m(pos))
 
     def links_to_base(self, pos_ned_m: np.ndarray, base_ned_m) -> np.ndarray:
         """(N,) bool: each vehicle's link to the base's antenna closes."""
         pos = np.asarray(pos_ned_m, dtype=float)
         base = np.asarray(base_ned_m, dtype=float)
         b3 = np.array([base[0], base[1], self.base_antenna_amsl_m(base)])
-        a3 = np.column_stack([pos[:, :2], self.origin_amsl_m - pos[:, 2]])
+        a3 = np.column_stack([pos[:, :2], self.antenna_amsl_m(pos)])
         return self.radio.links_clear(a3, np.broadcast_to(b3, a3.shape))
 
     def tasks_connected(
@@ -110,7 +123,7 @@ class Ground:
             task,
             self.height_amsl_m(task) + self.crew_antenna_agl_m,
             pos[:, :2],
-            self.origin_amsl_m - pos[:, 2],
+            self.antenna_amsl_m(pos),
             active,
         )
 

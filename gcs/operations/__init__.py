@@ -28,6 +28,15 @@ Every allowed transition, with its trigger, is in :data:`TRANSITIONS`
   the fleet re-audited with the echoed values; ``param_changes`` records every write. Then,
   with ``set_limits``, the mission's speed and climb limits are written into each vehicle's
   own parameters (:mod:`gcs.limits`), each confirmed by its echo.
+* **late audit** (in the launch and run phases, no phase of its own): a vehicle first heard
+  after the fleet audit's reads (a drone powered on late, a SITL instance slow to boot) is kept
+  on the ground and out of the plan until it passed the same audit on its own (the same reads,
+  rounds, timeouts, verdict, fixes, limits and rally settings,
+  :mod:`~gcs.operations.late_audit`); cleared, the run's reclaim launches it. Refused (and no
+  ``override_audit``), it stays on the ground for the whole flight, reported in the log, in
+  ``events.jsonl`` (an :class:`OperatorAction` ``audit``) and in
+  :meth:`Operator.late_audit_summary`. A vehicle that reboots (the same link and sysid) is not
+  audited again: its parameters survive the power cycle.
 * **launch**: in waves of ``wave_size``: GUIDED (ArduPilot) / pre-streamed OFFBOARD (PX4), arm,
   take off to the vehicle's layer; the next wave starts as soon as most of this one is off the
   ground (waves spread the command burst and the take-off, they do not wait for the climb);
@@ -49,7 +58,8 @@ Layout (one 950-line module split along its seams; each module's docstring says 
 :mod:`~gcs.operations.phases` (the phases and the transition table), :mod:`~gcs.operations.config`
 (configuration and records), :mod:`~gcs.operations.operator` (the machine: event and phase
 dispatch, discovery, the run's control tick), and the steps it mixes in:
-:mod:`~gcs.operations.audit` (parameter reads and writes), :mod:`~gcs.operations.launch`
+:mod:`~gcs.operations.audit` (parameter reads and writes), :mod:`~gcs.operations.late_audit`
+(the audit of a vehicle discovered after it), :mod:`~gcs.operations.launch`
 (take-off, retries, reclaim), :mod:`~gcs.operations.end` (RTL / LAND, restore) and
 :mod:`~gcs.operations.actions` (operator actions, interrupt) and :mod:`~gcs.operations.rally`
 (the planner's rally points kept on the vehicles, issue 15).

@@ -52,8 +52,9 @@ class AuditStep(OperatorState):
                     self.station.link(key[0]).cancel_param(key[1], alt, event.t_s)
                 except (KeyError, IndexError):
                     pass
+        late = self._late_audit_heard(key, event.t_s)  # a vehicle discovered after the audit
         for extra in audit_mod.FOLLOW_UP_PARAMS.get(event.name, ()):
-            if self.phase == Phase.AUDIT and extra not in self._params.get(key, {}):
+            if (self.phase == Phase.AUDIT or late) and extra not in self._params.get(key, {}):
                 self._params_pending.add((*key, extra))
                 self.station.request_param(key, extra, event.t_s)
 
@@ -103,19 +104,45 @@ class AuditStep(OperatorState):
         self._enter(Trigger.FOUND, now_s)
         for i in range(snap.n_vehicles):
             vid = self._vid(snap, i)
-            names = list(audit_mod.params_still_needed(int(snap.autopilot[i]), {}))
-            if self._limits_wanted():
-                names += [n for n in self._limit_names(int(snap.autopilot[i])) if n not in names]
-            names += [n for n in self._battery_params(int(snap.autopilot[i])) if n not in names]
-            if self.rally is not None:  # the settings that make RTL use rally points
-                names += [
-                    n
-                    for n in rally_mod.RALLY_PARAMS.get(int(snap.autopilot[i]), ())
-                    if n not in names
-                ]
-            for name in names:
+            self._audit_vids.add(vid)
+            for name in self._audit_names(int(snap.autopilot[i]), {}, first=True):
                 self._params_pending.add((*vid, name))
                 self.station.request_param(vid, name, now_s)
+
+    def _audit_names(self, autopilot: int, got: dict[str, float], *, first: bool) -> list[str]:
+        """The parameters the audit reads of one vehicle that are not in ``got`` yet: the
+        lost-link ones, the limits (``set_limits``), the battery's and the return altitude, the
+        landing's (with a relay rotation, gcs/landing.py), the rally settings (with a rally
+        keeper). A later round (``first`` False) leaves out the
+        optional ones (gcs/audit.py OPTIONAL_PARAMS: absent on some firmware versions)."""
+        names = [
+            n
+            for n in audit_mod.params_still_needed(autopilot, got)
+            if first or n not in audit_mod.OPTIONAL_PARAMS
+        ]
+        extra: list[str] = []
+        if self._limits_wanted():  # vehicles discovered late, reads lost: the limits too
+            extra += self._limit_names(autopilot)
+        extra += self._battery_params(autopilot)
+        extra += self._rotation_landing_params(autopilot)  # with a rotation: its landing
+        if self.rally is not None:  # the settings that make RTL use rally points
+            extra += rally_mod.RALLY_PARAMS.get(autopilot, ())
+        names += [n for n in extra if n not in got and n not in names]
+        return names
+
+    def _audit_report(
+        self, vehicles: _Vehicles, *, override: bool = False
+    ) -> audit_mod.AuditReport:
+        """The audit of ``vehicles`` with the mission's settings (battery, return altitude)."""
+        cfg = self.config
+        return audit_mod.audit_fleet(
+            vehicles,
+            self.gcs_sysid,
+            override=override,
+            battery=cfg.battery_audit,
+            battery_low_frac=cfg.battery_low_frac,
+            rtl_min_alt_m=cfg.rtl_min_alt_m,
+        )
 
     def _poll_audit(self, snap: FleetSnapshot, now_s: float) -> None:
         """Wait for the reads (in rounds), fix (``apply_failsafes``), audit, write the limits;
@@ -145,29 +172,10 @@ class AuditStep(OperatorState):
             self._audit_round += 1
             for i in range(snap.n_vehicles):
                 vid = self._vid(snap, i)
-                got = self._params.get(vid, {})
-                names = [
-                    n
-                    for n in audit_mod.params_still_needed(int(snap.autopilot[i]), got)
-                    if n not in audit_mod.OPTIONAL_PARAMS
-                ]
-                if self._limits_wanted():  # vehicles discovered late, reads lost: the limits too
-                    names += [
-                        n
-                        for n in self._limit_names(int(snap.autopilot[i]))
-                        if n not in got and n not in names
-                    ]
-                if self.rally is not None:
-                    names += [
-                        n
-                        for n in rally_mod.RALLY_PARAMS.get(int(snap.autopilot[i]), ())
-                        if n not in got and n not in names
-                    ]
-                names += [
-                    n
-                    for n in self._battery_params(int(snap.autopilot[i]))
-                    if n not in got and n not in names
-                ]
+                self._audit_vids.add(vid)  # discovered during the audit: in it from this round
+                names = self._audit_names(
+                    int(snap.autopilot[i]), self._params.get(vid, {}), first=False
+                )
                 if snap.lost[i]:
                     continue
                 for name in names:
@@ -175,9 +183,12 @@ class AuditStep(OperatorState):
                     self.station.request_param(vid, name, now_s)
             if self._params_pending:
                 return
+        # The vehicles the reads were asked of; one discovered after the last round is audited
+        # on its own once the launch starts (gcs/operations/late_audit.py).
         vehicles = {
             self._vid(snap, i): (int(snap.autopilot[i]), self._params.get(self._vid(snap, i), {}))
             for i in range(snap.n_vehicles)
+            if self._vid(snap, i) in self._audit_vids
         }
         if self.config.apply_failsafes:
             if self._fixes_sent_s is None:
@@ -185,13 +196,7 @@ class AuditStep(OperatorState):
                     return
             elif self._sets_pending and now_s - self._fixes_sent_s < self.config.audit_timeout_s:
                 return  # the link ends every set with Confirmed or Failed; this is a backstop
-        report = audit_mod.audit_fleet(
-            vehicles,
-            self.gcs_sysid,
-            override=self.config.override_audit,
-            battery=self.config.battery_audit,
-            battery_low_frac=self.config.battery_low_frac,
-        )
+        report = self._audit_report(vehicles, override=self.config.override_audit)
         self.audit_report = report
         if not report.cleared_to_fly:
             log.warning("pre-flight audit refused the flight:\n%s", report.summary())
@@ -202,12 +207,14 @@ class AuditStep(OperatorState):
             log.warning("pre-flight audit OVERRIDDEN:\n%s", report.summary())
         if self._limits_wanted():
             if self._limits_sent_s is None:
+                self._limits_sent_s = now_s
                 if self._send_limits(vehicles, now_s):
                     return
             elif self._sets_pending and now_s - self._limits_sent_s < self.config.audit_timeout_s:
                 return
         if self.rally is not None:
             if self._rally_params_sent_s is None:
+                self._rally_params_sent_s = now_s
                 if self._send_rally_params(vehicles, now_s):
                     return
             elif (
@@ -215,13 +222,19 @@ class AuditStep(OperatorState):
                 and now_s - self._rally_params_sent_s < self.config.audit_timeout_s
             ):
                 return
+        self._rotation_use_landing(vehicles)
         self._start_launch(snap, now_s, Trigger.CLEARED)
 
     def _battery_params(self, autopilot: int) -> tuple[str, ...]:
-        """The battery-failsafe parameters to read (none with ``battery_audit`` off)."""
-        if self.config.battery_audit == "off":
-            return ()
-        return audit_mod.BATTERY_AUDIT_PARAMS.get(autopilot, ())
+        """The battery-failsafe parameters to read (none with ``battery_audit`` off), and over
+        terrain the return altitude (``rtl_min_alt_m``)."""
+        names: tuple[str, ...] = ()
+        if self.config.battery_audit != "off":
+            names = audit_mod.BATTERY_AUDIT_PARAMS.get(autopilot, ())
+        rtl = audit_mod.RTL_ALT_PARAMS.get(autopilot)
+        if self.config.rtl_min_alt_m is not None and rtl is not None:
+            names = (*names, rtl[0])
+        return names
 
     def _limit_names(self, autopilot: int) -> tuple[str, ...]:
         """The limit parameters read and written on this firmware (gcs.limits)."""
@@ -234,7 +247,6 @@ class AuditStep(OperatorState):
         """PARAM_SET the mission's speed / climb limits where a vehicle differs; True if any
         write was sent (each is confirmed by its PARAM_VALUE echo, ``param_changes``)."""
         cfg = self.config
-        self._limits_sent_s = now_s
         climb = cfg.climb_rate_m_s if cfg.climb_rate_m_s is not None else math.inf
         assert cfg.max_speed_m_s is not None  # only called when _limits_wanted()
         for vid, (autopilot, params) in sorted(vehicles.items()):
@@ -265,7 +277,6 @@ class AuditStep(OperatorState):
     def _send_rally_params(self, vehicles: _Vehicles, now_s: float) -> bool:
         """PARAM_SET what makes each vehicle's RTL use the rally points (gcs/rally.py
         RALLY_PARAMS); True if any write was sent."""
-        self._rally_params_sent_s = now_s
         for vid, (autopilot, params) in sorted(vehicles.items()):
             for name, value in rally_mod.rally_param_writes(autopilot, params):
                 self._set_param(vid, name, value, params.get(name), "rally", now_s)
@@ -313,23 +324,26 @@ class AuditStep(OperatorState):
 
     def _send_fixes(self, vehicles: _Vehicles, now_s: float) -> bool:
         """PARAM_SET every fixable blocking finding; True if any write was sent."""
-        cfg = self.config
-        before = audit_mod.audit_fleet(
-            vehicles,
-            self.gcs_sysid,
-            battery=cfg.battery_audit,
-            battery_low_frac=cfg.battery_low_frac,
-        )
+        before = self._write_fixes(vehicles, now_s)
         self._fixes_sent_s = now_s
+        if self._sets_pending:
+            self.initial_audit_report = before
+            return True
+        return False
+
+    def _write_fixes(self, vehicles: _Vehicles, now_s: float) -> audit_mod.AuditReport:
+        """PARAM_SET every fixable blocking finding of ``vehicles``; returns their audit before
+        the writes."""
+        cfg = self.config
+        before = self._audit_report(vehicles)
         for va in before.unsafe:
             vid = (va.link_id, va.sysid)
             autopilot, params = vehicles[vid]
             fixes = audit_mod.failsafe_fixes(autopilot, params, self.gcs_sysid)
             if cfg.battery_audit == "require":
                 fixes += audit_mod.battery_fixes(autopilot, params, cfg.battery_low_frac)
+            if cfg.rtl_min_alt_m is not None:
+                fixes += audit_mod.rtl_altitude_fixes(autopilot, params, cfg.rtl_min_alt_m)
             for name, value in fixes:
                 self._set_param(vid, name, value, params.get(name), "failsafe", now_s)
-        if self._sets_pending:
-            self.initial_audit_report = before
-            return True
-        return False
+        return before

@@ -52,6 +52,10 @@ class OperationsConfig:
     action). With ``apply_failsafes`` the low action is written as return to launch."""
     battery_low_frac: float | None = None
     """The mission's low level (``endurance.battery.low_frac``), compared with the firmware's."""
+    rtl_min_alt_m: float | None = None
+    """Over terrain, the least altitude above home at which the firmware's RTL may fly home
+    (:func:`gcs.audit.audit_rtl_altitude`; with ``apply_failsafes`` written). None: a flat earth,
+    not audited."""
     max_speed_m_s: float | None = None
     """The mission's horizontal speed limit; with ``set_limits`` written into each vehicle's own
     parameters at launch (:mod:`gcs.limits`). None: the firmware's limits are left alone."""

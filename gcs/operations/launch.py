@@ -101,7 +101,9 @@ class LaunchStep(OperatorState):
         ``wave_size`` rows in discovery order."""
         self._enter(trigger, now_s)
         self._launch_since_s = now_s
-        rows = list(range(snap.n_vehicles))
+        # A vehicle the fleet audit did not cover waits for its own (gcs.operations.late_audit)
+        # and is launched by the run's reclaim once cleared.
+        rows = np.flatnonzero(self._audit_gate(snap)).tolist()
         k = self.config.wave_size
         self._waves = [rows[j : j + k] for j in range(0, len(rows), k)]
         self._wave = 0
@@ -154,7 +156,11 @@ class LaunchStep(OperatorState):
                 if i < snap.n_vehicles and heard[i] and in_plan[i] and may_fly[i]:
                     self._drive(snap, i, alt, now_s)
         if self._wave >= len(self._waves):
-            rows = np.flatnonzero(heard & may_fly)
+            # The climb of the vehicles the launch started: one discovered since (audited on its
+            # own, gcs.operations.late_audit) is launched by the run's reclaim, not waited for.
+            waved = np.zeros(snap.n_vehicles, dtype=bool)
+            waved[[i for w in self._waves for i in w if i < snap.n_vehicles]] = True
+            rows = np.flatnonzero(heard & may_fly & waved)
             target = layer_alt_m(rows, self.control)
             climbed = fin[rows] & (
                 np.where(fin[rows], alt[rows], 0.0) >= cfg.climbed_alt_frac * target
@@ -299,13 +305,21 @@ class LaunchStep(OperatorState):
 
     def _hold(self, snap: FleetSnapshot, rows: npt.ArrayLike, now_s: float) -> None:
         rows = np.asarray(rows, dtype=int)
-        here = snap.pos_ned_m[rows, :2]
-        if self.control.terrain is not None:  # at its layer above the ground under it
-            layer = layer_alt_m(rows, self.control)
-            target = terrain_targets(snap.pos_ned_m[rows], here, layer, self.control.terrain)
+        self._send_layer_targets(snap, rows, snap.pos_ned_m[rows, :2], now_s)
+
+    def _send_layer_targets(
+        self, snap: FleetSnapshot, rows: np.ndarray, target_ne_m: np.ndarray, now_s: float
+    ) -> int:
+        """Send vehicles ``rows`` to ``target_ne_m`` (K, 2) at their layer's altitude: above home
+        on a flat earth; over terrain, above the ground under the target with the whole path
+        clear of the ground (:func:`gcs.control.terrain_targets`). Every target the station sends
+        outside the planner's tick (holds, the rotation's spares and returns) goes through here."""
+        layer = layer_alt_m(rows, self.control)
+        if self.control.terrain is not None:
+            target = terrain_targets(snap.pos_ned_m[rows], target_ne_m, layer, self.control.terrain)
         else:
-            target = np.column_stack([here, -layer_alt_m(rows, self.control)])
-        self._send_targets(snap, rows, target, now_s)
+            target = np.column_stack([target_ne_m, -layer])
+        return self._send_targets(snap, rows, target, now_s)
 
     def _send_targets(
         self, snap: FleetSnapshot, rows: np.ndarray, target_ned_m: np.ndarray, now_s: float

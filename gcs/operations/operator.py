@@ -52,6 +52,7 @@ from gcs.operations.actions import OperatorActions
 from gcs.operations.audit import AuditStep
 from gcs.operations.config import OperationsConfig, OperatorAction, TickRecord, _Row
 from gcs.operations.end import EndStep
+from gcs.operations.late_audit import LateAudit, LateAuditStep
 from gcs.operations.launch import LaunchStep
 from gcs.operations.phases import Phase, Trigger, next_phase
 from gcs.operations.rally import RallyStep
@@ -93,7 +94,9 @@ _LOOKUPS: dict[
 ] = {}
 
 
-class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, RotationStep):
+class Operator(
+    AuditStep, LateAuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, RotationStep
+):
     """Launch, run, end and reclaim (see the :mod:`gcs.operations` docstring).
 
     Parameters
@@ -157,6 +160,12 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         self._last_param_s = -math.inf
         """When the last audit parameter was received (optional reads wait a little after it)."""
         self._known: set[tuple[int, int]] = set()
+        self._audit_vids: set[tuple[int, int]] = set()
+        """The vehicles the fleet's pre-flight audit read (every other one is audited on its own
+        before it may fly: ``late_audits``)."""
+        self.late_audits: dict[tuple[int, int], LateAudit] = {}
+        """Vehicles discovered after the fleet audit -> their own audit
+        (:mod:`gcs.operations.late_audit`)."""
         self.audit_report: audit_mod.AuditReport | None = None
         self.initial_audit_report: audit_mod.AuditReport | None = None
         """The audit before ``apply_failsafes`` changed anything (None if nothing was set)."""
@@ -344,6 +353,7 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         for i in range(snap.n_vehicles):  # a row for every vehicle (built only when missing)
             if i not in rows:
                 rows[i] = _Row()
+        self._poll_late_audits(snap, now_s)  # vehicles discovered after the fleet audit
         record = None
         polled: set[Phase] = set()
         while self._phase not in polled:  # a phase entered during this poll is polled too
@@ -425,8 +435,9 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         return int(snap.link_id[i]), int(snap.sysid_of_index[i])
 
     def _in_plan(self, snap: FleetSnapshot) -> np.ndarray:
-        """(N,) bool: rows not taken out of the plan by an operator action."""
-        ok = np.ones(snap.n_vehicles, dtype=bool)
+        """(N,) bool: rows not taken out of the plan by an operator action, nor waiting for (or
+        refused by) their own pre-flight audit (discovered after the fleet's)."""
+        ok = self._audit_gate(snap)
         if self.released:
             for i in range(snap.n_vehicles):
                 ok[i] = self._vid(snap, i) not in self.released
@@ -439,13 +450,13 @@ class Operator(AuditStep, LaunchStep, EndStep, OperatorActions, RallyStep, Rotat
         heard = ~snap.lost
         airborne = heard & snap.armed & np.isfinite(alt) & (alt > self.config.airborne_alt_m)
         airborne &= self._in_plan(snap)  # released vehicles are neither planned nor relays
-        plan_alive = heard
+        plan_alive = heard & self._audit_gate(snap)  # a vehicle not audited yet is not in the plan
         if self.rotation is not None:
             # Only the rotation's ``air`` vehicles reach the planner (docs/design/endurance.md
             # §1): spares on the ground, inbound and returning ones are not in its fleet.
             planned = self._rotation_step(snap, alt, now_s)
             airborne &= planned
-            plan_alive = heard & planned
+            plan_alive &= planned
         t_m = self.t_mission_s(now_s)
         task_pos = np.asarray(self.task_pos_fn(t_m), dtype=float).reshape(-1, 2)
         result = tick(

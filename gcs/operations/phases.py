@@ -12,6 +12,9 @@ audit verdict) stays in the per-phase poll handlers; the table says only which m
     discover --tasks unseen / nothing heard--> refused      audit --unsafe--> refused
     discover / audit / launch / run --end--> end --landed / end timeout--> done
     every phase --interrupt--> done   (Ctrl-C with hold / rtl / land; "end" before launch)
+
+A vehicle discovered after the audit is audited on its own during launch and run
+(:mod:`gcs.operations.late_audit`): per vehicle, not a phase of the operator.
 """
 
 from __future__ import annotations

@@ -38,9 +38,9 @@ from typing import Any
 import numpy as np
 
 from gcs.autopilot import adapter_for
-from gcs.control import layer_alt_m
 from gcs.events import HomePositionReceived, ModeChanged, VehicleRebooted
 from gcs.fleet import FleetSnapshot
+from gcs.landing import LANDING_PARAMS, landing_descent
 from gcs.link import LinkUsageError, UnknownVehicle
 from gcs.operations._state import OperatorState
 from gcs.operations.config import _Row
@@ -70,6 +70,35 @@ _GROUND = (LANDED, SWAPPING, NO_BATTERY, READY)
 
 class RotationStep(OperatorState):
     """The rotation of :class:`gcs.operations.Operator` (see the module docstring)."""
+
+    # ------------------------------------------------------------------ the audit's parameters
+
+    def _rotation_landing_params(self, autopilot: int) -> tuple[str, ...]:
+        """The landing parameters the audit reads of a vehicle when the flight rotates relays
+        (:data:`gcs.landing.LANDING_PARAMS`); none without a rotation."""
+        if self.rotation is None:
+            return ()
+        return LANDING_PARAMS.get(autopilot, ())
+
+    def _rotation_use_landing(
+        self, vehicles: dict[tuple[int, int], tuple[int, dict[str, float]]]
+    ) -> None:
+        """The audit is over: the rotation plans with the vehicles' own landing (what they gave,
+        with the station's confirmed writes, e.g. the mission's WPNAV_SPEED_DN; the firmware's
+        defaults for what they did not give)."""
+        rot = self.rotation
+        if rot is None or not vehicles:
+            return
+        written: dict[tuple[int, int], dict[str, float]] = {}
+        for c in self.param_changes:
+            if c.get("ok"):
+                written.setdefault((c["link_id"], c["sysid"]), {})[c["name"]] = c["value"]
+        rot.use_landing(
+            [
+                landing_descent(ap, {**params, **written.get(vid, {})})
+                for vid, (ap, params) in sorted(vehicles.items())
+            ]
+        )
 
     # ------------------------------------------------------------------ masks
 
@@ -195,6 +224,12 @@ class RotationStep(OperatorState):
         # (powered up again, its pack charged): a spare (docs/design/endurance.md §7).
         back = (ph == LOST) & heard & recent & ~armed & (dist_home <= rot.land_radius_m)
         back &= batt >= rot.full_frac
+        # A vehicle discovered after the pre-flight audit is no vehicle of the rotation until it
+        # passed its own (gcs/operations/late_audit.py): lost to the policy, which counts on it
+        # for nothing; once cleared, heard on its pad and charged, it is a spare (back).
+        audited = np.ones(nd, bool)
+        audited[:m] = self._audit_gate(snap)[:m]
+        back &= audited
         for i in np.flatnonzero(back).tolist():
             rot.gone.discard(i)
             rot.landed_s.pop(i, None)
@@ -211,6 +246,7 @@ class RotationStep(OperatorState):
         low[:m] = ~(np.nan_to_num(alt_m[:m], nan=0.0) > self.config.airborne_alt_m)
         down_home = (ph == RETURNING) & (dist_home <= rot.land_radius_m) & low
         alive[:m] = recent[:m] | on_ground[:m] | down_home[:m]
+        alive &= audited
         # Landed away from the base (a critical-battery LAND in the field): gone for the mission.
         away = heard & ~armed & (dist_home > rot.land_radius_m)
         away &= np.isin(ph, (AIR, INBOUND, RETURNING))
@@ -309,8 +345,7 @@ class RotationStep(OperatorState):
         inbound = np.flatnonzero((ph[:m] == INBOUND) & airborne & np.isfinite(target_m[:m, 0]))
         inbound = np.array([i for i in inbound.tolist() if self._vid(snap, i) not in self.released])
         if len(inbound):
-            tgt = np.column_stack([target_m[inbound], -layer_alt_m(inbound, self.control)])
-            self._send_targets(snap, inbound, tgt, now_s)
+            self._send_layer_targets(snap, inbound, target_m[inbound], now_s)
         for i in np.flatnonzero((ph[:m] == RETURNING) & ~snap.lost[:m] & snap.armed[:m]).tolist():
             vid = self._vid(snap, i)
             if vid in self.released:
@@ -323,6 +358,12 @@ class RotationStep(OperatorState):
                 continue
             try:
                 if self.config.end == "rtl":
+                    # Over terrain RTL's straight line at one altitude may run into a hill
+                    # between the post and home: climb over the highest ground first, as at the
+                    # mission's end (gcs/operations/end.py _climb_before_rtl).
+                    if self._climb_before_rtl(snap, i, now_s):
+                        rot.home_cmd_s[i] = now_s
+                        continue
                     self.station.clear_position_target(vid, now_s)
                     self.station.rtl(vid, now_s)
                     rot.home_cmd_s[i] = now_s
@@ -335,8 +376,7 @@ class RotationStep(OperatorState):
                         self.station.land(vid, now_s)
                         rot.home_cmd_s[i] = now_s
                     else:
-                        tgt = np.array([[*pad, -float(layer_alt_m([i], self.control)[0])]])
-                        self._send_targets(snap, np.array([i]), tgt, now_s)
+                        self._send_layer_targets(snap, np.array([i]), pad[None, :], now_s)
             except (LinkUsageError, UnknownVehicle, ValueError) as exc:
                 log.info("link %d sysid %d: %s", *vid, exc)
         # A vehicle that left the plan is not reclaimed from the RTL it was sent on.

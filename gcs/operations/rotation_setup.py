@@ -5,13 +5,15 @@ import circle (tests/test_layering.py)."""
 
 from __future__ import annotations
 
+import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from gcs.landing import LandingDescent
 from planner.endurance import (
     AIR,
     INBOUND,
@@ -22,6 +24,8 @@ from planner.endurance import (
 )
 
 __all__ = ["RotationSetup", "SWAP_CONFIRM"]
+
+log = logging.getLogger(__name__)
 
 #: Who confirms a battery swap (``RotationSetup.swap_confirm``, ``phireman fly --swap-confirm``).
 SWAP_CONFIRM = ("auto", "manual")
@@ -87,6 +91,11 @@ class RotationSetup:
     """When the last tick ran (station core seconds): the time ``time_to_reserve_s`` counts from."""
     confirmed_s: dict[int, float] = field(default_factory=dict)
     """Row -> when the ground crew confirmed its swap (until the swap is done or it is lost)."""
+    land_from_m: float = 0.0
+    """Height above the pad a vehicle lands from (the top flight layer), metres: with the
+    vehicles' landing parameters, the policy's ``land_s`` (:meth:`use_landing`)."""
+    replan: Callable[[float], RotationPolicy] | None = field(default=None, repr=False)
+    """The policy again with another ``land_s`` (the plan's K counts it); None: kept as built."""
 
     def __post_init__(self) -> None:
         if not self.hover_drain_per_s > 0:
@@ -95,6 +104,34 @@ class RotationSetup:
             raise ValueError(
                 f"swap_confirm must be one of {', '.join(SWAP_CONFIRM)}, got {self.swap_confirm!r}"
             )
+
+    def use_landing(self, descents: Sequence[LandingDescent]) -> float | None:
+        """Plan with the vehicles' own landing (:mod:`gcs.landing`, from the parameters the audit
+        read), before the first tick: ``land_s`` becomes the slowest vehicle's descent from
+        :attr:`land_from_m`, and the policy is built again (:attr:`replan`: the reserve, the
+        turnaround and K all count it; a mission's own ``endurance.params.land_s`` still wins).
+        Returns the new ``land_s``; None when nothing changed (no vehicle, no :attr:`replan`,
+        the rotation already ticking, or a plan the new landing makes impossible, logged)."""
+        if not descents or self.replan is None or math.isfinite(self.tick_s):
+            return None
+        land_s = max(d.time_s(self.land_from_m) for d in descents)
+        if land_s == self.policy.params.land_s:
+            return None
+        try:
+            policy = self.replan(land_s)
+        except ValueError as exc:  # a landing so slow that no sortie is left
+            log.warning("rotation: kept the default landing (%.0f s): %s", land_s, exc)
+            return None
+        log.info(
+            "rotation: the vehicles land in %.0f s from %.0f m (was %.0f s): %d of %d fly at once",
+            land_s,
+            self.land_from_m,
+            self.policy.params.land_s,
+            policy.flying,
+            policy.n_drones,
+        )
+        self.policy = policy
+        return float(policy.params.land_s)
 
     def state(self, ids: Sequence[str]) -> dict[str, Any]:
         """The rotation as the operator's view draws it (docs/design/endurance.md §8), JSON-able.
@@ -105,8 +142,8 @@ class RotationSetup:
 
         Keys: ``swap_confirm``; ``vehicles`` and ``phase`` (one entry per policy row);
         ``inbound`` (``[spare, relay]`` pairs: who relieves whom); ``reserve_at_s`` (relay ->
-        when it reaches its reserve, to :data:`RESERVE_ROUND_S`; relays in the plan with no spare
-        on its way); ``pads`` (one per pad: the vehicle on it, when its swap started, when the
+        when it reaches its reserve, whole seconds to :data:`RESERVE_ROUND_S`; relays in the plan
+        with no spare on its way); ``pads`` (one per pad: the vehicle on it, when its swap started, when the
         crew confirmed it); ``swap_time_s``; ``return_speed_m_s`` (for the spares' ETA);
         ``batteries`` (charged on the shelf, the charging
         ones' finish times, the ones waiting for a charger, chargers); ``counters``
@@ -132,13 +169,13 @@ class RotationSetup:
                     else round(self.confirmed_s[i], 1),
                 }
             )
-        reserve: dict[str, float] = {}
+        reserve: dict[str, int] = {}
         ttr = self.time_to_reserve_s
         if ttr.shape == (n,) and math.isfinite(self.tick_s):
             for i in np.flatnonzero((ph == AIR) & (pol.replaced_by < 0)).tolist():
                 if math.isfinite(ttr[i]):
                     at = RESERVE_ROUND_S * round((self.tick_s + ttr[i]) / RESERVE_ROUND_S)
-                    reserve[who[i]] = round(at, 1)
+                    reserve[who[i]] = int(round(at))
         return {
             "swap_confirm": self.swap_confirm,
             "vehicles": who,
@@ -189,6 +226,7 @@ class RotationSetup:
             "no_spare": s["no_spare"],
             "min_battery_in_air": round(self.min_battery_in_air, 4),
             "planned_at_start": self.policy.flying,
+            "land_s": round(float(self.policy.params.land_s), 1),
             "reboots": self.counters["reboots"],
             "swap_confirm": self.swap_confirm,
             "swaps_confirmed_by_crew": self.counters["swaps_confirmed_by_crew"],

@@ -50,10 +50,31 @@ def run(args) -> int:
         for line in exc.errors:
             print(f"{path}: {line}", file=sys.stderr)
         return 2
+    problem = rotation_problem(mission)
+    if problem is not None:
+        print(f"{path}: endurance: {problem}", file=sys.stderr)
+        return 2
     print(f"OK: {mission.summary()}")
     for note in mission_notes(path, mission):
         print(f"note: {note}")
     return 0
+
+
+def rotation_problem(mission) -> str | None:
+    """Why the mission's relay rotation cannot be planned (None: it can, or there is none): the
+    station's own rotation set-up (:func:`mission.flight.station_loop.rotation_setup`), so that
+    what ``check`` accepts, ``fly`` flies (a battery too small to reach the posts and back)."""
+    if mission.endurance.battery is None or not mission.endurance.rotation:
+        return None
+    from mission.flight.fly_options import RunnerError
+    from mission.flight.mission_world import mission_scenario
+    from mission.flight.station_loop import rotation_setup
+
+    try:
+        rotation_setup(mission, mission_scenario(mission, live_tasks=True))
+    except RunnerError as exc:
+        return str(exc)
+    return None
 
 
 def mission_notes(path: Path, mission) -> list[str]:

@@ -35,7 +35,8 @@ mission's run.speedup); with --connect the same station flies real links instead
 
 Sequence: discover vehicles -> pre-flight audit of lost-link parameters (refuses unsafe settings
 unless fixed with --apply-failsafes or overridden with --override-audit) -> GUIDED/OFFBOARD, arm, take off in waves -> PhiIREMAN at the control
-period -> RTL or LAND. Vehicles that come back from a failsafe are reclaimed.
+period -> RTL or LAND. Vehicles that come back from a failsafe are reclaimed. A vehicle heard
+only after the audit is audited on its own and stays on the ground until it passes.
 
 Writes a run directory (mission, seed, code version, flight.tlog, events.jsonl, metrics.csv,
 summary.json, truth.npz when emulated) and ends with TU1/TU2 as the station saw them and, when
@@ -737,6 +738,15 @@ def run(args) -> int:
         print(line, file=sys.stderr)
     for line in op.limit_warnings:
         print(f"warning: {line}", file=sys.stderr)
+    for late in op.late_audit_summary():  # discovered after the fleet audit, audited alone
+        if late["verdict"] in ("refused", "pending"):
+            print(
+                f"warning: link {late['link_id']} sysid {late['sysid']}, discovered after the "
+                f"pre-flight audit, was kept on the ground ({late['verdict']}"
+                + (f": {'; '.join(late['blocking'])}" if late["blocking"] else "")
+                + ")",
+                file=sys.stderr,
+            )
     if op.prearm:
         print(
             f"{len(op.prearm)} vehicle(s) refused to arm at first (not ready); last reason:",

@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from gcs.events import HEALTH_EVENTS, BatteryReceived, TelemetryReceived
 from gcs.operations import Operator
@@ -31,10 +33,98 @@ __all__ = [
     "FlightTimes",
     "flown_span_s",
     "ROTATION_FILE",
+    "ROTATION_SNAPSHOT_S",
+    "rotation_patch",
+    "apply_rotation_patch",
+    "read_rotation",
 ]
 
-#: The rotation's record in a run directory (:meth:`Records.rotation`).
+#: The rotation's record in a run directory (:meth:`Records.rotation`, :func:`read_rotation`).
 ROTATION_FILE = "rotation.jsonl"
+
+#: ``rotation.jsonl`` writes the whole state at least this often (station seconds); the lines
+#: between carry only what changed (:func:`rotation_patch`), so a reader that starts at any
+#: whole-state line, or lost a line, is right again at the next one.
+ROTATION_SNAPSHOT_S = 300.0
+
+
+def rotation_patch(old: dict[str, Any], new: dict[str, Any]) -> dict[str, Any] | None:
+    """What changed from ``old`` to ``new``, for :func:`apply_rotation_patch`: the keys whose
+    value changed; a dict that changed as its own patch; a list as long as before as the
+    entries that changed (``{"index": value}``); a removed key as None (a JSON merge patch,
+    RFC 7396, with the lists of vehicles patched entry by entry). None when the patch would
+    not give ``new`` back (a value that is None itself, which reads as a removal): the caller
+    writes the whole state instead.
+
+    The rotation's state (:meth:`gcs.operations.rotation_setup.RotationSetup.state`) changes a
+    few entries at a tick (relays' reserve times, a vehicle's phase, a counter): its line
+    shrinks from the whole state, about 2 kB with 50 vehicles, to those entries."""
+    patch = _patch(old, new)
+    return patch if apply_rotation_patch(old, patch) == new else None
+
+
+def _patch(old: dict[str, Any], new: dict[str, Any]) -> dict[str, Any]:
+    patch: dict[str, Any] = {}
+    for k, v in new.items():
+        was = old.get(k)
+        if k in old and was == v:
+            continue
+        if isinstance(v, dict) and isinstance(was, dict):
+            patch[k] = _patch(was, v)
+        elif isinstance(v, list) and isinstance(was, list) and len(v) == len(was):
+            patch[k] = {str(i): x for i, (w, x) in enumerate(zip(was, v)) if w != x}
+        else:
+            patch[k] = v
+    for k in old.keys() - new.keys():
+        patch[k] = None
+    return patch
+
+
+def apply_rotation_patch(old: dict[str, Any], patch: dict[str, Any]) -> dict[str, Any]:
+    """``old`` with ``patch`` (:func:`rotation_patch`) applied, as a new dict; ``old`` and the
+    values the patch leaves alone are shared, not copied."""
+    out = dict(old)
+    for k, v in patch.items():
+        was = old.get(k)
+        if v is None:
+            out.pop(k, None)
+        elif isinstance(v, dict) and isinstance(was, dict):
+            out[k] = apply_rotation_patch(was, v)
+        elif isinstance(v, dict) and isinstance(was, list):
+            entries = list(was)
+            for i, x in v.items():
+                entries[int(i)] = x
+            out[k] = entries
+        else:
+            out[k] = v
+    return out
+
+
+def read_rotation(path: Path) -> list[tuple[float, dict[str, Any], list[dict[str, Any]]]]:
+    """``rotation.jsonl``'s lines in order as ``(t_s, state, events)``, each state whole.
+
+    A line is ``{"t_s", "state"}`` (the whole state) or ``{"t_s", "changed"}`` (a patch of the
+    line before, :func:`rotation_patch`), with ``"events"`` when rotation events came. Files
+    written before the patches have whole states only. A line that cannot be read (cut short by
+    a crash) is skipped, and so are the patches after it until the next whole state."""
+    out: list[tuple[float, dict[str, Any], list[dict[str, Any]]]] = []
+    state: dict[str, Any] | None = None
+    for text in path.read_text().splitlines():
+        try:
+            rec = json.loads(text)
+            t_s = float(rec["t_s"])
+            if "state" in rec:
+                state = rec["state"]
+            elif state is not None:
+                state = apply_rotation_patch(state, rec["changed"])
+            events = list(rec.get("events", ()))
+        except (ValueError, KeyError, TypeError, AttributeError, IndexError):
+            state = None  # a line lost: the patches after it wait for a whole state
+            continue
+        if state is not None:
+            out.append((t_s, state, events))
+    return out
+
 
 #: Under this share of the requested speed-up the pace is reported as too slow (on screen and
 #: ``summary.json``'s ``speedup_slow``): results such as reclaims and TU move with the pace.
@@ -125,6 +215,7 @@ class Records:
         self.metrics = MetricsWriter(run_dir / "metrics.csv")
         self._rotation: MetricsWriter | None = None
         self._rotation_last: dict | None = None
+        self._rotation_whole_s = -math.inf
         self._rotation_events = 0
 
     #: Write BatteryReceived to events.jsonl (a mission with batteries: the rotation's inputs);
@@ -141,17 +232,31 @@ class Records:
     def rotation(self, op: Operator, now_s: float) -> None:
         """``rotation.jsonl`` (a mission with batteries): after a control tick, the rotation's
         state (:meth:`gcs.operations.rotation_setup.RotationSetup.state`) when it changed, with
-        the rotation events since the line before: ``{"t_s", "state", "events"}``. The replay
-        draws its rotation panel from it (docs/live_view.md)."""
+        the rotation events since the line before: the whole state (``{"t_s", "state"}``) on the
+        first line and every :data:`ROTATION_SNAPSHOT_S`, otherwise what changed
+        (``{"t_s", "changed"}``, :func:`rotation_patch`); ``"events"`` when there are any. The
+        replay draws its rotation panel from it (docs/live_view.md, :func:`read_rotation`)."""
         state = op.rotation_state()
         if state is None:
             return
         events = op.rotation_events(self._rotation_events)
-        if state == self._rotation_last and not events:
+        last = self._rotation_last
+        if state == last and not events:
             return
         if self._rotation is None:
-            self._rotation = MetricsWriter(self.dir / ROTATION_FILE)
-        self._rotation.write({"t_s": round(now_s, 3), "state": state, "events": events})
+            self._rotation = MetricsWriter(self.dir / ROTATION_FILE, compact=True)
+        line: dict[str, Any] = {"t_s": round(now_s, 3)}
+        patch = None
+        if last is not None and now_s - self._rotation_whole_s < ROTATION_SNAPSHOT_S:
+            patch = rotation_patch(last, state)
+        if patch is None:
+            line["state"] = state
+            self._rotation_whole_s = now_s
+        else:
+            line["changed"] = patch
+        if events:
+            line["events"] = events
+        self._rotation.write(line)
         self._rotation_last = state
         self._rotation_events += len(events)
 
@@ -248,6 +353,8 @@ def summary(
             "cleared_to_fly": op.audit_report.cleared_to_fly,
             "overridden": op.audit_report.overridden,
             "unsafe": [[a.link_id, a.sysid] for a in op.audit_report.unsafe],
+            # vehicles discovered after the fleet audit, each audited on its own
+            "late": op.late_audit_summary(),
         },
         "run_dir": str(run_dir),
     }

@@ -22,7 +22,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from gcs.aio import StationAdapter
+from gcs.control import ControlConfig
 from gcs.fleet import FleetView, MissionOrigin
+from gcs.landing import FIRMWARE_DEFAULTS, landing_descent
 from gcs.link import StationConfig
 from gcs.operations import OperationsConfig, Operator, TickRecord
 from gcs.operations.rotation import RotationSetup
@@ -183,8 +185,11 @@ def _station_config(
 
 
 def _operations_config(
-    mission: Mission, opts: FlyOptions, expected: int | None
+    mission: Mission, opts: FlyOptions, expected: int | None, control: ControlConfig | None = None
 ) -> OperationsConfig:
+    """The operator's settings for ``mission`` flown with ``opts``; ``control`` (the station's
+    :func:`mission.format.scenario.control_config`): over terrain, the least return altitude the
+    audit requires."""
     lim = mission.vehicles.limits
     spec = mission.endurance.battery
     # Battery failsafes: required with batteries; on real firmware without them, at least warned
@@ -195,6 +200,11 @@ def _operations_config(
     return OperationsConfig(
         battery_audit=battery_audit,
         battery_low_frac=spec.low_frac if spec is not None else None,
+        rtl_min_alt_m=(
+            None
+            if control is None or control.terrain is None
+            else control.terrain.rtl_min_alt_m(control.geofence)
+        ),
         max_speed_m_s=lim.max_speed_m_s,
         climb_rate_m_s=lim.climb_rate_m_s,
         descent_rate_m_s=lim.descent_rate_m_s,
@@ -311,7 +321,7 @@ def make_operator(
         planner,
         scenario.task_pos_m,
         control,
-        _operations_config(mission, opts, expected),
+        _operations_config(mission, opts, expected, control),
         now_s=now_s,
         live_tasks=LiveTasks(fleet.origin, live) if live else None,
         rally=_rally_keeper(mission, params),
@@ -336,18 +346,12 @@ def rotation_fleet_size(
     return len(scenario.spawn_ne_m)
 
 
-#: The firmware's landing descent (ArduCopter defaults, ``Mode::land_run_vertical_control`` in
-#: ArduCopter/mode.cpp): WPNAV_SPEED_DN 150 cm/s down to LAND_ALT_LOW 1000 cm, then LAND_SPEED
-#: 50 cm/s. PX4's RTL returns higher (RTL_RETURN_ALT 60 m) and lands faster below it
-#: (MPC_Z_VEL_MAX_DN 1.5 m/s to MPC_LAND_ALT1 10 m, MPC_LAND_SPEED 0.7 m/s below MPC_LAND_ALT2
-#: 5 m): from the flight layers of the shipped missions the two take about as long.
-LANDING_FAST_M_S, LANDING_SLOW_ALT_M, LANDING_SLOW_M_S = 1.5, 10.0, 0.5
-
-
 def landing_descent_s(alt_m: float) -> float:
-    """Seconds from ``alt_m`` above the pad to the ground at the firmware's landing speeds."""
-    fast_m = max(0.0, alt_m - LANDING_SLOW_ALT_M)
-    return fast_m / LANDING_FAST_M_S + min(alt_m, LANDING_SLOW_ALT_M) / LANDING_SLOW_M_S
+    """Seconds from ``alt_m`` above the pad to the ground at the firmware's default landing
+    speeds, the slower of the two (ArduCopter's: WPNAV_SPEED_DN 1.5 m/s down to LAND_ALT_LOW 10 m,
+    then LAND_SPEED 0.5 m/s; PX4's ends at 0.7 m/s): the plan before the audit has read the
+    vehicles' own (:mod:`gcs.landing`, ``RotationSetup.use_landing``)."""
+    return max(landing_descent(ap).time_s(alt_m) for ap in FIRMWARE_DEFAULTS)
 
 
 def rotation_setup(
@@ -373,17 +377,28 @@ def rotation_setup(
     top_m = lim.cruise_alt_m + (lim.n_layers - 1) * lim.layer_spacing_m
     # What the paper's 2-D world does not fly and the vehicles do: the climb to the flight layer
     # after take-off, and the landing descent at the pad (docs/design/endurance.md §7).
-    flight = {
-        "launch_s": EnduranceParams().launch_s + top_m / lim.climb_rate_m_s,
-        "land_s": landing_descent_s(top_m),
-    }
-    policy = end.policy(n, mission.run.duration_s, lim.max_speed_m_s, mean_post_m, flight=flight)
+    launch_s = EnduranceParams().launch_s + top_m / lim.climb_rate_m_s
+
+    def policy_for(land_s: float):
+        flight = {"launch_s": launch_s, "land_s": land_s}
+        return end.policy(n, mission.run.duration_s, lim.max_speed_m_s, mean_post_m, flight=flight)
+
+    try:
+        policy = policy_for(landing_descent_s(top_m))
+    except ValueError as exc:  # e.g. a battery too small to reach the posts and come back
+        raise RunnerError(
+            f"mission {mission.name}: {exc} (endurance.battery.endurance_s, or --rotation off)"
+        ) from exc
     log.info("rotation: %d of %d fly at once", policy.flying, n)
     return RotationSetup(
         policy,
         hover_drain_per_s=1.0 / spec.endurance_s,
         return_drain_factor=1.0 + spec.speed_drain_frac,
         swap_confirm=swap_confirm,
+        land_from_m=top_m,
+        # The audit reads the vehicles' landing parameters; the plan then counts their own
+        # descent, unless the mission set its own land_s (docs/design/endurance.md §7).
+        replan=None if "land_s" in end.params else policy_for,
     )
 
 
@@ -506,8 +521,13 @@ async def run_station(
             a.close()
         raise RunnerError(f"cannot open link {conn!r}: {exc}") from exc
     station = Station([a.core for a in adapters])  # type: ignore[misc]  # started: each has a core
-    serve_terrain(mission, station)
-    op = make_operator(mission, scenario, station, opts, expected, clock(), seed)
+    try:
+        serve_terrain(mission, station)
+        op = make_operator(mission, scenario, station, opts, expected, clock(), seed)
+    except BaseException:  # e.g. RunnerError: no link may outlive the run (or write its tlog)
+        for a in adapters:
+            a.close()
+        raise
     holder["op"] = op
     op.on_action = records.events.write  # operator actions in events.jsonl, with their source
     if op.rally is not None:  # failed rally uploads: events.jsonl and the live view, not the fleet

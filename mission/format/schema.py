@@ -1063,18 +1063,21 @@ class EnduranceSpec(_Section):
 
         assert self.battery is not None  # callers check: no policy for endless batteries
         rotate = self.rotation if rotate is None else rotate
+        # The mission's own settings over the backend's (numbers, and refill_lost a flag).
+        settings: dict[str, Any] = {**(flight or {}), **self.params}
         params = EnduranceParams(
-            critical_frac=self.battery.low_frac,
-            return_speed_m_s=max_speed_m_s,
-            **{**(flight or {}), **self.params},
+            critical_frac=self.battery.low_frac, return_speed_m_s=max_speed_m_s, **settings
         )
         base = self.base.resources()
-        flying = n_drones
+        flying, spare_ratio = n_drones, 0.0
         if rotate:
-            flying = plan_fleet(
+            plan = plan_fleet(
                 n_drones, self.battery.endurance_s, horizon_s, base, params, mean_post_dist_m
-            ).flying
-        return RotationPolicy(n_drones, flying, base, params, rotate=rotate)
+            )
+            flying, spare_ratio = plan.flying, plan.ground_s / plan.sortie_s
+        return RotationPolicy(
+            n_drones, flying, base, params, rotate=rotate, spare_ratio=spare_ratio
+        )
 
     def validate(self) -> list[tuple[str, str]]:
         from planner.endurance import EnduranceParams

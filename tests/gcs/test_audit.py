@@ -144,7 +144,9 @@ def test_optional_params_absent_on_older_firmware_do_not_block():
     }
     assert audit_vehicle(0, 1, PX4, px).safe
     assert set(OPTIONAL_REASONS) == set(OPTIONAL_PARAMS)
-    read = {n for names in AUDIT_PARAMS.values() for n in names}
+    from gcs.landing import LANDING_ONLY_PARAMS  # read with a relay rotation
+
+    read = {n for names in AUDIT_PARAMS.values() for n in names} | LANDING_ONLY_PARAMS
     assert OPTIONAL_PARAMS <= read
     # Required ones are never optional: losing them must block.
     assert not {"FS_GCS_ENABLE", "NAV_DLL_ACT", "COM_OBL_RC_ACT", "NAV_RCL_ACT"} & OPTIONAL_PARAMS

@@ -464,3 +464,96 @@ def test_a_lost_vehicle_heard_again_but_not_full_stays_lost():
     t = _run(feed, t, t + 3.0, batt)
     assert rot.policy.phase[0] == LOST
     assert op.rotation_summary()["recovered"] == 0
+
+
+@pytest.mark.parametrize("land_speed_cm_s", [50.0, 30.0])
+def test_the_audit_reads_each_vehicles_landing_and_the_plan_counts_the_slowest(land_speed_cm_s):
+    """With a rotation the audit reads the landing parameters (gcs/landing.py); once cleared,
+    the policy is planned again with the slowest vehicle's descent from the top layer: one
+    vehicle reporting LAND_SPEED 30 cm/s lands 13 s later from 50 m than the defaults."""
+    from test_operations import AP_SAFE, answer_audit
+
+    from gcs.autopilot import ARDUPILOT
+    from gcs.landing import LANDING_PARAMS, landing_descent
+
+    built: list[float] = []
+
+    def replan(land_s: float) -> RotationPolicy:
+        built.append(land_s)
+        return RotationPolicy(
+            3, 2, BaseResources(pads=1), EnduranceParams(critical_frac=0.2, land_s=land_s)
+        )
+
+    default_s = landing_descent(ARDUPILOT).time_s(50.0)
+    rot = RotationSetup(
+        replan(default_s), hover_drain_per_s=1.0 / 1500.0, land_from_m=50.0, replan=replan
+    )
+    op = Operator(
+        FakeStation(),
+        FleetView(ORIGIN, timeout_s=5.0),
+        FakePlanner(),
+        lambda t: np.array([[POST_N_M, 0.0]]),
+        CONTROL,
+        OperationsConfig(audit=True, expected_vehicles=3, duration_s=10_000.0),
+        rotation=rot,
+    )
+    station = op.station
+    feed = Feed(op)
+    vids = [feed.add(k + 1, 0.0) for k in range(3)]
+    feed.poll(0.0)
+    assert op.phase == "audit"
+    for v in vids:
+        asked = {c[2] for c in station.of("request_param", v)}
+        assert set(LANDING_PARAMS[ARDUPILOT]) <= asked
+    # Vehicles 1 and 2 answer the firmware's defaults; vehicle 3 lands at land_speed_cm_s.
+    landing = {"LAND_SPEED": 50.0, "LAND_SPEED_HIGH": 0.0, "LAND_ALT_LOW": 1000.0}
+    for v in vids:
+        own = {**landing, "LAND_SPEED": land_speed_cm_s} if v == vids[2] else landing
+        answer_audit(feed, station, 0.5, {**AP_SAFE, "WPNAV_SPEED_DN": 150.0, **own}, vid=v)
+    feed.poll(0.75)
+    assert op.phase == "launch"
+    expect = landing_descent(ARDUPILOT, {"LAND_SPEED": land_speed_cm_s}).time_s(50.0)
+    assert rot.policy.params.land_s == pytest.approx(expect)
+    assert op.rotation_summary()["land_s"] == round(expect, 1)  # summary.json says it
+    if land_speed_cm_s == 50.0:
+        assert built == [default_s]  # the same landing: the plan is not built again
+    else:
+        assert expect == pytest.approx(default_s + 10.0 / 0.3 - 10.0 / 0.5)
+        assert built == [default_s, pytest.approx(expect)]
+
+
+def test_a_vehicle_without_the_landing_parameters_is_not_held_and_lands_at_the_defaults():
+    """The landing's own parameters are optional reads (a firmware may spell them otherwise):
+    unanswered, the audit goes on after its grace and the plan keeps the firmware's default."""
+    from test_operations import AP_SAFE, answer_audit
+
+    from gcs.autopilot import ARDUPILOT
+    from gcs.landing import landing_descent
+    from gcs.operations.audit import OPTIONAL_GRACE_S
+
+    default_s = landing_descent(ARDUPILOT).time_s(50.0)
+    rot = RotationSetup(
+        RotationPolicy(2, 1, BaseResources(pads=1), EnduranceParams(land_s=default_s)),
+        hover_drain_per_s=1.0 / 1500.0,
+        land_from_m=50.0,
+        replan=lambda land_s: RotationPolicy(
+            2, 1, BaseResources(pads=1), EnduranceParams(land_s=land_s)
+        ),
+    )
+    op = Operator(
+        FakeStation(),
+        FleetView(ORIGIN, timeout_s=5.0),
+        FakePlanner(),
+        lambda t: np.array([[POST_N_M, 0.0]]),
+        CONTROL,
+        OperationsConfig(audit=True, expected_vehicles=2, duration_s=10_000.0),
+        rotation=rot,
+    )
+    feed = Feed(op)
+    vids = [feed.add(k + 1, 0.0) for k in range(2)]
+    feed.poll(0.0)
+    for v in vids:  # no LAND_* answered (WPNAV_SPEED_DN, a limit too, is)
+        answer_audit(feed, op.station, 0.5, {**AP_SAFE, "WPNAV_SPEED_DN": 150.0}, vid=v)
+    t = feed.run(0.75, 10.0, 0.25, until=lambda op: op.phase != "audit")
+    assert op.phase == "launch" and t <= 0.5 + OPTIONAL_GRACE_S + 1.0  # a poll per round
+    assert rot.policy.params.land_s == pytest.approx(default_s)

@@ -38,6 +38,7 @@ def test_fly_canyon_keeps_clear_of_the_ground_and_serves_terrain(tmp_path, perso
             str(_small_canyon(tmp_path)),
             "--personality",
             personality,
+            "--apply-failsafes",  # the return altitude over the ridge (gcs/audit.py)
             "--out",
             str(tmp_path / "runs"),
         ],
@@ -58,6 +59,18 @@ def test_fly_canyon_keeps_clear_of_the_ground_and_serves_terrain(tmp_path, perso
     # the station counts a crew covered by the same line-of-sight model over its map
     assert abs(s["station"]["tu1"] - s["truth"]["tu1"]) < 0.1
     assert "over the terrain: 0 crashes into the ground" in out.stdout
+    # the firmware's own return raised over the ridge: 60 m over the rims, plus the clearance
+    rtl = "RTL_ALT 1500 -> 7500" if personality == "ardupilot" else "RTL_RETURN_ALT 60 -> 75"
+    # every vehicle heard on its pad and audited (vehicle_emu/terrain.py VEHICLE_ANTENNA_AGL_M);
+    # one discovered after the fleet audit is audited on its own before it may fly
+    # (gcs/operations/late_audit.py): read, fixed and confirmed on all 8 either way
+    assert (out.stdout + out.stderr).count(f"{rtl} (confirmed)") == 8, out.stderr[-3000:]
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    name = rtl.split()[0]
+    read = {e["sysid"] for e in events if e["type"] == "ParamReceived" and e["name"] == name}
+    assert read == set(range(1, 9))
+    assert s["audit"]["cleared_to_fly"]
+    assert all(late["verdict"] == "cleared" for late in s["audit"]["late"]), s["audit"]
     if personality == "ardupilot":
         t = s["terrain"]
         assert t["requests_answered"] > 0 and t["terrain_data_sent"] >= 56

@@ -121,3 +121,17 @@ def test_the_station_plans_the_climb_and_the_landing_the_paper_world_does_not(wi
     own = dataclasses.replace(m.endurance, params={"land_s": 5.0})
     rot_own = rotation_setup(dataclasses.replace(m, endurance=own), scn)
     assert rot_own.policy.params.land_s == 5.0
+    # After the audit the plan counts the vehicles' own landing (gcs/landing.py) from the top
+    # layer, the slowest of the fleet: a slower LAND_SPEED lands later and fewer fly at once.
+    from gcs.autopilot import ARDUPILOT, PX4
+    from gcs.landing import landing_descent
+
+    assert rot.land_from_m == top and rot.replan is not None
+    slow = landing_descent(ARDUPILOT, {"LAND_SPEED": 30.0})
+    k_before = rot.policy.flying
+    assert rot.use_landing([landing_descent(PX4), slow]) == pytest.approx(slow.time_s(top))
+    assert rot.policy.params.land_s == pytest.approx(slow.time_s(top))
+    assert slow.time_s(top) > landing_descent_s(top)
+    assert rot.policy.flying <= k_before
+    assert rot_own.replan is None  # the mission's own land_s is kept
+    assert rot_own.use_landing([slow]) is None and rot_own.policy.params.land_s == 5.0

@@ -172,6 +172,13 @@ MALFORMED = [
     ("section-is-a-string", "radio: loud", "radio: expected a mapping, got 'loud'"),
     ("duplicate-key", "radio: {range_m: 100}\nradio: {range_m: 200}", "duplicate key 'radio'"),
     ("not-yaml", "origin: [unclosed", "not valid YAML"),
+    (
+        "battery-too-small-for-the-posts",
+        "tasks:\n  - track: [{t_s: 0, north_m: 300, east_m: 0}]\n"
+        "endurance: {battery: {endurance_s: 60}}",
+        "endurance: mission mission: a battery of 60 s cannot reach 150 m and come back with its "
+        "reserve: no rotation is possible (endurance.battery.endurance_s, or --rotation off)",
+    ),
     ("empty-document", "", "the document is empty"),
     ("python-tag", "origin: !!python/object/apply:os.getcwd []", "unsupported YAML tag"),
     ("custom-tag", "origin: !secret {lat_deg: 1}", "unsupported YAML tag"),

@@ -110,15 +110,22 @@ def test_the_crew_confirms_a_swap_on_the_page_and_the_replay_shows_it(browser, t
     assert end["rotations"] >= 1 and end["landed_away"] == 0
     # The replay draws the same panel from rotation.jsonl: the pad occupied, then confirmed.
     src = ReplaySource(res.run_dir)
-    frames = [src.frame(i) for i in range(0, len(src.frames), 3)] + [src.frame()]
-    on_pad = [f for f in frames if f.get("rotation") and f["rotation"]["pads"][0]["vehicle"]]
-    assert on_pad and on_pad[0]["rotation"]["pads"][0]["vehicle"] == vid
+    index = [*range(0, len(src.frames), 3), len(src.frames) - 1]
+    frames = [src.frame(i) for i in index]
+    on_pad = [
+        (i, f)
+        for i, f in zip(index, frames)
+        if f.get("rotation") and f["rotation"]["pads"][0]["vehicle"]
+    ]
+    assert on_pad and on_pad[0][1]["rotation"]["pads"][0]["vehicle"] == vid
     last = frames[-1]["rotation"]
     kinds = [e["kind"] for e in last["events"]]
     assert last["counters"]["swaps_confirmed_by_crew"] >= 1 or "crew_confirmed" in kinds
     assert all(r is None for f in frames for r in f["v"]["released"])  # not an operator hold
     # ... and the page draws it: the slider on a frame with the pad occupied, no Confirm button.
-    k = src.index_at(on_pad[0]["t_mission_s"])
+    # (the frame's own index: its t_mission_s is rounded, and index_at of a rounded time may
+    # name the frame before it, with the pad still free)
+    k = on_pad[0][0]
     with serve_in_thread(src) as url:
         drv.get(url)
         _wait(lambda: drv.execute_script("return !!window.phiremanReplay"), 60, "the replay")

@@ -17,14 +17,17 @@ from gcs.events import TelemetryReceived, VehicleDiscovered
 from gcs.fleet import FleetView, MissionOrigin
 from gcs.operations.rotation_setup import RotationSetup
 from mission.commands.fly import _Status, format_rotation, format_status, planned_drop
-from mission.flight.run_dir import ROTATION_FILE, Records
-from mission.view.live.rotation import event_text, rotation_frame
+from mission.flight.run_dir import ROTATION_FILE, ROTATION_SNAPSHOT_S, Records, read_rotation
+from mission.view.live.rotation import MAX_EVENTS, event_text, rotation_frame
 from mission.view.live.replay import ReplaySource
 from planner.endurance import (
+    AIR,
     INBOUND,
+    READY,
     RETURNING,
     BaseResources,
     EnduranceParams,
+    RotationEvent,
     RotationPolicy,
 )
 from planner.geometry import ned_to_geodetic
@@ -216,3 +219,100 @@ def test_the_closing_summary_line():
         "base, min battery in the air 31 %; 11 battery swaps (manual confirmation, 11 confirmed "
         "by the ground crew)"
     )
+
+
+def _two_hours_of_ticks(tmp_path, n_ticks: int = 7200, quiet_ticks: int = 0):
+    """A two-hour flight's rotation, one control tick a second: 34 of 50 vehicles in the plan,
+    each relay's reserve estimated from whole percents at its own drain as the station does (its
+    time jumps when the percent drops, and moves on with the clock in between), a rotation every 40 s (a spare
+    in, a relay out, an event), each tick recorded by ``Records.rotation``; then
+    ``quiet_ticks`` ticks where nothing changes. Returns the run directory's ``rotation.jsonl``
+    and the state and events the station had after each tick."""
+    from mission.format.schema import RunSpec
+    from small_mission import small_mission
+
+    n, k = 50, 34
+    policy = RotationPolicy(n, k, BaseResources(pads=4), EnduranceParams())
+    rot = RotationSetup(policy, hover_drain_per_s=1.0 / 1500.0, swap_confirm="auto")
+    ids = [f"0:{i + 1}" for i in range(n)]
+    rng = np.random.default_rng(7)
+    launched = rng.uniform(0.0, 300.0, n)
+    endurance_s = rng.uniform(1350.0, 1650.0, n)  # each its own drain
+    op = SimpleNamespace(
+        rotation_state=lambda: rot.state(ids),
+        rotation_events=lambda start=0: rot.event_dicts(start, ids),
+    )
+    rec = Records(tmp_path, small_mission("records", RunSpec()), {})
+    truth = []
+    for step in range(n_ticks + quiet_ticks):
+        t = 10.0 + step
+        if step < n_ticks:
+            if step % 40 == 39:  # the first spare relieves the relay in the plan the longest
+                air = np.flatnonzero(policy.phase == AIR)
+                spare = int(np.flatnonzero(policy.phase == READY)[0])
+                relay = int(air[np.argmin(launched[air])])
+                policy.phase[spare], policy.phase[relay] = AIR, READY
+                launched[spare] = t
+                policy.counters["rotations"] += 1
+                rot.events.append(RotationEvent(t, "handover", spare, relay))
+            charge = np.floor(100.0 * (1.0 - (t - launched) / endurance_s)) / 100.0
+            rot.time_to_reserve_s = np.maximum(0.0, (charge - 0.2) * endurance_s)
+            rot.tick_s = t
+        rec.rotation(op, t)
+        truth.append((t, rot.state(ids), rot.event_dicts(0, ids)))
+    rec.close()
+    return tmp_path / ROTATION_FILE, truth
+
+
+def test_rotation_jsonl_of_two_hours_is_small_and_the_replay_draws_the_same_panel(tmp_path):
+    """The lines between whole states carry only what changed: two hours of ticks write at least
+    ten times less than a whole state at every tick that changed it, and the replay rebuilds, at
+    any instant, the state the station had and the same panel."""
+    path, truth = _two_hours_of_ticks(tmp_path)
+    lines = [json.loads(x) for x in path.read_text().splitlines()]
+    # The whole state on the first line, then once per ROTATION_SNAPSHOT_S.
+    span = truth[-1][0] - truth[0][0]
+    assert "state" in lines[0]
+    assert sum("state" in x for x in lines) == 1 + int(span // ROTATION_SNAPSHOT_S)
+    # What the records were before the patches: the whole state at every tick it changed.
+    before, last = 0, None
+    for t, state, _ in truth:
+        if state != last:
+            before += len(json.dumps({"t_s": t, "state": state, "events": []})) + 1
+        last = state
+    size = path.stat().st_size
+    assert len(lines) > 3000  # the reserves move nearly every tick: a line nearly every tick
+    assert size * 10 <= before, (size, before)
+    got = ReplaySource._read_rotation(path)
+    assert got is not None and len(got) == len(lines)
+    src = SimpleNamespace(rotation=got, t0_s=0.0)
+    snap = _fleet(0.0).snapshot(0.0)
+    picks = np.random.default_rng(3).integers(0, len(truth), 80).tolist() + [0, len(truth) - 1]
+    for j in picks:
+        t, state, events = truth[j]
+        at = t + 0.5  # a frame between two ticks shows the first
+        frame = ReplaySource._rotation_at(src, snap, at)
+        assert frame == rotation_frame(state, events[-MAX_EVENTS:], snap, at, 0.0)
+        k = max(i for i, g in enumerate(got) if g["t_s"] <= at)
+        assert got[k]["state"] == state and got[k]["n_events"] == len(events)
+
+
+def test_quiet_ticks_write_nothing_and_a_lost_line_costs_only_until_the_next_whole_state(
+    tmp_path,
+):
+    path, truth = _two_hours_of_ticks(tmp_path, n_ticks=900, quiet_ticks=3600)
+    text = path.read_text().splitlines()
+    # The quiet hour wrote no line.
+    assert json.loads(text[-1])["t_s"] <= truth[900 - 1][0]
+    # A line cut short early on: the replay skips the lines after it until the next whole
+    # state; every state it gives is the station's at that tick.
+    whole = [i for i, x in enumerate(text) if '"state"' in x]
+    assert len(whole) >= 3
+    cut = whole[0] + 5
+    broken = tmp_path / "broken.jsonl"
+    broken.write_text("\n".join(text[:cut] + [text[cut][:20]] + text[cut + 1 :]) + "\n")
+    got = read_rotation(broken)
+    stamps = [json.loads(x)["t_s"] for x in text]
+    assert [t for t, _, _ in got] == stamps[:cut] + stamps[whole[1] :]
+    by_t = {t: s for t, s, _ in truth}
+    assert all(s == by_t[t] for t, s, _ in got)

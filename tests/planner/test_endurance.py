@@ -13,6 +13,7 @@ from planner.endurance import (
     LOST,
     NO_BATTERY,
     READY,
+    REFILL_MARGIN,
     RETURNING,
     SWAPPING,
     BaseResources,
@@ -34,12 +35,13 @@ def _toy_run(
     post_dist_m: float = 300.0,
     dt_s: float = 1.0,
     kill: dict[int, int] | None = None,
+    spare_ratio: float = 0.0,
 ):
     """Fly the policy for ``horizon_s``: returns (policy, min battery in the air, min planned, log)."""
     rng = np.random.default_rng(0)
     ang = rng.uniform(0, 2 * np.pi, n)
     posts = post_dist_m * np.stack([np.cos(ang), np.sin(ang)], axis=1)
-    pol = RotationPolicy(n, k, base, params)
+    pol = RotationPolicy(n, k, base, params, spare_ratio=spare_ratio)
     pos = np.zeros((n, 2))
     pos[:k] = posts[:k]
     # Stagger the first batteries so that the first rotations do not all fall due at once.
@@ -315,3 +317,30 @@ def test_a_lost_drone_recovered_is_a_spare_again_and_only_a_lost_one():
     )
     assert pol.phase[1] == READY and "lost" not in [e.kind for e in out.events]
     assert pol.stock == stock  # its battery did not come from the shelf
+
+
+def test_posts_lost_in_the_air_are_refilled_from_the_spares_only_when_asked():
+    """Ten drones die in the first 100 minutes of the toy two hours. Without ``refill_lost``
+    the posts of the relays among them stay empty; with it the ready spares hold some again,
+    as long as the spares left in circulation keep the plan's ratio to the posts, never more
+    than K; either way no relay starves and nobody reaches the critical level in the air."""
+    base = BaseResources(spare_batteries=200, chargers=32)
+    plan = plan_fleet(50, 1500.0, 7200.0, base, EnduranceParams(), mean_dist_m=300.0)
+    k, ratio = plan.flying, plan.ground_s / plan.sortie_s
+    kill = {600 * (j + 1): j for j in range(10)}
+    posts, refills = {}, {}
+    for refill in (False, True):
+        p = EnduranceParams(refill_lost=refill)
+        pol, min_air, _, events = _toy_run(
+            50, k, 1500.0, 7200.0, base, p, kill=kill, spare_ratio=ratio
+        )
+        kinds = [e.kind for e in events]
+        assert min_air > p.critical_frac
+        assert kinds.count("forced_return") == 0 and kinds.count("no_spare") == 0
+        posts[refill] = int(np.count_nonzero(pol.phase == AIR))
+        refills[refill] = kinds.count("refill")
+        circulating = int(np.count_nonzero((pol.phase != AIR) & (pol.phase != LOST)))
+        if refill:  # the spares a post needs kept, with the margin
+            assert circulating >= REFILL_MARGIN * ratio * posts[refill] - 1
+    assert refills[False] == 0 and posts[False] <= k - 5
+    assert refills[True] >= 1 and posts[False] < posts[True] <= k

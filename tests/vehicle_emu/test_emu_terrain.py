@@ -14,7 +14,7 @@ from planner.terrain import Hill, LinkBudget, Ridge, TerrainRadio, synthetic_ter
 from vehicle_emu.link import VehicleCore
 from vehicle_emu.radio import RadioConfig
 from vehicle_emu.swarm import Swarm
-from vehicle_emu.terrain import Ground, TerrainDatabase
+from vehicle_emu.terrain import VEHICLE_ANTENNA_AGL_M, Ground, TerrainDatabase
 
 from emu_helpers import GCS_ADDR, FakeGcs, of_type
 
@@ -158,6 +158,25 @@ def test_radio_needs_line_of_sight_over_the_ridge():
     sw.radio.update(ph.pos_ned_m, ph.alive)
     assert sw.radio.active.tolist() == [True, True]
     # and the disc range is not used over terrain (RadioConfig() is infinite anyway)
+
+
+def test_a_fleet_on_its_pads_is_heard_from_the_base_mast():
+    """A vehicle on the ground has its antenna on top of the airframe, not in the dirt: 60 m from
+    a 3 m mast over flat ground its link clears the Fresnel zone (at 0 m it did not, and a fleet
+    on its pads was never heard)."""
+    ground = Ground(TerrainRadio(DEM, LinkBudget()), HOME[2], base_antenna_agl_m=3.0)
+    ang = np.linspace(0.0, 2 * np.pi, 8, endpoint=False)
+    pos = np.zeros((8, 3))
+    pos[:, 0], pos[:, 1] = 60.0 * np.cos(ang) - 100.0, 60.0 * np.sin(ang)  # south of the ridge
+    pos[:, 2] = ground.ground_down_m(pos[:, :2])  # on the ground
+    base = np.array([-100.0, 0.0, 0.0])
+    assert ground.links_to_base(pos, base).all()
+    assert ground.active_mask(pos, np.ones(8, bool), base).all()
+    np.testing.assert_allclose(
+        ground.antenna_amsl_m(pos), ground.height_amsl_m(pos[:, :2]) + VEHICLE_ANTENNA_AGL_M
+    )
+    pos[:, 2] -= 20.0  # in flight the antenna is where the vehicle is
+    np.testing.assert_allclose(ground.antenna_amsl_m(pos), HOME[2] - pos[:, 2])
 
 
 def test_flown_into_the_hill_is_lost_and_landing_on_it_is_not():

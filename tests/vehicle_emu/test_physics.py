@@ -59,7 +59,7 @@ def _land_descent_reference(ph: Physics) -> np.ndarray:
     for i in range(ph.n):
         h = ph.ground_down_m[i] - ph.pos_ned_m[i, 2]
         lo, hi = ph.land_crawl_alt_m[i], ph.land_slow_alt_m[i]
-        fast = max(ph.descent_rate_m_s[i], ph.land_speed_m_s[i])
+        fast = max(ph.land_fast_m_s[i], ph.land_speed_m_s[i])
         if h >= hi:
             out[i] = fast
         elif h <= lo:

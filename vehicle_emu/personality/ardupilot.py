@@ -295,8 +295,11 @@ class ArduPilot(Personality):
         ph.climb_rate_m_s[i] = P["WPNAV_SPEED_UP"] / 100.0
         ph.descent_rate_m_s[i] = P["WPNAV_SPEED_DN"] / 100.0
         ph.land_speed_m_s[i] = P["LAND_SPEED"] / 100.0
-        # mode.cpp Mode::land_run_vertical_control: WPNAV_SPEED_DN down to LAND_ALT_LOW.
-        ph.land_slow_alt_m[i] = ph.land_crawl_alt_m[i] = P["LAND_ALT_LOW"] / 100.0
+        # mode.cpp Mode::land_run_vertical_control: LAND_SPEED_HIGH (0: WPNAV_SPEED_DN) down to
+        # LAND_ALT_LOW (at least 1 m), then LAND_SPEED.
+        high = P["LAND_SPEED_HIGH"]
+        ph.land_fast_m_s[i] = (high if high > 0 else P["WPNAV_SPEED_DN"]) / 100.0
+        ph.land_slow_alt_m[i] = ph.land_crawl_alt_m[i] = max(P["LAND_ALT_LOW"], 100.0) / 100.0
         core._rtl_alt_m = P["RTL_ALT"] / 100.0
         final = P["RTL_ALT_FINAL"] / 100.0
         core._rtl_hover_alt_m = final if final > 0 else None

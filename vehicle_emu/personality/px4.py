@@ -526,10 +526,16 @@ class PX4(Personality):
         core._auto_speed_m_s = P["MPC_XY_CRUISE"]
         ph.climb_rate_m_s[i] = P["MPC_Z_VEL_MAX_UP"]
         ph.descent_rate_m_s[i] = P["MPC_Z_VEL_MAX_DN"]
-        ph.land_speed_m_s[i] = P["MPC_LAND_SPEED"]
-        # FlightTaskAuto::_prepareLandSetpoints: the descent limit above MPC_LAND_ALT1, slowing
-        # linearly to MPC_LAND_SPEED at MPC_LAND_ALT2.
-        ph.land_slow_alt_m[i] = P["MPC_LAND_ALT1"]
-        ph.land_crawl_alt_m[i] = P["MPC_LAND_ALT2"]
+        # FlightTaskAuto::_prepareLandSetpoints: MPC_Z_VEL_MAX_DN at MPC_LAND_ALT1 (at least
+        # ALT2, updateParams), linearly to MPC_LAND_SPEED at MPC_LAND_ALT2; the trajectory at most
+        # MPC_Z_V_AUTO_DN (_updateTrajConstraints), which a lower one meets below ALT1.
+        land, top, cap = P["MPC_LAND_SPEED"], P["MPC_Z_VEL_MAX_DN"], P["MPC_Z_V_AUTO_DN"]
+        lo = P["MPC_LAND_ALT2"]
+        hi = max(P["MPC_LAND_ALT1"], lo)
+        if cap < top and top > land:
+            hi = lo + (hi - lo) * max(0.0, cap - land) / (top - land)
+        ph.land_fast_m_s[i] = min(top, cap)
+        ph.land_speed_m_s[i] = min(land, top, cap)
+        ph.land_slow_alt_m[i], ph.land_crawl_alt_m[i] = hi, lo
         core._rtl_alt_m = P["RTL_RETURN_ALT"]
         core._rtl_hover_alt_m = P["RTL_DESCEND_ALT"] if P["RTL_LAND_DELAY"] < 0 else None

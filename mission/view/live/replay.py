@@ -50,7 +50,7 @@ from gcs.operations.config import OVERRIDE, OVERRIDE_REFUSED, override_label
 from gcs.wire import mavlink
 from mission.view.live.alerts import DEFAULT_BATTERY_LOW_FRAC
 from mission.view.live.health import LOSS_WINDOW_S, health_columns, minutes_to_reserve
-from mission.flight.run_dir import ROTATION_FILE
+from mission.flight.run_dir import ROTATION_FILE, read_rotation
 from mission.view.live.rotation import MAX_EVENTS, rotation_frame
 from mission.view.live.server import TruthUnavailable
 from mission.view.live.state import Picture, classify, frame_dict, mission_meta, mst_tree
@@ -252,21 +252,16 @@ class ReplaySource:
     @staticmethod
     def _read_rotation(path: Path) -> list[dict] | None:
         """``rotation.jsonl`` (a flight with batteries; None without): its lines in time order,
-        each with the number of events recorded up to it (``n_events``) into ``events``, one
-        list for the whole file."""
+        each with its whole state (:func:`mission.flight.run_dir.read_rotation` applies the
+        lines that carry only what changed) and the number of events recorded up to it
+        (``n_events``) into ``events``, one list for the whole file."""
         if not path.is_file():
             return None
         lines: list[dict] = []
         events: list[dict] = []
-        for text in path.read_text().splitlines():
-            try:
-                rec = json.loads(text)
-                line = {"t_s": float(rec["t_s"]), "state": rec["state"], "events": events}
-                events.extend(rec.get("events", ()))
-            except (ValueError, KeyError, TypeError):
-                continue  # a line cut short by a crash
-            line["n_events"] = len(events)
-            lines.append(line)
+        for t_s, state, new in read_rotation(path):
+            events.extend(new)
+            lines.append({"t_s": t_s, "state": state, "events": events, "n_events": len(events)})
         return lines
 
     def _rotation_at(self, snap, t_s: float) -> dict | None:

@@ -59,6 +59,7 @@ def event_text(ev: dict[str, Any]) -> str:
         "lost": f"{d} lost to the rotation",
         "failsafe_return": f"{d}: battery failsafe, its firmware sends it home",
         "relaunch": f"{d} relaunched into the plan",
+        "refill": f"{d} launched into a post lost in the air",
     }.get(str(ev.get("kind")), f"{d}: {ev.get('kind')}")
 
 
