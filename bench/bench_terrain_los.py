@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/bench_terrain_los.py [--drones 500] [--ticks 20]
 
-The canyon mission's terrain and link budget (mission/format/examples/canyon.yaml); drones spread
+The deep canyon's terrain and link budget (mission/format/examples/canyon_deep.yaml); drones spread
 uniformly over +-900 m at 100 m above the ground. Per tick: the candidate pairs (within the
 budget's range horizontally, planner.terrain.TerrainRadio.candidate_pairs), the compiled line of
 sight / Fresnel test of every one (TerrainRadio.links_clear), and the truth's whole connectivity
@@ -29,7 +29,7 @@ from mission.format.examples import example_path
 from mission.format.load import load_mission
 from mission.format.terrain import build_terrain
 from planner.terrain import TerrainRadio, links_clear_reference
-m = load_mission(example_path("canyon"))
+m = load_mission(example_path("canyon_deep"))
 radio = TerrainRadio(build_terrain(m), m.radio.terrain_link.link_budget())
 rng = np.random.default_rng(0)
 n, ticks = {drones}, {ticks}

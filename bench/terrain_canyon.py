@@ -1,6 +1,7 @@
 """The canyon mission terrain-blind vs terrain-aware, in process, over many seeds (issue 27).
 
     .venv/bin/python bench/terrain_canyon.py --seeds 100
+    .venv/bin/python bench/terrain_canyon.py --seeds 100 --mission canyon_deep
     .venv/bin/python bench/terrain_canyon.py --seeds 100 --mission canyon_camp
 
 Each seed is played three ways (mission.experiments.playback.TERRAIN_AWARE): 'off' (today's
@@ -8,8 +9,9 @@ system: the disc planner, one altitude above the base), 'altitude' (terrain foll
 ceiling, disc planner) and 'on' (that, with the planner's moves checked against the terrain
 radio, planned in 3-D: altitudes per drone, relay search, tree edges relays can hold). Prints TU1
 and TU2 (mean +- 95 % CI), paired differences with a paired t-test and a
-Wilcoxon signed-rank test, crashes into the ground, the least clearance along every flight and
-the highest height above the ground, and the CPU time of each mode. Seeds share scenario and attrition streams (common random
+Wilcoxon signed-rank test, crashes into the ground, the least clearance along every flight, the
+highest height above the ground and how many drone-steps and drones were above the ceiling (a
+legal flight has none), and the CPU time of each mode. Seeds share scenario and attrition streams (common random
 numbers, docs/design/model.md §6.1), so the pairs are paired.
 """
 
@@ -37,14 +39,22 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--mission", default="canyon")
     ap.add_argument("--out", type=pathlib.Path, default=None, help="write per-seed rows (JSON)")
+    ap.add_argument(
+        "--modes",
+        default=",".join(TERRAIN_AWARE),
+        help="comma-separated --terrain-aware modes to fly (default: all)",
+    )
     args = ap.parse_args()
+    modes = tuple(m for m in args.modes.split(",") if m)
+    if not modes or any(m not in TERRAIN_AWARE for m in modes):
+        ap.error(f"--modes: choose from {', '.join(TERRAIN_AWARE)}")
     mission = load_mission(example_path(args.mission))
     seeds = list(range(args.seed, args.seed + args.seeds))
-    rows: dict[str, list[dict]] = {m: [] for m in TERRAIN_AWARE}
-    cpu_of = dict.fromkeys(TERRAIN_AWARE, 0.0)
+    rows: dict[str, list[dict]] = {m: [] for m in modes}
+    cpu_of = dict.fromkeys(modes, 0.0)
     t0 = time.process_time()
     for s in seeds:
-        for mode in TERRAIN_AWARE:
+        for mode in modes:
             t1 = time.process_time()
             r = run_inprocess(mission, s, terrain_aware=mode)
             cpu_of[mode] += time.process_time() - t1
@@ -52,7 +62,7 @@ def main() -> int:
             rows[mode].append({"seed": s, "tu1": r.tu1, "tu2": r.tu2, **r.terrain})
     cpu = time.process_time() - t0
     print(f"{args.mission}: {len(seeds)} seeds ({seeds[0]}..{seeds[-1]}), {cpu:.0f} s CPU")
-    for mode in TERRAIN_AWARE:
+    for mode in modes:
         rs = rows[mode]
         line = f"  {mode:8s}"
         for k in ("tu1", "tu2"):
@@ -63,11 +73,15 @@ def main() -> int:
             f"  crashes {sum(r['crashes'] for r in rs)}"
             f"  least clearance {min(r['min_clearance_m'] for r in rs):.1f} m"
             f"  flights below clearance {sum(r['flights_below_clearance'] for r in rs)}"
-            f"  highest {max(r['max_agl_m'] for r in rs):.0f} m AGL"
+            f"  highest {max(r['max_agl_m'] for r in rs):.1f} m AGL"
+            f"  above the ceiling: {sum(r['flights_above_ceiling'] for r in rs)} flights,"
+            f" {sum(r['drones_above_ceiling'] for r in rs)} drones"
             f"  {cpu_of[mode]:.0f} s CPU"
         )
         print(line)
     for a, b in (("on", "off"), ("on", "altitude"), ("altitude", "off")):
+        if a not in rows or b not in rows:
+            continue
         for k in ("tu1", "tu2"):
             x = 100 * np.array([r[k] for r in rows[a]])
             y = 100 * np.array([r[k] for r in rows[b]])

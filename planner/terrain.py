@@ -45,6 +45,7 @@ __all__ = [
     "free_space_loss_db",
     "links_clear_reference",
     "path_clearance_m",
+    "path_agl_m",
     "LinkProfile",
     "link_profile",
     "LINK_OK",
@@ -342,10 +343,25 @@ def path_clearance_m(
 ) -> np.ndarray:
     """(N,) the lowest height above the ground along straight flights (linear in height too),
     metres; negative: the flight went into the ground. Sampled at ``n_samples + 1`` points."""
+    return np.asarray(
+        path_agl_m(terrain, from_ne_m, to_ne_m, from_amsl_m, to_amsl_m, n_samples).min(axis=1)
+    )
+
+
+def path_agl_m(
+    terrain: Terrain,
+    from_ne_m: np.ndarray,
+    to_ne_m: np.ndarray,
+    from_amsl_m: np.ndarray,
+    to_amsl_m: np.ndarray,
+    n_samples: int = 16,
+) -> np.ndarray:
+    """(N, n_samples + 1) the height above the ground along straight flights (linear in height
+    too), metres, at ``n_samples + 1`` evenly spaced points from each start to its end."""
     f = np.linspace(0.0, 1.0, n_samples + 1)  # (S,)
     pts = from_ne_m[:, None, :] + f[None, :, None] * (to_ne_m - from_ne_m)[:, None, :]
     alt = from_amsl_m[:, None] + f[None, :] * (to_amsl_m - from_amsl_m)[:, None]
-    return np.asarray((alt - terrain.height_m(pts)).min(axis=1))
+    return np.asarray(alt - terrain.height_m(pts))
 
 
 @dataclass(frozen=True)

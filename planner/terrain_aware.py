@@ -133,7 +133,7 @@ class TerrainAwarePlanner:
         self, pos: np.ndarray, move: np.ndarray, alt_now: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """(N,) the altitude goal AMSL at the end of each move and (N,) the altitude the drone
-        reaches this step (the goal, within one climb step of ``alt_now``)."""
+        reaches this step (the goal, within one climb or descent step of ``alt_now``)."""
         rule = self.heights
         if rule is None:
             goal = self.radio.terrain.height_m(pos + move) + self.alt_agl_m
@@ -141,7 +141,7 @@ class TerrainAwarePlanner:
         norm = np.linalg.norm(move, axis=1)
         direction = move / np.where(norm > 0, norm, 1.0)[:, None]
         goal = target_alt_amsl_m(self.radio.terrain, pos + move, direction, rule)
-        return goal, alt_now + np.clip(goal - alt_now, -rule.max_climb_m, rule.max_climb_m)
+        return goal, rule.reach_m(alt_now, goal)
 
     def plan(self, tick: TickInput) -> PlanOutput:
         out = self.inner.plan(tick)

@@ -4,10 +4,10 @@ Two pieces of :class:`planner.terrain_aware.TerrainAwarePlanner` (docs/terrain.m
 
 * :func:`target_alt_amsl_m`, the altitude rule: a drone flies as high as the ceiling lets it,
   where it sees furthest, and lower only when it must. Flying on at full speed along its move, it
-  can descend at most ``max_climb_m`` per step, so to stay under the ceiling over the ground
-  ahead it may be no higher now than ``min_k (ground_k + ceiling + k * max_climb_m)`` over the
+  can descend at most ``max_descent_m`` per step, so to stay under the ceiling over the ground
+  ahead it may be no higher now than ``min_k (ground_k + ceiling + k * max_descent_m)`` over the
   samples ``k`` steps ahead. A drone heading for a canyon thus starts down before the rim, and
-  crosses at the fastest the climb rate allows, instead of arriving at the rim at its cruise
+  crosses at the fastest its descent speed allows, instead of arriving at the rim at its cruise
   height and crawling down the wall. Never below ``clearance_m`` (plus a margin).
 * :func:`relay_candidates`, the relay search: for a drone whose planned position would lose its
   link toward the base (or the last link of a crew it serves), a small set of nearby positions
@@ -57,7 +57,10 @@ class HeightRule:
     ceiling_agl_m: float
     """The most height above the ground, metres (the mission's ``terrain.ceiling_agl_m``)."""
     max_climb_m: float
-    """The largest altitude change in one step, metres (climb rate x control period)."""
+    """The largest climb in one step, metres (climb rate x control period)."""
+    max_descent_m: float
+    """The largest descent in one step, metres (descent rate x control period: the station
+    limits descents to the vehicles' descent speed, docs/terrain.md §6.2)."""
     max_step_m: float
     """The longest horizontal move in one step, metres (speed x control period)."""
     margin_m: float = 3.0
@@ -76,8 +79,13 @@ class HeightRule:
     def __post_init__(self) -> None:
         if not self.ceiling_agl_m - self.margin_m > self.clearance_m + self.margin_m:
             raise ValueError("HeightRule: no room between clearance and ceiling after margins")
-        if not (self.max_climb_m > 0 and self.max_step_m > 0 and self.lookahead_steps >= 0):
-            raise ValueError("HeightRule: max_climb_m and max_step_m must be > 0")
+        if not (
+            self.max_climb_m > 0
+            and self.max_descent_m > 0
+            and self.max_step_m > 0
+            and self.lookahead_steps >= 0
+        ):
+            raise ValueError("HeightRule: max_climb_m, max_descent_m and max_step_m must be > 0")
 
     @property
     def low_agl_m(self) -> float:
@@ -89,6 +97,12 @@ class HeightRule:
         """The highest height above the ground the rule commands, metres."""
         return self.ceiling_agl_m - self.margin_m
 
+    def reach_m(self, alt_now_m: np.ndarray, goal_m: np.ndarray) -> np.ndarray:
+        """(N,) the altitude reached in one step from ``alt_now_m`` toward ``goal_m`` (metres
+        AMSL): at most ``max_climb_m`` up and ``max_descent_m`` down."""
+        now = np.asarray(alt_now_m, dtype=float)
+        return np.asarray(now + np.clip(goal_m - now, -self.max_descent_m, self.max_climb_m))
+
 
 def target_alt_amsl_m(
     terrain: Terrain, end_ne_m: np.ndarray, dir_ne: np.ndarray, rule: HeightRule
@@ -98,13 +112,13 @@ def target_alt_amsl_m(
     ``end_ne_m`` (N, 2): where the step ends; ``dir_ne`` (N, 2): the unit direction it flies on
     (zero rows: a drone that holds its position, which only the ground under it limits). The
     highest altitude from which, flying on at ``max_step_m`` per step and descending at most
-    ``max_climb_m`` per step, the drone stays under ``ceiling - margin`` at every sample ahead;
+    ``max_descent_m`` per step, the drone stays under ``ceiling - margin`` at every sample ahead;
     never below ``clearance + margin`` over the end (module docstring)."""
     end = np.asarray(end_ne_m, dtype=float).reshape(-1, 2)
     k = np.arange(rule.lookahead_steps + 1, dtype=float)  # (K,)
     pts = end[:, None, :] + (k * rule.max_step_m)[None, :, None] * np.asarray(dir_ne)[:, None, :]
     g = terrain.height_m(pts)  # (N, K)
-    cap = (g + (rule.high_agl_m + k * rule.max_climb_m)[None, :]).min(axis=1)
+    cap = (g + (rule.high_agl_m + k * rule.max_descent_m)[None, :]).min(axis=1)
     return np.asarray(np.maximum(cap, g[:, 0] + rule.low_agl_m))
 
 
@@ -119,7 +133,7 @@ def target_alt_amsl_m_reference(
         for k in range(rule.lookahead_steps + 1):
             d = k * rule.max_step_m
             g = terrain.height_m_reference(n0 + d * dir_ne[i, 0], e0 + d * dir_ne[i, 1])
-            best = min(best, g + rule.high_agl_m + k * rule.max_climb_m)
+            best = min(best, g + rule.high_agl_m + k * rule.max_descent_m)
         out[i] = max(best, terrain.height_m_reference(n0, e0) + rule.low_agl_m)
     return out
 
@@ -151,21 +165,19 @@ def _candidates(
     rule: HeightRule,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The candidates of :func:`relay_candidates`: (B, C*3, 2) positions, (B, C*3) altitudes
-    AMSL (the goal, one climb step up, one down; each within reach and within [clearance,
-    ceiling] over its ground) and (B, C*3) bool, reachable."""
+    AMSL (the goal, one climb step up, one descent step down; each within reach and within
+    [clearance, ceiling] over its ground) and (B, C*3) bool, reachable."""
     moves = candidate_moves(disp_m, rule)  # (B, C, 2)
     b, c = moves.shape[:2]
     ne = pos_ne_m[:, None, :] + moves
     g = terrain.height_m(ne)  # (B, C)
-    offsets = np.array([0.0, rule.max_climb_m, -rule.max_climb_m])
+    offsets = np.array([0.0, rule.max_climb_m, -rule.max_descent_m])
     alt = alt_goal_m[:, None, None] + offsets[None, None, :]  # (B, 1, 3)
-    alt = np.clip(
-        alt,
-        alt_now_m[:, None, None] - rule.max_climb_m,
-        alt_now_m[:, None, None] + rule.max_climb_m,
-    )
+    lo = alt_now_m[:, None, None] - rule.max_descent_m
+    hi = alt_now_m[:, None, None] + rule.max_climb_m
+    alt = np.clip(alt, lo, hi)
     alt = np.clip(alt, g[:, :, None] + rule.low_agl_m, g[:, :, None] + rule.high_agl_m)  # (B, C, 3)
-    reach = np.abs(alt - alt_now_m[:, None, None]) <= rule.max_climb_m + 1e-9
+    reach = (alt >= lo - 1e-9) & (alt <= hi + 1e-9)
     ne3 = np.broadcast_to(ne[:, :, None, :], (b, c, 3, 2)).reshape(b, c * 3, 2)
     return ne3, alt.reshape(b, c * 3), reach.reshape(b, c * 3)
 

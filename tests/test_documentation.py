@@ -476,7 +476,7 @@ def terrain_page(c: Ctx) -> None:
     frame = s.get_json(url + "api/frame?i=150")
     links = frame["links"]
     c.expect(len(links["vv_status"]) == len(links["vv"]) // 2 > 0, "links without a status")
-    prof = s.get_json(url + "api/profile?a=0,0,2103&b=0,350,1960")
+    prof = s.get_json(url + "api/profile?a=0,0,2103&b=0,330,2021.5")
     c.expect(prof["status_name"] == "blocked by terrain", f"base to canyon floor: {prof}")
 
 

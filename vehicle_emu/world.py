@@ -22,7 +22,7 @@ import numpy as np
 
 from planner.geometry import active_mask, bounded_moves, step_toward, tasks_connected
 from planner.problem import ProblemConfig
-from planner.terrain import TerrainRadio, path_clearance_m
+from planner.terrain import TerrainRadio, path_agl_m, path_clearance_m
 
 __all__ = [
     "Scenario",
@@ -114,9 +114,9 @@ def draw_scenario(problem: ProblemConfig, streams: RunStreams) -> Scenario:
     return Scenario(drone_pos0, track, u)
 
 
-#: Terrain following keeps this much above ``TerrainFlight.clearance_m`` at its path samples, metres:
-#: the ground between two samples of a step (at most a few metres apart) can rise a little above
-#: its samples on a steep wall.
+#: Terrain following keeps this much above ``TerrainFlight.clearance_m`` and below
+#: ``TerrainFlight.ceiling_agl_m`` at its path samples, metres: the ground between two samples of a
+#: step (at most a few metres apart) can rise or fall a little past its samples on a steep wall.
 CLEARANCE_MARGIN_M = 1.0
 
 
@@ -128,8 +128,9 @@ class TerrainFlight:
     the cruise altitude, as the station commands over a flat earth) and a flight whose straight
     path goes into the ground is a crash. 'follow' is terrain following (ArduPilot's
     ``TERRAIN_FOLLOW``): each drone holds ``alt_agl_m`` above the ground under it, climbing at
-    most ``max_climb_m`` per step, and shortens a step whose straight path would pass closer than
-    ``clearance_m`` to the ground or would end above ``ceiling_agl_m`` (docs/terrain.md §3)."""
+    most ``max_climb_m`` and descending at most ``max_descent_m`` per step, and shortens a step
+    whose straight path would pass closer than ``clearance_m`` to the ground or higher than
+    ``ceiling_agl_m`` above it (docs/terrain.md §3)."""
 
     radio: TerrainRadio
     mode: str = "follow"
@@ -141,10 +142,13 @@ class TerrainFlight:
     clearance_m: float = 10.0
     """'follow': the least height above the ground along any flight, metres."""
     max_climb_m: float = 2.5
-    """Largest altitude change in one step, metres."""
+    """Largest climb in one step, metres."""
+    max_descent_m: float | None = None
+    """Largest descent in one step, metres (the vehicles' descent speed x the step, as the
+    station limits it, docs/terrain.md §6.2); None: ``max_climb_m``."""
     ceiling_agl_m: float = float("inf")
-    """'follow': the highest a drone may end a step above the ground, metres (a step that would
-    end higher, off a cliff faster than the drone can descend, is shortened)."""
+    """'follow': the highest a drone may fly above the ground, metres (a step whose straight path
+    would pass higher, off a cliff faster than the drone can descend, is shortened)."""
     crew_antenna_agl_m: float = 1.5
     """Height of a crew's radio above the ground, metres."""
     base_antenna_agl_m: float = 1.5
@@ -153,6 +157,13 @@ class TerrainFlight:
     def __post_init__(self) -> None:
         if self.mode not in ("follow", "flat"):
             raise ValueError(f"TerrainFlight.mode must be 'follow' or 'flat', got {self.mode!r}")
+        if self.max_descent_m is not None and not self.max_descent_m > 0:
+            raise ValueError(f"TerrainFlight.max_descent_m must be > 0, got {self.max_descent_m}")
+
+    @property
+    def descent_m(self) -> float:
+        """The largest descent in one step, metres."""
+        return self.max_climb_m if self.max_descent_m is None else self.max_descent_m
 
     def start_alt_amsl_m(self, pos_ne_m: np.ndarray) -> np.ndarray:
         """(N,) the altitude each drone starts at (already at its cruise height), metres AMSL."""
@@ -293,12 +304,12 @@ class World:
         """Heights over the terrain for the step just taken by :meth:`step` (from
         ``pos_before_m``, (N, 2) metres), per :class:`TerrainFlight`. 'follow' shortens each
         horizontal move to the longest of ``n_fractions`` equal parts whose straight flight keeps
-        ``clearance_m`` above the ground at ``n_samples`` points plus
-        :data:`CLEARANCE_MARGIN_M` (the margin covers the ground between the samples); 'flat'
-        holds the one altitude and a flight into the ground is a crash. ``alt_agl_m`` (N,):
-        'follow' holds each drone's own height above the ground, as a planner that chooses
-        altitudes commands it (kept within [``clearance_m`` + margin, ``ceiling_agl_m``]); None:
-        ``TerrainFlight.alt_agl_m`` for every drone. Returns (N,) bool, the drones that crashed
+        ``clearance_m`` above the ground and stays under ``ceiling_agl_m`` at ``n_samples``
+        points, with :data:`CLEARANCE_MARGIN_M` to spare (the margin covers the ground between
+        the samples); 'flat' holds the one altitude and a flight into the ground is a crash.
+        ``alt_agl_m`` (N,): 'follow' holds each drone's own height above the ground, as a planner
+        that chooses altitudes commands it; None: ``TerrainFlight.alt_agl_m`` for every drone
+        (either kept within [``clearance_m`` + margin, ``ceiling_agl_m`` - margin]). Returns (N,) bool, the drones that crashed
         this step."""
         tf = self.terrain
         assert tf is not None and self.alt_amsl_m is not None  # terrain worlds only
@@ -306,25 +317,25 @@ class World:
         alt0 = self.alt_amsl_m
         move = self.pos_m - pos_before_m
         if tf.mode == "flat":
-            alt1 = alt0 + np.clip(tf.flat_alt_amsl_m - alt0, -tf.max_climb_m, tf.max_climb_m)
+            alt1 = alt0 + np.clip(tf.flat_alt_amsl_m - alt0, -tf.descent_m, tf.max_climb_m)
             clear = path_clearance_m(ground, pos_before_m, self.pos_m, alt0, alt1, n_samples)
             crash = self.alive & (clear < 0)
         else:
             best_pos, best_alt = pos_before_m.copy(), alt0.copy()
-            agl: float | np.ndarray = tf.alt_agl_m
-            if alt_agl_m is not None:
-                agl = np.clip(
-                    np.asarray(alt_agl_m, dtype=float),
-                    tf.clearance_m + CLEARANCE_MARGIN_M,
-                    tf.ceiling_agl_m,
-                )
+            want_agl = tf.alt_agl_m if alt_agl_m is None else np.asarray(alt_agl_m, dtype=float)
+            agl = np.clip(
+                want_agl, tf.clearance_m + CLEARANCE_MARGIN_M, tf.ceiling_agl_m - CLEARANCE_MARGIN_M
+            )
             # Fractions from short to long (a handful): keep the longest that keeps clearance.
             for k in range(n_fractions + 1):
                 end = pos_before_m + (k / n_fractions) * move
                 want = ground.height_m(end) + agl
-                alt1 = alt0 + np.clip(want - alt0, -tf.max_climb_m, tf.max_climb_m)
-                clear = path_clearance_m(ground, pos_before_m, end, alt0, alt1, n_samples)
-                high = alt1 - ground.height_m(end) > tf.ceiling_agl_m
+                alt1 = alt0 + np.clip(want - alt0, -tf.descent_m, tf.max_climb_m)
+                agl_path = path_agl_m(ground, pos_before_m, end, alt0, alt1, n_samples)
+                clear = agl_path.min(axis=1)
+                # Above the ceiling anywhere along the flight, not only at its end: a narrow
+                # canyon's floor can pass under a step that starts and ends over its rims.
+                high = agl_path.max(axis=1) > tf.ceiling_agl_m - CLEARANCE_MARGIN_M
                 ok = ((clear >= tf.clearance_m + CLEARANCE_MARGIN_M) & ~high) | (k == 0)
                 best_pos = np.where(ok[:, None], end, best_pos)
                 best_alt = np.where(ok, alt1, best_alt)

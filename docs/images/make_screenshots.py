@@ -19,7 +19,7 @@
    ~58 s with the alert banner up, a networked vehicle selected (battery, link, GPS, health,
    altitudes, MGRS position). Prints the frame's JSON size at 50
    vehicles with and without the health columns.
-5. terrain_canyon.png: ``phireman sim --mission canyon --out DIR`` (in process, seed 1), then
+5. terrain_canyon.png: ``phireman sim --mission canyon_deep --out DIR`` (in process, seed 1), then
    ``phireman replay DIR --serve`` at t+150 s: the relief and contours under the map, links blocked
    by terrain drawn apart, and the profile of the shortest blocked link opened (as a click does).
 """
@@ -196,8 +196,8 @@ def terrain_shot(out_dir: Path) -> Path:
     from mission.view.live.replay_sim import SimReplaySource
     from mission.view.live.server import serve_in_thread
 
-    mission = load_mission(example_path("canyon"))
-    run_dir = out_dir / "canyon"
+    mission = load_mission(example_path("canyon_deep"))  # its walls block drone-drone links
+    run_dir = out_dir / "canyon_deep"
     write_run_dir(mission, run_inprocess(mission, mission.run.seed), run_dir)
     src = SimReplaySource(run_dir)
     with serve_in_thread(src) as url, chromium() as drv:

@@ -383,7 +383,8 @@ def _run_mission(args) -> int:
                 g = r.terrain
                 line += (
                     f"; terrain-aware {aware}: {g['crashes']} crashes into the ground, least "
-                    f"clearance {g['min_clearance_m']:.1f} m, highest {g['max_agl_m']:.0f} m AGL"
+                    f"clearance {g['min_clearance_m']:.1f} m, highest {g['max_agl_m']:.0f} m AGL, "
+                    f"{g['drones_above_ceiling']} drones above the ceiling"
                 )
             (bar.write(line) if bar else print(line))
             if bar:

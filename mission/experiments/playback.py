@@ -43,10 +43,10 @@ from mission.format.scenario import (  # re-exported: they were drawn here befor
 )
 from mission.experiments.endurance import endurance_run
 from mission.experiments.world_loop import EpisodeRecord, run_world, station_control
-from mission.format.terrain import terrain_aware_planner, terrain_radio
+from mission.format.terrain import descent_rate_m_s, terrain_aware_planner, terrain_radio
 from planner.methods import Planner, make_planner
 from planner.metrics import UptimeSeries, uptime_series
-from planner.terrain import path_clearance_m
+from planner.terrain import path_agl_m
 from vehicle_emu.world import TerrainFlight, World, spawn_streams
 
 __all__ = [
@@ -210,6 +210,7 @@ def terrain_flight(mission: Mission, terrain_aware: str) -> TerrainFlight | None
         clearance_m=spec.clearance_m,
         ceiling_agl_m=spec.ceiling_agl_m,
         max_climb_m=lim.climb_rate_m_s * mission.run.control_period_s,
+        max_descent_m=descent_rate_m_s(mission) * mission.run.control_period_s,
         crew_antenna_agl_m=link.crew_antenna_agl_m,
         base_antenna_agl_m=link.base_antenna_agl_m,
     )
@@ -227,18 +228,20 @@ def terrain_planner(
 
 
 def terrain_summary(flight: TerrainFlight, rec: EpisodeRecord, crashes: int) -> dict:
-    """Crashes into the ground; the least height above the ground along every flight of a drone
-    alive at its start (metres, 128 samples per step) and how many such flights passed lower than
-    the terrain's ``clearance_m``; the highest height above the ground of a flying drone
-    (metres)."""
+    """Crashes into the ground; along every flight of a drone alive at its start (one step,
+    128 samples): the least height above the ground (metres) and how many such flights passed
+    lower than the terrain's ``clearance_m``, the highest height above the ground (metres) and
+    how many flights (``flights_above_ceiling``) and drones (``drones_above_ceiling``) went
+    higher than its ``ceiling_agl_m``."""
     assert rec.alt_amsl_m is not None  # recorded in terrain worlds
     ground = flight.radio.terrain
     tau = len(rec.pos_m) - 1
-    least, below = np.inf, 0
+    least, highest, below, above = np.inf, -np.inf, 0, 0
+    high_drones = np.zeros(rec.alive.shape[1], dtype=bool)
     for t in range(tau):  # loop over time; vectorised over drones
         live = rec.alive[t]
         if live.any():
-            c = path_clearance_m(
+            agl = path_agl_m(
                 ground,
                 rec.pos_m[t][live],
                 rec.pos_m[t + 1][live],
@@ -246,15 +249,20 @@ def terrain_summary(flight: TerrainFlight, rec: EpisodeRecord, crashes: int) -> 
                 rec.alt_amsl_m[t + 1][live],
                 n_samples=128,
             )
-            least = min(least, float(c.min()))
+            c, h = agl.min(axis=1), agl.max(axis=1)
+            least, highest = min(least, float(c.min())), max(highest, float(h.max()))
             below += int((c < flight.clearance_m).sum()) if flight.mode == "follow" else 0
-    agl = rec.alt_amsl_m - ground.height_m(rec.pos_m)
+            over = h > flight.ceiling_agl_m + 1e-6
+            above += int(over.sum())
+            high_drones[np.flatnonzero(live)[over]] = True
     return {
         "mode": flight.mode,
         "crashes": int(crashes),
         "min_clearance_m": least,
         "flights_below_clearance": below,
-        "max_agl_m": float(agl[rec.alive].max()) if rec.alive.any() else 0.0,
+        "max_agl_m": highest if np.isfinite(highest) else 0.0,
+        "flights_above_ceiling": above,
+        "drones_above_ceiling": int(high_drones.sum()),
     }
 
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gcs.control import FIRMWARE_DESCENT_RATE_M_S, ControlConfig, Geofence, TerrainAltitude
+from gcs.control import ControlConfig, Geofence, TerrainAltitude
 from mission.format.schema import Attrition, HazardZone, Mission
 from planner.hazard import HazardMap, HazardZone as PlannerHazardZone
 from vehicle_emu.world import RunStreams, spawn_streams, walk_tasks
@@ -291,7 +291,7 @@ def terrain_altitude(mission: Mission) -> TerrainAltitude | None:
     ``ceiling_agl_m`` (docs/terrain.md §6); None for the disc radio (a flat earth)."""
     if mission.radio.model != "terrain" or mission.terrain is None:
         return None
-    from mission.format.terrain import build_terrain
+    from mission.format.terrain import build_terrain, descent_rate_m_s
 
     dem = build_terrain(mission)
     assert dem is not None  # a terrain section
@@ -299,7 +299,6 @@ def terrain_altitude(mission: Mission) -> TerrainAltitude | None:
 
     spec = mission.terrain
     link = mission.radio.terrain_link
-    descent = mission.vehicles.limits.descent_rate_m_s  # written to the vehicles (gcs.limits)
     return TerrainAltitude(
         dem,
         mission.origin.alt_amsl_m,
@@ -307,7 +306,7 @@ def terrain_altitude(mission: Mission) -> TerrainAltitude | None:
         ceiling_agl_m=spec.ceiling_agl_m,
         radio=TerrainRadio(dem, link.link_budget()),
         crew_antenna_agl_m=link.crew_antenna_agl_m,
-        descent_step_m=(descent or FIRMWARE_DESCENT_RATE_M_S) * mission.run.control_period_s,
+        descent_step_m=descent_rate_m_s(mission) * mission.run.control_period_s,
     )
 
 

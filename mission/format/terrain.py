@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from gcs.control import FIRMWARE_DESCENT_RATE_M_S
 from mission.format.schema import GeoTiffTerrain, Mission, SyntheticTerrain, TerrainSpec
 from planner.geometry import ned_to_geodetic
 from planner.methods import Planner
@@ -20,7 +21,23 @@ from planner.terrain import Canyon, Hill, Ridge, Terrain, TerrainRadio, syntheti
 from planner.terrain_aware import TerrainAwarePlanner
 from planner.terrain_heights import HeightRule
 
-__all__ = ["build_terrain", "terrain_radio", "synthetic_from_spec", "terrain_from_geotiff"]
+__all__ = [
+    "build_terrain",
+    "terrain_radio",
+    "synthetic_from_spec",
+    "terrain_from_geotiff",
+    "descent_rate_m_s",
+    "terrain_aware_planner",
+]
+
+
+def descent_rate_m_s(mission: Mission) -> float:
+    """The speed at which the mission's vehicles descend, m/s: ``vehicles.descent_rate_m_s``,
+    which the station writes to them (gcs.limits), or else the firmwares' default
+    (:data:`gcs.control.FIRMWARE_DESCENT_RATE_M_S`). The one place the station's descent steps
+    (``TerrainAltitude.descent_step_m``), the 3-D planner's :class:`HeightRule` and the in-process
+    world's :class:`vehicle_emu.world.TerrainFlight` read it from (docs/terrain.md §3)."""
+    return mission.vehicles.limits.descent_rate_m_s or FIRMWARE_DESCENT_RATE_M_S
 
 
 def synthetic_from_spec(spec: SyntheticTerrain, plane_amsl_m: float) -> Terrain:
@@ -137,6 +154,7 @@ def terrain_aware_planner(
             clearance_m=spec.clearance_m,
             ceiling_agl_m=spec.ceiling_agl_m,
             max_climb_m=mission.vehicles.limits.climb_rate_m_s * mission.run.control_period_s,
+            max_descent_m=descent_rate_m_s(mission) * mission.run.control_period_s,
             max_step_m=max_step_m,
         ),
     )

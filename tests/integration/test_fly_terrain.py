@@ -1,5 +1,5 @@
 """`phireman fly` of a terrain mission over loopback UDP (docs/terrain.md §6): the emulator's radio
-and ground over the canyon, the station's altitudes over the DEM, ArduPilot's terrain protocol
+and ground over the deep canyon, the station's altitudes over the DEM, ArduPilot's terrain protocol
 between the emulated vehicles and the station (port 0 only)."""
 
 from __future__ import annotations
@@ -21,10 +21,13 @@ PHIREMAN = [str(Path(sys.executable).with_name("phireman"))]
 
 
 def _small_canyon(tmp_path: Path) -> Path:
-    text = example_path("canyon").read_text()
+    # The deep canyon: its 60 m ridge is above PX4's default return altitude too (60 m), so the
+    # audit raises the return altitude on both firmwares (on `canyon`, a 20 m ridge, PX4's
+    # default already clears it).
+    text = example_path("canyon_deep").read_text()
     text = re.sub(r"count: 40", "count: 8", text)
     text = re.sub(r"duration_s: 300\.0", "duration_s: 60.0", text)
-    path = tmp_path / "canyon8.yaml"
+    path = tmp_path / "canyon_deep8.yaml"
     path.write_text(text)
     return path
 

@@ -1,6 +1,6 @@
 """Real ArduCopter asks the station for terrain and flies over it (docs/terrain.md §6).
 
-One ArduCopter SITL started by :mod:`mission.flight.sitl` at the canyon mission's base, with
+One ArduCopter SITL started by :mod:`mission.flight.sitl` at the canyon_deep mission's base, with
 TERRAIN_ENABLE=1 and TERRAIN_SPACING=30 (skipped without ``PHIREMAN_ARDUCOPTER``). Its working
 directory has no terrain files, so the firmware asks its ground station with TERRAIN_REQUEST
 (libraries/AP_Terrain/TerrainGCS.cpp ``send_request``); :class:`gcs.terrain.TerrainServer`
@@ -41,7 +41,7 @@ def test_arducopter_loads_terrain_from_the_station_and_flies_terrain_frames(tmp_
         binary = find_binary("ardupilot")
     except SitlError as exc:
         pytest.skip(f"real-firmware test skipped: {exc}")
-    mission = load_mission(example_path("canyon"))
+    mission = load_mission(example_path("canyon_deep"))  # a floor 80 m wide: wider than 30 m posts
     dem = build_terrain(mission)
     assert dem is not None
     o = mission.origin

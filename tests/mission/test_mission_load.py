@@ -41,6 +41,7 @@ from mission.format.schema import (
 EXAMPLES = [
     "canyon",
     "canyon_camp",
+    "canyon_deep",
     "hazard_zone",
     "paper_S",
     "real_links_template",
@@ -61,7 +62,7 @@ def test_examples_are_shipped():
     for name in EXAMPLES:
         assert example_path(name).is_file()
         assert example_path(f"{name}.yaml") == example_path(name)
-    with pytest.raises(KeyError, match="examples: canyon, canyon_camp, hazard_zone"):
+    with pytest.raises(KeyError, match="examples: canyon, canyon_camp, canyon_deep, hazard_zone"):
         example_path("nope")
 
 

@@ -30,6 +30,11 @@ def test_the_station_plans_a_terrain_mission_as_the_world_does():
     assert isinstance(station, TerrainAwarePlanner) and isinstance(world, TerrainAwarePlanner)
     assert station.heights == world.heights
     assert station.heights is not None and station.heights.ceiling_agl_m == 120.0
+    # One descent limit: the station's descent steps, the planner's and the world's
+    # (vehicles.descent_rate_m_s, 4 m/s on the canyon).
+    assert station.heights.max_descent_m == control.terrain.descent_step_m == flight.descent_m
+    assert flight.descent_m == 4.0 * m.run.control_period_s
+    assert station.heights.max_climb_m == flight.max_climb_m == 5.0
     assert (station.alt_agl_m, station.crew_antenna_agl_m, station.base_antenna_agl_m) == (
         world.alt_agl_m,
         world.crew_antenna_agl_m,
@@ -45,7 +50,7 @@ def test_the_station_plans_a_terrain_mission_as_the_world_does():
         pos,
         np.ones(n, bool),
         np.ones(n, bool),
-        np.array([[0.0, 355.0], [250.0, 795.0]]),
+        np.array([[-150.0, 375.0], [250.0, 680.0]]),
         alt_amsl_m=ground + 100.0,
     )
     a, b = station.plan(tick), world.plan(tick)

@@ -110,16 +110,56 @@ def test_terrain_radio_needs_a_terrain_and_one_source():
         loads_mission("radio: {link: {tx_power_dbm: -30, sensitivity_dbm: -10}}")
 
 
-def test_canyon_has_a_canyon_a_ridge_and_crews_on_them():
+def test_canyon_has_a_canyon_a_ridge_and_crews_on_and_behind_them():
     m = load_mission(example_path("canyon"))
     t = build_terrain(m)
     assert t is not None and m.radio.model == "terrain"
+    base = t.height_m(np.zeros((1, 2)))[0]
+    assert base == pytest.approx(m.origin.alt_amsl_m)  # the base on the rim
+    floor_crews = np.array([[450.0, 300.0], [-150.0, 375.0], [-450.0, 375.0]])
+    np.testing.assert_allclose(t.height_m(floor_crews), base - 80.0)
+    # The ridge crews are on its far flank: the crest stands between them and the base.
+    ridge_crews = np.array([[250.0, 680.0], [-300.0, 690.0]])
+    crests = np.array([[250.0, 618.3], [-300.0, 622.0]])
+    assert (t.height_m(crests) > t.height_m(ridge_crews) + 15.0).all()
+
+
+def test_canyon_one_altitude_is_legal_over_the_whole_fence():
+    """Today's system (one altitude, ``vehicles.cruise_alt_m`` above the base) stays between the
+    clearance and the ceiling over every post of the geofence (docs/terrain.md §3), and flies so:
+    no drone-step above the ceiling, none below the clearance (seed 1)."""
+    m = load_mission(example_path("canyon"))
+    t = build_terrain(m)
+    assert t is not None and m.terrain is not None
+    w = m.geofence.half_width_m
+    ax = np.arange(-w, w + 1.0, t.spacing_m / 2)
+    nn, ee = np.meshgrid(ax, ax, indexing="ij")
+    ground = t.height_m(np.column_stack([nn.ravel(), ee.ravel()]))
+    alt = m.origin.alt_amsl_m + m.vehicles.limits.cruise_alt_m
+    assert alt - ground.max() >= m.terrain.clearance_m
+    assert alt - ground.min() <= m.terrain.ceiling_agl_m
+    assert ground.max() - ground.min() > 90.0  # the relief is not flat: 100 m
+    off = run_inprocess(m, 1, terrain_aware="off")
+    assert off.terrain is not None
+    assert off.terrain["crashes"] == 0 and off.terrain["min_clearance_m"] >= m.terrain.clearance_m
+    assert off.terrain["flights_above_ceiling"] == 0 and off.terrain["drones_above_ceiling"] == 0
+    assert off.terrain["max_agl_m"] <= m.terrain.ceiling_agl_m
+
+
+def test_canyon_deep_breaks_the_ceiling_when_flown_blind():
+    """The deep canyon (250 m): one altitude 80 m above the base is 330 m above its floor."""
+    m = load_mission(example_path("canyon_deep"))
+    t = build_terrain(m)
+    assert t is not None and m.terrain is not None
     base = t.height_m(np.zeros((1, 2)))[0]
     assert base == pytest.approx(m.origin.alt_amsl_m)  # the base on the rim
     floor_crews = np.array([[450.0, 345.0], [0.0, 355.0], [-450.0, 360.0]])
     ridge_crews = np.array([[250.0, 795.0], [-300.0, 810.0]])
     assert (t.height_m(floor_crews) < base - 240).all()
     assert (t.height_m(ridge_crews) > base + 50).all()
+    off = run_inprocess(m, 1, terrain_aware="off")
+    assert off.terrain is not None and off.terrain["crashes"] == 0
+    assert off.terrain["max_agl_m"] > 300.0 and off.terrain["drones_above_ceiling"] > 0
 
 
 def test_canyon_camp_has_its_base_on_the_floor_below_a_bend():
@@ -146,6 +186,7 @@ def test_planning_in_3d_flies_each_drone_at_its_own_height_within_the_band():
     assert on.terrain is not None and alt.terrain is not None
     assert on.terrain["crashes"] == 0 and on.terrain["flights_below_clearance"] == 0
     assert on.terrain["max_agl_m"] <= m.terrain.ceiling_agl_m + 1e-6  # type: ignore[union-attr]
+    assert on.terrain["flights_above_ceiling"] == 0
     ground = build_terrain(m)
     assert ground is not None and on.record.alt_amsl_m is not None
     agl = on.record.alt_amsl_m - ground.height_m(on.record.pos_m)
@@ -169,6 +210,7 @@ def test_documented_canyon_commands_run():
     off = _cli("sim", "--mission", "canyon", "--terrain-aware", "off")
     assert off.returncode == 0, off.stderr
     assert "terrain-aware off: 0 crashes" in off.stdout and "TU1 = " in off.stdout
+    assert "0 drones above the ceiling" in off.stdout
     on = _cli("sim", "--mission", "canyon", "--seeds", "3")
     assert on.returncode == 0, on.stderr
     assert on.stdout.count("terrain-aware on") == 3 and "TU2 = " in on.stdout

@@ -23,7 +23,9 @@ from planner.terrain_heights import (
     target_alt_amsl_m_reference,
 )
 
-RULE = HeightRule(clearance_m=15.0, ceiling_agl_m=120.0, max_climb_m=5.0, max_step_m=10.0)
+RULE = HeightRule(
+    clearance_m=15.0, ceiling_agl_m=120.0, max_climb_m=5.0, max_descent_m=4.0, max_step_m=10.0
+)
 
 
 @pytest.fixture
@@ -56,14 +58,16 @@ def test_altitude_rule_flies_high_and_descends_before_the_canyon(canyon):
     east = np.array([[0.0, 1.0]])
     idle = target_alt_amsl_m(canyon, np.array([[0.0, -500.0]]), np.zeros((1, 2)), RULE)
     assert idle[0] == pytest.approx(1000.0 + RULE.high_agl_m)  # at the ceiling, less the margin
-    # Heading east 200 m before the rim: low enough to stay under the ceiling down the wall.
-    ahead = target_alt_amsl_m(canyon, np.array([[0.0, 0.0]]), east, RULE)[0]
+    # Heading east 280 m before the rim: low enough to stay under the ceiling down the wall.
+    ahead = target_alt_amsl_m(canyon, np.array([[0.0, -80.0]]), east, RULE)[0]
     assert ahead < 1000.0 + 40.0
     assert ahead >= 1000.0 + RULE.low_agl_m  # never under the clearance
-    # Flying on at full speed and descending at the climb rate it stays under the ceiling.
+    # Flying on at full speed and descending at the descent rate it stays under the ceiling.
     k = np.arange(RULE.lookahead_steps + 1)
-    pts = np.column_stack([np.zeros(len(k)), 10.0 * k])
-    assert (ahead - 5.0 * k - canyon.height_m(pts) <= RULE.high_agl_m + 1e-9).all()
+    pts = np.column_stack([np.zeros(len(k)), -80.0 + 10.0 * k])
+    assert (ahead - 4.0 * k - canyon.height_m(pts) <= RULE.high_agl_m + 1e-9).all()
+    # ... and no lower than that needs: at some sample ahead it is exactly at the ceiling.
+    assert (ahead - 4.0 * k - canyon.height_m(pts)).max() == pytest.approx(RULE.high_agl_m)
     # Heading away from the canyon: high again.
     away = target_alt_amsl_m(canyon, np.array([[0.0, 0.0]]), -east, RULE)[0]
     assert away == pytest.approx(1000.0 + RULE.high_agl_m)
@@ -117,7 +121,38 @@ def test_relay_search_finds_a_position_that_sees_both_ends():
     assert found[0]
     p3 = np.array([[ne[0, 0], ne[0, 1], alt[0]]])
     assert radio.links_clear(p3, anchors)[0] and radio.links_clear(p3, crews)[0]
-    assert abs(alt[0] - alt_now[0]) <= RULE.max_climb_m + 1e-9
+    assert -RULE.max_descent_m - 1e-9 <= alt[0] - alt_now[0] <= RULE.max_climb_m + 1e-9
+
+
+def test_the_rule_descends_at_the_descent_rate_and_climbs_at_the_climb_rate(canyon):
+    """Descents are limited by ``max_descent_m``, climbs by ``max_climb_m`` (the station's limits,
+    docs/terrain.md §6.2): a slower descent starts down earlier before the canyon."""
+    np.testing.assert_allclose(
+        RULE.reach_m(np.array([100.0, 100.0]), np.array([0.0, 200.0])), [96.0, 105.0]
+    )
+    slow = HeightRule(
+        clearance_m=15.0, ceiling_agl_m=120.0, max_climb_m=5.0, max_descent_m=1.5, max_step_m=10.0
+    )
+    east = np.array([[0.0, 1.0]])
+    far = np.array([[0.0, -100.0]])  # 300 m before the west rim
+    fast_alt = target_alt_amsl_m(canyon, far, east, RULE)[0]
+    slow_alt = target_alt_amsl_m(canyon, far, east, slow)[0]
+    assert slow_alt < fast_alt
+    np.testing.assert_allclose(
+        target_alt_amsl_m(canyon, far, east, slow),
+        target_alt_amsl_m_reference(canyon, far, east, slow),
+    )
+
+
+def test_relay_candidates_step_up_by_the_climb_and_down_by_the_descent():
+    radio = _ridge_radio()
+    pos = np.array([[0.0, 0.0]])
+    alt_now = radio.terrain.height_m(pos) + 60.0
+    from planner.terrain_heights import _candidates
+
+    _, alt, reach = _candidates(radio.terrain, pos, alt_now, np.zeros((1, 2)), alt_now, RULE)
+    assert reach.all()
+    np.testing.assert_allclose(sorted(set(np.round(alt[0] - alt_now[0], 9))), [-4.0, 0.0, 5.0])
 
 
 class _Fixed:
@@ -145,7 +180,7 @@ def test_3d_planner_keeps_the_mesh_and_commands_heights_in_the_band():
     assert (out.alt_agl_m <= RULE.high_agl_m + 1e-9).all()
     new = pos + out.disp_m
     alt = radio.terrain.height_m(new) + out.alt_agl_m
-    alt = alt_now + np.clip(alt - alt_now, -RULE.max_climb_m, RULE.max_climb_m)
+    alt = RULE.reach_m(alt_now, alt)
     assert radio.active_mask(new, alt, np.ones(3, bool), np.zeros(2), 3.0).all()
     assert np.linalg.norm(out.disp_m[1]) < 200.0
     np.testing.assert_array_equal(out.disp_m[[0, 2]], disp[[0, 2]])  # harmless: kept
