@@ -84,6 +84,7 @@ def _is_ours(line: str) -> bool:
 def _from_markdown(text: str) -> list[str]:
     found: list[str] = []
     fence: list[str] | None = None
+    indented: list[str] = []
     for line in text.splitlines():
         if line.strip().startswith("```"):
             if fence is None:
@@ -105,9 +106,16 @@ def _from_markdown(text: str) -> list[str]:
         if fence is not None:
             fence.append(line)
             continue
+        if line.startswith("    ") and _is_ours(line):  # an indented code block's command
+            indented.append(line)
+            continue
+        if indented and not line.rstrip().endswith("\\"):
+            found.extend(_norm(c) for c in _logical_lines(indented) if _is_ours(c))
+            indented = []
         for span in re.findall(r"`([^`\n]+)`", line):
             if _is_ours(span):
                 found.append(_norm(span))
+    found.extend(_norm(c) for c in _logical_lines(indented) if _is_ours(c))
     return found
 
 
@@ -800,6 +808,44 @@ TABLE: dict[str, Case] = {
             r"terrain served to the vehicles: [1-9]\d* TERRAIN_REQUEST answered",
         ),
         timeout=600,
+    ),
+    # The indented blocks of docs/terrain.md (§3, §6): each shortened, run as a user runs it.
+    "phireman check canyon": Case(check=lambda c: c.has(r"OK: canyon: 40 emulated")),
+    "phireman sim --mission canyon --seeds 3": Case(
+        rewrite=(SEEDS_TO_1,), check=lambda c: c.has(r"terrain-aware on: 0 crashes", r"TU1 = ")
+    ),
+    "phireman sim --mission canyon --seeds 3 --terrain-aware off": Case(
+        rewrite=(SEEDS_TO_1,), check=lambda c: c.has(r"terrain-aware off: 0 crashes", r"TU1 = ")
+    ),
+    "phireman sim --mission canyon --terrain-aware altitude": Case(
+        check=lambda c: c.has(r"terrain-aware altitude: 0 crashes", r"TU1 = ")
+    ),
+    "phireman fly canyon --apply-failsafes --duration-s 120": Case(
+        rewrite=((r"--duration-s 120", "--duration-s 10 --speedup 60 --no-wait"),),
+        check=lambda c: c.has(r"over the terrain: 0 crashes into the ground"),
+        timeout=600,
+    ),
+    "phireman fly canyon --apply-failsafes --personality px4 --duration-s 120": Case(
+        rewrite=((r"--duration-s 120", "--duration-s 10 --speedup 60 --no-wait"),),
+        check=lambda c: c.has(r"40 emulated px4 drones", r"over the terrain: 0 crashes"),
+        timeout=600,
+    ),
+    "phireman fly canyon --apply-failsafes --seed 1 --speedup 10": Case(
+        rewrite=((r"--speedup 10", "--speedup 60 --duration-s 10 --no-wait"),),
+        check=lambda c: c.has(r"over the terrain: 0 crashes into the ground"),
+        timeout=600,
+    ),
+    "phireman fly canyon --apply-failsafes --seed 1 --personality px4 --speedup 10": Case(
+        rewrite=((r"--speedup 10", "--speedup 60 --duration-s 10 --no-wait"),),
+        check=lambda c: c.has(r"40 emulated px4 drones", r"over the terrain: 0 crashes"),
+        timeout=600,
+    ),
+    ".venv/bin/python bench/terrain_canyon.py --seeds 100": Case(kind="bench"),
+    ".venv/bin/python bench/terrain_canyon.py --seeds 100 --mission canyon_camp": Case(
+        kind="bench"
+    ),
+    ".venv/bin/python bench/terrain_canyon.py --seeds 100 --mission canyon_deep": Case(
+        kind="bench"
     ),
     "phireman sim --mission canyon --terrain-aware off": Case(
         check=lambda c: c.has(r"terrain-aware off: 0 crashes", r"TU1 = ")
