@@ -218,8 +218,13 @@ def terrain_targets(
         frac = descent_fraction(pos[:, :2], alt_now, tgt, ta)
         tgt = pos[:, :2] + frac[:, None] * (tgt - pos[:, :2])
     ground = ta.terrain
-    floor = ground.height_m(_band(pos[:, :2], tgt, ta)).max(axis=(1, 2)) + ta.clearance_m
-    alt = np.maximum(ground.height_m(tgt) + np.asarray(agl_m, dtype=float), floor)
+    band = ground.height_m(_band(pos[:, :2], tgt, ta))  # (K, 3, S + 1)
+    floor = band.max(axis=(1, 2)) + ta.clearance_m
+    alt = ground.height_m(tgt) + np.asarray(agl_m, dtype=float)
+    # Never above the ceiling over the lowest ground on the way: toward rising ground the climb
+    # starts over the low ground the vehicle leaves (a slot's floor rising 6 m put a vehicle 3 m
+    # over the ceiling). The floor still wins: clearing the ground comes first.
+    alt = np.maximum(np.minimum(alt, band.min(axis=(1, 2)) + ta.ceiling_agl_m), floor)
     clear = path_clearance_m(ground, pos[:, :2], tgt, alt_now, alt, ta.n_samples)
     # A vehicle below the floor climbs first: autopilots limit horizontal speed and climb rate
     # separately (ArduCopter WPNAV_SPEED / WPNAV_SPEED_UP, PX4 MPC_XY_VEL_MAX / MPC_Z_VEL_MAX_UP),
@@ -249,20 +254,28 @@ def descent_fraction(
     """(K,) how much of each step to fly, in [0, 1], so that the vehicle stays under the ceiling
     over falling ground (:func:`terrain_targets`).
 
-    At the path's samples ``j`` (fractions ``j / n_samples``), the vehicle ends this period no
-    lower than ``max(alt - descent_step_m, floor_j)``, where ``floor_j`` is ``clearance_m`` over
+    At the path's samples ``j`` (fractions ``f = j / n_samples``), reached at ``f`` of the period,
+    the vehicle is no lower than ``max(alt - f * descent_step_m, floor_j)``, where ``floor_j`` is ``clearance_m`` over
     the highest ground (with the corridor) up to sample ``j``; its excess over the ceiling is that
-    minus the lowest ground up to ``j`` minus ``ceiling_agl_m``. The fraction is that of the
+    minus the lowest ground (with the corridor) up to ``j`` minus ``ceiling_agl_m``. The fraction is that of the
     farthest sample whose excess is at most ``max(0, excess at the vehicle)``: a vehicle already
     too high (after a climb over a ridge) still moves, but no step makes it worse."""
     pos = np.asarray(pos_ne_m, dtype=float).reshape(-1, 2)
     tgt = np.asarray(target_ne_m, dtype=float).reshape(-1, 2)
     g = ta.terrain.height_m(_band(pos, tgt, ta))  # (K, 3, S + 1)
     floor = np.maximum.accumulate(g.max(axis=1), axis=1) + ta.clearance_m
-    low = np.minimum.accumulate(g[:, 0], axis=1)
-    reach = np.asarray(alt_amsl_m, dtype=float)[:, None] - ta.descent_step_m
-    excess = np.maximum(reach, floor) - low - ta.ceiling_agl_m  # (K, S + 1), non-decreasing
-    ok = excess <= np.maximum(excess[:, :1], 0.0) + 1e-6
+    # the lowest ground with the corridor too: a vehicle a few metres off its line by a steep
+    # wall is over ground many metres lower (a slot's floor), and so nearer the ceiling
+    low = np.minimum.accumulate(g.min(axis=1), axis=1)
+    # A vehicle flies its step in one period at a steady speed and descends at most its descent
+    # speed meanwhile: at sample j it can be at most j / S of the period's descent lower. (All of
+    # it from the first sample let a vehicle 5 m too high cross a slot's edge and fly over its
+    # floor 2 m above the ceiling.)
+    frac = np.arange(ta.n_samples + 1) / ta.n_samples
+    reach = np.asarray(alt_amsl_m, dtype=float)[:, None] - ta.descent_step_m * frac[None, :]
+    excess = np.maximum(reach, floor) - low - ta.ceiling_agl_m  # (K, S + 1)
+    # every sample up to the one flown to must be under the bound (the first above it ends the step)
+    ok = np.logical_and.accumulate(excess <= np.maximum(excess[:, :1], 0.0) + 1e-6, axis=1)
     return np.asarray(ok.sum(axis=1) - 1, dtype=float) / ta.n_samples
 
 
@@ -280,8 +293,9 @@ def descent_fraction_reference(
         for j in range(ta.n_samples + 1):
             c = p + (j / ta.n_samples) * d
             line = [ta.terrain.height_m_reference(*q) for q in (c, c + side, c - side)]
-            hi, lo = max(hi, *line), min(lo, line[0])
-            reach = max(float(alt_amsl_m[k]) - ta.descent_step_m, hi + ta.clearance_m)
+            hi, lo = max(hi, *line), min(lo, *line)
+            f = j / ta.n_samples
+            reach = max(float(alt_amsl_m[k]) - f * ta.descent_step_m, hi + ta.clearance_m)
             excess = reach - lo - ta.ceiling_agl_m
             if j == 0:
                 excess0 = max(excess, 0.0)

@@ -830,13 +830,13 @@ TABLE: dict[str, Case] = {
         check=lambda c: c.has(r"40 emulated px4 drones", r"over the terrain: 0 crashes"),
         timeout=600,
     ),
-    "phireman fly canyon --apply-failsafes --seed 1 --speedup 10": Case(
-        rewrite=((r"--speedup 10", "--speedup 60 --duration-s 10 --no-wait"),),
+    "phireman fly canyon --apply-failsafes --seed 1 --speedup 20": Case(
+        rewrite=((r"--speedup 20", "--speedup 60 --duration-s 10 --no-wait"),),
         check=lambda c: c.has(r"over the terrain: 0 crashes into the ground"),
         timeout=600,
     ),
-    "phireman fly canyon --apply-failsafes --seed 1 --personality px4 --speedup 10": Case(
-        rewrite=((r"--speedup 10", "--speedup 60 --duration-s 10 --no-wait"),),
+    "phireman fly canyon --apply-failsafes --seed 1 --personality px4 --speedup 20": Case(
+        rewrite=((r"--speedup 20", "--speedup 60 --duration-s 10 --no-wait"),),
         check=lambda c: c.has(r"40 emulated px4 drones", r"over the terrain: 0 crashes"),
         timeout=600,
     ),

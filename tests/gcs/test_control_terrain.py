@@ -13,6 +13,7 @@ from gcs.control import (
     TerrainAltitude,
     descent_fraction,
     descent_fraction_reference,
+    terrain_targets,
     tick,
 )
 from planner.methods import PlanOutput, TickInput
@@ -139,3 +140,19 @@ def test_descent_fraction_against_its_reference(rng):
     slow = descent_fraction_reference(pos, alt, tgt, ta)
     np.testing.assert_allclose(fast, slow)
     assert 0 < (fast < 1).sum() < n  # some steps shortened, some not
+
+
+def test_a_climb_toward_rising_ground_stays_under_the_ceiling_over_the_ground_it_leaves():
+    # A vehicle over the canyon's floor (250 m down) heading up its west wall, asked for 117 m
+    # above the target's ground: the target's altitude is capped at the ceiling over the floor
+    # it leaves (and its clearance over the wall still wins where the two conflict).
+    ta = _config(descent_step_m=4.0).terrain
+    assert ta is not None
+    pos = np.array([[0.0, 330.0, -(-250.0 + 110.0)]])  # over the floor, 110 m up
+    target = np.array([[0.0, 295.0]])
+    ground = CANYON.height_m(np.vstack([pos[:, :2], target])) - ORIGIN_AMSL_M
+    assert ground[1] > ground[0] + 5.0  # the target's ground is higher
+    out = terrain_targets(pos, target, np.array([117.0]), ta)
+    alt = -out[0, 2]
+    assert alt <= ground.min() + CEILING_M + 1e-6
+    assert alt >= ground.max() + CLEARANCE_M
