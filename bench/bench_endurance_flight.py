@@ -267,9 +267,18 @@ def main() -> int:
         metavar="FILE",
         help="fly nothing: replay a --record FILE into a fresh emulator, print its CPU seconds",
     )
+    ap.add_argument(
+        "--no-kernels",
+        action="store_true",
+        help="with --replay: the emulator's NumPy references instead of its compiled kernels",
+    )
     args = ap.parse_args()
     logging.getLogger().setLevel(logging.ERROR)
     if args.replay:
+        if args.no_kernels:
+            import vehicle_emu._kernels
+
+            vehicle_emu._kernels.ENABLED = False
         print(json.dumps(replay(args.replay)), flush=True)
         return 0
     rows = []

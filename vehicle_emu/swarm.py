@@ -710,12 +710,12 @@ class Swarm:
         for i in np.flatnonzero(self.boot_at_s <= now_s + 1e-9).tolist():
             self._boot(i, now_s)
         soc = batt.soc  # after the boots (a booted vehicle has a full pack)
+        due = ph.alive & self.powered & ~ph.armed & ph.landed & (soc < swap.used_below_frac)
+        if not due.any():  # most ticks: nobody is on the ground with a used pack
+            return
         home = np.array([c.home_ned_m for c in self.cores]).reshape(-1, 3)  # (N, 3) world NED
         at_home = np.hypot(*(ph.pos_ned_m[:, :2] - home[:, :2]).T) <= swap.home_radius_m
-        due = (
-            ph.alive & self.powered & ~ph.armed & ph.landed & at_home & (soc < swap.used_below_frac)
-        )
-        for i in np.flatnonzero(due).tolist():
+        for i in np.flatnonzero(due & at_home).tolist():
             self._power_off(i, now_s, now_s + swap.swap_time_s)
 
     def _power_off(self, i: int, now_s: float, boot_at_s: float) -> None:
