@@ -17,6 +17,22 @@ cores, that needs each process under 144 CPU seconds for the two hours.
     .venv/bin/python bench/bench_endurance_flight.py
     .venv/bin/python bench/bench_endurance_flight.py --duration-s 1200 --personality px4
     .venv/bin/python bench/bench_endurance_flight.py --duration-s 600 --profile /tmp/endfly
+
+``--record FILE`` keeps every call the flight made on the emulator (the station's datagrams as
+they arrived, the timer ticks, the host's start / poll / end) on the emulator's clock;
+``--replay FILE`` flies nothing and feeds them to a fresh emulator of the current code, without
+sockets, printing its CPU seconds and a fingerprint of all it sent and logged (equal
+fingerprints: the same behaviour; ``--no-kernels``: its NumPy references instead of the compiled
+kernels). Record with one tree, replay with two (``PYTHONPATH=<tree>``), and the emulator's cost
+of one and the same flight is compared without the station's or the machine's pace in it.
+
+    .venv/bin/python bench/bench_endurance_flight.py --skip-short --record /tmp/wildfire_2h.pkl
+    .venv/bin/python bench/bench_endurance_flight.py --replay /tmp/wildfire_2h.pkl
+
+Measured 2026-12-06 on the shared 2-core machine (load averages 3-9), ArduPilot, the 2 hours:
+at b1c1dfe the emulator took 118.1 s of CPU (station 100.8 s); with the compiled kernels
+(vehicle_emu/_kernels.py) 60.6 s (station 74.4 s); PX4 120.6 s -> 88.8 s. The replay of one
+recorded ArduPilot flight: see docs/results/endurance.md ("The emulator's CPU, halved").
 """
 
 from __future__ import annotations
