@@ -41,6 +41,11 @@ PX4 17.5 of 17.5 messages/s per vehicle, ArduPilot 1.0 of 1.0, every frame deliv
 a core, tick lateness p50 2 ms / p99 113 ms (the p99 is the loaded host descheduling a niced
 process; ``keeps_up`` asks for p99 < 50 ms). The reference path did not keep up there: 4.5
 ticks/s, PX4 12.1 messages/s per vehicle.
+
+2026-12-06, the compiled kernels (vehicle_emu/_kernels.py: physics with batteries, geodetic
+update, hop counts, framing), ``--no-realtime --telemetry batch --tick-s 0.1 --gcs-hb-hz 5
+--setpoint-hz 2 --ticks 200``, load average about 5: 50 vehicles 0.97 -> 0.52 ms per tick, 500
+vehicles 4.77 -> 3.93 ms, the same fingerprints before and after.
 """
 
 from __future__ import annotations

@@ -926,6 +926,15 @@ TABLE: dict[str, Case] = {
         timeout=600,
     ),
     ".venv/bin/python bench/bench_endurance_flight.py": Case(kind="bench"),
+    ".venv/bin/python bench/bench_endurance_flight.py --skip-short --record /tmp/wildfire_2h.pkl": Case(  # noqa: E501
+        kind="bench"
+    ),
+    ".venv/bin/python bench/bench_endurance_flight.py --replay /tmp/wildfire_2h.pkl": Case(
+        kind="bench"
+    ),
+    ".venv/bin/python bench/bench_endurance_flight.py --replay /tmp/wildfire_2h.pkl --no-kernels": Case(  # noqa: E501
+        kind="bench"
+    ),
     "phireman sweep --help": Case(check=lambda c: c.has(r"usage: phireman sweep", r"--scheduler")),
     "phireman sweep --grid custom --size XS --attrition 0 1% --method phireman dccrs --seeds 3 --chunk 1 --scheduler sched.json --store cluster.sqlite": SKIP(  # noqa: E501
         "needs a Dask scheduler and workers started first: run with them, a worker killed "

@@ -215,7 +215,8 @@ class Battery:
     @property
     def soc(self) -> np.ndarray:
         """(N,) true state of charge, fraction of capacity."""
-        return np.clip(1.0 - self.consumed_mah / self.config.capacity_mah, 0.0, 1.0)
+        # np.clip without its Python-level wrapper (read several times a tick).
+        return np.minimum(np.maximum(1.0 - self.consumed_mah / self.config.capacity_mah, 0.0), 1.0)
 
     def step(self, h_s: float, vel_ned_m_s: np.ndarray, drawing: np.ndarray) -> None:
         """Advance every pack by one sub-step (:func:`battery_step`)."""

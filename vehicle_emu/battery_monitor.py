@@ -48,6 +48,22 @@ class _Monitor:
 
     def __init__(self, core) -> None:
         self.core = core
+        self._param_stamp = 0  # no table has stamp 0: read at the first check
+        self._param_values: tuple = ()
+
+    def _params(self) -> tuple:
+        """:meth:`_read_params`, kept until the parameter table changes (its ``stamp``: any
+        PARAM_SET, any ``params.set``, another table), so a PARAM_SET still takes effect at the
+        next check, as on the firmware, without a dozen table reads per vehicle and tick."""
+        stamp = self.core.params.stamp
+        if stamp != self._param_stamp:
+            self._param_values = self._read_params()
+            self._param_stamp = stamp
+        return self._param_values
+
+    def _read_params(self) -> tuple:
+        """The parameters the checks read, as the numbers they compare with."""
+        return ()
 
     @property
     def pack(self):
@@ -114,12 +130,26 @@ class ArduPilotBatteryMonitor(_Monitor):
         self._low_voltage_start_s: float | None = None
         self._critical_voltage_start_s: float | None = None
 
+    def _read_params(self) -> tuple:
+        # (sag compensated, BATT_CAPACITY, BATT_CRT_VOLT, BATT_LOW_VOLT, BATT_CRT_MAH,
+        # BATT_LOW_MAH, BATT_LOW_TIMER), as _failsafe_types / _update_failsafes compare them.
+        P = self.core.params
+        return (
+            int(P["BATT_FS_VOLTSRC"]) == 1,
+            float(P["BATT_CAPACITY"]),
+            float(P["BATT_CRT_VOLT"]),
+            float(P["BATT_LOW_VOLT"]),
+            float(P["BATT_CRT_MAH"]),
+            float(P["BATT_LOW_MAH"]),
+            float(P["BATT_LOW_TIMER"]),
+        )
+
     # -- state the GCS sees -----------------------------------------------------------------
 
     def remaining_pct(self) -> int:
         """AP_BattMonitor_Backend::capacity_remaining_pct, then GCS_MAVLINK::battery_remaining_pct
         (``MIN(percentage, INT8_MAX)``): from BATT_CAPACITY and the consumed mAh, truncated."""
-        capacity = float(self.core.params["BATT_CAPACITY"])
+        capacity = self._params()[1]
         if capacity <= 0:
             return -1  # "unreliable if ... the capacity is zero"
         pct = _clamp(100.0 * (capacity - self.consumed_mah()) / capacity, 0.0, 255.0)
@@ -182,13 +212,12 @@ class ArduPilotBatteryMonitor(_Monitor):
         """AP_BattMonitor_Backend::check_failsafe_types: (low_voltage, low_capacity,
         critical_voltage, critical_capacity); strict ``<`` everywhere; a threshold of 0 is off.
         BATT_FS_VOLTSRC 1 (sag compensated) uses the resting voltage (pack OCV here)."""
-        P = self.core.params
-        v = self.voltage_v()
-        if int(P["BATT_FS_VOLTSRC"]) == 1:
-            v = max(v, v + self.current_a() * self.pack.config.internal_resistance_ohm)
-        left_mah = float(P["BATT_CAPACITY"]) - self.consumed_mah()
-        crt_v, low_v = float(P["BATT_CRT_VOLT"]), float(P["BATT_LOW_VOLT"])
-        crt_mah, low_mah = float(P["BATT_CRT_MAH"]), float(P["BATT_LOW_MAH"])
+        sag_compensated, capacity, crt_v, low_v, crt_mah, low_mah, _ = self._params()
+        pack, i = self.pack, self.core.index
+        v = float(pack.voltage_v[i])
+        if sag_compensated:
+            v = max(v, v + float(pack.current_a[i]) * pack.config.internal_resistance_ohm)
+        left_mah = capacity - float(pack.consumed_mah[i])
         return (
             v > 0 and low_v > 0 and v < low_v,
             low_mah > 0 and left_mah < low_mah,
@@ -201,7 +230,7 @@ class ArduPilotBatteryMonitor(_Monitor):
         BATT_LOW_TIMER seconds (timer started at the first reading below; 0 disables), or a
         capacity below its threshold at once; critical first."""
         low_v, low_mah, crt_v, crt_mah = self._failsafe_types()
-        timeout_s = float(self.core.params["BATT_LOW_TIMER"])
+        timeout_s = self._params()[6]
         if crt_v:
             if self._critical_voltage_start_s is None:
                 self._critical_voltage_start_s = now_s
@@ -335,26 +364,36 @@ class PX4BatteryMonitor(_Monitor):
         ``1 - discharged / capacity`` (the slow fusion with the voltage-based estimate is not
         modelled); without a capacity the voltage-based estimate, for which the pack's true
         state of charge stands in."""
-        capacity = float(self.core.params["BAT1_CAPACITY"])
+        capacity = self._params()[0]
         if capacity > 0:
             return max(0.0, 1.0 - self.consumed_mah() / capacity)
         return float(self.pack.soc[self.core.index])
 
+    def _read_params(self) -> tuple:
+        # (BAT1_CAPACITY, BAT_EMERGEN_THR, BAT_CRIT_THR, BAT_LOW_THR) as floats.
+        P = self.core.params
+        return (
+            float(P["BAT1_CAPACITY"]),
+            float(P["BAT_EMERGEN_THR"]),
+            float(P["BAT_CRIT_THR"]),
+            float(P["BAT_LOW_THR"]),
+        )
+
     def _determine_warning(self, soc: float) -> int:
         # battery.cpp Battery::determineWarning: strict ``<`` against each threshold.
-        P = self.core.params
-        if soc < float(P["BAT_EMERGEN_THR"]):
+        _, emergency, critical, low = self._params()
+        if soc < emergency:
             return PX4_WARN_EMERGENCY
-        if soc < float(P["BAT_CRIT_THR"]):
+        if soc < critical:
             return PX4_WARN_CRITICAL
-        if soc < float(P["BAT_LOW_THR"]):
+        if soc < low:
             return PX4_WARN_LOW
         return PX4_WARN_NONE
 
     def time_remaining_s(self) -> float:
         """battery.cpp remaining flight time: remaining capacity over the average current (the
         current drawn here; BAT_AVRG_CURRENT at rest, the filter's initial value)."""
-        capacity = float(self.core.params["BAT1_CAPACITY"])
+        capacity = self._params()[0]
         if capacity <= 0:
             return math.nan
         current = self.current_a()

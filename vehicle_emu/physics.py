@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner.geometry import DOWN, EAST, NORTH, ned_to_geodetic
+from planner.geometry import DOWN, EAST, NORTH
 
+from . import _kernels
 from .battery import Battery, BatteryConfig
 
 __all__ = ["Physics", "CTRL_POS", "CTRL_VEL", "CTRL_LAND"]
@@ -113,9 +114,10 @@ class Physics:
         return self.battery
 
     def update_geodetic(self) -> None:
-        """Recompute ``lat_deg``, ``lon_deg``, ``alt_amsl_m`` (N,) for all vehicles (one call)."""
+        """Recompute ``lat_deg``, ``lon_deg``, ``alt_amsl_m`` (N,) for all vehicles (one call,
+        :func:`vehicle_emu._kernels.ned_to_geodetic`)."""
         if self.n:
-            self.lat_deg, self.lon_deg, self.alt_amsl_m = ned_to_geodetic(
+            self.lat_deg, self.lon_deg, self.alt_amsl_m = _kernels.ned_to_geodetic(
                 self.pos_ned_m, *self.origin_lla
             )
 
@@ -144,7 +146,32 @@ class Physics:
     # -- step ------------------------------------------------------------------------------------
 
     def step(self, dt_s: float) -> None:
-        """Advance every vehicle by ``dt_s`` seconds (vectorised; split into sub-steps)."""
+        """Advance every vehicle by ``dt_s`` seconds (split into sub-steps): one compiled pass
+        over the vehicles (:func:`vehicle_emu._kernels.physics_step`) when available, else
+        :meth:`step_reference`."""
+        if dt_s <= 0 or self.n == 0:
+            return
+        if not _kernels.active():
+            self.step_reference(dt_s)
+            return
+        n_sub = max(1, int(np.ceil(dt_s / MAX_SUBSTEP_S)))
+        h = dt_s / n_sub
+        alpha = 1.0 - np.exp(-h / self.tau_vel_s)  # as _substep computes it (NumPy's exp)
+        pos, vel, yaw, landed, consumed, energy, current, voltage = _kernels.physics_step(
+            self, n_sub, h, float(alpha), CTRL_VEL, CTRL_LAND, GROUND_EPS_M
+        )
+        self.pos_ned_m, self.vel_ned_m_s, self.yaw_rad, self.landed = pos, vel, yaw, landed
+        batt = self.battery
+        if batt is not None:
+            batt.consumed_mah, batt.energy_wh = consumed, energy
+            batt.current_a, batt.voltage_v = current, voltage
+            self.battery_frac = batt.soc
+        elif self.battery_drain_per_s:
+            drain = self.battery_drain_per_s * dt_s * (self.armed & self.alive)
+            self.battery_frac = np.maximum(0.0, self.battery_frac - drain)
+
+    def step_reference(self, dt_s: float) -> None:
+        """:meth:`step` by NumPy, one sub-step of every vehicle at a time (the reference)."""
         if dt_s <= 0 or self.n == 0:
             return
         n_sub = max(1, int(np.ceil(dt_s / MAX_SUBSTEP_S)))

@@ -31,6 +31,7 @@ from scipy.sparse.csgraph import breadth_first_order
 
 from planner.geometry import active_mask, neighbour_pairs
 
+from . import _kernels
 from .terrain import Ground
 
 __all__ = ["RadioConfig", "Radio"]
@@ -150,6 +151,18 @@ class Radio:
         return hops
 
     def _hop_counts(self, pos: np.ndarray, base: np.ndarray, base_range: float) -> np.ndarray:
+        """Hop count of every active vehicle (0 for the others): compiled
+        (:func:`vehicle_emu._kernels.hop_counts`) when available, else
+        :meth:`_hop_counts_reference`."""
+        if not _kernels.active() or math.isinf(self.config.radio_range_m):
+            return self._hop_counts_reference(pos, base, base_range)
+        r = self.config.radio_range_m
+        return _kernels.hop_counts(pos, self.active, base, r, min(base_range, r))
+
+    def _hop_counts_reference(
+        self, pos: np.ndarray, base: np.ndarray, base_range: float
+    ) -> np.ndarray:
+        """The hop counts by scipy's breadth-first search over the neighbour pairs."""
         n = len(pos)
         hops = np.zeros(n, dtype=np.int64)
         idx = np.flatnonzero(self.active)

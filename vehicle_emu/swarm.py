@@ -86,6 +86,9 @@ PEER_TIMEOUT_S = 30.0
 #: Default cap on learned peers per endpoint.
 MAX_PEERS = 8
 _PEER_SWEEP_PERIOD_S = 1.0
+#: Decoded inbound datagrams kept for the delayed deliveries of the same bytes to other cores (a
+#: broadcast reaches each member after its own hop delay); cleared when full.
+_DECODE_CACHE_SIZE = 256
 
 
 def identity_of_index(index: int, per_network: int = VEHICLES_PER_NETWORK) -> tuple[int, int]:
@@ -333,6 +336,8 @@ class Swarm:
         ]
         #: Decodes a broadcast frame once for every member without a signing key.
         self._broadcast_codec = wire.Codec(1)
+        #: Datagram -> its decode by the broadcast codec, for delayed deliveries (_decode_shared).
+        self._decoded: dict[bytes, wire.DecodeResult] = {}
 
         self._t_s = float(now_s)
         self._next_truth_s = float(now_s) + self.truth_period_s
@@ -654,8 +659,13 @@ class Swarm:
             item = heapq.heappop(self._delayed)
             kind, a, data, addr = item[2]
             if kind == "in" and inbound:
-                if self.cores[a].alive:
-                    self.cores[a].receive_datagram(data, addr, now_s)
+                core = self.cores[a]
+                if not core.alive:
+                    pass
+                elif core._codec.signing_enabled:
+                    core.receive_datagram(data, addr, now_s)
+                else:  # decode once for every unsigned core it reaches (_broadcast_to_members)
+                    core.receive_decoded(self._decode_shared(data), addr, now_s)
             elif kind == "out" and not inbound:
                 for peer in self.peers[a]:
                     out.append((a, data, peer))
@@ -663,6 +673,19 @@ class Swarm:
                 keep.append(item)
         for item in keep:
             heapq.heappush(self._delayed, item)
+
+    def _decode_shared(self, data: bytes) -> wire.DecodeResult:
+        """``data`` decoded by the broadcast codec (no key: the result depends on the bytes
+        alone, and cores only read it), kept for the next core it reaches: a frame for every
+        vehicle of a network reaches each member after its own hop delay, in another call of
+        :meth:`_deliver_delayed`."""
+        cache = self._decoded
+        res = cache.get(data)
+        if res is None:
+            if len(cache) >= _DECODE_CACHE_SIZE:
+                cache.clear()
+            res = cache[data] = self._broadcast_codec.decode_datagram(data)
+        return res
 
     def next_event(self):
         return self._events.popleft() if self._events else None
@@ -687,12 +710,12 @@ class Swarm:
         for i in np.flatnonzero(self.boot_at_s <= now_s + 1e-9).tolist():
             self._boot(i, now_s)
         soc = batt.soc  # after the boots (a booted vehicle has a full pack)
+        due = ph.alive & self.powered & ~ph.armed & ph.landed & (soc < swap.used_below_frac)
+        if not due.any():  # most ticks: nobody is on the ground with a used pack
+            return
         home = np.array([c.home_ned_m for c in self.cores]).reshape(-1, 3)  # (N, 3) world NED
         at_home = np.hypot(*(ph.pos_ned_m[:, :2] - home[:, :2]).T) <= swap.home_radius_m
-        due = (
-            ph.alive & self.powered & ~ph.armed & ph.landed & at_home & (soc < swap.used_below_frac)
-        )
-        for i in np.flatnonzero(due).tolist():
+        for i in np.flatnonzero(due & at_home).tolist():
             self._power_off(i, now_s, now_s + swap.swap_time_s)
 
     def _power_off(self, i: int, now_s: float, boot_at_s: float) -> None:

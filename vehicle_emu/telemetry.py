@@ -23,8 +23,9 @@ from mavedge.units import (
     s_to_time_usec,
     yaw_rad_to_hdg_cdeg,
 )
-from planner.geometry import DOWN, EAST, NORTH, ned_to_geodetic
+from planner.geometry import DOWN, EAST, NORTH
 
+from . import _kernels
 from .physics import CTRL_VEL
 
 __all__ = [
@@ -371,8 +372,7 @@ def position_target_local_ned(core, now_s: float):
 def position_target_global_int(core, now_s: float):
     ph, i = core.physics, core.index
     _, v, mask = _target_local(core)
-    with np.errstate(all="ignore"):
-        lat, lon, alt = ned_to_geodetic(ph.target_pos_ned_m[i], *ph.origin_lla)
+    lat, lon, alt = _kernels.ned_to_geodetic(ph.target_pos_ned_m[i], *ph.origin_lla)
     return mavlink.MAVLink_position_target_global_int_message(
         _boot_ms(core, now_s),
         mavlink.MAV_FRAME_GLOBAL_INT,

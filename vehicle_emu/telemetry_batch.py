@@ -22,6 +22,9 @@ runs both on the same swarm state). A vehicle takes the reference path for the w
 it signs its frames (the signature covers the sequence number and a per-frame timestamp) or
 when any of its state is non-finite or absurd (the reference path counts a failing builder in
 ``telemetry_errors``; the vectorised one would have to reproduce each such case).
+
+A little over the ~600 lines this code base aims for, on purpose: the framing keeps its slow
+reference (:func:`pack_frames_reference`) next to the compiled path it is tested against.
 """
 
 from __future__ import annotations
@@ -35,12 +38,13 @@ from fastcrc import crc16
 
 from mavedge import mavlink
 from mavedge.units import INT32_MAX, INT32_MIN, UINT16_MAX, deg_to_e7, m_to_mm, yaw_rad_to_hdg_cdeg
-from planner.geometry import DOWN, EAST, NORTH, ned_to_geodetic
+from planner.geometry import DOWN, EAST, NORTH
 
+from . import _kernels
 from . import telemetry as tm
 from .physics import CTRL_VEL
 
-__all__ = ["BatchTelemetry", "pack_frames", "BATCHED_TYPES"]
+__all__ = ["BatchTelemetry", "pack_frames", "pack_frames_reference", "BATCHED_TYPES"]
 
 log = logging.getLogger(__name__)
 
@@ -98,8 +102,19 @@ def _layout(cls) -> _Layout:
     return lay
 
 
+def _payloads(lay: _Layout, fields: dict, k: int) -> np.ndarray:
+    """(k, payload length) uint8: the rows' payloads in pymavlink's wire layout."""
+    rec = np.zeros(k, dtype=lay.dtype)
+    for name, value in fields.items():
+        rec[name] = value
+    return rec.view(np.uint8).reshape(k, lay.plen)
+
+
 def pack_frames(cls, fields: dict, seq, sysid, compid) -> list[bytes]:
     """Unsigned MAVLink 2 frames of ``cls``, one per row, as pymavlink would pack them.
+
+    Framed and checksummed in one compiled pass (:func:`vehicle_emu._kernels.frame_rows`)
+    when available, else :func:`pack_frames_reference`.
 
     Parameters
     ----------
@@ -107,13 +122,32 @@ def pack_frames(cls, fields: dict, seq, sysid, compid) -> list[bytes]:
     fields : mapping field name -> (k,) array or scalar (wire units; missing fields are 0)
     seq, sysid, compid : (k,) int arrays or scalars
     """
+    if not _kernels.active():
+        return pack_frames_reference(cls, fields, seq, sysid, compid)
     lay = _layout(cls)
     k = len(seq) if np.ndim(seq) else 1
-    rec = np.zeros(k, dtype=lay.dtype)
-    for name, value in fields.items():
-        rec[name] = value
+    pay = _payloads(lay, fields, k)
+    buf, ends = _kernels.frame_rows(
+        pay, _column(seq, k), _column(sysid, k), _column(compid, k), lay.msgid, lay.crc_extra
+    )
+    data = buf.tobytes()
+    bounds = ends.tolist()
+    return [data[a:b] for a, b in zip([0, *bounds[:-1]], bounds)]
+
+
+def _column(v, k: int) -> np.ndarray:
+    """(k,) int64 of a scalar or a (k,) sequence."""
+    if np.ndim(v) == 0:
+        return np.full(k, v, dtype=np.int64)
+    return np.asarray(v, dtype=np.int64)
+
+
+def pack_frames_reference(cls, fields: dict, seq, sysid, compid) -> list[bytes]:
+    """:func:`pack_frames` by NumPy and fastcrc (one CRC call per frame): the reference."""
+    lay = _layout(cls)
+    k = len(seq) if np.ndim(seq) else 1
+    pay = _payloads(lay, fields, k)
     plen = lay.plen
-    pay = rec.view(np.uint8).reshape(k, plen)
     # MAVLink 2 payload truncation (pymavlink MAVLink_message._pack): trailing zero bytes are
     # dropped, at least one byte stays.
     nz = pay != 0
@@ -152,17 +186,22 @@ def _e7(deg: np.ndarray) -> np.ndarray:
     """mavedge.units.deg_to_e7 over an array: round half-even, clamp to int32, non-finite ->
     INT32_MAX."""
     with np.errstate(invalid="ignore", over="ignore"):
-        v = np.round(deg * 1e7)
-        v = np.clip(v, INT32_MIN, INT32_MAX)
+        v = _clip(np.round(deg * 1e7), INT32_MIN, INT32_MAX)
     return np.where(np.isfinite(deg), v, INT32_MAX).astype(np.int64)
 
 
+def _clip(v: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    # np.clip is np.minimum(np.maximum(v, lo), hi) (NaN kept), without its Python-level wrapper
+    # (a few microseconds a call: several calls per message type and tick).
+    return np.minimum(np.maximum(v, lo), hi)
+
+
 def _mm(m: np.ndarray) -> np.ndarray:
-    return np.clip(np.round(m * 1000.0), INT32_MIN, INT32_MAX).astype(np.int64)
+    return _clip(np.round(m * 1000.0), INT32_MIN, INT32_MAX).astype(np.int64)
 
 
 def _cm_s(v: np.ndarray) -> np.ndarray:
-    return np.clip(np.round(v * 100.0), -32767, 32767).astype(np.int64)
+    return _clip(np.round(v * 100.0), -32767, 32767).astype(np.int64)
 
 
 def _hdg(yaw: np.ndarray) -> np.ndarray:
@@ -170,7 +209,7 @@ def _hdg(yaw: np.ndarray) -> np.ndarray:
 
 
 def _f32(v: np.ndarray) -> np.ndarray:
-    return np.clip(v, -_FLT_MAX, _FLT_MAX)
+    return _clip(v, -_FLT_MAX, _FLT_MAX)
 
 
 def _boot_ms(b, rows, now_s):
@@ -334,8 +373,7 @@ def _position_target_local_ned(b, cores, rows, now_s):
 def _position_target_global_int(b, cores, rows, now_s):
     ph = b.ph
     _, v, mask = _targets(b, rows)
-    with np.errstate(all="ignore"):
-        lat, lon, alt = ned_to_geodetic(ph.target_pos_ned_m[rows], *ph.origin_lla)
+    lat, lon, alt = _kernels.ned_to_geodetic(ph.target_pos_ned_m[rows], *ph.origin_lla)
     v = _f32(v)
     return {
         "time_boot_ms": _boot_ms(b, rows, now_s),
@@ -535,8 +573,9 @@ class BatchTelemetry:
     def emit(self, now_s: float) -> None:
         """Everything due at ``now_s``, for every live core (their ``emit_telemetry``)."""
         sane = None
-        #: msg id -> (cores, rows, output slots, sequence numbers), in reservation order.
-        jobs: dict[int, tuple[list, list, list, list]] = {}
+        #: msg id -> (core, row, output slot, sequence number) of each frame, in reservation
+        #: order.
+        jobs: dict[int, list[tuple]] = {}
         batched = BATCHED_TYPES
         builders = tm.BUILDERS
         cores_all = self.cores
@@ -567,11 +606,8 @@ class BatchTelemetry:
                 for msg_id in due:
                     job = jobs.get(msg_id)
                     if job is None:
-                        job = jobs[msg_id] = ([], [], [], [])
-                    job[0].append(core)
-                    job[1].append(row)
-                    job[2].append(slot)
-                    job[3].append(seq)
+                        job = jobs[msg_id] = []
+                    job.append((core, row, slot, seq))
                     slot += 1
                     seq = (seq + 1) & 0xFF
                 out.extend([None] * len(due))
@@ -582,11 +618,8 @@ class BatchTelemetry:
                 if msg_id in batched:
                     job = jobs.get(msg_id)
                     if job is None:
-                        job = jobs[msg_id] = ([], [], [], [])
-                    job[0].append(core)
-                    job[1].append(core.index)
-                    job[2].append(len(out))
-                    job[3].append(codec.take_seq(1))
+                        job = jobs[msg_id] = []
+                    job.append((core, core.index, len(out), codec.take_seq(1)))
                     out.append(None)
                     if core._out_dirty is not None:
                         core._out_dirty.add(core.index)
@@ -603,7 +636,8 @@ class BatchTelemetry:
                         msg_id,
                         exc_info=True,
                     )
-        for msg_id, (cores, row_list, slots, seq_list) in jobs.items():
+        for msg_id, job in jobs.items():
+            cores, row_list, slots, seq_list = zip(*job)
             cls, fields_fn = batched[msg_id]
             rows = np.array(row_list, dtype=np.intp)
             seq = np.array(seq_list, dtype=np.int64)
