@@ -139,6 +139,7 @@ def _physics_step(
     vmax: np.ndarray,
     climb: np.ndarray,
     descent: np.ndarray,
+    land_fast: np.ndarray,
     land_speed: np.ndarray,
     land_slow: np.ndarray,
     land_crawl: np.ndarray,
@@ -183,7 +184,7 @@ def _physics_step(
         drawing = moving
         is_vel = ctrl[i] == ctrl_vel
         is_land = ctrl[i] == ctrl_land
-        down_limit = _np_max(descent[i], land_speed[i]) if is_land else descent[i]
+        down_limit = _np_max(land_fast[i], land_speed[i]) if is_land else descent[i]
         if with_battery:
             c_mah, e_wh, cur, volt = consumed[i], energy[i], current[i], voltage[i]
         else:
@@ -205,7 +206,7 @@ def _physics_step(
                     ramp = 0.0
                 else:
                     ramp = (hgt - lo) / (hi - lo)
-                fast = _np_max(descent[i], land_speed[i])
+                fast = _np_max(land_fast[i], land_speed[i])
                 cd = land_speed[i] + ramp * (fast - land_speed[i])
             cn, ce, cd = _saturate(cn, ce, cd, vmax[i], climb[i], down_limit)
             if pd >= g - ground_eps and cd >= 0:  # landed vehicles do not slide
@@ -292,6 +293,7 @@ def physics_step(ph, n_sub: int, h: float, alpha: float, ctrl_vel: int, ctrl_lan
         ph.max_speed_h_m_s,
         ph.climb_rate_m_s,
         ph.descent_rate_m_s,
+        ph.land_fast_m_s,
         ph.land_speed_m_s,
         ph.land_slow_alt_m,
         ph.land_crawl_alt_m,

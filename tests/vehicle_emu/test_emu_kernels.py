@@ -42,6 +42,8 @@ def _random_physics(n: int, seed: int, battery: bool) -> Physics:
     ph.max_speed_h_m_s[:] = r.uniform(2, 15, n)
     ph.land_slow_alt_m[:] = np.where(r.random(n) < 0.5, 10.0, np.inf)
     ph.land_crawl_alt_m[:] = np.where(r.random(n) < 0.5, 1.0, np.inf)
+    # the landing's fast stage has its own speed (ArduCopter LAND_SPEED_HIGH, PX4 MPC_Z_V_AUTO_DN)
+    ph.land_fast_m_s[:] = r.uniform(0.5, 4.0, n)
     ph.landed[:] = ph.pos_ned_m[:, 2] >= 0
     return ph
 
