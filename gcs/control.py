@@ -254,12 +254,13 @@ def descent_fraction(
     """(K,) how much of each step to fly, in [0, 1], so that the vehicle stays under the ceiling
     over falling ground (:func:`terrain_targets`).
 
-    At the path's samples ``j`` (fractions ``f = j / n_samples``), reached at ``f`` of the period,
-    the vehicle is no lower than ``max(alt - f * descent_step_m, floor_j)``, where ``floor_j`` is ``clearance_m`` over
-    the highest ground (with the corridor) up to sample ``j``; its excess over the ceiling is that
-    minus the lowest ground (with the corridor) up to ``j`` minus ``ceiling_agl_m``. The fraction is that of the
-    farthest sample whose excess is at most ``max(0, excess at the vehicle)``: a vehicle already
-    too high (after a climb over a ridge) still moves, but no step makes it worse."""
+    At the path's samples ``j`` (fractions ``f = j / n_samples``), reached at ``f`` of the
+    period, the vehicle is no lower than ``max(alt - f * descent_step_m, floor_j)``, where
+    ``floor_j`` is ``clearance_m`` over the highest ground (with the corridor) up to sample
+    ``j``; its excess over the ceiling is that minus the lowest ground (with the corridor) up to
+    ``j`` minus ``ceiling_agl_m``. The fraction is that of the farthest sample up to which every
+    excess is at most ``max(0, excess at the vehicle)``: a vehicle already too high (after a
+    climb over a ridge) still moves, but no step makes it worse."""
     pos = np.asarray(pos_ne_m, dtype=float).reshape(-1, 2)
     tgt = np.asarray(target_ne_m, dtype=float).reshape(-1, 2)
     g = ta.terrain.height_m(_band(pos, tgt, ta))  # (K, 3, S + 1)

@@ -166,9 +166,8 @@ class Physics:
             batt.consumed_mah, batt.energy_wh = consumed, energy
             batt.current_a, batt.voltage_v = current, voltage
             self.battery_frac = batt.soc
-        elif self.battery_drain_per_s:
-            drain = self.battery_drain_per_s * dt_s * (self.armed & self.alive)
-            self.battery_frac = np.maximum(0.0, self.battery_frac - drain)
+        else:
+            self._drain_without_pack(dt_s)
 
     def step_reference(self, dt_s: float) -> None:
         """:meth:`step` by NumPy, one sub-step of every vehicle at a time (the reference)."""
@@ -183,7 +182,12 @@ class Physics:
                 batt.step(h, self.vel_ned_m_s, self.armed & self.alive)
         if batt is not None:
             self.battery_frac = batt.soc
-        elif self.battery_drain_per_s:
+        else:
+            self._drain_without_pack(dt_s)
+
+    def _drain_without_pack(self, dt_s: float) -> None:
+        """Without a battery model, the flat ``battery_drain_per_s`` of the flying vehicles."""
+        if self.battery_drain_per_s:
             drain = self.battery_drain_per_s * dt_s * (self.armed & self.alive)
             self.battery_frac = np.maximum(0.0, self.battery_frac - drain)
 

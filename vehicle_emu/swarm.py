@@ -660,11 +660,9 @@ class Swarm:
             kind, a, data, addr = item[2]
             if kind == "in" and inbound:
                 core = self.cores[a]
-                if not core.alive:
-                    pass
-                elif core._codec.signing_enabled:
+                if core.alive and core._codec.signing_enabled:
                     core.receive_datagram(data, addr, now_s)
-                else:  # decode once for every unsigned core it reaches (_broadcast_to_members)
+                elif core.alive:  # decoded once for every unsigned core it reaches
                     core.receive_decoded(self._decode_shared(data), addr, now_s)
             elif kind == "out" and not inbound:
                 for peer in self.peers[a]:

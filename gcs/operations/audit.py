@@ -124,6 +124,7 @@ class AuditStep(OperatorState):
         if self._limits_wanted():  # vehicles discovered late, reads lost: the limits too
             extra += self._limit_names(autopilot)
         extra += self._battery_params(autopilot)
+        extra += self._rtl_params(autopilot)  # over terrain: the return altitude
         extra += self._rotation_landing_params(autopilot)  # with a rotation: its landing
         if self.rally is not None:  # the settings that make RTL use rally points
             extra += rally_mod.RALLY_PARAMS.get(autopilot, ())
@@ -226,15 +227,17 @@ class AuditStep(OperatorState):
         self._start_launch(snap, now_s, Trigger.CLEARED)
 
     def _battery_params(self, autopilot: int) -> tuple[str, ...]:
-        """The battery-failsafe parameters to read (none with ``battery_audit`` off), and over
-        terrain the return altitude (``rtl_min_alt_m``)."""
-        names: tuple[str, ...] = ()
-        if self.config.battery_audit != "off":
-            names = audit_mod.BATTERY_AUDIT_PARAMS.get(autopilot, ())
+        """The battery-failsafe parameters to read (none with ``battery_audit`` off)."""
+        if self.config.battery_audit == "off":
+            return ()
+        return audit_mod.BATTERY_AUDIT_PARAMS.get(autopilot, ())
+
+    def _rtl_params(self, autopilot: int) -> tuple[str, ...]:
+        """Over terrain (``rtl_min_alt_m``), the return-altitude parameter to read."""
         rtl = audit_mod.RTL_ALT_PARAMS.get(autopilot)
-        if self.config.rtl_min_alt_m is not None and rtl is not None:
-            names = (*names, rtl[0])
-        return names
+        if self.config.rtl_min_alt_m is None or rtl is None:
+            return ()
+        return (rtl[0],)
 
     def _limit_names(self, autopilot: int) -> tuple[str, ...]:
         """The limit parameters read and written on this firmware (gcs.limits)."""

@@ -82,6 +82,13 @@ class LateAudit:
         return self.step == LateStep.CLEARED
 
     @property
+    def blocking(self) -> list[str]:
+        """The blocking findings of its verdict, ``NAME: why`` (none before the verdict)."""
+        if self.report is None:
+            return []
+        return [f"{f.param}: {f.message}" for va in self.report.vehicles for f in va.blocking]
+
+    @property
     def verdict(self) -> str:
         """``pending``, ``cleared``, ``overridden`` or ``refused``."""
         if self.step == LateStep.REFUSED:
@@ -235,7 +242,7 @@ class LateAuditStep(OperatorState):
     def _late_record(self, vid: tuple[int, int], la: LateAudit, now_s: float) -> None:
         """The verdict in ``events.jsonl`` (an :class:`OperatorAction` ``audit``)."""
         assert la.report is not None  # recorded at the verdict
-        blocking = [f"{f.param}: {f.message}" for va in la.report.vehicles for f in va.blocking]
+        blocking = la.blocking
         result = la.verdict + (f" ({'; '.join(blocking)})" if blocking else "")
         if self.on_action is not None:
             self.on_action(
@@ -248,18 +255,13 @@ class LateAuditStep(OperatorState):
         verdict (``NAME: why``)."""
         out = []
         for vid, la in sorted(self.late_audits.items()):
-            blocking = (
-                []
-                if la.report is None
-                else [f"{f.param}: {f.message}" for va in la.report.vehicles for f in va.blocking]
-            )
             out.append(
                 {
                     "link_id": vid[0],
                     "sysid": vid[1],
                     "verdict": la.verdict,
                     "started_s": la.started_s,
-                    "blocking": blocking,
+                    "blocking": la.blocking,
                 }
             )
         return out

@@ -59,6 +59,22 @@ def _make(n: int = 2, flying: int = 1, swap_confirm: str = "auto"):
     return op, station, planner, feed, vids, rot
 
 
+def _audited(rot: RotationSetup, n: int):
+    """An operator with the pre-flight audit on, ``n`` vehicles heard and ``rot`` (the landing
+    tests); returns (op, feed, vids)."""
+    op = Operator(
+        FakeStation(),
+        FleetView(ORIGIN, timeout_s=5.0),
+        FakePlanner(),
+        lambda t: np.array([[POST_N_M, 0.0]]),
+        CONTROL,
+        OperationsConfig(audit=True, expected_vehicles=n, duration_s=10_000.0),
+        rotation=rot,
+    )
+    feed = Feed(op)
+    return op, feed, [feed.add(k + 1, 0.0) for k in range(n)]
+
+
 def _battery(feed: Feed, vid, t_s: float, frac: float) -> None:
     feed.emit(BatteryReceived(vid[0], vid[1], t_s, "SYS_STATUS", frac, 15.0, 20.0))
 
@@ -488,18 +504,8 @@ def test_the_audit_reads_each_vehicles_landing_and_the_plan_counts_the_slowest(l
     rot = RotationSetup(
         replan(default_s), hover_drain_per_s=1.0 / 1500.0, land_from_m=50.0, replan=replan
     )
-    op = Operator(
-        FakeStation(),
-        FleetView(ORIGIN, timeout_s=5.0),
-        FakePlanner(),
-        lambda t: np.array([[POST_N_M, 0.0]]),
-        CONTROL,
-        OperationsConfig(audit=True, expected_vehicles=3, duration_s=10_000.0),
-        rotation=rot,
-    )
+    op, feed, vids = _audited(rot, 3)
     station = op.station
-    feed = Feed(op)
-    vids = [feed.add(k + 1, 0.0) for k in range(3)]
     feed.poll(0.0)
     assert op.phase == "audit"
     for v in vids:
@@ -540,17 +546,7 @@ def test_a_vehicle_without_the_landing_parameters_is_not_held_and_lands_at_the_d
             2, 1, BaseResources(pads=1), EnduranceParams(land_s=land_s)
         ),
     )
-    op = Operator(
-        FakeStation(),
-        FleetView(ORIGIN, timeout_s=5.0),
-        FakePlanner(),
-        lambda t: np.array([[POST_N_M, 0.0]]),
-        CONTROL,
-        OperationsConfig(audit=True, expected_vehicles=2, duration_s=10_000.0),
-        rotation=rot,
-    )
-    feed = Feed(op)
-    vids = [feed.add(k + 1, 0.0) for k in range(2)]
+    op, feed, vids = _audited(rot, 2)
     feed.poll(0.0)
     for v in vids:  # no LAND_* answered (WPNAV_SPEED_DN, a limit too, is)
         answer_audit(feed, op.station, 0.5, {**AP_SAFE, "WPNAV_SPEED_DN": 150.0}, vid=v)
