@@ -262,6 +262,13 @@ def fly_once(name: str, duration_s: float | None, args, profile: str | None) -> 
         "rotations": end.get("rotations"),
         "no_spare": end.get("no_spare"),
         "loadavg_before_after": [round(load0, 2), round(os.getloadavg()[0], 2)],
+        # The lock-step's own account (mavedge.clock.PacedClock.stats): simulated seconds the
+        # emulator held back for the station's acknowledgement, or for its own step limit.
+        "pacing": {
+            k: round(float(v), 1)
+            for k, v in (s["emulator"].get("pacing") or {}).items()
+            if k.startswith("held_") or k.startswith("capped_")
+        },
     }
 
 

@@ -158,7 +158,11 @@ class PacedClock:
       while a long stall still slows the simulation;
     * never beyond ``ack.value + slack_s``, where ``ack`` is the simulated time the station last
       acknowledged (:meth:`PacedReader.acknowledge`), so a stalled station cannot miss its own
-      heartbeat or setpoint deadlines in *simulated* time: the vehicles wait for it.
+      heartbeat or setpoint deadlines in *simulated* time: the vehicles wait for it. What the
+      station withheld is owed like a slow iteration's time, under the same clamp: a station
+      that lags for a moment (a control tick's planning, a burst of telemetry) is caught up on
+      once it acknowledges, so the flight still averages ``speedup``; one that stays behind
+      slows the simulation (``stats["held_by_ack_s"]`` counts what was lost).
 
     ``slack_s`` must stay below the shortest vehicle-side link timeout (PX4 COM_OF_LOSS_T, 1 s)
     and the station must acknowledge at least every ``slack_s / 2`` of simulated time while
@@ -211,18 +215,26 @@ class PacedClock:
         self._last_wall = wall
         t0 = self.sim.value
         step = min(dt, self.max_step_s)
-        self._debt_s = min(dt - step, self.max_debt_s)
-        if dt - step > self.max_debt_s:
-            self.stats["capped_by_step"] += 1
-            self.stats["held_by_step_s"] += dt - step - self.max_debt_s
+        rest = dt - step  # due by the wall clock, not taken in this iteration
         t = t0 + step
         limit = self.ack.value + self.slack_s
-        if t > limit:
-            # Time the station withheld is not caught up later: the vehicles waited for it.
+        by_ack = t > limit
+        if by_ack:
+            # The station has not acknowledged this far: the vehicles wait for it. What it
+            # withheld is owed like a slow iteration's time, under the same clamp: a station
+            # that lagged for a moment (a control tick, a burst of datagrams) is caught up on
+            # once it acknowledges, a stalled one slows the simulation.
             self.stats["capped_by_ack"] += 1
-            self.stats["held_by_ack_s"] += t - max(limit, t0) + self._debt_s
-            self._debt_s = 0.0
+            rest += t - max(limit, t0)
             t = limit
+        self._debt_s = min(rest, self.max_debt_s)
+        lost = rest - self._debt_s
+        if lost > 0:
+            if by_ack:
+                self.stats["held_by_ack_s"] += lost
+            else:
+                self.stats["capped_by_step"] += 1
+                self.stats["held_by_step_s"] += lost
         if t > t0:
             self.sim.value = t
             self.stats["advances"] += 1

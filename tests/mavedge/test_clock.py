@@ -144,17 +144,33 @@ def test_paced_clock_catches_up_a_slow_iteration_but_not_a_stall():
         iteration(0.0)
     assert emu.now() == pytest.approx(0.86 + 1.0)
     assert iteration(0.0) == pytest.approx(1.86)  # the debt is paid: no more steps
-    # Time the station withholds is not caught up: a silent station caps the clock at
-    # ack + slack, and what it held is counted there, debt included.
+    # Time the station withholds is owed like a slow iteration's, under the same clamp: a
+    # silent station caps the clock at ack + slack; once it acknowledges, what it held is
+    # caught up, each iteration still within max_step_s and the new ack + slack.
     wall.t += 0.04
-    t = emu.advance()
-    assert t == pytest.approx(1.86 + 0.25)
+    assert emu.advance() == pytest.approx(1.86 + 0.25)
     ack_limit = ack.value + 0.25
     wall.t += 0.04
     assert emu.advance() == pytest.approx(ack_limit)
+    assert emu.stats["capped_by_ack"] == 1
     ack.value = emu.now()
-    assert iteration(0.0) == pytest.approx(ack_limit)  # nothing deferred
-    assert emu.stats["held_by_ack_s"] == pytest.approx(0.8 - 0.25)
+    assert iteration(0.0) == pytest.approx(ack_limit + 0.25)
+    assert iteration(0.0) == pytest.approx(ack_limit + 0.5)
+    assert iteration(0.0) == pytest.approx(ack_limit + 0.55)  # 0.8 s of wall x 10 in all
+    assert iteration(0.0) == pytest.approx(ack_limit + 0.55)  # the debt is paid
+    assert emu.stats["held_by_ack_s"] == 0.0
+    # A station silent for 2 s of wall (20 s of simulated time): the clock waits at
+    # ack + slack; beyond the clamp (1 s) what it withheld is lost and counted.
+    t_ack = emu.now()
+    for _ in range(50):
+        wall.t += 0.04
+        assert emu.advance() <= t_ack + 0.25 + 1e-12
+    assert emu.now() == pytest.approx(t_ack + 0.25)
+    assert emu.stats["held_by_ack_s"] == pytest.approx(20.0 - 0.25 - 1.0)
+    ack.value = emu.now()
+    for _ in range(4):
+        iteration(0.0)
+    assert emu.now() == pytest.approx(t_ack + 0.25 + 1.0)
 
 
 def test_paced_reader_acknowledges_only_forward():
