@@ -76,7 +76,7 @@ from dataclasses import dataclass, field
 from collections.abc import Mapping
 
 from gcs.autopilot import ARDUPILOT, PX4
-from gcs.landing import LANDING_ONLY_PARAMS
+from gcs.landing import LANDING_ONLY_PARAMS, RTL_ALT_PARAMS
 
 __all__ = [
     "Finding",
@@ -851,18 +851,11 @@ def failsafe_fixes(
 
 # Over terrain, the firmware's own return. A lost station, a low battery or a forced return
 # sends a vehicle home by the firmware's RTL, which climbs (never descends) to its return
-# altitude above home over where it is, then flies a straight line home at that altitude:
-# ArduCopter mode_rtl.cpp ``ModeRTL::build_path`` / ``compute_return_target`` (RTL_ALT, cm above
-# home, the higher of it and the current altitude; RTL_ALT_TYPE 0, the default); PX4
-# ``src/modules/navigator/rtl_direct.cpp`` (RTL_RETURN_ALT, m above home, rtl_params.c, metadata
-# 0 to 150). On a flat earth any return altitude clears the ground; over terrain the straight line
-# must clear the highest ground the vehicle can be sent home across: the mission's operating
+# altitude above home over where it is, then flies a straight line home at that altitude
+# (:data:`gcs.landing.RTL_ALT_PARAMS`, with the firmware code cited there; PX4's metadata allows
+# 0 to 150 m). On a flat earth any return altitude clears the ground; over terrain the straight
+# line must clear the highest ground the vehicle can be sent home across: the mission's operating
 # area (docs/terrain.md §6.2).
-#: The return-altitude parameter per autopilot and its scale (parameter units per metre).
-RTL_ALT_PARAMS: dict[int, tuple[str, float]] = {
-    ARDUPILOT: ("RTL_ALT", 100.0),
-    PX4: ("RTL_RETURN_ALT", 1.0),
-}
 
 
 def audit_rtl_altitude(

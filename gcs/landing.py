@@ -36,7 +36,10 @@ __all__ = [
     "LANDING_ONLY_PARAMS",
     "LANDING_PARAMS",
     "LandingDescent",
+    "RTL_ALT_DEFAULTS",
+    "RTL_ALT_PARAMS",
     "landing_descent",
+    "return_alt_m",
 ]
 
 #: The parameters a vehicle lands by, per autopilot (read by the audit with a rotation).
@@ -76,6 +79,37 @@ FIRMWARE_DEFAULTS: dict[int, dict[str, float]] = {
         "MPC_Z_VEL_MAX_DN": 1.5,
     },
 }
+
+
+# The firmware's own return: a relay the rotation sends home by RTL climbs (never descends) to
+# its return altitude above home, flies home there, and lands from it, so it lands from the
+# higher of its flight layer and that altitude: ArduCopter mode_rtl.cpp ``ModeRTL::build_path``
+# / ``compute_return_target`` (RTL_ALT, cm above home, the higher of it and the current
+# altitude; RTL_ALT_TYPE 0, the default; RTL_ALT_FINAL 0 lands); PX4
+# src/modules/navigator/rtl.cpp ``RTL::computeReturnAltitude`` (RTL_RETURN_ALT, m above home,
+# never below the current altitude; the RTL_CONE_ANG cone lowers it only within RTL_MIN_DIST,
+# 10 m, of home). Over terrain the audit raises it above the highest ground (gcs/audit.py
+# ``audit_rtl_altitude``), and the landing is then that much longer.
+#: The return-altitude parameter per autopilot and its scale (parameter units per metre).
+RTL_ALT_PARAMS: dict[int, tuple[str, float]] = {
+    ARDUPILOT: ("RTL_ALT", 100.0),
+    PX4: ("RTL_RETURN_ALT", 1.0),
+}
+
+#: Their firmware defaults, in the parameter's units: ArduCopter/config.h ``RTL_ALT`` 1500 cm;
+#: PX4 src/modules/navigator/rtl_params.yaml ``RTL_RETURN_ALT`` 60 m.
+RTL_ALT_DEFAULTS: dict[int, float] = {ARDUPILOT: 1500.0, PX4: 60.0}
+
+
+def return_alt_m(autopilot: int, params: Mapping[str, float] | None = None) -> float:
+    """The least height above home a vehicle of ``autopilot`` flies home at in RTL, metres,
+    from ``params`` (the firmware's default when it did not give its own); 0 for an autopilot
+    without one known here."""
+    spec = RTL_ALT_PARAMS.get(autopilot)
+    if spec is None:
+        return 0.0
+    name, per_m = spec
+    return float((params or {}).get(name, RTL_ALT_DEFAULTS[autopilot])) / per_m
 
 
 @dataclass(frozen=True)

@@ -101,6 +101,7 @@ class OperatorState:
         def _audit_names(
             self, autopilot: int, got: dict[str, float], *, first: bool
         ) -> list[str]: ...
+        def _optional_param(self, name: str) -> bool: ...
         def _audit_report(
             self,
             vehicles: dict[tuple[int, int], tuple[int, dict[str, float]]],

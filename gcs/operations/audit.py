@@ -158,7 +158,7 @@ class AuditStep(OperatorState):
             # OPTIONAL_GRACE_S: a firmware without them would otherwise hold the audit for a
             # whole read timeout with retries (~10 s on PX4 1.18: COM_OBL_ACT), and a station
             # restarted in flight would reclaim its vehicles that much later.
-            required = [p for p in self._params_pending if p[2] not in audit_mod.OPTIONAL_PARAMS]
+            required = [p for p in self._params_pending if not self._optional_param(p[2])]
             if required or now_s - self._last_param_s < OPTIONAL_GRACE_S:
                 return
             for link_id, sysid, name in sorted(self._params_pending):
@@ -231,6 +231,17 @@ class AuditStep(OperatorState):
         if self.config.battery_audit == "off":
             return ()
         return audit_mod.BATTERY_AUDIT_PARAMS.get(autopilot, ())
+
+    def _optional_param(self, name: str) -> bool:
+        """A read not waited for past OPTIONAL_GRACE_S: the ones some firmware versions lack
+        (gcs/audit.py OPTIONAL_PARAMS) and, read for the rotation's landing alone, the return
+        altitude (an unanswered one lands from the firmware's default, gcs/landing.py). Over
+        terrain the return altitude is the audit's own, and waited for."""
+        if name in audit_mod.OPTIONAL_PARAMS:
+            return True
+        return self.config.rtl_min_alt_m is None and any(
+            name == spec[0] for spec in audit_mod.RTL_ALT_PARAMS.values()
+        )
 
     def _rtl_params(self, autopilot: int) -> tuple[str, ...]:
         """Over terrain (``rtl_min_alt_m``), the return-altitude parameter to read."""

@@ -168,7 +168,7 @@ class LateAuditStep(OperatorState):
             pending = self._late_pending(self._params_pending, vid)
             in_time = now_s - max(la.started_s, la.last_param_s) < cfg.audit_timeout_s
             if pending and in_time:
-                required = [n for n in pending if n not in audit_mod.OPTIONAL_PARAMS]
+                required = [n for n in pending if not self._optional_param(n)]
                 if required or now_s - la.last_param_s < OPTIONAL_GRACE_S:
                     return
             for name in pending:  # optional ones past the grace, or every read past the timeout

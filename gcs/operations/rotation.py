@@ -40,7 +40,7 @@ import numpy as np
 from gcs.autopilot import adapter_for
 from gcs.events import HomePositionReceived, ModeChanged, VehicleRebooted
 from gcs.fleet import FleetSnapshot
-from gcs.landing import LANDING_PARAMS, landing_descent
+from gcs.landing import LANDING_PARAMS, RTL_ALT_PARAMS, landing_descent, return_alt_m
 from gcs.link import LinkUsageError, UnknownVehicle
 from gcs.operations._state import OperatorState
 from gcs.operations.config import _Row
@@ -75,17 +75,21 @@ class RotationStep(OperatorState):
 
     def _rotation_landing_params(self, autopilot: int) -> tuple[str, ...]:
         """The landing parameters the audit reads of a vehicle when the flight rotates relays
-        (:data:`gcs.landing.LANDING_PARAMS`); none without a rotation."""
+        (:data:`gcs.landing.LANDING_PARAMS`) and its return altitude (a relay sent home by RTL
+        lands from it when it is above the layers, :data:`gcs.landing.RTL_ALT_PARAMS`); none
+        without a rotation."""
         if self.rotation is None:
             return ()
-        return LANDING_PARAMS.get(autopilot, ())
+        rtl = RTL_ALT_PARAMS.get(autopilot)
+        return LANDING_PARAMS.get(autopilot, ()) + ((rtl[0],) if rtl is not None else ())
 
     def _rotation_use_landing(
         self, vehicles: dict[tuple[int, int], tuple[int, dict[str, float]]]
     ) -> None:
-        """The audit is over: the rotation plans with the vehicles' own landing (what they gave,
-        with the station's confirmed writes, e.g. the mission's WPNAV_SPEED_DN; the firmware's
-        defaults for what they did not give)."""
+        """The audit is over: the rotation plans with the vehicles' own landing, from their own
+        return altitude where it is above the layers (what they gave, with the station's
+        confirmed writes, e.g. the mission's WPNAV_SPEED_DN or the return altitude raised over
+        terrain; the firmware's defaults for what they did not give)."""
         rot = self.rotation
         if rot is None or not vehicles:
             return
@@ -93,11 +97,12 @@ class RotationStep(OperatorState):
         for c in self.param_changes:
             if c.get("ok"):
                 written.setdefault((c["link_id"], c["sysid"]), {})[c["name"]] = c["value"]
+        own = [
+            (ap, {**params, **written.get(vid, {})})
+            for vid, (ap, params) in sorted(vehicles.items())
+        ]
         rot.use_landing(
-            [
-                landing_descent(ap, {**params, **written.get(vid, {})})
-                for vid, (ap, params) in sorted(vehicles.items())
-            ]
+            [landing_descent(ap, p) for ap, p in own], [return_alt_m(ap, p) for ap, p in own]
         )
 
     # ------------------------------------------------------------------ masks

@@ -105,16 +105,24 @@ class RotationSetup:
                 f"swap_confirm must be one of {', '.join(SWAP_CONFIRM)}, got {self.swap_confirm!r}"
             )
 
-    def use_landing(self, descents: Sequence[LandingDescent]) -> float | None:
+    def use_landing(
+        self, descents: Sequence[LandingDescent], return_alts_m: Sequence[float] | None = None
+    ) -> float | None:
         """Plan with the vehicles' own landing (:mod:`gcs.landing`, from the parameters the audit
         read), before the first tick: ``land_s`` becomes the slowest vehicle's descent from
-        :attr:`land_from_m`, and the policy is built again (:attr:`replan`: the reserve, the
-        turnaround and K all count it; a mission's own ``endurance.params.land_s`` still wins).
-        Returns the new ``land_s``; None when nothing changed (no vehicle, no :attr:`replan`,
-        the rotation already ticking, or a plan the new landing makes impossible, logged)."""
+        :attr:`land_from_m`, or from its return altitude where that is higher (``return_alts_m``,
+        one per descent: a relay sent home by RTL climbs to it first, and lands from it;
+        :func:`gcs.landing.return_alt_m`), and the policy is built again (:attr:`replan`: the
+        reserve, the turnaround and K all count it; a mission's own ``endurance.params.land_s``
+        still wins). Returns the new ``land_s``; None when nothing changed (no vehicle, no
+        :attr:`replan`, the rotation already ticking, or a plan the new landing makes
+        impossible, logged)."""
         if not descents or self.replan is None or math.isfinite(self.tick_s):
             return None
-        land_s = max(d.time_s(self.land_from_m) for d in descents)
+        heights = [self.land_from_m] * len(descents) if return_alts_m is None else return_alts_m
+        if len(heights) != len(descents):
+            raise ValueError(f"{len(heights)} return altitudes for {len(descents)} descents")
+        land_s = max(d.time_s(max(self.land_from_m, float(h))) for d, h in zip(descents, heights))
         if land_s == self.policy.params.land_s:
             return None
         try:

@@ -241,7 +241,8 @@ def test_with_a_rotation_a_late_vehicle_is_lost_to_it_until_cleared_then_a_spare
     v = feed.add(1, 0.0)
     feed.poll(0.0)
     # With a rotation the audit reads the landing too (gcs/landing.py): the firmware's defaults.
-    landing = {**AP_SAFE, **FIRMWARE_DEFAULTS[ARDUPILOT]}
+    # and the return altitude a relay sent home lands from (RTL_ALT).
+    landing = {**AP_SAFE, **FIRMWARE_DEFAULTS[ARDUPILOT], "RTL_ALT": 1500.0}
     answer_audit(feed, station, 0.5, landing, vid=v)
     feed.poll(0.75)
     assert op.phase == "launch"

@@ -512,7 +512,8 @@ def test_the_audit_reads_each_vehicles_landing_and_the_plan_counts_the_slowest(l
         asked = {c[2] for c in station.of("request_param", v)}
         assert set(LANDING_PARAMS[ARDUPILOT]) <= asked
     # Vehicles 1 and 2 answer the firmware's defaults; vehicle 3 lands at land_speed_cm_s.
-    landing = {"LAND_SPEED": 50.0, "LAND_SPEED_HIGH": 0.0, "LAND_ALT_LOW": 1000.0}
+    # RTL_ALT 15 m is below the 50-m layer: they land from the layer.
+    landing = {"LAND_SPEED": 50.0, "LAND_SPEED_HIGH": 0.0, "LAND_ALT_LOW": 1000.0, "RTL_ALT": 1500}
     for v in vids:
         own = {**landing, "LAND_SPEED": land_speed_cm_s} if v == vids[2] else landing
         answer_audit(feed, station, 0.5, {**AP_SAFE, "WPNAV_SPEED_DN": 150.0, **own}, vid=v)
@@ -526,6 +527,75 @@ def test_the_audit_reads_each_vehicles_landing_and_the_plan_counts_the_slowest(l
     else:
         assert expect == pytest.approx(default_s + 10.0 / 0.3 - 10.0 / 0.5)
         assert built == [default_s, pytest.approx(expect)]
+
+
+def test_a_relay_sent_home_lands_from_its_return_altitude_when_that_is_higher():
+    """A relay sent home by RTL climbs to its return altitude first (gcs/landing.py: PX4
+    RTL::computeReturnAltitude, ArduCopter compute_return_target) and lands from there: the
+    audit reads RTL_RETURN_ALT / RTL_ALT with the landing, and the plan counts the descent from
+    the higher of the layer and it. PX4's default 60 m is above the 50-m layer; an ArduCopter
+    whose RTL_ALT was raised (over terrain, 90 m) lands from 90 m; the firmware's 15 m does not
+    count."""
+    from test_operations import AP_SAFE, answer_audit
+
+    from gcs.autopilot import ARDUPILOT, PX4
+    from gcs.landing import landing_descent, return_alt_m
+
+    px4_safe = {
+        "COM_OF_LOSS_T": 1.0,
+        "COM_OBL_RC_ACT": 3.0,
+        "NAV_RCL_ACT": 2.0,
+        "NAV_DLL_ACT": 2.0,
+        "COM_DL_LOSS_T": 10.0,
+        "COM_RC_IN_MODE": 4.0,
+        "COM_RCL_EXCEPT": 0.0,
+        "COM_DLL_EXCEPT": 0.0,
+        "COM_FAIL_ACT_T": 0.0,
+        "MPC_Z_VEL_MAX_DN": 1.5,
+    }
+    assert return_alt_m(PX4) == 60.0 and return_alt_m(ARDUPILOT) == 15.0
+    assert return_alt_m(ARDUPILOT, {"RTL_ALT": 9000.0}) == 90.0
+    cases = [
+        (PX4, {**px4_safe, "RTL_RETURN_ALT": 60.0}, landing_descent(PX4).time_s(60.0)),
+        (PX4, {**px4_safe, "RTL_RETURN_ALT": 30.0}, landing_descent(PX4).time_s(50.0)),
+        (
+            ARDUPILOT,
+            {**AP_SAFE, "WPNAV_SPEED_DN": 150.0, "RTL_ALT": 9000.0},
+            landing_descent(ARDUPILOT).time_s(90.0),
+        ),
+        (
+            ARDUPILOT,
+            {**AP_SAFE, "WPNAV_SPEED_DN": 150.0, "RTL_ALT": 1500.0},
+            landing_descent(ARDUPILOT).time_s(50.0),
+        ),
+    ]
+    for autopilot, answers, expect in cases:
+        rot = RotationSetup(
+            RotationPolicy(2, 1, BaseResources(pads=1), EnduranceParams(land_s=1.0)),
+            hover_drain_per_s=1.0 / 1500.0,
+            land_from_m=50.0,
+            replan=lambda land_s: RotationPolicy(
+                2, 1, BaseResources(pads=1), EnduranceParams(land_s=land_s)
+            ),
+        )
+        op = Operator(
+            FakeStation(),
+            FleetView(ORIGIN, timeout_s=5.0),
+            FakePlanner(),
+            lambda t: np.array([[POST_N_M, 0.0]]),
+            CONTROL,
+            OperationsConfig(audit=True, expected_vehicles=1, duration_s=10_000.0),
+            rotation=rot,
+        )
+        feed = Feed(op)
+        v = feed.add(1, 0.0, autopilot=autopilot)
+        feed.poll(0.0)
+        asked = {c[2] for c in op.station.of("request_param", v)}
+        assert ("RTL_RETURN_ALT" if autopilot == PX4 else "RTL_ALT") in asked
+        answer_audit(feed, op.station, 0.5, answers, vid=v)
+        feed.run(0.75, 10.0, 0.25, until=lambda op: op.phase != "audit")
+        assert op.phase == "launch", (autopilot, answers)
+        assert rot.policy.params.land_s == pytest.approx(expect), (autopilot, answers)
 
 
 def test_a_vehicle_without_the_landing_parameters_is_not_held_and_lands_at_the_defaults():

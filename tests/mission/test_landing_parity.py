@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from gcs.autopilot import ARDUPILOT, PX4
-from gcs.landing import FIRMWARE_DEFAULTS, LANDING_PARAMS, landing_descent
+from gcs.landing import (
+    FIRMWARE_DEFAULTS,
+    LANDING_PARAMS,
+    RTL_ALT_DEFAULTS,
+    RTL_ALT_PARAMS,
+    landing_descent,
+)
 from vehicle_emu.link import VehicleCore
 from vehicle_emu.physics import CTRL_LAND
 
@@ -30,6 +36,9 @@ def test_each_personality_serves_the_landing_parameters_at_the_firmware_defaults
     core = VehicleCore(1, name)
     for p in LANDING_PARAMS[autopilot]:
         assert core.params[p] == pytest.approx(FIRMWARE_DEFAULTS[autopilot][p]), p
+    # The return altitude a relay sent home by RTL lands from when it is above its layer.
+    name_rtl = RTL_ALT_PARAMS[autopilot][0]
+    assert core.params[name_rtl] == pytest.approx(RTL_ALT_DEFAULTS[autopilot])
 
 
 @pytest.mark.parametrize("name,autopilot,params", CASES)
