@@ -316,3 +316,43 @@ def test_quiet_ticks_write_nothing_and_a_lost_line_costs_only_until_the_next_who
     assert [t for t, _, _ in got] == stamps[:cut] + stamps[whole[1] :]
     by_t = {t: s for t, s, _ in truth}
     assert all(s == by_t[t] for t, s, _ in got)
+
+
+def test_events_jsonl_keeps_a_battery_report_when_it_changes_or_every_period(tmp_path):
+    """A battery report a second per vehicle was 98 % of events.jsonl: one is written when the
+    whole percent, the charge state or what the autopilot knows changes, or
+    BATTERY_RECORD_PERIOD_S after the last one of that vehicle and message (the .tlog has
+    them all). Each vehicle and message has its own."""
+    from gcs.events import BatteryReceived
+    from mission.flight.run_dir import BATTERY_RECORD_PERIOD_S, Records
+    from mission.format.schema import RunSpec
+    from small_mission import small_mission
+
+    rec = Records(tmp_path, small_mission("records", RunSpec()), {})
+    sent = []
+    for k in range(61):  # 60 s at 1 Hz, draining 1 % every 15 s; voltage sags each second
+        t = float(k)
+        frac = 0.9 - 0.01 * (k // 15)
+        for sysid in (1, 2):
+            ev = BatteryReceived(0, sysid, t, "SYS_STATUS", frac, 15.0 - 0.001 * k, 20.0)
+            sent.append(ev)
+            rec.event(ev)
+        if k == 33:  # a BATTERY_STATUS, once: its own stream
+            rec.event(BatteryReceived(0, 1, t, "BATTERY_STATUS", frac, None, None, 500.0))
+    rec.event(BatteryReceived(0, 1, 60.5, "SYS_STATUS", 0.86, 15.0, 20.0, charge_state=2))
+    rec.close()
+    lines = [json.loads(x) for x in (tmp_path / "events.jsonl").read_text().splitlines()]
+    mine = [x for x in lines if x["type"] == "BatteryReceived" and x["sysid"] == 1]
+    sys_status = [x["t_s"] for x in mine if x["source"] == "SYS_STATUS"]
+    # The changes (0, 15, 30, 45, 60 s), the 10-s refreshes between them, the charge state.
+    assert BATTERY_RECORD_PERIOD_S == 10.0
+    assert sys_status == [0.0, 10.0, 15.0, 25.0, 30.0, 40.0, 45.0, 55.0, 60.0, 60.5]
+    assert [x["t_s"] for x in mine if x["source"] == "BATTERY_STATUS"] == [33.0]
+    assert [x["t_s"] for x in lines if x.get("sysid") == 2] == sys_status[:-1]
+    # Every percent the vehicle reported is in the file, at the second it was first reported.
+    firsts = {}
+    for ev in sent:
+        if ev.sysid == 1:
+            firsts.setdefault(round(ev.remaining_frac * 100), ev.t_s)
+    written = {round(x["remaining_frac"] * 100): x["t_s"] for x in reversed(mine)}
+    assert {p: written[p] for p in firsts} == firsts
