@@ -230,9 +230,7 @@ class Records:
     battery_events: bool = True
 
     def event(self, ev) -> None:
-        if isinstance(ev, BatteryReceived) and not (
-            self.battery_events and self._battery_news(ev)
-        ):
+        if isinstance(ev, BatteryReceived) and not (self.battery_events and self._battery_news(ev)):
             return
         if not isinstance(ev, (TelemetryReceived, *HEALTH_EVENTS)):
             self.events.write(ev)
