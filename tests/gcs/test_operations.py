@@ -66,6 +66,19 @@ REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
 CONTROL = ControlConfig(cruise_alt_m=20.0, layer_spacing_m=5.0, n_layers=3)
 
 #: Safe ArduCopter lost-link parameters (gcs.audit: FS_GCS_ENABLE 1 = RTL, our GCS sysid).
+#: A PX4 vehicle's safe lost-link settings, without COM_OBL_ACT (absent on PX4 >= 1.14).
+PX4_SAFE_WITHOUT_COM_OBL_ACT = {
+    "COM_OF_LOSS_T": 1.0,
+    "COM_OBL_RC_ACT": 3.0,
+    "NAV_RCL_ACT": 2.0,
+    "NAV_DLL_ACT": 2.0,
+    "COM_DL_LOSS_T": 10.0,
+    "COM_RC_IN_MODE": 4.0,
+    "COM_RCL_EXCEPT": 0.0,
+    "COM_DLL_EXCEPT": 0.0,
+    "COM_FAIL_ACT_T": 0.0,
+}
+
 AP_SAFE = {
     "FS_GCS_ENABLE": 1.0,
     "FS_GCS_TIMEOUT": 5.0,
@@ -1509,17 +1522,7 @@ def test_optional_parameters_a_firmware_lacks_do_not_hold_the_audit():
     # retries (a restarted station reclaimed its PX4 vehicles ~10 s late).
     from gcs.operations.audit import OPTIONAL_GRACE_S
 
-    safe = {
-        "COM_OF_LOSS_T": 1.0,
-        "COM_OBL_RC_ACT": 3.0,
-        "NAV_RCL_ACT": 2.0,
-        "NAV_DLL_ACT": 2.0,
-        "COM_DL_LOSS_T": 10.0,
-        "COM_RC_IN_MODE": 4.0,
-        "COM_RCL_EXCEPT": 0.0,
-        "COM_DLL_EXCEPT": 0.0,
-        "COM_FAIL_ACT_T": 0.0,
-    }
+    safe = PX4_SAFE_WITHOUT_COM_OBL_ACT
     op, station, feed, (v,) = make(1, audit=True, autopilot=PX4)
     feed.poll(0.0)
     assert ("request_param", v, "COM_OBL_ACT") in [c[:3] for c in station.calls]

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from test_operations import CONTROL, ORIGIN, RTL, STABILIZE, FakePlanner, FakeStation, Feed
 
+from gcs.autopilot import ARDUPILOT
 from gcs.events import (
     ArmedChanged,
     BatteryReceived,
@@ -59,9 +60,9 @@ def _make(n: int = 2, flying: int = 1, swap_confirm: str = "auto"):
     return op, station, planner, feed, vids, rot
 
 
-def _audited(rot: RotationSetup, n: int):
-    """An operator with the pre-flight audit on, ``n`` vehicles heard and ``rot`` (the landing
-    tests); returns (op, feed, vids)."""
+def _audited(rot: RotationSetup, n: int, autopilot: int = ARDUPILOT):
+    """An operator with the pre-flight audit on, ``n`` vehicles of ``autopilot`` heard and
+    ``rot`` (the landing tests); returns (op, feed, vids)."""
     op = Operator(
         FakeStation(),
         FleetView(ORIGIN, timeout_s=5.0),
@@ -72,7 +73,7 @@ def _audited(rot: RotationSetup, n: int):
         rotation=rot,
     )
     feed = Feed(op)
-    return op, feed, [feed.add(k + 1, 0.0) for k in range(n)]
+    return op, feed, [feed.add(k + 1, 0.0, autopilot=autopilot) for k in range(n)]
 
 
 def _battery(feed: Feed, vid, t_s: float, frac: float) -> None:
@@ -489,7 +490,6 @@ def test_the_audit_reads_each_vehicles_landing_and_the_plan_counts_the_slowest(l
     vehicle reporting LAND_SPEED 30 cm/s lands 13 s later from 50 m than the defaults."""
     from test_operations import AP_SAFE, answer_audit
 
-    from gcs.autopilot import ARDUPILOT
     from gcs.landing import LANDING_PARAMS, landing_descent
 
     built: list[float] = []
@@ -536,23 +536,12 @@ def test_a_relay_sent_home_lands_from_its_return_altitude_when_that_is_higher():
     the higher of the layer and it. PX4's default 60 m is above the 50-m layer; an ArduCopter
     whose RTL_ALT was raised (over terrain, 90 m) lands from 90 m; the firmware's 15 m does not
     count."""
-    from test_operations import AP_SAFE, answer_audit
+    from test_operations import AP_SAFE, PX4_SAFE_WITHOUT_COM_OBL_ACT, answer_audit
 
-    from gcs.autopilot import ARDUPILOT, PX4
+    from gcs.autopilot import PX4
     from gcs.landing import landing_descent, return_alt_m
 
-    px4_safe = {
-        "COM_OF_LOSS_T": 1.0,
-        "COM_OBL_RC_ACT": 3.0,
-        "NAV_RCL_ACT": 2.0,
-        "NAV_DLL_ACT": 2.0,
-        "COM_DL_LOSS_T": 10.0,
-        "COM_RC_IN_MODE": 4.0,
-        "COM_RCL_EXCEPT": 0.0,
-        "COM_DLL_EXCEPT": 0.0,
-        "COM_FAIL_ACT_T": 0.0,
-        "MPC_Z_VEL_MAX_DN": 1.5,
-    }
+    px4_safe = {**PX4_SAFE_WITHOUT_COM_OBL_ACT, "MPC_Z_VEL_MAX_DN": 1.5}
     assert return_alt_m(PX4) == 60.0 and return_alt_m(ARDUPILOT) == 15.0
     assert return_alt_m(ARDUPILOT, {"RTL_ALT": 9000.0}) == 90.0
     cases = [
@@ -578,17 +567,7 @@ def test_a_relay_sent_home_lands_from_its_return_altitude_when_that_is_higher():
                 2, 1, BaseResources(pads=1), EnduranceParams(land_s=land_s)
             ),
         )
-        op = Operator(
-            FakeStation(),
-            FleetView(ORIGIN, timeout_s=5.0),
-            FakePlanner(),
-            lambda t: np.array([[POST_N_M, 0.0]]),
-            CONTROL,
-            OperationsConfig(audit=True, expected_vehicles=1, duration_s=10_000.0),
-            rotation=rot,
-        )
-        feed = Feed(op)
-        v = feed.add(1, 0.0, autopilot=autopilot)
+        op, feed, (v,) = _audited(rot, 1, autopilot)
         feed.poll(0.0)
         asked = {c[2] for c in op.station.of("request_param", v)}
         assert ("RTL_RETURN_ALT" if autopilot == PX4 else "RTL_ALT") in asked
@@ -603,7 +582,6 @@ def test_a_vehicle_without_the_landing_parameters_is_not_held_and_lands_at_the_d
     unanswered, the audit goes on after its grace and the plan keeps the firmware's default."""
     from test_operations import AP_SAFE, answer_audit
 
-    from gcs.autopilot import ARDUPILOT
     from gcs.landing import landing_descent
     from gcs.operations.audit import OPTIONAL_GRACE_S
 
