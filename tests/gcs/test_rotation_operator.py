@@ -36,12 +36,13 @@ from planner.endurance import (
 POST_N_M = 100.0
 
 
-def _make(n: int = 2, flying: int = 1, swap_confirm: str = "auto"):
+def _make(n: int = 2, flying: int = 1, swap_confirm: str = "auto", refill: bool = False):
+    # Without the refill unless asked (on by default): these follow one relay and its spare.
     policy = RotationPolicy(
         n,
         flying,
         BaseResources(pads=1, swap_time_s=60.0, spare_batteries=4),
-        EnduranceParams(critical_frac=0.2, return_speed_m_s=5.0),
+        EnduranceParams(critical_frac=0.2, return_speed_m_s=5.0, refill_lost=refill),
     )
     rot = RotationSetup(policy, hover_drain_per_s=1.0 / 1500.0, swap_confirm=swap_confirm)
     station = FakeStation()
@@ -460,17 +461,23 @@ def _heard_on_its_pad(feed, relay, t: float, last_heard: float) -> None:
     feed.emit(VehicleRebooted(relay[0], relay[1], t, last_heard, 0.5))
 
 
-def test_a_lost_vehicle_heard_again_on_its_pad_full_is_a_spare_again():
-    op, station, planner, feed, (relay, spare), rot = _make()
+@pytest.mark.parametrize("refill", [False, True])
+def test_a_lost_vehicle_heard_again_on_its_pad_full_is_a_spare_again(refill):
+    op, station, planner, feed, (relay, spare), rot = _make(refill=refill)
     t, batt, last_heard = _lose_relay_in_flight(op, feed, relay, spare, rot)
     t = _run(feed, t, t + 100.0, batt)
     assert rot.policy.phase[0] == LOST  # silent: still lost
     _heard_on_its_pad(feed, relay, t, last_heard)
     batt[relay] = 1.0
     t = _run(feed, t, t + 3.0, batt)
-    assert rot.policy.phase[0] == READY
     assert op.rotation_summary()["recovered"] == 1
-    assert "recovered" in [e.kind for e in rot.events]
+    kinds = [e.kind for e in rot.events]
+    assert "recovered" in kinds
+    if not refill:
+        assert rot.policy.phase[0] == READY
+    else:
+        # A spare again, and the post lost in the air is short of one: it flies into it.
+        assert rot.policy.phase[0] == AIR and "refill" in kinds[kinds.index("recovered") :]
 
 
 def test_a_lost_vehicle_heard_again_but_not_full_stays_lost():

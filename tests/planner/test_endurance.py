@@ -302,7 +302,8 @@ def test_a_slower_landing_spaces_the_first_reliefs_further_apart():
 
 
 def test_a_lost_drone_recovered_is_a_spare_again_and_only_a_lost_one():
-    pol = RotationPolicy(3, 2, BaseResources(), EnduranceParams())
+    # Without the refill (on by default), which would fly the recovered spare into the post.
+    pol = RotationPolicy(3, 2, BaseResources(), EnduranceParams(refill_lost=False))
     alive = np.array([True, False, True])
     pol.step(0.0, np.zeros((3, 2)), alive, np.ones(3), np.full(3, 1e-4), alive, ~alive)
     assert pol.phase[1] == LOST
