@@ -356,6 +356,9 @@ class RotationPolicy:
     """Spares in circulation a post needs (:attr:`FleetPlan.ground_s` over its ``sortie_s``);
     ``EnduranceParams.refill_lost`` refills a post only while the spares left keep
     :data:`REFILL_MARGIN` times this (0: the plan's own ratio, ``(n - flying) / flying``)."""
+    turnaround_s: float = 0.0
+    """A spare's time on the ground between two sorties (:attr:`FleetPlan.ground_s`): a refill
+    keeps enough ready spares for every relief due within this and its launch lead."""
     phase: IntArray = field(init=False)
     replaces: IntArray = field(init=False)
     """(N,) the relay an inbound spare replaces (-1: none)."""
@@ -562,17 +565,28 @@ class RotationPolicy:
                 self._reported.discard(("no_spare", int(j)))
                 events.append(RotationEvent(now_s, "launch", k, int(j)))
         if p.refill_lost:
-            self._refill(now_s, alive, batt, events)
+            ph_now = self.phase
+            due = (
+                (ph_now == AIR) & (self.replaced_by < 0) & (relief_s <= lead_s + self.turnaround_s)
+            )
+            self._refill(now_s, alive, batt, events, int(np.count_nonzero(due)))
 
         return self._output(ph, pos, base, swapped, events)
 
     def _refill(
-        self, now_s: float, alive: BoolArray, batt: FloatArray, events: list[RotationEvent]
+        self,
+        now_s: float,
+        alive: BoolArray,
+        batt: FloatArray,
+        events: list[RotationEvent],
+        due: int = 0,
     ) -> None:
         """One ready spare (the fullest) joins the plan at the base when fewer than K posts are
         held, and the spares left in circulation still relieve every post: at least
-        :data:`REFILL_MARGIN` × :attr:`spare_ratio` per post. A post lost in the air is held
-        again (``refill`` event)."""
+        :data:`REFILL_MARGIN` × :attr:`spare_ratio` per post, and more ready spares left than
+        the ``due`` reliefs (relays without a spare whose relief falls within their launch lead
+        and :attr:`turnaround_s`: a spare grounded now is back too late for them). A post lost
+        in the air is held again (``refill`` event)."""
         ph = self.phase
         k = self.flying
         if k <= 0 or k >= self.n_drones:
@@ -585,6 +599,8 @@ class RotationPolicy:
         else:
             ratio = (self.n_drones - k) / k
         if posts >= k or not ready.size or circulating - 1 < ratio * (posts + 1):
+            return
+        if ready.size - 1 < due:
             return
         i = int(ready[np.argmax(np.nan_to_num(batt[ready], nan=0.0))])
         ph[i] = AIR

@@ -1069,14 +1069,21 @@ class EnduranceSpec(_Section):
             critical_frac=self.battery.low_frac, return_speed_m_s=max_speed_m_s, **settings
         )
         base = self.base.resources()
-        flying, spare_ratio = n_drones, 0.0
+        flying, spare_ratio, turnaround_s = n_drones, 0.0, 0.0
         if rotate:
             plan = plan_fleet(
                 n_drones, self.battery.endurance_s, horizon_s, base, params, mean_post_dist_m
             )
             flying, spare_ratio = plan.flying, plan.ground_s / plan.sortie_s
+            turnaround_s = plan.ground_s
         return RotationPolicy(
-            n_drones, flying, base, params, rotate=rotate, spare_ratio=spare_ratio
+            n_drones,
+            flying,
+            base,
+            params,
+            rotate=rotate,
+            spare_ratio=spare_ratio,
+            turnaround_s=turnaround_s,
         )
 
     def validate(self) -> list[tuple[str, str]]:

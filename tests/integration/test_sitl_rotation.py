@@ -73,7 +73,7 @@ EXAMPLES = ROOT / "mission" / "format" / "examples"
 #: ``endurance_s``): about the shortest for which the plan keeps two of three in the air
 #: (planner.endurance.plan_fleet, the fleet bound, with the policy settings of ``_ENDURANCE``
 #: and the landing descent the station counts, mission/flight/station_loop.py
-#: ``landing_descent_s``: 33 s from the 20 m layer; 420 s keeps one in the air, 450 s two).
+#: ``landing_descent_s``: 33 s from the 30 m top layer; 420 s keeps one in the air, 450 s two).
 ENDURANCE_S = 450.0
 #: Seconds a homeward mode change may be stamped before the rotation's ``return`` (one control
 #: period: both are read within the same tick).
@@ -108,7 +108,16 @@ def _firmware_params(firmware: str) -> dict[str, float]:
             "BATT_CRT_MAH": round(0.10 * cap),
             "BATT_FS_CRT_ACT": 1,  # Land (ArduCopter/events.cpp do_failsafe_action)
         }
-    return {"SIM_BAT_DRAIN": ENDURANCE_S, "SIM_BAT_MIN_PCT": 2.0, "NAV_DLL_ACT": 2}
+    # RTL_RETURN_ALT at the top layer (30 m): PX4's default 60 m would send the tired relay up
+    # to 60 m before it lands, and the station (which counts the landing from the higher of the
+    # layer and the return altitude it read, gcs/landing.py return_alt_m) would then plan 45 s
+    # for it and keep only one of the three in the air with ENDURANCE_S.
+    return {
+        "SIM_BAT_DRAIN": ENDURANCE_S,
+        "SIM_BAT_MIN_PCT": 2.0,
+        "NAV_DLL_ACT": 2,
+        "RTL_RETURN_ALT": 30.0,
+    }
 
 
 def _mission_file(tmp_path: Path, firmware: str, sysids: list[int]) -> Path:

@@ -345,3 +345,33 @@ def test_posts_lost_in_the_air_are_refilled_from_the_spares_only_when_asked():
             assert circulating >= REFILL_MARGIN * ratio * posts[refill] - 1
     assert refills[False] == 0 and posts[False] <= k - 5
     assert refills[True] >= 1 and posts[False] < posts[True] <= k
+
+
+@pytest.mark.parametrize("turnaround_s", [0.0, 1000.0])
+def test_a_refill_leaves_the_ready_spares_the_reliefs_due_before_one_could_come_back(turnaround_s):
+    """Four posts, one lost in the air, two spares ready. Three relays are due for relief in
+    about eight minutes, after their launch lead: a refill may take a spare only while the ready
+    ones left cover every relief due within the lead and a spare's turnaround (a spare grounded
+    now is back too late for them). Without a turnaround to count, the post is refilled."""
+    n, k = 6, 4
+    pol = RotationPolicy(
+        n,
+        k,
+        BaseResources(),
+        EnduranceParams(),
+        spare_ratio=0.1,
+        turnaround_s=turnaround_s,
+    )
+    pos = np.zeros((n, 2))
+    pos[:k] = [[300.0, 0.0], [0.0, 300.0], [-300.0, 0.0], [0.0, -300.0]]
+    alive = np.ones(n, bool)
+    alive[3] = False  # lost in the air
+    batt = np.array([0.6, 0.62, 0.64, 0.6, 1.0, 1.0])
+    rate = np.full(n, 1.0 / 1500.0)
+    out = pol.step(0.0, pos, alive, batt, rate, alive, np.zeros(n, bool))
+    kinds = [e.kind for e in out.events]
+    assert pol.phase[3] == LOST and "launch" not in kinds  # nobody's relief is due yet
+    if turnaround_s == 0.0:
+        assert kinds.count("refill") == 1 and int(np.count_nonzero(pol.phase == AIR)) == 4
+    else:
+        assert "refill" not in kinds and int(np.count_nonzero(pol.phase == READY)) == 2
