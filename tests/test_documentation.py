@@ -926,6 +926,7 @@ TABLE: dict[str, Case] = {
         timeout=600,
     ),
     ".venv/bin/python bench/bench_endurance_flight.py": Case(kind="bench"),
+    ".venv/bin/python bench/bench_endurance_flight.py --personality px4": Case(kind="bench"),
     ".venv/bin/python bench/bench_endurance_flight.py --skip-short --record /tmp/wildfire_2h.pkl": Case(  # noqa: E501
         kind="bench"
     ),
