@@ -151,7 +151,7 @@ class EnduranceParams:
     while the spares in circulation keep the plan's ratio to the posts (docs/design/endurance.md
     §3); off: a relay lost in the air leaves its post empty for the rest of the mission. On by
     default since a paired 100-seed study of ``wildfire_2h`` (docs/results/endurance.md: TU1
-    +0.79 points, better on 91 seeds, worse on 6, no battery failsafe in the air either way)."""
+    +0.73 points, better on 90 seeds, worse on 5, no battery failsafe in the air either way)."""
 
     def __post_init__(self) -> None:
         problems = []
