@@ -37,6 +37,7 @@ __all__ = [
     "LANDING_PARAMS",
     "LandingDescent",
     "RTL_ALT_DEFAULTS",
+    "RTL_ALT_NAMES",
     "RTL_ALT_PARAMS",
     "landing_descent",
     "return_alt_m",
@@ -95,6 +96,9 @@ RTL_ALT_PARAMS: dict[int, tuple[str, float]] = {
     ARDUPILOT: ("RTL_ALT", 100.0),
     PX4: ("RTL_RETURN_ALT", 1.0),
 }
+
+#: Their names, whichever the autopilot.
+RTL_ALT_NAMES: frozenset[str] = frozenset(name for name, _ in RTL_ALT_PARAMS.values())
 
 #: Their firmware defaults, in the parameter's units: ArduCopter/config.h ``RTL_ALT`` 1500 cm;
 #: PX4 src/modules/navigator/rtl_params.yaml ``RTL_RETURN_ALT`` 60 m.

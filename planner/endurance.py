@@ -565,11 +565,7 @@ class RotationPolicy:
                 self._reported.discard(("no_spare", int(j)))
                 events.append(RotationEvent(now_s, "launch", k, int(j)))
         if p.refill_lost:
-            ph_now = self.phase
-            due = (
-                (ph_now == AIR) & (self.replaced_by < 0) & (relief_s <= lead_s + self.turnaround_s)
-            )
-            self._refill(now_s, alive, batt, events, int(np.count_nonzero(due)))
+            self._refill(now_s, alive, batt, events, relief_s - lead_s)
 
         return self._output(ph, pos, base, swapped, events)
 
@@ -579,14 +575,14 @@ class RotationPolicy:
         alive: BoolArray,
         batt: FloatArray,
         events: list[RotationEvent],
-        due: int = 0,
+        relief_after_lead_s: FloatArray,
     ) -> None:
         """One ready spare (the fullest) joins the plan at the base when fewer than K posts are
         held, and the spares left in circulation still relieve every post: at least
-        :data:`REFILL_MARGIN` × :attr:`spare_ratio` per post, and more ready spares left than
-        the ``due`` reliefs (relays without a spare whose relief falls within their launch lead
-        and :attr:`turnaround_s`: a spare grounded now is back too late for them). A post lost
-        in the air is held again (``refill`` event)."""
+        :data:`REFILL_MARGIN` × :attr:`spare_ratio` per post, and as many ready spares left as
+        the reliefs due (relays without a spare whose relief, ``relief_after_lead_s`` after
+        their launch lead, falls within :attr:`turnaround_s`: a spare grounded now is back too
+        late for them). A post lost in the air is held again (``refill`` event)."""
         ph = self.phase
         k = self.flying
         if k <= 0 or k >= self.n_drones:
@@ -600,7 +596,8 @@ class RotationPolicy:
             ratio = (self.n_drones - k) / k
         if posts >= k or not ready.size or circulating - 1 < ratio * (posts + 1):
             return
-        if ready.size - 1 < due:
+        due = (ph == AIR) & (self.replaced_by < 0) & (relief_after_lead_s <= self.turnaround_s)
+        if ready.size - 1 < int(np.count_nonzero(due)):
             return
         i = int(ready[np.argmax(np.nan_to_num(batt[ready], nan=0.0))])
         ph[i] = AIR

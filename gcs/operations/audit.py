@@ -19,6 +19,7 @@ from gcs import rally as rally_mod
 from gcs.events import ParamReceived, ParamSetConfirmed, ParamSetFailed, ParamTimedOut
 from gcs.fleet import FleetSnapshot
 from gcs.link import UnknownVehicle
+from gcs.landing import RTL_ALT_NAMES
 from gcs.operations._state import OperatorState
 from gcs.operations.phases import Phase, Trigger
 
@@ -239,9 +240,7 @@ class AuditStep(OperatorState):
         terrain the return altitude is the audit's own, and waited for."""
         if name in audit_mod.OPTIONAL_PARAMS:
             return True
-        return self.config.rtl_min_alt_m is None and any(
-            name == spec[0] for spec in audit_mod.RTL_ALT_PARAMS.values()
-        )
+        return self.config.rtl_min_alt_m is None and name in RTL_ALT_NAMES
 
     def _rtl_params(self, autopilot: int) -> tuple[str, ...]:
         """Over terrain (``rtl_min_alt_m``), the return-altitude parameter to read."""
