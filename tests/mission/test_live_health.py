@@ -217,6 +217,15 @@ def health_run(browser, tmp_path_factory):  # noqa: F811
             "const c = document.getElementById('hidelost'); c.checked = false;"
             "c.dispatchEvent(new Event('change'));"
         )
+        # The replay test reads packet loss, known once a loss window has closed: the flight
+        # lasts at least two windows whatever the browser's speed.
+        from mission.view.live.health import LOSS_WINDOW_S
+
+        _wait(
+            lambda: box["world"].swarm.now_s >= 2 * LOSS_WINDOW_S + 5.0,
+            120,
+            "two packet-loss windows of flight",
+        )
     res = box["result"]
     box["run_dir"] = res.run_dir
     return box
@@ -242,10 +251,18 @@ def test_alerts_are_logged_with_their_acknowledgement(health_run):
 def test_replay_shows_the_recorded_health_and_alerts(health_run):
     from mission.view.live.replay import ReplaySource
 
+    from mission.view.live.health import LOSS_WINDOW_S
+
     src = ReplaySource(health_run["run_dir"])
-    mid = src.frames[len(src.frames) // 2]
-    k = mid.snap.sysid_of_index.tolist().index(2)
-    fr = src.frame(len(src.frames) // 2)
+    # A frame after vehicle 2's first packet-loss window has closed (the loss column is None
+    # before it): the middle one of those. Not simply the middle frame: how long the flight
+    # lasts depends on how fast the browser went, and a short one has no closed window there.
+    heard = [f.t_s for f in src.frames if 2 in f.snap.sysid_of_index.tolist()]
+    later = [i for i, f in enumerate(src.frames) if f.t_s >= heard[0] + LOSS_WINDOW_S + 1.0]
+    assert later, (heard[0], src.frames[-1].t_s)
+    i = later[len(later) // 2]
+    k = src.frames[i].snap.sysid_of_index.tolist().index(2)
+    fr = src.frame(i)
     v = fr["v"]
     assert v["sats"][k] == health_run["sats"][2]
     assert v["gps"][k] == 3 and v["ekf"][k] == "ok" and v["bat"][k] is not None
