@@ -415,6 +415,7 @@ class RotationPolicy:
         base_m: FloatArray | None = None,
         swap_done: BoolArray | None = None,
         return_drain_per_s: FloatArray | None = None,
+        end_s: float = math.inf,
     ) -> RotationOutput:
         """Advance the rotation to ``now_s`` and decide this tick.
 
@@ -434,6 +435,10 @@ class RotationPolicy:
             powered and full); None: swaps finish after ``swap_time_s``
         return_drain_per_s : (N,) the drain flying home at return speed (the reserve's way
             home); default ``drain_per_s``
+        end_s : the mission's end, in the clock of ``now_s`` (inf: none known). A relay whose
+            reserve falls after it (by more than ``slack_s``) holds its post to the end: it is
+            not relieved, nor moved earlier in the relief schedule, and spends no spare's battery
+            (docs/design/endurance.md §3)
         """
         n = self.n_drones
         p = self.params
@@ -542,8 +547,11 @@ class RotationPolicy:
             self.counters["forced_returns"] += 1
             events.append(RotationEvent(now_s, "forced_return", int(i)))
         lead_s = p.launch_s + dist / p.return_speed_m_s + p.handover_s + p.slack_s
-        relief_s = self._relief_schedule(t_res, dist, (ph == AIR) & (self.replaced_by < 0), alive)
-        need = (ph == AIR) & (self.replaced_by < 0) & (relief_s <= lead_s)
+        waiting = (ph == AIR) & (self.replaced_by < 0)
+        if math.isfinite(end_s):
+            waiting &= t_res <= end_s - now_s + p.slack_s
+        relief_s = self._relief_schedule(t_res, dist, waiting, alive)
+        need = waiting & (relief_s <= lead_s)
         if need.any():
             # Most urgent first; the fullest spare goes.
             order = np.flatnonzero(need)[np.argsort(relief_s[need], kind="stable")]

@@ -306,6 +306,11 @@ class RotationStep(OperatorState):
             base_m=base,
             swap_done=swap_done,
             return_drain_per_s=ret_drain,
+            end_s=(
+                math.inf
+                if self.mission_t0_s is None
+                else self.mission_t0_s + self.config.duration_s
+            ),
         )
         for i in np.flatnonzero(out.battery_swapped).tolist():
             rot.rebooted_home.discard(i)

@@ -20,6 +20,7 @@ at the full-speed drain: what the station could know.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,6 +58,8 @@ class EnduranceRun:
     min_battery_in_air: float = 1.0
     battery_log: list[np.ndarray] = field(default_factory=list)
     """(N,) battery fraction at every step (for plots and replay)."""
+    end_s: float = math.inf
+    """The mission's end (its length: step ``t`` is at ``t * dt_s``): relays due after it stay."""
 
     def __post_init__(self) -> None:
         self.battery_frac = np.ones(self.policy.n_drones)
@@ -85,6 +88,7 @@ class EnduranceRun:
             landed_at_base=landed,
             base_m=world.base_m,
             return_drain_per_s=np.full(n, (1.0 + self.speed_drain_frac) * hover),
+            end_s=self.end_s,
         )
         self.events.extend(out.events)
         self.battery_frac[out.battery_swapped] = 1.0
@@ -174,4 +178,5 @@ def endurance_run(
         spec.critical_frac,
         dt_s,
         max_speed_m_s,
+        end_s=horizon_s,
     )

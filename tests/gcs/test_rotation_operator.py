@@ -36,7 +36,13 @@ from planner.endurance import (
 POST_N_M = 100.0
 
 
-def _make(n: int = 2, flying: int = 1, swap_confirm: str = "auto", refill: bool = False):
+def _make(
+    n: int = 2,
+    flying: int = 1,
+    swap_confirm: str = "auto",
+    refill: bool = False,
+    duration_s: float = 10_000.0,
+):
     # Without the refill unless asked (on by default): these follow one relay and its spare.
     policy = RotationPolicy(
         n,
@@ -53,7 +59,7 @@ def _make(n: int = 2, flying: int = 1, swap_confirm: str = "auto", refill: bool 
         planner,
         lambda t: np.array([[POST_N_M + 50.0, 0.0]]),
         CONTROL,
-        OperationsConfig(audit=False, expected_vehicles=n, duration_s=10_000.0),
+        OperationsConfig(audit=False, expected_vehicles=n, duration_s=duration_s),
         rotation=rot,
     )
     feed = Feed(op)
@@ -226,6 +232,22 @@ def test_relay_relieved_by_a_spare_sent_home_landed_rebooted_and_ready_again():
     # A spare on the ground is not launched again until the policy sends it.
     t = _run(feed, t, t + 5.0, batt)
     assert len(station.of("takeoff", relay)) == n_takeoffs
+
+
+@pytest.mark.parametrize("duration_s", [40.0, 10_000.0])
+def test_a_relay_due_after_the_mission_end_is_not_relieved(duration_s):
+    # The run starts at 1 s. At 30 % the relay is ~55 s from its reserve, within the launch lead:
+    # relieved in a long mission; in one that ends at 41 s (more than the 30-s slack before that
+    # reserve) it holds its post to the end and no spare is spent.
+    op, station, planner, feed, (relay, spare), rot = _make(duration_s=duration_s)
+    t, batt = _relay_low(feed, relay, spare, spare_north_m=0.0)
+    assert op.mission_t0_s == 1.0
+    assert 50.0 < rot.time_to_reserve_s[0] < 60.0
+    if duration_s < 100.0:
+        assert rot.policy.phase.tolist() == [AIR, READY]
+        assert not station.of("takeoff", spare)
+    else:
+        assert rot.policy.phase.tolist() == [AIR, INBOUND]
 
 
 def test_swap_confirmed_when_the_crew_powers_off_before_the_disarm_is_heard():

@@ -138,6 +138,51 @@ def test_a_spare_launches_in_time_and_the_relay_leaves_only_after_the_handover()
     assert pol.summary()["rotations"] == 1 and pol.summary()["swaps"] == 1
 
 
+def test_a_relay_whose_reserve_falls_after_the_mission_end_holds_its_post():
+    p = EnduranceParams(handover_s=0.0, launch_s=0.0, slack_s=10.0)
+    base = BaseResources(pads=1, swap_time_s=10.0, spare_batteries=5)
+    pos = np.array([[200.0, 0.0], [0.0, 0.0]])
+    rate = np.full(2, 1e-3)
+    ones = np.ones(2, bool)
+    batt = np.array([0.24, 1.0])  # 50 s from its reserve, within the 50-s lead: relieved ...
+    pol = RotationPolicy(2, 1, base, p)
+    out = pol.step(1000.0, pos, ones, batt, rate, ones, np.zeros(2, bool), end_s=1100.0)
+    assert [e.kind for e in out.events] == ["launch"]
+    # ... but not when the mission ends before its reserve, beyond the slack: it stays to the end.
+    for end_s in (1030.0, 1039.0):
+        pol = RotationPolicy(2, 1, base, p)
+        out = pol.step(1000.0, pos, ones, batt, rate, ones, np.zeros(2, bool), end_s=end_s)
+        assert not out.events and pol.phase.tolist() == [AIR, READY], end_s
+    # Within the slack of the end (the estimate may still shorten): relieved.
+    pol = RotationPolicy(2, 1, base, p)
+    out = pol.step(1000.0, pos, ones, batt, rate, ones, np.zeros(2, bool), end_s=1041.0)
+    assert [e.kind for e in out.events] == ["launch"]
+
+
+def test_no_spare_is_spent_on_relays_that_last_to_the_end_of_the_mission():
+    # Six relays due one after another, too close for the spares to turn around: the schedule
+    # relieves the first ones early. With the mission's end known, the ones that last to it are
+    # out of the schedule: fewer launches, and the ones due before the end are not pulled earlier.
+    p = EnduranceParams(handover_s=0.0, launch_s=0.0, slack_s=10.0)
+    base = BaseResources(pads=1, swap_time_s=60.0, spare_batteries=10)
+    n, k = 9, 6
+    pos = np.zeros((n, 2))
+    pos[:k, 0] = 200.0
+    rate = np.full(n, 1e-3)
+    ones = np.ones(n, bool)
+    batt = np.ones(n)
+    batt[:k] = 0.19 + 1e-3 * np.array([60.0, 65.0, 70.0, 200.0, 205.0, 210.0])
+    launched = {}
+    for end_s in (np.inf, 150.0):
+        pol = RotationPolicy(n, k, base, p)
+        out = pol.step(0.0, pos, ones, batt, rate, ones, np.zeros(n, bool), end_s=end_s)
+        launched[end_s] = sorted(e.other for e in out.events if e.kind == "launch")
+    # Without the end, the three late relays (reserves at 200-210 s) push relay 2 (70 s) into
+    # this tick's launches; with the mission over at 150 s they stay, and relay 2 waits.
+    assert launched[np.inf] == [0, 1, 2]
+    assert launched[150.0] == [0, 1]
+
+
 def test_out_of_reserve_without_a_spare_goes_home_rather_than_reach_critical():
     p = EnduranceParams()
     pol = RotationPolicy(1, 1, BaseResources(), p)
