@@ -172,6 +172,12 @@ class StationAdapter:
         self.early_wakeups = 0
         """Timer wake-ups before the core's next deadline (skipped without a scan)."""
         self._tap_peers: dict[Any, Any] = {}
+        self._reader: socket.socket | None = None
+        self.drained = 0
+        """Datagrams read by :meth:`drain` (not by the event loop's one-per-iteration reads)."""
+        self.drained_max = 0
+        """The most :meth:`drain` found queued at once: how far the station's reading fell
+        behind what the vehicles had sent."""
 
     def now(self) -> float:
         clock = self._clock
@@ -277,6 +283,11 @@ class StationAdapter:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _UDP_RCVBUF_BYTES)
             except OSError:
                 pass
+        if sock is not None:  # a plain socket on the same descriptor, for drain()
+            reader = socket.fromfd(sock.fileno(), sock.family, sock.type)
+            reader.setblocking(False)
+            self._reader = reader
+            self._closers.append(reader.close)
         if remote is not None:  # connected socket: one peer, whatever addr the core names
             self._send = lambda data, addr: transport.sendto(data)
         else:
@@ -432,6 +443,43 @@ class StationAdapter:
         if self.core is not None:
             self.core.receive_datagram(data, addr, self.now())
             self.transmit()
+
+    def drain(self, limit: int = 4096) -> int:
+        """Read every datagram already queued on this link's UDP socket (at most ``limit``),
+        then send what the core queued once; returns how many were read (0 for TCP and
+        serial links, whose streams the loop reads whole).
+
+        asyncio's datagram transport reads one datagram per socket per loop iteration. Under
+        lock-step pacing (:class:`mavedge.clock.PacedReader`) the station says "everything up to
+        now is done" once per iteration; with 50 vehicles' telemetry arriving faster than one
+        datagram an iteration, the backlog grew on the socket while simulated time moved on,
+        and at 50x the station read COMMAND_ACKs and positions tens of simulated seconds late
+        (docs/results/endurance.md). The station's loop drains before it acknowledges, as the
+        emulator does before it moves time (vehicle_emu/udp.py ``EmulatorServer._drain``)."""
+        reader = self._reader
+        if reader is None:
+            return 0
+        core = self.core
+        n = 0
+        for _ in range(limit):
+            try:
+                data, addr = reader.recvfrom(65536)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as exc:  # ICMP unreachable and the like: the link copes with loss
+                log.debug("link %d: drain: %s", self.link_id, exc)
+                break
+            n += 1
+            if self._taps:
+                self._tap_raw(data, addr)
+            if core is not None:
+                core.receive_datagram(data, addr, self.now())
+        if n:
+            self.drained += n
+            self.drained_max = max(self.drained_max, n)
+            if core is not None:
+                self.transmit()
+        return n
 
     # Raw tap (MAVLink forwarding, gcs.forward): the bytes as they arrive, and frames injected
     # as they are, beside the station core (which neither sees nor answers them).

@@ -599,6 +599,11 @@ async def run_station(
             elif op.finished:
                 break
             try:
+                if ack is not None:
+                    # Lock-step: what the vehicles sent is read before time is acknowledged
+                    # (StationAdapter.drain).
+                    for a in adapters:
+                        a.drain()
                 now = clock()
                 if ack is not None:
                     # Lock-step (see PacedReader): before this poll, everything due before the
@@ -664,6 +669,13 @@ async def run_station(
         for x in extras:
             await x.aclose()
         for a in adapters:
+            if a.drained:
+                log.info(
+                    "link %d: %d datagrams read by drain, at most %d queued at once",
+                    a.link_id,
+                    a.drained,
+                    a.drained_max,
+                )
             a.close()
     return op
 

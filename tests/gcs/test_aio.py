@@ -331,3 +331,32 @@ def test_a_timer_wakeup_before_the_cores_deadline_skips_the_scan():
             station.close()
 
     asyncio.run(main())
+
+
+def test_drain_reads_every_queued_datagram_before_the_loop_runs():
+    # Under lock-step the station's loop drains its sockets before it acknowledges a time
+    # (mission/flight/station_loop.py): 50 vehicles' heartbeats sent while the loop does not run
+    # are all read by one drain, not one a loop iteration.
+    import socket
+
+    async def main():
+        station = await StationAdapter("udpin:127.0.0.1:0", _CFG).start()
+        sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            aps = [FakeAutopilot(sysid=s) for s in range(1, 51)]
+            for ap in aps:
+                sender.sendto(ap.heartbeat(4), station.local_address[:2])
+            assert station.drain() == 50
+            assert (station.drained, station.drained_max) == (50, 50)
+            assert station.drain() == 0
+            found = set()
+            while not station.events.empty():
+                e = station.events.get_nowait()
+                if type(e).__name__ == "VehicleDiscovered":
+                    found.add(e.sysid)
+            assert found == set(range(1, 51))
+        finally:
+            sender.close()
+            station.close()
+
+    asyncio.run(main())
