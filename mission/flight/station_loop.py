@@ -599,11 +599,6 @@ async def run_station(
             elif op.finished:
                 break
             try:
-                if ack is not None:
-                    # Lock-step: what the vehicles sent is read before time is acknowledged
-                    # (StationAdapter.drain).
-                    for a in adapters:
-                        a.drain()
                 now = clock()
                 if ack is not None:
                     # Lock-step (see PacedReader): before this poll, everything due before the
@@ -613,6 +608,13 @@ async def run_station(
                     # vehicles and 10x every control tick held the emulator back
                     # (docs/results/scale.md).
                     ack(min(now, due_s))
+                    # Then everything the vehicles sent is read (StationAdapter.drain), while
+                    # the emulator goes on at most the slack past that acknowledgement: the
+                    # station reads at most that late, where asyncio's one datagram a loop
+                    # iteration let the queue, and the lag, grow without bound.
+                    for a in adapters:
+                        a.drain()
+                    now = clock()
                 rec = op.poll(now)
                 times.note(op, now, time.monotonic())
                 if ack is not None:
