@@ -454,8 +454,10 @@ class StationAdapter:
         now is done" once per iteration; with 50 vehicles' telemetry arriving faster than one
         datagram an iteration, the backlog grew on the socket while simulated time moved on,
         and at 50x the station read COMMAND_ACKs and positions tens of simulated seconds late
-        (docs/results/endurance.md). The station's loop drains before it acknowledges, as the
-        emulator does before it moves time (vehicle_emu/udp.py ``EmulatorServer._drain``)."""
+        (docs/results/endurance.md). The station's loop drains in every iteration, right after
+        its first acknowledgement, so it reads at most about the lock-step's slack late
+        (docs/design/mavlink.md §4.3); the emulator drains before it moves time
+        (vehicle_emu/udp.py ``EmulatorServer._drain``)."""
         reader = self._reader
         if reader is None:
             return 0
